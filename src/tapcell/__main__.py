@@ -1,0 +1,3 @@
+from tapcell.cli import main
+
+raise SystemExit(main())
