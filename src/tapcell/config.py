@@ -49,7 +49,7 @@ class _Required:
 REQUIRED: Any = _Required()
 
 SAVE_CONFIG_MARKER = "#*# <---------------------- SAVE_CONFIG ---------------------->"
-_SAVE_CONFIG_NOTE = "#*# This block is rewritten by SAVE_CONFIG; its values override the ones above."
+_SAVE_CONFIG_NOTE = "#*# # This block is rewritten by SAVE_CONFIG; its values override the ones above."
 _AUTOSAVE_PREFIX = "#*#"
 
 _TRUE_WORDS = ("true", "yes", "on", "1")
