@@ -327,7 +327,26 @@ def test_save_merges_with_existing_block_and_removes_sections(tmp_path):
     assert ConfigFile.read(path).getsection("load_cell").get("counts_per_gram") == "10"
 
 
-@pytest.mark.parametrize("failing", ["fsync", "replace", "write"])
+class _HalfWritingFile:
+    """A temp file whose write() stores half the text, then fails like a full disk."""
+
+    def __init__(self, real):
+        self._real = real
+        self.name = real.name
+
+    def write(self, text):
+        self._real.write(text[: len(text) // 2])
+        self._real.flush()
+        raise OSError(28, "No space left on device")
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return self._real.__exit__(*exc)
+
+
+@pytest.mark.parametrize("failing", ["write", "fsync", "backup", "replace"])
 def test_failure_mid_save_leaves_old_file_intact(tmp_path, monkeypatch, failing):
     path = write(tmp_path / "printer.cfg", SAVED)
     cfg = ConfigFile.read(path)
@@ -337,7 +356,10 @@ def test_failure_mid_save_leaves_old_file_intact(tmp_path, monkeypatch, failing)
         raise OSError(28, "No space left on device")
 
     if failing == "write":
-        real_copy = config_module._copy_file
+        real_temp = config_module.tempfile.NamedTemporaryFile
+        monkeypatch.setattr(config_module.tempfile, "NamedTemporaryFile",
+                            lambda *a, **k: _HalfWritingFile(real_temp(*a, **k)))
+    elif failing == "backup":
         monkeypatch.setattr(config_module, "_copy_file", fail)
     else:
         monkeypatch.setattr(config_module.os, failing, fail)
@@ -352,7 +374,5 @@ def test_failure_mid_save_leaves_old_file_intact(tmp_path, monkeypatch, failing)
         assert (tmp_path / "printer.cfg.bak").read_text() == SAVED
     # The pending change survives, so a retry can succeed.
     assert cfg.has_pending_changes()
-    if failing == "write":
-        assert real_copy is config_module._copy_file
     cfg.save()
     assert ConfigFile.read(path).getsection("load_cell").get("counts_per_gram") == "1.0"
