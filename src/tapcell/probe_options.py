@@ -21,7 +21,7 @@ class OptionSpec:
 
     option: str
     field: str
-    kind: str  # "float" | "int" | "choice" | "floatlist"
+    kind: str  # "float" | "optfloat" (G-code NONE/OFF gives None) | "int" | "choice" | "str" | "floatlist"
     default: Any = None
     minval: float | None = None
     maxval: float | None = None
@@ -39,12 +39,17 @@ class OptionSpec:
                                   ("above", self.above), ("below", self.below)) if v is not None}
 
 
+DISABLE_WORDS = ("none", "off")  # G-code value that switches an optional option (e.g. a filter) off
+
+
 def read_section_values(section, specs: tuple[OptionSpec, ...]) -> dict[str, Any]:
     """Read every option of the table from a config section (typed getters check the ranges)."""
     values: dict[str, Any] = {}
     for spec in specs:
-        if spec.kind == "float":
+        if spec.kind in ("float", "optfloat"):
             values[spec.field] = section.getfloat(spec.option, spec.default, **spec.limits())
+        elif spec.kind == "str":
+            values[spec.field] = section.get(spec.option, spec.default).strip()
         elif spec.kind == "int":
             values[spec.field] = section.getint(spec.option, spec.default, **spec.limits())
         elif spec.kind == "choice":
@@ -71,10 +76,14 @@ def gcode_override_values(gcmd, specs: tuple[OptionSpec, ...], current) -> dict[
         if name is None:
             continue
         default = getattr(current, spec.field)
-        if spec.kind == "float":
+        if spec.kind == "optfloat" and gcmd.get(name).strip().lower() in DISABLE_WORDS:
+            changed[spec.field] = None
+        elif spec.kind in ("float", "optfloat"):
             changed[spec.field] = gcmd.get_float(name, default, **spec.limits())
         elif spec.kind == "int":
             changed[spec.field] = gcmd.get_int(name, default, **spec.limits())
+        elif spec.kind == "str":
+            changed[spec.field] = gcmd.get(name).strip()
         elif spec.kind == "choice":
             value = gcmd.get(name).strip().lower()
             if value not in spec.choices:
@@ -83,6 +92,9 @@ def gcode_override_values(gcmd, specs: tuple[OptionSpec, ...], current) -> dict[
             changed[spec.field] = value
         elif spec.kind == "floatlist":
             raw = gcmd.get(name).strip()
+            if raw.lower() in DISABLE_WORDS:
+                changed[spec.field] = None
+                continue
             try:
                 changed[spec.field] = tuple(float(v) for v in raw.split(",") if v.strip()) or None
             except ValueError:

@@ -1,0 +1,463 @@
+"""`[load_cell_probe]`: the nozzle taps the bed through a load cell.
+
+One tap, step by step (`LoadCellProbe.tap`):
+
+1. check the cell is calibrated;
+2. tare: average `tare_time` of samples taken at rest (no settle wait: the virtual printer's
+   toolhead is at rest as soon as the previous move ends);
+3. refuse to move when that tare is more than `force_safety_limit` from `reference_tare_counts`;
+4. arm the firmware trigger (the real C code) with this tap's tare, trigger force, safety limits
+   and the filters designed for *this command* (G-code filter overrides are redesigned and used);
+5. probing move toward `position_min`; the MCU halts Z on the triggering sample;
+6. dwell just long enough for the dwell line of the analysis, then pull back
+   `pullback_distance` at `pullback_speed` (default 1 µm per sample);
+7. collect the samples to the end of the pullback, build a `TapData` (force in grams, the
+   recorded moves, events, probe info; never simulator truth) and analyse it;
+8. report: Z at break contact when the tap is valid, otherwise the trigger Z and the
+   validation code for the probe's bad_probe_strategy.
+
+Commands: LOAD_CELL_TEST_TAP, NOZZLE_CLEANUP, plus the [load_cell] commands and the generic
+probe commands of `tapcell.probe`. Status: `load_cell_probe` (and `probe`).
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import jinja2
+import numpy as np
+
+from tapcell.filters import FilterDesignError, FilterOptions, design_firmware_filter
+from tapcell.gcode import GCodeError
+from tapcell.gcode_macro import StatusView
+from tapcell.load_cell import LoadCell, read_load_cell_options, register_load_cell_commands
+from tapcell.mcu.trigger import FirmwareTrigger, TriggerError, TriggerParams
+from tapcell.probe import Probe, ProbeError, TapOutcome
+from tapcell.probe_options import (
+    PROBE_TEMPLATE_OPTIONS,
+    read_probe_options,
+    read_section_values,
+    with_overrides,
+)
+from tapcell.load_cell_probe_options import (
+    TAP_OPTION_SPECS,
+    TapOptions,
+    default_pullback_speed_mm_s,
+    force_beyond_safety_limit_g,
+    tare_sample_count,
+)
+from tapcell.probe_patterns import serpentine_pattern
+from tapcell.tap import AnalysisOptions, Move, TapData, analyze_tap, get_classifier, tap_to_json_dict
+
+ERROR_PREFIX = "Load Cell Probe Error: "
+DWELL_SAMPLES = 8  # samples on the dwell line: enough for its fit, no more (no idle wait)
+KEEP_LAST_TAPS = 16
+
+
+def filter_options(options: TapOptions, sample_rate_sps: float) -> FilterOptions:
+    return FilterOptions(
+        sample_rate_sps=sample_rate_sps,
+        drift_filter_cutoff_frequency=options.drift_filter_cutoff_frequency,
+        drift_filter_delay=options.drift_filter_delay,
+        buzz_filter_cutoff_frequency=options.buzz_filter_cutoff_frequency,
+        buzz_filter_delay=options.buzz_filter_delay,
+        notch_filter_frequencies=options.notch_filter_frequencies,
+        notch_filter_quality=options.notch_filter_quality,
+    )
+
+
+def analysis_options(options: TapOptions, pullback_speed_mm_s: float) -> AnalysisOptions:
+    return AnalysisOptions(
+        trigger_force_g=options.trigger_force_g,
+        pullback_distance_mm=options.pullback_distance_mm,
+        pullback_speed_mm_s=pullback_speed_mm_s,
+        tap_classifier=options.tap_classifier,
+        min_tap_quality=options.min_tap_quality,
+        decompression_angle=options.decompression_angle,
+        max_approach_force=options.max_approach_force,
+        max_departure_force=options.max_departure_force,
+        max_baseline_force_delta=options.max_baseline_force_delta,
+        max_dwell_force_drop=options.max_dwell_force_drop,
+    )
+
+
+@dataclass
+class TapSettings:
+    """Everything one command's taps use: options with overrides, designed filter, analysis options."""
+
+    options: TapOptions
+    sos: Any  # tapcell.filters.QuantizedSos | None
+    pullback_speed_mm_s: float
+    analysis: AnalysisOptions
+
+
+@dataclass
+class RecordedTap:
+    """A tap kept for status, plots and `tapcell analyze`."""
+
+    tap: TapData
+    analysis: Any
+    z_mm: float
+    valid: bool
+
+
+class LoadCellProbe:
+    """The tapping device behind `[load_cell_probe]`."""
+
+    def __init__(self, section, printer):
+        self.printer = printer
+        self.name = section.get_name()
+        self.vp = printer.backend
+        self.cell_options = read_load_cell_options(section)
+        self.sample_rate_sps = float(self.cell_options.sample_rate_sps)
+        values = read_section_values(section, TAP_OPTION_SPECS)
+        self.options = TapOptions(**values)
+        self.tap_log_path = section.get("tap_log", None)
+        self._check_classifier(self.options.tap_classifier, lambda msg: section.error("tap_classifier", msg))
+        try:
+            self.config_settings = self._design(self.options)
+        except FilterDesignError as exc:
+            raise section.error(exc.option, str(exc)) from None
+        self.load_cell = LoadCell(self.name, self.cell_options, printer)
+        stepper_z = printer.config.getsection("stepper_z")
+        self.motion = VirtualMotion(self.vp, stepper_z.getfloat("position_min", 0.0),
+                                    stepper_z.getfloat("position_max"))
+        self.last_taps: collections.deque[RecordedTap] = collections.deque(maxlen=KEEP_LAST_TAPS)
+        self.last_trigger_time_s: float | None = None
+        self.tare_counts_at_tap: float | None = None
+
+    # -- settings per command -----------------------------------------------------------
+    @staticmethod
+    def _check_classifier(name: str, make_error) -> None:
+        try:
+            get_classifier(name)
+        except (KeyError, ValueError) as exc:
+            raise make_error(f"unknown tap classifier '{name}' ({exc})") from None
+
+    def _design(self, options: TapOptions) -> TapSettings:
+        sos = design_firmware_filter(filter_options(options, self.sample_rate_sps))
+        pullback_speed = options.pullback_speed_mm_s or default_pullback_speed_mm_s(self.sample_rate_sps)
+        return TapSettings(options, sos, pullback_speed, analysis_options(options, pullback_speed))
+
+    def command_settings(self, gcmd) -> TapSettings:
+        """The settings of this command: a new filter design when any option is overridden."""
+        options = with_overrides(self.options, TAP_OPTION_SPECS, gcmd)
+        if options is self.options:
+            return self.config_settings
+        self._check_classifier(options.tap_classifier, gcmd.error)
+        try:
+            return self._design(options)
+        except FilterDesignError as exc:
+            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {exc.option.upper()}: {exc}") from None
+
+    # -- the tap ---------------------------------------------------------------------------
+    def _require_calibrated(self) -> None:
+        if not self.load_cell.is_calibrated:
+            raise ProbeError(ERROR_PREFIX + "Load Cell not calibrated")
+
+    def _tare(self, options: TapOptions) -> float:
+        """Average raw counts at rest over tare_time; checks force_safety_limit."""
+        count = tare_sample_count(options.tare_time_s, self.sample_rate_sps)
+        batch = self.load_cell.collect(count / self.sample_rate_sps)
+        if batch.errors:
+            raise ProbeError(ERROR_PREFIX + f"sensor reported {batch.errors} errors while taring")
+        if len(batch.counts) == 0:
+            raise ProbeError(ERROR_PREFIX + "timed out waiting for sensor data")
+        tare_counts = float(np.mean(batch.counts[-count:]))
+        beyond = force_beyond_safety_limit_g(tare_counts, self.load_cell.reference_tare_counts,
+                                             self.load_cell.counts_per_gram, options.force_safety_limit_g)
+        if beyond is not None:
+            raise ProbeError(ERROR_PREFIX + f"force of {abs(beyond):.0f}g exceeds force_safety_limit "
+                             f"({options.force_safety_limit_g:.0f}g) before probing!")
+        self.load_cell.set_tare(tare_counts)
+        self.tare_counts_at_tap = tare_counts
+        return tare_counts
+
+    def _arm(self, settings: TapSettings, tare_counts: float) -> FirmwareTrigger:
+        options = settings.options
+        trigger = FirmwareTrigger(TriggerParams(
+            counts_per_gram=self.load_cell.counts_per_gram,
+            reference_tare_counts=self.load_cell.reference_tare_counts,
+            trigger_force_g=options.trigger_force_g,
+            sample_rate_sps=self.sample_rate_sps,
+            force_safety_limit_g=options.force_safety_limit_g,
+            drift_safety_limit_g=options.drift_safety_limit_g,
+            inverted=self.cell_options.inverted,
+            sos=settings.sos,
+        ))
+        error = trigger.arm(int(round(tare_counts)), self.vp.now_s)
+        if error != TriggerError.NONE:
+            raise ProbeError(self._trigger_error_message(error, options))
+        return trigger
+
+    @staticmethod
+    def _trigger_error_message(error: TriggerError, options: TapOptions) -> str:
+        if error == TriggerError.DRIFT_SAFETY:
+            return ERROR_PREFIX + "force exceeded drift_safety_limit before triggering!"
+        if error == TriggerError.WATCHDOG_TIMEOUT:
+            return ERROR_PREFIX + "timed out waiting for sensor data"
+        if error == TriggerError.FORCE_SAFETY:
+            return ERROR_PREFIX + f"force exceeds force_safety_limit ({options.force_safety_limit_g:.0f}g) before probing!"
+        return ERROR_PREFIX + f"trigger error {error.name}"
+
+    def _probing_move(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float):
+        """Tare, arm and move down until the trigger halts Z; returns (move result, tare, t_start)."""
+        self._require_calibrated()
+        tare_counts = self._tare(settings.options)
+        t_start_s = self.vp.now_s
+        trigger = self._arm(settings, tare_counts)
+        result = self.vp.probing_move(z_min_mm - self.motion.z_frame_offset_mm, speed_mm_s, trigger)
+        if result.error != TriggerError.NONE:
+            self.load_cell.pump()
+            raise ProbeError(self._trigger_error_message(result.error, settings.options))
+        if not result.triggered:
+            self.load_cell.pump()
+            raise ProbeError(ERROR_PREFIX + f"No trigger on probe after full movement (down to Z={z_min_mm:.3f}); "
+                             "check that [stepper_z] position_min is negative (e.g. -2) and the nozzle reaches the bed")
+        self.last_trigger_time_s = result.trigger_time_s
+        return result, tare_counts, t_start_s
+
+    def home_tap(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float) -> float:
+        """Trigger-only tap for G28 Z: the Z where the trigger halted the move."""
+        result, _, _ = self._probing_move(settings, z_min_mm, speed_mm_s)
+        self.load_cell.pump()
+        return float(result.halt_z_mm) + self.motion.z_frame_offset_mm
+
+    def tap(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float) -> TapOutcome:
+        """One full tap at the current XY (see the module docstring)."""
+        options = settings.options
+        samples = []
+        client = self.load_cell.add_client(samples.append)
+        try:
+            result, tare_counts, t_start_s = self._probing_move(settings, z_min_mm, speed_mm_s)
+            self.vp.dwell(DWELL_SAMPLES / self.sample_rate_sps)
+            pullback_start_s = self.vp.now_s
+            self.vp.move_to(z=result.halt_z_mm + options.pullback_distance_mm,
+                            speed_mm_s=settings.pullback_speed_mm_s)
+            pullback_end_s = self.vp.now_s
+            self._collect_until(pullback_end_s, samples)
+        finally:
+            self.load_cell.remove_client(client)
+        tap = self._tap_data(samples, tare_counts, t_start_s, result, pullback_start_s, pullback_end_s,
+                             speed_mm_s, settings)
+        analysis = analyze_tap(tap, settings.analysis)
+        valid = bool(analysis.valid) and analysis.z_mm is not None
+        z_mm = (float(analysis.z_mm) if valid else float(result.halt_z_mm)) + self.motion.z_frame_offset_mm
+        self._record(tap, analysis, z_mm, valid)
+        if analysis.quality is not None:
+            angle = getattr(analysis, "decompression_angle_deg", None)
+            shown = f", Decompression angle: {angle:5.1f}" if angle is not None else ""
+            self.printer.gcode.respond_info(f"Tap Quality: {analysis.quality:.1f}%{shown}")
+        return TapOutcome(z_mm=z_mm, valid=valid, error_code=analysis.error, message=analysis.message,
+                          analysis=analysis)
+
+    def _collect_until(self, end_s: float, samples: list) -> None:
+        """Wait only until the sensor has delivered the sample covering end_s (pipeline delay)."""
+        period_s = 1.0 / self.sample_rate_sps
+        for _ in range(int(1.0 / period_s) + 2):  # at most 1 s: then the sensor is gone
+            self.load_cell.pump()
+            if samples and samples[-1].t_s.size and samples[-1].t_s[-1] >= end_s:
+                return
+            self.vp.dwell(period_s)
+        raise ProbeError(ERROR_PREFIX + "timed out waiting for sensor data")
+
+    def _tap_data(self, batches, tare_counts, t_start_s, result, pullback_start_s, pullback_end_s,
+                  speed_mm_s, settings: TapSettings) -> TapData:
+        t_s = np.concatenate([b.t_s for b in batches]) if batches else np.empty(0)
+        counts = np.concatenate([b.counts for b in batches]) if batches else np.empty(0)
+        keep = (t_s >= t_start_s) & (t_s <= pullback_end_s + 1e-9)
+        force_g = (counts[keep] - tare_counts) / self.load_cell.counts_per_gram
+        if self.cell_options.inverted:
+            force_g = -force_g
+        moves = [Move(**{k: m[k] for k in ("print_time", "move_t", "start_v", "accel", "start_z", "z_r")})
+                 for m in self.vp.recorded_moves(t_start_s, pullback_end_s)]
+        x, y, _ = self.vp.position
+        options = settings.options
+        return TapData(
+            time_s=t_s[keep], force_g=force_g, moves=moves, sample_rate_sps=self.sample_rate_sps,
+            events={"home_end_time": float(result.halt_time_s), "pullback_start_time": pullback_start_s,
+                    "pullback_end_time": pullback_end_s},
+            probe={"x": float(x), "y": float(y), "speed": speed_mm_s,
+                   "pullback_distance": options.pullback_distance_mm,
+                   "pullback_speed": settings.pullback_speed_mm_s, "trigger_force": options.trigger_force_g},
+            meta={"source": "tapcell load_cell_probe", "sensor_type": self.cell_options.sensor_type,
+                  **self.vp.sensor_info.get("analysis_meta", {})},
+        )
+
+    def _record(self, tap: TapData, analysis, z_mm: float, valid: bool) -> None:
+        self.last_taps.append(RecordedTap(tap, analysis, z_mm, valid))
+        if self.tap_log_path:
+            with open(self.tap_log_path, "a", encoding="utf-8") as log:
+                log.write(json.dumps(tap_to_json_dict(tap, analysis)) + "\n")
+
+    # -- status -------------------------------------------------------------------------------
+    def get_status(self, eventtime=None) -> dict:
+        status = dict(self.load_cell.get_status(eventtime))
+        last = self.last_taps[-1] if self.last_taps else None
+        status.update({
+            "tare_counts_at_tap": self.tare_counts_at_tap,
+            "last_trigger_time": self.last_trigger_time_s,
+            "is_last_tap_valid": None if last is None else last.valid,
+            "last_tap_z": None if last is None else last.z_mm,
+            "last_tap_quality": None if last is None else last.analysis.quality,
+            "last_tap_error": None if last is None else last.analysis.error,
+            "taps_recorded": len(self.last_taps),
+            "trigger_force": self.options.trigger_force_g,
+        })
+        return status
+
+    def write_last_taps(self, path: str | Path) -> int:
+        """The kept taps as tapcell.tap.v1 JSON lines (for `tapcell analyze`); returns the count."""
+        with open(path, "w", encoding="utf-8") as out:
+            for recorded in self.last_taps:
+                out.write(json.dumps(tap_to_json_dict(recorded.tap, recorded.analysis)) + "\n")
+        return len(self.last_taps)
+
+
+class VirtualMotion:
+    """The probe's view of the toolhead on the virtual printer (Z homing re-bases a frame offset)."""
+
+    def __init__(self, vp, z_position_min_mm: float, z_position_max_mm: float):
+        self.vp = vp
+        self._z_min_mm = z_position_min_mm
+        self._z_max_mm = z_position_max_mm
+        self.z_frame_offset_mm = 0.0  # toolhead Z = virtual printer Z + offset
+        self.z_homed = False
+
+    def get_position(self) -> tuple[float, float, float]:
+        x, y, z = self.vp.position
+        return (x, y, z + self.z_frame_offset_mm)
+
+    def move_to(self, x=None, y=None, z=None, speed_mm_s=5.0) -> None:
+        self.vp.move_to(x=x, y=y, z=None if z is None else z - self.z_frame_offset_mm, speed_mm_s=speed_mm_s)
+
+    def z_position_min(self) -> float:
+        return self._z_min_mm - self.z_frame_offset_mm
+
+    def z_travel_mm(self) -> float:
+        return self._z_max_mm - self._z_min_mm
+
+    def set_z_position(self, z_mm: float) -> None:
+        self.z_frame_offset_mm = z_mm - self.vp.position[2]
+        self.z_homed = True
+
+    def is_z_homed(self) -> bool:
+        return self.z_homed
+
+
+class LoadCellProbeCommands:
+    """LOAD_CELL_TEST_TAP and NOZZLE_CLEANUP (the probe commands live in tapcell.probe)."""
+
+    def __init__(self, device: LoadCellProbe, probe: Probe):
+        self.device = device
+        self.probe = probe
+
+    def register(self, gcode) -> None:
+        gcode.register_command("LOAD_CELL_TEST_TAP", self.cmd_LOAD_CELL_TEST_TAP,
+                               desc="Detect taps on the load cell without moving: [COUNT=3] [TIMEOUT=30]")
+        gcode.register_command("NOZZLE_CLEANUP", self.cmd_NOZZLE_CLEANUP,
+                               desc="Tap a serpentine pattern until SAMPLES good taps in a row")
+
+    def cmd_LOAD_CELL_TEST_TAP(self, gcmd) -> None:
+        count = gcmd.get_int("COUNT", 3, minval=1, maxval=10)
+        timeout_s = gcmd.get_float("TIMEOUT", 30.0, minval=1.0, maxval=120.0)
+        device = self.device
+        device._require_calibrated()
+        settings = device.command_settings(gcmd)
+        gcmd.respond_info(f"Tap the load cell {count} times:")
+        deadline_s = device.vp.now_s + timeout_s
+        chunk_s = 0.05
+        for index in range(count):
+            self._wait_for_release(settings.options, deadline_s, chunk_s)
+            trigger = device._arm(settings, device._tare(settings.options))
+            while True:
+                if device.vp.now_s >= deadline_s:
+                    raise ProbeError(f"LOAD_CELL_TEST_TAP: no tap detected within {timeout_s:g}s "
+                                     f"({index} of {count} taps detected)")
+                batch = device.load_cell.collect(chunk_s)
+                fed = trigger.feed(batch.t_s, batch.counts)
+                if fed.error != TriggerError.NONE:
+                    raise ProbeError(device._trigger_error_message(fed.error, settings.options))
+                if fed.trigger_index is not None:
+                    break
+            gcmd.respond_info("Tap Detected!")
+        gcmd.respond_info(f"Test complete, {count} taps detected")
+
+    def _wait_for_release(self, options: TapOptions, deadline_s: float, chunk_s: float) -> None:
+        """Do not tare under a hand still pressing: wait until the force is back near the tare."""
+        device = self.device
+        while device.vp.now_s < deadline_s:
+            batch = device.load_cell.collect(chunk_s)
+            force_g = device.load_cell.counts_to_grams(batch.counts)
+            if force_g is None or len(force_g) == 0 or np.max(np.abs(force_g)) < 0.5 * options.trigger_force_g:
+                return
+
+    def cmd_NOZZLE_CLEANUP(self, gcmd) -> None:
+        probe_opts = self.probe.options
+        good_needed = gcmd.get_int("SAMPLES", 3, minval=1)
+        stepover_mm = gcmd.get_float("PATTERN_STEPOVER", 2.0, above=0.0)
+        count_x = gcmd.get_int("PATTERN_X", 10, minval=1)
+        count_y = gcmd.get_int("PATTERN_Y", 4, minval=1)
+        speed = gcmd.get_float("SPEED", probe_opts.speed_mm_s, above=0.0)
+        lift_speed = gcmd.get_float("LIFT_SPEED", probe_opts.effective_lift_speed_mm_s, above=0.0)
+        horizontal_speed = gcmd.get_float("HORIZONTAL_SPEED", 50.0, above=0.0)
+        retract_mm = gcmd.get_float("SAMPLE_RETRACT_DIST", probe_opts.sample_retract_dist_mm, above=0.0)
+        scrubbing_frequency = gcmd.get_int("SCRUBBING_FREQUENCY", probe_opts.scrubbing_frequency, minval=0)
+        motion = self.device.motion
+        if not motion.is_z_homed():
+            raise ProbeError("Must home before probe")
+        x0, y0, _ = motion.get_position()
+        settings = self.device.command_settings(gcmd)
+        positions = serpentine_pattern(x0, y0, count_x, count_y, stepover_mm)
+        good_in_row = 0
+        bad_taps = 0
+        for index, (x, y) in enumerate(positions):
+            if index:
+                motion.move_to(x=float(x), y=float(y), speed_mm_s=horizontal_speed)
+            outcome = self.device.tap(settings, motion.z_position_min(), speed)
+            motion.move_to(z=outcome.z_mm + retract_mm, speed_mm_s=lift_speed)
+            if outcome.valid:
+                good_in_row += 1
+                if good_in_row >= good_needed:
+                    gcmd.respond_info(f"NOZZLE_CLEANUP succeeded: {good_needed} good taps in a row "
+                                      f"after {index + 1} taps")
+                    return
+                continue
+            good_in_row = 0
+            bad_taps += 1
+            gcmd.respond_info(f"NOZZLE_CLEANUP: bad tap at {x:.3f},{y:.3f}: {outcome.error_code} - {outcome.message}")
+            if scrubbing_frequency and bad_taps % scrubbing_frequency == 0:
+                self.probe.run_template("nozzle_scrubber_gcode", {"ATTEMPT": index + 1, "RETRIES": len(positions)})
+        raise ProbeError(f"NOZZLE_CLEANUP failed after trying {len(positions)} positions")
+
+
+def _template_runner(printer):
+    """Run a probe G-code template (activate/deactivate/scrubber): Jinja2 with `printer` and `params`."""
+
+    def run(option: str, template: str, params: dict) -> None:
+        try:
+            script = jinja2.Template(template).render(printer=StatusView(printer), params=params)
+        except jinja2.TemplateError as exc:
+            raise GCodeError(f"[load_cell_probe] {option}: template error: {exc}") from exc
+        printer.gcode.run_script(script)
+
+    return run
+
+
+def load_config(section, printer) -> LoadCellProbe:
+    """Build `[load_cell_probe]`: the device, the generic probe (object `probe`), the commands."""
+    device = LoadCellProbe(section, printer)
+    templates = {name: section.get(name) for name in PROBE_TEMPLATE_OPTIONS if section.has_option(name)}
+    probe = Probe("load_cell_probe", read_probe_options(section, templates), device, device.motion,
+                  printer.gcode, _template_runner(printer))
+    device.probe = probe
+    probe.register_commands()
+    register_load_cell_commands(printer.gcode, device.load_cell, None)
+    LoadCellProbeCommands(device, probe).register(printer.gcode)
+    printer.add_object("probe", probe)
+    return device

@@ -1,0 +1,79 @@
+"""`[load_cell_probe]` probing options and the small pure rules around one tap.
+
+Kept apart from the device (`tapcell.load_cell_probe`) so the option table and the rules
+(tare length, pullback speed default, force safety check) are testable on their own.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from tapcell.probe_options import OptionSpec
+
+
+@dataclass(frozen=True)
+class TapOptions:
+    """The load-cell-specific probing options (None = disabled / computed default)."""
+
+    trigger_force_g: float = 75.0
+    force_safety_limit_g: float = 2000.0
+    drift_safety_limit_g: float = 1000.0
+    tare_time_s: float = 4.0 / 60.0
+    drift_filter_cutoff_frequency: float | None = None
+    drift_filter_delay: int = 2
+    buzz_filter_cutoff_frequency: float | None = None
+    buzz_filter_delay: int = 2
+    notch_filter_frequencies: tuple[float, ...] | None = None
+    notch_filter_quality: float = 2.0
+    pullback_distance_mm: float = 0.2
+    pullback_speed_mm_s: float | None = None
+    tap_classifier: str = "tap_quality"
+    min_tap_quality: float = 40.0
+    decompression_angle: float | None = None
+    max_approach_force: float = 50.0
+    max_departure_force: float = 25.0
+    max_baseline_force_delta: float = 25.0
+    max_dwell_force_drop: float = 75.0
+
+
+# Filter options are range-checked by tapcell.filters (the limits depend on the sample rate).
+TAP_OPTION_SPECS: tuple[OptionSpec, ...] = (
+    OptionSpec("trigger_force", "trigger_force_g", "float", 75.0, minval=10.0, maxval=250.0),
+    OptionSpec("force_safety_limit", "force_safety_limit_g", "float", 2000.0, minval=0.0, maxval=10000.0),
+    OptionSpec("drift_safety_limit", "drift_safety_limit_g", "float", 1000.0, minval=0.0, maxval=10000.0),
+    OptionSpec("tare_time", "tare_time_s", "float", 4.0 / 60.0, minval=0.01, maxval=1.0),
+    OptionSpec("drift_filter_cutoff_frequency", "drift_filter_cutoff_frequency", "optfloat", None),
+    OptionSpec("drift_filter_delay", "drift_filter_delay", "int", 2),
+    OptionSpec("buzz_filter_cutoff_frequency", "buzz_filter_cutoff_frequency", "optfloat", None),
+    OptionSpec("buzz_filter_delay", "buzz_filter_delay", "int", 2),
+    OptionSpec("notch_filter_frequencies", "notch_filter_frequencies", "floatlist", None),
+    OptionSpec("notch_filter_quality", "notch_filter_quality", "float", 2.0),
+    OptionSpec("pullback_distance", "pullback_distance_mm", "float", 0.2, minval=0.01, maxval=2.0),
+    OptionSpec("pullback_speed", "pullback_speed_mm_s", "float", None, minval=0.01, maxval=2.0),
+    OptionSpec("tap_classifier", "tap_classifier", "str", "tap_quality"),
+    OptionSpec("min_tap_quality", "min_tap_quality", "float", 40.0, minval=0.0, maxval=100.0),
+    OptionSpec("decompression_angle", "decompression_angle", "optfloat", None, above=0.0, below=90.0),
+    OptionSpec("max_approach_force", "max_approach_force", "float", 50.0, minval=0.0, maxval=100.0),
+    OptionSpec("max_departure_force", "max_departure_force", "float", 25.0, minval=0.0, maxval=100.0),
+    OptionSpec("max_baseline_force_delta", "max_baseline_force_delta", "float", 25.0, minval=0.0, maxval=100.0),
+    OptionSpec("max_dwell_force_drop", "max_dwell_force_drop", "float", 75.0, minval=0.0, maxval=100.0),
+)
+
+
+def default_pullback_speed_mm_s(sample_rate_sps: float) -> float:
+    """1 µm of pullback per sample: the decompression is scanned at ~1 µm resolution."""
+    return sample_rate_sps * 0.001
+
+
+def tare_sample_count(tare_time_s: float, sample_rate_sps: float) -> int:
+    return max(2, math.ceil(tare_time_s * sample_rate_sps - 1e-9))
+
+
+def force_beyond_safety_limit_g(tare_counts: float, reference_tare_counts: int, counts_per_gram: float,
+                                limit_g: float) -> float | None:
+    """The force (g, relative to the calibration zero) when it is beyond the limit, else None."""
+    force_g = (tare_counts - reference_tare_counts) / counts_per_gram
+    if limit_g > 0 and abs(force_g) >= limit_g:
+        return force_g
+    return None

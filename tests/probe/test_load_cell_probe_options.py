@@ -1,0 +1,72 @@
+import pytest
+
+from tapcell.config import ConfigError
+from tapcell.gcode import GCodeError
+from tapcell.load_cell_probe_options import (
+    TAP_OPTION_SPECS,
+    TapOptions,
+    default_pullback_speed_mm_s,
+    force_beyond_safety_limit_g,
+    tare_sample_count,
+)
+from tapcell.probe_options import read_section_values, with_overrides
+
+
+def read(make_section, text):
+    return TapOptions(**read_section_values(make_section(text), TAP_OPTION_SPECS))
+
+
+def test_defaults(make_section):
+    opts = read(make_section, "")
+    assert opts == TapOptions()
+    assert (opts.trigger_force_g, opts.force_safety_limit_g, opts.drift_safety_limit_g) == (75.0, 2000.0, 1000.0)
+    assert opts.tare_time_s == pytest.approx(0.0667, abs=1e-4)
+    assert (opts.pullback_distance_mm, opts.pullback_speed_mm_s) == (0.2, None)
+    assert (opts.tap_classifier, opts.min_tap_quality, opts.decompression_angle) == ("tap_quality", 40.0, None)
+    assert (opts.max_approach_force, opts.max_departure_force,
+            opts.max_baseline_force_delta, opts.max_dwell_force_drop) == (50.0, 25.0, 25.0, 75.0)
+
+
+def test_config_values_and_ranges(make_section):
+    opts = read(make_section, "trigger_force: 120\ndrift_filter_cutoff_frequency: 0.8\n"
+                              "notch_filter_frequencies: 50, 60\ndecompression_angle: 80.5\ntap_classifier: empty")
+    assert opts.trigger_force_g == 120.0 and opts.drift_filter_cutoff_frequency == 0.8
+    assert opts.notch_filter_frequencies == (50.0, 60.0) and opts.decompression_angle == 80.5
+    assert opts.tap_classifier == "empty"
+    with pytest.raises(ConfigError, match=r"\[load_cell_probe\] trigger_force = 300: must be at most 250"):
+        read(make_section, "trigger_force: 300")
+    with pytest.raises(ConfigError, match=r"trigger_force = 5: must be at least 10"):
+        read(make_section, "trigger_force: 5")
+    with pytest.raises(ConfigError, match=r"decompression_angle = 90"):
+        read(make_section, "decompression_angle: 90")
+    with pytest.raises(ConfigError, match=r"pullback_distance = 3"):
+        read(make_section, "pullback_distance: 3")
+    assert read(make_section, "force_safety_limit: 0").force_safety_limit_g == 0.0  # 0 disables
+
+
+def test_gcode_overrides_including_filters(make_section, make_gcmd):
+    base = read(make_section, "drift_filter_cutoff_frequency: 0.8")
+    opts = with_overrides(base, TAP_OPTION_SPECS, make_gcmd(
+        "PROBE TRIGGER_FORCE=100 DRIFT_FILTER_CUTOFF_FREQUENCY=2.5 NOTCH_FILTER_FREQUENCIES=50 "
+        "PULLBACK_SPEED=0.16 MIN_TAP_QUALITY=60 TAP_CLASSIFIER=empty"))
+    assert (opts.trigger_force_g, opts.drift_filter_cutoff_frequency, opts.notch_filter_frequencies) == (100.0, 2.5, (50.0,))
+    assert (opts.pullback_speed_mm_s, opts.min_tap_quality, opts.tap_classifier) == (0.16, 60.0, "empty")
+    off = with_overrides(base, TAP_OPTION_SPECS, make_gcmd("PROBE DRIFT_FILTER_CUTOFF_FREQUENCY=none"))
+    assert off.drift_filter_cutoff_frequency is None
+    with pytest.raises(GCodeError, match="TRIGGER_FORCE must have maximum of 250"):
+        with_overrides(base, TAP_OPTION_SPECS, make_gcmd("PROBE TRIGGER_FORCE=400"))
+    with pytest.raises(GCodeError, match="unable to parse NOTCH_FILTER_FREQUENCIES='fifty'"):
+        with_overrides(base, TAP_OPTION_SPECS, make_gcmd("PROBE NOTCH_FILTER_FREQUENCIES=fifty"))
+
+
+def test_pure_rules():
+    assert default_pullback_speed_mm_s(320) == pytest.approx(0.32)
+    assert default_pullback_speed_mm_s(80) == pytest.approx(0.08)
+    assert tare_sample_count(4 / 60, 320) == 22
+    assert tare_sample_count(4 / 60, 80) == 6
+    assert tare_sample_count(0.01, 10) == 2
+    # 3 kg preload at 100 counts/g against a 2 kg limit -> refused, reports the force
+    assert force_beyond_safety_limit_g(50_000 + 300_000, 50_000, 100.0, 2000.0) == pytest.approx(3000.0)
+    assert force_beyond_safety_limit_g(50_000 - 300_000, 50_000, 100.0, 2000.0) == pytest.approx(-3000.0)
+    assert force_beyond_safety_limit_g(50_000 + 150_000, 50_000, 100.0, 2000.0) is None
+    assert force_beyond_safety_limit_g(50_000 + 300_000, 50_000, 100.0, 0.0) is None  # 0 disables
