@@ -58,7 +58,7 @@ def run_case(scenario: str, speed_mm_s: float, workdir: Path) -> tuple:
     if stats is None or error:
         return (scenario, speed_mm_s, float("nan"), float("nan"), valid_rate, peak_g, seconds_per_tap, error)
     x, y, _ = vp.position
-    true_z_toolhead = vp.truth.contact_z_at(x, y) + device.motion.z_frame_offset_mm
+    true_z_toolhead = vp.truth.contact_z_at(x, y) + device.motion.frame_offset_mm["z"]
     bias_um = (stats.average_mm - true_z_toolhead) * 1000.0
     return (scenario, speed_mm_s, stats.standard_deviation_mm * 1000.0, bias_um, valid_rate, peak_g,
             seconds_per_tap, "")

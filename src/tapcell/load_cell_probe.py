@@ -124,9 +124,8 @@ class LoadCellProbe:
         except FilterDesignError as exc:
             raise section.error(exc.option, str(exc)) from None
         self.load_cell = LoadCell(self.name, self.cell_options, printer)
-        stepper_z = printer.config.getsection("stepper_z")
-        self.motion = VirtualMotion(self.vp, stepper_z.getfloat("position_min", 0.0),
-                                    stepper_z.getfloat("position_max"))
+        # The toolhead implements the probe's Motion protocol (toolhead Z = virtual printer Z + frame offset).
+        self.motion = printer.lookup_object("toolhead")
         self.last_taps: collections.deque[RecordedTap] = collections.deque(maxlen=KEEP_LAST_TAPS)
         self.last_trigger_time_s: float | None = None
         self.tare_counts_at_tap: float | None = None
@@ -211,7 +210,7 @@ class LoadCellProbe:
         tare_counts = self._tare(settings.options)
         t_start_s = self.vp.now_s
         trigger = self._arm(settings, tare_counts)
-        result = self.vp.probing_move(z_min_mm - self.motion.z_frame_offset_mm, speed_mm_s, trigger)
+        result = self.vp.probing_move(z_min_mm - self._z_frame_offset_mm(), speed_mm_s, trigger)
         if result.error != TriggerError.NONE:
             self.load_cell.pump()
             raise ProbeError(self._trigger_error_message(result.error, settings.options))
@@ -222,11 +221,14 @@ class LoadCellProbe:
         self.last_trigger_time_s = result.trigger_time_s
         return result, tare_counts, t_start_s
 
+    def _z_frame_offset_mm(self) -> float:
+        return self.motion.frame_offset_mm["z"]
+
     def home_tap(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float) -> float:
         """Trigger-only tap for G28 Z: the Z where the trigger halted the move."""
         result, _, _ = self._probing_move(settings, z_min_mm, speed_mm_s)
         self.load_cell.pump()
-        return float(result.halt_z_mm) + self.motion.z_frame_offset_mm
+        return float(result.halt_z_mm) + self._z_frame_offset_mm()
 
     def tap(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float) -> TapOutcome:
         """One full tap at the current XY (see the module docstring)."""
@@ -247,7 +249,7 @@ class LoadCellProbe:
                              speed_mm_s, settings)
         analysis = analyze_tap(tap, settings.analysis)
         valid = bool(analysis.valid) and analysis.z_mm is not None
-        z_mm = (float(analysis.z_mm) if valid else float(result.halt_z_mm)) + self.motion.z_frame_offset_mm
+        z_mm = (float(analysis.z_mm) if valid else float(result.halt_z_mm)) + self._z_frame_offset_mm()
         self._record(tap, analysis, z_mm, valid)
         if analysis.quality is not None:
             angle = getattr(analysis, "decompression_angle_deg", None)
@@ -317,37 +319,6 @@ class LoadCellProbe:
             for recorded in self.last_taps:
                 out.write(json.dumps(tap_to_json_dict(recorded.tap, recorded.analysis)) + "\n")
         return len(self.last_taps)
-
-
-class VirtualMotion:
-    """The probe's view of the toolhead on the virtual printer (Z homing re-bases a frame offset)."""
-
-    def __init__(self, vp, z_position_min_mm: float, z_position_max_mm: float):
-        self.vp = vp
-        self._z_min_mm = z_position_min_mm
-        self._z_max_mm = z_position_max_mm
-        self.z_frame_offset_mm = 0.0  # toolhead Z = virtual printer Z + offset
-        self.z_homed = False
-
-    def get_position(self) -> tuple[float, float, float]:
-        x, y, z = self.vp.position
-        return (x, y, z + self.z_frame_offset_mm)
-
-    def move_to(self, x=None, y=None, z=None, speed_mm_s=5.0) -> None:
-        self.vp.move_to(x=x, y=y, z=None if z is None else z - self.z_frame_offset_mm, speed_mm_s=speed_mm_s)
-
-    def z_position_min(self) -> float:
-        return self._z_min_mm - self.z_frame_offset_mm
-
-    def z_travel_mm(self) -> float:
-        return self._z_max_mm - self._z_min_mm
-
-    def set_z_position(self, z_mm: float) -> None:
-        self.z_frame_offset_mm = z_mm - self.vp.position[2]
-        self.z_homed = True
-
-    def is_z_homed(self) -> bool:
-        return self.z_homed
 
 
 class LoadCellProbeCommands:
