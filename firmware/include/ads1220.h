@@ -93,6 +93,10 @@ struct ads1220 {
 enum ads1220_status ads1220_registers(const struct ads1220_config *config,
                                       uint8_t registers[ADS1220_REGISTER_COUNT]);
 
+/* 1 if the PGA ends up bypassed: asked for, or forced by an AINx_AVSS input,
+ * and only where the chip can bypass it (gains 1, 2, 4). */
+uint8_t ads1220_pga_bypassed(uint8_t gain, uint8_t pga_bypass, uint8_t input_mux);
+
 /* 1 if the rate is a turbo-mode rate (after the 90 sps decision), else 0. */
 uint8_t ads1220_rate_is_turbo(uint16_t sample_rate_sps);
 

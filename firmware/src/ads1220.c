@@ -48,6 +48,19 @@ static uint8_t mux_uses_ain0_or_ain3(uint8_t mux)
     return (pins_used[mux] & 0x9u) != 0;
 }
 
+static uint8_t mux_uses_avss(uint8_t mux)
+{
+    return mux >= ADS1220_MUX_AIN0_AVSS;
+}
+
+uint8_t ads1220_pga_bypassed(uint8_t gain, uint8_t pga_bypass, uint8_t input_mux)
+{
+    /* Single-ended inputs sit outside the PGA's common-mode range, so AVSS
+     * forces the bypass. For gains 8..128 the PGA is always on whatever the
+     * bit says, so the bit is set only where it has an effect. */
+    return (pga_bypass || mux_uses_avss(input_mux)) && gain <= 4;
+}
+
 enum ads1220_status ads1220_registers(const struct ads1220_config *config,
                                       uint8_t registers[ADS1220_REGISTER_COUNT])
 {
@@ -72,15 +85,12 @@ enum ads1220_status ads1220_registers(const struct ads1220_config *config,
     if (config->vref == ADS1220_VREF_REF1 && mux_uses_ain0_or_ain3(config->input_mux))
         return ADS1220_ERR_REF1_PIN_CONFLICT;
 
-    /* Single-ended inputs (negative side AVSS) are outside the PGA's
-     * common-mode range: the PGA must be bypassed, which the chip only does
-     * for gains 1, 2 and 4. For gains 8..128 the PGA is always on whatever
-     * the bit says, so the bit is written only where it has an effect. */
-    uint8_t uses_avss = config->input_mux >= ADS1220_MUX_AIN0_AVSS;
-    uint8_t pga_bypass_possible = config->gain <= 4;
-    if (uses_avss && !pga_bypass_possible)
+    /* Single-ended inputs (negative side AVSS) need the PGA bypassed, which
+     * the chip can only do for gains 1, 2 and 4. */
+    if (mux_uses_avss(config->input_mux) && config->gain > 4)
         return ADS1220_ERR_AVSS_NEEDS_LOW_GAIN;
-    uint8_t pga_bypass = (uses_avss || config->pga_bypass) && pga_bypass_possible;
+    uint8_t pga_bypass =
+        ads1220_pga_bypassed(config->gain, config->pga_bypass, config->input_mux);
 
     registers[0] = (uint8_t)(config->input_mux << 4 | (uint8_t)gain_bits << 1 | pga_bypass);
     registers[1] = (uint8_t)(data_rate << 5 | mode << 3 | CONTINUOUS_CONVERSION);
