@@ -1,0 +1,135 @@
+"""G-code commands of the virtual printer, for people exploring it from the console.
+
+On real hardware you put a weight on the scale or tap the nozzle with a finger; on
+the virtual printer these commands do it:
+
+    SIM_PLACE_WEIGHT GRAMS=500 [LOAD_CELL=name]   a known weight rests on the cell
+    SIM_REMOVE_WEIGHT [LOAD_CELL=name]            take it off again
+    SIM_TAP [FORCE=300] [DURATION=0.2]            a hand tap on the nozzle (no motion)
+    SIM_FAULT NAME=<fault> [AT=s] [WHEN=cond] [DURATION=s] [<PARAM>=value ...]
+    SIM_TRUTH                                     what the simulator knows and the host must not
+
+SIM_TRUTH prints simulator truth (the cell's real counts_per_gram, its zero offset,
+the bed height under the nozzle): it is there to check calibration and probing by
+eye, and no tapcell algorithm ever reads it.
+"""
+
+from __future__ import annotations
+
+from tapcell.gcode import GCodeCommand, GCodeError
+from tapcell.sim.faults import CONDITIONS, FAULT_DEFAULTS, FaultError
+from tapcell.sim.printer import VirtualPrinter
+
+MAX_WEIGHT_GRAMS = 100_000.0
+MAX_TAP_FORCE_G = 10_000.0
+# Parameters of SIM_FAULT itself; every other parameter is passed to the fault.
+SIM_FAULT_OWN_PARAMETERS = ("NAME", "AT", "WHEN", "DURATION")
+
+
+def _parse_fault_value(gcmd: GCodeCommand, key: str, text: str, default):
+    """A fault parameter in the type of its default (number, true/false or word)."""
+    if isinstance(default, bool):
+        if text.lower() not in ("0", "1", "true", "false"):
+            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {key.upper()} must be 0/1 or true/false")
+        return text.lower() in ("1", "true")
+    if isinstance(default, (int, float)):
+        return gcmd.get_float(key)
+    return text
+
+
+class SimCommands:
+    def __init__(self, printer, vp: VirtualPrinter):
+        self.printer = printer
+        self.vp = vp
+
+    def _weight_target(self, gcmd: GCodeCommand):
+        """The virtual printer (its own cell) or the extra sensor of LOAD_CELL=name."""
+        name = gcmd.get("LOAD_CELL", None)
+        if name is None:
+            return self.vp
+        for section in (f"load_cell {name}", name):
+            sensor = self.vp.extra_sensors.get(section)
+            if sensor is not None:
+                return sensor
+        own = self.printer.lookup_object(name if name.startswith("load_cell") else f"load_cell {name}", None)
+        if own is not None:
+            return self.vp
+        known = sorted(section.split()[-1] for section in self.vp.extra_sensors)
+        raise gcmd.error(f"Error on '{gcmd.get_commandline()}': no load cell '{name}' on the virtual printer"
+                         f" (extra cells: {', '.join(known) or 'none'})")
+
+    def cmd_place_weight(self, gcmd: GCodeCommand) -> None:
+        grams = gcmd.get_float("GRAMS", above=0.0, maxval=MAX_WEIGHT_GRAMS)
+        self._weight_target(gcmd).place_weight(grams)
+        gcmd.respond_info(f"A {grams:g} g weight now rests on the load cell")
+
+    def cmd_remove_weight(self, gcmd: GCodeCommand) -> None:
+        self._weight_target(gcmd).remove_weight()
+        gcmd.respond_info("The weight is off the load cell")
+
+    def cmd_tap(self, gcmd: GCodeCommand) -> None:
+        force_g = gcmd.get_float("FORCE", 300.0, above=0.0, maxval=MAX_TAP_FORCE_G)
+        duration_s = gcmd.get_float("DURATION", 0.2, above=0.0, maxval=10.0)
+        self.vp.tap_nozzle(force_g, duration_s)
+        gcmd.respond_info(f"Tapped the nozzle: {force_g:g} g for {duration_s:g} s")
+
+    def cmd_fault(self, gcmd: GCodeCommand) -> None:
+        name = gcmd.get("NAME").lower()
+        if name not in FAULT_DEFAULTS:
+            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': NAME must be one of: {', '.join(FAULT_DEFAULTS)}")
+        at_s = gcmd.get_float("AT", None, minval=0.0)
+        when = gcmd.get("WHEN", None)
+        if when is not None and when.lower() not in CONDITIONS:
+            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': WHEN must be one of: {', '.join(CONDITIONS)}")
+        params = {}
+        duration_s = gcmd.get_float("DURATION", None, above=0.0)
+        if duration_s is not None:
+            params["duration_s"] = duration_s
+        defaults = FAULT_DEFAULTS[name]
+        for key, text in gcmd.get_command_parameters().items():
+            if key in SIM_FAULT_OWN_PARAMETERS:
+                continue
+            option = key.lower()
+            if option not in defaults:
+                allowed = ", ".join(k.upper() for k in defaults) or "none"
+                raise gcmd.error(f"Error on '{gcmd.get_commandline()}': fault '{name}' has no parameter {key}"
+                                 f" (its parameters: {allowed}; and AT, WHEN, DURATION)")
+            params[option] = _parse_fault_value(gcmd, key, text, defaults[option])
+        try:
+            self.vp.inject_fault(name, at_s=at_s, when=None if when is None else when.lower(), **params)
+        except FaultError as exc:
+            raise GCodeError(f"Error on '{gcmd.get_commandline()}': {exc}") from None
+        start = f"at {at_s:g} s" if at_s is not None else (f"on {when.lower()}" if when else "now")
+        gcmd.respond_info(f"Fault '{name}' injected ({start})")
+
+    def cmd_truth(self, gcmd: GCodeCommand) -> None:
+        truth = self.vp.truth
+        x, y, _ = self.vp.position
+        lines = [
+            "Simulator truth (for checking by eye; no tapcell algorithm reads it):",
+            f"cell counts_per_gram: {truth.counts_per_gram:.3f}",
+            f"cell zero offset: {truth.zero_offset_counts:.0f} counts",
+            f"bed surface under the nozzle (X{x:.1f} Y{y:.1f}): Z={float(truth.surface_z(x, y)):.4f} mm"
+            " in machine coordinates",
+            f"simulated time: {self.vp.now_s:.3f} s",
+        ]
+        gcmd.respond_info("\n".join(lines))
+
+
+def register_sim_commands(printer) -> None:
+    """Adds the SIM_* commands when the printer runs on the virtual printer."""
+    vp = printer.backend
+    if not isinstance(vp, VirtualPrinter):
+        return
+    commands = SimCommands(printer, vp)
+    gcode = printer.gcode
+    gcode.register_command("SIM_PLACE_WEIGHT", commands.cmd_place_weight,
+                           desc="Virtual printer: rest a weight on the load cell, GRAMS=")
+    gcode.register_command("SIM_REMOVE_WEIGHT", commands.cmd_remove_weight,
+                           desc="Virtual printer: take the weight off the load cell")
+    gcode.register_command("SIM_TAP", commands.cmd_tap,
+                           desc="Virtual printer: tap the nozzle by hand, [FORCE=g] [DURATION=s]")
+    gcode.register_command("SIM_FAULT", commands.cmd_fault,
+                           desc="Virtual printer: inject a fault, NAME= [AT=] [WHEN=] [DURATION=] [params]")
+    gcode.register_command("SIM_TRUTH", commands.cmd_truth,
+                           desc="Virtual printer: show simulator truth (calibration, bed height)")
