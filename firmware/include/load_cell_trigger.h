@@ -1,0 +1,122 @@
+/* load_cell_trigger.h - the load-cell endstop: tare, scale, filter, threshold,
+ * safety limits, watchdog, glitch quarantine and optional hysteresis.
+ *
+ * Per sample (tc_trigger_sample, called by the sensor driver with the raw
+ * counts and the sample's own timestamp in MCU timer ticks, uint32, wrapping):
+ *   1. ignored unless armed (or triggered with a release level configured);
+ *      ignored when the timestamp is before the arm time;
+ *   2. watchdog: a sample more than watchdog_periods sample periods after the
+ *      previous one (or the arm time) is a WATCHDOG_TIMEOUT - the same rule the
+ *      timer applies through tc_trigger_check_watchdog();
+ *   3. drift window: counts must stay within tare +- drift_limit_counts.
+ *      Glitch quarantine: a single sample outside is held back, not filtered
+ *      and not able to trigger; if the next sample is inside again the held
+ *      one is dropped and counted in `glitches`, if it is outside too the
+ *      error is DRIFT_SAFETY (reported at that second sample). A real overload
+ *      is therefore reported one sample later than without the quarantine.
+ *   4. grams = (counts - tare) * scale >> scale_frac_bits, rounded half up, as
+ *      Q16.15 (SCALE_OVERFLOW beyond +-65536 g); a negative scale inverts the
+ *      sensor orientation at no cost;
+ *   5. filter (FILTER_OVERFLOW when any filter value saturates);
+ *   6. armed: TRIGGER when |filtered| >= trigger_q; the trigger time is this
+ *      sample's timestamp. With release_q == 0 the trigger latches: later
+ *      samples are ignored until re-armed. With 0 < release_q < trigger_q the
+ *      state is TRIGGERED until |filtered| < release_q, then RELEASE (its time
+ *      is that sample's timestamp) and armed again.
+ * Errors are sticky (state ERROR, later samples ignored) until the next arm,
+ * disarm or configure. The caller owns the struct: no allocation, no globals,
+ * no floating point.
+ */
+#ifndef TAPCELL_LOAD_CELL_TRIGGER_H
+#define TAPCELL_LOAD_CELL_TRIGGER_H
+
+#include <stddef.h>
+#include <stdint.h>
+#include "sos_filter.h"
+#include "tc_errors.h"
+
+/* Bounds that keep the watchdog span below 2^31 ticks (signed tick
+ * differences): 15 * 2^27 < 2^31. 2^27 ticks is 0.67 s at 200 MHz. */
+#define TC_TRIGGER_MAX_PERIOD_TICKS (1u << 27)
+#define TC_TRIGGER_MAX_WATCHDOG_PERIODS 15u
+
+enum tc_trigger_state {
+    TC_TRIGGER_IDLE = 0,
+    TC_TRIGGER_ARMED = 1,
+    TC_TRIGGER_TRIGGERED = 2,
+    TC_TRIGGER_ERROR = 3
+};
+
+/* What one sample did. */
+enum tc_trigger_event {
+    TC_EVENT_NONE = 0,
+    TC_EVENT_TRIGGER = 1,
+    TC_EVENT_RELEASE = 2,
+    TC_EVENT_ERROR = 3
+};
+
+struct tc_trigger_config {
+    int32_t reference_tare_counts;
+    int32_t force_limit_counts;   /* arm-time window half width; 0 disables */
+    int32_t drift_limit_counts;   /* in-move window half width; 0 disables it and the quarantine */
+    int32_t scale;                /* Q16.15 grams per count times 2^scale_frac_bits; < 0 = inverted */
+    uint32_t scale_frac_bits;     /* 1..31 */
+    int32_t trigger_q;            /* Q16.15 grams, > 0 */
+    int32_t release_q;            /* Q16.15 grams; 0 = latched trigger, else 0 < release_q < trigger_q */
+    uint32_t sample_period_ticks; /* 1 .. TC_TRIGGER_MAX_PERIOD_TICKS - 1 */
+    uint32_t watchdog_periods;    /* 1 .. TC_TRIGGER_MAX_WATCHDOG_PERIODS */
+};
+
+struct tc_trigger {
+    struct tc_sos_filter filter;  /* configure with tc_sos_filter_configure() */
+    struct tc_trigger_config cfg;
+    uint32_t watchdog_ticks;      /* watchdog_periods * sample_period_ticks */
+    int32_t tare_counts;          /* tare at arm time: centre of the drift window */
+    uint32_t arm_ticks;
+    uint32_t last_sample_ticks;   /* last accepted sample (or arm time): watchdog base */
+    uint32_t trigger_ticks;       /* timestamp of the last triggering sample */
+    uint32_t release_ticks;       /* timestamp of the last releasing sample */
+    uint32_t error_ticks;         /* timestamp of the erroring sample / watchdog check */
+    uint32_t glitches;            /* quarantined samples dropped since arm */
+    int32_t filtered_q;           /* last filter output (held over ignored samples) */
+    uint8_t state;                /* enum tc_trigger_state */
+    uint8_t error;                /* enum tc_error or a sensor code; sticky */
+    uint8_t glitch_held;          /* 1 while a sample outside the drift window waits for its neighbour */
+};
+
+/* Check and store the configuration; the trigger is idle afterwards.
+ * Returns TC_OK or TC_ERR_BAD_CONFIG (nothing stored). The filter member is
+ * configured separately and left untouched. */
+int tc_trigger_configure(struct tc_trigger *t, const struct tc_trigger_config *cfg);
+
+/* Start a probing move with the host's tare taken just before it. Resets the
+ * filter, the glitch count and any sticky error. Returns TC_OK (armed) or
+ * TC_ERR_FORCE_SAFETY (state ERROR) when the tare is outside
+ * reference_tare_counts +- force_limit_counts. */
+int tc_trigger_arm(struct tc_trigger *t, int32_t tare_counts, uint32_t arm_ticks);
+
+/* One sensor sample; returns enum tc_trigger_event. */
+int tc_trigger_sample(struct tc_trigger *t, int32_t counts, uint32_t sample_ticks);
+
+/* Timer callback: WATCHDOG_TIMEOUT when more than watchdog_periods sample
+ * periods have passed since the last sample (or the arm time). Returns the
+ * sticky error code (TC_OK when healthy). */
+int tc_trigger_check_watchdog(struct tc_trigger *t, uint32_t now_ticks);
+
+/* Abort an active move with an error code, e.g. a sensor driver's own code
+ * (a desynced HX711 frame) so the move stops at once instead of by watchdog. */
+void tc_trigger_abort(struct tc_trigger *t, int error_code, uint32_t now_ticks);
+
+/* Back to idle; clears the sticky error. */
+void tc_trigger_disarm(struct tc_trigger *t);
+
+/* Host batch helper: feeds samples until the first event. Returns the index
+ * of the sample that caused it (its event in *event) or n (*event NONE).
+ * filtered_q, when not NULL, receives t->filtered_q after each fed sample. */
+size_t tc_trigger_feed(struct tc_trigger *t, const int32_t *counts, const uint32_t *ticks,
+                       size_t n, int32_t *filtered_q, int *event);
+
+/* sizeof(struct tc_trigger), so the host binding can check its declaration. */
+size_t tc_trigger_struct_size(void);
+
+#endif

@@ -1,0 +1,127 @@
+/* sos_filter.h - fixed-point cascade of up to 4 biquads (direct form II transposed).
+ *
+ * Formats
+ *   values (input and output of every section): int32 Q16.15 grams, 1 LSB = 1/32768 g,
+ *     range +-65536 g.
+ *   coefficients: int32 with `frac_bits` fractional bits shared by the whole cascade
+ *     (Q1.30 when every |c| < 2, fewer bits when a coefficient reaches 2). Stored per
+ *     section as b0, b1, b2, a1, a2; a0 is 1 and not stored.
+ *   state: int64 in the product format (Q16.15 scaled by 2^frac_bits), so the state
+ *     keeps every bit of the products and only the section output is rounded.
+ *
+ * One section, with R = 2^(frac_bits-1) (round half up) and every product 32x32->64:
+ *   y  = (b0*x + z1) >> frac_bits            z1 already holds R
+ *   z1 = b1*x - a1*y + z2
+ *   z2 = b2*x - a2*y + R
+ * Overflow: the two 64-bit additions that can overflow are checked, and y must fit
+ * int32. On overflow the value saturates (int64 or int32 limit, sign of the true
+ * result) and `overflowed` is set until tc_sos_filter_reset(). Never undefined
+ * behaviour, never silent. tapcell.filters.reference_sosfilt_q() is the bit-exact
+ * numpy/Python model of exactly this arithmetic.
+ *
+ * The caller owns the struct; there is no allocation and no floating point.
+ */
+#ifndef TAPCELL_SOS_FILTER_H
+#define TAPCELL_SOS_FILTER_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#define TC_SOS_MAX_SECTIONS 4
+#define TC_SOS_MIN_FRAC_BITS 1
+#define TC_SOS_MAX_FRAC_BITS 31
+
+/* Section coefficient order. */
+enum { TC_SOS_B0, TC_SOS_B1, TC_SOS_B2, TC_SOS_A1, TC_SOS_A2, TC_SOS_NCOEFF };
+
+struct tc_sos_filter {
+    int64_t state[TC_SOS_MAX_SECTIONS][2];            /* z1, z2 per section */
+    int64_t round_half;                               /* R = 2^(frac_bits-1) */
+    int32_t coeff[TC_SOS_MAX_SECTIONS][TC_SOS_NCOEFF];
+    uint8_t n_sections;                               /* 0 = pass-through */
+    uint8_t frac_bits;
+    uint8_t overflowed;                               /* sticky until reset */
+};
+
+/* Signed 32x32 -> 64 product from four 16x16 -> 32 multiplies. ARMv6-M
+ * (Cortex-M0/M0+) has no 64-bit multiply instruction; the compiler would call
+ * the general 64x64 helper __aeabi_lmul (about 57 cycles) for every product,
+ * while this needs four single-cycle MULS and a few adds. The result is the
+ * exact product, so it is bit-identical to the native multiply. */
+static inline int64_t tc_mul_s32_halves(int32_t a, int32_t b)
+{
+    int32_t a_hi = a >> 16, b_hi = b >> 16;          /* arithmetic shift (gcc, clang) */
+    uint32_t a_lo = (uint16_t)a, b_lo = (uint16_t)b;
+    uint32_t lo = a_lo * b_lo;                       /* < 2^32 */
+    int32_t hi = a_hi * b_hi;                        /* |.| <= 2^30 */
+    int64_t mid = (int64_t)(a_hi * (int32_t)b_lo) + (int32_t)a_lo * b_hi; /* each fits int32 */
+    uint64_t sum = ((uint64_t)(int64_t)hi << 32) + ((uint64_t)mid << 16) + lo;
+    return (int64_t)sum;                             /* modular conversion (gcc, clang) */
+}
+
+static inline int64_t tc_mul_s32_native(int32_t a, int32_t b)
+{
+    return (int64_t)a * b;
+}
+
+/* v >> shift (arithmetic, 1 <= shift <= 31) as int32, using 32-bit word
+ * operations only: ARMv6-M has no 64-bit shifter and the compiler would call
+ * __aeabi_lasr. Sets *bad and saturates when the result does not fit int32:
+ * it fits exactly when the bits of v above bit shift+30 are all copies of the
+ * sign, i.e. when hi >> (shift-1) is 0 or -1. */
+static inline int32_t tc_shift_to_int32_words(int64_t v, unsigned shift, uint8_t *bad)
+{
+    int32_t hi = (int32_t)(v >> 32);
+    uint32_t lo = (uint32_t)v;
+    int32_t above = hi >> (shift - 1);
+    if ((uint32_t)above + 1u > 1u) {
+        *bad = 1;
+        return hi < 0 ? INT32_MIN : INT32_MAX;
+    }
+    return (int32_t)(((uint32_t)hi << (32 - shift)) | (lo >> shift));
+}
+
+static inline int32_t tc_shift_to_int32_native(int64_t v, unsigned shift, uint8_t *bad)
+{
+    int64_t wide = v >> shift;
+    if (wide != (int32_t)wide) {
+        *bad = 1;
+        return wide < 0 ? INT32_MIN : INT32_MAX;
+    }
+    return (int32_t)wide;
+}
+
+/* Cores without a 32x32->64 multiply and 64-bit shifts (ARMv6-M) use the
+ * word-level versions; everything else the native ones. Both are exact, so
+ * the results are identical (tests/test_sos_filter.c checks this on the host). */
+#if defined(__ARM_ARCH_6M__) || defined(TC_FORCE_WORD_MATH)
+#define tc_mul_s32 tc_mul_s32_halves
+#define tc_shift_to_int32 tc_shift_to_int32_words
+#else
+#define tc_mul_s32 tc_mul_s32_native
+#define tc_shift_to_int32 tc_shift_to_int32_native
+#endif
+
+/* Load coefficients (n_sections rows of b0 b1 b2 a1 a2) and reset the state.
+ * Returns TC_OK, or TC_ERR_BAD_CONFIG when n_sections > 4 or frac_bits is
+ * outside 1..31 (the filter is then left as a pass-through). */
+int tc_sos_filter_configure(struct tc_sos_filter *f, const int32_t coeff[][TC_SOS_NCOEFF],
+                            unsigned n_sections, unsigned frac_bits);
+
+/* Zero state (a tared input starts at 0 g) and clear the overflow flag. */
+void tc_sos_filter_reset(struct tc_sos_filter *f);
+
+/* Filter one Q16.15 sample; sets f->overflowed when a value saturates. */
+int32_t tc_sos_filter_apply(struct tc_sos_filter *f, int32_t x);
+
+/* (a*b + addend) >> shift as int32, with the 64-bit addition saturating and the
+ * result range-checked (*bad set on either overflow). With addend 2^(shift-1)
+ * this is a round-half-up fixed-point multiply; the trigger uses it for the
+ * counts -> grams scale, the filter for each section output. */
+int32_t tc_mul_add_shift(int32_t a, int32_t b, int64_t addend, unsigned shift, uint8_t *bad);
+
+/* Filter n samples (host batch helper). Returns the index of the first sample
+ * whose processing overflowed, or n when none did. */
+size_t tc_sos_filter_run(struct tc_sos_filter *f, const int32_t *x, int32_t *y, size_t n);
+
+#endif

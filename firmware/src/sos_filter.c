@@ -1,0 +1,77 @@
+/* sos_filter.c - fixed-point biquad cascade; formats and arithmetic in sos_filter.h. */
+#include "sos_filter.h"
+#include "tc_errors.h"
+
+void tc_sos_filter_reset(struct tc_sos_filter *f)
+{
+    /* Zero state plus the rounding constant: z1 carries R into the next y,
+     * z2 carries it into the next z1 (see the section equations). */
+    for (unsigned i = 0; i < TC_SOS_MAX_SECTIONS; i++) {
+        f->state[i][0] = f->round_half;
+        f->state[i][1] = f->round_half;
+    }
+    f->overflowed = 0;
+}
+
+int tc_sos_filter_configure(struct tc_sos_filter *f, const int32_t coeff[][TC_SOS_NCOEFF],
+                            unsigned n_sections, unsigned frac_bits)
+{
+    f->n_sections = 0;
+    if (n_sections > TC_SOS_MAX_SECTIONS || frac_bits < TC_SOS_MIN_FRAC_BITS
+        || frac_bits > TC_SOS_MAX_FRAC_BITS)
+        return TC_ERR_BAD_CONFIG;
+    for (unsigned i = 0; i < n_sections; i++)
+        for (unsigned k = 0; k < TC_SOS_NCOEFF; k++)
+            f->coeff[i][k] = coeff[i][k];
+    f->frac_bits = (uint8_t)frac_bits;
+    f->round_half = (uint32_t)1 << (frac_bits - 1); /* 32-bit shift: no libcall on M0+ */
+    f->n_sections = (uint8_t)n_sections;
+    tc_sos_filter_reset(f);
+    return TC_OK;
+}
+
+/* a + b, saturated to the int64 limits; sets *bad on overflow. An overflow can
+ * only happen with both operands of one sign, so that sign picks the limit. */
+static inline int64_t add_sat64(int64_t a, int64_t b, uint8_t *bad)
+{
+    int64_t sum;
+    if (__builtin_add_overflow(a, b, &sum)) {
+        *bad = 1;
+        sum = a < 0 ? INT64_MIN : INT64_MAX;
+    }
+    return sum;
+}
+
+int32_t tc_mul_add_shift(int32_t a, int32_t b, int64_t addend, unsigned shift, uint8_t *bad)
+{
+    return tc_shift_to_int32(add_sat64(tc_mul_s32(a, b), addend, bad), shift, bad);
+}
+
+int32_t tc_sos_filter_apply(struct tc_sos_filter *f, int32_t x)
+{
+    const unsigned shift = f->frac_bits;
+    uint8_t bad = 0;
+    for (unsigned i = 0; i < f->n_sections; i++) {
+        const int32_t *c = f->coeff[i];
+        int64_t *z = f->state[i];
+        int32_t y = tc_mul_add_shift(c[TC_SOS_B0], x, z[0], shift, &bad);
+        /* Each difference of two products fits int64 (|product| <= 2^62);
+         * only the sums with the stored state can overflow. */
+        z[0] = add_sat64(tc_mul_s32(c[TC_SOS_B1], x) - tc_mul_s32(c[TC_SOS_A1], y), z[1], &bad);
+        z[1] = tc_mul_s32(c[TC_SOS_B2], x) - tc_mul_s32(c[TC_SOS_A2], y) + f->round_half;
+        x = y;
+    }
+    f->overflowed |= bad;
+    return x;
+}
+
+size_t tc_sos_filter_run(struct tc_sos_filter *f, const int32_t *x, int32_t *y, size_t n)
+{
+    size_t first_overflow = n;
+    for (size_t i = 0; i < n; i++) {
+        y[i] = tc_sos_filter_apply(f, x[i]);
+        if (f->overflowed && first_overflow == n)
+            first_overflow = i;
+    }
+    return first_overflow;
+}
