@@ -1,0 +1,84 @@
+"""Text and image reports of a mesh."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from tapcell.mesh.abl import TwoPassPoint, topology_report
+from tapcell.mesh.grid import rectangular_grid
+from tapcell.mesh.interpolate import Interpolation, resolve_interpolation
+from tapcell.mesh.report import mesh_error, render_mesh, render_mesh_error, render_topology, write_mesh_png
+from tapcell.mesh.zmesh import build_mesh
+
+GRID = rectangular_grid((0, 0), (200, 100), 3)
+PROBED = np.array([[0.0, 0.01, 0.02], [0.03, 0.04, 0.05], [0.06, 0.07, 0.08]])
+
+
+def test_render_mesh_lays_out_rows_from_the_back():
+    mesh = build_mesh(PROBED, GRID, resolve_interpolation("lagrange", (3, 3))[0], profile_name="default")
+    assert render_mesh(mesh).splitlines() == [
+        "Mesh 'default': 3 x 3 probed points, X 0.0 .. 200.0 mm, Y 0.0 .. 100.0 mm",
+        "Probed bed height in mm (back of the bed at the top, front at the bottom):",
+        "   Y \\ X       0.0    100.0    200.0",
+        "   100.0    0.0600   0.0700   0.0800",
+        "    50.0    0.0300   0.0400   0.0500",
+        "     0.0    0.0000   0.0100   0.0200",
+        "Lowest 0.0000 mm, highest 0.0800 mm: the bed varies by 0.0800 mm",
+        "Interpolation: lagrange, 2, 2 points between probed points -> 7 x 7 mesh points",
+    ]
+
+
+def test_render_mesh_direct_and_zero_reference_lines():
+    mesh = build_mesh(PROBED, GRID, Interpolation("direct", 0, 0), zero_reference_xy_mm=(100, 50))
+    lines = render_mesh(mesh).splitlines()
+    assert lines[-2] == "Moves follow the probed points directly (bilinear between them)"
+    assert lines[-1] == "Shifted by -0.0400 mm so the zero reference position is at Z 0"
+
+
+def test_mesh_error_against_a_truth_with_a_bump_between_points():
+    def truth(x, y):
+        # A plane plus a 10 um bump at (50, 25): zero at every probed point.
+        return 0.0001 * x + 0.0006 * y + 0.01 * np.exp(-((x - 50) ** 2 + (y - 25) ** 2) / 50.0)
+
+    x, y = np.meshgrid(GRID.x_positions_mm(), GRID.y_positions_mm())
+    measured = 0.0001 * x + 0.0006 * y
+    measured[1, 1] += 0.002  # the probe read 2 um high in the middle
+    mesh = build_mesh(measured, GRID, Interpolation("direct", 0, 0))
+    summary = mesh_error(mesh, truth, samples_per_axis=41)
+    assert summary.max_abs_at_probed_um == pytest.approx(2.0, abs=1e-6)
+    assert summary.rms_at_probed_um == pytest.approx(2.0 / 3.0, abs=1e-6)
+    # Truth 10 um up; the mesh carries a quarter of the 2 um centre reading there: 10 - 0.5.
+    assert summary.max_abs_over_area_um == pytest.approx(9.5, abs=1e-9)
+    assert summary.worst_over_area_xy_mm == (50.0, 25.0)
+    assert json.loads(json.dumps(summary.to_status()))["worst_over_area_xy_mm"] == [50.0, 25.0]
+    text = render_mesh_error(summary)
+    assert "at the probed points: largest error 2.00 um, typical (RMS) 0.67 um" in text
+    assert "everywhere in between: largest error 9.50 um at X 50.0 Y 25.0" in text
+
+
+def test_render_topology_table():
+    points = [
+        TwoPassPoint(0, 0.0, 0.0, 0.11, 0.32, 0.236),
+        TwoPassPoint(1, 200.0, 0.0, 0.35, 0.55, 0.47),
+        TwoPassPoint(2, 200.0, 200.0, 0.4, 0.61, 0.526),
+    ]
+    topology = topology_report([p.x_mm for p in points], [p.y_mm for p in points], [p.z_mm for p in points])
+    lines = render_topology(points, topology).splitlines()
+    assert lines[2] == "      1      0.0      0.0     0.110     0.320     0.236"
+    assert lines[5] == (
+        "  lowest 0.236 mm at (0.0, 0.0), highest 0.526 mm at (200.0, 200.0), range 0.290 mm, mean 0.411 mm"
+    )
+    assert lines[6] == "  tilt: +0.117 mm per 100 mm in X, +0.028 mm per 100 mm in Y (0.069 deg)"
+
+
+def test_heat_map_png_has_two_panels_with_truth(tmp_path):
+    import matplotlib.image
+
+    mesh = build_mesh(PROBED, GRID, resolve_interpolation("lagrange", (3, 3))[0])
+    single = write_mesh_png(tmp_path / "mesh.png", mesh, samples_per_axis=21)
+    double = write_mesh_png(tmp_path / "mesh_and_error.png", mesh, lambda x, y: 0.0003 * x, samples_per_axis=21)
+    assert matplotlib.image.imread(single).shape[:2] == (480, 550)
+    assert matplotlib.image.imread(double).shape[:2] == (480, 1100)
