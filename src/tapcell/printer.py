@@ -45,6 +45,8 @@ READ_BY: dict[str, str] = {
 # The backend's section: read by the virtual printer itself.
 BACKEND_SECTION = "virtual_printer"
 BACKEND_MODULE = "tapcell.sim"
+# G-code commands that act on the virtual hardware (SIM_PLACE_WEIGHT, ...).
+BACKEND_COMMANDS_MODULE = "tapcell.sim_commands"
 
 # Sections loaded before the others (in this order), because others look them up.
 LOAD_FIRST = ("printer",)
@@ -77,6 +79,7 @@ class Printer:
         self.state_message = ""
         self._event_handlers: dict[str, list[Callable[..., Any]]] = {}
         self._loading: set[str] = set()
+        self._loaded: set[str] = set()  # sections loaded (or skipped), whether or not they made an object
         self._skipped: dict[str, str] = {}  # section -> the missing module it needs
 
     @classmethod
@@ -102,15 +105,17 @@ class Printer:
 
     def load_object(self, section_name: str) -> Any:
         """The object of a section, loading it now if it was not loaded yet (None if absent)."""
-        if (section_name not in self.objects and section_name not in self._skipped
-                and self.config.has_section(section_name)):
+        if section_name in self._loading:
+            raise ConfigError(f"{self.config.section_file(section_name)}: [{section_name}] depends on itself "
+                              f"while loading", file=self.config.section_file(section_name), section=section_name)
+        if section_name not in self._loaded and self.config.has_section(section_name):
             self._load_section(section_name)
         return self.objects.get(section_name)
 
     def get_time(self) -> float:
-        """The printer's clock: the backend's simulated seconds, else the host's monotonic clock."""
-        now = getattr(self.backend, "now", None)
-        return float(now()) if callable(now) else time.monotonic()
+        """The printer's clock: the backend's simulated seconds (`now_s`), else the host's monotonic clock."""
+        now_s = getattr(self.backend, "now_s", None)
+        return float(now_s) if now_s is not None else time.monotonic()
 
     def get_status(self, eventtime: float | None = None) -> dict[str, dict]:
         """Every object's status under its section name (plain, JSON-ready data)."""
@@ -137,6 +142,7 @@ class Printer:
         self.objects.clear()
         self.warnings.clear()
         self._skipped.clear()
+        self._loaded.clear()
         self._event_handlers.clear()
         self.config = None
         self.gcode.clear_commands()
@@ -148,7 +154,7 @@ class Printer:
             ordered = [n for n in LOAD_FIRST if self.config.has_section(n)]
             ordered += [n for n in self.config.sections() if n not in ordered]
             for name in ordered:
-                if name != BACKEND_SECTION and name not in self.objects and name not in self._skipped:
+                if name != BACKEND_SECTION and name not in self._loaded:
                     self._load_section(name)
             self.config.check_unused_options()
         except (ConfigError, GCodeError) as exc:
@@ -187,6 +193,9 @@ class Printer:
                 return
             self.backend = sim.VirtualPrinter.from_config(self.config.getsection(BACKEND_SECTION))
         self.objects[BACKEND_SECTION] = self.backend
+        backend_commands = _import_module(BACKEND_COMMANDS_MODULE)
+        if backend_commands is not None:
+            backend_commands.register_sim_commands(self)
 
     def _skip_section(self, name: str, module_name: str) -> None:
         self._skipped[name] = module_name
@@ -196,9 +205,8 @@ class Printer:
                                  f"its options were not checked")
 
     def _load_section(self, name: str) -> None:
-        if name in self._loading:
-            raise ConfigError(f"{self.config.section_file(name)}: [{name}] depends on itself while loading")
         self._loading.add(name)
+        self._loaded.add(name)
         try:
             kind, _, instance = name.partition(" ")
             if kind in READ_BY:
