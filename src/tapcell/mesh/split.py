@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tapcell.mesh.errors import MeshOptionError
-from tapcell.mesh.zmesh import Fade, ZMesh, fade_factor, fade_target_mm, mesh_offset_mm
+from tapcell.mesh.zmesh import Fade, ZMesh, fade_factor, fade_target_mm
 
 SECTION = "bed_mesh"
 # The guide's "aggressive" settings are also the smallest allowed: below them each move
@@ -64,22 +64,23 @@ def split_move(
     factor = fade_factor(float(end[2]), fade)
     target = fade_target_mm(mesh, fade) if fade.enabled else 0.0
 
-    def offset_at(point: np.ndarray) -> float:
-        return mesh_offset_mm(mesh, float(point[0]), float(point[1]), factor, target)
+    def offsets_at(points: np.ndarray) -> np.ndarray:
+        return target + factor * (mesh.z_at(points[:, 0], points[:, 1]) - target)
 
     delta = end - start
     length_mm = float(np.linalg.norm(delta[:3]))
     sub_moves = []
     if abs(delta[0]) > _STILL_MM or abs(delta[1]) > _STILL_MM:
-        last_offset = offset_at(start)
-        checked_mm = settings.move_check_distance_mm
-        # Check points strictly before the end; the end itself is always emitted below.
-        while checked_mm < length_mm:
-            point = start + delta * (checked_mm / length_mm)
-            offset = offset_at(point)
+        # Check points strictly before the end (the end itself is always emitted below),
+        # evaluated on the mesh in one call; the scan for cuts is sequential.
+        checked_mm = settings.move_check_distance_mm * np.arange(1, math.ceil(length_mm / settings.move_check_distance_mm))
+        checked_mm = checked_mm[checked_mm < length_mm]  # rounding in length / distance can reach the end
+        points = start + np.outer(checked_mm / length_mm, delta)
+        offsets = offsets_at(points)
+        last_offset = float(offsets_at(start[None, :])[0])
+        for point, offset in zip(points, offsets):
             if abs(offset - last_offset) >= settings.split_delta_z_mm:
                 sub_moves.append((point[0], point[1], point[2] + offset, point[3]))
                 last_offset = offset
-            checked_mm += settings.move_check_distance_mm
-    sub_moves.append((end[0], end[1], end[2] + offset_at(end), end[3]))
+    sub_moves.append((end[0], end[1], end[2] + float(offsets_at(end[None, :])[0]), end[3]))
     return np.array(sub_moves, dtype=float)
