@@ -191,7 +191,7 @@ class LoadCell:
         self.name = name
         self.options = options
         self.counts_range = counts_range
-        self._sensor = sensor if sensor is not None else open_sensor(printer, name, options)
+        self.sensor = sensor if sensor is not None else open_sensor(printer, name, options)
         self.counts_per_gram: float | None = options.counts_per_gram
         self.reference_tare_counts: int | None = options.reference_tare_counts
         # Start-up tare: the calibration's zero, until someone tares again.
@@ -210,7 +210,7 @@ class LoadCell:
 
     def pump(self) -> None:
         """Moves the sensor's new samples into the 1 s buffer and to every client."""
-        batch = self._sensor.take_samples()
+        batch = self.sensor.take_samples()
         self.errors += batch.errors
         self.overflows += batch.overflows
         if len(batch.counts) == 0 and batch.errors == 0 and batch.overflows == 0:

@@ -43,20 +43,21 @@ class SimCommands:
         self.vp = vp
 
     def _weight_target(self, gcmd: GCodeCommand):
-        """The virtual printer (its own cell) or the extra sensor of LOAD_CELL=name."""
+        """The virtual sensor of LOAD_CELL=name (a [load_cell NAME] or [load_cell] /
+        [load_cell_probe]), or the printer's own cell when LOAD_CELL is not given."""
         name = gcmd.get("LOAD_CELL", None)
         if name is None:
             return self.vp
-        for section in (f"load_cell {name}", name):
-            sensor = self.vp.extra_sensors.get(section)
+        candidates = [f"load_cell {name}", name]
+        for section in candidates:
+            load_cell = self.printer.lookup_object(section, None)
+            sensor = getattr(load_cell, "sensor", None)
+            if sensor is None:
+                sensor = getattr(getattr(load_cell, "load_cell", None), "sensor", None)  # [load_cell_probe]
             if sensor is not None:
                 return sensor
-        own = self.printer.lookup_object(name if name.startswith("load_cell") else f"load_cell {name}", None)
-        if own is not None:
-            return self.vp
-        known = sorted(section.split()[-1] for section in self.vp.extra_sensors)
-        raise gcmd.error(f"Error on '{gcmd.get_commandline()}': no load cell '{name}' on the virtual printer"
-                         f" (extra cells: {', '.join(known) or 'none'})")
+        raise gcmd.error(f"Error on '{gcmd.get_commandline()}': no load cell '{name}' "
+                         f"(no [load_cell {name}] or [{name}] section)")
 
     def cmd_place_weight(self, gcmd: GCodeCommand) -> None:
         grams = gcmd.get_float("GRAMS", above=0.0, maxval=MAX_WEIGHT_GRAMS)

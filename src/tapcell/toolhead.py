@@ -21,7 +21,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from tapcell.config import ConfigSection
-from tapcell.gcode import GCodeCommand, GCodeError
+from tapcell.gcode import GCodeCommand
+from tapcell.sim.printer import MoveError
 
 AXES = "xyz"
 KINEMATICS = ("cartesian",)
@@ -263,7 +264,10 @@ class Toolhead:
         speed = min(self.speed_mm_s, self.options.max_velocity_mm_s)
         if moved == ["z"]:
             speed = min(speed, self.options.max_z_velocity_mm_s)
-        self.move_to(**{axis: toolhead_target[axis] for axis in moved}, speed_mm_s=speed)
+        try:
+            self.move_to(**{axis: toolhead_target[axis] for axis in moved}, speed_mm_s=speed)
+        except MoveError as exc:  # the virtual machine is smaller than the config says
+            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {exc}") from None
 
     def cmd_G90(self, gcmd: GCodeCommand) -> None:
         self.absolute_coordinates = True
