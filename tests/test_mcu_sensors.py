@@ -31,8 +31,7 @@ def test_hx71x_rate_table_agrees_with_firmware():
 
 
 def test_ads1220_rate_table_agrees_with_firmware():
-    _, lib = sensors._firmware()
-    ffi = sensors._firmware()[0]
+    ffi, lib = sensors._firmware()
     registers = ffi.new("uint8_t[4]")
     accepted = []
     for rate in range(0, 2201):
