@@ -1,0 +1,511 @@
+"""VirtualPrinter: the facade over clock, motion, bed, contact physics, sensor, nozzle and faults.
+
+Time only moves forward through commands (move_to, dwell, probing_move, ...). Samples are
+generated lazily, in chunks, for conversions whose integration window has closed by the
+current time, so motion commanded later can never change a sample already produced.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy.signal import lfilter
+
+from tapcell.sim import faults as faultlib
+from tapcell.sim.bed import BedError, bed_from_params
+from tapcell.sim.contact import ContactModel, ContactState, contact_forces
+from tapcell.sim.mcu import SampleBatch, SampleChunk, TriggerFeeder, VirtualMCU
+from tapcell.sim.motion import MotionHistory, Segment, move_limits, plan_trapezoid, quantize_to_steps
+from tapcell.sim.nozzle import NozzleThermal
+from tapcell.sim.params import SimParamError, SimParams, make_params, series_stiffness_g_um
+from tapcell.sim.scenarios import SCENARIOS
+from tapcell.sim.sensor import IndexedNoise, chip_timing, counts_from_force, pink_block_maker, window_average_sine
+
+TAP_FORMAT = "tapcell.tap.v1"
+CHUNK_S = 0.05            # probing chunk: the trigger is fed this much data per call
+FREE_RUN_CHUNK = 4096     # samples per chunk when nothing listens to them
+NOISE_STREAMS = ("bed", "white", "pink", "poll", "jitter", "glitch_bit", "glitch_when", "hum")
+
+
+class MoveError(ValueError):
+    """A commanded move leaves the machine's limits."""
+
+
+@dataclass
+class ProbingMoveResult:
+    triggered: bool
+    trigger_time_s: float | None
+    halt_time_s: float
+    halt_z_mm: float
+    error: object                  # TriggerError (NONE when the move ended normally or triggered)
+    moves: list[dict] = field(default_factory=list)
+
+
+@dataclass
+class _PhysicsState:
+    contact: ContactState
+    cell_warm_c: float = 0.0      # the load cell's temperature rise (low-passed nozzle heat)
+
+
+@dataclass
+class _ProbeRecord:
+    start_s: float
+    halt_time_s: float
+    x_mm: float
+    y_mm: float
+    film_um: float
+
+
+class Truth:
+    """What only tests and benchmarks may read: the simulator's ground truth."""
+
+    def __init__(self, vp: VirtualPrinter):
+        self._vp = vp
+
+    def surface_z(self, x_mm, y_mm):
+        return self._vp._bed.surface_z(x_mm, y_mm)
+
+    def contact_z_at(self, x_mm, y_mm, t_s: float | None = None):
+        """Commanded Z at which the (hot, longer) nozzle just touches the bed surface."""
+        vp = self._vp
+        temp = vp._thermal.temps_at(vp.now_s if t_s is None else t_s)
+        return vp._bed.surface_z(x_mm, y_mm) + float(vp._thermal.extension_mm(temp))
+
+    @property
+    def counts_per_gram(self) -> float:
+        return self._vp._counts_per_gram
+
+    @property
+    def zero_offset_counts(self) -> float:
+        return self._vp._zero_offset_counts
+
+    @property
+    def stiffness_g_um(self) -> float:
+        return series_stiffness_g_um(self._vp.params)
+
+    @property
+    def film_um(self) -> float:
+        return self._vp._state.contact.film_um
+
+    def force_g(self, t0_s: float, t1_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Noise-free force on the cell (window average) for each delivered sample in [t0, t1]."""
+        t, _, force = self._vp._mcu.log.between(t0_s, t1_s)
+        return t, force
+
+
+class VirtualPrinter:
+    def __init__(self, params: SimParams, seed: int = 1, scenario: str = "custom"):
+        self.params = params
+        self.seed = int(seed)
+        self.scenario = scenario
+        streams = np.random.SeedSequence(self.seed).spawn(len(NOISE_STREAMS))
+        rng = {name: np.random.Generator(np.random.PCG64(s)) for name, s in zip(NOISE_STREAMS, streams)}
+        self._bed = bed_from_params(params, rng["bed"])
+        xy_step = params.rotation_distance_xy_mm / (params.full_steps_per_rotation * params.microsteps)
+        z_step = params.rotation_distance_z_mm / (params.full_steps_per_rotation * params.microsteps)
+        self.step_distance_mm = np.array([xy_step, xy_step, z_step])
+        start = (params.bed_x_mm / 2.0, params.bed_y_mm / 2.0, params.start_z_mm)
+        self._motion = MotionHistory(tuple(quantize_to_steps(start, self.step_distance_mm)))
+        self._timing = chip_timing(params)
+        rate = params.sample_rate_sps
+        self._white = IndexedNoise(rng["white"], lambda g, n: g.standard_normal(n) * params.white_noise_counts)
+        self._pink = IndexedNoise(rng["pink"], pink_block_maker(params.pink_noise_counts, rate))
+        self._glitch_bits = IndexedNoise(rng["glitch_bit"], lambda g, n: g.integers(16, 23, n).astype(float))
+        self._glitch_draw = IndexedNoise(rng["glitch_when"], lambda g, n: g.uniform(0.0, 1.0, n))
+        self._hum_phase = float(rng["hum"].uniform(0.0, 2.0 * np.pi))
+        self._mcu = VirtualMCU(self._timing.period_s, params.read_jitter_s, params.stop_delay_s,
+                               params.multi_mcu_delay_s, rng["poll"], rng["jitter"])
+        gain_scale = params.gain / 128.0
+        self._counts_per_gram = params.cell_polarity * params.counts_per_gram * gain_scale
+        self._zero_offset_counts = params.zero_offset_counts * gain_scale
+        self._contact_model = ContactModel(
+            series_stiffness_g_um(params), params.contact_onset_um, params.relax_fraction, params.relax_tau_s,
+            params.hysteresis_fraction, params.hysteresis_travel_um, params.ooze_stiffness_g_um,
+            params.ooze_squeeze_tau_s, params.ooze_pull_g, params.ooze_break_um, params.ooze_clear_fraction,
+            params.ooze_max_um)
+        self._state = _PhysicsState(ContactState(film_um=params.ooze_film_um))
+        self._thermal = NozzleThermal(params.ambient_c, params.heater_tau_s, params.nozzle_expansion_um_per_c,
+                                      params.start_nozzle_c)
+        self._faults: list[faultlib.Fault] = []
+        if params.disconnect_at_s >= 0.0:
+            self._faults.append(faultlib.make_fault("disconnected", params.disconnect_at_s, None, 0.0, {}))
+        self._hand_taps: list[tuple[float, float, float]] = []   # (start_s, duration_s, peak_g)
+        self._probes: list[_ProbeRecord] = []
+        self._next_k = 0
+        self._chunk_samples = max(4, round(CHUNK_S * params.sample_rate_sps))
+        self._now_s = 0.0
+        self._aux_sensors: list = []
+        self.truth = Truth(self)
+
+    # -- construction ------------------------------------------------------------------
+    @classmethod
+    def from_scenario(cls, name: str = "clean", seed: int = 1, **overrides) -> VirtualPrinter:
+        if name not in SCENARIOS:
+            raise SimParamError(f"unknown scenario '{name}'; allowed: {', '.join(SCENARIOS)}")
+        return cls(make_params({**SCENARIOS[name].overrides, **overrides}), seed=seed, scenario=name)
+
+    @classmethod
+    def from_config(cls, section) -> VirtualPrinter:
+        """`[virtual_printer]`: scenario, seed, and any SimParams name as a physics override."""
+        from tapcell.sim.config import read_virtual_printer_section
+
+        name, seed, overrides = read_virtual_printer_section(section)
+        try:
+            return cls.from_scenario(name, seed, **overrides)
+        except BedError as exc:
+            raise section.error("bed_csv", str(exc)) from None
+        except SimParamError as exc:
+            raise section.error(exc.option or "scenario", str(exc)) from None
+
+    # -- what the host may know ------------------------------------------------------------
+    @property
+    def now_s(self) -> float:
+        return self._now_s
+
+    @property
+    def sensor_info(self) -> dict:
+        p = self.params
+        return {"chip": p.chip, "sample_rate_sps": p.sample_rate_sps, "gain": p.gain, "counts_bits": 24,
+                "counts_min": -(1 << 23), "counts_max": (1 << 23) - 1,
+                "analysis_meta": {"scenario": self.scenario, "seed": self.seed, "source": "tapcell.sim"}}
+
+    @property
+    def position(self) -> tuple[float, float, float]:
+        return tuple(float(v) for v in quantize_to_steps(self._motion.end_position, self.step_distance_mm))
+
+    @property
+    def nozzle_temperature_c(self) -> float:
+        return float(self._thermal.temps_at(self._now_s))
+
+    @property
+    def limits(self) -> dict:
+        p = self.params
+        return {"x": (0.0, p.bed_x_mm), "y": (0.0, p.bed_y_mm), "z": (p.z_position_min_mm, p.z_position_max_mm)}
+
+    # -- commands ---------------------------------------------------------------------------
+    def move_to(self, x: float | None = None, y: float | None = None, z: float | None = None,
+                speed_mm_s: float = 50.0) -> None:
+        """Trapezoidal move (rest to rest) within the axis limits; time advances to its end."""
+        start = self._motion.end_position
+        target = tuple(float(v) if v is not None else s for v, s in zip((x, y, z), start))
+        self._check_target(target)
+        if speed_mm_s <= 0.0:
+            raise MoveError(f"move speed must be above 0 mm/s, got {speed_mm_s}")
+        self._plan_and_run(start, target, speed_mm_s)
+
+    def home_xy(self) -> None:
+        """Move to the X/Y endstops at the homing speed (the endstops sit at 0, 0)."""
+        start = self._motion.end_position
+        self._plan_and_run(start, (0.0, 0.0, start[2]), self.params.homing_speed_mm_s)
+
+    def dwell(self, t_s: float) -> None:
+        if t_s < 0.0:
+            raise MoveError(f"dwell time must not be negative, got {t_s}")
+        self._advance_to(self._now_s + t_s)
+
+    def take_samples(self) -> SampleBatch:
+        self._advance_to(self._now_s)
+        return self._mcu.take(self._now_s)
+
+    def set_nozzle_temperature(self, target_c: float, wait: bool = False) -> None:
+        self._thermal.set_target(self._now_s, float(target_c))
+        if wait:
+            self.dwell(self._thermal.time_to_settle_s(self._now_s))
+
+    def place_weight(self, grams: float) -> None:
+        self.inject_fault("weight", grams=float(grams))
+
+    def remove_weight(self) -> None:
+        for f in self._faults:
+            if f.name == "weight" and f.start_s is not None and f.end_s > self._now_s:
+                f.duration_s = self._now_s - f.start_s
+
+    def tap_nozzle(self, peak_force_g: float, duration_s: float = 0.15) -> None:
+        """A finger tap on the nozzle starting now (half-sine force pulse); time does not advance."""
+        if duration_s <= 0.0:
+            raise MoveError(f"tap duration must be above 0 s, got {duration_s}")
+        self._hand_taps.append((self._now_s, float(duration_s), float(peak_force_g)))
+
+    def inject_fault(self, name: str, at_s: float | None = None, when: str | None = None, **params) -> None:
+        """Start a fault now, at `at_s`, or when a condition happens ('probing_move', 'contact', 'trigger')."""
+        self._faults.append(faultlib.make_fault(name, at_s, when, self._now_s, params))
+
+    def add_sensor(self, name: str, chip: str, sample_rate_sps: float):
+        """An extra scale (no contact physics) sharing this printer's clock, e.g. a spool scale."""
+        from tapcell.sim.scale_sensor import ScaleSensor
+
+        sensor = ScaleSensor(self, name, chip, sample_rate_sps, seed=self.seed + 1 + len(self._aux_sensors))
+        self._aux_sensors.append(sensor)
+        return sensor
+
+    def probing_move(self, z_target_mm: float, speed_mm_s: float, trigger) -> ProbingMoveResult:
+        """Move Z down toward z_target feeding every sample to the (armed) firmware trigger;
+        halt without deceleration `stop latency` after it triggers or reports an error."""
+        start = self._motion.end_position
+        if not self.params.z_position_min_mm <= z_target_mm <= start[2]:
+            raise MoveError(f"probing move target z={z_target_mm:.3f} must be between position_min "
+                            f"{self.params.z_position_min_mm:.3f} and the current z={start[2]:.3f}")
+        self._advance_to(self._now_s)
+        film_at_start_um = self._state.contact.film_um
+        self._fire_condition("probing_move", self._now_s)
+        target = (start[0], start[1], float(z_target_mm))
+        segments = self._plan(start, target, speed_mm_s)
+        t_start = self._now_s
+        contact_t = self._crossing_time(segments, float(self.truth.contact_z_at(start[0], start[1])))
+        if contact_t is not None:
+            self._fire_condition("contact", contact_t)
+        self._motion.append(segments)
+        end_s = segments[-1].end_time if segments else t_start
+        feeder = TriggerFeeder(trigger, self._timing.period_s, t_start, _trigger_error_none())
+        pending_t, pending_c = self._mcu.pending(t_start)
+        event = feeder.feed(pending_t, pending_c, t_start) if pending_t.size else None
+        halt_s = end_s
+        k_move_end = self._last_index_closed_by(end_s)
+        undelivered_state = None       # physics state before a chunk that was fed but not delivered
+        while event is None:
+            k0 = self._next_k
+            if k0 >= k_move_end:
+                event = feeder.feed(np.zeros(0), np.zeros(0, dtype=np.int32), end_s)   # watchdog to the end
+                break
+            k1 = min(k_move_end, k0 + self._chunk_samples)
+            saved = copy.deepcopy(self._state)
+            chunk = self._compute(k0, k1)
+            event = feeder.feed(chunk.t_s, chunk.counts, min(end_s, float(self._timing.ready_times(k1 - 1, k1)[0])))
+            if event is None:
+                self._mcu.deliver(chunk)
+                self._next_k = k1
+            else:
+                undelivered_state = saved
+        if event is not None:
+            halt_s = min(event.time_s + self._mcu.stop_latency_s, end_s)
+            self._truncate_probing_move(len(segments), halt_s)
+        if undelivered_state is not None:
+            # That chunk was made with the untruncated move: make it again. Conversions closed
+            # by the halt come out identical; later ones now see the nozzle stopped.
+            self._state = undelivered_state
+        self._advance_to(halt_s)
+        if event is not None and event.triggered:
+            self._fire_condition("trigger", event.time_s)
+        self._now_s = max(self._now_s, halt_s)
+        self._advance_to(self._now_s)
+        probe_moves = [s.as_tap_move() for s in self._motion.segments_between(t_start, halt_s)
+                       if s.print_time >= t_start]
+        self._probes.append(_ProbeRecord(t_start, halt_s, start[0], start[1], film_at_start_um))
+        halt_z = float(self._motion.end_position[2])
+        no_error = _trigger_error_none()
+        return ProbingMoveResult(
+            triggered=bool(event is not None and event.triggered),
+            trigger_time_s=event.time_s if event is not None and event.triggered else None,
+            halt_time_s=halt_s, halt_z_mm=halt_z,
+            error=event.error if event is not None else no_error, moves=probe_moves)
+
+    def wait_for_trigger(self, trigger, timeout_s: float) -> ProbingMoveResult:
+        """Feed samples to the armed trigger with no motion (LOAD_CELL_TEST_TAP) until it fires,
+        reports an error, or the timeout passes."""
+        self._advance_to(self._now_s)
+        t_start = self._now_s
+        end_s = t_start + timeout_s
+        feeder = TriggerFeeder(trigger, self._timing.period_s, t_start, _trigger_error_none())
+        pending_t, pending_c = self._mcu.pending(t_start)
+        event = feeder.feed(pending_t, pending_c, t_start) if pending_t.size else None
+        while event is None and self._now_s < end_s:
+            step_end = min(self._now_s + CHUNK_S, end_s)
+            previous = self._now_s
+            self._advance_to(step_end)
+            t, c = self._mcu.pending(previous)
+            event = feeder.feed(t[t <= step_end], c[t <= step_end], step_end)
+        halt_s = self._now_s if event is None else max(event.time_s, t_start)
+        z = float(self._motion.end_position[2])
+        return ProbingMoveResult(bool(event is not None and event.triggered),
+                                 event.time_s if event is not None and event.triggered else None,
+                                 halt_s, z, event.error if event is not None else _trigger_error_none(), [])
+
+    # -- records ----------------------------------------------------------------------------
+    def recorded_moves(self, t0_s: float, t1_s: float) -> list[dict]:
+        """Motion covering [t0, t1] in the tapcell.tap.v1 `moves` form, oldest first."""
+        return [s.as_tap_move() for s in self._motion.segments_between(t0_s, t1_s)]
+
+    def write_tap_file(self, path, t0_s: float, t1_s: float, probe: dict, analysis_meta: dict | None = None,
+                       counts_per_gram: float | None = None, tare_counts: float | None = None) -> dict:
+        """Write one tap as tapcell.tap.v1 JSON (or append a line to a .jsonl file); returns the object.
+
+        Force is tared with `tare_counts` (default: the mean of the first 10 samples) and scaled
+        with `counts_per_gram` (default: the true one)."""
+        t, counts, _ = self._mcu.log.between(t0_s, t1_s)
+        if t.size < 2:
+            raise ValueError(f"tap file {path}: fewer than 2 samples between {t0_s:.3f} s and {t1_s:.3f} s")
+        cpg = self._counts_per_gram if counts_per_gram is None else counts_per_gram
+        tare = float(np.mean(counts[:10])) if tare_counts is None else tare_counts
+        x = float(probe.get("x", self.position[0]))
+        y = float(probe.get("y", self.position[1]))
+        tap = {"format": TAP_FORMAT, "time": t.tolist(), "force": ((counts - tare) / cpg).tolist(),
+               "moves": self.recorded_moves(t0_s, t1_s), "sample_rate": self.params.sample_rate_sps,
+               "events": self._tap_events(t0_s, t1_s), "probe": dict(probe),
+               "truth": {"z_contact": float(self.truth.contact_z_at(x, y, t0_s)),
+                         "label": "fouled" if self._film_at_start(t0_s, t1_s) > 1.0 else "clean"},
+               "meta": {"scenario": self.scenario, "seed": self.seed, "sensor_type": self.params.chip,
+                        "source": "tapcell.sim", **(analysis_meta or {})}}
+        path = Path(path)
+        if path.suffix == ".jsonl":
+            with open(path, "a", encoding="utf-8") as out:
+                out.write(json.dumps(tap) + "\n")
+        else:
+            path.write_text(json.dumps(tap), encoding="utf-8")
+        return tap
+
+    # -- internals: motion --------------------------------------------------------------------
+    def _check_target(self, target) -> None:
+        for axis, value in zip("xyz", target):
+            low, high = self.limits[axis]
+            if not low - 1e-9 <= value <= high + 1e-9:
+                raise MoveError(f"move out of range: {axis}={value:.3f} (allowed {low:.3f} .. {high:.3f})")
+
+    def _plan(self, start, target, speed_mm_s: float) -> list[Segment]:
+        delta = np.subtract(target, start)
+        distance = float(np.linalg.norm(delta))
+        if distance <= 0.0:
+            return []
+        p = self.params
+        speed, accel = move_limits(delta / distance, p.max_velocity_mm_s, p.max_accel_mm_s2,
+                                   p.max_z_velocity_mm_s, p.max_z_accel_mm_s2, speed_mm_s)
+        return plan_trapezoid(start, target, self._now_s, speed, accel)
+
+    def _plan_and_run(self, start, target, speed_mm_s: float) -> None:
+        segments = self._plan(start, target, speed_mm_s)
+        if not segments:
+            return
+        self._motion.append(segments)
+        self._advance_to(segments[-1].end_time)
+
+    def _truncate_probing_move(self, count: int, halt_s: float) -> None:
+        """Cut the probing move at the halt and add a zero-length marker at the stepper position."""
+        segments = self._motion.segments[-count:]
+        kept = [s.truncated(halt_s) for s in segments if s.print_time < halt_s]
+        last = kept[-1] if kept else segments[0]
+        halt_pos = tuple(float(v) for v in quantize_to_steps(last.position_at(halt_s), self.step_distance_mm))
+        marker = Segment(halt_s, 0.0, 0.0, 0.0, halt_pos, (0.0, 0.0, 0.0))
+        self._motion.replace_last(count, [s for s in kept if s.move_t > 0.0] + [marker])
+
+    @staticmethod
+    def _crossing_time(segments: list[Segment], z_mm: float) -> float | None:
+        """When a downward move first reaches z_mm (None if it never does)."""
+        for s in segments:
+            z0, z1 = s.start[2], s.end[2]
+            if z1 <= z_mm <= z0 and s.direction[2] < 0:
+                dist = (z0 - z_mm) / -s.direction[2]
+                a, v = 0.5 * s.accel, s.start_v
+                tau = dist / v if abs(a) < 1e-12 else (-v + math.sqrt(max(v * v + 4 * a * dist, 0.0))) / (2 * a)
+                return s.print_time + tau
+        return None
+
+    # -- internals: samples ---------------------------------------------------------------------
+    def _last_index_closed_by(self, t_s: float) -> int:
+        """One past the last conversion whose integration window has closed by t_s."""
+        return self._timing.first_index_after(t_s + self._timing.pipeline_s)
+
+    def _advance_to(self, t_s: float) -> None:
+        self._now_s = max(self._now_s, t_s)
+        k_end = self._last_index_closed_by(self._now_s)
+        while self._next_k < k_end:
+            k1 = min(k_end, self._next_k + FREE_RUN_CHUNK)
+            self._mcu.deliver(self._compute(self._next_k, k1))
+            self._next_k = k1
+        for sensor in self._aux_sensors:
+            sensor.advance_to(self._now_s)
+
+    def _fire_condition(self, condition: str, t_s: float) -> None:
+        for f in self._faults:
+            if f.when == condition and f.start_s is None:
+                f.start_s = t_s
+
+    def _film_at_start(self, t0_s: float, t1_s: float) -> float:
+        """Ooze film when the tap in [t0, t1] started (now, if no probing move is in the span)."""
+        probes = [r for r in self._probes if t0_s <= r.halt_time_s <= t1_s]
+        return probes[-1].film_um if probes else self._state.contact.film_um
+
+    def _compute(self, k0: int, k1: int) -> SampleChunk:
+        """Conversions k0..k1-1 as the MCU reads them; advances the physics state."""
+        p, timing = self.params, self._timing
+        n, sub = k1 - k0, timing.substeps
+        grid_t = timing.grid_times(k0, k1)
+        pos = quantize_to_steps(self._motion.positions_at(grid_t), self.step_distance_mm)
+        temps = self._thermal.temps_at(grid_t)
+        contact_z = self._bed.surface_z(pos[:, 0], pos[:, 1]) + self._thermal.extension_mm(temps)
+        gap_um = (pos[:, 2] - contact_z) * 1000.0
+        growth_um = p.ooze_growth_um_per_s_per_c * np.maximum(temps - p.ooze_temp_c, 0.0) * timing.grid_dt_s
+        bed_g, film_g = contact_forces(gap_um, timing.grid_dt_s, growth_um, self._contact_model,
+                                       self._state.contact)
+        centre = (p.bed_x_mm / 2.0, p.bed_y_mm / 2.0)
+        drag_g = (p.bowden_g_per_mm_x * (pos[:, 0] - centre[0]) + p.bowden_g_per_mm_y * (pos[:, 1] - centre[1])
+                  + p.bowden_g_per_mm_z * pos[:, 2])
+        grid_force = bed_g + film_g + drag_g + faultlib.external_force_g(self._faults, grid_t) + self._hand_force(grid_t)
+        force_g = grid_force.reshape(n, sub).mean(axis=1)
+        t_ready = timing.ready_times(k0, k1)
+        force_g = force_g + p.thermal_drift_g_per_c * self._cell_warming(t_ready)
+        window_end = t_ready - timing.pipeline_s
+        electrical = self._white.values(k0, k1) + self._pink.values(k0, k1)
+        if p.hum_counts > 0.0:
+            electrical = electrical + window_average_sine(p.hum_counts, p.hum_hz, window_end, timing.period_s,
+                                                          self._hum_phase)
+        counts = counts_from_force(force_g, self._counts_per_gram, self._zero_offset_counts, electrical)
+        if p.glitch_rate_per_s > 0.0:
+            hit = self._glitch_draw.values(k0, k1) < p.glitch_rate_per_s * timing.period_s
+            bits = self._glitch_bits.values(k0, k1).astype(np.int64)
+            counts[hit] ^= (np.int64(1) << bits[hit]).astype(np.int32)
+        delays = self._mcu.read_delays(k0, k1)
+        t_read = t_ready + delays
+        counts, bad = faultlib.apply_count_faults(self._faults, t_ready, counts, self._mcu.last_counts,
+                                                  self._mcu.last_read_s, self._glitch_bits.values(k0, k1).astype(int))
+        missing = faultlib.stream_gap_mask(self._faults, t_ready)
+        late = delays > timing.period_s
+        keep = ~(bad | missing | late)
+        return SampleChunk(t_read[keep], counts[keep], force_g[keep], int(np.count_nonzero(bad & ~missing)),
+                           int(np.count_nonzero(late & ~missing & ~bad)))
+
+    def _hand_force(self, t_s: np.ndarray) -> np.ndarray:
+        force = np.zeros(t_s.shape)
+        for start, duration, peak in self._hand_taps:
+            inside = (t_s >= start) & (t_s < start + duration)
+            force[inside] += peak * np.sin(np.pi * (t_s[inside] - start) / duration)
+        return force
+
+    def _cell_warming(self, t_s: np.ndarray) -> np.ndarray:
+        """The cell's temperature rise: a slow low-pass of the nozzle's rise (state carried over)."""
+        p = self.params
+        drive = p.cell_heat_coupling * (self._thermal.temps_at(t_s) - p.ambient_c)
+        keep = math.exp(-self._timing.period_s / p.cell_heat_tau_s)
+        # first-order filter, one step per sample: y[n] = keep*y[n-1] + (1-keep)*x[n]
+        warm, _ = lfilter([1.0 - keep], [1.0, -keep], drive, zi=[keep * self._state.cell_warm_c])
+        self._state.cell_warm_c = float(warm[-1])
+        return warm
+
+    def _tap_events(self, t0_s: float, t1_s: float) -> dict:
+        events = {}
+        probes = [r for r in self._probes if t0_s <= r.halt_time_s <= t1_s]
+        if not probes:
+            return events
+        halt = probes[-1].halt_time_s
+        events["home_end_time"] = halt
+        after = [s for s in self._motion.segments_between(halt, t1_s) if s.print_time > halt and s.direction[2] > 0]
+        if after:
+            first = after[0].print_time
+            run = [s for s in after if s.print_time >= first]
+            end = first
+            for s in run:
+                if abs(s.print_time - end) > 1e-9 and s is not run[0]:
+                    break
+                end = s.end_time
+            events["pullback_start_time"] = first
+            events["pullback_end_time"] = end
+        return events
+
+
+def _trigger_error_none():
+    from tapcell.mcu.trigger import TriggerError
+
+    return TriggerError.NONE
