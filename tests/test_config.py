@@ -237,9 +237,23 @@ def test_reading_with_a_default_still_counts_as_read(tmp_path):
 
 
 def test_mark_section_read_accepts_every_option(tmp_path):
-    cfg = read(tmp_path, "[bed_mesh]\nspeed: 5\nprobe_count: 3, 3\n")
+    cfg = read(tmp_path, "[bed_mesh]\nspeed: 5\nprobe_count: 3, 3\n[bed_mesh p1]\nx_count: 3\n")
     cfg.mark_section_read("bed_mesh")
+    with pytest.raises(ConfigError, match="Option 'x_count' is not valid in section 'bed_mesh p1'"):
+        cfg.check_unused_options()
+    assert cfg.section_options("bed_mesh p1") == {"x_count": "3"}  # reading them all counts
     cfg.check_unused_options()
+
+
+def test_prefix_sections_and_lookup(tmp_path):
+    cfg = read(tmp_path, f"[load_cell]\n[gcode_macro A]\n[load_cell left]\n[load_cells]\n{SAVE_CONFIG_MARKER}\n"
+                         "#*# [load_cell right]\n#*# counts_per_gram = 5\n")
+    assert [s.get_name() for s in cfg.get_prefix_sections("load_cell ")] == ["load_cell left", "load_cell right"]
+    assert [s.get_name() for s in cfg.get_prefix_sections("load_cell")] == [
+        "load_cell", "load_cell left", "load_cells", "load_cell right"]
+    assert cfg.has_section("load_cell right") and not cfg.has_section("load_cell middle")
+    # A missing section reads as empty: every option takes its default.
+    assert cfg.getsection("load_cell middle").getfloat("counts_per_gram", 1.5) == 1.5
 
 
 # -- SAVE_CONFIG block -----------------------------------------------------------

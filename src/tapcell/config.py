@@ -448,7 +448,11 @@ class ConfigFile:
         return section.file if section else self.path
 
     def section_options(self, name: str) -> dict[str, str]:
-        """The merged option texts of a section (config body overridden by SAVE_CONFIG)."""
+        """The merged option texts of a section (config body overridden by SAVE_CONFIG).
+
+        Counts as reading every option (for modules that parse a whole section themselves).
+        """
+        self.mark_section_read(name)
         return {option: self._lookup(name, option).text for option in self._option_names(name)}
 
     def _option_names(self, name: str) -> list[str]:
