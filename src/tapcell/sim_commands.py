@@ -22,6 +22,9 @@ from tapcell.sim.printer import VirtualPrinter
 
 MAX_WEIGHT_GRAMS = 100_000.0
 MAX_TAP_FORCE_G = 10_000.0
+# Putting a weight down (or lifting it off) takes a person about this long; the next
+# command then reads a settled cell, as it would on a real printer.
+WEIGHT_HANDLING_TIME_S = 0.5
 # Parameters of SIM_FAULT itself; every other parameter is passed to the fault.
 SIM_FAULT_OWN_PARAMETERS = ("NAME", "AT", "WHEN", "DURATION")
 
@@ -62,10 +65,12 @@ class SimCommands:
     def cmd_place_weight(self, gcmd: GCodeCommand) -> None:
         grams = gcmd.get_float("GRAMS", above=0.0, maxval=MAX_WEIGHT_GRAMS)
         self._weight_target(gcmd).place_weight(grams)
+        self.vp.dwell(WEIGHT_HANDLING_TIME_S)
         gcmd.respond_info(f"A {grams:g} g weight now rests on the load cell")
 
     def cmd_remove_weight(self, gcmd: GCodeCommand) -> None:
         self._weight_target(gcmd).remove_weight()
+        self.vp.dwell(WEIGHT_HANDLING_TIME_S)
         gcmd.respond_info("The weight is off the load cell")
 
     def cmd_tap(self, gcmd: GCodeCommand) -> None:
