@@ -18,6 +18,7 @@ from pathlib import Path
 
 from rich.console import Console
 
+from tapcell.config import ConfigError
 from tapcell.gcode import GCodeError
 from tapcell.printer import Printer
 
@@ -36,30 +37,30 @@ class DemoStep:
 SCALE_STEPS = (
     DemoStep(
         "Check the sensor",
-        "LOAD_CELL_DIAGNOSTIC listens to the load cell for 10 s. The sample rate should match the\n"
-        "configured one, no sample should be saturated, and many different values mean a live,\n"
-        "noisy-as-expected sensor (a single value would mean a wiring fault). Not calibrated yet,\n"
+        "LOAD_CELL_DIAGNOSTIC listens to the load cell for 10 s. The sample rate should match the "
+        "configured one, no sample should be saturated, and many different values mean a live, "
+        "noisy-as-expected sensor (a single value would mean a wiring fault). Not calibrated yet, "
         "so everything is in raw counts and % of the sensor's range.",
         ("LOAD_CELL_DIAGNOSTIC",),
     ),
     DemoStep(
         "Calibrate with a known weight",
-        "Calibration finds how many sensor counts one gram makes. TARE reads the cell with no\n"
-        f"load; then a {CALIBRATION_WEIGHT_G:g} g weight goes on (SIM_PLACE_WEIGHT does that on the virtual\n"
-        "printer; on a real one you put a weight or press on a kitchen scale) and CALIBRATE GRAMS=\n"
+        "Calibration finds how many sensor counts one gram makes. TARE reads the cell with no "
+        f"load; then a {CALIBRATION_WEIGHT_G:g} g weight goes on (SIM_PLACE_WEIGHT does that on the virtual "
+        "printer; on a real one you put a weight or press on a kitchen scale) and CALIBRATE GRAMS= "
         "reads it. ACCEPT keeps the result; SAVE_CONFIG writes it into the config file.",
         ("LOAD_CELL_CALIBRATE", "TARE", f"SIM_PLACE_WEIGHT GRAMS={CALIBRATION_WEIGHT_G:g}",
          f"CALIBRATE GRAMS={CALIBRATION_WEIGHT_G:g}", "ACCEPT", "SIM_REMOVE_WEIGHT", "SAVE_CONFIG"),
     ),
     DemoStep(
         "Weigh something",
-        f"With the cell calibrated, LOAD_CELL_TARE makes 'nothing' the zero, and a {TEST_WEIGHT_G:g} g\n"
+        f"With the cell calibrated, LOAD_CELL_TARE makes 'nothing' the zero, and a {TEST_WEIGHT_G:g} g "
         "object should read as such. LOAD_CELL_READ averages one second of samples.",
         ("LOAD_CELL_TARE", f"SIM_PLACE_WEIGHT GRAMS={TEST_WEIGHT_G:g}", "LOAD_CELL_READ"),
     ),
     DemoStep(
         "The diagnostic again, now in grams",
-        "Calibrated, the diagnostic also shows the spread of the samples in grams: the noise of\n"
+        "Calibrated, the diagnostic also shows the spread of the samples in grams: the noise of "
         "this load cell while the weight rests on it.",
         ("LOAD_CELL_DIAGNOSTIC", "SIM_REMOVE_WEIGHT"),
     ),
@@ -97,7 +98,11 @@ def main(argv: list[str] | None = None) -> int:
         config_path = Path(workdir) / "printer.cfg"
         shutil.copyfile(args.config, config_path)
         console.print(f"Starting the virtual printer from {args.config} (a copy in {config_path}).")
-        runner = DemoRunner(config_path, console)
+        try:
+            runner = DemoRunner(config_path, console)
+        except ConfigError as exc:
+            console.print(f"The printer did not start: {exc}", style="bold red", markup=False)
+            return 1
         try:
             for number, step in enumerate(SCALE_STEPS, start=1):
                 runner.run_step(number, step)
