@@ -94,7 +94,8 @@ def test_console_loop_runs_lines_until_eof(capsys, files):
 def test_console_quits_on_exit_and_survives_ctrl_c(capsys, files):
     config, _ = files
     printer = Printer.from_config(str(config), responses=frontend._print_line)
-    events = iter([KeyboardInterrupt, "HELLO", "exit", "HELLO NAME=never"])
+    printer.gcode.register_command("SLOW", lambda gcmd: (_ for _ in ()).throw(KeyboardInterrupt))
+    events = iter([KeyboardInterrupt, "SLOW", "HELLO", "exit", "HELLO NAME=never"])
 
     def read_line(prompt):
         event = next(events)
@@ -103,7 +104,7 @@ def test_console_quits_on_exit_and_survives_ctrl_c(capsys, files):
         return event
 
     frontend.console_loop(printer, read_line)
-    assert capsys.readouterr().out.splitlines() == ["", "// hello world"]
+    assert capsys.readouterr().out.splitlines() == ["", "!! Interrupted", "// hello world"]
 
 
 def test_console_main_with_piped_input(capsys, files, monkeypatch):

@@ -107,7 +107,11 @@ def console_loop(printer: Printer, read_line=input) -> None:
             continue
         if line.strip().lower() in ("exit", "quit"):
             return
-        printer.gcode.run_script_reporting_errors(line)
+        try:
+            printer.gcode.run_script_reporting_errors(line)
+        except KeyboardInterrupt:
+            # Ctrl-C stops a long command (e.g. a 10 s diagnostic), not the console.
+            print("!! Interrupted", flush=True)
 
 
 def _main_console(argv: list[str]) -> int:
