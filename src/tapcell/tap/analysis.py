@@ -1,0 +1,409 @@
+"""Analysis of one tap: five lines and six points, Z at break contact, validation.
+
+Steps (each a plain function; `analyze_tap` is the shell that runs them):
+1. motion (phase times) from the moves or the z trace, sensor timing from options/meta;
+2. polarity, then single corrupted frames repaired (robust spike test);
+3. the globally optimal five-line split over windows the motion allows (segments.py);
+4. points, chronology, shape and break-contact timing checks (validate.py);
+5. Z: the contact model (contact.py) fitted to the pullback in Z space, with the sensor's
+   conversion window and delay removed, and its 1 sigma; the line intersection P4 is kept as
+   `z_line_mm` and used when the model cannot be fitted;
+6. the sensor delay estimated from the tap: contact on the way down and break contact on the
+   way up are shifted in opposite directions by a delay;
+7. the configured classifier (classifiers.py).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from tapcell.tap import validate
+from tapcell.tap.contact import ContactFit, fit_contact, profile_search, window_mean_hinge
+from tapcell.tap.model import (
+    TAP_DATA_INSUFFICIENT,
+    TAP_MOTION_INVALID,
+    TAP_SHAPE_INVALID,
+    AnalysisOptions,
+    TapAnalysis,
+    TapData,
+)
+from tapcell.tap.motion import Motion, MotionError, tap_motion
+from tapcell.tap.validate import TapInvalid
+from tapcell.tap.segments import PrefixSums, best_five_segments, prefix_sums, segment_line
+
+MIN_SAMPLES = 12
+# Extra samples the force may keep changing after the motion stopped/started (ringing, filters).
+LAG_MARGIN_SAMPLES = 3
+# Lag allowed when the sensor delay is to be estimated (s).
+UNKNOWN_DELAY_ALLOWANCE_S = 0.02
+# An onset is modelled only when it lowers the residual by this many noise variances (~5 sigma).
+ONSET_MIN_CHI2 = 25.0
+ONSET_GRID_UM = (0.0, 2.0, 4.0, 6.0, 9.0, 12.0)
+# The global contact search spans this many samples either side of the line estimate.
+SEARCH_SAMPLES = 4
+# Prusa's plotting scale used for the line angles (s per g): 0.1 s to 25 g.
+ANGLE_SCALE_S_PER_G = 0.004
+
+
+@dataclass
+class SensorTiming:
+    delay_s: float
+    integration_s: float
+    estimate_delay: bool
+
+
+def sensor_timing(tap: TapData, options: AnalysisOptions, sample_period_s: float) -> SensorTiming:
+    estimate = options.sensor_delay_s == "auto"
+    delay = options.sensor_delay_s if isinstance(options.sensor_delay_s, float | int) else None
+    if delay is None:
+        delay = _meta_seconds(tap, "sensor_delay_s", 0.0)
+    integration = options.sensor_integration_s
+    if integration is None:
+        integration = _meta_seconds(tap, "sensor_integration_s", sample_period_s)
+    return SensorTiming(float(delay), float(integration), estimate)
+
+
+def _meta_seconds(tap: TapData, key: str, default: float) -> float:
+    value = tap.meta.get(key)
+    if isinstance(value, int | float) and math.isfinite(value) and 0 <= value < 1:
+        return float(value)
+    return default
+
+
+def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarray, int]:
+    """Replace single corrupted frames by the mean of their neighbours.
+
+    A sample is a spike when it stands off the midpoint of its neighbours by more than
+    `threshold_sigma` noise sigmas while the neighbours agree with each other (a step or a
+    steep ramp has neighbours far apart, so real edges are never touched). The noise sigma
+    comes from the median absolute second difference, which spikes cannot inflate.
+    """
+    if len(force_g) < 5:
+        return force_g, 0
+    off_mid = force_g[1:-1] - 0.5 * (force_g[:-2] + force_g[2:])
+    neighbour_gap = np.abs(force_g[2:] - force_g[:-2])
+    # off_mid of white noise has sigma sqrt(1.5) * noise sigma.
+    noise_sigma = 1.4826 * float(np.median(np.abs(off_mid))) / math.sqrt(1.5)
+    scale = float(np.max(np.abs(force_g - np.median(force_g))))
+    threshold = max(threshold_sigma * noise_sigma, 1e-6 * scale, 1e-9)
+    spikes = np.flatnonzero((np.abs(off_mid) > threshold) & (np.abs(off_mid) > 2.0 * neighbour_gap)) + 1
+    if len(spikes) == 0:
+        return force_g, 0
+    repaired = force_g.copy()
+    repaired[spikes] = 0.5 * (force_g[spikes - 1] + force_g[spikes + 1])
+    return repaired, len(spikes)
+
+
+def _index(time_s: np.ndarray, t: float) -> int:
+    """First sample index at or after t, clamped to the array."""
+    return int(min(np.searchsorted(time_s, t), len(time_s) - 1))
+
+
+def _intersect(a: tuple[float, float], b: tuple[float, float], t_ref: float) -> tuple[float, float]:
+    """Intersection of two lines; computed around t_ref so large clock values lose nothing."""
+    slope_diff = a[0] - b[0]
+    if slope_diff == 0:
+        return math.nan, math.nan
+    fa, fb = a[0] * t_ref + a[1], b[0] * t_ref + b[1]
+    dt = (fb - fa) / slope_diff
+    return t_ref + dt, fa + a[0] * dt
+
+
+def _line_at(line: tuple[float, float], t: float) -> float:
+    return line[0] * t + line[1]
+
+
+def line_angles_deg(lines: list[tuple[float, float]]) -> list[float]:
+    atans = [math.degrees(math.atan(s * ANGLE_SCALE_S_PER_G)) for s, _ in lines]
+    return [atans[i] - atans[i + 1] for i in range(4)]
+
+
+@dataclass
+class Decomposition:
+    start: int
+    stop: int
+    bounds: tuple[int, int, int, int]
+    lines: list[tuple[float, float]]  # in positive polarity
+    points: list[tuple[float, float]]
+
+
+def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_samples: int) -> tuple[Decomposition, PrefixSums]:
+    """Five lines and six points of a positive-polarity tap."""
+    n = len(time_s)
+    duration = motion.pullback_duration_s
+    period = float(np.median(np.diff(time_s)))
+    start = _index(time_s, motion.home_end_s - max(duration, 8 * period))
+    stop = min(n, _index(time_s, motion.pullback_end_s + duration) + 1)
+    t = time_s[start:stop]
+    ps = prefix_sums(t, force_g[start:stop])
+    m = len(t)
+    home_end = _index(t, motion.home_end_s)
+    pull_start = _index(t, motion.pullback_start_s)
+    pull_cruise = _index(t, motion.pullback_cruise_s)
+    peak = np.arange(max(2, home_end - 1), min(pull_start, home_end + lag_samples) + 1)
+    release = np.arange(max(pull_start - 1, 0), min(m - 2, max(pull_start, pull_cruise) + lag_samples) + 1)
+    if len(peak) == 0 or len(release) == 0:
+        raise TapInvalid(TAP_DATA_INSUFFICIENT, "no samples between the halt and the pullback")
+    contact = np.arange(2, peak[-1] - 1)
+    breaking = np.arange(release[0] + 2, m - 1)
+    if len(contact) == 0 or len(breaking) == 0:
+        raise TapInvalid(TAP_DATA_INSUFFICIENT, f"too few samples around the tap ({m} in the analysis window)")
+    bounds = best_five_segments(ps, 0, m, contact, peak, release, breaking)
+    if bounds is None:
+        raise TapInvalid(TAP_DATA_INSUFFICIENT, "too few samples to fit five lines (each needs 2)")
+    edges = (0, *bounds, m)
+    lines = [segment_line(ps, edges[k], edges[k + 1]) for k in range(5)]
+    points = recompute_points(lines, float(t[0]), float(t[-1]))
+    return Decomposition(start, stop, bounds, lines, points), ps
+
+
+def recompute_points(lines: list[tuple[float, float]], t_first: float, t_last: float) -> list[tuple[float, float]]:
+    """P0 on the approach line at the window start, P1..P4 the intersections, P5 on the departure."""
+    t_mid = 0.5 * (t_first + t_last)
+    points = [(t_first, _line_at(lines[0], t_first))]
+    points += [_intersect(lines[k], lines[k + 1], t_mid) for k in range(4)]
+    points.append((t_last, _line_at(lines[4], t_last)))
+    return points
+
+
+def _segment_stats(ps: PrefixSums, i: int, j: int) -> tuple[float, float, float]:
+    """(residual variance, mean re-centred time, Sxx) of the line over [i, j)."""
+    n = j - i
+    st = ps.s_t[j] - ps.s_t[i]
+    sf = ps.s_f[j] - ps.s_f[i]
+    sxx = ps.s_tt[j] - ps.s_tt[i] - st * st / n
+    sxy = ps.s_tf[j] - ps.s_tf[i] - st * sf / n
+    syy = ps.s_ff[j] - ps.s_ff[i] - sf * sf / n
+    sse = max(syy - (sxy * sxy / sxx if sxx > 0 else 0.0), 0.0)
+    return sse / max(n - 2, 1), st / n, sxx
+
+
+def break_time_sigma_s(ps: PrefixSums, dec: Decomposition, t_break: float) -> float:
+    """1 sigma of the decompression ∩ departure time from the two line fits."""
+    i, j, k = dec.bounds[2], dec.bounds[3], dec.stop - dec.start
+    var = 0.0
+    for a, b in ((i, j), (j, k)):
+        res_var, t_mean, sxx = _segment_stats(ps, a, b)
+        lever = (t_break - ps.t_ref_s) - t_mean
+        var += res_var * (1.0 / (b - a) + (lever * lever / sxx if sxx > 0 else 0.0))
+    slope_gap = abs(dec.lines[3][0] - dec.lines[4][0])
+    return math.sqrt(var) / slope_gap if slope_gap > 0 else math.inf
+
+
+def _fit_window(time_s: np.ndarray, motion: Motion, timing: SensorTiming, delay_s: float,
+                z_halt_mm: float) -> tuple[np.ndarray, np.ndarray]:
+    """Heights above the halt (µm) at the start and end of each sample's conversion window."""
+    x_hi = (motion.z_at(time_s - delay_s) - z_halt_mm) * 1000.0
+    x_lo = (motion.z_at(time_s - delay_s - timing.integration_s) - z_halt_mm) * 1000.0
+    return x_lo, x_hi
+
+
+def fit_pullback(time_s, force_g, motion, timing, delay_s, dec, options) -> ContactFit | None:
+    """The contact model over the pullback: samples whose window starts after the nozzle began rising."""
+    t = time_s[dec.start:dec.stop]
+    y = force_g[dec.start:dec.stop]
+    first = int(np.searchsorted(t, motion.pullback_start_s + delay_s + timing.integration_s, side="right"))
+    t_fit, y_fit = t[first:], y[first:]
+    x_lo, x_hi = _fit_window(t_fit, motion, timing, delay_s, motion.z_halt_mm)
+    t_break = dec.points[4][0]
+    contact0 = float((motion.z_at(t_break - delay_s - 0.5 * timing.integration_s) - motion.z_halt_mm) * 1000.0)
+    stiffness0 = abs(dec.lines[3][0]) / (motion.pullback_speed_mm_s * 1000.0)
+    baseline0 = _line_at(dec.lines[4], t_break)
+    if not (math.isfinite(contact0) and stiffness0 > 0):
+        return None
+    fit = _fit_with_onset(y_fit, x_lo, x_hi, contact0, stiffness0, baseline0, options)
+    if fit is None:
+        return None
+    # Robust pass: drop samples the first fit cannot explain (ooze blobs, bursts), fit again.
+    mean, _, _ = window_mean_hinge(fit.contact_um, fit.onset_um, x_lo, x_hi)
+    residual = y_fit - (fit.baseline_g + fit.stiffness_g_um * mean)
+    robust_sigma = 1.4826 * float(np.median(np.abs(residual)))
+    keep = np.abs(residual) <= options.outlier_sigma * max(robust_sigma, fit.residual_sigma_g)
+    if keep.all():
+        return fit
+    return _fit_with_onset(y_fit[keep], x_lo[keep], x_hi[keep], fit.contact_um, fit.stiffness_g_um,
+                           fit.baseline_g, options) or fit
+
+
+def _fit_with_onset(y, x_lo, x_hi, contact0, stiffness0, baseline0, options: AnalysisOptions) -> ContactFit | None:
+    """Global grid search around the line estimate, then Gauss-Newton from the best point.
+
+    The onset width is `contact_onset_um` when calibrated (no cost in spread). With
+    `fit_contact_onset` it is fitted per tap and kept only when the data show one
+    (likelihood-ratio test): onset width and contact height trade off against each other,
+    so a per-tap onset costs several times the Z spread.
+    """
+    spacing_um = float(np.median(np.abs(np.diff(x_hi)))) if len(x_hi) > 1 else 1.0
+    grid = contact0 + np.arange(-SEARCH_SAMPLES, SEARCH_SAMPLES + 0.5, 0.25) * max(spacing_um, 0.05)
+    fixed_onset = options.contact_onset_um or 0.0
+    grid = grid + 0.5 * fixed_onset  # a line fit reads a soft contact onset/2 low
+    _, contact, _, stiffness, baseline = profile_search(y, x_lo, x_hi, grid, (fixed_onset,))
+    sharp = fit_contact(y, x_lo, x_hi, contact, stiffness, baseline, fixed_onset, False)
+    fit_onset = options.fit_contact_onset and options.contact_onset_um is None
+    if not fit_onset:
+        return sharp
+    onset_grid = grid + 0.5 * ONSET_GRID_UM[-1]  # a line fit reads a soft contact up to onset/2 low
+    _, contact, onset, stiffness, baseline = profile_search(y, x_lo, x_hi, np.concatenate((grid, onset_grid)),
+                                                            ONSET_GRID_UM)
+    if onset == 0.0:
+        return sharp
+    soft = fit_contact(y, x_lo, x_hi, contact, stiffness, baseline, onset, True)
+    if soft is None or sharp is None:
+        return soft or sharp
+    # Keep the onset only when it explains the data clearly better (likelihood-ratio test).
+    improvement = (sharp.rss_g2 - soft.rss_g2) / soft.residual_sigma_g ** 2 if soft.residual_sigma_g > 0 else np.inf
+    return soft if improvement > ONSET_MIN_CHI2 else sharp
+
+
+def fit_compression(time_s, force_g, motion, timing, delay_s, dec, onset_um) -> ContactFit | None:
+    """The contact model over the approach up to the halt (onset fixed to the pullback's)."""
+    t = time_s[dec.start:dec.stop]
+    y = force_g[dec.start:dec.stop]
+    last = int(np.searchsorted(t, motion.home_end_s + delay_s, side="right"))
+    t_fit, y_fit = t[:last], y[:last]
+    if len(t_fit) < 6:
+        return None
+    x_lo, x_hi = _fit_window(t_fit, motion, timing, delay_s, motion.z_halt_mm)
+    t_contact = dec.points[1][0]
+    contact0 = float((motion.z_at(t_contact - delay_s) - motion.z_halt_mm) * 1000.0)
+    stiffness0 = abs(dec.lines[1][0]) / (motion.approach_speed_mm_s * 1000.0)
+    fit = fit_contact(y_fit, x_lo, x_hi, contact0, stiffness0, _line_at(dec.lines[0], t_contact), onset_um, False)
+    if fit is None or fit.samples_in_contact < 2:
+        return None
+    return fit
+
+
+def analyze_tap(tap: TapData, options: AnalysisOptions | None = None) -> TapAnalysis:
+    """Analyse one tap. Never raises on data: what cannot be analysed is an invalid tap with a code."""
+    from tapcell.tap.classifiers import get_classifier, run_classifier
+
+    started = time.perf_counter()
+    options = options or AnalysisOptions()
+    classifier = get_classifier(options.tap_classifier, options)  # a wrong name is a config error: raise
+    try:
+        result, context = _analyze(tap, options)
+        result = run_classifier(result, context, classifier, options.tap_classifier)
+    except TapInvalid as invalid:
+        result = TapAnalysis(valid=False, error=invalid.code, message=invalid.message)
+    except (ValueError, TypeError, IndexError, ArithmeticError, MotionError) as failure:
+        # Data shapes no check anticipated: still an answer, never a traceback.
+        result = TapAnalysis(valid=False, error=TAP_DATA_INSUFFICIENT, message=f"cannot analyse the tap: {failure}")
+    result.elapsed_ms = (time.perf_counter() - started) * 1000.0
+    return result
+
+
+@dataclass
+class AnalysisContext:
+    """What a classifier may need beyond the result: the tap, its motion and sensor timing."""
+
+    tap: TapData
+    motion: Motion | None
+    timing: SensorTiming | None
+
+
+def _check_samples(tap: TapData) -> tuple[np.ndarray, np.ndarray]:
+    t = np.asarray(tap.time_s, dtype=float)
+    f = np.asarray(tap.force_g, dtype=float)
+    if t.ndim != 1 or f.shape != t.shape:
+        raise TapInvalid(TAP_DATA_INSUFFICIENT, f"time and force differ in shape ({t.shape} vs {f.shape})")
+    if len(t) < MIN_SAMPLES:
+        raise TapInvalid(TAP_DATA_INSUFFICIENT, f"{len(t)} samples, at least {MIN_SAMPLES} needed")
+    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(f))):
+        raise TapInvalid(TAP_DATA_INSUFFICIENT, "time or force holds NaN or infinity")
+    if np.any(np.diff(t) <= 0):
+        raise TapInvalid(TAP_DATA_INSUFFICIENT, "sample times are not strictly increasing")
+    return t, f
+
+
+def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, AnalysisContext]:
+    time_s, force_raw = _check_samples(tap)
+    validate.check_moves(tap.moves)
+    try:
+        motion = tap_motion(tap)
+    except MotionError as problem:
+        raise TapInvalid(TAP_MOTION_INVALID, str(problem)) from None
+    period_s = 1.0 / tap.sample_rate_sps if tap.sample_rate_sps else float(np.median(np.diff(time_s)))
+    timing = sensor_timing(tap, options, period_s)
+    validate.check_motion(motion, time_s)
+
+    polarity = _polarity(time_s, force_raw, motion)
+    force, outliers = repair_spikes(polarity * force_raw, options.outlier_sigma)
+    allowance = UNKNOWN_DELAY_ALLOWANCE_S if timing.estimate_delay else timing.delay_s
+    lag_samples = math.ceil((allowance + timing.integration_s) / period_s) + LAG_MARGIN_SAMPLES
+    dec, ps = decompose(time_s, force, motion, lag_samples)
+    angles = line_angles_deg(dec.lines)
+    result = TapAnalysis(
+        valid=True,
+        polarity=polarity,
+        points=[(t, polarity * f) for t, f in dec.points],
+        lines=[(polarity * s, polarity * i) for s, i in dec.lines],
+        angles_deg=[polarity * a for a in angles],
+        outliers=outliers,
+        sensor_integration_s=timing.integration_s,
+    )
+    context = AnalysisContext(tap, motion, timing)
+    delay_s = 0.0 if timing.estimate_delay else timing.delay_s
+    t_break = dec.points[4][0]
+    result.compression_force_g = abs(dec.points[2][1] - dec.points[1][1])
+    result.break_contact_time_s = t_break
+    result.sensor_delay_s = delay_s
+    try:
+        validate.check_points(dec.points, angles)
+        validate.check_break_contact(t_break - delay_s - 0.5 * timing.integration_s, motion)
+    except TapInvalid as invalid:
+        # Keep the lines and points: they show what went wrong (plots, tap logs).
+        result.valid, result.error, result.message = False, invalid.code, invalid.message
+        return result, context
+    z_line = float(motion.z_at(t_break - delay_s - 0.5 * timing.integration_s))
+    line_sigma_um = break_time_sigma_s(ps, dec, t_break) * motion.pullback_speed_mm_s * 1000.0
+
+    pullback = fit_pullback(time_s, force, motion, timing, delay_s, dec, options)
+    onset_um = pullback.onset_um if pullback else 0.0
+    compression = fit_compression(time_s, force, motion, timing, delay_s, dec, onset_um)
+    if pullback and compression:
+        speeds_um_s = (motion.approach_speed_mm_s + motion.pullback_speed_mm_s) * 1000.0
+        result.sensor_delay_estimate_s = delay_s + (pullback.contact_um - compression.contact_um) / speeds_um_s
+    if timing.estimate_delay:
+        delay_s = result.sensor_delay_estimate_s if result.sensor_delay_estimate_s is not None else 0.0
+        if pullback:
+            # Break contact moves down by v_pullback × delay; the sigma gains the down/up share of both fits.
+            share = motion.pullback_speed_mm_s / (motion.approach_speed_mm_s + motion.pullback_speed_mm_s)
+            pullback.contact_um -= delay_s * motion.pullback_speed_mm_s * 1000.0
+            if compression:
+                pullback.contact_sigma_um = math.hypot(pullback.contact_sigma_um * (1 - share),
+                                                       share * compression.contact_sigma_um)
+        z_line = float(motion.z_at(t_break - delay_s - 0.5 * timing.integration_s))
+    result.sensor_delay_s = delay_s
+    result.z_line_mm = z_line
+    if pullback:
+        result.z_mm = motion.z_halt_mm + pullback.contact_um / 1000.0
+        result.z_sigma_um = pullback.contact_sigma_um
+        result.z_method = "contact_model"
+        result.contact_onset_um = pullback.onset_um
+        result.stiffness_decompression_g_um = pullback.stiffness_g_um
+    else:
+        result.z_mm = z_line
+        result.z_sigma_um = line_sigma_um
+        result.z_method = "lines"
+        result.stiffness_decompression_g_um = abs(dec.lines[3][0]) / (motion.pullback_speed_mm_s * 1000.0)
+    result.stiffness_compression_g_um = (compression.stiffness_g_um if compression else
+                                         abs(dec.lines[1][0]) / (motion.approach_speed_mm_s * 1000.0))
+    result.message = "ok"
+    return result, context
+
+
+def _polarity(time_s: np.ndarray, force_g: np.ndarray, motion: Motion) -> int:
+    """+1 when contact pushes the force up, -1 when down (dwell force vs approach baseline)."""
+    home_end = _index(time_s, motion.home_end_s)
+    pull_start = _index(time_s, motion.pullback_start_s)
+    start = _index(time_s, motion.home_end_s - max(motion.pullback_duration_s, 0.05))
+    baseline = float(np.median(force_g[start:max(home_end - 1, start + 1)]))
+    dwell = force_g[home_end:pull_start + 1]
+    change = float(np.median(dwell)) - baseline if len(dwell) else float(force_g[home_end]) - baseline
+    if change == 0 or not math.isfinite(change):
+        raise TapInvalid(TAP_SHAPE_INVALID, "the force does not change between approach and dwell")
+    return 1 if change > 0 else -1

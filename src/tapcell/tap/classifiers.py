@@ -1,0 +1,230 @@
+"""Tap classifiers: the registry, the built-ins `tap_quality` and `empty`, and plugins.
+
+A classifier is made by a factory called with the `AnalysisOptions`; its
+`classify(analysis, context)` sees a tap that passed validation and may
+- return a `Classification` with a quality score and/or replacement lines (in the tap's
+  polarity; points and Z are then recomputed from them and validated again),
+- raise `TapRejected(code, message)` to mark the tap invalid.
+Plugins register factories under the Python entry-point group `tapcell.tap_classifiers`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from functools import lru_cache
+from importlib.metadata import entry_points
+from typing import TYPE_CHECKING, Any, Callable, Protocol
+
+from tapcell.tap.model import (
+    CLASSIFIER_FAILED,
+    LOW_COMPRESSION_FORCE,
+    LOW_TAP_QUALITY,
+    AnalysisOptions,
+    TapAnalysis,
+)
+from tapcell.tap.validate import TapInvalid, check_break_contact, check_points
+
+if TYPE_CHECKING:
+    from tapcell.tap.analysis import AnalysisContext
+
+ENTRY_POINT_GROUP = "tapcell.tap_classifiers"
+ANGLE_SCALE_S_PER_G = 0.004
+
+
+class TapRejected(Exception):
+    """Raised by a classifier to reject a tap with a code."""
+
+    def __init__(self, code: str, message: str, quality: float | None = None,
+                 components: dict[str, float] | None = None):
+        self.code = code
+        self.message = message
+        self.quality = quality  # the score, when the rejection is for quality
+        self.components = components or {}
+        super().__init__(f"{code}: {message}")
+
+
+class UnknownClassifierError(ValueError):
+    pass
+
+
+@dataclass
+class Classification:
+    quality: float | None = None
+    lines: list[tuple[float, float]] | None = None
+    components: dict[str, float] = field(default_factory=dict)
+
+
+class TapClassifier(Protocol):
+    def classify(self, analysis: TapAnalysis, context: AnalysisContext) -> Classification | None: ...
+
+
+ClassifierFactory = Callable[[AnalysisOptions], TapClassifier]
+
+
+class EmptyClassifier:
+    """Accepts every tap that passed validation; no score."""
+
+    def __init__(self, options: AnalysisOptions):
+        self.options = options
+
+    def classify(self, analysis: TapAnalysis, context: AnalysisContext) -> Classification:
+        return Classification()
+
+
+def quality_components(points: list[tuple[float, float]], decompression_slope_g_s: float,
+                       stiffness_ratio: float | None, decompression_angle: float | None) -> dict[str, float]:
+    """The ratios of the quality score (fractions, not percent). Needs a nonzero compression force."""
+    f = [force for _, force in points]
+    compression = abs(f[2] - f[1])
+    components = {
+        "approach": abs(f[1] - f[0]) / compression,
+        "departure": abs(f[5] - f[4]) / compression,
+        "baseline": abs(f[1] - f[4]) / compression,
+        "dwell_drop": abs(f[2] - f[3]) / compression,
+    }
+    if decompression_angle is not None:
+        angle = abs(math.degrees(math.atan(decompression_slope_g_s * ANGLE_SCALE_S_PER_G)))
+        components["angle"] = abs(angle - decompression_angle) / decompression_angle
+    if stiffness_ratio is not None:
+        components["stiffness"] = abs(1.0 - stiffness_ratio)
+    return components
+
+
+def quality_score(components: dict[str, float], cutoffs_percent: dict[str, float]) -> float:
+    """100 × Π(1 - ratio); a ratio over its cutoff makes the score 0. Clamped to 0..100."""
+    score = 100.0
+    for name, ratio in components.items():
+        cutoff = cutoffs_percent.get(name)
+        if cutoff is not None and ratio > cutoff / 100.0:
+            return 0.0
+        score *= 1.0 - ratio
+    return min(100.0, max(0.0, score))
+
+
+class TapQualityClassifier:
+    """The spec's Tap Quality Classifier plus a stiffness-consistency component.
+
+    Components are ratios to the compression force (approach, departure, baseline, dwell
+    drop), the normalized decompression angle when `decompression_angle` is calibrated,
+    and `stiffness`: |1 - k_decompression / k_compression| with both stiffnesses in g/µm
+    (force slope over speed). Unlike the angle it does not saturate near 90°: ooze or a
+    loose sheet that halves the decompression stiffness costs 50 %, whatever the speeds.
+    """
+
+    def __init__(self, options: AnalysisOptions):
+        self.options = options
+        self.cutoffs = {
+            "approach": options.max_approach_force,
+            "departure": options.max_departure_force,
+            "baseline": options.max_baseline_force_delta,
+            "dwell_drop": options.max_dwell_force_drop,
+            "stiffness": options.max_stiffness_mismatch,
+        }
+
+    def classify(self, analysis: TapAnalysis, context: AnalysisContext) -> Classification:
+        compression = analysis.compression_force_g or 0.0
+        trigger = self.options.trigger_force_g
+        if trigger is None:
+            trigger = _number(context.tap.probe.get("trigger_force"))
+        if trigger is not None and compression < trigger:
+            raise TapRejected(LOW_COMPRESSION_FORCE,
+                              f"compression force {compression:.1f} g is below the trigger force {trigger:.1f} g")
+        if compression <= 0:
+            raise TapRejected(LOW_COMPRESSION_FORCE, "no compression force")
+        ratio = None
+        if analysis.stiffness_compression_g_um and analysis.stiffness_decompression_g_um:
+            ratio = analysis.stiffness_decompression_g_um / analysis.stiffness_compression_g_um
+        components = quality_components(analysis.points, analysis.lines[3][0], ratio,
+                                        self.options.decompression_angle)
+        quality = quality_score(components, self.cutoffs)
+        if quality < self.options.min_tap_quality:
+            worst = max(components, key=components.get)
+            raise TapRejected(LOW_TAP_QUALITY,
+                              f"tap quality {quality:.1f}% is below min_tap_quality {self.options.min_tap_quality:g}% "
+                              f"(largest component: {worst} {100 * components[worst]:.1f}%)",
+                              quality, components)
+        return Classification(quality=quality, components=components)
+
+
+def _number(value: Any) -> float | None:
+    return float(value) if isinstance(value, int | float) and math.isfinite(value) else None
+
+
+BUILTIN_CLASSIFIERS: dict[str, ClassifierFactory] = {
+    "tap_quality": TapQualityClassifier,
+    "empty": EmptyClassifier,
+}
+
+
+def available_classifiers() -> dict[str, ClassifierFactory | Any]:
+    """Built-ins plus the (not yet loaded) entry points of installed plugins."""
+    found: dict[str, Any] = dict(BUILTIN_CLASSIFIERS)
+    for entry in entry_points(group=ENTRY_POINT_GROUP):
+        found.setdefault(entry.name, entry)
+    return found
+
+
+@lru_cache(maxsize=64)
+def _classifier_factory(name: str) -> ClassifierFactory:
+    """Built-ins without touching the (slow) package metadata; plugins loaded once."""
+    if name in BUILTIN_CLASSIFIERS:
+        return BUILTIN_CLASSIFIERS[name]
+    known = available_classifiers()
+    if name not in known:
+        raise UnknownClassifierError(f"unknown tap_classifier '{name}'; available: {', '.join(sorted(known))}")
+    return known[name].load()
+
+
+def get_classifier(name: str, options: AnalysisOptions | None = None) -> TapClassifier:
+    """The classifier called `name`, built with `options`; UnknownClassifierError lists the names."""
+    return _classifier_factory(name)(options or AnalysisOptions())
+
+
+def run_classifier(result: TapAnalysis, context: AnalysisContext, classifier: TapClassifier,
+                   name: str) -> TapAnalysis:
+    """Apply a classifier to a validated tap (invalid taps are returned as they are)."""
+    result.classifier = name
+    if not result.valid:
+        return result
+    try:
+        verdict = classifier.classify(result, context)
+    except TapRejected as rejected:
+        result.quality = rejected.quality
+        result.quality_components = dict(rejected.components)
+        result.valid, result.error, result.message = False, rejected.code, rejected.message
+        return result
+    except Exception as failure:  # a plugin's bug must not take the probe down
+        result.valid, result.error = False, CLASSIFIER_FAILED
+        result.message = f"classifier '{name}' failed: {type(failure).__name__}: {failure}"
+        return result
+    if verdict is None:
+        return result
+    result.quality = verdict.quality
+    result.quality_components = dict(verdict.components)
+    if verdict.lines is not None:
+        _apply_lines(result, context, verdict.lines)
+    return result
+
+
+def _apply_lines(result: TapAnalysis, context: AnalysisContext, lines: list[tuple[float, float]]) -> None:
+    """Replace the five lines: recompute points, angles and Z, and validate again."""
+    from tapcell.tap.analysis import line_angles_deg, recompute_points
+
+    result.lines = [(float(s), float(i)) for s, i in lines]
+    result.points = recompute_points(result.lines, result.points[0][0], result.points[5][0])
+    result.angles_deg = line_angles_deg(result.lines)
+    sign = result.polarity or 1
+    motion, timing = context.motion, context.timing
+    t_break = result.points[4][0]
+    result.break_contact_time_s = t_break
+    result.compression_force_g = abs(result.points[2][1] - result.points[1][1])
+    try:
+        check_points([(t, sign * f) for t, f in result.points], [sign * a for a in result.angles_deg])
+        check_break_contact(t_break - result.sensor_delay_s - 0.5 * timing.integration_s, motion)
+    except TapInvalid as invalid:
+        result.valid, result.error, result.message = False, invalid.code, invalid.message
+        return
+    result.z_line_mm = float(motion.z_at(t_break - result.sensor_delay_s - 0.5 * timing.integration_s))
+    result.z_mm = result.z_line_mm
+    result.z_method = "lines"

@@ -1,0 +1,245 @@
+"""Plain data of the tap analysis: the tap as recorded, the options, and the result.
+
+A `TapData` is what a reader or the probe hands to `analyze_tap`; a `TapAnalysis`
+is what comes back. Both are plain dataclasses; `TapAnalysis.to_json()` gives the
+JSON-ready dict used by `tapcell analyze --json` and by tap logs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+# Error codes of the spec ("Tap Validation Error Codes" and "Tap Quality Error Codes").
+TAP_CHRONOLOGY = "TAP_CHRONOLOGY"
+TAP_SHAPE_INVALID = "TAP_SHAPE_INVALID"
+TAP_BREAK_CONTACT_TOO_EARLY = "TAP_BREAK_CONTACT_TOO_EARLY"
+TAP_BREAK_CONTACT_TOO_LATE = "TAP_BREAK_CONTACT_TOO_LATE"
+TAP_PULLBACK_TOO_SHORT = "TAP_PULLBACK_TOO_SHORT"
+COASTING_MOVE_ACCELERATION = "COASTING_MOVE_ACCELERATION"
+TOO_FEW_PROBING_MOVES = "TOO_FEW_PROBING_MOVES"
+TOO_MANY_PROBING_MOVES = "TOO_MANY_PROBING_MOVES"
+LOW_COMPRESSION_FORCE = "LOW_COMPRESSION_FORCE"
+LOW_TAP_QUALITY = "LOW_TAP_QUALITY"
+# Codes of our own (documented in docs/tap-analysis.md).
+TAP_DATA_INSUFFICIENT = "TAP_DATA_INSUFFICIENT"  # a phase window holds too few samples to fit
+TAP_MOTION_INVALID = "TAP_MOTION_INVALID"  # the motion has no approach/halt/pullback to analyse
+CLASSIFIER_FAILED = "CLASSIFIER_FAILED"  # a plugin classifier raised something other than TapRejected
+
+
+class TapFileError(Exception):
+    """A tap file could not be read; names the file and the problem."""
+
+    def __init__(self, path: str, problem: str):
+        self.path = str(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")
+
+
+@dataclass
+class Move:
+    """One trapezoid segment of toolhead Z motion (tap-format `moves`)."""
+
+    print_time: float  # s, same clock as the samples
+    move_t: float  # s
+    start_v: float  # mm/s, >= 0
+    accel: float  # mm/s², signed
+    start_z: float  # mm
+    z_r: float  # direction of Z travel: -1, 0 or 1
+
+    def z_at(self, t_s: np.ndarray | float) -> np.ndarray:
+        tau_s = np.clip(np.asarray(t_s, dtype=float) - self.print_time, 0.0, self.move_t)
+        return self.start_z + self.z_r * (self.start_v + 0.5 * self.accel * tau_s) * tau_s
+
+    @property
+    def end_time(self) -> float:
+        return self.print_time + self.move_t
+
+    @property
+    def end_z(self) -> float:
+        return float(self.z_at(self.end_time))
+
+    @property
+    def end_v(self) -> float:
+        return self.start_v + self.accel * self.move_t
+
+
+@dataclass
+class TapData:
+    """One tap: force samples plus the motion that produced them."""
+
+    time_s: np.ndarray
+    force_g: np.ndarray
+    z_mm: np.ndarray | None = None
+    moves: list[Move] = field(default_factory=list)
+    sample_rate_sps: float | None = None
+    events: dict[str, float] = field(default_factory=dict)
+    probe: dict[str, Any] = field(default_factory=dict)
+    truth: dict[str, Any] = field(default_factory=dict)
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+def _parse_bool(text: str) -> bool:
+    lowered = text.strip().lower()
+    if lowered in ("1", "true", "yes", "on"):
+        return True
+    if lowered in ("0", "false", "no", "off"):
+        return False
+    raise ValueError("expected true or false")
+
+
+@dataclass
+class AnalysisOptions:
+    """Everything the analysis can be told. None means: from the tap file, else the default.
+
+    sensor_delay_s: pipeline delay of the sensor beyond its conversion window (s); None: tap
+        meta `sensor_delay_s`, else 0. "auto": estimated from the tap (contact vs break contact).
+    sensor_integration_s: conversion (averaging) window of one sample (s); None: tap meta
+        `sensor_integration_s`, else one sample period (a continuously converting ADC).
+    contact_onset_um: calibrated width of the gradual contact onset (soft/textured sheet);
+        None: a sharp contact, or fitted per tap when fit_contact_onset.
+    """
+
+    sensor_delay_s: float | str | None = None
+    sensor_integration_s: float | None = None
+    trigger_force_g: float | None = None
+    pullback_distance_mm: float | None = None
+    pullback_speed_mm_s: float | None = None
+    tap_classifier: str = "tap_quality"
+    min_tap_quality: float = 40.0
+    decompression_angle: float | None = None
+    max_approach_force: float = 50.0
+    max_departure_force: float = 25.0
+    max_baseline_force_delta: float = 25.0
+    max_dwell_force_drop: float = 75.0
+    max_stiffness_mismatch: float = 50.0
+    contact_onset_um: float | None = None
+    fit_contact_onset: bool = False
+    outlier_sigma: float = 8.0
+
+    # Options that may be reset to None ("from the tap file / default") with `--set key=none`.
+    _OPTIONAL = frozenset(
+        ("sensor_delay_s", "sensor_integration_s", "trigger_force_g", "pullback_distance_mm", "contact_onset_um",
+         "pullback_speed_mm_s", "decompression_angle")
+    )
+    _RANGES = {
+        "sensor_delay_s": (0.0, 1.0),
+        "sensor_integration_s": (0.0, 1.0),
+        "contact_onset_um": (0.0, 100.0),
+        "trigger_force_g": (0.0, 100000.0),
+        "pullback_distance_mm": (0.001, 10.0),
+        "pullback_speed_mm_s": (0.001, 100.0),
+        "min_tap_quality": (0.0, 100.0),
+        "decompression_angle": (0.0, 90.0),
+        "max_approach_force": (0.0, 100.0),
+        "max_departure_force": (0.0, 100.0),
+        "max_baseline_force_delta": (0.0, 100.0),
+        "max_dwell_force_drop": (0.0, 100.0),
+        "max_stiffness_mismatch": (0.0, 100.0),
+        "outlier_sigma": (2.0, 1000.0),
+    }
+
+    def with_overrides(self, overrides: dict[str, str]) -> AnalysisOptions:
+        """A copy with `--set key=value` strings parsed; ValueError names key, value and what is allowed."""
+        fields = {f.name: f for f in dataclasses.fields(self) if not f.name.startswith("_")}
+        changes: dict[str, Any] = {}
+        for key, text in overrides.items():
+            if key not in fields:
+                raise ValueError(f"unknown option '{key}'; allowed: {', '.join(sorted(fields))}")
+            changes[key] = self._parse_value(key, str(text))
+        return dataclasses.replace(self, **changes)
+
+    def _parse_value(self, key: str, text: str) -> Any:
+        if key == "tap_classifier":
+            if not text.strip():
+                raise ValueError("option 'tap_classifier' needs a classifier name")
+            return text.strip()
+        if key == "fit_contact_onset":
+            try:
+                return _parse_bool(text)
+            except ValueError:
+                raise ValueError(f"option '{key}' = '{text}': expected true or false") from None
+        if key in self._OPTIONAL and text.strip().lower() in ("none", ""):
+            return None
+        if key == "sensor_delay_s" and text.strip().lower() == "auto":
+            return "auto"
+        try:
+            value = float(text)
+        except ValueError:
+            raise ValueError(f"option '{key}' = '{text}': expected a number") from None
+        if not math.isfinite(value):
+            raise ValueError(f"option '{key}' = '{text}': expected a finite number")
+        low, high = self._RANGES.get(key, (0.0, 10.0))
+        exclusive = key == "decompression_angle"
+        if (exclusive and not low < value < high) or (not exclusive and not low <= value <= high):
+            bounds = f"between {low:g} and {high:g}" + (" (exclusive)" if exclusive else "")
+            raise ValueError(f"option '{key}' = '{text}': must be {bounds}")
+        return value
+
+
+def _num(value: float | None, digits: int = 9) -> float | None:
+    if value is None or not math.isfinite(value):
+        return None
+    return round(float(value), digits)
+
+
+@dataclass
+class TapAnalysis:
+    """The result of analysing one tap. Times in the tap's own clock, forces in the tap's polarity."""
+
+    valid: bool
+    error: str | None = None
+    message: str = ""
+    z_mm: float | None = None  # commanded Z where the nozzle just touches the bed
+    z_sigma_um: float | None = None  # 1 sigma of z_mm from the fit
+    z_line_mm: float | None = None  # Z at P4 = decompression ∩ departure, delay-corrected
+    z_method: str = "none"  # "contact_model", "lines" or "none"
+    quality: float | None = None  # 0..100 when a quality classifier scored the tap
+    points: list[tuple[float, float]] = field(default_factory=list)  # 6 × (time_s, force_g)
+    lines: list[tuple[float, float]] = field(default_factory=list)  # 5 × (slope g/s, intercept g)
+    angles_deg: list[float] = field(default_factory=list)  # 4 angles between consecutive lines
+    elapsed_ms: float = 0.0
+    polarity: int = 0  # +1: contact drives force up, -1: down, 0: unknown
+    compression_force_g: float | None = None
+    break_contact_time_s: float | None = None
+    sensor_delay_s: float | None = None  # delay removed from the timing
+    sensor_integration_s: float | None = None
+    sensor_delay_estimate_s: float | None = None  # estimated from this tap, when the data allows
+    contact_onset_um: float | None = None  # width of the gradual contact onset
+    stiffness_compression_g_um: float | None = None
+    stiffness_decompression_g_um: float | None = None
+    outliers: int = 0  # corrupted single samples repaired before fitting
+    quality_components: dict[str, float] = field(default_factory=dict)
+    classifier: str | None = None
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "valid": bool(self.valid),
+            "error": self.error,
+            "message": self.message,
+            "z": _num(self.z_mm),
+            "z_sigma_um": _num(self.z_sigma_um, 4),
+            "z_line": _num(self.z_line_mm),
+            "z_method": self.z_method,
+            "quality": _num(self.quality, 2),
+            "points": [{"time": _num(t), "force": _num(f, 4)} for t, f in self.points],
+            "lines": [{"slope": _num(s, 4), "intercept": _num(i, 4)} for s, i in self.lines],
+            "angles": [_num(a, 3) for a in self.angles_deg],
+            "elapsed_ms": round(self.elapsed_ms, 4),
+            "polarity": self.polarity,
+            "compression_force": _num(self.compression_force_g, 4),
+            "break_contact_time": _num(self.break_contact_time_s),
+            "sensor_delay_s": _num(self.sensor_delay_s),
+            "sensor_integration_s": _num(self.sensor_integration_s),
+            "sensor_delay_estimate_s": _num(self.sensor_delay_estimate_s),
+            "contact_onset_um": _num(self.contact_onset_um, 4),
+            "stiffness_compression_g_um": _num(self.stiffness_compression_g_um, 4),
+            "stiffness_decompression_g_um": _num(self.stiffness_decompression_g_um, 4),
+            "outliers": self.outliers,
+            "quality_components": {k: _num(v, 6) for k, v in self.quality_components.items()},
+            "classifier": self.classifier,
+        }

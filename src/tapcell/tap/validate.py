@@ -1,0 +1,97 @@
+"""Validation of a tap against the spec's codes ("Tap Validation Error Codes").
+
+Each check raises `TapInvalid(code, message)`; the order is the spec's: moves, chronology,
+shape, break-contact timing.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from tapcell.tap.model import (
+    COASTING_MOVE_ACCELERATION,
+    TAP_BREAK_CONTACT_TOO_EARLY,
+    TAP_BREAK_CONTACT_TOO_LATE,
+    TAP_CHRONOLOGY,
+    TAP_MOTION_INVALID,
+    TAP_PULLBACK_TOO_SHORT,
+    TAP_SHAPE_INVALID,
+    TOO_FEW_PROBING_MOVES,
+    TOO_MANY_PROBING_MOVES,
+    Move,
+)
+from tapcell.tap.motion import MAX_PROBING_MOVES, MIN_PROBING_MOVES, Motion
+
+# Break contact in the last quarter of the pullback leaves too little departure to fit.
+LATE_FRACTION = 0.25
+# Expected signs of the four angles between consecutive lines, positive polarity:
+# approach→compression turns up (-), compression→dwell down (+), dwell→decompression down (+),
+# decompression→departure up (-). Negative polarity mirrors them.
+POSITIVE_SHAPE = (-1, 1, 1, -1)
+
+
+class TapInvalid(Exception):
+    def __init__(self, code: str, message: str):
+        self.code = code
+        self.message = message
+        super().__init__(f"{code}: {message}")
+
+
+def check_moves(moves: list[Move]) -> None:
+    """Move count and the coasting check (only when moves are given)."""
+    if not moves:
+        return
+    if len(moves) < MIN_PROBING_MOVES:
+        raise TapInvalid(TOO_FEW_PROBING_MOVES,
+                         f"{len(moves)} moves, a tap needs {MIN_PROBING_MOVES} or {MAX_PROBING_MOVES}")
+    if len(moves) > MAX_PROBING_MOVES:
+        raise TapInvalid(TOO_MANY_PROBING_MOVES,
+                         f"{len(moves)} moves, a tap needs {MIN_PROBING_MOVES} or {MAX_PROBING_MOVES}")
+    cruise = moves[-5]
+    if cruise.accel != 0:
+        raise TapInvalid(COASTING_MOVE_ACCELERATION,
+                         f"the probing move was accelerating ({cruise.accel:g} mm/s²) when the probe triggered; "
+                         "allow Z below 0 (e.g. position_min: -5) and start higher")
+
+
+def check_motion(motion: Motion, time_s: np.ndarray) -> None:
+    if not motion.home_end_s < motion.pullback_start_s < motion.pullback_end_s:
+        raise TapInvalid(TAP_MOTION_INVALID,
+                         f"phase times out of order: halt {motion.home_end_s:.6f} s, pullback "
+                         f"{motion.pullback_start_s:.6f}..{motion.pullback_end_s:.6f} s")
+    if motion.home_end_s < time_s[0] or motion.pullback_start_s > time_s[-1]:
+        raise TapInvalid(TAP_MOTION_INVALID,
+                         f"the samples ({time_s[0]:.6f}..{time_s[-1]:.6f} s) do not cover the halt "
+                         f"({motion.home_end_s:.6f} s) and the pullback start ({motion.pullback_start_s:.6f} s)")
+
+
+def check_points(points: list[tuple[float, float]], angles_deg: list[float]) -> None:
+    """Chronology of the six points, then the shape (signs of the angles), positive polarity."""
+    times = [t for t, _ in points]
+    ordered = all(math.isfinite(t) for t in times) and all(a < b for a, b in zip(times, times[1:]))
+    if not ordered:
+        listed = ", ".join(f"P{k}={t:.4f}" for k, t in enumerate(times))
+        raise TapInvalid(TAP_CHRONOLOGY, f"tap points out of time order ({listed} s)")
+    signs = tuple(int(np.sign(a)) for a in angles_deg)
+    if signs != POSITIVE_SHAPE:
+        listed = ", ".join(f"{a:.1f}" for a in angles_deg)
+        raise TapInvalid(TAP_SHAPE_INVALID, f"the lines do not form a tap shape (angles {listed} deg)")
+
+
+def check_break_contact(break_time_s: float, motion: Motion) -> None:
+    """Break contact must fall inside the pullback, before its last quarter."""
+    start, end = motion.pullback_start_s, motion.pullback_end_s
+    late_from = end - LATE_FRACTION * (end - start)
+    if break_time_s < start:
+        raise TapInvalid(TAP_BREAK_CONTACT_TOO_EARLY,
+                         f"break contact at {break_time_s:.4f} s, before the pullback started ({start:.4f} s)")
+    if break_time_s > end:
+        raise TapInvalid(TAP_PULLBACK_TOO_SHORT,
+                         f"the nozzle never broke contact during the pullback ({start:.4f}..{end:.4f} s); "
+                         "increase pullback_distance")
+    if break_time_s > late_from:
+        raise TapInvalid(TAP_BREAK_CONTACT_TOO_LATE,
+                         f"break contact at {break_time_s:.4f} s, in the last quarter of the pullback "
+                         f"(after {late_from:.4f} s); increase pullback_distance")
