@@ -40,3 +40,9 @@ def test_demo_reports_a_broken_config_without_a_traceback(tmp_path, capsys):
     config.write_text(SCALE_CONFIG + "counts_per_gram: 0.1\n")
     assert demo.main(["--config", str(config)]) == 1
     assert "The printer did not start:" in capsys.readouterr().out
+
+
+def test_make_demo_default_runs(capsys):
+    assert demo.main([]) == 0
+    out = capsys.readouterr().out
+    assert "!!" not in out and "> LOAD_CELL_READ" in out

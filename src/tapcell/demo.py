@@ -22,7 +22,21 @@ from tapcell.config import ConfigError
 from tapcell.gcode import GCodeError
 from tapcell.printer import Printer
 
-EXAMPLE_CONFIG = Path(__file__).resolve().parents[2] / "examples" / "virtual-printer.cfg"
+# The scale steps need only the virtual printer and its load cell. Steps that probe
+# will start from examples/virtual-printer.cfg (with [load_cell_probe]) instead.
+SCALE_CONFIG = """\
+# The demo's printer: the virtual printer (scenario 'clean': HX717 at 320 sps) and
+# its load cell used as a scale.
+[virtual_printer]
+scenario: clean
+seed: 1
+
+[load_cell]
+sensor_type: hx717
+sclk_pin: PA5
+dout_pin: PA4
+sample_rate: 320
+"""
 CALIBRATION_WEIGHT_G = 1000.0
 TEST_WEIGHT_G = 250.0
 
@@ -90,14 +104,19 @@ class DemoRunner:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="tapcell demo", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--config", type=Path, default=EXAMPLE_CONFIG,
-                        help="printer config to start from (copied: the demo never changes it)")
+    parser.add_argument("--config", type=Path, default=None,
+                        help="printer config to start from (copied: the demo never changes it); "
+                             "default: a virtual printer with one [load_cell]")
     args = parser.parse_args(argv)
     console = Console(highlight=False)
     with tempfile.TemporaryDirectory(prefix="tapcell-demo-") as workdir:
         config_path = Path(workdir) / "printer.cfg"
-        shutil.copyfile(args.config, config_path)
-        console.print(f"Starting the virtual printer from {args.config} (a copy in {config_path}).")
+        if args.config is None:
+            config_path.write_text(SCALE_CONFIG)
+            console.print(f"Starting the virtual printer with one load cell (config: {config_path}).")
+        else:
+            shutil.copyfile(args.config, config_path)
+            console.print(f"Starting the virtual printer from {args.config} (a copy in {config_path}).")
         try:
             runner = DemoRunner(config_path, console)
         except ConfigError as exc:
