@@ -10,14 +10,19 @@
  *     keeps every bit of the products and only the section output is rounded.
  *
  * One section, with R = 2^(frac_bits-1) (round half up) and every product 32x32->64:
- *   y  = (b0*x + z1) >> frac_bits            z1 already holds R
- *   z1 = b1*x - a1*y + z2
- *   z2 = b2*x - a2*y + R
- * Overflow: the two 64-bit additions that can overflow are checked, and y must fit
- * int32. On overflow the value saturates (int64 or int32 limit, sign of the true
- * result) and `overflowed` is set until tc_sos_filter_reset(). Never undefined
+ *   acc = b0*x + z1                          z1 already holds R
+ *   y   = acc >> frac_bits                   the section output, int32 Q16.15
+ *   err = acc - R - (y << frac_bits)         rounding error, in [-R, R)
+ *   z1  = b1*x - a1*y + 2*err + z2
+ *   z2  = b2*x - a2*y + R - err
+ * The err terms are second-order error feedback: the rounding error reaches the
+ * output shaped by (1 - z^-1)^2 / A(z) instead of 1 / A(z), which matters for the
+ * drift high-pass (poles near z = 1, DC gain of 1/A about 1e4).
+ * Overflow: the two 64-bit additions with a stored state are checked, and y must
+ * fit int32. On overflow the value saturates (int64 or int32 limit, sign of the
+ * true result) and `overflowed` is set until tc_sos_filter_reset(). Never undefined
  * behaviour, never silent. tapcell.filters.reference_sosfilt_q() is the bit-exact
- * numpy/Python model of exactly this arithmetic.
+ * Python model of exactly this arithmetic.
  *
  * The caller owns the struct; there is no allocation and no floating point.
  */
@@ -29,7 +34,7 @@
 
 #define TC_SOS_MAX_SECTIONS 4
 #define TC_SOS_MIN_FRAC_BITS 1
-#define TC_SOS_MAX_FRAC_BITS 31
+#define TC_SOS_MAX_FRAC_BITS 30   /* keeps R - err and 2*err below 2^30 */
 
 /* Section coefficient order. */
 enum { TC_SOS_B0, TC_SOS_B1, TC_SOS_B2, TC_SOS_A1, TC_SOS_A2, TC_SOS_NCOEFF };
@@ -104,7 +109,7 @@ static inline int32_t tc_shift_to_int32_native(int64_t v, unsigned shift, uint8_
 
 /* Load coefficients (n_sections rows of b0 b1 b2 a1 a2) and reset the state.
  * Returns TC_OK, or TC_ERR_BAD_CONFIG when n_sections > 4 or frac_bits is
- * outside 1..31 (the filter is then left as a pass-through). */
+ * outside 1..30 (the filter is then left as a pass-through). */
 int tc_sos_filter_configure(struct tc_sos_filter *f, const int32_t coeff[][TC_SOS_NCOEFF],
                             unsigned n_sections, unsigned frac_bits);
 

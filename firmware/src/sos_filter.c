@@ -54,11 +54,19 @@ int32_t tc_sos_filter_apply(struct tc_sos_filter *f, int32_t x)
     for (unsigned i = 0; i < f->n_sections; i++) {
         const int32_t *c = f->coeff[i];
         int64_t *z = f->state[i];
-        int32_t y = tc_mul_add_shift(c[TC_SOS_B0], x, z[0], shift, &bad);
-        /* Each difference of two products fits int64 (|product| <= 2^62);
-         * only the sums with the stored state can overflow. */
-        z[0] = add_sat64(tc_mul_s32(c[TC_SOS_B1], x) - tc_mul_s32(c[TC_SOS_A1], y), z[1], &bad);
-        z[1] = tc_mul_s32(c[TC_SOS_B2], x) - tc_mul_s32(c[TC_SOS_A2], y) + f->round_half;
+        int64_t acc = add_sat64(tc_mul_s32(c[TC_SOS_B0], x), z[0], &bad);
+        int32_t y = tc_shift_to_int32(acc, shift, &bad);
+        /* Rounding error of y in product units, in [-R, R): fits 32 bits, so
+         * 32-bit arithmetic gives it exactly (it wraps only after a saturation). */
+        int32_t err = (int32_t)((uint32_t)acc - ((uint32_t)y << shift) - (uint32_t)f->round_half);
+        /* Error feedback (1 - z^-1)^2: without it the rounding error reaches the
+         * output through 1/A(z), whose DC gain is ~1e4 for a drift high-pass
+         * (poles near z = 1) - a 0.25 g offset. Products: |b*x - a*y| <= 2^63 - 2^31,
+         * so adding 2*err or R - err (|.| <= 2^30) cannot overflow; only the
+         * sum with the stored state is checked. */
+        z[0] = add_sat64(tc_mul_s32(c[TC_SOS_B1], x) - tc_mul_s32(c[TC_SOS_A1], y) + 2 * (int64_t)err,
+                         z[1], &bad);
+        z[1] = tc_mul_s32(c[TC_SOS_B2], x) - tc_mul_s32(c[TC_SOS_A2], y) + f->round_half - err;
         x = y;
     }
     f->overflowed |= bad;

@@ -44,13 +44,34 @@ TEST(sos_step_response_second_order_by_hand)
         CHECK_EQ_INT(tc_sos_filter_apply(&f, 4 * GRAM), want_g_x16[i] * (GRAM / 16));
 }
 
-TEST(sos_rounds_half_up)
+TEST(sos_rounds_half_up_from_zero_state)
 {
     struct tc_sos_filter f = one_section(0.5, 0, 0, 0, 0);
     CHECK_EQ_INT(tc_sos_filter_apply(&f, 1), 1);    /* +0.5 LSB -> 1 */
+    tc_sos_filter_reset(&f);
     CHECK_EQ_INT(tc_sos_filter_apply(&f, -1), 0);   /* -0.5 LSB -> 0 */
+    tc_sos_filter_reset(&f);
     CHECK_EQ_INT(tc_sos_filter_apply(&f, -3), -1);  /* -1.5 LSB -> -1 */
+    tc_sos_filter_reset(&f);
     CHECK_EQ_INT(tc_sos_filter_apply(&f, 3), 2);    /* +1.5 LSB -> 2 */
+}
+
+TEST(sos_error_feedback_carries_rounding_error)
+{
+    /* gain 0.5, x = 1, -1, -3, 3 LSB (exact 0.5, -0.5, -1.5, 1.5): the error of
+     * each rounding moves into the next outputs, 1, -1, -2, 2 (sum 0 = exact sum) */
+    struct tc_sos_filter f = one_section(0.5, 0, 0, 0, 0);
+    CHECK_EQ_INT(tc_sos_filter_apply(&f, 1), 1);
+    CHECK_EQ_INT(tc_sos_filter_apply(&f, -1), -1);
+    CHECK_EQ_INT(tc_sos_filter_apply(&f, -3), -2);
+    CHECK_EQ_INT(tc_sos_filter_apply(&f, 3), 2);
+    /* gain 1/4 of a constant 1 LSB: plain rounding would give 0 forever; with the
+     * feedback the outputs average exactly 1/4 */
+    f = one_section(0.25, 0, 0, 0, 0);
+    long sum = 0;
+    for (int i = 0; i < 400; i++)
+        sum += tc_sos_filter_apply(&f, 1);
+    CHECK_EQ_INT(sum, 100);
 }
 
 TEST(sos_two_sections_cascade_and_q2_29)
@@ -60,7 +81,7 @@ TEST(sos_two_sections_cascade_and_q2_29)
     const int32_t c[2][TC_SOS_NCOEFF] = {{2 << 29, 0, 0, 0, 0}, {3 << 27, 0, 0, 0, 0}};
     CHECK_EQ_INT(tc_sos_filter_configure(&f, c, 2, 29), TC_OK);
     CHECK_EQ_INT(tc_sos_filter_apply(&f, 1000 * GRAM), 1500 * GRAM);
-    CHECK_EQ_INT(tc_sos_filter_apply(&f, -7), -10);  /* -14 then -10.5 -> -10 */
+    CHECK_EQ_INT(tc_sos_filter_apply(&f, -7), -10);  /* -14 then -10.5 -> -10 (fresh error) */
 }
 
 TEST(sos_output_overflow_saturates_and_sticks)
@@ -68,7 +89,8 @@ TEST(sos_output_overflow_saturates_and_sticks)
     struct tc_sos_filter f = one_section(1.5, 0, 0, 0, 0);
     CHECK_EQ_INT(tc_sos_filter_apply(&f, 50000 * GRAM), INT32_MAX);  /* 75000 g > 65536 g */
     CHECK_EQ_INT(f.overflowed, 1);
-    CHECK_EQ_INT(tc_sos_filter_apply(&f, GRAM), GRAM + GRAM / 2);    /* value fine, flag sticky */
+    /* flag sticky; the saturated sample's (wrapped) error term leaves 2 LSB in the next output */
+    CHECK_EQ_INT(tc_sos_filter_apply(&f, GRAM), GRAM + GRAM / 2 + 2);
     CHECK_EQ_INT(f.overflowed, 1);
     CHECK_EQ_INT(tc_sos_filter_apply(&f, -50000 * GRAM), INT32_MIN);
     tc_sos_filter_reset(&f);
@@ -108,9 +130,9 @@ TEST(sos_configure_rejects_bad_values)
     CHECK_EQ_INT(tc_sos_filter_configure(&f, c, 5, 30), TC_ERR_BAD_CONFIG);
     CHECK_EQ_INT(f.n_sections, 0);
     CHECK_EQ_INT(tc_sos_filter_configure(&f, c, 1, 0), TC_ERR_BAD_CONFIG);
-    CHECK_EQ_INT(tc_sos_filter_configure(&f, c, 1, 32), TC_ERR_BAD_CONFIG);
-    CHECK_EQ_INT(tc_sos_filter_configure(&f, c, 4, 31), TC_OK);
-    CHECK_EQ_INT(f.round_half, 1 << 30);
+    CHECK_EQ_INT(tc_sos_filter_configure(&f, c, 1, 31), TC_ERR_BAD_CONFIG);
+    CHECK_EQ_INT(tc_sos_filter_configure(&f, c, 4, 30), TC_OK);
+    CHECK_EQ_INT(f.round_half, 1 << 29);
 }
 
 /* The M0+ build uses the word-level multiply and shift; they must equal the
