@@ -173,6 +173,21 @@ class Toolhead:
         self.gcode_offset_mm = {axis: 0.0 for axis in AXES}
         self.absolute_coordinates = True
         self.speed_mm_s = 25.0  # until a G1 F sets it (Klipper's default feed rate)
+        # Where G-code moves go: the toolhead itself, or a transform wrapping it (bed mesh,
+        # thermal adjust). A transform has move(position_xyz, speed_mm_s) and get_position().
+        self.move_target = self
+
+    def set_move_transform(self, transform):
+        """Route G-code moves (G0/G1, M114) through `transform`; returns the previous target,
+        to which the transform passes its (adjusted) moves."""
+        previous = self.move_target
+        self.move_target = transform
+        return previous
+
+    def move(self, position_xyz, speed_mm_s: float) -> None:
+        """The end of the transform chain: a move in toolhead coordinates."""
+        x, y, z = position_xyz
+        self.move_to(x=x, y=y, z=z, speed_mm_s=speed_mm_s)
 
     # -- the probe's Motion protocol -------------------------------------------
 
@@ -198,6 +213,7 @@ class Toolhead:
     def set_z_position(self, z_mm: float) -> None:
         self.frame_offset_mm["z"] = z_mm - float(self.backend.position[2])
         self.homed_axes.add("z")
+        self.printer.send_event("toolhead:z_homed")
 
     def is_z_homed(self) -> bool:
         return "z" in self.homed_axes
@@ -230,7 +246,7 @@ class Toolhead:
             self.homed_axes.add("z")
 
     def _gcode_position(self) -> dict[str, float]:
-        toolhead = self.get_position()
+        toolhead = self.move_target.get_position()
         return {axis: toolhead[i] - self.gcode_offset_mm[axis] for i, axis in enumerate(AXES)}
 
     def cmd_G1(self, gcmd: GCodeCommand) -> None:
@@ -265,7 +281,7 @@ class Toolhead:
         if moved == ["z"]:
             speed = min(speed, self.options.max_z_velocity_mm_s)
         try:
-            self.move_to(**{axis: toolhead_target[axis] for axis in moved}, speed_mm_s=speed)
+            self.move_target.move(tuple(toolhead_target[axis] for axis in AXES), speed)
         except MoveError as exc:  # the virtual machine is smaller than the config says
             raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {exc}") from None
 
@@ -276,7 +292,7 @@ class Toolhead:
         self.absolute_coordinates = False
 
     def cmd_G92(self, gcmd: GCodeCommand) -> None:
-        toolhead = self.get_position()
+        toolhead = self.move_target.get_position()
         given = {axis: gcmd.get_float(axis, None) for axis in AXES}
         if all(value is None for value in given.values()):
             given = {axis: 0.0 for axis in AXES}
