@@ -40,6 +40,7 @@ class Fault:
     duration_s: float
     params: dict = field(default_factory=dict)
     stuck_counts: int | None = None
+    first_index: int = 0             # first conversion not yet produced when the fault began
 
     @property
     def end_s(self) -> float:
@@ -85,12 +86,12 @@ def external_force_g(faults: list[Fault], t_s: np.ndarray) -> np.ndarray:
     return force
 
 
-def apply_count_faults(faults: list[Fault], t_ready_s: np.ndarray, counts: np.ndarray,
-                       previous_counts: int | None, previous_t_s: float,
+def apply_count_faults(faults: list[Fault], k0: int, t_ready_s: np.ndarray, counts: np.ndarray,
+                       previous_counts: int | None, first_ready_s: float, period_s: float,
                        glitch_bits: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Counts as the chip reports them, and a mask of frames the MCU detects as bad.
 
-    previous_counts / previous_t_s: the last sample before this stretch (None / -inf at start).
+    k0: conversion index of the first sample; previous_counts: the sample before it (None at start).
     glitch_bits: one random bit number per sample used to corrupt a frame.
     """
     counts = counts.copy()
@@ -118,8 +119,10 @@ def apply_count_faults(faults: list[Fault], t_ready_s: np.ndarray, counts: np.nd
                 frame_t = f.start_s + i * f.params["spacing_s"]
                 if frame_t >= f.end_s:
                     break
-                idx = int(np.searchsorted(t_ready_s, frame_t))
-                if idx < counts.size and (idx > 0 or previous_t_s < frame_t):
+                # the first conversion ready at or after the frame time that is still to be produced
+                k_frame = max(math.ceil((frame_t - first_ready_s) / period_s - 1e-9), f.first_index)
+                idx = k_frame - k0
+                if 0 <= idx < counts.size:
                     counts[idx] = counts[idx] ^ np.int32(1 << int(glitch_bits[idx]))
                     detected_bad[idx] = bool(f.params["detected"])
     return counts, detected_bad

@@ -80,7 +80,6 @@ class VirtualMCU:
         self._taken_overflows = 0
         self.log = SampleLog()
         self.last_counts: int | None = None
-        self.last_read_s = -np.inf
 
     def read_delays(self, k0: int, k1: int) -> np.ndarray:
         """Data-ready detection (polling at T/10) plus task latency, per sample index."""
@@ -94,7 +93,7 @@ class VirtualMCU:
         if t.size:
             self._out_t.append(t)
             self._out_counts.append(c)
-            self.last_counts, self.last_read_s = int(c[-1]), float(t[-1])
+            self.last_counts = int(c[-1])
         self.log.append(t, c, chunk.force_g)
 
     def pending(self, after_s: float) -> tuple[np.ndarray, np.ndarray]:

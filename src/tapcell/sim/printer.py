@@ -233,7 +233,9 @@ class VirtualPrinter:
 
     def inject_fault(self, name: str, at_s: float | None = None, when: str | None = None, **params) -> None:
         """Start a fault now, at `at_s`, or when a condition happens ('probing_move', 'contact', 'trigger')."""
-        self._faults.append(faultlib.make_fault(name, at_s, when, self._now_s, params))
+        fault = faultlib.make_fault(name, at_s, when, self._now_s, params)
+        fault.first_index = self._next_k
+        self._faults.append(fault)
 
     def add_sensor(self, name: str, chip: str, sample_rate_sps: float):
         """An extra scale (no contact physics) sharing this printer's clock, e.g. a spool scale."""
@@ -422,6 +424,7 @@ class VirtualPrinter:
         for f in self._faults:
             if f.when == condition and f.start_s is None:
                 f.start_s = t_s
+                f.first_index = self._next_k
 
     def _film_at_start(self, t0_s: float, t1_s: float) -> float:
         """Ooze film when the tap in [t0, t1] started (now, if no probing move is in the span)."""
@@ -459,8 +462,9 @@ class VirtualPrinter:
             counts[hit] ^= (np.int64(1) << bits[hit]).astype(np.int32)
         delays = self._mcu.read_delays(k0, k1)
         t_read = t_ready + delays
-        counts, bad = faultlib.apply_count_faults(self._faults, t_ready, counts, self._mcu.last_counts,
-                                                  self._mcu.last_read_s, self._glitch_bits.values(k0, k1).astype(int))
+        counts, bad = faultlib.apply_count_faults(self._faults, k0, t_ready, counts, self._mcu.last_counts,
+                                                  timing.first_ready_s, timing.period_s,
+                                                  self._glitch_bits.values(k0, k1).astype(int))
         missing = faultlib.stream_gap_mask(self._faults, t_ready)
         late = delays > timing.period_s
         keep = ~(bad | missing | late)
