@@ -157,7 +157,7 @@ def design_sos(opts: FilterOptions) -> np.ndarray:
                                           btype="lowpass", fs=sps, output="sos"))
         for f0 in opts.notch_filter_frequencies:
             b, a = signal.iirnotch(float(f0), float(opts.notch_filter_quality), fs=sps)
-            sections.append(signal.tf2sos(b, a))
+            sections.append(np.concatenate([b, a])[np.newaxis, :] / a[0])  # one biquad already
     if not sections:
         return np.zeros((0, 6))
     return np.vstack(sections)
