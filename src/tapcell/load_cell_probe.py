@@ -66,7 +66,7 @@ def filter_options(options: TapOptions, sample_rate_sps: float) -> FilterOptions
         drift_filter_delay=options.drift_filter_delay,
         buzz_filter_cutoff_frequency=options.buzz_filter_cutoff_frequency,
         buzz_filter_delay=options.buzz_filter_delay,
-        notch_filter_frequencies=options.notch_filter_frequencies,
+        notch_filter_frequencies=options.notch_filter_frequencies or (),
         notch_filter_quality=options.notch_filter_quality,
     )
 
@@ -122,7 +122,7 @@ class LoadCellProbe:
         try:
             self.config_settings = self._design(self.options)
         except FilterDesignError as exc:
-            raise section.error(exc.option, str(exc)) from None
+            raise section.error(exc.option, f"{exc.value!r} is not allowed; allowed: {exc.allowed}") from None
         self.load_cell = LoadCell(self.name, self.cell_options, printer)
         # The toolhead implements the probe's Motion protocol (toolhead Z = virtual printer Z + frame offset).
         self.motion = printer.lookup_object("toolhead")
@@ -210,7 +210,9 @@ class LoadCellProbe:
         tare_counts = self._tare(settings.options)
         t_start_s = self.vp.now_s
         trigger = self._arm(settings, tare_counts)
-        result = self.vp.probing_move(z_min_mm - self._z_frame_offset_mm(), speed_mm_s, trigger)
+        # Unhomed (G28 Z), z_min is a full axis length below: the machine stops at its own end of travel.
+        machine_z_min_mm = max(z_min_mm - self._z_frame_offset_mm(), self.vp.limits["z"][0])
+        result = self.vp.probing_move(machine_z_min_mm, speed_mm_s, trigger)
         if result.error != TriggerError.NONE:
             self.load_cell.pump()
             raise ProbeError(self._trigger_error_message(result.error, settings.options))
@@ -428,7 +430,7 @@ def load_config(section, printer) -> LoadCellProbe:
                   printer.gcode, _template_runner(printer))
     device.probe = probe
     probe.register_commands()
-    register_load_cell_commands(printer.gcode, device.load_cell, None)
+    register_load_cell_commands(printer.gcode, device.load_cell, device.name)
     LoadCellProbeCommands(device, probe).register(printer.gcode)
     printer.add_object("probe", probe)
     return device
