@@ -39,7 +39,7 @@ def test_positions_are_step_quantized():
 def test_move_time_and_out_of_range_errors():
     vp = VirtualPrinter.from_scenario("clean")
     t0 = vp.now_s
-    vp.move_to(x=vp.position[0] + 30.0, speed_mm_s=300.0)    # 0.1 s accelerating + 0 cruise... triangle
+    vp.move_to(x=vp.position[0] + 30.0, speed_mm_s=300.0)    # reaches 300 mm/s exactly at mid-move
     assert vp.now_s - t0 == pytest.approx(2.0 * (30.0 / 3000.0) ** 0.5)
     with pytest.raises(MoveError, match=r"move out of range: x=300.000 \(allowed 0.000 .. 235.000\)"):
         vp.move_to(x=300.0)
@@ -88,7 +88,6 @@ def test_probing_move_reaches_a_negative_target_without_trigger():
             from tapcell.mcu.trigger import TriggerError
             return TriggerError.NONE
 
-    vp.place_weight(0.0)
     result = vp.probing_move(-1.5, 5.0, NeverTriggers())
     # nothing stops it: the nozzle crushes the bed down to the target (the host's safety would not allow it)
     assert not result.triggered and result.halt_z_mm == pytest.approx(-1.5)

@@ -6,7 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from conftest import armed_trigger, tap
+from conftest import tap
 from tapcell.sim import VirtualPrinter
 from tapcell.sim.contact import ContactModel, ContactState, contact_forces, elastic_force_g
 
