@@ -54,6 +54,7 @@ class SensorTiming:
     delay_s: float
     integration_s: float
     estimate_delay: bool
+    sample_period_s: float
 
 
 def sensor_timing(tap: TapData, options: AnalysisOptions, sample_period_s: float) -> SensorTiming:
@@ -64,7 +65,7 @@ def sensor_timing(tap: TapData, options: AnalysisOptions, sample_period_s: float
     integration = options.sensor_integration_s
     if integration is None:
         integration = _meta_seconds(tap, "sensor_integration_s", sample_period_s)
-    return SensorTiming(float(delay), float(integration), estimate)
+    return SensorTiming(float(delay), float(integration), estimate, sample_period_s)
 
 
 def _meta_seconds(tap: TapData, key: str, default: float) -> float:
@@ -353,7 +354,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
     result.sensor_delay_s = delay_s
     try:
         validate.check_points(dec.points, angles)
-        validate.check_break_contact(t_break - delay_s - 0.5 * timing.integration_s, motion)
+        validate.check_break_contact(t_break - delay_s - 0.5 * timing.integration_s, motion, period_s)
     except TapInvalid as invalid:
         # Keep the lines and points: they show what went wrong (plots, tap logs).
         result.valid, result.error, result.message = False, invalid.code, invalid.message

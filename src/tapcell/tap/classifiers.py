@@ -221,7 +221,8 @@ def _apply_lines(result: TapAnalysis, context: AnalysisContext, lines: list[tupl
     result.compression_force_g = abs(result.points[2][1] - result.points[1][1])
     try:
         check_points([(t, sign * f) for t, f in result.points], [sign * a for a in result.angles_deg])
-        check_break_contact(t_break - result.sensor_delay_s - 0.5 * timing.integration_s, motion)
+        check_break_contact(t_break - result.sensor_delay_s - 0.5 * timing.integration_s, motion,
+                            timing.sample_period_s)
     except TapInvalid as invalid:
         result.valid, result.error, result.message = False, invalid.code, invalid.message
         return

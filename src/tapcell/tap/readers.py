@@ -1,2 +1,208 @@
-def read_tap_file(p): pass
-def tap_to_json_dict(t,a=None): pass
+"""Tap files: tapcell.tap.v1 (.json / .jsonl), CSV, Klipper-family `dump_taps` events and
+the older workbench capture. Every problem is a `TapFileError` naming the file and what is wrong.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tapcell.tap.model import Move, TapAnalysis, TapData, TapFileError
+
+FORMAT = "tapcell.tap.v1"
+MIN_SAMPLES = 12
+MOVE_KEYS = ("print_time", "move_t", "start_v", "accel", "start_z", "z_r")
+
+
+def read_tap_file(path: str | Path) -> list[TapData]:
+    """All taps in a file (one for .json/.csv, one per line for .jsonl)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as problem:
+        raise TapFileError(str(path), f"cannot read the file ({problem})") from None
+    if not text.strip():
+        raise TapFileError(str(path), "the file is empty")
+    if path.suffix.lower() == ".csv":
+        return [_tap_from_csv(str(path), text)]
+    if path.suffix.lower() == ".jsonl":
+        taps = []
+        for number, line in enumerate(text.splitlines(), start=1):
+            if line.strip():
+                taps.append(tap_from_object(_load_json(str(path), line, f"line {number}: "), str(path), f"line {number}: "))
+        return taps
+    document = _load_json(str(path), text, "")
+    if isinstance(document, list):
+        return [tap_from_object(item, str(path), f"tap {k}: ") for k, item in enumerate(document)]
+    return [tap_from_object(document, str(path), "")]
+
+
+def _load_json(path: str, text: str, where: str) -> Any:
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError as problem:
+        raise TapFileError(path, f"{where}not valid JSON ({problem.msg} at line {problem.lineno} column {problem.colno})") from None
+
+
+def _numbers(path: str, where: str, name: str, values: Any) -> np.ndarray:
+    if not isinstance(values, list):
+        raise TapFileError(path, f"{where}'{name}' must be a list of numbers")
+    try:
+        array = np.array(values, dtype=float)
+    except (TypeError, ValueError):
+        raise TapFileError(path, f"{where}'{name}' must be a list of numbers") from None
+    if array.ndim != 1:
+        raise TapFileError(path, f"{where}'{name}' must be a flat list of numbers")
+    bad = np.flatnonzero(~np.isfinite(array))
+    if len(bad):
+        raise TapFileError(path, f"{where}'{name}' holds NaN or infinity (index {int(bad[0])})")
+    return array
+
+
+def _number(path: str, where: str, name: str, value: Any) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+        raise TapFileError(path, f"{where}'{name}' must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _moves(path: str, where: str, values: Any) -> list[Move]:
+    if not isinstance(values, list):
+        raise TapFileError(path, f"{where}'moves' must be a list of objects")
+    moves = []
+    for k, item in enumerate(values):
+        if not isinstance(item, dict):
+            raise TapFileError(path, f"{where}moves[{k}] must be an object")
+        missing = [key for key in MOVE_KEYS if key not in item]
+        if missing:
+            raise TapFileError(path, f"{where}moves[{k}] lacks {', '.join(missing)}")
+        move = Move(*(_number(path, where, f"moves[{k}].{key}", item[key]) for key in MOVE_KEYS))
+        if move.start_v < 0 or move.move_t < 0:
+            raise TapFileError(path, f"{where}moves[{k}]: start_v and move_t must be >= 0")
+        moves.append(move)
+    if any(b.print_time < a.print_time for a, b in zip(moves, moves[1:])):
+        raise TapFileError(path, f"{where}moves are not oldest first")
+    return moves
+
+
+def _check_samples(path: str, where: str, time_s: np.ndarray, force_g: np.ndarray, z_mm: np.ndarray | None) -> None:
+    if len(time_s) != len(force_g):
+        raise TapFileError(path, f"{where}'time' has {len(time_s)} values but 'force' has {len(force_g)}")
+    if z_mm is not None and len(z_mm) != len(time_s):
+        raise TapFileError(path, f"{where}'z' has {len(z_mm)} values but 'time' has {len(time_s)}")
+    if len(time_s) < MIN_SAMPLES:
+        raise TapFileError(path, f"{where}{len(time_s)} samples, at least {MIN_SAMPLES} needed")
+    steps = np.diff(time_s)
+    if np.any(steps <= 0):
+        k = int(np.flatnonzero(steps <= 0)[0])
+        raise TapFileError(path, f"{where}'time' is not strictly increasing (index {k + 1}: {time_s[k + 1]!r} after {time_s[k]!r})")
+
+
+def _dict(path: str, where: str, name: str, value: Any) -> dict:
+    if value is None:
+        return {}
+    if not isinstance(value, dict):
+        raise TapFileError(path, f"{where}'{name}' must be an object")
+    return dict(value)
+
+
+def tap_from_object(obj: Any, path: str = "<memory>", where: str = "") -> TapData:
+    """A TapData from one decoded JSON object of any accepted flavour."""
+    if not isinstance(obj, dict):
+        raise TapFileError(path, f"{where}expected a JSON object with 'time' and 'force'")
+    if "tap" in obj and isinstance(obj["tap"], dict):  # Klipper-family dump_taps event
+        obj = obj["tap"]
+    if "format" in obj and obj["format"] != FORMAT:
+        raise TapFileError(path, f"{where}unknown format {obj['format']!r}, expected {FORMAT!r}")
+    missing = [key for key in ("time", "force") if key not in obj]
+    if missing:
+        raise TapFileError(path, f"{where}missing key {', '.join(repr(k) for k in missing)}")
+    time_s = _numbers(path, where, "time", obj["time"])
+    force_g = _numbers(path, where, "force", obj["force"])
+    z_mm = None
+    if "z" in obj:
+        z_mm = _numbers(path, where, "z", obj["z"])
+    elif "position" in obj:  # workbench capture: [x, y, z] per sample
+        position = obj["position"]
+        if not isinstance(position, list) or not all(isinstance(p, list) and len(p) >= 3 for p in position):
+            raise TapFileError(path, f"{where}'position' must be a list of [x, y, z]")
+        z_mm = _numbers(path, where, "position z", [p[2] for p in position])
+    moves = _moves(path, where, obj["moves"]) if obj.get("moves") else []
+    if z_mm is None and not moves:
+        raise TapFileError(path, f"{where}needs 'z' or 'moves' (the motion of the tap)")
+    _check_samples(path, where, time_s, force_g, z_mm)
+    events = _dict(path, where, "events", obj.get("events"))
+    for key in ("home_end_time", "pullback_start_time", "pullback_end_time"):  # dump_taps keeps them on top
+        if key in obj and key not in events:
+            events[key] = obj[key]
+    sample_rate = obj.get("sample_rate")
+    if sample_rate is not None and (_number(path, where, "sample_rate", sample_rate) <= 0):
+        raise TapFileError(path, f"{where}'sample_rate' must be positive")
+    return TapData(
+        time_s=time_s,
+        force_g=force_g,
+        z_mm=z_mm,
+        moves=moves,
+        sample_rate_sps=float(sample_rate) if sample_rate is not None else None,
+        events=events,
+        probe=_dict(path, where, "probe", obj.get("probe")),
+        truth=_dict(path, where, "truth", obj.get("truth")),
+        meta=_dict(path, where, "meta", obj.get("meta")),
+    )
+
+
+def _tap_from_csv(path: str, text: str) -> TapData:
+    rows = list(csv.reader(text.splitlines()))
+    header = [name.strip().lower() for name in rows[0]]
+    missing = [name for name in ("time", "force", "z") if name not in header]
+    if missing:
+        raise TapFileError(path, f"CSV header lacks column(s) {', '.join(missing)} (found: {', '.join(header)})")
+    columns = {name: header.index(name) for name in ("time", "force", "z")}
+    values: dict[str, list[float]] = {name: [] for name in columns}
+    for number, row in enumerate(rows[1:], start=2):
+        if not any(cell.strip() for cell in row):
+            continue
+        for name, index in columns.items():
+            try:
+                values[name].append(float(row[index]))
+            except (IndexError, ValueError):
+                cell = row[index] if index < len(row) else "<missing>"
+                raise TapFileError(path, f"CSV line {number}: column '{name}' is not a number ({cell!r})") from None
+    return tap_from_object({"time": values["time"], "force": values["force"], "z": values["z"]}, path, "")
+
+
+def tap_to_json_dict(tap: TapData, analysis: TapAnalysis | None = None) -> dict[str, Any]:
+    """The tap as a tapcell.tap.v1 object; with `analysis`, its result under 'analysis'."""
+    document: dict[str, Any] = {
+        "format": FORMAT,
+        "time": [float(t) for t in tap.time_s],
+        "force": [float(f) for f in tap.force_g],
+    }
+    if tap.z_mm is not None:
+        document["z"] = [float(z) for z in tap.z_mm]
+    if tap.moves:
+        document["moves"] = [{key: float(getattr(m, key)) for key in MOVE_KEYS} for m in tap.moves]
+    if tap.sample_rate_sps:
+        document["sample_rate"] = float(tap.sample_rate_sps)
+    for key in ("events", "probe", "truth", "meta"):
+        value = getattr(tap, key)
+        if value:
+            document[key] = _plain(value)
+    if analysis is not None:
+        document["analysis"] = analysis.to_json()
+    return document
+
+
+def _plain(value: Any) -> Any:
+    """numpy scalars and arrays into JSON-ready Python values."""
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple | np.ndarray):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return value.item()
+    return value

@@ -38,13 +38,14 @@ def prefix_sums(time_s: np.ndarray, force_g: np.ndarray) -> PrefixSums:
 
 def segment_sse(ps: PrefixSums, i: np.ndarray, j: np.ndarray) -> np.ndarray:
     """Residual sum of squares of the best line over [i, j) (broadcasts over index arrays)."""
-    n = (j - i).astype(float)
-    st = ps.s_t[j] - ps.s_t[i]
-    sf = ps.s_f[j] - ps.s_f[i]
-    sxx = ps.s_tt[j] - ps.s_tt[i] - st * st / n
-    sxy = ps.s_tf[j] - ps.s_tf[i] - st * sf / n
-    syy = ps.s_ff[j] - ps.s_ff[i] - sf * sf / n
+    # Empty or reversed ranges give inf/NaN here; the callers mask them out.
     with np.errstate(divide="ignore", invalid="ignore"):
+        n = (j - i).astype(float)
+        st = ps.s_t[j] - ps.s_t[i]
+        sf = ps.s_f[j] - ps.s_f[i]
+        sxx = ps.s_tt[j] - ps.s_tt[i] - st * st / n
+        sxy = ps.s_tf[j] - ps.s_tf[i] - st * sf / n
+        syy = ps.s_ff[j] - ps.s_ff[i] - sf * sf / n
         explained = np.where(sxx > 0, sxy * sxy / sxx, 0.0)
     return np.maximum(syy - explained, 0.0)
 

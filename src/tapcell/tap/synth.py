@@ -95,7 +95,7 @@ class Phases:
                             np.where(tau < ta + tc, 0.5 * a * ta ** 2 + v * (tau - ta),
                                      0.5 * a * ta ** 2 + v * tc + v * np.minimum(tau - ta - tc, ta)
                                      - 0.5 * a * np.minimum(tau - ta - tc, ta) ** 2))
-        return np.where(t < self.t_halt, approach, np.where(tau <= 0, self.z_halt, self.z_halt + rise))
+            return np.where(t < self.t_halt, approach, np.where(tau <= 0, self.z_halt, self.z_halt + rise))
 
     @property
     def t_pull_end(self) -> float:

@@ -80,14 +80,19 @@ def check_points(points: list[tuple[float, float]], angles_deg: list[float]) -> 
         raise TapInvalid(TAP_SHAPE_INVALID, f"the lines do not form a tap shape (angles {listed} deg)")
 
 
-def check_break_contact(break_time_s: float, motion: Motion) -> None:
-    """Break contact must fall inside the pullback, before its last quarter."""
+def check_break_contact(break_time_s: float, motion: Motion, sample_period_s: float) -> None:
+    """Break contact must fall inside the pullback, before its last quarter.
+
+    A "break" within two samples of the pullback's end is the force merely levelling off
+    when the motion stopped: the nozzle never left the bed.
+    """
     start, end = motion.pullback_start_s, motion.pullback_end_s
     late_from = end - LATE_FRACTION * (end - start)
     if break_time_s < start:
         raise TapInvalid(TAP_BREAK_CONTACT_TOO_EARLY,
-                         f"break contact at {break_time_s:.4f} s, before the pullback started ({start:.4f} s)")
-    if break_time_s > end:
+                         f"break contact at {break_time_s:.4f} s, before the pullback started ({start:.4f} s); "
+                         "the force fell back during the dwell")
+    if break_time_s > end - 2 * sample_period_s:
         raise TapInvalid(TAP_PULLBACK_TOO_SHORT,
                          f"the nozzle never broke contact during the pullback ({start:.4f}..{end:.4f} s); "
                          "increase pullback_distance")

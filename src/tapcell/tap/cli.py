@@ -1,0 +1,81 @@
+"""`tapcell analyze [--json] [--plot OUT.png] [--set key=value ...] FILE...`"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from tapcell.tap.analysis import analyze_tap
+from tapcell.tap.classifiers import UnknownClassifierError, get_classifier
+from tapcell.tap.model import AnalysisOptions, TapFileError
+from tapcell.tap.readers import read_tap_file
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="tapcell analyze",
+        description="Analyse tap files: Z at break contact, validation, quality.")
+    parser.add_argument("files", nargs="+", metavar="FILE", help="tap files (.json, .jsonl, .csv)")
+    parser.add_argument("--json", action="store_true", help="print one JSON array instead of a table")
+    parser.add_argument("--plot", metavar="OUT.png",
+                        help="draw the taps (several taps: OUT-1.png, OUT-2.png, ...)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="analysis option, e.g. sensor_delay_s=0.002 or decompression_angle=80")
+    return parser
+
+
+def _options(settings: list[str]) -> AnalysisOptions:
+    overrides = {}
+    for item in settings:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise ValueError(f"--set '{item}': expected KEY=VALUE")
+        overrides[key.strip()] = value.strip()
+    options = AnalysisOptions().with_overrides(overrides)
+    get_classifier(options.tap_classifier, options)
+    return options
+
+
+def _fmt(value: float | None, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
+
+
+def main(argv: list[str]) -> int:
+    args = _parser().parse_args(argv)
+    try:
+        options = _options(args.set)
+    except (ValueError, UnknownClassifierError) as problem:
+        print(f"tapcell analyze: {problem}", file=sys.stderr)
+        return 2
+    results = []
+    unreadable = 0
+    plotted = 0
+    for name in args.files:
+        try:
+            taps = read_tap_file(name)
+        except TapFileError as problem:
+            unreadable += 1
+            print(f"tapcell analyze: {problem}", file=sys.stderr)
+            continue
+        for index, tap in enumerate(taps):
+            analysis = analyze_tap(tap, options)
+            results.append((name, index, len(taps), analysis))
+            if args.plot:
+                plotted += 1
+                out = Path(args.plot)
+                target = out if plotted == 1 else out.with_name(f"{out.stem}-{plotted}{out.suffix}")
+                from tapcell.tap.plot import plot_tap
+
+                plot_tap(tap, analysis, target, title=f"{name}" + (f" #{index + 1}" if len(taps) > 1 else ""))
+    if args.json:
+        print(json.dumps([{"file": name, **analysis.to_json()} for name, _, _, analysis in results], indent=1))
+    else:
+        print(f"{'file':<32} {'valid':<6} {'Z (mm)':>11} {'±σ (µm)':>8} {'quality':>8}  code")
+        for name, index, count, a in results:
+            label = name if count == 1 else f"{name}#{index + 1}"
+            code = a.error or ""
+            print(f"{label:<32} {'yes' if a.valid else 'no':<6} {_fmt(a.z_mm, '11.5f'):>11} "
+                  f"{_fmt(a.z_sigma_um, '8.3f'):>8} {_fmt(a.quality, '8.1f'):>8}  {code}")
+    return 1 if unreadable else 0

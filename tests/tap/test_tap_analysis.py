@@ -1,0 +1,167 @@
+"""Z, decomposition and validation of the tap analysis on synthetic taps of known truth."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from tapcell.tap import AnalysisOptions, analyze_tap
+from tapcell.tap.analysis import repair_spikes
+from tapcell.tap.segments import prefix_sums, segment_line, segment_sse
+from tapcell.tap.synth import synth_tap
+
+EXACT = dict(noise_g=0.0, relaxation_fraction=0.0)
+
+
+@pytest.mark.parametrize("polarity", [1, -1])
+@pytest.mark.parametrize("sps", [320.0, 660.0, 2000.0])
+def test_noise_free_z_is_exact(polarity, sps):
+    tap = synth_tap(polarity=polarity, sample_rate_sps=sps, z_contact_mm=0.1234, **EXACT)
+    result = analyze_tap(tap)
+    assert result.valid, result.message
+    assert result.z_method == "contact_model"
+    assert abs(result.z_mm - 0.1234) * 1000 < 0.01
+    assert result.polarity == polarity
+
+
+def test_noise_free_soft_sheet_is_exact_with_calibrated_onset_and_biased_without():
+    tap = synth_tap(contact_onset_um=6.0, **EXACT)
+    calibrated = analyze_tap(tap, AnalysisOptions(contact_onset_um=6.0))
+    plain = analyze_tap(tap)
+    assert abs(calibrated.z_mm) * 1000 < 0.01
+    # A sharp-contact reading of a soft onset lands about onset/2 low.
+    assert -3.1 < plain.z_mm * 1000 < -2.7
+    assert -3.1 < plain.z_line_mm * 1000 < -2.7
+
+
+def test_fitted_onset_recovers_width_on_noise_free_tap():
+    tap = synth_tap(contact_onset_um=6.0, **EXACT)
+    result = analyze_tap(tap, AnalysisOptions(fit_contact_onset=True))
+    assert result.contact_onset_um == pytest.approx(6.0, abs=0.01)
+    assert abs(result.z_mm) * 1000 < 0.01
+
+
+def test_known_sensor_delay_is_removed_and_unknown_delay_biases_up():
+    tap = synth_tap(sensor_delay_s=0.003, **EXACT)  # meta carries the delay
+    assert abs(analyze_tap(tap).z_mm) * 1000 < 0.01
+    tap.meta.pop("sensor_delay_s")
+    biased = analyze_tap(tap)
+    # 3 ms at 0.66 mm/s pullback = +1.98 µm
+    assert biased.z_mm * 1000 == pytest.approx(1.98, abs=0.02)
+
+
+def test_sensor_delay_estimated_from_the_tap():
+    tap = synth_tap(sensor_delay_s=0.003, approach_speed_mm_s=2.0, noise_g=0.0)
+    tap.meta.pop("sensor_delay_s")
+    result = analyze_tap(tap, AnalysisOptions(sensor_delay_s="auto"))
+    assert result.sensor_delay_estimate_s == pytest.approx(0.003, abs=0.0003)
+    assert abs(result.z_mm) * 1000 < 0.25
+
+
+def test_points_lines_and_stiffness_of_a_clean_tap():
+    tap = synth_tap(**EXACT)
+    result = analyze_tap(tap)
+    times = [t for t, _ in result.points]
+    assert times == sorted(times)
+    assert result.compression_force_g == pytest.approx(4.6 * 25.227, rel=0.02)
+    assert result.stiffness_decompression_g_um == pytest.approx(4.6, rel=1e-3)
+    assert result.stiffness_compression_g_um == pytest.approx(4.6, rel=0.02)
+    assert result.lines[3][0] == pytest.approx(-4.6 * 660, rel=0.02)  # g/s at 0.66 mm/s
+    json = result.to_json()
+    assert len(json["points"]) == 6 and len(json["lines"]) == 5
+    assert json["z"] == pytest.approx(result.z_mm, abs=1e-9)
+
+
+def test_noisy_clean_taps_are_unbiased_and_sigma_is_honest():
+    errors, sigmas = [], []
+    for seed in range(25):
+        tap = synth_tap(seed=seed, noise_g=2.0)
+        result = analyze_tap(tap)
+        assert result.valid, result.message
+        errors.append(result.z_mm * 1000)
+        sigmas.append(result.z_sigma_um)
+    assert abs(np.mean(errors)) < 0.12
+    assert 0.5 < np.std(errors) / np.mean(sigmas) < 1.6
+
+
+def test_corrupted_frames_are_repaired_and_do_not_move_z():
+    clean = analyze_tap(synth_tap(seed=4))
+    corrupted = analyze_tap(synth_tap(seed=4, corrupted_frames=4))
+    assert corrupted.valid and corrupted.outliers == 4
+    assert abs(corrupted.z_mm - clean.z_mm) * 1000 < 0.05
+
+
+def test_repair_spikes_keeps_edges():
+    force = np.array([0.0, 0.1, -0.1, 0.0, 100.0, 300.0, 300.2, 299.9, 5000.0, 300.1, 300.0, 299.8])
+    repaired, count = repair_spikes(force, 8.0)
+    assert count == 1
+    assert repaired[8] == pytest.approx(300.0)
+    assert repaired[4] == 100.0  # a steep edge is not a spike
+
+
+def test_segments_match_numpy_polyfit_far_from_the_time_origin():
+    rng = np.random.default_rng(0)
+    t = 1.0e5 + np.arange(400) / 660.0
+    f = np.where(np.arange(400) < 200, 3.0 + 20.0 * (t - t[0]), -50.0) + rng.normal(0, 1, 400)
+    ps = prefix_sums(t, f)
+    slope, intercept = segment_line(ps, 10, 150)
+    ref_slope, ref_intercept = np.polyfit(t[10:150] - 1e5, f[10:150], 1)
+    assert slope == pytest.approx(ref_slope, rel=1e-6)
+    assert intercept + slope * 1e5 == pytest.approx(ref_intercept, abs=1e-4)
+    sse = segment_sse(ps, np.array([10]), np.array([150]))[0]
+    residual = f[10:150] - np.polyval([ref_slope, ref_intercept], t[10:150] - 1e5)
+    assert sse == pytest.approx(float(residual @ residual), rel=1e-6)
+
+
+def test_z_trace_without_moves_gives_the_same_z():
+    tap = synth_tap(seed=2)
+    with_moves = analyze_tap(tap)
+    tap.moves = []
+    from_z = analyze_tap(tap)
+    assert from_z.valid, from_z.message
+    assert abs(from_z.z_mm - with_moves.z_mm) * 1000 < 0.3
+
+
+# --- validation codes -------------------------------------------------------------------
+
+def _code(tap, **options):
+    return analyze_tap(tap, AnalysisOptions(**options)).error
+
+
+def test_too_few_and_too_many_moves():
+    tap = synth_tap()
+    few = dataclasses.replace(tap, moves=tap.moves[-4:])
+    many = dataclasses.replace(tap, moves=[dataclasses.replace(tap.moves[0], print_time=tap.moves[0].print_time - 1)] + tap.moves)
+    assert _code(few) == "TOO_FEW_PROBING_MOVES"
+    assert _code(many) == "TOO_MANY_PROBING_MOVES"
+    assert _code(dataclasses.replace(tap, moves=tap.moves[1:])) is None  # 5 moves are fine
+
+
+def test_coasting_move_acceleration():
+    tap = synth_tap()
+    tap.moves[-5] = dataclasses.replace(tap.moves[-5], accel=-200.0)
+    assert _code(tap) == "COASTING_MOVE_ACCELERATION"
+
+
+def test_pullback_too_short_and_break_contact_too_late():
+    assert _code(synth_tap(pullback_distance_mm=0.02)) == "TAP_PULLBACK_TOO_SHORT"
+    assert _code(synth_tap(pullback_distance_mm=0.03)) == "TAP_BREAK_CONTACT_TOO_LATE"
+
+
+def test_break_contact_too_early():
+    assert _code(synth_tap(), sensor_delay_s=0.05) == "TAP_BREAK_CONTACT_TOO_EARLY"
+
+
+def test_chronology_and_shape():
+    tap = synth_tap()
+    noise_only = dataclasses.replace(tap, force_g=np.random.default_rng(1).normal(0, 1, len(tap.time_s)))
+    assert _code(noise_only) == "TAP_CHRONOLOGY"
+    reversed_tap = dataclasses.replace(tap, force_g=tap.force_g[::-1].copy())
+    assert _code(reversed_tap) == "TAP_SHAPE_INVALID"
+
+
+def test_invalid_tap_keeps_its_lines_for_plots():
+    result = analyze_tap(synth_tap(pullback_distance_mm=0.03))
+    assert not result.valid and len(result.lines) == 5 and len(result.points) == 6

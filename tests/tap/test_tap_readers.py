@@ -1,0 +1,106 @@
+"""Every reader, and clear errors that name the file and the problem."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from tapcell.tap import TapFileError, analyze_tap, read_tap_file, tap_to_json_dict
+from tapcell.tap.synth import synth_tap
+
+
+@pytest.fixture
+def tap():
+    return synth_tap(seed=7)
+
+
+def test_json_round_trip_keeps_everything(tmp_path, tap):
+    path = tmp_path / "tap.json"
+    path.write_text(json.dumps(tap_to_json_dict(tap, analyze_tap(tap))))
+    (read,) = read_tap_file(path)
+    assert np.array_equal(read.time_s, tap.time_s) and np.array_equal(read.force_g, tap.force_g)
+    assert read.moves == tap.moves
+    assert read.truth == {"z_contact": 0.0, "label": "clean"}
+    assert read.sample_rate_sps == 660.0
+    assert read.meta["sensor_integration_s"] == pytest.approx(1 / 660)
+    assert analyze_tap(read).z_mm == analyze_tap(tap).z_mm
+
+
+def test_jsonl_holds_many_taps(tmp_path):
+    taps = [synth_tap(seed=s) for s in range(3)]
+    path = tmp_path / "taps.jsonl"
+    path.write_text("\n".join(json.dumps(tap_to_json_dict(t)) for t in taps) + "\n")
+    read = read_tap_file(path)
+    assert len(read) == 3
+    assert [r.meta["seed"] for r in read] == [0, 1, 2]
+
+
+def test_csv_with_extra_columns(tmp_path, tap):
+    lines = ["Time,force,counts,z"] + [f"{float(t)!r},{float(f)!r},0,{float(z)!r}" for t, f, z in zip(tap.time_s, tap.force_g, tap.z_mm)]
+    path = tmp_path / "tap.csv"
+    path.write_text("\n".join(lines))
+    (read,) = read_tap_file(path)
+    assert read.moves == [] and np.array_equal(read.z_mm, tap.z_mm)
+    result = analyze_tap(read)
+    assert result.valid and abs(result.z_mm) * 1000 < 0.5
+
+
+def test_dump_taps_event(tmp_path, tap):
+    document = tap_to_json_dict(tap)
+    event = {"tap": {"time": list(tap.time_s - tap.time_s[0]), "force": document["force"],
+                     "moves": [dict(m, print_time=m["print_time"] - tap.time_s[0], start_x=1.0, start_y=2.0,
+                                    x_r=0.0, y_r=0.0) for m in document["moves"]],
+                     "home_end_time": 0.4, "pullback_start_time": 0.7, "pullback_end_time": 1.0,
+                     "tap_points": [], "is_valid": True, "error": None}}
+    path = tmp_path / "event.json"
+    path.write_text(json.dumps(event))
+    (read,) = read_tap_file(path)
+    assert read.events["pullback_start_time"] == 0.7
+    assert analyze_tap(read).z_mm == pytest.approx(analyze_tap(tap).z_mm, abs=1e-9)
+
+
+def test_workbench_capture_with_positions(tmp_path, tap):
+    document = {"time": list(tap.time_s), "force": list(tap.force_g),
+                "position": [[10.0, 20.0, z] for z in tap.z_mm], "is_valid": True}
+    path = tmp_path / "workbench.json"
+    path.write_text(json.dumps(document))
+    (read,) = read_tap_file(path)
+    assert np.array_equal(read.z_mm, tap.z_mm)
+    assert analyze_tap(read).valid
+
+
+@pytest.mark.parametrize("document, problem", [
+    ({"format": "tapcell.tap.v1", "force": [1.0] * 20, "z": [0.0] * 20}, "missing key 'time'"),
+    ({"time": list(range(20)), "force": [1.0] * 19, "z": [0.0] * 20}, "'time' has 20 values but 'force' has 19"),
+    ({"time": list(range(20)), "force": [1.0] * 20}, "needs 'z' or 'moves'"),
+    ({"time": [0, 1, 1] + list(range(2, 19)), "force": [1.0] * 20, "z": [0.0] * 20}, "not strictly increasing"),
+    ({"time": list(range(5)), "force": [1.0] * 5, "z": [0.0] * 5}, "5 samples, at least 12 needed"),
+    ({"format": "other", "time": [], "force": []}, "unknown format 'other'"),
+    ({"time": list(range(20)), "force": ["a"] * 20, "z": [0.0] * 20}, "'force' must be a list of numbers"),
+    ({"time": list(range(20)), "force": [1.0] * 20, "moves": [{"print_time": 0}]}, "moves[0] lacks move_t"),
+])
+def test_bad_files_name_the_file_and_problem(tmp_path, document, problem):
+    path = tmp_path / "bad.json"
+    path.write_text(json.dumps(document))
+    with pytest.raises(TapFileError) as caught:
+        read_tap_file(path)
+    assert str(path) in str(caught.value) and problem in str(caught.value)
+
+
+def test_nan_invalid_json_and_bad_csv(tmp_path):
+    nan = tmp_path / "nan.json"
+    nan.write_text('{"time": [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11], "force": [NaN, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1], "z": [0,0,0,0,0,0,0,0,0,0,0,0]}')
+    with pytest.raises(TapFileError, match=r"'force' holds NaN or infinity \(index 0\)"):
+        read_tap_file(nan)
+    broken = tmp_path / "broken.jsonl"
+    broken.write_text('{"time": [1]}\n{not json\n')
+    with pytest.raises(TapFileError, match="line 1: missing key 'force'"):
+        read_tap_file(broken)
+    csv_file = tmp_path / "t.csv"
+    csv_file.write_text("time,force\n0,1\n")
+    with pytest.raises(TapFileError, match="CSV header lacks column"):
+        read_tap_file(csv_file)
+    with pytest.raises(TapFileError, match="cannot read the file"):
+        read_tap_file(tmp_path / "missing.json")
