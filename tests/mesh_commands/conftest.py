@@ -1,0 +1,95 @@
+"""Printers built from small config files for the mesh-command tests."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from tapcell.printer import Printer
+
+EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "virtual-printer.cfg"
+
+MACHINE = """
+[virtual_printer]
+scenario: {scenario}
+seed: {seed}
+
+[printer]
+kinematics: cartesian
+max_velocity: 300
+max_accel: 3000
+max_z_velocity: 15
+max_z_accel: 200
+
+[stepper_x]
+step_pin: PB13
+dir_pin: PB12
+microsteps: 16
+rotation_distance: 40
+endstop_pin: ^PC0
+position_endstop: 0
+position_max: 235
+
+[stepper_y]
+step_pin: PB10
+dir_pin: PB2
+microsteps: 16
+rotation_distance: 40
+endstop_pin: ^PC1
+position_endstop: 0
+position_max: 235
+
+[stepper_z]
+step_pin: PB0
+dir_pin: PC5
+microsteps: 16
+rotation_distance: 8
+endstop_pin: probe:z_virtual_endstop
+position_min: -2
+position_max: 250
+"""
+
+PROBE = """
+[load_cell_probe]
+sensor_type: hx717
+sclk_pin: PA5
+dout_pin: PA4
+sample_rate: 320
+counts_per_gram: {counts_per_gram}
+reference_tare_counts: {reference_tare_counts}
+trigger_force: 75
+speed: 5
+"""
+
+
+class PrinterFactory:
+    def __init__(self, tmp_path: Path):
+        self.tmp_path = tmp_path
+        self.responses: list[str] = []
+
+    def __call__(self, extra: str, *, scenario: str = "clean", seed: int = 1, probe: bool = False,
+                 name: str = "printer.cfg") -> Printer:
+        text = MACHINE.format(scenario=scenario, seed=seed)
+        if probe:
+            text += PROBE.format(counts_per_gram=110.0, reference_tare_counts=-38000)
+        path = self.tmp_path / name
+        path.write_text(text + extra)
+        self.responses = []
+        return Printer.from_config(str(path), responses=self.responses)
+
+
+@pytest.fixture
+def make_printer(tmp_path):
+    return PrinterFactory(tmp_path)
+
+
+def _home_without_probe(printer: Printer, z_mm: float = 10.0) -> None:
+    """Home X/Y on their endstops and declare the current Z to be z_mm (no probe needed)."""
+    printer.gcode.run_script("G28 X Y")
+    printer.lookup_object("toolhead").set_z_position(z_mm)
+
+
+@pytest.fixture
+def home_without_probe():
+    return _home_without_probe
