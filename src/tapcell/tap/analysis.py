@@ -75,6 +75,15 @@ def _meta_seconds(tap: TapData, key: str, default: float) -> float:
     return default
 
 
+def noise_sigma_g(force_g: np.ndarray) -> float:
+    """White-noise sigma from the median absolute second difference (lines and spikes do not inflate it)."""
+    if len(force_g) < 3:
+        return 0.0
+    off_mid = force_g[1:-1] - 0.5 * (force_g[:-2] + force_g[2:])
+    # off_mid of white noise has sigma sqrt(1.5) * noise sigma.
+    return 1.4826 * float(np.median(np.abs(off_mid))) / math.sqrt(1.5)
+
+
 def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarray, int]:
     """Replace single corrupted frames by the mean of their neighbours.
 
@@ -87,8 +96,7 @@ def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarr
         return force_g, 0
     off_mid = force_g[1:-1] - 0.5 * (force_g[:-2] + force_g[2:])
     neighbour_gap = np.abs(force_g[2:] - force_g[:-2])
-    # off_mid of white noise has sigma sqrt(1.5) * noise sigma.
-    noise_sigma = 1.4826 * float(np.median(np.abs(off_mid))) / math.sqrt(1.5)
+    noise_sigma = noise_sigma_g(force_g)
     scale = float(np.max(np.abs(force_g - np.median(force_g))))
     threshold = max(threshold_sigma * noise_sigma, 1e-6 * scale, 1e-9)
     spikes = np.flatnonzero((np.abs(off_mid) > threshold) & (np.abs(off_mid) > 2.0 * neighbour_gap)) + 1
@@ -345,6 +353,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         angles_deg=[polarity * a for a in angles],
         outliers=outliers,
         sensor_integration_s=timing.integration_s,
+        noise_sigma_g=noise_sigma_g(force[:_index(time_s, motion.home_end_s)]),
     )
     context = AnalysisContext(tap, motion, timing)
     delay_s = 0.0 if timing.estimate_delay else timing.delay_s
@@ -386,6 +395,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         result.z_method = "contact_model"
         result.contact_onset_um = pullback.onset_um
         result.stiffness_decompression_g_um = pullback.stiffness_g_um
+        result.fit_residual_sigma_g = pullback.residual_sigma_g
     else:
         result.z_mm = z_line
         result.z_sigma_um = line_sigma_um

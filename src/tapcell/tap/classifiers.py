@@ -30,6 +30,9 @@ if TYPE_CHECKING:
 
 ENTRY_POINT_GROUP = "tapcell.tap_classifiers"
 ANGLE_SCALE_S_PER_G = 0.004
+# A clean tap's residual scatters around the noise sigma by ~±15 % (both are estimates):
+# residuals up to 1.25 × the noise cost nothing.
+MISFIT_TOLERANCE = 1.25
 
 
 class TapRejected(Exception):
@@ -73,7 +76,8 @@ class EmptyClassifier:
 
 
 def quality_components(points: list[tuple[float, float]], decompression_slope_g_s: float,
-                       stiffness_ratio: float | None, decompression_angle: float | None) -> dict[str, float]:
+                       stiffness_ratio: float | None, decompression_angle: float | None,
+                       noise_to_residual: float | None = None) -> dict[str, float]:
     """The ratios of the quality score (fractions, not percent). Needs a nonzero compression force."""
     f = [force for _, force in points]
     compression = abs(f[2] - f[1])
@@ -88,6 +92,8 @@ def quality_components(points: list[tuple[float, float]], decompression_slope_g_
         components["angle"] = abs(angle - decompression_angle) / decompression_angle
     if stiffness_ratio is not None:
         components["stiffness"] = abs(1.0 - stiffness_ratio)
+    if noise_to_residual is not None:
+        components["misfit"] = max(0.0, 1.0 - MISFIT_TOLERANCE * noise_to_residual)
     return components
 
 
@@ -110,6 +116,9 @@ class TapQualityClassifier:
     and `stiffness`: |1 - k_decompression / k_compression| with both stiffnesses in g/µm
     (force slope over speed). Unlike the angle it does not saturate near 90°: ooze or a
     loose sheet that halves the decompression stiffness costs 50 %, whatever the speeds.
+    And `misfit`: 1 - 1.25 × noise sigma / contact-model residual sigma over the pullback. A clean
+    decompression is explained to the noise (misfit ≈ 0); a film of ooze or a string pulling
+    on departure bends the curve (residual 3-4 × the noise) and shifts Z by several µm.
     """
 
     def __init__(self, options: AnalysisOptions):
@@ -120,6 +129,7 @@ class TapQualityClassifier:
             "baseline": options.max_baseline_force_delta,
             "dwell_drop": options.max_dwell_force_drop,
             "stiffness": options.max_stiffness_mismatch,
+            "misfit": options.max_model_misfit,
         }
 
     def classify(self, analysis: TapAnalysis, context: AnalysisContext) -> Classification:
@@ -135,8 +145,11 @@ class TapQualityClassifier:
         ratio = None
         if analysis.stiffness_compression_g_um and analysis.stiffness_decompression_g_um:
             ratio = analysis.stiffness_decompression_g_um / analysis.stiffness_compression_g_um
+        noise_to_residual = None
+        if analysis.noise_sigma_g and analysis.fit_residual_sigma_g:
+            noise_to_residual = analysis.noise_sigma_g / analysis.fit_residual_sigma_g
         components = quality_components(analysis.points, analysis.lines[3][0], ratio,
-                                        self.options.decompression_angle)
+                                        self.options.decompression_angle, noise_to_residual)
         quality = quality_score(components, self.cutoffs)
         if quality < self.options.min_tap_quality:
             worst = max(components, key=components.get)

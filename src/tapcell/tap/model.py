@@ -117,6 +117,7 @@ class AnalysisOptions:
     max_baseline_force_delta: float = 25.0
     max_dwell_force_drop: float = 75.0
     max_stiffness_mismatch: float = 50.0
+    max_model_misfit: float = 50.0
     contact_onset_um: float | None = None
     fit_contact_onset: bool = False
     outlier_sigma: float = 8.0
@@ -140,6 +141,7 @@ class AnalysisOptions:
         "max_baseline_force_delta": (0.0, 100.0),
         "max_dwell_force_drop": (0.0, 100.0),
         "max_stiffness_mismatch": (0.0, 100.0),
+        "max_model_misfit": (0.0, 100.0),
         "outlier_sigma": (2.0, 1000.0),
     }
 
@@ -213,6 +215,8 @@ class TapAnalysis:
     stiffness_compression_g_um: float | None = None
     stiffness_decompression_g_um: float | None = None
     outliers: int = 0  # corrupted single samples repaired before fitting
+    noise_sigma_g: float | None = None  # sensor noise, from the approach
+    fit_residual_sigma_g: float | None = None  # residual of the contact model over the pullback
     quality_components: dict[str, float] = field(default_factory=dict)
     classifier: str | None = None
 
@@ -240,6 +244,8 @@ class TapAnalysis:
             "stiffness_compression_g_um": _num(self.stiffness_compression_g_um, 4),
             "stiffness_decompression_g_um": _num(self.stiffness_decompression_g_um, 4),
             "outliers": self.outliers,
+            "noise_sigma_g": _num(self.noise_sigma_g, 4),
+            "fit_residual_sigma_g": _num(self.fit_residual_sigma_g, 4),
             "quality_components": {k: _num(v, 6) for k, v in self.quality_components.items()},
             "classifier": self.classifier,
         }
