@@ -1,0 +1,96 @@
+"""Accuracy of the tap analysis on synthetic taps with known truth.
+
+For each condition: valid rate, bias, sigma, p95 |error| and the worst |error| of a tap
+marked valid (µm, against truth.z_contact), beside the best achievable sigma: the exact
+noise-free model fitted with only the contact height free. Also the P4 line intersection
+(the classic line-fit answer, with the same delay correction) for comparison.
+Run: .venv/bin/python -m bench tap_accuracy   (or python bench/tap_accuracy.py [taps])
+"""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from tapcell.tap import AnalysisOptions, analyze_tap
+from tapcell.tap.synth import SynthTap, best_achievable_z, synth_tap
+
+CONDITIONS: list[tuple[str, dict, dict, bool]] = [
+    # (name, generator changes, analysis options, drop the delay from the tap's metadata)
+    ("80 sps, 2 mm/s, 1 g", dict(sample_rate_sps=80.0, approach_speed_mm_s=2.0), {}, False),
+    ("320 sps, 5 mm/s, 1 g", dict(sample_rate_sps=320.0), {}, False),
+    ("660 sps, 5 mm/s, 1 g", dict(), {}, False),
+    ("2000 sps, 5 mm/s, 1 g", dict(sample_rate_sps=2000.0), {}, False),
+    ("660 sps, noise 0.5 g", dict(noise_g=0.5), {}, False),
+    ("660 sps, noise 5 g", dict(noise_g=5.0), {}, False),
+    ("660 sps, 1 mm/s", dict(approach_speed_mm_s=1.0), {}, False),
+    ("660 sps, 10 mm/s", dict(approach_speed_mm_s=10.0), {}, False),
+    ("negative polarity", dict(polarity=-1), {}, False),
+    ("latency 3 ms, known", dict(sensor_delay_s=0.003), {}, False),
+    ("latency 3 ms, unknown", dict(sensor_delay_s=0.003), {}, True),
+    ("latency 3 ms, estimated", dict(sensor_delay_s=0.003, approach_speed_mm_s=2.0), {"sensor_delay_s": "auto"}, True),
+    ("soft sheet 6 µm", dict(contact_onset_um=6.0), {}, False),
+    ("soft sheet, calibrated", dict(contact_onset_um=6.0), {"contact_onset_um": 6.0}, False),
+    ("3 corrupted frames", dict(corrupted_frames=3), {}, False),
+    ("ooze film 5 µm", dict(film_um=5.0, film_stiffness_g_um=1.0, label="fouled"), {}, False),
+    ("ooze film 20 µm", dict(film_um=20.0, film_stiffness_g_um=2.0, label="fouled"), {}, False),
+    ("ooze pull 10 g", dict(pull_force_g=10.0, label="fouled"), {}, False),
+]
+
+
+def run_condition(changes: dict, options: dict, hide_delay: bool, taps: int) -> dict[str, float]:
+    errors, line_errors, limit_errors, valid = [], [], [], []
+    for seed in range(taps):
+        spec = SynthTap(seed=seed, **changes)
+        tap = synth_tap(spec)
+        if hide_delay:
+            tap.meta.pop("sensor_delay_s")
+        result = analyze_tap(tap, AnalysisOptions(**options))
+        truth_um = spec.z_contact_mm * 1000
+        limit_errors.append(best_achievable_z(spec, tap) * 1000 - truth_um)
+        valid.append(result.valid)
+        if result.z_mm is not None:
+            errors.append(result.z_mm * 1000 - truth_um)
+            line_errors.append(result.z_line_mm * 1000 - truth_um)
+        else:
+            errors.append(np.nan)
+            line_errors.append(np.nan)
+    errors, line_errors, valid = np.array(errors), np.array(line_errors), np.array(valid)
+    ok = valid & np.isfinite(errors)
+    limit = float(np.std(limit_errors))
+    if not ok.any():  # every tap rejected (the ooze rows): no error statistics
+        return {"valid": 0.0, "limit": limit, **dict.fromkeys(("bias", "sigma", "p95", "worst", "line_bias",
+                                                                "line_sigma"), np.nan)}
+    good = errors[ok]
+    return {
+        "valid": 100.0 * valid.mean(),
+        "bias": float(np.mean(good)),
+        "sigma": float(np.std(good)),
+        "p95": float(np.percentile(np.abs(good), 95)),
+        "worst": float(np.max(np.abs(good))),
+        "limit": limit,
+        "line_bias": float(np.mean(line_errors[ok])),
+        "line_sigma": float(np.std(line_errors[ok])),
+    }
+
+
+def main(argv: list[str]) -> int:
+    taps = int(argv[0]) if argv else 40
+    table = Table(title=f"tap analysis accuracy, {taps} synthetic taps per row (µm vs truth)")
+    for column in ("condition", "valid %", "bias", "σ", "σ limit", "σ/limit", "p95 |err|", "worst valid",
+                   "P4-line bias", "P4-line σ"):
+        table.add_column(column, justify="left" if column == "condition" else "right")
+    for name, changes, options, hide_delay in CONDITIONS:
+        row = run_condition(changes, options, hide_delay, taps)
+        table.add_row(name, f"{row['valid']:.0f}", f"{row['bias']:+.3f}", f"{row['sigma']:.3f}",
+                      f"{row['limit']:.3f}", f"{row['sigma'] / row['limit']:.2f}", f"{row['p95']:.3f}",
+                      f"{row['worst']:.2f}", f"{row['line_bias']:+.3f}", f"{row['line_sigma']:.3f}")
+    Console(width=170).print(table)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
