@@ -31,6 +31,9 @@ MODULES: dict[str, str] = {
     "load_cell_probe": "tapcell.load_cell_probe",
     "bed_mesh": "tapcell.bed_mesh",
     "gcode_macro": "tapcell.gcode_macro",
+    "z_thermal_adjust": "tapcell.z_thermal_adjust",
+    "prusa_probe": "tapcell.prusa_probe",
+    "xy_probe": "tapcell.xy_probe",
 }
 
 # Sections without a module of their own -> the section whose module reads them.
