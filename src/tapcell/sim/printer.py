@@ -23,6 +23,7 @@ from tapcell.sim.mcu import SampleBatch, SampleChunk, TriggerFeeder, VirtualMCU
 from tapcell.sim.motion import MotionHistory, Segment, move_limits, plan_trapezoid, quantize_to_steps
 from tapcell.sim.nozzle import NozzleThermal
 from tapcell.sim.params import SimParamError, SimParams, make_params, series_stiffness_g_um
+from tapcell.sim.pin import pin_from_params
 from tapcell.sim.scenarios import SCENARIOS
 from tapcell.sim.sensor import IndexedNoise, chip_timing, counts_from_force, pink_block_maker, window_average_sine
 
@@ -106,6 +107,7 @@ class VirtualPrinter:
         streams = np.random.SeedSequence(self.seed).spawn(len(NOISE_STREAMS))
         rng = {name: np.random.Generator(np.random.PCG64(s)) for name, s in zip(NOISE_STREAMS, streams)}
         self._bed = bed_from_params(params, rng["bed"])
+        self._pin = pin_from_params(params)
         xy_step = params.rotation_distance_xy_mm / (params.full_steps_per_rotation * params.microsteps)
         z_step = params.rotation_distance_z_mm / (params.full_steps_per_rotation * params.microsteps)
         self.step_distance_mm = np.array([xy_step, xy_step, z_step])
@@ -252,10 +254,21 @@ class VirtualPrinter:
         if not self.params.z_position_min_mm <= z_target_mm <= start[2]:
             raise MoveError(f"probing move target z={z_target_mm:.3f} must be between position_min "
                             f"{self.params.z_position_min_mm:.3f} and the current z={start[2]:.3f}")
+        return self._probing_move_to((start[0], start[1], float(z_target_mm)), speed_mm_s, trigger)
+
+    def probing_move_xy(self, x_mm: float, y_mm: float, speed_mm_s: float, trigger) -> ProbingMoveResult:
+        """Like probing_move, but horizontally toward (x, y) at the current Z (XY probing on a pin);
+        the halt position is `position` afterwards."""
+        start = self._motion.end_position
+        target = (float(x_mm), float(y_mm), start[2])
+        self._check_target(target)
+        return self._probing_move_to(target, speed_mm_s, trigger)
+
+    def _probing_move_to(self, target, speed_mm_s: float, trigger) -> ProbingMoveResult:
+        start = self._motion.end_position
         self._advance_to(self._now_s)
         film_at_start_um = self._state.contact.film_um
         self._fire_condition("probing_move", self._now_s)
-        target = (start[0], start[1], float(z_target_mm))
         segments = self._plan(start, target, speed_mm_s)
         t_start = self._now_s
         contact_t = self._crossing_time(segments, float(self.truth.contact_z_at(start[0], start[1])))
@@ -438,7 +451,14 @@ class VirtualPrinter:
         grid_t = timing.grid_times(k0, k1)
         pos = quantize_to_steps(self._motion.positions_at(grid_t), self.step_distance_mm)
         temps = self._thermal.temps_at(grid_t)
-        contact_z = self._bed.surface_z(pos[:, 0], pos[:, 1]) + self._thermal.extension_mm(temps)
+        bed_z = self._bed.surface_z(pos[:, 0], pos[:, 1])
+        extension_mm = self._thermal.extension_mm(temps)
+        pin_g = 0.0
+        if self._pin is not None:
+            pin_base_mm = float(self._bed.surface_z(self._pin.x_mm, self._pin.y_mm))
+            pin_g = self._pin.side_force_g(pos[:, 0], pos[:, 1], pos[:, 2] - extension_mm, pin_base_mm)
+            bed_z = self._pin.surface_z(pos[:, 0], pos[:, 1], bed_z, pin_base_mm)
+        contact_z = bed_z + extension_mm
         gap_um = (pos[:, 2] - contact_z) * 1000.0
         growth_um = p.ooze_growth_um_per_s_per_c * np.maximum(temps - p.ooze_temp_c, 0.0) * timing.grid_dt_s
         bed_g, film_g = contact_forces(gap_um, timing.grid_dt_s, growth_um, self._contact_model,
@@ -446,7 +466,8 @@ class VirtualPrinter:
         centre = (p.bed_x_mm / 2.0, p.bed_y_mm / 2.0)
         drag_g = (p.bowden_g_per_mm_x * (pos[:, 0] - centre[0]) + p.bowden_g_per_mm_y * (pos[:, 1] - centre[1])
                   + p.bowden_g_per_mm_z * pos[:, 2])
-        grid_force = bed_g + film_g + drag_g + faultlib.external_force_g(self._faults, grid_t) + self._hand_force(grid_t)
+        grid_force = (bed_g + film_g + drag_g + pin_g + faultlib.external_force_g(self._faults, grid_t)
+                      + self._hand_force(grid_t))
         force_g = grid_force.reshape(n, sub).mean(axis=1)
         t_ready = timing.ready_times(k0, k1)
         force_g = force_g + p.thermal_drift_g_per_c * self._cell_warming(t_ready)
