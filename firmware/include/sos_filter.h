@@ -51,17 +51,22 @@ struct tc_sos_filter {
 /* Signed 32x32 -> 64 product from four 16x16 -> 32 multiplies. ARMv6-M
  * (Cortex-M0/M0+) has no 64-bit multiply instruction; the compiler would call
  * the general 64x64 helper __aeabi_lmul (about 57 cycles) for every product,
- * while this needs four single-cycle MULS and a few adds. The result is the
- * exact product, so it is bit-identical to the native multiply. */
+ * while this needs four single-cycle MULS and some 32-bit adds. It forms the
+ * unsigned product of the two bit patterns, then corrects the high word for
+ * negative operands (a < 0 adds 2^32 to a, so subtract b * 2^32; same for b).
+ * Exact, so bit-identical to the native multiply. */
 static inline int64_t tc_mul_s32_halves(int32_t a, int32_t b)
 {
-    int32_t a_hi = a >> 16, b_hi = b >> 16;          /* arithmetic shift (gcc, clang) */
-    uint32_t a_lo = (uint16_t)a, b_lo = (uint16_t)b;
-    uint32_t lo = a_lo * b_lo;                       /* < 2^32 */
-    int32_t hi = a_hi * b_hi;                        /* |.| <= 2^30 */
-    int64_t mid = (int64_t)(a_hi * (int32_t)b_lo) + (int32_t)a_lo * b_hi; /* each fits int32 */
-    uint64_t sum = ((uint64_t)(int64_t)hi << 32) + ((uint64_t)mid << 16) + lo;
-    return (int64_t)sum;                             /* modular conversion (gcc, clang) */
+    uint32_t ua = (uint32_t)a, ub = (uint32_t)b;
+    uint32_t a_lo = ua & 0xFFFFu, a_hi = ua >> 16, b_lo = ub & 0xFFFFu, b_hi = ub >> 16;
+    uint32_t lo = a_lo * b_lo, hi = a_hi * b_hi;
+    uint32_t cross = a_hi * b_lo, cross2 = a_lo * b_hi;
+    cross += cross2;
+    hi += (uint32_t)(cross < cross2) << 16;          /* carry out of the cross sum */
+    uint32_t lo_sum = lo + (cross << 16);
+    hi += (cross >> 16) + (lo_sum < lo);
+    hi -= (ub & (uint32_t)(a >> 31)) + (ua & (uint32_t)(b >> 31));
+    return (int64_t)(((uint64_t)hi << 32) | lo_sum); /* modular conversion (gcc, clang) */
 }
 
 static inline int64_t tc_mul_s32_native(int32_t a, int32_t b)
@@ -119,11 +124,12 @@ void tc_sos_filter_reset(struct tc_sos_filter *f);
 /* Filter one Q16.15 sample; sets f->overflowed when a value saturates. */
 int32_t tc_sos_filter_apply(struct tc_sos_filter *f, int32_t x);
 
-/* (a*b + addend) >> shift as int32, with the 64-bit addition saturating and the
- * result range-checked (*bad set on either overflow). With addend 2^(shift-1)
- * this is a round-half-up fixed-point multiply; the trigger uses it for the
- * counts -> grams scale, the filter for each section output. */
-int32_t tc_mul_add_shift(int32_t a, int32_t b, int64_t addend, unsigned shift, uint8_t *bad);
+/* *acc = a*b + *acc (64-bit, saturating), returned as *acc >> shift in int32
+ * (saturating); *bad is set on either overflow. With *acc = 2^(shift-1) this is a
+ * round-half-up fixed-point multiply (the trigger's counts -> grams scale); the
+ * filter passes its state and keeps the sum for the rounding error. One shared
+ * out-of-line copy keeps the M0+ code small. */
+int32_t tc_mul_add_shift(int32_t a, int32_t b, int64_t *acc, unsigned shift, uint8_t *bad);
 
 /* Filter n samples (host batch helper). Returns the index of the first sample
  * whose processing overflowed, or n when none did. */

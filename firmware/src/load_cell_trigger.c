@@ -12,11 +12,12 @@ static int within(int32_t value, int32_t centre, int32_t half_width)
 
 int tc_trigger_configure(struct tc_trigger *t, const struct tc_trigger_config *cfg)
 {
-    if (cfg->force_limit_counts < 0 || cfg->drift_limit_counts < 0 || cfg->scale == 0
-        || cfg->scale_frac_bits < 1 || cfg->scale_frac_bits > 31 || cfg->trigger_q <= 0
-        || cfg->release_q < 0 || cfg->release_q >= cfg->trigger_q
-        || cfg->sample_period_ticks == 0 || cfg->sample_period_ticks >= TC_TRIGGER_MAX_PERIOD_TICKS
-        || cfg->watchdog_periods == 0 || cfg->watchdog_periods > TC_TRIGGER_MAX_WATCHDOG_PERIODS)
+    /* Unsigned compares fold each "lo <= v <= hi" range into one test. */
+    if ((cfg->force_limit_counts | cfg->drift_limit_counts) < 0 || cfg->scale == 0
+        || cfg->scale_frac_bits - 1u > 30u || cfg->trigger_q <= 0
+        || (uint32_t)cfg->release_q >= (uint32_t)cfg->trigger_q    /* also rejects release_q < 0 */
+        || cfg->sample_period_ticks - 1u >= TC_TRIGGER_MAX_PERIOD_TICKS - 1u
+        || cfg->watchdog_periods - 1u >= TC_TRIGGER_MAX_WATCHDOG_PERIODS)
         return TC_ERR_BAD_CONFIG;
     t->cfg = *cfg;
     t->watchdog_ticks = cfg->watchdog_periods * cfg->sample_period_ticks;
@@ -82,9 +83,8 @@ int tc_trigger_sample(struct tc_trigger *t, int32_t counts, uint32_t sample_tick
     int32_t offset_counts;
     if (__builtin_sub_overflow(counts, t->tare_counts, &offset_counts))
         return fail(t, TC_ERR_SCALE_OVERFLOW, sample_ticks);
-    int64_t round_half = (uint32_t)1 << (t->cfg.scale_frac_bits - 1);
-    int32_t grams_q = tc_mul_add_shift(offset_counts, t->cfg.scale, round_half,
-                                       t->cfg.scale_frac_bits, &bad);
+    int64_t acc = (uint32_t)1 << (t->cfg.scale_frac_bits - 1);   /* round half up */
+    int32_t grams_q = tc_mul_add_shift(offset_counts, t->cfg.scale, &acc, t->cfg.scale_frac_bits, &bad);
     if (bad)
         return fail(t, TC_ERR_SCALE_OVERFLOW, sample_ticks);
     int32_t force_q = tc_sos_filter_apply(&t->filter, grams_q);
@@ -92,13 +92,14 @@ int tc_trigger_sample(struct tc_trigger *t, int32_t counts, uint32_t sample_tick
         return fail(t, TC_ERR_FILTER_OVERFLOW, sample_ticks);
     t->filtered_q = force_q;
 
+    /* |force| >= trigger  <=>  force outside 0 +- (trigger - 1) LSB */
     if (t->state == TC_TRIGGER_ARMED) {
-        if (force_q >= t->cfg.trigger_q || force_q <= -t->cfg.trigger_q) {
+        if (!within(force_q, 0, t->cfg.trigger_q - 1)) {
             t->state = TC_TRIGGER_TRIGGERED;
             t->trigger_ticks = sample_ticks;
             return TC_EVENT_TRIGGER;
         }
-    } else if (force_q < t->cfg.release_q && force_q > -t->cfg.release_q) {
+    } else if (within(force_q, 0, t->cfg.release_q - 1)) {
         t->state = TC_TRIGGER_ARMED;
         t->release_ticks = sample_ticks;
         return TC_EVENT_RELEASE;

@@ -30,9 +30,17 @@ int tc_sos_filter_configure(struct tc_sos_filter *f, const int32_t coeff[][TC_SO
     return TC_OK;
 }
 
+/* Size-optimised builds (-Os, the M0+ flash budget) keep one copy of the
+ * saturating add instead of inlining it at each use. */
+#ifdef __OPTIMIZE_SIZE__
+#define TC_SIZE_NOINLINE __attribute__((noinline))
+#else
+#define TC_SIZE_NOINLINE
+#endif
+
 /* a + b, saturated to the int64 limits; sets *bad on overflow. An overflow can
  * only happen with both operands of one sign, so that sign picks the limit. */
-static inline int64_t add_sat64(int64_t a, int64_t b, uint8_t *bad)
+static TC_SIZE_NOINLINE int64_t add_sat64(int64_t a, int64_t b, uint8_t *bad)
 {
     int64_t sum;
     if (__builtin_add_overflow(a, b, &sum)) {
@@ -42,10 +50,24 @@ static inline int64_t add_sat64(int64_t a, int64_t b, uint8_t *bad)
     return sum;
 }
 
-int32_t tc_mul_add_shift(int32_t a, int32_t b, int64_t addend, unsigned shift, uint8_t *bad)
+static inline int32_t mul_add_shift(int32_t a, int32_t b, int64_t *acc, unsigned shift, uint8_t *bad)
 {
-    return tc_shift_to_int32(add_sat64(tc_mul_s32(a, b), addend, bad), shift, bad);
+    *acc = add_sat64(tc_mul_s32(a, b), *acc, bad);
+    return tc_shift_to_int32(*acc, shift, bad);
 }
+
+int32_t tc_mul_add_shift(int32_t a, int32_t b, int64_t *acc, unsigned shift, uint8_t *bad)
+{
+    return mul_add_shift(a, b, acc, shift, bad);
+}
+
+/* The filter inlines the step for speed, except in size-optimised builds,
+ * which share the one out-of-line copy with the trigger. */
+#ifdef __OPTIMIZE_SIZE__
+#define section_mul_add_shift tc_mul_add_shift
+#else
+#define section_mul_add_shift mul_add_shift
+#endif
 
 int32_t tc_sos_filter_apply(struct tc_sos_filter *f, int32_t x)
 {
@@ -54,8 +76,8 @@ int32_t tc_sos_filter_apply(struct tc_sos_filter *f, int32_t x)
     for (unsigned i = 0; i < f->n_sections; i++) {
         const int32_t *c = f->coeff[i];
         int64_t *z = f->state[i];
-        int64_t acc = add_sat64(tc_mul_s32(c[TC_SOS_B0], x), z[0], &bad);
-        int32_t y = tc_shift_to_int32(acc, shift, &bad);
+        int64_t acc = z[0];
+        int32_t y = section_mul_add_shift(c[TC_SOS_B0], x, &acc, shift, &bad);
         /* Rounding error of y in product units, in [-R, R): fits 32 bits, so
          * 32-bit arithmetic gives it exactly (it wraps only after a saturation). */
         int32_t err = (int32_t)((uint32_t)acc - ((uint32_t)y << shift) - (uint32_t)f->round_half);

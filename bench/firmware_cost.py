@@ -1,0 +1,346 @@
+"""Firmware cost of the per-sample trigger path: x86 instructions, Cortex-M0+ size and cycles.
+
+* x86-64: gcc -O2 build of bench/firmware_cost/harness.c with the firmware sources, run under
+  `valgrind --tool=callgrind`; instructions per sample = inclusive cost of tc_trigger_sample()
+  (the sensor driver's per-sample call, filter included) / samples. The caller's loop is not in it.
+* Cortex-M0+: .text/.data/.bss of each firmware object at -Os (arm-none-eabi-gcc, the flags
+  of firmware/Makefile), and cycles per sample from running the cross-built harness in
+  unicorn, counting ARMv6-M cycles per executed instruction (table below, from the Cortex-M0+
+  TRM: single-cycle multiplier as on RP2040), from the first instruction of tc_trigger_sample()
+  to its return, libgcc helpers included. The M0+ outputs are checked bit-exact against the
+  Python reference of the pipeline.
+
+Filter: drift 0.8 Hz (order 2), buzz 100 Hz (order 2), notches 50/60 Hz (Q 2) at 660 sps -
+1 section = drift, 2 = drift + buzz, 4 = all. Trigger at 75 g, never reached, so every sample
+takes the full path (drift window, glitch check, scale, filter, threshold).
+Reference: Klipper's sos_filter + trigger_analog (shared/research/klipper-firmware-cost.md).
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import struct
+import subprocess
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from rich.console import Console
+from rich.table import Table
+
+from tapcell.filters import FilterOptions, design_firmware_filter, reference_sosfilt_q
+from tapcell.mcu.trigger import (
+    FirmwareTrigger, TriggerParams, _config_values, reference_counts_to_q1615,
+)
+
+REPO = Path(__file__).resolve().parents[1]
+FIRMWARE = REPO / "firmware"
+HARNESS = Path(__file__).resolve().parent / "firmware_cost"
+CORE_SOURCES = [FIRMWARE / "src" / "sos_filter.c", FIRMWARE / "src" / "load_cell_trigger.c"]
+HOST_ONLY_FUNCTIONS = {"tc_trigger_feed", "tc_sos_filter_run", "tc_trigger_struct_size"}
+ARM_FLAGS = ["-std=c99", "-mcpu=cortex-m0plus", "-mthumb", "-ffunction-sections", "-fdata-sections",
+             "-Wall", "-Wextra", "-Werror"]
+
+SECTIONS = (0, 1, 2, 4)
+KLIPPER_X86 = {0: 103, 1: 175, 2: 232, 4: 346}
+KLIPPER_X86_FILTER = {0: 50, 1: 122, 2: 179, 4: 293}
+KLIPPER_M0_CYCLES = {0: 257, 1: 937, 2: 1557, 4: 2797}
+KLIPPER_TEXT_OS = 586 + 550
+GOAL_X86_4 = 0.8 * 346
+GOAL_M0_4 = 2000
+GOAL_TEXT = 1.2 * 1024
+SPS = 660.0
+COUNTS_PER_GRAM = 100.0
+CLOCK_HZ = 12e6
+RAM_BASE = 0x20000000
+RAM_SIZE = 0x100000
+STACK_TOP = RAM_BASE + RAM_SIZE - 0x100
+RETURN_MAGIC = RAM_BASE + RAM_SIZE - 0x40   # LR target: emulation stops here
+
+# ARMv6-M cycle table (Cortex-M0+ TRM, "Instruction timings"):
+M0_TIMINGS = [
+    ("ALU, MOV, compare, shifts, extend, ADR", "1"),
+    ("MULS (single-cycle multiplier, RP2040)", "1"),
+    ("LDR/STR (any addressing), LDR literal", "2"),
+    ("PUSH / STM / LDM / POP without PC", "1 + N registers"),
+    ("POP with PC", "3 + N registers (N without PC)"),
+    ("B<cond>", "1 not taken, 2 taken"),
+    ("B, BX, BLX, MOV/ADD to PC", "2"),
+    ("BL", "3"),
+]
+
+
+@dataclass
+class Case:
+    n_sections: int
+    config: dict
+    coeff: np.ndarray
+    frac_bits: int
+    counts: np.ndarray
+    ticks: np.ndarray
+    tare_counts: int
+    expected_q: np.ndarray
+
+
+def _filter_for(n_sections: int):
+    options = {
+        0: FilterOptions(SPS),
+        1: FilterOptions(SPS, drift_filter_cutoff_frequency=0.8),
+        2: FilterOptions(SPS, drift_filter_cutoff_frequency=0.8, buzz_filter_cutoff_frequency=100),
+        4: FilterOptions(SPS, 0.8, 2, 100, 2, (50, 60), 2.0),
+    }[n_sections]
+    return design_firmware_filter(options)
+
+
+def make_case(n_sections: int, n_samples: int) -> Case:
+    params = TriggerParams(counts_per_gram=COUNTS_PER_GRAM, reference_tare_counts=4000, trigger_force_g=75.0,
+                           sample_rate_sps=SPS, clock_hz=CLOCK_HZ)
+    config = _config_values(params)
+    qsos = _filter_for(n_sections)
+    coeff = np.zeros((4, 5), dtype=np.int32)
+    frac_bits = 30
+    if qsos is not None:
+        coeff[:qsos.n_sections] = qsos.coeff
+        frac_bits = qsos.frac_bits
+    rng = np.random.default_rng(n_sections)
+    tare = 4100
+    grams = 30 * np.sin(np.arange(n_samples) * 0.05) + rng.normal(0, 5, n_samples)   # |g| < 75: never fires
+    counts = np.round(tare + grams * COUNTS_PER_GRAM).astype(np.int32)
+    ticks = (np.arange(1, n_samples + 1) * round(CLOCK_HZ / SPS)).astype(np.uint32)
+    scaled = reference_counts_to_q1615(counts, tare, config["scale"], config["scale_frac_bits"])
+    expected, _ = reference_sosfilt_q(qsos, scaled)
+    return Case(n_sections, config, coeff, frac_bits, counts, ticks, tare, expected)
+
+
+def _config_words(config: dict) -> list[int]:
+    order = ["reference_tare_counts", "force_limit_counts", "drift_limit_counts", "scale", "scale_frac_bits",
+             "trigger_q", "release_q", "sample_period_ticks", "watchdog_periods"]
+    return [config[name] for name in order]
+
+
+def _run(cmd: list[str], **kwargs) -> subprocess.CompletedProcess:
+    result = subprocess.run(cmd, capture_output=True, text=True, **kwargs)
+    if result.returncode not in (0,):
+        raise RuntimeError(f"{' '.join(map(str, cmd))} failed ({result.returncode}):\n{result.stdout}{result.stderr}")
+    return result
+
+
+# --------------------------------------------------------------------------- x86 / callgrind
+
+def x86_instructions(case: Case, workdir: Path) -> tuple[float, float]:
+    """(tc_trigger_sample, tc_sos_filter_apply) inclusive instructions per sample."""
+    exe = workdir / "harness_x86"
+    if not exe.exists():
+        _run(["gcc", "-std=c99", "-O2", "-g", f"-I{FIRMWARE / 'include'}", *map(str, CORE_SOURCES),
+              str(HARNESS / "harness.c"), str(HARNESS / "main_x86.c"), "-o", str(exe)])
+    data = workdir / f"input_{case.n_sections}.bin"
+    words = [case.n_sections, case.frac_bits, case.counts.size, case.tare_counts]
+    with open(data, "wb") as out:
+        out.write(struct.pack("<4i", *words))
+        out.write(struct.pack("<9i", *_config_words(case.config)))
+        out.write(case.coeff.astype("<i4").tobytes())
+        out.write(case.counts.astype("<i4").tobytes())
+        out.write(case.ticks.astype("<u4").tobytes())
+    profile = workdir / f"callgrind_{case.n_sections}.out"
+    result = _run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={profile}", str(exe), str(data)])
+    outputs = np.array(result.stdout.split(), dtype=np.int64)
+    if not np.array_equal(outputs, case.expected_q):
+        raise RuntimeError(f"x86 harness output differs from the reference at {case.n_sections} sections")
+    annotated = _run(["callgrind_annotate", "--inclusive=yes", "--threshold=100", str(profile)]).stdout
+    per_sample = {}
+    for name in ("tc_trigger_sample", "tc_sos_filter_apply"):
+        match = re.search(r"^\s*([\d,]+).*:" + name + r"\b", annotated, re.MULTILINE)
+        if not match:
+            raise RuntimeError(f"{name} not found in callgrind output")
+        per_sample[name] = int(match.group(1).replace(",", "")) / case.counts.size
+    return per_sample["tc_trigger_sample"], per_sample["tc_sos_filter_apply"]
+
+
+# --------------------------------------------------------------------------- Cortex-M0+
+
+def arm_object_sizes(workdir: Path) -> list[tuple[str, int, int, int, int]]:
+    """(object, text, data, bss, text of the MCU functions) for every firmware/src/*.c at -Os."""
+    rows = []
+    for source in sorted((FIRMWARE / "src").glob("*.c")):
+        obj = workdir / f"{source.stem}.o"
+        _run(["arm-none-eabi-gcc", *ARM_FLAGS, "-Os", f"-I{FIRMWARE / 'include'}", "-c", str(source), "-o", str(obj)])
+        size_line = _run(["arm-none-eabi-size", str(obj)]).stdout.splitlines()[1].split()
+        symbols = _run(["arm-none-eabi-nm", "-S", "--size-sort", str(obj)]).stdout.split("\n")
+        host_only = sum(int(parts[1], 16) for parts in (line.split() for line in symbols)
+                        if len(parts) == 4 and parts[3] in HOST_ONLY_FUNCTIONS)
+        text, data, bss = (int(v) for v in size_line[:3])
+        rows.append((obj.name, text, data, bss, text - host_only))
+    return rows
+
+
+def build_arm_harness(workdir: Path, opt: str) -> tuple[bytes, dict[str, tuple[int, int]], list[str]]:
+    elf = workdir / f"harness_m0_{opt}.elf"
+    _run(["arm-none-eabi-gcc", *ARM_FLAGS, f"-{opt}", "-ffreestanding", "-nostdlib", "-nostartfiles",
+          f"-I{FIRMWARE / 'include'}", *map(str, CORE_SOURCES), str(HARNESS / "harness.c"),
+          str(HARNESS / "arm_support.c"), f"-Wl,-Ttext={RAM_BASE:#x}", "-Wl,-e,bench_run", "-Wl,-u,bench_setup", "-Wl,--gc-sections",
+          "-lgcc", "-o", str(elf)])
+    image = workdir / f"harness_m0_{opt}.bin"
+    _run(["arm-none-eabi-objcopy", "-O", "binary", "-R", ".bss", str(elf), str(image)])
+    symbols = {}
+    for line in _run(["arm-none-eabi-nm", "-S", str(elf)]).stdout.splitlines():
+        parts = line.split()
+        if len(parts) == 4:
+            symbols[parts[3]] = (int(parts[0], 16), int(parts[1], 16))
+    helpers = sorted(name for name in symbols if name.startswith("__aeabi") or name.startswith("__ashr")
+                     or name.startswith("__mul"))
+    return image.read_bytes(), symbols, helpers
+
+
+def _thumb_cycles(code: bytes, offset: int, size: int, taken: bool) -> int:
+    half = code[offset] | (code[offset + 1] << 8)
+    if size == 4:
+        return 3 if (half & 0xF800) == 0xF000 else 4                  # BL; other 32-bit: barriers/MRS
+    if (half & 0xF000) == 0xD000 and (half >> 8) & 0xF < 0xE:
+        return 2 if taken else 1                                        # B<cond>
+    if (half & 0xF800) == 0xE000:
+        return 2                                                        # B
+    if (half & 0xFF00) == 0x4700:
+        return 2                                                        # BX, BLX
+    if (half & 0xFC00) == 0x4400 and (half & 0x0300) != 0x0100:
+        rd = (half & 7) | ((half >> 4) & 8)
+        return 2 if rd == 15 else 1                                     # ADD/MOV hi registers
+    if (half & 0xFE00) == 0xB400:
+        return 1 + bin(half & 0x1FF).count("1")                         # PUSH
+    if (half & 0xFE00) == 0xBC00:
+        low = bin(half & 0xFF).count("1")
+        return 3 + low if half & 0x100 else 1 + low                     # POP (with PC)
+    if (half & 0xF000) == 0xC000:
+        return 1 + bin(half & 0xFF).count("1")                          # LDM/STM
+    if (half & 0xF800) == 0x4800 or (half & 0xF000) == 0x5000 or (half & 0xE000) == 0x6000 \
+            or (half & 0xE000) == 0x8000:
+        return 2                                                        # loads/stores
+    return 1
+
+
+def m0_cycles(case: Case, opt: str, build) -> float:
+    """Cycles per sample of tc_trigger_sample() in unicorn, outputs checked against the reference."""
+    from unicorn import UC_ARCH_ARM, UC_HOOK_CODE, UC_MODE_MCLASS, UC_MODE_THUMB, Uc
+    from unicorn.arm_const import UC_ARM_REG_LR, UC_ARM_REG_SP, UC_CPU_ARM_CORTEX_M0
+
+    image, symbols, _ = build
+    uc = Uc(UC_ARCH_ARM, UC_MODE_THUMB | UC_MODE_MCLASS)
+    uc.ctl_set_cpu_model(UC_CPU_ARM_CORTEX_M0)
+    uc.mem_map(RAM_BASE, RAM_SIZE)
+    uc.mem_write(RAM_BASE, image)
+
+    def put(name: str, data: bytes) -> None:
+        uc.mem_write(symbols[name][0], data)
+
+    put("bench_coeff", case.coeff.astype("<i4").tobytes())
+    put("bench_n_sections", struct.pack("<I", case.n_sections))
+    put("bench_frac_bits", struct.pack("<I", case.frac_bits))
+    put("bench_n_samples", struct.pack("<I", case.counts.size))
+    put("bench_tare_counts", struct.pack("<i", case.tare_counts))
+    put("bench_config", struct.pack("<9i", *_config_words(case.config)))
+    put("bench_counts", case.counts.astype("<i4").tobytes())
+    put("bench_ticks", case.ticks.astype("<u4").tobytes())
+
+    def call(name: str) -> None:
+        uc.reg_write(UC_ARM_REG_SP, STACK_TOP)
+        uc.reg_write(UC_ARM_REG_LR, RETURN_MAGIC | 1)
+        uc.emu_start(symbols[name][0] | 1, RETURN_MAGIC)
+
+    call("bench_setup")
+    run_start, run_size = symbols["bench_run"]
+    state = {"cycles": 0, "prev": None}
+
+    def on_instruction(_uc, address, size, _data):
+        prev = state["prev"]
+        if prev is not None:
+            prev_address, prev_size = prev
+            taken = address != prev_address + prev_size
+            state["cycles"] += _thumb_cycles(image, prev_address - RAM_BASE, prev_size, taken)
+        # the caller's loop (bench_run) is not part of the per-sample path
+        state["prev"] = None if run_start <= address < run_start + run_size else (address, size)
+
+    uc.hook_add(UC_HOOK_CODE, on_instruction)
+    call("bench_run")
+    outputs = np.frombuffer(uc.mem_read(symbols["bench_filtered"][0], 4 * case.counts.size), dtype="<i4")
+    if not np.array_equal(outputs, case.expected_q):
+        raise RuntimeError(f"M0+ output differs from the reference at {case.n_sections} sections ({opt})")
+    return state["cycles"] / case.counts.size
+
+
+# --------------------------------------------------------------------------- report
+
+def _ratio(value: float, reference: float) -> str:
+    return f"{value / reference:.2f}"
+
+
+def main(argv: list[str]) -> int:
+    console = Console()
+    missing = [tool for tool in ("gcc", "valgrind", "callgrind_annotate", "arm-none-eabi-gcc") if not shutil.which(tool)]
+    if missing:
+        console.print(f"firmware_cost: missing tools {', '.join(missing)} (apt-get install valgrind gcc-arm-none-eabi)")
+        return 1
+    FirmwareTrigger(TriggerParams(COUNTS_PER_GRAM, 0, 75.0, SPS))   # builds the host library if needed
+    with tempfile.TemporaryDirectory() as tmp:
+        workdir = Path(tmp)
+        x86_cases = {n: make_case(n, 2000) for n in SECTIONS}
+        m0_cases = {n: make_case(n, 200) for n in SECTIONS}
+
+        table = Table(title="x86-64 instructions per sample (gcc -O2, callgrind, inclusive)")
+        for col in ("sections", "trigger path", "Klipper", "ratio", "filter alone", "Klipper filter", "ratio"):
+            table.add_column(col, justify="right")
+        x86 = {}
+        for n in SECTIONS:
+            total, filt = x86_instructions(x86_cases[n], workdir)
+            x86[n] = total
+            table.add_row(str(n), f"{total:.0f}", str(KLIPPER_X86[n]), _ratio(total, KLIPPER_X86[n]),
+                          f"{filt:.0f}", str(KLIPPER_X86_FILTER[n]), _ratio(filt, KLIPPER_X86_FILTER[n]))
+        console.print(table)
+        console.print(f"goal at 4 sections: <= {GOAL_X86_4:.0f} (0.8 x 346): "
+                      f"{'met' if x86[4] <= GOAL_X86_4 else 'NOT met'} ({x86[4]:.0f})")
+
+        sizes = arm_object_sizes(workdir)
+        table = Table(title="Cortex-M0+ object sizes, bytes (arm-none-eabi-gcc -Os -mthumb)")
+        for col in ("object", ".text", ".data", ".bss", ".text MCU functions"):
+            table.add_column(col, justify="right")
+        core_text = core_mcu = 0
+        for name, text, data, bss, mcu_text in sizes:
+            table.add_row(name, str(text), str(data), str(bss), str(mcu_text))
+            if name in ("sos_filter.o", "load_cell_trigger.o"):
+                core_text += text
+                core_mcu += mcu_text
+        table.add_row("trigger + filter", str(core_text), "", "", str(core_mcu))
+        table.add_row("Klipper sos_filter.o + trigger_analog.o", str(KLIPPER_TEXT_OS), "", "", "")
+        table.add_row("ratio", _ratio(core_text, KLIPPER_TEXT_OS), "", "", _ratio(core_mcu, KLIPPER_TEXT_OS))
+        console.print(table)
+        console.print(f"MCU functions exclude the host batch helpers ({', '.join(sorted(HOST_ONLY_FUNCTIONS))}). "
+                      f"goal <= {GOAL_TEXT:.0f} B: all {'met' if core_text <= GOAL_TEXT else 'NOT met'} "
+                      f"({core_text}), MCU functions {'met' if core_mcu <= GOAL_TEXT else 'NOT met'} ({core_mcu})")
+
+        table = Table(title="Cortex-M0+ cycles per sample (unicorn, ARMv6-M timings; output bit-exact)")
+        for col in ("sections", "-O2", "-Os", "Klipper RP2040", "ratio -O2", "ratio -Os"):
+            table.add_column(col, justify="right")
+        builds = {opt: build_arm_harness(workdir, opt) for opt in ("O2", "Os")}
+        m0 = {}
+        for n in SECTIONS:
+            m0[n] = {opt: m0_cycles(m0_cases[n], opt, builds[opt]) for opt in builds}
+            table.add_row(str(n), f"{m0[n]['O2']:.0f}", f"{m0[n]['Os']:.0f}", str(KLIPPER_M0_CYCLES[n]),
+                          _ratio(m0[n]["O2"], KLIPPER_M0_CYCLES[n]), _ratio(m0[n]["Os"], KLIPPER_M0_CYCLES[n]))
+        console.print(table)
+        helpers = sorted(set(builds["O2"][2]) | set(builds["Os"][2]))
+        console.print(f"goal at 4 sections: <= {GOAL_M0_4} (the -O2 build, like the shipped firmware's 2,797): "
+                      f"{'met' if m0[4]['O2'] <= GOAL_M0_4 else 'NOT met'} ({m0[4]['O2']:.0f}); "
+                      f"-Os {'also met' if m0[4]['Os'] <= GOAL_M0_4 else 'not met'} ({m0[4]['Os']:.0f}); "
+                      f"libgcc helpers linked: {', '.join(helpers) or 'none'}")
+        timing = Table(title="ARMv6-M timing table used (Cortex-M0+ TRM)")
+        timing.add_column("instruction")
+        timing.add_column("cycles")
+        for row in M0_TIMINGS:
+            timing.add_row(*row)
+        console.print(timing)
+    return 0
+
+
+if __name__ == "__main__":
+    import sys
+    raise SystemExit(main(sys.argv[1:]))
