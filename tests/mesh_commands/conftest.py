@@ -58,6 +58,7 @@ dout_pin: PA4
 sample_rate: 320
 counts_per_gram: {counts_per_gram}
 reference_tare_counts: {reference_tare_counts}
+z_offset: 0
 trigger_force: 75
 speed: 5
 """
