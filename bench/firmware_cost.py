@@ -39,7 +39,6 @@ REPO = Path(__file__).resolve().parents[1]
 FIRMWARE = REPO / "firmware"
 HARNESS = Path(__file__).resolve().parent / "firmware_cost"
 CORE_SOURCES = [FIRMWARE / "src" / "sos_filter.c", FIRMWARE / "src" / "load_cell_trigger.c"]
-HOST_ONLY_FUNCTIONS = {"tc_trigger_feed", "tc_sos_filter_run", "tc_trigger_struct_size"}
 ARM_FLAGS = ["-std=c99", "-mcpu=cortex-m0plus", "-mthumb", "-ffunction-sections", "-fdata-sections",
              "-Wall", "-Wextra", "-Werror"]
 
@@ -160,18 +159,15 @@ def x86_instructions(case: Case, workdir: Path) -> tuple[float, float]:
 
 # --------------------------------------------------------------------------- Cortex-M0+
 
-def arm_object_sizes(workdir: Path) -> list[tuple[str, int, int, int, int]]:
-    """(object, text, data, bss, text of the MCU functions) for every firmware/src/*.c at -Os."""
+def arm_object_sizes(workdir: Path) -> list[tuple[str, int, int, int]]:
+    """(object, text, data, bss) for every firmware/src/*.c (the MCU image's sources) at -Os."""
     rows = []
     for source in sorted((FIRMWARE / "src").glob("*.c")):
         obj = workdir / f"{source.stem}.o"
         _run(["arm-none-eabi-gcc", *ARM_FLAGS, "-Os", f"-I{FIRMWARE / 'include'}", "-c", str(source), "-o", str(obj)])
         size_line = _run(["arm-none-eabi-size", str(obj)]).stdout.splitlines()[1].split()
-        symbols = _run(["arm-none-eabi-nm", "-S", "--size-sort", str(obj)]).stdout.split("\n")
-        host_only = sum(int(parts[1], 16) for parts in (line.split() for line in symbols)
-                        if len(parts) == 4 and parts[3] in HOST_ONLY_FUNCTIONS)
         text, data, bss = (int(v) for v in size_line[:3])
-        rows.append((obj.name, text, data, bss, text - host_only))
+        rows.append((obj.name, text, data, bss))
     return rows
 
 
@@ -301,21 +297,18 @@ def main(argv: list[str]) -> int:
 
         sizes = arm_object_sizes(workdir)
         table = Table(title="Cortex-M0+ object sizes, bytes (arm-none-eabi-gcc -Os -mthumb)")
-        for col in ("object", ".text", ".data", ".bss", ".text MCU functions"):
+        for col in ("object", ".text", ".data", ".bss"):
             table.add_column(col, justify="right")
-        core_text = core_mcu = 0
-        for name, text, data, bss, mcu_text in sizes:
-            table.add_row(name, str(text), str(data), str(bss), str(mcu_text))
+        core_text = 0
+        for name, text, data, bss in sizes:
+            table.add_row(name, str(text), str(data), str(bss))
             if name in ("sos_filter.o", "load_cell_trigger.o"):
                 core_text += text
-                core_mcu += mcu_text
-        table.add_row("trigger + filter", str(core_text), "", "", str(core_mcu))
-        table.add_row("Klipper sos_filter.o + trigger_analog.o", str(KLIPPER_TEXT_OS), "", "", "")
-        table.add_row("ratio", _ratio(core_text, KLIPPER_TEXT_OS), "", "", _ratio(core_mcu, KLIPPER_TEXT_OS))
+        table.add_row("trigger + filter", str(core_text), "", "")
+        table.add_row("Klipper sos_filter.o + trigger_analog.o", str(KLIPPER_TEXT_OS), "", "")
+        table.add_row("ratio", _ratio(core_text, KLIPPER_TEXT_OS), "", "")
         console.print(table)
-        console.print(f"MCU functions exclude the host batch helpers ({', '.join(sorted(HOST_ONLY_FUNCTIONS))}). "
-                      f"goal <= {GOAL_TEXT:.0f} B: all {'met' if core_text <= GOAL_TEXT else 'NOT met'} "
-                      f"({core_text}), MCU functions {'met' if core_mcu <= GOAL_TEXT else 'NOT met'} ({core_mcu})")
+        console.print(f"goal <= {GOAL_TEXT:.0f} B: {'met' if core_text <= GOAL_TEXT else 'NOT met'} ({core_text})")
 
         table = Table(title="Cortex-M0+ cycles per sample (unicorn, ARMv6-M timings; output bit-exact)")
         for col in ("sections", "-O2", "-Os", "Klipper RP2040", "ratio -O2", "ratio -Os"):

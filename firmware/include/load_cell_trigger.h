@@ -110,13 +110,13 @@ void tc_trigger_abort(struct tc_trigger *t, int error_code, uint32_t now_ticks);
 /* Back to idle; clears the sticky error. */
 void tc_trigger_disarm(struct tc_trigger *t);
 
-/* Host batch helper: feeds samples until the first event. Returns the index
+/* Host only (firmware/host/batch.c): feeds samples until the first event. Returns the index
  * of the sample that caused it (its event in *event) or n (*event NONE).
  * filtered_q, when not NULL, receives t->filtered_q after each fed sample. */
 size_t tc_trigger_feed(struct tc_trigger *t, const int32_t *counts, const uint32_t *ticks,
                        size_t n, int32_t *filtered_q, int *event);
 
-/* sizeof(struct tc_trigger), so the host binding can check its declaration. */
+/* Host only: sizeof(struct tc_trigger), so the host binding can check its declaration. */
 size_t tc_trigger_struct_size(void);
 
 #endif

@@ -131,7 +131,7 @@ int32_t tc_sos_filter_apply(struct tc_sos_filter *f, int32_t x);
  * out-of-line copy keeps the M0+ code small. */
 int32_t tc_mul_add_shift(int32_t a, int32_t b, int64_t *acc, unsigned shift, uint8_t *bad);
 
-/* Filter n samples (host batch helper). Returns the index of the first sample
+/* Host only (firmware/host/batch.c): filter n samples. Returns the index of the first sample
  * whose processing overflowed, or n when none did. */
 size_t tc_sos_filter_run(struct tc_sos_filter *f, const int32_t *x, int32_t *y, size_t n);
 

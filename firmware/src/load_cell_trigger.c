@@ -126,22 +126,3 @@ void tc_trigger_disarm(struct tc_trigger *t)
     t->error = TC_OK;
     t->glitch_held = 0;
 }
-
-size_t tc_trigger_feed(struct tc_trigger *t, const int32_t *counts, const uint32_t *ticks,
-                       size_t n, int32_t *filtered_q, int *event)
-{
-    for (size_t i = 0; i < n; i++) {
-        *event = tc_trigger_sample(t, counts[i], ticks[i]);
-        if (filtered_q)
-            filtered_q[i] = t->filtered_q;
-        if (*event != TC_EVENT_NONE)
-            return i;
-    }
-    *event = TC_EVENT_NONE;
-    return n;
-}
-
-size_t tc_trigger_struct_size(void)
-{
-    return sizeof(struct tc_trigger);
-}

@@ -94,14 +94,3 @@ int32_t tc_sos_filter_apply(struct tc_sos_filter *f, int32_t x)
     f->overflowed |= bad;
     return x;
 }
-
-size_t tc_sos_filter_run(struct tc_sos_filter *f, const int32_t *x, int32_t *y, size_t n)
-{
-    size_t first_overflow = n;
-    for (size_t i = 0; i < n; i++) {
-        y[i] = tc_sos_filter_apply(f, x[i]);
-        if (f->overflowed && first_overflow == n)
-            first_overflow = i;
-    }
-    return first_overflow;
-}
