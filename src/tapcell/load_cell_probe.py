@@ -49,14 +49,59 @@ from tapcell.load_cell_probe_options import (
     TapOptions,
     default_pullback_speed_mm_s,
     force_beyond_safety_limit_g,
+    robust_tare_counts,
     tare_sample_count,
 )
 from tapcell.probe_patterns import serpentine_pattern
 from tapcell.tap import AnalysisOptions, Move, TapData, analyze_tap, get_classifier, tap_to_json_dict
 
 ERROR_PREFIX = "Load Cell Probe Error: "
-DWELL_SAMPLES = 8  # samples on the dwell line: enough for its fit, no more (no idle wait)
+# Halt to pullback: the sample whose window holds the halt, two more for the dwell line, one
+# margin for read jitter. Fewer leaves the analysis no dwell line (TAP_CHRONOLOGY at 2 samples).
+DWELL_SAMPLES = 4
+BREAK_CLEAR_SAMPLES = 4  # after break contact: one conversion window plus margin before free-air samples
 KEEP_LAST_TAPS = 16
+HISTORY_S = 1.0  # samples kept between taps (the tare looks back at most tare_time)
+TARE_TIMEOUT_S = 1.0  # no sample for this long: the sensor is gone
+TARE_FRESH_MARGIN_SAMPLES = 4  # the tare window may reach back this many periods beyond tare_time
+
+
+class SampleHistory:
+    """The probe cell's recent samples with their times (the LoadCell keeps counts only).
+
+    Holds the last HISTORY_S seconds, and everything since `keep_from_s` while a tap is
+    being recorded; `errors` are remembered with the time of the batch that reported them.
+    """
+
+    def __init__(self):
+        self._t: list[np.ndarray] = []
+        self._counts: list[np.ndarray] = []
+        self._errors: list[tuple[float, int]] = []
+        self.keep_from_s: float | None = None
+        self.newest_s = -np.inf
+
+    def add(self, batch, now_s: float) -> None:
+        if batch.errors:
+            self._errors.append((now_s, int(batch.errors)))
+        if len(batch.t_s):
+            self._t.append(np.asarray(batch.t_s, dtype=float))
+            self._counts.append(np.asarray(batch.counts, dtype=float))
+            self.newest_s = float(self._t[-1][-1])
+        oldest_kept_s = self.newest_s - HISTORY_S
+        if self.keep_from_s is not None:
+            oldest_kept_s = min(oldest_kept_s, self.keep_from_s)
+        while self._t and self._t[0][-1] < oldest_kept_s:
+            self._t.pop(0)
+            self._counts.pop(0)
+        self._errors = [e for e in self._errors if e[0] >= oldest_kept_s]
+
+    def between(self, t0_s: float, t1_s: float) -> tuple[np.ndarray, np.ndarray, int]:
+        """(times, raw counts, sensor errors reported) of the samples read in [t0, t1]."""
+        t_s = np.concatenate(self._t) if self._t else np.zeros(0)
+        counts = np.concatenate(self._counts) if self._counts else np.zeros(0)
+        inside = (t_s >= t0_s) & (t_s <= t1_s)
+        errors = sum(n for when_s, n in self._errors if t0_s <= when_s <= t1_s)
+        return t_s[inside], counts[inside], errors
 
 
 def filter_options(options: TapOptions, sample_rate_sps: float) -> FilterOptions:
@@ -127,6 +172,12 @@ class LoadCellProbe:
         # The toolhead implements the probe's Motion protocol (toolhead Z = virtual printer Z + frame offset).
         self.motion = printer.lookup_object("toolhead")
         self.last_taps: collections.deque[RecordedTap] = collections.deque(maxlen=KEEP_LAST_TAPS)
+        self.dwell_samples = DWELL_SAMPLES
+        # The probe listens to its cell all the time, like the MCU stream of a real printer.
+        self.history = SampleHistory()
+        self.load_cell.add_client(self._on_samples)
+        # Samples from this time on were taken with the nozzle clear of the bed (None: only new ones).
+        self._tare_from_s: float | None = -np.inf
         self.last_trigger_time_s: float | None = None
         self.tare_counts_at_tap: float | None = None
 
@@ -159,15 +210,36 @@ class LoadCellProbe:
         if not self.load_cell.is_calibrated:
             raise ProbeError(ERROR_PREFIX + "Load Cell not calibrated")
 
+    def _on_samples(self, batch) -> None:
+        self.history.add(batch, self.vp.now_s)
+
     def _tare(self, options: TapOptions) -> float:
-        """Average raw counts at rest over tare_time; checks force_safety_limit."""
-        count = tare_sample_count(options.tare_time_s, self.sample_rate_sps)
-        batch = self.load_cell.collect(count / self.sample_rate_sps)
-        if batch.errors:
-            raise ProbeError(ERROR_PREFIX + f"sensor reported {batch.errors} errors while taring")
-        if len(batch.counts) == 0:
-            raise ProbeError(ERROR_PREFIX + "timed out waiting for sensor data")
-        tare_counts = float(np.mean(batch.counts[-count:]))
+        """Raw counts at rest: the mean of the last ⌈tare_time·sps⌉ samples, corrupted frames left out.
+
+        The tare overlaps the end of the previous move (the lift after a tap, a travel): every
+        sample taken since the nozzle last left the bed counts, so a tap after a retract long
+        enough for the tare waits for nothing. Only when too few such samples exist does it wait
+        for the rest. Then checks force_safety_limit and sets the cell's tare.
+        """
+        needed = tare_sample_count(options.tare_time_s, self.sample_rate_sps)
+        period_s = 1.0 / self.sample_rate_sps
+        deadline_s = self.vp.now_s + TARE_TIMEOUT_S
+        while True:
+            self.load_cell.pump()
+            now_s = self.vp.now_s
+            usable_from_s = now_s if self._tare_from_s is None else self._tare_from_s
+            # Fresh samples only: a stalled sensor must not tare on what it said long ago.
+            oldest_s = max(usable_from_s, now_s - (needed + TARE_FRESH_MARGIN_SAMPLES) * period_s)
+            t_s, counts, errors = self.history.between(oldest_s, now_s)
+            if errors:
+                raise ProbeError(ERROR_PREFIX + f"sensor reported {errors} errors while taring")
+            if len(counts) >= needed:
+                break
+            if now_s >= deadline_s:
+                raise ProbeError(ERROR_PREFIX + "timed out waiting for sensor data")
+            self._tare_from_s = usable_from_s
+            self.vp.dwell(max(needed - len(counts), 1) * period_s)
+        tare_counts = robust_tare_counts(counts[-needed:])
         beyond = force_beyond_safety_limit_g(tare_counts, self.load_cell.reference_tare_counts,
                                              self.load_cell.counts_per_gram, options.force_safety_limit_g)
         if beyond is not None:
@@ -201,23 +273,24 @@ class LoadCellProbe:
         if error == TriggerError.WATCHDOG_TIMEOUT:
             return ERROR_PREFIX + "timed out waiting for sensor data"
         if error == TriggerError.FORCE_SAFETY:
-            return ERROR_PREFIX + f"force exceeds force_safety_limit ({options.force_safety_limit_g:.0f}g) before probing!"
+            return ERROR_PREFIX + f"force exceeded force_safety_limit ({options.force_safety_limit_g:.0f}g) while probing!"
         return ERROR_PREFIX + f"trigger error {error.name}"
 
     def _probing_move(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float):
         """Tare, arm and move down until the trigger halts Z; returns (move result, tare, t_start)."""
         self._require_calibrated()
         tare_counts = self._tare(settings.options)
+        # Until a pullback completes, the nozzle may be on the bed: the next tare waits for fresh samples.
+        self._tare_from_s = None
         t_start_s = self.vp.now_s
         trigger = self._arm(settings, tare_counts)
         # Unhomed (G28 Z), z_min is a full axis length below: the machine stops at its own end of travel.
         machine_z_min_mm = max(z_min_mm - self._z_frame_offset_mm(), self.vp.limits["z"][0])
         result = self.vp.probing_move(machine_z_min_mm, speed_mm_s, trigger)
+        self.load_cell.pump()
         if result.error != TriggerError.NONE:
-            self.load_cell.pump()
             raise ProbeError(self._trigger_error_message(result.error, settings.options))
         if not result.triggered:
-            self.load_cell.pump()
             raise ProbeError(ERROR_PREFIX + f"No trigger on probe after full movement (down to Z={z_min_mm:.3f}); "
                              "check that [stepper_z] position_min is negative (e.g. -2) and the nozzle reaches the bed")
         self.last_trigger_time_s = result.trigger_time_s
@@ -229,68 +302,75 @@ class LoadCellProbe:
     def home_tap(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float) -> float:
         """Trigger-only tap for G28 Z: the Z where the trigger halted the move."""
         result, _, _ = self._probing_move(settings, z_min_mm, speed_mm_s)
-        self.load_cell.pump()
         return float(result.halt_z_mm) + self._z_frame_offset_mm()
 
     def tap(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float) -> TapOutcome:
         """One full tap at the current XY (see the module docstring)."""
         options = settings.options
-        samples = []
-        client = self.load_cell.add_client(samples.append)
+        self.history.keep_from_s = self.vp.now_s - HISTORY_S  # this tap's samples stay until analysed
         try:
             result, tare_counts, t_start_s = self._probing_move(settings, z_min_mm, speed_mm_s)
-            self.vp.dwell(DWELL_SAMPLES / self.sample_rate_sps)
+            self.vp.dwell(self.dwell_samples / self.sample_rate_sps)
             pullback_start_s = self.vp.now_s
             self.vp.move_to(z=result.halt_z_mm + options.pullback_distance_mm,
                             speed_mm_s=settings.pullback_speed_mm_s)
             pullback_end_s = self.vp.now_s
-            self._collect_until(pullback_end_s, samples)
+            # From here the nozzle is pullback_distance above the halt: clear of the bed for the next tare.
+            self._tare_from_s = pullback_end_s
+            self._wait_for_samples_to(pullback_end_s)
+            tap = self._tap_data(tare_counts, t_start_s, result, pullback_start_s, pullback_end_s,
+                                 speed_mm_s, settings)
         finally:
-            self.load_cell.remove_client(client)
-        tap = self._tap_data(samples, tare_counts, t_start_s, result, pullback_start_s, pullback_end_s,
-                             speed_mm_s, settings)
+            self.history.keep_from_s = None
         analysis = analyze_tap(tap, settings.analysis)
         valid = bool(analysis.valid) and analysis.z_mm is not None
+        if valid:
+            # A valid tap proves the nozzle left the bed at break contact: the departure samples
+            # (one conversion window plus a margin later) already belong to the next tare.
+            clear_s = analysis.break_contact_time_s + BREAK_CLEAR_SAMPLES / self.sample_rate_sps
+            self._tare_from_s = min(clear_s, pullback_end_s)
         z_mm = (float(analysis.z_mm) if valid else float(result.halt_z_mm)) + self._z_frame_offset_mm()
         self._record(tap, analysis, z_mm, valid)
         if analysis.quality is not None:
-            angle = getattr(analysis, "decompression_angle_deg", None)
-            shown = f", Decompression angle: {angle:5.1f}" if angle is not None else ""
-            self.printer.gcode.respond_info(f"Tap Quality: {analysis.quality:.1f}%{shown}")
+            self.printer.gcode.respond_info(f"Tap Quality: {analysis.quality:.1f}%")
         return TapOutcome(z_mm=z_mm, valid=valid, error_code=analysis.error, message=analysis.message,
                           analysis=analysis)
 
-    def _collect_until(self, end_s: float, samples: list) -> None:
-        """Wait only until the sensor has delivered the sample covering end_s (pipeline delay)."""
-        period_s = 1.0 / self.sample_rate_sps
-        for _ in range(int(1.0 / period_s) + 2):  # at most 1 s: then the sensor is gone
-            self.load_cell.pump()
-            if samples and samples[-1].t_s.size and samples[-1].t_s[-1] >= end_s:
-                return
-            self.vp.dwell(period_s)
-        raise ProbeError(ERROR_PREFIX + "timed out waiting for sensor data")
+    def _wait_for_samples_to(self, end_s: float) -> None:
+        """Make sure the samples up to end_s have arrived (a live sensor has them already).
 
-    def _tap_data(self, batches, tare_counts, t_start_s, result, pullback_start_s, pullback_end_s,
+        The conversion that closed last before end_s is read within a fraction of a period; a
+        newest sample older than 1.5 periods means the sensor stalled: wait for it, up to a limit.
+        """
+        period_s = 1.0 / self.sample_rate_sps
+        deadline_s = end_s + TARE_TIMEOUT_S
+        while True:
+            self.load_cell.pump()
+            if self.history.newest_s >= end_s - 1.5 * period_s:
+                return
+            if self.vp.now_s >= deadline_s:
+                raise ProbeError(ERROR_PREFIX + "timed out waiting for sensor data")
+            self.vp.dwell(0.25 * period_s)
+
+    def _tap_data(self, tare_counts, t_start_s, result, pullback_start_s, pullback_end_s,
                   speed_mm_s, settings: TapSettings) -> TapData:
-        t_s = np.concatenate([b.t_s for b in batches]) if batches else np.empty(0)
-        counts = np.concatenate([b.counts for b in batches]) if batches else np.empty(0)
-        keep = (t_s >= t_start_s) & (t_s <= pullback_end_s + 1e-9)
-        force_g = (counts[keep] - tare_counts) / self.load_cell.counts_per_gram
+        t_s, counts, _ = self.history.between(t_start_s, pullback_end_s)
+        force_g = (counts - tare_counts) / self.load_cell.counts_per_gram
         if self.cell_options.inverted:
             force_g = -force_g
         moves = [Move(**{k: m[k] for k in ("print_time", "move_t", "start_v", "accel", "start_z", "z_r")})
-                 for m in self.vp.recorded_moves(t_start_s, pullback_end_s)]
+                 for m in self.vp.recorded_moves(t_start_s, pullback_end_s)
+                 if m["print_time"] >= t_start_s - 1e-9]  # not the move that ended as the tap began
         x, y, _ = self.vp.position
         options = settings.options
         return TapData(
-            time_s=t_s[keep], force_g=force_g, moves=moves, sample_rate_sps=self.sample_rate_sps,
+            time_s=t_s, force_g=force_g, moves=moves, sample_rate_sps=self.sample_rate_sps,
             events={"home_end_time": float(result.halt_time_s), "pullback_start_time": pullback_start_s,
                     "pullback_end_time": pullback_end_s},
             probe={"x": float(x), "y": float(y), "speed": speed_mm_s,
                    "pullback_distance": options.pullback_distance_mm,
                    "pullback_speed": settings.pullback_speed_mm_s, "trigger_force": options.trigger_force_g},
-            meta={"source": "tapcell load_cell_probe", "sensor_type": self.cell_options.sensor_type,
-                  **self.vp.sensor_info.get("analysis_meta", {})},
+            meta={"source": "tapcell load_cell_probe", "sensor_type": self.cell_options.sensor_type},
         )
 
     def _record(self, tap: TapData, analysis, z_mm: float, valid: bool) -> None:

@@ -9,6 +9,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
 from tapcell.probe_options import OptionSpec
 
 
@@ -77,3 +79,22 @@ def force_beyond_safety_limit_g(tare_counts: float, reference_tare_counts: int, 
     if limit_g > 0 and abs(force_g) >= limit_g:
         return force_g
     return None
+
+
+# A tare sample further than this many robust sigmas from the median is a corrupted frame.
+TARE_OUTLIER_SIGMAS = 8.0
+
+
+def robust_tare_counts(counts: np.ndarray) -> float:
+    """Mean of the tare samples after dropping corrupted frames (single flipped bits).
+
+    One flipped high bit adds 2^16..2^22 counts (hundreds of grams or more): averaged in, it
+    would shift the tare enough to trip the safety limit or trigger at once. Samples further
+    than TARE_OUTLIER_SIGMAS robust sigmas (1.4826 x median absolute deviation, at least 1
+    count) from the median are left out; honest noise never is.
+    """
+    counts = np.asarray(counts, dtype=float)
+    median = float(np.median(counts))
+    sigma = max(1.4826 * float(np.median(np.abs(counts - median))), 1.0)
+    kept = counts[np.abs(counts - median) <= TARE_OUTLIER_SIGMAS * sigma]
+    return float(np.mean(kept))
