@@ -110,8 +110,8 @@ class SimParams:
     ooze_clear_fraction: float = _p(0.4, "share of the film left on the bed at each tap", "", minval=0.0, maxval=1.0)
     # --- calibration pin (XY probing; tapcell.sim.pin) ---------------------------------------
     pin_diameter_mm: float = _p(0.0, "calibration pin diameter; 0 = no pin", "mm", minval=0.0)
-    pin_x_mm: float = _p(200.0, "calibration pin centre X", "mm")
-    pin_y_mm: float = _p(20.0, "calibration pin centre Y", "mm")
+    pin_x_mm: float = _p(225.0, "calibration pin centre X", "mm")
+    pin_y_mm: float = _p(225.0, "calibration pin centre Y", "mm")
     pin_height_mm: float = _p(5.0, "calibration pin height above the bed", "mm", minval=0.1)
     nozzle_tip_diameter_mm: float = _p(1.0, "outside diameter of the nozzle tip", "mm", minval=0.1)
     pin_side_stiffness_g_um: float = _p(4.0, "sideways stiffness of the toolhead against the pin", "g/µm",

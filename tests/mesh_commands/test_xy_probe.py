@@ -1,0 +1,60 @@
+"""XY probing: touching the virtual printer's calibration pin (known position) from the side."""
+
+from __future__ import annotations
+
+import pytest
+
+from tapcell.gcode import GCodeError
+
+PIN = """
+[xy_probe]
+pin_x: 225
+pin_y: 225
+pin_diameter: 6
+"""
+
+
+@pytest.fixture
+def pin_printer(make_printer):
+    # The pin really is at (225.3, 224.8): 0.3 / -0.2 mm from where the config says.
+    printer = make_printer(PIN, probe=True)
+    text = (make_printer.tmp_path / "printer.cfg").read_text().replace(
+        "seed: 1\n", "seed: 1\npin_diameter_mm: 6\npin_x_mm: 225.3\npin_y_mm: 224.8\n", 1)
+    (make_printer.tmp_path / "printer.cfg").write_text(text)
+    printer.gcode.run_script("RESTART\nG28")
+    return printer
+
+
+def test_pin_centre_found_from_four_sides(pin_printer, make_printer):
+    pin_printer.gcode.run_script("XY_PROBE_PIN")
+    result = pin_printer.get_status()["xy_probe"]["last_result"]
+    assert result["center_x"] == pytest.approx(225.3, abs=0.005)
+    assert result["center_y"] == pytest.approx(224.8, abs=0.005)
+    assert result["offset_x"] == pytest.approx(0.3, abs=0.005)
+    # Pin 6 mm + tip 1 mm, less the give before 40 g on each side (2 g/um seen by the cell: ~20 um).
+    assert 6.90 < result["width_x"] < 7.0 and 6.90 < result["width_y"] < 7.0
+    assert make_printer.responses[-2].startswith("// XY_PROBE_PIN: pin centre at X=225.3")
+
+
+def test_single_touch_reports_the_contact_position(pin_printer, make_printer):
+    gcode = pin_printer.gcode
+    gcode.run_script("G1 X215 Y224.8 F3000\nG1 Z2\nXY_PROBE DIRECTION=+X")
+    contact_x = pin_printer.get_status()["xy_probe"]["last_result"]["contact_x"]
+    surface_x = 225.3 - 3.0 - 0.5  # pin radius + nozzle tip radius
+    assert 0.0 < contact_x - surface_x < 0.05
+    assert make_printer.responses[-1].startswith(f"// XY_PROBE: contact at X={contact_x:.4f} Y=224.8")
+    assert make_printer.responses[-1].endswith("(moving +X, 40 g)")
+    # A higher threshold presses further in before it triggers.
+    gcode.run_script("XY_PROBE DIRECTION=+X FORCE=120")
+    harder_x = pin_printer.get_status()["xy_probe"]["last_result"]["contact_x"]
+    assert harder_x - contact_x == pytest.approx(0.080 / 2.0, abs=0.015)  # 80 g more at 2 g/um seen
+
+
+def test_missing_the_pin_is_an_error(pin_printer):
+    pin_printer.gcode.run_script("G1 X100 Y100 Z2 F3000")
+    with pytest.raises(GCodeError) as err:
+        pin_printer.gcode.run_script("XY_PROBE DIRECTION=-Y DISTANCE=5")
+    assert str(err.value) == "XY probe: no contact within 5 mm from X=100.000 Y=100.000"
+    with pytest.raises(GCodeError) as err:
+        pin_printer.gcode.run_script("XY_PROBE DIRECTION=up")
+    assert "DIRECTION must be one of +X, -X, +Y, -Y" in str(err.value)
