@@ -120,8 +120,11 @@ class ThresholdProber:
         self.tares.append(record)
         return record
 
-    def _arm(self, tare: TareRecord, threshold_g: float, release_g: float) -> FirmwareTrigger:
+    def _arm(self, tare: TareRecord, threshold_g: float, release_g: float,
+             drift_safety_limit_g: float | None = None) -> FirmwareTrigger:
         options = self.device.options
+        if drift_safety_limit_g is None:
+            drift_safety_limit_g = options.drift_safety_limit_g
         trigger = FirmwareTrigger(TriggerParams(
             counts_per_gram=self.load_cell.counts_per_gram,
             reference_tare_counts=self.load_cell.reference_tare_counts,
@@ -129,7 +132,7 @@ class ThresholdProber:
             release_force_g=release_g,
             sample_rate_sps=self.device.sample_rate_sps,
             force_safety_limit_g=options.force_safety_limit_g,
-            drift_safety_limit_g=options.drift_safety_limit_g,
+            drift_safety_limit_g=drift_safety_limit_g,
             inverted=self.device.cell_options.inverted,
             sos=self.device.config_settings.sos,
         ))
@@ -152,9 +155,10 @@ class ThresholdProber:
         return np.array([self.toolhead.frame_offset_mm[axis] for axis in "xyz"])
 
     def probe_z(self, tare: TareRecord, threshold_g: float, release_g: float, z_min_mm: float,
-                speed_mm_s: float) -> ThresholdHit:
-        """Move down toward z_min_mm until the force passes threshold_g (triggered False: no contact)."""
-        trigger = self._arm(tare, threshold_g, release_g)
+                speed_mm_s: float, drift_safety_limit_g: float | None = None) -> ThresholdHit:
+        """Move down toward z_min_mm until the force passes threshold_g (triggered False: no contact).
+        `drift_safety_limit_g`: the load cell probe's unless given (0 disables the drift check)."""
+        trigger = self._arm(tare, threshold_g, release_g, drift_safety_limit_g)
         frame = self._frame_mm()
         # The toolhead's position_min, but never past the machine's own travel end.
         machine_target = max(z_min_mm - frame[2], self.vp.limits["z"][0])

@@ -1,0 +1,59 @@
+"""The paper's two-pass ABL through BED_MESH_CALIBRATE METHOD=two_pass on the virtual printer."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from tapcell.gcode import GCodeError
+
+MESH = """
+[bed_mesh]
+mesh_min: 20, 20
+mesh_max: 215, 215
+probe_count: 3, 3
+mesh_pps: 0
+"""
+
+
+@pytest.fixture
+def abl_printer(make_printer):
+    printer = make_printer(MESH, probe=True, scenario="tilted-bed")
+    printer.gcode.run_script("G28")
+    return printer
+
+
+def test_two_pass_weighting_and_topology(abl_printer, make_printer):
+    abl_printer.gcode.run_script("BED_MESH_CALIBRATE METHOD=two_pass")
+    status = abl_printer.get_status()["bed_mesh"]
+    points = status["last_calibration"]["points"]
+    assert len(points) == 9
+    for point in points:
+        assert point["z_mm"] == pytest.approx(0.4 * point["z_fast_mm"] + 0.6 * point["z_slow_mm"], abs=1e-12)
+    # Serpentine order into the matrix: point 4 (index 3) is the right end of the middle row.
+    probed = np.array(status["probed_matrix"])
+    assert probed[1, 2] == pytest.approx(points[3]["z_mm"], abs=1e-6)
+    assert probed[2, 0] == pytest.approx(points[6]["z_mm"], abs=1e-6)
+    # The bed is tilted 0.4 mm across X (235 mm) and -0.25 mm across Y.
+    topology = status["last_calibration"]["topology"]
+    assert topology["tilt_x_mm_per_mm"] == pytest.approx(0.4 / 235.0, abs=0.0002)
+    assert topology["tilt_y_mm_per_mm"] == pytest.approx(-0.25 / 235.0, abs=0.0002)
+    text = "\n".join(make_printer.responses)
+    assert "// Bed topology (two-pass probing, Z = 0.4 * fast + 0.6 * slow):" in text
+    assert "fast pass at 15 mm/s (max_z_velocity; the paper moved its bed at 120 mm/s)" in text
+    # The surface shape is right; halting positions sit a fixed overshoot below the contact.
+    toolhead = abl_printer.lookup_object("toolhead")
+    xs, ys = np.meshgrid([20.0, 117.5, 215.0], [20.0, 117.5, 215.0])
+    truth = abl_printer.backend.truth.contact_z_at(xs, ys) + toolhead.frame_offset_mm["z"]
+    error_um = (probed - truth) * 1000.0
+    assert np.ptp(error_um) < 40.0 and -80.0 < error_um.mean() < 0.0
+
+
+def test_no_contact_before_the_travel_limit_stops(abl_printer):
+    toolhead = abl_printer.lookup_object("toolhead")
+    toolhead.set_z_position(toolhead.get_position()[2] - 3.0)  # the bed is "3 mm higher": never reached
+    with pytest.raises(GCodeError) as err:
+        abl_printer.gcode.run_script("BED_MESH_CALIBRATE METHOD=two_pass")
+    assert str(err.value) == ("BED_MESH_CALIBRATE METHOD=two_pass: no contact at point 1 of 9 (X=20.000 Y=20.000) "
+                              "on the fast pass before the travel limit Z=-2.000 mm: probing stopped")
+    assert abl_printer.get_status()["bed_mesh"]["profile_name"] == ""
