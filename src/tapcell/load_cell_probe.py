@@ -51,6 +51,7 @@ from tapcell.load_cell_probe_options import (
     force_beyond_safety_limit_g,
     robust_tare_counts,
     tare_sample_count,
+    too_fast_explanation,
 )
 from tapcell.probe_patterns import serpentine_pattern
 from tapcell.tap import AnalysisOptions, Move, TapData, analyze_tap, get_classifier, tap_to_json_dict
@@ -63,6 +64,7 @@ BREAK_CLEAR_SAMPLES = 4  # after break contact: one conversion window plus margi
 KEEP_LAST_TAPS = 16
 HISTORY_S = 1.0  # samples kept between taps (the tare looks back at most tare_time)
 TARE_TIMEOUT_S = 1.0  # no sample for this long: the sensor is gone
+RELEASE_CHECK_S = 0.05  # LOAD_CELL_TEST_TAP looks at the force this often while waiting for a release
 TARE_FRESH_MARGIN_SAMPLES = 4  # the tare window may reach back this many periods beyond tare_time
 
 
@@ -289,12 +291,27 @@ class LoadCellProbe:
         result = self.vp.probing_move(machine_z_min_mm, speed_mm_s, trigger)
         self.load_cell.pump()
         if result.error != TriggerError.NONE:
-            raise ProbeError(self._trigger_error_message(result.error, settings.options))
+            message = self._trigger_error_message(result.error, settings.options)
+            if result.error == TriggerError.DRIFT_SAFETY:
+                message += self._explain_drift(settings.options, tare_counts, t_start_s, speed_mm_s)
+            raise ProbeError(message)
         if not result.triggered:
             raise ProbeError(ERROR_PREFIX + f"No trigger on probe after full movement (down to Z={z_min_mm:.3f}); "
                              "check that [stepper_z] position_min is negative (e.g. -2) and the nozzle reaches the bed")
         self.last_trigger_time_s = result.trigger_time_s
         return result, tare_counts, t_start_s
+
+    def _explain_drift(self, options: TapOptions, tare_counts: float, t_start_s: float, speed_mm_s: float) -> str:
+        """' (why)' when the move's samples show the force jumping past the limit within one sample."""
+        _, counts, _ = self.history.between(t_start_s, self.vp.now_s)
+        force_g = (counts - tare_counts) / self.load_cell.counts_per_gram
+        beyond = np.flatnonzero(np.abs(force_g) >= options.drift_safety_limit_g)
+        if len(beyond) == 0 or beyond[0] == 0:
+            return ""
+        first = int(beyond[0])
+        why = too_fast_explanation(float(force_g[first - 1]), float(force_g[first]), options.trigger_force_g,
+                                   options.drift_safety_limit_g, speed_mm_s, self.sample_rate_sps)
+        return "" if why is None else f" ({why})"
 
     def _z_frame_offset_mm(self) -> float:
         return self.motion.frame_offset_mm["z"]
@@ -424,28 +441,26 @@ class LoadCellProbeCommands:
         settings = device.command_settings(gcmd)
         gcmd.respond_info(f"Tap the load cell {count} times:")
         deadline_s = device.vp.now_s + timeout_s
-        chunk_s = 0.05
         for index in range(count):
-            self._wait_for_release(settings.options, deadline_s, chunk_s)
+            self._wait_for_release(settings.options, deadline_s)
             trigger = device._arm(settings, device._tare(settings.options))
-            while True:
-                if device.vp.now_s >= deadline_s:
-                    raise ProbeError(f"LOAD_CELL_TEST_TAP: no tap detected within {timeout_s:g}s "
-                                     f"({index} of {count} taps detected)")
-                batch = device.load_cell.collect(chunk_s)
-                fed = trigger.feed(batch.t_s, batch.counts)
-                if fed.error != TriggerError.NONE:
-                    raise ProbeError(device._trigger_error_message(fed.error, settings.options))
-                if fed.trigger_index is not None:
-                    break
+            # A hand is on the nozzle now: the next tare must wait for new samples.
+            device._tare_from_s = None
+            result = device.vp.wait_for_trigger(trigger, max(deadline_s - device.vp.now_s, 0.0))
+            device.load_cell.pump()
+            if result.error != TriggerError.NONE:
+                raise ProbeError(device._trigger_error_message(result.error, settings.options))
+            if not result.triggered:
+                raise ProbeError(f"LOAD_CELL_TEST_TAP: no tap detected within {timeout_s:g}s "
+                                 f"({index} of {count} taps detected)")
             gcmd.respond_info("Tap Detected!")
         gcmd.respond_info(f"Test complete, {count} taps detected")
 
-    def _wait_for_release(self, options: TapOptions, deadline_s: float, chunk_s: float) -> None:
+    def _wait_for_release(self, options: TapOptions, deadline_s: float) -> None:
         """Do not tare under a hand still pressing: wait until the force is back near the tare."""
         device = self.device
         while device.vp.now_s < deadline_s:
-            batch = device.load_cell.collect(chunk_s)
+            batch = device.load_cell.collect(RELEASE_CHECK_S)
             force_g = device.load_cell.counts_to_grams(batch.counts)
             if force_g is None or len(force_g) == 0 or np.max(np.abs(force_g)) < 0.5 * options.trigger_force_g:
                 return

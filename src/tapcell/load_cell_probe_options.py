@@ -98,3 +98,23 @@ def robust_tare_counts(counts: np.ndarray) -> float:
     sigma = max(1.4826 * float(np.median(np.abs(counts - median))), 1.0)
     kept = counts[np.abs(counts - median) <= TARE_OUTLIER_SIGMAS * sigma]
     return float(np.mean(kept))
+
+
+def too_fast_explanation(force_before_g: float, force_at_error_g: float, trigger_force_g: float,
+                         drift_safety_limit_g: float, speed_mm_s: float, sample_rate_sps: float) -> str | None:
+    """Why drift_safety_limit tripped, when the cause is probing too fast for the sensor.
+
+    The trigger can only act on a sample. When the sample before the error was still below
+    the trigger force, the force jumped past drift_safety_limit within one sample period:
+    the nozzle travels too far per sample. Returns None for a real drift (a slow rise).
+    """
+    if abs(force_before_g) >= trigger_force_g:
+        return None
+    travel_um = speed_mm_s * 1000.0 / sample_rate_sps
+    jump_g = abs(force_at_error_g - force_before_g)
+    # Half the speed that would keep one sample's jump at the limit: room for the trigger's own latency.
+    suggested_mm_s = 0.5 * speed_mm_s * drift_safety_limit_g / jump_g if jump_g > 0 else speed_mm_s
+    return (f"the force jumped from {force_before_g:.0f}g to {force_at_error_g:.0f}g within one sample: "
+            f"at {speed_mm_s:g} mm/s and {sample_rate_sps:g} samples/s the nozzle moves {travel_um:.1f} um "
+            f"per sample, too far for the trigger to stop it; probe at {suggested_mm_s:.1f} mm/s or slower "
+            "(or use a faster sensor)")

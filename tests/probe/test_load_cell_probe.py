@@ -1,0 +1,142 @@
+"""[load_cell_probe] end to end on the virtual printer: one tap, errors, tap log, commands, status.
+
+Issue 6 items 1-4. The scenario targets (item 5) are in test_probe_scenarios.py.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pytest
+
+from probe_vprinter import make_printer, true_contact_z
+from tapcell.config import ConfigError
+from tapcell.gcode import GCodeCommand, GCodeError, parse_line
+from tapcell.tap import read_tap_file
+
+
+def test_uncalibrated_probe_refuses(tmp_path):
+    printer, _ = make_printer(tmp_path, calibrate=False, home=False)
+    with pytest.raises(GCodeError, match=r"^Load Cell Probe Error: Load Cell not calibrated$"):
+        printer.gcode.run_script("G28")
+
+
+def test_probe_result_is_the_true_bed_height_and_home_z_makes_it_zero(tmp_path):
+    printer, responses = make_printer(tmp_path)
+    printer.gcode.run_script("PROBE HOME=Z")
+    assert abs(true_contact_z(printer)) < 0.002  # the bed is now Z=0 within 2 µm
+    printer.gcode.run_script("G1 Z0.4\nPROBE")
+    probe = printer.lookup_object("probe")
+    assert abs(probe.last_z_result - true_contact_z(printer)) < 0.002
+    assert any(line.startswith("// Result is z=") for line in responses)
+
+
+def test_a_tap_records_samples_moves_and_events_but_never_truth(tmp_path):
+    printer, _ = make_printer(tmp_path, probe_options="tap_classifier: empty")
+    printer.gcode.run_script("PROBE")
+    recorded = printer.lookup_object("load_cell_probe").last_taps[-1]
+    tap = recorded.tap
+    assert tap.truth == {}
+    assert len(tap.moves) in (5, 6)  # [approach accel], cruise, halt marker, pullback accel/cruise/decel
+    assert tap.events["home_end_time"] < tap.events["pullback_start_time"] < tap.events["pullback_end_time"]
+    # Samples from the start of the approach to the end of the pullback, 320 per second.
+    span_s = tap.time_s[-1] - tap.time_s[0]
+    assert len(tap.time_s) == pytest.approx(span_s * 320, abs=2)
+    assert tap.time_s[-1] <= tap.events["pullback_end_time"]
+    # The pullback scans 1 µm per sample by default (320 sps -> 0.32 mm/s) over the 0.1 mm of the example.
+    assert tap.probe["pullback_speed"] == pytest.approx(0.32)
+    assert tap.probe["pullback_distance"] == pytest.approx(0.1)
+    assert recorded.valid
+
+
+def test_preload_of_3kg_refuses_to_probe_before_moving(tmp_path):
+    printer, _ = make_printer(tmp_path)
+    printer.gcode.run_script("SIM_PLACE_WEIGHT GRAMS=3000")
+    z_before = printer.backend.position[2]
+    with pytest.raises(GCodeError, match=r"^Load Cell Probe Error: force of (299\d|300\d)g exceeds force_safety_limit "
+                                         r"\(2000g\) before probing!$"):
+        printer.gcode.run_script("PROBE")
+    assert printer.backend.position[2] == z_before
+
+
+def test_no_trigger_over_the_full_movement(tmp_path):
+    # The bed sits 3 mm below the lowest Z the machine can reach.
+    printer, _ = make_printer(tmp_path, virtual_printer="bed_z_offset_mm: -3", home=False)
+    with pytest.raises(GCodeError, match=r"^Load Cell Probe Error: No trigger on probe after full movement"):
+        printer.gcode.run_script("G28")
+
+
+def test_tap_log_and_last_taps_are_tap_files(tmp_path):
+    log = tmp_path / "taps.jsonl"
+    printer, _ = make_printer(tmp_path, probe_options=f"tap_log: {log}\ntap_classifier: empty")
+    printer.gcode.run_script("PROBE\nG1 Z0.4\nPROBE")
+    device = printer.lookup_object("load_cell_probe")
+    logged = read_tap_file(log)
+    assert len(logged) == 2
+    lines = [json.loads(line) for line in log.read_text().splitlines()]
+    assert lines[1]["analysis"]["z"] == pytest.approx(device.last_taps[-1].analysis.z_mm, abs=1e-9)
+    assert device.write_last_taps(tmp_path / "last.jsonl") == 2
+    assert np.array_equal(read_tap_file(tmp_path / "last.jsonl")[1].time_s, logged[1].time_s)
+
+
+def test_probe_accuracy_reports_every_statistic(tmp_path):
+    printer, responses = make_printer(tmp_path, probe_options="tap_classifier: empty")
+    printer.gcode.run_script("PROBE HOME=Z\nG1 Z0.4")
+    responses.clear()
+    printer.gcode.run_script("PROBE_ACCURACY SAMPLES=4 SAMPLE_RETRACT_DIST=0.4")
+    # Z is where the step grid puts 0.4 after re-basing Z on the bed.
+    assert re.match(r"// PROBE_ACCURACY at X:110\.000 Y:110\.000 Z:0\.40\d \(samples=4 retract=0\.400 speed=5\.0 "
+                    r"lift_speed=5\.0\)$", responses[0])
+    summary = responses[-1]
+    for word in ("maximum", "minimum", "range", "average", "median", "standard deviation", "average delta"):
+        assert word in summary
+
+
+def test_filter_overrides_take_effect(tmp_path):
+    printer, _ = make_printer(tmp_path)
+    device = printer.lookup_object("load_cell_probe")
+    assert device.config_settings.sos is None
+    gcmd = GCodeCommand(printer.gcode, parse_line("PROBE DRIFT_FILTER_CUTOFF_FREQUENCY=0.8 "
+                                                  "BUZZ_FILTER_CUTOFF_FREQUENCY=100"))
+    settings = device.command_settings(gcmd)
+    assert settings.sos is not None and settings.sos.n_sections == 2
+
+
+def test_bad_filter_option_names_section_option_and_value(tmp_path):
+    with pytest.raises(ConfigError, match=r"\[load_cell_probe\] buzz_filter_cutoff_frequency = 500: 500.0 is not allowed"):
+        make_printer(tmp_path, probe_options="buzz_filter_cutoff_frequency: 500", calibrate=False, home=False)
+    printer, _ = make_printer(tmp_path)
+    with pytest.raises(GCodeError, match=r"BUZZ_FILTER_CUTOFF_FREQUENCY"):
+        printer.gcode.run_script("PROBE BUZZ_FILTER_CUTOFF_FREQUENCY=500")
+
+
+def test_load_cell_test_tap_counts_taps_without_moving(tmp_path):
+    printer, responses = make_printer(tmp_path)
+    vp = printer.backend
+    z_before = vp.position[2]
+    for at_s in (0.5, 1.2):
+        vp.inject_fault("bowden_tug", at_s=vp.now_s + at_s, force_g=300.0, duration_s=0.2)
+    responses.clear()
+    printer.gcode.run_script("LOAD_CELL_TEST_TAP COUNT=2 TIMEOUT=5")
+    assert responses == ["// Tap the load cell 2 times:", "// Tap Detected!", "// Tap Detected!",
+                         "// Test complete, 2 taps detected"]
+    assert vp.position[2] == z_before
+    with pytest.raises(GCodeError, match=r"^LOAD_CELL_TEST_TAP: no tap detected within 1s \(0 of 1 taps detected\)$"):
+        printer.gcode.run_script("LOAD_CELL_TEST_TAP COUNT=1 TIMEOUT=1")
+
+
+def test_status_of_probe_and_load_cell_probe(tmp_path):
+    printer, _ = make_printer(tmp_path, probe_options="tap_classifier: empty")
+    printer.gcode.run_script("PROBE")
+    status = printer.get_status()
+    probe, device = status["probe"], status["load_cell_probe"]
+    assert probe["last_z_result"] == pytest.approx(true_contact_z(printer), abs=0.002)
+    assert probe["last_probe_valid"] is True
+    assert device["is_last_tap_valid"] is True
+    assert device["is_calibrated"] is True
+    assert device["taps_recorded"] == 1
+    assert device["trigger_force"] == 75.0
+    assert abs(device["tare_counts_at_tap"] - device["tare_counts"]) <= 0.5
+    json.dumps(status)  # JSON-ready plain data
