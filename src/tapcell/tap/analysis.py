@@ -22,7 +22,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from tapcell.tap import validate
-from tapcell.tap.contact import ContactFit, fit_contact, profile_search, window_mean_hinge
+from tapcell.tap.contact import (ContactFit, fit_contact, fit_contact_at, search_contact, window_edges,
+                                 window_mean_hinge)
 from tapcell.tap.model import (
     TAP_DATA_INSUFFICIENT,
     TAP_MOTION_INVALID,
@@ -203,12 +204,11 @@ def break_time_sigma_s(ps: PrefixSums, dec: Decomposition, t_break: float) -> fl
     return math.sqrt(var) / slope_gap if slope_gap > 0 else math.inf
 
 
-def _fit_window(time_s: np.ndarray, motion: Motion, timing: SensorTiming, delay_s: float,
-                z_halt_mm: float) -> tuple[np.ndarray, np.ndarray]:
-    """Heights above the halt (µm) at the start and end of each sample's conversion window."""
-    x_hi = (motion.z_at(time_s - delay_s) - z_halt_mm) * 1000.0
-    x_lo = (motion.z_at(time_s - delay_s - timing.integration_s) - z_halt_mm) * 1000.0
-    return x_lo, x_hi
+def _fit_window(time_s: np.ndarray, motion: Motion, timing: SensorTiming, delay_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """(lower edge, width) of the heights above the halt (µm) each sample's conversion window spans."""
+    read_s = time_s - delay_s
+    heights_um = (motion.z_at(np.concatenate((read_s - timing.integration_s, read_s))) - motion.z_halt_mm) * 1000.0
+    return window_edges(heights_um[:len(time_s)], heights_um[len(time_s):])
 
 
 def fit_pullback(time_s, force_g, motion, timing, delay_s, dec, options) -> ContactFit | None:
@@ -217,55 +217,78 @@ def fit_pullback(time_s, force_g, motion, timing, delay_s, dec, options) -> Cont
     y = force_g[dec.start:dec.stop]
     first = int(np.searchsorted(t, motion.pullback_start_s + delay_s + timing.integration_s, side="right"))
     t_fit, y_fit = t[first:], y[first:]
-    x_lo, x_hi = _fit_window(t_fit, motion, timing, delay_s, motion.z_halt_mm)
+    x_min, span = _fit_window(t_fit, motion, timing, delay_s)
     t_break = dec.points[4][0]
     contact0 = float((motion.z_at(t_break - delay_s - 0.5 * timing.integration_s) - motion.z_halt_mm) * 1000.0)
-    stiffness0 = abs(dec.lines[3][0]) / (motion.pullback_speed_mm_s * 1000.0)
-    baseline0 = _line_at(dec.lines[4], t_break)
-    if not (math.isfinite(contact0) and stiffness0 > 0):
+    if not math.isfinite(contact0) or len(t_fit) < 2:
         return None
-    fit = _fit_with_onset(y_fit, x_lo, x_hi, contact0, stiffness0, baseline0, options)
-    if fit is None:
+    spacing_um = max(motion.pullback_speed_mm_s * 1000.0 * timing.sample_period_s, 0.05)
+    found = _fit_with_onset(y_fit, x_min, span, contact0, spacing_um, options)
+    if found is None:
         return None
+    fit, residual = found
     # Robust pass: drop samples the first fit cannot explain (ooze blobs, bursts), fit again.
-    mean, _, _ = window_mean_hinge(fit.contact_um, fit.onset_um, x_lo, x_hi)
-    residual = y_fit - (fit.baseline_g + fit.stiffness_g_um * mean)
     robust_sigma = 1.4826 * float(np.median(np.abs(residual)))
     keep = np.abs(residual) <= options.outlier_sigma * max(robust_sigma, fit.residual_sigma_g)
     if keep.all():
         return fit
-    return _fit_with_onset(y_fit[keep], x_lo[keep], x_hi[keep], fit.contact_um, fit.stiffness_g_um,
-                           fit.baseline_g, options) or fit
+    refit = _fit_with_onset(y_fit[keep], x_min[keep], span[keep], fit.contact_um, spacing_um, options)
+    return refit[0] if refit else fit
 
 
-def _fit_with_onset(y, x_lo, x_hi, contact0, stiffness0, baseline0, options: AnalysisOptions) -> ContactFit | None:
-    """Global grid search around the line estimate, then Gauss-Newton from the best point.
+def _fit_fixed_onset(y, x_min, span, contact0_um: float, spacing_um: float, onset_um: float
+                     ) -> tuple[ContactFit, np.ndarray] | None:
+    """Global search of the contact height within SEARCH_SAMPLES samples of the estimate.
+
+    A minimum on the edge of the range means the estimate was off: the range moves there
+    (at most twice) so the answer is an interior minimum of the residual.
+    """
+    reach_um = SEARCH_SAMPLES * spacing_um
+    centre_um = contact0_um
+    for _ in range(3):
+        low, high = centre_um - reach_um, centre_um + reach_um
+        contact_um = search_contact(y, x_min, span, low, high, onset_um)
+        if contact_um is None:
+            return None
+        if low + 1e-3 * spacing_um < contact_um < high - 1e-3 * spacing_um:
+            break
+        centre_um = contact_um
+    return fit_contact_at(y, x_min, span, contact_um, onset_um)
+
+
+def _fit_with_onset(y, x_min, span, contact0_um: float, spacing_um: float, options: AnalysisOptions
+                    ) -> tuple[ContactFit, np.ndarray] | None:
+    """The contact model around the line estimate, with the onset calibrated, absent or fitted.
 
     The onset width is `contact_onset_um` when calibrated (no cost in spread). With
     `fit_contact_onset` it is fitted per tap and kept only when the data show one
     (likelihood-ratio test): onset width and contact height trade off against each other,
     so a per-tap onset costs several times the Z spread.
     """
-    spacing_um = float(np.median(np.abs(np.diff(x_hi)))) if len(x_hi) > 1 else 1.0
-    grid = contact0 + np.arange(-SEARCH_SAMPLES, SEARCH_SAMPLES + 0.5, 0.25) * max(spacing_um, 0.05)
     fixed_onset = options.contact_onset_um or 0.0
-    grid = grid + 0.5 * fixed_onset  # a line fit reads a soft contact onset/2 low
-    _, contact, _, stiffness, baseline = profile_search(y, x_lo, x_hi, grid, (fixed_onset,))
-    sharp = fit_contact(y, x_lo, x_hi, contact, stiffness, baseline, fixed_onset, False)
-    fit_onset = options.fit_contact_onset and options.contact_onset_um is None
-    if not fit_onset:
+    # A line fit reads a soft contact onset/2 low.
+    sharp = _fit_fixed_onset(y, x_min, span, contact0_um + 0.5 * fixed_onset, spacing_um, fixed_onset)
+    if not (options.fit_contact_onset and options.contact_onset_um is None):
         return sharp
-    onset_grid = grid + 0.5 * ONSET_GRID_UM[-1]  # a line fit reads a soft contact up to onset/2 low
-    _, contact, onset, stiffness, baseline = profile_search(y, x_lo, x_hi, np.concatenate((grid, onset_grid)),
-                                                            ONSET_GRID_UM)
-    if onset == 0.0:
+    # Best onset on a grid (each with its own global contact search), then all four parameters refined.
+    trials = [_fit_fixed_onset(y, x_min, span, contact0_um + 0.5 * onset, spacing_um, onset)
+              for onset in ONSET_GRID_UM[1:]]
+    trials = [trial for trial in trials if trial is not None]
+    if not trials:
         return sharp
-    soft = fit_contact(y, x_lo, x_hi, contact, stiffness, baseline, onset, True)
+    start = min(trials, key=lambda trial: trial[0].rss_g2)[0]
+    x_max = x_min + span
+    soft = fit_contact(y, x_min, x_max, start.contact_um, start.stiffness_g_um, start.baseline_g, start.onset_um, True)
     if soft is None or sharp is None:
-        return soft or sharp
+        return (soft, _residual(y, x_min, x_max, soft)) if soft else sharp
     # Keep the onset only when it explains the data clearly better (likelihood-ratio test).
-    improvement = (sharp.rss_g2 - soft.rss_g2) / soft.residual_sigma_g ** 2 if soft.residual_sigma_g > 0 else np.inf
-    return soft if improvement > ONSET_MIN_CHI2 else sharp
+    improvement = (sharp[0].rss_g2 - soft.rss_g2) / soft.residual_sigma_g ** 2 if soft.residual_sigma_g > 0 else np.inf
+    return (soft, _residual(y, x_min, x_max, soft)) if improvement > ONSET_MIN_CHI2 else sharp
+
+
+def _residual(y, x_lo, x_hi, fit: ContactFit) -> np.ndarray:
+    mean, _, _ = window_mean_hinge(fit.contact_um, fit.onset_um, x_lo, x_hi)
+    return y - (fit.baseline_g + fit.stiffness_g_um * mean)
 
 
 def fit_compression(time_s, force_g, motion, timing, delay_s, dec, onset_um) -> ContactFit | None:
@@ -276,14 +299,13 @@ def fit_compression(time_s, force_g, motion, timing, delay_s, dec, onset_um) -> 
     t_fit, y_fit = t[:last], y[:last]
     if len(t_fit) < 6:
         return None
-    x_lo, x_hi = _fit_window(t_fit, motion, timing, delay_s, motion.z_halt_mm)
-    t_contact = dec.points[1][0]
-    contact0 = float((motion.z_at(t_contact - delay_s) - motion.z_halt_mm) * 1000.0)
-    stiffness0 = abs(dec.lines[1][0]) / (motion.approach_speed_mm_s * 1000.0)
-    fit = fit_contact(y_fit, x_lo, x_hi, contact0, stiffness0, _line_at(dec.lines[0], t_contact), onset_um, False)
-    if fit is None or fit.samples_in_contact < 2:
+    x_min, span = _fit_window(t_fit, motion, timing, delay_s)
+    contact0 = float((motion.z_at(dec.points[1][0] - delay_s) - motion.z_halt_mm) * 1000.0)
+    spacing_um = max(motion.approach_speed_mm_s * 1000.0 * timing.sample_period_s, 0.05)
+    found = _fit_fixed_onset(y_fit, x_min, span, contact0 + 0.5 * onset_um, spacing_um, onset_um)
+    if found is None or found[0].samples_in_contact < 2:
         return None
-    return fit
+    return found[0]
 
 
 def analyze_tap(tap: TapData, options: AnalysisOptions | None = None) -> TapAnalysis:

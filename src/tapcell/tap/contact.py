@@ -21,6 +21,7 @@ half a sample period of lag high).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -180,29 +181,163 @@ def fit_contact(force_g: np.ndarray, x_lo_um: np.ndarray, x_hi_um: np.ndarray, c
     )
 
 
-def profile_search(force_g: np.ndarray, x_lo_um: np.ndarray, x_hi_um: np.ndarray, contacts_um: np.ndarray,
-                   onsets_um: tuple[float, ...]) -> tuple[float, float, float, float, float]:
-    """Global search of the contact model over a grid of (contact, onset).
+# Windows narrower than this (µm) count as this wide: the mean over them equals the point
+# value to far below a nanometre, and no division by a zero width is needed.
+_MIN_SPAN_UM = 1e-6
 
-    For each grid point stiffness and baseline are solved in closed form (the model is
-    linear in them), so the residual is exact; the hinge's residual has a local minimum
-    in almost every sample interval, which is why Gauss-Newton alone is not enough.
-    Returns (rss, contact, onset, stiffness, baseline) of the best grid point.
+
+def window_mean_and_slope(contact_um, onset_um: float, x_min_um: np.ndarray, span_um: np.ndarray,
+                          slope: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
+    """Mean of h(c - x) over each window [x_min, x_min + span] and its derivative by c (broadcasts).
+
+    The lean form of `window_mean_hinge` for the search (few numpy calls); `span_um` must be at
+    least `_MIN_SPAN_UM`. Sharp contact: p = the part of the window below c, mean = p (u - p/2) / span
+    with u = c - x_min, slope = p / span. With an onset, through the antiderivative G of h:
+    mean = (G(u) - G(u - span)) / span, slope = (h(u) - h(u - span)) / span.
     """
-    n = len(force_g)
-    sum_y, sum_yy = float(force_g.sum()), float(force_g @ force_g)
-    best = (np.inf, 0.0, 0.0, 0.0, 0.0)
-    for onset in onsets_um:
-        mean, _, _ = window_mean_hinge(contacts_um[:, None], onset, x_lo_um[None, :], x_hi_um[None, :])
-        sum_m = mean.sum(axis=1)
-        s_mm = (mean * mean).sum(axis=1) - sum_m * sum_m / n
-        s_my = mean @ force_g - sum_m * sum_y / n
-        s_yy = sum_yy - sum_y * sum_y / n
+    u = contact_um - x_min_um
+    if onset_um <= 0:
+        below = np.minimum(np.maximum(u, 0.0), span_um)
+        fraction = below / span_um
+        return fraction * (u - 0.5 * below), (fraction if slope else None)
+    w = onset_um
+    u_top = u - span_um
+
+    def antiderivative(v):
+        inside = np.minimum(np.maximum(v, 0.0), w)  # the part of v on the onset parabola
+        beyond = np.maximum(v - w, 0.0)  # the part on the linear branch
+        return inside * inside * inside / (6 * w) + beyond * (0.5 * beyond + 0.5 * w)
+
+    mean = (antiderivative(u) - antiderivative(u_top)) / span_um
+    return mean, ((hinge(u, w) - hinge(u_top, w)) / span_um if slope else None)
+
+
+@dataclass
+class _ProfileData:
+    """The samples of one contact fit, split for a fast search of the contact height over [low, high].
+
+    Samples pressed for every candidate (their whole window at least an onset below the lowest
+    candidate) have mean h = c - x' with x' = window middle + onset/2, so they enter the sums only
+    through five totals; free samples (window above the highest candidate) only through the
+    force totals. s_my must be positive (a positive stiffness) for a candidate to count. Only the few samples in between are evaluated per candidate.
+    """
+
+    count: int
+    mean_y: float
+    s_yy: float  # sum of squared force deviations from the mean
+    pressed: int
+    pressed_x: float
+    pressed_xx: float
+    pressed_y: float
+    pressed_xy: float
+    near_ones_y: np.ndarray  # (n, 2): a column of ones, the forces
+    near_x_min: np.ndarray
+    near_span: np.ndarray
+    onset_um: float
+
+    def rss(self, contacts_um: np.ndarray) -> np.ndarray:
+        """Residual sum of squares per candidate, stiffness and baseline solved in closed form (inf
+        where the stiffness would not be positive)."""
+        c = contacts_um
+        mean, _ = window_mean_and_slope(c[:, None], self.onset_um, self.near_x_min, self.near_span, slope=False)
+        sum_m, sum_my = (mean @ self.near_ones_y).T
+        sum_m = sum_m + self.pressed * c - self.pressed_x
+        sum_mm = np.einsum("ij,ij->i", mean, mean) + (self.pressed * c - 2 * self.pressed_x) * c + self.pressed_xx
+        s_mm = sum_mm - sum_m * sum_m / self.count
+        s_my = sum_my + c * self.pressed_y - self.pressed_xy - sum_m * self.mean_y
         with np.errstate(divide="ignore", invalid="ignore"):
-            rss = np.where(s_mm > 0, s_yy - s_my * s_my / s_mm, np.inf)
-            stiffness = s_my / s_mm
-        k = int(np.argmin(np.where(stiffness > 0, rss, np.inf)))
-        if rss[k] < best[0] and stiffness[k] > 0:
-            baseline = (sum_y - stiffness[k] * sum_m[k]) / n
-            best = (float(rss[k]), float(contacts_um[k]), float(onset), float(stiffness[k]), float(baseline))
-    return best
+            explained = np.where(s_my > 0, s_my * s_my / s_mm, -np.inf)
+        return self.s_yy - explained
+
+
+def _profile_data(force_g, x_min_um, span_um, low_um, high_um, onset_um) -> _ProfileData:
+    x_max_um = x_min_um + span_um
+    pressed = x_max_um + onset_um <= low_um
+    near = ~pressed & (x_min_um < high_um)
+    x_pressed = x_min_um[pressed] + 0.5 * (span_um[pressed] + onset_um)
+    y_pressed = force_g[pressed]
+    sum_y = float(force_g.sum())
+    count = len(force_g)
+    return _ProfileData(
+        count=count, mean_y=sum_y / count, s_yy=float(force_g @ force_g) - sum_y * sum_y / count,
+        pressed=len(x_pressed), pressed_x=float(x_pressed.sum()), pressed_xx=float(x_pressed @ x_pressed),
+        pressed_y=float(y_pressed.sum()), pressed_xy=float(x_pressed @ y_pressed),
+        near_ones_y=np.stack((np.ones(np.count_nonzero(near)), force_g[near]), axis=1),
+        near_x_min=x_min_um[near], near_span=span_um[near], onset_um=onset_um)
+
+
+# Candidates per interval between the model's kinks, and in the zoom round.
+_KINK_SUBDIVISIONS = 8
+_ZOOM_POINTS = 9
+
+
+def window_edges(x_lo_um: np.ndarray, x_hi_um: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(lower edge, width >= _MIN_SPAN_UM) of each sample's height window."""
+    x_min = np.minimum(x_lo_um, x_hi_um)
+    return x_min, np.maximum(np.maximum(x_lo_um, x_hi_um) - x_min, _MIN_SPAN_UM)
+
+
+def search_contact(force_g: np.ndarray, x_min_um: np.ndarray, span_um: np.ndarray, low_um: float, high_um: float,
+                   onset_um: float) -> float | None:
+    """The contact height in [low, high] with the least residual (onset fixed).
+
+    Stiffness and baseline are solved in closed form for each candidate height, so the profile
+    residual is exact. It is smooth between the kinks of the model (heights where a window
+    edge, or an edge + onset, meets the contact) and has a local minimum in almost every
+    interval between them, so every interval is sampled at once (vectorised), the best point
+    is zoomed in on once, and a parabola through the three best points gives the minimum.
+    None when no candidate has a positive stiffness.
+    """
+    data = _profile_data(force_g, x_min_um, span_um, low_um, high_um, onset_um)
+    edges = np.concatenate((data.near_x_min, data.near_x_min + data.near_span))
+    kinks = np.unique(np.clip(np.concatenate((edges, edges + onset_um, (low_um, high_um))), low_um, high_um))
+    steps = np.arange(_KINK_SUBDIVISIONS) / _KINK_SUBDIVISIONS
+    candidates = np.append((kinks[:-1, None] + np.diff(kinks)[:, None] * steps).ravel(), high_um)
+    rss = data.rss(candidates)
+    best = int(np.argmin(rss))
+    if not np.isfinite(rss[best]):
+        return None
+    left, right = candidates[max(best - 1, 0)], candidates[min(best + 1, len(candidates) - 1)]
+    candidates = np.linspace(left, right, _ZOOM_POINTS)
+    rss = data.rss(candidates)
+    best = int(np.argmin(rss))
+    contact = float(candidates[best])
+    if 0 < best < _ZOOM_POINTS - 1:
+        # Vertex of the parabola through the best point and its neighbours (equal spacing).
+        before, at, after = rss[best - 1], rss[best], rss[best + 1]
+        curvature = before - 2 * at + after
+        if curvature > 0:
+            contact += float(0.5 * (before - after) / curvature * (candidates[1] - candidates[0]))
+    return contact
+
+
+def fit_contact_at(force_g: np.ndarray, x_min_um: np.ndarray, span_um: np.ndarray, contact_um: float,
+                   onset_um: float) -> tuple[ContactFit, np.ndarray] | None:
+    """The contact model at a given contact height: stiffness and baseline by least squares,
+    the 1-sigma of the contact height from the 3-parameter covariance, and the residuals."""
+    count = len(force_g)
+    if count <= 4:
+        return None
+    mean, d_contact = window_mean_and_slope(contact_um, onset_um, x_min_um, span_um)
+    sum_m, sum_y, sum_d = float(mean.sum()), float(force_g.sum()), float(d_contact.sum())
+    m_m, m_d, d_d = float(mean @ mean), float(mean @ d_contact), float(d_contact @ d_contact)
+    s_mm = m_m - sum_m * sum_m / count
+    if not s_mm > 0:
+        return None
+    stiffness = (float(mean @ force_g) - sum_m * sum_y / count) / s_mm
+    baseline = (sum_y - stiffness * sum_m) / count
+    residual = force_g - baseline - stiffness * mean
+    rss = float(residual @ residual)
+    residual_var = rss / (count - 3)
+    # Variance of c: residual variance / the Schur complement of the (stiffness, baseline) block
+    # of JᵀJ, J = [stiffness * d_contact, mean, 1]; the centred sums eliminate the baseline.
+    s_dd = stiffness * stiffness * (d_d - sum_d * sum_d / count)
+    s_dm = stiffness * (m_d - sum_d * sum_m / count)
+    information = s_dd - s_dm * s_dm / s_mm
+    in_contact = int(np.count_nonzero(x_min_um < contact_um))
+    if not (stiffness > 0 and math.isfinite(stiffness) and information > 0 and in_contact >= 2):
+        return None
+    return ContactFit(contact_um=float(contact_um), stiffness_g_um=float(stiffness), baseline_g=float(baseline),
+                      onset_um=float(onset_um), contact_sigma_um=math.sqrt(residual_var / information),
+                      onset_sigma_um=0.0, residual_sigma_g=math.sqrt(residual_var), rss_g2=rss,
+                      samples_in_contact=in_contact, samples_used=count), residual

@@ -7,6 +7,7 @@ height through `z_at`.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -45,14 +46,16 @@ class Motion:
         t_s = np.asarray(t_s, dtype=float)
         if self.moves is None:
             return np.interp(t_s, self.trace_time_s, self.trace_z_mm)
-        starts = np.array([m.print_time for m in self.moves])
-        index = np.clip(np.searchsorted(starts, t_s, side="right") - 1, 0, len(self.moves) - 1)
-        tau_s = np.clip(t_s - starts[index], 0.0, np.array([m.move_t for m in self.moves])[index])
-        start_v = np.array([m.start_v for m in self.moves])[index]
-        accel = np.array([m.accel for m in self.moves])[index]
-        start_z = np.array([m.start_z for m in self.moves])[index]
-        z_r = np.array([m.z_r for m in self.moves])[index]
+        table = self._move_table
+        index = np.maximum(np.searchsorted(table[0], t_s, side="right") - 1, 0)
+        start, duration, start_v, accel, start_z, z_r = table[:, index]
+        tau_s = np.minimum(np.maximum(t_s - start, 0.0), duration)
         return start_z + z_r * (start_v + 0.5 * accel * tau_s) * tau_s
+
+    @functools.cached_property
+    def _move_table(self) -> np.ndarray:
+        """Rows: start time, duration, start speed, acceleration, start Z, direction; one column per move."""
+        return np.array([(m.print_time, m.move_t, m.start_v, m.accel, m.start_z, m.z_r) for m in self.moves]).T
 
 
 def motion_from_moves(moves: list[Move]) -> Motion:
