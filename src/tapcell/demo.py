@@ -1,44 +1,44 @@
 """`tapcell demo` (`make demo`): the main job on the virtual printer, explained.
 
-For now: start the virtual printer, check the load cell with LOAD_CELL_DIAGNOSTIC,
-calibrate it with a known weight, and weigh something. Every G-code line is printed
-with the printer's responses and a short explanation, so a newcomer can follow and
-repeat it in `tapcell console`.
+The main job is a first layer that sticks everywhere. The demo starts the virtual printer
+with a warped bed (examples/virtual-printer.cfg), checks and calibrates the load cell with a
+known weight, heats the nozzle to the probing temperature, homes, cleans the nozzle
+(NOZZLE_CLEANUP), probes a 7 x 7 mesh (BED_MESH_CALIBRATE, with a progress bar), prints the
+mesh and how far it is from the true bed (which only the simulator knows), writes heat maps
+of the mesh and of its error into `out/`, and shows a first-layer move following the bed.
+Every G-code line is printed with the printer's responses and a short explanation, so a
+newcomer can follow and repeat it in `tapcell console`.
 
-Later features add steps: each step is a `DemoStep` (an explanation and G-code lines).
+With `--config` a config without a probe runs the load-cell (scale) steps only. Each step
+is a `DemoStep` (an explanation and G-code lines).
 """
 
 from __future__ import annotations
 
 import argparse
+import re
 import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
 from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+from tapcell.bed_mesh import PROGRESS_EVENT
 from tapcell.config import ConfigError
 from tapcell.gcode import GCodeError
+from tapcell.mesh.report import mesh_error, render_mesh_error, write_mesh_png
 from tapcell.printer import Printer
 
-# The scale steps need only the virtual printer and its load cell. Steps that probe
-# will start from examples/virtual-printer.cfg (with [load_cell_probe]) instead.
-SCALE_CONFIG = """\
-# The demo's printer: the virtual printer (scenario 'clean': HX717 at 320 sps) and
-# its load cell used as a scale.
-[virtual_printer]
-scenario: clean
-seed: 1
-
-[load_cell]
-sensor_type: hx717
-sclk_pin: PA5
-dout_pin: PA4
-sample_rate: 320
-"""
+EXAMPLE_CONFIG = Path(__file__).resolve().parents[2] / "examples" / "virtual-printer.cfg"
+DEMO_SCENARIO = "warped-bed"
 CALIBRATION_WEIGHT_G = 1000.0
 TEST_WEIGHT_G = 250.0
+PROBING_TEMPERATURE_C = 140  # the guide: below any filament's ooze point
+MESH_CENTER_XY_MM = (117.5, 117.5)
+# While the mesh is probed these per-tap lines feed the progress bar instead of the screen.
+PER_TAP_LINE = re.compile(r"^// (probe at |Tap Quality)")
 
 
 @dataclass(frozen=True)
@@ -46,6 +46,7 @@ class DemoStep:
     title: str
     explanation: str
     gcode: tuple[str, ...]
+    progress: bool = False  # show a progress bar (BED_MESH_CALIBRATE) instead of per-tap lines
 
 
 SCALE_STEPS = (
@@ -81,39 +82,141 @@ SCALE_STEPS = (
 )
 
 
+MESH_STEPS = (
+    DemoStep(
+        "Heat the nozzle to the probing temperature",
+        f"A hot nozzle is longer than a cold one, so home and probe at one temperature. "
+        f"{PROBING_TEMPERATURE_C} C is below every filament's ooze point (the guide's advice): a "
+        "drop of molten plastic under the nozzle is the main source of probing error.",
+        (f"M109 S{PROBING_TEMPERATURE_C}",),
+    ),
+    DemoStep(
+        "Home, then set Z exactly with one tap",
+        "G28 homes X and Y on their switches and Z by pressing the nozzle on the bed until the load "
+        "cell triggers (fast, a few um deep). PROBE HOME=Z then taps once more in the middle of the "
+        "bed and analyses the tap to find where the nozzle really touched: that point is Z = 0.",
+        ("G28", f"G1 X{MESH_CENTER_XY_MM[0]:g} Y{MESH_CENTER_XY_MM[1]:g} Z3 F6000", "PROBE HOME=Z"),
+    ),
+    DemoStep(
+        "Clean the nozzle",
+        "NOZZLE_CLEANUP taps a small zig-zag outside the print area until 3 taps in a row are good: "
+        "proof that nothing sticks to the nozzle before the mesh.",
+        ("G1 X10 Y10 Z2 F6000", "NOZZLE_CLEANUP"),
+    ),
+    DemoStep(
+        "Probe the bed: a 7 x 7 mesh",
+        "BED_MESH_CALIBRATE taps 49 points in a zig-zag (serpentine) order. Between points the nozzle "
+        "lifts only 0.4 mm above the last touch (horizontal_z_clearance), so it follows the bed and "
+        "travels little. BAD_PROBE_STRATEGY=CIRCLE: a tap spoiled by ooze is retried a little to the "
+        "side instead of in the same fouled spot.",
+        ("BED_MESH_CALIBRATE BAD_PROBE_STRATEGY=CIRCLE",),
+        progress=True,
+    ),
+    DemoStep(
+        "Look at the mesh",
+        "BED_MESH_OUTPUT prints the probed heights as seen from above (back of the bed on top). "
+        "Between the points the mesh is interpolated (bicubic) so moves follow a smooth surface.",
+        ("BED_MESH_OUTPUT",),
+    ),
+    DemoStep(
+        "A first-layer move follows the bed",
+        "With a mesh active every G1 is cut into short pieces (every 3 mm where the bed changes by "
+        "10 um or more) and each piece is raised or lowered by the bed height there. M114 still reports "
+        "the G-code position: Z 0.2 above the bed, wherever the bed is.",
+        ("G1 X30 Y30 Z0.2 F6000", "G1 X200 Y200", "M114"),
+    ),
+)
+
+
 class DemoRunner:
     """Runs G-code on a printer, printing each line with its responses."""
 
     def __init__(self, config_path: Path, console: Console):
         self.console = console
         self.responses: list[str] = []
+        self.hidden_lines = 0
+        self._progress: Progress | None = None
         self.printer = Printer.from_config(str(config_path), responses=self._show_response)
 
     def _show_response(self, line: str) -> None:
         self.responses.append(line)
+        if self._progress is not None and PER_TAP_LINE.match(line):
+            self.hidden_lines += 1
+            return
         style = "red" if line.startswith("!!") else "green"
         self.console.print(f"    {line}", style=style, markup=False, highlight=False)
+
+    def can_probe_a_mesh(self) -> bool:
+        return self.printer.lookup_object("bed_mesh", None) is not None and \
+            self.printer.lookup_object("probe", None) is not None
 
     def run_step(self, number: int, step: DemoStep) -> None:
         self.console.rule(f"[bold]Step {number}: {step.title}")
         self.console.print(step.explanation, style="dim", markup=False, highlight=False)
         for line in step.gcode:
             self.console.print(f"> {line}", style="bold cyan", markup=False, highlight=False)
-            self.printer.gcode.run_line(line)
+            if step.progress:
+                self._run_with_progress(line)
+            else:
+                self.printer.gcode.run_line(line)
+
+    def _run_with_progress(self, line: str) -> None:
+        columns = (TextColumn("    probing"), BarColumn(), MofNCompleteColumn(), TextColumn("points"),
+                   TimeElapsedColumn())
+        with Progress(*columns, console=self.console, transient=False) as progress:
+            task = progress.add_task("mesh", total=None)
+
+            def advance(done: int, total: int) -> None:
+                progress.update(task, completed=done, total=total)
+
+            self.printer.register_event_handler(PROGRESS_EVENT, advance)
+            self._progress = progress
+            try:
+                self.printer.gcode.run_line(line)
+            finally:
+                self._progress = None
+        self.console.print(f"    ({self.hidden_lines} per-tap lines not shown: 'probe at X,Y is z=...' and "
+                           "'Tap Quality')", style="dim", markup=False)
+
+    def compare_with_truth(self, out_dir: Path) -> None:
+        """What only a simulator can show: the mesh against the bed it really has."""
+        printer = self.printer
+        mesh = printer.lookup_object("bed_mesh").mesh
+        truth = printer.backend.truth
+        frame_z_mm = printer.lookup_object("toolhead").frame_offset_mm["z"]
+
+        def true_bed_mm(x_mm, y_mm):
+            # Where the nozzle touches, in the printer's Z (homing put Z = 0 at the centre touch).
+            return truth.contact_z_at(x_mm, y_mm) + frame_z_mm
+
+        self.console.rule("[bold]The mesh against the true bed")
+        self.console.print(
+            "The virtual printer knows its bed exactly (a real printer does not). The probed points "
+            "show how well each tap measured; between them, what the interpolation misses.",
+            style="dim", markup=False)
+        self.console.print(render_mesh_error(mesh_error(mesh, true_bed_mm)), markup=False, highlight=False)
+        out_dir.mkdir(parents=True, exist_ok=True)
+        mesh_png = write_mesh_png(out_dir / "bed-mesh.png", mesh)
+        error_png = write_mesh_png(out_dir / "bed-mesh-error.png", mesh, true_bed_mm)
+        self.console.print(f"Heat maps: {mesh_png} (the mesh) and {error_png} (mesh and mesh - true bed)",
+                           markup=False, highlight=False)
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="tapcell demo", description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", type=Path, default=None,
                         help="printer config to start from (copied: the demo never changes it); "
-                             "default: a virtual printer with one [load_cell]")
+                             f"default: {EXAMPLE_CONFIG.name} with the '{DEMO_SCENARIO}' scenario")
+    parser.add_argument("--out", type=Path, default=Path("out"), help="where the heat-map PNGs go (default: out)")
     args = parser.parse_args(argv)
     console = Console(highlight=False)
     with tempfile.TemporaryDirectory(prefix="tapcell-demo-") as workdir:
         config_path = Path(workdir) / "printer.cfg"
         if args.config is None:
-            config_path.write_text(SCALE_CONFIG)
-            console.print(f"Starting the virtual printer with one load cell (config: {config_path}).")
+            text = EXAMPLE_CONFIG.read_text(encoding="utf-8")
+            config_path.write_text(re.sub(r"(?m)^scenario:.*$", f"scenario: {DEMO_SCENARIO}", text, count=1))
+            console.print(f"Starting the virtual printer from {EXAMPLE_CONFIG.name} with a warped bed "
+                          f"(scenario '{DEMO_SCENARIO}'; config copy: {config_path}).")
         else:
             shutil.copyfile(args.config, config_path)
             console.print(f"Starting the virtual printer from {args.config} (a copy in {config_path}).")
@@ -123,8 +226,11 @@ def main(argv: list[str] | None = None) -> int:
             console.print(f"The printer did not start: {exc}", style="bold red", markup=False)
             return 1
         try:
-            for number, step in enumerate(SCALE_STEPS, start=1):
+            steps = SCALE_STEPS + (MESH_STEPS if runner.can_probe_a_mesh() else ())
+            for number, step in enumerate(steps, start=1):
                 runner.run_step(number, step)
+            if runner.can_probe_a_mesh():
+                runner.compare_with_truth(args.out)
         except GCodeError as exc:
             console.print(f"!! {exc}", style="bold red", markup=False)
             return 1
