@@ -49,7 +49,9 @@ from tapcell.load_cell_probe_options import (
     TapOptions,
     default_pullback_speed_mm_s,
     force_beyond_safety_limit_g,
+    expected_peak_force_g,
     robust_tare_counts,
+    safe_speed_mm_s,
     tare_sample_count,
     too_fast_explanation,
 )
@@ -281,6 +283,7 @@ class LoadCellProbe:
     def _probing_move(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float):
         """Tare, arm and move down until the trigger halts Z; returns (move result, tare, t_start)."""
         self._require_calibrated()
+        self._refuse_speed_beyond_force_limit(settings.options, speed_mm_s)
         tare_counts = self._tare(settings.options)
         # Until a pullback completes, the nozzle may be on the bed: the next tare waits for fresh samples.
         self._tare_from_s = None
@@ -300,6 +303,28 @@ class LoadCellProbe:
                              "check that [stepper_z] position_min is negative (e.g. -2) and the nozzle reaches the bed")
         self.last_trigger_time_s = result.trigger_time_s
         return result, tare_counts, t_start_s
+
+    def _refuse_speed_beyond_force_limit(self, options: TapOptions, speed_mm_s: float) -> None:
+        """Refuse a speed that would press the bed harder than force_safety_limit.
+
+        The bed's stiffness comes from the kept taps (the stiffest, to be safe); before the
+        first tap nothing is known and the firmware's drift/force checks are the only guard.
+        """
+        stiffness = [t.analysis.stiffness_decompression_g_um for t in self.last_taps
+                     if t.analysis.stiffness_decompression_g_um]
+        limit_g = options.force_safety_limit_g
+        if not stiffness or limit_g <= 0:
+            return
+        k_g_um = max(stiffness)
+        peak_g = expected_peak_force_g(options.trigger_force_g, k_g_um, speed_mm_s, self.sample_rate_sps)
+        if peak_g < limit_g:
+            return
+        travel_um = speed_mm_s * 1000.0 / self.sample_rate_sps
+        raise ProbeError(
+            ERROR_PREFIX + f"probing at {speed_mm_s:g} mm/s could press the bed with up to {peak_g:.0f}g, more "
+            f"than force_safety_limit ({limit_g:.0f}g): at {self.sample_rate_sps:g} samples/s the nozzle moves "
+            f"{travel_um:.1f} um per sample into a bed of {k_g_um:.1f} g/um before the trigger can stop it; probe at "
+            f"{safe_speed_mm_s(options.trigger_force_g, k_g_um, self.sample_rate_sps, limit_g):.1f} mm/s or slower")
 
     def _explain_drift(self, options: TapOptions, tare_counts: float, t_start_s: float, speed_mm_s: float) -> str:
         """' (why)' when the move's samples show the force jumping past the limit within one sample."""

@@ -105,16 +105,34 @@ def too_fast_explanation(force_before_g: float, force_at_error_g: float, trigger
     """Why drift_safety_limit tripped, when the cause is probing too fast for the sensor.
 
     The trigger can only act on a sample. When the sample before the error was still below
-    the trigger force, the force jumped past drift_safety_limit within one sample period:
-    the nozzle travels too far per sample. Returns None for a real drift (a slow rise).
+    the trigger force and the step was at least half the limit, the force jumped past
+    drift_safety_limit within one sample period: the nozzle travels too far per sample.
+    Returns None for a real drift (a slow rise).
     """
-    if abs(force_before_g) >= trigger_force_g:
+    jump_g = abs(force_at_error_g - force_before_g)
+    if abs(force_before_g) >= trigger_force_g or jump_g < 0.5 * drift_safety_limit_g:
         return None
     travel_um = speed_mm_s * 1000.0 / sample_rate_sps
-    jump_g = abs(force_at_error_g - force_before_g)
     # Half the speed that would keep one sample's jump at the limit: room for the trigger's own latency.
     suggested_mm_s = 0.5 * speed_mm_s * drift_safety_limit_g / jump_g if jump_g > 0 else speed_mm_s
     return (f"the force jumped from {force_before_g:.0f}g to {force_at_error_g:.0f}g within one sample: "
             f"at {speed_mm_s:g} mm/s and {sample_rate_sps:g} samples/s the nozzle moves {travel_um:.1f} um "
             f"per sample, too far for the trigger to stop it; probe at {suggested_mm_s:.1f} mm/s or slower "
             "(or use a faster sensor)")
+
+
+def expected_peak_force_g(trigger_force_g: float, stiffness_g_um: float, speed_mm_s: float,
+                          sample_rate_sps: float) -> float:
+    """Worst-case force at the halt: the trigger force plus two samples of travel into the bed.
+
+    The trigger acts on a sample averaged over one conversion window and stops the motor only
+    after that sample was read, so the nozzle can press up to ~2 samples of travel further.
+    """
+    travel_um = speed_mm_s * 1000.0 / sample_rate_sps
+    return trigger_force_g + 2.0 * travel_um * stiffness_g_um
+
+
+def safe_speed_mm_s(trigger_force_g: float, stiffness_g_um: float, sample_rate_sps: float,
+                    force_limit_g: float) -> float:
+    """The speed whose expected peak force is 80 % of the limit."""
+    return max(0.8 * force_limit_g - trigger_force_g, 0.0) / (2.0 * stiffness_g_um) * sample_rate_sps / 1000.0

@@ -31,6 +31,7 @@ def make_printer(tmp_path: Path, scenario: str = "clean", probe_options: str = "
                                  f"CALIBRATE GRAMS={CALIBRATION_G}\nACCEPT\nSIM_REMOVE_WEIGHT")
     if home:
         printer.gcode.run_script("G28\nG1 X110 Y110 F6000")
+    printer.homed_at_s = printer.backend.now_s  # probing starts here (after the calibration weight)
     return printer, responses
 
 
