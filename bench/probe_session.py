@@ -49,6 +49,7 @@ def run_case(scenario: str, speed_mm_s: float, extra: str, workdir: Path) -> dic
     device = printer.lookup_object("load_cell_probe")
     device.last_taps = collections.deque(maxlen=SAMPLES)
     vp = printer.backend
+    probing_from_s = vp.now_s  # after the calibration weight came off
     row = {"error": ""}
     try:
         printer.gcode.run_script(f"PROBE PROBE_SPEED={speed_mm_s} HOME=Z BAD_PROBE_STRATEGY=ignore {extra}\nG1 Z0.4")
@@ -65,7 +66,7 @@ def run_case(scenario: str, speed_mm_s: float, extra: str, workdir: Path) -> dic
     truth_z = float(vp.truth.contact_z_at(x, y)) + frame_z
     z = np.array([t.analysis.z_mm + frame_z for t in taps if t.analysis.z_mm is not None])
     codes = collections.Counter(t.analysis.error for t in taps if not t.valid)
-    _, force_g = vp.truth.force_g(0.0, vp.now_s)
+    _, force_g = vp.truth.force_g(probing_from_s, vp.now_s)
     row.update(
         sigma_um=float(np.std(z) * 1000) if len(z) else float("nan"),
         bias_um=float((np.mean(z) - truth_z) * 1000) if len(z) else float("nan"),
