@@ -182,12 +182,10 @@ def recompute_points(lines: list[tuple[float, float]], t_first: float, t_last: f
 
 def _segment_stats(ps: PrefixSums, i: int, j: int) -> tuple[float, float, float]:
     """(residual variance, mean re-centred time, Sxx) of the line over [i, j)."""
-    n = j - i
-    st = ps.s_t[j] - ps.s_t[i]
-    sf = ps.s_f[j] - ps.s_f[i]
-    sxx = ps.s_tt[j] - ps.s_tt[i] - st * st / n
-    sxy = ps.s_tf[j] - ps.s_tf[i] - st * sf / n
-    syy = ps.s_ff[j] - ps.s_ff[i] - sf * sf / n
+    n, st, sf, stt, stf, sff = ps.segment_sums(i, j)
+    sxx = stt - st * st / n
+    sxy = stf - st * sf / n
+    syy = sff - sf * sf / n
     sse = max(syy - (sxy * sxy / sxx if sxx > 0 else 0.0), 0.0)
     return sse / max(n - 2, 1), st / n, sxx
 
@@ -247,7 +245,7 @@ def _fit_fixed_onset(y, x_min, span, contact0_um: float, spacing_um: float, onse
     centre_um = contact0_um
     for _ in range(3):
         low, high = centre_um - reach_um, centre_um + reach_um
-        contact_um = search_contact(y, x_min, span, low, high, onset_um)
+        contact_um = search_contact(y, x_min, span, low, high, onset_um, spacing_um)
         if contact_um is None:
             return None
         if low + 1e-3 * spacing_um < contact_um < high - 1e-3 * spacing_um:

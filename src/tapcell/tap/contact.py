@@ -266,9 +266,9 @@ def _profile_data(force_g, x_min_um, span_um, low_um, high_um, onset_um) -> _Pro
         near_x_min=x_min_um[near], near_span=span_um[near], onset_um=onset_um)
 
 
-# Candidates per interval between the model's kinks, and in the zoom round.
-_KINK_SUBDIVISIONS = 8
-_ZOOM_POINTS = 9
+# Candidate contact heights per sample spacing: fine enough that each interval between the
+# model's kinks (where the residual has its local minima) holds several candidates.
+CANDIDATES_PER_SAMPLE = 32
 
 
 def window_edges(x_lo_um: np.ndarray, x_hi_um: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -278,31 +278,25 @@ def window_edges(x_lo_um: np.ndarray, x_hi_um: np.ndarray) -> tuple[np.ndarray, 
 
 
 def search_contact(force_g: np.ndarray, x_min_um: np.ndarray, span_um: np.ndarray, low_um: float, high_um: float,
-                   onset_um: float) -> float | None:
+                   onset_um: float, spacing_um: float) -> float | None:
     """The contact height in [low, high] with the least residual (onset fixed).
 
     Stiffness and baseline are solved in closed form for each candidate height, so the profile
     residual is exact. It is smooth between the kinks of the model (heights where a window
     edge, or an edge + onset, meets the contact) and has a local minimum in almost every
-    interval between them, so every interval is sampled at once (vectorised), the best point
-    is zoomed in on once, and a parabola through the three best points gives the minimum.
-    None when no candidate has a positive stiffness.
+    interval between them (about one sample spacing apart), so all candidates on a grid of
+    spacing/CANDIDATES_PER_SAMPLE are evaluated at once (vectorised) and a parabola through the
+    best one and its neighbours gives the minimum. None when no candidate has a positive stiffness.
     """
     data = _profile_data(force_g, x_min_um, span_um, low_um, high_um, onset_um)
-    edges = np.concatenate((data.near_x_min, data.near_x_min + data.near_span))
-    kinks = np.unique(np.clip(np.concatenate((edges, edges + onset_um, (low_um, high_um))), low_um, high_um))
-    steps = np.arange(_KINK_SUBDIVISIONS) / _KINK_SUBDIVISIONS
-    candidates = np.append((kinks[:-1, None] + np.diff(kinks)[:, None] * steps).ravel(), high_um)
+    count = int(round((high_um - low_um) / spacing_um * CANDIDATES_PER_SAMPLE)) + 1
+    candidates = np.linspace(low_um, high_um, count)
     rss = data.rss(candidates)
     best = int(np.argmin(rss))
     if not np.isfinite(rss[best]):
         return None
-    left, right = candidates[max(best - 1, 0)], candidates[min(best + 1, len(candidates) - 1)]
-    candidates = np.linspace(left, right, _ZOOM_POINTS)
-    rss = data.rss(candidates)
-    best = int(np.argmin(rss))
     contact = float(candidates[best])
-    if 0 < best < _ZOOM_POINTS - 1:
+    if 0 < best < count - 1:
         # Vertex of the parabola through the best point and its neighbours (equal spacing).
         before, at, after = rss[best - 1], rss[best], rss[best + 1]
         curvature = before - 2 * at + after
