@@ -59,7 +59,7 @@ def test_stiffness_measured_from_a_slow_press_equals_the_configured_one_within_1
     slope_counts_per_um = np.polyfit(interference_um[linear], counts[linear], 1)[0]
     measured = slope_counts_per_um / vp.truth.counts_per_gram
     assert measured == pytest.approx(vp.truth.stiffness_g_um, rel=0.01)
-    assert 10.0 < vp.truth.stiffness_g_um < 50.0
+    assert 1.0 < vp.truth.stiffness_g_um < 10.0  # real toolheads: Prusa ~1.5, Kalico example ~4.6 g/µm
 
 
 def _commanded_z(vp, t0, t1):

@@ -159,7 +159,9 @@ def test_ooze_touches_first_squeezes_out_pulls_on_lift_and_clears_with_taps():
     for _ in range(4):
         tap(vp, speed_mm_s=2.0, start_above_mm=0.3)
         films.append(vp.truth.film_um)
-    assert films == sorted(films, reverse=True) and films[-1] < 10.0
+    # Taps thin the film until squeeze-out balances the regrowth between taps (~0.8 µm/s at 210 °C):
+    # it ends near that equilibrium, never back above the first tap's level.
+    assert films[-1] < 1.0 and max(films[1:]) <= films[0]
     vp.dwell(30.0)                                  # still at 210 °C: the film grows back
     assert vp.truth.film_um == pytest.approx(films[-1] + 0.02 * 40.0 * 30.0, rel=0.05)
 

@@ -28,7 +28,7 @@ SHEETS: dict[str, dict[str, float]] = {
     # the soft, nonlinear first touch lasts before the force rises linearly.
     "smooth_pei": {"stiffness_g_um": 150.0, "onset_um": 2.0},
     "textured_pei": {"stiffness_g_um": 90.0, "onset_um": 8.0},
-    "soft": {"stiffness_g_um": 25.0, "onset_um": 25.0},
+    "soft": {"stiffness_g_um": 8.0, "onset_um": 25.0},
 }
 
 
@@ -64,8 +64,8 @@ class SimParams:
     bed_csv: str = _p("", "CSV height grid (rows = Y, columns = X, mm) spread over the bed (csv)")
     sheet: str = _p("smooth_pei", "build sheet", choices=tuple(SHEETS))
     # --- contact physics --------------------------------------------------------------
-    frame_stiffness_g_um: float = _p(60.0, "stiffness of frame + gantry + toolhead", "g/µm", minval=0.1)
-    cell_stiffness_g_um: float = _p(80.0, "stiffness of the load cell body", "g/µm", minval=0.1)
+    frame_stiffness_g_um: float = _p(5.0, "stiffness of frame + gantry + toolhead", "g/µm", minval=0.1)
+    cell_stiffness_g_um: float = _p(10.0, "stiffness of the load cell body", "g/µm", minval=0.1)
     sheet_stiffness_g_um: float = _p(0.0, "sheet stiffness; 0 = the sheet's own value", "g/µm", minval=0.0)
     contact_onset_um: float = _p(-1.0, "length of the nonlinear first touch; <0 = the sheet's own", "µm")
     relax_fraction: float = _p(0.03, "share of a sudden load that relaxes away during a dwell", "", 
