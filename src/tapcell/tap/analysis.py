@@ -76,13 +76,22 @@ def _meta_seconds(tap: TapData, key: str, default: float) -> float:
     return default
 
 
+def median(values: np.ndarray) -> float:
+    """np.median without its call overhead (a partition; the mean of the middle two for even n)."""
+    half = len(values) // 2
+    if len(values) % 2:
+        return float(np.partition(values, half)[half])
+    middle = np.partition(values, (half - 1, half))
+    return 0.5 * float(middle[half - 1] + middle[half])
+
+
 def noise_sigma_g(force_g: np.ndarray) -> float:
     """White-noise sigma from the median absolute second difference (lines and spikes do not inflate it)."""
     if len(force_g) < 3:
         return 0.0
     off_mid = force_g[1:-1] - 0.5 * (force_g[:-2] + force_g[2:])
     # off_mid of white noise has sigma sqrt(1.5) * noise sigma.
-    return 1.4826 * float(np.median(np.abs(off_mid))) / math.sqrt(1.5)
+    return 1.4826 * median(np.abs(off_mid)) / math.sqrt(1.5)
 
 
 def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarray, int]:
@@ -98,7 +107,7 @@ def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarr
     off_mid = force_g[1:-1] - 0.5 * (force_g[:-2] + force_g[2:])
     neighbour_gap = np.abs(force_g[2:] - force_g[:-2])
     noise_sigma = noise_sigma_g(force_g)
-    scale = float(np.max(np.abs(force_g - np.median(force_g))))
+    scale = float(np.ptp(force_g))  # only sets a floor far below any real spike
     threshold = max(threshold_sigma * noise_sigma, 1e-6 * scale, 1e-9)
     spikes = np.flatnonzero((np.abs(off_mid) > threshold) & (np.abs(off_mid) > 2.0 * neighbour_gap)) + 1
     if len(spikes) == 0:
@@ -141,11 +150,11 @@ class Decomposition:
     points: list[tuple[float, float]]
 
 
-def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_samples: int) -> tuple[Decomposition, PrefixSums]:
-    """Five lines and six points of a positive-polarity tap."""
+def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_samples: int,
+              period: float) -> tuple[Decomposition, PrefixSums]:
+    """Five lines and six points of a positive-polarity tap (`period`: the sample period, s)."""
     n = len(time_s)
     duration = motion.pullback_duration_s
-    period = float(np.median(np.diff(time_s)))
     start = _index(time_s, motion.home_end_s - max(duration, 8 * period))
     stop = min(n, _index(time_s, motion.pullback_end_s + duration) + 1)
     t = time_s[start:stop]
@@ -202,23 +211,44 @@ def break_time_sigma_s(ps: PrefixSums, dec: Decomposition, t_break: float) -> fl
     return math.sqrt(var) / slope_gap if slope_gap > 0 else math.inf
 
 
-def _fit_window(time_s: np.ndarray, motion: Motion, timing: SensorTiming, delay_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """(lower edge, width) of the heights above the halt (µm) each sample's conversion window spans."""
-    read_s = time_s - delay_s
-    heights_um = (motion.z_at(np.concatenate((read_s - timing.integration_s, read_s))) - motion.z_halt_mm) * 1000.0
-    return window_edges(heights_um[:len(time_s)], heights_um[len(time_s):])
+@dataclass
+class ModelWindow:
+    """The analysed samples in height space (µm above the halt), as the contact model sees them.
+
+    Each sample covers heights [x_min, x_min + span] during its conversion window (read
+    `delay_s` late). The line estimates of contact (P1) and break contact (P4) in the same
+    space seed the model's search. One vectorised motion lookup serves both fits.
+    """
+
+    time_s: np.ndarray
+    force_g: np.ndarray
+    x_min_um: np.ndarray
+    span_um: np.ndarray
+    contact_line_um: float  # P1 mapped (approach)
+    break_line_um: float  # P4 mapped (pullback)
 
 
-def fit_pullback(time_s, force_g, motion, timing, delay_s, dec, options) -> ContactFit | None:
-    """The contact model over the pullback: samples whose window starts after the nozzle began rising."""
+def model_window(time_s, force_g, motion: Motion, timing: SensorTiming, delay_s: float,
+                 dec: Decomposition) -> ModelWindow:
     t = time_s[dec.start:dec.stop]
-    y = force_g[dec.start:dec.stop]
-    first = int(np.searchsorted(t, motion.pullback_start_s + delay_s + timing.integration_s, side="right"))
-    t_fit, y_fit = t[first:], y[first:]
-    x_min, span = _fit_window(t_fit, motion, timing, delay_s)
-    t_break = dec.points[4][0]
-    contact0 = float((motion.z_at(t_break - delay_s - 0.5 * timing.integration_s) - motion.z_halt_mm) * 1000.0)
-    if not math.isfinite(contact0) or len(t_fit) < 2:
+    read_s = t - delay_s
+    # A line point is read half a conversion window late, plus the delay.
+    lag_s = delay_s + 0.5 * timing.integration_s
+    lines_s = (dec.points[1][0] - lag_s, dec.points[4][0] - lag_s)
+    heights_um = (motion.z_at(np.concatenate((read_s - timing.integration_s, read_s, lines_s)))
+                  - motion.z_halt_mm) * 1000.0
+    n = len(t)
+    x_min, span = window_edges(heights_um[:n], heights_um[n:2 * n])
+    return ModelWindow(t, force_g[dec.start:dec.stop], x_min, span, float(heights_um[-2]), float(heights_um[-1]))
+
+
+def fit_pullback(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float,
+                 options: AnalysisOptions) -> ContactFit | None:
+    """The contact model over the pullback: samples whose window starts after the nozzle began rising."""
+    first = int(np.searchsorted(window.time_s, motion.pullback_start_s + delay_s + timing.integration_s, side="right"))
+    y_fit, x_min, span = window.force_g[first:], window.x_min_um[first:], window.span_um[first:]
+    contact0 = window.break_line_um
+    if not math.isfinite(contact0) or len(y_fit) < 2:
         return None
     spacing_um = max(motion.pullback_speed_mm_s * 1000.0 * timing.sample_period_s, 0.05)
     found = _fit_with_onset(y_fit, x_min, span, contact0, spacing_um, options)
@@ -226,7 +256,7 @@ def fit_pullback(time_s, force_g, motion, timing, delay_s, dec, options) -> Cont
         return None
     fit, residual = found
     # Robust pass: drop samples the first fit cannot explain (ooze blobs, bursts), fit again.
-    robust_sigma = 1.4826 * float(np.median(np.abs(residual)))
+    robust_sigma = 1.4826 * median(np.abs(residual))
     keep = np.abs(residual) <= options.outlier_sigma * max(robust_sigma, fit.residual_sigma_g)
     if keep.all():
         return fit
@@ -289,18 +319,15 @@ def _residual(y, x_lo, x_hi, fit: ContactFit) -> np.ndarray:
     return y - (fit.baseline_g + fit.stiffness_g_um * mean)
 
 
-def fit_compression(time_s, force_g, motion, timing, delay_s, dec, onset_um) -> ContactFit | None:
+def fit_compression(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float,
+                    onset_um: float) -> ContactFit | None:
     """The contact model over the approach up to the halt (onset fixed to the pullback's)."""
-    t = time_s[dec.start:dec.stop]
-    y = force_g[dec.start:dec.stop]
-    last = int(np.searchsorted(t, motion.home_end_s + delay_s, side="right"))
-    t_fit, y_fit = t[:last], y[:last]
-    if len(t_fit) < 6:
+    last = int(np.searchsorted(window.time_s, motion.home_end_s + delay_s, side="right"))
+    if last < 6 or not math.isfinite(window.contact_line_um):
         return None
-    x_min, span = _fit_window(t_fit, motion, timing, delay_s)
-    contact0 = float((motion.z_at(dec.points[1][0] - delay_s) - motion.z_halt_mm) * 1000.0)
     spacing_um = max(motion.approach_speed_mm_s * 1000.0 * timing.sample_period_s, 0.05)
-    found = _fit_fixed_onset(y_fit, x_min, span, contact0 + 0.5 * onset_um, spacing_um, onset_um)
+    found = _fit_fixed_onset(window.force_g[:last], window.x_min_um[:last], window.span_um[:last],
+                             window.contact_line_um + 0.5 * onset_um, spacing_um, onset_um)
     if found is None or found[0].samples_in_contact < 2:
         return None
     return found[0]
@@ -355,7 +382,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         motion = tap_motion(tap)
     except MotionError as problem:
         raise TapInvalid(TAP_MOTION_INVALID, str(problem)) from None
-    period_s = 1.0 / tap.sample_rate_sps if tap.sample_rate_sps else float(np.median(np.diff(time_s)))
+    period_s = 1.0 / tap.sample_rate_sps if tap.sample_rate_sps else median(np.diff(time_s))
     timing = sensor_timing(tap, options, period_s)
     validate.check_motion(motion, time_s)
 
@@ -363,7 +390,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
     force, outliers = repair_spikes(polarity * force_raw, options.outlier_sigma)
     allowance = UNKNOWN_DELAY_ALLOWANCE_S if timing.estimate_delay else timing.delay_s
     lag_samples = math.ceil((allowance + timing.integration_s) / period_s) + LAG_MARGIN_SAMPLES
-    dec, ps = decompose(time_s, force, motion, lag_samples)
+    dec, ps = decompose(time_s, force, motion, lag_samples, period_s)
     angles = line_angles_deg(dec.lines)
     result = TapAnalysis(
         valid=True,
@@ -388,12 +415,12 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         # Keep the lines and points: they show what went wrong (plots, tap logs).
         result.valid, result.error, result.message = False, invalid.code, invalid.message
         return result, context
-    z_line = float(motion.z_at(t_break - delay_s - 0.5 * timing.integration_s))
     line_sigma_um = break_time_sigma_s(ps, dec, t_break) * motion.pullback_speed_mm_s * 1000.0
-
-    pullback = fit_pullback(time_s, force, motion, timing, delay_s, dec, options)
+    window = model_window(time_s, force, motion, timing, delay_s, dec)
+    z_line = motion.z_halt_mm + window.break_line_um / 1000.0  # P4 mapped, delay-corrected
+    pullback = fit_pullback(window, motion, timing, delay_s, options)
     onset_um = pullback.onset_um if pullback else 0.0
-    compression = fit_compression(time_s, force, motion, timing, delay_s, dec, onset_um)
+    compression = fit_compression(window, motion, timing, delay_s, onset_um)
     if pullback and compression:
         speeds_um_s = (motion.approach_speed_mm_s + motion.pullback_speed_mm_s) * 1000.0
         result.sensor_delay_estimate_s = delay_s + (pullback.contact_um - compression.contact_um) / speeds_um_s
@@ -432,9 +459,9 @@ def _polarity(time_s: np.ndarray, force_g: np.ndarray, motion: Motion) -> int:
     home_end = _index(time_s, motion.home_end_s)
     pull_start = _index(time_s, motion.pullback_start_s)
     start = _index(time_s, motion.home_end_s - max(motion.pullback_duration_s, 0.05))
-    baseline = float(np.median(force_g[start:max(home_end - 1, start + 1)]))
+    baseline = median(force_g[start:max(home_end - 1, start + 1)])
     dwell = force_g[home_end:pull_start + 1]
-    change = float(np.median(dwell)) - baseline if len(dwell) else float(force_g[home_end]) - baseline
+    change = median(dwell) - baseline if len(dwell) else float(force_g[home_end]) - baseline
     if change == 0 or not math.isfinite(change):
         raise TapInvalid(TAP_SHAPE_INVALID, "the force does not change between approach and dwell")
     return 1 if change > 0 else -1

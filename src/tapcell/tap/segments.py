@@ -86,10 +86,12 @@ def best_five_segments(
     c, p, r, b = len(contact), len(peak), len(release), len(breaking)
     firsts = np.concatenate((np.full(c, start), np.repeat(contact, p), np.repeat(peak, r), np.repeat(release, b),
                              breaking))
-    lasts = np.concatenate((contact, np.tile(peak, c), np.tile(release, p), np.tile(breaking, r), np.full(b, stop)))
+    lasts = np.concatenate((contact, np.broadcast_to(peak, (c, p)).ravel(), np.broadcast_to(release, (p, r)).ravel(),
+                            np.broadcast_to(breaking, (r, b)).ravel(), np.full(b, stop)))
     sse = np.where(lasts - firsts >= MIN_SEGMENT_SAMPLES, segment_sse(ps, firsts, lasts), np.inf)
     offsets = np.cumsum((c, c * p, p * r, r * b))
-    approach, compression, dwell, decompression, departure = np.split(sse, offsets)
+    approach, compression, dwell, decompression = (sse[a:z] for a, z in zip((0, *offsets[:3]), offsets))
+    departure = sse[offsets[3]:]
     left = approach[:, None] + compression.reshape(c, p)  # (contact, peak)
     best_contact = np.argmin(left, axis=0)
     right = decompression.reshape(r, b) + departure[None, :]  # (release, break)
