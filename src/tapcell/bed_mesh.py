@@ -177,7 +177,8 @@ def command_options(options: BedMeshOptions, gcmd: GCodeCommand) -> BedMeshOptio
         interpolation, note = resolve_interpolation(algorithm, (grid.x_count, grid.y_count), options.mesh_pps,
                                                     options.interpolation.bicubic_tension)
     except MeshOptionError as exc:
-        raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {exc.option.upper()}={exc.value}: {exc.allowed}") from None
+        shown = gcmd.get(exc.option.upper(), exc.value)  # the value as the user wrote it, when given
+        raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {exc.option.upper()}={shown}: {exc.allowed}") from None
     return replace(options, grid=grid, interpolation=interpolation, interpolation_note=note,
                    horizontal_z_clearance_mm=clearance, method=method)
 
