@@ -122,7 +122,7 @@ MESH_STEPS = (
         "A first-layer move follows the bed",
         "With a mesh active every G1 is cut into short pieces (every 3 mm where the bed changes by "
         "10 um or more) and each piece is raised or lowered by the bed height there. M114 still reports "
-        "the G-code position: Z 0.2 above the bed, wherever the bed is.",
+        "the G-code position: Z 0.2 above the bed, wherever the bed is (to the nearest Z motor step, 2.5 um).",
         ("G1 X30 Y30 Z0.2 F6000", "G1 X200 Y200", "M114"),
     ),
 )
