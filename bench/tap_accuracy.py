@@ -1,14 +1,20 @@
 """Accuracy of the tap analysis on synthetic taps with known truth.
 
 For each condition: valid rate, bias, sigma, p95 |error| and the worst |error| of a tap
-marked valid (µm, against truth.z_contact), beside the best achievable sigma: the exact
-noise-free model fitted with only the contact height free. Also the P4 line intersection
-(the classic line-fit answer, with the same delay correction) for comparison.
+marked valid (µm, against truth.z_contact), beside two limits:
+- "σ limit": the issue's best achievable spread, the exact noise-free model fitted to the same
+  noisy samples with only the contact height free (stiffness, relaxation, baseline known);
+  measured over the same taps (for corrupted frames: the same taps without them, since a
+  garbage frame carries no information);
+- "CRB nuis.": the Cramér-Rao bound when stiffness, baseline and relaxation are unknown too,
+  as they are to any real analysis (mean over the first taps).
+Also the P4 line intersection (the classic line-fit answer, same delay correction).
 Run: .venv/bin/python -m bench tap_accuracy   (or python bench/tap_accuracy.py [taps])
 """
 
 from __future__ import annotations
 
+import dataclasses
 import sys
 
 import numpy as np
@@ -16,7 +22,9 @@ from rich.console import Console
 from rich.table import Table
 
 from tapcell.tap import AnalysisOptions, analyze_tap
-from tapcell.tap.synth import SynthTap, best_achievable_z, synth_tap
+from tapcell.tap.synth import NUISANCE_FIELDS, SynthTap, best_achievable_z, contact_sigma_limit_um, synth_tap
+
+CRB_TAPS = 5
 
 CONDITIONS: list[tuple[str, dict, dict, bool]] = [
     # (name, generator changes, analysis options, drop the delay from the tap's metadata)
@@ -42,7 +50,7 @@ CONDITIONS: list[tuple[str, dict, dict, bool]] = [
 
 
 def run_condition(changes: dict, options: dict, hide_delay: bool, taps: int) -> dict[str, float]:
-    errors, line_errors, limit_errors, valid = [], [], [], []
+    errors, line_errors, limit_errors, valid, crb = [], [], [], [], []
     for seed in range(taps):
         spec = SynthTap(seed=seed, **changes)
         tap = synth_tap(spec)
@@ -50,7 +58,11 @@ def run_condition(changes: dict, options: dict, hide_delay: bool, taps: int) -> 
             tap.meta.pop("sensor_delay_s")
         result = analyze_tap(tap, AnalysisOptions(**options))
         truth_um = spec.z_contact_mm * 1000
-        limit_errors.append(best_achievable_z(spec, tap) * 1000 - truth_um)
+        clean_spec = dataclasses.replace(spec, corrupted_frames=0)
+        clean_tap = synth_tap(clean_spec) if spec.corrupted_frames else tap  # same seed: same noise
+        limit_errors.append(best_achievable_z(clean_spec, clean_tap) * 1000 - truth_um)
+        if seed < CRB_TAPS:
+            crb.append(contact_sigma_limit_um(clean_spec, clean_tap, NUISANCE_FIELDS))
         valid.append(result.valid)
         if result.z_mm is not None:
             errors.append(result.z_mm * 1000 - truth_um)
@@ -61,8 +73,9 @@ def run_condition(changes: dict, options: dict, hide_delay: bool, taps: int) -> 
     errors, line_errors, valid = np.array(errors), np.array(line_errors), np.array(valid)
     ok = valid & np.isfinite(errors)
     limit = float(np.std(limit_errors))
+    crb_um = float(np.mean(crb))
     if not ok.any():  # every tap rejected (the ooze rows): no error statistics
-        return {"valid": 0.0, "limit": limit, **dict.fromkeys(("bias", "sigma", "p95", "worst", "line_bias",
+        return {"valid": 0.0, "limit": limit, "crb": crb_um, **dict.fromkeys(("bias", "sigma", "p95", "worst", "line_bias",
                                                                 "line_sigma"), np.nan)}
     good = errors[ok]
     return {
@@ -72,6 +85,7 @@ def run_condition(changes: dict, options: dict, hide_delay: bool, taps: int) -> 
         "p95": float(np.percentile(np.abs(good), 95)),
         "worst": float(np.max(np.abs(good))),
         "limit": limit,
+        "crb": crb_um,
         "line_bias": float(np.mean(line_errors[ok])),
         "line_sigma": float(np.std(line_errors[ok])),
     }
@@ -80,15 +94,16 @@ def run_condition(changes: dict, options: dict, hide_delay: bool, taps: int) -> 
 def main(argv: list[str]) -> int:
     taps = int(argv[0]) if argv else 40
     table = Table(title=f"tap analysis accuracy, {taps} synthetic taps per row (µm vs truth)")
-    for column in ("condition", "valid %", "bias", "σ", "σ limit", "σ/limit", "p95 |err|", "worst valid",
-                   "P4-line bias", "P4-line σ"):
+    for column in ("condition", "valid %", "bias", "σ", "σ limit", "σ/limit", "CRB nuis.", "σ/CRB", "p95 |err|",
+                   "worst valid", "P4-line bias", "P4-line σ"):
         table.add_column(column, justify="left" if column == "condition" else "right")
     for name, changes, options, hide_delay in CONDITIONS:
         row = run_condition(changes, options, hide_delay, taps)
         table.add_row(name, f"{row['valid']:.0f}", f"{row['bias']:+.3f}", f"{row['sigma']:.3f}",
-                      f"{row['limit']:.3f}", f"{row['sigma'] / row['limit']:.2f}", f"{row['p95']:.3f}",
+                      f"{row['limit']:.3f}", f"{row['sigma'] / row['limit']:.2f}", f"{row['crb']:.3f}",
+                      f"{row['sigma'] / row['crb']:.2f}", f"{row['p95']:.3f}",
                       f"{row['worst']:.2f}", f"{row['line_bias']:+.3f}", f"{row['line_sigma']:.3f}")
-    Console(width=170).print(table)
+    Console(width=190).print(table)
     return 0
 
 

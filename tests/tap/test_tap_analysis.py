@@ -165,3 +165,31 @@ def test_chronology_and_shape():
 def test_invalid_tap_keeps_its_lines_for_plots():
     result = analyze_tap(synth_tap(pullback_distance_mm=0.03))
     assert not result.valid and len(result.lines) == 5 and len(result.points) == 6
+
+
+def test_contact_search_finds_the_global_minimum_of_the_profile_residual():
+    from tapcell.tap.contact import _profile_data, search_contact
+
+    rng = np.random.default_rng(3)
+    x_lo = np.arange(60, dtype=float)  # µm, 1 µm windows (integration = one sample)
+    x_min, span = x_lo, np.ones(60)
+    truth_um, stiffness = 20.37, 4.6
+    mean = np.clip(truth_um - x_min, 0.0, 1.0) * (truth_um - x_min - 0.5 * np.clip(truth_um - x_min, 0.0, 1.0))
+    force = 3.0 + stiffness * mean + rng.normal(0.0, 1.0, 60)
+    found = search_contact(force, x_min, span, 16.0, 24.0, 0.0, 1.0)
+    fine = np.linspace(16.0, 24.0, 80001)
+    brute = fine[np.argmin(_profile_data(force, x_min, span, 16.0, 24.0, 0.0).rss(fine))]
+    assert found == pytest.approx(brute, abs=0.002)
+    assert abs(found - truth_um) < 0.3
+
+
+def test_limits_of_the_benchmark_unknown_stiffness_costs_spread():
+    from tapcell.tap.synth import NUISANCE_FIELDS, SynthTap, contact_sigma_limit_um
+
+    spec = SynthTap(seed=0)
+    tap = synth_tap(spec)
+    only_contact = contact_sigma_limit_um(spec, tap)
+    with_nuisance = contact_sigma_limit_um(spec, tap, NUISANCE_FIELDS)
+    # Knowing the stiffness lets hundreds of dwell samples pin the height; fitting it does not.
+    assert 0.010 < only_contact < 0.020
+    assert 0.06 < with_nuisance < 0.09

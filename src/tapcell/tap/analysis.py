@@ -117,6 +117,11 @@ def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarr
     return repaired, len(spikes)
 
 
+def _indices(time_s: np.ndarray, *t: float) -> list[int]:
+    """`_index` of several times in one call."""
+    return np.minimum(np.searchsorted(time_s, t), len(time_s) - 1).tolist()
+
+
 def _index(time_s: np.ndarray, t: float) -> int:
     """First sample index at or after t, clamped to the array."""
     return int(min(np.searchsorted(time_s, t), len(time_s) - 1))
@@ -155,14 +160,13 @@ def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_sampl
     """Five lines and six points of a positive-polarity tap (`period`: the sample period, s)."""
     n = len(time_s)
     duration = motion.pullback_duration_s
-    start = _index(time_s, motion.home_end_s - max(duration, 8 * period))
-    stop = min(n, _index(time_s, motion.pullback_end_s + duration) + 1)
+    start, last = _indices(time_s, motion.home_end_s - max(duration, 8 * period), motion.pullback_end_s + duration)
+    stop = min(n, last + 1)
     t = time_s[start:stop]
     ps = prefix_sums(t, force_g[start:stop])
     m = len(t)
-    home_end = _index(t, motion.home_end_s)
-    pull_start = _index(t, motion.pullback_start_s)
-    pull_cruise = _index(t, motion.pullback_cruise_s)
+    home_end, pull_start, pull_cruise = _indices(t, motion.home_end_s, motion.pullback_start_s,
+                                                 motion.pullback_cruise_s)
     peak = np.arange(max(2, home_end - 1), min(pull_start, home_end + lag_samples) + 1)
     release = np.arange(max(pull_start - 1, 0), min(m - 2, max(pull_start, pull_cruise) + lag_samples) + 1)
     if len(peak) == 0 or len(release) == 0:
@@ -456,9 +460,8 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
 
 def _polarity(time_s: np.ndarray, force_g: np.ndarray, motion: Motion) -> int:
     """+1 when contact pushes the force up, -1 when down (dwell force vs approach baseline)."""
-    home_end = _index(time_s, motion.home_end_s)
-    pull_start = _index(time_s, motion.pullback_start_s)
-    start = _index(time_s, motion.home_end_s - max(motion.pullback_duration_s, 0.05))
+    home_end, pull_start, start = _indices(time_s, motion.home_end_s, motion.pullback_start_s,
+                                           motion.home_end_s - max(motion.pullback_duration_s, 0.05))
     baseline = median(force_g[start:max(home_end - 1, start + 1)])
     dwell = force_g[home_end:pull_start + 1]
     change = median(dwell) - baseline if len(dwell) else float(force_g[home_end]) - baseline

@@ -290,7 +290,8 @@ def search_contact(force_g: np.ndarray, x_min_um: np.ndarray, span_um: np.ndarra
     """
     data = _profile_data(force_g, x_min_um, span_um, low_um, high_um, onset_um)
     count = int(round((high_um - low_um) / spacing_um * CANDIDATES_PER_SAMPLE)) + 1
-    candidates = np.linspace(low_um, high_um, count)
+    step_um = (high_um - low_um) / (count - 1)
+    candidates = low_um + step_um * np.arange(count)
     rss = data.rss(candidates)
     best = int(np.argmin(rss))
     if not np.isfinite(rss[best]):
@@ -301,7 +302,7 @@ def search_contact(force_g: np.ndarray, x_min_um: np.ndarray, span_um: np.ndarra
         before, at, after = rss[best - 1], rss[best], rss[best + 1]
         curvature = before - 2 * at + after
         if curvature > 0:
-            contact += float(0.5 * (before - after) / curvature * (candidates[1] - candidates[0]))
+            contact += float(0.5 * (before - after) / curvature * step_um)
     return contact
 
 

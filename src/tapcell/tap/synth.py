@@ -224,3 +224,35 @@ def _phases_from_moves(moves: list[Move], spec: SynthTap) -> Phases:
     _, cruise, halt, up_accel, up_cruise, _ = moves
     return Phases(cruise.print_time, cruise.start_z, halt.print_time, halt.start_z, up_accel.print_time,
                   up_accel.move_t, up_cruise.move_t, cruise.start_v, up_cruise.start_v, spec.accel_mm_s2)
+
+
+# Parameters an analysis of a real tap cannot know and must fit alongside the contact height.
+NUISANCE_FIELDS = ("stiffness_g_um", "baseline_g", "relaxation_fraction", "relaxation_time_s")
+
+
+def contact_sigma_limit_um(spec: SynthTap, tap: TapData, free: tuple[str, ...] = ()) -> float:
+    """Cramér-Rao bound (1σ, µm) of the contact height from all samples of `tap` under the exact model.
+
+    Noise is white with sigma `spec.noise_g`; the motion is held as recorded. With `free` empty
+    only the contact height is unknown (the spread `best_achievable_z` reaches); naming fields of
+    `spec` (e.g. NUISANCE_FIELDS) makes them unknown too, which is the honest limit for an
+    estimator that must fit them. Derivatives are central differences of the noise-free signal.
+    """
+    phases = _phases_from_moves(tap.moves, spec)
+
+    def signal(changed: SynthTap, z_mm: float) -> np.ndarray:
+        return sensed_force(changed, phases, tap.time_s, z_mm) + changed.baseline_g
+
+    columns = []
+    step_um = 1e-3
+    columns.append((signal(spec, spec.z_contact_mm + step_um * 1e-3) - signal(spec, spec.z_contact_mm - step_um * 1e-3))
+                   / (2 * step_um))
+    for name in free:
+        value = getattr(spec, name)
+        step = 1e-4 * max(abs(value), 1e-3)
+        up = signal(dataclasses.replace(spec, **{name: value + step}), spec.z_contact_mm)
+        down = signal(dataclasses.replace(spec, **{name: value - step}), spec.z_contact_mm)
+        columns.append((up - down) / (2 * step))
+    jacobian = np.column_stack(columns)
+    covariance = np.linalg.inv(jacobian.T @ jacobian) * spec.noise_g ** 2
+    return float(np.sqrt(covariance[0, 0]))
