@@ -54,6 +54,7 @@ from tapcell.load_cell_probe_options import (
     safe_speed_mm_s,
     tare_sample_count,
     too_fast_explanation,
+    too_fast_for_analysis,
 )
 from tapcell.probe_patterns import serpentine_pattern
 from tapcell.tap import AnalysisOptions, Move, TapData, analyze_tap, get_classifier, tap_to_json_dict
@@ -66,6 +67,9 @@ BREAK_CLEAR_SAMPLES = 4  # after break contact: one conversion window plus margi
 KEEP_LAST_TAPS = 16
 HISTORY_S = 1.0  # samples kept between taps (the tare looks back at most tare_time)
 TARE_TIMEOUT_S = 1.0  # no sample for this long: the sensor is gone
+# Bad-tap codes a too-fast probing move can cause (the compression between two samples, a
+# deep over-travel). A low quality score is the classifier's verdict, not explained by speed.
+SPEED_SENSITIVE_CODES = ("TAP_CHRONOLOGY", "TAP_SHAPE_INVALID", "TAP_PULLBACK_TOO_SHORT", "TAP_BREAK_CONTACT_TOO_LATE")
 RELEASE_CHECK_S = 0.05  # LOAD_CELL_TEST_TAP looks at the force this often while waiting for a release
 TARE_FRESH_MARGIN_SAMPLES = 4  # the tare window may reach back this many periods beyond tare_time
 
@@ -372,11 +376,36 @@ class LoadCellProbe:
             clear_s = analysis.break_contact_time_s + BREAK_CLEAR_SAMPLES / self.sample_rate_sps
             self._tare_from_s = min(clear_s, pullback_end_s)
         z_mm = (float(analysis.z_mm) if valid else float(result.halt_z_mm)) + self._z_frame_offset_mm()
+        message = analysis.message
+        if not valid:
+            why = self._explain_bad_tap(tap, analysis.error, options, speed_mm_s)
+            message = message if why is None else f"{message} ({why})"
+        # Kept after the stiffness guess above: a bad tap's stiffness must not explain itself.
         self._record(tap, analysis, z_mm, valid)
         if analysis.quality is not None:
             self.printer.gcode.respond_info(f"Tap Quality: {analysis.quality:.1f}%")
-        return TapOutcome(z_mm=z_mm, valid=valid, error_code=analysis.error, message=analysis.message,
-                          analysis=analysis)
+        return TapOutcome(z_mm=z_mm, valid=valid, error_code=analysis.error, message=message, analysis=analysis)
+
+    def _known_stiffness_g_um(self) -> float | None:
+        """The bed's stiffness measured by the kept valid taps (the stiffest), None before any."""
+        stiffness = [t.analysis.stiffness_decompression_g_um for t in self.last_taps
+                     if t.valid and t.analysis.stiffness_decompression_g_um]
+        return max(stiffness) if stiffness else None
+
+    def _explain_bad_tap(self, tap: TapData, error_code: str | None, options: TapOptions,
+                         speed_mm_s: float) -> str | None:
+        """Why a bad tap may come from probing too fast for the sensor (see too_fast_for_analysis)."""
+        if error_code not in SPEED_SENSITIVE_CODES:
+            return None
+        before_halt = tap.force_g[tap.time_s <= tap.events["home_end_time"]]
+        at_trigger = np.flatnonzero(before_halt >= options.trigger_force_g)
+        if len(at_trigger) == 0 or at_trigger[0] == 0:
+            return None
+        first = int(at_trigger[0])
+        return too_fast_for_analysis(float(before_halt[first - 1]), float(before_halt[first]),
+                                     float(np.max(tap.force_g)), options.trigger_force_g, speed_mm_s,
+                                     self.sample_rate_sps, options.pullback_distance_mm,
+                                     self._known_stiffness_g_um())
 
     def _wait_for_samples_to(self, end_s: float) -> None:
         """Make sure the samples up to end_s have arrived (a live sensor has them already).

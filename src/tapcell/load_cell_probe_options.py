@@ -136,3 +136,38 @@ def safe_speed_mm_s(trigger_force_g: float, stiffness_g_um: float, sample_rate_s
                     force_limit_g: float) -> float:
     """The speed whose expected peak force is 80 % of the limit."""
     return max(0.8 * force_limit_g - trigger_force_g, 0.0) / (2.0 * stiffness_g_um) * sample_rate_sps / 1000.0
+
+
+def too_fast_for_analysis(force_before_trigger_g: float, force_at_trigger_g: float, peak_force_g: float,
+                          trigger_force_g: float, speed_mm_s: float, sample_rate_sps: float,
+                          pullback_distance_mm: float, stiffness_g_um: float | None = None) -> str | None:
+    """Why a bad tap may be the speed's fault: the compression happened between two samples.
+
+    The trigger sample is the first at or above the trigger force. When the force rose by
+    more than the trigger force within that one sample, the whole compression up to the
+    trigger fell between two samples: the analysis has no samples on the compression line to
+    find where contact began, and the nozzle goes on pressing until the halt (over-travel).
+    The bed's stiffness comes from earlier taps when known, else from that one-sample jump
+    (a full sample in contact rises by stiffness x travel per sample; a partial one by less,
+    so the estimate is low and the over-travel estimate high). Returns None otherwise.
+    """
+    jump_g = force_at_trigger_g - force_before_trigger_g
+    if jump_g < trigger_force_g or speed_mm_s <= 0:
+        return None
+    travel_um = speed_mm_s * 1000.0 / sample_rate_sps
+    k_g_um = stiffness_g_um if stiffness_g_um else jump_g / travel_um
+    contact_to_trigger_um = trigger_force_g / k_g_um
+    over_travel_um = peak_force_g / k_g_um
+    pullback_um = pullback_distance_mm * 1000.0
+    # The speed at which the force takes one full sample to reach the trigger force.
+    suggested_mm_s = contact_to_trigger_um * sample_rate_sps / 1000.0
+    why = (f"probing too fast for this sensor: at {speed_mm_s:g} mm/s and {sample_rate_sps:g} samples/s the nozzle "
+           f"moves {travel_um:.1f} um per sample, but on this bed (about {k_g_um:.1f} g/um) the force reaches the "
+           f"{trigger_force_g:.0f}g trigger {contact_to_trigger_um:.0f} um after first contact: it jumped from "
+           f"{force_before_trigger_g:.0f}g to {force_at_trigger_g:.0f}g within one sample, so no sample shows the "
+           f"compression and the tap cannot be analysed; the nozzle stopped about {over_travel_um:.0f} um past "
+           f"first contact, pressing {peak_force_g:.0f}g")
+    if over_travel_um >= 0.75 * pullback_um:
+        why += (f", more than 3/4 of the {pullback_distance_mm:g} mm pullback, so it leaves the bed late in the "
+                "pullback or not at all")
+    return why + f"; probe at {suggested_mm_s:.1f} mm/s or slower (or use a faster sensor)"

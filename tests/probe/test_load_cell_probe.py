@@ -45,9 +45,9 @@ def test_a_tap_records_samples_moves_and_events_but_never_truth(tmp_path):
     span_s = tap.time_s[-1] - tap.time_s[0]
     assert len(tap.time_s) == pytest.approx(span_s * 320, abs=2)
     assert tap.time_s[-1] <= tap.events["pullback_end_time"]
-    # The pullback scans 1 µm per sample by default (320 sps -> 0.32 mm/s) over the 0.1 mm of the example.
+    # The pullback scans 1 µm per sample by default (320 sps -> 0.32 mm/s) over the 0.15 mm of the example.
     assert tap.probe["pullback_speed"] == pytest.approx(0.32)
-    assert tap.probe["pullback_distance"] == pytest.approx(0.1)
+    assert tap.probe["pullback_distance"] == pytest.approx(0.15)
     assert recorded.valid
 
 
@@ -86,9 +86,10 @@ def test_probe_accuracy_reports_every_statistic(tmp_path):
     printer.gcode.run_script("PROBE HOME=Z\nG1 Z0.4")
     responses.clear()
     printer.gcode.run_script("PROBE_ACCURACY SAMPLES=4 SAMPLE_RETRACT_DIST=0.4")
-    # Z is where the step grid puts 0.4 after re-basing Z on the bed.
-    assert re.match(r"// PROBE_ACCURACY at X:110\.000 Y:110\.000 Z:0\.40\d \(samples=4 retract=0\.400 speed=5\.0 "
-                    r"lift_speed=5\.0\)$", responses[0])
+    header = re.match(r"// PROBE_ACCURACY at X:110\.000 Y:110\.000 Z:(\d\.\d{3}) \(samples=4 retract=0\.400 "
+                      r"speed=5\.0 lift_speed=5\.0\)$", responses[0])
+    # Z is where the 2.5 um step grid puts 0.4 after re-basing Z on the bed.
+    assert float(header[1]) == pytest.approx(0.4, abs=0.0025)
     summary = responses[-1]
     for word in ("maximum", "minimum", "range", "average", "median", "standard deviation", "average delta"):
         assert word in summary

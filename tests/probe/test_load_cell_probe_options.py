@@ -8,6 +8,7 @@ from tapcell.load_cell_probe_options import (
     default_pullback_speed_mm_s,
     force_beyond_safety_limit_g,
     tare_sample_count,
+    too_fast_for_analysis,
 )
 from tapcell.probe_options import read_section_values, with_overrides
 
@@ -70,3 +71,19 @@ def test_pure_rules():
     assert force_beyond_safety_limit_g(50_000 - 300_000, 50_000, 100.0, 2000.0) == pytest.approx(-3000.0)
     assert force_beyond_safety_limit_g(50_000 + 150_000, 50_000, 100.0, 2000.0) is None
     assert force_beyond_safety_limit_g(50_000 + 300_000, 50_000, 100.0, 0.0) is None  # 0 disables
+
+
+def test_too_fast_for_analysis_explains_with_the_physics():
+    # HX711 at 8 mm/s: 100 um per sample on a 3.25 g/um bed; the force jumped 50 -> 350 g.
+    why = too_fast_for_analysis(50.0, 350.0, 520.0, 75.0, 8.0, 80.0, 0.15, stiffness_g_um=3.25)
+    assert why == ("probing too fast for this sensor: at 8 mm/s and 80 samples/s the nozzle moves 100.0 um per "
+                   "sample, but on this bed (about 3.2 g/um) the force reaches the 75g trigger 23 um after first "
+                   "contact: it jumped from 50g to 350g within one sample, so no sample shows the compression and "
+                   "the tap cannot be analysed; the nozzle stopped about 160 um past first contact, pressing 520g, "
+                   "more than 3/4 of the 0.15 mm pullback, so it leaves the bed late in the pullback or not at all; "
+                   "probe at 1.8 mm/s or slower (or use a faster sensor)")
+    # Unknown bed: estimated from the jump (300 g per 100 um); a shallow halt says nothing of the pullback.
+    why = too_fast_for_analysis(0.0, 300.0, 300.0, 75.0, 8.0, 80.0, 0.2)
+    assert "(about 3.0 g/um)" in why and "pressing 300g; probe at 2.0 mm/s" in why and "pullback" not in why
+    # A force that built up over more than one sample is not the speed's fault.
+    assert too_fast_for_analysis(30.0, 90.0, 150.0, 75.0, 2.0, 80.0, 0.15, stiffness_g_um=3.25) is None
