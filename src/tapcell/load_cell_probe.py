@@ -71,7 +71,8 @@ TARE_TIMEOUT_S = 1.0  # no sample for this long: the sensor is gone
 # deep over-travel). A low quality score is the classifier's verdict, not explained by speed.
 SPEED_SENSITIVE_CODES = ("TAP_CHRONOLOGY", "TAP_SHAPE_INVALID", "TAP_PULLBACK_TOO_SHORT", "TAP_BREAK_CONTACT_TOO_LATE")
 RELEASE_CHECK_S = 0.05  # LOAD_CELL_TEST_TAP looks at the force this often while waiting for a release
-TARE_FRESH_MARGIN_SAMPLES = 4  # the tare window may reach back this many periods beyond tare_time
+TARE_FRESH_MARGIN_SAMPLES = 4
+ENDSTOP_SWITCH_MM = 1e-6  # the virtual X/Y switches close at machine position 0  # the tare window may reach back this many periods beyond tare_time
 
 
 class SampleHistory:
@@ -475,17 +476,32 @@ class LoadCellProbe:
 
 
 class LoadCellProbeCommands:
-    """LOAD_CELL_TEST_TAP and NOZZLE_CLEANUP (the probe commands live in tapcell.probe)."""
+    """LOAD_CELL_TEST_TAP, NOZZLE_CLEANUP, QUERY_ENDSTOPS (the probe commands live in tapcell.probe)."""
 
     def __init__(self, device: LoadCellProbe, probe: Probe):
         self.device = device
         self.probe = probe
+        self.last_query: dict[str, bool] = {}
 
     def register(self, gcode) -> None:
         gcode.register_command("LOAD_CELL_TEST_TAP", self.cmd_LOAD_CELL_TEST_TAP,
                                desc="Detect taps on the load cell without moving: [COUNT=3] [TIMEOUT=30]")
         gcode.register_command("NOZZLE_CLEANUP", self.cmd_NOZZLE_CLEANUP,
                                desc="Tap a serpentine pattern until SAMPLES good taps in a row")
+        gcode.register_command("QUERY_ENDSTOPS", self.cmd_QUERY_ENDSTOPS, desc="Report the endstop states")
+
+    def cmd_QUERY_ENDSTOPS(self, gcmd) -> None:
+        """x/y: the virtual printer's switches at machine 0; z (probe:z_virtual_endstop) is always open.
+
+        A load cell senses only while armed for a probing move, so the guide says it always
+        reports not triggered; LOAD_CELL_TEST_TAP is the way to check it.
+        """
+        x_mm, y_mm, _ = self.device.vp.position
+        self.last_query = {"x": bool(x_mm <= ENDSTOP_SWITCH_MM), "y": bool(y_mm <= ENDSTOP_SWITCH_MM), "z": False}
+        gcmd.respond_info(" ".join(f"{axis}:{'TRIGGERED' if hit else 'open'}" for axis, hit in self.last_query.items()))
+
+    def get_status(self, eventtime=None) -> dict:
+        return {"last_query": dict(self.last_query)}
 
     def cmd_LOAD_CELL_TEST_TAP(self, gcmd) -> None:
         count = gcmd.get_int("COUNT", 3, minval=1, maxval=10)
@@ -580,6 +596,8 @@ def load_config(section, printer) -> LoadCellProbe:
     device.probe = probe
     probe.register_commands()
     register_load_cell_commands(printer.gcode, device.load_cell, device.name)
-    LoadCellProbeCommands(device, probe).register(printer.gcode)
+    commands = LoadCellProbeCommands(device, probe)
+    commands.register(printer.gcode)
     printer.add_object("probe", probe)
+    printer.add_object("query_endstops", commands)
     return device

@@ -23,6 +23,17 @@ def test_uncalibrated_probe_refuses(tmp_path):
         printer.gcode.run_script("G28")
 
 
+def test_g28_z_homes_through_the_z_virtual_endstop(tmp_path):
+    # [stepper_z] endstop_pin: probe:z_virtual_endstop. G28 Z is trigger-only: Z = z_offset (0)
+    # where the trigger halted the move: 23 um past contact for 75 g at 3.26 g/um, plus the travel
+    # until the halt (35 um measured) -> the true contact sits 20-50 um above Z 0; then it lifts
+    # sample_retract_dist (2 mm).
+    printer, _ = make_printer(tmp_path, home=False)
+    printer.gcode.run_script("G28\nG1 X110 Y110 F6000")
+    assert 0.020 <= true_contact_z(printer) <= 0.050
+    assert printer.lookup_object("toolhead").get_position()[2] == pytest.approx(2.0)
+
+
 def test_probe_result_is_the_true_bed_height_and_home_z_makes_it_zero(tmp_path):
     printer, responses = make_printer(tmp_path)
     printer.gcode.run_script("PROBE HOME=Z")
@@ -141,3 +152,20 @@ def test_status_of_probe_and_load_cell_probe(tmp_path):
     assert device["trigger_force"] == 75.0
     assert abs(device["tare_counts_at_tap"] - device["tare_counts"]) <= 0.5
     json.dumps(status)  # JSON-ready plain data
+
+
+def test_query_endstops_and_query_probe_report_the_load_cell_open(tmp_path):
+    # The guide: load cell probes always report not triggered (use LOAD_CELL_TEST_TAP instead).
+    printer, responses = make_printer(tmp_path, home=False)
+    printer.gcode.run_script("G28 X Y")
+    responses.clear()
+    printer.gcode.run_script("QUERY_ENDSTOPS\nQUERY_PROBE")
+    assert responses == ["// x:TRIGGERED y:TRIGGERED z:open", "// probe: open"]
+    printer.gcode.run_script("G1 X10 Y20 F6000")
+    printer.backend.place_weight(500.0)  # even pressed, the idle load cell is not an endstop
+    responses.clear()
+    printer.gcode.run_script("QUERY_ENDSTOPS\nQUERY_PROBE")
+    assert responses == ["// x:open y:open z:open", "// probe: open"]
+    status = printer.get_status()
+    assert status["query_endstops"]["last_query"] == {"x": False, "y": False, "z": False}
+    assert status["probe"]["last_query"] is False
