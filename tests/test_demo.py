@@ -7,6 +7,7 @@ import re
 import pytest
 
 from tapcell import demo
+from tapcell.tap import read_tap_file
 
 SCALE_CONFIG = """\
 [virtual_printer]
@@ -42,7 +43,19 @@ def test_demo_reports_a_broken_config_without_a_traceback(tmp_path, capsys):
     assert "The printer did not start:" in capsys.readouterr().out
 
 
-def test_make_demo_default_runs(capsys):
-    assert demo.main([]) == 0
+def test_make_demo_default_runs(tmp_path, capsys):
+    assert demo.main(["--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "!!" not in out and "> LOAD_CELL_READ" in out
+    # Probing: PROBE_ACCURACY on the warped bed's centre, then the last tap's plot and tap file.
+    assert f"> PROBE_ACCURACY SAMPLES={demo.ACCURACY_SAMPLES} SAMPLE_RETRACT_DIST=0.4" in out
+    sigma_mm = float(re.search(r"standard deviation (\d+\.\d+)", out)[1])
+    assert sigma_mm <= 0.001
+    points = re.findall(r"^    P(\d)  t = +(\d+\.\d+) s  force = +(-?\d+\.\d) g$", out, flags=re.M)
+    assert [p[0] for p in points] == ["0", "1", "2", "3", "4", "5"]
+    assert [float(p[1]) for p in points] == sorted(float(p[1]) for p in points)  # in time order
+    assert float(points[2][2]) > 75.0 and abs(float(points[4][2])) < 5.0  # pressed, then left the bed
+    png = tmp_path / "last-tap.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert len(read_tap_file(tmp_path / "last-taps.jsonl")) == demo.ACCURACY_SAMPLES + 1  # + PROBE HOME=Z
+    assert out.index("> PROBE_ACCURACY") < out.index("> NOZZLE_CLEANUP") < out.index("> BED_MESH_CALIBRATE")

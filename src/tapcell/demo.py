@@ -2,15 +2,16 @@
 
 The main job is a first layer that sticks everywhere. The demo starts the virtual printer
 with a warped bed (examples/virtual-printer.cfg), checks and calibrates the load cell with a
-known weight, heats the nozzle to the probing temperature, homes, cleans the nozzle
-(NOZZLE_CLEANUP), probes a 7 x 7 mesh (BED_MESH_CALIBRATE, with a progress bar), prints the
+known weight, heats the nozzle to the probing temperature, homes, measures the probe's
+repeatability (PROBE_ACCURACY), plots the last tap with its five lines and six points into
+`out/last-tap.png`, cleans the nozzle (NOZZLE_CLEANUP), probes a 7 x 7 mesh (BED_MESH_CALIBRATE, with a progress bar), prints the
 mesh and how far it is from the true bed (which only the simulator knows), writes heat maps
 of the mesh and of its error into `out/`, and shows a first-layer move following the bed.
 Every G-code line is printed with the printer's responses and a short explanation, so a
 newcomer can follow and repeat it in `tapcell console`.
 
 With `--config` a config without a probe runs the load-cell (scale) steps only. Each step
-is a `DemoStep` (an explanation and G-code lines).
+is a `DemoStep` (an explanation, G-code lines, and optionally something the runner shows after).
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ import shutil
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
@@ -30,6 +32,7 @@ from tapcell.config import ConfigError
 from tapcell.gcode import GCodeError
 from tapcell.mesh.report import mesh_error, render_mesh_error, write_mesh_png
 from tapcell.printer import Printer
+from tapcell.tap.plot import plot_tap
 
 EXAMPLE_CONFIG = Path(__file__).resolve().parents[2] / "examples" / "virtual-printer.cfg"
 DEMO_SCENARIO = "warped-bed"
@@ -39,6 +42,7 @@ PROBING_TEMPERATURE_C = 140  # the guide: below any filament's ooze point
 MESH_CENTER_XY_MM = (117.5, 117.5)
 # While the mesh is probed these per-tap lines feed the progress bar instead of the screen.
 PER_TAP_LINE = re.compile(r"^// (probe at |Tap Quality)")
+ACCURACY_SAMPLES = 10
 
 
 @dataclass(frozen=True)
@@ -47,6 +51,7 @@ class DemoStep:
     explanation: str
     gcode: tuple[str, ...]
     progress: bool = False  # show a progress bar (BED_MESH_CALIBRATE) instead of per-tap lines
+    show: Callable[[DemoRunner], None] | None = None  # what the runner shows after the G-code
 
 
 SCALE_STEPS = (
@@ -82,7 +87,7 @@ SCALE_STEPS = (
 )
 
 
-MESH_STEPS = (
+PROBE_STEPS = (
     DemoStep(
         "Heat the nozzle to the probing temperature",
         f"A hot nozzle is longer than a cold one, so home and probe at one temperature. "
@@ -97,6 +102,28 @@ MESH_STEPS = (
         "bed and analyses the tap to find where the nozzle really touched: that point is Z = 0.",
         ("G28", f"G1 X{MESH_CENTER_XY_MM[0]:g} Y{MESH_CENTER_XY_MM[1]:g} Z3 F6000", "PROBE HOME=Z"),
     ),
+    DemoStep(
+        "How repeatable is the probe? PROBE_ACCURACY",
+        f"PROBE_ACCURACY taps {ACCURACY_SAMPLES} times at the same place from 0.4 mm above the bed and "
+        "reports the spread. Each tap: press until the load cell reads 75 g, stop, wait 4 samples, pull "
+        "back 0.15 mm at 1 um per sample while watching the force fall, and find in those samples the "
+        "height where the nozzle left the bed. A standard deviation well below 1 um is what a load "
+        "cell can do; every tap must pass its checks, or the command stops and says why.",
+        ("G1 Z0.4", f"PROBE_ACCURACY SAMPLES={ACCURACY_SAMPLES} SAMPLE_RETRACT_DIST=0.4"),
+    ),
+    DemoStep(
+        "Look at the last tap",
+        "The plot shows the force during the last tap: the five fitted lines (approach, compression, "
+        "dwell, decompression, departure) and the six points where they meet (P0..P5). The probe's "
+        "answer is the height at P4, break contact: the moment the nozzle left the bed. The taps are "
+        "also written as a tap file that `tapcell analyze` reads.",
+        (),
+        show=lambda runner: runner.plot_last_tap(),
+    ),
+)
+
+
+MESH_STEPS = (
     DemoStep(
         "Clean the nozzle",
         "NOZZLE_CLEANUP taps a small zig-zag outside the print area until 3 taps in a row are good: "
@@ -131,8 +158,9 @@ MESH_STEPS = (
 class DemoRunner:
     """Runs G-code on a printer, printing each line with its responses."""
 
-    def __init__(self, config_path: Path, console: Console):
+    def __init__(self, config_path: Path, console: Console, out_dir: Path = Path("out")):
         self.console = console
+        self.out_dir = out_dir
         self.responses: list[str] = []
         self.hidden_lines = 0
         self._progress: Progress | None = None
@@ -159,6 +187,23 @@ class DemoRunner:
                 self._run_with_progress(line)
             else:
                 self.printer.gcode.run_line(line)
+        if step.show is not None:
+            step.show(self)
+
+    def plot_last_tap(self) -> None:
+        """The last tap as a PNG (five lines, six points) and the kept taps as a tap file."""
+        device = self.printer.lookup_object("load_cell_probe")
+        last = device.last_taps[-1]
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        png = self.out_dir / "last-tap.png"
+        plot_tap(last.tap, last.analysis, png, title="Last tap of PROBE_ACCURACY")
+        taps = self.out_dir / "last-taps.jsonl"
+        count = device.write_last_taps(taps)
+        for name, (t_s, force_g) in zip(("P0", "P1", "P2", "P3", "P4", "P5"), last.analysis.points):
+            self.console.print(f"    {name}  t = {t_s - last.tap.time_s[0]:6.3f} s  force = {force_g:7.1f} g",
+                               markup=False, highlight=False)
+        self.console.print(f"Tap plot: {png}; the last {count} taps: {taps} (tapcell analyze {taps})",
+                           markup=False, highlight=False)
 
     def _run_with_progress(self, line: str) -> None:
         columns = (TextColumn("    probing"), BarColumn(), MofNCompleteColumn(), TextColumn("points"),
@@ -207,7 +252,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--config", type=Path, default=None,
                         help="printer config to start from (copied: the demo never changes it); "
                              f"default: {EXAMPLE_CONFIG.name} with the '{DEMO_SCENARIO}' scenario")
-    parser.add_argument("--out", type=Path, default=Path("out"), help="where the heat-map PNGs go (default: out)")
+    parser.add_argument("--out", type=Path, default=Path("out"), help="where the PNGs and the tap file go (default: out)")
     args = parser.parse_args(argv)
     console = Console(highlight=False)
     with tempfile.TemporaryDirectory(prefix="tapcell-demo-") as workdir:
@@ -221,12 +266,12 @@ def main(argv: list[str] | None = None) -> int:
             shutil.copyfile(args.config, config_path)
             console.print(f"Starting the virtual printer from {args.config} (a copy in {config_path}).")
         try:
-            runner = DemoRunner(config_path, console)
+            runner = DemoRunner(config_path, console, args.out)
         except ConfigError as exc:
             console.print(f"The printer did not start: {exc}", style="bold red", markup=False)
             return 1
         try:
-            steps = SCALE_STEPS + (MESH_STEPS if runner.can_probe_a_mesh() else ())
+            steps = SCALE_STEPS + (PROBE_STEPS + MESH_STEPS if runner.can_probe_a_mesh() else ())
             for number, step in enumerate(steps, start=1):
                 runner.run_step(number, step)
             if runner.can_probe_a_mesh():
