@@ -146,12 +146,23 @@ def test_coasting_move_acceleration():
 
 
 def test_pullback_too_short_and_break_contact_too_late():
+    # Break contact ~25 µm above the halt: a 20 µm pullback never breaks contact, in a 28 µm one
+    # it falls in the last sixth (after 23.3 µm), in a 30 µm one just inside (before 25 µm).
     assert _code(synth_tap(pullback_distance_mm=0.02)) == "TAP_PULLBACK_TOO_SHORT"
-    assert _code(synth_tap(pullback_distance_mm=0.03)) == "TAP_BREAK_CONTACT_TOO_LATE"
+    too_late = analyze_tap(synth_tap(pullback_distance_mm=0.028))
+    assert too_late.error == "TAP_BREAK_CONTACT_TOO_LATE"
+    assert "in the last sixth of the pullback" in too_late.message and "increase pullback_distance" in too_late.message
+    assert _code(synth_tap(pullback_distance_mm=0.03)) is None
 
 
 def test_break_contact_too_early():
     assert _code(synth_tap(), sensor_delay_s=0.05) == "TAP_BREAK_CONTACT_TOO_EARLY"
+    # The spec: break contact in the middle two thirds. At ~25 µm a 0.2 mm pullback breaks in
+    # its first sixth (33 µm): the pullback is longer than it needs to be.
+    early = analyze_tap(synth_tap(pullback_distance_mm=0.2))
+    assert early.error == "TAP_BREAK_CONTACT_TOO_EARLY"
+    assert "in the first sixth of the pullback" in early.message and "shorten pullback_distance" in early.message
+    assert _code(synth_tap(pullback_distance_mm=0.14)) is None  # 25/140: 18 %, inside
 
 
 def test_chronology_and_shape():
@@ -163,7 +174,7 @@ def test_chronology_and_shape():
 
 
 def test_invalid_tap_keeps_its_lines_for_plots():
-    result = analyze_tap(synth_tap(pullback_distance_mm=0.03))
+    result = analyze_tap(synth_tap(pullback_distance_mm=0.028))
     assert not result.valid and len(result.lines) == 5 and len(result.points) == 6
 
 

@@ -46,6 +46,13 @@ ONSET_MIN_CHI2 = 25.0
 ONSET_GRID_UM = (0.0, 2.0, 4.0, 6.0, 9.0, 12.0)
 # The global contact search spans this many samples either side of the line estimate.
 SEARCH_SAMPLES = 4
+# A lead screw of 8 mm per turn, 200 full steps, 16 microsteps: the commonest Z resolution.
+DEFAULT_Z_STEP_UM = 2.5
+# The misfit looks at samples up to this many pullback steps past break contact.
+MISFIT_REACH_SAMPLES = 10
+# The compression stiffness is scored only from at least this many samples whose conversion
+# window lies wholly in contact before the halt (fewer: onset, integration and the halt dominate).
+MIN_COMPRESSION_SAMPLES = 2
 # Prusa's plotting scale used for the line angles (s per g): 0.1 s to 25 g.
 ANGLE_SCALE_S_PER_G = 0.004
 
@@ -56,6 +63,7 @@ class SensorTiming:
     integration_s: float
     estimate_delay: bool
     sample_period_s: float
+    z_step_um: float  # Z resolution of the steppers (the staircase the model does not see)
 
 
 def sensor_timing(tap: TapData, options: AnalysisOptions, sample_period_s: float) -> SensorTiming:
@@ -66,7 +74,9 @@ def sensor_timing(tap: TapData, options: AnalysisOptions, sample_period_s: float
     integration = options.sensor_integration_s
     if integration is None:
         integration = _meta_seconds(tap, "sensor_integration_s", sample_period_s)
-    return SensorTiming(float(delay), float(integration), estimate, sample_period_s)
+    z_step_um = options.z_step_um if options.z_step_um is not None else _meta_number(tap, "z_step_um",
+                                                                                       DEFAULT_Z_STEP_UM)
+    return SensorTiming(float(delay), float(integration), estimate, sample_period_s, float(z_step_um))
 
 
 def _meta_seconds(tap: TapData, key: str, default: float) -> float:
@@ -74,6 +84,30 @@ def _meta_seconds(tap: TapData, key: str, default: float) -> float:
     if isinstance(value, int | float) and math.isfinite(value) and 0 <= value < 1:
         return float(value)
     return default
+
+
+def _meta_number(tap: TapData, key: str, default: float) -> float:
+    value = tap.meta.get(key)
+    if isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value) and value >= 0:
+        return float(value)
+    return default
+
+
+def step_staircase_sigma_um(step_um: float, window_um: float) -> float:
+    """Sigma of the Z-step staircase around a continuous move, as a sensor averaging over
+    `window_um` of travel sees it.
+
+    A stepper holds Z on whole steps: the true height differs from the commanded continuous
+    one by a sawtooth of sigma step/√12. A window of w = m·step + r averages the whole periods
+    out; what remains is (r/w)(1 - r/step)·step/√12 (for w < step: (1 - w/step)·step/√12).
+    """
+    if step_um <= 0:
+        return 0.0
+    sawtooth_um = step_um / math.sqrt(12.0)
+    if window_um <= 0:
+        return sawtooth_um
+    remainder_um = math.fmod(window_um, step_um)
+    return sawtooth_um * (remainder_um / window_um) * (1.0 - remainder_um / step_um)
 
 
 def median(values: np.ndarray) -> float:
@@ -247,8 +281,9 @@ def model_window(time_s, force_g, motion: Motion, timing: SensorTiming, delay_s:
 
 
 def fit_pullback(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float,
-                 options: AnalysisOptions) -> ContactFit | None:
-    """The contact model over the pullback: samples whose window starts after the nozzle began rising."""
+                 options: AnalysisOptions) -> tuple[ContactFit, float] | None:
+    """The contact model over the pullback (samples whose window starts after the nozzle began
+    rising), and its residual sigma near contact (`near_contact_sigma_g`)."""
     first = int(np.searchsorted(window.time_s, motion.pullback_start_s + delay_s + timing.integration_s, side="right"))
     y_fit, x_min, span = window.force_g[first:], window.x_min_um[first:], window.span_um[first:]
     contact0 = window.break_line_um
@@ -262,10 +297,26 @@ def fit_pullback(window: ModelWindow, motion: Motion, timing: SensorTiming, dela
     # Robust pass: drop samples the first fit cannot explain (ooze blobs, bursts), fit again.
     robust_sigma = 1.4826 * median(np.abs(residual))
     keep = np.abs(residual) <= options.outlier_sigma * max(robust_sigma, fit.residual_sigma_g)
-    if keep.all():
-        return fit
-    refit = _fit_with_onset(y_fit[keep], x_min[keep], span[keep], fit.contact_um, spacing_um, options)
-    return refit[0] if refit else fit
+    if not keep.all():
+        refit = _fit_with_onset(y_fit[keep], x_min[keep], span[keep], fit.contact_um, spacing_um, options)
+        if refit:
+            fit = refit[0]
+    return fit, near_contact_sigma_g(y_fit, x_min, span, fit, spacing_um)
+
+
+def near_contact_sigma_g(force_g, x_min_um, span_um, fit: ContactFit, spacing_um: float) -> float:
+    """Residual sigma of the fit over the samples that set Z: in contact, and up to
+    MISFIT_REACH_SAMPLES past break contact (a soft ooze layer or a gradual release shows there).
+
+    Samples further into the departure are left out: a strand pulling on the nozzle after it
+    left the bed does not move Z, and the spec's departure component judges it.
+    """
+    near = x_min_um < fit.contact_um + MISFIT_REACH_SAMPLES * spacing_um
+    count = int(np.count_nonzero(near))
+    if count <= 3:
+        return fit.residual_sigma_g
+    residual = _residual(force_g[near], x_min_um[near], x_min_um[near] + span_um[near], fit)
+    return math.sqrt(float(residual @ residual) / (count - 3))
 
 
 def _fit_fixed_onset(y, x_min, span, contact0_um: float, spacing_um: float, onset_um: float
@@ -337,6 +388,14 @@ def fit_compression(window: ModelWindow, motion: Motion, timing: SensorTiming, d
     return found[0]
 
 
+def compression_sample_count(window: ModelWindow, motion: Motion, delay_s: float, onset_um: float,
+                             contact_um: float) -> int:
+    """Samples read before the halt whose whole conversion window was at least an onset into contact."""
+    before_halt = window.time_s - delay_s <= motion.home_end_s
+    pressed = window.x_min_um + window.span_um <= contact_um - onset_um
+    return int(np.count_nonzero(before_halt & pressed))
+
+
 def analyze_tap(tap: TapData, options: AnalysisOptions | None = None) -> TapAnalysis:
     """Analyse one tap. Never raises on data: what cannot be analysed is an invalid tap with a code."""
     from tapcell.tap.classifiers import get_classifier, run_classifier
@@ -395,6 +454,9 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
     allowance = UNKNOWN_DELAY_ALLOWANCE_S if timing.estimate_delay else timing.delay_s
     lag_samples = math.ceil((allowance + timing.integration_s) / period_s) + LAG_MARGIN_SAMPLES
     dec, ps = decompose(time_s, force, motion, lag_samples, period_s)
+    # Second differences of the whole analysed window: hundreds of samples even when the
+    # approach holds a dozen; the four kinks of a tap cannot move their median.
+    noise_g = noise_sigma_g(force[dec.start:dec.stop])
     angles = line_angles_deg(dec.lines)
     result = TapAnalysis(
         valid=True,
@@ -404,7 +466,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         angles_deg=[polarity * a for a in angles],
         outliers=outliers,
         sensor_integration_s=timing.integration_s,
-        noise_sigma_g=noise_sigma_g(force[:_index(time_s, motion.home_end_s)]),
+        noise_sigma_g=noise_g,
     )
     context = AnalysisContext(tap, motion, timing)
     delay_s = 0.0 if timing.estimate_delay else timing.delay_s
@@ -422,7 +484,8 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
     line_sigma_um = break_time_sigma_s(ps, dec, t_break) * motion.pullback_speed_mm_s * 1000.0
     window = model_window(time_s, force, motion, timing, delay_s, dec)
     z_line = motion.z_halt_mm + window.break_line_um / 1000.0  # P4 mapped, delay-corrected
-    pullback = fit_pullback(window, motion, timing, delay_s, options)
+    pullback_found = fit_pullback(window, motion, timing, delay_s, options)
+    pullback, near_sigma_g = pullback_found if pullback_found else (None, None)
     onset_um = pullback.onset_um if pullback else 0.0
     compression = fit_compression(window, motion, timing, delay_s, onset_um)
     if pullback and compression:
@@ -446,14 +509,19 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         result.z_method = "contact_model"
         result.contact_onset_um = pullback.onset_um
         result.stiffness_decompression_g_um = pullback.stiffness_g_um
-        result.fit_residual_sigma_g = pullback.residual_sigma_g
+        result.fit_residual_sigma_g = near_sigma_g
+        window_um = motion.pullback_speed_mm_s * timing.integration_s * 1000.0
+        result.step_sigma_g = pullback.stiffness_g_um * step_staircase_sigma_um(timing.z_step_um, window_um)
     else:
         result.z_mm = z_line
         result.z_sigma_um = line_sigma_um
         result.z_method = "lines"
         result.stiffness_decompression_g_um = abs(dec.lines[3][0]) / (motion.pullback_speed_mm_s * 1000.0)
-    result.stiffness_compression_g_um = (compression.stiffness_g_um if compression else
-                                         abs(dec.lines[1][0]) / (motion.approach_speed_mm_s * 1000.0))
+    result.compression_samples = compression_sample_count(window, motion, delay_s, onset_um,
+                                                          pullback.contact_um if pullback else window.break_line_um)
+    if result.compression_samples >= MIN_COMPRESSION_SAMPLES:
+        result.stiffness_compression_g_um = (compression.stiffness_g_um if compression else
+                                             abs(dec.lines[1][0]) / (motion.approach_speed_mm_s * 1000.0))
     result.message = "ok"
     return result, context
 

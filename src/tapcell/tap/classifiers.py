@@ -146,8 +146,9 @@ class TapQualityClassifier:
         if analysis.stiffness_compression_g_um and analysis.stiffness_decompression_g_um:
             ratio = analysis.stiffness_decompression_g_um / analysis.stiffness_compression_g_um
         noise_to_residual = None
-        if analysis.noise_sigma_g and analysis.fit_residual_sigma_g:
-            noise_to_residual = analysis.noise_sigma_g / analysis.fit_residual_sigma_g
+        if analysis.fit_residual_sigma_g:
+            explained_g = math.hypot(analysis.noise_sigma_g or 0.0, analysis.step_sigma_g or 0.0)
+            noise_to_residual = explained_g / analysis.fit_residual_sigma_g
         components = quality_components(analysis.points, analysis.lines[3][0], ratio,
                                         self.options.decompression_angle, noise_to_residual)
         quality = quality_score(components, self.cutoffs)

@@ -100,6 +100,8 @@ class AnalysisOptions:
         meta `sensor_delay_s`, else 0. "auto": estimated from the tap (contact vs break contact).
     sensor_integration_s: conversion (averaging) window of one sample (s); None: tap meta
         `sensor_integration_s`, else one sample period (a continuously converting ADC).
+    z_step_um: Z distance of one (micro)step; None: tap meta `z_step_um`, else 2.5 µm. The
+        force over the pullback is a staircase of these steps; the misfit allows for it.
     contact_onset_um: calibrated width of the gradual contact onset (soft/textured sheet);
         None: a sharp contact, or fitted per tap when fit_contact_onset.
     """
@@ -119,18 +121,21 @@ class AnalysisOptions:
     max_stiffness_mismatch: float = 50.0
     max_model_misfit: float = 50.0
     contact_onset_um: float | None = None
+    z_step_um: float | None = None
     fit_contact_onset: bool = False
     outlier_sigma: float = 8.0
 
     # Options that may be reset to None ("from the tap file / default") with `--set key=none`.
     _OPTIONAL = frozenset(
         ("sensor_delay_s", "sensor_integration_s", "trigger_force_g", "pullback_distance_mm", "contact_onset_um",
+         "z_step_um",
          "pullback_speed_mm_s", "decompression_angle")
     )
     _RANGES = {
         "sensor_delay_s": (0.0, 1.0),
         "sensor_integration_s": (0.0, 1.0),
         "contact_onset_um": (0.0, 100.0),
+        "z_step_um": (0.0, 100.0),
         "trigger_force_g": (0.0, 100000.0),
         "pullback_distance_mm": (0.001, 10.0),
         "pullback_speed_mm_s": (0.001, 100.0),
@@ -214,9 +219,11 @@ class TapAnalysis:
     contact_onset_um: float | None = None  # width of the gradual contact onset
     stiffness_compression_g_um: float | None = None
     stiffness_decompression_g_um: float | None = None
+    compression_samples: int = 0  # samples wholly in contact before the halt (stiffness needs 2)
     outliers: int = 0  # corrupted single samples repaired before fitting
-    noise_sigma_g: float | None = None  # sensor noise, from the approach
-    fit_residual_sigma_g: float | None = None  # residual of the contact model over the pullback
+    noise_sigma_g: float | None = None  # sensor noise, from the analysed window's second differences
+    fit_residual_sigma_g: float | None = None  # contact-model residual over the pullback near contact
+    step_sigma_g: float | None = None  # the Z-step staircase in force, as the sensor averages it
     quality_components: dict[str, float] = field(default_factory=dict)
     classifier: str | None = None
 
@@ -243,9 +250,11 @@ class TapAnalysis:
             "contact_onset_um": _num(self.contact_onset_um, 4),
             "stiffness_compression_g_um": _num(self.stiffness_compression_g_um, 4),
             "stiffness_decompression_g_um": _num(self.stiffness_decompression_g_um, 4),
+            "compression_samples": self.compression_samples,
             "outliers": self.outliers,
             "noise_sigma_g": _num(self.noise_sigma_g, 4),
             "fit_residual_sigma_g": _num(self.fit_residual_sigma_g, 4),
+            "step_sigma_g": _num(self.step_sigma_g, 4),
             "quality_components": {k: _num(v, 6) for k, v in self.quality_components.items()},
             "classifier": self.classifier,
         }

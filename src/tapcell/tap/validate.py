@@ -24,8 +24,6 @@ from tapcell.tap.model import (
 )
 from tapcell.tap.motion import MAX_PROBING_MOVES, MIN_PROBING_MOVES, Motion
 
-# Break contact in the last quarter of the pullback leaves too little departure to fit.
-LATE_FRACTION = 0.25
 # Expected signs of the four angles between consecutive lines, positive polarity:
 # approach→compression turns up (-), compression→dwell down (+), dwell→decompression down (+),
 # decompression→departure up (-). Negative polarity mirrors them.
@@ -81,22 +79,28 @@ def check_points(points: list[tuple[float, float]], angles_deg: list[float]) -> 
 
 
 def check_break_contact(break_time_s: float, motion: Motion, sample_period_s: float) -> None:
-    """Break contact must fall inside the pullback, before its last quarter.
+    """Break contact must fall in the middle two thirds of the pullback move (the spec's rule).
 
-    A "break" within two samples of the pullback's end is the force merely levelling off
-    when the motion stopped: the nozzle never left the bed.
+    In the first sixth (or before the pullback): TAP_BREAK_CONTACT_TOO_EARLY, the pullback is
+    longer than it needs to be. Within two samples of the pullback's end or later: the force
+    only levelled off when the motion stopped, the nozzle never left the bed
+    (TAP_PULLBACK_TOO_SHORT). Otherwise in the last sixth: TAP_BREAK_CONTACT_TOO_LATE.
     """
     start, end = motion.pullback_start_s, motion.pullback_end_s
-    late_from = end - LATE_FRACTION * (end - start)
-    if break_time_s < start:
+    sixth_s = (end - start) / 6.0
+    early_until, late_from = start + sixth_s, end - sixth_s
+    if break_time_s < early_until:
+        where = ("before the pullback started" if break_time_s < start
+                 else f"in the first sixth of the pullback ({start:.4f}..{early_until:.4f} s)")
         raise TapInvalid(TAP_BREAK_CONTACT_TOO_EARLY,
-                         f"break contact at {break_time_s:.4f} s, before the pullback started ({start:.4f} s); "
-                         "the force fell back during the dwell")
+                         f"break contact at {break_time_s:.4f} s, {where}; it must lie in the middle two "
+                         "thirds: shorten pullback_distance")
     if break_time_s > end - 2 * sample_period_s:
         raise TapInvalid(TAP_PULLBACK_TOO_SHORT,
                          f"the nozzle never broke contact during the pullback ({start:.4f}..{end:.4f} s); "
                          "increase pullback_distance")
     if break_time_s > late_from:
         raise TapInvalid(TAP_BREAK_CONTACT_TOO_LATE,
-                         f"break contact at {break_time_s:.4f} s, in the last quarter of the pullback "
-                         f"(after {late_from:.4f} s); increase pullback_distance")
+                         f"break contact at {break_time_s:.4f} s, in the last sixth of the pullback "
+                         f"({late_from:.4f}..{end:.4f} s); it must lie in the middle two thirds: "
+                         "increase pullback_distance")
