@@ -157,6 +157,7 @@ def test_ooze_touches_first_squeezes_out_pulls_on_lift_and_clears_with_taps():
     assert fc[(tc > t0c) & (tc < t0c + 0.3 / 2.0 - 0.005)].max() == 0.0 and fc.min() == 0.0
     films = []
     for _ in range(4):
+        vp.move_to(x=vp.position[0] + 2.0)  # a fresh spot each time, as NOZZLE_CLEANUP does
         tap(vp, speed_mm_s=2.0, start_above_mm=0.3)
         films.append(vp.truth.film_um)
     # Taps thin the film until squeeze-out balances the regrowth between taps (~0.8 µm/s at 210 °C):
@@ -171,3 +172,37 @@ def test_oozy_tap_file_is_labelled_fouled(tmp_path):
     t0, _ = tap(vp, speed_mm_s=2.0)
     obj = vp.write_tap_file(tmp_path / "t.json", t0, vp.now_s, {"x": 117.5, "y": 117.5})
     assert obj["truth"]["label"] == "fouled"
+
+
+def test_ooze_left_on_the_bed_is_met_again_by_a_tap_nearby():
+    vp = VirtualPrinter.from_scenario("oozy", seed=1)
+    tap(vp, speed_mm_s=2.0, start_above_mm=0.3)
+    x, y, _ = vp.position
+    film_after_um = vp.truth.film_um
+    [spot] = vp.truth.residue
+    # Everything that left the nozzle (flowed out, torn off) lies where the tap was: the 60 µm
+    # plus what grew since power-on (0.02 µm/s/°C × 40 °C above the ooze point).
+    assert (spot.x_mm, spot.y_mm) == (x, y)
+    assert spot.thickness_um + film_after_um == pytest.approx(60.0 + 0.8 * vp.now_s, abs=0.05)
+    assert spot.thickness_um > 40.0
+    # 0.4 mm away (inside the 0.5 mm residue radius) the next tap meets it first: fouled again.
+    vp.move_to(x=x + 0.4)
+    t0, _ = tap(vp, speed_mm_s=2.0, start_above_mm=0.3)
+    t, force = vp.truth.force_g(t0, vp.now_s)
+    assert force[(t > t0) & (t < t0 + 0.3 / 2.0 - 0.005)].max() > 20.0   # the film pushes early
+    assert vp.truth.film_um > 5.0 and vp.truth.residue[0].thickness_um > 40.0
+    # 2 mm away from both spots the bed is clean: the nozzle only carries its own film.
+    film_before_um = vp.truth.film_um
+    vp.move_to(x=x + 2.4)
+    tap(vp, speed_mm_s=2.0, start_above_mm=0.3)
+    assert vp.truth.film_um < 0.3 * film_before_um
+    assert len(vp.truth.residue) == 2
+
+
+def test_residue_radius_is_a_parameter():
+    vp = VirtualPrinter.from_scenario("oozy", seed=1, ooze_residue_radius_mm=0.0)
+    tap(vp, speed_mm_s=2.0, start_above_mm=0.3)
+    x = vp.position[0]
+    vp.move_to(x=x + 0.4)
+    tap(vp, speed_mm_s=2.0, start_above_mm=0.3)
+    assert len(vp.truth.residue) == 2 and vp.truth.film_um < 5.0

@@ -14,7 +14,9 @@ Bed force model (per point on a uniform time grid):
   steady press is exactly the elastic one.
 Ooze film: a soft layer of `film_um` that touches first, flows out under load (squeeze),
 and pulls the nozzle down when stretched on lift until the strand breaks, leaving part of
-the film on the bed. It grows while the nozzle is above the filament's ooze temperature.
+the film on the bed. What flows out and what the strand leaves stay on the bed where the
+tap was (`ContactState.deposited_um`, placed as a residue spot by the printer).
+It grows while the nozzle is above the filament's ooze temperature.
 """
 
 from __future__ import annotations
@@ -59,6 +61,7 @@ class ContactState:
     last_interference_um: float = 0.0
     last_loaded_g: float = 0.0
     taps_cleared: int = 0        # strands broken (each leaves film on the bed)
+    deposited_um: float = 0.0    # film left on the bed by broken strands, not yet placed as residue
 
 
 def contact_forces(gap_um: np.ndarray, dt_s: float, growth_um: np.ndarray, model: ContactModel,
@@ -108,7 +111,9 @@ def contact_forces(gap_um: np.ndarray, dt_s: float, growth_um: np.ndarray, model
             squeeze = film - room
             if squeeze > 0.0:
                 film_g[i] = model.film_stiffness_g_um * squeeze
-                film = room + squeeze * squeeze_keep
+                flowed_out = squeeze * (1.0 - squeeze_keep)   # pushed aside onto the bed
+                film -= flowed_out
+                state.deposited_um += flowed_out
                 stuck = True
             elif stuck:
                 stretch = -squeeze
@@ -125,6 +130,7 @@ def contact_forces(gap_um: np.ndarray, dt_s: float, growth_um: np.ndarray, model
 
 
 def _break_strand(state: ContactState, model: ContactModel) -> None:
+    state.deposited_um += state.film_um * model.film_clear_fraction
     state.film_um *= 1.0 - model.film_clear_fraction
     state.film_stuck = False
     state.taps_cleared += 1

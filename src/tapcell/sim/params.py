@@ -108,6 +108,8 @@ class SimParams:
     ooze_pull_g: float = _p(25.0, "largest pull of the film stretched on lift", "g", minval=0.0)
     ooze_break_um: float = _p(40.0, "stretch at which the film strand breaks", "µm", minval=0.1)
     ooze_clear_fraction: float = _p(0.4, "share of the film left on the bed at each tap", "", minval=0.0, maxval=1.0)
+    ooze_residue_radius_mm: float = _p(0.5, "a tap this close to film left on the bed meets it first", "mm",
+                                       minval=0.0)
     # --- calibration pin (XY probing; tapcell.sim.pin) ---------------------------------------
     pin_diameter_mm: float = _p(0.0, "calibration pin diameter; 0 = no pin", "mm", minval=0.0)
     pin_x_mm: float = _p(225.0, "calibration pin centre X", "mm")

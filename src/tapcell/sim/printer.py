@@ -48,9 +48,19 @@ class ProbingMoveResult:
 
 
 @dataclass
+class ResidueSpot:
+    """Film a fouled tap left on the bed: met first by any later tap within the residue radius."""
+
+    x_mm: float
+    y_mm: float
+    thickness_um: float
+
+
+@dataclass
 class _PhysicsState:
     contact: ContactState
     cell_warm_c: float = 0.0      # the load cell's temperature rise (low-passed nozzle heat)
+    residue: list[ResidueSpot] = field(default_factory=list)   # ooze film left on the bed
 
 
 @dataclass
@@ -92,6 +102,11 @@ class Truth:
     @property
     def film_um(self) -> float:
         return self._vp._state.contact.film_um
+
+    @property
+    def residue(self) -> list[ResidueSpot]:
+        """Ooze residue spots on the bed (copies)."""
+        return [copy.copy(spot) for spot in self._vp._state.residue]
 
     def force_g(self, t0_s: float, t1_s: float) -> tuple[np.ndarray, np.ndarray]:
         """Noise-free force on the cell (window average) for each delivered sample in [t0, t1]."""
@@ -138,6 +153,7 @@ class VirtualPrinter:
             self._faults.append(faultlib.make_fault("disconnected", params.disconnect_at_s, None, 0.0, {}))
         self._hand_taps: list[tuple[float, float, float]] = []   # (start_s, duration_s, peak_g)
         self._probes: list[_ProbeRecord] = []
+        self._tap_xy_mm: tuple[float, float] | None = None   # where the last probing move went down
         self._next_k = 0
         self._chunk_samples = max(4, round(CHUNK_S * params.sample_rate_sps))
         self._now_s = 0.0
@@ -267,6 +283,8 @@ class VirtualPrinter:
     def _probing_move_to(self, target, speed_mm_s: float, trigger) -> ProbingMoveResult:
         start = self._motion.end_position
         self._advance_to(self._now_s)
+        self._tap_xy_mm = (float(start[0]), float(start[1]))
+        self._meet_residue(start[0], start[1])
         film_at_start_um = self._state.contact.film_um
         self._fire_condition("probing_move", self._now_s)
         segments = self._plan(start, target, speed_mm_s)
@@ -444,6 +462,32 @@ class VirtualPrinter:
         probes = [r for r in self._probes if t0_s <= r.halt_time_s <= t1_s]
         return probes[-1].film_um if probes else self._state.contact.film_um
 
+    def _meet_residue(self, x_mm: float, y_mm: float) -> None:
+        """A tap within the residue radius of film left on the bed meets that film first.
+
+        For a vertical tap a layer on the bed and one on the nozzle squeeze, pull and tear alike,
+        so the residue simply joins the nozzle's film (and the next strand break splits it again).
+        """
+        radius = self.params.ooze_residue_radius_mm
+        residue = self._state.residue
+        met = [s for s in residue if math.hypot(s.x_mm - x_mm, s.y_mm - y_mm) <= radius]
+        if met:
+            self._state.residue = [s for s in residue if s not in met]
+            self._state.contact.film_um += sum(s.thickness_um for s in met)
+
+    def _place_residue(self) -> None:
+        """Film that left the nozzle (flowed out, or torn off with the strand) stays where the tap is."""
+        deposited = self._state.contact.deposited_um
+        if deposited <= 0.0 or self._tap_xy_mm is None:
+            return
+        self._state.contact.deposited_um = 0.0
+        x_mm, y_mm = self._tap_xy_mm
+        for spot in self._state.residue:
+            if spot.x_mm == x_mm and spot.y_mm == y_mm:
+                spot.thickness_um += deposited
+                return
+        self._state.residue.append(ResidueSpot(x_mm, y_mm, deposited))
+
     def _compute(self, k0: int, k1: int) -> SampleChunk:
         """Conversions k0..k1-1 as the MCU reads them; advances the physics state."""
         p, timing = self.params, self._timing
@@ -463,6 +507,7 @@ class VirtualPrinter:
         growth_um = p.ooze_growth_um_per_s_per_c * np.maximum(temps - p.ooze_temp_c, 0.0) * timing.grid_dt_s
         bed_g, film_g = contact_forces(gap_um, timing.grid_dt_s, growth_um, self._contact_model,
                                        self._state.contact)
+        self._place_residue()
         centre = (p.bed_x_mm / 2.0, p.bed_y_mm / 2.0)
         drag_g = (p.bowden_g_per_mm_x * (pos[:, 0] - centre[0]) + p.bowden_g_per_mm_y * (pos[:, 1] - centre[1])
                   + p.bowden_g_per_mm_z * pos[:, 2])
