@@ -9,7 +9,13 @@ marked valid (µm, against truth.z_contact), beside two limits:
 - "CRB nuis.": the Cramér-Rao bound when stiffness, baseline and relaxation are unknown too,
   as they are to any real analysis (mean over the first taps).
 Also the P4 line intersection (the classic line-fit answer, same delay correction).
-Run: .venv/bin/python -m bench tap_accuracy   (or python bench/tap_accuracy.py [taps])
+
+Second table: labelled taps from the virtual printer (`tapcell.tap.sim_taps`, the probe's way of
+tapping: 75 g trigger, 4-sample dwell, 1 µm per sample pullback) per scenario and speed: valid
+rate, bias, σ, p95 and worst |error| of accepted taps, the rejection codes, and the classifier's
+confusion (clean accepted %, fouled rejected %) with the error the fouled taps would have had
+(their Z with the `empty` classifier, where validation still lets a Z be computed).
+Run: .venv/bin/python -m bench tap_accuracy [taps] [sim taps]
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ from rich.console import Console
 from rich.table import Table
 
 from tapcell.tap import AnalysisOptions, analyze_tap
+from tapcell.tap.sim_taps import SimTapSpec, record_sim_tap
 from tapcell.tap.synth import NUISANCE_FIELDS, SynthTap, best_achievable_z, contact_sigma_limit_um, synth_tap
 
 CRB_TAPS = 5
@@ -91,8 +98,82 @@ def run_condition(changes: dict, options: dict, hide_delay: bool, taps: int) -> 
     }
 
 
+# (label, scenario, speeds mm/s, pullback mm, spec changes). Slow-adc (80 sps) only at <= 2 mm/s:
+# faster, one sample covers more than the whole compression (the probe refuses those speeds).
+SIM_ROWS: list[tuple[str, str, tuple[float, ...], float, dict]] = [
+    ("clean", "clean", (2.0, 5.0, 10.0), 0.1, {}),
+    ("clean, 0.2 mm pullback", "clean", (2.0, 5.0, 10.0), 0.2, {}),
+    ("soft-sheet", "soft-sheet", (2.0, 5.0, 10.0), 0.1, {}),
+    ("fast-adc", "fast-adc", (2.0, 5.0, 10.0), 0.1, {}),
+    ("slow-adc", "slow-adc", (1.0, 2.0), 0.1, {}),
+    ("noisy-mains", "noisy-mains", (2.0, 5.0, 10.0), 0.1, {}),
+    ("bowden-drift + drift filter", "bowden-drift", (2.0, 5.0, 10.0), 0.1, {"drift_filter_hz": 0.8}),
+    ("glitchy", "glitchy", (2.0, 5.0, 10.0), 0.1, {}),
+    ("oozy 210 °C, 60 µm", "oozy", (2.0, 5.0, 10.0), 0.1, {}),
+    ("oozy 210 °C, 20 µm", "oozy", (2.0, 5.0, 10.0), 0.1, {"overrides": {"ooze_film_um": 20.0}}),
+    ("oozy 210 °C, 5 µm", "oozy", (2.0, 5.0, 10.0), 0.1, {"overrides": {"ooze_film_um": 5.0}}),
+    ("oozy 230 °C, 2 µm", "oozy", (2.0, 5.0, 10.0), 0.1, {"overrides": {"ooze_film_um": 2.0, "start_nozzle_c": 230.0}}),
+]
+
+
+def run_sim_row(scenario: str, speed_mm_s: float, pullback_mm: float, changes: dict, taps: int) -> dict:
+    """Accepted-tap errors (µm) and the classifier's verdicts over `taps` seeds."""
+    errors, codes, labels, accepted, unchecked = [], {}, [], [], []
+    for seed in range(taps):
+        tap = record_sim_tap(SimTapSpec(scenario=scenario, speed_mm_s=speed_mm_s, seed=seed,
+                                        pullback_distance_mm=pullback_mm, **changes))
+        truth_um = tap.truth["z_contact"] * 1000.0
+        result = analyze_tap(tap)
+        labels.append(tap.truth["label"])
+        accepted.append(result.valid)
+        if result.valid:
+            errors.append(result.z_mm * 1000.0 - truth_um)
+        else:
+            codes[result.error] = codes.get(result.error, 0) + 1
+        # What the tap would have said with no classifier (validation still has to pass for a Z).
+        plain = analyze_tap(tap, AnalysisOptions(tap_classifier="empty"))
+        if tap.truth["label"] == "fouled" and plain.z_mm is not None:
+            unchecked.append(plain.z_mm * 1000.0 - truth_um)
+    errors, labels, accepted = np.array(errors), np.array(labels), np.array(accepted)
+    clean, fouled = labels == "clean", labels == "fouled"
+    return {
+        "valid": 100.0 * accepted.mean(),
+        "bias": float(errors.mean()) if len(errors) else np.nan,
+        "sigma": float(errors.std()) if len(errors) else np.nan,
+        "p95": float(np.percentile(np.abs(errors), 95)) if len(errors) else np.nan,
+        "worst": float(np.max(np.abs(errors))) if len(errors) else np.nan,
+        "clean_accepted": 100.0 * accepted[clean].mean() if clean.any() else np.nan,
+        "fouled_rejected": 100.0 * (~accepted[fouled]).mean() if fouled.any() else np.nan,
+        "fouled_would_err": float(np.max(np.abs(unchecked))) if unchecked else np.nan,
+        "fouled_z_count": len(unchecked),
+        "codes": ", ".join(f"{code} {count}" for code, count in sorted(codes.items())),
+    }
+
+
+def _cell(value: float, fmt: str) -> str:
+    return "–" if not np.isfinite(value) else format(value, fmt)
+
+
+def sim_table(taps: int) -> Table:
+    table = Table(title=f"virtual printer taps, {taps} per row (µm vs truth; tap_quality classifier)")
+    for column in ("scenario", "mm/s", "valid %", "bias", "σ", "p95 |err|", "worst valid", "clean acc. %",
+                   "fouled rej. %", "fouled max |err| unchecked (n)", "rejections"):
+        table.add_column(column, justify="left" if column in ("scenario", "rejections") else "right")
+    for name, scenario, speeds, pullback_mm, changes in SIM_ROWS:
+        for speed in speeds:
+            row = run_sim_row(scenario, speed, pullback_mm, changes, taps)
+            unchecked = (f"{_cell(row['fouled_would_err'], '.1f')} ({row['fouled_z_count']})"
+                         if np.isfinite(row["fouled_rejected"]) else "–")
+            table.add_row(f"{name}, {pullback_mm:g} mm", f"{speed:g}", f"{row['valid']:.0f}", _cell(row["bias"], "+.2f"),
+                          _cell(row["sigma"], ".2f"), _cell(row["p95"], ".2f"), _cell(row["worst"], ".2f"),
+                          _cell(row["clean_accepted"], ".0f"), _cell(row["fouled_rejected"], ".0f"), unchecked,
+                          row["codes"])
+    return table
+
+
 def main(argv: list[str]) -> int:
     taps = int(argv[0]) if argv else 40
+    sim_taps = int(argv[1]) if len(argv) > 1 else 20
     table = Table(title=f"tap analysis accuracy, {taps} synthetic taps per row (µm vs truth)")
     for column in ("condition", "valid %", "bias", "σ", "σ limit", "σ/limit", "CRB nuis.", "σ/CRB", "p95 |err|",
                    "worst valid", "P4-line bias", "P4-line σ"):
@@ -103,7 +184,9 @@ def main(argv: list[str]) -> int:
                       f"{row['limit']:.3f}", f"{row['sigma'] / row['limit']:.2f}", f"{row['crb']:.3f}",
                       f"{row['sigma'] / row['crb']:.2f}", f"{row['p95']:.3f}",
                       f"{row['worst']:.2f}", f"{row['line_bias']:+.3f}", f"{row['line_sigma']:.3f}")
-    Console(width=190).print(table)
+    console = Console(width=190)
+    console.print(table)
+    console.print(sim_table(sim_taps))
     return 0
 
 
