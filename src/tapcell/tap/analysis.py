@@ -156,11 +156,6 @@ def _indices(time_s: np.ndarray, *t: float) -> list[int]:
     return np.minimum(np.searchsorted(time_s, t), len(time_s) - 1).tolist()
 
 
-def _index(time_s: np.ndarray, t: float) -> int:
-    """First sample index at or after t, clamped to the array."""
-    return int(min(np.searchsorted(time_s, t), len(time_s) - 1))
-
-
 def _intersect(a: tuple[float, float], b: tuple[float, float], t_ref: float) -> tuple[float, float]:
     """Intersection of two lines; computed around t_ref so large clock values lose nothing."""
     slope_diff = a[0] - b[0]
