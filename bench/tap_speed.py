@@ -23,7 +23,7 @@ SIZES = ((300, 320.0), (600, 660.0), (2000, 2000.0), (15000, 330.0))
 
 
 def tap_with_samples(samples: int, sps: float):
-    fixed_s = 0.3 + 0.2 / (sps * 0.001) + 0.05 + 0.01  # dwell + pullback + tail + over-travel
+    fixed_s = 0.3 + 0.1 / (sps * 0.001) + 0.05 + 0.01  # dwell + pullback (synth default 0.1 mm) + tail + over-travel
     tap = synth_tap(sample_rate_sps=sps, approach_time_s=max(0.05, samples / sps - fixed_s), seed=1)
     return tap
 
