@@ -8,44 +8,9 @@ from tapcell.config import ConfigError
 from tapcell.gcode import GCodeError
 from tapcell.printer import Printer
 
-STEPPERS = """\
-[virtual_printer]
-scenario: clean
+from machines import machine_config
 
-[printer]
-kinematics: cartesian
-max_velocity: 300
-max_accel: 3000
-max_z_velocity: 15
-max_z_accel: 200
-
-[stepper_x]
-step_pin: PB13
-dir_pin: PB12
-microsteps: 16
-rotation_distance: 40
-endstop_pin: ^PC0
-position_endstop: 0
-position_max: 235
-
-[stepper_y]
-step_pin: PB10
-dir_pin: PB2
-microsteps: 16
-rotation_distance: 40
-endstop_pin: ^PC1
-position_endstop: 0
-position_max: 235
-
-[stepper_z]
-step_pin: PB0
-dir_pin: PC5
-microsteps: 16
-rotation_distance: 8
-endstop_pin: probe:z_virtual_endstop
-position_min: -2
-position_max: 250
-"""
+STEPPERS = machine_config()
 
 
 def start(tmp_path, text: str = STEPPERS):

@@ -8,47 +8,10 @@ import pytest
 
 from tapcell.printer import Printer
 
+from machines import machine_config
+
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "virtual-printer.cfg"
 
-MACHINE = """
-[virtual_printer]
-scenario: {scenario}
-seed: {seed}
-
-[printer]
-kinematics: cartesian
-max_velocity: 300
-max_accel: 3000
-max_z_velocity: 15
-max_z_accel: 200
-
-[stepper_x]
-step_pin: PB13
-dir_pin: PB12
-microsteps: 16
-rotation_distance: 40
-endstop_pin: ^PC0
-position_endstop: 0
-position_max: 235
-
-[stepper_y]
-step_pin: PB10
-dir_pin: PB2
-microsteps: 16
-rotation_distance: 40
-endstop_pin: ^PC1
-position_endstop: 0
-position_max: 235
-
-[stepper_z]
-step_pin: PB0
-dir_pin: PC5
-microsteps: 16
-rotation_distance: 8
-endstop_pin: probe:z_virtual_endstop
-position_min: -2
-position_max: 250
-"""
 
 PROBE = """
 [load_cell_probe]
@@ -75,7 +38,7 @@ class PrinterFactory:
 
     def __call__(self, extra: str, *, scenario: str = "clean", seed: int = 1, probe: bool = False,
                  name: str = "printer.cfg") -> Printer:
-        text = MACHINE.format(scenario=scenario, seed=seed)
+        text = machine_config(scenario, seed)
         if probe:
             text += PROBE.format(counts_per_gram=110.0, reference_tare_counts=-38000)
         path = self.tmp_path / name

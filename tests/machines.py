@@ -1,0 +1,48 @@
+"""The virtual machine most tests start from: [virtual_printer], [printer] and the steppers.
+
+Kept in one place so a change to the machine (limits, steppers) is made once; tests add
+the sections they exercise (load cells, probes, meshes) after it.
+"""
+
+from __future__ import annotations
+
+MACHINE_SECTIONS = """\
+[printer]
+kinematics: cartesian
+max_velocity: 300
+max_accel: 3000
+max_z_velocity: 15
+max_z_accel: 200
+
+[stepper_x]
+step_pin: PB13
+dir_pin: PB12
+microsteps: 16
+rotation_distance: 40
+endstop_pin: ^PC0
+position_endstop: 0
+position_max: 235
+
+[stepper_y]
+step_pin: PB10
+dir_pin: PB2
+microsteps: 16
+rotation_distance: 40
+endstop_pin: ^PC1
+position_endstop: 0
+position_max: 235
+
+[stepper_z]
+step_pin: PB0
+dir_pin: PC5
+microsteps: 16
+rotation_distance: 8
+endstop_pin: probe:z_virtual_endstop
+position_min: -2
+position_max: 250
+"""
+
+
+def machine_config(scenario: str = "clean", seed: int = 1) -> str:
+    """Config text of the virtual machine in `scenario` with `seed`."""
+    return f"[virtual_printer]\nscenario: {scenario}\nseed: {seed}\n\n{MACHINE_SECTIONS}"
