@@ -204,3 +204,27 @@ def test_limits_of_the_benchmark_unknown_stiffness_costs_spread():
     # Knowing the stiffness lets hundreds of dwell samples pin the height; fitting it does not.
     assert 0.010 < only_contact < 0.020
     assert 0.06 < with_nuisance < 0.09
+
+
+def test_plot_draws_five_lines_six_named_points_and_z():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from tapcell.tap.plot import POINT_NAMES, draw_tap
+
+    tap = synth_tap(seed=4)
+    analysis = analyze_tap(tap)
+    figure, axes = plt.subplots()
+    draw_tap(axes, tap, analysis, "t")
+    texts = [text.get_text() for text in axes.texts]
+    assert [f"P{k} {name}" for k, name in enumerate(POINT_NAMES)] == texts[:6]
+    assert texts[6] == f"Z = {analysis.z_mm:.4f} mm ± {analysis.z_sigma_um:.2f} µm"
+    fitted = [line for line in axes.lines if line.get_color() == "red" and len(line.get_xdata()) == 2]
+    assert len(fitted) == 5
+    t0 = float(tap.time_s[0])
+    for k, line in enumerate(fitted):  # each line runs from point k to point k+1
+        assert line.get_xdata()[0] + t0 == pytest.approx(analysis.points[k][0])
+        assert line.get_xdata()[1] + t0 == pytest.approx(analysis.points[k + 1][0])
+    plt.close(figure)
