@@ -24,6 +24,7 @@ import numpy as np
 from tapcell.tap import validate
 from tapcell.tap.contact import (ContactFit, fit_contact, fit_contact_at, search_contact, window_edges,
                                  window_mean_hinge)
+from tapcell.tap.hum import MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum, fit_hum, resolvable_hz, spline_knots
 from tapcell.tap.model import (
     TAP_DATA_INSUFFICIENT,
     TAP_MOTION_INVALID,
@@ -448,6 +449,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
     force, outliers = repair_spikes(polarity * force_raw, options.outlier_sigma)
     allowance = UNKNOWN_DELAY_ALLOWANCE_S if timing.estimate_delay else timing.delay_s
     lag_samples = math.ceil((allowance + timing.integration_s) / period_s) + LAG_MARGIN_SAMPLES
+    force, hum = remove_mains_hum(tap, options, time_s, force, motion, timing, lag_samples, period_s)
     dec, ps = decompose(time_s, force, motion, lag_samples, period_s)
     # Second differences of the whole analysed window: hundreds of samples even when the
     # approach holds a dozen; the four kinks of a tap cannot move their median.
@@ -462,6 +464,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         outliers=outliers,
         sensor_integration_s=timing.integration_s,
         noise_sigma_g=noise_g,
+        hum=hum.to_json() if hum else None,
     )
     context = AnalysisContext(tap, motion, timing)
     delay_s = 0.0 if timing.estimate_delay else timing.delay_s
@@ -519,6 +522,63 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
                                              abs(dec.lines[1][0]) / (motion.approach_speed_mm_s * 1000.0))
     result.message = "ok"
     return result, context
+
+
+def mains_frequencies_hz(tap: TapData, options: AnalysisOptions) -> tuple[float, ...] | str | None:
+    """The hum lines to remove: the option, else tap meta `mains_hz` (a number or a list), else none."""
+    if options.mains_hz is not None:
+        return options.mains_hz
+    value = tap.meta.get("mains_hz")
+    values = value if isinstance(value, list | tuple) else [value]
+    if values and all(isinstance(v, int | float) and not isinstance(v, bool) and 0 < v < 10000 for v in values):
+        return tuple(float(v) for v in values)
+    return "auto" if value == "auto" else None
+
+
+def remove_mains_hum(tap: TapData, options: AnalysisOptions, time_s: np.ndarray, force_g: np.ndarray,
+                     motion: Motion, timing: SensorTiming, lag_samples: int, period_s: float
+                     ) -> tuple[np.ndarray, HumFit | None]:
+    """The force with the mains hum fitted and subtracted (tapcell.tap.hum), and the fit.
+
+    The spline under the hum needs knots at the tap's corners. They come from the five-line
+    split: first of the force with the hum still in it, then (once) of the cleaned force, and
+    the hum is refitted from the original force with the better corners. Samples whose
+    conversion window holds a corner are left out of the fit (the sensor rounds a corner over
+    one window, which a linear spline cannot follow); the hum is subtracted from every sample.
+    """
+    wanted = mains_frequencies_hz(tap, options)
+    if wanted is None:
+        return force_g, None
+    duration_s = float(time_s[-1] - time_s[0])
+    candidates = resolvable_hz(MAINS_LINES_HZ if wanted == "auto" else wanted, 1.0 / period_s, duration_s)
+    if not candidates:
+        return force_g, None
+    # One period of the lowest line as the sensor sees it: the grid cannot follow that line.
+    spacing_s = max(1.0 / min(alias_hz(f, 1.0 / period_s) for f in candidates), 2.0 * period_s)
+    cleaned, hum = force_g, None
+    for _ in range(2):
+        dec, _ = decompose(time_s, cleaned, motion, lag_samples, period_s)
+        corners_s = [p[0] for p in dec.points[1:5]] + [motion.home_end_s, motion.pullback_start_s,
+                                                       motion.pullback_cruise_s, motion.pullback_end_s]
+        knots_s = spline_knots(float(time_s[0]), float(time_s[-1]), spacing_s, corners_s)
+        exclude = _corner_windows(time_s, corners_s, timing)
+        if wanted == "auto":
+            hum = detect_mains_hum(time_s, force_g, knots_s, exclude, candidates)
+        else:
+            hum = fit_hum(time_s, force_g, candidates, knots_s, exclude)
+        if hum is None:
+            return force_g, None
+        cleaned = force_g - hum.hum_g
+    return cleaned, hum
+
+
+def _corner_windows(time_s: np.ndarray, corners_s: list[float], timing: SensorTiming) -> np.ndarray:
+    """Samples whose conversion window (one sample of margin either side) holds a corner."""
+    margin_s = timing.sample_period_s
+    start_s = time_s - timing.delay_s - timing.integration_s - margin_s
+    end_s = time_s - timing.delay_s + margin_s
+    corners = np.asarray([c for c in corners_s if math.isfinite(c)])
+    return np.any((start_s[:, None] <= corners[None, :]) & (corners[None, :] <= end_s[:, None]), axis=1)
 
 
 def _polarity(time_s: np.ndarray, force_g: np.ndarray, motion: Motion) -> int:

@@ -104,6 +104,9 @@ class AnalysisOptions:
         force over the pullback is a staircase of these steps; the misfit allows for it.
     contact_onset_um: calibrated width of the gradual contact onset (soft/textured sheet);
         None: a sharp contact, or fitted per tap when fit_contact_onset.
+    mains_hz: mains hum to fit and subtract before the analysis (tapcell.tap.hum): a tuple of
+        frequencies (Hz), "auto" (50 or 60 Hz, whichever the tap clearly holds, else none),
+        or None: tap meta `mains_hz`, else no hum removal.
     """
 
     sensor_delay_s: float | str | None = None
@@ -124,12 +127,13 @@ class AnalysisOptions:
     z_step_um: float | None = None
     fit_contact_onset: bool = False
     outlier_sigma: float = 8.0
+    mains_hz: tuple[float, ...] | str | None = None
 
     # Options that may be reset to None ("from the tap file / default") with `--set key=none`.
     _OPTIONAL = frozenset(
         ("sensor_delay_s", "sensor_integration_s", "trigger_force_g", "pullback_distance_mm", "contact_onset_um",
          "z_step_um",
-         "pullback_speed_mm_s", "decompression_angle")
+         "pullback_speed_mm_s", "decompression_angle", "mains_hz")
     )
     _RANGES = {
         "sensor_delay_s": (0.0, 1.0),
@@ -172,6 +176,8 @@ class AnalysisOptions:
                 raise ValueError(f"option '{key}' = '{text}': expected true or false") from None
         if key in self._OPTIONAL and text.strip().lower() in ("none", ""):
             return None
+        if key == "mains_hz":
+            return _parse_mains_hz(text)
         if key == "sensor_delay_s" and text.strip().lower() == "auto":
             return "auto"
         try:
@@ -186,6 +192,27 @@ class AnalysisOptions:
             bounds = f"between {low:g} and {high:g}" + (" (exclusive)" if exclusive else "")
             raise ValueError(f"option '{key}' = '{text}': must be {bounds}")
         return value
+
+
+MAINS_HZ_RANGE = (1.0, 10000.0)
+
+
+def _parse_mains_hz(text: str) -> tuple[float, ...] | str:
+    """'auto' or comma-separated frequencies in Hz ('50', '50,100')."""
+    if text.strip().lower() == "auto":
+        return "auto"
+    low, high = MAINS_HZ_RANGE
+    frequencies = []
+    for part in text.split(","):
+        try:
+            value = float(part)
+        except ValueError:
+            raise ValueError(f"option 'mains_hz' = '{text}': expected auto, none or frequencies in Hz "
+                             "separated by commas (e.g. 50 or 50,100)") from None
+        if not low <= value <= high:
+            raise ValueError(f"option 'mains_hz' = '{text}': each frequency must be between {low:g} and {high:g} Hz")
+        frequencies.append(value)
+    return tuple(frequencies)
 
 
 def _num(value: float | None, digits: int = 9) -> float | None:
@@ -226,6 +253,7 @@ class TapAnalysis:
     step_sigma_g: float | None = None  # the Z-step staircase in force, as the sensor averages it
     quality_components: dict[str, float] = field(default_factory=dict)
     classifier: str | None = None
+    hum: dict[str, Any] | None = None  # the mains hum removed before the analysis (HumFit.to_json)
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -257,4 +285,5 @@ class TapAnalysis:
             "step_sigma_g": _num(self.step_sigma_g, 4),
             "quality_components": {k: _num(v, 6) for k, v in self.quality_components.items()},
             "classifier": self.classifier,
+            "hum": self.hum,
         }
