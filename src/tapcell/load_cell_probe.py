@@ -46,8 +46,10 @@ from tapcell.probe_options import (
 )
 from tapcell.load_cell_probe_options import (
     TAP_OPTION_SPECS,
+    MIN_ONSET_TAPS,
     TapOptions,
     default_pullback_speed_mm_s,
+    fit_pooled_contact_onset,
     force_beyond_safety_limit_g,
     expected_peak_force_g,
     robust_tare_counts,
@@ -60,9 +62,12 @@ from tapcell.probe_patterns import serpentine_pattern
 from tapcell.tap import AnalysisOptions, Move, TapData, analyze_tap, get_classifier, tap_to_json_dict
 
 ERROR_PREFIX = "Load Cell Probe Error: "
-# Halt to pullback: the sample whose window holds the halt, two more for the dwell line, one
-# margin for read jitter. Fewer leaves the analysis no dwell line (TAP_CHRONOLOGY at 2 samples).
-DWELL_SAMPLES = 4
+# Halt to pullback: the sample whose window holds the halt, then enough for a dwell line that
+# stays between compression and decompression. A stiff sheet needs 4 (2 gives TAP_CHRONOLOGY);
+# a soft sheet relaxes (8 %) and rounds the corners over its 25 µm onset, and with 4 or 6 the
+# split swaps P2/P3 (TAP_CHRONOLOGY on most taps at 5-10 mm/s); 8 holds at 2-10 mm/s on every
+# sheet of the virtual printer. 4 samples more cost 12.5 ms per tap at 320 sps.
+DWELL_SAMPLES = 8
 BREAK_CLEAR_SAMPLES = 4  # after break contact: one conversion window plus margin before free-air samples
 KEEP_LAST_TAPS = 16
 HISTORY_S = 1.0  # samples kept between taps (the tare looks back at most tare_time)
@@ -137,7 +142,15 @@ def analysis_options(options: TapOptions, pullback_speed_mm_s: float) -> Analysi
         max_departure_force=options.max_departure_force,
         max_baseline_force_delta=options.max_baseline_force_delta,
         max_dwell_force_drop=options.max_dwell_force_drop,
+        contact_onset_um=options.contact_onset_um or None,
+        mains_hz=mains_lines_hz(options),
     )
+
+
+def mains_lines_hz(options: TapOptions) -> tuple[float, ...] | str:
+    """The hum the analysis removes: the notch filter's frequencies when configured (the user
+    named the hum), else "auto" (50 or 60 Hz when the tap clearly holds it)."""
+    return tuple(options.notch_filter_frequencies) if options.notch_filter_frequencies else "auto"
 
 
 @dataclass
@@ -213,6 +226,11 @@ class LoadCellProbe:
             return self._design(options)
         except FilterDesignError as exc:
             raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {exc.option.upper()}: {exc}") from None
+
+    def set_contact_onset(self, onset_um: float) -> None:
+        """Use a calibrated contact_onset_um from now on (LOAD_CELL_PROBE_CALIBRATE)."""
+        self.options = dataclasses.replace(self.options, contact_onset_um=onset_um)
+        self.config_settings = self._design(self.options)
 
     # -- the tap ---------------------------------------------------------------------------
     def _require_calibrated(self) -> None:
@@ -442,7 +460,9 @@ class LoadCellProbe:
             probe={"x": float(x), "y": float(y), "speed": speed_mm_s,
                    "pullback_distance": options.pullback_distance_mm,
                    "pullback_speed": settings.pullback_speed_mm_s, "trigger_force": options.trigger_force_g},
-            meta={"source": "tapcell load_cell_probe", "sensor_type": self.cell_options.sensor_type},
+            meta={"source": "tapcell load_cell_probe", "sensor_type": self.cell_options.sensor_type,
+                  "mains_hz": settings.analysis.mains_hz if isinstance(settings.analysis.mains_hz, str)
+                  else list(settings.analysis.mains_hz)},
         )
 
     def _record(self, tap: TapData, analysis, z_mm: float, valid: bool) -> None:
@@ -489,6 +509,42 @@ class LoadCellProbeCommands:
         gcode.register_command("NOZZLE_CLEANUP", self.cmd_NOZZLE_CLEANUP,
                                desc="Tap a serpentine pattern until SAMPLES good taps in a row")
         gcode.register_command("QUERY_ENDSTOPS", self.cmd_QUERY_ENDSTOPS, desc="Report the endstop states")
+        gcode.register_command("LOAD_CELL_PROBE_CALIBRATE", self.cmd_LOAD_CELL_PROBE_CALIBRATE,
+                               desc="Calibrate the probe: CALIBRATION=CONTACT_ONSET [SAMPLES=10]")
+
+    def cmd_LOAD_CELL_PROBE_CALIBRATE(self, gcmd) -> None:
+        """CALIBRATION=CONTACT_ONSET: tap SAMPLES times here, fit the sheet's onset on the pooled taps.
+
+        The fitted width becomes `contact_onset_um` at once and is written by SAVE_CONFIG. Bad
+        taps are retried in place (the fit needs valid ones); the probing options may be
+        overridden as on PROBE.
+        """
+        calibration = gcmd.get("CALIBRATION", "").strip().upper()
+        if calibration != "CONTACT_ONSET":
+            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': CALIBRATION must be CONTACT_ONSET, "
+                             f"not '{calibration}'")
+        samples = gcmd.get_int("SAMPLES", 10, minval=MIN_ONSET_TAPS, maxval=50)
+        device = self.device
+        x_mm, y_mm = self.probe._current_probe_xy()
+        taps = []
+        with self.probe.session(gcmd, force_strategy="retry") as session:
+            session.options = dataclasses.replace(session.options, samples=1)
+            for index in range(samples):
+                result = session.probe_point(x_mm, y_mm)
+                taps.append(device.last_taps[-1].tap)
+                if index < samples - 1:
+                    session._retract(result.z_mm + session.options.z_offset_mm)
+        try:
+            found = fit_pooled_contact_onset(taps, session.tap_settings.analysis)
+        except ValueError as exc:
+            raise ProbeError(f"LOAD_CELL_PROBE_CALIBRATE: {exc}") from None
+        device.set_contact_onset(found.onset_um)
+        device.printer.config.set(device.name, "contact_onset_um", f"{found.onset_um:.2f}")
+        gcmd.respond_info(
+            f"Contact onset calibration ({found.taps} taps at X:{x_mm:.3f} Y:{y_mm:.3f}):\n\n"
+            f"contact_onset_um: {found.onset_um:.2f}\n\n"
+            f"Z reads {found.z_shift_um:+.2f} um against a sharp contact. The SAVE_CONFIG command will update "
+            "the printer config file with the above and restart the printer.")
 
     def cmd_QUERY_ENDSTOPS(self, gcmd) -> None:
         """x/y: the virtual printer's switches at machine 0; z (probe:z_virtual_endstop) is always open.

@@ -6,6 +6,7 @@ Kept apart from the device (`tapcell.load_cell_probe`) so the option table and t
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -37,6 +38,7 @@ class TapOptions:
     max_departure_force: float = 25.0
     max_baseline_force_delta: float = 25.0
     max_dwell_force_drop: float = 75.0
+    contact_onset_um: float = 0.0  # 0: a sharp contact; LOAD_CELL_PROBE_CALIBRATE CALIBRATION=CONTACT_ONSET fits it
 
 
 # Filter options are range-checked by tapcell.filters (the limits depend on the sample rate).
@@ -60,6 +62,7 @@ TAP_OPTION_SPECS: tuple[OptionSpec, ...] = (
     OptionSpec("max_departure_force", "max_departure_force", "float", 25.0, minval=0.0, maxval=100.0),
     OptionSpec("max_baseline_force_delta", "max_baseline_force_delta", "float", 25.0, minval=0.0, maxval=100.0),
     OptionSpec("max_dwell_force_drop", "max_dwell_force_drop", "float", 75.0, minval=0.0, maxval=100.0),
+    OptionSpec("contact_onset_um", "contact_onset_um", "float", 0.0, minval=0.0, maxval=100.0),
 )
 
 
@@ -171,3 +174,70 @@ def too_fast_for_analysis(force_before_trigger_g: float, force_at_trigger_g: flo
         why += (f", more than 3/4 of the {pullback_distance_mm:g} mm pullback, so it leaves the bed late in the "
                 "pullback or not at all")
     return why + f"; probe at {suggested_mm_s:.1f} mm/s or slower (or use a faster sensor)"
+
+
+# Onset widths tried by the pooled contact-onset calibration (µm): fine where sheets are
+# (smooth PEI ~2, textured ~8), coarser up to soft sheets and beyond.
+ONSET_GRID_UM = (0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 15.0, 18.0, 22.0, 26.0, 30.0, 35.0, 40.0)
+MIN_ONSET_TAPS = 3
+
+
+@dataclass(frozen=True)
+class OnsetCalibration:
+    """Result of the pooled contact-onset fit."""
+
+    onset_um: float
+    taps: int  # valid taps pooled
+    misfit_g2: tuple[float, ...]  # pooled misfit (Σ near-contact residual variance, g²) per grid onset
+    z_shift_um: float  # mean change of Z between a sharp contact and the fitted onset
+
+
+def fit_pooled_contact_onset(taps, options, grid_um=ONSET_GRID_UM) -> OnsetCalibration:
+    """The contact-onset width that best explains all the taps together.
+
+    Each tap keeps its own contact height, stiffness and baseline; the onset width is shared.
+    For each width on the grid every tap is analysed with that onset fixed (a global contact
+    search each), and the near-contact residual variances are summed; the minimum is refined
+    by the parabola through it and its neighbours. Per tap, onset and contact height trade off
+    (fitting both costs several times the Z spread); pooled over taps the onset is stable.
+    `taps`: TapData recorded by the probe; `options`: its AnalysisOptions. ValueError when
+    fewer than MIN_ONSET_TAPS taps are valid at every grid width.
+    """
+    from tapcell.tap import analyze_tap  # the analysis is heavy to import; only this needs it
+
+    grid = np.asarray(grid_um, dtype=float)
+    base = dataclasses.replace(options, fit_contact_onset=False, tap_classifier="empty")
+    variances = np.full((len(grid), len(taps)), np.nan)
+    z_um = np.full((len(grid), len(taps)), np.nan)
+    for g, onset_um in enumerate(grid):
+        trial = dataclasses.replace(base, contact_onset_um=float(onset_um))
+        for i, tap in enumerate(taps):
+            result = analyze_tap(tap, trial)
+            if result.valid and result.fit_residual_sigma_g is not None and result.z_mm is not None:
+                variances[g, i] = result.fit_residual_sigma_g ** 2
+                z_um[g, i] = result.z_mm * 1000.0
+    usable = np.all(np.isfinite(variances), axis=0)
+    if np.count_nonzero(usable) < MIN_ONSET_TAPS:
+        raise ValueError(f"only {int(np.count_nonzero(usable))} taps could be analysed at every onset width; "
+                         f"at least {MIN_ONSET_TAPS} are needed")
+    misfit = variances[:, usable].sum(axis=1)
+    best = int(np.argmin(misfit))
+    onset_um = float(grid[best])
+    if 0 < best < len(grid) - 1:
+        onset_um = _parabola_minimum(grid[best - 1:best + 2], misfit[best - 1:best + 2])
+    z_sharp = z_um[0, usable]
+    z_best = z_um[best, usable]
+    return OnsetCalibration(onset_um=round(onset_um, 2), taps=int(np.count_nonzero(usable)),
+                            misfit_g2=tuple(float(m) for m in misfit),
+                            z_shift_um=float(np.mean(z_best - z_sharp)))
+
+
+def _parabola_minimum(x: np.ndarray, y: np.ndarray) -> float:
+    """Vertex of the parabola through three points (x sorted), clamped to their range."""
+    (x0, x1, x2), (y0, y1, y2) = x, y
+    denominator = (x0 - x1) * (x0 - x2) * (x1 - x2)
+    a = (x2 * (y1 - y0) + x1 * (y0 - y2) + x0 * (y2 - y1)) / denominator
+    b = (x2 * x2 * (y0 - y1) + x1 * x1 * (y2 - y0) + x0 * x0 * (y1 - y2)) / denominator
+    if a <= 0:
+        return float(x1)
+    return float(np.clip(-b / (2 * a), x0, x2))

@@ -562,12 +562,15 @@ def remove_mains_hum(tap: TapData, options: AnalysisOptions, time_s: np.ndarray,
                                                        motion.pullback_cruise_s, motion.pullback_end_s]
         knots_s = spline_knots(float(time_s[0]), float(time_s[-1]), spacing_s, corners_s)
         exclude = _corner_windows(time_s, corners_s, timing)
-        if wanted == "auto":
+        if wanted == "auto" and hum is None:
             hum = detect_mains_hum(time_s, force_g, knots_s, exclude, candidates)
+            if hum is None:
+                return force_g, None
         else:
-            hum = fit_hum(time_s, force_g, candidates, knots_s, exclude)
-        if hum is None:
-            return force_g, None
+            # Refitted with the corners found on the cleaned force (auto: the line it detected).
+            hum = fit_hum(time_s, force_g, hum.frequencies_hz if hum else candidates, knots_s, exclude)
+            if hum is None:
+                return force_g, None
         cleaned = force_g - hum.hum_g
     return cleaned, hum
 

@@ -126,9 +126,17 @@ def sinusoid_basis(time_s: np.ndarray, frequencies_hz) -> np.ndarray:
 
 
 def _solve(design: np.ndarray, force_g: np.ndarray, use: np.ndarray) -> tuple[np.ndarray, float]:
-    """Least-squares coefficients over the used rows, and the residual sum of squares there."""
-    coefficients, *_ = np.linalg.lstsq(design[use], force_g[use], rcond=None)
-    residual = force_g[use] - design[use] @ coefficients
+    """Least-squares coefficients over the used rows, and the residual sum of squares there.
+
+    Normal equations (a few dozen columns, well conditioned: hat functions and sinusoids),
+    ten times faster than an SVD. A column with no used sample (a knot whose neighbourhood
+    was excluded) would make them singular: a tiny ridge sets its coefficient to 0 instead.
+    """
+    rows = design[use]
+    gram = rows.T @ rows
+    ridge = 1e-10 * max(float(np.trace(gram)) / max(len(gram), 1), 1e-300)
+    coefficients = np.linalg.solve(gram + ridge * np.eye(len(gram)), rows.T @ force_g[use])
+    residual = force_g[use] - rows @ coefficients
     return coefficients, float(residual @ residual)
 
 
