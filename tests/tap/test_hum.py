@@ -1,0 +1,130 @@
+"""Mains hum removal (tapcell.tap.hum and the analysis hook)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from tapcell.tap import AnalysisOptions, analyze_tap
+from tapcell.tap.hum import (alias_hz, detect_mains_hum, fit_hum, hat_basis, notch_zero_phase, resolvable_hz,
+                             spline_knots)
+from tapcell.tap.sim_taps import SimTapSpec, record_sim_tap
+from tapcell.tap.synth import synth_tap
+
+RATE_SPS = 320.0
+
+
+def piecewise_tap(time_s: np.ndarray) -> tuple[np.ndarray, list[float]]:
+    """A noise-free tap made of straight lines: flat, compression, dwell, decompression, flat."""
+    corners_s = [0.20, 0.23, 0.26, 0.40]
+    force_g = np.interp(time_s, [0.0, *corners_s, 1.0], [0.0, 0.0, 150.0, 140.0, 0.0, 0.0])
+    return force_g, corners_s
+
+
+def hum(time_s: np.ndarray, amplitude_g: float, frequency_hz: float, phase_rad: float) -> np.ndarray:
+    return amplitude_g * np.sin(2 * np.pi * frequency_hz * (time_s - time_s[0]) + phase_rad)
+
+
+def test_hat_basis_reproduces_piecewise_linear_force_exactly():
+    time_s = np.arange(320) / RATE_SPS
+    force_g, corners_s = piecewise_tap(time_s)
+    knots_s = spline_knots(time_s[0], time_s[-1], 0.02, corners_s)
+    basis = hat_basis(time_s, knots_s)
+    coefficients, _ = piecewise_tap(knots_s)  # the force at each knot
+    assert np.max(np.abs(basis @ coefficients - force_g)) < 1e-9
+    assert np.allclose(basis.sum(axis=1), 1.0)
+
+
+def test_spline_knots_merge_corners_near_the_grid():
+    knots = spline_knots(0.0, 0.1, 0.02, [0.041, 0.07, 0.5])
+    # 0.041 replaces the grid knot 0.04; 0.07 is added; 0.5 is outside.
+    assert knots.tolist() == pytest.approx([0.0, 0.02, 0.041, 0.06, 0.07, 0.08, 0.1])
+
+
+def test_fit_hum_removes_hum_exactly_from_a_noise_free_tap():
+    time_s = 1000.0 + np.arange(320) / RATE_SPS
+    force_g, corners_s = piecewise_tap(time_s - 1000.0)
+    knots_s = spline_knots(time_s[0], time_s[-1], 1 / 50, [1000.0 + c for c in corners_s])
+    fit = fit_hum(time_s, force_g + hum(time_s, 13.6, 50.0, 0.7), (50.0,), knots_s)
+    assert fit.amplitudes_g[0] == pytest.approx(13.6, abs=1e-6)
+    assert fit.phases_rad[0] == pytest.approx(0.7, abs=1e-6)
+    assert np.max(np.abs(fit.hum_g - hum(time_s, 13.6, 50.0, 0.7))) < 1e-6
+
+
+def test_detect_picks_the_line_that_is_there_and_nothing_in_plain_noise():
+    time_s = np.arange(320) / RATE_SPS
+    force_g, corners_s = piecewise_tap(time_s)
+    noise_g = np.random.default_rng(3).normal(0.0, 1.0, len(time_s))
+    knots_s = spline_knots(time_s[0], time_s[-1], 1 / 50, corners_s)
+    found = detect_mains_hum(time_s, force_g + noise_g + hum(time_s, 3.0, 60.0, 1.0), knots_s)
+    assert found.frequencies_hz == (60.0,)
+    assert found.amplitudes_g[0] == pytest.approx(3.0, abs=0.3)
+    assert detect_mains_hum(time_s, force_g + noise_g, knots_s) is None
+
+
+def test_frequencies_that_alias_to_dc_or_nyquist_are_left_out():
+    assert alias_hz(50.0, 80.0) == pytest.approx(30.0)
+    assert alias_hz(60.0, 320.0) == pytest.approx(60.0)
+    assert resolvable_hz((50.0, 60.0), 80.0, 1.0) == (50.0, 60.0)
+    assert resolvable_hz((50.0, 60.0), 100.0, 1.0) == (60.0,)  # 50 Hz sits on Nyquist
+    assert resolvable_hz((50.0, 60.0), 10.0, 1.0) == ()  # both alias to 0 Hz
+
+
+def test_zero_phase_notch_removes_a_steady_hum():
+    time_s = np.arange(640) / RATE_SPS
+    filtered = notch_zero_phase(5.0 + hum(time_s, 13.6, 50.0, 0.3), RATE_SPS, (50.0,), 5.0)
+    middle = filtered[160:480]
+    assert np.max(np.abs(middle - 5.0)) < 0.05
+
+
+def test_mains_hz_option_parsing():
+    options = AnalysisOptions()
+    assert options.with_overrides({"mains_hz": "auto"}).mains_hz == "auto"
+    assert options.with_overrides({"mains_hz": "50,100"}).mains_hz == (50.0, 100.0)
+    assert options.with_overrides({"mains_hz": "none"}).mains_hz is None
+    with pytest.raises(ValueError, match="option 'mains_hz' = 'fifty': expected auto, none or frequencies"):
+        options.with_overrides({"mains_hz": "fifty"})
+    with pytest.raises(ValueError, match="each frequency must be between 1 and 10000 Hz"):
+        options.with_overrides({"mains_hz": "0"})
+
+
+def test_synthetic_tap_with_hum_gives_the_hum_free_z():
+    clean = synth_tap(noise_g=0.0, sample_rate_sps=RATE_SPS, approach_speed_mm_s=2.0)
+    humming = dataclasses.replace(clean, force_g=clean.force_g + hum(clean.time_s, 13.6, 50.0, 2.0))
+    reference = analyze_tap(clean)
+    removed = analyze_tap(humming, AnalysisOptions(mains_hz=(50.0,)))
+    kept = analyze_tap(humming)
+    assert reference.valid and removed.valid
+    assert removed.hum["amplitudes_g"][0] == pytest.approx(13.6, abs=0.1)
+    assert (removed.z_mm - reference.z_mm) * 1000 == pytest.approx(0.0, abs=0.05)
+    assert (removed.z_mm - clean.truth["z_contact"]) * 1000 == pytest.approx(0.0, abs=0.1)
+    # Left in, the hum moves Z or breaks the tap.
+    assert not kept.valid or abs(kept.z_mm - reference.z_mm) * 1000 > 0.2
+
+
+# Valid taps out of 5 with the hum left in (TAP_CHRONOLOGY, LOW_TAP_QUALITY at 2 mm/s).
+@pytest.mark.parametrize("speed_mm_s, valid_with_hum", [(2.0, 2), (10.0, 5)])
+def test_virtual_printer_noisy_mains_taps_are_valid_with_hum_removed(speed_mm_s, valid_with_hum):
+    errors_um, valid_without = [], 0
+    for seed in range(1, 6):
+        tap = record_sim_tap(SimTapSpec("noisy-mains", speed_mm_s, seed, pullback_distance_mm=0.15, dwell_samples=8))
+        result = analyze_tap(tap, AnalysisOptions(mains_hz="auto"))
+        assert result.valid, result.message
+        # 1500 counts at 110 counts/g, averaged over a 1/320 s window: 13.1 g.
+        assert result.hum["frequencies_hz"] == [50.0]
+        assert result.hum["amplitudes_g"][0] == pytest.approx(13.1, abs=0.5)
+        errors_um.append((result.z_mm - tap.truth["z_contact"]) * 1000)
+        valid_without += analyze_tap(tap).valid
+    # Same bias as the clean scenario (the 2 µm onset, -1.2...-1.5 µm): the removal adds none.
+    assert -1.8 < np.mean(errors_um) < -0.9
+    assert np.std(errors_um) < 0.35
+    assert valid_without == valid_with_hum
+
+
+def test_clean_virtual_printer_tap_detects_no_hum():
+    tap = record_sim_tap(SimTapSpec("clean", 5.0, 1, pullback_distance_mm=0.15, dwell_samples=8))
+    auto = analyze_tap(tap, AnalysisOptions(mains_hz="auto"))
+    assert auto.hum is None
+    assert auto.z_mm == analyze_tap(tap).z_mm
