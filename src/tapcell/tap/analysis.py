@@ -23,7 +23,7 @@ import numpy as np
 
 from tapcell.tap import validate
 from tapcell.tap.contact import (ContactFit, fit_contact, fit_contact_at, search_contact, window_edges,
-                                 window_mean_hinge)
+                                 window_mean_and_slope)
 from tapcell.tap.hum import MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum, fit_hum, resolvable_hz, spline_knots
 from tapcell.tap.model import (
     TAP_DATA_INSUFFICIENT,
@@ -35,7 +35,7 @@ from tapcell.tap.model import (
 )
 from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.validate import TapInvalid
-from tapcell.tap.segments import PrefixSums, best_five_segments, prefix_sums, segment_line
+from tapcell.tap.segments import PrefixSums, best_five_segments, prefix_sums, segment_lines
 
 MIN_SAMPLES = 12
 # Extra samples the force may keep changing after the motion stopped/started (ringing, filters).
@@ -124,9 +124,12 @@ def noise_sigma_g(force_g: np.ndarray) -> float:
     """White-noise sigma from the median absolute second difference (lines and spikes do not inflate it)."""
     if len(force_g) < 3:
         return 0.0
-    off_mid = force_g[1:-1] - 0.5 * (force_g[:-2] + force_g[2:])
+    return _noise_sigma_of(np.abs(force_g[1:-1] - 0.5 * (force_g[:-2] + force_g[2:])))
+
+
+def _noise_sigma_of(abs_off_mid: np.ndarray) -> float:
     # off_mid of white noise has sigma sqrt(1.5) * noise sigma.
-    return 1.4826 * median(np.abs(off_mid)) / math.sqrt(1.5)
+    return 1.4826 * median(abs_off_mid) / math.sqrt(1.5)
 
 
 def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarray, int]:
@@ -139,12 +142,12 @@ def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarr
     """
     if len(force_g) < 5:
         return force_g, 0
-    off_mid = force_g[1:-1] - 0.5 * (force_g[:-2] + force_g[2:])
+    off_mid = np.abs(force_g[1:-1] - 0.5 * (force_g[:-2] + force_g[2:]))
     neighbour_gap = np.abs(force_g[2:] - force_g[:-2])
-    noise_sigma = noise_sigma_g(force_g)
-    scale = float(np.ptp(force_g))  # only sets a floor far below any real spike
+    noise_sigma = _noise_sigma_of(off_mid)
+    scale = float(force_g.max() - force_g.min())  # only sets a floor far below any real spike
     threshold = max(threshold_sigma * noise_sigma, 1e-6 * scale, 1e-9)
-    spikes = np.flatnonzero((np.abs(off_mid) > threshold) & (np.abs(off_mid) > 2.0 * neighbour_gap)) + 1
+    spikes = np.flatnonzero((off_mid > threshold) & (off_mid > 2.0 * neighbour_gap)) + 1
     if len(spikes) == 0:
         return force_g, 0
     repaired = force_g.copy()
@@ -197,19 +200,18 @@ def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_sampl
     m = len(t)
     home_end, pull_start, pull_cruise = _indices(t, motion.home_end_s, motion.pullback_start_s,
                                                  motion.pullback_cruise_s)
-    peak = np.arange(max(2, home_end - 1), min(pull_start, home_end + lag_samples) + 1)
-    release = np.arange(max(pull_start - 1, 0), min(m - 2, max(pull_start, pull_cruise) + lag_samples) + 1)
+    peak = range(max(2, home_end - 1), min(pull_start, home_end + lag_samples) + 1)
+    release = range(max(pull_start - 1, 0), min(m - 2, max(pull_start, pull_cruise) + lag_samples) + 1)
     if len(peak) == 0 or len(release) == 0:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, "no samples between the halt and the pullback")
-    contact = np.arange(2, peak[-1] - 1)
-    breaking = np.arange(release[0] + 2, m - 1)
+    contact = range(2, peak[-1] - 1)
+    breaking = range(release[0] + 2, m - 1)
     if len(contact) == 0 or len(breaking) == 0:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, f"too few samples around the tap ({m} in the analysis window)")
     bounds = best_five_segments(ps, 0, m, contact, peak, release, breaking)
     if bounds is None:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, "too few samples to fit five lines (each needs 2)")
-    edges = (0, *bounds, m)
-    lines = [segment_line(ps, edges[k], edges[k + 1]) for k in range(5)]
+    lines = segment_lines(ps, [0, *bounds, m])
     points = recompute_points(lines, float(t[0]), float(t[-1]))
     return Decomposition(start, stop, bounds, lines, points), ps
 
@@ -297,22 +299,21 @@ def fit_pullback(window: ModelWindow, motion: Motion, timing: SensorTiming, dela
         refit = _fit_with_onset(y_fit[keep], x_min[keep], span[keep], fit.contact_um, spacing_um, options)
         if refit:
             fit = refit[0]
-    return fit, near_contact_sigma_g(y_fit, x_min, span, fit, spacing_um)
+            residual = _residual(y_fit, x_min, span, fit)  # over every sample, dropped ones too
+    return fit, near_contact_sigma_g(residual, x_min, fit, spacing_um)
 
 
-def near_contact_sigma_g(force_g, x_min_um, span_um, fit: ContactFit, spacing_um: float) -> float:
+def near_contact_sigma_g(residual_g: np.ndarray, x_min_um: np.ndarray, fit: ContactFit, spacing_um: float) -> float:
     """Residual sigma of the fit over the samples that set Z: in contact, and up to
     MISFIT_REACH_SAMPLES past break contact (a soft ooze layer or a gradual release shows there).
 
     Samples further into the departure are left out: a strand pulling on the nozzle after it
     left the bed does not move Z, and the spec's departure component judges it.
     """
-    near = x_min_um < fit.contact_um + MISFIT_REACH_SAMPLES * spacing_um
-    count = int(np.count_nonzero(near))
-    if count <= 3:
+    near = residual_g[x_min_um < fit.contact_um + MISFIT_REACH_SAMPLES * spacing_um]
+    if len(near) <= 3:
         return fit.residual_sigma_g
-    residual = _residual(force_g[near], x_min_um[near], x_min_um[near] + span_um[near], fit)
-    return math.sqrt(float(residual @ residual) / (count - 3))
+    return math.sqrt(float(near @ near) / (len(near) - 3))
 
 
 def _fit_fixed_onset(y, x_min, span, contact0_um: float, spacing_um: float, onset_um: float
@@ -359,14 +360,14 @@ def _fit_with_onset(y, x_min, span, contact0_um: float, spacing_um: float, optio
     x_max = x_min + span
     soft = fit_contact(y, x_min, x_max, start.contact_um, start.stiffness_g_um, start.baseline_g, start.onset_um, True)
     if soft is None or sharp is None:
-        return (soft, _residual(y, x_min, x_max, soft)) if soft else sharp
+        return (soft, _residual(y, x_min, span, soft)) if soft else sharp
     # Keep the onset only when it explains the data clearly better (likelihood-ratio test).
     improvement = (sharp[0].rss_g2 - soft.rss_g2) / soft.residual_sigma_g ** 2 if soft.residual_sigma_g > 0 else np.inf
-    return (soft, _residual(y, x_min, x_max, soft)) if improvement > ONSET_MIN_CHI2 else sharp
+    return (soft, _residual(y, x_min, span, soft)) if improvement > ONSET_MIN_CHI2 else sharp
 
 
-def _residual(y, x_lo, x_hi, fit: ContactFit) -> np.ndarray:
-    mean, _, _ = window_mean_hinge(fit.contact_um, fit.onset_um, x_lo, x_hi)
+def _residual(y, x_min_um, span_um, fit: ContactFit) -> np.ndarray:
+    mean, _ = window_mean_and_slope(fit.contact_um, fit.onset_um, x_min_um, span_um, slope=False)
     return y - (fit.baseline_g + fit.stiffness_g_um * mean)
 
 
@@ -427,9 +428,9 @@ def _check_samples(tap: TapData) -> tuple[np.ndarray, np.ndarray]:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, f"time and force differ in shape ({t.shape} vs {f.shape})")
     if len(t) < MIN_SAMPLES:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, f"{len(t)} samples, at least {MIN_SAMPLES} needed")
-    if not (np.all(np.isfinite(t)) and np.all(np.isfinite(f))):
+    if not (np.isfinite(t).all() and np.isfinite(f).all()):
         raise TapInvalid(TAP_DATA_INSUFFICIENT, "time or force holds NaN or infinity")
-    if np.any(np.diff(t) <= 0):
+    if (t[1:] <= t[:-1]).any():
         raise TapInvalid(TAP_DATA_INSUFFICIENT, "sample times are not strictly increasing")
     return t, f
 

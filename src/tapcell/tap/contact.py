@@ -219,7 +219,8 @@ class _ProfileData:
     Samples pressed for every candidate (their whole window at least an onset below the lowest
     candidate) have mean h = c - x' with x' = window middle + onset/2, so they enter the sums only
     through five totals; free samples (window above the highest candidate) only through the
-    force totals. s_my must be positive (a positive stiffness) for a candidate to count. Only the few samples in between are evaluated per candidate.
+    force totals. s_my must be positive (a positive stiffness) for a candidate to count. Only the
+    few samples in between are evaluated per candidate.
     """
 
     count: int
@@ -230,8 +231,8 @@ class _ProfileData:
     pressed_xx: float
     pressed_y: float
     pressed_xy: float
-    near_ones_y: np.ndarray  # (n, 2): a column of ones, the forces
-    near_x_min: np.ndarray
+    near_y: np.ndarray  # forces of the samples in between
+    near_x_min: np.ndarray  # (n, 1) columns: one row per sample, candidates along the rows
     near_span: np.ndarray
     onset_um: float
 
@@ -239,21 +240,21 @@ class _ProfileData:
         """Residual sum of squares per candidate, stiffness and baseline solved in closed form (inf
         where the stiffness would not be positive)."""
         c = contacts_um
-        mean, _ = window_mean_and_slope(c[:, None], self.onset_um, self.near_x_min, self.near_span, slope=False)
-        sum_m, sum_my = (mean @ self.near_ones_y).T
-        sum_m = sum_m + self.pressed * c - self.pressed_x
-        sum_mm = np.einsum("ij,ij->i", mean, mean) + (self.pressed * c - 2 * self.pressed_x) * c + self.pressed_xx
+        # (samples, candidates): the candidates run along the long, contiguous axis.
+        mean, _ = window_mean_and_slope(c, self.onset_um, self.near_x_min, self.near_span, slope=False)
+        pressed_m = self.pressed * c - self.pressed_x  # the pressed samples' sum of mean h
+        sum_m = mean.sum(axis=0) + pressed_m
+        sum_mm = np.einsum("ij,ij->j", mean, mean) + (pressed_m - self.pressed_x) * c + self.pressed_xx
         s_mm = sum_mm - sum_m * sum_m / self.count
-        s_my = sum_my + c * self.pressed_y - self.pressed_xy - sum_m * self.mean_y
-        with np.errstate(divide="ignore", invalid="ignore"):
-            explained = np.where(s_my > 0, s_my * s_my / s_mm, -np.inf)
+        s_my = self.near_y @ mean + c * self.pressed_y - self.pressed_xy - sum_m * self.mean_y
+        # A stiffness <= 0 explains nothing (-inf); s_mm is then never divided (it may be 0).
+        explained = np.divide(s_my * s_my, s_mm, out=np.full(len(c), -np.inf), where=s_my > 0)
         return self.s_yy - explained
 
 
 def _profile_data(force_g, x_min_um, span_um, low_um, high_um, onset_um) -> _ProfileData:
-    x_max_um = x_min_um + span_um
-    pressed = x_max_um + onset_um <= low_um
-    near = ~pressed & (x_min_um < high_um)
+    pressed = x_min_um + span_um + onset_um <= low_um
+    near = (x_min_um < high_um) & ~pressed
     x_pressed = x_min_um[pressed] + 0.5 * (span_um[pressed] + onset_um)
     y_pressed = force_g[pressed]
     sum_y = float(force_g.sum())
@@ -262,8 +263,7 @@ def _profile_data(force_g, x_min_um, span_um, low_um, high_um, onset_um) -> _Pro
         count=count, mean_y=sum_y / count, s_yy=float(force_g @ force_g) - sum_y * sum_y / count,
         pressed=len(x_pressed), pressed_x=float(x_pressed.sum()), pressed_xx=float(x_pressed @ x_pressed),
         pressed_y=float(y_pressed.sum()), pressed_xy=float(x_pressed @ y_pressed),
-        near_ones_y=np.stack((np.ones(np.count_nonzero(near)), force_g[near]), axis=1),
-        near_x_min=x_min_um[near], near_span=span_um[near], onset_um=onset_um)
+        near_y=force_g[near], near_x_min=x_min_um[near, None], near_span=span_um[near, None], onset_um=onset_um)
 
 
 # Candidate contact heights per sample spacing: fine enough that each interval between the

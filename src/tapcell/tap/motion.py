@@ -48,14 +48,16 @@ class Motion:
             return np.interp(t_s, self.trace_time_s, self.trace_z_mm)
         table = self._move_table
         index = np.maximum(np.searchsorted(table[0], t_s, side="right") - 1, 0)
-        start, duration, start_v, accel, start_z, z_r = table[:, index]
+        start, duration, start_v, accel, start_z, z_r = np.take(table, index, axis=1)
         tau_s = np.minimum(np.maximum(t_s - start, 0.0), duration)
         return start_z + z_r * (start_v + 0.5 * accel * tau_s) * tau_s
 
     @functools.cached_property
     def _move_table(self) -> np.ndarray:
         """Rows: start time, duration, start speed, acceleration, start Z, direction; one column per move."""
-        return np.array([(m.print_time, m.move_t, m.start_v, m.accel, m.start_z, m.z_r) for m in self.moves]).T
+        return np.array([[m.print_time for m in self.moves], [m.move_t for m in self.moves],
+                         [m.start_v for m in self.moves], [m.accel for m in self.moves],
+                         [m.start_z for m in self.moves], [m.z_r for m in self.moves]], dtype=float)
 
 
 def motion_from_moves(moves: list[Move]) -> Motion:

@@ -16,35 +16,44 @@ MIN_SEGMENT_SAMPLES = 2
 
 @dataclass
 class PrefixSums:
-    """Running sums of t, f, t², t·f, f² (rows of `sums`, a leading 0 column) over re-centred samples."""
+    """Running sums of 1, t, f, t², t·f, f² (rows of `sums`, a leading 0 column) over re-centred samples.
+
+    The first row counts samples, so the difference of two columns is everything a line over
+    that range needs, its sample count included.
+    """
 
     t_ref_s: float
     f_ref_g: float
-    sums: np.ndarray  # (5, n + 1)
+    sums: np.ndarray  # (6, n + 1)
 
     def segment_sums(self, i: int, j: int) -> list[float]:
         """[n, Σt, Σf, Σt², Σt·f, Σf²] over [i, j) as plain floats."""
-        return [float(j - i), *(self.sums[:, j] - self.sums[:, i]).tolist()]
+        return (self.sums[:, j] - self.sums[:, i]).tolist()
 
 
 def prefix_sums(time_s: np.ndarray, force_g: np.ndarray) -> PrefixSums:
-    t_ref = float(time_s[len(time_s) // 2])
-    f_ref = float(force_g.mean())
-    t = time_s - t_ref
-    f = force_g - f_ref
-    sums = np.zeros((5, len(t) + 1))
-    np.cumsum(np.stack((t, f, t * t, t * f, f * f)), axis=1, out=sums[:, 1:])
+    n = len(time_s)
+    t_ref = float(time_s[n // 2])
+    f_ref = float(force_g.sum()) / n  # the mean, without np.mean's call overhead
+    sums = np.empty((6, n + 1))
+    sums[0] = np.arange(n + 1)  # the running count needs no summing
+    sums[1:, 0] = 0.0
+    t, f, tt, tf, ff = sums[1:, 1:]
+    np.subtract(time_s, t_ref, out=t)
+    np.subtract(force_g, f_ref, out=f)
+    np.multiply(t, t, out=tt)
+    np.multiply(t, f, out=tf)
+    np.multiply(f, f, out=ff)
+    np.cumsum(sums[1:, 1:], axis=1, out=sums[1:, 1:])
     return PrefixSums(t_ref, f_ref, sums)
 
 
-def segment_sse(ps: PrefixSums, i: np.ndarray, j: np.ndarray) -> np.ndarray:
-    """Residual sum of squares of the best line over [i, j) (index arrays of one shape)."""
+def _sse_of_sums(sums: np.ndarray) -> np.ndarray:
+    """Residual sum of squares of the best line from segment sums (rows n, Σt, Σf, Σt², Σtf, Σf²)."""
+    n, st, sf, stt, stf, sff = sums
     # Empty or reversed ranges give inf/NaN here; the callers mask them out.
     with np.errstate(divide="ignore", invalid="ignore"):
-        sums = np.take(ps.sums, j, axis=1)  # take + in-place: several times faster than fancy indexing
-        sums -= np.take(ps.sums, i, axis=1)
-        st, sf, stt, stf, sff = sums
-        inv_n = 1.0 / (j - i)
+        inv_n = 1.0 / n
         t_mean = st * inv_n
         sxx = stt - t_mean * st
         sxy = stf - t_mean * sf
@@ -52,9 +61,15 @@ def segment_sse(ps: PrefixSums, i: np.ndarray, j: np.ndarray) -> np.ndarray:
         return np.maximum(sff - sf * sf * inv_n - explained, 0.0)
 
 
-def segment_line(ps: PrefixSums, i: int, j: int) -> tuple[float, float]:
-    """(slope g/s, intercept g at t = 0 of the original clock) of the best line over [i, j)."""
-    n, st, sf, stt, stf, _ = ps.segment_sums(i, j)
+def segment_sse(ps: PrefixSums, i: np.ndarray, j: np.ndarray) -> np.ndarray:
+    """Residual sum of squares of the best line over [i, j) (index arrays of one shape)."""
+    sums = np.take(ps.sums, j, axis=1)  # take + in-place: several times faster than fancy indexing
+    sums -= np.take(ps.sums, i, axis=1)
+    return _sse_of_sums(sums)
+
+
+def _line_of_sums(ps: PrefixSums, sums: list[float]) -> tuple[float, float]:
+    n, st, sf, stt, stf, _ = sums
     sxx = stt - st * st / n
     sxy = stf - st * sf / n
     slope = sxy / sxx if sxx > 0 else 0.0
@@ -63,33 +78,54 @@ def segment_line(ps: PrefixSums, i: int, j: int) -> tuple[float, float]:
     return float(slope), float(intercept_centred + ps.f_ref_g - slope * ps.t_ref_s)
 
 
+def segment_line(ps: PrefixSums, i: int, j: int) -> tuple[float, float]:
+    """(slope g/s, intercept g at t = 0 of the original clock) of the best line over [i, j)."""
+    return _line_of_sums(ps, ps.segment_sums(i, j))
+
+
+def segment_lines(ps: PrefixSums, edges: list[int]) -> list[tuple[float, float]]:
+    """The lines over consecutive segments [edges[k], edges[k + 1]) (one numpy call for all)."""
+    sums = (ps.sums[:, edges[1:]] - ps.sums[:, edges[:-1]]).T.tolist()
+    return [_line_of_sums(ps, segment) for segment in sums]
+
+
 def best_five_segments(
     ps: PrefixSums,
     start: int,
     stop: int,
-    contact: np.ndarray,
-    peak: np.ndarray,
-    release: np.ndarray,
-    breaking: np.ndarray,
+    contact: range,
+    peak: range,
+    release: range,
+    breaking: range,
 ) -> tuple[int, int, int, int] | None:
     """Globally optimal boundaries (contact, peak, release, break) of five lines over [start, stop).
 
-    Each boundary is searched exhaustively over its candidate indices; the total residual
-    of all five lines is minimised jointly (the dwell line links the two halves), so the
-    result is the exact optimum over the candidates, not a sequence of greedy elbows.
+    Each boundary is searched exhaustively over its candidate indices (contiguous ranges); the
+    total residual of all five lines is minimised jointly (the dwell line links the two halves),
+    so the result is the exact optimum over the candidates, not a sequence of greedy elbows.
     Returns None when no arrangement gives every line two samples.
 
     Every candidate segment of every line is costed in one vectorised call:
     approach [start, contact), compression [contact, peak), dwell [peak, release),
-    decompression [release, break), departure [break, stop).
+    decompression [release, break), departure [break, stop). The sums of a block of segments
+    (first boundary × second boundary) are one broadcast difference of two column slices.
     """
     c, p, r, b = len(contact), len(peak), len(release), len(breaking)
-    firsts = np.concatenate((np.full(c, start), np.repeat(contact, p), np.repeat(peak, r), np.repeat(release, b),
-                             breaking))
-    lasts = np.concatenate((contact, np.broadcast_to(peak, (c, p)).ravel(), np.broadcast_to(release, (p, r)).ravel(),
-                            np.broadcast_to(breaking, (r, b)).ravel(), np.full(b, stop)))
-    sse = np.where(lasts - firsts >= MIN_SEGMENT_SAMPLES, segment_sse(ps, firsts, lasts), np.inf)
-    offsets = np.cumsum((c, c * p, p * r, r * b))
+    columns = ps.sums
+    at_contact = columns[:, contact.start:contact.stop]
+    at_peak = columns[:, peak.start:peak.stop]
+    at_release = columns[:, release.start:release.stop]
+    at_break = columns[:, breaking.start:breaking.stop]
+    blocks = (
+        at_contact - columns[:, start:start + 1],  # approach: (c,)
+        (at_peak[:, None, :] - at_contact[:, :, None]).reshape(6, c * p),  # compression
+        (at_release[:, None, :] - at_peak[:, :, None]).reshape(6, p * r),  # dwell
+        (at_break[:, None, :] - at_release[:, :, None]).reshape(6, r * b),  # decompression
+        columns[:, stop:stop + 1] - at_break,  # departure: (b,)
+    )
+    sums = np.concatenate(blocks, axis=1)
+    sse = np.where(sums[0] >= MIN_SEGMENT_SAMPLES, _sse_of_sums(sums), np.inf)
+    offsets = np.cumsum((c, c * p, p * r, r * b)).tolist()
     approach, compression, dwell, decompression = (sse[a:z] for a, z in zip((0, *offsets[:3]), offsets))
     departure = sse[offsets[3]:]
     left = approach[:, None] + compression.reshape(c, p)  # (contact, peak)
@@ -101,4 +137,4 @@ def best_five_segments(
     ip, ir = divmod(flat, r)
     if not np.isfinite(total[ip, ir]):
         return None
-    return int(contact[best_contact[ip]]), int(peak[ip]), int(release[ir]), int(breaking[best_break[ir]])
+    return contact[int(best_contact[ip])], peak[ip], release[ir], breaking[int(best_break[ir])]
