@@ -480,7 +480,6 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         # Keep the lines and points: they show what went wrong (plots, tap logs).
         result.valid, result.error, result.message = False, invalid.code, invalid.message
         return result, context
-    line_sigma_um = break_time_sigma_s(ps, dec, t_break) * motion.pullback_speed_mm_s * 1000.0
     window = model_window(time_s, force, motion, timing, delay_s, dec)
     z_line = motion.z_halt_mm + window.break_line_um / 1000.0  # P4 mapped, delay-corrected
     pullback_found = fit_pullback(window, motion, timing, delay_s, options)
@@ -513,7 +512,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         result.step_sigma_g = pullback.stiffness_g_um * step_staircase_sigma_um(timing.z_step_um, window_um)
     else:
         result.z_mm = z_line
-        result.z_sigma_um = line_sigma_um
+        result.z_sigma_um = break_time_sigma_s(ps, dec, t_break) * motion.pullback_speed_mm_s * 1000.0
         result.z_method = "lines"
         result.stiffness_decompression_g_um = abs(dec.lines[3][0]) / (motion.pullback_speed_mm_s * 1000.0)
     result.compression_samples = compression_sample_count(window, motion, delay_s, onset_um,

@@ -231,7 +231,7 @@ class _ProfileData:
     pressed_xx: float
     pressed_y: float
     pressed_xy: float
-    near_y: np.ndarray  # forces of the samples in between
+    near_ones_y: np.ndarray  # (2, n): a row of ones, the forces of the samples in between
     near_x_min: np.ndarray  # (n, 1) columns: one row per sample, candidates along the rows
     near_span: np.ndarray
     onset_um: float
@@ -243,10 +243,11 @@ class _ProfileData:
         # (samples, candidates): the candidates run along the long, contiguous axis.
         mean, _ = window_mean_and_slope(c, self.onset_um, self.near_x_min, self.near_span, slope=False)
         pressed_m = self.pressed * c - self.pressed_x  # the pressed samples' sum of mean h
-        sum_m = mean.sum(axis=0) + pressed_m
+        near_m, near_my = self.near_ones_y @ mean  # sums of mean h and of mean h × force
+        sum_m = near_m + pressed_m
         sum_mm = np.einsum("ij,ij->j", mean, mean) + (pressed_m - self.pressed_x) * c + self.pressed_xx
         s_mm = sum_mm - sum_m * sum_m / self.count
-        s_my = self.near_y @ mean + c * self.pressed_y - self.pressed_xy - sum_m * self.mean_y
+        s_my = near_my + c * self.pressed_y - self.pressed_xy - sum_m * self.mean_y
         # A stiffness <= 0 explains nothing (-inf); s_mm is then never divided (it may be 0).
         explained = np.divide(s_my * s_my, s_mm, out=np.full(len(c), -np.inf), where=s_my > 0)
         return self.s_yy - explained
@@ -255,6 +256,7 @@ class _ProfileData:
 def _profile_data(force_g, x_min_um, span_um, low_um, high_um, onset_um) -> _ProfileData:
     pressed = x_min_um + span_um + onset_um <= low_um
     near = (x_min_um < high_um) & ~pressed
+    near_x = x_min_um[near]
     x_pressed = x_min_um[pressed] + 0.5 * (span_um[pressed] + onset_um)
     y_pressed = force_g[pressed]
     sum_y = float(force_g.sum())
@@ -263,7 +265,7 @@ def _profile_data(force_g, x_min_um, span_um, low_um, high_um, onset_um) -> _Pro
         count=count, mean_y=sum_y / count, s_yy=float(force_g @ force_g) - sum_y * sum_y / count,
         pressed=len(x_pressed), pressed_x=float(x_pressed.sum()), pressed_xx=float(x_pressed @ x_pressed),
         pressed_y=float(y_pressed.sum()), pressed_xy=float(x_pressed @ y_pressed),
-        near_y=force_g[near], near_x_min=x_min_um[near, None], near_span=span_um[near, None], onset_um=onset_um)
+        near_ones_y=np.vstack((np.ones(len(near_x)), force_g[near])), near_x_min=near_x[:, None], near_span=span_um[near, None], onset_um=onset_um)
 
 
 # Candidate contact heights per sample spacing: fine enough that each interval between the

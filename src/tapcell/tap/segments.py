@@ -7,6 +7,7 @@ re-centred on the analysed region, so the expanded sums stay small and the
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 import numpy as np
@@ -125,16 +126,14 @@ def best_five_segments(
     )
     sums = np.concatenate(blocks, axis=1)
     sse = np.where(sums[0] >= MIN_SEGMENT_SAMPLES, _sse_of_sums(sums), np.inf)
-    offsets = np.cumsum((c, c * p, p * r, r * b)).tolist()
-    approach, compression, dwell, decompression = (sse[a:z] for a, z in zip((0, *offsets[:3]), offsets))
-    departure = sse[offsets[3]:]
+    ends = list(itertools.accumulate((c, c * p, p * r, r * b)))
+    approach, compression, dwell, decompression = (sse[a:z] for a, z in zip((0, *ends[:3]), ends))
+    departure = sse[ends[3]:]
     left = approach[:, None] + compression.reshape(c, p)  # (contact, peak)
-    best_contact = np.argmin(left, axis=0)
     right = decompression.reshape(r, b) + departure[None, :]  # (release, break)
-    best_break = np.argmin(right, axis=1)
-    total = left[best_contact, np.arange(p)][:, None] + dwell.reshape(p, r) + right[np.arange(r), best_break][None, :]
-    flat = int(np.argmin(total))
-    ip, ir = divmod(flat, r)
+    # Best total per (peak, release): each half at its best, the dwell between.
+    total = left.min(axis=0)[:, None] + dwell.reshape(p, r) + right.min(axis=1)[None, :]
+    ip, ir = divmod(int(np.argmin(total)), r)
     if not np.isfinite(total[ip, ir]):
         return None
-    return contact[int(best_contact[ip])], peak[ip], release[ir], breaking[int(best_break[ir])]
+    return contact[int(np.argmin(left[:, ip]))], peak[ip], release[ir], breaking[int(np.argmin(right[ir]))]

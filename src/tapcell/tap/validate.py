@@ -72,7 +72,7 @@ def check_points(points: list[tuple[float, float]], angles_deg: list[float]) -> 
     if not ordered:
         listed = ", ".join(f"P{k}={t:.4f}" for k, t in enumerate(times))
         raise TapInvalid(TAP_CHRONOLOGY, f"tap points out of time order ({listed} s)")
-    signs = tuple(int(np.sign(a)) for a in angles_deg)
+    signs = tuple((a > 0) - (a < 0) for a in angles_deg)  # np.sign without a numpy call per angle
     if signs != POSITIVE_SHAPE:
         listed = ", ".join(f"{a:.1f}" for a in angles_deg)
         raise TapInvalid(TAP_SHAPE_INVALID, f"the lines do not form a tap shape (angles {listed} deg)")
