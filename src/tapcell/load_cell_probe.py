@@ -49,6 +49,7 @@ from tapcell.load_cell_probe_options import (
     MIN_ONSET_TAPS,
     TapOptions,
     default_pullback_speed_mm_s,
+    dwell_sample_count,
     fit_pooled_contact_onset,
     force_beyond_safety_limit_g,
     expected_peak_force_g,
@@ -62,12 +63,6 @@ from tapcell.probe_patterns import serpentine_pattern
 from tapcell.tap import AnalysisOptions, Move, TapData, analyze_tap, get_classifier, tap_to_json_dict
 
 ERROR_PREFIX = "Load Cell Probe Error: "
-# Halt to pullback: the sample whose window holds the halt, then enough for a dwell line that
-# stays between compression and decompression. A stiff sheet needs 4 (2 gives TAP_CHRONOLOGY);
-# a soft sheet relaxes (8 %) and rounds the corners over its 25 µm onset, and with 4 or 6 the
-# split swaps P2/P3 (TAP_CHRONOLOGY on most taps at 5-10 mm/s); 8 holds at 2-10 mm/s on every
-# sheet of the virtual printer. 4 samples more cost 12.5 ms per tap at 320 sps.
-DWELL_SAMPLES = 8
 BREAK_CLEAR_SAMPLES = 4  # after break contact: one conversion window plus margin before free-air samples
 KEEP_LAST_TAPS = 16
 HISTORY_S = 1.0  # samples kept between taps (the tare looks back at most tare_time)
@@ -147,6 +142,11 @@ def analysis_options(options: TapOptions, pullback_speed_mm_s: float) -> Analysi
     )
 
 
+def mains_meta(mains_hz: tuple[float, ...] | str | None) -> list[float] | str | None:
+    """AnalysisOptions.mains_hz as tap-file meta (JSON: a list, "auto" or null)."""
+    return list(mains_hz) if isinstance(mains_hz, tuple) else mains_hz
+
+
 def mains_lines_hz(options: TapOptions) -> tuple[float, ...] | str:
     """The hum the analysis removes: the notch filter's frequencies when configured (the user
     named the hum), else "auto" (50 or 60 Hz when the tap clearly holds it)."""
@@ -194,7 +194,7 @@ class LoadCellProbe:
         # The toolhead implements the probe's Motion protocol (toolhead Z = virtual printer Z + frame offset).
         self.motion = printer.lookup_object("toolhead")
         self.last_taps: collections.deque[RecordedTap] = collections.deque(maxlen=KEEP_LAST_TAPS)
-        self.dwell_samples = DWELL_SAMPLES
+        self.dwell_samples = dwell_sample_count(self.sample_rate_sps)
         # The probe listens to its cell all the time, like the MCU stream of a real printer.
         self.history = SampleHistory()
         self.load_cell.add_client(self._on_samples)
@@ -461,8 +461,7 @@ class LoadCellProbe:
                    "pullback_distance": options.pullback_distance_mm,
                    "pullback_speed": settings.pullback_speed_mm_s, "trigger_force": options.trigger_force_g},
             meta={"source": "tapcell load_cell_probe", "sensor_type": self.cell_options.sensor_type,
-                  "mains_hz": settings.analysis.mains_hz if isinstance(settings.analysis.mains_hz, str)
-                  else list(settings.analysis.mains_hz)},
+                  "mains_hz": mains_meta(settings.analysis.mains_hz)},
         )
 
     def _record(self, tap: TapData, analysis, z_mm: float, valid: bool) -> None:

@@ -71,6 +71,23 @@ def default_pullback_speed_mm_s(sample_rate_sps: float) -> float:
     return sample_rate_sps * 0.001
 
 
+# Halt to pullback. At least the sample whose window holds the halt, two for the dwell line and
+# one margin for read jitter (2 gives TAP_CHRONOLOGY on a stiff sheet). And at least
+# DWELL_MIN_S: a soft sheet relaxes (8 %) and rounds the corners over its 25 µm onset, and a
+# shorter dwell line lets the split swap P2/P3 (TAP_CHRONOLOGY). Measured at 320 sps
+# (PROBE_ACCURACY SAMPLES=20): 12.5 ms fails every soft-sheet tap at 5-10 mm/s, 25 ms 15 % at
+# 10 mm/s, 31 ms none at 2-10 mm/s. A time, not a sample count: at 80 sps ten samples (125 ms)
+# would let a tap far too fast for the sensor pass as valid (-109 µm at 8 mm/s), while 4 samples
+# reject it. Cost at 320 sps: 19 ms per tap (0.661 -> 0.680 s at 5 mm/s).
+DWELL_MIN_SAMPLES = 4
+DWELL_MIN_S = 0.031
+
+
+def dwell_sample_count(sample_rate_sps: float) -> int:
+    """Samples to dwell between the halt and the pullback (10 at 320 sps, 4 at 80 sps)."""
+    return max(DWELL_MIN_SAMPLES, math.ceil(DWELL_MIN_S * sample_rate_sps - 1e-9))
+
+
 def tare_sample_count(tare_time_s: float, sample_rate_sps: float) -> int:
     return max(2, math.ceil(tare_time_s * sample_rate_sps - 1e-9))
 

@@ -95,3 +95,18 @@ def test_notch_frequencies_name_the_hum(tmp_path):
                               calibrate=False, home=False)
     device: LoadCellProbe = printer.lookup_object("load_cell_probe")
     assert device.config_settings.analysis.mains_hz == (50.0,)
+
+
+def test_dwell_rule():
+    from tapcell.load_cell_probe_options import dwell_sample_count
+    assert [dwell_sample_count(rate) for rate in (10, 80, 320, 660, 2000)] == [4, 4, 10, 21, 62]
+
+
+def test_soft_sheet_taps_are_valid_at_10mm_s_with_the_dwell(tmp_path):
+    printer, _ = make_printer(tmp_path, "soft-sheet")
+    printer.gcode.run_script("PROBE HOME=Z PROBE_SPEED=10\nG1 Z0.4\n"
+                             "PROBE_ACCURACY SAMPLES=5 PROBE_SPEED=10 SAMPLE_RETRACT_DIST=0.4")
+    taps = list(printer.lookup_object("load_cell_probe").last_taps)[-5:]
+    assert all(t.valid for t in taps)
+    events = taps[-1].tap.events
+    assert events["pullback_start_time"] - events["home_end_time"] == pytest.approx(10 / 320, abs=1e-6)
