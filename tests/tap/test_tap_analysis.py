@@ -179,7 +179,7 @@ def test_invalid_tap_keeps_its_lines_for_plots():
 
 
 def test_contact_search_finds_the_global_minimum_of_the_profile_residual():
-    from tapcell.tap.contact import _profile_data, search_contact
+    from tapcell.tap.contact import profile_rss, search_contact
 
     rng = np.random.default_rng(3)
     x_lo = np.arange(60, dtype=float)  # µm, 1 µm windows (integration = one sample)
@@ -189,7 +189,7 @@ def test_contact_search_finds_the_global_minimum_of_the_profile_residual():
     force = 3.0 + stiffness * mean + rng.normal(0.0, 1.0, 60)
     found = search_contact(force, x_min, span, 16.0, 24.0, 0.0, 1.0)
     fine = np.linspace(16.0, 24.0, 80001)
-    brute = fine[np.argmin(_profile_data(force, x_min, span, 16.0, 24.0, 0.0).rss(fine))]
+    brute = fine[np.argmin(profile_rss(force, x_min, span, 16.0, 24.0, 0.0, fine))]
     assert found == pytest.approx(brute, abs=0.002)
     assert abs(found - truth_um) < 0.3
 

@@ -212,60 +212,48 @@ def window_mean_and_slope(contact_um, onset_um: float, x_min_um: np.ndarray, spa
     return mean, ((hinge(u, w) - hinge(u_top, w)) / span_um if slope else None)
 
 
-@dataclass
-class _ProfileData:
-    """The samples of one contact fit, split for a fast search of the contact height over [low, high].
+def profile_rss(force_g: np.ndarray, x_min_um: np.ndarray, span_um: np.ndarray, low_um: float, high_um: float,
+                onset_um: float, contacts_um: np.ndarray) -> np.ndarray:
+    """Residual sum of squares per candidate contact height in [low, high] (onset fixed), stiffness
+    and baseline solved in closed form; inf where the stiffness would not be positive.
 
-    Samples pressed for every candidate (their whole window at least an onset below the lowest
-    candidate) have mean h = c - x' with x' = window middle + onset/2, so they enter the sums only
-    through five totals; free samples (window above the highest candidate) only through the
-    force totals. s_my must be positive (a positive stiffness) for a candidate to count. Only the
-    few samples in between are evaluated per candidate.
+    Samples pressed for every candidate (their whole window at least an onset below `low_um`) have
+    mean h = c - x' with x' = window middle + onset/2, so they enter the sums only through four
+    totals; free samples (window above `high_um`) only through the force totals. Only the few
+    samples in between are evaluated per candidate, laid out (samples, candidates) so the
+    candidates run along the long, contiguous axis.
     """
-
-    count: int
-    mean_y: float
-    s_yy: float  # sum of squared force deviations from the mean
-    pressed: int
-    pressed_x: float
-    pressed_xx: float
-    pressed_y: float
-    pressed_xy: float
-    near_ones_y: np.ndarray  # (2, n): a row of ones, the forces of the samples in between
-    near_x_min: np.ndarray  # (n, 1) columns: one row per sample, candidates along the rows
-    near_span: np.ndarray
-    onset_um: float
-
-    def rss(self, contacts_um: np.ndarray) -> np.ndarray:
-        """Residual sum of squares per candidate, stiffness and baseline solved in closed form (inf
-        where the stiffness would not be positive)."""
-        c = contacts_um
-        # (samples, candidates): the candidates run along the long, contiguous axis.
-        mean, _ = window_mean_and_slope(c, self.onset_um, self.near_x_min, self.near_span, slope=False)
-        pressed_m = self.pressed * c - self.pressed_x  # the pressed samples' sum of mean h
-        near_m, near_my = self.near_ones_y @ mean  # sums of mean h and of mean h × force
-        sum_m = near_m + pressed_m
-        sum_mm = np.einsum("ij,ij->j", mean, mean) + (pressed_m - self.pressed_x) * c + self.pressed_xx
-        s_mm = sum_mm - sum_m * sum_m / self.count
-        s_my = near_my + c * self.pressed_y - self.pressed_xy - sum_m * self.mean_y
-        # A stiffness <= 0 explains nothing (-inf); s_mm is then never divided (it may be 0).
-        explained = np.divide(s_my * s_my, s_mm, out=np.full(len(c), -np.inf), where=s_my > 0)
-        return self.s_yy - explained
-
-
-def _profile_data(force_g, x_min_um, span_um, low_um, high_um, onset_um) -> _ProfileData:
-    pressed = x_min_um + span_um + onset_um <= low_um
-    near = (x_min_um < high_um) & ~pressed
-    near_x = x_min_um[near]
-    x_pressed = x_min_um[pressed] + 0.5 * (span_um[pressed] + onset_um)
-    y_pressed = force_g[pressed]
-    sum_y = float(force_g.sum())
+    c = contacts_um
     count = len(force_g)
-    return _ProfileData(
-        count=count, mean_y=sum_y / count, s_yy=float(force_g @ force_g) - sum_y * sum_y / count,
-        pressed=len(x_pressed), pressed_x=float(x_pressed.sum()), pressed_xx=float(x_pressed @ x_pressed),
-        pressed_y=float(y_pressed.sum()), pressed_xy=float(x_pressed @ y_pressed),
-        near_ones_y=np.vstack((np.ones(len(near_x)), force_g[near])), near_x_min=near_x[:, None], near_span=span_um[near, None], onset_um=onset_um)
+    top_um = x_min_um + span_um
+    if onset_um:
+        top_um += onset_um
+    pressed = top_um <= low_um
+    near = (x_min_um < high_um) > pressed  # below the highest candidate and not pressed
+    near_x = x_min_um[near]
+    near_y = force_g[near]
+    mean, _ = window_mean_and_slope(c, onset_um, near_x[:, None], span_um[near, None], slope=False)
+    sum_m = mean.sum(axis=0)
+    sum_my = near_y @ mean  # Σ mean h × force over the samples in between
+    sum_mm = np.einsum("ij,ij->j", mean, mean)
+    sum_y = float(force_g.sum())
+    mean_y = sum_y / count
+    pressed_count = int(np.count_nonzero(pressed))
+    if pressed_count:
+        x_pressed = x_min_um[pressed] + 0.5 * (span_um[pressed] + onset_um)
+        y_pressed = force_g[pressed]
+        pressed_x, pressed_xx = float(x_pressed.sum()), float(x_pressed @ x_pressed)
+        pressed_m = pressed_count * c - pressed_x  # the pressed samples' sum of mean h
+        sum_m += pressed_m
+        sum_mm += (pressed_m - pressed_x) * c
+        sum_mm += pressed_xx
+        sum_my += c * float(y_pressed.sum())
+        sum_my -= float(x_pressed @ y_pressed)
+    s_mm = sum_mm - sum_m * sum_m / count
+    s_my = sum_my - sum_m * mean_y
+    # A stiffness <= 0 explains nothing (-inf); s_mm is then never divided (it may be 0).
+    explained = np.divide(s_my * s_my, s_mm, out=np.full(len(c), -np.inf), where=s_my > 0)
+    return (float(force_g @ force_g) - sum_y * sum_y / count) - explained
 
 
 # Candidate contact heights per sample spacing: fine enough that each interval between the
@@ -290,11 +278,10 @@ def search_contact(force_g: np.ndarray, x_min_um: np.ndarray, span_um: np.ndarra
     spacing/CANDIDATES_PER_SAMPLE are evaluated at once (vectorised) and a parabola through the
     best one and its neighbours gives the minimum. None when no candidate has a positive stiffness.
     """
-    data = _profile_data(force_g, x_min_um, span_um, low_um, high_um, onset_um)
     count = int(round((high_um - low_um) / spacing_um * CANDIDATES_PER_SAMPLE)) + 1
     step_um = (high_um - low_um) / (count - 1)
     candidates = low_um + step_um * np.arange(count)
-    rss = data.rss(candidates)
+    rss = profile_rss(force_g, x_min_um, span_um, low_um, high_um, onset_um, candidates)
     best = int(np.argmin(rss))
     if not np.isfinite(rss[best]):
         return None

@@ -50,23 +50,36 @@ def prefix_sums(time_s: np.ndarray, force_g: np.ndarray) -> PrefixSums:
 
 
 def _sse_of_sums(sums: np.ndarray) -> np.ndarray:
-    """Residual sum of squares of the best line from segment sums (rows n, Σt, Σf, Σt², Σtf, Σf²)."""
+    """Residual sum of squares of the best line from segment sums (rows n, Σt, Σf, Σt², Σtf, Σf²),
+    inf for segments of fewer than MIN_SEGMENT_SAMPLES. Works in place: `sums` is scratch afterwards.
+    """
     n, st, sf, stt, stf, sff = sums
-    # Empty or reversed ranges give inf/NaN here; the callers mask them out.
-    with np.errstate(divide="ignore", invalid="ignore"):
-        inv_n = 1.0 / n
-        t_mean = st * inv_n
-        sxx = stt - t_mean * st
-        sxy = stf - t_mean * sf
-        explained = np.where(sxx > 0, sxy * sxy / sxx, 0.0)
-        return np.maximum(sff - sf * sf * inv_n - explained, 0.0)
+    too_short = n < MIN_SEGMENT_SAMPLES
+    # Empty or reversed ranges get a harmless count (their result is replaced by inf), so no
+    # division by zero needs an np.errstate (which costs more than the arithmetic here).
+    np.maximum(n, MIN_SEGMENT_SAMPLES, out=n)
+    inv_n = 1.0 / n
+    t_mean = st * inv_n
+    st *= t_mean
+    sxx = np.subtract(stt, st, out=stt)
+    t_mean *= sf
+    sxy = np.subtract(stf, t_mean, out=stf)
+    sxy *= sxy
+    explained = np.divide(sxy, sxx, out=np.zeros_like(sxx), where=sxx > 0)
+    sf *= sf
+    sf *= inv_n
+    sse = np.subtract(sff, sf, out=sff)
+    sse -= explained
+    np.maximum(sse, 0.0, out=sse)
+    sse[too_short] = np.inf
+    return sse
 
 
 def segment_sse(ps: PrefixSums, i: np.ndarray, j: np.ndarray) -> np.ndarray:
     """Residual sum of squares of the best line over [i, j) (index arrays of one shape)."""
     sums = np.take(ps.sums, j, axis=1)  # take + in-place: several times faster than fancy indexing
     sums -= np.take(ps.sums, i, axis=1)
-    return _sse_of_sums(sums)
+    return _sse_of_sums(sums.reshape(6, -1)).reshape(sums.shape[1:])
 
 
 def _line_of_sums(ps: PrefixSums, sums: list[float]) -> tuple[float, float]:
@@ -88,6 +101,13 @@ def segment_lines(ps: PrefixSums, edges: list[int]) -> list[tuple[float, float]]
     """The lines over consecutive segments [edges[k], edges[k + 1]) (one numpy call for all)."""
     sums = (ps.sums[:, edges[1:]] - ps.sums[:, edges[:-1]]).T.tolist()
     return [_line_of_sums(ps, segment) for segment in sums]
+
+
+def _blocked(block: np.ndarray, rows: int, cols: int) -> np.ndarray:
+    """A (6, rows * cols) slice of a work array seen as (6, rows, cols), as a view (writes land in the array)."""
+    view = block.view()
+    view.shape = (6, rows, cols)  # raises instead of silently copying
+    return view
 
 
 def best_five_segments(
@@ -117,23 +137,26 @@ def best_five_segments(
     at_peak = columns[:, peak.start:peak.stop]
     at_release = columns[:, release.start:release.stop]
     at_break = columns[:, breaking.start:breaking.stop]
-    blocks = (
-        at_contact - columns[:, start:start + 1],  # approach: (c,)
-        (at_peak[:, None, :] - at_contact[:, :, None]).reshape(6, c * p),  # compression
-        (at_release[:, None, :] - at_peak[:, :, None]).reshape(6, p * r),  # dwell
-        (at_break[:, None, :] - at_release[:, :, None]).reshape(6, r * b),  # decompression
-        columns[:, stop:stop + 1] - at_break,  # departure: (b,)
-    )
-    sums = np.concatenate(blocks, axis=1)
-    sse = np.where(sums[0] >= MIN_SEGMENT_SAMPLES, _sse_of_sums(sums), np.inf)
-    ends = list(itertools.accumulate((c, c * p, p * r, r * b)))
-    approach, compression, dwell, decompression = (sse[a:z] for a, z in zip((0, *ends[:3]), ends))
-    departure = sse[ends[3]:]
-    left = approach[:, None] + compression.reshape(c, p)  # (contact, peak)
+    # One work array holds every block side by side; each block is written in place.
+    # Blocks are laid out (first boundary, second boundary), except the compression's
+    # (peak, contact): the long candidate axis innermost keeps numpy's loops long.
+    ends = list(itertools.accumulate((c, p * c, p * r, r * b, b)))
+    sums = np.empty((6, ends[-1]))
+    approach, compression, dwell, decompression, departure = (
+        sums[:, first:end] for first, end in zip((0, *ends[:4]), ends))
+    np.subtract(at_contact, columns[:, start:start + 1], out=approach)
+    np.subtract(at_peak[:, :, None], at_contact[:, None, :], out=_blocked(compression, p, c))
+    np.subtract(at_release[:, None, :], at_peak[:, :, None], out=_blocked(dwell, p, r))
+    np.subtract(at_break[:, None, :], at_release[:, :, None], out=_blocked(decompression, r, b))
+    np.subtract(columns[:, stop:stop + 1], at_break, out=departure)
+    sse = _sse_of_sums(sums)
+    approach, compression, dwell, decompression, departure = (
+        sse[first:end] for first, end in zip((0, *ends[:4]), ends))
+    left = compression.reshape(p, c) + approach  # (peak, contact)
     right = decompression.reshape(r, b) + departure[None, :]  # (release, break)
     # Best total per (peak, release): each half at its best, the dwell between.
-    total = left.min(axis=0)[:, None] + dwell.reshape(p, r) + right.min(axis=1)[None, :]
+    total = left.min(axis=1)[:, None] + dwell.reshape(p, r) + right.min(axis=1)[None, :]
     ip, ir = divmod(int(np.argmin(total)), r)
     if not np.isfinite(total[ip, ir]):
         return None
-    return contact[int(np.argmin(left[:, ip]))], peak[ip], release[ir], breaking[int(np.argmin(right[ir]))]
+    return contact[int(np.argmin(left[ip]))], peak[ip], release[ir], breaking[int(np.argmin(right[ir]))]
