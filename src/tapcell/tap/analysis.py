@@ -112,12 +112,14 @@ def step_staircase_sigma_um(step_um: float, window_um: float) -> float:
 
 
 def median(values: np.ndarray) -> float:
-    """np.median without its call overhead (a partition; the mean of the middle two for even n)."""
+    """np.median without its call overhead (a partition of a copy; the mean of the middle two for even n)."""
     half = len(values) // 2
+    ordered = values.copy()  # the method, not np.partition: no Python wrapper in between
     if len(values) % 2:
-        return float(np.partition(values, half)[half])
-    middle = np.partition(values, (half - 1, half))
-    return 0.5 * float(middle[half - 1] + middle[half])
+        ordered.partition(half)
+        return float(ordered[half])
+    ordered.partition((half - 1, half))
+    return 0.5 * float(ordered[half - 1] + ordered[half])
 
 
 def noise_sigma_g(force_g: np.ndarray) -> float:
@@ -157,7 +159,7 @@ def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarr
 
 def _indices(time_s: np.ndarray, *t: float) -> list[int]:
     """`_index` of several times in one call."""
-    return np.minimum(np.searchsorted(time_s, t), len(time_s) - 1).tolist()
+    return np.minimum(time_s.searchsorted(t), len(time_s) - 1).tolist()
 
 
 def _intersect(a: tuple[float, float], b: tuple[float, float], t_ref: float) -> tuple[float, float]:
@@ -282,7 +284,7 @@ def fit_pullback(window: ModelWindow, motion: Motion, timing: SensorTiming, dela
                  options: AnalysisOptions) -> tuple[ContactFit, float] | None:
     """The contact model over the pullback (samples whose window starts after the nozzle began
     rising), and its residual sigma near contact (`near_contact_sigma_g`)."""
-    first = int(np.searchsorted(window.time_s, motion.pullback_start_s + delay_s + timing.integration_s, side="right"))
+    first = int(window.time_s.searchsorted(motion.pullback_start_s + delay_s + timing.integration_s, side="right"))
     y_fit, x_min, span = window.force_g[first:], window.x_min_um[first:], window.span_um[first:]
     contact0 = window.break_line_um
     if not math.isfinite(contact0) or len(y_fit) < 2:
@@ -374,7 +376,7 @@ def _residual(y, x_min_um, span_um, fit: ContactFit) -> np.ndarray:
 def fit_compression(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float,
                     onset_um: float) -> ContactFit | None:
     """The contact model over the approach up to the halt (onset fixed to the pullback's)."""
-    last = int(np.searchsorted(window.time_s, motion.home_end_s + delay_s, side="right"))
+    last = int(window.time_s.searchsorted(motion.home_end_s + delay_s, side="right"))
     if last < 6 or not math.isfinite(window.contact_line_um):
         return None
     spacing_um = max(motion.approach_speed_mm_s * 1000.0 * timing.sample_period_s, 0.05)

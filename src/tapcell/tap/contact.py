@@ -282,8 +282,8 @@ def search_contact(force_g: np.ndarray, x_min_um: np.ndarray, span_um: np.ndarra
     step_um = (high_um - low_um) / (count - 1)
     candidates = low_um + step_um * np.arange(count)
     rss = profile_rss(force_g, x_min_um, span_um, low_um, high_um, onset_um, candidates)
-    best = int(np.argmin(rss))
-    if not np.isfinite(rss[best]):
+    best = int(rss.argmin())
+    if not math.isfinite(rss[best]):
         return None
     contact = float(candidates[best])
     if 0 < best < count - 1:

@@ -47,8 +47,8 @@ class Motion:
         if self.moves is None:
             return np.interp(t_s, self.trace_time_s, self.trace_z_mm)
         table = self._move_table
-        index = np.maximum(np.searchsorted(table[0], t_s, side="right") - 1, 0)
-        start, duration, start_v, accel, start_z, z_r = np.take(table, index, axis=1)
+        index = np.maximum(table[0].searchsorted(t_s, side="right") - 1, 0)
+        start, duration, start_v, accel, start_z, z_r = table.take(index, axis=1)
         tau_s = np.minimum(np.maximum(t_s - start, 0.0), duration)
         return start_z + z_r * (start_v + 0.5 * accel * tau_s) * tau_s
 

@@ -8,6 +8,7 @@ re-centred on the analysed region, so the expanded sums stay small and the
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -156,7 +157,7 @@ def best_five_segments(
     right = decompression.reshape(r, b) + departure[None, :]  # (release, break)
     # Best total per (peak, release): each half at its best, the dwell between.
     total = left.min(axis=1)[:, None] + dwell.reshape(p, r) + right.min(axis=1)[None, :]
-    ip, ir = divmod(int(np.argmin(total)), r)
-    if not np.isfinite(total[ip, ir]):
+    ip, ir = divmod(int(total.argmin()), r)  # array methods: no numpy Python wrapper per call
+    if not math.isfinite(total[ip, ir]):
         return None
-    return contact[int(np.argmin(left[ip]))], peak[ip], release[ir], breaking[int(np.argmin(right[ir]))]
+    return contact[int(left[ip].argmin())], peak[ip], release[ir], breaking[int(right[ir].argmin())]
