@@ -145,11 +145,13 @@ def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarr
     if len(force_g) < 5:
         return force_g, 0
     off_mid = np.abs(force_g[1:-1] - 0.5 * (force_g[:-2] + force_g[2:]))
-    neighbour_gap = np.abs(force_g[2:] - force_g[:-2])
     noise_sigma = _noise_sigma_of(off_mid)
     scale = float(force_g.max() - force_g.min())  # only sets a floor far below any real spike
     threshold = max(threshold_sigma * noise_sigma, 1e-6 * scale, 1e-9)
-    spikes = np.flatnonzero((off_mid > threshold) & (off_mid > 2.0 * neighbour_gap)) + 1
+    # The neighbour test only for the few samples over the threshold (the corners, the spikes).
+    suspects = np.flatnonzero(off_mid > threshold) + 1
+    neighbour_gap = np.abs(force_g[suspects + 1] - force_g[suspects - 1])
+    spikes = suspects[off_mid[suspects - 1] > 2.0 * neighbour_gap]
     if len(spikes) == 0:
         return force_g, 0
     repaired = force_g.copy()

@@ -55,9 +55,8 @@ class Motion:
     @functools.cached_property
     def _move_table(self) -> np.ndarray:
         """Rows: start time, duration, start speed, acceleration, start Z, direction; one column per move."""
-        return np.array([[m.print_time for m in self.moves], [m.move_t for m in self.moves],
-                         [m.start_v for m in self.moves], [m.accel for m in self.moves],
-                         [m.start_z for m in self.moves], [m.z_r for m in self.moves]], dtype=float)
+        return np.array([(m.print_time, m.move_t, m.start_v, m.accel, m.start_z, m.z_r) for m in self.moves],
+                        dtype=float).T
 
 
 def motion_from_moves(moves: list[Move]) -> Motion:

@@ -46,7 +46,7 @@ def prefix_sums(time_s: np.ndarray, force_g: np.ndarray) -> PrefixSums:
     np.multiply(t, t, out=tt)
     np.multiply(t, f, out=tf)
     np.multiply(f, f, out=ff)
-    np.cumsum(sums[1:, 1:], axis=1, out=sums[1:, 1:])
+    np.add.accumulate(sums[1:, 1:], axis=1, out=sums[1:, 1:])  # np.cumsum without its wrapper
     return PrefixSums(t_ref, f_ref, sums)
 
 
@@ -100,8 +100,8 @@ def segment_line(ps: PrefixSums, i: int, j: int) -> tuple[float, float]:
 
 def segment_lines(ps: PrefixSums, edges: list[int]) -> list[tuple[float, float]]:
     """The lines over consecutive segments [edges[k], edges[k + 1]) (one numpy call for all)."""
-    sums = (ps.sums[:, edges[1:]] - ps.sums[:, edges[:-1]]).T.tolist()
-    return [_line_of_sums(ps, segment) for segment in sums]
+    at_edges = ps.sums.take(edges, axis=1).T.tolist()  # the prefix sums at each edge, as floats
+    return [_line_of_sums(ps, [b - a for a, b in zip(first, end)]) for first, end in zip(at_edges, at_edges[1:])]
 
 
 def _blocked(block: np.ndarray, rows: int, cols: int) -> np.ndarray:
