@@ -29,12 +29,12 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from tapcell.bed_mesh import PROGRESS_EVENT
 from tapcell.config import ConfigError
+from tapcell.frontend import DEFAULT_CONFIG as EXAMPLE_CONFIG
 from tapcell.gcode import GCodeError
 from tapcell.mesh.report import mesh_error, render_mesh_error, write_mesh_png
 from tapcell.printer import Printer
 from tapcell.tap.plot import plot_tap
 
-EXAMPLE_CONFIG = Path(__file__).resolve().parents[2] / "examples" / "virtual-printer.cfg"
 DEMO_SCENARIO = "warped-bed"
 CALIBRATION_WEIGHT_G = 1000.0
 TEST_WEIGHT_G = 250.0
