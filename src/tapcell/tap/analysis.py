@@ -389,6 +389,21 @@ def fit_compression(window: ModelWindow, motion: Motion, timing: SensorTiming, d
     return found[0]
 
 
+def check_contact_heights(window: ModelWindow, pullback: ContactFit | None, compression: ContactFit | None,
+                          motion: Motion, timing: SensorTiming) -> None:
+    """Contact on the way down against break contact on the way up, both at the same delay
+    (validate.check_contact_consistency): the model fits when they exist, else the line points
+    P1 and P4 mapped through the motion."""
+    down_um, down_sigma_um = ((compression.contact_um, compression.contact_sigma_um) if compression
+                              else (window.contact_line_um, 0.0))
+    up_um, up_sigma_um = (pullback.contact_um, pullback.contact_sigma_um) if pullback else (window.break_line_um, 0.0)
+    period_s = timing.sample_period_s
+    tolerance_um = validate.contact_mismatch_tolerance_um(motion.approach_speed_mm_s * period_s * 1000.0,
+                                                          motion.pullback_speed_mm_s * period_s * 1000.0,
+                                                          down_sigma_um, up_sigma_um)
+    validate.check_contact_consistency(down_um, up_um, tolerance_um)
+
+
 def compression_sample_count(window: ModelWindow, motion: Motion, delay_s: float, onset_um: float,
                              contact_um: float) -> int:
     """Samples read before the halt whose whole conversion window was at least an onset into contact."""
@@ -490,6 +505,12 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
     pullback, near_sigma_g = pullback_found if pullback_found else (None, None)
     onset_um = pullback.onset_um if pullback else 0.0
     compression = fit_compression(window, motion, timing, delay_s, onset_um)
+    try:
+        check_contact_heights(window, pullback, compression, motion, timing)
+    except TapInvalid as invalid:
+        result.valid, result.error, result.message = False, invalid.code, invalid.message
+        result.z_line_mm = z_line
+        return result, context
     if pullback and compression:
         speeds_um_s = (motion.approach_speed_mm_s + motion.pullback_speed_mm_s) * 1000.0
         result.sensor_delay_estimate_s = delay_s + (pullback.contact_um - compression.contact_um) / speeds_um_s

@@ -287,12 +287,23 @@ def search_contact(force_g: np.ndarray, x_min_um: np.ndarray, span_um: np.ndarra
         return None
     contact = float(candidates[best])
     if 0 < best < count - 1:
-        # Vertex of the parabola through the best point and its neighbours (equal spacing).
-        before, at, after = rss[best - 1], rss[best], rss[best + 1]
-        curvature = before - 2 * at + after
-        if curvature > 0:
-            contact += float(0.5 * (before - after) / curvature * step_um)
+        before, at, after = float(rss[best - 1]), float(rss[best]), float(rss[best + 1])
+        contact += parabola_vertex_offset(before, at, after) * step_um
     return contact
+
+
+def parabola_vertex_offset(before: float, at: float, after: float) -> float:
+    """Offset (in grid steps) of the vertex of the parabola through three equally spaced values
+    around a minimum `at`; 0 when there is no such vertex.
+
+    A neighbour can be infinite (its stiffness would not be positive, so `profile_rss` marks it
+    unusable): the parabola is then undefined (inf/inf), and the grid point itself is the answer.
+    Three equal values (zero curvature) have no vertex either.
+    """
+    curvature = before - 2.0 * at + after
+    if not (math.isfinite(before) and math.isfinite(after)) or curvature <= 0.0:
+        return 0.0
+    return 0.5 * (before - after) / curvature
 
 
 def fit_contact_at(force_g: np.ndarray, x_min_um: np.ndarray, span_um: np.ndarray, contact_um: float,

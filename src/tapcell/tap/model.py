@@ -29,6 +29,7 @@ LOW_TAP_QUALITY = "LOW_TAP_QUALITY"
 TAP_DATA_INSUFFICIENT = "TAP_DATA_INSUFFICIENT"  # a phase window holds too few samples to fit
 TAP_MOTION_INVALID = "TAP_MOTION_INVALID"  # the motion has no approach/halt/pullback to analyse
 CLASSIFIER_FAILED = "CLASSIFIER_FAILED"  # a plugin classifier raised something other than TapRejected
+TAP_CONTACT_MISMATCH = "TAP_CONTACT_MISMATCH"  # contact on the way down above break contact on the way up
 
 
 class TapFileError(Exception):

@@ -1,7 +1,7 @@
 """Validation of a tap against the spec's codes ("Tap Validation Error Codes").
 
 Each check raises `TapInvalid(code, message)`; the order is the spec's: moves, chronology,
-shape, break-contact timing.
+shape, break-contact timing; then our own consistency of contact down against break contact up.
 """
 
 from __future__ import annotations
@@ -15,6 +15,7 @@ from tapcell.tap.model import (
     TAP_BREAK_CONTACT_TOO_EARLY,
     TAP_BREAK_CONTACT_TOO_LATE,
     TAP_CHRONOLOGY,
+    TAP_CONTACT_MISMATCH,
     TAP_MOTION_INVALID,
     TAP_PULLBACK_TOO_SHORT,
     TAP_SHAPE_INVALID,
@@ -28,6 +29,11 @@ from tapcell.tap.motion import MAX_PROBING_MOVES, MIN_PROBING_MOVES, Motion
 # approach→compression turns up (-), compression→dwell down (+), dwell→decompression down (+),
 # decompression→departure up (-). Negative polarity mirrors them.
 POSITIVE_SHAPE = (-1, 1, 1, -1)
+# A sheet's loading and unloading curves differ by a few µm of travel (hysteresis); the virtual
+# printer's smooth PEI reverses over 3 µm. Contact down may read this much above break contact up.
+HYSTERESIS_ALLOWANCE_UM = 5.0
+# Fit sigmas the contact heights may differ by before they disagree.
+CONSISTENCY_SIGMAS = 3.0
 
 
 class TapInvalid(Exception):
@@ -104,3 +110,31 @@ def check_break_contact(break_time_s: float, motion: Motion, sample_period_s: fl
                          f"break contact at {break_time_s:.4f} s, in the last sixth of the pullback "
                          f"({late_from:.4f}..{end:.4f} s); it must lie in the middle two thirds: "
                          "increase pullback_distance")
+
+
+def contact_mismatch_tolerance_um(approach_step_um: float, pullback_step_um: float, down_sigma_um: float,
+                                  up_sigma_um: float) -> float:
+    """How far contact on the way down may lie above break contact on the way up on a sound tap:
+    hysteresis, one sample of travel on each side (a contact anywhere within the sample where it
+    happened reads the same), and CONSISTENCY_SIGMAS of the two estimates' fit sigmas."""
+    return (HYSTERESIS_ALLOWANCE_UM + approach_step_um + pullback_step_um
+            + CONSISTENCY_SIGMAS * math.hypot(down_sigma_um, up_sigma_um))
+
+
+def check_contact_consistency(down_um: float, up_um: float, tolerance_um: float) -> None:
+    """Contact on the way down must not lie above break contact on the way up by more than
+    `tolerance_um` (heights in µm above the halt, both read with the same sensor delay).
+
+    A sensor delay d moves the two apart the other way (down lower by v_approach·d, up higher by
+    v_pullback·d), so no delay explains a down contact above the up one. What does: something
+    the nozzle met first and pushed away (an ooze film, debris), after which the bed contact the
+    pullback measures is not the surface the approach found. Such taps read Z off by the film.
+    """
+    if not (math.isfinite(down_um) and math.isfinite(up_um)):
+        return
+    if down_um - up_um > tolerance_um:
+        raise TapInvalid(TAP_CONTACT_MISMATCH,
+                         f"contact on the way down ({down_um:.1f} um above the halt) lies {down_um - up_um:.1f} um "
+                         f"above break contact on the way up ({up_um:.1f} um), more than hysteresis, one sample of "
+                         f"travel each way and the fits' noise explain ({tolerance_um:.1f} um): the nozzle pressed "
+                         "something away (ooze film, debris); clean the nozzle and probe again")
