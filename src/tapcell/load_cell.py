@@ -226,9 +226,6 @@ class LoadCell:
         self._clients.append(callback)
         return ClientHandle(self._clients, callback)
 
-    def remove_client(self, handle: ClientHandle) -> None:
-        handle.remove()
-
     def collect(self, duration_s: float) -> SampleBatch:
         """Lets `duration_s` of simulated time pass and returns the samples of that span."""
         batches: list[SampleBatch] = []

@@ -30,8 +30,6 @@ PROBE_ENDSTOP_PIN = "probe:z_virtual_endstop"
 # M104/M109 range when there is no [extruder] section to say otherwise.
 DEFAULT_MIN_TEMP_C = 0.0
 DEFAULT_MAX_TEMP_C = 300.0
-# M109 is done when the nozzle is this close to its target.
-TEMPERATURE_TOLERANCE_C = 1.0
 
 
 @dataclass(frozen=True)

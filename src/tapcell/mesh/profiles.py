@@ -25,20 +25,6 @@ from tapcell.mesh.zmesh import ZMesh, build_mesh
 
 PROFILE_VERSION = 1
 PROFILE_ALGORITHMS = (*ALGORITHMS, "direct")
-OPTION_ORDER = (
-    "version",
-    "points",
-    "x_count",
-    "y_count",
-    "mesh_x_pps",
-    "mesh_y_pps",
-    "algo",
-    "tension",
-    "min_x",
-    "max_x",
-    "min_y",
-    "max_y",
-)
 
 
 def profile_section_name(profile_name: str) -> str:

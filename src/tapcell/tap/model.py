@@ -60,14 +60,6 @@ class Move:
     def end_time(self) -> float:
         return self.print_time + self.move_t
 
-    @property
-    def end_z(self) -> float:
-        return float(self.z_at(self.end_time))
-
-    @property
-    def end_v(self) -> float:
-        return self.start_v + self.accel * self.move_t
-
 
 @dataclass
 class TapData:

@@ -10,7 +10,6 @@ import numpy as np
 from tapcell.tap.model import TapAnalysis, TapData
 from tapcell.tap.motion import MotionError, tap_motion
 
-LINE_NAMES = ("approach", "compression", "dwell", "decompression", "departure")
 POINT_NAMES = ("approach start", "contact", "compression end", "decompression start", "break contact",
                "departure end")
 
