@@ -32,6 +32,7 @@ import numpy as np
 from tapcell.config import ConfigSection
 from tapcell.gcode import GCodeCommand, GCodeError
 from tapcell.load_cell_probe import ERROR_PREFIX
+from tapcell.load_cell_probe_options import force_beyond_safety_limit_g
 from tapcell.mcu.trigger import FirmwareTrigger, TriggerError, TriggerParams
 from tapcell.mesh.errors import MeshError
 from tapcell.mesh.prusa import (
@@ -47,6 +48,8 @@ from tapcell.mesh.prusa import (
     retry_offsets_mm,
 )
 from tapcell.probe import ProbeError
+from tapcell.scale import counts_to_grams
+from tapcell.tap.model import Move
 
 SECTION = "prusa_probe"
 THRESHOLD_OPTIONS = {Z_FAST: "z_fast_threshold", Z_SLOW: "z_slow_threshold", MESH: "mesh_threshold",
@@ -78,14 +81,11 @@ class ThresholdHit:
     halt_position_mm: tuple[float, float, float]  # where the steppers stopped (after the latency)
 
 
-def z_at_time_mm(moves: list[dict], t_s: float) -> float:
-    """Commanded Z at t_s from tap-format moves (start_z + z_r * (start_v + accel*tau/2) * tau)."""
-    current = moves[0]
-    for move in moves:
-        if move["print_time"] <= t_s:
-            current = move
-    tau_s = min(max(t_s - current["print_time"], 0.0), current["move_t"])
-    return current["start_z"] + current["z_r"] * (current["start_v"] + 0.5 * current["accel"] * tau_s) * tau_s
+def z_at_time_mm(move_records: list[dict], t_s: float) -> float:
+    """Commanded Z at t_s: the last move started by then (the simulator's move records)."""
+    moves = [Move.from_record(record) for record in move_records]
+    started = [move for move in moves if move.print_time <= t_s] or moves[:1]
+    return float(started[-1].z_at(t_s))
 
 
 class ThresholdProber:
@@ -112,9 +112,8 @@ class ThresholdProber:
         if len(batch.counts) == 0:
             raise ProbeError(ERROR_PREFIX + "timed out waiting for sensor data")
         counts = float(np.mean(batch.counts[-sample_count:]))
-        force_g = (counts - self.load_cell.reference_tare_counts) / self.load_cell.counts_per_gram
-        if self.device.cell_options.inverted:
-            force_g = -force_g
+        force_g = counts_to_grams(counts, self.load_cell.reference_tare_counts, self.load_cell.counts_per_gram,
+                                  self.device.cell_options.inverted)
         record = TareRecord(purpose, counts, float(force_g), self.vp.now_s)
         self.load_cell.set_tare(counts)
         self.tares.append(record)
@@ -123,6 +122,12 @@ class ThresholdProber:
     def _arm(self, tare: TareRecord, threshold_g: float, release_g: float,
              drift_safety_limit_g: float | None = None) -> FirmwareTrigger:
         options = self.device.options
+        # Refused before the move, with the force (the firmware would only say "too much").
+        beyond_g = force_beyond_safety_limit_g(tare.counts, self.load_cell.reference_tare_counts,
+                                               self.load_cell.counts_per_gram, options.force_safety_limit_g)
+        if beyond_g is not None:
+            raise ProbeError(ERROR_PREFIX + f"force of {abs(beyond_g):.0f}g exceeds force_safety_limit "
+                             f"({options.force_safety_limit_g:.0f}g) before probing!")
         if drift_safety_limit_g is None:
             drift_safety_limit_g = options.drift_safety_limit_g
         trigger = FirmwareTrigger(TriggerParams(
@@ -143,8 +148,8 @@ class ThresholdProber:
 
     def _error_message(self, error: TriggerError) -> str:
         if error == TriggerError.FORCE_SAFETY:
-            return ERROR_PREFIX + (f"force exceeds force_safety_limit ({self.device.options.force_safety_limit_g:.0f}g)"
-                                   " before probing!")
+            return ERROR_PREFIX + (f"force exceeded force_safety_limit ({self.device.options.force_safety_limit_g:.0f}g)"
+                                   " while probing!")
         if error == TriggerError.DRIFT_SAFETY:
             return ERROR_PREFIX + "force exceeded drift_safety_limit before triggering!"
         if error == TriggerError.WATCHDOG_TIMEOUT:

@@ -105,6 +105,17 @@ def test_loadcell_probe_double_tare_and_z(prusa_printer, make_printer):
     assert session["z_mm"] - truth_mm == pytest.approx(-depth_mm, abs=0.010)
 
 
+def test_preload_beyond_force_safety_limit_refuses_before_moving(prusa_printer):
+    gcode = prusa_printer.gcode
+    gcode.run_script("G28\nG1 X100 Y100 Z2 F6000")
+    prusa_printer.backend.place_weight(3000.0)
+    z_before = prusa_printer.backend.position[2]
+    with pytest.raises(GCodeError, match=r"^Load Cell Probe Error: force of (299\d|300\d)g exceeds "
+                                         r"force_safety_limit \(2000g\) before probing!$"):
+        gcode.run_script("LOADCELL_PROBE")
+    assert prusa_printer.backend.position[2] == z_before
+
+
 def test_mesh_tares_once_per_point_plus_reference(prusa_printer, make_printer):
     gcode = prusa_printer.gcode
     gcode.run_script("G28\nBED_MESH_CALIBRATE METHOD=prusa")

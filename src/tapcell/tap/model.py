@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -51,6 +52,11 @@ class Move:
     accel: float  # mm/s², signed
     start_z: float  # mm
     z_r: float  # direction of Z travel: -1, 0 or 1
+
+    @classmethod
+    def from_record(cls, record: Mapping[str, Any]) -> Move:
+        """A move from a dict holding the tap-format keys (others ignored), e.g. a simulator move."""
+        return cls(**{f.name: float(record[f.name]) for f in dataclasses.fields(cls)})
 
     def z_at(self, t_s: np.ndarray | float) -> np.ndarray:
         tau_s = np.clip(np.asarray(t_s, dtype=float) - self.print_time, 0.0, self.move_t)

@@ -68,8 +68,7 @@ def record_sim_tap(spec: SimTapSpec, printer: VirtualPrinter | None = None) -> T
     batch = vp.take_samples()
     inside = (batch.t_s >= t_start) & (batch.t_s <= t_end)
     t, raw = batch.t_s[inside], batch.counts[inside].astype(float)
-    moves = [Move(**{k: m[k] for k in ("print_time", "move_t", "start_v", "accel", "start_z", "z_r")})
-             for m in vp.recorded_moves(t_start, t_end) if m["print_time"] >= t_start - 1e-9]
+    moves = [Move.from_record(m) for m in vp.recorded_moves(t_start, t_end) if m["print_time"] >= t_start - 1e-9]
     return TapData(
         time_s=t, force_g=(raw - tare) / counts_per_gram, moves=moves, sample_rate_sps=sps,
         probe={"x": spec.x_mm, "y": spec.y_mm, "speed": spec.speed_mm_s,
