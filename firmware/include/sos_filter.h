@@ -12,7 +12,7 @@
  * One section, with R = 2^(frac_bits-1) (round half up) and every product 32x32->64:
  *   acc = b0*x + z1                          z1 already holds R
  *   y   = acc >> frac_bits                   the section output, int32 Q16.15
- *   err = acc - R - (y << frac_bits)         rounding error, in [-R, R)
+ *   err = acc - R - (y << frac_bits)         rounding error, in [-R, R) (clamped to it after a saturation)
  *   z1  = b1*x - a1*y + 2*err + z2
  *   z2  = b2*x - a2*y + R - err
  * The err terms are second-order error feedback: the rounding error reaches the

@@ -81,10 +81,18 @@ int32_t tc_sos_filter_apply(struct tc_sos_filter *f, int32_t x)
         /* Rounding error of y in product units, in [-R, R): fits 32 bits, so
          * 32-bit arithmetic gives it exactly (it wraps only after a saturation). */
         int32_t err = (int32_t)((uint32_t)acc - ((uint32_t)y << shift) - (uint32_t)f->round_half);
+        /* After a saturation y is clamped and that difference is no rounding error
+         * (it can be any 32-bit value): clamp it to [-R, R) so the sums below stay
+         * within int64 (a signed overflow there would be undefined behaviour). */
+        const int32_t half = (int32_t)f->round_half;
+        if (err >= half)
+            err = half - 1;
+        else if (err < -half)
+            err = -half;
         /* Error feedback (1 - z^-1)^2: without it the rounding error reaches the
          * output through 1/A(z), whose DC gain is ~1e4 for a drift high-pass
          * (poles near z = 1) - a 0.25 g offset. Products: |b*x - a*y| <= 2^63 - 2^31,
-         * so adding 2*err or R - err (|.| <= 2^30) cannot overflow; only the
+         * so adding 2*err or R - err (|.| <= 2^30, err clamped above) cannot overflow; only the
          * sum with the stored state is checked. */
         z[0] = add_sat64(tc_mul_s32(c[TC_SOS_B1], x) - tc_mul_s32(c[TC_SOS_A1], y) + 2 * (int64_t)err,
                          z[1], &bad);

@@ -89,8 +89,8 @@ TEST(sos_output_overflow_saturates_and_sticks)
     struct tc_sos_filter f = one_section(1.5, 0, 0, 0, 0);
     CHECK_EQ_INT(tc_sos_filter_apply(&f, 50000 * GRAM), INT32_MAX);  /* 75000 g > 65536 g */
     CHECK_EQ_INT(f.overflowed, 1);
-    /* flag sticky; the saturated sample's (wrapped) error term leaves 2 LSB in the next output */
-    CHECK_EQ_INT(tc_sos_filter_apply(&f, GRAM), GRAM + GRAM / 2 + 2);
+    /* flag sticky; the saturated sample's error term, clamped to R - 1, leaves 1 LSB in the next output */
+    CHECK_EQ_INT(tc_sos_filter_apply(&f, GRAM), GRAM + GRAM / 2 + 1);
     CHECK_EQ_INT(f.overflowed, 1);
     CHECK_EQ_INT(tc_sos_filter_apply(&f, -50000 * GRAM), INT32_MIN);
     tc_sos_filter_reset(&f);

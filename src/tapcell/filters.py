@@ -259,7 +259,7 @@ def reference_sosfilt_q(qsos: QuantizedSos | None, x_q: np.ndarray) -> tuple[np.
         for (b0, b1, b2, a1, a2), z in zip(coeff, state):
             acc, bad_add = _sat(b0 * value + z[0], INT64_MIN, INT64_MAX)
             y, bad_y = _sat(acc >> shift, INT32_MIN, INT32_MAX)
-            err = _wrap_int32(acc - (y << shift) - half)
+            err = min(max(_wrap_int32(acc - (y << shift) - half), -half), half - 1)  # clamped after a saturation
             z[0], bad_state = _sat(b1 * value - a1 * y + 2 * err + z[1], INT64_MIN, INT64_MAX)
             z[1] = b2 * value - a2 * y + half - err
             overflowed |= bad_add or bad_y or bad_state
