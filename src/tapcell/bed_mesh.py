@@ -381,19 +381,16 @@ class BedMesh:
         name = gcmd.get(action).strip()
         if not name or " " in name:
             raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {action} needs a one-word profile name")
+        if action != "SAVE" and name not in self.profiles:
+            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': no bed mesh profile '{name}' "
+                             f"(known: {', '.join(sorted(self.profiles)) or 'none'})")
         if action == "SAVE":
             self.save_profile(name)
             gcmd.respond_info(f"Bed mesh profile '{name}' saved; run SAVE_CONFIG to write it to the config file")
         elif action == "LOAD":
-            if name not in self.profiles:
-                raise gcmd.error(f"Error on '{gcmd.get_commandline()}': no bed mesh profile '{name}' "
-                                 f"(known: {', '.join(sorted(self.profiles)) or 'none'})")
             self.set_mesh(self.profiles[name])
             gcmd.respond_info(f"Bed mesh profile '{name}' loaded: moves follow it")
         else:
-            if name not in self.profiles:
-                raise gcmd.error(f"Error on '{gcmd.get_commandline()}': no bed mesh profile '{name}' "
-                                 f"(known: {', '.join(sorted(self.profiles)) or 'none'})")
             del self.profiles[name]
             self.printer.config.remove_section(profile_section_name(name))
             gcmd.respond_info(f"Bed mesh profile '{name}' removed; run SAVE_CONFIG to remove it from the config file")

@@ -26,7 +26,7 @@ import numpy as np
 from tapcell.gcode import GCodeError
 from tapcell.probe_options import PROBE_OPTION_SPECS, ProbeOptions, check_probe_options, with_overrides
 from tapcell.probe_patterns import next_clean_spot
-from tapcell.probe_stats import accuracy_stats, combine_samples, format_accuracy, spread_mm
+from tapcell.probe_stats import AccuracyStats, accuracy_stats, combine_samples, format_accuracy, spread_mm
 
 
 class ProbeError(GCodeError):
@@ -233,6 +233,7 @@ class Probe:
         self.gcode = gcode
         self.template_runner = template_runner  # callable(option_name, template, params) or None
         self.last_result: ProbeResult | None = None
+        self.last_accuracy: AccuracyStats | None = None  # of the last PROBE_ACCURACY
         self.last_z_result = 0.0
         self.last_query = False
 

@@ -173,6 +173,9 @@ def test_profile_command_errors(make_printer):
         printer.gcode.run_script("BED_MESH_PROFILE LOAD=nothing")
     assert str(err.value) == "Error on 'BED_MESH_PROFILE LOAD=nothing': no bed mesh profile 'nothing' (known: none)"
     with pytest.raises(GCodeError) as err:
+        printer.gcode.run_script("BED_MESH_PROFILE REMOVE=nothing")
+    assert str(err.value) == "Error on 'BED_MESH_PROFILE REMOVE=nothing': no bed mesh profile 'nothing' (known: none)"
+    with pytest.raises(GCodeError) as err:
         printer.gcode.run_script("BED_MESH_PROFILE SAVE=x LOAD=y")
     assert "give exactly one of SAVE=name, LOAD=name, REMOVE=name" in str(err.value)
     with pytest.raises(GCodeError) as err:
