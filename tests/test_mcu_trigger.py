@@ -181,3 +181,13 @@ def test_feed_rejects_mismatched_arrays():
         trigger.feed(np.zeros(3), np.zeros(2))
     with pytest.raises(ValueError, match="counts must fit int32"):
         trigger.feed(np.zeros(1), np.array([2 ** 40]))
+
+
+def test_library_rebuild_watches_every_file_the_host_build_compiles():
+    from tapcell.mcu import _lib
+
+    watched = set(_lib._sources())
+    compiled = {*_lib.FIRMWARE_DIR.glob("src/*.c"), *_lib.FIRMWARE_DIR.glob("host/*.c"),
+                *_lib.FIRMWARE_DIR.glob("include/*.h")}
+    assert _lib.FIRMWARE_DIR / "host" / "batch.c" in compiled
+    assert compiled <= watched

@@ -30,7 +30,9 @@ class FirmwareBuildError(RuntimeError):
 
 
 def _sources() -> list[Path]:
-    return [*FIRMWARE_DIR.glob("src/*.c"), *FIRMWARE_DIR.glob("include/*.h"), FIRMWARE_DIR / "Makefile"]
+    """Every file the host library is built from (firmware/Makefile's host target)."""
+    return [*FIRMWARE_DIR.glob("src/*.c"), *FIRMWARE_DIR.glob("host/*.c"), *FIRMWARE_DIR.glob("include/*.h"),
+            FIRMWARE_DIR / "Makefile"]
 
 
 def _is_stale(lib_path: Path) -> bool:
