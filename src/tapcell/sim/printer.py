@@ -324,8 +324,6 @@ class VirtualPrinter:
         self._advance_to(halt_s)
         if event is not None and event.triggered:
             self._fire_condition("trigger", event.time_s)
-        self._now_s = max(self._now_s, halt_s)
-        self._advance_to(self._now_s)
         probe_moves = [s.as_tap_move() for s in self._motion.segments_between(t_start, halt_s)
                        if s.print_time >= t_start]
         self._probes.append(_ProbeRecord(t_start, halt_s, start[0], start[1], film_at_start_um))
@@ -563,14 +561,13 @@ class VirtualPrinter:
         events["home_end_time"] = halt
         after = [s for s in self._motion.segments_between(halt, t1_s) if s.print_time > halt and s.direction[2] > 0]
         if after:
-            first = after[0].print_time
-            run = [s for s in after if s.print_time >= first]
-            end = first
-            for s in run:
-                if abs(s.print_time - end) > 1e-9 and s is not run[0]:
+            # the pullback is the first run of back-to-back upward segments
+            end = after[0].print_time
+            for s in after:
+                if abs(s.print_time - end) > 1e-9:
                     break
                 end = s.end_time
-            events["pullback_start_time"] = first
+            events["pullback_start_time"] = after[0].print_time
             events["pullback_end_time"] = end
         return events
 
