@@ -154,9 +154,6 @@ class GCodeCommand:
         self.rawparams = parsed.rawparams
         self._params = dict(parsed.params)
 
-    def get_command(self) -> str:
-        return self.command
-
     def get_commandline(self) -> str:
         return self.commandline
 

@@ -36,9 +36,6 @@ class Segment:
     def end(self) -> tuple[float, float, float]:
         return self.position_at(self.end_time)
 
-    def velocity_at(self, t_s: float) -> float:
-        return self.start_v + self.accel * min(max(t_s - self.print_time, 0.0), self.move_t)
-
     def truncated(self, t_s: float) -> Segment:
         """The same segment ending at t_s (a halt without deceleration)."""
         return Segment(self.print_time, max(0.0, min(t_s, self.end_time) - self.print_time),
