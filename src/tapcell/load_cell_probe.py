@@ -45,9 +45,16 @@ from tapcell.probe_options import (
     with_overrides,
 )
 from tapcell.load_cell_probe_options import (
+    CALIBRATION_PULLBACK_MM,
     TAP_OPTION_SPECS,
     MIN_ONSET_TAPS,
     TapOptions,
+    calibrate_decompression_angle,
+    covered_speed_range_mm_s,
+    decompression_angle_deg,
+    break_contact_height_um,
+    min_usable_taps,
+    propose_pullback_distance,
     default_pullback_speed_mm_s,
     dwell_sample_count,
     fit_pooled_contact_onset,
@@ -61,6 +68,7 @@ from tapcell.load_cell_probe_options import (
 )
 from tapcell.probe_patterns import serpentine_pattern
 from tapcell.tap import AnalysisOptions, Move, TapData, analyze_tap, get_classifier, tap_to_json_dict
+from tapcell.tap.motion import tap_motion
 
 ERROR_PREFIX = "Load Cell Probe Error: "
 BREAK_CLEAR_SAMPLES = 4  # after break contact: one conversion window plus margin before free-air samples
@@ -72,6 +80,8 @@ TARE_TIMEOUT_S = 1.0  # no sample for this long: the sensor is gone
 SPEED_SENSITIVE_CODES = ("TAP_CHRONOLOGY", "TAP_SHAPE_INVALID", "TAP_PULLBACK_TOO_SHORT", "TAP_BREAK_CONTACT_TOO_LATE")
 RELEASE_CHECK_S = 0.05  # LOAD_CELL_TEST_TAP looks at the force this often while waiting for a release
 TARE_FRESH_MARGIN_SAMPLES = 4
+SAVE_CONFIG_NOTE = ("The SAVE_CONFIG command will update the printer config file with the above and restart "
+                    "the printer.")
 ENDSTOP_SWITCH_MM = 1e-6  # the virtual X/Y switches close at machine position 0  # the tare window may reach back this many periods beyond tare_time
 
 
@@ -227,10 +237,15 @@ class LoadCellProbe:
         except FilterDesignError as exc:
             raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {exc.option.upper()}: {exc}") from None
 
-    def set_contact_onset(self, onset_um: float) -> None:
-        """Use a calibrated contact_onset_um from now on (LOAD_CELL_PROBE_CALIBRATE)."""
-        self.options = dataclasses.replace(self.options, contact_onset_um=onset_um)
+    def with_options(self, settings: TapSettings, **changes) -> TapSettings:
+        """`settings` with some TapOptions fields changed (a calibration's own taps)."""
+        return self._design(dataclasses.replace(settings.options, **changes))
+
+    def set_calibrated(self, option: str, text: str, **changes) -> None:
+        """Use calibrated TapOptions fields from now on and queue `option: text` for SAVE_CONFIG."""
+        self.options = dataclasses.replace(self.options, **changes)
         self.config_settings = self._design(self.options)
+        self.printer.config.set(self.name, option, text)
 
     # -- the tap ---------------------------------------------------------------------------
     def _require_calibrated(self) -> None:
@@ -509,41 +524,158 @@ class LoadCellProbeCommands:
                                desc="Tap a serpentine pattern until SAMPLES good taps in a row")
         gcode.register_command("QUERY_ENDSTOPS", self.cmd_QUERY_ENDSTOPS, desc="Report the endstop states")
         gcode.register_command("LOAD_CELL_PROBE_CALIBRATE", self.cmd_LOAD_CELL_PROBE_CALIBRATE,
-                               desc="Calibrate the probe: CALIBRATION=CONTACT_ONSET [SAMPLES=10]")
+                               desc="Calibrate the probe: CALIBRATION=CONTACT_ONSET|PULLBACK_DISTANCE|DECOMPRESSION_ANGLE [SAMPLES=10]")
 
     def cmd_LOAD_CELL_PROBE_CALIBRATE(self, gcmd) -> None:
-        """CALIBRATION=CONTACT_ONSET: tap SAMPLES times here, fit the sheet's onset on the pooled taps.
+        """Tap SAMPLES times at the current XY and calibrate one option from the taps.
 
-        The fitted width becomes `contact_onset_um` at once and is written by SAVE_CONFIG. Bad
-        taps are retried in place (the fit needs valid ones); the probing options may be
-        overridden as on PROBE.
+        CONTACT_ONSET: contact_onset_um from the pooled taps. PULLBACK_DISTANCE: the pullback
+        that puts break contact near the middle of the pullback. DECOMPRESSION_ANGLE: the
+        median angle of the decompression line, for the quality classifier. The value is used
+        at once and written by SAVE_CONFIG; the probing options may be overridden as on PROBE.
         """
         calibration = gcmd.get("CALIBRATION", "").strip().upper()
-        if calibration != "CONTACT_ONSET":
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': CALIBRATION must be CONTACT_ONSET, "
-                             f"not '{calibration}'")
-        samples = gcmd.get_int("SAMPLES", 10, minval=MIN_ONSET_TAPS, maxval=50)
+        calibrate = {"CONTACT_ONSET": self._calibrate_contact_onset,
+                     "PULLBACK_DISTANCE": self._calibrate_pullback_distance,
+                     "DECOMPRESSION_ANGLE": self._calibrate_decompression_angle}.get(calibration)
+        if calibrate is None:
+            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': CALIBRATION must be one of CONTACT_ONSET, "
+                             f"PULLBACK_DISTANCE, DECOMPRESSION_ANGLE, not '{calibration}'")
+        calibrate(gcmd)
+
+    def _calibration_taps(self, gcmd, samples: int, strategy: str, **option_changes):
+        """SAMPLES taps at the current XY with `strategy` for bad taps; returns (recorded taps, session).
+
+        `option_changes` change this command's TapOptions for its own taps only.
+        """
         device = self.device
         x_mm, y_mm = self.probe._current_probe_xy()
-        taps = []
-        with self.probe.session(gcmd, force_strategy="retry") as session:
+        taps: list[RecordedTap] = []
+        with self.probe.session(gcmd, force_strategy=strategy) as session:
             session.options = dataclasses.replace(session.options, samples=1)
+            if option_changes:
+                session.tap_settings = device.with_options(session.tap_settings, **option_changes)
             for index in range(samples):
                 result = session.probe_point(x_mm, y_mm)
-                taps.append(device.last_taps[-1].tap)
+                taps.append(device.last_taps[-1])
                 if index < samples - 1:
                     session._retract(result.z_mm + session.options.z_offset_mm)
+        return taps, session
+
+    def _calibrate_contact_onset(self, gcmd) -> None:
+        """Fit the sheet's onset width on the pooled taps (bad taps retried in place)."""
+        samples = gcmd.get_int("SAMPLES", 10, minval=MIN_ONSET_TAPS, maxval=50)
+        x_mm, y_mm = self.probe._current_probe_xy()
+        recorded, session = self._calibration_taps(gcmd, samples, "retry")
         try:
-            found = fit_pooled_contact_onset(taps, session.tap_settings.analysis)
+            found = fit_pooled_contact_onset([r.tap for r in recorded], session.tap_settings.analysis)
         except ValueError as exc:
             raise ProbeError(f"LOAD_CELL_PROBE_CALIBRATE: {exc}") from None
-        device.set_contact_onset(found.onset_um)
-        device.printer.config.set(device.name, "contact_onset_um", f"{found.onset_um:.2f}")
+        self.device.set_calibrated("contact_onset_um", f"{found.onset_um:.2f}", contact_onset_um=found.onset_um)
         gcmd.respond_info(
             f"Contact onset calibration ({found.taps} taps at X:{x_mm:.3f} Y:{y_mm:.3f}):\n\n"
             f"contact_onset_um: {found.onset_um:.2f}\n\n"
-            f"Z reads {found.z_shift_um:+.2f} um against a sharp contact. The SAVE_CONFIG command will update "
-            "the printer config file with the above and restart the printer.")
+            f"Z reads {found.z_shift_um:+.2f} um against a sharp contact. {SAVE_CONFIG_NOTE}")
+
+    def _calibrate_pullback_distance(self, gcmd) -> None:
+        """Tap with a long pullback, measure break contact above the halt, propose pullback_distance.
+
+        A tap counts when it is valid or its only fault is break contact in the first sixth
+        (TAP_BREAK_CONTACT_TOO_EARLY: expected with the long pullback, and the timing rule is
+        what this calibration sets). The taps use the configured speed (PROBE_SPEED overrides):
+        break contact grows with speed, so the result holds for a range of speeds around it.
+        """
+        samples = gcmd.get_int("SAMPLES", 10, minval=MIN_ONSET_TAPS, maxval=50)
+        device = self.device
+        long_pullback_mm = gcmd.get_float("PULLBACK_DISTANCE", CALIBRATION_PULLBACK_MM, minval=0.01, maxval=2.0)
+        x_mm, y_mm = self.probe._current_probe_xy()
+        recorded, session = self._calibration_taps(gcmd, samples, "ignore", pullback_distance_mm=long_pullback_mm)
+        usable = [r for r in recorded if r.valid or r.analysis.error == "TAP_BREAK_CONTACT_TOO_EARLY"]
+        self._refuse_too_few(recorded, usable, samples, "PULLBACK_DISTANCE", long_pullback_mm)
+        heights_um = [break_contact_height_um(r.analysis.break_contact_time_s, r.analysis.sensor_delay_s or 0.0,
+                                              r.analysis.sensor_integration_s or 0.0, tap_motion(r.tap))
+                      for r in usable]
+        speed_mm_s = session.options.speed_mm_s
+        try:
+            found = propose_pullback_distance(heights_um, speed_mm_s, device.sample_rate_sps)
+        except ValueError as exc:
+            raise ProbeError(f"LOAD_CELL_PROBE_CALIBRATE: {exc}") from None
+        pullback_speed_um_s = session.tap_settings.pullback_speed_mm_s * 1000.0
+        stiffness_g_um = float(np.median([abs(r.analysis.lines[3][0]) for r in usable])) / pullback_speed_um_s
+        trigger_depth_um = session.tap_settings.options.trigger_force_g / stiffness_g_um
+        slowest, fastest = covered_speed_range_mm_s(found, speed_mm_s, device.sample_rate_sps, trigger_depth_um)
+        device.set_calibrated("pullback_distance", f"{found.pullback_distance_mm:.3f}",
+                              pullback_distance_mm=found.pullback_distance_mm)
+        gcmd.respond_info(
+            f"Pullback distance calibration ({found.taps} of {samples} taps at X:{x_mm:.3f} Y:{y_mm:.3f}, "
+            f"{speed_mm_s:g} mm/s, {long_pullback_mm:g} mm pullback):\n"
+            f"break contact {found.break_mean_um:.1f} um above the halt (sigma {found.break_sigma_um:.2f} um, "
+            f"{found.break_min_um:.1f}..{found.break_max_um:.1f} um)\n\n"
+            f"pullback_distance: {found.pullback_distance_mm:.3f}\n\n"
+            f"Break contact now comes at {found.share(found.break_mean_um):.0%} of the pullback "
+            f"({found.share(found.break_min_um):.0%}..{found.share(found.break_max_um):.0%}; the spec's middle two "
+            f"thirds: 17%..83%). {self._speed_coverage(self.probe.options, slowest, fastest)} "
+            f"{SAVE_CONFIG_NOTE}")
+
+    @staticmethod
+    def _speed_coverage(probe_options, slowest: float, fastest: float) -> str:
+        """Which probing speeds the pullback suits, and which configured speeds fall outside."""
+        coverage = f"It suits probing at about {slowest:g}..{fastest:g} mm/s (estimated from this speed)."
+        outside = [f"{name} {value:g} mm/s" for name, value in
+                   (("speed", probe_options.speed_mm_s), ("retry_speed", probe_options.effective_retry_speed_mm_s))
+                   if not slowest <= value <= fastest]
+        if outside:
+            coverage += (f" Outside that: {', '.join(outside)}; calibrate at the speed you probe at most "
+                         "(PROBE_SPEED=) or bring the speeds closer together.")
+        return coverage
+
+    def _calibrate_decompression_angle(self, gcmd) -> None:
+        """Tap SAMPLES times without the angle term, store the median decompression angle."""
+        samples = gcmd.get_int("SAMPLES", 10, minval=MIN_ONSET_TAPS, maxval=50)
+        x_mm, y_mm = self.probe._current_probe_xy()
+        # An old calibration must not reject the taps that replace it.
+        recorded, session = self._calibration_taps(gcmd, samples, "ignore", decompression_angle=None)
+        usable = [r for r in recorded if r.valid]
+        pullback_mm = session.tap_settings.options.pullback_distance_mm
+        self._refuse_too_few(recorded, usable, samples, "DECOMPRESSION_ANGLE", pullback_mm)
+        try:
+            found = calibrate_decompression_angle([decompression_angle_deg(r.analysis.lines[3][0]) for r in usable])
+        except ValueError as exc:
+            raise ProbeError(f"LOAD_CELL_PROBE_CALIBRATE: {exc}") from None
+        self.device.set_calibrated("decompression_angle", f"{found.angle_deg:.2f}", decompression_angle=found.angle_deg)
+        pullback_speed_mm_s = session.tap_settings.pullback_speed_mm_s
+        sample_rate_sps = self.device.sample_rate_sps
+        gcmd.respond_info(
+            f"Decompression angle calibration ({found.taps} of {samples} taps at X:{x_mm:.3f} Y:{y_mm:.3f}):\n"
+            f"angles {found.min_deg:.2f}..{found.max_deg:.2f} deg ({found.spread:.1%} from the median)\n\n"
+            f"decompression_angle: {found.angle_deg:.2f}\n\n"
+            f"The tap quality score now includes the normalized decompression angle. The angle holds for "
+            f"pullback_speed {pullback_speed_mm_s:g} mm/s ({pullback_speed_mm_s * 1000 / sample_rate_sps:g} um per "
+            f"sample at {sample_rate_sps:g} samples/s) on this bed: calibrate again after changing either. "
+            f"{SAVE_CONFIG_NOTE}")
+
+    @staticmethod
+    def _refuse_too_few(recorded, usable, samples: int, calibration: str, pullback_mm: float) -> None:
+        """Refuse a calibration when fewer than min_usable_taps(samples) taps are usable, saying why."""
+        needed = min_usable_taps(samples)
+        if len(usable) >= needed:
+            return
+        usable_ids = {id(r) for r in usable}
+        codes = collections.Counter(r.analysis.error for r in recorded if id(r) not in usable_ids)
+        found = ", ".join(f"{code} x{count}" for code, count in codes.most_common())
+        late = codes["TAP_PULLBACK_TOO_SHORT"] + codes["TAP_BREAK_CONTACT_TOO_LATE"]
+        if late and calibration == "PULLBACK_DISTANCE":
+            advice = (f"break contact came late in the {pullback_mm:g} mm pullback: run again with "
+                      f"PULLBACK_DISTANCE={min(2 * pullback_mm, 2.0):g} (or probe slower)")
+        elif late:
+            advice = "the pullback is too short: run CALIBRATION=PULLBACK_DISTANCE first"
+        elif codes["TAP_BREAK_CONTACT_TOO_EARLY"] and calibration != "PULLBACK_DISTANCE":
+            advice = "the pullback is too long: run CALIBRATION=PULLBACK_DISTANCE first"
+        else:
+            advice = ("clean the nozzle (NOZZLE_CLEANUP) and cool it below the ooze point, check the sheet, "
+                      "then calibrate again")
+        raise ProbeError(f"LOAD_CELL_PROBE_CALIBRATE CALIBRATION={calibration}: only {len(usable)} of {samples} "
+                         f"taps were good enough ({found}), at least {needed} are needed; {advice}")
 
     def cmd_QUERY_ENDSTOPS(self, gcmd) -> None:
         """x/y: the virtual printer's switches at machine 0; z (probe:z_virtual_endstop) is always open.
