@@ -13,17 +13,23 @@ EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "virtual-printer.cf
 CALIBRATION_G = 1000
 
 
-def printer_text(scenario: str = "clean", probe_options: str = "", virtual_printer: str = "") -> str:
+def printer_text(scenario: str = "clean", probe_options: str = "", virtual_printer: str = "",
+                 replace: dict[str, str] | None = None) -> str:
+    """The example config for `scenario`; `replace`: lines of the example to change (old -> new)."""
     text = EXAMPLE.read_text().replace("scenario: clean", f"scenario: {scenario}\n{virtual_printer}")
+    for old, new in (replace or {}).items():
+        assert old in text, old
+        text = text.replace(old, new)
     if scenario == "slow-adc":
         text = text.replace("sensor_type: hx717", "sensor_type: hx711").replace("sample_rate: 320", "sample_rate: 80")
     return text.replace("samples: 1\n", f"samples: 1\n{probe_options}\n", 1)
 
 
 def make_printer(tmp_path: Path, scenario: str = "clean", probe_options: str = "", virtual_printer: str = "",
-                 calibrate: bool = True, home: bool = True) -> tuple[Printer, list[str]]:
+                 calibrate: bool = True, home: bool = True,
+                 replace: dict[str, str] | None = None) -> tuple[Printer, list[str]]:
     path = tmp_path / f"{scenario}.cfg"
-    path.write_text(printer_text(scenario, probe_options, virtual_printer))
+    path.write_text(printer_text(scenario, probe_options, virtual_printer, replace))
     responses: list[str] = []
     printer = Printer.from_config(str(path), responses=responses)
     if calibrate:
