@@ -11,7 +11,10 @@ otherwise; the 0.2 mm rows show the spec's default pullback, `bc %` where in the
 contact came (the guide wants the middle two thirds: 17–83 %). The oozy case cools the nozzle
 to 150 °C first (below the ooze point), as the guide advises. `onset calibrated` rows run
 LOAD_CELL_PROBE_CALIBRATE CALIBRATION=CONTACT_ONSET SAMPLES=10 (at the config's 5 mm/s) after
-PROBE HOME=Z; `onset µm` is what it found. A second table compares ways of removing mains hum.
+PROBE HOME=Z; `onset µm` is what it found. `pullback calibrated` rows start from the spec's 0.2 mm,
+run LOAD_CELL_PROBE_CALIBRATE CALIBRATION=PULLBACK_DISTANCE SAMPLES=10 at 2 mm/s after PROBE HOME=Z and
+then probe at the row's speed (`pullback mm` is what it set). A second table compares ways of removing
+mains hum.
 """
 
 from __future__ import annotations
@@ -35,10 +38,15 @@ from tapcell.tap.sim_taps import SimTapSpec, record_sim_tap
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "virtual-printer.cfg"
 # Not a G-code parameter: run LOAD_CELL_PROBE_CALIBRATE CALIBRATION=CONTACT_ONSET (at 5 mm/s) first.
 ONSET_CALIBRATION = "onset calibrated"
+# Not a G-code parameter: start from the spec's 0.2 mm, run CALIBRATION=PULLBACK_DISTANCE at 2 mm/s first.
+PULLBACK_CALIBRATION = "pullback calibrated"
+PULLBACK_CALIBRATION_SPEED_MM_S = 2.0
 # (scenario, speed mm/s, extra G-code parameters for the probing commands)
 CASES = [("clean", 2.0, ""), ("clean", 5.0, ""), ("clean", 10.0, ""),
          ("clean", 2.0, "PULLBACK_DISTANCE=0.2"), ("clean", 5.0, "PULLBACK_DISTANCE=0.2"),
          ("clean", 10.0, "PULLBACK_DISTANCE=0.2"),
+         ("clean", 2.0, PULLBACK_CALIBRATION), ("clean", 5.0, PULLBACK_CALIBRATION),
+         ("clean", 10.0, PULLBACK_CALIBRATION), ("soft-sheet", 2.0, PULLBACK_CALIBRATION),
          ("slow-adc", 2.0, ""), ("slow-adc", 5.0, ""),
          ("bowden-drift", 5.0, ""), ("bowden-drift", 5.0, "DRIFT_FILTER_CUTOFF_FREQUENCY=0.8"),
          ("glitchy", 5.0, ""), ("oozy", 5.0, ""),
@@ -51,8 +59,10 @@ GOAL_S_PER_TAP = 0.8
 SAMPLES = 20
 
 
-def make_printer(scenario: str, workdir: Path) -> Printer:
+def make_printer(scenario: str, workdir: Path, pullback_distance_mm: float | None = None) -> Printer:
     text = EXAMPLE.read_text().replace("scenario: clean", f"scenario: {scenario}")
+    if pullback_distance_mm is not None:
+        text = text.replace("pullback_distance: 0.15", f"pullback_distance: {pullback_distance_mm:g}")
     if scenario == "slow-adc":
         text = text.replace("sensor_type: hx717", "sensor_type: hx711").replace("sample_rate: 320", "sample_rate: 80")
     path = workdir / f"{scenario}.cfg"
@@ -66,20 +76,25 @@ def make_printer(scenario: str, workdir: Path) -> Printer:
 
 
 def run_case(scenario: str, speed_mm_s: float, extra: str, workdir: Path) -> dict:
-    printer = make_printer(scenario, workdir)
+    calibrate_pullback = extra == PULLBACK_CALIBRATION
+    printer = make_printer(scenario, workdir, pullback_distance_mm=0.2 if calibrate_pullback else None)
     device = printer.lookup_object("load_cell_probe")
     device.last_taps = collections.deque(maxlen=SAMPLES)
     vp = printer.backend
     probing_from_s = vp.now_s  # after the calibration weight came off
-    row = {"error": "", "onset_um": None}
-    calibrate = extra == ONSET_CALIBRATION
-    extra = "" if calibrate else extra
+    row = {"error": "", "onset_um": None, "pullback_mm": None}
+    calibrate_onset = extra == ONSET_CALIBRATION
+    extra = "" if calibrate_onset or calibrate_pullback else extra
     try:
         printer.gcode.run_script(f"PROBE PROBE_SPEED={speed_mm_s} HOME=Z BAD_PROBE_STRATEGY=ignore {extra}\nG1 Z0.4")
-        if calibrate:
+        if calibrate_onset:
             printer.gcode.run_script("LOAD_CELL_PROBE_CALIBRATE CALIBRATION=CONTACT_ONSET SAMPLES=10 "
                                      "SAMPLE_RETRACT_DIST=0.4\nG1 Z0.4")
             row["onset_um"] = device.options.contact_onset_um
+        if calibrate_pullback:
+            printer.gcode.run_script("LOAD_CELL_PROBE_CALIBRATE CALIBRATION=PULLBACK_DISTANCE SAMPLES=10 "
+                                     f"PROBE_SPEED={PULLBACK_CALIBRATION_SPEED_MM_S:g} SAMPLE_RETRACT_DIST=0.4\nG1 Z0.4")
+            row["pullback_mm"] = device.options.pullback_distance_mm
         device.last_taps.clear()
         t0_s = vp.now_s
         printer.gcode.run_script(f"PROBE_ACCURACY SAMPLES={SAMPLES} PROBE_SPEED={speed_mm_s} SAMPLE_RETRACT_DIST=0.4 "
@@ -111,7 +126,7 @@ def run_case(scenario: str, speed_mm_s: float, extra: str, workdir: Path) -> dic
 
 def main(argv: list[str]) -> int:
     table = Table(title=f"PROBE_ACCURACY SAMPLES={SAMPLES} on the virtual printer (from 0.4 mm clearance)")
-    for column in ("scenario", "speed mm/s", "extra", "onset µm", "σ µm", "bias µm", "valid", "top rejection", "bc %",
+    for column in ("scenario", "speed mm/s", "extra", "onset µm", "pullback mm", "σ µm", "bias µm", "valid", "top rejection", "bc %",
                    "peak g", "s/tap", "÷ 0.8 s goal", "error"):
         table.add_column(column, justify="left" if column in ("scenario", "extra", "top rejection", "bc %", "error")
                          else "right")
@@ -119,7 +134,8 @@ def main(argv: list[str]) -> int:
         for scenario, speed, extra in CASES:
             r = run_case(scenario, speed, extra, Path(tmp))
             onset = "" if r["onset_um"] is None else f"{r['onset_um']:.1f}"
-            table.add_row(scenario, f"{speed:g}", extra, onset, f"{r['sigma_um']:.2f}", f"{r['bias_um']:+.2f}",
+            pullback = "" if r["pullback_mm"] is None else f"{r['pullback_mm']:.3f}"
+            table.add_row(scenario, f"{speed:g}", extra, onset, pullback, f"{r['sigma_um']:.2f}", f"{r['bias_um']:+.2f}",
                           f"{r['valid']:.0%}", r["rejection"], r["bc_share"], f"{r['peak_g']:.0f}",
                           f"{r['s_per_tap']:.3f}",
                           f"{r['s_per_tap'] / GOAL_S_PER_TAP:.2f}", r["error"][:90])
