@@ -16,7 +16,8 @@ One tap, step by step (`LoadCellProbe.tap`):
 8. report: Z at break contact when the tap is valid, otherwise the trigger Z and the
    validation code for the probe's bad_probe_strategy.
 
-Commands: LOAD_CELL_TEST_TAP, NOZZLE_CLEANUP, plus the [load_cell] commands and the generic
+Commands: LOAD_CELL_TEST_TAP, NOZZLE_CLEANUP, LOAD_CELL_PROBE_CALIBRATE (CONTACT_ONSET, PULLBACK_DISTANCE,
+DECOMPRESSION_ANGLE), plus the [load_cell] commands and the generic
 probe commands of `tapcell.probe`. Status: `load_cell_probe` (and `probe`).
 """
 
