@@ -8,6 +8,7 @@ import pytest
 from probe_vprinter import make_printer
 from tapcell.config import ConfigFile
 from tapcell.gcode import GCodeError
+from tapcell.printer import Printer
 from tapcell.load_cell_probe_options import (
     PullbackCalibration,
     break_contact_spread_um,
@@ -37,7 +38,7 @@ def test_pullback_puts_break_contact_at_the_geometric_middle():
     # 30 µm / sqrt(1/6 · 5/6) = 80.5 µm, rounded to 1 µm.
     assert found.pullback_distance_mm == 0.080
     assert found.share(30.0) == pytest.approx(0.375)
-    assert (found.taps, found.break_mean_um, found.break_sigma_um) == (4 - 1, 30.0, 0.0)
+    assert (found.taps, found.break_mean_um, found.break_sigma_um) == (3, 30.0, 0.0)
 
 
 def test_wide_spread_shortens_to_keep_the_low_taps_out_of_the_first_sixth():
@@ -214,7 +215,6 @@ def test_save_config_round_trip_of_both_options(tmp_path):
 
 
 def make_printer_from(path):
-    from tapcell.printer import Printer
     responses: list[str] = []
     return Printer.from_config(str(path), responses=responses), responses
 
