@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tapcell.probe_options import OptionSpec
+from tapcell.tap.angles import slope_angle_deg
 
 
 @dataclass(frozen=True)
@@ -393,9 +394,6 @@ def covered_speed_range_mm_s(found: PullbackCalibration, speed_mm_s: float, samp
 
 
 # -- LOAD_CELL_PROBE_CALIBRATE CALIBRATION=DECOMPRESSION_ANGLE -------------------------------
-# The angle of a slope on the spec's plot scale (0.1 s against 25 g, the "Prusa scale"); the
-# classifier (tapcell.tap.classifiers) compares the decompression line's angle on this scale.
-ANGLE_SCALE_S_PER_G = 0.004
 # The calibration taps' angles may lie at most this far (share of the median) from their median:
 # each such tap would already lose this much quality; ooze or a loose sheet moves it 7 % or more.
 MAX_ANGLE_SPREAD = 0.03
@@ -407,7 +405,7 @@ def decompression_angle_deg(decompression_slope_g_s: float) -> float:
     The slope is the bed's stiffness times the pullback speed, so the angle holds only for the
     pullback_speed (default: 1 µm per sample, i.e. the sample rate) it was calibrated at.
     """
-    return abs(math.degrees(math.atan(decompression_slope_g_s * ANGLE_SCALE_S_PER_G)))
+    return abs(slope_angle_deg(decompression_slope_g_s))
 
 
 @dataclass(frozen=True)

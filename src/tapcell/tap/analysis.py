@@ -22,6 +22,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tapcell.tap import validate
+from tapcell.tap.angles import line_angles_deg
 from tapcell.tap.contact import (ContactFit, fit_contact, fit_contact_at, search_contact, window_edges,
                                  window_mean_and_slope)
 from tapcell.tap.hum import MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum, fit_hum, resolvable_hz, spline_knots
@@ -54,8 +55,6 @@ MISFIT_REACH_SAMPLES = 10
 # The compression stiffness is scored only from at least this many samples whose conversion
 # window lies wholly in contact before the halt (fewer: onset, integration and the halt dominate).
 MIN_COMPRESSION_SAMPLES = 2
-# Prusa's plotting scale used for the line angles (s per g): 0.1 s to 25 g.
-ANGLE_SCALE_S_PER_G = 0.004
 
 
 @dataclass
@@ -176,11 +175,6 @@ def _intersect(a: tuple[float, float], b: tuple[float, float], t_ref: float) -> 
 
 def _line_at(line: tuple[float, float], t: float) -> float:
     return line[0] * t + line[1]
-
-
-def line_angles_deg(lines: list[tuple[float, float]]) -> list[float]:
-    atans = [math.degrees(math.atan(s * ANGLE_SCALE_S_PER_G)) for s, _ in lines]
-    return [atans[i] - atans[i + 1] for i in range(4)]
 
 
 @dataclass

@@ -16,6 +16,7 @@ from functools import lru_cache
 from importlib.metadata import entry_points
 from typing import TYPE_CHECKING, Any, Callable, Protocol
 
+from tapcell.tap.angles import line_angles_deg, slope_angle_deg
 from tapcell.tap.model import (
     CLASSIFIER_FAILED,
     LOW_COMPRESSION_FORCE,
@@ -29,7 +30,6 @@ if TYPE_CHECKING:
     from tapcell.tap.analysis import AnalysisContext
 
 ENTRY_POINT_GROUP = "tapcell.tap_classifiers"
-ANGLE_SCALE_S_PER_G = 0.004
 # A clean tap's residual scatters around the noise sigma by ~±15 % (both are estimates):
 # residuals up to 1.25 × the noise cost nothing.
 MISFIT_TOLERANCE = 1.25
@@ -88,7 +88,7 @@ def quality_components(points: list[tuple[float, float]], decompression_slope_g_
         "dwell_drop": abs(f[2] - f[3]) / compression,
     }
     if decompression_angle is not None:
-        angle = abs(math.degrees(math.atan(decompression_slope_g_s * ANGLE_SCALE_S_PER_G)))
+        angle = abs(slope_angle_deg(decompression_slope_g_s))
         components["angle"] = abs(angle - decompression_angle) / decompression_angle
     if stiffness_ratio is not None:
         components["stiffness"] = abs(1.0 - stiffness_ratio)
@@ -223,7 +223,7 @@ def run_classifier(result: TapAnalysis, context: AnalysisContext, classifier: Ta
 
 def _apply_lines(result: TapAnalysis, context: AnalysisContext, lines: list[tuple[float, float]]) -> None:
     """Replace the five lines: recompute points, angles and Z, and validate again."""
-    from tapcell.tap.analysis import line_angles_deg, recompute_points
+    from tapcell.tap.analysis import recompute_points
 
     result.lines = [(float(s), float(i)) for s, i in lines]
     result.points = recompute_points(result.lines, result.points[0][0], result.points[5][0])
