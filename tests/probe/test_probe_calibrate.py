@@ -19,7 +19,7 @@ from tapcell.load_cell_probe_options import (
     propose_pullback_distance,
 )
 from tapcell.tap import AnalysisOptions, analyze_tap
-from tapcell.tap.sim_taps import SimTapSpec, record_sim_tap
+from tapcell.sim_taps import SimTapSpec, record_sim_tap
 
 SPS = 320.0
 # The spec's default pullback and the speed the brief probes at.

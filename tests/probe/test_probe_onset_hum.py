@@ -11,7 +11,7 @@ from tapcell.gcode import GCodeError
 from tapcell.load_cell_probe import LoadCellProbe
 from tapcell.load_cell_probe_options import _parabola_minimum, fit_pooled_contact_onset
 from tapcell.tap import AnalysisOptions
-from tapcell.tap.sim_taps import SimTapSpec, record_sim_tap
+from tapcell.sim_taps import SimTapSpec, record_sim_tap
 
 
 def accuracy_bias_um(printer, extra: str = "") -> tuple[float, float]:

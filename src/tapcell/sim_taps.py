@@ -9,7 +9,8 @@ samples from the start of the probing move to the end of the pullback, as
 `load_cell_probe` collects them. `truth` holds `z_contact` (commanded Z of first touch, mm)
 and `label` (`fouled` when an ooze film > 1 µm was on the nozzle, else `clean`).
 
-This module reads simulator truth: tools and tests only, never the probe.
+This module reads simulator truth, so it sits at the tools layer beside `sim_commands` and
+`demo`, outside the analysis package: tests, benchmarks and labelled tap sets use it, never the probe.
 """
 
 from __future__ import annotations
