@@ -46,6 +46,9 @@ from tapcell.probe_options import (
     with_overrides,
 )
 from tapcell.load_cell_probe_options import (
+    ERROR_PREFIX,
+    preload_refusal,
+    trigger_error_message,
     CALIBRATION_PULLBACK_MM,
     TAP_OPTION_SPECS,
     MIN_ONSET_TAPS,
@@ -68,10 +71,10 @@ from tapcell.load_cell_probe_options import (
     too_fast_for_analysis,
 )
 from tapcell.probe_patterns import serpentine_pattern
+from tapcell.scale import counts_to_grams
 from tapcell.tap import AnalysisOptions, Move, TapData, analyze_tap, get_classifier, tap_to_json_dict
 from tapcell.tap.motion import tap_motion
 
-ERROR_PREFIX = "Load Cell Probe Error: "
 BREAK_CLEAR_SAMPLES = 4  # after break contact: one conversion window plus margin before free-air samples
 KEEP_LAST_TAPS = 16
 HISTORY_S = 1.0  # samples kept between taps (the tare looks back at most tare_time)
@@ -286,8 +289,7 @@ class LoadCellProbe:
         beyond = force_beyond_safety_limit_g(tare_counts, self.load_cell.reference_tare_counts,
                                              self.load_cell.counts_per_gram, options.force_safety_limit_g)
         if beyond is not None:
-            raise ProbeError(ERROR_PREFIX + f"force of {abs(beyond):.0f}g exceeds force_safety_limit "
-                             f"({options.force_safety_limit_g:.0f}g) before probing!")
+            raise ProbeError(preload_refusal(beyond, options.force_safety_limit_g))
         self.load_cell.set_tare(tare_counts)
         self.tare_counts_at_tap = tare_counts
         return tare_counts
@@ -306,18 +308,8 @@ class LoadCellProbe:
         ))
         error = trigger.arm(int(round(tare_counts)), self.vp.now_s)
         if error != TriggerError.NONE:
-            raise ProbeError(self._trigger_error_message(error, options))
+            raise ProbeError(trigger_error_message(error, options.force_safety_limit_g))
         return trigger
-
-    @staticmethod
-    def _trigger_error_message(error: TriggerError, options: TapOptions) -> str:
-        if error == TriggerError.DRIFT_SAFETY:
-            return ERROR_PREFIX + "force exceeded drift_safety_limit before triggering!"
-        if error == TriggerError.WATCHDOG_TIMEOUT:
-            return ERROR_PREFIX + "timed out waiting for sensor data"
-        if error == TriggerError.FORCE_SAFETY:
-            return ERROR_PREFIX + f"force exceeded force_safety_limit ({options.force_safety_limit_g:.0f}g) while probing!"
-        return ERROR_PREFIX + f"trigger error {error.name}"
 
     def _probing_move(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float):
         """Tare, arm and move down until the trigger halts Z; returns (move result, tare, t_start)."""
@@ -333,7 +325,7 @@ class LoadCellProbe:
         result = self.vp.probing_move(machine_z_min_mm, speed_mm_s, trigger)
         self.load_cell.pump()
         if result.error != TriggerError.NONE:
-            message = self._trigger_error_message(result.error, settings.options)
+            message = trigger_error_message(result.error, settings.options.force_safety_limit_g)
             if result.error == TriggerError.DRIFT_SAFETY:
                 message += self._explain_drift(settings.options, tare_counts, t_start_s, speed_mm_s)
             raise ProbeError(message)
@@ -461,10 +453,8 @@ class LoadCellProbe:
     def _tap_data(self, tare_counts, t_start_s, result, pullback_start_s, pullback_end_s,
                   speed_mm_s, settings: TapSettings) -> TapData:
         t_s, counts, _ = self.history.between(t_start_s, pullback_end_s)
-        force_g = (counts - tare_counts) / self.load_cell.counts_per_gram
-        if self.cell_options.inverted:
-            force_g = -force_g
-        moves = [Move(**{k: m[k] for k in ("print_time", "move_t", "start_v", "accel", "start_z", "z_r")})
+        force_g = counts_to_grams(counts, tare_counts, self.load_cell.counts_per_gram, self.cell_options.inverted)
+        moves = [Move.from_record(m)
                  for m in self.vp.recorded_moves(t_start_s, pullback_end_s)
                  if m["print_time"] >= t_start_s - 1e-9]  # not the move that ended as the tap began
         x, y, _ = self.vp.position
@@ -707,7 +697,7 @@ class LoadCellProbeCommands:
             result = device.vp.wait_for_trigger(trigger, max(deadline_s - device.vp.now_s, 0.0))
             device.load_cell.pump()
             if result.error != TriggerError.NONE:
-                raise ProbeError(device._trigger_error_message(result.error, settings.options))
+                raise ProbeError(trigger_error_message(result.error, settings.options.force_safety_limit_g))
             if not result.triggered:
                 raise ProbeError(f"LOAD_CELL_TEST_TAP: no tap detected within {timeout_s:g}s "
                                  f"({index} of {count} taps detected)")

@@ -12,8 +12,29 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tapcell.mcu.trigger import TriggerError
 from tapcell.probe_options import OptionSpec
 from tapcell.tap.angles import slope_angle_deg
+
+# Every load-cell probing error starts with this (the spec's wording).
+ERROR_PREFIX = "Load Cell Probe Error: "
+
+
+def preload_refusal(beyond_g: float, force_safety_limit_g: float) -> str:
+    """The spec's refusal when the force before the move is already past force_safety_limit."""
+    return (ERROR_PREFIX + f"force of {abs(beyond_g):.0f}g exceeds force_safety_limit "
+            f"({force_safety_limit_g:.0f}g) before probing!")
+
+
+def trigger_error_message(error: TriggerError, force_safety_limit_g: float) -> str:
+    """What the user reads when the firmware trigger stopped a probing move with `error`."""
+    if error == TriggerError.DRIFT_SAFETY:
+        return ERROR_PREFIX + "force exceeded drift_safety_limit before triggering!"
+    if error == TriggerError.WATCHDOG_TIMEOUT:
+        return ERROR_PREFIX + "timed out waiting for sensor data"
+    if error == TriggerError.FORCE_SAFETY:
+        return ERROR_PREFIX + f"force exceeded force_safety_limit ({force_safety_limit_g:.0f}g) while probing!"
+    return ERROR_PREFIX + f"trigger error {error.name}"
 
 
 @dataclass(frozen=True)

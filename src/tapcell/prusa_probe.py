@@ -31,7 +31,7 @@ import numpy as np
 
 from tapcell.config import ConfigSection
 from tapcell.gcode import GCodeCommand, GCodeError
-from tapcell.load_cell_probe import ERROR_PREFIX
+from tapcell.load_cell_probe_options import ERROR_PREFIX, preload_refusal, trigger_error_message
 from tapcell.load_cell_probe_options import force_beyond_safety_limit_g
 from tapcell.mcu.trigger import FirmwareTrigger, TriggerError, TriggerParams
 from tapcell.mesh.errors import MeshError
@@ -126,8 +126,7 @@ class ThresholdProber:
         beyond_g = force_beyond_safety_limit_g(tare.counts, self.load_cell.reference_tare_counts,
                                                self.load_cell.counts_per_gram, options.force_safety_limit_g)
         if beyond_g is not None:
-            raise ProbeError(ERROR_PREFIX + f"force of {abs(beyond_g):.0f}g exceeds force_safety_limit "
-                             f"({options.force_safety_limit_g:.0f}g) before probing!")
+            raise ProbeError(preload_refusal(beyond_g, options.force_safety_limit_g))
         if drift_safety_limit_g is None:
             drift_safety_limit_g = options.drift_safety_limit_g
         trigger = FirmwareTrigger(TriggerParams(
@@ -143,18 +142,8 @@ class ThresholdProber:
         ))
         error = trigger.arm(int(round(tare.counts)), self.vp.now_s)
         if error != TriggerError.NONE:
-            raise ProbeError(self._error_message(error))
+            raise ProbeError(trigger_error_message(error, self.device.options.force_safety_limit_g))
         return trigger
-
-    def _error_message(self, error: TriggerError) -> str:
-        if error == TriggerError.FORCE_SAFETY:
-            return ERROR_PREFIX + (f"force exceeded force_safety_limit ({self.device.options.force_safety_limit_g:.0f}g)"
-                                   " while probing!")
-        if error == TriggerError.DRIFT_SAFETY:
-            return ERROR_PREFIX + "force exceeded drift_safety_limit before triggering!"
-        if error == TriggerError.WATCHDOG_TIMEOUT:
-            return ERROR_PREFIX + "timed out waiting for sensor data"
-        return ERROR_PREFIX + f"trigger error {error.name}"
 
     def _frame_mm(self) -> np.ndarray:
         return np.array([self.toolhead.frame_offset_mm[axis] for axis in "xyz"])
@@ -170,7 +159,7 @@ class ThresholdProber:
         result = self.vp.probing_move(machine_target, speed_mm_s, trigger)
         self.load_cell.pump()
         if result.error != TriggerError.NONE:
-            raise ProbeError(self._error_message(result.error))
+            raise ProbeError(trigger_error_message(result.error, self.device.options.force_safety_limit_g))
         halt = tuple(np.array(self.vp.position) + frame)
         trigger_position = None
         if result.triggered:
@@ -187,7 +176,7 @@ class ThresholdProber:
         result = self.vp.probing_move_xy(x_mm - frame[0], y_mm - frame[1], speed_mm_s, trigger)
         self.load_cell.pump()
         if result.error != TriggerError.NONE:
-            raise ProbeError(self._error_message(result.error))
+            raise ProbeError(trigger_error_message(result.error, self.device.options.force_safety_limit_g))
         halt = np.array(self.vp.position)
         trigger_position = None
         if result.triggered:
