@@ -155,7 +155,8 @@ def _cell(value: float, fmt: str) -> str:
 
 
 def sim_table(taps: int) -> Table:
-    table = Table(title=f"virtual printer taps, {taps} per row (µm vs truth; tap_quality classifier)")
+    table = Table(title=f"virtual printer taps, {taps} per row (µm vs truth; tap_quality classifier; the analysis "
+                        "alone: 4-sample dwell, no hum removal — bench/probe_session shows the probe with both)")
     for column in ("scenario", "mm/s", "valid %", "bias", "σ", "p95 |err|", "worst valid", "clean acc. %",
                    "fouled rej. %", "fouled max |err| unchecked (n)", "rejections"):
         table.add_column(column, justify="left" if column in ("scenario", "rejections") else "right")
