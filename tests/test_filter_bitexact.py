@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import example, given, settings, strategies as st
 from scipy import signal
 
@@ -10,7 +11,7 @@ from tapcell.filters import (
     FilterOptions, QuantizedSos, buzz_cutoff_minimum_hz, design_firmware_filter, design_sos, grams_to_q1615,
     half_rate_hz, q1615_to_grams, reference_sosfilt_q,
 )
-from tapcell.mcu.trigger import sos_filter_run
+from tapcell.mcu.trigger import TriggerConfigError, sos_filter_run
 
 SAMPLE_RATES = (10, 80, 320, 330, 660, 1000, 2000)
 
@@ -46,11 +47,12 @@ def test_c_filter_equals_reference_on_random_designs_and_signals(opts, seed, big
 
 
 @settings(max_examples=40, deadline=None)
-@given(coeff=st.lists(st.lists(st.integers(-2 ** 31, 2 ** 31 - 1), min_size=5, max_size=5), min_size=1,
+@given(coeff=st.lists(st.lists(st.integers(-2 ** 31 + 1, 2 ** 31 - 1), min_size=5, max_size=5), min_size=1,
                       max_size=4),
        frac_bits=st.integers(1, 30), seed=st.integers(0, 2 ** 32 - 1))
-# Saturation in section 2 made the unclamped rounding error push z2 past int64 (UB in C).
-@example(coeff=[[0, 0, 4, 0, 0], [0, 0, -2 ** 31, 0, 2 ** 31 - 1]], frac_bits=1, seed=0)
+# Saturation in section 1 wraps its rounding error; extreme coefficients in section 2 then
+# bring the sums to the edge of int64 (with -2^31 allowed this overflowed: UB in C).
+@example(coeff=[[0, 0, 4, 0, 0], [0, 0, -2 ** 31 + 1, 0, 2 ** 31 - 1]], frac_bits=1, seed=0)
 def test_c_filter_equals_reference_on_arbitrary_coefficients(coeff, frac_bits, seed):
     qsos = QuantizedSos(coeff=np.array(coeff, dtype=np.int32), frac_bits=frac_bits)
     x = np.random.default_rng(seed).integers(-2 ** 31, 2 ** 31, 60, dtype=np.int64)
@@ -84,3 +86,11 @@ def test_both_within_0_05_g_of_float64_on_a_tared_2_kg_signal():
         assert not overflow
         assert np.array_equal(y_c, y_ref)
         assert np.max(np.abs(q1615_to_grams(y_c) - want_g)) < 0.05, opts
+
+
+def test_a_coefficient_of_minus_2_pow_31_is_refused_by_firmware_and_reference():
+    qsos = QuantizedSos(coeff=np.array([[1, 0, 0, 0, -2 ** 31]], dtype=np.int32), frac_bits=30)
+    with pytest.raises(TriggerConfigError, match=r"no coefficient equal to -2\^31"):
+        sos_filter_run(qsos, np.zeros(4, dtype=np.int32))
+    with pytest.raises(ValueError, match=r"-2\^31 is not allowed"):
+        reference_sosfilt_q(qsos, np.zeros(4, dtype=np.int32))

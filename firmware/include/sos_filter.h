@@ -12,7 +12,7 @@
  * One section, with R = 2^(frac_bits-1) (round half up) and every product 32x32->64:
  *   acc = b0*x + z1                          z1 already holds R
  *   y   = acc >> frac_bits                   the section output, int32 Q16.15
- *   err = acc - R - (y << frac_bits)         rounding error, in [-R, R) (clamped to it after a saturation)
+ *   err = acc - R - (y << frac_bits)         rounding error, in [-R, R)
  *   z1  = b1*x - a1*y + 2*err + z2
  *   z2  = b2*x - a2*y + R - err
  * The err terms are second-order error feedback: the rounding error reaches the
@@ -113,8 +113,9 @@ static inline int32_t tc_shift_to_int32_native(int64_t v, unsigned shift, uint8_
 #endif
 
 /* Load coefficients (n_sections rows of b0 b1 b2 a1 a2) and reset the state.
- * Returns TC_OK, or TC_ERR_BAD_CONFIG when n_sections > 4 or frac_bits is
- * outside 1..30 (the filter is then left as a pass-through). */
+ * Returns TC_OK, or TC_ERR_BAD_CONFIG when n_sections > 4, frac_bits is
+ * outside 1..30 or a coefficient is INT32_MIN (the filter is then left as a
+ * pass-through). */
 int tc_sos_filter_configure(struct tc_sos_filter *f, const int32_t coeff[][TC_SOS_NCOEFF],
                             unsigned n_sections, unsigned frac_bits);
 

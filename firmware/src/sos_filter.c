@@ -20,9 +20,17 @@ int tc_sos_filter_configure(struct tc_sos_filter *f, const int32_t coeff[][TC_SO
     if (n_sections > TC_SOS_MAX_SECTIONS || frac_bits < TC_SOS_MIN_FRAC_BITS
         || frac_bits > TC_SOS_MAX_FRAC_BITS)
         return TC_ERR_BAD_CONFIG;
+    /* INT32_MIN is refused: with every |coefficient| <= 2^31 - 1 the products
+     * below stay within 2^62 - 2^31, which keeps each section's sums inside
+     * int64 for ANY 32-bit error term, including the wrapped one after a
+     * saturation (no undefined behaviour, no extra work per sample). Designed
+     * filters never reach it (quantize_sos keeps |c| < 2^31 - 1). */
     for (unsigned i = 0; i < n_sections; i++)
-        for (unsigned k = 0; k < TC_SOS_NCOEFF; k++)
+        for (unsigned k = 0; k < TC_SOS_NCOEFF; k++) {
+            if (coeff[i][k] == INT32_MIN)
+                return TC_ERR_BAD_CONFIG;   /* n_sections is still 0: a pass-through */
             f->coeff[i][k] = coeff[i][k];
+        }
     f->frac_bits = (uint8_t)frac_bits;
     f->round_half = (uint32_t)1 << (frac_bits - 1); /* 32-bit shift: no libcall on M0+ */
     f->n_sections = (uint8_t)n_sections;
@@ -79,21 +87,14 @@ int32_t tc_sos_filter_apply(struct tc_sos_filter *f, int32_t x)
         int64_t acc = z[0];
         int32_t y = section_mul_add_shift(c[TC_SOS_B0], x, &acc, shift, &bad);
         /* Rounding error of y in product units, in [-R, R): fits 32 bits, so
-         * 32-bit arithmetic gives it exactly (it wraps only after a saturation). */
+         * 32-bit arithmetic gives it exactly. After a saturation it is the wrapped
+         * 32-bit difference (deterministic, flagged, and harmless: see configure). */
         int32_t err = (int32_t)((uint32_t)acc - ((uint32_t)y << shift) - (uint32_t)f->round_half);
-        /* After a saturation y is clamped and that difference is no rounding error
-         * (it can be any 32-bit value): clamp it to [-R, R) so the sums below stay
-         * within int64 (a signed overflow there would be undefined behaviour). */
-        const int32_t half = (int32_t)f->round_half;
-        if (err >= half)
-            err = half - 1;
-        else if (err < -half)
-            err = -half;
         /* Error feedback (1 - z^-1)^2: without it the rounding error reaches the
          * output through 1/A(z), whose DC gain is ~1e4 for a drift high-pass
-         * (poles near z = 1) - a 0.25 g offset. Products: |b*x - a*y| <= 2^63 - 2^31,
-         * so adding 2*err or R - err (|.| <= 2^30, err clamped above) cannot overflow; only the
-         * sum with the stored state is checked. */
+         * (poles near z = 1) - a 0.25 g offset. Products: |b*x - a*y| <= 2^63 - 2^32
+         * (|c| <= 2^31 - 1), so adding 2*err (|.| <= 2^32) or R - err cannot overflow
+         * even for a wrapped err; only the sum with the stored state is checked. */
         z[0] = add_sat64(tc_mul_s32(c[TC_SOS_B1], x) - tc_mul_s32(c[TC_SOS_A1], y) + 2 * (int64_t)err,
                          z[1], &bad);
         z[1] = tc_mul_s32(c[TC_SOS_B2], x) - tc_mul_s32(c[TC_SOS_A2], y) + f->round_half - err;

@@ -89,8 +89,8 @@ TEST(sos_output_overflow_saturates_and_sticks)
     struct tc_sos_filter f = one_section(1.5, 0, 0, 0, 0);
     CHECK_EQ_INT(tc_sos_filter_apply(&f, 50000 * GRAM), INT32_MAX);  /* 75000 g > 65536 g */
     CHECK_EQ_INT(f.overflowed, 1);
-    /* flag sticky; the saturated sample's error term, clamped to R - 1, leaves 1 LSB in the next output */
-    CHECK_EQ_INT(tc_sos_filter_apply(&f, GRAM), GRAM + GRAM / 2 + 1);
+    /* flag sticky; the saturated sample's (wrapped) error term leaves 2 LSB in the next output */
+    CHECK_EQ_INT(tc_sos_filter_apply(&f, GRAM), GRAM + GRAM / 2 + 2);
     CHECK_EQ_INT(f.overflowed, 1);
     CHECK_EQ_INT(tc_sos_filter_apply(&f, -50000 * GRAM), INT32_MIN);
     tc_sos_filter_reset(&f);
@@ -169,4 +169,15 @@ TEST(sos_word_math_equals_native_math)
     CHECK_EQ_INT(bad, 0);
     CHECK_EQ_INT(tc_shift_to_int32_words(((int64_t)INT32_MIN * ((int64_t)1 << 31)) - 1, 31, &bad), INT32_MIN);
     CHECK_EQ_INT(bad, 1);
+}
+
+TEST(sos_configure_refuses_int32_min_coefficient)
+{
+    /* -2^31 is the one value that would let a section's sums leave int64 */
+    struct tc_sos_filter f;
+    const int32_t coeff[1][TC_SOS_NCOEFF] = {{1 << 30, 0, 0, 0, INT32_MIN}};
+    CHECK_EQ_INT(tc_sos_filter_configure(&f, coeff, 1, 30), TC_ERR_BAD_CONFIG);
+    CHECK_EQ_INT(f.n_sections, 0);   /* left as a pass-through */
+    const int32_t ok[1][TC_SOS_NCOEFF] = {{1 << 30, 0, 0, 0, INT32_MIN + 1}};
+    CHECK_EQ_INT(tc_sos_filter_configure(&f, ok, 1, 30), TC_OK);
 }

@@ -199,7 +199,8 @@ def quantize_sos(sos: np.ndarray) -> QuantizedSos:
     max_abs = float(np.max(np.abs(coeff))) if coeff.size else 0.0
     frac_bits = choose_frac_bits(max_abs)
     fixed = _fixed_sections(coeff, frac_bits)
-    while frac_bits >= MIN_FRAC_BITS and fixed.size and (fixed.min() < INT32_MIN or fixed.max() > INT32_MAX):
+    # The firmware refuses INT32_MIN (it keeps every section's sums inside int64).
+    while frac_bits >= MIN_FRAC_BITS and fixed.size and (fixed.min() <= INT32_MIN or fixed.max() > INT32_MAX):
         frac_bits -= 1  # the adjusted b1 stepped past int32
         fixed = _fixed_sections(coeff, frac_bits)
     if frac_bits < MIN_FRAC_BITS:
@@ -249,6 +250,8 @@ def reference_sosfilt_q(qsos: QuantizedSos | None, x_q: np.ndarray) -> tuple[np.
         raise ValueError("x_q: values must fit int32 (Q16.15 grams)")
     if qsos is None or qsos.n_sections == 0:
         return x.astype(np.int32), False
+    if np.any(np.asarray(qsos.coeff) == INT32_MIN):
+        raise ValueError("sos: a coefficient of -2^31 is not allowed (the firmware refuses it)")
     shift = qsos.frac_bits
     half = 1 << (shift - 1)
     coeff = [[int(c) for c in row] for row in qsos.coeff]
@@ -259,7 +262,7 @@ def reference_sosfilt_q(qsos: QuantizedSos | None, x_q: np.ndarray) -> tuple[np.
         for (b0, b1, b2, a1, a2), z in zip(coeff, state):
             acc, bad_add = _sat(b0 * value + z[0], INT64_MIN, INT64_MAX)
             y, bad_y = _sat(acc >> shift, INT32_MIN, INT32_MAX)
-            err = min(max(_wrap_int32(acc - (y << shift) - half), -half), half - 1)  # clamped after a saturation
+            err = _wrap_int32(acc - (y << shift) - half)
             z[0], bad_state = _sat(b1 * value - a1 * y + 2 * err + z[1], INT64_MIN, INT64_MAX)
             z[1] = b2 * value - a2 * y + half - err
             overflowed |= bad_add or bad_y or bad_state

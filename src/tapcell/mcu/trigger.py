@@ -209,7 +209,8 @@ def _configure_filter(ffi, lib, filter_ptr, sos: QuantizedSos | None) -> None:
                                              sos.n_sections, sos.frac_bits)
     if status != 0:
         raise TriggerConfigError(f"sos: {sos.n_sections} sections with {sos.frac_bits} fraction bits "
-                                 "is not allowed; allowed: at most 4 sections, 1 .. 31 fraction bits")
+                                 "is not allowed; allowed: at most 4 sections, 1 .. 30 fraction bits, "
+                                 "no coefficient equal to -2^31")
 
 
 class FirmwareTrigger:
