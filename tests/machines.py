@@ -1,10 +1,15 @@
-"""The virtual machine most tests start from: [virtual_printer], [printer] and the steppers.
+"""What the virtual-printer tests share: the machine most of them start from ([virtual_printer],
+[printer] and the steppers) and reading the error a G-code script must raise.
 
 Kept in one place so a change to the machine (limits, steppers) is made once; tests add
 the sections they exercise (load cells, probes, meshes) after it.
 """
 
 from __future__ import annotations
+
+import pytest
+
+from tapcell.gcode import GCodeError
 
 MACHINE_SECTIONS = """\
 [printer]
@@ -46,3 +51,10 @@ position_max: 250
 def machine_config(scenario: str = "clean", seed: int = 1) -> str:
     """Config text of the virtual machine in `scenario` with `seed`."""
     return f"[virtual_printer]\nscenario: {scenario}\nseed: {seed}\n\n{MACHINE_SECTIONS}"
+
+
+def gcode_error(printer, script: str) -> str:
+    """The message of the GCodeError that running `script` on `printer` must raise."""
+    with pytest.raises(GCodeError) as info:
+        printer.gcode.run_script(script)
+    return str(info.value)

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from tapcell.config import ConfigError
-from tapcell.gcode import GCodeError
+
+from machines import gcode_error
 
 MESH = """
 [bed_mesh]
@@ -169,18 +170,10 @@ def test_default_profile_is_loaded_at_start(make_printer):
 
 def test_profile_command_errors(make_printer):
     printer = make_printer(MESH)
-    with pytest.raises(GCodeError) as err:
-        printer.gcode.run_script("BED_MESH_PROFILE LOAD=nothing")
-    assert str(err.value) == "Error on 'BED_MESH_PROFILE LOAD=nothing': no bed mesh profile 'nothing' (known: none)"
-    with pytest.raises(GCodeError) as err:
-        printer.gcode.run_script("BED_MESH_PROFILE REMOVE=nothing")
-    assert str(err.value) == "Error on 'BED_MESH_PROFILE REMOVE=nothing': no bed mesh profile 'nothing' (known: none)"
-    with pytest.raises(GCodeError) as err:
-        printer.gcode.run_script("BED_MESH_PROFILE SAVE=x LOAD=y")
-    assert "give exactly one of SAVE=name, LOAD=name, REMOVE=name" in str(err.value)
-    with pytest.raises(GCodeError) as err:
-        printer.gcode.run_script("BED_MESH_PROFILE SAVE=x")
-    assert "no active mesh to save" in str(err.value)
+    assert gcode_error(printer, "BED_MESH_PROFILE LOAD=nothing") == "Error on 'BED_MESH_PROFILE LOAD=nothing': no bed mesh profile 'nothing' (known: none)"
+    assert gcode_error(printer, "BED_MESH_PROFILE REMOVE=nothing") == "Error on 'BED_MESH_PROFILE REMOVE=nothing': no bed mesh profile 'nothing' (known: none)"
+    assert "give exactly one of SAVE=name, LOAD=name, REMOVE=name" in gcode_error(printer, "BED_MESH_PROFILE SAVE=x LOAD=y")
+    assert "no active mesh to save" in gcode_error(printer, "BED_MESH_PROFILE SAVE=x")
 
 
 def test_broken_profile_section_names_option(make_printer):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tapcell.gcode import GCodeError
+from machines import gcode_error
 
 MESH = """
 [bed_mesh]
@@ -83,18 +83,10 @@ def test_oozy_mesh_completes_with_circle(make_printer):
 
 def test_calibrate_needs_homing_and_checks_parameters(make_printer):
     printer = make_printer(MESH, probe=True)
-    with pytest.raises(GCodeError) as err:
-        printer.gcode.run_script("BED_MESH_CALIBRATE")
-    assert str(err.value) == "BED_MESH_CALIBRATE: home all axes first (G28)"
-    with pytest.raises(GCodeError) as err:
-        printer.gcode.run_script("BED_MESH_CALIBRATE METHOD=magic")
-    assert str(err.value) == "Error on 'BED_MESH_CALIBRATE METHOD=magic': METHOD=magic: must be one of tap, two_pass, prusa"
-    with pytest.raises(GCodeError) as err:
-        printer.gcode.run_script("BED_MESH_CALIBRATE PROBE_COUNT=2")
-    assert "PROBE_COUNT=2: must be at least 3 points on each axis" in str(err.value)
-    with pytest.raises(GCodeError) as err:
-        printer.gcode.run_script("BED_MESH_CALIBRATE HORIZONTAL_Z_CLEARANCE=0")
-    assert "HORIZONTAL_Z_CLEARANCE must be above 0" in str(err.value)
+    assert gcode_error(printer, "BED_MESH_CALIBRATE") == "BED_MESH_CALIBRATE: home all axes first (G28)"
+    assert gcode_error(printer, "BED_MESH_CALIBRATE METHOD=magic") == "Error on 'BED_MESH_CALIBRATE METHOD=magic': METHOD=magic: must be one of tap, two_pass, prusa"
+    assert "PROBE_COUNT=2: must be at least 3 points on each axis" in gcode_error(printer, "BED_MESH_CALIBRATE PROBE_COUNT=2")
+    assert "HORIZONTAL_Z_CLEARANCE must be above 0" in gcode_error(printer, "BED_MESH_CALIBRATE HORIZONTAL_Z_CLEARANCE=0")
 
 
 def test_thermal_calibrate_measures_the_nozzle_growth(make_printer):

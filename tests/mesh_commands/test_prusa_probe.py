@@ -10,6 +10,8 @@ from tapcell.config import ConfigError
 from tapcell.gcode import GCodeError
 from tapcell.prusa_probe import ThresholdProber
 
+from machines import gcode_error
+
 PRUSA = """
 [prusa_probe]
 
@@ -61,9 +63,7 @@ def test_every_set_threshold_command(prusa_printer, make_printer, command, alias
 
 
 def test_z_threshold_must_stay_above_the_hysteresis(prusa_printer):
-    with pytest.raises(GCodeError) as err:
-        prusa_printer.gcode.run_script("SET_MESH_THRESHOLD VALUE=60")
-    assert "SET_MESH_THRESHOLD VALUE=60: must be above the hysteresis (80 g)" in str(err.value)
+    assert "SET_MESH_THRESHOLD VALUE=60: must be above the hysteresis (80 g)" in gcode_error(prusa_printer, "SET_MESH_THRESHOLD VALUE=60")
     prusa_printer.gcode.run_script("SET_XY_THRESHOLD VALUE=30")  # XY releases at half: no such limit
 
 
@@ -147,8 +147,6 @@ def test_retry_limit_stops_the_mesh(make_printer):
     # Pretend the bed is 3 mm higher than it is: probing stops at position_min 1 mm above it.
     toolhead = printer.lookup_object("toolhead")
     toolhead.set_z_position(toolhead.get_position()[2] - 3.0)
-    with pytest.raises(GCodeError) as err:
-        printer.gcode.run_script("BED_MESH_CALIBRATE METHOD=prusa")
-    assert str(err.value) == "Mesh point 1 at 20.000,20.000: no contact after 3 attempts"
+    assert gcode_error(printer, "BED_MESH_CALIBRATE METHOD=prusa") == "Mesh point 1 at 20.000,20.000: no contact after 3 attempts"
     tried = [line for line in make_printer.responses if "no contact before Z=-2.000" in line]
     assert [line.split("(")[1] for line in tried] == ["attempt 1 of 3)", "attempt 2 of 3)", "attempt 3 of 3)"]

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from tapcell.gcode import GCodeError
+from machines import gcode_error
 
 PIN = """
 [xy_probe]
@@ -52,9 +52,5 @@ def test_single_touch_reports_the_contact_position(pin_printer, make_printer):
 
 def test_missing_the_pin_is_an_error(pin_printer):
     pin_printer.gcode.run_script("G1 X100 Y100 Z2 F3000")
-    with pytest.raises(GCodeError) as err:
-        pin_printer.gcode.run_script("XY_PROBE DIRECTION=-Y DISTANCE=5")
-    assert str(err.value) == "XY probe: no contact within 5 mm from X=100.000 Y=100.000"
-    with pytest.raises(GCodeError) as err:
-        pin_printer.gcode.run_script("XY_PROBE DIRECTION=up")
-    assert "DIRECTION must be one of +X, -X, +Y, -Y" in str(err.value)
+    assert gcode_error(pin_printer, "XY_PROBE DIRECTION=-Y DISTANCE=5") == "XY probe: no contact within 5 mm from X=100.000 Y=100.000"
+    assert "DIRECTION must be one of +X, -X, +Y, -Y" in gcode_error(pin_printer, "XY_PROBE DIRECTION=up")

@@ -5,7 +5,8 @@ from __future__ import annotations
 import pytest
 
 from tapcell.config import ConfigError
-from tapcell.gcode import GCodeError
+
+from machines import gcode_error
 
 THERMAL = """
 [z_thermal_adjust nozzle]
@@ -74,7 +75,5 @@ def test_only_the_nozzle_sensor_exists(make_printer):
 
 def test_calibrate_checks_its_temperatures(make_printer, home_without_probe):
     printer = make_printer(THERMAL)
-    with pytest.raises(GCodeError) as err:
-        printer.gcode.run_script("Z_THERMAL_CALIBRATE TEMP_COLD=200 TEMP_HOT=180")
-    assert str(err.value) == ("Error on 'Z_THERMAL_CALIBRATE TEMP_COLD=200 TEMP_HOT=180': TEMP_HOT (180) must be "
+    assert gcode_error(printer, "Z_THERMAL_CALIBRATE TEMP_COLD=200 TEMP_HOT=180") == ("Error on 'Z_THERMAL_CALIBRATE TEMP_COLD=200 TEMP_HOT=180': TEMP_HOT (180) must be "
                               "above TEMP_COLD (200); the guide uses 180 and 290")
