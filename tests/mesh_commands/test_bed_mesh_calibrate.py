@@ -78,7 +78,7 @@ def test_oozy_mesh_completes_with_circle(make_printer):
                              "G1 Z0.4\nNOZZLE_CLEANUP\nBED_MESH_CALIBRATE BAD_PROBE_STRATEGY=CIRCLE")
     probed = np.array(printer.get_status()["bed_mesh"]["probed_matrix"])
     xs, ys = np.meshgrid(np.linspace(20, 215, 3), np.linspace(20, 215, 3))
-    assert np.max(np.abs(probed - true_bed_mm(printer)(xs, ys))) < 0.010
+    assert np.max(np.abs(probed - true_bed_mm(printer)(xs, ys))) < 0.004  # measured: 2.6 um
 
 
 def test_calibrate_needs_homing_and_checks_parameters(make_printer):
@@ -94,5 +94,5 @@ def test_thermal_calibrate_measures_the_nozzle_growth(make_printer):
     printer.gcode.run_script("G28\nG1 X117.5 Y117.5 Z2 F6000\nZ_THERMAL_CALIBRATE TEMP_COLD=100 TEMP_HOT=160 SAMPLES=5")
     coeff = printer.lookup_object("z_thermal_adjust").state.settings.temp_coeff_mm_per_c
     # The virtual nozzle grows 0.45 um per degree C: the guide's -0.00045455 mm/C.
-    assert coeff == pytest.approx(-0.00045, rel=0.1)
+    assert coeff == pytest.approx(-0.00045, rel=0.02)  # measured: -0.000449
     assert printer.config.pending_changes()["z_thermal_adjust"]["temp_coeff"] == f"{coeff:.8f}"

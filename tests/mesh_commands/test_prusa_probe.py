@@ -102,7 +102,7 @@ def test_loadcell_probe_double_tare_and_z(prusa_printer, make_printer):
     truth_mm = prusa_printer.backend.truth.contact_z_at(100, 100) + toolhead.frame_offset_mm["z"]
     # A 125 g threshold is met 125 g / stiffness into the bed (plus a little of the sample's averaging).
     depth_mm = 125.0 / prusa_printer.backend.truth.stiffness_g_um / 1000.0
-    assert session["z_mm"] - truth_mm == pytest.approx(-depth_mm, abs=0.010)
+    assert session["z_mm"] - truth_mm == pytest.approx(-depth_mm, abs=0.006)  # measured: 4.1 um deeper
 
 
 def test_preload_beyond_force_safety_limit_refuses_before_moving(prusa_printer):
