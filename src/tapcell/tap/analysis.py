@@ -376,11 +376,10 @@ def fit_compression(window: ModelWindow, motion: Motion, timing: SensorTiming, d
     if last < 6 or not math.isfinite(window.contact_line_um):
         return None
     spacing_um = max(motion.approach_speed_mm_s * 1000.0 * timing.sample_period_s, 0.05)
+    # fit_contact_at only answers with at least 2 samples in contact.
     found = _fit_fixed_onset(window.force_g[:last], window.x_min_um[:last], window.span_um[:last],
                              window.contact_line_um + 0.5 * onset_um, spacing_um, onset_um)
-    if found is None or found[0].samples_in_contact < 2:
-        return None
-    return found[0]
+    return found[0] if found else None
 
 
 def check_contact_heights(window: ModelWindow, pullback: ContactFit | None, compression: ContactFit | None,

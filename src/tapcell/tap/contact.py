@@ -105,11 +105,8 @@ class ContactFit:
     baseline_g: float
     onset_um: float
     contact_sigma_um: float  # 1 sigma from the fit covariance
-    onset_sigma_um: float
     residual_sigma_g: float
     rss_g2: float
-    samples_in_contact: int
-    samples_used: int
 
 
 def fit_contact(force_g: np.ndarray, x_lo_um: np.ndarray, x_hi_um: np.ndarray, contact_um: float,
@@ -173,11 +170,8 @@ def fit_contact(force_g: np.ndarray, x_lo_um: np.ndarray, x_hi_um: np.ndarray, c
         baseline_g=float(theta[2]),
         onset_um=float(theta[3]),
         contact_sigma_um=float(np.sqrt(max(covariance[0, 0], 0.0))),
-        onset_sigma_um=float(np.sqrt(max(covariance[3, 3], 0.0))) if fit_onset else 0.0,
         residual_sigma_g=float(np.sqrt(residual_var)),
         rss_g2=rss,
-        samples_in_contact=in_contact,
-        samples_used=len(force_g),
     )
 
 
@@ -334,5 +328,4 @@ def fit_contact_at(force_g: np.ndarray, x_min_um: np.ndarray, span_um: np.ndarra
         return None
     return ContactFit(contact_um=float(contact_um), stiffness_g_um=float(stiffness), baseline_g=float(baseline),
                       onset_um=float(onset_um), contact_sigma_um=math.sqrt(residual_var / information),
-                      onset_sigma_um=0.0, residual_sigma_g=math.sqrt(residual_var), rss_g2=rss,
-                      samples_in_contact=in_contact, samples_used=count), residual
+                      residual_sigma_g=math.sqrt(residual_var), rss_g2=rss), residual

@@ -55,7 +55,6 @@ class HumFit:
     hum_g: np.ndarray = field(repr=False)  # at every sample
     residual_sigma_g: float = 0.0  # of the whole model over the samples used
     chi2_improvement: float = 0.0  # residual lowered by the hum terms, in noise variances
-    samples_used: int = 0
 
     def to_json(self) -> dict:
         return {"frequencies_hz": list(self.frequencies_hz),
@@ -178,7 +177,6 @@ def fit_hum(time_s: np.ndarray, force_g: np.ndarray, frequencies_hz, knots_s: np
         hum_g=waves @ hum_coefficients,
         residual_sigma_g=math.sqrt(noise_var),
         chi2_improvement=(rss_without - rss) / noise_var if noise_var > 0 else math.inf,
-        samples_used=int(np.count_nonzero(use)),
     )
 
 
