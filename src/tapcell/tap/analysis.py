@@ -80,10 +80,9 @@ def sensor_timing(tap: TapData, options: AnalysisOptions, sample_period_s: float
 
 
 def _meta_seconds(tap: TapData, key: str, default: float) -> float:
-    value = tap.meta.get(key)
-    if isinstance(value, int | float) and math.isfinite(value) and 0 <= value < 1:
-        return float(value)
-    return default
+    """A sensor time from the tap's meta: a number in [0, 1) s, else `default`."""
+    value = _meta_number(tap, key, math.inf)
+    return value if value < 1 else default
 
 
 def _meta_number(tap: TapData, key: str, default: float) -> float:
@@ -159,7 +158,7 @@ def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarr
 
 
 def _indices(time_s: np.ndarray, *t: float) -> list[int]:
-    """`_index` of several times in one call."""
+    """Index of the first sample at or after each time (the last sample for times past the end)."""
     return np.minimum(time_s.searchsorted(t), len(time_s) - 1).tolist()
 
 
