@@ -12,10 +12,10 @@ from typing import Any
 
 import numpy as np
 
+from tapcell.tap.analysis import MIN_SAMPLES  # a file with fewer samples could not be analysed
 from tapcell.tap.model import Move, TapAnalysis, TapData, TapFileError
 
 FORMAT = "tapcell.tap.v1"
-MIN_SAMPLES = 12
 MOVE_KEYS = ("print_time", "move_t", "start_v", "accel", "start_z", "z_r")
 
 
