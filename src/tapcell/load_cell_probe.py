@@ -543,14 +543,10 @@ class LoadCellProbeCommands:
         x_mm, y_mm = self.probe._current_probe_xy()
         taps: list[RecordedTap] = []
         with self.probe.session(gcmd, force_strategy=strategy) as session:
-            session.options = dataclasses.replace(session.options, samples=1)
             if option_changes:
                 session.tap_settings = device.with_options(session.tap_settings, **option_changes)
-            for index in range(samples):
-                result = session.probe_point(x_mm, y_mm)
-                taps.append(device.last_taps[-1])
-                if index < samples - 1:
-                    session._retract(result.z_mm + session.options.z_offset_mm)
+            for _ in session.probe_repeatedly(x_mm, y_mm, samples):
+                taps.append(device.last_taps[-1])  # the accepted tap, before the lift
         return taps, session
 
     def _calibrate_contact_onset(self, gcmd) -> None:

@@ -18,6 +18,7 @@ G-code parameters (the overrides), call `probe_point(x, y)` per point, close it.
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Iterator
 from dataclasses import dataclass
 from typing import Any, Protocol
 
@@ -97,17 +98,14 @@ class ProbeSession:
     def __init__(self, probe: Probe, gcmd=None, *, force_strategy: str | None = None):
         self.probe = probe
         options = with_overrides(probe.options, PROBE_OPTION_SPECS, gcmd)
-        if force_strategy is not None and gcmd_lacks(gcmd, "BAD_PROBE_STRATEGY"):
+        if force_strategy is not None and (gcmd is None or not gcmd.has("BAD_PROBE_STRATEGY")):
             options = dataclasses.replace(options, bad_probe_strategy=force_strategy)
         problem = check_probe_options(options)
         if problem is not None:
             raise ProbeError(problem)
         self.options = options
-        self.gcmd = gcmd
         self.tap_settings = probe.tapper.command_settings(gcmd)
         self.fouled_xy_mm: list[tuple[float, float]] = []
-        self.bad_taps = 0
-        self.results: list[ProbeResult] = []
         self._active = False
 
     def __enter__(self) -> ProbeSession:
@@ -160,9 +158,21 @@ class ProbeSession:
             z_mm=z_mm, valid=valid, tap_analysis=outcome.analysis, x_mm=x_mm, y_mm=y_mm,
             attempts=attempts, samples_z_mm=tuple(samples), tapped_x_mm=tapped[0], tapped_y_mm=tapped[1],
         )
-        self.results.append(result)
         self.probe.last_result = result
         return result
+
+    def probe_repeatedly(self, x_mm: float, y_mm: float, count: int) -> Iterator[ProbeResult]:
+        """Probe one point `count` times, one sample each, lifting sample_retract_dist in between.
+
+        For PROBE_ACCURACY and the calibrations: each result is yielded before the lift, so the
+        caller can look at that tap (e.g. the device's last recorded tap) while it is the latest.
+        """
+        self.options = dataclasses.replace(self.options, samples=1)
+        for index in range(count):
+            result = self.probe_point(x_mm, y_mm)
+            yield result
+            if index < count - 1:
+                self._retract(result.z_mm + self.options.z_offset_mm)
 
     def _tap_until_good(self, x_mm: float, y_mm: float) -> tuple[TapOutcome, tuple[float, float], int]:
         """Tap, then follow bad_probe_strategy until a tap is accepted; returns (outcome, where, taps)."""
@@ -189,7 +199,6 @@ class ProbeSession:
             if opts.bad_probe_strategy == "fail":
                 raise ProbeError(f"Probe failed because it was deemed bad quality: {reason}")
             self.fouled_xy_mm.append(where)
-            self.bad_taps += 1
             bad_here += 1
             if bad_here > opts.bad_probe_retries:
                 raise ProbeError(f"Probing failed after {bad_here} bad probes (last: {reason})")
@@ -215,10 +224,6 @@ class ProbeSession:
         target = contact_z_mm + self.options.sample_retract_dist_mm
         if target > motion.get_position()[2]:
             motion.move_to(z=target, speed_mm_s=self.options.effective_lift_speed_mm_s)
-
-
-def gcmd_lacks(gcmd, name: str) -> bool:
-    return gcmd is None or name not in {p.upper() for p in gcmd.get_command_parameters()}
 
 
 class Probe:
@@ -291,13 +296,7 @@ class Probe:
                 f"PROBE_ACCURACY at X:{x:.3f} Y:{y:.3f} Z:{z_start:.3f} (samples={samples} "
                 f"retract={opts.sample_retract_dist_mm:.3f} speed={opts.speed_mm_s:.1f} "
                 f"lift_speed={opts.effective_lift_speed_mm_s:.1f})")
-            session.options = dataclasses.replace(opts, samples=1)
-            z_values = []
-            for index in range(samples):
-                result = session.probe_point(x, y)
-                z_values.append(result.z_mm)
-                if index < samples - 1:
-                    session._retract(result.z_mm + opts.z_offset_mm)
+            z_values = [result.z_mm for result in session.probe_repeatedly(x, y, samples)]
         stats = accuracy_stats(np.array(z_values))
         self.last_accuracy = stats
         self.last_z_result = stats.average_mm
