@@ -21,6 +21,7 @@ import numpy as np
 
 from tapcell.filters import FilterOptions, design_firmware_filter
 from tapcell.mcu.trigger import FirmwareTrigger, TriggerParams
+from tapcell.scale import counts_to_grams
 from tapcell.sim import VirtualPrinter
 from tapcell.tap.model import Move, TapData
 
@@ -68,10 +69,11 @@ def record_sim_tap(spec: SimTapSpec, printer: VirtualPrinter | None = None) -> T
     vp.dwell(2.0 / sps)  # the conversion holding the pullback's end is read
     batch = vp.take_samples()
     inside = (batch.t_s >= t_start) & (batch.t_s <= t_end)
-    t, raw = batch.t_s[inside], batch.counts[inside].astype(float)
+    t = batch.t_s[inside]
     moves = [Move.from_record(m) for m in vp.recorded_moves(t_start, t_end) if m["print_time"] >= t_start - 1e-9]
     return TapData(
-        time_s=t, force_g=(raw - tare) / counts_per_gram, moves=moves, sample_rate_sps=sps,
+        time_s=t, force_g=counts_to_grams(batch.counts[inside], tare, counts_per_gram), moves=moves,
+        sample_rate_sps=sps,
         probe={"x": spec.x_mm, "y": spec.y_mm, "speed": spec.speed_mm_s,
                "pullback_distance": spec.pullback_distance_mm, "pullback_speed": pullback_speed,
                "trigger_force": spec.trigger_force_g},
