@@ -50,6 +50,7 @@ from tapcell.load_cell_probe_options import (
     preload_refusal,
     trigger_error_message,
     CALIBRATION_PULLBACK_MM,
+    PULLBACK_LIMITS_MM,
     TAP_OPTION_SPECS,
     MIN_ONSET_TAPS,
     TapOptions,
@@ -83,10 +84,10 @@ TARE_TIMEOUT_S = 1.0  # no sample for this long: the sensor is gone
 # deep over-travel). A low quality score is the classifier's verdict, not explained by speed.
 SPEED_SENSITIVE_CODES = ("TAP_CHRONOLOGY", "TAP_SHAPE_INVALID", "TAP_PULLBACK_TOO_SHORT", "TAP_BREAK_CONTACT_TOO_LATE")
 RELEASE_CHECK_S = 0.05  # LOAD_CELL_TEST_TAP looks at the force this often while waiting for a release
-TARE_FRESH_MARGIN_SAMPLES = 4
+TARE_FRESH_MARGIN_SAMPLES = 4  # the tare window may reach back this many periods beyond tare_time
 SAVE_CONFIG_NOTE = ("The SAVE_CONFIG command will update the printer config file with the above and restart "
                     "the printer.")
-ENDSTOP_SWITCH_MM = 1e-6  # the virtual X/Y switches close at machine position 0  # the tare window may reach back this many periods beyond tare_time
+ENDSTOP_SWITCH_MM = 1e-6  # the virtual X/Y switches close at machine position 0
 
 
 class SampleHistory:
@@ -341,12 +342,10 @@ class LoadCellProbe:
         The bed's stiffness comes from the kept taps (the stiffest, to be safe); before the
         first tap nothing is known and the firmware's drift/force checks are the only guard.
         """
-        stiffness = [t.analysis.stiffness_decompression_g_um for t in self.last_taps
-                     if t.analysis.stiffness_decompression_g_um]
+        k_g_um = self._known_stiffness_g_um(valid_only=False)
         limit_g = options.force_safety_limit_g
-        if not stiffness or limit_g <= 0:
+        if k_g_um is None or limit_g <= 0:
             return
-        k_g_um = max(stiffness)
         peak_g = expected_peak_force_g(options.trigger_force_g, k_g_um, speed_mm_s, self.sample_rate_sps)
         if peak_g < limit_g:
             return
@@ -413,10 +412,13 @@ class LoadCellProbe:
             self.printer.gcode.respond_info(f"Tap Quality: {analysis.quality:.1f}%")
         return TapOutcome(z_mm=z_mm, valid=valid, error_code=analysis.error, message=message, analysis=analysis)
 
-    def _known_stiffness_g_um(self) -> float | None:
-        """The bed's stiffness measured by the kept valid taps (the stiffest), None before any."""
+    def _known_stiffness_g_um(self, *, valid_only: bool = True) -> float | None:
+        """The bed's stiffness measured by the kept taps (the stiffest), None before any.
+
+        The force guard counts bad taps too (to be safe); explaining a bad tap trusts valid ones only.
+        """
         stiffness = [t.analysis.stiffness_decompression_g_um for t in self.last_taps
-                     if t.valid and t.analysis.stiffness_decompression_g_um]
+                     if (t.valid or not valid_only) and t.analysis.stiffness_decompression_g_um]
         return max(stiffness) if stiffness else None
 
     def _explain_bad_tap(self, tap: TapData, error_code: str | None, options: TapOptions,
@@ -574,7 +576,9 @@ class LoadCellProbeCommands:
         """
         samples = gcmd.get_int("SAMPLES", 10, minval=MIN_ONSET_TAPS, maxval=50)
         device = self.device
-        long_pullback_mm = gcmd.get_float("PULLBACK_DISTANCE", CALIBRATION_PULLBACK_MM, minval=0.01, maxval=2.0)
+        shortest_mm, longest_mm = PULLBACK_LIMITS_MM
+        long_pullback_mm = gcmd.get_float("PULLBACK_DISTANCE", CALIBRATION_PULLBACK_MM,
+                                          minval=shortest_mm, maxval=longest_mm)
         x_mm, y_mm = self.probe._current_probe_xy()
         recorded, session = self._calibration_taps(gcmd, samples, "ignore", pullback_distance_mm=long_pullback_mm)
         usable = [r for r in recorded if r.valid or r.analysis.error == "TAP_BREAK_CONTACT_TOO_EARLY"]
@@ -653,7 +657,7 @@ class LoadCellProbeCommands:
         late = codes["TAP_PULLBACK_TOO_SHORT"] + codes["TAP_BREAK_CONTACT_TOO_LATE"]
         if late and calibration == "PULLBACK_DISTANCE":
             advice = (f"break contact came late in the {pullback_mm:g} mm pullback: run again with "
-                      f"PULLBACK_DISTANCE={min(2 * pullback_mm, 2.0):g} (or probe slower)")
+                      f"PULLBACK_DISTANCE={min(2 * pullback_mm, PULLBACK_LIMITS_MM[1]):g} (or probe slower)")
         elif late:
             advice = "the pullback is too short: run CALIBRATION=PULLBACK_DISTANCE first"
         elif codes["TAP_BREAK_CONTACT_TOO_EARLY"] and calibration != "PULLBACK_DISTANCE":

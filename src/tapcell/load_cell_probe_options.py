@@ -63,6 +63,8 @@ class TapOptions:
     contact_onset_um: float = 0.0  # 0: a sharp contact; LOAD_CELL_PROBE_CALIBRATE CALIBRATION=CONTACT_ONSET fits it
 
 
+PULLBACK_LIMITS_MM = (0.01, 2.0)  # pullback_distance's range (also the calibration's PULLBACK_DISTANCE)
+
 # Filter options are range-checked by tapcell.filters (the limits depend on the sample rate).
 TAP_OPTION_SPECS: tuple[OptionSpec, ...] = (
     OptionSpec("trigger_force", "trigger_force_g", "float", 75.0, minval=10.0, maxval=250.0),
@@ -75,7 +77,8 @@ TAP_OPTION_SPECS: tuple[OptionSpec, ...] = (
     OptionSpec("buzz_filter_delay", "buzz_filter_delay", "int", 2),
     OptionSpec("notch_filter_frequencies", "notch_filter_frequencies", "floatlist", None),
     OptionSpec("notch_filter_quality", "notch_filter_quality", "float", 2.0),
-    OptionSpec("pullback_distance", "pullback_distance_mm", "float", 0.2, minval=0.01, maxval=2.0),
+    OptionSpec("pullback_distance", "pullback_distance_mm", "float", 0.2,
+               minval=PULLBACK_LIMITS_MM[0], maxval=PULLBACK_LIMITS_MM[1]),
     OptionSpec("pullback_speed", "pullback_speed_mm_s", "float", None, minval=0.01, maxval=2.0),
     OptionSpec("tap_classifier", "tap_classifier", "str", "tap_quality"),
     OptionSpec("min_tap_quality", "min_tap_quality", "float", 40.0, minval=0.0, maxval=100.0),
@@ -297,7 +300,6 @@ CALIBRATION_PULLBACK_MM = 0.4
 MIN_CALIBRATION_TAPS = 3
 # This share of the taps must be usable, or the taps are not good enough to calibrate on.
 MIN_USABLE_SHARE = 0.8
-PULLBACK_LIMITS_MM = (0.01, 2.0)  # the option's range
 
 
 def min_usable_taps(samples: int) -> int:
