@@ -44,7 +44,7 @@ def test_csv_with_extra_columns(tmp_path, tap):
     (read,) = read_tap_file(path)
     assert read.moves == [] and np.array_equal(read.z_mm, tap.z_mm)
     result = analyze_tap(read)
-    assert result.valid and abs(result.z_mm) * 1000 < 0.5
+    assert result.valid and abs(result.z_mm) * 1000 < 0.05  # measured 0.009 µm, as with the moves
 
 
 def test_dump_taps_event(tmp_path, tap):

@@ -46,7 +46,8 @@ def test_the_same_taps_without_the_film_stay_valid_and_accurate():
         tap = record_sim_tap(clean)
         result = analyze_tap(tap, AnalysisOptions(sensor_delay_s="auto"))
         assert result.valid, result.message
-        assert abs(result.z_mm - tap.truth["z_contact"]) * 1000 < 3.0
+        # The virtual printer's clean taps read 0.9-1.8 µm low (test_sim_taps); these: -1.57 and -1.59 µm.
+        assert -1.8 < (result.z_mm - tap.truth["z_contact"]) * 1000 < -1.35
 
 
 @pytest.mark.parametrize("speed_mm_s", [1.0, 2.0, 5.0, 10.0, 15.0])
@@ -89,4 +90,4 @@ def test_contact_search_beside_an_unusable_candidate_emits_no_warning():
         warnings.simplefilter("error")
         result = analyze_tap(tap)
     assert result.valid, result.message
-    assert abs(result.z_mm - tap.truth["z_contact"]) * 1000 < 3.0
+    assert -2.2 < (result.z_mm - tap.truth["z_contact"]) * 1000 < -1.6  # measured -1.88 µm
