@@ -14,6 +14,7 @@ import pytest
 from probe_vprinter import make_printer, true_contact_z
 from tapcell.config import ConfigError
 from tapcell.gcode import GCodeCommand, GCodeError, parse_line
+from tapcell.probe_stats import format_accuracy
 from tapcell.tap import read_tap_file
 
 
@@ -101,9 +102,10 @@ def test_probe_accuracy_reports_every_statistic(tmp_path):
                       r"speed=5\.0 lift_speed=5\.0\)$", responses[0])
     # Z is where the 2.5 um step grid puts 0.4 after re-basing Z on the bed.
     assert float(header[1]) == pytest.approx(0.4, abs=0.0025)
-    summary = responses[-1]
-    for word in ("maximum", "minimum", "range", "average", "median", "standard deviation", "average delta"):
-        assert word in summary
+    stats = printer.lookup_object("probe").last_accuracy
+    assert responses[-1] == "// " + format_accuracy(stats)
+    assert stats.count == 4 and stats.standard_deviation_mm < 0.0005
+    assert stats.average_mm == pytest.approx(true_contact_z(printer), abs=0.002)
 
 
 def test_filter_overrides_take_effect(tmp_path):

@@ -38,7 +38,8 @@ def accuracy(printer, speed_mm_s: float, samples: int = 20, extra: str = "") -> 
 def test_clean_accuracy_does_not_depend_on_speed(tmp_path, speed_mm_s):
     printer, _ = make_printer(tmp_path)
     sigma_um, bias_um = accuracy(printer, speed_mm_s)
-    assert sigma_um <= 1.0
+    # Measured: sigma 0.14 / 0.10 / 0.18 um, bias -1.20 / -1.36 / -1.71 um at 2 / 5 / 10 mm/s.
+    assert sigma_um <= 0.3
     assert abs(bias_um) <= 2.0
     assert true_peak_force_g(printer) < 2000.0
 
@@ -68,7 +69,7 @@ def test_clean_taps_are_valid_and_fast(tmp_path):
 def test_slow_adc_probes_at_2mm_s(tmp_path):
     printer, _ = make_printer(tmp_path, scenario="slow-adc", probe_options=NO_SCORE)
     sigma_um, bias_um = accuracy(printer, 2.0, samples=5)
-    assert sigma_um <= 1.0 and abs(bias_um) <= 2.0
+    assert sigma_um <= 0.3 and abs(bias_um) <= 2.0  # measured 0.14 and -1.66 um
     assert true_peak_force_g(printer) < 2000.0
 
 
@@ -113,7 +114,7 @@ def test_slow_adc_first_tap_too_fast_estimates_the_bed_from_the_jump(tmp_path):
         printer.gcode.run_script("PROBE PROBE_SPEED=8 BAD_PROBE_STRATEGY=fail")
     why = re.search(r"\(probing too fast for this sensor: .*\)$", str(error.value))[0]
     stiffness = float(re.search(r"about (\d+\.\d) g/um", why)[1])
-    assert 1.0 <= stiffness <= 3.3  # true 3.26 g/um
+    assert 2.7 <= stiffness <= 3.1  # measured 2.9 (true 3.26 g/um)
     assert "at 8 mm/s and 80 samples/s the nozzle moves 100.0 um per sample" in why
     assert true_peak_force_g(printer) < 2000.0
 
@@ -121,7 +122,7 @@ def test_slow_adc_first_tap_too_fast_estimates_the_bed_from_the_jump(tmp_path):
 def test_glitchy_frames_never_abort(tmp_path):
     printer, _ = make_printer(tmp_path, scenario="glitchy", probe_options=NO_SCORE)
     sigma_um, bias_um = accuracy(printer, 5.0)  # ~10 s of probing: about 5 corrupted frames
-    assert sigma_um <= 1.0 and abs(bias_um) <= 2.0
+    assert sigma_um <= 0.3 and abs(bias_um) <= 2.0  # measured 0.10 and -1.36 um, as on the clean bed
     assert true_peak_force_g(printer) < 2000.0
 
 
