@@ -16,7 +16,8 @@ CALIBRATION_G = 1000
 def printer_text(scenario: str = "clean", probe_options: str = "", virtual_printer: str = "",
                  replace: dict[str, str] | None = None) -> str:
     """The example config for `scenario`; `replace`: lines of the example to change (old -> new)."""
-    text = EXAMPLE.read_text().replace("scenario: clean", f"scenario: {scenario}\n{virtual_printer}")
+    # The extra [virtual_printer] lines go after the example's own (scenario, seed): later values win.
+    text = EXAMPLE.read_text().replace("scenario: clean\nseed: 1\n", f"scenario: {scenario}\nseed: 1\n{virtual_printer}\n")
     for old, new in (replace or {}).items():
         assert old in text, old
         text = text.replace(old, new)
