@@ -27,8 +27,10 @@ def valid_designs(draw) -> FilterOptions:
     notches = []   # no room for a notch when the drift cutoff is above the buzz cutoff
     if high - low > 0.1:
         notches = draw(st.lists(st.floats(low + 0.05 * (high - low), high - 0.05 * (high - low)), max_size=2))
+    # a notch's width (frequency / quality) must stay below half the sample rate
+    q_min = max([0.5] + [1.01 * f0 / (sps / 2) for f0 in notches])
     return FilterOptions(sps, drift, draw(st.sampled_from((1, 2))), buzz, draw(st.sampled_from((1, 2))),
-                         tuple(notches), draw(st.floats(0.5, 6.0)))
+                         tuple(notches), draw(st.floats(q_min, 6.0)))
 
 
 @settings(max_examples=60, deadline=None)

@@ -81,6 +81,9 @@ def test_quantize_rejects_bad_sections(sos, message):
      "notch_filter_frequencies: '50' is not allowed; allowed: a list of at most 2 frequencies"),
     (dict(notch_filter_quality=0.4), "notch_filter_quality: 0.4 is not allowed; allowed: 0.5 to 6"),
     (dict(notch_filter_quality=6.5), "notch_filter_quality: 6.5 is not allowed; allowed: 0.5 to 6"),
+    (dict(sample_rate_sps=80, notch_filter_frequencies=(30,), notch_filter_quality=0.5),
+     "notch_filter_quality: 0.5 is not allowed; allowed: above 0.75 for a notch at 30 Hz (its width, frequency / "
+     "quality, must stay below half of 80 sps)"),
     (dict(sample_rate_sps=0), "sample_rate_sps: 0 is not allowed; allowed: a positive sample rate"),
 ])
 def test_every_design_error_names_option_value_and_range(options, message):

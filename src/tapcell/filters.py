@@ -139,6 +139,14 @@ def validate_filter_options(opts: FilterOptions) -> None:
     q = _finite_number("notch_filter_quality", opts.notch_filter_quality, allowed)
     if not (NOTCH_QUALITY_MIN <= q <= NOTCH_QUALITY_MAX):
         raise FilterDesignError("notch_filter_quality", opts.notch_filter_quality, allowed)
+    # A notch's width is f0 / Q; at half the sample rate or wider the design degenerates
+    # (scipy's iirnotch divides by zero there and returns coefficients of ~1e16).
+    for f0 in notches:
+        if float(f0) / q >= sps / 2.0:
+            raise FilterDesignError(
+                "notch_filter_quality", opts.notch_filter_quality,
+                f"above {2.0 * float(f0) / sps:g} for a notch at {float(f0):g} Hz (its width, frequency / quality, "
+                f"must stay below half of {sps:g} sps)")
 
 
 def design_sos(opts: FilterOptions) -> np.ndarray:
