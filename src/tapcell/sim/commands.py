@@ -18,7 +18,7 @@ probing by eye and in tests, and no tapcell algorithm ever reads it.
 
 from __future__ import annotations
 
-from tapcell.gcode import GCodeCommand, GCodeError
+from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.sim.faults import CONDITIONS, FAULT_DEFAULTS, FaultError
 from tapcell.sim.printer import VirtualPrinter
 
