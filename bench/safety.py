@@ -193,9 +193,9 @@ def z_error_mm(printer, row: Row) -> float | None:
 
 
 def run_row(row: Row) -> Outcome:
-    from tapcell.config import ConfigError
-    from tapcell.gcode import GCodeError
-    from tapcell.printer import Printer
+    from tapcell.host.config import ConfigError
+    from tapcell.host.gcode import GCodeError
+    from tapcell.host.printer import Printer
 
     started = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
