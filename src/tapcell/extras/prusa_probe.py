@@ -31,9 +31,11 @@ import numpy as np
 
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeError
+from tapcell.extras.load_cell_probe.device import z_at_time_mm
 from tapcell.extras.load_cell_probe.options import ERROR_PREFIX, preload_refusal, trigger_error_message
 from tapcell.extras.load_cell_probe.options import force_beyond_safety_limit_g
-from tapcell.mcu.trigger import FirmwareTrigger, TriggerError, TriggerParams
+from tapcell.extras.load_cell_probe.safety import agreement_tolerance_mm
+from tapcell.mcu.trigger import TriggerError, TriggerParams
 from tapcell.mesh.errors import MeshError
 from tapcell.mesh.prusa import (
     MESH,
@@ -49,7 +51,6 @@ from tapcell.mesh.prusa import (
 )
 from tapcell.extras.probe.session import ProbeError
 from tapcell.scale import counts_to_grams
-from tapcell.tap.model import Move
 
 SECTION = "prusa_probe"
 THRESHOLD_OPTIONS = {Z_FAST: "z_fast_threshold", Z_SLOW: "z_slow_threshold", MESH: "mesh_threshold",
@@ -79,13 +80,7 @@ class ThresholdHit:
     halt_time_s: float
     trigger_position_mm: tuple[float, float, float] | None  # where the triggering sample was taken
     halt_position_mm: tuple[float, float, float]  # where the steppers stopped (after the latency)
-
-
-def z_at_time_mm(move_records: list[dict], t_s: float) -> float:
-    """Commanded Z at t_s: the last move started by then (the simulator's move records)."""
-    moves = [Move.from_record(record) for record in move_records]
-    started = [move for move in moves if move.print_time <= t_s] or moves[:1]
-    return float(started[-1].z_at(t_s))
+    contact: bool = True  # Z moves: the force held after the halt like a nozzle pressing on the bed
 
 
 class ThresholdProber:
@@ -119,58 +114,40 @@ class ThresholdProber:
         self.tares.append(record)
         return record
 
-    def _arm(self, tare: TareRecord, threshold_g: float, release_g: float,
-             drift_safety_limit_g: float | None = None) -> FirmwareTrigger:
+    def _trigger_params(self, tare: TareRecord, threshold_g: float, release_g: float,
+                        drift_safety_limit_g: float | None = None) -> TriggerParams:
         options = self.device.options
         # Refused before the move, with the force (the firmware would only say "too much").
         beyond_g = force_beyond_safety_limit_g(tare.counts, self.load_cell.reference_tare_counts,
                                                self.load_cell.counts_per_gram, options.force_safety_limit_g)
         if beyond_g is not None:
             raise ProbeError(preload_refusal(beyond_g, options.force_safety_limit_g))
-        if drift_safety_limit_g is None:
-            drift_safety_limit_g = options.drift_safety_limit_g
-        trigger = FirmwareTrigger(TriggerParams(
-            counts_per_gram=self.load_cell.counts_per_gram,
-            reference_tare_counts=self.load_cell.reference_tare_counts,
-            trigger_force_g=threshold_g,
-            release_force_g=release_g,
-            sample_rate_sps=self.device.sample_rate_sps,
-            force_safety_limit_g=options.force_safety_limit_g,
-            drift_safety_limit_g=drift_safety_limit_g,
-            inverted=self.device.cell_options.inverted,
-            sos=self.device.config_settings.sos,
-        ))
-        error = trigger.arm(int(round(tare.counts)), self.vp.now_s)
-        if error != TriggerError.NONE:
-            raise ProbeError(trigger_error_message(error, self.device.options.force_safety_limit_g))
-        return trigger
+        return self.device.trigger_params(threshold_g, self.device.config_settings.sos, release_g, drift_safety_limit_g)
 
     def _frame_mm(self) -> np.ndarray:
         return np.array([self.toolhead.frame_offset_mm[axis] for axis in "xyz"])
 
     def probe_z(self, tare: TareRecord, threshold_g: float, release_g: float, z_min_mm: float,
                 speed_mm_s: float, drift_safety_limit_g: float | None = None) -> ThresholdHit:
-        """Move down toward z_min_mm until the force passes threshold_g (triggered False: no contact).
-        `drift_safety_limit_g`: the load cell probe's unless given (0 disables the drift check)."""
-        trigger = self._arm(tare, threshold_g, release_g, drift_safety_limit_g)
+        """Move down toward z_min_mm until the force passes threshold_g (triggered False: no contact),
+        through the load cell probe's guarded probing move; after a trigger, check that the force
+        holds like a contact (`contact`). `drift_safety_limit_g`: the load cell probe's unless
+        given (0 disables the drift check)."""
+        params = self._trigger_params(tare, threshold_g, release_g, drift_safety_limit_g)
+        result, _ = self.device.probing_move(params, tare.counts, z_min_mm, speed_mm_s)
         frame = self._frame_mm()
-        # The toolhead's position_min, but never past the machine's own travel end.
-        machine_target = max(z_min_mm - frame[2], self.vp.limits["z"][0])
-        result = self.vp.probing_move(machine_target, speed_mm_s, trigger)
-        self.load_cell.pump()
-        if result.error != TriggerError.NONE:
-            raise ProbeError(trigger_error_message(result.error, self.device.options.force_safety_limit_g))
         halt = tuple(np.array(self.vp.position) + frame)
-        trigger_position = None
-        if result.triggered:
-            z_mm = z_at_time_mm(result.moves, result.trigger_time_s) + frame[2]
-            trigger_position = (halt[0], halt[1], float(z_mm))
-        return ThresholdHit(result.triggered, result.trigger_time_s, result.halt_time_s, trigger_position, halt)
+        if not result.triggered:
+            return ThresholdHit(False, None, result.halt_time_s, None, halt)
+        z_mm = z_at_time_mm(result.moves, result.trigger_time_s) + frame[2]
+        contact = self.device.contact_holds_after_halt(tare.counts, threshold_g)
+        return ThresholdHit(True, result.trigger_time_s, result.halt_time_s, (halt[0], halt[1], float(z_mm)), halt,
+                            contact)
 
     def probe_xy(self, tare: TareRecord, threshold_g: float, release_g: float, x_mm: float, y_mm: float,
                  speed_mm_s: float) -> ThresholdHit:
         """Move horizontally toward (x, y) until the force passes threshold_g."""
-        trigger = self._arm(tare, threshold_g, release_g)
+        trigger = self.device.arm(self._trigger_params(tare, threshold_g, release_g), tare.counts)
         frame = self._frame_mm()
         start = np.array(self.vp.position)
         result = self.vp.probing_move_xy(x_mm - frame[0], y_mm - frame[1], speed_mm_s, trigger)
@@ -272,22 +249,30 @@ class PrusaProbe:
 
     # -- Z probing -------------------------------------------------------------------------------
     def cmd_LOADCELL_PROBE(self, gcmd: GCodeCommand) -> None:
+        """Fast pass, back off, slow pass; the slow pass must find the fast pass's height (a
+        trigger-only result counts only when a second, slower one agrees) and both must hold."""
         prober = self.prober()
         toolhead = prober.toolhead
         if not toolhead.is_z_homed():
             raise gcmd.error("Must home before probe")
         z_min = toolhead.z_position_min()
         t = self.thresholds
-        prober.tare("z probe, first tare")
-        tare = prober.tare("z probe, second tare")
-        fast = prober.probe_z(tare, t.z_fast_g, t.release_g(Z_FAST), z_min, self.options.z_fast_speed_mm_s)
-        if not fast.triggered:
-            raise gcmd.error(f"LOADCELL_PROBE: no contact on the fast pass before the travel limit Z={z_min:.3f}")
-        toolhead.move_to(z=fast.halt_position_mm[2] + self.options.back_off_mm, speed_mm_s=self.options.z_slow_speed_mm_s)
-        slow = prober.probe_z(tare, t.z_slow_g, t.release_g(Z_SLOW), z_min, self.options.z_slow_speed_mm_s)
-        if not slow.triggered:
-            raise gcmd.error(f"LOADCELL_PROBE: no contact on the slow pass before the travel limit Z={z_min:.3f}")
-        toolhead.move_to(z=slow.halt_position_mm[2] + self.options.back_off_mm, speed_mm_s=self.options.z_slow_speed_mm_s)
+        with prober.device.guarded():
+            prober.tare("z probe, first tare")
+            tare = prober.tare("z probe, second tare")
+            fast = prober.probe_z(tare, t.z_fast_g, t.release_g(Z_FAST), z_min, self.options.z_fast_speed_mm_s)
+            self._require_contact(fast, "fast", z_min)
+            toolhead.move_to(z=fast.halt_position_mm[2] + self.options.back_off_mm, speed_mm_s=self.options.z_slow_speed_mm_s)
+            slow = prober.probe_z(tare, t.z_slow_g, t.release_g(Z_SLOW), z_min, self.options.z_slow_speed_mm_s)
+            self._require_contact(slow, "slow", z_min)
+            tolerance_mm = agreement_tolerance_mm(prober.device.stop_timing, self.options.z_fast_speed_mm_s,
+                                                  self.options.z_slow_speed_mm_s)
+            if abs(slow.trigger_position_mm[2] - fast.trigger_position_mm[2]) > tolerance_mm:
+                raise ProbeError(f"LOADCELL_PROBE: the slow pass found the bed at Z={slow.trigger_position_mm[2]:.3f}, "
+                                 f"the fast pass at Z={fast.trigger_position_mm[2]:.3f} (more than {tolerance_mm:.3f} mm "
+                                 "apart): something pushed on the nozzle; run it again")
+            toolhead.move_to(z=slow.halt_position_mm[2] + self.options.back_off_mm,
+                             speed_mm_s=self.options.z_slow_speed_mm_s)
         z_offset = self.printer.lookup_object("probe").options.z_offset_mm
         result = slow.trigger_position_mm[2] - z_offset
         self.last_session = {"kind": "z", "tares": len(prober.tares), "z_mm": result,
@@ -295,9 +280,23 @@ class PrusaProbe:
         gcmd.respond_info(f"LOADCELL_PROBE: z={result:.6f} (fast pass {fast.trigger_position_mm[2] - z_offset:.6f}, "
                           f"thresholds {t.z_fast_g:g} / {t.z_slow_g:g} g, {len(prober.tares)} tares)")
 
+    @staticmethod
+    def _require_contact(hit: ThresholdHit, pass_name: str, z_min_mm: float) -> None:
+        if not hit.triggered:
+            raise ProbeError(f"LOADCELL_PROBE: no contact on the {pass_name} pass before the travel limit "
+                             f"Z={z_min_mm:.3f}")
+        if not hit.contact:
+            raise ProbeError(f"LOADCELL_PROBE: the {pass_name} pass triggered at Z={hit.trigger_position_mm[2]:.3f} "
+                             "but the force did not hold like a contact (a glitch or a push on the nozzle); run it "
+                             "again")
+
     # -- the mesh method -------------------------------------------------------------------------
     def probe_mesh_points(self, options, gcmd: GCodeCommand, points_xy_mm: np.ndarray, progress):
-        from tapcell.extras.bed_mesh import MeshProbeRun
+        """Every point: tare (against the session reference), threshold probe, retried on rings
+        around it when there is no contact or the force does not hold after the trigger. Then the
+        point furthest from its neighbours is probed again until two probes agree
+        (`recheck_outliers`): a push on the nozzle in the air never becomes a mesh point."""
+        from tapcell.extras.bed_mesh import MeshProbeRun, recheck_outliers
 
         prober = self.prober()
         toolhead = prober.toolhead
@@ -305,12 +304,15 @@ class PrusaProbe:
         z_offset, speed = probe.options.z_offset_mm, probe.options.speed_mm_s
         z_min = toolhead.z_position_min()
         t = self.thresholds
-        reference = prober.tare("session reference")
-        z_values, attempts_used, retares = [], [], 0
         offsets = retry_offsets_mm(self.options.max_attempts)
-        travel_z = options.horizontal_move_z_mm
-        for index, (x_mm, y_mm) in enumerate(points_xy_mm):
+        reference: TareRecord | None = None
+        retares = attempts = 0
+
+        def probe_point(index: int, travel_z: float) -> float:
+            nonlocal reference, retares, attempts
+            x_mm, y_mm = points_xy_mm[index]
             for attempt, (dx, dy) in enumerate(offsets, start=1):
+                attempts += 1
                 if toolhead.get_position()[2] < travel_z:
                     toolhead.move_to(z=travel_z, speed_mm_s=speed)
                 toolhead.move_to(x=float(x_mm + dx), y=float(y_mm + dy), speed_mm_s=options.speed_mm_s)
@@ -325,23 +327,32 @@ class PrusaProbe:
                     toolhead.move_to(z=z_here, speed_mm_s=speed)
                     retares += 1
                 hit = prober.probe_z(tare, t.mesh_g, t.release_g(MESH), z_min, speed)
-                if hit.triggered:
-                    break
-                gcmd.respond_info(f"Point {index + 1}: no contact before Z={z_min:.3f} (attempt {attempt} of "
-                                  f"{len(offsets)})")
-            else:
-                raise ProbeError(f"Mesh point {index + 1} at {x_mm:.3f},{y_mm:.3f}: no contact after "
-                                 f"{len(offsets)} attempts")
-            z_values.append(hit.trigger_position_mm[2] - z_offset)
-            attempts_used.append(attempt)
-            if options.horizontal_z_clearance_mm is not None:
-                travel_z = hit.trigger_position_mm[2] + options.horizontal_z_clearance_mm
-            progress(index + 1, len(points_xy_mm))
-        toolhead.move_to(z=max(toolhead.get_position()[2], options.horizontal_move_z_mm), speed_mm_s=speed)
+                if hit.triggered and hit.contact:
+                    return hit.trigger_position_mm[2] - z_offset
+                why = (f"no contact before Z={z_min:.3f}" if not hit.triggered else
+                       f"triggered at Z={hit.trigger_position_mm[2]:.3f} but the force did not hold like a contact")
+                gcmd.respond_info(f"Point {index + 1}: {why} (attempt {attempt} of {len(offsets)})")
+            raise ProbeError(f"Mesh point {index + 1} at {x_mm:.3f},{y_mm:.3f}: no contact after "
+                             f"{len(offsets)} attempts")
+
+        with prober.device.guarded():
+            reference = prober.tare("session reference")
+            z_values = []
+            travel_z = options.horizontal_move_z_mm
+            for index in range(len(points_xy_mm)):
+                z_values.append(probe_point(index, travel_z))
+                if options.horizontal_z_clearance_mm is not None:
+                    travel_z = z_values[-1] + z_offset + options.horizontal_z_clearance_mm
+                progress(index + 1, len(points_xy_mm))
+            tolerance_mm = agreement_tolerance_mm(prober.device.stop_timing, speed)
+            z_values = recheck_outliers(points_xy_mm, z_values,
+                                        lambda index: probe_point(index, options.horizontal_move_z_mm),
+                                        tolerance_mm, gcmd)
+            toolhead.move_to(z=max(toolhead.get_position()[2], options.horizontal_move_z_mm), speed_mm_s=speed)
         self.last_session = {"kind": "mesh", "points": len(points_xy_mm), "tares": len(prober.tares),
-                             "retares": retares, "attempts": int(sum(attempts_used))}
+                             "retares": retares, "attempts": attempts}
         report = (f"Prusa-matched mesh: threshold {t.mesh_g:g} g, {len(prober.tares)} tares for "
-                  f"{len(points_xy_mm)} points ({retares} re-tares), {sum(attempts_used)} attempts")
+                  f"{len(points_xy_mm)} points ({retares} re-tares), {attempts} attempts")
         return MeshProbeRun(z_values, report, {"method": "prusa", **self.last_session})
 
     def get_status(self, eventtime=None) -> dict:

@@ -240,6 +240,8 @@ class GCodeDispatch:
         self._handlers: dict[str, Handler] = {}
         self._help: dict[str, str] = {}
         self._mux: dict[str, _Mux] = {}
+        # Errors of the machine (not of tapcell) that a command may meet -> the message they become.
+        self._error_messages: dict[type[Exception], Callable[[Exception], str]] = {}
         self._register_builtins()
 
     # -- responses -----------------------------------------------------------
@@ -279,6 +281,11 @@ class GCodeDispatch:
 
     def _register_builtins(self) -> None:
         self.register_command("HELP", self._cmd_help, desc="List the available commands with their help text")
+
+    def report_errors_as(self, error_type: type[Exception], message: Callable[[Exception], str]) -> None:
+        """Make `error_type`, raised by the machine during any command (e.g. an MCU reset), a G-code
+        error with the text `message(error)` returns; `message` may also react to it."""
+        self._error_messages[error_type] = message
 
     def is_registered(self, name: str) -> bool:
         return name.upper() in self._handlers
@@ -354,6 +361,9 @@ class GCodeDispatch:
             raise
         except ConfigError as exc:
             raise GCodeError(str(exc)) from exc
+        except tuple(self._error_messages) as exc:
+            message = next(m for kind, m in self._error_messages.items() if isinstance(exc, kind))
+            raise GCodeError(message(exc)) from exc
         except Exception as exc:  # a bug in a handler: report it, keep the console alive
             raise GCodeError(f"Internal error on '{parsed.commandline}': "
                              f"{type(exc).__name__}: {exc}") from exc

@@ -131,8 +131,9 @@ class Printer:
     def register_event_handler(self, event: str, callback: Callable[..., Any]) -> None:
         """Call `callback(*args)` on `send_event(event, *args)`.
 
-        Events sent by the printer: "printer:ready" (all sections loaded) and
-        "printer:restart" (before the objects are dropped by RESTART).
+        Events sent by the printer: "printer:ready" (all sections loaded),
+        "printer:restart" (before the objects are dropped by RESTART) and "printer:mcu_reset"
+        (the MCU reset during a command: what it held, such as stepper positions, is gone).
         """
         self._event_handlers.setdefault(event, []).append(callback)
 
@@ -195,10 +196,19 @@ class Printer:
                 self._skip_section(BACKEND_SECTION, f"{BACKEND_MODULE}.VirtualPrinter")
                 return
             self.backend = sim.VirtualPrinter.from_config(self.config.getsection(BACKEND_SECTION))
+            self.gcode.report_errors_as(sim.McuResetError, self._mcu_reset_message)
         self.objects[BACKEND_SECTION] = self.backend
         backend_commands = _import_module(BACKEND_COMMANDS_MODULE)
         if backend_commands is not None:
             backend_commands.register_sim_commands(self)
+
+    def _mcu_reset_message(self, error) -> str:
+        """The MCU reset during a command: every module forgets what the MCU held ("printer:mcu_reset";
+        the toolhead its homing), and the user reads what happened and what to do."""
+        self.send_event("printer:mcu_reset")
+        return (f"Lost the MCU: it reset at {error.reset_s:.3f} s and was back at {error.restored_s:.3f} s. The "
+                "steppers stopped where they were and their positions are no longer known: home (G28) before "
+                "moving again")
 
     def _skip_section(self, name: str, module_name: str) -> None:
         self._skipped[name] = module_name

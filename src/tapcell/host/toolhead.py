@@ -40,6 +40,7 @@ class AxisOptions:
     position_max_mm: float
     position_endstop_mm: float | None  # None when homed through the probe
     homing_speed_mm_s: float
+    step_pin: str  # names the MCU that drives the stepper (`toolboard:PA1`; no prefix: the main MCU)
     rotation_distance_mm: float
     microsteps: int
     full_steps_per_rotation: int
@@ -66,8 +67,8 @@ class ToolheadOptions:
 
 def read_axis_options(section: ConfigSection) -> AxisOptions:
     # Pins only need to be present on the virtual printer; read them so they are checked.
-    for pin in ("step_pin", "dir_pin"):
-        section.get(pin)
+    step_pin = section.get("step_pin")
+    section.get("dir_pin")
     section.get("enable_pin", None)
     section.get("gear_ratio", None)
     section.getfloat("step_pulse_duration", None, minval=0.0, maxval=0.001)
@@ -89,6 +90,7 @@ def read_axis_options(section: ConfigSection) -> AxisOptions:
         position_max_mm=position_max,
         position_endstop_mm=position_endstop,
         homing_speed_mm_s=homing_speed,
+        step_pin=step_pin,
         rotation_distance_mm=section.getfloat("rotation_distance", above=0.0),
         microsteps=section.getchoice("microsteps", [1, 2, 4, 8, 16, 32, 64, 128, 256]),
         full_steps_per_rotation=section.getint("full_steps_per_rotation", 200, minval=1),
@@ -344,6 +346,8 @@ def load_config(section: ConfigSection, printer) -> None:
     if printer.backend is None:
         raise section.error("kinematics", "the toolhead needs the virtual printer ([virtual_printer])")
     toolhead = Toolhead(printer, read_toolhead_options(section))
+    # A reset MCU has lost the stepper positions: every axis must be homed again.
+    printer.register_event_handler("printer:mcu_reset", toolhead.homed_axes.clear)
     extruder = read_extruder(section.config, printer.backend)
     printer.add_object("toolhead", toolhead)
     printer.add_object("extruder", extruder)

@@ -36,6 +36,7 @@ from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.mesh.errors import MeshError, MeshOptionError
 from tapcell.mesh.grid import MeshGrid, matrix_from_probes, rectangular_grid, round_grid
 from tapcell.mesh.interpolate import ALGORITHMS, Interpolation, resolve_interpolation
+from tapcell.mesh.outliers import worst_outlier
 from tapcell.mesh.profiles import mesh_from_profile_options, profile_options, profile_section_name
 from tapcell.mesh.report import render_mesh
 from tapcell.mesh.split import SplitSettings, split_move
@@ -200,6 +201,31 @@ class MeshProbeRun:
     z_mm: list[float]
     report: str = ""
     details: dict | None = None  # JSON-ready, shown in status as last_calibration
+
+
+def recheck_outliers(points_xy_mm: np.ndarray, z_mm: list[float], probe_again: Callable[[int], float],
+                     tolerance_mm: float, gcmd: GCodeCommand) -> list[float]:
+    """Trigger-only mesh points: probe the point furthest from its neighbours again
+    (`tapcell.mesh.outliers`) until none is left. It keeps its height when the new probe agrees
+    within tolerance_mm; otherwise a third probe must agree with the second and replaces it;
+    three heights that all disagree stop the mesh. Returns the heights (probing order)."""
+    z = list(z_mm)
+    settled: set[int] = set()
+    while (index := worst_outlier(points_xy_mm, z, settled)) is not None:
+        x_mm, y_mm = points_xy_mm[index]
+        first = z[index]
+        second = probe_again(index)
+        if abs(second - first) > tolerance_mm:
+            third = probe_again(index)
+            if abs(third - second) > tolerance_mm:
+                raise GCodeError(f"BED_MESH_CALIBRATE: point {index + 1} at {x_mm:.3f},{y_mm:.3f} gave "
+                                 f"{first:.3f}, {second:.3f} and {third:.3f} mm: something keeps pushing on the "
+                                 "nozzle or the sensor jumps; check the toolhead and the load cell")
+            gcmd.respond_info(f"Point {index + 1} at {x_mm:.3f},{y_mm:.3f}: {first:.3f} mm was far from its "
+                              f"neighbours; probed again: {second:.3f} and {third:.3f} mm")
+            z[index] = third
+        settled.add(index)
+    return z
 
 
 def probe_points_by_tapping(printer, options: BedMeshOptions, gcmd: GCodeCommand,

@@ -10,51 +10,74 @@ and the pass. After the last point the topology report (extremes, range, tilt, f
 printed; moves then follow the mesh (bilinear between probed points with `mesh_pps: 0`).
 
 The paper's fast pass is 120 mm/s; a descent cannot be faster than the printer's
-max_z_velocity, so it is clamped there (and the report says so). Even so the fast pass
-moves ~50 um between two samples at 320 sps, over 1000 g on a stiff toolhead: the
-firmware's drift_safety_limit would take that jump for drift, so it is off for these
-passes (the paper has no such check); force_safety_limit still guards every pass.
+max_z_velocity, nor than the load cell probe's force guard allows (the fastest speed whose
+worst-case overshoot stays within force_safety_limit), so it is clamped there (and the report
+says so). Even so the fast pass moves ~50 um between two samples at 320 sps, over 1000 g on a
+stiff toolhead: the firmware's drift_safety_limit would take that jump for drift, so it is off
+for these passes (the paper has no such check); force_safety_limit still guards every pass.
+
+Both heights are trigger-only, so each is checked: the force must hold after the halt like a
+contact (else that descent is made again from where it stopped), the two passes of a point
+must agree within `agreement_tolerance_mm` (else the point is probed again, up to
+POINT_TRIES times), and a point far from its neighbours is probed again (`recheck_outliers`).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from tapcell.extras.bed_mesh import MeshProbeRun
+from tapcell.extras.bed_mesh import MeshProbeRun, recheck_outliers
+from tapcell.extras.load_cell_probe.options import ERROR_PREFIX, tare_sample_count
+from tapcell.extras.load_cell_probe.safety import agreement_tolerance_mm
+from tapcell.extras.probe.session import ProbeError
 from tapcell.host.gcode import GCodeCommand, GCodeError
-from tapcell.extras.load_cell_probe.options import tare_sample_count
-from tapcell.mesh.abl import NoContactError, PlanStep, TwoPassSettings, run_two_pass, topology_report
+from tapcell.mesh.abl import NoContactError, PlanStep, TwoPassPoint, TwoPassSettings, run_two_pass, topology_report
 from tapcell.mesh.report import render_topology
 from tapcell.extras.prusa_probe import ThresholdProber
 
 
-def two_pass_settings(toolhead, travel_speed_mm_s: float) -> tuple[TwoPassSettings, str | None]:
-    """The paper's settings on this printer: travel limit = position_min, fast pass clamped."""
+# A descent whose force does not hold after the trigger is made again this many times at most;
+# a point whose two passes disagree is probed this many times at most.
+FALSE_TRIGGER_TRIES = 3
+POINT_TRIES = 3
+
+
+def two_pass_settings(device, toolhead, travel_speed_mm_s: float) -> tuple[TwoPassSettings, str | None]:
+    """The paper's settings on this printer: travel limit = position_min, fast pass clamped to
+    max_z_velocity and to the fastest speed the force guard passes."""
     paper = TwoPassSettings()
     max_z_speed = toolhead.options.max_z_velocity_mm_s
-    settings = TwoPassSettings(travel_limit_z_mm=toolhead.z_position_min(),
-                               fast_speed_mm_s=min(paper.fast_speed_mm_s, max_z_speed),
-                               slow_speed_mm_s=min(paper.slow_speed_mm_s, max_z_speed),
-                               travel_speed_mm_s=travel_speed_mm_s)
+    params = two_pass_trigger_params(device)
+    fast = device.fastest_safe_speed_mm_s(params, min(paper.fast_speed_mm_s, max_z_speed))
+    slow = min(paper.slow_speed_mm_s, max_z_speed)
+    if fast is None:
+        raise ProbeError(ERROR_PREFIX + "METHOD=two_pass: no descent speed keeps the worst-case force within "
+                         f"force_safety_limit ({params.force_safety_limit_g:g}g) on this sensor")
+    settings = TwoPassSettings(travel_limit_z_mm=toolhead.z_position_min(), fast_speed_mm_s=fast,
+                               slow_speed_mm_s=min(slow, fast), travel_speed_mm_s=travel_speed_mm_s)
     note = None
     if settings.fast_speed_mm_s < paper.fast_speed_mm_s:
-        note = (f"fast pass at {settings.fast_speed_mm_s:g} mm/s (max_z_velocity; the paper moved its bed at "
+        limit = "max_z_velocity" if fast == max_z_speed else "the force guard's limit for this sensor"
+        note = (f"fast pass at {settings.fast_speed_mm_s:g} mm/s ({limit}; the paper moved its bed at "
                 f"{paper.fast_speed_mm_s:g} mm/s)")
     return settings, note
+
+
+def two_pass_trigger_params(device):
+    """The paper has no drift check: the fast pass jumps more than drift_safety_limit per sample."""
+    return device.trigger_params(device.options.trigger_force_g, device.config_settings.sos, 0.0,
+                                 drift_safety_limit_g=0.0)
 
 
 class TwoPassMover:
     """Performs the plan's steps on the virtual printer (the `move` of `run_two_pass`)."""
 
-    def __init__(self, prober: ThresholdProber, trigger_force_g: float, tare_time_s: float,
-                 progress, point_count: int):
+    def __init__(self, prober: ThresholdProber, trigger_force_g: float, tare_time_s: float):
         self.prober = prober
         self.toolhead = prober.toolhead
         self.trigger_force_g = trigger_force_g
+        self.false_triggers = 0  # descents that triggered without the force of a contact
         self.tare_samples = tare_sample_count(tare_time_s, prober.device.sample_rate_sps)
-        self.progress = progress
-        self.point_count = point_count
-        self.points_done = 0
 
     def __call__(self, step: PlanStep) -> float | None:
         toolhead = self.toolhead
@@ -63,15 +86,20 @@ class TwoPassMover:
             return None
         if step.kind == "retract":
             toolhead.move_to(z=toolhead.get_position()[2] + step.z_mm, speed_mm_s=step.speed_mm_s)
-            if step.z_mm > 1.0:  # the lift after the slow pass ends the point
-                self.points_done += 1
-                self.progress(self.points_done, self.point_count)
             return None
         # The nozzle rests in the air after a travel or a back-off: tare there, then descend.
-        tare = self.prober.tare(f"two-pass {step.pass_name}", settle_s=0.0, sample_count=self.tare_samples)
-        hit = self.prober.probe_z(tare, self.trigger_force_g, 0.0, step.z_mm, step.speed_mm_s,
-                                  drift_safety_limit_g=0.0)
-        return hit.halt_position_mm[2] if hit.triggered else None
+        for _ in range(FALSE_TRIGGER_TRIES):
+            tare = self.prober.tare(f"two-pass {step.pass_name}", settle_s=0.0, sample_count=self.tare_samples)
+            hit = self.prober.probe_z(tare, self.trigger_force_g, 0.0, step.z_mm, step.speed_mm_s,
+                                      drift_safety_limit_g=0.0)
+            if not hit.triggered:
+                return None
+            if hit.contact:
+                return hit.halt_position_mm[2]
+            self.false_triggers += 1  # not a contact: descend again from here
+        raise ProbeError(f"BED_MESH_CALIBRATE METHOD=two_pass: the {step.pass_name} pass at {step.x_mm:.3f},"
+                         f"{step.y_mm:.3f} triggered {FALSE_TRIGGER_TRIES} times without the force of a contact: "
+                         "something pushes on the nozzle or the sensor jumps")
 
 
 def probe_points_two_pass(printer, options, gcmd: GCodeCommand, points_xy_mm: np.ndarray, progress) -> MeshProbeRun:
@@ -82,22 +110,47 @@ def probe_points_two_pass(printer, options, gcmd: GCodeCommand, points_xy_mm: np
     prober = ThresholdProber(device)
     toolhead = prober.toolhead
     probe = printer.lookup_object("probe")
-    settings, note = two_pass_settings(toolhead, options.speed_mm_s)
-    if note:
-        gcmd.respond_info(note)
-    if toolhead.get_position()[2] < options.horizontal_move_z_mm:
-        toolhead.move_to(z=options.horizontal_move_z_mm, speed_mm_s=settings.travel_speed_mm_s)
-    mover = TwoPassMover(prober, device.options.trigger_force_g, device.options.tare_time_s, progress,
-                         len(points_xy_mm))
-    try:
-        points = run_two_pass(points_xy_mm, mover, settings)
-    except NoContactError as exc:
-        toolhead.move_to(z=toolhead.get_position()[2] + settings.lift_mm, speed_mm_s=settings.travel_speed_mm_s)
-        raise GCodeError(f"BED_MESH_CALIBRATE METHOD=two_pass: {exc}") from None
-    z_offset = probe.options.z_offset_mm
-    z_mm = [point.z_mm - z_offset for point in points]
+    with device.guarded():
+        settings, note = two_pass_settings(device, toolhead, options.speed_mm_s)
+        if note:
+            gcmd.respond_info(note)
+        mover = TwoPassMover(prober, device.options.trigger_force_g, device.options.tare_time_s)
+        tolerance_mm = agreement_tolerance_mm(device.stop_timing, settings.fast_speed_mm_s, settings.slow_speed_mm_s)
+
+        def probe_point(index: int) -> TwoPassPoint:
+            """Both passes at one point until they agree (the point's own index in the report)."""
+            for _ in range(POINT_TRIES):
+                if toolhead.get_position()[2] < options.horizontal_move_z_mm:
+                    toolhead.move_to(z=options.horizontal_move_z_mm, speed_mm_s=settings.travel_speed_mm_s)
+                try:
+                    (point,) = run_two_pass(points_xy_mm[index:index + 1], mover, settings)
+                except NoContactError as exc:
+                    toolhead.move_to(z=toolhead.get_position()[2] + settings.lift_mm,
+                                     speed_mm_s=settings.travel_speed_mm_s)
+                    raise GCodeError("BED_MESH_CALIBRATE METHOD=two_pass: " + str(NoContactError(
+                        index, len(points_xy_mm), exc.x_mm, exc.y_mm, exc.pass_name, exc.travel_limit_z_mm))) from None
+                if abs(point.z_fast_mm - point.z_slow_mm) <= tolerance_mm:
+                    return TwoPassPoint(index, point.x_mm, point.y_mm, point.z_fast_mm, point.z_slow_mm, point.z_mm)
+                gcmd.respond_info(f"Point {index + 1}: the passes disagree (fast {point.z_fast_mm:.3f}, slow "
+                                  f"{point.z_slow_mm:.3f} mm; at most {tolerance_mm:.3f} mm apart): probing it again")
+            raise ProbeError(f"BED_MESH_CALIBRATE METHOD=two_pass: the passes at point {index + 1} disagreed "
+                             f"{POINT_TRIES} times: something pushes on the nozzle or the sensor jumps")
+
+        points = []
+        for index in range(len(points_xy_mm)):
+            points.append(probe_point(index))
+            progress(index + 1, len(points_xy_mm))
+        z_offset = probe.options.z_offset_mm
+
+        def probe_again(index: int) -> float:
+            points[index] = probe_point(index)
+            return points[index].z_mm - z_offset
+
+        z_mm = recheck_outliers(points_xy_mm, [point.z_mm - z_offset for point in points], probe_again,
+                                tolerance_mm, gcmd)
     xy = np.asarray(points_xy_mm, dtype=float)
     topology = topology_report(xy[:, 0], xy[:, 1], np.array(z_mm))
     details = {"method": "two_pass", "points": [p.to_status() for p in points], "topology": topology.to_status(),
-               "fast_speed_mm_s": settings.fast_speed_mm_s, "slow_speed_mm_s": settings.slow_speed_mm_s}
+               "fast_speed_mm_s": settings.fast_speed_mm_s, "slow_speed_mm_s": settings.slow_speed_mm_s,
+               "false_triggers": mover.false_triggers}
     return MeshProbeRun(z_mm, render_topology(points, topology), details)

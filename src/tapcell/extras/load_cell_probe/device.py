@@ -24,6 +24,7 @@ probe commands of `tapcell.extras.probe.session`. Status: `load_cell_probe` (and
 from __future__ import annotations
 
 import collections
+import contextlib
 import dataclasses
 import json
 from dataclasses import dataclass
@@ -64,13 +65,12 @@ from tapcell.extras.load_cell_probe.options import (
     dwell_sample_count,
     fit_pooled_contact_onset,
     force_beyond_safety_limit_g,
-    expected_peak_force_g,
     robust_tare_counts,
-    safe_speed_mm_s,
     tare_sample_count,
     too_fast_explanation,
     too_fast_for_analysis,
 )
+from tapcell.extras.load_cell_probe import safety
 from tapcell.extras.probe.patterns import serpentine_pattern
 from tapcell.scale import counts_to_grams
 from tapcell.tap import AnalysisOptions, Move, TapData, analyze_tap, get_classifier, tap_to_json_dict
@@ -88,6 +88,18 @@ TARE_FRESH_MARGIN_SAMPLES = 4  # the tare window may reach back this many period
 SAVE_CONFIG_NOTE = ("The SAVE_CONFIG command will update the printer config file with the above and restart "
                     "the printer.")
 ENDSTOP_SWITCH_MM = 1e-6  # the virtual X/Y switches close at machine position 0
+# G28 Z: the taps after the first come from this far above the last halt, at most this fast,
+# and at most this many taps in all look for two that agree.
+HOME_BACKOFF_MM = 0.5
+HOME_CONFIRM_SPEED_MM_S = 2.0
+HOME_TAPS = 4
+
+
+def z_at_time_mm(move_records: list[dict], t_s: float) -> float:
+    """Commanded Z at t_s: the last move started by then (the simulator's move records)."""
+    moves = [Move.from_record(record) for record in move_records]
+    started = [move for move in moves if move.print_time <= t_s] or moves[:1]
+    return float(started[-1].z_at(t_s))
 
 
 class SampleHistory:
@@ -217,6 +229,15 @@ class LoadCellProbe:
         self._tare_from_s: float | None = -np.inf
         self.last_trigger_time_s: float | None = None
         self.tare_counts_at_tap: float | None = None
+        sensor_pin = self.cell_options.dout_pin or self.cell_options.data_ready_pin
+        self.stop_timing = safety.stop_timing(self.cell_options.sensor_type, self.sample_rate_sps,
+                                              safety.pin_mcu(sensor_pin),
+                                              safety.pin_mcu(self.motion.options.axes["z"].step_pin))
+        # Inside a probing command (`guarded`): how deep, the speed notes already given, and the
+        # machine Z the last probing move started from (clear of the bed at that XY).
+        self._guard_depth = 0
+        self._speed_notes: set[tuple[float, float]] = set()
+        self._clear_machine_z_mm: float | None = None
 
     # -- settings per command -----------------------------------------------------------
     @staticmethod
@@ -295,93 +316,203 @@ class LoadCellProbe:
         self.tare_counts_at_tap = tare_counts
         return tare_counts
 
-    def _arm(self, settings: TapSettings, tare_counts: float) -> FirmwareTrigger:
-        options = settings.options
-        trigger = FirmwareTrigger(TriggerParams(
+    def trigger_params(self, trigger_force_g: float, sos, release_force_g: float = 0.0,
+                       drift_safety_limit_g: float | None = None) -> TriggerParams:
+        """The firmware trigger of a probing move with this cell's calibration and safety limits
+        (`drift_safety_limit_g`: the configured one unless given; 0 turns the check off)."""
+        options = self.options
+        return TriggerParams(
             counts_per_gram=self.load_cell.counts_per_gram,
             reference_tare_counts=self.load_cell.reference_tare_counts,
-            trigger_force_g=options.trigger_force_g,
+            trigger_force_g=trigger_force_g,
+            release_force_g=release_force_g,
             sample_rate_sps=self.sample_rate_sps,
             force_safety_limit_g=options.force_safety_limit_g,
-            drift_safety_limit_g=options.drift_safety_limit_g,
+            drift_safety_limit_g=options.drift_safety_limit_g if drift_safety_limit_g is None else drift_safety_limit_g,
             inverted=self.cell_options.inverted,
-            sos=settings.sos,
-        ))
-        error = trigger.arm(int(round(tare_counts)), self.vp.now_s)
-        if error != TriggerError.NONE:
-            raise ProbeError(trigger_error_message(error, options.force_safety_limit_g))
-        return trigger
+            sos=sos,
+        )
 
-    def _probing_move(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float):
-        """Tare, arm and move down until the trigger halts Z; returns (move result, tare, t_start)."""
-        self._require_calibrated()
-        self._refuse_speed_beyond_force_limit(settings.options, speed_mm_s)
-        tare_counts = self._tare(settings.options)
-        # Until a pullback completes, the nozzle may be on the bed: the next tare waits for fresh samples.
-        self._tare_from_s = None
+    def _tap_trigger_params(self, settings: TapSettings) -> TriggerParams:
+        return dataclasses.replace(self.trigger_params(settings.options.trigger_force_g, settings.sos),
+                                   force_safety_limit_g=settings.options.force_safety_limit_g,
+                                   drift_safety_limit_g=settings.options.drift_safety_limit_g)
+
+    def probing_move(self, params: TriggerParams, tare_counts: float, z_min_mm: float, speed_mm_s: float):
+        """Every Z probing move of this probe (taps, homing, threshold probing) goes through here.
+
+        The speed is capped by [printer] max_z_velocity (said once per command) and refused when
+        the worst-case overshoot could press harder than force_safety_limit; then the firmware
+        trigger is armed with the tare and Z moves down toward z_min_mm (toolhead Z) until it
+        stops. Firmware errors, and a sensor that stopped changing or saturated, raise ProbeError
+        naming the cause. Returns (move result, the speed used); result.triggered is False when
+        the move reached z_min_mm without a trigger.
+        """
+        speed_mm_s = self._checked_speed(params, speed_mm_s)
+        trigger = self.arm(params, tare_counts)
         t_start_s = self.vp.now_s
-        trigger = self._arm(settings, tare_counts)
+        self._clear_machine_z_mm = float(self.vp.position[2])
         # Unhomed (G28 Z), z_min is a full axis length below: the machine stops at its own end of travel.
         machine_z_min_mm = max(z_min_mm - self._z_frame_offset_mm(), self.vp.limits["z"][0])
         result = self.vp.probing_move(machine_z_min_mm, speed_mm_s, trigger)
         self.load_cell.pump()
+        _, counts, _ = self.history.between(t_start_s, self.vp.now_s)
+        fault = safety.sensor_fault(counts, self.load_cell.counts_range)
+        if fault is not None and (result.error != TriggerError.NONE or not result.triggered):
+            raise ProbeError(ERROR_PREFIX + safety.sensor_fault_message(fault, counts, z_min_mm))
         if result.error != TriggerError.NONE:
-            message = trigger_error_message(result.error, settings.options.force_safety_limit_g)
+            message = trigger_error_message(result.error, params.force_safety_limit_g)
             if result.error == TriggerError.DRIFT_SAFETY:
-                message += self._explain_drift(settings.options, tare_counts, t_start_s, speed_mm_s)
+                message += self._explain_drift(params, tare_counts, t_start_s, speed_mm_s)
             raise ProbeError(message)
+        if result.triggered:
+            self.last_trigger_time_s = result.trigger_time_s
+        return result, speed_mm_s
+
+    def arm(self, params: TriggerParams, tare_counts: float) -> FirmwareTrigger:
+        """The firmware trigger armed with this tare now (ProbeError when the firmware refuses)."""
+        trigger = FirmwareTrigger(params)
+        error = trigger.arm(int(round(tare_counts)), self.vp.now_s)
+        if error != TriggerError.NONE:
+            raise ProbeError(trigger_error_message(error, params.force_safety_limit_g))
+        return trigger
+
+    def _checked_speed(self, params: TriggerParams, speed_mm_s: float) -> float:
+        """The probing speed capped by max_z_velocity; ProbeError when it could press too hard."""
+        max_z_mm_s = self.motion.options.max_z_velocity_mm_s
+        if speed_mm_s > max_z_mm_s:
+            if (speed_mm_s, max_z_mm_s) not in self._speed_notes:
+                self._speed_notes.add((speed_mm_s, max_z_mm_s))
+                self.printer.gcode.respond_info(
+                    f"Probing speed {speed_mm_s:g} mm/s is above [printer] max_z_velocity ({max_z_mm_s:g} mm/s): "
+                    f"probing at {max_z_mm_s:g} mm/s")
+            speed_mm_s = max_z_mm_s
+        stiffness_g_um, measured = self.assumed_stiffness_g_um()
+        prediction = safety.worst_stop(params, self.stop_timing, speed_mm_s, stiffness_g_um)
+        if safety.exceeds_limit(prediction, params.force_safety_limit_g):
+            slower = safety.safe_speed_mm_s(params, self.stop_timing, speed_mm_s, stiffness_g_um)
+            raise ProbeError(ERROR_PREFIX + safety.speed_refusal(params, self.stop_timing, speed_mm_s, prediction,
+                                                                 stiffness_g_um, measured, slower))
+        return speed_mm_s
+
+    def fastest_safe_speed_mm_s(self, params: TriggerParams, up_to_mm_s: float) -> float | None:
+        """`up_to_mm_s` when the force guard passes it, else the fastest safe speed below (None: none)."""
+        stiffness_g_um, _ = self.assumed_stiffness_g_um()
+        prediction = safety.worst_stop(params, self.stop_timing, up_to_mm_s, stiffness_g_um)
+        if not safety.exceeds_limit(prediction, params.force_safety_limit_g):
+            return up_to_mm_s
+        return safety.safe_speed_mm_s(params, self.stop_timing, up_to_mm_s, stiffness_g_um)
+
+    def assumed_stiffness_g_um(self) -> tuple[float, bool]:
+        """(stiffness the force guard assumes, whether taps measured it): the stiffest valid kept tap
+        with a margin, else the conservative default."""
+        measured = self._known_stiffness_g_um()
+        if measured is None:
+            return safety.DEFAULT_STIFFNESS_G_UM, False
+        return measured * safety.MEASURED_STIFFNESS_MARGIN, True
+
+    @contextlib.contextmanager
+    def guarded(self):
+        """Around every probing command: after any error the nozzle is lifted clear of the bed
+        (to where the last probing move started, at least sample_retract_dist above where it
+        stopped) before the error goes on to the user. Nests (the outermost resets the state)."""
+        if self._guard_depth == 0:
+            self._speed_notes.clear()
+            self._clear_machine_z_mm = None
+        self._guard_depth += 1
+        try:
+            yield
+        except BaseException:
+            self._lift_clear()
+            raise
+        finally:
+            self._guard_depth -= 1
+
+    def _lift_clear(self) -> None:
+        if self._clear_machine_z_mm is None:
+            return  # no probing move yet: the nozzle has not gone down toward the bed
+        z_now_mm = float(self.vp.position[2])
+        target_mm = min(max(self._clear_machine_z_mm, z_now_mm + self.probe.options.sample_retract_dist_mm),
+                        self.vp.limits["z"][1])
+        if target_mm > z_now_mm:
+            self.vp.move_to(z=target_mm, speed_mm_s=self.probe.options.effective_lift_speed_mm_s)
+            self.printer.gcode.respond_info(
+                f"Lifted the nozzle {target_mm - z_now_mm:.3f} mm, clear of the bed, after the error")
+
+    def _probing_move(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float):
+        """Tare, then the probing move; returns (move result, tare, t_start, the speed used)."""
+        self._require_calibrated()
+        tare_counts = self._tare(settings.options)
+        # Until a pullback completes, the nozzle may be on the bed: the next tare waits for fresh samples.
+        self._tare_from_s = None
+        t_start_s = self.vp.now_s
+        result, speed_mm_s = self.probing_move(self._tap_trigger_params(settings), tare_counts, z_min_mm, speed_mm_s)
         if not result.triggered:
             raise ProbeError(ERROR_PREFIX + f"No trigger on probe after full movement (down to Z={z_min_mm:.3f}); "
                              "check that [stepper_z] position_min is negative (e.g. -2) and the nozzle reaches the bed")
-        self.last_trigger_time_s = result.trigger_time_s
-        return result, tare_counts, t_start_s
+        return result, tare_counts, t_start_s, speed_mm_s
 
-    def _refuse_speed_beyond_force_limit(self, options: TapOptions, speed_mm_s: float) -> None:
-        """Refuse a speed that would press the bed harder than force_safety_limit.
-
-        The bed's stiffness comes from the kept taps (the stiffest, to be safe); before the
-        first tap nothing is known and the firmware's drift/force checks are the only guard.
-        """
-        k_g_um = self._known_stiffness_g_um(valid_only=False)
-        limit_g = options.force_safety_limit_g
-        if k_g_um is None or limit_g <= 0:
-            return
-        peak_g = expected_peak_force_g(options.trigger_force_g, k_g_um, speed_mm_s, self.sample_rate_sps)
-        if peak_g < limit_g:
-            return
-        travel_um = speed_mm_s * 1000.0 / self.sample_rate_sps
-        raise ProbeError(
-            ERROR_PREFIX + f"probing at {speed_mm_s:g} mm/s could press the bed with up to {peak_g:.0f}g, more "
-            f"than force_safety_limit ({limit_g:.0f}g): at {self.sample_rate_sps:g} samples/s the nozzle moves "
-            f"{travel_um:.1f} um per sample into a bed of {k_g_um:.1f} g/um before the trigger can stop it; probe at "
-            f"{safe_speed_mm_s(options.trigger_force_g, k_g_um, self.sample_rate_sps, limit_g):.1f} mm/s or slower")
-
-    def _explain_drift(self, options: TapOptions, tare_counts: float, t_start_s: float, speed_mm_s: float) -> str:
+    def _explain_drift(self, params: TriggerParams, tare_counts: float, t_start_s: float, speed_mm_s: float) -> str:
         """' (why)' when the move's samples show the force jumping past the limit within one sample."""
         _, counts, _ = self.history.between(t_start_s, self.vp.now_s)
         force_g = (counts - tare_counts) / self.load_cell.counts_per_gram
-        beyond = np.flatnonzero(np.abs(force_g) >= options.drift_safety_limit_g)
+        beyond = np.flatnonzero(np.abs(force_g) >= params.drift_safety_limit_g)
         if len(beyond) == 0 or beyond[0] == 0:
             return ""
         first = int(beyond[0])
-        why = too_fast_explanation(float(force_g[first - 1]), float(force_g[first]), options.trigger_force_g,
-                                   options.drift_safety_limit_g, speed_mm_s, self.sample_rate_sps)
+        why = too_fast_explanation(float(force_g[first - 1]), float(force_g[first]), params.trigger_force_g,
+                                   params.drift_safety_limit_g, speed_mm_s, self.sample_rate_sps)
         return "" if why is None else f" ({why})"
 
     def _z_frame_offset_mm(self) -> float:
         return self.motion.frame_offset_mm["z"]
 
     def home_tap(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float) -> float:
-        """Trigger-only tap for G28 Z: the Z where the trigger halted the move."""
-        result, _, _ = self._probing_move(settings, z_min_mm, speed_mm_s)
-        return float(result.halt_z_mm) + self._z_frame_offset_mm()
+        """G28 Z: the toolhead Z of the bed from trigger-only taps, once two of them agree.
+
+        A trigger-only tap has no tap shape to judge, and a touch, a tug on the bowden tube, a
+        corrupted frame or a jump of the chip's offset in the air triggers like the bed. So a
+        tap counts only when its force holds after the halt like a contact (`contact_holds`),
+        and a slower tap from HOME_BACKOFF_MM above the halt, tared afresh, finds the same
+        height (`agreement_tolerance_mm`); otherwise the newest tap is the one to check, up to
+        HOME_TAPS taps. Returns where the confirming tap's triggering sample was taken.
+        """
+        candidate: tuple[float, float] | None = None  # (trigger Z, speed) of a tap that held
+        speed = speed_mm_s
+        heights = []
+        for _ in range(HOME_TAPS):
+            result, tare_counts, _, speed = self._probing_move(settings, z_min_mm, speed)
+            z_mm = z_at_time_mm(result.moves, result.trigger_time_s) + self._z_frame_offset_mm()
+            heights.append(z_mm)
+            if self.contact_holds_after_halt(tare_counts, settings.options.trigger_force_g):
+                if candidate is not None and abs(z_mm - candidate[0]) <= safety.agreement_tolerance_mm(
+                        self.stop_timing, speed, candidate[1]):
+                    return z_mm
+                candidate = (z_mm, speed)
+            else:
+                candidate = None
+            self.vp.move_to(z=float(self.vp.position[2]) + HOME_BACKOFF_MM, speed_mm_s=speed)
+            speed = min(speed_mm_s, HOME_CONFIRM_SPEED_MM_S)
+        found = ", ".join(f"{z:.3f}" for z in heights)
+        raise ProbeError(ERROR_PREFIX + f"G28 Z: {HOME_TAPS} taps found no bed height twice (triggers at Z={found}): "
+                         "something pushes or pulls on the nozzle, or the sensor jumps; check the toolhead and the "
+                         "load cell, then home again")
+
+    def contact_holds_after_halt(self, tare_counts: float, threshold_g: float) -> bool:
+        """Rest at the halt for CONTACT_CHECK_SAMPLES samples: whether the force held like a contact."""
+        halt_s = self.vp.now_s
+        self.vp.dwell(safety.CONTACT_CHECK_SAMPLES / self.sample_rate_sps)
+        self.load_cell.pump()
+        _, counts, _ = self.history.between(halt_s, self.vp.now_s)
+        force_g = counts_to_grams(counts, tare_counts, self.load_cell.counts_per_gram, self.cell_options.inverted)
+        return safety.contact_holds(force_g, threshold_g)
 
     def tap(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float) -> TapOutcome:
         """One full tap at the current XY (see the module docstring)."""
         options = settings.options
         self.history.keep_from_s = self.vp.now_s - HISTORY_S  # this tap's samples stay until analysed
         try:
-            result, tare_counts, t_start_s = self._probing_move(settings, z_min_mm, speed_mm_s)
+            result, tare_counts, t_start_s, speed_mm_s = self._probing_move(settings, z_min_mm, speed_mm_s)
             self.vp.dwell(self.dwell_samples / self.sample_rate_sps)
             pullback_start_s = self.vp.now_s
             self.vp.move_to(z=result.halt_z_mm + options.pullback_distance_mm,
@@ -691,7 +822,7 @@ class LoadCellProbeCommands:
         deadline_s = device.vp.now_s + timeout_s
         for index in range(count):
             self._wait_for_release(settings.options, deadline_s)
-            trigger = device._arm(settings, device._tare(settings.options))
+            trigger = device.arm(device._tap_trigger_params(settings), device._tare(settings.options))
             # A hand is on the nozzle now: the next tare must wait for new samples.
             device._tare_from_s = None
             result = device.vp.wait_for_trigger(trigger, max(deadline_s - device.vp.now_s, 0.0))
@@ -730,26 +861,27 @@ class LoadCellProbeCommands:
         x0, y0, _ = motion.get_position()
         settings = self.device.command_settings(gcmd)
         positions = serpentine_pattern(x0, y0, count_x, count_y, stepover_mm)
-        good_in_row = 0
-        bad_taps = 0
-        for index, (x, y) in enumerate(positions):
-            if index:
-                motion.move_to(x=float(x), y=float(y), speed_mm_s=horizontal_speed)
-            outcome = self.device.tap(settings, motion.z_position_min(), speed)
-            motion.move_to(z=outcome.z_mm + retract_mm, speed_mm_s=lift_speed)
-            if outcome.valid:
-                good_in_row += 1
-                if good_in_row >= good_needed:
-                    gcmd.respond_info(f"NOZZLE_CLEANUP succeeded: {good_needed} good taps in a row "
-                                      f"after {index + 1} taps")
-                    return
-                continue
+        with self.device.guarded():
             good_in_row = 0
-            bad_taps += 1
-            gcmd.respond_info(f"NOZZLE_CLEANUP: bad tap at {x:.3f},{y:.3f}: {outcome.error_code} - {outcome.message}")
-            if scrubbing_frequency and bad_taps % scrubbing_frequency == 0:
-                self.probe.run_template("nozzle_scrubber_gcode", {"ATTEMPT": index + 1, "RETRIES": len(positions)})
-        raise ProbeError(f"NOZZLE_CLEANUP failed after trying {len(positions)} positions")
+            bad_taps = 0
+            for index, (x, y) in enumerate(positions):
+                if index:
+                    motion.move_to(x=float(x), y=float(y), speed_mm_s=horizontal_speed)
+                outcome = self.device.tap(settings, motion.z_position_min(), speed)
+                motion.move_to(z=outcome.z_mm + retract_mm, speed_mm_s=lift_speed)
+                if outcome.valid:
+                    good_in_row += 1
+                    if good_in_row >= good_needed:
+                        gcmd.respond_info(f"NOZZLE_CLEANUP succeeded: {good_needed} good taps in a row "
+                                          f"after {index + 1} taps")
+                        return
+                    continue
+                good_in_row = 0
+                bad_taps += 1
+                gcmd.respond_info(f"NOZZLE_CLEANUP: bad tap at {x:.3f},{y:.3f}: {outcome.error_code} - {outcome.message}")
+                if scrubbing_frequency and bad_taps % scrubbing_frequency == 0:
+                    self.probe.run_template("nozzle_scrubber_gcode", {"ATTEMPT": index + 1, "RETRIES": len(positions)})
+            raise ProbeError(f"NOZZLE_CLEANUP failed after trying {len(positions)} positions")
 
 
 def _template_runner(printer):

@@ -17,6 +17,7 @@ G-code parameters (the overrides), call `probe_point(x, y)` per point, close it.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -74,6 +75,8 @@ class Tapper(Protocol):
 
     def home_tap(self, settings, z_min_mm: float, speed_mm_s: float) -> float: ...
 
+    def guarded(self) -> contextlib.AbstractContextManager: ...  # around a probing command: lift after an error
+
 
 class Motion(Protocol):
     """The few toolhead services a probe needs."""
@@ -109,11 +112,16 @@ class ProbeSession:
         self._active = False
 
     def __enter__(self) -> ProbeSession:
-        self.start()
+        with contextlib.ExitStack() as stack:
+            stack.callback(self.end)
+            # Entered after `end` so that after an error the nozzle is lifted before deactivate_gcode.
+            stack.enter_context(self.probe.tapper.guarded())
+            self.start()
+            self._exit_stack = stack.pop_all()
         return self
 
     def __exit__(self, *exc) -> None:
-        self.end()
+        self._exit_stack.__exit__(*exc)
 
     def start(self) -> None:
         if not self.probe.motion.is_z_homed():
@@ -320,13 +328,14 @@ class Probe:
         z_min = z_now - motion.z_travel_mm()
         self.run_template("activate_gcode", {})
         try:
-            trigger_z = self.tapper.home_tap(settings, z_min, self.options.speed_mm_s)
+            with self.tapper.guarded():
+                trigger_z = self.tapper.home_tap(settings, z_min, self.options.speed_mm_s)
+                z_after = motion.get_position()[2] - trigger_z + self.options.z_offset_mm
+                motion.set_z_position(z_after)
+                motion.move_to(z=z_after + self.options.sample_retract_dist_mm,
+                               speed_mm_s=self.options.effective_lift_speed_mm_s)
         finally:
             self.run_template("deactivate_gcode", {})
-        z_after = motion.get_position()[2] - trigger_z + self.options.z_offset_mm
-        motion.set_z_position(z_after)
-        motion.move_to(z=z_after + self.options.sample_retract_dist_mm,
-                       speed_mm_s=self.options.effective_lift_speed_mm_s)
         return motion.get_position()[2]
 
     def get_status(self, eventtime=None) -> dict:
