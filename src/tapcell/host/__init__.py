@@ -1,1 +1,1 @@
-"""The klippy-like host runtime: printer assembly, config, G-code, toolhead, API server."""
+"""The klippy-like runtime: printer assembly, config, G-code, toolhead."""
