@@ -43,8 +43,8 @@ from typing import Any, Callable
 import numpy as np
 
 from tapcell import __version__
-from tapcell.config import ConfigError
-from tapcell.gcode import GCodeError, parse_line
+from tapcell.host.config import ConfigError
+from tapcell.host.gcode import GCodeError, parse_line
 from tapcell.host import load_cell_streams
 from tapcell.host.webhooks import ApiObjects
 
@@ -665,7 +665,7 @@ def _software_root() -> Path:
 
 
 def main(argv: list[str]) -> int:
-    from tapcell.printer import Printer
+    from tapcell.host.printer import Printer
 
     parser = argparse.ArgumentParser(prog="tapcell serve", description="Serve the virtual printer through "
                                      "Klipper's API on a Unix socket, for Moonraker and its web UIs.")

@@ -30,10 +30,7 @@ TOOLHEAD_FIELDS: dict[str, Any] = {
     "extruder": "extruder", "stalls": 0, "square_corner_velocity": 5.0, "minimum_cruise_ratio": 0.5,
 }
 HEATER_FIELDS: dict[str, Any] = {"temperature": 0.0, "target": 0.0, "power": 0.0}
-PROBE_FIELDS: dict[str, Any] = {"name": "probe", "last_query": False, "last_z_result": 0.0,
-                                "last_probe_position": [0.0, 0.0, 0.0]}
-COMPLETED_FIELDS = {"extruder": EXTRUDER_FIELDS, "toolhead": TOOLHEAD_FIELDS, "heater_bed": HEATER_FIELDS,
-                    "probe": PROBE_FIELDS}
+COMPLETED_FIELDS = {"extruder": EXTRUDER_FIELDS, "toolhead": TOOLHEAD_FIELDS, "heater_bed": HEATER_FIELDS}
 # Heaters every Klipper-family UI expects; the ones the printer lacks are stand-ins.
 HEATERS = ("heater_bed", "extruder")
 ROOM_TEMPERATURE_C = 25.0  # a stand-in bed's temperature when the virtual printer states no ambient
