@@ -73,6 +73,18 @@ def free_port() -> int:
         return probe.getsockname()[1]
 
 
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    """`tapcell serve` on a calibrated virtual printer; yields the socket path."""
+    folder = tmp_path_factory.mktemp("served")
+    socket_path = folder / "klippy.sock"
+    process = start_serve(printer_config(folder), socket_path, folder / "serve.log")
+    try:
+        yield socket_path
+    finally:
+        stop(process)
+
+
 MOONRAKER_CONF = """\
 [server]
 host: 127.0.0.1
