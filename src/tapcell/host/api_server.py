@@ -152,7 +152,7 @@ class PrinterThread:
         self._restarted = False
         self._last_tick = time.monotonic()
         self._last_snapshot = 0.0
-        self.objects = ApiObjects(printer, gcodes_dir)
+        self.objects: ApiObjects  # made by _attach, anew for every printer build
         self._thread = threading.Thread(target=self._run, name="tapcell-printer", daemon=True)
         self.on_snapshot: Callable[[dict], None] = lambda status: None
         self.on_output: Callable[[str], None] = lambda line: None
