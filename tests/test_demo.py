@@ -6,7 +6,7 @@ import re
 
 import pytest
 
-from tapcell import demo
+from tapcell.tools import demo
 from tapcell.tap import read_tap_file
 
 SCALE_CONFIG = """\

@@ -9,10 +9,10 @@ import textwrap
 
 import pytest
 
-from tapcell import frontend
-from tapcell.config import ConfigError
-from tapcell.gcode import GCodeError
-from tapcell.printer import Printer
+from tapcell.tools import frontend
+from tapcell.host.config import ConfigError
+from tapcell.host.gcode import GCodeError
+from tapcell.host.printer import Printer
 
 CELL = """
 [load_cell]

@@ -20,12 +20,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from tapcell.bed_mesh import MeshProbeRun
-from tapcell.gcode import GCodeCommand, GCodeError
-from tapcell.load_cell_probe_options import tare_sample_count
+from tapcell.extras.bed_mesh import MeshProbeRun
+from tapcell.host.gcode import GCodeCommand, GCodeError
+from tapcell.extras.load_cell_probe.options import tare_sample_count
 from tapcell.mesh.abl import NoContactError, PlanStep, TwoPassSettings, run_two_pass, topology_report
 from tapcell.mesh.report import render_topology
-from tapcell.prusa_probe import ThresholdProber
+from tapcell.extras.prusa_probe import ThresholdProber
 
 
 def two_pass_settings(toolhead, travel_speed_mm_s: float) -> tuple[TwoPassSettings, str | None]:

@@ -7,8 +7,8 @@ Commands:
   (+ any probe option override, e.g. SAMPLES=2): probe every point in serpentine order,
   build the mesh, make it active and store it in profile PROFILE (SAVE_CONFIG keeps it).
   Methods: `tap` (the load-cell probe's tap analysis, the default), `two_pass` (the ABL
-  paper's fast + slow pass, `tapcell.abl_probe`), `prusa` (Prusa-matched thresholds and tare
-  plan, `tapcell.prusa_probe`; needs a `[prusa_probe]` section).
+  paper's fast + slow pass, `tapcell.extras.bed_mesh.two_pass`), `prusa` (Prusa-matched thresholds and tare
+  plan, `tapcell.extras.prusa_probe`; needs a `[prusa_probe]` section).
 * `BED_MESH_OUTPUT [PGP=1]`: the active mesh as a table (PGP=1: the probe points in order).
 * `BED_MESH_PROFILE SAVE=name | LOAD=name | REMOVE=name`: profiles live in `[bed_mesh name]`
   sections written by SAVE_CONFIG; `default` is loaded at start-up.
@@ -31,8 +31,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from tapcell.config import ConfigSection
-from tapcell.gcode import GCodeCommand, GCodeError
+from tapcell.host.config import ConfigSection
+from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.mesh.errors import MeshError, MeshOptionError
 from tapcell.mesh.grid import MeshGrid, matrix_from_probes, rectangular_grid, round_grid
 from tapcell.mesh.interpolate import ALGORITHMS, Interpolation, resolve_interpolation
@@ -238,10 +238,10 @@ def _method_function(method: str):
     if method == "tap":
         return probe_points_by_tapping
     if method == "two_pass":
-        from tapcell.abl_probe import probe_points_two_pass
+        from tapcell.extras.bed_mesh.two_pass import probe_points_two_pass
 
         return probe_points_two_pass
-    from tapcell.prusa_probe import probe_points_prusa
+    from tapcell.extras.prusa_probe import probe_points_prusa
 
     return probe_points_prusa
 

@@ -25,8 +25,8 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from tapcell.config import ConfigSection
-from tapcell.gcode import GCodeCommand, GCodeError
+from tapcell.host.config import ConfigSection
+from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.mesh.errors import MeshError, MeshOptionError
 from tapcell.mesh.thermal import UNLIMITED_MM, ThermalAdjustSettings, ZThermalAdjust, measure_temp_coeff
 

@@ -1,6 +1,6 @@
 """`[load_cell_probe]` probing options and the small pure rules around one tap.
 
-Kept apart from the device (`tapcell.load_cell_probe`) so the option table and the rules
+Kept apart from the device (`tapcell.extras.load_cell_probe.device`) so the option table and the rules
 (tare length, pullback speed default, force safety check) are testable on their own.
 """
 
@@ -13,7 +13,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from tapcell.mcu.trigger import TriggerError
-from tapcell.probe_options import OptionSpec
+from tapcell.extras.probe.options import OptionSpec
 from tapcell.tap.angles import slope_angle_deg
 
 # Every load-cell probing error starts with this (the spec's wording).

@@ -27,12 +27,12 @@ from typing import Callable
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
-from tapcell.bed_mesh import PROGRESS_EVENT
-from tapcell.config import ConfigError
-from tapcell.frontend import DEFAULT_CONFIG as EXAMPLE_CONFIG
-from tapcell.gcode import GCodeError
+from tapcell.extras.bed_mesh import PROGRESS_EVENT
+from tapcell.host.config import ConfigError
+from tapcell.tools.frontend import DEFAULT_CONFIG as EXAMPLE_CONFIG
+from tapcell.host.gcode import GCodeError
 from tapcell.mesh.report import mesh_error, render_mesh_error, write_mesh_png
-from tapcell.printer import Printer
+from tapcell.host.printer import Printer
 from tapcell.tap.plot import plot_tap
 
 DEMO_SCENARIO = "warped-bed"

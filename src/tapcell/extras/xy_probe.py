@@ -19,10 +19,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from tapcell.config import ConfigSection
-from tapcell.gcode import GCodeCommand, GCodeError
+from tapcell.host.config import ConfigSection
+from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.mesh.prusa import XY, Thresholds
-from tapcell.prusa_probe import ThresholdProber
+from tapcell.extras.prusa_probe import ThresholdProber
 
 SECTION = "xy_probe"
 DIRECTIONS = {"+X": (1.0, 0.0), "-X": (-1.0, 0.0), "+Y": (0.0, 1.0), "-Y": (0.0, -1.0)}

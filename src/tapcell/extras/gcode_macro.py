@@ -28,8 +28,8 @@ from typing import Any, Iterator
 
 import jinja2
 
-from tapcell.config import ConfigSection
-from tapcell.gcode import GCodeCommand, GCodeError
+from tapcell.host.config import ConfigSection
+from tapcell.host.gcode import GCodeCommand, GCodeError
 
 DEFAULT_DESCRIPTION = "G-Code macro"
 

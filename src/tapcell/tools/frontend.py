@@ -11,12 +11,12 @@ import os
 import sys
 from pathlib import Path
 
-from tapcell.config import ConfigError
-from tapcell.printer import Printer
+from tapcell.host.config import ConfigError
+from tapcell.host.printer import Printer
 
 SUBCOMMANDS = ("console", "run")
 
-DEFAULT_CONFIG = Path(__file__).resolve().parents[2] / "examples" / "virtual-printer.cfg"
+DEFAULT_CONFIG = Path(__file__).resolve().parents[3] / "examples" / "virtual-printer.cfg"
 HISTORY_FILE = Path("~/.tapcell_history").expanduser()
 HISTORY_LENGTH = 1000
 PROMPT = "tapcell> "

@@ -18,7 +18,7 @@ One tap, step by step (`LoadCellProbe.tap`):
 
 Commands: LOAD_CELL_TEST_TAP, NOZZLE_CLEANUP, LOAD_CELL_PROBE_CALIBRATE (CONTACT_ONSET, PULLBACK_DISTANCE,
 DECOMPRESSION_ANGLE), plus the [load_cell] commands and the generic
-probe commands of `tapcell.probe`. Status: `load_cell_probe` (and `probe`).
+probe commands of `tapcell.extras.probe.session`. Status: `load_cell_probe` (and `probe`).
 """
 
 from __future__ import annotations
@@ -34,18 +34,18 @@ import jinja2
 import numpy as np
 
 from tapcell.filters import FilterDesignError, FilterOptions, design_firmware_filter
-from tapcell.gcode import GCodeError
-from tapcell.gcode_macro import StatusView
-from tapcell.load_cell import LoadCell, read_load_cell_options, register_load_cell_commands
+from tapcell.host.gcode import GCodeError
+from tapcell.extras.gcode_macro import StatusView
+from tapcell.extras.load_cell import LoadCell, read_load_cell_options, register_load_cell_commands
 from tapcell.mcu.trigger import FirmwareTrigger, TriggerError, TriggerParams
-from tapcell.probe import Probe, ProbeError, TapOutcome
-from tapcell.probe_options import (
+from tapcell.extras.probe.session import Probe, ProbeError, TapOutcome
+from tapcell.extras.probe.options import (
     PROBE_TEMPLATE_OPTIONS,
     read_probe_options,
     read_section_values,
     with_overrides,
 )
-from tapcell.load_cell_probe_options import (
+from tapcell.extras.load_cell_probe.options import (
     ERROR_PREFIX,
     preload_refusal,
     trigger_error_message,
@@ -71,7 +71,7 @@ from tapcell.load_cell_probe_options import (
     too_fast_explanation,
     too_fast_for_analysis,
 )
-from tapcell.probe_patterns import serpentine_pattern
+from tapcell.extras.probe.patterns import serpentine_pattern
 from tapcell.scale import counts_to_grams
 from tapcell.tap import AnalysisOptions, Move, TapData, analyze_tap, get_classifier, tap_to_json_dict
 from tapcell.tap.motion import tap_motion
@@ -503,7 +503,7 @@ class LoadCellProbe:
 
 
 class LoadCellProbeCommands:
-    """LOAD_CELL_TEST_TAP, NOZZLE_CLEANUP, QUERY_ENDSTOPS (the probe commands live in tapcell.probe)."""
+    """LOAD_CELL_TEST_TAP, NOZZLE_CLEANUP, QUERY_ENDSTOPS (the probe commands live in tapcell.extras.probe.session)."""
 
     def __init__(self, device: LoadCellProbe, probe: Probe):
         self.device = device

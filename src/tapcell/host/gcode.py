@@ -25,7 +25,7 @@ import re
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
-from tapcell.config import ConfigError
+from tapcell.host.config import ConfigError
 
 
 class GCodeError(Exception):

@@ -20,7 +20,7 @@ SET_MESH_THRESHOLD, SET_XY_THRESHOLD (aliases SET_Z_FAST, SET_Z_SLOW, SET_MESH, 
 take VALUE=grams), LOADCELL_PROBE. `BED_MESH_CALIBRATE METHOD=prusa` uses this mode.
 
 `ThresholdProber` (tare, threshold probing moves in Z and XY) is shared with the two-pass
-ABL (`tapcell.abl_probe`) and XY probing (`tapcell.xy_probe`).
+ABL (`tapcell.extras.bed_mesh.two_pass`) and XY probing (`tapcell.extras.xy_probe`).
 """
 
 from __future__ import annotations
@@ -29,10 +29,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tapcell.config import ConfigSection
-from tapcell.gcode import GCodeCommand, GCodeError
-from tapcell.load_cell_probe_options import ERROR_PREFIX, preload_refusal, trigger_error_message
-from tapcell.load_cell_probe_options import force_beyond_safety_limit_g
+from tapcell.host.config import ConfigSection
+from tapcell.host.gcode import GCodeCommand, GCodeError
+from tapcell.extras.load_cell_probe.options import ERROR_PREFIX, preload_refusal, trigger_error_message
+from tapcell.extras.load_cell_probe.options import force_beyond_safety_limit_g
 from tapcell.mcu.trigger import FirmwareTrigger, TriggerError, TriggerParams
 from tapcell.mesh.errors import MeshError
 from tapcell.mesh.prusa import (
@@ -47,7 +47,7 @@ from tapcell.mesh.prusa import (
     check_tare_deviation,
     retry_offsets_mm,
 )
-from tapcell.probe import ProbeError
+from tapcell.extras.probe.session import ProbeError
 from tapcell.scale import counts_to_grams
 from tapcell.tap.model import Move
 
@@ -92,7 +92,7 @@ class ThresholdProber:
     """Tares and threshold probing moves with the `[load_cell_probe]`'s sensor and trigger."""
 
     def __init__(self, device):
-        self.device = device  # tapcell.load_cell_probe.LoadCellProbe
+        self.device = device  # tapcell.extras.load_cell_probe.device.LoadCellProbe
         self.vp = device.vp
         self.load_cell = device.load_cell
         self.toolhead = device.motion
@@ -297,7 +297,7 @@ class PrusaProbe:
 
     # -- the mesh method -------------------------------------------------------------------------
     def probe_mesh_points(self, options, gcmd: GCodeCommand, points_xy_mm: np.ndarray, progress):
-        from tapcell.bed_mesh import MeshProbeRun
+        from tapcell.extras.bed_mesh import MeshProbeRun
 
         prober = self.prober()
         toolhead = prober.toolhead

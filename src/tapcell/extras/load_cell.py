@@ -21,8 +21,8 @@ from typing import Callable
 import numpy as np
 
 from tapcell import scale
-from tapcell.config import ConfigSection
-from tapcell.gcode import GCodeCommand, GCodeDispatch, GCodeError
+from tapcell.host.config import ConfigSection
+from tapcell.host.gcode import GCodeCommand, GCodeDispatch, GCodeError
 from tapcell.mcu import sensors
 from tapcell.sim.mcu import SampleBatch
 

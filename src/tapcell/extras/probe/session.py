@@ -2,7 +2,7 @@
 
 A probe here is anything that can *tap*: make one probing move at the current XY and say
 where the bed is and whether it trusts that answer. The load-cell probe is one
-(`tapcell.load_cell_probe`). This module adds what every probe needs around a tap:
+(`tapcell.extras.load_cell_probe.device`). This module adds what every probe needs around a tap:
 
 * several samples per point with `samples_result` and `samples_tolerance` (+ retries);
 * bad taps handled by `bad_probe_strategy`: `fail`, `ignore`, `retry` in place, or
@@ -24,10 +24,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from tapcell.gcode import GCodeError
-from tapcell.probe_options import PROBE_OPTION_SPECS, ProbeOptions, check_probe_options, with_overrides
-from tapcell.probe_patterns import next_clean_spot
-from tapcell.probe_stats import AccuracyStats, accuracy_stats, combine_samples, format_accuracy, spread_mm
+from tapcell.host.gcode import GCodeError
+from tapcell.extras.probe.options import PROBE_OPTION_SPECS, ProbeOptions, check_probe_options, with_overrides
+from tapcell.extras.probe.patterns import next_clean_spot
+from tapcell.extras.probe.stats import AccuracyStats, accuracy_stats, combine_samples, format_accuracy, spread_mm
 
 
 class ProbeError(GCodeError):

@@ -16,7 +16,7 @@ eye, and no tapcell algorithm ever reads it.
 
 from __future__ import annotations
 
-from tapcell.gcode import GCodeCommand, GCodeError
+from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.sim.faults import CONDITIONS, FAULT_DEFAULTS, FaultError
 from tapcell.sim.printer import VirtualPrinter
 

@@ -20,8 +20,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from tapcell.config import ConfigSection
-from tapcell.gcode import GCodeCommand
+from tapcell.host.config import ConfigSection
+from tapcell.host.gcode import GCodeCommand
 from tapcell.sim.printer import MoveError
 
 AXES = "xyz"

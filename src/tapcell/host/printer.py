@@ -21,19 +21,19 @@ import importlib
 import time
 from typing import Any, Callable
 
-from tapcell.config import ConfigError, ConfigFile
-from tapcell.gcode import GCodeCommand, GCodeDispatch, GCodeError, ResponseSink
+from tapcell.host.config import ConfigError, ConfigFile
+from tapcell.host.gcode import GCodeCommand, GCodeDispatch, GCodeError, ResponseSink
 
 # Section kind (first word of the section name) -> module that loads it.
 MODULES: dict[str, str] = {
-    "printer": "tapcell.toolhead",
-    "load_cell": "tapcell.load_cell",
-    "load_cell_probe": "tapcell.load_cell_probe",
-    "bed_mesh": "tapcell.bed_mesh",
-    "gcode_macro": "tapcell.gcode_macro",
-    "z_thermal_adjust": "tapcell.z_thermal_adjust",
-    "prusa_probe": "tapcell.prusa_probe",
-    "xy_probe": "tapcell.xy_probe",
+    "printer": "tapcell.host.toolhead",
+    "load_cell": "tapcell.extras.load_cell",
+    "load_cell_probe": "tapcell.extras.load_cell_probe.device",
+    "bed_mesh": "tapcell.extras.bed_mesh",
+    "gcode_macro": "tapcell.extras.gcode_macro",
+    "z_thermal_adjust": "tapcell.extras.z_thermal_adjust",
+    "prusa_probe": "tapcell.extras.prusa_probe",
+    "xy_probe": "tapcell.extras.xy_probe",
 }
 
 # Sections without a module of their own -> the section whose module reads them.
@@ -49,7 +49,7 @@ READ_BY: dict[str, str] = {
 BACKEND_SECTION = "virtual_printer"
 BACKEND_MODULE = "tapcell.sim"
 # G-code commands that act on the virtual hardware (SIM_PLACE_WEIGHT, ...).
-BACKEND_COMMANDS_MODULE = "tapcell.sim_commands"
+BACKEND_COMMANDS_MODULE = "tapcell.sim.commands"
 
 # Sections loaded before the others (in this order), because others look them up.
 LOAD_FIRST = ("printer",)

@@ -11,8 +11,8 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
 
-from tapcell.probe_patterns import MAX_CIRCLE_RETRIES
-from tapcell.probe_stats import SAMPLES_RESULT_CHOICES
+from tapcell.extras.probe.patterns import MAX_CIRCLE_RETRIES
+from tapcell.extras.probe.stats import SAMPLES_RESULT_CHOICES
 
 
 @dataclass(frozen=True)
