@@ -32,7 +32,6 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import signal
 
 MAINS_LINES_HZ = (50.0, 60.0)
 # A line is resolvable when its alias lies this many cycles per tap away from 0 Hz and Nyquist.
@@ -201,6 +200,8 @@ def notch_zero_phase(force_g: np.ndarray, sample_rate_sps: float, frequencies_hz
     No delay, but each notch rings for about quality/frequency seconds around every corner of
     the tap; `bench tap_accuracy` compares the two. Frequencies at or above Nyquist are folded.
     """
+    from scipy import signal  # only here: the analysis itself imports and runs with numpy alone
+
     filtered = np.asarray(force_g, dtype=float)
     for frequency in frequencies_hz:
         seen = alias_hz(frequency, sample_rate_sps)
