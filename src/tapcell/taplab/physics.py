@@ -8,8 +8,9 @@ the load cell and the bed are springs in series; x folds them together.
 
 * Loading: a nonlinear first touch over `onset_um` (stiffness rising as a blend of a power law
   and a smoothstep, so neither the analysis' parabola nor plain Hertz), C1 into the linear region.
-* Unloading from the deepest point: force = peak · (loading force / peak force)^q with q the
-  unloading/loading slope ratio: a hysteresis loop that still reaches zero force exactly at x = 0.
+* Unloading from the deepest point: a loop in force space, F_u = F_l·(1 + (q − 1)(F_l − F_peak)/F_peak)
+  with q the unloading/loading slope ratio at the peak: the toe keeps its shape scaled by 2 − q,
+  and the loop still reaches zero force exactly at x = 0.
 * Stress relaxation: the elastic force times (1 − r(t)), r rising towards a few per cent with
   50–300 ms time constants from the first touch on, through the dwell and the decompression.
 * Ooze: a bead hanging under the nozzle gives a viscous force while it is squeezed (before the
@@ -77,9 +78,11 @@ def elastic_force_g(x_um: np.ndarray, contact: Contact) -> np.ndarray:
     deepest = np.maximum.accumulate(x_um)
     loaded = loading_force_g(x_um, contact)
     peak = loading_force_g(deepest, contact)
+    # The loop in force space: F_u = F_l (1 + (q - 1)(F_l - F_peak)/F_peak). Slope q × loading at the
+    # peak, (2 - q) × loading near zero force, monotonic, and zero exactly where loading is zero.
     with np.errstate(divide="ignore", invalid="ignore"):
-        unloading = peak * np.power(np.where(peak > 0, loaded / peak, 0.0), contact.unload_ratio)
-    return np.where(x_um >= deepest, loaded, np.where(peak > 0, unloading, 0.0))
+        unloading = loaded * (1.0 + (contact.unload_ratio - 1.0) * np.where(peak > 0, (loaded - peak) / peak, 0.0))
+    return np.where(x_um >= deepest, loaded, unloading)
 
 
 def relaxed_share(t_s: np.ndarray, touch_s: float, contact: Contact) -> np.ndarray:
