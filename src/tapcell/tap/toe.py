@@ -27,15 +27,15 @@ from dataclasses import dataclass
 
 import numpy as np
 
-TOE_WIDTHS_UM = (0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 15.0, 18.0)
+TOE_WIDTHS_UM = (0.0, 1.0, 2.0, 3.0, 4.5, 6.0, 8.0, 10.0, 13.0, 16.0)
 TOE_POWERS = (0.5, 1.0)  # Hertz sphere on flat; a parabolic force onset
 COARSE_STEP_UM = 0.5
-COARSE_BELOW_UM = 8.0  # the sharp estimate reads a toe low: search mostly above it
-COARSE_ABOVE_UM = 14.0
+COARSE_BELOW_UM = 3.0  # the sharp estimate reads a toe low: search mostly above it
+COARSE_ABOVE_UM = 10.0
 FINE_STEP_UM = 0.05
-PENETRATION_REACH_UM = 40.0  # samples deeper than this in contact are left out (relaxation, hysteresis)
-DEPARTURE_REACH_SAMPLES = 15  # samples past break contact that set the baseline and its slope
-SUBSAMPLES = 3  # points per conversion window for its average
+PENETRATION_REACH_UM = 30.0  # samples deeper than this in contact are left out (relaxation, hysteresis)
+DEPARTURE_REACH_SAMPLES = 10  # samples past break contact that set the baseline and its slope
+SUBSAMPLES = 2  # points per conversion window for its average
 MAX_LAG_PERIODS = 4.0
 
 
@@ -50,13 +50,21 @@ class ToeFit:
     residual_sigma_g: float
 
 
-def toe_shape(depth_um: np.ndarray, width_um: float, power: float) -> np.ndarray:
-    """Force / linear stiffness at a depth into contact: power-law toe, then linear (slope 1)."""
+def toe_shape(depth_um: np.ndarray, width_um, power: float) -> np.ndarray:
+    """Force / linear stiffness at a depth into contact: power-law toe, then linear (slope 1).
+
+    width_um may be an array broadcasting against depth_um (a width of 0 is a hinge).
+    """
     depth_um = np.maximum(depth_um, 0.0)
-    if width_um <= 0.0:
-        return depth_um
+    width_um = np.maximum(width_um, 1e-9)
     u = np.minimum(depth_um / width_um, 1.0)
-    return width_um * u ** (power + 1.0) / (power + 1.0) + np.maximum(depth_um - width_um, 0.0)
+    if power == 0.5:
+        lifted = u * np.sqrt(u)  # the Hertz toe without a general power (the hot path)
+    elif power == 1.0:
+        lifted = u * u
+    else:
+        lifted = u ** (power + 1.0)
+    return width_um * lifted / (power + 1.0) + np.maximum(depth_um - width_um, 0.0)
 
 
 def lag_from_halt_s(compression_end_time_s: float, halt_time_s: float, period_s: float) -> float | None:
@@ -67,22 +75,27 @@ def lag_from_halt_s(compression_end_time_s: float, halt_time_s: float, period_s:
     return lag_s
 
 
-def _rss_over_contacts(contacts_um, window_um, x_mid, y, width_um, power):
-    """Residual sum of squares of the linear solve at every candidate contact (vectorised)."""
-    h = toe_shape(contacts_um[:, None, None] - window_um[None], width_um, power).mean(axis=2)  # (C, N)
+def _rss_over_contacts(contacts_um, widths_um, power, window_um, x_mid, y):
+    """Residual sum of squares of the linear solve at every (toe width, candidate contact) at once.
+
+    contacts_um, widths_um: equal-length 1-D arrays (one row per candidate); power: the toe's.
+    """
+    depth = contacts_um[:, None, None] - window_um[None]
+    h = toe_shape(depth, widths_um[:, None, None], power).mean(axis=2)  # (C, N)
     n = len(y)
     sx, sy = x_mid.sum(), y.sum()
     sxx, sxy, syy = x_mid @ x_mid, x_mid @ y, y @ y
     sh, shh, shx, shy = h.sum(axis=1), np.einsum("cn,cn->c", h, h), h @ x_mid, h @ y
-    normal = np.empty((len(contacts_um), 3, 3))
+    rows = len(contacts_um)
+    normal = np.empty((rows, 3, 3))
     normal[:, 0, 0], normal[:, 0, 1], normal[:, 0, 2] = n, sx, sh
     normal[:, 1, 0], normal[:, 1, 1], normal[:, 1, 2] = sx, sxx, shx
     normal[:, 2, 0], normal[:, 2, 1], normal[:, 2, 2] = sh, shx, shh
-    rhs = np.stack([np.full(len(contacts_um), sy), np.full(len(contacts_um), sxy), shy], axis=1)
-    determinant = np.linalg.det(normal)
-    usable = np.abs(determinant) > 1e-9 * np.abs(normal[:, 2, 2] * normal[:, 1, 1] * n + 1e-300)
-    rss = np.full(len(contacts_um), np.inf)
-    solution = np.zeros((len(contacts_um), 3))
+    rhs = np.stack([np.full(rows, sy), np.full(rows, sxy), shy], axis=1)
+    # A candidate whose toe column is (nearly) a combination of the others cannot be solved.
+    usable = shh * n - sh * sh > 1e-9 * (shh * n + 1e-300)
+    rss = np.full(rows, np.inf)
+    solution = np.zeros((rows, 3))
     if usable.any():
         solution[usable] = np.linalg.solve(normal[usable], rhs[usable][..., None])[..., 0]
         rss[usable] = syy - np.einsum("ck,ck->c", solution[usable], rhs[usable])
@@ -103,31 +116,29 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
     x_mid = 0.5 * (x_lo_um + x_hi_um)
     x_mid = x_mid - x_mid.mean()  # the slope's column re-centred: better conditioned
     coarse = contact0_um + np.arange(-COARSE_BELOW_UM, COARSE_ABOVE_UM + 1e-9, COARSE_STEP_UM)
-    profile = np.full(len(coarse), np.inf)
-    best = (math.inf, 0.0, 1.0)
-    for width in TOE_WIDTHS_UM:
-        for power in (TOE_POWERS if width > 0 else TOE_POWERS[:1]):
-            rss, _ = _rss_over_contacts(coarse, window_um, x_mid, y, width, power)
-            profile = np.minimum(profile, rss)
-            k = int(np.argmin(rss))
-            if rss[k] < best[0]:
-                best = (float(rss[k]), width, power)
-    _, width, power = best
-    k = int(np.argmin(profile))
-    if not math.isfinite(profile[k]):
+    widths = np.array(TOE_WIDTHS_UM)
+    grid_c = np.tile(coarse, len(widths))
+    grid_w = np.repeat(widths, len(coarse))
+    rss_grid = np.stack([_rss_over_contacts(grid_c, grid_w, power, window_um, x_mid, y)[0].reshape(len(widths), -1)
+                         for power in TOE_POWERS])  # (power, width, contact)
+    profile = rss_grid.min(axis=(0, 1))  # over the toes, per contact height
+    power_index, width_index, k = np.unravel_index(int(np.argmin(rss_grid)), rss_grid.shape)
+    if not math.isfinite(rss_grid[power_index, width_index, k]):
         return None
+    width, power = widths[width_index], TOE_POWERS[power_index]
     fine = coarse[k] + np.arange(-COARSE_STEP_UM, COARSE_STEP_UM + 1e-9, FINE_STEP_UM)
-    rss, solution = _rss_over_contacts(fine, window_um, x_mid, y, width, power)
+    rss, solution = _rss_over_contacts(fine, np.full(len(fine), width), power, window_um, x_mid, y)
     j = int(np.argmin(rss))
     contact = float(fine[j])
-    if 0 < j < len(fine) - 1 and all(map(math.isfinite, rss[j - 1:j + 2])):
+    if 0 < j < len(fine) - 1 and np.isfinite(rss[j - 1:j + 2]).all():
         bend = rss[j - 1] - 2 * rss[j] + rss[j + 1]
         if bend > 0:
             contact += 0.5 * FINE_STEP_UM * (rss[j - 1] - rss[j + 1]) / bend
     dof = max(len(y) - 6, 1)
     residual_var = max(float(rss[j]) / dof, 1e-12)
-    return ToeFit(contact_um=contact, sigma_um=_profile_sigma_um(coarse, profile, k, residual_var),
-                  width_um=width, power=power, stiffness_g_um=float(solution[j, 2]),
+    return ToeFit(contact_um=contact, sigma_um=_profile_sigma_um(coarse, profile, int(np.argmin(profile)),
+                                                                 residual_var),
+                  width_um=float(width), power=float(power), stiffness_g_um=float(solution[j, 2]),
                   departure_slope_g_um=float(solution[j, 1]), residual_sigma_g=math.sqrt(residual_var))
 
 
