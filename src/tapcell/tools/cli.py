@@ -12,6 +12,7 @@ import sys
 
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "analyze": ("tapcell.tap.cli", "analyse tap files: Z at break contact, validation, quality"),
+    "benchmark": ("tapcell.taplab.benchmark", "score tap analyzers (ours, Kalico's, any) on independent labelled taps"),
     "scenarios": ("tapcell.sim.cli", "list the virtual printer's scenarios and their parameters"),
     "console": ("tapcell.tools.frontend", "interactive G-code console on the virtual printer"),
     "run": ("tapcell.tools.frontend", "run a G-code script on the virtual printer"),
