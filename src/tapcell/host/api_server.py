@@ -243,7 +243,8 @@ class PrinterThread:
         if printer.state == "ready":
             self.objects.register_commands(printer.gcode)
         for name, probe in load_cell_streams.tap_probes(printer).items():
-            probe.add_tap_client(lambda recorded, name=name: self.on_tap(name, load_cell_streams.tap_event(recorded)))
+            probe.add_tap_client(
+                lambda recorded, name=name: self._post(self.on_tap, name, load_cell_streams.tap_event(recorded)))
         self.help = printer.gcode.get_command_help()
 
     def _note_restart(self) -> None:
