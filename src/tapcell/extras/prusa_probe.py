@@ -296,7 +296,7 @@ class PrusaProbe:
         around it when there is no contact or the force does not hold after the trigger. Then the
         point furthest from its neighbours is probed again until two probes agree
         (`recheck_outliers`): a push on the nozzle in the air never becomes a mesh point."""
-        from tapcell.extras.bed_mesh import MeshProbeRun, recheck_outliers
+        from tapcell.extras.bed_mesh import MeshProbeRun, mesh_travel_height_mm, recheck_outliers
 
         prober = self.prober()
         toolhead = prober.toolhead
@@ -338,11 +338,11 @@ class PrusaProbe:
         with prober.device.guarded():
             reference = prober.tare("session reference")
             z_values = []
-            travel_z = options.horizontal_move_z_mm
-            for index in range(len(points_xy_mm)):
+            contacts_xyz = []  # where the nozzle touched (toolhead Z): the travel height follows the bed
+            for index, (x_mm, y_mm) in enumerate(points_xy_mm):
+                travel_z = mesh_travel_height_mm(options, contacts_xyz, (float(x_mm), float(y_mm)))
                 z_values.append(probe_point(index, travel_z))
-                if options.horizontal_z_clearance_mm is not None:
-                    travel_z = z_values[-1] + z_offset + options.horizontal_z_clearance_mm
+                contacts_xyz.append((float(x_mm), float(y_mm), z_values[-1] + z_offset))
                 progress(index + 1, len(points_xy_mm))
             tolerance_mm = agreement_tolerance_mm(prober.device.stop_timing, speed)
             z_values = recheck_outliers(points_xy_mm, z_values,

@@ -3,7 +3,9 @@
 On real hardware you put a weight on the scale or tap the nozzle with a finger; on
 the virtual printer these commands do it:
 
-    SIM_PLACE_WEIGHT GRAMS=500 [LOAD_CELL=name]   a known weight rests on the cell
+    SIM_PLACE_WEIGHT GRAMS=500 [ADD=1] [LOAD_CELL=name]
+                                                  a known weight rests on the cell (it replaces
+                                                  the one there; ADD=1 puts it on top)
     SIM_REMOVE_WEIGHT [LOAD_CELL=name]            take it off again
     SIM_TAP [FORCE=300] [DURATION=0.2] [DELAY=0]  a hand tap on the nozzle (no motion), DELAY s from now
     SIM_FAULT NAME=<fault> [AT=s] [WHEN=cond] [DURATION=s] [<PARAM>=value ...]
@@ -67,9 +69,13 @@ class SimCommands:
 
     def cmd_place_weight(self, gcmd: GCodeCommand) -> None:
         grams = gcmd.get_float("GRAMS", above=0.0, maxval=MAX_WEIGHT_GRAMS)
-        self._weight_target(gcmd).place_weight(grams)
+        add = bool(gcmd.get_int("ADD", 0, minval=0, maxval=1))
+        total_g = self._weight_target(gcmd).place_weight(grams, add=add)
         self.vp.dwell(WEIGHT_HANDLING_TIME_S)
-        gcmd.respond_info(f"A {grams:g} g weight now rests on the load cell")
+        if add:
+            gcmd.respond_info(f"{grams:g} g more on the load cell: {total_g:g} g rest on it now")
+        else:
+            gcmd.respond_info(f"A {grams:g} g weight now rests on the load cell")
 
     def cmd_remove_weight(self, gcmd: GCodeCommand) -> None:
         self._weight_target(gcmd).remove_weight()
@@ -137,7 +143,7 @@ def register_sim_commands(printer) -> None:
     commands = SimCommands(printer, vp)
     gcode = printer.gcode
     gcode.register_command("SIM_PLACE_WEIGHT", commands.cmd_place_weight,
-                           desc="Virtual printer: rest a weight on the load cell, GRAMS=")
+                           desc="Virtual printer: rest a weight on the load cell (replacing the one there), GRAMS= [ADD=1]")
     gcode.register_command("SIM_REMOVE_WEIGHT", commands.cmd_remove_weight,
                            desc="Virtual printer: take the weight off the load cell")
     gcode.register_command("SIM_TAP", commands.cmd_tap,

@@ -256,13 +256,24 @@ class VirtualPrinter:
         if wait:
             self.dwell(self._thermal.time_to_settle_s(self._now_s))
 
-    def place_weight(self, grams: float) -> None:
+    def place_weight(self, grams: float, add: bool = False) -> float:
+        """A weight now rests on the cell: it replaces what rested there, or with `add` joins it.
+        Returns the total weight on the cell."""
+        if not add:
+            self.remove_weight()
         self.inject_fault("weight", grams=float(grams))
+        return self.weight_on_cell_g()
 
     def remove_weight(self) -> None:
-        for f in self._faults:
-            if f.name == "weight" and f.start_s is not None and f.end_s > self._now_s:
-                f.duration_s = self._now_s - f.start_s
+        for f in self._weights_on_cell():
+            f.duration_s = self._now_s - f.start_s
+
+    def weight_on_cell_g(self) -> float:
+        return float(sum(f.params["grams"] for f in self._weights_on_cell()))
+
+    def _weights_on_cell(self) -> list:
+        return [f for f in self._faults
+                if f.name == "weight" and f.start_s is not None and f.start_s <= self._now_s < f.end_s]
 
     def tap_nozzle(self, peak_force_g: float, duration_s: float = 0.15, delay_s: float = 0.0) -> None:
         """A finger tap on the nozzle starting `delay_s` from now (half-sine force pulse); time does not advance."""

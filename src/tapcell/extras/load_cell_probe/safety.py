@@ -124,7 +124,9 @@ def predict_stop(params: TriggerParams, timing: StopTiming, speed_mm_s: float, s
     for phase in CONTACT_PHASES:
         contact_s = phase * period_s
         force_g = _window_average_g(ramp_g_s, contact_s, window_start_s, period_s)
-        counts = np.round(tare + sign * params.counts_per_gram * force_g)
+        # One count of dither every other sample: a real sensor's noise, so that the stuck-sensor
+        # check never takes a slow ideal ramp (identical rounded samples) for a dead sensor.
+        counts = np.round(tare + sign * params.counts_per_gram * force_g) + np.arange(count) % 2
         counts = np.clip(counts, -(1 << 31), (1 << 31) - 1).astype(np.int32)
         trigger = FirmwareTrigger(params)
         # Armed half a period before the first sample; the MCU clock starts a second earlier.
