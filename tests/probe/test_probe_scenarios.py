@@ -103,7 +103,8 @@ def test_slow_adc_explains_what_goes_wrong_too_fast(tmp_path):
     z_before = printer.backend.position[2]
     with pytest.raises(GCodeError) as refusal:
         printer.gcode.run_script("PROBE PROBE_SPEED=8 FORCE_SAFETY_LIMIT=500")
-    match = re.fullmatch(r"Load Cell Probe Error: probing at 8 mm/s could press the bed with up to (\d+)g, more "
+    match = re.fullmatch(r"Load Cell Probe Error: probing at 8 mm/s refused: it could press the bed with up to "
+                         r"(\d+)g, more "
                          r"than force_safety_limit \(500g\): at 80 samples/s the nozzle moves 100\.0 um per sample "
                          r"into a bed of up to 4\.0 g/um \(measured by the taps, with a margin\), and 1 ms more "
                          r"before the steppers stop; probe at 5 mm/s or slower", str(refusal.value))

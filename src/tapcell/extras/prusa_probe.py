@@ -122,7 +122,8 @@ class ThresholdProber:
                                                self.load_cell.counts_per_gram, options.force_safety_limit_g)
         if beyond_g is not None:
             raise ProbeError(preload_refusal(beyond_g, options.force_safety_limit_g))
-        return self.device.trigger_params(threshold_g, self.device.config_settings.sos, release_g, drift_safety_limit_g)
+        return self.device.trigger_params(options, self.device.config_settings.sos, threshold_g, release_g,
+                                          drift_safety_limit_g)
 
     def _frame_mm(self) -> np.ndarray:
         return np.array([self.toolhead.frame_offset_mm[axis] for axis in "xyz"])

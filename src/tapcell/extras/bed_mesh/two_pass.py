@@ -65,7 +65,7 @@ def two_pass_settings(device, toolhead, travel_speed_mm_s: float) -> tuple[TwoPa
 
 def two_pass_trigger_params(device):
     """The paper has no drift check: the fast pass jumps more than drift_safety_limit per sample."""
-    return device.trigger_params(device.options.trigger_force_g, device.config_settings.sos, 0.0,
+    return device.trigger_params(device.options, device.config_settings.sos, device.options.trigger_force_g,
                                  drift_safety_limit_g=0.0)
 
 

@@ -319,11 +319,11 @@ class LoadCellProbe:
         self.tare_counts_at_tap = tare_counts
         return tare_counts
 
-    def trigger_params(self, trigger_force_g: float, sos, release_force_g: float = 0.0,
+    def trigger_params(self, options: TapOptions, sos, trigger_force_g: float, release_force_g: float = 0.0,
                        drift_safety_limit_g: float | None = None) -> TriggerParams:
-        """The firmware trigger of a probing move with this cell's calibration and safety limits
-        (`drift_safety_limit_g`: the configured one unless given; 0 turns the check off)."""
-        options = self.options
+        """The firmware endstop's parameters for one probing move (every probing mode builds them
+        here): this cell's calibration, the safety limits of `options` (`drift_safety_limit_g`
+        overrides theirs; 0 turns the check off)."""
         return TriggerParams(
             counts_per_gram=self.load_cell.counts_per_gram,
             reference_tare_counts=self.load_cell.reference_tare_counts,
@@ -335,11 +335,6 @@ class LoadCellProbe:
             inverted=self.cell_options.inverted,
             sos=sos,
         )
-
-    def _tap_trigger_params(self, settings: TapSettings) -> TriggerParams:
-        return dataclasses.replace(self.trigger_params(settings.options.trigger_force_g, settings.sos),
-                                   force_safety_limit_g=settings.options.force_safety_limit_g,
-                                   drift_safety_limit_g=settings.options.drift_safety_limit_g)
 
     def probing_move(self, params: TriggerParams, tare_counts: float, z_min_mm: float, speed_mm_s: float):
         """Every Z probing move of this probe (taps, homing, threshold probing) goes through here.
@@ -406,6 +401,33 @@ class LoadCellProbe:
             return up_to_mm_s
         return safety.safe_speed_mm_s(params, self.stop_timing, up_to_mm_s, stiffness_g_um)
 
+    def refuse_a_hiding_drift_filter(self, section) -> None:
+        """Config load: a drift filter that hides a tap at the configured speeds (the filtered force
+        never reaches trigger_force on a soft bed) is refused unless a safety limit stops the
+        nozzle at or below force_safety_limit; the error says the highest cutoff that does not."""
+        options = self.options
+        if options.drift_filter_cutoff_frequency is None:
+            return
+        max_z_mm_s = self.motion.options.max_z_velocity_mm_s
+        speeds = sorted({min(s, max_z_mm_s) for s in (self.probe.options.speed_mm_s,
+                                                     self.probe.options.effective_retry_speed_mm_s)})
+
+        def hiding(opts: TapOptions) -> list[float]:
+            sos = design_firmware_filter(filter_options(opts, self.sample_rate_sps))
+            params = dataclasses.replace(self.trigger_params(opts, sos, opts.trigger_force_g),
+                                         counts_per_gram=safety.NOMINAL_COUNTS_PER_GRAM, reference_tare_counts=0)
+            return safety.unprotected_hiding_speeds(params, self.stop_timing, speeds)
+
+        hidden = hiding(options)
+        if not hidden:
+            return
+        cutoff_hz = options.drift_filter_cutoff_frequency
+        while cutoff_hz > safety.LOWEST_SUGGESTED_CUTOFF_HZ and hiding(
+                dataclasses.replace(options, drift_filter_cutoff_frequency=cutoff_hz)):
+            cutoff_hz *= safety.CUTOFF_SEARCH_STEP
+        raise section.error("drift_filter_cutoff_frequency", safety.hiding_filter_refusal(
+            options.drift_filter_cutoff_frequency, hidden[0], options, cutoff_hz))
+
     def assumed_stiffness_g_um(self) -> tuple[float, bool]:
         """(stiffness the force guard assumes, whether taps measured it): the stiffest valid kept tap
         with a margin, else the conservative default."""
@@ -449,7 +471,8 @@ class LoadCellProbe:
         # Until a pullback completes, the nozzle may be on the bed: the next tare waits for fresh samples.
         self._tare_from_s = None
         t_start_s = self.vp.now_s
-        result, speed_mm_s = self.probing_move(self._tap_trigger_params(settings), tare_counts, z_min_mm, speed_mm_s)
+        params = self.trigger_params(settings.options, settings.sos, settings.options.trigger_force_g)
+        result, speed_mm_s = self.probing_move(params, tare_counts, z_min_mm, speed_mm_s)
         if not result.triggered:
             raise ProbeError(ERROR_PREFIX + f"No trigger on probe after full movement (down to Z={z_min_mm:.3f}); "
                              "check that [stepper_z] position_min is negative (e.g. -2) and the nozzle reaches the bed")
@@ -833,7 +856,8 @@ class LoadCellProbeCommands:
         deadline_s = device.vp.now_s + timeout_s
         for index in range(count):
             self._wait_for_release(settings.options, deadline_s)
-            trigger = device.arm(device._tap_trigger_params(settings), device._tare(settings.options))
+            params = device.trigger_params(settings.options, settings.sos, settings.options.trigger_force_g)
+            trigger = device.arm(params, device._tare(settings.options))
             # A hand is on the nozzle now: the next tare must wait for new samples.
             device._tare_from_s = None
             result = device.vp.wait_for_trigger(trigger, max(deadline_s - device.vp.now_s, 0.0))
@@ -915,6 +939,7 @@ def load_config(section, printer) -> LoadCellProbe:
     probe = Probe("load_cell_probe", read_probe_options(section, templates), device, device.motion,
                   printer.gcode, _template_runner(printer))
     device.probe = probe
+    device.refuse_a_hiding_drift_filter(section)
     probe.register_commands()
     register_load_cell_commands(printer.gcode, device.load_cell, device.name)
     commands = LoadCellProbeCommands(device, probe)

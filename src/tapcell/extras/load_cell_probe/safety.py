@@ -166,6 +166,13 @@ def safe_speed_mm_s(params: TriggerParams, timing: StopTiming, below_mm_s: float
     return None
 
 
+# The config-load check needs no calibration: forces are in grams, any scale will do.
+NOMINAL_COUNTS_PER_GRAM = 100.0
+# The highest cutoff that no longer hides the tap is looked for in steps of this factor, down to this.
+CUTOFF_SEARCH_STEP = 0.8
+LOWEST_SUGGESTED_CUTOFF_HZ = 0.1
+
+
 def unprotected_hiding_speeds(params: TriggerParams, timing: StopTiming, speeds_mm_s) -> list[float]:
     """Speeds at which the filtered force never reaches the trigger on the softest bed and no raw
     window stops the nozzle at or below force_safety_limit (the config-load check)."""
@@ -175,6 +182,15 @@ def unprotected_hiding_speeds(params: TriggerParams, timing: StopTiming, speeds_
         if prediction.hidden and exceeds_limit(prediction, params.force_safety_limit_g):
             hiding.append(speed)
     return hiding
+
+
+def hiding_filter_refusal(cutoff_hz: float, speed_mm_s: float, options, allowed_hz: float) -> str:
+    """Why drift_filter_cutoff_frequency is refused at config load, and what is allowed."""
+    return (f"{cutoff_hz:g} Hz hides a tap at {speed_mm_s:g} mm/s: on a soft bed ({SOFTEST_STIFFNESS_G_UM:g} g/um) "
+            f"the filtered force never reaches trigger_force ({options.trigger_force_g:g}g), and no safety limit "
+            f"stops the nozzle at or below force_safety_limit ({options.force_safety_limit_g:g}g; "
+            f"drift_safety_limit is {options.drift_safety_limit_g:g}g); allowed: a cutoff of at most "
+            f"{allowed_hz:.2g} Hz, or a drift_safety_limit that stops the move (e.g. 1000)")
 
 
 # -- the sensor itself ---------------------------------------------------------------------------
@@ -214,12 +230,12 @@ def speed_refusal(params: TriggerParams, timing: StopTiming, speed_mm_s: float, 
     bed = (f"a bed of up to {stiffness_g_um:.1f} g/um ({'measured by the taps, with a margin' if measured else 'assumed until a tap measures it'})")
     latency_ms = timing.stop_latency_s * 1000.0
     if prediction.stopped_by is None:
-        why = (f"probing at {speed_mm_s:g} mm/s, nothing would stop the nozzle: the filtered force stays below "
+        why = (f"probing at {speed_mm_s:g} mm/s refused: nothing would stop the nozzle, the filtered force stays below "
                f"trigger_force ({params.trigger_force_g:g}g) on a soft bed (the drift filter removes a slow "
                "tap) and no safety limit is on to stop it")
     else:
         travel_um = speed_mm_s * 1000.0 * timing.period_s
-        why = (f"probing at {speed_mm_s:g} mm/s could press the bed with up to {prediction.peak_force_g:.0f}g, more "
+        why = (f"probing at {speed_mm_s:g} mm/s refused: it could press the bed with up to {prediction.peak_force_g:.0f}g, more "
                f"than force_safety_limit ({params.force_safety_limit_g:.0f}g): at {timing.sample_rate_sps:g} samples/s "
                f"the nozzle moves {travel_um:.1f} um per sample into {bed}, and {latency_ms:g} ms more before the "
                "steppers stop")
