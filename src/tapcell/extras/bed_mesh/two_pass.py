@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from tapcell.extras.bed_mesh import MeshProbeRun, recheck_outliers
-from tapcell.extras.load_cell_probe.options import ERROR_PREFIX, tare_sample_count
+from tapcell.extras.load_cell_probe.options import tare_sample_count
 from tapcell.extras.load_cell_probe.safety import agreement_tolerance_mm
 from tapcell.extras.probe.session import ProbeError
 from tapcell.host.gcode import GCodeCommand, GCodeError
@@ -48,11 +48,11 @@ def two_pass_settings(device, toolhead, travel_speed_mm_s: float) -> tuple[TwoPa
     paper = TwoPassSettings()
     max_z_speed = toolhead.options.max_z_velocity_mm_s
     params = two_pass_trigger_params(device)
-    fast = device.fastest_safe_speed_mm_s(params, min(paper.fast_speed_mm_s, max_z_speed))
+    fastest = min(paper.fast_speed_mm_s, max_z_speed)
+    fast = device.fastest_safe_speed_mm_s(params, fastest)
     slow = min(paper.slow_speed_mm_s, max_z_speed)
     if fast is None:
-        raise ProbeError(ERROR_PREFIX + "METHOD=two_pass: no descent speed keeps the worst-case force within "
-                         f"force_safety_limit ({params.force_safety_limit_g:g}g) on this sensor")
+        device.check_probing_speed(params, fastest)  # no speed is safe: raises and says why
     settings = TwoPassSettings(travel_limit_z_mm=toolhead.z_position_min(), fast_speed_mm_s=fast,
                                slow_speed_mm_s=min(slow, fast), travel_speed_mm_s=travel_speed_mm_s)
     note = None

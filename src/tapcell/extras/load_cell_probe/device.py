@@ -346,7 +346,7 @@ class LoadCellProbe:
         naming the cause. Returns (move result, the speed used); result.triggered is False when
         the move reached z_min_mm without a trigger.
         """
-        speed_mm_s = self._checked_speed(params, speed_mm_s)
+        speed_mm_s = self.check_probing_speed(params, speed_mm_s)
         trigger = self.arm(params, tare_counts)
         t_start_s = self.vp.now_s
         self._clear_machine_z_mm = float(self.vp.position[2])
@@ -375,8 +375,9 @@ class LoadCellProbe:
             raise ProbeError(trigger_error_message(error, params.force_safety_limit_g))
         return trigger
 
-    def _checked_speed(self, params: TriggerParams, speed_mm_s: float) -> float:
-        """The probing speed capped by max_z_velocity; ProbeError when it could press too hard."""
+    def check_probing_speed(self, params: TriggerParams, speed_mm_s: float) -> float:
+        """The probing speed capped by max_z_velocity; ProbeError (why, and the safe speed) when it
+        could press harder than force_safety_limit."""
         max_z_mm_s = self.motion.options.max_z_velocity_mm_s
         if speed_mm_s > max_z_mm_s:
             if (speed_mm_s, max_z_mm_s) not in self._speed_notes:
