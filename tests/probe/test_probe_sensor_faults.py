@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from probe_vprinter import make_printer, true_contact_z
-from tapcell.config import ConfigError
-from tapcell.gcode import GCodeError
-from tapcell.load_cell_probe_options import lone_sample_past_limit
+from tapcell.host.config import ConfigError
+from tapcell.host.gcode import GCodeError
+from tapcell.extras.load_cell_probe.options import lone_sample_past_limit
 
 STUCK = (r"^Load Cell Probe Error: load cell reads a constant value \({n} identical samples in a row while "
          r"probing\): sensor stuck! Check the sensor's wiring and power \(see stuck_sensor_samples\)$")
