@@ -50,23 +50,35 @@ def ready(tmp_path, **kwargs):
 
 
 # -- finding 1: a stuck sensor ----------------------------------------------------------------
+STUCK_IN_FIRMWARE = (r"Load Cell Probe Error: load cell reads a constant value \(7 identical samples in a row while "
+                     r"probing\): sensor stuck! Check the sensor's wiring and power \(see stuck_sensor_samples\)")
+
+
 @pytest.mark.parametrize("when, command", [("contact", "PROBE"), ("trigger", "PROBE BAD_PROBE_STRATEGY=retry"),
                                            ("contact", "G28 Z")])
 def test_a_stuck_sensor_stops_the_move_blames_the_sensor_and_lifts(tmp_path, when, command):
     # Before: the move ran to position_min (2 mm into the bed, ~6,500 g), the nozzle stayed there and
-    # the message blamed position_min. Now the firmware stops on the run of identical samples and
-    # the host says so (WHEN=trigger: the first tap triggers, then the sensor sticks; the retry
-    # meets it). Measured peaks: 408 g (at contact, 5 mm/s), 139 g (after the trigger).
+    # the message blamed position_min. Now the firmware stops on the run of identical samples
+    # (tests/probe/test_probe_sensor_faults.py) and the nozzle is lifted (WHEN=trigger: the first tap
+    # triggers, then the sensor sticks; the retry meets it). Measured peaks 131-408 g.
     printer, responses = ready(tmp_path)
     printer.gcode.run_script(f"SIM_FAULT NAME=stuck WHEN={when}")
-    message = gcode_error(printer, command)
-    assert re.fullmatch(r"Load Cell Probe Error: the load cell reading stopped changing during the probing move "
-                        r"\(\d+ samples in a row at -?\d+ counts\): the sensor is stuck and no force could be seen "
-                        r"\(the move went on toward Z=-?\d+\.\d+\); check the sensor and its wiring", message)
-    assert "position_min" not in message
+    assert re.fullmatch(STUCK_IN_FIRMWARE, gcode_error(printer, command))
     peak_g, clearance_mm = sim_truth(printer)
     assert 50.0 < peak_g < 500.0 < FORCE_SAFETY_LIMIT_G
     assert clearance_mm > 1.5 and LIFTED in responses
+
+
+def test_with_the_firmware_check_off_a_stuck_sensor_is_still_named_and_the_nozzle_lifted(tmp_path):
+    # stuck_sensor_samples: 0 turns the firmware's check off: the move runs to position_min (the user's
+    # choice), but the message names the sensor, not position_min, and the nozzle comes back up.
+    printer, responses = ready(tmp_path, probe_options="stuck_sensor_samples: 0")
+    printer.gcode.run_script("SIM_FAULT NAME=stuck WHEN=contact")
+    message = gcode_error(printer, "PROBE")
+    assert re.fullmatch(r"Load Cell Probe Error: the load cell reading stopped changing during the probing move "
+                        r"\(\d+ samples in a row at -?\d+ counts\): the sensor is stuck and no force could be seen "
+                        r"\(the move went on toward Z=-2\.000\); check the sensor and its wiring", message)
+    assert sim_truth(printer)[1] > 0.0 and LIFTED in responses
 
 
 # -- finding 2: a drift filter that hides the tap -------------------------------------------------

@@ -32,7 +32,7 @@ import numpy as np
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.extras.load_cell_probe.device import z_at_time_mm
-from tapcell.extras.load_cell_probe.options import ERROR_PREFIX, preload_refusal, trigger_error_message
+from tapcell.extras.load_cell_probe.options import ERROR_PREFIX, preload_refusal
 from tapcell.extras.load_cell_probe.options import force_beyond_safety_limit_g
 from tapcell.extras.load_cell_probe.safety import agreement_tolerance_mm
 from tapcell.mcu.trigger import TriggerError, TriggerParams
@@ -148,13 +148,14 @@ class ThresholdProber:
     def probe_xy(self, tare: TareRecord, threshold_g: float, release_g: float, x_mm: float, y_mm: float,
                  speed_mm_s: float) -> ThresholdHit:
         """Move horizontally toward (x, y) until the force passes threshold_g."""
-        trigger = self.device.arm(self._trigger_params(tare, threshold_g, release_g), tare.counts)
+        params = self._trigger_params(tare, threshold_g, release_g)
+        trigger = self.device.arm(params, tare.counts)
         frame = self._frame_mm()
         start = np.array(self.vp.position)
         result = self.vp.probing_move_xy(x_mm - frame[0], y_mm - frame[1], speed_mm_s, trigger)
         self.load_cell.pump()
         if result.error != TriggerError.NONE:
-            raise ProbeError(trigger_error_message(result.error, self.device.options.force_safety_limit_g))
+            raise ProbeError(self.device.error_message(result.error, params))
         halt = np.array(self.vp.position)
         trigger_position = None
         if result.triggered:
