@@ -43,7 +43,7 @@ def test_stuck_after_a_trigger_stops_the_retry_in_the_air(tmp_path):
     start_s = printer.backend.now_s
     with pytest.raises(GCodeError, match=STUCK.format(n=12)):
         printer.gcode.run_script("SIM_FAULT NAME=stuck WHEN=trigger\nPROBE")
-    assert "Retrying (1/6)..." in responses[-1]
+    assert any("Retrying (1/6)..." in line for line in responses)
     assert true_peak_force_g(printer, start_s) < 200.0      # the first tap's own (measured 148 g)
     nozzle_z = printer.backend.position[2] + printer.lookup_object("toolhead").frame_offset_mm["z"]
     assert nozzle_z - true_contact_z(printer) > 1.5          # stopped 12 samples into the retry, in the air

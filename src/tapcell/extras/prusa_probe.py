@@ -135,7 +135,7 @@ class ThresholdProber:
         holds like a contact (`contact`). `drift_safety_limit_g`: the load cell probe's unless
         given (0 disables the drift check)."""
         params = self._trigger_params(tare, threshold_g, release_g, drift_safety_limit_g)
-        result, _ = self.device.probing_move(params, tare.counts, z_min_mm, speed_mm_s)
+        result, _, _ = self.device.probing_move(params, tare.counts, z_min_mm, speed_mm_s)
         frame = self._frame_mm()
         halt = tuple(np.array(self.vp.position) + frame)
         if not result.triggered:

@@ -362,8 +362,9 @@ class LoadCellProbe:
         trigger is armed with the tare and Z moves down toward z_min_mm (toolhead Z) until it
         stops. A force_safety_limit stop by one corrupted frame in the air is moved on from (at
         most CORRUPT_FRAME_RETRIES times). Firmware errors, and a sensor that stopped changing or
-        saturated, raise ProbeError naming the cause. Returns (move result, the speed used);
-        result.triggered is False when the move reached z_min_mm without a trigger.
+        saturated, raise ProbeError naming the cause. Returns (move result, the speed used, when
+        the last attempt started); result.triggered is False when the move reached z_min_mm
+        without a trigger.
         """
         speed_mm_s = self.check_probing_speed(params, speed_mm_s)
         self._clear_machine_z_mm = float(self.vp.position[2])
@@ -391,7 +392,7 @@ class LoadCellProbe:
             raise ProbeError(message)
         if result.triggered:
             self.last_trigger_time_s = result.trigger_time_s
-        return result, speed_mm_s
+        return result, speed_mm_s, t_start_s
 
     def error_message(self, error: TriggerError, params: TriggerParams) -> str:
         """What the user reads when the firmware endstop stopped a move with `error`."""
@@ -501,9 +502,8 @@ class LoadCellProbe:
         tare_counts = self._tare(settings.options)
         # Until a pullback completes, the nozzle may be on the bed: the next tare waits for fresh samples.
         self._tare_from_s = None
-        t_start_s = self.vp.now_s
         params = self.trigger_params(settings.options, settings.sos, settings.options.trigger_force_g)
-        result, speed_mm_s = self.probing_move(params, tare_counts, z_min_mm, speed_mm_s)
+        result, speed_mm_s, t_start_s = self.probing_move(params, tare_counts, z_min_mm, speed_mm_s)
         if not result.triggered:
             raise ProbeError(ERROR_PREFIX + f"No trigger on probe after full movement (down to Z={z_min_mm:.3f}); "
                              "check that [stepper_z] position_min is negative (e.g. -2) and the nozzle reaches the bed")
