@@ -479,7 +479,7 @@ class LoadCellProbe:
         self._guard_depth += 1
         try:
             yield
-        except BaseException:
+        except Exception:  # any error, ours or the machine's: lift, then let it go on to the user
             self._lift_clear()
             raise
         finally:

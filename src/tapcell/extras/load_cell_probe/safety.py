@@ -7,7 +7,7 @@ MCU reading the sample, and the stop latency (the trigger to the steppers; throu
 when the sensor is on another MCU than the Z steppers). Filters add their own lag; a drift
 (high-pass) filter can hide a slow tap altogether.
 
-`predicted_peak_force_g` runs the firmware trigger itself (the real C code, configured exactly
+`predict_stop` runs the firmware trigger itself (the real C code, configured exactly
 as for the move) on ideal contact ramps: the nozzle meets a bed of a given stiffness at a given
 speed, at several instants within a conversion window. Every sample is the window average of
 the ramp; the sample that stops the move (trigger or raw window) is read after the pipeline
