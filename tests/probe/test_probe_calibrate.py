@@ -143,7 +143,11 @@ def test_pullback_calibration_makes_2mm_s_taps_valid(tmp_path, scenario, before,
 
 
 def test_pullback_calibration_names_configured_speeds_it_does_not_suit(tmp_path):
-    printer, responses = make_printer(tmp_path, replace={"speed: 5\n": "speed: 12\n"})
+    # G28 Z at 12 mm/s is refused until a tap has measured the bed: Z starts from a rough guess
+    # (the virtual printer's 10 mm at power on) and PROBE HOME=Z at 2 mm/s sets it.
+    printer, responses = make_printer(tmp_path, replace={"speed: 5\n": "speed: 12\n"}, home=False)
+    printer.gcode.run_script("G28 X Y\nG1 X110 Y110 F6000")
+    printer.lookup_object("toolhead").set_z_position(10.0)
     printer.gcode.run_script("PROBE HOME=Z PROBE_SPEED=2\nG1 Z0.4\n"
                              "LOAD_CELL_PROBE_CALIBRATE CALIBRATION=PULLBACK_DISTANCE SAMPLES=3 PROBE_SPEED=2 "
                              "SAMPLE_RETRACT_DIST=0.4")

@@ -104,7 +104,8 @@ def test_dwell_rule():
 
 def test_soft_sheet_taps_are_valid_at_10mm_s_with_the_dwell(tmp_path):
     printer, _ = make_printer(tmp_path, "soft-sheet")
-    printer.gcode.run_script("PROBE HOME=Z PROBE_SPEED=10\nG1 Z0.4\n"
+    # The first tap at 5 mm/s measures the bed: until then the force guard allows no more.
+    printer.gcode.run_script("PROBE HOME=Z PROBE_SPEED=5\nG1 Z0.4\n"
                              "PROBE_ACCURACY SAMPLES=5 PROBE_SPEED=10 SAMPLE_RETRACT_DIST=0.4")
     taps = list(printer.lookup_object("load_cell_probe").last_taps)[-5:]
     assert all(t.valid for t in taps)

@@ -106,7 +106,7 @@ class StopPrediction:
     @property
     def hidden(self) -> bool:
         """The filtered force never reached the trigger: only a raw window (or nothing) stopped it."""
-        return self.stopped_by != TriggerError.NONE
+        return self.stopped_by not in (TriggerError.NONE, TriggerError.STUCK_SENSOR)
 
 
 def predict_stop(params: TriggerParams, timing: StopTiming, speed_mm_s: float, stiffness_g_um: float) -> StopPrediction:
@@ -143,12 +143,24 @@ def predict_stop(params: TriggerParams, timing: StopTiming, speed_mm_s: float, s
     return worst
 
 
+def stuck_at_contact_stop(params: TriggerParams, timing: StopTiming, speed_mm_s: float,
+                          stiffness_g_um: float) -> StopPrediction | None:
+    """A sensor that sticks as the nozzle meets the bed: no force is ever seen, and the firmware stops
+    the move only after its run of identical samples (None when that check is off)."""
+    run = params.effective_stuck_samples
+    if not run:
+        return None
+    stop_s = run * timing.period_s + timing.pipeline_s + timing.read_delay_s + timing.stop_latency_s
+    return StopPrediction(stiffness_g_um * speed_mm_s * 1000.0 * stop_s, TriggerError.STUCK_SENSOR)
+
+
 def worst_stop(params: TriggerParams, timing: StopTiming, speed_mm_s: float, stiffness_g_um: float) -> StopPrediction:
-    """The worse of a contact with a bed of `stiffness_g_um` (most overshoot) and with the softest
-    bed (where a drift filter is most likely to hide the tap)."""
-    stiff = predict_stop(params, timing, speed_mm_s, stiffness_g_um)
-    soft = predict_stop(params, timing, speed_mm_s, SOFTEST_STIFFNESS_G_UM)
-    return max(stiff, soft, key=lambda p: p.peak_force_g)
+    """The worst of a contact with a bed of `stiffness_g_um` (most overshoot), with the softest bed
+    (where a drift filter is most likely to hide the tap), and with a sensor that sticks at contact."""
+    cases = [predict_stop(params, timing, speed_mm_s, stiffness_g_um),
+             predict_stop(params, timing, speed_mm_s, SOFTEST_STIFFNESS_G_UM),
+             stuck_at_contact_stop(params, timing, speed_mm_s, stiffness_g_um)]
+    return max((case for case in cases if case is not None), key=lambda p: p.peak_force_g)
 
 
 def exceeds_limit(prediction: StopPrediction, force_safety_limit_g: float) -> bool:
@@ -241,6 +253,10 @@ def speed_refusal(params: TriggerParams, timing: StopTiming, speed_mm_s: float, 
                "steppers stop")
         if prediction.hidden:
             why += " (the drift filter hides the tap: only a safety limit stops the move)"
+        elif prediction.stopped_by == TriggerError.STUCK_SENSOR:
+            run = params.effective_stuck_samples
+            why += (f" (should the sensor stick as the nozzle meets the bed, the firmware stops the move after "
+                    f"{run} identical samples, {run * timing.period_s * 1000.0:g} ms: stuck_sensor_samples)")
     advice = (f"probe at {slower_mm_s:g} mm/s or slower" if slower_mm_s is not None
               else "no slower speed is safe: lower drift_filter_cutoff_frequency or set a drift_safety_limit")
     return f"{why}; {advice}"
