@@ -93,7 +93,7 @@ class ThresholdProber:
 
     def __init__(self, device):
         self.device = device  # tapcell.extras.load_cell_probe.device.LoadCellProbe
-        self.vp = device.vp
+        self.backend = device.backend
         self.load_cell = device.load_cell
         self.toolhead = device.motion
         self.tares: list[TareRecord] = []
@@ -105,7 +105,7 @@ class ThresholdProber:
     def tare(self, purpose: str, settle_s: float = TARE_SETTLE_S, sample_count: int = TARE_SAMPLE_COUNT) -> TareRecord:
         """Wait settle_s for vibrations to die, then average sample_count samples."""
         self.require_calibrated()
-        self.vp.dwell(settle_s)
+        self.backend.dwell(settle_s)
         batch = self.load_cell.collect(sample_count / self.device.sample_rate_sps)
         if batch.errors:
             raise ProbeError(ERROR_PREFIX + f"sensor reported {batch.errors} errors while taring")
@@ -114,7 +114,7 @@ class ThresholdProber:
         counts = float(np.mean(batch.counts[-sample_count:]))
         force_g = counts_to_grams(counts, self.load_cell.reference_tare_counts, self.load_cell.counts_per_gram,
                                   self.device.cell_options.inverted)
-        record = TareRecord(purpose, counts, float(force_g), self.vp.now_s)
+        record = TareRecord(purpose, counts, float(force_g), self.backend.now_s)
         self.load_cell.set_tare(counts)
         self.tares.append(record)
         return record
@@ -140,7 +140,7 @@ class ThresholdProber:
             inverted=self.device.cell_options.inverted,
             sos=self.device.config_settings.sos,
         ))
-        error = trigger.arm(int(round(tare.counts)), self.vp.now_s)
+        error = trigger.arm(int(round(tare.counts)), self.backend.now_s)
         if error != TriggerError.NONE:
             raise ProbeError(trigger_error_message(error, self.device.options.force_safety_limit_g))
         return trigger
@@ -155,12 +155,12 @@ class ThresholdProber:
         trigger = self._arm(tare, threshold_g, release_g, drift_safety_limit_g)
         frame = self._frame_mm()
         # The toolhead's position_min, but never past the machine's own travel end.
-        machine_target = max(z_min_mm - frame[2], self.vp.limits["z"][0])
-        result = self.vp.probing_move(machine_target, speed_mm_s, trigger)
+        machine_target = max(z_min_mm - frame[2], self.backend.limits["z"][0])
+        result = self.backend.probing_move(machine_target, speed_mm_s, trigger)
         self.load_cell.pump()
         if result.error != TriggerError.NONE:
             raise ProbeError(trigger_error_message(result.error, self.device.options.force_safety_limit_g))
-        halt = tuple(np.array(self.vp.position) + frame)
+        halt = tuple(np.array(self.backend.position) + frame)
         trigger_position = None
         if result.triggered:
             z_mm = z_at_time_mm(result.moves, result.trigger_time_s) + frame[2]
@@ -172,12 +172,12 @@ class ThresholdProber:
         """Move horizontally toward (x, y) until the force passes threshold_g."""
         trigger = self._arm(tare, threshold_g, release_g)
         frame = self._frame_mm()
-        start = np.array(self.vp.position)
-        result = self.vp.probing_move_xy(x_mm - frame[0], y_mm - frame[1], speed_mm_s, trigger)
+        start = np.array(self.backend.position)
+        result = self.backend.probing_move_xy(x_mm - frame[0], y_mm - frame[1], speed_mm_s, trigger)
         self.load_cell.pump()
         if result.error != TriggerError.NONE:
             raise ProbeError(trigger_error_message(result.error, self.device.options.force_safety_limit_g))
-        halt = np.array(self.vp.position)
+        halt = np.array(self.backend.position)
         trigger_position = None
         if result.triggered:
             # The move cruises at speed when it meets the pin: step back along it by the latency.

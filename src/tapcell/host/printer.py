@@ -21,6 +21,7 @@ import importlib
 import time
 from typing import Any, Callable
 
+from tapcell.host.backend import Backend
 from tapcell.host.config import ConfigError, ConfigFile
 from tapcell.host.gcode import GCodeCommand, GCodeDispatch, GCodeError, ResponseSink
 
@@ -70,12 +71,12 @@ def _import_module(module_name: str):
 class Printer:
     """The host side of one printer: config, backend, G-code, objects by section."""
 
-    def __init__(self, config_path: str, *, backend: Any = None, responses: ResponseSink | None = None):
+    def __init__(self, config_path: str, *, backend: Backend | None = None, responses: ResponseSink | None = None):
         self.config_path = str(config_path)
         self._given_backend = backend
         self.gcode = GCodeDispatch(responses)
         self.config: ConfigFile | None = None
-        self.backend: Any = backend
+        self.backend: Backend | None = backend
         self.objects: dict[str, Any] = {}
         self.warnings: list[str] = []
         self.state = "starting"  # "ready" or "error"
@@ -86,7 +87,8 @@ class Printer:
         self._skipped: dict[str, str] = {}  # section -> the missing module it needs
 
     @classmethod
-    def from_config(cls, path: str, *, backend: Any = None, responses: ResponseSink | None = None) -> Printer:
+    def from_config(cls, path: str, *, backend: Backend | None = None,
+                    responses: ResponseSink | None = None) -> Printer:
         """Build a ready printer from `path`; raises ConfigError for any problem in the file."""
         printer = cls(path, backend=backend, responses=responses)
         printer._build()

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand
-from tapcell.sim.printer import MoveError
+from tapcell.host.backend import MoveError
 
 AXES = "xyz"
 KINEMATICS = ("cartesian",)

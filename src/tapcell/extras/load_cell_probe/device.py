@@ -33,6 +33,7 @@ from typing import Any
 import jinja2
 import numpy as np
 
+from tapcell.host.backend import Backend
 from tapcell.filters import FilterDesignError, FilterOptions, design_firmware_filter
 from tapcell.host.gcode import GCodeError
 from tapcell.extras.gcode_macro import StatusView
@@ -194,7 +195,7 @@ class LoadCellProbe:
     def __init__(self, section, printer):
         self.printer = printer
         self.name = section.get_name()
-        self.vp = printer.backend
+        self.backend: Backend = printer.backend
         self.cell_options = read_load_cell_options(section)
         self.sample_rate_sps = float(self.cell_options.sample_rate_sps)
         values = read_section_values(section, TAP_OPTION_SPECS)
@@ -258,7 +259,7 @@ class LoadCellProbe:
             raise ProbeError(ERROR_PREFIX + "Load Cell not calibrated")
 
     def _on_samples(self, batch) -> None:
-        self.history.add(batch, self.vp.now_s)
+        self.history.add(batch, self.backend.now_s)
 
     def _tare(self, options: TapOptions) -> float:
         """Raw counts at rest: the mean of the last ⌈tare_time·sps⌉ samples, corrupted frames left out.
@@ -270,10 +271,10 @@ class LoadCellProbe:
         """
         needed = tare_sample_count(options.tare_time_s, self.sample_rate_sps)
         period_s = 1.0 / self.sample_rate_sps
-        deadline_s = self.vp.now_s + TARE_TIMEOUT_S
+        deadline_s = self.backend.now_s + TARE_TIMEOUT_S
         while True:
             self.load_cell.pump()
-            now_s = self.vp.now_s
+            now_s = self.backend.now_s
             usable_from_s = now_s if self._tare_from_s is None else self._tare_from_s
             # Fresh samples only: a stalled sensor must not tare on what it said long ago.
             oldest_s = max(usable_from_s, now_s - (needed + TARE_FRESH_MARGIN_SAMPLES) * period_s)
@@ -285,7 +286,7 @@ class LoadCellProbe:
             if now_s >= deadline_s:
                 raise ProbeError(ERROR_PREFIX + "timed out waiting for sensor data")
             self._tare_from_s = usable_from_s
-            self.vp.dwell(max(needed - len(counts), 1) * period_s)
+            self.backend.dwell(max(needed - len(counts), 1) * period_s)
         tare_counts = robust_tare_counts(counts[-needed:])
         beyond = force_beyond_safety_limit_g(tare_counts, self.load_cell.reference_tare_counts,
                                              self.load_cell.counts_per_gram, options.force_safety_limit_g)
@@ -307,7 +308,7 @@ class LoadCellProbe:
             inverted=self.cell_options.inverted,
             sos=settings.sos,
         ))
-        error = trigger.arm(int(round(tare_counts)), self.vp.now_s)
+        error = trigger.arm(int(round(tare_counts)), self.backend.now_s)
         if error != TriggerError.NONE:
             raise ProbeError(trigger_error_message(error, options.force_safety_limit_g))
         return trigger
@@ -319,11 +320,11 @@ class LoadCellProbe:
         tare_counts = self._tare(settings.options)
         # Until a pullback completes, the nozzle may be on the bed: the next tare waits for fresh samples.
         self._tare_from_s = None
-        t_start_s = self.vp.now_s
+        t_start_s = self.backend.now_s
         trigger = self._arm(settings, tare_counts)
         # Unhomed (G28 Z), z_min is a full axis length below: the machine stops at its own end of travel.
-        machine_z_min_mm = max(z_min_mm - self._z_frame_offset_mm(), self.vp.limits["z"][0])
-        result = self.vp.probing_move(machine_z_min_mm, speed_mm_s, trigger)
+        machine_z_min_mm = max(z_min_mm - self._z_frame_offset_mm(), self.backend.limits["z"][0])
+        result = self.backend.probing_move(machine_z_min_mm, speed_mm_s, trigger)
         self.load_cell.pump()
         if result.error != TriggerError.NONE:
             message = trigger_error_message(result.error, settings.options.force_safety_limit_g)
@@ -358,7 +359,7 @@ class LoadCellProbe:
 
     def _explain_drift(self, options: TapOptions, tare_counts: float, t_start_s: float, speed_mm_s: float) -> str:
         """' (why)' when the move's samples show the force jumping past the limit within one sample."""
-        _, counts, _ = self.history.between(t_start_s, self.vp.now_s)
+        _, counts, _ = self.history.between(t_start_s, self.backend.now_s)
         force_g = (counts - tare_counts) / self.load_cell.counts_per_gram
         beyond = np.flatnonzero(np.abs(force_g) >= options.drift_safety_limit_g)
         if len(beyond) == 0 or beyond[0] == 0:
@@ -379,14 +380,14 @@ class LoadCellProbe:
     def tap(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float) -> TapOutcome:
         """One full tap at the current XY (see the module docstring)."""
         options = settings.options
-        self.history.keep_from_s = self.vp.now_s - HISTORY_S  # this tap's samples stay until analysed
+        self.history.keep_from_s = self.backend.now_s - HISTORY_S  # this tap's samples stay until analysed
         try:
             result, tare_counts, t_start_s = self._probing_move(settings, z_min_mm, speed_mm_s)
-            self.vp.dwell(self.dwell_samples / self.sample_rate_sps)
-            pullback_start_s = self.vp.now_s
-            self.vp.move_to(z=result.halt_z_mm + options.pullback_distance_mm,
+            self.backend.dwell(self.dwell_samples / self.sample_rate_sps)
+            pullback_start_s = self.backend.now_s
+            self.backend.move_to(z=result.halt_z_mm + options.pullback_distance_mm,
                             speed_mm_s=settings.pullback_speed_mm_s)
-            pullback_end_s = self.vp.now_s
+            pullback_end_s = self.backend.now_s
             # From here the nozzle is pullback_distance above the halt: clear of the bed for the next tare.
             self._tare_from_s = pullback_end_s
             self._wait_for_samples_to(pullback_end_s)
@@ -448,18 +449,18 @@ class LoadCellProbe:
             self.load_cell.pump()
             if self.history.newest_s >= end_s - 1.5 * period_s:
                 return
-            if self.vp.now_s >= deadline_s:
+            if self.backend.now_s >= deadline_s:
                 raise ProbeError(ERROR_PREFIX + "timed out waiting for sensor data")
-            self.vp.dwell(0.25 * period_s)
+            self.backend.dwell(0.25 * period_s)
 
     def _tap_data(self, tare_counts, t_start_s, result, pullback_start_s, pullback_end_s,
                   speed_mm_s, settings: TapSettings) -> TapData:
         t_s, counts, _ = self.history.between(t_start_s, pullback_end_s)
         force_g = counts_to_grams(counts, tare_counts, self.load_cell.counts_per_gram, self.cell_options.inverted)
         moves = [Move.from_record(m)
-                 for m in self.vp.recorded_moves(t_start_s, pullback_end_s)
+                 for m in self.backend.recorded_moves(t_start_s, pullback_end_s)
                  if m["print_time"] >= t_start_s - 1e-9]  # not the move that ended as the tap began
-        x, y, _ = self.vp.position
+        x, y, _ = self.backend.position
         options = settings.options
         return TapData(
             time_s=t_s, force_g=force_g, moves=moves, sample_rate_sps=self.sample_rate_sps,
@@ -674,7 +675,7 @@ class LoadCellProbeCommands:
         A load cell senses only while armed for a probing move, so the guide says it always
         reports not triggered; LOAD_CELL_TEST_TAP is the way to check it.
         """
-        x_mm, y_mm, _ = self.device.vp.position
+        x_mm, y_mm, _ = self.device.backend.position
         self.last_query = {"x": bool(x_mm <= ENDSTOP_SWITCH_MM), "y": bool(y_mm <= ENDSTOP_SWITCH_MM), "z": False}
         gcmd.respond_info(" ".join(f"{axis}:{'TRIGGERED' if hit else 'open'}" for axis, hit in self.last_query.items()))
 
@@ -688,13 +689,13 @@ class LoadCellProbeCommands:
         device._require_calibrated()
         settings = device.command_settings(gcmd)
         gcmd.respond_info(f"Tap the load cell {count} times:")
-        deadline_s = device.vp.now_s + timeout_s
+        deadline_s = device.backend.now_s + timeout_s
         for index in range(count):
             self._wait_for_release(settings.options, deadline_s)
             trigger = device._arm(settings, device._tare(settings.options))
             # A hand is on the nozzle now: the next tare must wait for new samples.
             device._tare_from_s = None
-            result = device.vp.wait_for_trigger(trigger, max(deadline_s - device.vp.now_s, 0.0))
+            result = device.backend.wait_for_trigger(trigger, max(deadline_s - device.backend.now_s, 0.0))
             device.load_cell.pump()
             if result.error != TriggerError.NONE:
                 raise ProbeError(trigger_error_message(result.error, settings.options.force_safety_limit_g))
@@ -707,7 +708,7 @@ class LoadCellProbeCommands:
     def _wait_for_release(self, options: TapOptions, deadline_s: float) -> None:
         """Do not tare under a hand still pressing: wait until the force is back near the tare."""
         device = self.device
-        while device.vp.now_s < deadline_s:
+        while device.backend.now_s < deadline_s:
             batch = device.load_cell.collect(RELEASE_CHECK_S)
             force_g = device.load_cell.counts_to_grams(batch.counts)
             if force_g is None or len(force_g) == 0 or np.max(np.abs(force_g)) < 0.5 * options.trigger_force_g:
