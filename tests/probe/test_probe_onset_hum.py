@@ -9,7 +9,7 @@ from probe_vprinter import make_printer, true_contact_z
 from tapcell.host.config import ConfigError
 from tapcell.host.gcode import GCodeError
 from tapcell.extras.load_cell_probe.device import LoadCellProbe
-from tapcell.extras.load_cell_probe.options import _parabola_minimum, fit_pooled_contact_onset
+from tapcell.extras.load_cell_probe.calibration import _parabola_minimum, fit_pooled_contact_onset
 from tapcell.tap import AnalysisOptions
 from tapcell.sim.taps import SimTapSpec, record_sim_tap
 

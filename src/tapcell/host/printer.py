@@ -29,7 +29,7 @@ from tapcell.host.gcode import GCodeCommand, GCodeDispatch, GCodeError, Response
 MODULES: dict[str, str] = {
     "printer": "tapcell.host.toolhead",
     "load_cell": "tapcell.extras.load_cell",
-    "load_cell_probe": "tapcell.extras.load_cell_probe.device",
+    "load_cell_probe": "tapcell.extras.load_cell_probe",
     "bed_mesh": "tapcell.extras.bed_mesh",
     "gcode_macro": "tapcell.extras.gcode_macro",
     "z_thermal_adjust": "tapcell.extras.z_thermal_adjust",
