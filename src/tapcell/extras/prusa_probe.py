@@ -35,6 +35,7 @@ from tapcell.extras.load_cell_probe.options import ERROR_PREFIX, preload_refusal
 from tapcell.extras.load_cell_probe.options import force_beyond_safety_limit_g
 from tapcell.mcu.trigger import FirmwareTrigger, TriggerError, TriggerParams
 from tapcell.mesh.errors import MeshError
+from tapcell.mesh.run import MeshProbeRun
 from tapcell.mesh.prusa import (
     MESH,
     SET_COMMANDS,
@@ -297,8 +298,6 @@ class PrusaProbe:
 
     # -- the mesh method -------------------------------------------------------------------------
     def probe_mesh_points(self, options, gcmd: GCodeCommand, points_xy_mm: np.ndarray, progress):
-        from tapcell.extras.bed_mesh import MeshProbeRun
-
         prober = self.prober()
         toolhead = prober.toolhead
         probe = self.printer.lookup_object("probe")
@@ -346,14 +345,6 @@ class PrusaProbe:
 
     def get_status(self, eventtime=None) -> dict:
         return {"thresholds": self.thresholds.to_status(), "last_session": self.last_session}
-
-
-def probe_points_prusa(printer, options, gcmd: GCodeCommand, points_xy_mm: np.ndarray, progress):
-    """BED_MESH_CALIBRATE METHOD=prusa."""
-    prusa = printer.lookup_object(SECTION, None)
-    if prusa is None:
-        raise GCodeError("METHOD=prusa needs a [prusa_probe] section")
-    return prusa.probe_mesh_points(options, gcmd, points_xy_mm, progress)
 
 
 def load_config(section: ConfigSection, printer) -> PrusaProbe:
