@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.mesh.prusa import XY, Thresholds
-from tapcell.extras.prusa_probe import ThresholdProber
+from tapcell.extras.load_cell_probe.threshold import ThresholdProber
 
 SECTION = "xy_probe"
 DIRECTIONS = {"+X": (1.0, 0.0), "-X": (-1.0, 0.0), "+Y": (0.0, 1.0), "-Y": (0.0, -1.0)}
