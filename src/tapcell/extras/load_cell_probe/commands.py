@@ -72,7 +72,7 @@ class LoadCellProbeCommands:
         `option_changes` change this command's TapOptions for its own taps only.
         """
         device = self.device
-        x_mm, y_mm = self.probe._current_probe_xy()
+        x_mm, y_mm = self.probe.current_probe_xy()
         taps: list[RecordedTap] = []
         with self.probe.session(gcmd, force_strategy=strategy) as session:
             if option_changes:
@@ -84,7 +84,7 @@ class LoadCellProbeCommands:
     def _calibrate_contact_onset(self, gcmd) -> None:
         """Fit the sheet's onset width on the pooled taps (bad taps retried in place)."""
         samples = gcmd.get_int("SAMPLES", 10, minval=MIN_ONSET_TAPS, maxval=50)
-        x_mm, y_mm = self.probe._current_probe_xy()
+        x_mm, y_mm = self.probe.current_probe_xy()
         recorded, session = self._calibration_taps(gcmd, samples, "retry")
         try:
             found = fit_pooled_contact_onset([r.tap for r in recorded], session.tap_settings.analysis)
@@ -109,7 +109,7 @@ class LoadCellProbeCommands:
         shortest_mm, longest_mm = PULLBACK_LIMITS_MM
         long_pullback_mm = gcmd.get_float("PULLBACK_DISTANCE", CALIBRATION_PULLBACK_MM,
                                           minval=shortest_mm, maxval=longest_mm)
-        x_mm, y_mm = self.probe._current_probe_xy()
+        x_mm, y_mm = self.probe.current_probe_xy()
         recorded, session = self._calibration_taps(gcmd, samples, "ignore", pullback_distance_mm=long_pullback_mm)
         usable = [r for r in recorded if r.valid or r.analysis.error == "TAP_BREAK_CONTACT_TOO_EARLY"]
         self._refuse_too_few(recorded, usable, samples, "PULLBACK_DISTANCE", long_pullback_mm)
@@ -153,7 +153,7 @@ class LoadCellProbeCommands:
     def _calibrate_decompression_angle(self, gcmd) -> None:
         """Tap SAMPLES times without the angle term, store the median decompression angle."""
         samples = gcmd.get_int("SAMPLES", 10, minval=MIN_ONSET_TAPS, maxval=50)
-        x_mm, y_mm = self.probe._current_probe_xy()
+        x_mm, y_mm = self.probe.current_probe_xy()
         # An old calibration must not reject the taps that replace it.
         recorded, session = self._calibration_taps(gcmd, samples, "ignore", decompression_angle=None)
         usable = [r for r in recorded if r.valid]
@@ -215,15 +215,15 @@ class LoadCellProbeCommands:
         count = gcmd.get_int("COUNT", 3, minval=1, maxval=10)
         timeout_s = gcmd.get_float("TIMEOUT", 30.0, minval=1.0, maxval=120.0)
         device = self.device
-        device._require_calibrated()
+        device.require_calibrated()
         settings = device.command_settings(gcmd)
         gcmd.respond_info(f"Tap the load cell {count} times:")
         deadline_s = device.backend.now_s + timeout_s
         for index in range(count):
             self._wait_for_release(settings.options, deadline_s)
-            trigger = device._arm(settings, device._tare(settings.options))
+            trigger = device.arm(settings, device.tare(settings.options))
             # A hand is on the nozzle now: the next tare must wait for new samples.
-            device._tare_from_s = None
+            device.expect_contact()
             result = device.backend.wait_for_trigger(trigger, max(deadline_s - device.backend.now_s, 0.0))
             device.load_cell.pump()
             if result.error != TriggerError.NONE:

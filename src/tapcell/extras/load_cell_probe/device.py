@@ -233,14 +233,14 @@ class LoadCellProbe:
         self.printer.config.set(self.name, option, text)
 
     # -- the tap ---------------------------------------------------------------------------
-    def _require_calibrated(self) -> None:
+    def require_calibrated(self) -> None:
         if not self.load_cell.is_calibrated:
             raise ProbeError(ERROR_PREFIX + "Load Cell not calibrated")
 
     def _on_samples(self, batch) -> None:
         self.history.add(batch, self.backend.now_s)
 
-    def _tare(self, options: TapOptions) -> float:
+    def tare(self, options: TapOptions) -> float:
         """Raw counts at rest: the mean of the last ⌈tare_time·sps⌉ samples, corrupted frames left out.
 
         The tare overlaps the end of the previous move (the lift after a tap, a travel): every
@@ -267,23 +267,36 @@ class LoadCellProbe:
             self._tare_from_s = usable_from_s
             self.backend.dwell(max(needed - len(counts), 1) * period_s)
         tare_counts = robust_tare_counts(counts[-needed:])
-        beyond = force_beyond_safety_limit_g(tare_counts, self.load_cell.reference_tare_counts,
-                                             self.load_cell.counts_per_gram, options.force_safety_limit_g)
-        if beyond is not None:
-            raise ProbeError(preload_refusal(beyond, options.force_safety_limit_g))
+        self.refuse_preload(tare_counts, options)
         self.load_cell.set_tare(tare_counts)
         self.tare_counts_at_tap = tare_counts
         return tare_counts
 
-    def _arm(self, settings: TapSettings, tare_counts: float) -> FirmwareTrigger:
+    def refuse_preload(self, tare_counts: float, options: TapOptions) -> None:
+        """Refuse to move when the force at rest is already past force_safety_limit (ProbeError, with the force)."""
+        beyond = force_beyond_safety_limit_g(tare_counts, self.load_cell.reference_tare_counts,
+                                             self.load_cell.counts_per_gram, options.force_safety_limit_g)
+        if beyond is not None:
+            raise ProbeError(preload_refusal(beyond, options.force_safety_limit_g))
+
+    def arm(self, settings: TapSettings, tare_counts: float, *, trigger_force_g: float | None = None,
+            release_force_g: float = 0.0, drift_safety_limit_g: float | None = None) -> FirmwareTrigger:
+        """The firmware trigger armed on `tare_counts` for one probing move (ProbeError if it refuses).
+
+        The one place the trigger's parameters are built: a tap uses the command's options;
+        threshold probing (`threshold.ThresholdProber`) gives its own trigger force, the
+        hysteresis release force and, for fast passes, its own drift limit (0 disables it).
+        """
         options = settings.options
         trigger = FirmwareTrigger(TriggerParams(
             counts_per_gram=self.load_cell.counts_per_gram,
             reference_tare_counts=self.load_cell.reference_tare_counts,
-            trigger_force_g=options.trigger_force_g,
+            trigger_force_g=options.trigger_force_g if trigger_force_g is None else trigger_force_g,
+            release_force_g=release_force_g,
             sample_rate_sps=self.sample_rate_sps,
             force_safety_limit_g=options.force_safety_limit_g,
-            drift_safety_limit_g=options.drift_safety_limit_g,
+            drift_safety_limit_g=(options.drift_safety_limit_g if drift_safety_limit_g is None
+                                  else drift_safety_limit_g),
             inverted=self.cell_options.inverted,
             sos=settings.sos,
         ))
@@ -292,15 +305,19 @@ class LoadCellProbe:
             raise ProbeError(trigger_error_message(error, options.force_safety_limit_g))
         return trigger
 
+    def expect_contact(self) -> None:
+        """The nozzle may touch the bed (or a hand the nozzle) from now on: the next tare waits for new samples."""
+        self._tare_from_s = None
+
     def _probing_move(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float):
         """Tare, arm and move down until the trigger halts Z; returns (move result, tare, t_start)."""
-        self._require_calibrated()
+        self.require_calibrated()
         self._refuse_speed_beyond_force_limit(settings.options, speed_mm_s)
-        tare_counts = self._tare(settings.options)
+        tare_counts = self.tare(settings.options)
         # Until a pullback completes, the nozzle may be on the bed: the next tare waits for fresh samples.
-        self._tare_from_s = None
+        self.expect_contact()
         t_start_s = self.backend.now_s
-        trigger = self._arm(settings, tare_counts)
+        trigger = self.arm(settings, tare_counts)
         # Unhomed (G28 Z), z_min is a full axis length below: the machine stops at its own end of travel.
         machine_z_min_mm = max(z_min_mm - self._z_frame_offset_mm(), self.backend.limits["z"][0])
         result = self.backend.probing_move(machine_z_min_mm, speed_mm_s, trigger)

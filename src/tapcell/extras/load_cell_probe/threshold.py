@@ -12,9 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tapcell.extras.load_cell_probe.options import ERROR_PREFIX, preload_refusal, trigger_error_message
-from tapcell.extras.load_cell_probe.options import force_beyond_safety_limit_g
-from tapcell.mcu.trigger import FirmwareTrigger, TriggerError, TriggerParams
+from tapcell.extras.load_cell_probe.options import ERROR_PREFIX, trigger_error_message
+from tapcell.mcu.trigger import FirmwareTrigger, TriggerError
 from tapcell.mesh.prusa import TARE_SAMPLE_COUNT, TARE_SETTLE_S
 from tapcell.extras.probe.session import ProbeError
 from tapcell.scale import counts_to_grams
@@ -57,13 +56,9 @@ class ThresholdProber:
         self.toolhead = device.motion
         self.tares: list[TareRecord] = []
 
-    def require_calibrated(self) -> None:
-        if not self.load_cell.is_calibrated:
-            raise ProbeError(ERROR_PREFIX + "Load Cell not calibrated")
-
     def tare(self, purpose: str, settle_s: float = TARE_SETTLE_S, sample_count: int = TARE_SAMPLE_COUNT) -> TareRecord:
         """Wait settle_s for vibrations to die, then average sample_count samples."""
-        self.require_calibrated()
+        self.device.require_calibrated()
         self.backend.dwell(settle_s)
         batch = self.load_cell.collect(sample_count / self.device.sample_rate_sps)
         if batch.errors:
@@ -80,29 +75,11 @@ class ThresholdProber:
 
     def _arm(self, tare: TareRecord, threshold_g: float, release_g: float,
              drift_safety_limit_g: float | None = None) -> FirmwareTrigger:
-        options = self.device.options
+        device = self.device
         # Refused before the move, with the force (the firmware would only say "too much").
-        beyond_g = force_beyond_safety_limit_g(tare.counts, self.load_cell.reference_tare_counts,
-                                               self.load_cell.counts_per_gram, options.force_safety_limit_g)
-        if beyond_g is not None:
-            raise ProbeError(preload_refusal(beyond_g, options.force_safety_limit_g))
-        if drift_safety_limit_g is None:
-            drift_safety_limit_g = options.drift_safety_limit_g
-        trigger = FirmwareTrigger(TriggerParams(
-            counts_per_gram=self.load_cell.counts_per_gram,
-            reference_tare_counts=self.load_cell.reference_tare_counts,
-            trigger_force_g=threshold_g,
-            release_force_g=release_g,
-            sample_rate_sps=self.device.sample_rate_sps,
-            force_safety_limit_g=options.force_safety_limit_g,
-            drift_safety_limit_g=drift_safety_limit_g,
-            inverted=self.device.cell_options.inverted,
-            sos=self.device.config_settings.sos,
-        ))
-        error = trigger.arm(int(round(tare.counts)), self.backend.now_s)
-        if error != TriggerError.NONE:
-            raise ProbeError(trigger_error_message(error, self.device.options.force_safety_limit_g))
-        return trigger
+        device.refuse_preload(tare.counts, device.options)
+        return device.arm(device.config_settings, tare.counts, trigger_force_g=threshold_g,
+                          release_force_g=release_g, drift_safety_limit_g=drift_safety_limit_g)
 
     def _frame_mm(self) -> np.ndarray:
         return np.array([self.toolhead.frame_offset_mm[axis] for axis in "xyz"])
