@@ -7,6 +7,7 @@ import types
 
 import pytest
 
+from tapcell.extras import gcode_macro
 from tapcell.host import printer as printer_module
 from tapcell.host.gcode import GCodeDispatch, GCodeError, parse_line
 from tapcell.host.printer import Printer
@@ -222,8 +223,12 @@ def fake_load_cell_module(monkeypatch):
     module = types.ModuleType("tapcell_test_fake_load_cell")
     module.load_config = lambda section, printer: FakeLoadCell(section.getfloat("force_g"))
     module.load_config_prefix = module.load_config
-    monkeypatch.setitem(sys.modules, module.__name__, module)
-    monkeypatch.setitem(printer_module.MODULES, "load_cell", module.__name__)
+    package = types.ModuleType("tapcell_test_extras")
+    package.__path__ = []
+    monkeypatch.setitem(sys.modules, package.__name__, package)
+    monkeypatch.setitem(sys.modules, f"{package.__name__}.load_cell", module)
+    monkeypatch.setitem(sys.modules, f"{package.__name__}.gcode_macro", gcode_macro)
+    monkeypatch.setattr(printer_module, "EXTRAS_PACKAGE", package.__name__)
     return module
 
 
