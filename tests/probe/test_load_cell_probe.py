@@ -122,7 +122,9 @@ def test_bad_filter_option_names_section_option_and_value(tmp_path):
     with pytest.raises(ConfigError, match=r"\[load_cell_probe\] buzz_filter_cutoff_frequency = 500: 500.0 is not allowed"):
         make_printer(tmp_path, probe_options="buzz_filter_cutoff_frequency: 500", calibrate=False, home=False)
     printer, _ = make_printer(tmp_path)
-    with pytest.raises(GCodeError, match=r"BUZZ_FILTER_CUTOFF_FREQUENCY"):
+    with pytest.raises(GCodeError, match=r"^Error on 'PROBE BUZZ_FILTER_CUTOFF_FREQUENCY=500': "
+                                         r"BUZZ_FILTER_CUTOFF_FREQUENCY: 500\.0 is not allowed; allowed: above 80 Hz "
+                                         r"and below 160 Hz at 320 sps$"):
         printer.gcode.run_script("PROBE BUZZ_FILTER_CUTOFF_FREQUENCY=500")
 
 

@@ -89,14 +89,14 @@ class GCodeMacro:
         name = gcmd.get("VARIABLE").lower()
         if name not in self.variables:
             known = ", ".join(sorted(self.variables)) or "none"
-            raise gcmd.error(f"Error on '{gcmd.commandline}': unknown VARIABLE '{name}' "
-                             f"(variables of {self.command}: {known})")
+            raise gcmd.param_error(f"unknown VARIABLE '{name}' "
+                                   f"(variables of {self.command}: {known})")
         text = gcmd.get("VALUE")
         try:
             self.variables[name] = parse_variable(text)
         except (ValueError, SyntaxError):
-            raise gcmd.error(f"Error on '{gcmd.commandline}': unable to parse '{text}' for VALUE "
-                             f"(expected a Python literal)") from None
+            raise gcmd.param_error(f"unable to parse '{text}' for VALUE "
+                                   f"(expected a Python literal)") from None
 
     def _action_respond_info(self, message: str) -> str:
         self.printer.gcode.respond_info(str(message))

@@ -130,7 +130,7 @@ class PrusaProbe:
             try:
                 self.thresholds = self.thresholds.with_threshold(kind, value_g)
             except MeshError as exc:
-                raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {exc}") from None
+                raise gcmd.param_error(str(exc)) from None
             self.printer.config.set(self.section_name, THRESHOLD_OPTIONS[kind], f"{value_g:g}")
             gcmd.respond_info(f"{THRESHOLD_LABELS[kind]} threshold set to {value_g:g} g (releases at "
                               f"{self.thresholds.release_g(kind):g} g); SAVE_CONFIG keeps it")

@@ -259,8 +259,8 @@ class Printer:
         status = self.get_status()
         if name is not None:
             if name not in status:
-                raise gcmd.error(f"Error on '{gcmd.commandline}': no status object '{name}' "
-                                 f"(one of: {', '.join(sorted(status))})")
+                raise gcmd.param_error(f"no status object '{name}' "
+                                       f"(one of: {', '.join(sorted(status))})")
             gcmd.respond_info("\n".join(f"{key}: {_format_status_value(value)}"
                                         for key, value in status[name].items()))
             return

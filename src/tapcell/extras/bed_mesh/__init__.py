@@ -125,7 +125,7 @@ class BedMesh:
         options = command_options(self.options, gcmd)
         profile = gcmd.get("PROFILE", DEFAULT_PROFILE).strip()
         if not profile or " " in profile:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': PROFILE must be one word")
+            raise gcmd.param_error("PROFILE must be one word")
         homed = self.toolhead.status()["homed_axes"]
         if homed != "xyz":
             raise gcmd.error("BED_MESH_CALIBRATE: home all axes first (G28)")
@@ -174,14 +174,14 @@ class BedMesh:
     def cmd_BED_MESH_PROFILE(self, gcmd: GCodeCommand) -> None:
         given = [key for key in ("SAVE", "LOAD", "REMOVE") if gcmd.has(key)]
         if len(given) != 1:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': give exactly one of SAVE=name, LOAD=name, REMOVE=name")
+            raise gcmd.param_error("give exactly one of SAVE=name, LOAD=name, REMOVE=name")
         action = given[0]
         name = gcmd.get(action).strip()
         if not name or " " in name:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {action} needs a one-word profile name")
+            raise gcmd.param_error(f"{action} needs a one-word profile name")
         if action != "SAVE" and name not in self.profiles:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': no bed mesh profile '{name}' "
-                             f"(known: {', '.join(sorted(self.profiles)) or 'none'})")
+            raise gcmd.param_error(f"no bed mesh profile '{name}' "
+                                   f"(known: {', '.join(sorted(self.profiles)) or 'none'})")
         if action == "SAVE":
             self.save_profile(name)
             gcmd.respond_info(f"Bed mesh profile '{name}' saved; run SAVE_CONFIG to write it to the config file")

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 
 
@@ -105,29 +104,13 @@ def read_bed_mesh_options(section: ConfigSection) -> BedMeshOptions:
 
 # -- BED_MESH_CALIBRATE parameters -----------------------------------------------------------
 
-def _gcode_floats(gcmd: GCodeCommand, name: str, count: int | None) -> list[float] | None:
-    text = gcmd.get(name, None)
-    if text is None:
-        return None
-    try:
-        values = [float(v) for v in text.split(",")]
-    except ValueError:
-        values = []
-    if not values or not all(math.isfinite(v) for v in values) or (count is not None and len(values) != count):
-        shape = f"{count} numbers separated by commas" if count else "numbers separated by commas"
-        raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {name}={text}: expected {shape}")
-    return values
-
-
 def command_options(options: BedMeshOptions, gcmd: GCodeCommand) -> BedMeshOptions:
     """The options of one BED_MESH_CALIBRATE: the config with the command's parameters applied."""
-    mesh_min = _gcode_floats(gcmd, "MESH_MIN", 2)
-    mesh_max = _gcode_floats(gcmd, "MESH_MAX", 2)
-    counts = _gcode_floats(gcmd, "PROBE_COUNT", None)
+    mesh_min = gcmd.get_floatlist("MESH_MIN", None, count=2)
+    mesh_max = gcmd.get_floatlist("MESH_MAX", None, count=2)
+    counts = gcmd.get_floatlist("PROBE_COUNT", None)
     algorithm = gcmd.get("ALGORITHM", options.algorithm).strip().lower()
-    method = gcmd.get("METHOD", options.method).strip().lower()
-    if method not in METHODS:
-        raise gcmd.error(f"Error on '{gcmd.get_commandline()}': METHOD={method}: must be one of {', '.join(METHODS)}")
+    method = gcmd.get_choice("METHOD", list(METHODS), options.method)
     clearance = gcmd.get_float("HORIZONTAL_Z_CLEARANCE", options.horizontal_z_clearance_mm, above=0.0)
     grid = options.grid
     try:
@@ -142,7 +125,7 @@ def command_options(options: BedMeshOptions, gcmd: GCodeCommand) -> BedMeshOptio
                                                     options.interpolation.bicubic_tension)
     except MeshOptionError as exc:
         shown = gcmd.get(exc.option.upper(), exc.value)  # the value as the user wrote it, when given
-        raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {exc.option.upper()}={shown}: {exc.allowed}") from None
+        raise gcmd.param_error(f"{exc.option.upper()}={shown}: {exc.allowed}") from None
     return replace(options, grid=grid, interpolation=interpolation, interpolation_note=note,
                    horizontal_z_clearance_mm=clearance, method=method)
 

@@ -57,14 +57,10 @@ class LoadCellProbeCommands:
         median angle of the decompression line, for the quality classifier. The value is used
         at once and written by SAVE_CONFIG; the probing options may be overridden as on PROBE.
         """
-        calibration = gcmd.get("CALIBRATION", "").strip().upper()
-        calibrate = {"CONTACT_ONSET": self._calibrate_contact_onset,
-                     "PULLBACK_DISTANCE": self._calibrate_pullback_distance,
-                     "DECOMPRESSION_ANGLE": self._calibrate_decompression_angle}.get(calibration)
-        if calibrate is None:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': CALIBRATION must be one of CONTACT_ONSET, "
-                             f"PULLBACK_DISTANCE, DECOMPRESSION_ANGLE, not '{calibration}'")
-        calibrate(gcmd)
+        calibrations = {"CONTACT_ONSET": self._calibrate_contact_onset,
+                        "PULLBACK_DISTANCE": self._calibrate_pullback_distance,
+                        "DECOMPRESSION_ANGLE": self._calibrate_decompression_angle}
+        calibrations[gcmd.get_choice("CALIBRATION", list(calibrations))](gcmd)
 
     def _calibration_taps(self, gcmd, samples: int, strategy: str, **option_changes):
         """SAMPLES taps at the current XY with `strategy` for bad taps; returns (recorded taps, session).

@@ -220,7 +220,7 @@ class LoadCellProbe:
         try:
             return self._design(options)
         except FilterDesignError as exc:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {exc.option.upper()}: {exc}") from None
+            raise gcmd.param_error(f"{exc.option.upper()}: {exc.value!r} is not allowed; allowed: {exc.allowed}") from None
 
     def with_options(self, settings: TapSettings, **changes) -> TapSettings:
         """`settings` with some TapOptions fields changed (a calibration's own taps)."""

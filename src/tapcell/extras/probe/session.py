@@ -274,7 +274,7 @@ class Probe:
     def cmd_PROBE(self, gcmd) -> None:
         home = gcmd.get("HOME", "").strip().upper()
         if home not in ("", "Z"):
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': HOME must be Z, not '{home}'")
+            raise gcmd.param_error(f"HOME must be Z, not '{home}'")
         x, y = self.current_probe_xy()
         result = self.probe_point(x, y, gcmd)
         self.last_z_result = result.z_mm
