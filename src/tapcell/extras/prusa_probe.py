@@ -32,7 +32,7 @@ import numpy as np
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.mesh.errors import MeshError
-from tapcell.mesh.run import MeshProbeRun
+from tapcell.mesh.run import MeshProbeRun, mesh_travel_height_mm
 from tapcell.mesh.prusa import (
     MESH,
     SET_COMMANDS,
@@ -173,8 +173,9 @@ class PrusaProbe:
         reference = prober.tare("session reference")
         z_values, attempts_used, retares = [], [], 0
         offsets = retry_offsets_mm(self.options.max_attempts)
-        travel_z = options.horizontal_move_z_mm
+        contacts_xyz = []  # where the nozzle touched (toolhead Z): the travel height follows the bed
         for index, (x_mm, y_mm) in enumerate(points_xy_mm):
+            travel_z = mesh_travel_height_mm(options, contacts_xyz, (float(x_mm), float(y_mm)))
             for attempt, (dx, dy) in enumerate(offsets, start=1):
                 if toolhead.get_position()[2] < travel_z:
                     toolhead.move_to(z=travel_z, speed_mm_s=speed)
@@ -199,8 +200,7 @@ class PrusaProbe:
                                  f"{len(offsets)} attempts")
             z_values.append(hit.trigger_position_mm[2] - z_offset)
             attempts_used.append(attempt)
-            if options.horizontal_z_clearance_mm is not None:
-                travel_z = hit.trigger_position_mm[2] + options.horizontal_z_clearance_mm
+            contacts_xyz.append(tuple(float(v) for v in hit.trigger_position_mm))
             progress(index + 1, len(points_xy_mm))
         toolhead.move_to(z=max(toolhead.get_position()[2], options.horizontal_move_z_mm), speed_mm_s=speed)
         self.last_session = {"kind": "mesh", "points": len(points_xy_mm), "tares": len(prober.tares),

@@ -95,6 +95,7 @@ class Printer:
         self.config: ConfigFile | None = None
         self.backend: Backend | None = backend
         self.objects: dict[str, Any] = {}
+        self.warnings: list[str] = []  # runtime warnings, reported by the API as Klipper's printer.info does
         self.state = "starting"  # "ready" or "error"
         self.state_message = ""
         self._event_handlers: dict[str, list[Callable[..., Any]]] = {}
@@ -160,6 +161,7 @@ class Printer:
 
     def _build(self) -> None:
         self.objects.clear()
+        self.warnings.clear()
         self._loaded.clear()
         self._event_handlers.clear()
         self.config = None
@@ -251,6 +253,9 @@ class Printer:
                                     desc="Report the printer state; OBJECT=name shows one object's status")
         self.gcode.register_command("RESTART", self._cmd_restart,
                                     desc="Reload the config file and rebuild the printer")
+        # The virtual printer is rebuilt on RESTART too (a power cycle), so both are the same here.
+        self.gcode.register_command("FIRMWARE_RESTART", self._cmd_restart,
+                                    desc="Restart the virtual printer and reload the config file")
         self.gcode.register_command("SAVE_CONFIG", self._cmd_save_config,
                                     desc="Write pending config changes (e.g. a calibration) and restart")
 

@@ -40,6 +40,7 @@ from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import PrefixSums, best_five_segments, prefix_sums, segment_lines
+from tapcell.tap.toe import ToeFit, fit_toe, lag_from_halt_s
 
 MIN_SAMPLES = 12
 # Extra samples the force may keep changing after the motion stopped/started (ringing, filters).
@@ -61,7 +62,7 @@ MIN_COMPRESSION_SAMPLES = 2
 
 
 def sensor_timing(tap: TapData, options: AnalysisOptions, sample_period_s: float) -> SensorTiming:
-    estimate = options.sensor_delay_s == "auto"
+    estimate = options.sensor_delay_s in ("auto", "halt")
     delay = options.sensor_delay_s if isinstance(options.sensor_delay_s, float | int) else None
     if delay is None:
         delay = _meta_seconds(tap, "sensor_delay_s", 0.0)
@@ -327,6 +328,17 @@ def _residual(y, x_min_um, span_um, fit: ContactFit) -> np.ndarray:
     return y - (fit.baseline_g + fit.stiffness_g_um * mean)
 
 
+def fit_pullback_toe(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float,
+                     contact0_um: float) -> ToeFit | None:
+    """The toe model (tapcell.tap.toe) over the samples read after the pullback began."""
+    first = int(window.time_s.searchsorted(motion.pullback_start_s + delay_s + timing.integration_s, side="right"))
+    if not math.isfinite(contact0_um):
+        return None
+    spacing_um = max(motion.pullback_speed_mm_s * 1000.0 * timing.sample_period_s, 0.05)
+    x_lo = window.x_min_um[first:]
+    return fit_toe(x_lo, x_lo + window.span_um[first:], window.force_g[first:], contact0_um, spacing_um)
+
+
 def fit_compression(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float,
                     onset_um: float) -> ContactFit | None:
     """The contact model over the approach up to the halt (onset fixed to the pullback's)."""
@@ -424,6 +436,10 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         hum=hum.to_json() if hum else None,
     )
     context = AnalysisContext(tap, motion, timing)
+    halt_lag_s = lag_from_halt_s(dec.points[2][0], motion.home_end_s, period_s)
+    if options.sensor_delay_s == "halt":
+        timing.delay_s = max(halt_lag_s - 0.5 * timing.integration_s, 0.0) if halt_lag_s is not None else 0.0
+        timing.estimate_delay = False
     delay_s = 0.0 if timing.estimate_delay else timing.delay_s
     t_break = dec.points[4][0]
     result.compression_force_g = abs(dec.points[2][1] - dec.points[1][1])
@@ -448,7 +464,9 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         result.valid, result.error, result.message = False, invalid.code, invalid.message
         result.z_line_mm = z_line
         return result, context
-    if pullback and compression:
+    if options.sensor_delay_s == "halt":
+        result.sensor_delay_estimate_s = delay_s
+    elif pullback and compression:
         speeds_um_s = (motion.approach_speed_mm_s + motion.pullback_speed_mm_s) * 1000.0
         result.sensor_delay_estimate_s = delay_s + (pullback.contact_um - compression.contact_um) / speeds_um_s
     if timing.estimate_delay:
@@ -477,6 +495,15 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         result.z_sigma_um = break_time_sigma_s(ps, dec, t_break) * motion.pullback_speed_mm_s * 1000.0
         result.z_method = "lines"
         result.stiffness_decompression_g_um = abs(dec.lines[3][0]) / (motion.pullback_speed_mm_s * 1000.0)
+    if options.contact_model == "toe":
+        start = pullback.contact_um if pullback else window.break_line_um
+        toe = fit_pullback_toe(window, motion, timing, delay_s, start)
+        if toe:
+            result.z_mm = motion.z_halt_mm + toe.contact_um / 1000.0
+            result.z_sigma_um = toe.sigma_um
+            result.z_method = "toe"
+            result.contact_onset_um = toe.width_um
+            result.stiffness_decompression_g_um = toe.stiffness_g_um
     result.compression_samples = compression_sample_count(window, motion, delay_s, onset_um,
                                                           pullback.contact_um if pullback else window.break_line_um)
     if result.compression_samples >= MIN_COMPRESSION_SAMPLES:

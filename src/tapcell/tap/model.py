@@ -134,7 +134,10 @@ class AnalysisOptions:
     """Everything the analysis can be told. None means: from the tap file, else the default.
 
     sensor_delay_s: pipeline delay of the sensor beyond its conversion window (s); None: tap
-        meta `sensor_delay_s`, else 0. "auto": estimated from the tap (contact vs break contact).
+        meta `sensor_delay_s`, else 0. "auto": estimated from the tap (contact vs break contact);
+        "halt": from the halt (P2's time minus the motion's halt is the whole lag, tapcell.tap.toe).
+    contact_model: "sharp" (hinge, with `contact_onset_um` when calibrated) or "toe" (the contact's
+        toe width and shape fitted per tap with a departure slope, tapcell.tap.toe).
     sensor_integration_s: conversion (averaging) window of one sample (s); None: tap meta
         `sensor_integration_s`, else one sample period (a continuously converting ADC).
     z_step_um: Z distance of one (micro)step; None: tap meta `z_step_um`, else 2.5 µm. The
@@ -165,6 +168,7 @@ class AnalysisOptions:
     fit_contact_onset: bool = False
     outlier_sigma: float = 8.0
     mains_hz: tuple[float, ...] | str | None = None
+    contact_model: str = "sharp"
 
     # Options that may be reset to None ("from the tap file / default") with `--set key=none`.
     _OPTIONAL = frozenset(
@@ -183,6 +187,10 @@ class AnalysisOptions:
         return dataclasses.replace(self, **changes)
 
     def _parse_value(self, key: str, text: str) -> Any:
+        if key == "contact_model":
+            if text.strip() not in CONTACT_MODELS:
+                raise ValueError(f"option 'contact_model' = '{text}': one of {', '.join(CONTACT_MODELS)}")
+            return text.strip()
         if key == "tap_classifier":
             if not text.strip():
                 raise ValueError("option 'tap_classifier' needs a classifier name")
@@ -196,8 +204,8 @@ class AnalysisOptions:
             return None
         if key == "mains_hz":
             return _parse_mains_hz(text)
-        if key == "sensor_delay_s" and text.strip().lower() == "auto":
-            return "auto"
+        if key == "sensor_delay_s" and text.strip().lower() in ("auto", "halt"):
+            return text.strip().lower()
         try:
             value = float(text)
         except ValueError:
@@ -211,6 +219,7 @@ class AnalysisOptions:
 
 
 MAINS_HZ_RANGE = (1.0, 10000.0)
+CONTACT_MODELS = ("sharp", "toe")
 
 
 def _parse_mains_hz(text: str) -> tuple[float, ...] | str:
