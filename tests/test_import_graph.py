@@ -11,7 +11,8 @@ from pathlib import Path
 import pytest
 
 PACKAGE = Path(__file__).resolve().parents[1] / "src" / "tapcell"
-PURE = ("tapcell.tap", "tapcell.mesh", "tapcell.filters", "tapcell.scale")
+# The math, and the independent tap generator (which must share no code with the simulator).
+PURE = ("tapcell.tap", "tapcell.mesh", "tapcell.filters", "tapcell.scale", "tapcell.taplab")
 ABOVE_THE_MATH = ("tapcell.host", "tapcell.extras", "tapcell.tools", "tapcell.sim")
 MAY_IMPORT_SIM = ("tapcell.host", "tapcell.tools", "tapcell.sim")
 
