@@ -25,7 +25,6 @@ from __future__ import annotations
 import ast
 from typing import Any
 
-
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.host.templates import StatusView, compile_template

@@ -28,7 +28,6 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import replace
 
-
 from tapcell.extras.bed_mesh.methods import METHODS
 from tapcell.extras.bed_mesh.options import SECTION, command_options, read_bed_mesh_options
 from tapcell.host.config import ConfigSection

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass, replace
 
-
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand
 from tapcell.mesh.errors import MeshOptionError
