@@ -25,7 +25,7 @@ from tapcell.extras.load_cell_probe.device import (
     LoadCellProbe,
     RecordedTap,
 )
-from tapcell.extras.load_cell_probe.options import PULLBACK_LIMITS_MM, TapOptions, trigger_error_message
+from tapcell.extras.load_cell_probe.options import PULLBACK_LIMITS_MM, TapOptions
 from tapcell.extras.probe.patterns import serpentine_pattern
 from tapcell.extras.probe.session import Probe, ProbeError
 from tapcell.mcu.trigger import TriggerError
@@ -223,7 +223,7 @@ class LoadCellProbeCommands:
             result = device.backend.wait_for_trigger(trigger, max(deadline_s - device.backend.now_s, 0.0))
             device.load_cell.pump()
             if result.error != TriggerError.NONE:
-                raise ProbeError(trigger_error_message(result.error, settings.options.force_safety_limit_g))
+                raise ProbeError(device.error_message(result.error, settings.options))
             if not result.triggered:
                 raise ProbeError(f"LOAD_CELL_TEST_TAP: no tap detected within {timeout_s:g}s "
                                  f"({index} of {count} taps detected)")

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tapcell.extras.load_cell_probe.options import ERROR_PREFIX, trigger_error_message
+from tapcell.extras.load_cell_probe.options import ERROR_PREFIX
 from tapcell.mcu.trigger import FirmwareTrigger, TriggerError
 from tapcell.mesh.prusa import TARE_SAMPLE_COUNT, TARE_SETTLE_S
 from tapcell.extras.probe.session import ProbeError
@@ -95,7 +95,7 @@ class ThresholdProber:
         result = self.backend.probing_move(machine_target, speed_mm_s, trigger)
         self.load_cell.pump()
         if result.error != TriggerError.NONE:
-            raise ProbeError(trigger_error_message(result.error, self.device.options.force_safety_limit_g))
+            raise ProbeError(self.device.error_message(result.error, self.device.options))
         halt = tuple(np.array(self.backend.position) + frame)
         trigger_position = None
         if result.triggered:
@@ -112,7 +112,7 @@ class ThresholdProber:
         result = self.backend.probing_move_xy(x_mm - frame[0], y_mm - frame[1], speed_mm_s, trigger)
         self.load_cell.pump()
         if result.error != TriggerError.NONE:
-            raise ProbeError(trigger_error_message(result.error, self.device.options.force_safety_limit_g))
+            raise ProbeError(self.device.error_message(result.error, self.device.options))
         halt = np.array(self.backend.position)
         trigger_position = None
         if result.triggered:
