@@ -62,16 +62,20 @@ MIN_COMPRESSION_SAMPLES = 2
 
 
 def sensor_timing(tap: TapData, options: AnalysisOptions, sample_period_s: float) -> SensorTiming:
-    estimate = options.sensor_delay_s in ("auto", "halt")
+    """The sensor's delay and conversion window: the options, else the tap's meta. A delay known
+    neither way is read off the halt (tapcell.tap.toe.lag_from_halt_s)."""
     delay = options.sensor_delay_s if isinstance(options.sensor_delay_s, float | int) else None
-    if delay is None:
-        delay = _meta_seconds(tap, "sensor_delay_s", 0.0)
+    from_halt = options.sensor_delay_s == "halt"
+    if options.sensor_delay_s is None:
+        delay = _meta_seconds(tap, "sensor_delay_s", math.nan)
+        from_halt = math.isnan(delay)
     integration = options.sensor_integration_s
     if integration is None:
         integration = _meta_seconds(tap, "sensor_integration_s", sample_period_s)
     z_step_um = options.z_step_um if options.z_step_um is not None else _meta_number(tap, "z_step_um",
                                                                                        DEFAULT_Z_STEP_UM)
-    return SensorTiming(float(delay), float(integration), estimate, sample_period_s, float(z_step_um))
+    return SensorTiming(0.0 if delay is None or from_halt else float(delay), float(integration),
+                        options.sensor_delay_s == "auto", from_halt, sample_period_s, float(z_step_um))
 
 
 def _meta_seconds(tap: TapData, key: str, default: float) -> float:
@@ -328,15 +332,25 @@ def _residual(y, x_min_um, span_um, fit: ContactFit) -> np.ndarray:
     return y - (fit.baseline_g + fit.stiffness_g_um * mean)
 
 
+def free_air_slope_g_um(dec: Decomposition, motion: Motion) -> float:
+    """The force's slope against height in free air (g/µm; cable/bowden drift), from the approach line.
+
+    The approach crosses hundreds of µm of free air, so its line pins the Z-proportional drift far
+    better than the few tens of µm of departure after break contact can, and an adhesion thread
+    pulling on the nozzle over the departure cannot tilt it (the height falls while the time runs).
+    """
+    return -dec.lines[0][0] / (motion.approach_speed_mm_s * 1000.0)
+
+
 def fit_pullback_toe(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float,
-                     contact0_um: float) -> ToeFit | None:
+                     contact0_um: float, drift_g_um: float | None) -> ToeFit | None:
     """The toe model (tapcell.tap.toe) over the samples read after the pullback began."""
     first = int(window.time_s.searchsorted(motion.pullback_start_s + delay_s + timing.integration_s, side="right"))
     if not math.isfinite(contact0_um):
         return None
     spacing_um = max(motion.pullback_speed_mm_s * 1000.0 * timing.sample_period_s, 0.05)
     x_lo = window.x_min_um[first:]
-    return fit_toe(x_lo, x_lo + window.span_um[first:], window.force_g[first:], contact0_um, spacing_um)
+    return fit_toe(x_lo, x_lo + window.span_um[first:], window.force_g[first:], contact0_um, spacing_um, drift_g_um)
 
 
 def fit_compression(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float,
@@ -416,7 +430,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
 
     polarity = _polarity(time_s, force_raw, motion)
     force, outliers = repair_spikes(polarity * force_raw, options.outlier_sigma)
-    allowance = UNKNOWN_DELAY_ALLOWANCE_S if timing.estimate_delay else timing.delay_s
+    allowance = UNKNOWN_DELAY_ALLOWANCE_S if timing.estimate_delay or timing.delay_from_halt else timing.delay_s
     lag_samples = math.ceil((allowance + timing.integration_s) / period_s) + LAG_MARGIN_SAMPLES
     force, hum = remove_mains_hum(tap, options, time_s, force, motion, timing, lag_samples, period_s)
     dec, ps = decompose(time_s, force, motion, lag_samples, period_s)
@@ -437,9 +451,8 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
     )
     context = AnalysisContext(tap, motion, timing)
     halt_lag_s = lag_from_halt_s(dec.points[2][0], motion.home_end_s, period_s)
-    if options.sensor_delay_s == "halt":
+    if timing.delay_from_halt:
         timing.delay_s = max(halt_lag_s - 0.5 * timing.integration_s, 0.0) if halt_lag_s is not None else 0.0
-        timing.estimate_delay = False
     delay_s = 0.0 if timing.estimate_delay else timing.delay_s
     t_break = dec.points[4][0]
     result.compression_force_g = abs(dec.points[2][1] - dec.points[1][1])
@@ -464,7 +477,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         result.valid, result.error, result.message = False, invalid.code, invalid.message
         result.z_line_mm = z_line
         return result, context
-    if options.sensor_delay_s == "halt":
+    if timing.delay_from_halt:
         result.sensor_delay_estimate_s = delay_s
     elif pullback and compression:
         speeds_um_s = (motion.approach_speed_mm_s + motion.pullback_speed_mm_s) * 1000.0
@@ -497,7 +510,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         result.stiffness_decompression_g_um = abs(dec.lines[3][0]) / (motion.pullback_speed_mm_s * 1000.0)
     if options.contact_model == "toe":
         start = pullback.contact_um if pullback else window.break_line_um
-        toe = fit_pullback_toe(window, motion, timing, delay_s, start)
+        toe = fit_pullback_toe(window, motion, timing, delay_s, start, free_air_slope_g_um(dec, motion))
         if toe:
             result.z_mm = motion.z_halt_mm + toe.contact_um / 1000.0
             result.z_sigma_um = toe.sigma_um
