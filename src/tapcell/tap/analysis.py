@@ -62,13 +62,11 @@ MIN_COMPRESSION_SAMPLES = 2
 
 
 def sensor_timing(tap: TapData, options: AnalysisOptions, sample_period_s: float) -> SensorTiming:
-    """The sensor's delay and conversion window: the options, else the tap's meta. A delay known
-    neither way is read off the halt (tapcell.tap.toe.lag_from_halt_s)."""
+    """The sensor's delay and conversion window: the options, else the tap's meta."""
     delay = options.sensor_delay_s if isinstance(options.sensor_delay_s, float | int) else None
     from_halt = options.sensor_delay_s == "halt"
     if options.sensor_delay_s is None:
-        delay = _meta_seconds(tap, "sensor_delay_s", math.nan)
-        from_halt = math.isnan(delay)
+        delay = _meta_seconds(tap, "sensor_delay_s", 0.0)
     integration = options.sensor_integration_s
     if integration is None:
         integration = _meta_seconds(tap, "sensor_integration_s", sample_period_s)

@@ -134,12 +134,10 @@ class AnalysisOptions:
     """Everything the analysis can be told. None means: from the tap file, else the default.
 
     sensor_delay_s: pipeline delay of the sensor beyond its conversion window (s); None: tap
-        meta `sensor_delay_s`, else read off the halt. "auto": estimated from the tap (contact vs
-        break contact); "halt": from the halt (P2's time minus the motion's halt is the whole lag,
-        tapcell.tap.toe).
-    contact_model: "toe" (the default: the contact's toe width and shape marginalised per tap, the
-        drift taken from the approach, tapcell.tap.toe) or "sharp" (hinge, with `contact_onset_um`
-        when calibrated).
+        meta `sensor_delay_s`, else 0. "auto": estimated from the tap (contact vs break contact);
+        "halt": from the halt (P2's time minus the motion's halt is the whole lag, tapcell.tap.toe).
+    contact_model: "sharp" (hinge, with `contact_onset_um` when calibrated) or "toe" (the contact's
+        toe width and shape marginalised per tap, the drift taken from the approach, tapcell.tap.toe).
     sensor_integration_s: conversion (averaging) window of one sample (s); None: tap meta
         `sensor_integration_s`, else one sample period (a continuously converting ADC).
     z_step_um: Z distance of one (micro)step; None: tap meta `z_step_um`, else 2.5 µm. The
@@ -170,7 +168,7 @@ class AnalysisOptions:
     fit_contact_onset: bool = False
     outlier_sigma: float = 8.0
     mains_hz: tuple[float, ...] | str | None = None
-    contact_model: str = "toe"
+    contact_model: str = "sharp"
 
     # Options that may be reset to None ("from the tap file / default") with `--set key=none`.
     _OPTIONAL = frozenset(

@@ -80,24 +80,58 @@ def lag_from_halt_s(compression_end_time_s: float, halt_time_s: float, period_s:
     return lag_s
 
 
-def _rss_over_contacts(contacts_um, widths_um, power, window_um, basis, y):
-    """Residual sum of squares of the linear solve at every (toe width, candidate contact) at once,
-    and the toe's stiffness there (variable projection: the toe is the only nonlinear column).
+@dataclass
+class _Projected:
+    """The samples and linear columns of one toe fit, prepared once for every candidate toe.
 
-    contacts_um, widths_um: equal-length 1-D arrays (one row per candidate); power: the toe's;
-    basis: the linear columns beside the toe (orthonormal, N × m: the baseline, and the departure
-    slope unless it is known), projected out of the force and of every toe column once.
+    basis: the linear columns beside the toe (orthonormal: the baseline, and the drift unless it
+    is known); the force has them projected out (`y_free`). For a toe column h the fit needs only
+    h·h - |hᵀB|² and h·y_free (variable projection). Samples above every candidate contact have
+    h = 0 and drop out; samples pressed past every candidate's toe have h = a - x (a = c - the
+    toe's lift deficit), so they enter through a few sums; only the samples in between are
+    evaluated per candidate.
     """
-    depth = contacts_um[:, None, None] - window_um[None]
-    h = toe_shape(depth, widths_um[:, None, None], power).mean(axis=2)  # (C, N)
-    h_free = h - (h @ basis) @ basis.T
-    y_free = y - basis @ (basis.T @ y)
-    hh = np.einsum("cn,cn->c", h_free, h_free)
-    hy = h_free @ y_free
+
+    near_window_um: np.ndarray  # (n, SUBSAMPLES) heights of the in-between samples
+    near_basis: np.ndarray
+    near_y: np.ndarray
+    pressed_n: int
+    pressed_x: float
+    pressed_xx: float
+    pressed_basis: np.ndarray  # Σ B over the pressed samples (m,)
+    pressed_x_basis: np.ndarray  # Σ x B (m,)
+    pressed_y: float
+    pressed_xy: float
+    yy: float
+
+    @classmethod
+    def prepare(cls, window_um: np.ndarray, x_mid: np.ndarray, basis: np.ndarray, y: np.ndarray,
+                lowest_contact_um: float, highest_contact_um: float, widest_um: float) -> _Projected:
+        y_free = y - basis @ (basis.T @ y)
+        pressed = window_um.max(axis=1) <= lowest_contact_um - widest_um
+        near = ~pressed & (window_um.min(axis=1) < highest_contact_um)
+        x_p, y_p, b_p = x_mid[pressed], y_free[pressed], basis[pressed]
+        return cls(window_um[near], basis[near], y_free[near], int(np.count_nonzero(pressed)), float(x_p.sum()),
+                   float(x_p @ x_p), b_p.sum(axis=0), x_p @ b_p, float(y_p.sum()), float(x_p @ y_p),
+                   float(y_free @ y_free))
+
+
+def _rss_over_contacts(contacts_um, widths_um, power, data: _Projected):
+    """Residual sum of squares of the linear solve at every (toe width, candidate contact) at once,
+    and the toe's stiffness there. contacts_um, widths_um: equal-length 1-D arrays (one row per
+    candidate); power: the toe's."""
+    depth = contacts_um[:, None, None] - data.near_window_um[None]
+    h = toe_shape(depth, widths_um[:, None, None], power).mean(axis=2)  # (C, n) the in-between samples
+    # The pressed samples: h = a - x with a = c - w p / (p + 1) (the toe lifts w / (p + 1), not w).
+    a = contacts_um - widths_um * (power / (power + 1.0))
+    h_basis = h @ data.near_basis + a[:, None] * data.pressed_basis[None] - data.pressed_x_basis[None]
+    hh_all = np.einsum("cn,cn->c", h, h) + a * a * data.pressed_n - 2.0 * a * data.pressed_x + data.pressed_xx
+    hh = hh_all - np.einsum("cm,cm->c", h_basis, h_basis)
+    hy = h @ data.near_y + a * data.pressed_y - data.pressed_xy
     # A candidate whose toe column is (nearly) a combination of the others cannot be solved.
-    usable = hh > 1e-9 * (np.einsum("cn,cn->c", h, h) + 1e-300)
+    usable = hh > 1e-9 * (hh_all + 1e-300)
     stiffness = np.divide(hy, hh, out=np.zeros_like(hy), where=usable)
-    rss = np.where(usable & (stiffness > 0.0), y_free @ y_free - stiffness * hy, np.inf)  # must press, not pull
+    rss = np.where(usable & (stiffness > 0.0), data.yy - stiffness * hy, np.inf)  # must press, not pull
     return rss, stiffness
 
 
@@ -123,9 +157,10 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
         basis = np.full((len(y), 1), 1.0 / math.sqrt(len(y)))
     coarse = contact0_um + np.arange(-COARSE_BELOW_UM, COARSE_ABOVE_UM + 1e-9, COARSE_STEP_UM)
     widths = np.array(TOE_WIDTHS_UM)
+    data = _Projected.prepare(window_um, x_mid, basis, y, coarse[0], coarse[-1], widths.max())
     grid_c = np.tile(coarse, len(widths))
     grid_w = np.repeat(widths, len(coarse))
-    rss_grid = np.stack([_rss_over_contacts(grid_c, grid_w, power, window_um, basis, y)[0].reshape(len(widths), -1)
+    rss_grid = np.stack([_rss_over_contacts(grid_c, grid_w, power, data)[0].reshape(len(widths), -1)
                          for power in TOE_POWERS])  # (power, width, contact)
     best = np.unravel_index(int(np.argmin(rss_grid)), rss_grid.shape)
     if not math.isfinite(rss_grid[best]):
@@ -136,7 +171,7 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
     if contact is None:
         return None
     width, power = widths[best[1]], TOE_POWERS[best[0]]
-    _, stiffness = _rss_over_contacts(np.array([contact]), np.array([width]), power, window_um, basis, y)
+    _, stiffness = _rss_over_contacts(np.array([contact]), np.array([width]), power, data)
     return ToeFit(contact_um=contact, sigma_um=sigma, width_um=float(width), power=float(power),
                   stiffness_g_um=float(stiffness[0]), residual_sigma_g=math.sqrt(residual_var))
 
