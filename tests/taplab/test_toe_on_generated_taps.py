@@ -43,3 +43,13 @@ def test_toe_and_halt_lag_remove_the_onset_bias_and_sigma_is_honest(tmp_path):
     assert sharp["soft_sheet"] < -3.0  # what the toe model removes: the onset read low
     assert sharp["clean_hx717"] < -0.8
     assert sharp["cable_drift"] < -0.9
+
+
+def test_toe_rejects_taps_an_adhesion_thread_pulls(tmp_path):
+    # Seeds 11-14, 8 mild-ooze taps each: 4, 5, 4, 3 rejected, every one TAP_ADHESION (the clean,
+    # soft and drift taps above: none).
+    labels = generate_set(tmp_path, seed=11, taps_per_scenario=8, scenarios=["mild_ooze"])
+    codes = [analyze_tap(read_tap_file(tmp_path / label["file"])[0], TOE).error for label in labels]
+    rejected = [code for code in codes if code]
+    assert 2 <= len(rejected) <= 7
+    assert set(rejected) == {"TAP_ADHESION"}

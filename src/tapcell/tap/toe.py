@@ -43,6 +43,12 @@ PENETRATION_REACH_UM = 30.0  # samples deeper than this in contact are left out 
 DEPARTURE_REACH_SAMPLES = 40
 SUBSAMPLES = 2  # points per conversion window for its average
 MAX_LAG_PERIODS = 4.0
+# Adhesion (a plastic thread pulling the nozzle after break contact): the force's dip below the
+# free-air level, over the first ADHESION_REACH_UM above contact, against the level further up.
+ADHESION_REACH_UM = 40.0
+ADHESION_LEVEL_UM = 100.0  # the free-air level from samples between the reach and this height
+ADHESION_RUN_SAMPLES = 5  # the dip is the lowest mean of this many consecutive samples
+ADHESION_MIN_LEVEL_SAMPLES = 10
 
 
 @dataclass
@@ -208,3 +214,23 @@ def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: flo
     mean = float(weight @ centre)
     spread = float(weight @ (var + (centre - mean) ** 2))
     return mean, math.sqrt(max(spread, 0.0))
+
+
+def adhesion_dip(x_um: np.ndarray, force_g: np.ndarray, drift_g_um: float, contact_um: float) -> float | None:
+    """How far (g) the force dips below the free-air level just above break contact, or None when
+    the pullback does not reach far enough above contact to know the level.
+
+    Adhesion and a plastic thread keep pulling the nozzle after it left the surface; the toe model
+    reads that pull as more contact and puts Z high (mild ooze: +3.6 µm on the independent
+    generator's taps, and the taps with the deepest dip err most). The drift (from the approach)
+    is taken out first, so a cable pulling in proportion to Z does not look like a dip.
+    """
+    level_force = force_g - drift_g_um * x_um
+    above = x_um - contact_um
+    level = level_force[(above > ADHESION_REACH_UM) & (above < ADHESION_LEVEL_UM)]
+    near = level_force[(above > 1.0) & (above <= ADHESION_REACH_UM)]
+    if len(level) < ADHESION_MIN_LEVEL_SAMPLES or len(near) < ADHESION_RUN_SAMPLES:
+        return None
+    runs = np.convolve(near, np.full(ADHESION_RUN_SAMPLES, 1.0 / ADHESION_RUN_SAMPLES), mode="valid")
+    return float(np.median(level) - runs.min())
+
