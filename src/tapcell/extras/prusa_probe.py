@@ -31,9 +31,9 @@ import numpy as np
 
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeError
-from tapcell.extras.load_cell_probe.options import ERROR_PREFIX, preload_refusal, trigger_error_message
+from tapcell.extras.load_cell_probe.options import ERROR_PREFIX, preload_refusal
 from tapcell.extras.load_cell_probe.options import force_beyond_safety_limit_g
-from tapcell.mcu.trigger import FirmwareTrigger, TriggerError, TriggerParams
+from tapcell.mcu.trigger import FirmwareTrigger, TriggerError
 from tapcell.mesh.errors import MeshError
 from tapcell.mesh.prusa import (
     MESH,
@@ -127,22 +127,11 @@ class ThresholdProber:
                                                self.load_cell.counts_per_gram, options.force_safety_limit_g)
         if beyond_g is not None:
             raise ProbeError(preload_refusal(beyond_g, options.force_safety_limit_g))
-        if drift_safety_limit_g is None:
-            drift_safety_limit_g = options.drift_safety_limit_g
-        trigger = FirmwareTrigger(TriggerParams(
-            counts_per_gram=self.load_cell.counts_per_gram,
-            reference_tare_counts=self.load_cell.reference_tare_counts,
-            trigger_force_g=threshold_g,
-            release_force_g=release_g,
-            sample_rate_sps=self.device.sample_rate_sps,
-            force_safety_limit_g=options.force_safety_limit_g,
-            drift_safety_limit_g=drift_safety_limit_g,
-            inverted=self.device.cell_options.inverted,
-            sos=self.device.config_settings.sos,
-        ))
+        trigger = FirmwareTrigger(self.device.trigger_params(options, self.device.config_settings.sos, threshold_g,
+                                                             release_g, drift_safety_limit_g))
         error = trigger.arm(int(round(tare.counts)), self.vp.now_s)
         if error != TriggerError.NONE:
-            raise ProbeError(trigger_error_message(error, self.device.options.force_safety_limit_g))
+            raise ProbeError(self.device.error_message(error, options))
         return trigger
 
     def _frame_mm(self) -> np.ndarray:
@@ -159,7 +148,7 @@ class ThresholdProber:
         result = self.vp.probing_move(machine_target, speed_mm_s, trigger)
         self.load_cell.pump()
         if result.error != TriggerError.NONE:
-            raise ProbeError(trigger_error_message(result.error, self.device.options.force_safety_limit_g))
+            raise ProbeError(self.device.error_message(result.error, self.device.options))
         halt = tuple(np.array(self.vp.position) + frame)
         trigger_position = None
         if result.triggered:
@@ -176,7 +165,7 @@ class ThresholdProber:
         result = self.vp.probing_move_xy(x_mm - frame[0], y_mm - frame[1], speed_mm_s, trigger)
         self.load_cell.pump()
         if result.error != TriggerError.NONE:
-            raise ProbeError(trigger_error_message(result.error, self.device.options.force_safety_limit_g))
+            raise ProbeError(self.device.error_message(result.error, self.device.options))
         halt = np.array(self.vp.position)
         trigger_position = None
         if result.triggered:

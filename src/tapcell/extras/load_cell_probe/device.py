@@ -37,7 +37,8 @@ from tapcell.filters import FilterDesignError, FilterOptions, design_firmware_fi
 from tapcell.host.gcode import GCodeError
 from tapcell.extras.gcode_macro import StatusView
 from tapcell.extras.load_cell import LoadCell, read_load_cell_options, register_load_cell_commands
-from tapcell.mcu.trigger import FirmwareTrigger, TriggerError, TriggerParams
+from tapcell.mcu import sensors
+from tapcell.mcu.trigger import MAX_STUCK_SAMPLES, FirmwareTrigger, TriggerError, TriggerParams
 from tapcell.extras.probe.session import Probe, ProbeError, TapOutcome
 from tapcell.extras.probe.options import (
     PROBE_TEMPLATE_OPTIONS,
@@ -46,7 +47,10 @@ from tapcell.extras.probe.options import (
     with_overrides,
 )
 from tapcell.extras.load_cell_probe.options import (
+    CORRUPT_FRAME_RETRIES,
     ERROR_PREFIX,
+    check_stuck_sensor_samples,
+    lone_sample_past_limit,
     preload_refusal,
     trigger_error_message,
     CALIBRATION_PULLBACK_MM,
@@ -203,6 +207,12 @@ class LoadCellProbe:
         self.options = TapOptions(**values)
         self.tap_log_path = section.get("tap_log", None)
         self._check_classifier(self.options.tap_classifier, lambda msg: section.error("tap_classifier", msg))
+        check_stuck_sensor_samples(self.options.stuck_sensor_samples,
+                                   lambda msg: section.error("stuck_sensor_samples", msg))
+        # A live sensor of this type, gain and rate never repeats one value this often (docs/firmware.md).
+        self.default_stuck_samples = sensors.stuck_sample_count(
+            sensors.noise_floor_counts(self.cell_options.sensor_type, self.cell_options.gain, self.sample_rate_sps),
+            self.sample_rate_sps, MAX_STUCK_SAMPLES)
         try:
             self.config_settings = self._design(self.options)
         except FilterDesignError as exc:
@@ -240,6 +250,9 @@ class LoadCellProbe:
         if options is self.options:
             return self.config_settings
         self._check_classifier(options.tap_classifier, gcmd.error)
+        check_stuck_sensor_samples(options.stuck_sensor_samples,
+                                   lambda msg: gcmd.error(f"Error on '{gcmd.get_commandline()}': "
+                                                          f"STUCK_SENSOR_SAMPLES: {msg}"))
         try:
             return self._design(options)
         except FilterDesignError as exc:
@@ -298,38 +311,57 @@ class LoadCellProbe:
         self.tare_counts_at_tap = tare_counts
         return tare_counts
 
-    def _arm(self, settings: TapSettings, tare_counts: float) -> FirmwareTrigger:
-        options = settings.options
-        trigger = FirmwareTrigger(TriggerParams(
+    def stuck_samples(self, options: TapOptions) -> int:
+        """The firmware's stuck-sensor run: the option, else the sensor's default (0: off)."""
+        return self.default_stuck_samples if options.stuck_sensor_samples is None else options.stuck_sensor_samples
+
+    def trigger_params(self, options: TapOptions, sos, trigger_force_g: float, release_force_g: float = 0.0,
+                       drift_safety_limit_g: float | None = None) -> TriggerParams:
+        """The firmware endstop's parameters for one probing move (every probing mode builds them here)."""
+        return TriggerParams(
             counts_per_gram=self.load_cell.counts_per_gram,
             reference_tare_counts=self.load_cell.reference_tare_counts,
-            trigger_force_g=options.trigger_force_g,
+            trigger_force_g=trigger_force_g,
+            release_force_g=release_force_g,
             sample_rate_sps=self.sample_rate_sps,
             force_safety_limit_g=options.force_safety_limit_g,
-            drift_safety_limit_g=options.drift_safety_limit_g,
+            drift_safety_limit_g=options.drift_safety_limit_g if drift_safety_limit_g is None else drift_safety_limit_g,
             inverted=self.cell_options.inverted,
-            sos=settings.sos,
-        ))
+            sos=sos,
+            stuck_samples=self.stuck_samples(options),
+        )
+
+    def error_message(self, error: TriggerError, options: TapOptions) -> str:
+        """What the user reads when the firmware endstop stopped a move with `error`."""
+        return trigger_error_message(error, options.force_safety_limit_g, self.stuck_samples(options))
+
+    def _arm(self, settings: TapSettings, tare_counts: float) -> FirmwareTrigger:
+        options = settings.options
+        trigger = FirmwareTrigger(self.trigger_params(options, settings.sos, options.trigger_force_g))
         error = trigger.arm(int(round(tare_counts)), self.vp.now_s)
         if error != TriggerError.NONE:
-            raise ProbeError(trigger_error_message(error, options.force_safety_limit_g))
+            raise ProbeError(self.error_message(error, options))
         return trigger
 
     def _probing_move(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float):
         """Tare, arm and move down until the trigger halts Z; returns (move result, tare, t_start)."""
-        self._require_calibrated()
-        self._refuse_speed_beyond_force_limit(settings.options, speed_mm_s)
-        tare_counts = self._tare(settings.options)
-        # Until a pullback completes, the nozzle may be on the bed: the next tare waits for fresh samples.
-        self._tare_from_s = None
-        t_start_s = self.vp.now_s
-        trigger = self._arm(settings, tare_counts)
-        # Unhomed (G28 Z), z_min is a full axis length below: the machine stops at its own end of travel.
-        machine_z_min_mm = max(z_min_mm - self._z_frame_offset_mm(), self.vp.limits["z"][0])
-        result = self.vp.probing_move(machine_z_min_mm, speed_mm_s, trigger)
-        self.load_cell.pump()
+        for attempt in range(CORRUPT_FRAME_RETRIES + 1):
+            self._require_calibrated()
+            self._refuse_speed_beyond_force_limit(settings.options, speed_mm_s)
+            tare_counts = self._tare(settings.options)
+            # Until a pullback completes, the nozzle may be on the bed: the next tare waits for fresh samples.
+            self._tare_from_s = None
+            t_start_s = self.vp.now_s
+            trigger = self._arm(settings, tare_counts)
+            # Unhomed (G28 Z), z_min is a full axis length below: the machine stops at its own end of travel.
+            machine_z_min_mm = max(z_min_mm - self._z_frame_offset_mm(), self.vp.limits["z"][0])
+            result = self.vp.probing_move(machine_z_min_mm, speed_mm_s, trigger)
+            self.load_cell.pump()
+            if not (result.error == TriggerError.FORCE_SAFETY and attempt < CORRUPT_FRAME_RETRIES
+                    and self._stopped_by_a_corrupt_frame(settings.options, tare_counts, t_start_s)):
+                break
         if result.error != TriggerError.NONE:
-            message = trigger_error_message(result.error, settings.options.force_safety_limit_g)
+            message = self.error_message(result.error, settings.options)
             if result.error == TriggerError.DRIFT_SAFETY:
                 message += self._explain_drift(settings.options, tare_counts, t_start_s, speed_mm_s)
             raise ProbeError(message)
@@ -338,6 +370,19 @@ class LoadCellProbe:
                              "check that [stepper_z] position_min is negative (e.g. -2) and the nozzle reaches the bed")
         self.last_trigger_time_s = result.trigger_time_s
         return result, tare_counts, t_start_s
+
+    def _stopped_by_a_corrupt_frame(self, options: TapOptions, tare_counts: float, t_start_s: float) -> bool:
+        """Whether the force_safety_limit stop was one corrupted sample in the air (then says so)."""
+        period_s = 1.0 / self.sample_rate_sps
+        self._wait_for_samples_to(self.vp.now_s + 2.5 * period_s)     # the sample after it
+        _, counts, _ = self.history.between(t_start_s - 2.0 * period_s, self.vp.now_s)   # and the one before
+        force_g = (counts - tare_counts) / self.load_cell.counts_per_gram
+        lone = lone_sample_past_limit(force_g, options.force_safety_limit_g, options.trigger_force_g)
+        if lone is None:
+            return False
+        self.printer.gcode.respond_info(f"Load cell: one sample read {force_g[lone]:.0f}g between samples near 0g "
+                                        "(a corrupted frame); the move stopped at once, probing again")
+        return True
 
     def _refuse_speed_beyond_force_limit(self, options: TapOptions, speed_mm_s: float) -> None:
         """Refuse a speed that would press the bed harder than force_safety_limit.
@@ -708,7 +753,7 @@ class LoadCellProbeCommands:
             result = device.vp.wait_for_trigger(trigger, max(deadline_s - device.vp.now_s, 0.0))
             device.load_cell.pump()
             if result.error != TriggerError.NONE:
-                raise ProbeError(trigger_error_message(result.error, settings.options.force_safety_limit_g))
+                raise ProbeError(device.error_message(result.error, settings.options))
             if not result.triggered:
                 raise ProbeError(f"LOAD_CELL_TEST_TAP: no tap detected within {timeout_s:g}s "
                                  f"({index} of {count} taps detected)")

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tapcell.mcu.trigger import TriggerError
+from tapcell.mcu.trigger import MAX_STUCK_SAMPLES, TriggerError
 from tapcell.extras.probe.options import OptionSpec
 from tapcell.tap.angles import slope_angle_deg
 from tapcell.tap.model import ANALYSIS_RANGES, AnalysisOptions
@@ -28,8 +28,11 @@ def preload_refusal(beyond_g: float, force_safety_limit_g: float) -> str:
             f"({force_safety_limit_g:.0f}g) before probing!")
 
 
-def trigger_error_message(error: TriggerError, force_safety_limit_g: float) -> str:
+def trigger_error_message(error: TriggerError, force_safety_limit_g: float, stuck_samples: int = 0) -> str:
     """What the user reads when the firmware trigger stopped a probing move with `error`."""
+    if error == TriggerError.STUCK_SENSOR:
+        return (ERROR_PREFIX + f"load cell reads a constant value ({stuck_samples} identical samples in a row "
+                "while probing): sensor stuck! Check the sensor's wiring and power (see stuck_sensor_samples)")
     if error == TriggerError.DRIFT_SAFETY:
         return ERROR_PREFIX + "force exceeded drift_safety_limit before triggering!"
     if error == TriggerError.WATCHDOG_TIMEOUT:
@@ -67,6 +70,7 @@ class TapOptions:
     max_baseline_force_delta: float = ANALYSIS_DEFAULTS.max_baseline_force_delta
     max_dwell_force_drop: float = ANALYSIS_DEFAULTS.max_dwell_force_drop
     contact_onset_um: float = 0.0  # 0: a sharp contact; LOAD_CELL_PROBE_CALIBRATE CALIBRATION=CONTACT_ONSET fits it
+    stuck_sensor_samples: int | None = None  # None: from the sensor's noise floor; 0: off
 
 
 def analysis_option_spec(name: str, default=None) -> OptionSpec:
@@ -105,7 +109,16 @@ TAP_OPTION_SPECS: tuple[OptionSpec, ...] = (
     analysis_option_spec("max_baseline_force_delta"),
     analysis_option_spec("max_dwell_force_drop"),
     analysis_option_spec("contact_onset_um", default=0.0),
+    # 1 is refused too (check_stuck_sensor_samples): a run of one sample is every sample.
+    OptionSpec("stuck_sensor_samples", "stuck_sensor_samples", "int", None, minval=0, maxval=MAX_STUCK_SAMPLES),
 )
+STUCK_SENSOR_SAMPLES_ALLOWED = f"0 (disabled) or 2 .. {MAX_STUCK_SAMPLES}"
+
+
+def check_stuck_sensor_samples(value: int | None, make_error) -> None:
+    """stuck_sensor_samples: 0 or 2 .. 65535 (the config/G-code range check lets 1 through)."""
+    if value == 1:
+        raise make_error(f"1 is not allowed; allowed: {STUCK_SENSOR_SAMPLES_ALLOWED}")
 
 
 def default_pullback_speed_mm_s(sample_rate_sps: float) -> float:
@@ -132,6 +145,25 @@ def dwell_sample_count(sample_rate_sps: float) -> int:
 
 def tare_sample_count(tare_time_s: float, sample_rate_sps: float) -> int:
     return max(2, math.ceil(tare_time_s * sample_rate_sps - 1e-9))
+
+
+# The firmware stops a move on the first raw sample past force_safety_limit, with no quarantine,
+# so a single corrupted frame stops it too. A stop by one sample whose neighbours both read
+# less than the trigger force is such a frame (a real force cannot come and go within two
+# samples): the move is tried again, at most this many times.
+CORRUPT_FRAME_RETRIES = 2
+
+
+def lone_sample_past_limit(force_g: np.ndarray, limit_g: float, trigger_force_g: float) -> int | None:
+    """Index of the first sample at or past `limit_g` when it stands alone (both neighbours
+    below the trigger force), else None."""
+    beyond = np.flatnonzero(np.abs(force_g) > limit_g)
+    if beyond.size == 0:
+        return None
+    first = int(beyond[0])
+    if 0 < first < len(force_g) - 1 and max(abs(force_g[first - 1]), abs(force_g[first + 1])) < trigger_force_g:
+        return first
+    return None
 
 
 def force_beyond_safety_limit_g(tare_counts: float, reference_tare_counts: int, counts_per_gram: float,
