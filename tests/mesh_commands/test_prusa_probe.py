@@ -8,7 +8,7 @@ import pytest
 
 from tapcell.host.config import ConfigError
 from tapcell.host.gcode import GCodeError
-from tapcell.extras.prusa_probe import ThresholdProber
+from tapcell.extras.load_cell_probe.threshold import ThresholdProber
 
 from machines import gcode_error
 
@@ -81,8 +81,7 @@ def test_config_threshold_errors_name_the_option(make_printer):
 def test_trigger_has_hysteresis_on_the_firmware(prusa_printer):
     prober = ThresholdProber(prusa_printer.lookup_object("load_cell_probe"))
     tare = prober.tare("test")
-    device = prusa_printer.lookup_object("load_cell_probe")
-    trigger = device.arm(device.trigger_params(device.options, None, 125.0, 45.0), tare.counts)
+    trigger = prober._arm(tare, 125.0, 45.0)
     grams = np.array([0, 50, 100, 124, 126, 130, 100, 60, 46, 44, 30], dtype=float)
     counts = np.round(tare.counts + grams * 110.0).astype(np.int32)
     times = prusa_printer.backend.now_s + np.arange(grams.size) / 320.0

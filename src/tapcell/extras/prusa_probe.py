@@ -19,8 +19,8 @@ Commands: PROBE_THRESHOLDS (alias SHOW_THRESHOLDS), SET_Z_FAST_THRESHOLD, SET_Z_
 SET_MESH_THRESHOLD, SET_XY_THRESHOLD (aliases SET_Z_FAST, SET_Z_SLOW, SET_MESH, SET_XY; all
 take VALUE=grams), LOADCELL_PROBE. `BED_MESH_CALIBRATE METHOD=prusa` uses this mode.
 
-`ThresholdProber` (tare, threshold probing moves in Z and XY) is shared with the two-pass
-ABL (`tapcell.extras.bed_mesh.two_pass`) and XY probing (`tapcell.extras.xy_probe`).
+The tares and threshold probing moves are `tapcell.extras.load_cell_probe.threshold`'s
+`ThresholdProber`, shared with the two-pass ABL and XY probing.
 """
 
 from __future__ import annotations
@@ -31,17 +31,12 @@ import numpy as np
 
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeError
-from tapcell.extras.load_cell_probe.device import z_at_time_mm
-from tapcell.extras.load_cell_probe.options import ERROR_PREFIX, preload_refusal
-from tapcell.extras.load_cell_probe.options import force_beyond_safety_limit_g
-from tapcell.extras.load_cell_probe.safety import agreement_tolerance_mm
-from tapcell.mcu.trigger import TriggerError, TriggerParams
 from tapcell.mesh.errors import MeshError
+from tapcell.mesh.outliers import recheck_outliers
+from tapcell.mesh.run import MeshProbeRun, mesh_travel_height_mm
 from tapcell.mesh.prusa import (
     MESH,
     SET_COMMANDS,
-    TARE_SAMPLE_COUNT,
-    TARE_SETTLE_S,
     XY,
     Z_FAST,
     Z_SLOW,
@@ -49,8 +44,9 @@ from tapcell.mesh.prusa import (
     check_tare_deviation,
     retry_offsets_mm,
 )
+from tapcell.extras.load_cell_probe.safety import agreement_tolerance_mm
+from tapcell.extras.load_cell_probe.threshold import ThresholdHit, ThresholdProber, TareRecord
 from tapcell.extras.probe.session import ProbeError
-from tapcell.scale import counts_to_grams
 
 SECTION = "prusa_probe"
 THRESHOLD_OPTIONS = {Z_FAST: "z_fast_threshold", Z_SLOW: "z_slow_threshold", MESH: "mesh_threshold",
@@ -59,112 +55,6 @@ THRESHOLD_LABELS = {Z_FAST: "Z fast", Z_SLOW: "Z slow", MESH: "Mesh", XY: "XY"}
 # Mainsail buttons of the spec, same handlers.
 ALIASES = {"SET_Z_FAST_THRESHOLD": "SET_Z_FAST", "SET_Z_SLOW_THRESHOLD": "SET_Z_SLOW",
            "SET_MESH_THRESHOLD": "SET_MESH", "SET_XY_THRESHOLD": "SET_XY"}
-
-
-# -- threshold probing on the firmware trigger --------------------------------------------------
-
-@dataclass(frozen=True)
-class TareRecord:
-    purpose: str
-    counts: float
-    force_g: float  # relative to the calibration's reference tare
-    time_s: float
-
-
-@dataclass(frozen=True)
-class ThresholdHit:
-    """One threshold probing move. Positions are in the toolhead frame."""
-
-    triggered: bool
-    trigger_time_s: float | None
-    halt_time_s: float
-    trigger_position_mm: tuple[float, float, float] | None  # where the triggering sample was taken
-    halt_position_mm: tuple[float, float, float]  # where the steppers stopped (after the latency)
-    contact: bool = True  # Z moves: the force held after the halt like a nozzle pressing on the bed
-
-
-class ThresholdProber:
-    """Tares and threshold probing moves with the `[load_cell_probe]`'s sensor and trigger."""
-
-    def __init__(self, device):
-        self.device = device  # tapcell.extras.load_cell_probe.device.LoadCellProbe
-        self.vp = device.vp
-        self.load_cell = device.load_cell
-        self.toolhead = device.motion
-        self.tares: list[TareRecord] = []
-
-    def require_calibrated(self) -> None:
-        if not self.load_cell.is_calibrated:
-            raise ProbeError(ERROR_PREFIX + "Load Cell not calibrated")
-
-    def tare(self, purpose: str, settle_s: float = TARE_SETTLE_S, sample_count: int = TARE_SAMPLE_COUNT) -> TareRecord:
-        """Wait settle_s for vibrations to die, then average sample_count samples."""
-        self.require_calibrated()
-        self.vp.dwell(settle_s)
-        batch = self.load_cell.collect(sample_count / self.device.sample_rate_sps)
-        if batch.errors:
-            raise ProbeError(ERROR_PREFIX + f"sensor reported {batch.errors} errors while taring")
-        if len(batch.counts) == 0:
-            raise ProbeError(ERROR_PREFIX + "timed out waiting for sensor data")
-        counts = float(np.mean(batch.counts[-sample_count:]))
-        force_g = counts_to_grams(counts, self.load_cell.reference_tare_counts, self.load_cell.counts_per_gram,
-                                  self.device.cell_options.inverted)
-        record = TareRecord(purpose, counts, float(force_g), self.vp.now_s)
-        self.load_cell.set_tare(counts)
-        self.tares.append(record)
-        return record
-
-    def _trigger_params(self, tare: TareRecord, threshold_g: float, release_g: float,
-                        drift_safety_limit_g: float | None = None) -> TriggerParams:
-        options = self.device.options
-        # Refused before the move, with the force (the firmware would only say "too much").
-        beyond_g = force_beyond_safety_limit_g(tare.counts, self.load_cell.reference_tare_counts,
-                                               self.load_cell.counts_per_gram, options.force_safety_limit_g)
-        if beyond_g is not None:
-            raise ProbeError(preload_refusal(beyond_g, options.force_safety_limit_g))
-        return self.device.trigger_params(options, self.device.config_settings.sos, threshold_g, release_g,
-                                          drift_safety_limit_g)
-
-    def _frame_mm(self) -> np.ndarray:
-        return np.array([self.toolhead.frame_offset_mm[axis] for axis in "xyz"])
-
-    def probe_z(self, tare: TareRecord, threshold_g: float, release_g: float, z_min_mm: float,
-                speed_mm_s: float, drift_safety_limit_g: float | None = None) -> ThresholdHit:
-        """Move down toward z_min_mm until the force passes threshold_g (triggered False: no contact),
-        through the load cell probe's guarded probing move; after a trigger, check that the force
-        holds like a contact (`contact`). `drift_safety_limit_g`: the load cell probe's unless
-        given (0 disables the drift check)."""
-        params = self._trigger_params(tare, threshold_g, release_g, drift_safety_limit_g)
-        result, _, _ = self.device.probing_move(params, tare.counts, z_min_mm, speed_mm_s)
-        frame = self._frame_mm()
-        halt = tuple(np.array(self.vp.position) + frame)
-        if not result.triggered:
-            return ThresholdHit(False, None, result.halt_time_s, None, halt)
-        z_mm = z_at_time_mm(result.moves, result.trigger_time_s) + frame[2]
-        contact = self.device.contact_holds_after_halt(tare.counts, threshold_g)
-        return ThresholdHit(True, result.trigger_time_s, result.halt_time_s, (halt[0], halt[1], float(z_mm)), halt,
-                            contact)
-
-    def probe_xy(self, tare: TareRecord, threshold_g: float, release_g: float, x_mm: float, y_mm: float,
-                 speed_mm_s: float) -> ThresholdHit:
-        """Move horizontally toward (x, y) until the force passes threshold_g."""
-        params = self._trigger_params(tare, threshold_g, release_g)
-        trigger = self.device.arm(params, tare.counts)
-        frame = self._frame_mm()
-        start = np.array(self.vp.position)
-        result = self.vp.probing_move_xy(x_mm - frame[0], y_mm - frame[1], speed_mm_s, trigger)
-        self.load_cell.pump()
-        if result.error != TriggerError.NONE:
-            raise ProbeError(self.device.error_message(result.error, params))
-        halt = np.array(self.vp.position)
-        trigger_position = None
-        if result.triggered:
-            # The move cruises at speed when it meets the pin: step back along it by the latency.
-            direction = (halt - start) / max(float(np.linalg.norm(halt - start)), 1e-12)
-            trigger_position = tuple(halt - direction * speed_mm_s * (result.halt_time_s - result.trigger_time_s)
-                                     + frame)
-        return ThresholdHit(result.triggered, result.trigger_time_s, result.halt_time_s, trigger_position,
-                            tuple(halt + frame))
 
 
 # -- the [prusa_probe] object -------------------------------------------------------------------
@@ -242,7 +132,7 @@ class PrusaProbe:
             try:
                 self.thresholds = self.thresholds.with_threshold(kind, value_g)
             except MeshError as exc:
-                raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {exc}") from None
+                raise gcmd.param_error(str(exc)) from None
             self.printer.config.set(self.section_name, THRESHOLD_OPTIONS[kind], f"{value_g:g}")
             gcmd.respond_info(f"{THRESHOLD_LABELS[kind]} threshold set to {value_g:g} g (releases at "
                               f"{self.thresholds.release_g(kind):g} g); SAVE_CONFIG keeps it")
@@ -298,8 +188,6 @@ class PrusaProbe:
         around it when there is no contact or the force does not hold after the trigger. Then the
         point furthest from its neighbours is probed again until two probes agree
         (`recheck_outliers`): a push on the nozzle in the air never becomes a mesh point."""
-        from tapcell.extras.bed_mesh import MeshProbeRun, mesh_travel_height_mm, recheck_outliers
-
         prober = self.prober()
         toolhead = prober.toolhead
         probe = self.printer.lookup_object("probe")
@@ -349,7 +237,7 @@ class PrusaProbe:
             tolerance_mm = agreement_tolerance_mm(prober.device.stop_timing, speed)
             z_values = recheck_outliers(points_xy_mm, z_values,
                                         lambda index: probe_point(index, options.horizontal_move_z_mm),
-                                        tolerance_mm, gcmd)
+                                        tolerance_mm, gcmd.respond_info)
             toolhead.move_to(z=max(toolhead.get_position()[2], options.horizontal_move_z_mm), speed_mm_s=speed)
         self.last_session = {"kind": "mesh", "points": len(points_xy_mm), "tares": len(prober.tares),
                              "retares": retares, "attempts": attempts}
@@ -359,14 +247,6 @@ class PrusaProbe:
 
     def get_status(self, eventtime=None) -> dict:
         return {"thresholds": self.thresholds.to_status(), "last_session": self.last_session}
-
-
-def probe_points_prusa(printer, options, gcmd: GCodeCommand, points_xy_mm: np.ndarray, progress):
-    """BED_MESH_CALIBRATE METHOD=prusa."""
-    prusa = printer.lookup_object(SECTION, None)
-    if prusa is None:
-        raise GCodeError("METHOD=prusa needs a [prusa_probe] section")
-    return prusa.probe_mesh_points(options, gcmd, points_xy_mm, progress)
 
 
 def load_config(section: ConfigSection, printer) -> PrusaProbe:

@@ -9,7 +9,11 @@ and the one furthest from its plane is the first to probe again.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import numpy as np
+
+from tapcell.mesh.errors import MeshError
 
 NEIGHBOUR_SPACINGS = 1.5   # neighbours: within this many nearest-point spacings (diagonals included)
 # A point further than this from its neighbours' plane is probed again. On the virtual printer's
@@ -47,3 +51,34 @@ def worst_outlier(points_xy_mm: np.ndarray, z_mm: np.ndarray, settled: set[int],
     residuals[list(settled)] = 0.0
     worst = int(np.argmax(residuals))
     return worst if residuals[worst] > limit_mm else None
+
+
+class UnsettledPointError(MeshError):
+    """A point far from its neighbours was probed three times and no two heights agreed."""
+
+
+def recheck_outliers(points_xy_mm: np.ndarray, z_mm: list[float], probe_again: Callable[[int], float],
+                     tolerance_mm: float, say: Callable[[str], None]) -> list[float]:
+    """Probe the point furthest from its neighbours again until none is left (`worst_outlier`).
+
+    It keeps its height when the new probe (`probe_again(index)`) agrees within tolerance_mm;
+    otherwise a third probe must agree with the second and replaces it (`say` tells the user);
+    three heights that all disagree raise UnsettledPointError. Returns the heights (probing order).
+    """
+    z = list(z_mm)
+    settled: set[int] = set()
+    while (index := worst_outlier(points_xy_mm, z, settled)) is not None:
+        x_mm, y_mm = points_xy_mm[index]
+        first = z[index]
+        second = probe_again(index)
+        if abs(second - first) > tolerance_mm:
+            third = probe_again(index)
+            if abs(third - second) > tolerance_mm:
+                raise UnsettledPointError(
+                    f"point {index + 1} at {x_mm:.3f},{y_mm:.3f} gave {first:.3f}, {second:.3f} and {third:.3f} mm: "
+                    "something keeps pushing on the nozzle or the sensor jumps; check the toolhead and the load cell")
+            say(f"Point {index + 1} at {x_mm:.3f},{y_mm:.3f}: {first:.3f} mm was far from its neighbours; probed "
+                f"again: {second:.3f} and {third:.3f} mm")
+            z[index] = third
+        settled.add(index)
+    return z

@@ -26,14 +26,15 @@ from __future__ import annotations
 
 import numpy as np
 
-from tapcell.extras.bed_mesh import MeshProbeRun, recheck_outliers
 from tapcell.extras.load_cell_probe.options import tare_sample_count
 from tapcell.extras.load_cell_probe.safety import agreement_tolerance_mm
+from tapcell.extras.load_cell_probe.threshold import ThresholdProber
 from tapcell.extras.probe.session import ProbeError
 from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.mesh.abl import NoContactError, PlanStep, TwoPassPoint, TwoPassSettings, run_two_pass, topology_report
+from tapcell.mesh.outliers import recheck_outliers
 from tapcell.mesh.report import render_topology
-from tapcell.extras.prusa_probe import ThresholdProber
+from tapcell.mesh.run import MeshProbeRun
 
 
 # A descent whose force does not hold after the trigger is made again this many times at most;
@@ -65,8 +66,7 @@ def two_pass_settings(device, toolhead, travel_speed_mm_s: float) -> tuple[TwoPa
 
 def two_pass_trigger_params(device):
     """The paper has no drift check: the fast pass jumps more than drift_safety_limit per sample."""
-    return device.trigger_params(device.options, device.config_settings.sos, device.options.trigger_force_g,
-                                 drift_safety_limit_g=0.0)
+    return device.move_params(device.config_settings, drift_safety_limit_g=0.0)
 
 
 class TwoPassMover:
@@ -147,7 +147,7 @@ def probe_points_two_pass(printer, options, gcmd: GCodeCommand, points_xy_mm: np
             return points[index].z_mm - z_offset
 
         z_mm = recheck_outliers(points_xy_mm, [point.z_mm - z_offset for point in points], probe_again,
-                                tolerance_mm, gcmd)
+                                tolerance_mm, gcmd.respond_info)
     xy = np.asarray(points_xy_mm, dtype=float)
     topology = topology_report(xy[:, 0], xy[:, 1], np.array(z_mm))
     details = {"method": "two_pass", "points": [p.to_status() for p in points], "topology": topology.to_status(),
