@@ -120,8 +120,6 @@ def probe_points_two_pass(printer, options, gcmd: GCodeCommand, points_xy_mm: np
         def probe_point(index: int) -> TwoPassPoint:
             """Both passes at one point until they agree (the point's own index in the report)."""
             for _ in range(POINT_TRIES):
-                if toolhead.get_position()[2] < options.horizontal_move_z_mm:
-                    toolhead.move_to(z=options.horizontal_move_z_mm, speed_mm_s=settings.travel_speed_mm_s)
                 try:
                     (point,) = run_two_pass(points_xy_mm[index:index + 1], mover, settings)
                 except NoContactError as exc:
@@ -136,7 +134,9 @@ def probe_points_two_pass(printer, options, gcmd: GCodeCommand, points_xy_mm: np
             raise ProbeError(f"BED_MESH_CALIBRATE METHOD=two_pass: the passes at point {index + 1} disagreed "
                              f"{POINT_TRIES} times: something pushes on the nozzle or the sensor jumps")
 
-        points = []
+        if toolhead.get_position()[2] < options.horizontal_move_z_mm:
+            toolhead.move_to(z=options.horizontal_move_z_mm, speed_mm_s=settings.travel_speed_mm_s)
+        points = []  # each point ends lifted 3 mm above it: the travel to the next goes at that height
         for index in range(len(points_xy_mm)):
             points.append(probe_point(index))
             progress(index + 1, len(points_xy_mm))
