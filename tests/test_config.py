@@ -342,16 +342,18 @@ def test_save_merges_with_existing_block_and_removes_sections(tmp_path):
 
 
 class _HalfWritingFile:
-    """A temp file whose write() stores half the text, then fails like a full disk."""
+    """A file whose write() stores half the data, then fails like a full disk."""
 
     def __init__(self, real):
         self._real = real
-        self.name = real.name
 
-    def write(self, text):
-        self._real.write(text[: len(text) // 2])
+    def write(self, data):
+        self._real.write(data[: len(data) // 2])
         self._real.flush()
         raise OSError(28, "No space left on device")
+
+    def __getattr__(self, name):
+        return getattr(self._real, name)
 
     def __enter__(self):
         return self
@@ -360,33 +362,80 @@ class _HalfWritingFile:
         return self._real.__exit__(*exc)
 
 
-@pytest.mark.parametrize("failing", ["write", "fsync", "backup", "replace"])
-def test_failure_mid_save_leaves_old_file_intact(tmp_path, monkeypatch, failing):
+def _no_space(*args, **kwargs):
+    raise OSError(28, "No space left on device")
+
+
+def _fail_on_the_backup(real):
+    def replace(path, *args):
+        if path.endswith(".bak"):
+            _no_space()
+        return real(path, *args)
+    return replace
+
+
+@pytest.mark.parametrize("failing", ["write", "fsync", "fchmod", "replace", "backup"])
+def test_failure_mid_save_leaves_old_file_and_backup_intact(tmp_path, monkeypatch, failing):
     path = write(tmp_path / "printer.cfg", SAVED)
+    old_backup = write(tmp_path / "printer.cfg.bak", "# the previous backup\n")
     cfg = ConfigFile.read(path)
     cfg.set("load_cell", "counts_per_gram", "1.0")
-
-    def fail(*args, **kwargs):
-        raise OSError(28, "No space left on device")
-
     if failing == "write":
-        real_temp = config_module.tempfile.NamedTemporaryFile
-        monkeypatch.setattr(config_module.tempfile, "NamedTemporaryFile",
-                            lambda *a, **k: _HalfWritingFile(real_temp(*a, **k)))
+        real_fdopen = config_module.os.fdopen
+        monkeypatch.setattr(config_module.os, "fdopen", lambda *a, **k: _HalfWritingFile(real_fdopen(*a, **k)))
     elif failing == "backup":
-        monkeypatch.setattr(config_module, "_copy_file", fail)
+        monkeypatch.setattr(config_module, "_replace_file", _fail_on_the_backup(config_module._replace_file))
     else:
-        monkeypatch.setattr(config_module.os, failing, fail)
+        monkeypatch.setattr(config_module.os, failing, _no_space)
     message = error_of(cfg.save)
     assert message == (f"{path}: unable to write config file (old file left unchanged): "
                        "[Errno 28] No space left on device")
     monkeypatch.undo()
     assert path.read_text() == SAVED
-    leftovers = sorted(os.listdir(tmp_path))
-    assert leftovers in (["printer.cfg"], ["printer.cfg", "printer.cfg.bak"])  # no temp file left behind
-    if len(leftovers) == 2:
-        assert (tmp_path / "printer.cfg.bak").read_text() == SAVED
+    assert sorted(os.listdir(tmp_path)) == ["printer.cfg", "printer.cfg.bak"]  # no temp file left behind
+    # The backup is either the previous one or a whole copy of the old file, never torn.
+    assert old_backup.read_text() in ("# the previous backup\n", SAVED)
     # The pending change survives, so a retry can succeed.
     assert cfg.has_pending_changes()
     cfg.save()
     assert ConfigFile.read(path).getsection("load_cell").get("counts_per_gram") == "1.0"
+    assert old_backup.read_text() == SAVED
+
+
+def test_save_keeps_mode_and_owner_of_file_and_backup(tmp_path):
+    path = write(tmp_path / "printer.cfg", SAVED)
+    os.chmod(path, 0o640)
+    owner = (os.getuid(), os.getgid())
+    if os.getuid() == 0:  # as root, a foreign owner shows that the owner is kept, not just inherited
+        owner = (1234, 2345)
+        os.chown(path, *owner)
+    cfg = ConfigFile.read(path)
+    cfg.set("load_cell", "counts_per_gram", "2.0")
+    cfg.save()
+    for saved in (path, tmp_path / "printer.cfg.bak"):
+        status = os.stat(saved)
+        assert (oct(status.st_mode & 0o7777), status.st_uid, status.st_gid) == (oct(0o640), *owner)
+
+
+def test_save_writes_through_a_symlink_to_its_target(tmp_path):
+    target = write(tmp_path / "real" / "printer.cfg", SAVED)
+    link = tmp_path / "printer.cfg"
+    link.symlink_to(target)
+    cfg = ConfigFile.read(link)
+    cfg.set("load_cell", "counts_per_gram", "3.0")
+    cfg.save()
+    assert link.is_symlink() and os.readlink(link) == str(target)
+    assert ConfigFile.read(target).getsection("load_cell").get("counts_per_gram") == "3.0"
+    assert (tmp_path / "real" / "printer.cfg.bak").read_text() == SAVED  # the backup sits beside the real file
+    assert sorted(os.listdir(tmp_path)) == ["printer.cfg", "real"]
+    assert sorted(os.listdir(tmp_path / "real")) == ["printer.cfg", "printer.cfg.bak"]
+
+
+def test_save_of_an_empty_file_keeps_the_previous_backup(tmp_path):
+    path = write(tmp_path / "printer.cfg", "")
+    backup = write(tmp_path / "printer.cfg.bak", SAVED)
+    cfg = ConfigFile.read(path)
+    cfg.set("load_cell", "counts_per_gram", "4.0")
+    cfg.save()
+    assert backup.read_text() == SAVED
+    assert ConfigFile.read(path).getsection("load_cell").get("counts_per_gram") == "4.0"

@@ -22,6 +22,7 @@ import glob
 import math
 import os
 import re
+import stat
 import tempfile
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
@@ -512,7 +513,8 @@ class ConfigFile:
         """Rewrite the main file's SAVE_CONFIG block with the pending changes, atomically.
 
         The text above the block is kept byte for byte; the old file is kept
-        as `<name>.bak`.  On any failure the old file is left untouched.
+        as `<name>.bak` (see write_atomically: symlinks, mode and owner).  On any
+        failure the old file is left untouched.
         """
         try:
             with open(self.path, encoding="utf-8") as handle:
@@ -529,7 +531,7 @@ class ConfigFile:
         for name, options in self._pending_set.items():
             block.setdefault(name, {}).update(options)
         new_text = render_with_autosave("\n".join(body_lines), block)
-        write_atomically(self.path, new_text, backup_path=self.path + ".bak")
+        write_atomically(self.path, new_text, keep_backup=True)
         self._pending_set.clear()
         self._pending_remove.clear()
 
@@ -551,40 +553,56 @@ def render_with_autosave(body: str, block: Mapping[str, Mapping[str, str]]) -> s
     return body + "\n\n" + "\n".join(lines) + "\n"
 
 
-def write_atomically(path: str, text: str, *, backup_path: str | None = None) -> None:
-    """Replace `path` with `text` so that a crash leaves either the old or the new file.
+def write_atomically(path: str, text: str, *, keep_backup: bool = False) -> None:
+    """Replace the file at `path` with `text` so that a crash leaves either the old or the new file.
 
-    Writes a temp file in the same directory (same filesystem, so the rename
-    is atomic), flushes and fsyncs it, keeps a copy of the old file at
-    `backup_path`, then renames the temp file over `path`.
+    A symlink is followed: its target is rewritten and the link stays a link.  The new
+    file is written to a temp file next to the target (same filesystem, so the rename is
+    atomic), given the old file's mode and owner, flushed and fsynced, then renamed over
+    the target.  With `keep_backup`, the old contents first go to `<target>.bak` the same
+    way, so the backup is never torn or empty either (an empty old file keeps the
+    previous backup).  On any failure the old file is untouched and no temp file is left.
     """
-    directory = os.path.dirname(os.path.abspath(path))
-    temp_path = None
+    target = os.path.realpath(path)
+    directory = os.path.dirname(target)
     try:
-        with tempfile.NamedTemporaryFile("w", encoding="utf-8", dir=directory, delete=False,
-                                         prefix=f".{os.path.basename(path)}.", suffix=".tmp") as handle:
-            temp_path = handle.name
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        if backup_path is not None and os.path.exists(path):
-            _copy_file(path, backup_path)
-        os.replace(temp_path, path)
-        temp_path = None
+        old = _read_existing(target)
+        if keep_backup and old is not None and old[0]:
+            _replace_file(target + ".bak", old[0], old[1])
+        _replace_file(target, text.encode("utf-8"), old[1] if old else None)
         _fsync_directory(directory)
     except OSError as exc:
         raise ConfigError(f"{path}: unable to write config file (old file left unchanged): {exc}",
                           file=path) from None
-    finally:
-        if temp_path is not None and os.path.exists(temp_path):
-            os.unlink(temp_path)
 
 
-def _copy_file(source: str, destination: str) -> None:
-    with open(source, "rb") as src, open(destination, "wb") as dst:
-        dst.write(src.read())
-        dst.flush()
-        os.fsync(dst.fileno())
+def _read_existing(path: str) -> tuple[bytes, os.stat_result] | None:
+    """The file's bytes and stat, or None when it does not exist yet."""
+    try:
+        with open(path, "rb") as handle:
+            return handle.read(), os.fstat(handle.fileno())
+    except FileNotFoundError:
+        return None
+
+
+def _replace_file(path: str, data: bytes, like: os.stat_result | None) -> None:
+    """Atomically put `data` at `path` (temp file + fsync + rename), with the mode and owner of `like`."""
+    fd, temp_path = tempfile.mkstemp(dir=os.path.dirname(path), prefix=f".{os.path.basename(path)}.",
+                                     suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(data)
+            handle.flush()
+            if like is not None:
+                os.fchmod(handle.fileno(), stat.S_IMODE(like.st_mode))
+                created = os.fstat(handle.fileno())
+                if (like.st_uid, like.st_gid) != (created.st_uid, created.st_gid):
+                    os.fchown(handle.fileno(), like.st_uid, like.st_gid)
+            os.fsync(handle.fileno())
+        os.replace(temp_path, path)
+    except BaseException:
+        os.unlink(temp_path)
+        raise
 
 
 def _fsync_directory(directory: str) -> None:

@@ -7,6 +7,8 @@ from __future__ import annotations
 import csv
 import json
 import math
+import os
+import stat
 from pathlib import Path
 from typing import Any
 
@@ -17,15 +19,18 @@ from tapcell.tap.model import Move, TapAnalysis, TapData, TapFileError
 
 FORMAT = "tapcell.tap.v1"
 MOVE_KEYS = ("print_time", "move_t", "start_v", "accel", "start_z", "z_r")
+# A log of a few thousand taps is tens of MB; anything far bigger is not a tap file, and reading
+# it whole (or an endless device such as /dev/zero) would exhaust memory.
+MAX_FILE_BYTES = 256 * 1024 * 1024
+# JSON integers longer than this are no measurement (a float64 holds 15-17 digits); refusing them
+# at parse time keeps every later float() and isfinite() from overflowing.
+MAX_INTEGER_DIGITS = 20
 
 
 def read_tap_file(path: str | Path) -> list[TapData]:
     """All taps in a file (one for .json/.csv, one per line for .jsonl)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as problem:
-        raise TapFileError(str(path), f"cannot read the file ({problem})") from None
+    text = _read_text(path)
     if not text.strip():
         raise TapFileError(str(path), "the file is empty")
     if path.suffix.lower() == ".csv":
@@ -38,15 +43,49 @@ def read_tap_file(path: str | Path) -> list[TapData]:
         return taps
     document = _load_json(str(path), text, "")
     if isinstance(document, list):
-        return [tap_from_object(item, str(path), f"tap {k}: ") for k, item in enumerate(document)]
+        raise TapFileError(str(path), "holds a JSON list; a .json tap file holds one object "
+                                      "(write many taps as .jsonl, one object per line)")
     return [tap_from_object(document, str(path), "")]
+
+
+def _read_text(path: Path) -> str:
+    """The file's text, refusing what is not a regular file of a sane size."""
+    try:
+        with open(path, "rb") as handle:
+            if not stat.S_ISREG(os.fstat(handle.fileno()).st_mode):
+                raise TapFileError(str(path), "is not a regular file")
+            data = handle.read(MAX_FILE_BYTES + 1)
+    except OSError as problem:
+        raise TapFileError(str(path), f"cannot read the file ({problem})") from None
+    if len(data) > MAX_FILE_BYTES:
+        raise TapFileError(str(path), f"is larger than {MAX_FILE_BYTES // (1024 * 1024)} MB, too big for a tap file")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError as problem:
+        raise TapFileError(str(path), f"cannot read the file ({problem})") from None
+
+
+class _HugeInteger(ValueError):
+    def __init__(self, digits: int):
+        super().__init__(f"an integer with {digits} digits (at most {MAX_INTEGER_DIGITS} allowed)")
+
+
+def _bounded_int(text: str) -> int:
+    digits = len(text.lstrip("-"))
+    if digits > MAX_INTEGER_DIGITS:
+        raise _HugeInteger(digits)
+    return int(text)
 
 
 def _load_json(path: str, text: str, where: str) -> Any:
     try:
-        return json.loads(text)
+        return json.loads(text, parse_int=_bounded_int)
     except json.JSONDecodeError as problem:
         raise TapFileError(path, f"{where}not valid JSON ({problem.msg} at line {problem.lineno} column {problem.colno})") from None
+    except _HugeInteger as problem:
+        raise TapFileError(path, f"{where}not valid tap data: {problem}") from None
+    except RecursionError:  # the json module's own limit on nested arrays/objects
+        raise TapFileError(path, f"{where}not valid tap data: JSON nested too deeply") from None
 
 
 def _numbers(path: str, where: str, name: str, values: Any) -> np.ndarray:
@@ -156,7 +195,10 @@ def tap_from_object(obj: Any, path: str = "<memory>", where: str = "") -> TapDat
 
 
 def _tap_from_csv(path: str, text: str) -> TapData:
-    rows = list(csv.reader(text.splitlines()))
+    try:
+        rows = list(csv.reader(text.splitlines()))
+    except csv.Error as problem:  # e.g. a NUL byte, or a field beyond the csv module's size limit
+        raise TapFileError(path, f"not a valid CSV file ({problem})") from None
     header = [name.strip().lower() for name in rows[0]]
     missing = [name for name in ("time", "force", "z") if name not in header]
     if missing:
