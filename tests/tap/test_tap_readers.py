@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from tapcell.tap import TapFileError, analyze_tap, read_tap_file, tap_to_json_dict
+from tapcell.tap import TapFileError, analyze_tap, read_tap_file, readers, tap_to_json_dict
 from tapcell.tap.synth import synth_tap
 
 
@@ -104,3 +104,41 @@ def test_nan_invalid_json_and_bad_csv(tmp_path):
         read_tap_file(csv_file)
     with pytest.raises(TapFileError, match="cannot read the file"):
         read_tap_file(tmp_path / "missing.json")
+
+
+def _valid_document():
+    return tap_to_json_dict(synth_tap(seed=3))
+
+
+# Finding 9 of issue 10: hostile tap files gave a traceback or were accepted.
+@pytest.mark.parametrize("name, text, problem", [
+    ("nested.json", "[" * 100_000 + "]" * 100_000, "not valid tap data: JSON nested too deeply"),
+    ("nested.jsonl", '{"time": ' + "[" * 100_000 + "]" * 100_000 + "}\n", "line 1: not valid tap data: JSON nested too deeply"),
+    ("digits.json", '{"time": [' + "7" * 5001 + "]}", "not valid tap data: an integer with 5001 digits (at most 20 allowed)"),
+    ("digits_meta.json", None, "not valid tap data: an integer with 400 digits"),
+    ("list.json", None, "holds a JSON list; a .json tap file holds one object"),
+    ("long_field.csv", 'time,force,z\n0,"' + "1" * 200_000 + '",0\n', "not a valid CSV file (field larger than field limit"),
+])
+def test_hostile_tap_files_give_a_tap_file_error(tmp_path, name, text, problem):
+    if name == "digits_meta.json":
+        document = _valid_document()
+        document["probe"] = {"trigger_force": int("9" * 400)}
+        text = json.dumps(document)
+    elif name == "list.json":
+        text = json.dumps([_valid_document()])
+    path = tmp_path / name
+    path.write_text(text)
+    with pytest.raises(TapFileError) as caught:
+        read_tap_file(path)
+    assert str(caught.value).startswith(f"{path}: ") and problem in str(caught.value)
+
+
+def test_devices_and_oversized_files_are_refused_without_reading_them(tmp_path, monkeypatch):
+    with pytest.raises(TapFileError, match=r"^/dev/zero: is not a regular file$"):
+        read_tap_file("/dev/zero")
+    path = tmp_path / "big.json"
+    path.write_text(json.dumps(_valid_document()))
+    monkeypatch.setattr(readers, "MAX_FILE_BYTES", 16 * 1024)
+    assert path.stat().st_size > readers.MAX_FILE_BYTES
+    with pytest.raises(TapFileError, match=r"big.json: is larger than 16,384 bytes, too big for a tap file$"):
+        read_tap_file(path)

@@ -54,11 +54,11 @@ def _read_text(path: Path) -> str:
         with open(path, "rb") as handle:
             if not stat.S_ISREG(os.fstat(handle.fileno()).st_mode):
                 raise TapFileError(str(path), "is not a regular file")
-            data = handle.read(MAX_FILE_BYTES + 1)
+            data = handle.read(MAX_FILE_BYTES + 1)  # a file still growing stops here too
     except OSError as problem:
         raise TapFileError(str(path), f"cannot read the file ({problem})") from None
     if len(data) > MAX_FILE_BYTES:
-        raise TapFileError(str(path), f"is larger than {MAX_FILE_BYTES // (1024 * 1024)} MB, too big for a tap file")
+        raise TapFileError(str(path), f"is larger than {MAX_FILE_BYTES:,} bytes, too big for a tap file")
     try:
         return data.decode("utf-8")
     except UnicodeDecodeError as problem:
