@@ -135,6 +135,37 @@ def test_include_cycle_is_an_error(tmp_path):
     assert error_of(ConfigFile.read, main) == f"{tmp_path}/a.cfg: include cycle: printer.cfg -> a.cfg -> b.cfg -> a.cfg"
 
 
+def test_include_chain_deeper_than_the_limit_names_the_file(tmp_path):
+    depth = config_module.MAX_INCLUDE_DEPTH
+    for level in range(1, 300):
+        write(tmp_path / f"level{level}.cfg", f"[include level{level + 1}.cfg]\n")
+    main = write(tmp_path / "printer.cfg", "[include level1.cfg]\n")
+    assert error_of(ConfigFile.read, main) == (
+        f"{tmp_path}/level{depth + 1}.cfg: includes are nested more than {depth} deep "
+        f"(included from {tmp_path}/level{depth}.cfg)")
+
+
+def test_include_diamond_stops_at_the_file_count_limit(tmp_path):
+    # Each file includes the next one twice: 2**16 reads without a limit, within the depth limit.
+    for level in range(16):
+        write(tmp_path / f"d{level}.cfg", f"[include d{level + 1}.cfg]\n[include d{level + 1}.cfg]\n")
+    write(tmp_path / "d16.cfg", "[printer]\n")
+    main = write(tmp_path / "printer.cfg", "[include d0.cfg]\n")
+    assert error_of(ConfigFile.read, main).endswith(
+        f".cfg: more than {config_module.MAX_CONFIG_FILES} config files read through [include]")
+
+
+@pytest.mark.parametrize("include, problem", [
+    ("/dev/zero", "/dev/zero: is not a regular file, not a config file"),
+    ("big.cfg", "big.cfg: is larger than 1,024 bytes, not a config file"),
+])
+def test_include_of_a_device_or_a_huge_file_is_refused(tmp_path, monkeypatch, include, problem):
+    monkeypatch.setattr(config_module, "MAX_CONFIG_FILE_BYTES", 1024)
+    write(tmp_path / "big.cfg", "# padding\n" * 200)
+    main = write(tmp_path / "printer.cfg", f"[include {include}]\n")
+    assert error_of(ConfigFile.read, main).endswith(problem)
+
+
 # -- typed getters ---------------------------------------------------------------
 
 

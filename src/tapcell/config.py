@@ -27,6 +27,8 @@ import tempfile
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
+from tapcell.files import FileRefused, read_limited
+
 
 class ConfigError(Exception):
     """A problem with a config file, explained for the user who wrote it."""
@@ -52,6 +54,14 @@ REQUIRED: Any = _Required()
 SAVE_CONFIG_MARKER = "#*# <---------------------- SAVE_CONFIG ---------------------->"
 _SAVE_CONFIG_NOTE = "#*# # This block is rewritten by SAVE_CONFIG; its values override the ones above."
 _AUTOSAVE_PREFIX = "#*#"
+
+# Limits on what [include] can pull in: a chain of includes deeper than this is a mistake
+# (real configs nest two or three levels), and the file count stops a diamond of includes
+# (each file including the next one twice) from reading the same files millions of times.
+MAX_INCLUDE_DEPTH = 20
+MAX_CONFIG_FILES = 1000
+# A printer.cfg with every macro and a few mesh profiles is well under 1 MB.
+MAX_CONFIG_FILE_BYTES = 16 * 1024 * 1024
 
 _TRUE_WORDS = ("true", "yes", "on", "1")
 _FALSE_WORDS = ("false", "no", "off", "0")
@@ -131,19 +141,21 @@ class _Parser:
     def __init__(self) -> None:
         self.sections: dict[str, _Section] = {}
         self.autosave_sections: dict[str, _Section] = {}
+        self.files_read = 0
 
     def parse_file(self, path: str, include_stack: tuple[str, ...] = (), *, is_main: bool) -> None:
         real = os.path.realpath(path)
         if real in include_stack:
             chain = " -> ".join(os.path.basename(p) for p in (*include_stack, real))
             raise ConfigError(f"{path}: include cycle: {chain}", file=path)
-        try:
-            with open(path, encoding="utf-8") as handle:
-                text = handle.read()
-        except FileNotFoundError:
-            raise ConfigError(f"{path}: config file does not exist", file=path) from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"{path}: unable to read config file: {exc}", file=path) from None
+        if len(include_stack) > MAX_INCLUDE_DEPTH:
+            raise ConfigError(f"{path}: includes are nested more than {MAX_INCLUDE_DEPTH} deep "
+                              f"(included from {include_stack[-1]})", file=path)
+        self.files_read += 1
+        if self.files_read > MAX_CONFIG_FILES:
+            raise ConfigError(f"{path}: more than {MAX_CONFIG_FILES} config files read through [include]",
+                              file=path)
+        text = read_config_text(path)
         body_lines, autosave_lines, autosave_start = split_autosave(text, path)
         self._parse_lines(body_lines, path, 1, (*include_stack, real), self.sections, allow_include=True)
         if autosave_lines:
@@ -208,6 +220,17 @@ class _Parser:
             raise ConfigError(f"{where}: include file '{full_pattern}' does not exist", file=path)
         for match in matches:
             self.parse_file(match, include_stack, is_main=False)
+
+
+def read_config_text(path: str) -> str:
+    try:
+        return read_limited(path, MAX_CONFIG_FILE_BYTES).decode("utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: config file does not exist", file=path) from None
+    except FileRefused as exc:
+        raise ConfigError(f"{path}: {exc}, not a config file", file=path) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: unable to read config file: {exc}", file=path) from None
 
 
 def split_autosave(text: str, path: str) -> tuple[list[str], list[str], int]:
@@ -516,12 +539,7 @@ class ConfigFile:
         as `<name>.bak` (see write_atomically: symlinks, mode and owner).  On any
         failure the old file is left untouched.
         """
-        try:
-            with open(self.path, encoding="utf-8") as handle:
-                text = handle.read()
-        except OSError as exc:
-            raise ConfigError(f"{self.path}: unable to read config file for SAVE_CONFIG: {exc}",
-                              file=self.path) from None
+        text = read_config_text(self.path)
         body_lines, block_lines, block_start = split_autosave(text, self.path)
         parser = _Parser()
         parser._parse_lines(block_lines, self.path, block_start, (), parser.autosave_sections, allow_include=False)

@@ -7,13 +7,12 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
-import stat
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from tapcell.files import FileRefused, read_limited
 from tapcell.tap.analysis import MIN_SAMPLES  # a file with fewer samples could not be analysed
 from tapcell.tap.model import Move, TapAnalysis, TapData, TapFileError
 
@@ -49,19 +48,11 @@ def read_tap_file(path: str | Path) -> list[TapData]:
 
 
 def _read_text(path: Path) -> str:
-    """The file's text, refusing what is not a regular file of a sane size."""
     try:
-        with open(path, "rb") as handle:
-            if not stat.S_ISREG(os.fstat(handle.fileno()).st_mode):
-                raise TapFileError(str(path), "is not a regular file")
-            data = handle.read(MAX_FILE_BYTES + 1)  # a file still growing stops here too
-    except OSError as problem:
-        raise TapFileError(str(path), f"cannot read the file ({problem})") from None
-    if len(data) > MAX_FILE_BYTES:
-        raise TapFileError(str(path), f"is larger than {MAX_FILE_BYTES:,} bytes, too big for a tap file")
-    try:
-        return data.decode("utf-8")
-    except UnicodeDecodeError as problem:
+        return read_limited(path, MAX_FILE_BYTES).decode("utf-8")
+    except FileRefused as problem:
+        raise TapFileError(str(path), f"{problem}, not a tap file") from None
+    except (OSError, UnicodeDecodeError) as problem:
         raise TapFileError(str(path), f"cannot read the file ({problem})") from None
 
 
