@@ -25,7 +25,6 @@ front end can show as a progress bar (the demo does).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 
@@ -34,11 +33,12 @@ import numpy as np
 from tapcell.config import ConfigSection
 from tapcell.gcode import GCodeCommand, GCodeError
 from tapcell.mesh.errors import MeshError, MeshOptionError
-from tapcell.mesh.grid import MeshGrid, matrix_from_probes, rectangular_grid, round_grid
-from tapcell.mesh.interpolate import ALGORITHMS, Interpolation, resolve_interpolation
+from tapcell.mesh.grid import (MAX_PROBE_COUNT, MIN_PROBE_COUNT, MeshGrid, matrix_from_probes, rectangular_grid,
+                               round_grid)
+from tapcell.mesh.interpolate import ALGORITHMS, MAX_MESH_PPS, TENSION_RANGE, Interpolation, resolve_interpolation
 from tapcell.mesh.profiles import mesh_from_profile_options, profile_options, profile_section_name
 from tapcell.mesh.report import render_mesh
-from tapcell.mesh.split import SplitSettings, split_move
+from tapcell.mesh.split import MIN_MOVE_CHECK_DISTANCE_MM, MIN_SPLIT_DELTA_Z_MM, SplitSettings, split_move
 from tapcell.mesh.zmesh import (
     Fade,
     ZMesh,
@@ -48,11 +48,13 @@ from tapcell.mesh.zmesh import (
     gcode_z_mm,
     resolve_zero_reference,
 )
+from tapcell.toolhead import COORDINATE_RANGE, MAX_COORDINATE_MM, SPEED_RANGE
 
 SECTION = "bed_mesh"
 DEFAULT_PROFILE = "default"
 METHODS = ("tap", "two_pass", "prusa")
 PROGRESS_EVENT = "bed_mesh:progress"
+MAX_CLEARANCE_MM = 50.0  # horizontal_z_clearance: the lift between points
 
 
 @dataclass(frozen=True)
@@ -92,13 +94,14 @@ def _read_grid(section: ConfigSection) -> MeshGrid:
         raise section.error("mesh_radius", "give either mesh_radius (round bed) or mesh_min/mesh_max (rectangular), not both")
     try:
         if round_bed:
-            radius = section.getfloat("mesh_radius", above=0.0)
-            origin = tuple(section.getfloatlist("mesh_origin", (0.0, 0.0), count=2))
-            count = section.getint("round_probe_count", 5, minval=3)
+            radius = section.getfloat("mesh_radius", above=0.0, maxval=MAX_COORDINATE_MM)
+            origin = tuple(section.getfloatlist("mesh_origin", (0.0, 0.0), count=2, **COORDINATE_RANGE))
+            count = section.getint("round_probe_count", 5, minval=MIN_PROBE_COUNT, maxval=MAX_PROBE_COUNT)
             return round_grid(radius, origin, count)
-        mesh_min = tuple(section.getfloatlist("mesh_min", count=2))
-        mesh_max = tuple(section.getfloatlist("mesh_max", count=2))
-        probe_count = _pair(section.getintlist("probe_count", (3, 3)), "probe_count", section)
+        mesh_min = tuple(section.getfloatlist("mesh_min", count=2, **COORDINATE_RANGE))
+        mesh_max = tuple(section.getfloatlist("mesh_max", count=2, **COORDINATE_RANGE))
+        probe_count = _pair(section.getintlist("probe_count", (3, 3), minval=MIN_PROBE_COUNT, maxval=MAX_PROBE_COUNT),
+                            "probe_count", section)
         return rectangular_grid(mesh_min, mesh_max, probe_count)
     except MeshOptionError as exc:
         raise _mesh_option_error(section, exc) from None
@@ -108,24 +111,27 @@ def read_bed_mesh_options(section: ConfigSection) -> BedMeshOptions:
     """Read and check `[bed_mesh]`; errors name file, section, option, value and what is allowed."""
     grid = _read_grid(section)
     algorithm = section.getchoice("algorithm", list(ALGORITHMS), "lagrange")
-    mesh_pps = _pair(section.getintlist("mesh_pps", (2, 2)), "mesh_pps", section)
-    tension = section.getfloat("bicubic_tension", 0.2, minval=0.0, maxval=2.0)
-    fade = Fade(section.getfloat("fade_start", 1.0), section.getfloat("fade_end", 0.0),
-                section.getfloat("fade_target", None))
-    clearance = section.getfloat("horizontal_z_clearance", None, above=0.0)
-    zero_position = section.getfloatlist("zero_reference_position", None, count=2)
-    reference_index = section.getint("relative_reference_index", None, minval=0)
+    mesh_pps = _pair(section.getintlist("mesh_pps", (2, 2), minval=0, maxval=MAX_MESH_PPS), "mesh_pps", section)
+    tension = section.getfloat("bicubic_tension", 0.2, minval=TENSION_RANGE[0], maxval=TENSION_RANGE[1])
+    fade = Fade(section.getfloat("fade_start", 1.0, **COORDINATE_RANGE),
+                section.getfloat("fade_end", 0.0, **COORDINATE_RANGE),
+                section.getfloat("fade_target", None, **COORDINATE_RANGE))
+    clearance = section.getfloat("horizontal_z_clearance", None, above=0.0, maxval=MAX_CLEARANCE_MM)
+    zero_position = section.getfloatlist("zero_reference_position", None, count=2, **COORDINATE_RANGE)
+    reference_index = section.getint("relative_reference_index", None, minval=0,
+                                     maxval=MAX_PROBE_COUNT * MAX_PROBE_COUNT - 1)
     try:
         interpolation, note = resolve_interpolation(algorithm, (grid.x_count, grid.y_count), mesh_pps, tension)
-        split = SplitSettings(section.getfloat("move_check_distance", 5.0),
-                              section.getfloat("split_delta_z", 0.025))
+        split = SplitSettings(section.getfloat("move_check_distance", 5.0, minval=MIN_MOVE_CHECK_DISTANCE_MM,
+                                               maxval=MAX_COORDINATE_MM),
+                              section.getfloat("split_delta_z", 0.025, minval=MIN_SPLIT_DELTA_Z_MM, maxval=10.0))
         zero_reference = resolve_zero_reference(grid, None if zero_position is None else tuple(zero_position),
                                                 reference_index)
     except MeshOptionError as exc:
         raise _mesh_option_error(section, exc) from None
     return BedMeshOptions(
-        speed_mm_s=section.getfloat("speed", 50.0, above=0.0),
-        horizontal_move_z_mm=section.getfloat("horizontal_move_z", 5.0),
+        speed_mm_s=section.getfloat("speed", 50.0, **SPEED_RANGE),
+        horizontal_move_z_mm=section.getfloat("horizontal_move_z", 5.0, minval=0.0, maxval=MAX_COORDINATE_MM),
         horizontal_z_clearance_mm=clearance,
         grid=grid,
         interpolation=interpolation,
@@ -141,38 +147,25 @@ def read_bed_mesh_options(section: ConfigSection) -> BedMeshOptions:
 
 # -- BED_MESH_CALIBRATE parameters -----------------------------------------------------------
 
-def _gcode_floats(gcmd: GCodeCommand, name: str, count: int | None) -> list[float] | None:
-    text = gcmd.get(name, None)
-    if text is None:
-        return None
-    try:
-        values = [float(v) for v in text.split(",")]
-    except ValueError:
-        values = []
-    if not values or not all(math.isfinite(v) for v in values) or (count is not None and len(values) != count):
-        shape = f"{count} numbers separated by commas" if count else "numbers separated by commas"
-        raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {name}={text}: expected {shape}")
-    return values
-
-
 def command_options(options: BedMeshOptions, gcmd: GCodeCommand) -> BedMeshOptions:
     """The options of one BED_MESH_CALIBRATE: the config with the command's parameters applied."""
-    mesh_min = _gcode_floats(gcmd, "MESH_MIN", 2)
-    mesh_max = _gcode_floats(gcmd, "MESH_MAX", 2)
-    counts = _gcode_floats(gcmd, "PROBE_COUNT", None)
+    mesh_min = gcmd.get_floatlist("MESH_MIN", None, count=2, **COORDINATE_RANGE)
+    mesh_max = gcmd.get_floatlist("MESH_MAX", None, count=2, **COORDINATE_RANGE)
+    counts = gcmd.get_intlist("PROBE_COUNT", None, minval=MIN_PROBE_COUNT, maxval=MAX_PROBE_COUNT)
     algorithm = gcmd.get("ALGORITHM", options.algorithm).strip().lower()
     method = gcmd.get("METHOD", options.method).strip().lower()
     if method not in METHODS:
         raise gcmd.error(f"Error on '{gcmd.get_commandline()}': METHOD={method}: must be one of {', '.join(METHODS)}")
-    clearance = gcmd.get_float("HORIZONTAL_Z_CLEARANCE", options.horizontal_z_clearance_mm, above=0.0)
+    clearance = gcmd.get_float("HORIZONTAL_Z_CLEARANCE", options.horizontal_z_clearance_mm, above=0.0,
+                               maxval=MAX_CLEARANCE_MM)
     grid = options.grid
     try:
         if mesh_min is not None or mesh_max is not None or counts is not None:
             if grid.radius_mm is not None and (mesh_min is not None or mesh_max is not None):
                 raise MeshOptionError(SECTION, "mesh_min", mesh_min or mesh_max, "a round bed uses mesh_radius")
-            if counts is not None and (len(counts) not in (1, 2) or any(c != int(c) for c in counts)):
+            if counts is not None and len(counts) not in (1, 2):
                 raise MeshOptionError(SECTION, "probe_count", gcmd.get("PROBE_COUNT"), "must be one integer or a pair X, Y")
-            count_pair = (grid.x_count, grid.y_count) if counts is None else tuple(int(c) for c in _repeat(counts))
+            count_pair = (grid.x_count, grid.y_count) if counts is None else tuple(_repeat(counts))
             grid = rectangular_grid(mesh_min or grid.mesh_min, mesh_max or grid.mesh_max, count_pair)
         interpolation, note = resolve_interpolation(algorithm, (grid.x_count, grid.y_count), options.mesh_pps,
                                                     options.interpolation.bicubic_tension)
@@ -183,7 +176,7 @@ def command_options(options: BedMeshOptions, gcmd: GCodeCommand) -> BedMeshOptio
                    horizontal_z_clearance_mm=clearance, method=method)
 
 
-def _repeat(values: list[float]) -> list[float]:
+def _repeat(values: list[int]) -> list[int]:
     return values * 2 if len(values) == 1 else values
 
 

@@ -84,37 +84,57 @@ class _Section:
     options: dict[str, OptionValue] = field(default_factory=dict)
 
 
-def _format_number(number: float) -> str:
+def format_number(number: float) -> str:
     """50.0 -> '50', 0.25 -> '0.25' (limits read naturally in messages)."""
     if isinstance(number, float) and number.is_integer() and abs(number) < 1e15:
         return str(int(number))
     return str(number)
 
 
-def _describe_range(minval=None, maxval=None, above=None, below=None) -> str:
+def require_range(name: str, minval=None, maxval=None, above=None, below=None) -> None:
+    """Every number has a range: a getter called without both ends of one is a programming error."""
+    if (minval is None and above is None) or (maxval is None and below is None):
+        raise TypeError(f"{name}: a numeric option or parameter must declare its range "
+                        "(minval or above, and maxval or below)")
+
+
+def describe_range(minval=None, maxval=None, above=None, below=None) -> str:
+    """The allowed range in words: '10 to 250', 'above 0 and at most 50', 'at least 0 and below 1'."""
+    if minval is not None and maxval is not None:
+        return f"{format_number(minval)} to {format_number(maxval)}"
     parts = []
     if minval is not None:
-        parts.append(f"at least {_format_number(minval)}")
+        parts.append(f"at least {format_number(minval)}")
     if above is not None:
-        parts.append(f"above {_format_number(above)}")
+        parts.append(f"above {format_number(above)}")
     if maxval is not None:
-        parts.append(f"at most {_format_number(maxval)}")
+        parts.append(f"at most {format_number(maxval)}")
     if below is not None:
-        parts.append(f"below {_format_number(below)}")
+        parts.append(f"below {format_number(below)}")
     return " and ".join(parts)
 
 
-def check_range(value: float, minval=None, maxval=None, above=None, below=None) -> str | None:
-    """The problem with `value` against the limits ('must be at most 250'), or None."""
+# How a violated bound is worded: config messages say 'must be at least 10', G-code
+# messages keep Klipper's 'must have minimum of 10'.
+CONFIG_WORDS = {"minval": "must be at least", "maxval": "must be at most", "above": "must be above",
+                "below": "must be below"}
+GCODE_WORDS = {**CONFIG_WORDS, "minval": "must have minimum of", "maxval": "must have maximum of"}
+
+
+def check_range(value: float, minval=None, maxval=None, above=None, below=None,
+                words: Mapping[str, str] = CONFIG_WORDS) -> str | None:
+    """The problem with `value` against the limits ('must be at most 250 (allowed: 10 to 250)'), or None."""
     if minval is not None and value < minval:
-        return f"must be at least {_format_number(minval)}"
-    if maxval is not None and value > maxval:
-        return f"must be at most {_format_number(maxval)}"
-    if above is not None and value <= above:
-        return f"must be above {_format_number(above)}"
-    if below is not None and value >= below:
-        return f"must be below {_format_number(below)}"
-    return None
+        bound, limit = "minval", minval
+    elif maxval is not None and value > maxval:
+        bound, limit = "maxval", maxval
+    elif above is not None and value <= above:
+        bound, limit = "above", above
+    elif below is not None and value >= below:
+        bound, limit = "below", below
+    else:
+        return None
+    return f"{words[bound]} {format_number(limit)} (allowed: {describe_range(minval, maxval, above, below)})"
 
 
 # ---------------------------------------------------------------------------
@@ -321,8 +341,8 @@ class ConfigSection:
 
     def _checked_number(self, option: str, default: Any, parse: Callable[[str], Any], kind: str,
                         minval=None, maxval=None, above=None, below=None) -> Any:
-        limits = _describe_range(minval, maxval, above, below)
-        expected = f"{kind}, {limits}" if limits else kind
+        require_range(f"[{self.name}] {option}", minval, maxval, above, below)
+        expected = f"{kind}, {describe_range(minval, maxval, above, below)}"
 
         def parse_and_check(text: str):
             value = parse(text)
@@ -337,12 +357,14 @@ class ConfigSection:
         """The option's text (multi-line values keep their newlines)."""
         return self._get_parsed(option, default, str, "a value")
 
-    def getint(self, option: str, default: Any = REQUIRED, minval: int | None = None,
+    def getint(self, option: str, default: Any = REQUIRED, *, minval: int | None = None,
                maxval: int | None = None) -> Any:
+        """An integer within the declared range (every numeric getter must declare one)."""
         return self._checked_number(option, default, _parse_int, "an integer", minval, maxval)
 
-    def getfloat(self, option: str, default: Any = REQUIRED, minval: float | None = None,
+    def getfloat(self, option: str, default: Any = REQUIRED, *, minval: float | None = None,
                  maxval: float | None = None, above: float | None = None, below: float | None = None) -> Any:
+        """A finite number within the declared range."""
         return self._checked_number(option, default, _parse_float, "a number", minval, maxval, above, below)
 
     def getboolean(self, option: str, default: Any = REQUIRED) -> Any:
@@ -373,15 +395,24 @@ class ConfigSection:
     def getlist(self, option: str, default: Any = REQUIRED, sep: str = ",", count: int | None = None) -> Any:
         return self._getlist(option, default, sep, count, str, "a list")
 
-    def getintlist(self, option: str, default: Any = REQUIRED, sep: str = ",", count: int | None = None) -> Any:
-        return self._getlist(option, default, sep, count, _parse_int, "a list of integers")
+    def getintlist(self, option: str, default: Any = REQUIRED, sep: str = ",", count: int | None = None, *,
+                   minval: int | None = None, maxval: int | None = None) -> Any:
+        """Integers, each within the declared range."""
+        return self._getlist(option, default, sep, count, _parse_int, "a list of integers", minval, maxval)
 
-    def getfloatlist(self, option: str, default: Any = REQUIRED, sep: str = ",", count: int | None = None) -> Any:
-        return self._getlist(option, default, sep, count, _parse_float, "a list of numbers")
+    def getfloatlist(self, option: str, default: Any = REQUIRED, sep: str = ",", count: int | None = None, *,
+                     minval: float | None = None, maxval: float | None = None, above: float | None = None,
+                     below: float | None = None) -> Any:
+        """Finite numbers, each within the declared range."""
+        return self._getlist(option, default, sep, count, _parse_float, "a list of numbers",
+                             minval, maxval, above, below)
 
-    def _getlist(self, option, default, sep, count, parse_item, kind):
+    def _getlist(self, option, default, sep, count, parse_item, kind, *limits):
         separator = "newline" if sep == "\n" else repr(sep)
         expected = f"{kind} separated by {separator}" + (f", exactly {count} items" if count else "")
+        if parse_item is not str:
+            require_range(f"[{self.name}] {option}", *limits)
+            expected += f", each {describe_range(*limits)}"
 
         def parse_list(text: str):
             items = [item.strip() for item in text.split(sep)]
@@ -389,14 +420,17 @@ class ConfigSection:
                 items.pop()  # a trailing separator is harmless
             if any(not item for item in items) or not items:
                 raise _ValueProblem(f"has an empty item (expected {expected})")
+            if count is not None and len(items) != count:
+                raise _ValueProblem(f"has {len(items)} items, expected exactly {count}")
             values = []
             for item in items:
                 try:
                     values.append(parse_item(item))
                 except ValueError:
                     raise _ValueProblem(f"item {item!r} is not valid (expected {expected})") from None
-            if count is not None and len(values) != count:
-                raise _ValueProblem(f"has {len(values)} items, expected exactly {count}")
+                problem = check_range(values[-1], *limits) if parse_item is not str else None
+                if problem:
+                    raise _ValueProblem(f"item {item!r} {problem}")
             return values
 
         return self._get_parsed(option, default, parse_list, expected)

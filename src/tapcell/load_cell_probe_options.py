@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tapcell.filters import (DRIFT_CUTOFF_MAX_HZ, DRIFT_CUTOFF_MIN_HZ, FILTER_ORDERS, NOTCH_QUALITY_MAX,
+                             NOTCH_QUALITY_MIN)
 from tapcell.mcu.trigger import TriggerError
 from tapcell.probe_options import OptionSpec
 from tapcell.tap.angles import slope_angle_deg
@@ -65,18 +67,27 @@ class TapOptions:
 
 PULLBACK_LIMITS_MM = (0.01, 2.0)  # pullback_distance's range (also the calibration's PULLBACK_DISTANCE)
 
-# Filter options are range-checked by tapcell.filters (the limits depend on the sample rate).
+# The filter options' ranges here are the widest any sample rate allows (the fastest chip,
+# an ADS1220 at 2000 sps, has its half rate at 1000 Hz); tapcell.filters then checks them
+# against the configured sample rate and each other.
+FILTER_HALF_RATE_MAX_HZ = 1000.0
 TAP_OPTION_SPECS: tuple[OptionSpec, ...] = (
     OptionSpec("trigger_force", "trigger_force_g", "float", 75.0, minval=10.0, maxval=250.0),
     OptionSpec("force_safety_limit", "force_safety_limit_g", "float", 2000.0, minval=0.0, maxval=10000.0),
     OptionSpec("drift_safety_limit", "drift_safety_limit_g", "float", 1000.0, minval=0.0, maxval=10000.0),
     OptionSpec("tare_time", "tare_time_s", "float", 4.0 / 60.0, minval=0.01, maxval=1.0),
-    OptionSpec("drift_filter_cutoff_frequency", "drift_filter_cutoff_frequency", "optfloat", None),
-    OptionSpec("drift_filter_delay", "drift_filter_delay", "int", 2),
-    OptionSpec("buzz_filter_cutoff_frequency", "buzz_filter_cutoff_frequency", "optfloat", None),
-    OptionSpec("buzz_filter_delay", "buzz_filter_delay", "int", 2),
-    OptionSpec("notch_filter_frequencies", "notch_filter_frequencies", "floatlist", None),
-    OptionSpec("notch_filter_quality", "notch_filter_quality", "float", 2.0),
+    OptionSpec("drift_filter_cutoff_frequency", "drift_filter_cutoff_frequency", "optfloat", None,
+               minval=DRIFT_CUTOFF_MIN_HZ, maxval=DRIFT_CUTOFF_MAX_HZ),
+    OptionSpec("drift_filter_delay", "drift_filter_delay", "int", 2, minval=min(FILTER_ORDERS),
+               maxval=max(FILTER_ORDERS)),
+    OptionSpec("buzz_filter_cutoff_frequency", "buzz_filter_cutoff_frequency", "optfloat", None,
+               above=0.0, below=FILTER_HALF_RATE_MAX_HZ),
+    OptionSpec("buzz_filter_delay", "buzz_filter_delay", "int", 2, minval=min(FILTER_ORDERS),
+               maxval=max(FILTER_ORDERS)),
+    OptionSpec("notch_filter_frequencies", "notch_filter_frequencies", "floatlist", None,
+               above=0.0, below=FILTER_HALF_RATE_MAX_HZ),
+    OptionSpec("notch_filter_quality", "notch_filter_quality", "float", 2.0, minval=NOTCH_QUALITY_MIN,
+               maxval=NOTCH_QUALITY_MAX),
     OptionSpec("pullback_distance", "pullback_distance_mm", "float", 0.2,
                minval=PULLBACK_LIMITS_MM[0], maxval=PULLBACK_LIMITS_MM[1]),
     OptionSpec("pullback_speed", "pullback_speed_mm_s", "float", None, minval=0.01, maxval=2.0),
@@ -222,6 +233,7 @@ def too_fast_for_analysis(force_before_trigger_g: float, force_at_trigger_g: flo
 # (smooth PEI ~2, textured ~8), coarser up to soft sheets and beyond.
 ONSET_GRID_UM = (0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 15.0, 18.0, 22.0, 26.0, 30.0, 35.0, 40.0)
 MIN_ONSET_TAPS = 3
+MAX_CALIBRATION_TAPS = 50  # a LOAD_CELL_PROBE_CALIBRATE taps at most this many times
 
 
 @dataclass(frozen=True)
