@@ -25,9 +25,9 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from tapcell.gcode import GCodeError
+from tapcell.host.gcode import GCodeError
 from tapcell.mesh.report import mesh_error
-from tapcell.printer import Printer
+from tapcell.host.printer import Printer
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "virtual-printer.cfg"
 TARGET_MAX_UM = 3.0

@@ -28,12 +28,12 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from tapcell.gcode import GCodeError
-from tapcell.load_cell_probe_options import dwell_sample_count
-from tapcell.printer import Printer
+from tapcell.host.gcode import GCodeError
+from tapcell.extras.load_cell_probe.options import dwell_sample_count
+from tapcell.host.printer import Printer
 from tapcell.tap import AnalysisOptions, analyze_tap
 from tapcell.tap.hum import notch_zero_phase
-from tapcell.sim_taps import SimTapSpec, record_sim_tap
+from tapcell.sim.taps import SimTapSpec, record_sim_tap
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "virtual-printer.cfg"
 # Not a G-code parameter: run LOAD_CELL_PROBE_CALIBRATE CALIBRATION=CONTACT_ONSET (at 5 mm/s) first.
@@ -149,7 +149,7 @@ HUM_METHODS = ("left in", "fitted (auto)", "zero-phase notch Q=2", "zero-phase n
 
 
 def hum_methods_table() -> Table:
-    """noisy-mains taps (tapcell.sim_taps, the probe's dwell and pullback) analysed with the hum
+    """noisy-mains taps (tapcell.sim.taps, the probe's dwell and pullback) analysed with the hum
     left in, fitted and subtracted (the probe's way), or through forward-backward notches."""
     table = Table(title=f"noisy-mains (13.6 g, 50 Hz): hum removal methods, {HUM_TAPS} taps per speed, "
                         "µm against truth")

@@ -10,7 +10,7 @@ marked valid (µm, against truth.z_contact), beside two limits:
   as they are to any real analysis (mean over the first taps).
 Also the P4 line intersection (the classic line-fit answer, same delay correction).
 
-Second table: labelled taps from the virtual printer (`tapcell.sim_taps`, the probe's way of
+Second table: labelled taps from the virtual printer (`tapcell.sim.taps`, the probe's way of
 tapping: 75 g trigger, 4-sample dwell, 1 µm per sample pullback) per scenario and speed: valid
 rate, bias, σ, p95 and worst |error| of accepted taps, the rejection codes, and the classifier's
 confusion (clean accepted %, fouled rejected %) with the error the fouled taps would have had
@@ -28,7 +28,7 @@ from rich.console import Console
 from rich.table import Table
 
 from tapcell.tap import AnalysisOptions, analyze_tap
-from tapcell.sim_taps import SimTapSpec, record_sim_tap
+from tapcell.sim.taps import SimTapSpec, record_sim_tap
 from tapcell.tap.synth import NUISANCE_FIELDS, SynthTap, best_achievable_z, contact_sigma_limit_um, synth_tap
 
 CRB_TAPS = 5

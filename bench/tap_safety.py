@@ -2,7 +2,7 @@
 
 Issue 4's target is "no tap marked valid with |error| > 20 µm": a valid tap 100 µm off crashes a
 first layer, while a rejected tap only costs a retry. This sweep taps the virtual printer
-(`tapcell.sim_taps.record_sim_tap`) over every scenario (`tapcell scenarios`, except
+(`tapcell.sim.taps.record_sim_tap`) over every scenario (`tapcell scenarios`, except
 `disconnected`, which delivers no samples) and approach speeds 1–15 mm/s; per tap it draws at
 random the pullback (0.05–0.3 mm), the dwell (2–20 samples), the trigger force (30–200 g), the
 seed, one fault of the virtual printer (`overrides`: corrupted frames, mains hum, oscillator
@@ -34,7 +34,7 @@ from rich.table import Table
 from tapcell.sim.params import CHIP_DEFAULT_RATE_SPS, CHIP_PIPELINE_PERIODS, CHIP_RATES_SPS, SHEETS
 from tapcell.sim.scenarios import SCENARIOS
 from tapcell.tap import AnalysisOptions, analyze_tap
-from tapcell.sim_taps import SimTapSpec, record_sim_tap
+from tapcell.sim.taps import SimTapSpec, record_sim_tap
 
 SPEEDS_MM_S = (1.0, 2.0, 3.0, 5.0, 8.0, 10.0, 12.0, 15.0)
 SCENARIO_NAMES = tuple(name for name in SCENARIOS if name != "disconnected")  # no samples, nothing to analyse

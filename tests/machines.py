@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import pytest
 
-from tapcell.gcode import GCodeError
+from tapcell.host.gcode import GCodeError
 
 MACHINE_SECTIONS = """\
 [printer]

@@ -1,4 +1,4 @@
-"""tapcell.config: the Klipper-format reader, typed getters, unused options, SAVE_CONFIG."""
+"""tapcell.host.config: the Klipper-format reader, typed getters, unused options, SAVE_CONFIG."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from tapcell import config as config_module
-from tapcell.config import SAVE_CONFIG_MARKER, ConfigError, ConfigFile
+from tapcell.host import config as config_module
+from tapcell.host.config import SAVE_CONFIG_MARKER, ConfigError, ConfigFile
 
 
 # For reading values back in tests: every numeric getter must be given a range.

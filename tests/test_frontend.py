@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from tapcell import cli, frontend
-from tapcell.printer import Printer
+from tapcell.tools import cli, frontend
+from tapcell.host.printer import Printer
 
 CONFIG = """\
 [gcode_macro HELLO]

@@ -1,4 +1,4 @@
-"""tapcell.gcode: parsing, typed parameters, responses, the dispatcher; [gcode_macro]."""
+"""tapcell.host.gcode: parsing, typed parameters, responses, the dispatcher; [gcode_macro]."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ import types
 
 import pytest
 
-from tapcell import gcode as gcode_module
-from tapcell import printer as printer_module
-from tapcell.gcode import GCodeDispatch, GCodeError, parse_line
-from tapcell.printer import Printer
+from tapcell.host import gcode as gcode_module
+from tapcell.host import printer as printer_module
+from tapcell.host.gcode import GCodeDispatch, GCodeError, parse_line
+from tapcell.host.printer import Printer
 
 
 def gcode_error(func, *args) -> str:

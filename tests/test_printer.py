@@ -1,4 +1,4 @@
-"""tapcell.printer: loading sections through the module registry, status, events, RESTART, SAVE_CONFIG."""
+"""tapcell.host.printer: loading sections through the module registry, status, events, RESTART, SAVE_CONFIG."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ from pathlib import Path
 
 import pytest
 
-from tapcell import printer as printer_module
-from tapcell.config import ConfigError, ConfigFile
-from tapcell.frontend import DEFAULT_CONFIG
-from tapcell.gcode import GCodeError
-from tapcell.printer import Printer
+from tapcell.host import printer as printer_module
+from tapcell.host.config import ConfigError, ConfigFile
+from tapcell.tools.frontend import DEFAULT_CONFIG
+from tapcell.host.gcode import GCodeError
+from tapcell.host.printer import Printer
 
 
 class FakeBackend:

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import pytest
 
-from tapcell.config import ConfigError
-from tapcell.gcode import GCodeError
-from tapcell.printer import Printer
+from tapcell.host.config import ConfigError
+from tapcell.host.gcode import GCodeError
+from tapcell.host.printer import Printer
 
 from machines import machine_config
 

@@ -1,3 +1,3 @@
-from tapcell.cli import main
+from tapcell.tools.cli import main
 
 raise SystemExit(main())

@@ -2,7 +2,7 @@
 and the statistics behind LOAD_CELL_DIAGNOSTIC.
 
 Plain functions over numpy arrays and plain dataclasses; no printer, no I/O. The
-G-code commands in `tapcell.load_cell` format these results for the user.
+G-code commands in `tapcell.extras.load_cell` format these results for the user.
 
 Conventions (from the load-cell guide):
 * A sensor reports signed integer counts in [min_counts, max_counts]; for the 24-bit

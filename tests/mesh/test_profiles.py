@@ -105,7 +105,7 @@ def test_lagrange_profile_with_too_many_points_is_refused():
 
 
 def test_round_trip_through_save_config(tmp_path):
-    from tapcell.config import ConfigFile
+    from tapcell.host.config import ConfigFile
 
     path = tmp_path / "printer.cfg"
     path.write_text("[printer]\nkinematics: cartesian\n")

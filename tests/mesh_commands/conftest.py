@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from tapcell.printer import Printer
+from tapcell.host.printer import Printer
 
 from machines import machine_config
 

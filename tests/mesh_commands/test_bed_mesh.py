@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tapcell.config import ConfigError
+from tapcell.host.config import ConfigError
 
 from machines import gcode_error
 
@@ -147,7 +147,7 @@ def test_profiles_survive_save_config_and_restart(make_printer):
     text = printer.read_text()
     block = [line.removeprefix("#*#").strip() for line in text.splitlines() if line.startswith("#*#")]
     assert "[bed_mesh copy]" in block and "0.080000, 0.180000, 0.280000" in block
-    from tapcell.printer import Printer
+    from tapcell.host.printer import Printer
 
     restarted = Printer.from_config(str(printer), responses=make_printer.responses)
     status = restarted.get_status()["bed_mesh"]

@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tapcell.config import ConfigError
-from tapcell.gcode import GCodeError
-from tapcell.prusa_probe import ThresholdProber
+from tapcell.host.config import ConfigError
+from tapcell.host.gcode import GCodeError
+from tapcell.extras.prusa_probe import ThresholdProber
 
 from machines import gcode_error
 

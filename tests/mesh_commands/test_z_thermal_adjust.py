@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from tapcell.config import ConfigError
+from tapcell.host.config import ConfigError
 
 from machines import gcode_error
 

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from tapcell.config import ConfigFile
-from tapcell.gcode import GCodeCommand, GCodeDispatch, parse_line
+from tapcell.host.config import ConfigFile
+from tapcell.host.gcode import GCodeCommand, GCodeDispatch, parse_line
 
 
 @pytest.fixture

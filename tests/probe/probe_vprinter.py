@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from tapcell.printer import Printer
+from tapcell.host.printer import Printer
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "virtual-printer.cfg"
 # The virtual cell's default 110 counts/g needs >= ~763 g to pass the calibration's 1 % rule.

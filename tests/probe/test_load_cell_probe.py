@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from probe_vprinter import make_printer, true_contact_z
-from tapcell.config import ConfigError
-from tapcell.gcode import GCodeCommand, GCodeError, parse_line
-from tapcell.probe_stats import format_accuracy
+from tapcell.host.config import ConfigError
+from tapcell.host.gcode import GCodeCommand, GCodeError, parse_line
+from tapcell.extras.probe.stats import format_accuracy
 from tapcell.tap import read_tap_file
 
 

@@ -1,8 +1,8 @@
 import pytest
 
-from tapcell.config import ConfigError
-from tapcell.gcode import GCodeError
-from tapcell.load_cell_probe_options import (
+from tapcell.host.config import ConfigError
+from tapcell.host.gcode import GCodeError
+from tapcell.extras.load_cell_probe.options import (
     TAP_OPTION_SPECS,
     TapOptions,
     default_pullback_speed_mm_s,
@@ -10,7 +10,7 @@ from tapcell.load_cell_probe_options import (
     tare_sample_count,
     too_fast_for_analysis,
 )
-from tapcell.probe_options import read_section_values, with_overrides
+from tapcell.extras.probe.options import read_section_values, with_overrides
 
 
 def read(make_section, text):

@@ -5,10 +5,10 @@ from __future__ import annotations
 import pytest
 
 from probe_vprinter import make_printer
-from tapcell.config import ConfigFile
-from tapcell.gcode import GCodeError
-from tapcell.printer import Printer
-from tapcell.load_cell_probe_options import (
+from tapcell.host.config import ConfigFile
+from tapcell.host.gcode import GCodeError
+from tapcell.host.printer import Printer
+from tapcell.extras.load_cell_probe.options import (
     PullbackCalibration,
     break_contact_spread_um,
     calibrate_decompression_angle,
@@ -18,7 +18,7 @@ from tapcell.load_cell_probe_options import (
     propose_pullback_distance,
 )
 from tapcell.tap import AnalysisOptions, analyze_tap
-from tapcell.sim_taps import SimTapSpec, record_sim_tap
+from tapcell.sim.taps import SimTapSpec, record_sim_tap
 
 SPS = 320.0
 # The spec's default pullback and the speed the brief probes at.

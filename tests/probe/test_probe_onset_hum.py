@@ -6,12 +6,12 @@ import numpy as np
 import pytest
 
 from probe_vprinter import make_printer, true_contact_z
-from tapcell.config import ConfigError
-from tapcell.gcode import GCodeError
-from tapcell.load_cell_probe import LoadCellProbe
-from tapcell.load_cell_probe_options import _parabola_minimum, fit_pooled_contact_onset
+from tapcell.host.config import ConfigError
+from tapcell.host.gcode import GCodeError
+from tapcell.extras.load_cell_probe.device import LoadCellProbe
+from tapcell.extras.load_cell_probe.options import _parabola_minimum, fit_pooled_contact_onset
 from tapcell.tap import AnalysisOptions
-from tapcell.sim_taps import SimTapSpec, record_sim_tap
+from tapcell.sim.taps import SimTapSpec, record_sim_tap
 
 
 def accuracy_bias_um(printer, extra: str = "") -> tuple[float, float]:
@@ -98,7 +98,7 @@ def test_notch_frequencies_name_the_hum(tmp_path):
 
 
 def test_dwell_rule():
-    from tapcell.load_cell_probe_options import dwell_sample_count
+    from tapcell.extras.load_cell_probe.options import dwell_sample_count
     assert [dwell_sample_count(rate) for rate in (10, 80, 320, 660, 2000)] == [4, 4, 10, 21, 62]
 
 

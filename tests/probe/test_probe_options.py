@@ -1,8 +1,8 @@
 import pytest
 
-from tapcell.config import ConfigError
-from tapcell.gcode import GCodeError
-from tapcell.probe_options import PROBE_OPTION_SPECS, read_probe_options, with_overrides
+from tapcell.host.config import ConfigError
+from tapcell.host.gcode import GCodeError
+from tapcell.extras.probe.options import PROBE_OPTION_SPECS, read_probe_options, with_overrides
 
 
 def test_probe_option_defaults(make_section):

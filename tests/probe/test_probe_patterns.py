@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from tapcell.probe_patterns import (
+from tapcell.extras.probe.patterns import (
     MAX_CIRCLE_RETRIES,
     hex_pattern,
     next_clean_spot,

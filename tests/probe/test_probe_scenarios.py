@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from probe_vprinter import make_printer, true_contact_z
-from tapcell.gcode import GCodeError
+from tapcell.host.gcode import GCodeError
 
 NO_SCORE = "tap_classifier: empty"
 

@@ -9,9 +9,9 @@ from __future__ import annotations
 
 import pytest
 
-from tapcell.gcode import GCodeDispatch
-from tapcell.probe import Probe, ProbeError, TapOutcome
-from tapcell.probe_options import ProbeOptions
+from tapcell.host.gcode import GCodeDispatch
+from tapcell.extras.probe.session import Probe, ProbeError, TapOutcome
+from tapcell.extras.probe.options import ProbeOptions
 
 
 class ScriptedTapper:

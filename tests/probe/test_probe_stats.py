@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from tapcell.probe_stats import accuracy_stats, combine_samples, format_accuracy, spread_mm
+from tapcell.extras.probe.stats import accuracy_stats, combine_samples, format_accuracy, spread_mm
 
 
 def test_accuracy_stats_hand_values():

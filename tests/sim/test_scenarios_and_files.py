@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from conftest import tap
-from tapcell.config import ConfigError, ConfigFile
+from tapcell.host.config import ConfigError, ConfigFile
 from tapcell.sim import SCENARIOS, VirtualPrinter
 from tapcell.sim.cli import main as scenarios_main
 

@@ -10,7 +10,7 @@ import pytest
 from tapcell.tap import AnalysisOptions, analyze_tap
 from tapcell.tap.hum import (alias_hz, detect_mains_hum, fit_hum, hat_basis, notch_zero_phase, resolvable_hz,
                              spline_knots)
-from tapcell.sim_taps import SimTapSpec, record_sim_tap
+from tapcell.sim.taps import SimTapSpec, record_sim_tap
 from tapcell.tap.synth import synth_tap
 
 RATE_SPS = 320.0

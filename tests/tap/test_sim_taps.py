@@ -8,7 +8,7 @@ import pytest
 
 from tapcell.tap import analyze_tap
 from tapcell.tap.analysis import step_staircase_sigma_um
-from tapcell.sim_taps import SimTapSpec, record_sim_tap
+from tapcell.sim.taps import SimTapSpec, record_sim_tap
 
 
 def test_step_staircase_sigma_matches_the_sawtooth_average():

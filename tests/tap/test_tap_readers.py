@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from tapcell.tap import TapFileError, analyze_tap, read_tap_file, readers, tap_to_json_dict
+from tapcell.tap.readers import tap_from_object
 from tapcell.tap.synth import synth_tap
 
 
@@ -80,6 +81,13 @@ def test_workbench_capture_with_positions(tmp_path, tap):
     ({"format": "other", "time": [], "force": []}, "unknown format 'other'"),
     ({"time": list(range(20)), "force": ["a"] * 20, "z": [0.0] * 20}, "'force' must be a list of numbers"),
     ({"time": list(range(20)), "force": [1.0] * 20, "moves": [{"print_time": 0}]}, "moves[0] lacks move_t"),
+    ({"time": list(range(20)), "force": [[1.0, 2.0]] * 20, "z": [0.0] * 20}, "'force' must be a flat list of numbers"),
+    ({"time": list(range(20)), "force": ["1.0"] * 20, "z": [0.0] * 20}, "'force' must be a list of numbers"),
+    ({"time": list(range(20)), "force": [True] * 20, "z": [0.0] * 20}, "'force' must be a list of numbers"),
+    ({"time": list(range(20)), "force": [10 ** 400] + [1.0] * 19, "z": [0.0] * 20},
+     "not valid tap data: an integer with 401 digits (at most 20 allowed)"),
+    ({"time": list(range(20)), "force": [1.0] * 20, "z": [0.0] * 20, "sample_rate": -(10 ** 400)},
+     "not valid tap data: an integer with 401 digits (at most 20 allowed)"),
 ])
 def test_bad_files_name_the_file_and_problem(tmp_path, document, problem):
     path = tmp_path / "bad.json"
@@ -101,6 +109,9 @@ def test_nan_invalid_json_and_bad_csv(tmp_path):
     csv_file = tmp_path / "t.csv"
     csv_file.write_text("time,force\n0,1\n")
     with pytest.raises(TapFileError, match="CSV header lacks column"):
+        read_tap_file(csv_file)
+    csv_file.write_text("time,force,z\n0,1,0\n1,2\n")
+    with pytest.raises(TapFileError, match=r"CSV line 3: column 'z' is not a number \('<missing>'\)"):
         read_tap_file(csv_file)
     with pytest.raises(TapFileError, match="cannot read the file"):
         read_tap_file(tmp_path / "missing.json")
@@ -142,3 +153,10 @@ def test_devices_and_oversized_files_are_refused_without_reading_them(tmp_path, 
     assert path.stat().st_size > readers.MAX_FILE_BYTES
     with pytest.raises(TapFileError, match=r"big.json: is larger than 16,384 bytes, not a tap file$"):
         read_tap_file(path)
+
+
+def test_an_in_memory_integer_beyond_a_float_reads_as_infinity():
+    document = tap_to_json_dict(synth_tap(seed=3))
+    document["force"] = [10 ** 400] + document["force"][1:]
+    with pytest.raises(TapFileError, match=r"^<memory>: 'force' holds NaN or infinity \(index 0\)$"):
+        tap_from_object(document)

@@ -18,7 +18,7 @@ import pprint
 import pytest
 
 from tapcell.tap import AnalysisOptions, analyze_tap
-from tapcell.sim_taps import SimTapSpec, record_sim_tap
+from tapcell.sim.taps import SimTapSpec, record_sim_tap
 from tapcell.tap.synth import synth_tap
 
 RELATIVE = 1e-9

@@ -9,7 +9,7 @@ import pytest
 
 from tapcell.tap import AnalysisOptions, analyze_tap
 from tapcell.tap.contact import parabola_vertex_offset
-from tapcell.sim_taps import SimTapSpec, record_sim_tap
+from tapcell.sim.taps import SimTapSpec, record_sim_tap
 from tapcell.tap.validate import (TapInvalid, check_contact_consistency, contact_mismatch_tolerance_um)
 
 # Found by the sweep: a 60 µm ooze film on the nozzle, tapped at 1-2 mm/s with the delay estimated.

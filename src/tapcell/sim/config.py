@@ -1,4 +1,4 @@
-"""`[virtual_printer]`: scenario, seed and physics overrides read through tapcell.config getters.
+"""`[virtual_printer]`: scenario, seed and physics overrides read through tapcell.host.config getters.
 
 Every SimParams name is an option (e.g. `bed_x_mm: 300`, `chip: ads1220`, `hum_counts: 800`);
 its default is the chosen scenario's value, so a config only lists what differs.

@@ -1,0 +1,1 @@
+"""One module or package per config section (`[load_cell]` -> `tapcell.extras.load_cell`)."""

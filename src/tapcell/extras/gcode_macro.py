@@ -1,0 +1,147 @@
+"""`[gcode_macro NAME]`: new G-code commands written as Jinja2 templates.
+
+    [gcode_macro SHOW_FORCE]
+    description: Print the force on the load cell
+    variable_limit_g: 500
+    gcode:
+      {% set grams = printer.load_cell.force_g %}
+      {action_respond_info("force: %.1fg (limit %d)" % (grams, limit_g))}
+
+Templates use `{ expression }` and `{% statement %}` (Klipper's delimiters).
+While rendering they see:
+
+* `params`: the command's parameters (upper-case names -> text), `rawparams`: the text after the name;
+* `printer`: every status object, `printer.load_cell.force_g` or `printer["load_cell probe"]`;
+* each `variable_<name>` option as `<name>` (a Python literal; change with SET_GCODE_VARIABLE);
+* `action_respond_info(msg)` (prints `// msg`) and `action_raise_error(msg)` (fails the command).
+
+An undefined name is an error (not an empty string), so a typo or a status
+field that is not available yet (e.g. force_g before calibration) stops the
+macro with a message instead of sending half a command.
+"""
+
+from __future__ import annotations
+
+import ast
+from collections.abc import Mapping
+from typing import Any, Iterator
+
+import jinja2
+
+from tapcell.host.config import ConfigSection
+from tapcell.host.gcode import GCodeCommand, GCodeError
+
+DEFAULT_DESCRIPTION = "G-Code macro"
+
+_ENVIRONMENT = jinja2.Environment(
+    block_start_string="{%", block_end_string="%}",
+    variable_start_string="{", variable_end_string="}",
+    comment_start_string="{#", comment_end_string="#}",
+    undefined=jinja2.StrictUndefined,
+    extensions=["jinja2.ext.do"],
+)
+
+
+class StatusView(Mapping):
+    """`printer` inside a template: each object's status, fetched once per render."""
+
+    def __init__(self, printer: Any):
+        self._printer = printer
+        self._cache: dict[str, dict] = {}
+
+    def __getitem__(self, name: str) -> dict:
+        if name not in self._cache:
+            obj = self._printer.lookup_object(name, None)
+            if obj is None or not hasattr(obj, "get_status"):
+                raise KeyError(name)
+            self._cache[name] = obj.get_status(self._printer.get_time())
+        return self._cache[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(name for name, obj in self._printer.objects.items() if hasattr(obj, "get_status"))
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
+
+
+def parse_variable(text: str) -> Any:
+    """A `variable_*` value or SET_GCODE_VARIABLE VALUE: a Python literal."""
+    return ast.literal_eval(text.strip())
+
+
+class GCodeMacro:
+    """One `[gcode_macro NAME]` section: a command that renders and runs its template."""
+
+    def __init__(self, section: ConfigSection, printer: Any):
+        self.printer = printer
+        self.section_name = section.get_name()
+        self.command = section.get_instance_name().upper()
+        self.description = section.get("description", DEFAULT_DESCRIPTION)
+        template_text = section.get("gcode")
+        try:
+            self.template = _ENVIRONMENT.from_string(template_text)
+        except jinja2.TemplateSyntaxError as exc:
+            raise section.error("gcode", f"template error on line {exc.lineno} of the template: {exc.message}")
+        self.variables: dict[str, Any] = {}
+        for option in section.get_option_names("variable_"):
+            text = section.get(option)
+            try:
+                self.variables[option[len("variable_"):]] = parse_variable(text)
+            except (ValueError, SyntaxError):
+                raise section.error(option, "must be a Python literal: a number, 'quoted text', "
+                                            "a list, a dict, True, False or None") from None
+        printer.gcode.register_command(self.command, self.cmd_macro, desc=self.description)
+        printer.gcode.register_mux_command("SET_GCODE_VARIABLE", "MACRO", section.get_instance_name(),
+                                           self.cmd_set_variable,
+                                           desc="Change a variable_* value of a gcode_macro")
+
+    def get_status(self, eventtime: float) -> dict:
+        return dict(self.variables)
+
+    def render(self, gcmd: GCodeCommand) -> str:
+        """The G-code the macro expands to for this call."""
+        context = {
+            **self.variables,
+            "params": gcmd.get_command_parameters(),
+            "rawparams": gcmd.rawparams,
+            "printer": StatusView(self.printer),
+            "action_respond_info": self._action_respond_info,
+            "action_raise_error": self._action_raise_error,
+        }
+        try:
+            return self.template.render(context)
+        except GCodeError:
+            raise
+        except jinja2.TemplateError as exc:
+            raise GCodeError(f"Error in macro {self.command}: {exc}") from None
+        except Exception as exc:  # e.g. a type error inside an expression the user wrote
+            raise GCodeError(f"Error in macro {self.command}: {type(exc).__name__}: {exc}") from None
+
+    def cmd_macro(self, gcmd: GCodeCommand) -> None:
+        # A macro calling itself (directly or through others) is refused by the dispatcher.
+        self.printer.gcode.run_script(self.render(gcmd))
+
+    def cmd_set_variable(self, gcmd: GCodeCommand) -> None:
+        name = gcmd.get("VARIABLE").lower()
+        if name not in self.variables:
+            known = ", ".join(sorted(self.variables)) or "none"
+            raise gcmd.error(f"Error on '{gcmd.commandline}': unknown VARIABLE '{name}' "
+                             f"(variables of {self.command}: {known})")
+        text = gcmd.get("VALUE")
+        try:
+            self.variables[name] = parse_variable(text)
+        except (ValueError, SyntaxError):
+            raise gcmd.error(f"Error on '{gcmd.commandline}': unable to parse '{text}' for VALUE "
+                             f"(expected a Python literal)") from None
+
+    def _action_respond_info(self, message: str) -> str:
+        self.printer.gcode.respond_info(str(message))
+        return ""
+
+    @staticmethod
+    def _action_raise_error(message: str) -> str:
+        raise GCodeError(str(message))
+
+
+def load_config_prefix(section: ConfigSection, printer: Any) -> GCodeMacro:
+    return GCodeMacro(section, printer)

@@ -1,0 +1,1 @@
+"""`[load_cell_probe]`: the load-cell probe (device, options)."""

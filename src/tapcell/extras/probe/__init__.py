@@ -1,0 +1,1 @@
+"""The probe session shared by the probes: options, patterns, statistics."""

@@ -1,0 +1,364 @@
+"""`[prusa_probe]`: the Prusa-matched probing mode (spec: prusa-thresholds.md).
+
+Instead of analysing the shape of a tap, Prusa's firmware trusts a force threshold:
+
+* separate thresholds for Z fast, Z slow, mesh and XY probing (125 / 125 / 125 / 40 g), each
+  armed on the firmware trigger with hysteresis (Z and mesh release 80 g lower, at 45 g;
+  XY at half its threshold);
+* a context-dependent tare, each one 300 ms of settling and 48 samples: Z probing
+  (`LOADCELL_PROBE`) tares twice, a mesh tares once for the session reference and once per
+  point (1 + N tares for N points);
+* at each mesh point the tare is compared with the session reference: more than 125 g apart
+  means something pulls on the nozzle, so lift 20 mm and tare again (the new reference);
+* a mesh point that does not give a trigger is retried on rings 2 mm apart, at most 40 times.
+
+The Z of a threshold probe is the toolhead Z at the triggering sample (what a stepper
+position latched by an endstop gives), from the probing move's own trapezoids.
+
+Commands: PROBE_THRESHOLDS (alias SHOW_THRESHOLDS), SET_Z_FAST_THRESHOLD, SET_Z_SLOW_THRESHOLD,
+SET_MESH_THRESHOLD, SET_XY_THRESHOLD (aliases SET_Z_FAST, SET_Z_SLOW, SET_MESH, SET_XY; all
+take VALUE=grams), LOADCELL_PROBE. `BED_MESH_CALIBRATE METHOD=prusa` uses this mode.
+
+`ThresholdProber` (tare, threshold probing moves in Z and XY) is shared with the two-pass
+ABL (`tapcell.extras.bed_mesh.two_pass`) and XY probing (`tapcell.extras.xy_probe`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tapcell.host.config import ConfigSection
+from tapcell.host.gcode import GCodeCommand, GCodeError
+from tapcell.extras.load_cell_probe.options import ERROR_PREFIX, preload_refusal, trigger_error_message
+from tapcell.extras.load_cell_probe.options import force_beyond_safety_limit_g
+from tapcell.mcu.trigger import FirmwareTrigger, TriggerError, TriggerParams
+from tapcell.mesh.errors import MeshError
+from tapcell.mesh.prusa import (
+    MAX_THRESHOLD_G,
+    MESH,
+    SET_COMMANDS,
+    TARE_SAMPLE_COUNT,
+    TARE_SETTLE_S,
+    XY,
+    Z_FAST,
+    Z_SLOW,
+    Thresholds,
+    check_tare_deviation,
+    retry_offsets_mm,
+)
+from tapcell.extras.probe.session import ProbeError
+from tapcell.extras.probe.options import MAX_RETRACT_MM, PROBE_SPEED_MM_S
+from tapcell.scale import counts_to_grams
+from tapcell.tap.model import Move
+
+SECTION = "prusa_probe"
+THRESHOLD_OPTIONS = {Z_FAST: "z_fast_threshold", Z_SLOW: "z_slow_threshold", MESH: "mesh_threshold",
+                     XY: "xy_threshold"}
+THRESHOLD_LABELS = {Z_FAST: "Z fast", Z_SLOW: "Z slow", MESH: "Mesh", XY: "XY"}
+# Mainsail buttons of the spec, same handlers.
+ALIASES = {"SET_Z_FAST_THRESHOLD": "SET_Z_FAST", "SET_Z_SLOW_THRESHOLD": "SET_Z_SLOW",
+           "SET_MESH_THRESHOLD": "SET_MESH", "SET_XY_THRESHOLD": "SET_XY"}
+
+
+# -- threshold probing on the firmware trigger --------------------------------------------------
+
+@dataclass(frozen=True)
+class TareRecord:
+    purpose: str
+    counts: float
+    force_g: float  # relative to the calibration's reference tare
+    time_s: float
+
+
+@dataclass(frozen=True)
+class ThresholdHit:
+    """One threshold probing move. Positions are in the toolhead frame."""
+
+    triggered: bool
+    trigger_time_s: float | None
+    halt_time_s: float
+    trigger_position_mm: tuple[float, float, float] | None  # where the triggering sample was taken
+    halt_position_mm: tuple[float, float, float]  # where the steppers stopped (after the latency)
+
+
+def z_at_time_mm(move_records: list[dict], t_s: float) -> float:
+    """Commanded Z at t_s: the last move started by then (the simulator's move records)."""
+    moves = [Move.from_record(record) for record in move_records]
+    started = [move for move in moves if move.print_time <= t_s] or moves[:1]
+    return float(started[-1].z_at(t_s))
+
+
+class ThresholdProber:
+    """Tares and threshold probing moves with the `[load_cell_probe]`'s sensor and trigger."""
+
+    def __init__(self, device):
+        self.device = device  # tapcell.extras.load_cell_probe.device.LoadCellProbe
+        self.vp = device.vp
+        self.load_cell = device.load_cell
+        self.toolhead = device.motion
+        self.tares: list[TareRecord] = []
+
+    def require_calibrated(self) -> None:
+        if not self.load_cell.is_calibrated:
+            raise ProbeError(ERROR_PREFIX + "Load Cell not calibrated")
+
+    def tare(self, purpose: str, settle_s: float = TARE_SETTLE_S, sample_count: int = TARE_SAMPLE_COUNT) -> TareRecord:
+        """Wait settle_s for vibrations to die, then average sample_count samples."""
+        self.require_calibrated()
+        self.vp.dwell(settle_s)
+        batch = self.load_cell.collect(sample_count / self.device.sample_rate_sps)
+        if batch.errors:
+            raise ProbeError(ERROR_PREFIX + f"sensor reported {batch.errors} errors while taring")
+        if len(batch.counts) == 0:
+            raise ProbeError(ERROR_PREFIX + "timed out waiting for sensor data")
+        counts = float(np.mean(batch.counts[-sample_count:]))
+        force_g = counts_to_grams(counts, self.load_cell.reference_tare_counts, self.load_cell.counts_per_gram,
+                                  self.device.cell_options.inverted)
+        record = TareRecord(purpose, counts, float(force_g), self.vp.now_s)
+        self.load_cell.set_tare(counts)
+        self.tares.append(record)
+        return record
+
+    def _arm(self, tare: TareRecord, threshold_g: float, release_g: float,
+             drift_safety_limit_g: float | None = None) -> FirmwareTrigger:
+        options = self.device.options
+        # Refused before the move, with the force (the firmware would only say "too much").
+        beyond_g = force_beyond_safety_limit_g(tare.counts, self.load_cell.reference_tare_counts,
+                                               self.load_cell.counts_per_gram, options.force_safety_limit_g)
+        if beyond_g is not None:
+            raise ProbeError(preload_refusal(beyond_g, options.force_safety_limit_g))
+        if drift_safety_limit_g is None:
+            drift_safety_limit_g = options.drift_safety_limit_g
+        trigger = FirmwareTrigger(TriggerParams(
+            counts_per_gram=self.load_cell.counts_per_gram,
+            reference_tare_counts=self.load_cell.reference_tare_counts,
+            trigger_force_g=threshold_g,
+            release_force_g=release_g,
+            sample_rate_sps=self.device.sample_rate_sps,
+            force_safety_limit_g=options.force_safety_limit_g,
+            drift_safety_limit_g=drift_safety_limit_g,
+            inverted=self.device.cell_options.inverted,
+            sos=self.device.config_settings.sos,
+        ))
+        error = trigger.arm(int(round(tare.counts)), self.vp.now_s)
+        if error != TriggerError.NONE:
+            raise ProbeError(trigger_error_message(error, self.device.options.force_safety_limit_g))
+        return trigger
+
+    def _frame_mm(self) -> np.ndarray:
+        return np.array([self.toolhead.frame_offset_mm[axis] for axis in "xyz"])
+
+    def probe_z(self, tare: TareRecord, threshold_g: float, release_g: float, z_min_mm: float,
+                speed_mm_s: float, drift_safety_limit_g: float | None = None) -> ThresholdHit:
+        """Move down toward z_min_mm until the force passes threshold_g (triggered False: no contact).
+        `drift_safety_limit_g`: the load cell probe's unless given (0 disables the drift check)."""
+        trigger = self._arm(tare, threshold_g, release_g, drift_safety_limit_g)
+        frame = self._frame_mm()
+        # The toolhead's position_min, but never past the machine's own travel end.
+        machine_target = max(z_min_mm - frame[2], self.vp.limits["z"][0])
+        result = self.vp.probing_move(machine_target, speed_mm_s, trigger)
+        self.load_cell.pump()
+        if result.error != TriggerError.NONE:
+            raise ProbeError(trigger_error_message(result.error, self.device.options.force_safety_limit_g))
+        halt = tuple(np.array(self.vp.position) + frame)
+        trigger_position = None
+        if result.triggered:
+            z_mm = z_at_time_mm(result.moves, result.trigger_time_s) + frame[2]
+            trigger_position = (halt[0], halt[1], float(z_mm))
+        return ThresholdHit(result.triggered, result.trigger_time_s, result.halt_time_s, trigger_position, halt)
+
+    def probe_xy(self, tare: TareRecord, threshold_g: float, release_g: float, x_mm: float, y_mm: float,
+                 speed_mm_s: float) -> ThresholdHit:
+        """Move horizontally toward (x, y) until the force passes threshold_g."""
+        trigger = self._arm(tare, threshold_g, release_g)
+        frame = self._frame_mm()
+        start = np.array(self.vp.position)
+        result = self.vp.probing_move_xy(x_mm - frame[0], y_mm - frame[1], speed_mm_s, trigger)
+        self.load_cell.pump()
+        if result.error != TriggerError.NONE:
+            raise ProbeError(trigger_error_message(result.error, self.device.options.force_safety_limit_g))
+        halt = np.array(self.vp.position)
+        trigger_position = None
+        if result.triggered:
+            # The move cruises at speed when it meets the pin: step back along it by the latency.
+            direction = (halt - start) / max(float(np.linalg.norm(halt - start)), 1e-12)
+            trigger_position = tuple(halt - direction * speed_mm_s * (result.halt_time_s - result.trigger_time_s)
+                                     + frame)
+        return ThresholdHit(result.triggered, result.trigger_time_s, result.halt_time_s, trigger_position,
+                            tuple(halt + frame))
+
+
+# -- the [prusa_probe] object -------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class PrusaOptions:
+    thresholds: Thresholds
+    z_fast_speed_mm_s: float
+    z_slow_speed_mm_s: float
+    back_off_mm: float
+    max_attempts: int
+
+
+def read_prusa_options(section: ConfigSection) -> PrusaOptions:
+    defaults = Thresholds()
+    hysteresis = section.getfloat("hysteresis", defaults.hysteresis_g, minval=0.0, below=MAX_THRESHOLD_G)
+    thresholds = Thresholds(hysteresis_g=hysteresis)
+    for kind, option in THRESHOLD_OPTIONS.items():
+        value = section.getfloat(option, defaults.value_g(kind), above=0.0, maxval=MAX_THRESHOLD_G)
+        try:
+            thresholds = thresholds.with_threshold(kind, value)
+        except MeshError as exc:
+            problem = str(exc).split(": ", 1)[1]
+            raise section.error(option, problem) from None
+    return PrusaOptions(
+        thresholds=thresholds,
+        z_fast_speed_mm_s=section.getfloat("z_fast_speed", 5.0, minval=PROBE_SPEED_MM_S[0],
+                                           maxval=PROBE_SPEED_MM_S[1]),
+        z_slow_speed_mm_s=section.getfloat("z_slow_speed", 1.0, minval=PROBE_SPEED_MM_S[0],
+                                           maxval=PROBE_SPEED_MM_S[1]),
+        back_off_mm=section.getfloat("back_off", 0.5, above=0.0, maxval=MAX_RETRACT_MM),
+        max_attempts=section.getint("max_attempts", 40, minval=1, maxval=40),
+    )
+
+
+class PrusaProbe:
+    """Thresholds, their commands, LOADCELL_PROBE and the mesh method `prusa`."""
+
+    def __init__(self, section: ConfigSection, printer):
+        self.printer = printer
+        self.section_name = section.get_name()
+        options = read_prusa_options(section)
+        self.thresholds = options.thresholds
+        self.options = options
+        self.last_session: dict | None = None
+        gcode = printer.gcode
+        gcode.register_command("PROBE_THRESHOLDS", self.cmd_PROBE_THRESHOLDS, desc="Show the probe thresholds")
+        gcode.register_command("SHOW_THRESHOLDS", self.cmd_PROBE_THRESHOLDS, desc="Show the probe thresholds")
+        for kind, command in SET_COMMANDS.items():
+            handler = self._set_threshold_handler(kind)
+            desc = f"Set the {THRESHOLD_LABELS[kind]} probe threshold: VALUE=grams"
+            gcode.register_command(command, handler, desc=desc)
+            gcode.register_command(ALIASES[command], handler, desc=desc)
+        gcode.register_command("LOADCELL_PROBE", self.cmd_LOADCELL_PROBE,
+                               desc="Probe Z here with the Z fast and Z slow thresholds (double tare)")
+
+    def prober(self) -> ThresholdProber:
+        device = self.printer.lookup_object("load_cell_probe", None)
+        if device is None:
+            raise GCodeError(f"[{self.section_name}] needs a [load_cell_probe] section")
+        return ThresholdProber(device)
+
+    # -- thresholds ----------------------------------------------------------------------------
+    def describe_thresholds(self) -> str:
+        lines = ["Probe thresholds (grams of force on the nozzle):"]
+        for kind, label in THRESHOLD_LABELS.items():
+            lines.append(f"  {label + ':':<8}{self.thresholds.value_g(kind):g} g "
+                         f"(releases at {self.thresholds.release_g(kind):g} g)")
+        return "\n".join(lines)
+
+    def cmd_PROBE_THRESHOLDS(self, gcmd: GCodeCommand) -> None:
+        gcmd.respond_info(self.describe_thresholds())
+
+    def _set_threshold_handler(self, kind: str):
+        def handler(gcmd: GCodeCommand) -> None:
+            value_g = gcmd.get_float("VALUE", above=0.0, maxval=MAX_THRESHOLD_G)
+            try:
+                self.thresholds = self.thresholds.with_threshold(kind, value_g)
+            except MeshError as exc:
+                raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {exc}") from None
+            self.printer.config.set(self.section_name, THRESHOLD_OPTIONS[kind], f"{value_g:g}")
+            gcmd.respond_info(f"{THRESHOLD_LABELS[kind]} threshold set to {value_g:g} g (releases at "
+                              f"{self.thresholds.release_g(kind):g} g); SAVE_CONFIG keeps it")
+
+        return handler
+
+    # -- Z probing -------------------------------------------------------------------------------
+    def cmd_LOADCELL_PROBE(self, gcmd: GCodeCommand) -> None:
+        prober = self.prober()
+        toolhead = prober.toolhead
+        if not toolhead.is_z_homed():
+            raise gcmd.error("Must home before probe")
+        z_min = toolhead.z_position_min()
+        t = self.thresholds
+        prober.tare("z probe, first tare")
+        tare = prober.tare("z probe, second tare")
+        fast = prober.probe_z(tare, t.z_fast_g, t.release_g(Z_FAST), z_min, self.options.z_fast_speed_mm_s)
+        if not fast.triggered:
+            raise gcmd.error(f"LOADCELL_PROBE: no contact on the fast pass before the travel limit Z={z_min:.3f}")
+        toolhead.move_to(z=fast.halt_position_mm[2] + self.options.back_off_mm, speed_mm_s=self.options.z_slow_speed_mm_s)
+        slow = prober.probe_z(tare, t.z_slow_g, t.release_g(Z_SLOW), z_min, self.options.z_slow_speed_mm_s)
+        if not slow.triggered:
+            raise gcmd.error(f"LOADCELL_PROBE: no contact on the slow pass before the travel limit Z={z_min:.3f}")
+        toolhead.move_to(z=slow.halt_position_mm[2] + self.options.back_off_mm, speed_mm_s=self.options.z_slow_speed_mm_s)
+        z_offset = self.printer.lookup_object("probe").options.z_offset_mm
+        result = slow.trigger_position_mm[2] - z_offset
+        self.last_session = {"kind": "z", "tares": len(prober.tares), "z_mm": result,
+                             "fast_z_mm": fast.trigger_position_mm[2] - z_offset}
+        gcmd.respond_info(f"LOADCELL_PROBE: z={result:.6f} (fast pass {fast.trigger_position_mm[2] - z_offset:.6f}, "
+                          f"thresholds {t.z_fast_g:g} / {t.z_slow_g:g} g, {len(prober.tares)} tares)")
+
+    # -- the mesh method -------------------------------------------------------------------------
+    def probe_mesh_points(self, options, gcmd: GCodeCommand, points_xy_mm: np.ndarray, progress):
+        from tapcell.extras.bed_mesh import MeshProbeRun, mesh_travel_height_mm
+
+        prober = self.prober()
+        toolhead = prober.toolhead
+        probe = self.printer.lookup_object("probe")
+        z_offset, speed = probe.options.z_offset_mm, probe.options.speed_mm_s
+        z_min = toolhead.z_position_min()
+        t = self.thresholds
+        reference = prober.tare("session reference")
+        z_values, attempts_used, retares = [], [], 0
+        offsets = retry_offsets_mm(self.options.max_attempts)
+        contacts_xyz = []  # where the nozzle touched (toolhead Z): the travel height follows the bed
+        for index, (x_mm, y_mm) in enumerate(points_xy_mm):
+            travel_z = mesh_travel_height_mm(options, contacts_xyz, (float(x_mm), float(y_mm)))
+            for attempt, (dx, dy) in enumerate(offsets, start=1):
+                if toolhead.get_position()[2] < travel_z:
+                    toolhead.move_to(z=travel_z, speed_mm_s=speed)
+                toolhead.move_to(x=float(x_mm + dx), y=float(y_mm + dy), speed_mm_s=options.speed_mm_s)
+                tare = prober.tare(f"mesh point {index + 1}")
+                check = check_tare_deviation(tare.force_g, reference.force_g)
+                if check.action == "lift_and_retare":
+                    gcmd.respond_info(f"Point {index + 1}: tare is {check.deviation_g:+.0f} g from the session "
+                                      f"reference (limit 125 g): lifting {check.lift_mm:g} mm and taring again")
+                    z_here = toolhead.get_position()[2]
+                    toolhead.move_to(z=z_here + check.lift_mm, speed_mm_s=speed)
+                    tare = reference = prober.tare(f"mesh point {index + 1}, re-tare")
+                    toolhead.move_to(z=z_here, speed_mm_s=speed)
+                    retares += 1
+                hit = prober.probe_z(tare, t.mesh_g, t.release_g(MESH), z_min, speed)
+                if hit.triggered:
+                    break
+                gcmd.respond_info(f"Point {index + 1}: no contact before Z={z_min:.3f} (attempt {attempt} of "
+                                  f"{len(offsets)})")
+            else:
+                raise ProbeError(f"Mesh point {index + 1} at {x_mm:.3f},{y_mm:.3f}: no contact after "
+                                 f"{len(offsets)} attempts")
+            z_values.append(hit.trigger_position_mm[2] - z_offset)
+            attempts_used.append(attempt)
+            contacts_xyz.append(tuple(float(v) for v in hit.trigger_position_mm))
+            progress(index + 1, len(points_xy_mm))
+        toolhead.move_to(z=max(toolhead.get_position()[2], options.horizontal_move_z_mm), speed_mm_s=speed)
+        self.last_session = {"kind": "mesh", "points": len(points_xy_mm), "tares": len(prober.tares),
+                             "retares": retares, "attempts": int(sum(attempts_used))}
+        report = (f"Prusa-matched mesh: threshold {t.mesh_g:g} g, {len(prober.tares)} tares for "
+                  f"{len(points_xy_mm)} points ({retares} re-tares), {sum(attempts_used)} attempts")
+        return MeshProbeRun(z_values, report, {"method": "prusa", **self.last_session})
+
+    def get_status(self, eventtime=None) -> dict:
+        return {"thresholds": self.thresholds.to_status(), "last_session": self.last_session}
+
+
+def probe_points_prusa(printer, options, gcmd: GCodeCommand, points_xy_mm: np.ndarray, progress):
+    """BED_MESH_CALIBRATE METHOD=prusa."""
+    prusa = printer.lookup_object(SECTION, None)
+    if prusa is None:
+        raise GCodeError("METHOD=prusa needs a [prusa_probe] section")
+    return prusa.probe_mesh_points(options, gcmd, points_xy_mm, progress)
+
+
+def load_config(section: ConfigSection, printer) -> PrusaProbe:
+    return PrusaProbe(section, printer)

@@ -1,0 +1,156 @@
+"""`[xy_probe]`: touch a pin from the side with the load cell and report where it is.
+
+The nozzle is lowered beside a calibration pin and moved sideways until the force on the
+load cell passes the XY threshold (40 g, Prusa's XY_PROBE_THRESHOLD; `SET_XY_THRESHOLD` of
+`[prusa_probe]` changes it). The contact position is the nozzle position at the triggering
+sample. Touching the pin from both sides on each axis gives its centre: the toolhead's
+sideways give before the trigger is the same on both sides and cancels out. That centre,
+measured with each tool, is the basis of tool-offset calibration.
+
+Commands:
+* `XY_PROBE DIRECTION=+X|-X|+Y|-Y [DISTANCE=] [SPEED=] [FORCE=]`: from where the nozzle is,
+  move that way until contact; report the contact position.
+* `XY_PROBE_PIN [X=] [Y=] [Z=]`: find the centre of the pin near X, Y (default: `pin_x`,
+  `pin_y`) from four sides at nozzle height Z (default `probe_z`); report the centre, its
+  offset from the nominal position and the apparent diameter (pin + nozzle tip, less the give).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from tapcell.host.config import ConfigSection
+from tapcell.host.gcode import GCodeCommand, GCodeError
+from tapcell.mesh.prusa import XY, Thresholds
+from tapcell.extras.prusa_probe import ThresholdProber
+from tapcell.host.toolhead import COORDINATE_RANGE, MAX_COORDINATE_MM, SPEED_RANGE
+
+SECTION = "xy_probe"
+DIRECTIONS = {"+X": (1.0, 0.0), "-X": (-1.0, 0.0), "+Y": (0.0, 1.0), "-Y": (0.0, -1.0)}
+# A sideways touch slower than 0.5 mm/s takes minutes of simulated sampling for nothing.
+XY_PROBE_SPEED_MM_S = (0.5, 20.0)
+MAX_TRAVEL_MM = 50.0
+MAX_SIZE_MM = 100.0  # pin and nozzle tip diameters, clearance
+
+
+@dataclass(frozen=True)
+class XYProbeOptions:
+    pin_x_mm: float | None
+    pin_y_mm: float | None
+    pin_diameter_mm: float
+    nozzle_tip_diameter_mm: float
+    probe_z_mm: float  # nozzle height beside the pin (below its top)
+    safe_z_mm: float  # travel height above the pin
+    clearance_mm: float  # start this far from the nominal pin surface
+    speed_mm_s: float
+    travel_speed_mm_s: float
+    max_travel_mm: float
+
+
+def read_xy_probe_options(section: ConfigSection) -> XYProbeOptions:
+    probe_z = section.getfloat("probe_z", 2.0, **COORDINATE_RANGE)
+    return XYProbeOptions(
+        pin_x_mm=section.getfloat("pin_x", None, **COORDINATE_RANGE),
+        pin_y_mm=section.getfloat("pin_y", None, **COORDINATE_RANGE),
+        pin_diameter_mm=section.getfloat("pin_diameter", 6.0, above=0.0, maxval=MAX_SIZE_MM),
+        nozzle_tip_diameter_mm=section.getfloat("nozzle_tip_diameter", 1.0, above=0.0, maxval=MAX_SIZE_MM),
+        probe_z_mm=probe_z,
+        safe_z_mm=section.getfloat("safe_z", 10.0, above=probe_z, maxval=MAX_COORDINATE_MM),
+        clearance_mm=section.getfloat("clearance", 2.0, above=0.0, maxval=MAX_SIZE_MM),
+        speed_mm_s=section.getfloat("speed", 2.0, minval=XY_PROBE_SPEED_MM_S[0], maxval=XY_PROBE_SPEED_MM_S[1]),
+        travel_speed_mm_s=section.getfloat("travel_speed", 50.0, **SPEED_RANGE),
+        max_travel_mm=section.getfloat("max_travel", 10.0, above=0.0, maxval=MAX_TRAVEL_MM),
+    )
+
+
+class XYProbe:
+    def __init__(self, section: ConfigSection, printer):
+        self.printer = printer
+        self.options = read_xy_probe_options(section)
+        self.last_result: dict | None = None
+        gcode = printer.gcode
+        gcode.register_command("XY_PROBE", self.cmd_XY_PROBE,
+                               desc="Move sideways until the nozzle touches: DIRECTION=+X|-X|+Y|-Y [DISTANCE=] [SPEED=]")
+        gcode.register_command("XY_PROBE_PIN", self.cmd_XY_PROBE_PIN,
+                               desc="Find the calibration pin's centre from four sides: [X=] [Y=] [Z=]")
+
+    def _threshold(self) -> Thresholds:
+        prusa = self.printer.lookup_object("prusa_probe", None)
+        return Thresholds() if prusa is None else prusa.thresholds
+
+    def _prober(self) -> ThresholdProber:
+        device = self.printer.lookup_object("load_cell_probe", None)
+        if device is None:
+            raise GCodeError("XY probing needs a [load_cell_probe] section")
+        prober = ThresholdProber(device)
+        if prober.toolhead.status()["homed_axes"] != "xyz":
+            raise GCodeError("XY probing: home all axes first (G28)")
+        return prober
+
+    def touch(self, prober: ThresholdProber, direction: tuple[float, float], distance_mm: float,
+              speed_mm_s: float, force_g: float) -> tuple[float, float]:
+        """Tare, then move `distance_mm` along `direction` until the force passes force_g; returns
+        the nozzle X, Y at the triggering sample (GCodeError when nothing was touched)."""
+        x0, y0, _ = prober.toolhead.get_position()
+        tare = prober.tare("xy probe")
+        hit = prober.probe_xy(tare, force_g, force_g / 2.0, x0 + direction[0] * distance_mm,
+                              y0 + direction[1] * distance_mm, speed_mm_s)
+        if not hit.triggered:
+            raise GCodeError(f"XY probe: no contact within {distance_mm:g} mm from X={x0:.3f} Y={y0:.3f}")
+        return hit.trigger_position_mm[0], hit.trigger_position_mm[1]
+
+    def cmd_XY_PROBE(self, gcmd: GCodeCommand) -> None:
+        name = gcmd.get("DIRECTION").strip().upper()
+        if name not in DIRECTIONS:
+            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': DIRECTION must be one of {', '.join(DIRECTIONS)}")
+        distance = gcmd.get_float("DISTANCE", self.options.max_travel_mm, above=0.0, maxval=MAX_TRAVEL_MM)
+        speed = gcmd.get_float("SPEED", self.options.speed_mm_s, minval=XY_PROBE_SPEED_MM_S[0],
+                               maxval=XY_PROBE_SPEED_MM_S[1])
+        force = gcmd.get_float("FORCE", self._threshold().value_g(XY), above=0.0, maxval=1000.0)
+        prober = self._prober()
+        x_start, y_start, _ = prober.toolhead.get_position()
+        x_mm, y_mm = self.touch(prober, DIRECTIONS[name], distance, speed, force)
+        # Back off to where the move started, so the nozzle does not keep pressing.
+        prober.toolhead.move_to(x=x_start, y=y_start, speed_mm_s=speed)
+        self.last_result = {"direction": name, "contact_x": x_mm, "contact_y": y_mm, "force_g": force}
+        gcmd.respond_info(f"XY_PROBE: contact at X={x_mm:.4f} Y={y_mm:.4f} (moving {name}, {force:g} g)")
+
+    def cmd_XY_PROBE_PIN(self, gcmd: GCodeCommand) -> None:
+        opts = self.options
+        x_nominal = gcmd.get_float("X", opts.pin_x_mm, **COORDINATE_RANGE)
+        y_nominal = gcmd.get_float("Y", opts.pin_y_mm, **COORDINATE_RANGE)
+        if x_nominal is None or y_nominal is None:
+            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': give X= and Y= (or pin_x, pin_y in [xy_probe])")
+        z_mm = gcmd.get_float("Z", opts.probe_z_mm, **COORDINATE_RANGE)
+        force = self._threshold().value_g(XY)
+        prober = self._prober()
+        toolhead = prober.toolhead
+        reach_mm = (opts.pin_diameter_mm + opts.nozzle_tip_diameter_mm) / 2.0 + opts.clearance_mm
+        contacts = {}
+        for name, (dx, dy) in DIRECTIONS.items():
+            start = (x_nominal - dx * reach_mm, y_nominal - dy * reach_mm)
+            toolhead.move_to(z=max(toolhead.get_position()[2], opts.safe_z_mm), speed_mm_s=opts.travel_speed_mm_s)
+            toolhead.move_to(x=start[0], y=start[1], speed_mm_s=opts.travel_speed_mm_s)
+            toolhead.move_to(z=z_mm, speed_mm_s=opts.travel_speed_mm_s)
+            # Never further than the nominal centre: missing the pin by then means it is not there.
+            contacts[name] = self.touch(prober, (dx, dy), reach_mm, opts.speed_mm_s, force)
+            toolhead.move_to(x=start[0], y=start[1], speed_mm_s=opts.speed_mm_s)
+        toolhead.move_to(z=opts.safe_z_mm, speed_mm_s=opts.travel_speed_mm_s)
+        x_center = (contacts["+X"][0] + contacts["-X"][0]) / 2.0
+        y_center = (contacts["+Y"][1] + contacts["-Y"][1]) / 2.0
+        width_x = contacts["-X"][0] - contacts["+X"][0]
+        width_y = contacts["-Y"][1] - contacts["+Y"][1]
+        self.last_result = {"center_x": x_center, "center_y": y_center, "width_x": width_x, "width_y": width_y,
+                            "offset_x": x_center - x_nominal, "offset_y": y_center - y_nominal, "force_g": force}
+        gcmd.respond_info(
+            f"XY_PROBE_PIN: pin centre at X={x_center:.4f} Y={y_center:.4f} "
+            f"(offset from X={x_nominal:g} Y={y_nominal:g}: {x_center - x_nominal:+.4f}, {y_center - y_nominal:+.4f} mm)\n"
+            f"apparent diameter (pin + nozzle tip, less the give at {force:g} g): "
+            f"X {width_x:.4f} mm, Y {width_y:.4f} mm")
+
+    def get_status(self, eventtime=None) -> dict:
+        return {"last_result": self.last_result, "xy_threshold_g": self._threshold().value_g(XY)}
+
+
+def load_config(section: ConfigSection, printer) -> XYProbe:
+    return XYProbe(section, printer)

@@ -1,0 +1,1 @@
+"""The klippy-like runtime: printer assembly, config, G-code, toolhead."""

@@ -1,0 +1,403 @@
+"""The G-code layer: parsing, the command registry, typed parameters, responses.
+
+Two kinds of lines are understood, as in Klipper:
+
+* classic commands, a letter and a number followed by letter+number
+  parameters: `G1 Z5 F300`, `M104 S140`, `G1X10Y20`;
+* extended commands, a name followed by `KEY=value` parameters:
+  `LOAD_CELL_CALIBRATE`, `CALIBRATE GRAMS=500`, `RESPOND MSG="two words"`.
+
+Command names and parameter names are case-insensitive (stored upper case);
+values keep their case.  `;` starts a comment (outside quotes), `N123` line
+numbers and `*71` checksums are dropped, blank lines do nothing.
+
+Handlers get a `GCodeCommand` and read typed parameters from it; a bad or
+missing parameter raises `GCodeError` naming the parameter, e.g.
+`Error on 'CALIBRATE GRAMS=10': GRAMS must have minimum of 50`.
+Responses go to a sink (a list or a callable) one line at a time:
+`// text` for information, `!! text` for errors.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from tapcell.host.config import GCODE_WORDS, ConfigError, check_range, require_range
+
+
+class GCodeError(Exception):
+    """A command failed; the message is what the user sees after `!! `."""
+
+
+class _Required:
+    def __repr__(self) -> str:
+        return "REQUIRED"
+
+
+REQUIRED: Any = _Required()
+
+# Commands may run commands (macros, probe templates); a chain this deep is a mistake.
+MAX_NESTING = 32
+
+Handler = Callable[["GCodeCommand"], None]
+ResponseSink = Callable[[str], None] | list
+
+
+# ---------------------------------------------------------------------------
+# Parsing (pure functions)
+
+
+@dataclass(frozen=True)
+class ParsedLine:
+    """One G-code line, parsed: `command` and `params` are upper-case names."""
+
+    command: str
+    params: dict[str, str]
+    commandline: str  # the line without comment, line number and checksum
+    rawparams: str  # everything after the command name, as typed
+
+
+_CLASSIC_RE = re.compile(r"^([A-Za-z])\s*(\d+(?:\.\d+)?)")
+_LINE_NUMBER_RE = re.compile(r"^[Nn]\d+\s*")
+_CHECKSUM_RE = re.compile(r"\*\d+\s*$")
+_EXTENDED_PARAM_RE = re.compile(r"""([^\s=]+)=("[^"]*"|'[^']*'|[^\s"']*)(?=\s|$)""")
+
+
+def strip_comment(line: str) -> str:
+    """Drop a `;` comment unless the `;` is inside quotes."""
+    quote = None
+    for index, char in enumerate(line):
+        if quote:
+            if char == quote:
+                quote = None
+        elif char in "\"'":
+            quote = char
+        elif char == ";":
+            return line[:index]
+    return line
+
+
+def parse_line(line: str) -> ParsedLine | None:
+    """Parse one line; None for a blank or comment-only line.  Raises GCodeError if malformed."""
+    text = strip_comment(line).strip()
+    text = _CHECKSUM_RE.sub("", text)
+    text = _LINE_NUMBER_RE.sub("", text).strip()
+    if not text:
+        return None
+    classic = _CLASSIC_RE.match(text)
+    tail = text[classic.end():] if classic else ""
+    # `G1 Z5` and `G1Z5` are classic; `A1_THING` is an extended command name.
+    if classic and (not tail or tail[0].isspace() or tail[0].isalpha()):
+        number = classic.group(2)
+        # G01 and G1 are the same command.
+        integer, _, fraction = number.partition(".")
+        number = str(int(integer)) + (f".{fraction}" if fraction else "")
+        command = classic.group(1).upper() + number
+        rawparams = text[classic.end():].strip()
+        return ParsedLine(command, _parse_classic_params(rawparams, text), text, rawparams)
+    name, _, rawparams = text.partition(" ")
+    rawparams = rawparams.strip()
+    return ParsedLine(name.upper(), _parse_extended_params(rawparams, text), text, rawparams)
+
+
+def _parse_classic_params(rawparams: str, commandline: str) -> dict[str, str]:
+    params: dict[str, str] = {}
+    for match in re.finditer(r"\s*(\S)([^\sA-Za-z]*)", rawparams):
+        letter, value = match.group(1), match.group(2)
+        if not letter.isalpha():
+            raise GCodeError(f"Malformed command '{commandline}': expected a letter and a number, "
+                             f"got {match.group(0).strip()!r}")
+        params[letter.upper()] = value
+    return params
+
+
+def _parse_extended_params(rawparams: str, commandline: str) -> dict[str, str]:
+    params: dict[str, str] = {}
+    position = 0
+    while position < len(rawparams):
+        if rawparams[position].isspace():
+            position += 1
+            continue
+        match = _EXTENDED_PARAM_RE.match(rawparams, position)
+        if match is None:
+            word = rawparams[position:].split()[0]
+            if word.count('"') % 2 or word.count("'") % 2:
+                problem = "a quoted value is not closed"
+            else:
+                problem = f"expected NAME=VALUE, got {word!r}"
+            raise GCodeError(f"Malformed command '{commandline}': {problem}")
+        key, value = match.group(1), match.group(2)
+        if len(value) >= 2 and value[0] == value[-1] and value[0] in "\"'":
+            value = value[1:-1]
+        params[key.upper()] = value
+        position = match.end()
+    return params
+
+
+# ---------------------------------------------------------------------------
+# A command being run
+
+
+class GCodeCommand:
+    """What a handler receives: the command, its parameters and a way to answer."""
+
+    def __init__(self, dispatch: GCodeDispatch, parsed: ParsedLine):
+        self._dispatch = dispatch
+        self.command = parsed.command
+        self.commandline = parsed.commandline
+        self.rawparams = parsed.rawparams
+        self._params = dict(parsed.params)
+
+    def get_commandline(self) -> str:
+        return self.commandline
+
+    def get_command_parameters(self) -> dict[str, str]:
+        """All parameters, upper-case names to their text."""
+        return dict(self._params)
+
+    def has(self, name: str) -> bool:
+        return name.upper() in self._params
+
+    def error(self, message: str) -> GCodeError:
+        return GCodeError(message)
+
+    def _fail(self, problem: str) -> GCodeError:
+        return GCodeError(f"Error on '{self.commandline}': {problem}")
+
+    def get(self, name: str, default: Any = REQUIRED) -> Any:
+        """The parameter's text, `default` when absent (absent and no default: error)."""
+        value = self._params.get(name.upper())
+        if value is None:
+            if default is REQUIRED:
+                raise self._fail(f"missing {name.upper()}")
+            return default
+        return value
+
+    def get_int(self, name: str, default: Any = REQUIRED, *, minval: int | None = None,
+                maxval: int | None = None) -> Any:
+        """An integer parameter within the declared range (every numeric parameter must declare one)."""
+        return self._get_numbers(name, default, int, "an integer", (minval, maxval, None, None))
+
+    def get_float(self, name: str, default: Any = REQUIRED, *, minval: float | None = None,
+                  maxval: float | None = None, above: float | None = None, below: float | None = None) -> Any:
+        """A finite number parameter within the declared range."""
+        return self._get_numbers(name, default, _finite_float, "a number", (minval, maxval, above, below))
+
+    def get_intlist(self, name: str, default: Any = REQUIRED, *, count: int | None = None,
+                    minval: int | None = None, maxval: int | None = None) -> Any:
+        """Comma-separated integers, each within the declared range (`count`: exactly that many)."""
+        return self._get_numbers(name, default, int, "integers", (minval, maxval, None, None), many=True, count=count)
+
+    def get_floatlist(self, name: str, default: Any = REQUIRED, *, count: int | None = None,
+                      minval: float | None = None, maxval: float | None = None, above: float | None = None,
+                      below: float | None = None) -> Any:
+        """Comma-separated finite numbers, each within the declared range."""
+        return self._get_numbers(name, default, _finite_float, "numbers", (minval, maxval, above, below),
+                                 many=True, count=count)
+
+    def _get_numbers(self, name, default, parse, kind, limits, *, many=False, count=None):
+        """One number, or with `many` a comma-separated list (of `count` items if given), range-checked."""
+        name = name.upper()
+        require_range(f"{self.command} {name}", *limits)
+        text = self._params.get(name)
+        if text is None:
+            return self.get(name, default)  # the default, or the "missing" error
+        if not many:
+            return self._parse_checked(name, text, parse, f"unable to parse '{text}' for {name} (expected {kind})",
+                                       limits)
+        items = [item.strip() for item in text.split(",")]
+        if count is not None and len(items) != count:
+            raise self._fail(f"{name} needs exactly {count} comma-separated {kind}, got {len(items)}")
+        return [self._parse_checked(name, item, parse,
+                                    f"unable to parse '{item}' in {name} (expected comma-separated {kind})", limits)
+                for item in items]
+
+    def _parse_checked(self, name, text, parse, unparsable, limits):
+        try:
+            value = parse(text)
+        except ValueError:
+            raise self._fail(unparsable) from None
+        problem = check_range(value, *limits, words=GCODE_WORDS)
+        if problem:
+            raise self._fail(f"{name} {problem}")
+        return value
+
+    def respond_info(self, message: str) -> None:
+        self._dispatch.respond_info(message)
+
+    def respond_raw(self, message: str) -> None:
+        self._dispatch.respond_raw(message)
+
+
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):
+        raise ValueError(text)
+    return value
+
+
+# ---------------------------------------------------------------------------
+# The dispatcher
+
+
+@dataclass
+class _Mux:
+    key: str
+    handlers: dict[str | None, Handler] = field(default_factory=dict)
+
+
+class GCodeDispatch:
+    """The command registry and the place every response goes through."""
+
+    def __init__(self, responses: ResponseSink | None = None):
+        self._responses: ResponseSink | None = responses
+        self._handlers: dict[str, Handler] = {}
+        self._help: dict[str, str] = {}
+        self._mux: dict[str, _Mux] = {}
+        self._running: list[str] = []  # the commands running now, outermost first
+        self._register_builtins()
+
+    # -- responses -----------------------------------------------------------
+
+    def set_response_sink(self, responses: ResponseSink | None) -> None:
+        """Where response lines go: a list (appended to) or a callable (called per line)."""
+        self._responses = responses
+
+    def _emit(self, line: str) -> None:
+        if self._responses is None:
+            return
+        if isinstance(self._responses, list):
+            self._responses.append(line)
+        else:
+            self._responses(line)
+
+    def respond_raw(self, message: str) -> None:
+        for line in str(message).split("\n"):
+            self._emit(line)
+
+    def respond_info(self, message: str) -> None:
+        for line in str(message).split("\n"):
+            self._emit(f"// {line}")
+
+    def respond_error(self, message: str) -> None:
+        for line in str(message).split("\n"):
+            self._emit(f"!! {line}")
+
+    # -- registration --------------------------------------------------------
+
+    def clear_commands(self) -> None:
+        """Forget every command except the built-in HELP (used by RESTART)."""
+        self._handlers.clear()
+        self._help.clear()
+        self._mux.clear()
+        self._register_builtins()
+
+    def _register_builtins(self) -> None:
+        self.register_command("HELP", self._cmd_help, desc="List the available commands with their help text")
+
+    def is_registered(self, name: str) -> bool:
+        return name.upper() in self._handlers
+
+    def register_command(self, name: str, handler: Handler, desc: str | None = None) -> None:
+        """Add a command; registering a name twice is an error (unregister first)."""
+        name = name.upper()
+        if name in self._handlers:
+            raise GCodeError(f"Command '{name}' is already registered")
+        self._handlers[name] = handler
+        if desc:
+            self._help[name] = desc
+
+    def unregister_command(self, name: str) -> None:
+        """Remove a command (e.g. the temporary TARE/ACCEPT of a calibration)."""
+        name = name.upper()
+        self._handlers.pop(name, None)
+        self._help.pop(name, None)
+        self._mux.pop(name, None)
+
+    def register_mux_command(self, cmd: str, key: str, value: str | None, handler: Handler,
+                             desc: str | None = None) -> None:
+        """Register `cmd` for `KEY=value`; value None is the default when KEY is omitted."""
+        cmd, key = cmd.upper(), key.upper()
+        mux = self._mux.get(cmd)
+        if mux is None:
+            if cmd in self._handlers:
+                raise GCodeError(f"Command '{cmd}' is already registered")
+            mux = self._mux[cmd] = _Mux(key)
+            self._handlers[cmd] = lambda gcmd, cmd=cmd: self._run_mux(cmd, gcmd)
+            if desc:
+                self._help[cmd] = desc
+        if mux.key != key:
+            raise GCodeError(f"Command '{cmd}' is already selected by {mux.key}=, not {key}=")
+        if value in mux.handlers:
+            shown = f"{key}={value}" if value is not None else f"without {key}="
+            raise GCodeError(f"Command '{cmd}' {shown} is already registered")
+        mux.handlers[value] = handler
+
+    def _run_mux(self, cmd: str, gcmd: GCodeCommand) -> None:
+        mux = self._mux[cmd]
+        value = gcmd.get(mux.key, None)
+        handler = mux.handlers.get(value)
+        if handler is None:
+            named = sorted(v for v in mux.handlers if v is not None)
+            if value is None:
+                raise GCodeError(f"Error on '{gcmd.commandline}': missing {mux.key} "
+                                 f"(one of: {', '.join(named)})")
+            raise GCodeError(f"Error on '{gcmd.commandline}': the value '{value}' is not valid for "
+                             f"{mux.key} (one of: {', '.join(named)})")
+        handler(gcmd)
+
+    def get_command_help(self) -> dict[str, str]:
+        return dict(self._help)
+
+    # -- running -------------------------------------------------------------
+
+    def run_script(self, text: str) -> None:
+        """Run each line of `text`; the first failure raises GCodeError (the rest is not run)."""
+        for line in text.split("\n"):
+            self.run_line(line)
+
+    def run_line(self, line: str) -> None:
+        """Run one line.  A user error raises GCodeError; any other exception is a bug and propagates."""
+        parsed = parse_line(line)
+        if parsed is None:
+            return
+        handler = self._handlers.get(parsed.command)
+        if handler is None:
+            raise GCodeError(f'Unknown command:"{parsed.command}"')
+        self._check_nesting(parsed.command)
+        self._running.append(parsed.command)
+        try:
+            handler(GCodeCommand(self, parsed))
+        except ConfigError as exc:  # e.g. SAVE_CONFIG unable to write the file
+            raise GCodeError(str(exc)) from exc
+        finally:
+            self._running.pop()
+
+    def _check_nesting(self, command: str) -> None:
+        """Refuse a command that runs inside itself (a macro or probe template calling it again)
+        or a chain of commands nested too deep: either would never end."""
+        if command in self._running:
+            chain = " -> ".join((*self._running[self._running.index(command):], command))
+            raise GCodeError(f"{command} called recursively ({chain})")
+        if len(self._running) >= MAX_NESTING:
+            raise GCodeError(f"{command}: G-code nested more than {MAX_NESTING} commands deep "
+                             f"({' -> '.join(self._running[:3])} -> ...)")
+
+    def run_script_reporting_errors(self, text: str) -> bool:
+        """Run like a console: a failure becomes a `!! message` response.  True if all succeeded."""
+        try:
+            self.run_script(text)
+        except GCodeError as exc:
+            self.respond_error(str(exc))
+            return False
+        return True
+
+    # -- built-ins -----------------------------------------------------------
+
+    def _cmd_help(self, gcmd: GCodeCommand) -> None:
+        lines = ["Available commands:"]
+        lines += [f"{name}: {self._help[name]}" for name in sorted(self._help)]
+        gcmd.respond_info("\n".join(lines))

@@ -1,0 +1,302 @@
+"""Assemble a printer from a config file: one object per section, status, events, RESTART.
+
+`Printer.from_config(path)` reads the config, builds the backend (the virtual
+printer, from `[virtual_printer]`), then loads every section through the module
+registry `MODULES`: the first word of a section name picks the module, which
+provides `load_config(section, printer)` for `[name]` and/or
+`load_config_prefix(section, printer)` for `[name instance]`.  The object a
+module returns is stored under the full section name and, if it has
+`get_status(eventtime)`, appears in `get_status()` (and so in G-code macros as
+`printer.<name>` / `printer["<name>"]`).
+
+Sections in `READ_BY` have no module of their own: the module of another
+section reads them (the toolhead reads `[stepper_x]`).  Modules are imported
+only when a config uses them; a registered module that is not installed yet
+makes its sections "not checked" (a warning) instead of breaking the load.
+"""
+
+from __future__ import annotations
+
+import importlib
+import time
+from typing import Any, Callable
+
+from tapcell.host.config import ConfigError, ConfigFile
+from tapcell.host.gcode import GCodeCommand, GCodeDispatch, GCodeError, ResponseSink
+
+# Section kind (first word of the section name) -> module that loads it.
+MODULES: dict[str, str] = {
+    "printer": "tapcell.host.toolhead",
+    "load_cell": "tapcell.extras.load_cell",
+    "load_cell_probe": "tapcell.extras.load_cell_probe.device",
+    "bed_mesh": "tapcell.extras.bed_mesh",
+    "gcode_macro": "tapcell.extras.gcode_macro",
+    "z_thermal_adjust": "tapcell.extras.z_thermal_adjust",
+    "prusa_probe": "tapcell.extras.prusa_probe",
+    "xy_probe": "tapcell.extras.xy_probe",
+}
+
+# Sections without a module of their own -> the section whose module reads them.
+READ_BY: dict[str, str] = {
+    "stepper_x": "printer",
+    "stepper_y": "printer",
+    "stepper_z": "printer",
+    "extruder": "printer",
+    "heater_bed": "printer",
+}
+
+# The backend's section: read by the virtual printer itself.
+BACKEND_SECTION = "virtual_printer"
+BACKEND_MODULE = "tapcell.sim"
+# G-code commands that act on the virtual hardware (SIM_PLACE_WEIGHT, ...).
+BACKEND_COMMANDS_MODULE = "tapcell.sim.commands"
+
+# Sections loaded before the others (in this order), because others look them up.
+LOAD_FIRST = ("printer",)
+
+_MISSING = object()
+
+
+def _import_module(module_name: str):
+    """The module, or None if it (not one of its own imports) does not exist yet."""
+    try:
+        return importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        if exc.name is not None and module_name.startswith(exc.name):
+            return None
+        raise
+
+
+class Printer:
+    """The host side of one printer: config, backend, G-code, objects by section."""
+
+    def __init__(self, config_path: str, *, backend: Any = None, responses: ResponseSink | None = None):
+        self.config_path = str(config_path)
+        self._given_backend = backend
+        self.gcode = GCodeDispatch(responses)
+        self.config: ConfigFile | None = None
+        self.backend: Any = backend
+        self.objects: dict[str, Any] = {}
+        self.warnings: list[str] = []
+        self.state = "starting"  # "ready" or "error"
+        self.state_message = ""
+        self._event_handlers: dict[str, list[Callable[..., Any]]] = {}
+        self._loading: set[str] = set()
+        self._loaded: set[str] = set()  # sections loaded (or skipped), whether or not they made an object
+        self._skipped: dict[str, str] = {}  # section -> the missing module it needs
+
+    @classmethod
+    def from_config(cls, path: str, *, backend: Any = None, responses: ResponseSink | None = None) -> Printer:
+        """Build a ready printer from `path`; raises ConfigError for any problem in the file."""
+        printer = cls(path, backend=backend, responses=responses)
+        printer._build()
+        return printer
+
+    # -- objects -------------------------------------------------------------
+
+    def lookup_object(self, name: str, default: Any = _MISSING) -> Any:
+        if name in self.objects:
+            return self.objects[name]
+        if default is _MISSING:
+            raise ConfigError(f"Unknown printer object '{name}' (known: {', '.join(sorted(self.objects))})")
+        return default
+
+    def add_object(self, name: str, obj: Any) -> None:
+        if name in self.objects:
+            raise ConfigError(f"Printer object '{name}' already exists")
+        self.objects[name] = obj
+
+    def load_object(self, section_name: str) -> Any:
+        """The object of a section, loading it now if it was not loaded yet (None if absent)."""
+        if section_name in self._loading:
+            raise ConfigError(f"{self.config.section_file(section_name)}: [{section_name}] depends on itself "
+                              f"while loading", file=self.config.section_file(section_name), section=section_name)
+        if section_name not in self._loaded and self.config.has_section(section_name):
+            self._load_section(section_name)
+        return self.objects.get(section_name)
+
+    def get_time(self) -> float:
+        """The printer's clock: the backend's simulated seconds (`now_s`), else the host's monotonic clock."""
+        now_s = getattr(self.backend, "now_s", None)
+        return float(now_s) if now_s is not None else time.monotonic()
+
+    def get_status(self, eventtime: float | None = None) -> dict[str, dict]:
+        """Every object's status under its section name (plain, JSON-ready data)."""
+        eventtime = self.get_time() if eventtime is None else eventtime
+        return {name: obj.get_status(eventtime) for name, obj in self.objects.items()
+                if hasattr(obj, "get_status")}
+
+    # -- events --------------------------------------------------------------
+
+    def register_event_handler(self, event: str, callback: Callable[..., Any]) -> None:
+        """Call `callback(*args)` on `send_event(event, *args)`.
+
+        Events sent by the printer: "printer:ready" (all sections loaded) and
+        "printer:restart" (before the objects are dropped by RESTART).
+        """
+        self._event_handlers.setdefault(event, []).append(callback)
+
+    def send_event(self, event: str, *args: Any) -> list[Any]:
+        return [callback(*args) for callback in self._event_handlers.get(event, [])]
+
+    # -- building ------------------------------------------------------------
+
+    def _build(self) -> None:
+        self.objects.clear()
+        self.warnings.clear()
+        self._skipped.clear()
+        self._loaded.clear()
+        self._event_handlers.clear()
+        self.config = None
+        self.gcode.clear_commands()
+        self._register_builtin_commands()
+        try:
+            self.config = ConfigFile.read(self.config_path)
+            self._check_section_names()
+            self._build_backend()
+            ordered = [n for n in LOAD_FIRST if self.config.has_section(n)]
+            ordered += [n for n in self.config.sections() if n not in ordered]
+            for name in ordered:
+                if name != BACKEND_SECTION and name not in self._loaded:
+                    self._load_section(name)
+            self.config.check_unused_options()
+        except (ConfigError, GCodeError) as exc:
+            self.state, self.state_message = "error", str(exc)
+            # Only the built-ins stay, so the user can fix the file and RESTART.
+            self.objects.clear()
+            self.gcode.clear_commands()
+            self._register_builtin_commands()
+            raise exc if isinstance(exc, ConfigError) else ConfigError(str(exc)) from exc
+        self.state, self.state_message = "ready", "Printer is ready"
+        self.send_event("printer:ready")
+
+    def _check_section_names(self) -> None:
+        known = set(MODULES) | set(READ_BY) | {BACKEND_SECTION}
+        for name in self.config.sections():
+            kind = name.split()[0]
+            if kind not in known:
+                raise ConfigError(f"{self.config.section_file(name)}: [{name}]: Section '{name}' is not a "
+                                  f"valid config section (valid: {', '.join(sorted(known))})",
+                                  file=self.config.section_file(name), section=name)
+            reader = READ_BY.get(name)
+            if reader is not None and not self.config.has_section(reader):
+                raise ConfigError(f"{self.config.section_file(name)}: [{name}]: this section is read by "
+                                  f"[{reader}], which is missing", file=self.config.section_file(name),
+                                  section=name)
+
+    def _build_backend(self) -> None:
+        if self._given_backend is not None:
+            self.backend = self._given_backend
+            self.config.mark_section_read(BACKEND_SECTION)
+        else:
+            sim = _import_module(BACKEND_MODULE)
+            if sim is None or not hasattr(sim, "VirtualPrinter"):
+                self.backend = None
+                self._skip_section(BACKEND_SECTION, f"{BACKEND_MODULE}.VirtualPrinter")
+                return
+            self.backend = sim.VirtualPrinter.from_config(self.config.getsection(BACKEND_SECTION))
+        self.objects[BACKEND_SECTION] = self.backend
+        backend_commands = _import_module(BACKEND_COMMANDS_MODULE)
+        if backend_commands is not None:
+            backend_commands.register_sim_commands(self)
+
+    def _skip_section(self, name: str, module_name: str) -> None:
+        self._skipped[name] = module_name
+        if self.config.has_section(name):
+            self.config.mark_section_read(name)
+            self.warnings.append(f"[{name}] was not loaded: {module_name} is not available yet; "
+                                 f"its options were not checked")
+
+    def _load_section(self, name: str) -> None:
+        self._loading.add(name)
+        self._loaded.add(name)
+        try:
+            kind, _, instance = name.partition(" ")
+            if kind in READ_BY:
+                owner = READ_BY[kind]
+                self.load_object(owner)
+                if owner in self._skipped:
+                    self._skip_section(name, self._skipped[owner])
+                return
+            module_name = MODULES[kind]
+            module = _import_module(module_name)
+            if module is None:
+                self._skip_section(name, module_name)
+                return
+            loader_name = "load_config_prefix" if instance else "load_config"
+            loader = getattr(module, loader_name, None)
+            if loader is None:
+                form = f"[{kind} NAME]" if instance else f"[{kind}]"
+                raise ConfigError(f"{self.config.section_file(name)}: [{name}]: Section '{name}' is not a valid "
+                                  f"config section ({module_name} does not support {form})",
+                                  file=self.config.section_file(name), section=name)
+            try:
+                obj = loader(self.config.getsection(name), self)
+            except GCodeError as exc:  # e.g. a command registered twice
+                raise ConfigError(f"{self.config.section_file(name)}: [{name}]: {exc}",
+                                  file=self.config.section_file(name), section=name) from exc
+            if obj is not None:
+                self.add_object(name, obj)
+        finally:
+            self._loading.discard(name)
+
+    # -- restart / built-in commands ----------------------------------------
+
+    def restart(self) -> None:
+        """Drop every object and build the printer again from the config file on disk.
+
+        The virtual printer is rebuilt too (like a power cycle) unless a backend
+        object was handed to from_config, which is kept.  A broken config leaves
+        the printer in the "error" state with only HELP/STATUS/RESTART, and raises.
+        """
+        self.send_event("printer:restart")
+        self._build()
+
+    def _register_builtin_commands(self) -> None:
+        self.gcode.register_command("STATUS", self._cmd_status,
+                                    desc="Report the printer state; OBJECT=name shows one object's status")
+        self.gcode.register_command("RESTART", self._cmd_restart,
+                                    desc="Reload the config file and rebuild the printer")
+        # The virtual printer is rebuilt on RESTART too (a power cycle), so both are the same here.
+        self.gcode.register_command("FIRMWARE_RESTART", self._cmd_restart,
+                                    desc="Restart the virtual printer and reload the config file")
+        self.gcode.register_command("SAVE_CONFIG", self._cmd_save_config,
+                                    desc="Write pending config changes (e.g. a calibration) and restart")
+
+    def _cmd_status(self, gcmd: GCodeCommand) -> None:
+        name = gcmd.get("OBJECT", None)
+        status = self.get_status()
+        if name is not None:
+            if name not in status:
+                raise gcmd.error(f"Error on '{gcmd.commandline}': no status object '{name}' "
+                                 f"(one of: {', '.join(sorted(status))})")
+            gcmd.respond_info("\n".join(f"{key}: {_format_status_value(value)}"
+                                        for key, value in status[name].items()))
+            return
+        lines = [self.state_message]
+        lines += [f"Warning: {warning}" for warning in self.warnings]
+        lines += [f"{obj}: " + " ".join(f"{key}={_format_status_value(value)}" for key, value in fields.items())
+                  for obj, fields in status.items()]
+        gcmd.respond_info("\n".join(lines))
+
+    def _cmd_restart(self, gcmd: GCodeCommand) -> None:
+        try:
+            self.restart()
+        except ConfigError as exc:
+            raise gcmd.error(f"{exc}\nThe printer is halted: fix the config file, then RESTART") from exc
+        gcmd.respond_info(self.state_message)
+
+    def _cmd_save_config(self, gcmd: GCodeCommand) -> None:
+        if self.config is None or not self.config.has_pending_changes():
+            gcmd.respond_info("No pending config changes to save")
+            return
+        self.config.save()
+        gcmd.respond_info(f"Config saved to {self.config_path}; restarting")
+        self._cmd_restart(gcmd)
+
+
+def _format_status_value(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    return str(value)
+

@@ -1,0 +1,1 @@
+"""Command-line tools: the `tapcell` dispatcher, the demo, the G-code console."""

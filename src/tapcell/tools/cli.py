@@ -1,0 +1,53 @@
+"""The `tapcell` command: a thin dispatcher to the subcommands.
+
+Each subcommand lives in the module that owns the feature and exposes
+`main(argv: list[str]) -> int`; importing lazily keeps `tapcell --help` fast
+and lets each feature grow on its own.
+"""
+
+from __future__ import annotations
+
+import importlib
+import sys
+
+SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "analyze": ("tapcell.tap.cli", "analyse tap files: Z at break contact, validation, quality"),
+    "benchmark": ("tapcell.taplab.benchmark", "score tap analyzers (ours, Kalico's, any) on independent labelled taps"),
+    "scenarios": ("tapcell.sim.cli", "list the virtual printer's scenarios and their parameters"),
+    "console": ("tapcell.tools.frontend", "interactive G-code console on the virtual printer"),
+    "run": ("tapcell.tools.frontend", "run a G-code script on the virtual printer"),
+    "demo": ("tapcell.tools.demo", "the main job on the virtual printer, explained"),
+    "serve": ("tapcell.host.api_server", "the virtual printer behind Klipper's API (for Moonraker)"),
+    "monitor": ("tapcell.tools.monitor", "analyse a real printer's taps live, through Moonraker"),
+    "kalico-plugin": ("tapcell.tools.kalico_plugin", "install tapcell as Kalico's tap classifier"),
+}
+
+
+def _usage() -> str:
+    lines = ["usage: tapcell COMMAND [ARGS...]", "", "commands:"]
+    for name, (_, summary) in SUBCOMMANDS.items():
+        lines.append(f"  {name:<14} {summary}")
+    lines.append("")
+    lines.append("Run 'tapcell COMMAND --help' for a command's options.")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = list(sys.argv[1:] if argv is None else argv)
+    if not args or args[0] in ("-h", "--help", "help"):
+        print(_usage())
+        return 0
+    if args[0] in ("-V", "--version"):
+        from tapcell import __version__
+
+        print(f"tapcell {__version__}")
+        return 0
+    name, rest = args[0], args[1:]
+    if name not in SUBCOMMANDS:
+        print(f"tapcell: unknown command '{name}'\n\n{_usage()}", file=sys.stderr)
+        return 2
+    module = importlib.import_module(SUBCOMMANDS[name][0])
+    # Modules serving several subcommands take the subcommand name first.
+    if hasattr(module, "SUBCOMMANDS"):
+        return int(module.main([name, *rest]) or 0)
+    return int(module.main(rest) or 0)

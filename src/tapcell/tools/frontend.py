@@ -1,0 +1,145 @@
+"""`tapcell console` (interactive) and `tapcell run` (batch): G-code on the virtual printer.
+
+Both build a `Printer` from a config file (default: examples/virtual-printer.cfg)
+and print every response line as soon as it is produced.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+from pathlib import Path
+
+from tapcell.host.config import ConfigError
+from tapcell.host.printer import Printer
+
+SUBCOMMANDS = ("console", "run")
+
+DEFAULT_CONFIG = Path(__file__).resolve().parents[3] / "examples" / "virtual-printer.cfg"
+HISTORY_FILE = Path("~/.tapcell_history").expanduser()
+HISTORY_LENGTH = 1000
+PROMPT = "tapcell> "
+
+
+def _print_line(line: str) -> None:
+    print(line, flush=True)
+
+
+def _build_printer(config_path: str, program: str) -> Printer | None:
+    if not os.path.exists(config_path):
+        print(f"{program}: config file '{config_path}' does not exist", file=sys.stderr)
+        return None
+    try:
+        printer = Printer.from_config(config_path, responses=_print_line)
+    except ConfigError as exc:
+        print(f"{program}: config error: {exc}", file=sys.stderr)
+        return None
+    for warning in printer.warnings:
+        print(f"// Warning: {warning}", flush=True)
+    return printer
+
+
+def run_script_file(printer: Printer, script_path: str, *, keep_going: bool, echo: bool) -> int:
+    """Run a G-code file line by line; 0 if every line succeeded, else 1."""
+    with open(script_path, encoding="utf-8") as handle:
+        lines = handle.read().splitlines()
+    failed = False
+    for line_number, line in enumerate(lines, start=1):
+        if echo and line.strip():
+            print(f"> {line.strip()}", flush=True)
+        if printer.gcode.run_script_reporting_errors(line):
+            continue
+        failed = True
+        if not keep_going:
+            print(f"tapcell run: {script_path}:{line_number}: stopped at the first error "
+                  f"(use --keep-going to run the rest)", file=sys.stderr)
+            return 1
+    return 1 if failed else 0
+
+
+def _main_run(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="tapcell run", description="Run a G-code script on the virtual printer "
+                                     "and print every response.")
+    parser.add_argument("script", help="G-code file to run, one command per line")
+    parser.add_argument("--config", default=str(DEFAULT_CONFIG), help="printer config (default: %(default)s)")
+    parser.add_argument("--keep-going", action="store_true", help="run the rest of the script after an error "
+                        "(the exit status is still 1)")
+    parser.add_argument("--echo", action="store_true", help="print each command (as '> LINE') before its responses")
+    args = parser.parse_args(argv)
+    if not os.path.isfile(args.script):
+        print(f"tapcell run: script '{args.script}' does not exist", file=sys.stderr)
+        return 2
+    printer = _build_printer(args.config, "tapcell run")
+    if printer is None:
+        return 1
+    try:
+        return run_script_file(printer, args.script, keep_going=args.keep_going, echo=args.echo)
+    except UnicodeDecodeError as exc:
+        print(f"tapcell run: script '{args.script}' is not UTF-8 text: {exc}", file=sys.stderr)
+        return 2
+
+
+def _setup_readline():
+    """Line editing and history through readline, when the platform has it."""
+    try:
+        import readline
+    except ImportError:
+        return None
+    try:
+        readline.read_history_file(HISTORY_FILE)
+    except OSError:
+        pass  # first run: no history yet
+    readline.set_history_length(HISTORY_LENGTH)
+    return readline
+
+
+def console_loop(printer: Printer, read_line=input) -> None:
+    """Read commands until EOF or 'exit'/'quit'; every response is printed by the printer's sink."""
+    while True:
+        try:
+            line = read_line(PROMPT)
+        except EOFError:
+            print()
+            return
+        except KeyboardInterrupt:
+            print()
+            continue
+        if line.strip().lower() in ("exit", "quit"):
+            return
+        try:
+            printer.gcode.run_script_reporting_errors(line)
+        except KeyboardInterrupt:
+            # Ctrl-C stops a long command (e.g. a 10 s diagnostic), not the console.
+            print("!! Interrupted", flush=True)
+
+
+def _main_console(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="tapcell console", description="Interactive G-code console on the "
+                                     "virtual printer (HELP lists the commands, exit or Ctrl-D quits).")
+    parser.add_argument("--config", default=str(DEFAULT_CONFIG), help="printer config (default: %(default)s)")
+    args = parser.parse_args(argv)
+    printer = _build_printer(args.config, "tapcell console")
+    if printer is None:
+        return 1
+    print(f"// {printer.state_message}. Type HELP for the commands, exit to quit.", flush=True)
+    readline = _setup_readline() if sys.stdin.isatty() else None
+    try:
+        console_loop(printer)
+    finally:
+        if readline is not None:
+            try:
+                readline.write_history_file(HISTORY_FILE)
+            except OSError as exc:
+                print(f"tapcell console: could not save history to {HISTORY_FILE}: {exc}", file=sys.stderr)
+    return 0
+
+
+def main(argv: list[str]) -> int:
+    """argv[0] is the subcommand ('console' or 'run'), the rest its arguments."""
+    if not argv or argv[0] not in SUBCOMMANDS:
+        print(f"tapcell frontend: expected one of {', '.join(SUBCOMMANDS)}", file=sys.stderr)
+        return 2
+    if argv[0] == "run":
+        return _main_run(argv[1:])
+    return _main_console(argv[1:])
