@@ -28,9 +28,10 @@ def printer_text(scenario: str = "clean", probe_options: str = "", virtual_print
 
 def make_printer(tmp_path: Path, scenario: str = "clean", probe_options: str = "", virtual_printer: str = "",
                  calibrate: bool = True, home: bool = True,
-                 replace: dict[str, str] | None = None) -> tuple[Printer, list[str]]:
+                 replace: dict[str, str] | None = None, extra: str = "") -> tuple[Printer, list[str]]:
+    """`extra`: more sections at the end of the config (e.g. macros)."""
     path = tmp_path / f"{scenario}.cfg"
-    path.write_text(printer_text(scenario, probe_options, virtual_printer, replace))
+    path.write_text(printer_text(scenario, probe_options, virtual_printer, replace) + extra)
     responses: list[str] = []
     printer = Printer.from_config(str(path), responses=responses)
     if calibrate:

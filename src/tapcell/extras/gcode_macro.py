@@ -64,6 +64,26 @@ class StatusView(Mapping):
         return sum(1 for _ in self)
 
 
+def compile_template(section: ConfigSection, option: str) -> jinja2.Template:
+    """The option's text as a template; a syntax error is a ConfigError naming the option."""
+    try:
+        return _ENVIRONMENT.from_string(section.get(option))
+    except jinja2.TemplateSyntaxError as exc:
+        raise section.error(option, f"template error on line {exc.lineno} of the template: {exc.message}") from None
+
+
+def render_template(template: jinja2.Template, context: dict, where: str) -> str:
+    """The rendered G-code; any error in the expressions the user wrote is a GCodeError naming `where`."""
+    try:
+        return template.render(context)
+    except GCodeError:
+        raise
+    except jinja2.TemplateError as exc:
+        raise GCodeError(f"Error in {where}: {exc}") from None
+    except Exception as exc:  # the user's own expression failed (a type error, 1/0, ...): their error, not ours
+        raise GCodeError(f"Error in {where}: {type(exc).__name__}: {exc}") from None
+
+
 def parse_variable(text: str) -> Any:
     """A `variable_*` value or SET_GCODE_VARIABLE VALUE: a Python literal."""
     return ast.literal_eval(text.strip())
@@ -77,11 +97,7 @@ class GCodeMacro:
         self.section_name = section.get_name()
         self.command = section.get_instance_name().upper()
         self.description = section.get("description", DEFAULT_DESCRIPTION)
-        template_text = section.get("gcode")
-        try:
-            self.template = _ENVIRONMENT.from_string(template_text)
-        except jinja2.TemplateSyntaxError as exc:
-            raise section.error("gcode", f"template error on line {exc.lineno} of the template: {exc.message}")
+        self.template = compile_template(section, "gcode")
         self.variables: dict[str, Any] = {}
         for option in section.get_option_names("variable_"):
             text = section.get(option)
@@ -108,14 +124,7 @@ class GCodeMacro:
             "action_respond_info": self._action_respond_info,
             "action_raise_error": self._action_raise_error,
         }
-        try:
-            return self.template.render(context)
-        except GCodeError:
-            raise
-        except jinja2.TemplateError as exc:
-            raise GCodeError(f"Error in macro {self.command}: {exc}") from None
-        except Exception as exc:  # e.g. a type error inside an expression the user wrote
-            raise GCodeError(f"Error in macro {self.command}: {type(exc).__name__}: {exc}") from None
+        return render_template(self.template, context, f"macro {self.command}")
 
     def cmd_macro(self, gcmd: GCodeCommand) -> None:
         # A macro calling itself (directly or through others) is refused by the dispatcher.

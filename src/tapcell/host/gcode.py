@@ -354,10 +354,20 @@ class GCodeDispatch:
 
     # -- running -------------------------------------------------------------
 
-    def run_script(self, text: str) -> None:
-        """Run each line of `text`; the first failure raises GCodeError (the rest is not run)."""
-        for line in text.split("\n"):
-            self.run_line(line)
+    def run_script(self, text: str, caller: str | None = None) -> None:
+        """Run each line of `text`; the first failure raises GCodeError (the rest is not run).
+
+        `caller` names what runs the script when it is not a command (e.g. a probe's
+        nozzle_scrubber_gcode); it shows in the chain of a recursion error.
+        """
+        if caller is not None:
+            self._running.append(caller)
+        try:
+            for line in text.split("\n"):
+                self.run_line(line)
+        finally:
+            if caller is not None:
+                self._running.pop()
 
     def run_line(self, line: str) -> None:
         """Run one line.  A user error raises GCodeError; any other exception is a bug and propagates."""

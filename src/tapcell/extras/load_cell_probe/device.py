@@ -30,12 +30,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import jinja2
 import numpy as np
 
 from tapcell.filters import FilterDesignError, FilterOptions, design_firmware_filter
-from tapcell.host.gcode import GCodeError
-from tapcell.extras.gcode_macro import StatusView
+from tapcell.extras.gcode_macro import StatusView, compile_template, render_template
 from tapcell.extras.load_cell import LoadCell, read_load_cell_options, register_load_cell_commands
 from tapcell.mcu.trigger import FirmwareTrigger, TriggerError, TriggerParams
 from tapcell.extras.probe.session import Probe, ProbeError, TapOutcome
@@ -777,15 +775,14 @@ class LoadCellProbeCommands:
         raise ProbeError(f"NOZZLE_CLEANUP failed after trying {len(positions)} positions")
 
 
-def _template_runner(printer):
-    """Run a probe G-code template (activate/deactivate/scrubber): Jinja2 with `printer` and `params`."""
+def _template_runner(printer, section_name: str):
+    """Run a probe G-code template (activate/deactivate/scrubber, compiled by load_config) with
+    `printer` and `params`, as gcode_macro templates."""
 
-    def run(option: str, template: str, params: dict) -> None:
-        try:
-            script = jinja2.Template(template).render(printer=StatusView(printer), params=params)
-        except jinja2.TemplateError as exc:
-            raise GCodeError(f"[load_cell_probe] {option}: template error: {exc}") from exc
-        printer.gcode.run_script(script)
+    def run(option: str, template, params: dict) -> None:
+        where = f"[{section_name}] {option}"
+        script = render_template(template, {"printer": StatusView(printer), "params": params}, where)
+        printer.gcode.run_script(script, caller=where)
 
     return run
 
@@ -793,9 +790,10 @@ def _template_runner(printer):
 def load_config(section, printer) -> LoadCellProbe:
     """Build `[load_cell_probe]`: the device, the generic probe (object `probe`), the commands."""
     device = LoadCellProbe(section, printer)
-    templates = {name: section.get(name) for name in PROBE_TEMPLATE_OPTIONS if section.has_option(name)}
+    # Compiled now, so a template's syntax error is a config error naming the option.
+    templates = {name: compile_template(section, name) for name in PROBE_TEMPLATE_OPTIONS if section.has_option(name)}
     probe = Probe("load_cell_probe", read_probe_options(section, templates), device, device.motion,
-                  printer.gcode, _template_runner(printer))
+                  printer.gcode, _template_runner(printer, section.get_name()))
     device.probe = probe
     probe.register_commands()
     register_load_cell_commands(printer.gcode, device.load_cell, device.name)

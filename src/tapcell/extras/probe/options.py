@@ -127,7 +127,7 @@ class ProbeOptions:
     retry_speed_mm_s: float | None = None
     pattern_spacing_mm: float = 2.0
     scrubbing_frequency: int = 0
-    templates: dict = field(default_factory=dict, compare=False)  # activate/deactivate/scrubber G-code
+    templates: dict = field(default_factory=dict, compare=False)  # activate/deactivate/scrubber G-code templates
 
     @property
     def effective_lift_speed_mm_s(self) -> float:
