@@ -163,7 +163,9 @@ class _Parser:
         self.autosave_sections: dict[str, _Section] = {}
         self.files_read = 0
 
-    def parse_file(self, path: str, include_stack: tuple[str, ...] = (), *, is_main: bool) -> None:
+    def parse_file(self, path: str, include_stack: tuple[str, ...] = (), *, is_main: bool,
+                   included_at: str | None = None) -> None:
+        """Parse `path`; `included_at` ('printer.cfg:12') is where an [include] named it."""
         real = os.path.realpath(path)
         if real in include_stack:
             chain = " -> ".join(os.path.basename(p) for p in (*include_stack, real))
@@ -175,7 +177,7 @@ class _Parser:
         if self.files_read > MAX_CONFIG_FILES:
             raise ConfigError(f"{path}: more than {MAX_CONFIG_FILES} config files read through [include]",
                               file=path)
-        text = read_config_text(path)
+        text = read_config_text(path, included_at)
         body_lines, autosave_lines, autosave_start = split_autosave(text, path)
         self._parse_lines(body_lines, path, 1, (*include_stack, real), self.sections, allow_include=True)
         if autosave_lines:
@@ -239,18 +241,20 @@ class _Parser:
         if not matches and not glob.has_magic(pattern):
             raise ConfigError(f"{where}: include file '{full_pattern}' does not exist", file=path)
         for match in matches:
-            self.parse_file(match, include_stack, is_main=False)
+            self.parse_file(match, include_stack, is_main=False, included_at=where)
 
 
-def read_config_text(path: str) -> str:
+def read_config_text(path: str, included_at: str | None = None) -> str:
+    """The file's text; a problem names the file (and the [include] that named it, if any)."""
+    where = path if included_at is None else f"{included_at}: include file {path}"
     try:
         return read_limited(path, MAX_CONFIG_FILE_BYTES).decode("utf-8")
     except FileNotFoundError:
-        raise ConfigError(f"{path}: config file does not exist", file=path) from None
+        raise ConfigError(f"{where}: config file does not exist", file=path) from None
     except FileRefused as exc:
-        raise ConfigError(f"{path}: {exc}, not a config file", file=path) from None
+        raise ConfigError(f"{where}: {exc}, not a config file", file=path) from None
     except (OSError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: unable to read config file: {exc}", file=path) from None
+        raise ConfigError(f"{where}: unable to read config file: {exc}", file=path) from None
 
 
 def split_autosave(text: str, path: str) -> tuple[list[str], list[str], int]:

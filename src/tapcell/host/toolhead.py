@@ -21,7 +21,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from tapcell.host.config import ConfigSection
-from tapcell.host.gcode import GCodeCommand
+from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.sim.printer import MoveError
 
 AXES = "xyz"
@@ -225,11 +225,27 @@ class Toolhead:
 
     def move_to(self, x: float | None = None, y: float | None = None, z: float | None = None,
                 speed_mm_s: float = 5.0) -> None:
-        """A move in toolhead coordinates, with no limit checks (the caller checked)."""
+        """A move in toolhead coordinates; outside the configured axis ranges it is refused
+        (GCodeError) before anything moves, wherever the target came from."""
         target = {"x": x, "y": y, "z": z}
+        moved = [axis for axis in AXES if target[axis] is not None]
+        current = self.get_position()
+        self._check_in_range({axis: current[i] if target[axis] is None else target[axis]
+                              for i, axis in enumerate(AXES)}, moved)
         machine = {axis: None if value is None else value - self.frame_offset_mm[axis]
                    for axis, value in target.items()}
-        self.backend.move_to(**machine, speed_mm_s=speed_mm_s)
+        try:
+            self.backend.move_to(**machine, speed_mm_s=speed_mm_s)
+        except MoveError as exc:  # the virtual machine is smaller than the config says
+            raise GCodeError(f"Move refused by the virtual printer: {exc}") from None
+
+    def _check_in_range(self, position: dict[str, float], moved: list[str]) -> None:
+        for axis in moved:
+            limits = self.options.axes[axis]
+            if not limits.position_min_mm <= position[axis] <= limits.position_max_mm:
+                shown = " ".join(f"{position[a]:.3f}" for a in AXES)
+                raise GCodeError(f"Move out of range: {shown} ({axis.upper()} must be within "
+                                 f"{limits.position_min_mm:g} to {limits.position_max_mm:g})")
 
     def z_position_min(self) -> float:
         return self.options.axes["z"].position_min_mm
@@ -299,19 +315,11 @@ class Toolhead:
         if unhomed:
             raise gcmd.error(f"Must home axis first: {' '.join(unhomed)} (run G28)")
         toolhead_target = {axis: target[axis] + self.gcode_offset_mm[axis] for axis in AXES}
-        for axis in moved:
-            limits = self.options.axes[axis]
-            if not limits.position_min_mm <= toolhead_target[axis] <= limits.position_max_mm:
-                shown = " ".join(f"{toolhead_target[a]:.3f}" for a in AXES)
-                raise gcmd.error(f"Move out of range: {shown} ({axis.upper()} must be within "
-                                 f"{limits.position_min_mm:g} to {limits.position_max_mm:g})")
+        self._check_in_range(toolhead_target, moved)
         speed = min(self.speed_mm_s, self.options.max_velocity_mm_s)
         if moved == ["z"]:
             speed = min(speed, self.options.max_z_velocity_mm_s)
-        try:
-            self.move_target.move(tuple(toolhead_target[axis] for axis in AXES), speed)
-        except MoveError as exc:  # the virtual machine is smaller than the config says
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {exc}") from None
+        self.move_target.move(tuple(toolhead_target[axis] for axis in AXES), speed)
 
     def cmd_G90(self, gcmd: GCodeCommand) -> None:
         self.absolute_coordinates = True
