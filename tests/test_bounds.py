@@ -58,6 +58,13 @@ def test_the_printer_still_works_after_the_refusals(printer):
     assert printer.lookup_object("probe").last_result.valid
 
 
+def test_an_mcu_reset_is_a_gcode_error_not_a_traceback(tmp_path):
+    printer, _ = make_printer(tmp_path, calibrate=False, home=False)
+    printer.gcode.run_script("SIM_FAULT NAME=mcu_reset")
+    assert refusal(printer, "STATUS").startswith("MCU error on 'STATUS': the MCU reset at ")
+    printer.gcode.run_script("STATUS")  # the link is back
+
+
 MACROS = """
 [gcode_macro LOOP]
 gcode: LOOP

@@ -12,6 +12,7 @@ from __future__ import annotations
 import copy
 import json
 import random
+import re
 import signal
 import time
 from contextlib import contextmanager
@@ -22,9 +23,10 @@ from probe.probe_vprinter import make_printer, printer_text
 
 from tapcell.extras.load_cell_probe.options import TAP_OPTION_SPECS
 from tapcell.extras.probe.options import PROBE_OPTION_SPECS
-from tapcell.host.config import ConfigError
+from tapcell.host.config import ConfigError, ConfigSection, describe_range
 from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.host.printer import Printer
+from tapcell.sim.params import PARAM_FIELDS
 from tapcell.tap import TapFileError, analyze_tap, read_tap_file, tap_to_json_dict
 from tapcell.tap.synth import synth_tap
 
@@ -50,9 +52,16 @@ def time_limit(what: str):
 # Values a hostile user might type: junk, the edges of every float, huge integers, lists.
 WORDS = ["", "abc", "nan", "inf", "-inf", "1e308", "-1e308", "1e-300", "1e999", "99999999999", "9" * 40,
          "-5", "0", "-0", "1", "2", "3", "5", "10.5", "2e3", "1e12", "3,3", "1,2,3", "NONE", "yes", "{", "[x]",
-         "0x10", "1_000", "\u00e9", "'quoted'"]
+         "0x10", "1_000", "\u00e9", "'quoted'",
+         # valid words for the parameters that choose (NAME=, DIRECTION=, ...), so the numbers after them are read
+         "corrupt_frame", "chip_reset", "weight", "stuck", "mcu_reset", "contact", "+X", "-Y", "Z", "CONTACT_ONSET",
+         "PULLBACK_DISTANCE", "DECOMPRESSION_ANGLE", "default", "PARK", "height", "circle", "fail", "median"]
 JSON_VALUES = [None, True, False, "x", "", [], {}, [[1.0]], 10 ** 30, -1, 0, 1e308, float("nan"), float("inf"),
                [1.0, 2.0], {"a": 1}, "1.5", [None] * 20, -1e-300]
+
+
+def json_value(rng: random.Random) -> object:
+    return copy.deepcopy(rng.choice(JSON_VALUES))  # a fresh list or dict: never shared between documents
 
 
 def failure(kind: str, case: str, exc: BaseException) -> str:
@@ -73,16 +82,16 @@ def mutate_document(rng: random.Random, document: dict) -> object:
         if action == 0:
             target.pop(key, None)
         elif action == 1:
-            target[key] = rng.choice(JSON_VALUES)
+            target[key] = json_value(rng)
         elif action == 2 and isinstance(target.get(key), list) and target[key]:
-            target[key][rng.randrange(len(target[key]))] = rng.choice(JSON_VALUES)
+            target[key][rng.randrange(len(target[key]))] = json_value(rng)
         elif action == 3 and isinstance(target.get(key), list):
             del target[key][rng.randrange(len(target[key]) + 1):]
         elif action == 4 and isinstance(target.get(key), list):
             target[key] = list(reversed(target[key]))
         else:
             target[rng.choice(["x", "z_r", "sample_rate", "trigger_force", "mains_hz", "format"])] = \
-                rng.choice(JSON_VALUES)
+                json_value(rng)
     wrap = rng.randrange(8)
     if wrap == 0:
         return [doc]
@@ -248,6 +257,8 @@ def test_mutated_config_files_load_or_give_a_config_error(tmp_path):
 # Commands that take the printer apart (RESTART reloads the config, dropping the calibration)
 # run once at the end instead of at random.
 RUN_LAST = ("RESTART", "FIRMWARE_RESTART", "SAVE_CONFIG")
+PROBE_OVERRIDE_COMMANDS = ("PROBE", "PROBE_ACCURACY", "NOZZLE_CLEANUP", "BED_MESH_CALIBRATE", "LOAD_CELL_TEST_TAP",
+                           "LOAD_CELL_PROBE_CALIBRATE", "G28")
 # Lines start with these, so that the defaults (10 taps, a 30 s wait) do not eat the time budget;
 # the random parameters after them may still ask for more.
 QUICK_START = {"PROBE_ACCURACY": "SAMPLES=2", "Z_THERMAL_CALIBRATE": "SAMPLES=2 TEMP_COLD=30 TEMP_HOT=40",
@@ -259,26 +270,82 @@ SPEC_PARAMETERS = sorted({name for spec in (*PROBE_OPTION_SPECS, *TAP_OPTION_SPE
 
 
 class ParameterRecorder:
-    """Which parameter names each command reads (so the fuzzer feeds it those)."""
+    """Which parameters each command reads (so the fuzzer feeds it those), and the range of every
+    number read from G-code or the config (so the test can hold docs/limits.md to them)."""
 
     def __init__(self, monkeypatch):
         self.read: dict[str, set[str]] = {}
+        self.gcode_ranges: dict[tuple[str, str], str] = {}
+        self.config_ranges: dict[tuple[str, str], str] = {}
         get, get_numbers = GCodeCommand.get, GCodeCommand._get_numbers
+        checked_number, getlist = ConfigSection._checked_number, ConfigSection._getlist
         recorder = self
 
         def recording_get(gcmd, name, *args, **kwargs):
             recorder.read.setdefault(gcmd.command, set()).add(name.upper())
             return get(gcmd, name, *args, **kwargs)
 
-        def recording_get_numbers(gcmd, name, *args, **kwargs):
+        def recording_get_numbers(gcmd, name, default, parse, kind, limits, **kwargs):
             recorder.read.setdefault(gcmd.command, set()).add(name.upper())
-            return get_numbers(gcmd, name, *args, **kwargs)
+            each = "each " if kwargs.get("many") else ""
+            recorder.gcode_ranges[(gcmd.command, name.upper())] = each + describe_range(*limits)
+            return get_numbers(gcmd, name, default, parse, kind, limits, **kwargs)
+
+        def recording_checked_number(section, option, default, parse, kind, *limits):
+            recorder.config_ranges[(section.get_prefix(), option)] = describe_range(*limits)
+            return checked_number(section, option, default, parse, kind, *limits)
+
+        def recording_getlist(section, option, default, sep, count, parse_item, kind, *limits):
+            if limits:
+                recorder.config_ranges[(section.get_prefix(), option)] = "each " + describe_range(*limits)
+            return getlist(section, option, default, sep, count, parse_item, kind, *limits)
 
         monkeypatch.setattr(GCodeCommand, "get", recording_get)
         monkeypatch.setattr(GCodeCommand, "_get_numbers", recording_get_numbers)
+        monkeypatch.setattr(ConfigSection, "_checked_number", recording_checked_number)
+        monkeypatch.setattr(ConfigSection, "_getlist", recording_getlist)
 
     def parameters(self, command: str) -> list[str]:
         return sorted(self.read.get(command, set()))
+
+
+LIMITS_DOC = Path(__file__).resolve().parents[1] / "docs" / "limits.md"
+
+
+def documented_ranges() -> tuple[dict[tuple[str, str], str], dict[tuple[str, str], str]]:
+    """docs/limits.md's tables: {(section kind, option): range} and {(command, parameter): range}."""
+    config, gcode = {}, {}
+    sections: list[str] = []
+    for line in LIMITS_DOC.read_text().splitlines():
+        if line.startswith("### "):
+            sections = re.findall(r"`\[(\w+)\]`", line)
+        cells = [cell.strip() for cell in line.strip().strip("|").split("|")] if line.startswith("| `") else []
+        names = [re.findall(r"`([^`]+)`", cell) for cell in cells]
+        if len(cells) == 2 and sections:
+            config.update({(section, option): cells[1] for section in sections for option in names[0]})
+        elif len(cells) == 3:
+            gcode.update({(command, parameter): cells[2] for command in names[0] for parameter in names[1]})
+    return config, gcode
+
+
+def range_problems(recorded: dict, documented: dict, what: str) -> list[str]:
+    problems = []
+    for key, enforced in sorted(recorded.items()):
+        doc = documented.get(key)
+        if doc is None:
+            problems.append(f"{what} {key}: enforced range {enforced!r} is not in docs/limits.md")
+            continue
+        stated = re.sub(r"\s*\(.*\)$", "", doc)  # a note in brackets is not the range
+        if "`" not in stated and stated != enforced:  # `other_option`: depends on another value
+            problems.append(f"{what} {key}: docs/limits.md says {doc!r}, the code enforces {enforced!r}")
+    return problems
+
+
+def probe_override_ranges(config_doc: dict) -> dict[tuple[str, str], str]:
+    """A probing command's override of a [load_cell_probe] option (TRIGGER_FORCE=...) has the option's range."""
+    return {(command, name): config_doc[("load_cell_probe", spec.option)]
+            for command in PROBE_OVERRIDE_COMMANDS for spec in (*PROBE_OPTION_SPECS, *TAP_OPTION_SPECS)
+            for name in spec.gcode_names if ("load_cell_probe", spec.option) in config_doc}
 
 
 def random_line(rng: random.Random, command: str, known: list[str]) -> str:
@@ -292,9 +359,9 @@ def random_line(rng: random.Random, command: str, known: list[str]) -> str:
 
 
 def test_random_gcode_on_the_virtual_printer_works_or_gives_a_gcode_error(tmp_path, monkeypatch):
+    recorder = ParameterRecorder(monkeypatch)
     printer, _ = make_printer(tmp_path, probe_options=PROBE_EXTRA, virtual_printer=SIM_EXTRA, extra=ALL_SECTIONS,
                               replace=SMALL_MESH)
-    recorder = ParameterRecorder(monkeypatch)
     for command in sorted(printer.gcode.get_command_help()):  # once without parameters: records what each reads
         if command not in RUN_LAST:
             with time_limit(command):
@@ -316,3 +383,11 @@ def test_random_gcode_on_the_virtual_printer_works_or_gives_a_gcode_error(tmp_pa
             failures.append(failure("G-code", line, exc))
     assert not failures, "\n".join(failures)
     assert errors > GCODE_CASES / 2
+    # Every range the run met is documented as enforced.
+    config_doc, gcode_doc = documented_ranges()
+    # The simulator's own parameters are listed, with their ranges, by `tapcell scenarios NAME`.
+    config_ranges = {key: text for key, text in recorder.config_ranges.items()
+                     if not (key[0] == "virtual_printer" and key[1] in PARAM_FIELDS)}
+    problems = range_problems(config_ranges, config_doc, "config option")
+    problems += range_problems(recorder.gcode_ranges, {**probe_override_ranges(config_doc), **gcode_doc}, "parameter")
+    assert not problems, "\n".join(problems)

@@ -258,6 +258,9 @@ class GCodeDispatch:
         self._help: dict[str, str] = {}
         self._mux: dict[str, _Mux] = {}
         self._running: list[str] = []  # the commands running now, outermost first
+        # Exceptions the backend raises for what happens to real machines (an MCU reset):
+        # the command fails with them like with any G-code error (set by the printer).
+        self.device_errors: tuple[type[Exception], ...] = ()
         self._register_builtins()
 
     # -- responses -----------------------------------------------------------
@@ -383,6 +386,8 @@ class GCodeDispatch:
             handler(GCodeCommand(self, parsed))
         except ConfigError as exc:  # e.g. SAVE_CONFIG unable to write the file
             raise GCodeError(str(exc)) from exc
+        except self.device_errors as exc:
+            raise GCodeError(f"MCU error on '{parsed.commandline}': {exc}") from exc
         finally:
             self._running.pop()
 

@@ -48,6 +48,8 @@ READ_BY: dict[str, str] = {
 # The backend's section: read by the virtual printer itself.
 BACKEND_SECTION = "virtual_printer"
 BACKEND_MODULE = "tapcell.sim"
+# What the virtual printer raises when its hardware fails (not a bug): a G-code error for the user.
+BACKEND_DEVICE_ERRORS = ("McuResetError",)
 # G-code commands that act on the virtual hardware (SIM_PLACE_WEIGHT, ...).
 BACKEND_COMMANDS_MODULE = "tapcell.sim.commands"
 
@@ -195,6 +197,7 @@ class Printer:
                 self._skip_section(BACKEND_SECTION, f"{BACKEND_MODULE}.VirtualPrinter")
                 return
             self.backend = sim.VirtualPrinter.from_config(self.config.getsection(BACKEND_SECTION))
+            self.gcode.device_errors = tuple(getattr(sim, name) for name in BACKEND_DEVICE_ERRORS)
         self.objects[BACKEND_SECTION] = self.backend
         backend_commands = _import_module(BACKEND_COMMANDS_MODULE)
         if backend_commands is not None:
