@@ -78,7 +78,7 @@ gcode: PROBE
 
 
 def test_macro_recursion_is_refused(tmp_path):
-    printer, _ = make_printer(tmp_path, extra=MACROS, calibrate=False, home=False)
+    printer, _ = make_printer(tmp_path, sections=MACROS, calibrate=False, home=False)
     assert refusal(printer, "LOOP") == "LOOP called recursively (LOOP -> LOOP)"
     assert refusal(printer, "PING") == "PING called recursively (PING -> PONG -> PING)"
 
@@ -95,7 +95,7 @@ def test_a_probe_template_that_probes_is_refused(tmp_path):
 
 def test_a_nozzle_scrubber_that_probes_is_refused(tmp_path):
     # The oozy nozzle's first taps are bad, so the scrubber runs after the first one.
-    printer, _ = make_printer(tmp_path, scenario="oozy", extra=MACROS,
+    printer, _ = make_printer(tmp_path, scenario="oozy", sections=MACROS,
                               probe_options="nozzle_scrubber_gcode: SCRUB\nscrubbing_frequency: 1")
     printer.gcode.run_script("M109 S150\nG1 Z0.4")
     message = refusal(printer, "PROBE")

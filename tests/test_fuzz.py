@@ -360,7 +360,7 @@ def random_line(rng: random.Random, command: str, known: list[str]) -> str:
 
 def test_random_gcode_on_the_virtual_printer_works_or_gives_a_gcode_error(tmp_path, monkeypatch):
     recorder = ParameterRecorder(monkeypatch)
-    printer, _ = make_printer(tmp_path, probe_options=PROBE_EXTRA, virtual_printer=SIM_EXTRA, extra=ALL_SECTIONS,
+    printer, _ = make_printer(tmp_path, probe_options=PROBE_EXTRA, virtual_printer=SIM_EXTRA, sections=ALL_SECTIONS,
                               replace=SMALL_MESH)
     for command in sorted(printer.gcode.get_command_help()):  # once without parameters: records what each reads
         if command not in RUN_LAST:

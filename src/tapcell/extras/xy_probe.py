@@ -19,11 +19,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from tapcell.extras.load_cell_probe.threshold import ThresholdProber
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeError
-from tapcell.mesh.prusa import XY, Thresholds
-from tapcell.extras.prusa_probe import ThresholdProber
 from tapcell.host.toolhead import COORDINATE_RANGE, MAX_COORDINATE_MM, SPEED_RANGE
+from tapcell.mesh.prusa import XY, Thresholds
 
 SECTION = "xy_probe"
 DIRECTIONS = {"+X": (1.0, 0.0), "-X": (-1.0, 0.0), "+Y": (0.0, 1.0), "-Y": (0.0, -1.0)}
@@ -100,9 +100,7 @@ class XYProbe:
         return hit.trigger_position_mm[0], hit.trigger_position_mm[1]
 
     def cmd_XY_PROBE(self, gcmd: GCodeCommand) -> None:
-        name = gcmd.get("DIRECTION").strip().upper()
-        if name not in DIRECTIONS:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': DIRECTION must be one of {', '.join(DIRECTIONS)}")
+        name = gcmd.get_choice("DIRECTION", list(DIRECTIONS))
         distance = gcmd.get_float("DISTANCE", self.options.max_travel_mm, above=0.0, maxval=MAX_TRAVEL_MM)
         speed = gcmd.get_float("SPEED", self.options.speed_mm_s, minval=XY_PROBE_SPEED_MM_S[0],
                                maxval=XY_PROBE_SPEED_MM_S[1])
@@ -120,7 +118,7 @@ class XYProbe:
         x_nominal = gcmd.get_float("X", opts.pin_x_mm, **COORDINATE_RANGE)
         y_nominal = gcmd.get_float("Y", opts.pin_y_mm, **COORDINATE_RANGE)
         if x_nominal is None or y_nominal is None:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': give X= and Y= (or pin_x, pin_y in [xy_probe])")
+            raise gcmd.param_error("give X= and Y= (or pin_x, pin_y in [xy_probe])")
         z_mm = gcmd.get_float("Z", opts.probe_z_mm, **COORDINATE_RANGE)
         force = self._threshold().value_g(XY)
         prober = self._prober()

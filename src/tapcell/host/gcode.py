@@ -23,8 +23,10 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
+from collections.abc import Sequence
 from typing import Any, Callable
 
+from tapcell.host.backend import DeviceError
 from tapcell.host.config import GCODE_WORDS, ConfigError, check_range, require_range
 
 
@@ -164,7 +166,8 @@ class GCodeCommand:
     def error(self, message: str) -> GCodeError:
         return GCodeError(message)
 
-    def _fail(self, problem: str) -> GCodeError:
+    def param_error(self, problem: str) -> GCodeError:
+        """The error for a bad or missing parameter: `Error on '<the command line>': <problem>`."""
         return GCodeError(f"Error on '{self.commandline}': {problem}")
 
     def get(self, name: str, default: Any = REQUIRED) -> Any:
@@ -172,7 +175,7 @@ class GCodeCommand:
         value = self._params.get(name.upper())
         if value is None:
             if default is REQUIRED:
-                raise self._fail(f"missing {name.upper()}")
+                raise self.param_error(f"missing {name.upper()}")
             return default
         return value
 
@@ -210,7 +213,7 @@ class GCodeCommand:
                                        limits)
         items = [item.strip() for item in text.split(",")]
         if count is not None and len(items) != count:
-            raise self._fail(f"{name} needs exactly {count} comma-separated {kind}, got {len(items)}")
+            raise self.param_error(f"{name} needs exactly {count} comma-separated {kind}, got {len(items)}")
         return [self._parse_checked(name, item, parse,
                                     f"unable to parse '{item}' in {name} (expected comma-separated {kind})", limits)
                 for item in items]
@@ -219,11 +222,21 @@ class GCodeCommand:
         try:
             value = parse(text)
         except ValueError:
-            raise self._fail(unparsable) from None
+            raise self.param_error(unparsable) from None
         problem = check_range(value, *limits, words=GCODE_WORDS)
         if problem:
-            raise self._fail(f"{name} {problem}")
+            raise self.param_error(f"{name} {problem}")
         return value
+
+    def get_choice(self, name: str, choices: Sequence[str], default: Any = REQUIRED) -> Any:
+        """One of `choices`, compared case-insensitively and returned as `choices` spells it."""
+        text = self.get(name, None)
+        if text is None:
+            return self.get(name, default)  # the default, or the missing-parameter error
+        chosen = {choice.lower(): choice for choice in choices}.get(text.strip().lower())
+        if chosen is None:
+            raise self.param_error(f"{name.upper()} must be one of {', '.join(choices)}, not '{text.strip()}'")
+        return chosen
 
     def respond_info(self, message: str) -> None:
         self._dispatch.respond_info(message)
@@ -258,9 +271,6 @@ class GCodeDispatch:
         self._help: dict[str, str] = {}
         self._mux: dict[str, _Mux] = {}
         self._running: list[str] = []  # the commands running now, outermost first
-        # Exceptions the backend raises for what happens to real machines (an MCU reset):
-        # the command fails with them like with any G-code error (set by the printer).
-        self.device_errors: tuple[type[Exception], ...] = ()
         self._register_builtins()
 
     # -- responses -----------------------------------------------------------
@@ -346,10 +356,10 @@ class GCodeDispatch:
         if handler is None:
             named = sorted(v for v in mux.handlers if v is not None)
             if value is None:
-                raise GCodeError(f"Error on '{gcmd.commandline}': missing {mux.key} "
-                                 f"(one of: {', '.join(named)})")
-            raise GCodeError(f"Error on '{gcmd.commandline}': the value '{value}' is not valid for "
-                             f"{mux.key} (one of: {', '.join(named)})")
+                raise gcmd.param_error(f"missing {mux.key} "
+                                       f"(one of: {', '.join(named)})")
+            raise gcmd.param_error(f"the value '{value}' is not valid for "
+                                   f"{mux.key} (one of: {', '.join(named)})")
         handler(gcmd)
 
     def get_command_help(self) -> dict[str, str]:
@@ -386,7 +396,7 @@ class GCodeDispatch:
             handler(GCodeCommand(self, parsed))
         except ConfigError as exc:  # e.g. SAVE_CONFIG unable to write the file
             raise GCodeError(str(exc)) from exc
-        except self.device_errors as exc:
+        except DeviceError as exc:  # the machine failed under the command: the user's to know, not a bug
             raise GCodeError(f"MCU error on '{parsed.commandline}': {exc}") from exc
         finally:
             self._running.pop()

@@ -20,9 +20,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from tapcell.host.backend import MoveError
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeError
-from tapcell.sim.printer import MoveError
 
 AXES = "xyz"
 KINEMATICS = ("cartesian",)
@@ -295,8 +295,8 @@ class Toolhead:
 
     def cmd_G1(self, gcmd: GCodeCommand) -> None:
         if gcmd.has("E"):
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': the virtual printer has no extruder motor,"
-                             " E moves are not supported")
+            raise gcmd.param_error("the virtual printer has no extruder motor,"
+                                   " E moves are not supported")
         feed_mm_min = gcmd.get_float("F", None, minval=SPEED_MM_S[0] * 60.0, maxval=SPEED_MM_S[1] * 60.0)
         if feed_mm_min is not None:
             self.speed_mm_s = feed_mm_min / 60.0
@@ -369,8 +369,8 @@ def _temperature_commands(extruder: Extruder):
     def set_temperature(gcmd: GCodeCommand, wait: bool) -> None:
         target = gcmd.get_float("S", 0.0, minval=0.0, maxval=MAX_TEMP_C)
         if target and not extruder.min_temp_c <= target <= extruder.max_temp_c:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': S={target:g} is outside the nozzle's range "
-                             f"{extruder.min_temp_c:g} to {extruder.max_temp_c:g} (min_temp / max_temp)")
+            raise gcmd.param_error(f"S={target:g} is outside the nozzle's range "
+                                   f"{extruder.min_temp_c:g} to {extruder.max_temp_c:g} (min_temp / max_temp)")
         extruder.set_target(target, wait)
         if wait:
             gcmd.respond_info(f"Nozzle at {extruder.backend.nozzle_temperature_c:.1f}C (target {target:g}C)")
