@@ -206,9 +206,9 @@ def test_the_nozzle_is_lifted_clear_of_the_bed_after_an_error(tmp_path, fault, c
 def test_an_mcu_reset_lifts_the_nozzle_says_so_and_unhomes(tmp_path):
     printer, responses = ready(tmp_path)
     printer.gcode.run_script("SIM_FAULT NAME=mcu_reset WHEN=contact")
-    assert re.fullmatch(r"Lost the MCU: it reset at [\d.]+ s and was back at [\d.]+ s\. The steppers stopped where "
-                        r"they were and their positions are no longer known: home \(G28\) before moving again",
-                        gcode_error(printer, "PROBE"))
+    assert re.fullmatch(r"MCU error on 'PROBE': the MCU reset at [\d.]+ s \(print time\): the steppers stopped and the "
+                        r"host link was lost until [\d.]+ s\. The stepper positions are no longer known: home \(G28\) "
+                        r"before moving again", gcode_error(printer, "PROBE"))
     peak_g, clearance_mm = sim_truth(printer)
     assert peak_g < 10.0 and clearance_mm > 1.5 and lifted(responses)   # it stopped as the nozzle met the bed
     assert printer.lookup_object("toolhead").status()["homed_axes"] == ""

@@ -18,15 +18,11 @@ class MoveError(ValueError):
     """A commanded move leaves the machine's limits."""
 
 
-class McuResetError(RuntimeError):
-    """The MCU reset during a command: its steppers stopped at `reset_s`, the host link came back at
-    `restored_s`. Positions the host knew are no longer trusted (a real MCU loses them)."""
+class DeviceError(RuntimeError):
+    """The machine failed under a command (e.g. its MCU reset): the command ends with a G-code
+    error saying what happened, as on a real printer; it is not a bug."""
 
-    def __init__(self, reset_s: float, restored_s: float):
-        super().__init__(f"the MCU reset at {reset_s:.3f} s (print time): the steppers stopped and the host link "
-                         f"was lost until {restored_s:.3f} s")
-        self.reset_s = reset_s
-        self.restored_s = restored_s
+    positions_lost = False  # True: the steppers' positions are no longer known (home again)
 
 
 @dataclass

@@ -21,7 +21,7 @@ import pkgutil
 import time
 from typing import Any, Callable
 
-from tapcell.host.backend import Backend, McuResetError
+from tapcell.host.backend import Backend, DeviceError
 from tapcell.host.config import ConfigError, ConfigFile
 from tapcell.host.gcode import GCodeCommand, GCodeDispatch, GCodeError, ResponseSink
 
@@ -92,7 +92,7 @@ class Printer:
         self.config_path = str(config_path)
         self._given_backend = backend
         self.gcode = GCodeDispatch(responses)
-        self.gcode.report_errors_as(McuResetError, self._mcu_reset_message)
+        self.gcode.on_device_error(self._device_failed)
         self.config: ConfigFile | None = None
         self.backend: Backend | None = backend
         self.objects: dict[str, Any] = {}
@@ -151,8 +151,8 @@ class Printer:
         """Call `callback(*args)` on `send_event(event, *args)`.
 
         Events sent by the printer: "printer:ready" (all sections loaded),
-        "printer:restart" (before the objects are dropped by RESTART) and "printer:mcu_reset"
-        (the MCU reset during a command: what it held, such as stepper positions, is gone).
+        "printer:restart" (before the objects are dropped by RESTART) and "printer:positions_lost"
+        (the machine lost the stepper positions under a command, e.g. its MCU reset).
         """
         self._event_handlers.setdefault(event, []).append(callback)
 
@@ -212,13 +212,14 @@ class Printer:
         self.objects[BACKEND_SECTION] = self.backend
         importlib.import_module(BACKEND_COMMANDS_MODULE).register_sim_commands(self)
 
-    def _mcu_reset_message(self, error) -> str:
-        """The MCU reset during a command: every module forgets what the MCU held ("printer:mcu_reset";
-        the toolhead its homing), and the user reads what happened and what to do."""
-        self.send_event("printer:mcu_reset")
-        return (f"Lost the MCU: it reset at {error.reset_s:.3f} s and was back at {error.restored_s:.3f} s. The "
-                "steppers stopped where they were and their positions are no longer known: home (G28) before "
-                "moving again")
+    def _device_failed(self, error: DeviceError) -> str:
+        """The machine failed under a command. When it lost the stepper positions (an MCU reset),
+        every module forgets them ("printer:positions_lost"; the toolhead its homing) and the
+        user reads what to do."""
+        if not error.positions_lost:
+            return ""
+        self.send_event("printer:positions_lost")
+        return ". The stepper positions are no longer known: home (G28) before moving again"
 
     def _load_section(self, name: str) -> None:
         self._loading.add(name)

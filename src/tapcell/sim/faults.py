@@ -4,8 +4,7 @@ Four places a fault can act: on the force the cell feels (weight, bowden tug), o
 counts the chip produces (chip reset offset jump, stuck value, saturation, corrupted
 frames), on the stream itself (disconnected: no samples; chip reset: a short gap), or on
 the whole MCU (mcu_reset: the steppers stop, the trigger is lost and the host link is down
-for the fault's duration; the printer raises `tapcell.host.backend.McuResetError` once the link
-is back).
+for the fault's duration; the printer raises McuResetError once the link is back).
 """
 
 from __future__ import annotations
@@ -15,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tapcell.host.backend import DeviceError
 from tapcell.sim.sensor import COUNTS_MAX, COUNTS_MIN
 
 # name -> default parameters (every fault also takes duration_s)
@@ -36,6 +36,17 @@ class FaultError(ValueError):
     """A fault was asked for by an unknown name, condition or parameter."""
 
 
+class McuResetError(DeviceError):
+    """The MCU reset during a command: its steppers stopped at `reset_s`, the host link came back at
+    `restored_s`. Positions the host knew are no longer trusted (a real MCU loses them)."""
+
+    positions_lost = True
+
+    def __init__(self, reset_s: float, restored_s: float):
+        super().__init__(f"the MCU reset at {reset_s:.3f} s (print time): the steppers stopped and the host link "
+                         f"was lost until {restored_s:.3f} s")
+        self.reset_s = reset_s
+        self.restored_s = restored_s
 
 
 @dataclass

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import lfilter
 
-from tapcell.host.backend import McuResetError, MoveError, ProbingMoveResult, SampleBatch
+from tapcell.host.backend import MoveError, ProbingMoveResult, SampleBatch
 from tapcell.sim import faults as faultlib
 from tapcell.sim.bed import BedError, bed_from_params
 from tapcell.sim.contact import ContactModel, ContactState, contact_forces, elastic_force_g
@@ -484,7 +484,7 @@ class VirtualPrinter:
         for sensor in self._aux_sensors:
             sensor.advance_to(self._now_s)
         if reset is not None:
-            raise McuResetError(reset.start_s, reset.end_s)
+            raise faultlib.McuResetError(reset.start_s, reset.end_s)
 
     def _fire_condition(self, condition: str, t_s: float) -> None:
         for f in self._faults:
