@@ -82,9 +82,10 @@ def test_mesh_matches_the_warped_bed(make_printer):
 def test_oozy_mesh_completes_with_circle(make_printer):
     printer = make_printer(MESH.replace("probe_count: 5, 5", "probe_count: 3, 3").replace(
         "algorithm: bicubic", "algorithm: lagrange"), probe=True, scenario="oozy")
-    # The guide's sequence on a hot, oozing nozzle: home, clean the nozzle, mesh with CIRCLE.
+    # The guide's sequence on a hot, oozing nozzle: home, clean the nozzle, mesh with CIRCLE
+    # (spelled as the guide does: STRATEGY=CIRCLE).
     printer.gcode.run_script("G28\nG1 X117.5 Y117.5 Z3 F6000\nPROBE HOME=Z BAD_PROBE_STRATEGY=ignore\n"
-                             "G1 Z0.4\nNOZZLE_CLEANUP\nBED_MESH_CALIBRATE BAD_PROBE_STRATEGY=CIRCLE")
+                             "G1 Z0.4\nNOZZLE_CLEANUP\nBED_MESH_CALIBRATE STRATEGY=CIRCLE")
     probed = np.array(printer.get_status()["bed_mesh"]["probed_matrix"])
     xs, ys = np.meshgrid(np.linspace(20, 215, 3), np.linspace(20, 215, 3))
     assert np.max(np.abs(probed - true_bed_mm(printer)(xs, ys))) < 0.004  # measured: 2.6 um

@@ -33,11 +33,13 @@ import numpy as np
 
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeError
+from tapcell.mesh.adaptive import adapt_grid
 from tapcell.mesh.errors import MeshError, MeshOptionError
+from tapcell.mesh.faulty_regions import MAX_REGIONS as MAX_FAULTY_REGIONS, FaultyRegion, make_regions, probing_plan
 from tapcell.mesh.grid import MeshGrid, matrix_from_probes, rectangular_grid, round_grid
 from tapcell.mesh.interpolate import ALGORITHMS, Interpolation, resolve_interpolation
 from tapcell.mesh.profiles import mesh_from_profile_options, profile_options, profile_section_name
-from tapcell.mesh.report import render_mesh
+from tapcell.mesh.report import render_generated_points, render_mesh, render_mesh_map, render_probed_matrix
 from tapcell.mesh.split import SplitSettings, split_move
 from tapcell.mesh.travel import travel_height_mm
 from tapcell.mesh.zmesh import (
@@ -54,6 +56,7 @@ SECTION = "bed_mesh"
 DEFAULT_PROFILE = "default"
 METHODS = ("tap", "two_pass", "prusa")
 PROGRESS_EVENT = "bed_mesh:progress"
+MAX_ADAPTIVE_MARGIN_MM = 100.0
 
 
 @dataclass(frozen=True)
@@ -72,6 +75,9 @@ class BedMeshOptions:
     split: SplitSettings
     zero_reference_xy_mm: tuple[float, float] | None
     method: str
+    faulty_regions: tuple[FaultyRegion, ...] = ()
+    adaptive_margin_mm: float = 0.0
+    adaptive_note: str | None = None  # what ADAPTIVE=1 did, for the user
 
 
 def _pair(values: list, option: str, section: ConfigSection) -> tuple:
@@ -105,6 +111,20 @@ def _read_grid(section: ConfigSection) -> MeshGrid:
         raise _mesh_option_error(section, exc) from None
 
 
+def _read_faulty_regions(section: ConfigSection) -> tuple[FaultyRegion, ...]:
+    corners = {}
+    for number in range(1, MAX_FAULTY_REGIONS + 1):
+        low = section.getfloatlist(f"faulty_region_{number}_min", None, count=2)
+        high = section.getfloatlist(f"faulty_region_{number}_max", None, count=2)
+        if (low is None) != (high is None):
+            missing = f"faulty_region_{number}_{'max' if high is None else 'min'}"
+            raise section.error(missing, f"missing: a faulty region needs both faulty_region_{number}_min and "
+                                         f"faulty_region_{number}_max")
+        if low is not None:
+            corners[number] = (tuple(low), tuple(high))
+    return make_regions(corners)
+
+
 def read_bed_mesh_options(section: ConfigSection) -> BedMeshOptions:
     """Read and check `[bed_mesh]`; errors name file, section, option, value and what is allowed."""
     grid = _read_grid(section)
@@ -116,7 +136,10 @@ def read_bed_mesh_options(section: ConfigSection) -> BedMeshOptions:
     clearance = section.getfloat("horizontal_z_clearance", None, above=0.0)
     zero_position = section.getfloatlist("zero_reference_position", None, count=2)
     reference_index = section.getint("relative_reference_index", None, minval=0)
+    adaptive_margin = section.getfloat("adaptive_margin", 0.0, minval=0.0, maxval=MAX_ADAPTIVE_MARGIN_MM)
     try:
+        faulty_regions = _read_faulty_regions(section)
+        probing_plan(grid, faulty_regions)  # every point inside a region has a substitute
         interpolation, note = resolve_interpolation(algorithm, (grid.x_count, grid.y_count), mesh_pps, tension)
         split = SplitSettings(section.getfloat("move_check_distance", 5.0),
                               section.getfloat("split_delta_z", 0.025))
@@ -137,6 +160,8 @@ def read_bed_mesh_options(section: ConfigSection) -> BedMeshOptions:
         split=split,
         zero_reference_xy_mm=zero_reference,
         method=section.getchoice("method", list(METHODS), "tap"),
+        faulty_regions=faulty_regions,
+        adaptive_margin_mm=adaptive_margin,
     )
 
 
@@ -156,8 +181,12 @@ def _gcode_floats(gcmd: GCodeCommand, name: str, count: int | None) -> list[floa
     return values
 
 
-def command_options(options: BedMeshOptions, gcmd: GCodeCommand) -> BedMeshOptions:
-    """The options of one BED_MESH_CALIBRATE: the config with the command's parameters applied."""
+def command_options(options: BedMeshOptions, gcmd: GCodeCommand, print_objects: list | None = None) -> BedMeshOptions:
+    """The options of one BED_MESH_CALIBRATE: the config with the command's parameters applied.
+
+    `print_objects`: the `exclude_object` status `objects` (None without [exclude_object]),
+    which ADAPTIVE=1 shrinks the mesh to.
+    """
     mesh_min = _gcode_floats(gcmd, "MESH_MIN", 2)
     mesh_max = _gcode_floats(gcmd, "MESH_MAX", 2)
     counts = _gcode_floats(gcmd, "PROBE_COUNT", None)
@@ -175,13 +204,39 @@ def command_options(options: BedMeshOptions, gcmd: GCodeCommand) -> BedMeshOptio
                 raise MeshOptionError(SECTION, "probe_count", gcmd.get("PROBE_COUNT"), "must be one integer or a pair X, Y")
             count_pair = (grid.x_count, grid.y_count) if counts is None else tuple(int(c) for c in _repeat(counts))
             grid = rectangular_grid(mesh_min or grid.mesh_min, mesh_max or grid.mesh_max, count_pair)
+        grid, adaptive_note = _adaptive_grid(options, gcmd, grid, print_objects)
         interpolation, note = resolve_interpolation(algorithm, (grid.x_count, grid.y_count), options.mesh_pps,
                                                     options.interpolation.bicubic_tension)
     except MeshOptionError as exc:
         shown = gcmd.get(exc.option.upper(), exc.value)  # the value as the user wrote it, when given
         raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {exc.option.upper()}={shown}: {exc.allowed}") from None
     return replace(options, grid=grid, interpolation=interpolation, interpolation_note=note,
-                   horizontal_z_clearance_mm=clearance, method=method)
+                   horizontal_z_clearance_mm=clearance, method=method, adaptive_note=adaptive_note)
+
+
+def _adaptive_grid(options: BedMeshOptions, gcmd: GCodeCommand, grid: MeshGrid,
+                   print_objects: list | None) -> tuple[MeshGrid, str | None]:
+    """ADAPTIVE=1: the grid for the print's objects, and what was done (for the user)."""
+    if not gcmd.get_int("ADAPTIVE", 0, minval=0, maxval=1):
+        return grid, None
+    margin_mm = gcmd.get_float("ADAPTIVE_MARGIN", options.adaptive_margin_mm, minval=0.0,
+                               maxval=MAX_ADAPTIVE_MARGIN_MM)
+    if print_objects is None:
+        return grid, ("Exclude objects not enabled ([exclude_object] is missing): ADAPTIVE=1 has no objects "
+                      "to fit. Using the full mesh")
+    adapted = adapt_grid(grid, [obj.get("polygon") or () for obj in print_objects], margin_mm)
+    if adapted is None:
+        return grid, "No objects defined (EXCLUDE_OBJECT_DEFINE with POLYGON=): using the full mesh"
+    found = (f"Found {len(print_objects)} objects, within ({adapted.objects_min_xy_mm[0]:.1f}, "
+             f"{adapted.objects_min_xy_mm[1]:.1f}) .. ({adapted.objects_max_xy_mm[0]:.1f}, "
+             f"{adapted.objects_max_xy_mm[1]:.1f})")
+    if not adapted.shrunk:
+        return grid, f"{found}: they need the whole mesh"
+    new = adapted.grid
+    return new, (f"{found}; adaptive_margin {margin_mm:g} mm. Adapted mesh: ({new.min_x_mm:.1f}, "
+                 f"{new.min_y_mm:.1f}) .. ({new.max_x_mm:.1f}, {new.max_y_mm:.1f}), {new.x_count} x "
+                 f"{new.y_count} points (configured: ({grid.min_x_mm:.1f}, {grid.min_y_mm:.1f}) .. "
+                 f"({grid.max_x_mm:.1f}, {grid.max_y_mm:.1f}), {grid.x_count} x {grid.y_count})")
 
 
 def _repeat(values: list[float]) -> list[float]:
@@ -283,8 +338,11 @@ class BedMesh:
         gcode = printer.gcode
         gcode.register_command("BED_MESH_CALIBRATE", self.cmd_BED_MESH_CALIBRATE,
                                desc="Probe the bed and build a mesh: [PROFILE=] [METHOD=tap|two_pass|prusa] "
-                                    "[BAD_PROBE_STRATEGY=] [HORIZONTAL_Z_CLEARANCE=]")
-        gcode.register_command("BED_MESH_OUTPUT", self.cmd_BED_MESH_OUTPUT, desc="Show the active mesh [PGP=1]")
+                                    "[STRATEGY=CIRCLE] [ADAPTIVE=1 [ADAPTIVE_MARGIN=]] [HORIZONTAL_Z_CLEARANCE=]")
+        gcode.register_command("BED_MESH_OUTPUT", self.cmd_BED_MESH_OUTPUT,
+                               desc="Show the active mesh as Klipper does [PGP=1: the probe points]")
+        gcode.register_command("BED_MESH_MAP", self.cmd_BED_MESH_MAP,
+                               desc="The active mesh as one JSON line (mesh_map_output) for tools")
         gcode.register_command("BED_MESH_PROFILE", self.cmd_BED_MESH_PROFILE,
                                desc="Mesh profiles: SAVE=name | LOAD=name | REMOVE=name")
         gcode.register_command("BED_MESH_CLEAR", self.cmd_BED_MESH_CLEAR, desc="Stop following the mesh")
@@ -342,29 +400,34 @@ class BedMesh:
 
     # -- commands -------------------------------------------------------------------------------
     def cmd_BED_MESH_CALIBRATE(self, gcmd: GCodeCommand) -> None:
-        options = command_options(self.options, gcmd)
+        options = command_options(self.options, gcmd, self._print_objects())
         profile = gcmd.get("PROFILE", DEFAULT_PROFILE).strip()
         if not profile or " " in profile:
             raise gcmd.error(f"Error on '{gcmd.get_commandline()}': PROFILE must be one word")
         homed = self.toolhead.status()["homed_axes"]
         if homed != "xyz":
             raise gcmd.error("BED_MESH_CALIBRATE: home all axes first (G28)")
-        if options.interpolation_note:
-            gcmd.respond_info(options.interpolation_note)
-        points = options.grid.probe_points_mm()
+        for note in (options.adaptive_note, options.interpolation_note):
+            if note:
+                gcmd.respond_info(note)
+        plan = self._probing_plan(options, gcmd)
+        places = plan.flat_places_mm()
         # Probe without the old mesh: results are bed heights in the toolhead frame.
         self.set_mesh(None)
-        total = len(points)
+        total = len(plan.points_mm)
+        substituted = plan.substituted
+        faulty = (f"; {len(substituted)} in faulty regions, probed at {len(places) - total + len(substituted)} "
+                  "places around them" if substituted else "")
         gcmd.respond_info(f"Probing {total} points ({options.grid.x_count} x {options.grid.y_count}, "
-                          f"method {options.method})")
+                          f"method {options.method}{faulty})")
         start_s = self.printer.get_time()
 
         def progress(done: int, count: int) -> None:
             self.printer.send_event(PROGRESS_EVENT, done, count)
 
-        run = _method_function(options.method)(self.printer, options, gcmd, points, progress)
+        run = _method_function(options.method)(self.printer, options, gcmd, places, progress)
         elapsed_s = self.printer.get_time() - start_s
-        matrix = matrix_from_probes(options.grid, run.z_mm)
+        matrix = matrix_from_probes(options.grid, plan.fold(run.z_mm))
         try:
             mesh = build_mesh(matrix, options.grid, options.interpolation, profile, options.zero_reference_xy_mm)
         except MeshError as exc:
@@ -376,20 +439,45 @@ class BedMesh:
                                  "method": options.method, **(run.details or {})}
         if run.report:
             gcmd.respond_info(run.report)
-        gcmd.respond_info(f"Mesh '{profile}' done in {elapsed_s:.1f} s: bed from {low:.4f} to {high:.4f} mm "
-                          f"(range {high - low:.4f} mm). Moves now follow it; SAVE_CONFIG keeps the profile.")
+        gcmd.respond_info(f"Mesh '{profile}' done in {elapsed_s:.1f} s: Mesh Range: min={low:.4f} max={high:.4f} "
+                          f"({high - low:.4f} mm). Moves now follow it; SAVE_CONFIG keeps the profile.")
+
+    def _print_objects(self) -> list | None:
+        """The print's objects (`exclude_object` status `objects`), None without [exclude_object]."""
+        exclude_object = self.printer.lookup_object("exclude_object", None)
+        if exclude_object is None:
+            return None
+        return list(exclude_object.get_status(self.printer.get_time()).get("objects") or [])
+
+    @staticmethod
+    def _probing_plan(options: BedMeshOptions, gcmd: GCodeCommand):
+        try:
+            return probing_plan(options.grid, options.faulty_regions)
+        except MeshOptionError as exc:  # a MESH_MIN/MAX or ADAPTIVE=1 mesh with no way around a region
+            raise gcmd.error(f"BED_MESH_CALIBRATE: [{SECTION}] {exc.option}: {exc.allowed}") from None
+
+    def _probe_offsets_mm(self) -> tuple[float, float]:
+        probe = self.printer.lookup_object("probe", None)
+        return (0.0, 0.0) if probe is None else (probe.options.x_offset_mm, probe.options.y_offset_mm)
 
     def cmd_BED_MESH_OUTPUT(self, gcmd: GCodeCommand) -> None:
+        """Klipper's output: the probed matrix (as `//` info) then the mesh (raw lines)."""
         if gcmd.get_int("PGP", 0, minval=0, maxval=1):
             grid = self.options.grid if self.mesh is None else self.mesh.grid
-            lines = ["Probe points (probing order):"]
-            lines += [f"  {n}: X {x:.3f} Y {y:.3f}" for n, (x, y) in enumerate(grid.probe_points_mm())]
-            gcmd.respond_info("\n".join(lines))
+            gcmd.respond_info(render_generated_points(probing_plan(grid, self.options.faulty_regions),
+                                                      self._probe_offsets_mm(), self.options.zero_reference_xy_mm))
             return
         if self.mesh is None:
-            gcmd.respond_info("Bed has not been probed (no active mesh)")
+            gcmd.respond_info("Bed has not been probed")
             return
-        gcmd.respond_info(render_mesh(self.mesh))
+        gcmd.respond_info(render_probed_matrix(self.mesh))
+        gcmd.respond_raw(render_mesh(self.mesh, self.options.horizontal_move_z_mm, self._probe_offsets_mm()))
+
+    def cmd_BED_MESH_MAP(self, gcmd: GCodeCommand) -> None:
+        if self.mesh is None:
+            gcmd.respond_info("Bed has not been probed")
+            return
+        gcmd.respond_raw(render_mesh_map(self.mesh))
 
     def cmd_BED_MESH_PROFILE(self, gcmd: GCodeCommand) -> None:
         given = [key for key in ("SAVE", "LOAD", "REMOVE") if gcmd.has(key)]

@@ -26,6 +26,8 @@ import numpy as np
 
 from tapcell.host.gcode import GCodeError
 from tapcell.extras.probe.options import PROBE_OPTION_SPECS, ProbeOptions, check_probe_options, with_overrides
+
+STRATEGY_SPEC = next(spec for spec in PROBE_OPTION_SPECS if spec.field == "bad_probe_strategy")
 from tapcell.extras.probe.patterns import next_clean_spot
 from tapcell.extras.probe.stats import AccuracyStats, accuracy_stats, combine_samples, format_accuracy, spread_mm
 
@@ -98,7 +100,8 @@ class ProbeSession:
     def __init__(self, probe: Probe, gcmd=None, *, force_strategy: str | None = None):
         self.probe = probe
         options = with_overrides(probe.options, PROBE_OPTION_SPECS, gcmd)
-        if force_strategy is not None and (gcmd is None or not gcmd.has("BAD_PROBE_STRATEGY")):
+        strategy_given = gcmd is not None and any(gcmd.has(name) for name in STRATEGY_SPEC.gcode_names)
+        if force_strategy is not None and not strategy_given:
             options = dataclasses.replace(options, bad_probe_strategy=force_strategy)
         problem = check_probe_options(options)
         if problem is not None:
