@@ -186,8 +186,6 @@ class RecordedTap:
     analysis: Any
     z_mm: float
     valid: bool
-    # toolhead position = virtual printer position + this (the tap's samples and moves are the printer's)
-    frame_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 class LoadCellProbe:
@@ -404,7 +402,7 @@ class LoadCellProbe:
             # (one conversion window plus a margin later) already belong to the next tare.
             clear_s = analysis.break_contact_time_s + BREAK_CLEAR_SAMPLES / self.sample_rate_sps
             self._tare_from_s = min(clear_s, pullback_end_s)
-        z_mm = (float(analysis.z_mm) if valid else float(result.halt_z_mm)) + self._z_frame_offset_mm()
+        z_mm = float(analysis.z_mm) if valid else float(result.halt_z_mm) + self._z_frame_offset_mm()
         message = analysis.message
         if not valid:
             why = self._explain_bad_tap(tap, analysis.error, options, speed_mm_s)
@@ -459,10 +457,13 @@ class LoadCellProbe:
                   speed_mm_s, settings: TapSettings) -> TapData:
         t_s, counts, _ = self.history.between(t_start_s, pullback_end_s)
         force_g = counts_to_grams(counts, tare_counts, self.load_cell.counts_per_gram, self.cell_options.inverted)
-        moves = [Move.from_record(m)
+        # One Z frame for every report of this tap (console, tap file, plot, tapcell analyze): the
+        # toolhead's. The virtual printer's own (machine) frame is kept as a named offset.
+        offset = self.motion.frame_offset_mm
+        moves = [dataclasses.replace(Move.from_record(m), start_z=m["start_z"] + offset["z"])
                  for m in self.vp.recorded_moves(t_start_s, pullback_end_s)
                  if m["print_time"] >= t_start_s - 1e-9]  # not the move that ended as the tap began
-        x, y, _ = self.vp.position
+        x, y, _ = self.motion.get_position()
         options = settings.options
         return TapData(
             time_s=t_s, force_g=force_g, moves=moves, sample_rate_sps=self.sample_rate_sps,
@@ -472,7 +473,9 @@ class LoadCellProbe:
                    "pullback_distance": options.pullback_distance_mm,
                    "pullback_speed": settings.pullback_speed_mm_s, "trigger_force": options.trigger_force_g},
             meta={"source": "tapcell load_cell_probe", "sensor_type": self.cell_options.sensor_type,
-                  "mains_hz": mains_meta(settings.analysis.mains_hz)},
+                  "mains_hz": mains_meta(settings.analysis.mains_hz), "frame": "toolhead",
+                  # machine (virtual printer) position = toolhead position - this
+                  "machine_offset_mm": [offset["x"], offset["y"], offset["z"]]},
         )
 
     def add_tap_client(self, callback) -> None:
@@ -480,8 +483,7 @@ class LoadCellProbe:
         self._tap_clients.append(callback)
 
     def _record(self, tap: TapData, analysis, z_mm: float, valid: bool) -> None:
-        offsets = self.motion.frame_offset_mm
-        recorded = RecordedTap(tap, analysis, z_mm, valid, (offsets["x"], offsets["y"], offsets["z"]))
+        recorded = RecordedTap(tap, analysis, z_mm, valid)
         self.last_taps.append(recorded)
         if self.tap_log_path:
             with open(self.tap_log_path, "a", encoding="utf-8") as log:
