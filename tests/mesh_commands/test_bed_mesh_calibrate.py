@@ -100,11 +100,14 @@ def test_calibrate_needs_homing_and_checks_parameters(make_printer):
 
 
 def test_thermal_calibrate_measures_the_nozzle_growth(make_printer):
+    """At the guide's 180 and 290 C (the defaults). The hot pass starts from the cold pass's last
+    pullback, too close to reach the probing speed (was COASTING_MOVE_ACCELERATION): the probe
+    lifts first. At 290 C the nozzle oozes: fouled taps move to a clean spot (CIRCLE)."""
     printer = make_printer(THERMAL, probe=True)
-    printer.gcode.run_script("G28\nG1 X117.5 Y117.5 Z2 F6000\nZ_THERMAL_CALIBRATE TEMP_COLD=100 TEMP_HOT=160 SAMPLES=5")
+    printer.gcode.run_script("G28\nG1 X117.5 Y117.5 Z2 F6000\nZ_THERMAL_CALIBRATE SAMPLES=5")
     coeff = printer.lookup_object("z_thermal_adjust").state.settings.temp_coeff_mm_per_c
     # The virtual nozzle grows 0.45 um per degree C: the guide's -0.00045455 mm/C.
-    assert coeff == pytest.approx(-0.00045, rel=0.02)  # measured: -0.000449
+    assert coeff == pytest.approx(-0.00045455, rel=0.02)  # measured: -0.00045455
     assert printer.config.pending_changes()["z_thermal_adjust"]["temp_coeff"] == f"{coeff:.8f}"
 
 

@@ -71,6 +71,7 @@ from tapcell.extras.load_cell_probe.options import (
     too_fast_explanation,
     too_fast_for_analysis,
 )
+from tapcell.extras.probe.approach import NO_CONTACT_DEPTH_MM, BedHeightMemory, approach_height_mm, no_contact_message
 from tapcell.extras.probe.patterns import serpentine_pattern
 from tapcell.scale import counts_to_grams
 from tapcell.tap import AnalysisOptions, Move, TapData, analyze_tap, get_classifier, tap_to_json_dict
@@ -218,6 +219,8 @@ class LoadCellProbe:
         self._tap_clients: list = []  # called with every RecordedTap (the API's dump_taps)
         self.last_trigger_time_s: float | None = None
         self.tare_counts_at_tap: float | None = None
+        self.bed_heights = BedHeightMemory(self._mesh_height_mm)
+        printer.register_event_handler("toolhead:z_homed", self.bed_heights.forget)
 
     # -- settings per command -----------------------------------------------------------
     @staticmethod
@@ -313,10 +316,17 @@ class LoadCellProbe:
             raise ProbeError(trigger_error_message(error, options.force_safety_limit_g))
         return trigger
 
-    def _probing_move(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float):
-        """Tare, arm and move down until the trigger halts Z; returns (move result, tare, t_start)."""
+    def _probing_move(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float,
+                      expected_z_mm: float | None = None):
+        """Tare, arm and move down until the trigger halts Z; returns (move result, tare, t_start).
+
+        `expected_z_mm`: the bed height expected here (a tap): the nozzle lifts first when it is too
+        close to reach the speed before it, and the move stops 2 mm below it.
+        """
         self._require_calibrated()
         self._refuse_speed_beyond_force_limit(settings.options, speed_mm_s)
+        if expected_z_mm is not None:
+            self._make_room_to_reach_speed(expected_z_mm, speed_mm_s)
         tare_counts = self._tare(settings.options)
         # Until a pullback completes, the nozzle may be on the bed: the next tare waits for fresh samples.
         self._tare_from_s = None
@@ -331,6 +341,8 @@ class LoadCellProbe:
             if result.error == TriggerError.DRIFT_SAFETY:
                 message += self._explain_drift(settings.options, tare_counts, t_start_s, speed_mm_s)
             raise ProbeError(message)
+        if not result.triggered and expected_z_mm is not None and z_min_mm > self.motion.z_position_min():
+            raise ProbeError(ERROR_PREFIX + no_contact_message(z_min_mm, expected_z_mm))
         if not result.triggered:
             raise ProbeError(ERROR_PREFIX + f"No trigger on probe after full movement (down to Z={z_min_mm:.3f}); "
                              "check that [stepper_z] position_min is negative (e.g. -2) and the nozzle reaches the bed")
@@ -380,9 +392,12 @@ class LoadCellProbe:
     def tap(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float) -> TapOutcome:
         """One full tap at the current XY (see the module docstring)."""
         options = settings.options
+        x_mm, y_mm, _ = self.motion.get_position()
+        expected_z_mm = self.bed_heights.expected_z_mm(x_mm, y_mm)
+        z_min_mm = max(z_min_mm, expected_z_mm - NO_CONTACT_DEPTH_MM)
         self.history.keep_from_s = self.vp.now_s - HISTORY_S  # this tap's samples stay until analysed
         try:
-            result, tare_counts, t_start_s = self._probing_move(settings, z_min_mm, speed_mm_s)
+            result, tare_counts, t_start_s = self._probing_move(settings, z_min_mm, speed_mm_s, expected_z_mm)
             self.vp.dwell(self.dwell_samples / self.sample_rate_sps)
             pullback_start_s = self.vp.now_s
             self.vp.move_to(z=result.halt_z_mm + options.pullback_distance_mm,
@@ -409,9 +424,26 @@ class LoadCellProbe:
             message = message if why is None else f"{message} ({why})"
         # Kept after the stiffness guess above: a bad tap's stiffness must not explain itself.
         self._record(tap, analysis, z_mm, valid)
+        if valid:
+            self.bed_heights.remember(x_mm, y_mm, z_mm)
         if analysis.quality is not None:
             self.printer.gcode.respond_info(f"Tap Quality: {analysis.quality:.1f}%")
         return TapOutcome(z_mm=z_mm, valid=valid, error_code=analysis.error, message=message, analysis=analysis)
+
+    def _make_room_to_reach_speed(self, expected_z_mm: float, speed_mm_s: float) -> None:
+        """Lift first when the nozzle is too close to the bed for the probing move to reach its
+        speed before contact (else COASTING_MOVE_ACCELERATION), e.g. right after a pullback."""
+        toolhead = self.motion.options
+        accel = min(toolhead.max_z_accel_mm_s2, toolhead.max_accel_mm_s2)
+        speed = min(speed_mm_s, toolhead.max_z_velocity_mm_s)
+        start_z_mm = expected_z_mm + approach_height_mm(speed, accel, self.sample_rate_sps)
+        if self.motion.get_position()[2] < start_z_mm:
+            self.motion.move_to(z=start_z_mm, speed_mm_s=self.probe.options.effective_lift_speed_mm_s)
+
+    def _mesh_height_mm(self, x_mm: float, y_mm: float) -> float | None:
+        bed_mesh = self.printer.lookup_object("bed_mesh", None)
+        mesh = getattr(bed_mesh, "mesh", None)
+        return None if mesh is None else float(mesh.z_at(x_mm, y_mm))
 
     def _known_stiffness_g_um(self, *, valid_only: bool = True) -> float | None:
         """The bed's stiffness measured by the kept taps (the stiffest), None before any.
