@@ -1083,8 +1083,9 @@ PINNED = {'sim_bowden_drift': {'compression_force_g': 140.90287272498958,
                       'contact_onset_um': None,
                       'error': 'TAP_PULLBACK_TOO_SHORT',
                       'fit_residual_sigma_g': None,
-                      'message': 'the nozzle never broke contact during the pullback (1000.7050..1000.7367 s); '
-                                 'increase pullback_distance',
+                      'message': 'the nozzle still pressed the bed with 28g (24% of the 115g compression) when '
+                                 'the pullback ended: it never broke contact; lengthen pullback_distance '
+                                 '(LOAD_CELL_PROBE_CALIBRATE CALIBRATION=PULLBACK_DISTANCE finds it)',
                       'noise_sigma_g': 1.0051253730475738,
                       'outliers': 0,
                       'points': [(0.37424242424242493, 0.23024001571684494),
