@@ -71,6 +71,7 @@ from tapcell.extras.load_cell_probe.options import (
     too_fast_explanation,
     too_fast_for_analysis,
 )
+from tapcell.extras.probe.advice import advised
 from tapcell.extras.probe.approach import NO_CONTACT_DEPTH_MM, BedHeightMemory, approach_height_mm, no_contact_message
 from tapcell.extras.probe.patterns import serpentine_pattern
 from tapcell.scale import counts_to_grams
@@ -419,16 +420,17 @@ class LoadCellProbe:
             self._tare_from_s = min(clear_s, pullback_end_s)
         z_mm = float(analysis.z_mm) if valid else float(result.halt_z_mm) + self._z_frame_offset_mm()
         message = analysis.message
-        if not valid:
-            why = self._explain_bad_tap(tap, analysis.error, options, speed_mm_s)
-            message = message if why is None else f"{message} ({why})"
+        why = None if valid else self._explain_bad_tap(tap, analysis.error, options, speed_mm_s)
+        if why is not None:
+            message = f"{message} ({why})"
         # Kept after the stiffness guess above: a bad tap's stiffness must not explain itself.
         self._record(tap, analysis, z_mm, valid)
         if valid:
             self.bed_heights.remember(x_mm, y_mm, z_mm)
         if analysis.quality is not None:
             self.printer.gcode.respond_info(f"Tap Quality: {analysis.quality:.1f}%")
-        return TapOutcome(z_mm=z_mm, valid=valid, error_code=analysis.error, message=message, analysis=analysis)
+        return TapOutcome(z_mm=z_mm, valid=valid, error_code=analysis.error, message=message, analysis=analysis,
+                          explained=why is not None)
 
     def _make_room_to_reach_speed(self, expected_z_mm: float, speed_mm_s: float) -> None:
         """Lift first when the nozzle is too close to the bed for the probing move to reach its
@@ -776,7 +778,7 @@ class LoadCellProbeCommands:
         settings = self.device.command_settings(gcmd)
         positions = serpentine_pattern(x0, y0, count_x, count_y, stepover_mm)
         good_in_row = 0
-        bad_taps = 0
+        bad_taps = []
         for index, (x, y) in enumerate(positions):
             if index:
                 motion.move_to(x=float(x), y=float(y), speed_mm_s=horizontal_speed)
@@ -790,11 +792,11 @@ class LoadCellProbeCommands:
                     return
                 continue
             good_in_row = 0
-            bad_taps += 1
+            bad_taps.append(outcome)
             gcmd.respond_info(f"NOZZLE_CLEANUP: bad tap at {x:.3f},{y:.3f}: {outcome.error_code} - {outcome.message}")
-            if scrubbing_frequency and bad_taps % scrubbing_frequency == 0:
+            if scrubbing_frequency and len(bad_taps) % scrubbing_frequency == 0:
                 self.probe.run_template("nozzle_scrubber_gcode", {"ATTEMPT": index + 1, "RETRIES": len(positions)})
-        raise ProbeError(f"NOZZLE_CLEANUP failed after trying {len(positions)} positions")
+        raise ProbeError(advised(f"NOZZLE_CLEANUP failed after trying {len(positions)} positions", bad_taps))
 
 
 def _template_runner(printer):
