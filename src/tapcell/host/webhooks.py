@@ -89,11 +89,15 @@ class ApiObjects:
     # -- commands ------------------------------------------------------------------------
 
     def register_commands(self, gcode) -> None:
-        gcode.register_command("PAUSE", self.cmd_PAUSE, desc="Pause the current print")
-        gcode.register_command("RESUME", self.cmd_RESUME, desc="Resume the print from a pause")
-        gcode.register_command("CANCEL_PRINT", self.cmd_CANCEL_PRINT, desc="Cancel the current print")
-        gcode.register_command("M117", self.cmd_M117, desc="Show a message on the display (display_status)")
-        gcode.register_command("M112", self.cmd_M112, desc="Emergency stop: shut the printer down")
+        """Klipper's commands behind these objects; a config's own macro of the same name wins."""
+        commands = (("PAUSE", self.cmd_PAUSE, "Pause the current print"),
+                    ("RESUME", self.cmd_RESUME, "Resume the print from a pause"),
+                    ("CANCEL_PRINT", self.cmd_CANCEL_PRINT, "Cancel the current print"),
+                    ("M117", self.cmd_M117, "Show a message on the display (display_status)"),
+                    ("M112", self.cmd_M112, "Emergency stop: shut the printer down"))
+        for name, handler, desc in commands:
+            if not gcode.is_registered(name):
+                gcode.register_command(name, handler, desc=desc)
 
     def cmd_PAUSE(self, gcmd) -> None:
         if self.is_paused:
@@ -121,6 +125,7 @@ class ApiObjects:
 
     def cmd_M112(self, gcmd) -> None:
         self.shutdown("Shutdown due to M112 command")
+        gcmd.respond_raw("!! Shutdown due to M112 command")
 
     # -- status ----------------------------------------------------------------------------
 
