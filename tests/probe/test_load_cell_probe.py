@@ -134,9 +134,23 @@ def test_load_cell_test_tap_counts_taps_without_moving(tmp_path):
         vp.inject_fault("bowden_tug", at_s=vp.now_s + at_s, force_g=300.0, duration_s=0.2)
     responses.clear()
     printer.gcode.run_script("LOAD_CELL_TEST_TAP COUNT=2 TIMEOUT=5")
-    assert responses == ["// Tap the load cell 2 times:", "// Tap Detected!", "// Tap Detected!",
-                         "// Test complete, 2 taps detected"]
+    assert responses[0] == "// Tap the load cell 2 times:"
+    for line in responses[1:3]:  # each tap is checked: a 300 g press that comes back to zero
+        found = re.fullmatch(r"// Tap Detected! peak (\d+)g, back to (-?\d+\.\d)g: good", line)
+        assert found and 290 <= int(found[1]) <= 310 and abs(float(found[2])) < 3.0, line
+    assert responses[3] == "// Test complete, 2 taps detected (2 good)"
     assert vp.position[2] == z_before
+    # A press after which 150 g stays on the nozzle (a tube pulling): the force does not come back.
+    vp.inject_fault("bowden_tug", at_s=vp.now_s + 0.5, force_g=300.0, duration_s=0.2)
+    vp.inject_fault("weight", at_s=vp.now_s + 0.7, grams=150.0)
+    responses.clear()
+    printer.gcode.run_script("LOAD_CELL_TEST_TAP COUNT=1 TIMEOUT=5")
+    assert re.fullmatch(r"// Tap Detected! peak 3\d\dg, back to 15\d\.\dg: bad tap: BASELINE_FORCE_INCONSISTENT - "
+                        r"the force came back to 15\d\.\dg, 5\d% of the 3\d\dg peak \(max_baseline_force_delta 25%\)\. "
+                        r"Likely cause: drift from the bowden tube or cable chain, or something still presses the "
+                        r"nozzle\. Fix: .*", responses[1])
+    assert responses[2] == "// Test complete, 1 taps detected (0 good)"
+    vp.remove_weight()
     with pytest.raises(GCodeError, match=r"^LOAD_CELL_TEST_TAP: no tap detected within 1s \(0 of 1 taps detected\)$"):
         printer.gcode.run_script("LOAD_CELL_TEST_TAP COUNT=1 TIMEOUT=1")
 

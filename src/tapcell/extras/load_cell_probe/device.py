@@ -36,6 +36,7 @@ import numpy as np
 from tapcell.filters import FilterDesignError, FilterOptions, design_firmware_filter
 from tapcell.host.gcode import GCodeError
 from tapcell.extras.gcode_macro import StatusView
+from tapcell.extras.load_cell_probe.hand_tap import HandTap, check_hand_tap
 from tapcell.extras.load_cell import LoadCell, read_load_cell_options, register_load_cell_commands
 from tapcell.mcu.trigger import FirmwareTrigger, TriggerError, TriggerParams
 from tapcell.extras.probe.session import Probe, ProbeError, TapOutcome
@@ -86,6 +87,8 @@ TARE_TIMEOUT_S = 1.0  # no sample for this long: the sensor is gone
 # deep over-travel). A low quality score is the classifier's verdict, not explained by speed.
 SPEED_SENSITIVE_CODES = ("TAP_CHRONOLOGY", "TAP_SHAPE_INVALID", "TAP_PULLBACK_TOO_SHORT", "TAP_BREAK_CONTACT_TOO_LATE")
 RELEASE_CHECK_S = 0.05  # LOAD_CELL_TEST_TAP looks at the force this often while waiting for a release
+HAND_RELEASE_S = 2.0  # a tap by hand is released within this; longer, it is checked as it is
+HAND_SETTLE_S = 0.1  # after the release, the force over this long is where it came back to
 TARE_FRESH_MARGIN_SAMPLES = 4  # the tare window may reach back this many periods beyond tare_time
 SAVE_CONFIG_NOTE = ("The SAVE_CONFIG command will update the printer config file with the above and restart "
                     "the printer.")
@@ -736,20 +739,41 @@ class LoadCellProbeCommands:
         settings = device.command_settings(gcmd)
         gcmd.respond_info(f"Tap the load cell {count} times:")
         deadline_s = device.vp.now_s + timeout_s
+        good = 0
         for index in range(count):
             self._wait_for_release(settings.options, deadline_s)
-            trigger = device._arm(settings, device._tare(settings.options))
-            # A hand is on the nozzle now: the next tare must wait for new samples.
-            device._tare_from_s = None
-            result = device.vp.wait_for_trigger(trigger, max(deadline_s - device.vp.now_s, 0.0))
-            device.load_cell.pump()
-            if result.error != TriggerError.NONE:
-                raise ProbeError(trigger_error_message(result.error, settings.options.force_safety_limit_g))
-            if not result.triggered:
-                raise ProbeError(f"LOAD_CELL_TEST_TAP: no tap detected within {timeout_s:g}s "
-                                 f"({index} of {count} taps detected)")
-            gcmd.respond_info("Tap Detected!")
-        gcmd.respond_info(f"Test complete, {count} taps detected")
+            tare_counts = device._tare(settings.options)
+            armed_s = device.vp.now_s
+            device.history.keep_from_s = armed_s  # the tap's samples stay until checked
+            try:
+                trigger = device._arm(settings, tare_counts)
+                # A hand is on the nozzle now: the next tare must wait for new samples.
+                device._tare_from_s = None
+                result = device.vp.wait_for_trigger(trigger, max(deadline_s - device.vp.now_s, 0.0))
+                device.load_cell.pump()
+                if result.error != TriggerError.NONE:
+                    raise ProbeError(trigger_error_message(result.error, settings.options.force_safety_limit_g))
+                if not result.triggered:
+                    raise ProbeError(f"LOAD_CELL_TEST_TAP: no tap detected within {timeout_s:g}s "
+                                     f"({index} of {count} taps detected)")
+                tap = self._check_hand_tap(settings.options, armed_s, tare_counts)
+            finally:
+                device.history.keep_from_s = None
+            good += tap.problem is None
+            gcmd.respond_info(f"Tap Detected! {tap.describe()}")
+        gcmd.respond_info(f"Test complete, {count} taps detected ({good} good)")
+
+    def _check_hand_tap(self, options: TapOptions, armed_s: float, tare_counts: float) -> HandTap:
+        """Wait for the release (at most HAND_RELEASE_S), let the cell settle, check the tap."""
+        device = self.device
+        self._wait_for_release(options, device.vp.now_s + HAND_RELEASE_S)
+        device.load_cell.collect(HAND_SETTLE_S)
+        now_s = device.vp.now_s
+        t_s, counts, errors = device.history.between(armed_s, now_s)
+        force_g = counts_to_grams(counts, tare_counts, device.load_cell.counts_per_gram, device.cell_options.inverted)
+        settled = force_g[t_s >= now_s - HAND_SETTLE_S]
+        after_g = float(np.median(settled)) if len(settled) else float("nan")
+        return check_hand_tap(force_g, after_g, options.trigger_force_g, options.max_baseline_force_delta, errors)
 
     def _wait_for_release(self, options: TapOptions, deadline_s: float) -> None:
         """Do not tare under a hand still pressing: wait until the force is back near the tare."""
