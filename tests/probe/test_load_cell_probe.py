@@ -170,6 +170,22 @@ def test_status_of_probe_and_load_cell_probe(tmp_path):
     json.dumps(status)  # JSON-ready plain data
 
 
+def test_macros_read_the_probe_cell_as_printer_load_cell(tmp_path):
+    """The guide's `{% set grams = printer.load_cell.force_g %}` with only [load_cell_probe]."""
+    macro = ("\n[gcode_macro SHOW_FORCE]\ngcode:\n  {% set grams = printer.load_cell.force_g %}\n"
+             "  {action_respond_info(\"force %.0f g, tare %d\" % (grams, printer.load_cell.tare_counts))}\n")
+    printer, responses = make_printer(tmp_path, replace={"[bed_mesh]": macro + "\n[bed_mesh]"})
+    printer.gcode.run_script("LOAD_CELL_TARE\nSIM_PLACE_WEIGHT GRAMS=500")
+    printer.backend.dwell(1.0)
+    responses.clear()
+    printer.gcode.run_script("SHOW_FORCE")
+    found = re.fullmatch(r"// force (\d+) g, tare (-?\d+)", responses[-1])
+    assert found and abs(int(found[1]) - 500) <= 3
+    cell = printer.lookup_object("load_cell_probe").load_cell
+    assert int(found[2]) == int(cell.tare_counts)
+    assert printer.get_status()["load_cell"]["force_g"] == pytest.approx(500, abs=3)
+
+
 def test_query_endstops_and_query_probe_report_the_load_cell_open(tmp_path):
     # The guide: load cell probes always report not triggered (use LOAD_CELL_TEST_TAP instead).
     printer, responses = make_printer(tmp_path, home=False)

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tapcell.filters import NOTCH_QUALITY_MAX, NOTCH_QUALITY_MIN
 from tapcell.mcu.trigger import TriggerError
 from tapcell.extras.probe.options import OptionSpec
 from tapcell.tap.angles import slope_angle_deg
@@ -93,7 +94,8 @@ TAP_OPTION_SPECS: tuple[OptionSpec, ...] = (
     OptionSpec("buzz_filter_cutoff_frequency", "buzz_filter_cutoff_frequency", "optfloat", None),
     OptionSpec("buzz_filter_delay", "buzz_filter_delay", "int", 2),
     OptionSpec("notch_filter_frequencies", "notch_filter_frequencies", "floatlist", None),
-    OptionSpec("notch_filter_quality", "notch_filter_quality", "float", 2.0),
+    OptionSpec("notch_filter_quality", "notch_filter_quality", "float", 2.0, minval=NOTCH_QUALITY_MIN,
+               maxval=NOTCH_QUALITY_MAX),
     OptionSpec("pullback_distance", "pullback_distance_mm", "float", 0.2,
                minval=PULLBACK_LIMITS_MM[0], maxval=PULLBACK_LIMITS_MM[1]),
     OptionSpec("pullback_speed", "pullback_speed_mm_s", "float", None, minval=0.01, maxval=2.0),
