@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import io
 import re
 
 import pytest
 
-from tapcell.tools import demo
+from tapcell.tools import cli, demo
 from tapcell.tap import read_tap_file
 
 SCALE_CONFIG = """\
@@ -50,7 +51,7 @@ def test_demo_reports_a_broken_config_without_a_traceback(tmp_path, capsys):
     assert "The printer did not start:" in capsys.readouterr().out
 
 
-def test_make_demo_default_runs(tmp_path, capsys):
+def test_make_demo_default_runs(tmp_path, capsys, monkeypatch):
     assert demo.main(["--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "!!" not in out and "> LOAD_CELL_READ" in out
@@ -74,4 +75,11 @@ def test_make_demo_default_runs(tmp_path, capsys):
     # The calibrated printer stays in the output folder, and the demo ends with the command to go on.
     saved = (tmp_path / "printer.cfg").read_text()
     assert "counts_per_gram" in saved and "[bed_mesh default]" in saved
-    assert out.rstrip().splitlines()[-1] == f"    tapcell console --config {tmp_path / 'printer.cfg'}"
+    command = demo.console_command(tmp_path / "printer.cfg")
+    assert out.rstrip().splitlines()[-1] == f"    {command}"
+    assert command.endswith(f"tapcell console --config {tmp_path / 'printer.cfg'}")
+    # ... and the console goes on from there: calibrated, the mesh loaded.
+    monkeypatch.setattr("sys.stdin", io.StringIO("LOAD_CELL_READ\nBED_MESH_OUTPUT\n"))
+    assert cli.main(["console", "--config", str(tmp_path / "printer.cfg")]) == 0
+    console_out = capsys.readouterr().out
+    assert "Mesh Leveling Probed Z positions:" in console_out and "!!" not in console_out

@@ -18,8 +18,10 @@ is a `DemoStep` (an explanation, G-code lines, and optionally something the runn
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import shutil
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -257,6 +259,18 @@ class DemoRunner:
         self.print_exact(f"Heat maps: {mesh_png} (the mesh) and {error_png} (mesh and mesh - true bed)")
 
 
+def console_command(config_path: Path) -> str:
+    """The exact command that opens the console on `config_path` from here (this Python's tapcell)."""
+    script = Path(sys.executable).with_name("tapcell")
+    if not script.exists():
+        return f"{sys.executable} -m tapcell console --config {config_path}"
+    found = shutil.which("tapcell")
+    if found and Path(found).resolve() == script.resolve():
+        return f"tapcell console --config {config_path}"
+    relative = os.path.relpath(script)
+    return f"{relative if not relative.startswith('..') else script} console --config {config_path}"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="tapcell demo", description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", type=Path, default=None,
@@ -295,5 +309,5 @@ def main(argv: list[str] | None = None) -> int:
         return 1
     console.rule("[bold]Done")
     console.print(f"The calibrated printer is in {config_path}. Continue from it:", markup=False)
-    runner.print_exact(f"    tapcell console --config {config_path}")
+    runner.print_exact(f"    {console_command(config_path)}")
     return 0
