@@ -17,8 +17,9 @@ else 0 (homing puts the bed at Z 0).
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
+
+import numpy as np
 
 NO_CONTACT_DEPTH_MM = 2.0  # the paper: no hit by 2 mm below the bed -> error
 NEAR_CONTACT_MM = 10.0
@@ -55,21 +56,24 @@ class BedHeightMemory:
 
     def __init__(self, mesh_height_mm: Callable[[float, float], float | None]):
         self._mesh_height_mm = mesh_height_mm  # the active bed mesh at (x, y), None without one
-        self.contacts_xyz_mm: list[tuple[float, float, float]] = []
+        self.contacts_xyz_mm = np.zeros((0, 3))
 
     def forget(self) -> None:
         """Z was homed again: the contacts were measured in another frame."""
-        self.contacts_xyz_mm.clear()
+        self.contacts_xyz_mm = np.zeros((0, 3))
 
     def remember(self, x_mm: float, y_mm: float, z_mm: float) -> None:
-        self.contacts_xyz_mm.append((float(x_mm), float(y_mm), float(z_mm)))
-        del self.contacts_xyz_mm[:-MAX_CONTACTS]
+        kept = self.contacts_xyz_mm[-(MAX_CONTACTS - 1):]
+        self.contacts_xyz_mm = np.vstack([kept, [(float(x_mm), float(y_mm), float(z_mm))]])
 
     def expected_z_mm(self, x_mm: float, y_mm: float) -> float:
-        nearest = min(self.contacts_xyz_mm, key=lambda c: math.hypot(c[0] - x_mm, c[1] - y_mm), default=None)
-        if nearest is not None and math.hypot(nearest[0] - x_mm, nearest[1] - y_mm) <= NEAR_CONTACT_MM:
-            return nearest[2]
+        contacts = self.contacts_xyz_mm
+        if len(contacts):
+            distances = np.hypot(contacts[:, 0] - x_mm, contacts[:, 1] - y_mm)
+            nearest = int(np.argmin(distances))
+            if distances[nearest] <= NEAR_CONTACT_MM:
+                return float(contacts[nearest, 2])
         mesh_z = self._mesh_height_mm(x_mm, y_mm)
         if mesh_z is not None:
             return mesh_z
-        return 0.0 if nearest is None else nearest[2]
+        return float(contacts[nearest, 2]) if len(contacts) else 0.0
