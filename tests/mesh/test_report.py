@@ -19,6 +19,7 @@ from tapcell.mesh.report import (
     render_mesh_map,
     render_probed_matrix,
     render_topology,
+    mesh_figure,
     write_mesh_png,
 )
 from tapcell.mesh.zmesh import build_mesh
@@ -125,3 +126,19 @@ def test_heat_map_png_has_two_panels_with_truth(tmp_path):
     double = write_mesh_png(tmp_path / "mesh_and_error.png", mesh, lambda x, y: 0.0003 * x, samples_per_axis=21)
     assert matplotlib.image.imread(single).shape[:2] == (480, 550)
     assert matplotlib.image.imread(double).shape[:2] == (480, 1100)
+
+
+def test_heat_map_in_mm_with_the_meshs_one_range():
+    """The heat map reports the same range as BED_MESH_OUTPUT and BED_MESH_CALIBRATE, in mm, with
+    a labelled colour bar whose ends are that range."""
+    mesh = build_mesh(PROBED, GRID, resolve_interpolation("lagrange", (3, 3))[0])
+    figure = mesh_figure(mesh, lambda x, y: 0.0003 * x, samples_per_axis=21)
+    height, height_bar, error, error_bar = figure.axes
+    low, high = mesh.z_range_mm()
+    range_line = next(line for line in render_mesh(mesh, 5, (0, 0)).splitlines() if line.startswith("Mesh Range"))
+    assert range_line == f"Mesh Range: min={low:.4f} max={high:.4f}"
+    assert height.get_title() == f"Mesh: bed height\nmin {low:.4f} mm, max {high:.4f} mm, range {high - low:.4f} mm"
+    assert height_bar.get_ylabel() == "bed height (mm)" and error_bar.get_ylabel() == "mesh - true bed (µm)"
+    assert height.images[0].get_clim() == (low, high)
+    assert float(np.max(height.images[0].get_array())) == pytest.approx(high)  # mm, not µm
+    assert [t.get_text() for t in height.get_legend().get_texts()] == ["probed points"]

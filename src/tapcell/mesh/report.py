@@ -165,31 +165,39 @@ def render_topology(points: Sequence[TwoPassPoint], topology: TopologyReport) ->
 
 def write_mesh_png(path: str | Path, mesh: ZMesh, truth_z_mm: TruthFn | None = None, samples_per_axis: int = 101) -> Path:
     """Heat map of the mesh (and of mesh - truth, when the truth is known) as a PNG."""
-    from matplotlib.figure import Figure  # imported here: only this function needs matplotlib
+    output = Path(path)
+    mesh_figure(mesh, truth_z_mm, samples_per_axis).savefig(output, dpi=100)
+    return output
+
+
+def mesh_figure(mesh: ZMesh, truth_z_mm: TruthFn | None = None, samples_per_axis: int = 101):
+    """The heat map figure: the mesh in mm, its colour bar labelled and limited to the mesh's
+    range (ZMesh.z_range_mm, as BED_MESH_OUTPUT's Mesh Range), min/max/range in the title; with
+    the truth a second panel of mesh - truth in µm, zero the neutral colour."""
+    from matplotlib.figure import Figure  # imported here: only the heat maps need matplotlib
 
     area_x, area_y = _area_grid(mesh, samples_per_axis)
-    panels = [("Mesh: bed height (um)", mesh.z_at(area_x, area_y) * 1000.0, "viridis")]
+    low, high = mesh.z_range_mm()
+    height = ("Mesh: bed height\n"
+              f"min {low:.4f} mm, max {high:.4f} mm, range {high - low:.4f} mm",
+              mesh.z_at(area_x, area_y), "viridis", "bed height (mm)", (low, high))
+    panels = [height]
     if truth_z_mm is not None:
-        panels.append(
-            ("Mesh - true bed (um)", (mesh.z_at(area_x, area_y) - truth_z_mm(area_x, area_y)) * 1000.0, "coolwarm")
-        )
+        error_um = (mesh.z_at(area_x, area_y) - truth_z_mm(area_x, area_y)) * 1000.0
+        limit = max(float(np.max(np.abs(error_um))), 1e-9)  # symmetric: zero error is the neutral colour
+        panels.append((f"Mesh - true bed\nlargest {limit:.1f} µm", error_um, "coolwarm", "mesh - true bed (µm)",
+                       (-limit, limit)))
     grid = mesh.grid
     extent = (grid.min_x_mm, grid.max_x_mm, grid.min_y_mm, grid.max_y_mm)
     probed = grid.probe_points_mm()
     figure = Figure(figsize=(5.5 * len(panels), 4.8), layout="constrained")
-    for number, (title, values_um, colormap) in enumerate(panels, start=1):
+    for number, (title, values, colormap, unit, (vmin, vmax)) in enumerate(panels, start=1):
         axes = figure.add_subplot(1, len(panels), number)
-        if colormap == "coolwarm":
-            # Symmetric limits so zero error is the neutral colour.
-            limit = max(float(np.max(np.abs(values_um))), 1e-9)
-            image = axes.imshow(values_um, origin="lower", extent=extent, cmap=colormap, vmin=-limit, vmax=limit)
-        else:
-            image = axes.imshow(values_um, origin="lower", extent=extent, cmap=colormap)
-        axes.plot(probed[:, 0], probed[:, 1], "k.", markersize=4, label="probed points")
-        axes.set_title(title)
+        image = axes.imshow(values, origin="lower", extent=extent, cmap=colormap, vmin=vmin, vmax=vmax)
+        axes.plot(probed[:, 0], probed[:, 1], "k.", markersize=4, label="probed points", clip_on=False)
+        axes.set_title(title, fontsize=10)
         axes.set_xlabel("X (mm)")
         axes.set_ylabel("Y (mm)")
-        figure.colorbar(image, ax=axes)
-    output = Path(path)
-    figure.savefig(output, dpi=100)
-    return output
+        axes.legend(loc="upper right", fontsize=7, framealpha=0.8)
+        figure.colorbar(image, ax=axes, label=unit)
+    return figure
