@@ -3,6 +3,8 @@ copy in the user's folder, where SAVE_CONFIG writes; `--scenario NAME`."""
 
 from __future__ import annotations
 
+import io
+
 import pytest
 
 from tapcell.tools import cli, frontend
@@ -12,21 +14,8 @@ CALIBRATE = ["LOAD_CELL_CALIBRATE\n", "TARE\n", "SIM_PLACE_WEIGHT GRAMS=1000\n",
              "ACCEPT\n", "SAVE_CONFIG\n"]
 
 
-class _Lines:
-    """A non-terminal stdin for input()."""
-
-    def __init__(self, lines):
-        self._lines = list(lines)
-
-    def isatty(self):
-        return False
-
-    def readline(self):
-        return self._lines.pop(0) if self._lines else ""
-
-
 def console(monkeypatch, capsys, lines, *args) -> tuple[int, str]:
-    monkeypatch.setattr("sys.stdin", _Lines(lines))
+    monkeypatch.setattr("sys.stdin", io.StringIO("".join(lines)))  # not a terminal, like a pipe
     status = cli.main(["console", *map(str, args)])
     return status, capsys.readouterr().out
 

@@ -7,19 +7,12 @@ import re
 
 import numpy as np
 import pytest
+
 from tapcell.host.config import ConfigError
 
 from machines import gcode_error
+from test_bed_mesh_calibrate import MESH
 
-MESH = """
-[bed_mesh]
-speed: 150
-mesh_min: 20, 20
-mesh_max: 215, 215
-probe_count: 5, 5
-algorithm: bicubic
-horizontal_z_clearance: 0.4
-"""
 TILTED = "\n[virtual_printer]\nbed_shape: tilted\nbed_tilt_x_mm: 0.6\nbed_tilt_y_mm: 0.3\n"
 TAP_LINE = re.compile(r"// probe at (-?\d+\.\d+),(-?\d+\.\d+) is z=(-?\d+\.\d+)")
 
