@@ -35,6 +35,7 @@ def test_analysis_imports_and_runs_without_scipy_matplotlib_rich():
     plain_valid, plain_z, toe_valid, toe_z, method = json.loads(done.stdout)
     assert plain_valid and toe_valid and method == "toe"
     # The capture's own analysis recorded 0.041963 mm; ours 0.041532 (sharp, lag half a sample),
-    # 0.043441 with the toe and the lag read off the halt (2.5 samples on this capture).
+    # 0.043442 with the toe and the lag read off the halt (2.5 samples on this capture; the toe
+    # marginalised over its width and shape, the drift from the approach).
     assert abs(plain_z - 0.041532) < 0.5e-6
-    assert abs(toe_z - 0.043441) < 0.5e-6
+    assert abs(toe_z - 0.043442) < 0.5e-6

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand
-from tapcell.sim.printer import MoveError
+from tapcell.host.backend import MoveError
 
 AXES = "xyz"
 KINEMATICS = ("cartesian",)
@@ -249,8 +249,8 @@ class Toolhead:
 
     def cmd_G1(self, gcmd: GCodeCommand) -> None:
         if gcmd.has("E"):
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': the virtual printer has no extruder motor,"
-                             " E moves are not supported")
+            raise gcmd.param_error("the virtual printer has no extruder motor,"
+                                   " E moves are not supported")
         feed_mm_min = gcmd.get_float("F", None, above=0.0)
         if feed_mm_min is not None:
             self.speed_mm_s = feed_mm_min / 60.0
@@ -281,7 +281,7 @@ class Toolhead:
         try:
             self.move_target.move(tuple(toolhead_target[axis] for axis in AXES), speed)
         except MoveError as exc:  # the virtual machine is smaller than the config says
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {exc}") from None
+            raise gcmd.param_error(f"{exc}") from None
 
     def cmd_G90(self, gcmd: GCodeCommand) -> None:
         self.absolute_coordinates = True
@@ -330,8 +330,8 @@ def _temperature_commands(extruder: Extruder):
     def set_temperature(gcmd: GCodeCommand, wait: bool) -> None:
         target = gcmd.get_float("S", 0.0, minval=0.0)
         if target and not extruder.min_temp_c <= target <= extruder.max_temp_c:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': S={target:g} is outside the nozzle's range "
-                             f"{extruder.min_temp_c:g} to {extruder.max_temp_c:g} (min_temp / max_temp)")
+            raise gcmd.param_error(f"S={target:g} is outside the nozzle's range "
+                                   f"{extruder.min_temp_c:g} to {extruder.max_temp_c:g} (min_temp / max_temp)")
         extruder.set_target(target, wait)
         if wait:
             gcmd.respond_info(f"Nozzle at {extruder.backend.nozzle_temperature_c:.1f}C (target {target:g}C)")

@@ -37,8 +37,6 @@ def _build_printer(config_path: str, program: str) -> Printer | None:
     except ConfigError as exc:
         print(f"{program}: config error: {exc}", file=sys.stderr)
         return None
-    for warning in printer.warnings:
-        print(f"// Warning: {warning}", flush=True)
     return printer
 
 

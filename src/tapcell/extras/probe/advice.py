@@ -38,6 +38,8 @@ ADVICE: dict[str, tuple[str, str]] = {
                               "something soft", CLEAN_AND_COOL + "; check that the sheet lies flat"),
     "TAP_CONTACT_MISMATCH": ("the nozzle pressed something away before it met the bed (an ooze film, debris)",
                              CLEAN_AND_COOL),
+    "TAP_ADHESION": ("a thread of plastic held the nozzle as it left the bed (the force dipped below free air)",
+                     CLEAN_AND_COOL),
     "TAP_DATA_INSUFFICIENT": ("too few samples in part of the tap: the sensor is slow for this probing speed",
                               "probe slower (PROBE_SPEED=) or use a faster sample_rate"),
     "TAP_MOTION_INVALID": ("the recorded motion does not describe a tap (a move was interrupted)",
