@@ -31,6 +31,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from bench._progress import with_progress
 from tapcell.sim.params import CHIP_DEFAULT_RATE_SPS, CHIP_PIPELINE_PERIODS, CHIP_RATES_SPS, SHEETS
 from tapcell.sim.scenarios import SCENARIOS
 from tapcell.tap import AnalysisOptions, analyze_tap
@@ -223,7 +224,7 @@ def main(argv: list[str]) -> int:
     started = time.perf_counter()
     cases = draw_cases(per_cell, args.seed)
     with ProcessPoolExecutor(args.workers) as pool:
-        outcomes = list(pool.map(run_case, cases, chunksize=8))
+        outcomes = list(with_progress(pool.map(run_case, cases, chunksize=8), len(cases), "taps"))
     elapsed_s = time.perf_counter() - started
 
     console = Console(width=160)

@@ -144,8 +144,9 @@ MESH_STEPS = (
     ),
     DemoStep(
         "Look at the mesh",
-        "BED_MESH_OUTPUT prints the probed heights as seen from above (back of the bed on top). "
-        "Between the points the mesh is interpolated (bicubic) so moves follow a smooth surface.",
+        "BED_MESH_OUTPUT prints the mesh as Klipper does: the probed heights (front row first), then "
+        "the mesh moves follow, interpolated (bicubic) between the points into a smooth surface, with "
+        "its average and range (back row first, as seen from above).",
         ("BED_MESH_OUTPUT",),
     ),
     DemoStep(
