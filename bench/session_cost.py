@@ -30,7 +30,7 @@ def peak_rss_mb() -> float:
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="bench/session_cost.py", description=__doc__)
-    parser.add_argument("--blocks", type=int, default=12, help="blocks of taps (default 12)")
+    parser.add_argument("--blocks", type=int, default=10, help="blocks of taps (default 10: past the 600 s horizon)")
     parser.add_argument("--taps", type=int, default=100, help="taps per block (default 100)")
     args = parser.parse_args(argv)
     console = Console()
