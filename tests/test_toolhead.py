@@ -59,7 +59,7 @@ def test_limits_relative_moves_g92_and_m114(tmp_path):
     assert status["axis_maximum"] == [235.0, 235.0, 250.0, 0.0]
     assert error_of(printer, "G1 X1 E5") == ("Error on 'G1 X1 E5': the virtual printer has no extruder motor, "
                                              "E moves are not supported")
-    assert error_of(printer, "G1 X1 F0") == "Error on 'G1 X1 F0': F must be above 0"
+    assert error_of(printer, "G1 X1 F0") == "Error on 'G1 X1 F0': F must have minimum of 6 (allowed: 6 to 600000)"
 
 
 def test_g28_z_needs_a_probe(tmp_path):

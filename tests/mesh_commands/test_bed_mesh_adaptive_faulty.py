@@ -105,5 +105,7 @@ def test_faulty_region_config_errors(make_printer):
     with pytest.raises(ConfigError, match=r"faulty_region_3_max.*needs both faulty_region_3_min and "
                                           r"faulty_region_3_max"):
         make_printer(MESH + "faulty_region_3_min: 0, 0\n")
+    with pytest.raises(ConfigError, match=r"\[bed_mesh\] faulty_region_100_min = .*N from 1 to 99"):
+        make_printer(MESH + "faulty_region_100_min: 0, 0\nfaulty_region_100_max: 5, 5\n")
     with pytest.raises(ConfigError, match=r"mesh point 0 \(20, 20\) lies inside faulty_region_1"):
         make_printer(MESH + "faulty_region_1_min: 0, 0\nfaulty_region_1_max: 300, 300\n")

@@ -20,9 +20,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from tapcell.host.config import ConfigSection
-from tapcell.host.gcode import GCodeCommand
 from tapcell.host.backend import MoveError
+from tapcell.host.config import ConfigSection
+from tapcell.host.gcode import GCodeCommand, GCodeError
 
 AXES = "xyz"
 KINEMATICS = ("cartesian",)
@@ -30,6 +30,20 @@ PROBE_ENDSTOP_PIN = "probe:z_virtual_endstop"
 # M104/M109 range when there is no [extruder] section to say otherwise.
 DEFAULT_MIN_TEMP_C = 0.0
 DEFAULT_MAX_TEMP_C = 300.0
+# The ranges every toolhead number is checked against: no printer is 10 m wide, and speeds,
+# accelerations and temperatures have ceilings far above any real machine. The floor of
+# the speeds keeps a move from lasting days (the virtual printer simulates every second).
+MAX_COORDINATE_MM = 10_000.0
+SPEED_MM_S = (0.1, 10_000.0)
+# As getter keywords: getfloat("position_min", 0.0, **COORDINATE_RANGE).
+COORDINATE_RANGE = {"minval": -MAX_COORDINATE_MM, "maxval": MAX_COORDINATE_MM}
+SPEED_RANGE = {"minval": SPEED_MM_S[0], "maxval": SPEED_MM_S[1]}
+ACCEL_MM_S2 = (1.0, 1_000_000.0)
+MAX_TEMP_C = 1000.0
+ABSOLUTE_ZERO_C = -273.15
+MICROSTEPS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
+MAX_ROTATION_DISTANCE_MM = 1000.0
+MAX_FULL_STEPS_PER_ROTATION = 10_000
 
 
 @dataclass(frozen=True)
@@ -73,32 +87,33 @@ def read_axis_options(section: ConfigSection) -> AxisOptions:
     section.getfloat("step_pulse_duration", None, minval=0.0, maxval=0.001)
     endstop_pin = section.get("endstop_pin")
     homes_with_probe = endstop_pin.strip() == PROBE_ENDSTOP_PIN
-    position_min = section.getfloat("position_min", 0.0)
-    position_max = section.getfloat("position_max", above=position_min)
+    position_min = section.getfloat("position_min", 0.0, **COORDINATE_RANGE)
+    position_max = section.getfloat("position_max", above=position_min, maxval=MAX_COORDINATE_MM)
     if homes_with_probe:
         position_endstop = None
     else:
         position_endstop = section.getfloat("position_endstop", minval=position_min, maxval=position_max)
-    homing_speed = section.getfloat("homing_speed", 5.0, above=0.0)
-    section.getfloat("homing_retract_dist", 5.0, minval=0.0)
-    section.getfloat("homing_retract_speed", homing_speed, above=0.0)
-    section.getfloat("second_homing_speed", homing_speed / 2.0, above=0.0)
+    homing_speed = section.getfloat("homing_speed", 5.0, **SPEED_RANGE)
+    section.getfloat("homing_retract_dist", 5.0, minval=0.0, maxval=MAX_COORDINATE_MM)
+    section.getfloat("homing_retract_speed", homing_speed, **SPEED_RANGE)
+    section.getfloat("second_homing_speed", homing_speed / 2.0, **SPEED_RANGE)
     section.getboolean("homing_positive_dir", None)
     return AxisOptions(
         position_min_mm=position_min,
         position_max_mm=position_max,
         position_endstop_mm=position_endstop,
         homing_speed_mm_s=homing_speed,
-        rotation_distance_mm=section.getfloat("rotation_distance", above=0.0),
-        microsteps=section.getchoice("microsteps", [1, 2, 4, 8, 16, 32, 64, 128, 256]),
-        full_steps_per_rotation=section.getint("full_steps_per_rotation", 200, minval=1),
+        rotation_distance_mm=section.getfloat("rotation_distance", above=0.0, maxval=MAX_ROTATION_DISTANCE_MM),
+        microsteps=section.getchoice("microsteps", list(MICROSTEPS)),
+        full_steps_per_rotation=section.getint("full_steps_per_rotation", 200, minval=1,
+                                               maxval=MAX_FULL_STEPS_PER_ROTATION),
         homes_with_probe=homes_with_probe,
     )
 
 
 def read_toolhead_options(section: ConfigSection) -> ToolheadOptions:
-    max_velocity = section.getfloat("max_velocity", above=0.0)
-    max_accel = section.getfloat("max_accel", above=0.0)
+    max_velocity = section.getfloat("max_velocity", **SPEED_RANGE)
+    max_accel = section.getfloat("max_accel", minval=ACCEL_MM_S2[0], maxval=ACCEL_MM_S2[1])
     axes = {}
     for axis in AXES:
         stepper = section.getsection(f"stepper_{axis}")
@@ -113,10 +128,12 @@ def read_toolhead_options(section: ConfigSection) -> ToolheadOptions:
         kinematics=section.getchoice("kinematics", list(KINEMATICS)),
         max_velocity_mm_s=max_velocity,
         max_accel_mm_s2=max_accel,
-        max_z_velocity_mm_s=section.getfloat("max_z_velocity", max_velocity, above=0.0, maxval=max_velocity),
-        max_z_accel_mm_s2=section.getfloat("max_z_accel", max_accel, above=0.0, maxval=max_accel),
+        max_z_velocity_mm_s=section.getfloat("max_z_velocity", max_velocity, minval=SPEED_MM_S[0],
+                                             maxval=max_velocity),
+        max_z_accel_mm_s2=section.getfloat("max_z_accel", max_accel, minval=ACCEL_MM_S2[0], maxval=max_accel),
         minimum_cruise_ratio=section.getfloat("minimum_cruise_ratio", 0.5, minval=0.0, below=1.0),
-        square_corner_velocity_mm_s=section.getfloat("square_corner_velocity", 5.0, minval=0.0),
+        square_corner_velocity_mm_s=section.getfloat("square_corner_velocity", 5.0, minval=0.0,
+                                                     maxval=SPEED_MM_S[1]),
         axes=axes,
     )
 
@@ -139,6 +156,20 @@ class Extruder:
                 "min_temp": self.min_temp_c, "max_temp": self.max_temp_c}
 
 
+# [extruder] options the virtual printer has no use for: read only to check them.
+EXTRUDER_UNUSED_RANGES = {
+    "rotation_distance": (0.001, MAX_ROTATION_DISTANCE_MM),
+    "nozzle_diameter": (0.01, 10.0),
+    "filament_diameter": (0.01, 10.0),
+    "pid_kp": (0.0, 10_000.0),
+    "pid_ki": (0.0, 10_000.0),
+    "pid_kd": (0.0, 10_000.0),
+    "pressure_advance": (0.0, 10.0),
+    "min_extrude_temp": (ABSOLUTE_ZERO_C, MAX_TEMP_C),
+    "max_extrude_only_distance": (0.0, MAX_COORDINATE_MM),
+}
+
+
 def read_extruder(config, backend) -> Extruder:
     """[extruder] is optional on the virtual printer: only its temperature range matters."""
     if not config.has_section("extruder"):
@@ -148,12 +179,11 @@ def read_extruder(config, backend) -> Extruder:
         section.get(option, None)
     for option in ("enable_pin", "control", "gear_ratio"):
         section.get(option, None)
-    section.getint("microsteps", None, minval=1)
-    for option in ("rotation_distance", "nozzle_diameter", "filament_diameter", "pid_kp", "pid_ki", "pid_kd",
-                   "pressure_advance", "min_extrude_temp", "max_extrude_only_distance"):
-        section.getfloat(option, None)
-    min_temp = section.getfloat("min_temp", DEFAULT_MIN_TEMP_C)
-    max_temp = section.getfloat("max_temp", DEFAULT_MAX_TEMP_C, above=min_temp)
+    section.getchoice("microsteps", list(MICROSTEPS), None)
+    for option, (low, high) in EXTRUDER_UNUSED_RANGES.items():
+        section.getfloat(option, None, minval=low, maxval=high)
+    min_temp = section.getfloat("min_temp", DEFAULT_MIN_TEMP_C, minval=ABSOLUTE_ZERO_C, maxval=MAX_TEMP_C)
+    max_temp = section.getfloat("max_temp", DEFAULT_MAX_TEMP_C, above=min_temp, maxval=MAX_TEMP_C)
     return Extruder(backend, min_temp, max_temp)
 
 
@@ -195,11 +225,27 @@ class Toolhead:
 
     def move_to(self, x: float | None = None, y: float | None = None, z: float | None = None,
                 speed_mm_s: float = 5.0) -> None:
-        """A move in toolhead coordinates, with no limit checks (the caller checked)."""
+        """A move in toolhead coordinates; outside the configured axis ranges it is refused
+        (GCodeError) before anything moves, wherever the target came from."""
         target = {"x": x, "y": y, "z": z}
+        moved = [axis for axis in AXES if target[axis] is not None]
+        current = self.get_position()
+        self._check_in_range({axis: current[i] if target[axis] is None else target[axis]
+                              for i, axis in enumerate(AXES)}, moved)
         machine = {axis: None if value is None else value - self.frame_offset_mm[axis]
                    for axis, value in target.items()}
-        self.backend.move_to(**machine, speed_mm_s=speed_mm_s)
+        try:
+            self.backend.move_to(**machine, speed_mm_s=speed_mm_s)
+        except MoveError as exc:  # the virtual machine is smaller than the config says
+            raise GCodeError(f"Move refused by the virtual printer: {exc}") from None
+
+    def _check_in_range(self, position: dict[str, float], moved: list[str]) -> None:
+        for axis in moved:
+            limits = self.options.axes[axis]
+            if not limits.position_min_mm <= position[axis] <= limits.position_max_mm:
+                shown = " ".join(f"{position[a]:.3f}" for a in AXES)
+                raise GCodeError(f"Move out of range: {shown} ({axis.upper()} must be within "
+                                 f"{limits.position_min_mm:g} to {limits.position_max_mm:g})")
 
     def z_position_min(self) -> float:
         return self.options.axes["z"].position_min_mm
@@ -251,14 +297,14 @@ class Toolhead:
         if gcmd.has("E"):
             raise gcmd.param_error("the virtual printer has no extruder motor,"
                                    " E moves are not supported")
-        feed_mm_min = gcmd.get_float("F", None, above=0.0)
+        feed_mm_min = gcmd.get_float("F", None, minval=SPEED_MM_S[0] * 60.0, maxval=SPEED_MM_S[1] * 60.0)
         if feed_mm_min is not None:
             self.speed_mm_s = feed_mm_min / 60.0
         current = self._gcode_position()
         target = dict(current)
         moved = []
         for axis in AXES:
-            value = gcmd.get_float(axis, None)
+            value = gcmd.get_float(axis, None, **COORDINATE_RANGE)
             if value is None:
                 continue
             target[axis] = value if self.absolute_coordinates else current[axis] + value
@@ -269,19 +315,11 @@ class Toolhead:
         if unhomed:
             raise gcmd.error(f"Must home axis first: {' '.join(unhomed)} (run G28)")
         toolhead_target = {axis: target[axis] + self.gcode_offset_mm[axis] for axis in AXES}
-        for axis in moved:
-            limits = self.options.axes[axis]
-            if not limits.position_min_mm <= toolhead_target[axis] <= limits.position_max_mm:
-                shown = " ".join(f"{toolhead_target[a]:.3f}" for a in AXES)
-                raise gcmd.error(f"Move out of range: {shown} ({axis.upper()} must be within "
-                                 f"{limits.position_min_mm:g} to {limits.position_max_mm:g})")
+        self._check_in_range(toolhead_target, moved)
         speed = min(self.speed_mm_s, self.options.max_velocity_mm_s)
         if moved == ["z"]:
             speed = min(speed, self.options.max_z_velocity_mm_s)
-        try:
-            self.move_target.move(tuple(toolhead_target[axis] for axis in AXES), speed)
-        except MoveError as exc:  # the virtual machine is smaller than the config says
-            raise gcmd.param_error(f"{exc}") from None
+        self.move_target.move(tuple(toolhead_target[axis] for axis in AXES), speed)
 
     def cmd_G90(self, gcmd: GCodeCommand) -> None:
         self.absolute_coordinates = True
@@ -291,7 +329,8 @@ class Toolhead:
 
     def cmd_G92(self, gcmd: GCodeCommand) -> None:
         toolhead = self.move_target.get_position()
-        given = {axis: gcmd.get_float(axis, None) for axis in AXES}
+        given = {axis: gcmd.get_float(axis, None, **COORDINATE_RANGE)
+                 for axis in AXES}
         if all(value is None for value in given.values()):
             given = {axis: 0.0 for axis in AXES}
         for i, axis in enumerate(AXES):
@@ -328,7 +367,7 @@ class Toolhead:
 
 def _temperature_commands(extruder: Extruder):
     def set_temperature(gcmd: GCodeCommand, wait: bool) -> None:
-        target = gcmd.get_float("S", 0.0, minval=0.0)
+        target = gcmd.get_float("S", 0.0, minval=0.0, maxval=MAX_TEMP_C)
         if target and not extruder.min_temp_c <= target <= extruder.max_temp_c:
             raise gcmd.param_error(f"S={target:g} is outside the nozzle's range "
                                    f"{extruder.min_temp_c:g} to {extruder.max_temp_c:g} (min_temp / max_temp)")

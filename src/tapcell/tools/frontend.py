@@ -12,6 +12,7 @@ import os
 import sys
 from pathlib import Path
 
+from tapcell.files import FileRefused, read_limited
 from tapcell.host.config import ConfigError
 from tapcell.host.printer import Printer
 from tapcell.tools.workspace import ScenarioError, set_scenario, working_config
@@ -22,6 +23,7 @@ DEFAULT_CONFIG = Path(__file__).resolve().parents[3] / "examples" / "virtual-pri
 HISTORY_FILE = Path("~/.tapcell_history").expanduser()
 HISTORY_LENGTH = 1000
 PROMPT = "tapcell> "
+MAX_SCRIPT_BYTES = 256 * 1024 * 1024  # a G-code file for the virtual printer; read whole, so bounded
 
 
 def _print_line(line: str) -> None:
@@ -41,9 +43,15 @@ def _build_printer(config_path: str, program: str) -> Printer | None:
 
 
 def run_script_file(printer: Printer, script_path: str, *, keep_going: bool, echo: bool) -> int:
-    """Run a G-code file line by line; 0 if every line succeeded, else 1."""
-    with open(script_path, encoding="utf-8") as handle:
-        lines = handle.read().splitlines()
+    """Run a G-code file line by line; 0 if every line succeeded, else 1 (2: the file cannot be read)."""
+    try:
+        lines = read_limited(script_path, MAX_SCRIPT_BYTES).decode("utf-8").splitlines()
+    except (OSError, FileRefused) as exc:
+        print(f"tapcell run: cannot read script '{script_path}': {exc}", file=sys.stderr)
+        return 2
+    except UnicodeDecodeError as exc:
+        print(f"tapcell run: script '{script_path}' is not UTF-8 text: {exc}", file=sys.stderr)
+        return 2
     failed = False
     for line_number, line in enumerate(lines, start=1):
         if echo and line.strip():
@@ -73,11 +81,7 @@ def _main_run(argv: list[str]) -> int:
     printer = _build_printer(args.config, "tapcell run")
     if printer is None:
         return 1
-    try:
-        return run_script_file(printer, args.script, keep_going=args.keep_going, echo=args.echo)
-    except UnicodeDecodeError as exc:
-        print(f"tapcell run: script '{args.script}' is not UTF-8 text: {exc}", file=sys.stderr)
-        return 2
+    return run_script_file(printer, args.script, keep_going=args.keep_going, echo=args.echo)
 
 
 def _setup_readline():
