@@ -147,8 +147,9 @@ def test_load_cell_test_tap_counts_taps_without_moving(tmp_path):
     vp.inject_fault("weight", at_s=vp.now_s + 0.7, grams=150.0)
     responses.clear()
     printer.gcode.run_script("LOAD_CELL_TEST_TAP COUNT=1 TIMEOUT=5")
-    assert re.fullmatch(r"// Tap Detected! peak 3\d\dg, back to 15\d\.\dg: bad tap: BASELINE_FORCE_INCONSISTENT - "
-                        r"the force came back to 15\d\.\dg, 5\d% of the 3\d\dg peak \(max_baseline_force_delta 25%\)\. "
+    # 150 g stays, read within a gram of it (sample noise: 149.9 g seen)
+    assert re.fullmatch(r"// Tap Detected! peak 3\d\dg, back to 1(49|5\d)\.\dg: bad tap: BASELINE_FORCE_INCONSISTENT - "
+                        r"the force came back to 1(49|5\d)\.\dg, (49|5\d)% of the 3\d\dg peak \(max_baseline_force_delta 25%\)\. "
                         r"Likely cause: drift from the bowden tube or cable chain, or something still presses the "
                         r"nozzle\. Fix: .*", responses[1])
     assert responses[2] == "// Test complete, 1 taps detected (0 good)"

@@ -497,6 +497,8 @@ class LoadCellProbe:
         """
         self.require_calibrated()
         if expected_z_mm is not None:
+            # Refused before the lift too, not only before the probing move.
+            speed_mm_s = self.check_probing_speed(self.move_params(settings), speed_mm_s)
             self._make_room_to_reach_speed(expected_z_mm, speed_mm_s)
         tare_counts = self.tare(settings.options)
         # Until a pullback completes, the nozzle may be on the bed: the next tare waits for fresh samples.
