@@ -20,6 +20,7 @@ Responses go to a sink (a list or a callable) one line at a time:
 
 from __future__ import annotations
 
+import difflib
 import math
 import re
 from dataclasses import dataclass, field
@@ -30,6 +31,15 @@ from tapcell.host.config import ConfigError
 
 class GCodeError(Exception):
     """A command failed; the message is what the user sees after `!! `."""
+
+
+class UnknownCommandError(GCodeError):
+    """No handler for the command. Klipper answers `// Unknown command:"M205"` and goes on with a
+    print file; the console and scripts stop on it (a typo must not pass for success)."""
+
+    def __init__(self, command: str):
+        super().__init__(f'Unknown command:"{command}"')
+        self.command = command
 
 
 class _Required:
@@ -56,6 +66,13 @@ class ParsedLine:
     commandline: str  # the line without comment, line number and checksum
     rawparams: str  # everything after the command name, as typed
 
+
+# Classic commands whose parameters are free text (`M117 Printing 20%`), as in Klipper.
+RAW_TEXT_COMMANDS = ("M117", "M118")
+# Kalico's spelling of a parameter where it differs from tapcell's: (command, Kalico's name) -> ours.
+KALICO_SPELLINGS: dict[tuple[str, str], str] = {
+    ("LOAD_CELL_TEST_TAP", "TAPS"): "COUNT",
+}
 
 _CLASSIC_RE = re.compile(r"^([A-Za-z])\s*(\d+(?:\.\d+)?)")
 _LINE_NUMBER_RE = re.compile(r"^[Nn]\d+\s*")
@@ -94,6 +111,8 @@ def parse_line(line: str) -> ParsedLine | None:
         number = str(int(integer)) + (f".{fraction}" if fraction else "")
         command = classic.group(1).upper() + number
         rawparams = text[classic.end():].strip()
+        if command in RAW_TEXT_COMMANDS:
+            return ParsedLine(command, {}, text, rawparams)
         return ParsedLine(command, _parse_classic_params(rawparams, text), text, rawparams)
     name, _, rawparams = text.partition(" ")
     rawparams = rawparams.strip()
@@ -152,17 +171,24 @@ class GCodeCommand:
         self.command = parsed.command
         self.commandline = parsed.commandline
         self.rawparams = parsed.rawparams
-        self._params = dict(parsed.params)
+        self._params = _with_our_spellings(parsed)
+        self._read: set[str] = set()  # parameters the handler asked for (the others are unknown to it)
 
     def get_commandline(self) -> str:
         return self.commandline
 
     def get_command_parameters(self) -> dict[str, str]:
-        """All parameters, upper-case names to their text."""
+        """All parameters, upper-case names to their text (the handler takes them all)."""
+        self._read.update(self._params)
         return dict(self._params)
 
     def has(self, name: str) -> bool:
+        self._read.add(name.upper())
         return name.upper() in self._params
+
+    def unread_parameters(self) -> list[str]:
+        """Parameters given but never asked for: the command does not know them."""
+        return [name for name in self._params if name not in self._read]
 
     def error(self, message: str) -> GCodeError:
         return GCodeError(message)
@@ -172,6 +198,7 @@ class GCodeCommand:
 
     def get(self, name: str, default: Any = REQUIRED) -> Any:
         """The parameter's text, `default` when absent (absent and no default: error)."""
+        self._read.add(name.upper())
         value = self._params.get(name.upper())
         if value is None:
             if default is REQUIRED:
@@ -215,6 +242,19 @@ class GCodeCommand:
         self._dispatch.respond_raw(message)
 
 
+def _with_our_spellings(parsed: ParsedLine) -> dict[str, str]:
+    """The parameters with Kalico's spellings renamed to ours (both given: an error)."""
+    params = dict(parsed.params)
+    for (command, kalico_name), our_name in KALICO_SPELLINGS.items():
+        if command != parsed.command or kalico_name not in params:
+            continue
+        if our_name in params:
+            raise GCodeError(f"Error on '{parsed.commandline}': {kalico_name} (Kalico's name) and {our_name} "
+                             f"are the same parameter; give one")
+        params[our_name] = params.pop(kalico_name)
+    return params
+
+
 def _finite_float(text: str) -> float:
     value = float(text)
     if not math.isfinite(value):
@@ -240,6 +280,8 @@ class GCodeDispatch:
         self._handlers: dict[str, Handler] = {}
         self._help: dict[str, str] = {}
         self._mux: dict[str, _Mux] = {}
+        # Parameters each command has asked for so far, to suggest a spelling for an unknown one.
+        self._known_parameters: dict[str, set[str]] = {}
         self._register_builtins()
 
     # -- responses -----------------------------------------------------------
@@ -291,6 +333,18 @@ class GCodeDispatch:
         self._handlers[name] = handler
         if desc:
             self._help[name] = desc
+
+    def replace_command(self, name: str, handler: Handler, desc: str | None = None) -> Handler:
+        """Put `handler` in place of a registered command; returns the handler it replaced
+        (so [safe_z_home] can wrap G28 and call the original for the actual homing)."""
+        name = name.upper()
+        if name not in self._handlers:
+            raise GCodeError(f"Command '{name}' is not registered, so it cannot be replaced")
+        previous = self._handlers[name]
+        self._handlers[name] = handler
+        if desc:
+            self._help[name] = desc
+        return previous
 
     def unregister_command(self, name: str) -> None:
         """Remove a command (e.g. the temporary TARE/ACCEPT of a calibration)."""
@@ -347,9 +401,10 @@ class GCodeDispatch:
             return
         handler = self._handlers.get(parsed.command)
         if handler is None:
-            raise GCodeError(f'Unknown command:"{parsed.command}"')
+            raise UnknownCommandError(parsed.command)
+        gcmd = GCodeCommand(self, parsed)
         try:
-            handler(GCodeCommand(self, parsed))
+            handler(gcmd)
         except GCodeError:
             raise
         except ConfigError as exc:
@@ -357,6 +412,17 @@ class GCodeDispatch:
         except Exception as exc:  # a bug in a handler: report it, keep the console alive
             raise GCodeError(f"Internal error on '{parsed.commandline}': "
                              f"{type(exc).__name__}: {exc}") from exc
+        finally:
+            self._warn_unknown_parameters(gcmd)
+
+    def _warn_unknown_parameters(self, gcmd: GCodeCommand) -> None:
+        """One line per parameter the handler never asked for (a misspelt SAMPLE= silently did nothing)."""
+        known = self._known_parameters.setdefault(gcmd.command, set())
+        known.update(gcmd._read)
+        for name in gcmd.unread_parameters():
+            close = difflib.get_close_matches(name, sorted(known), n=1)
+            hint = f" (did you mean {close[0]}?)" if close else ""
+            self.respond_info(f"{gcmd.command}: unknown parameter {name} ignored{hint}")
 
     def run_script_reporting_errors(self, text: str) -> bool:
         """Run like a console: a failure becomes a `!! message` response.  True if all succeeded."""

@@ -96,6 +96,7 @@ class SimParams:
     # --- nozzle ---------------------------------------------------------------------------
     ambient_c: float = _p(25.0, "room and cold-nozzle temperature", "°C")
     heater_tau_s: float = _p(15.0, "nozzle heating time constant", "s", minval=0.1)
+    bed_heater_tau_s: float = _p(60.0, "heated bed (and any other heater) time constant", "s", minval=0.1)
     nozzle_expansion_um_per_c: float = _p(0.45, "nozzle lengthens toward the bed per °C", "µm/°C")
     start_nozzle_c: float = _p(25.0, "nozzle temperature at power on", "°C")
     ooze_film_um: float = _p(0.0, "initial ooze film on the nozzle tip", "µm", minval=0.0)

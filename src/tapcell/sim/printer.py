@@ -21,6 +21,7 @@ from tapcell.sim.bed import BedError, bed_from_params
 from tapcell.sim.contact import ContactModel, ContactState, contact_forces
 from tapcell.sim.mcu import SampleBatch, SampleChunk, TriggerFeeder, VirtualMCU
 from tapcell.sim.motion import MotionHistory, Segment, move_limits, plan_trapezoid, quantize_to_steps
+from tapcell.sim.heaters import FirstOrderHeater, OutputLog
 from tapcell.sim.nozzle import NozzleThermal
 from tapcell.sim.params import SimParamError, SimParams, make_params, series_stiffness_g_um
 from tapcell.sim.pin import pin_from_params
@@ -146,8 +147,11 @@ class VirtualPrinter:
             params.ooze_squeeze_tau_s, params.ooze_pull_g, params.ooze_break_um, params.ooze_clear_fraction,
             params.ooze_max_um)
         self._state = _PhysicsState(ContactState(film_um=params.ooze_film_um))
-        self._thermal = NozzleThermal(params.ambient_c, params.heater_tau_s, params.nozzle_expansion_um_per_c,
-                                      params.start_nozzle_c)
+        self._thermal = NozzleThermal(params.ambient_c, params.heater_tau_s, params.start_nozzle_c,
+                                      expansion_um_per_c=params.nozzle_expansion_um_per_c)
+        # Heaters by the host's name: the nozzle is "extruder"; others ([heater_bed], ...) come with add_heater.
+        self._heaters: dict[str, FirstOrderHeater] = {"extruder": self._thermal}
+        self.outputs = OutputLog()
         self._faults: list[faultlib.Fault] = []
         if params.disconnect_at_s >= 0.0:
             self._faults.append(faultlib.make_fault("disconnected", params.disconnect_at_s, None, 0.0, {}))
@@ -207,14 +211,15 @@ class VirtualPrinter:
 
     # -- commands ---------------------------------------------------------------------------
     def move_to(self, x: float | None = None, y: float | None = None, z: float | None = None,
-                speed_mm_s: float = 50.0) -> None:
-        """Trapezoidal move (rest to rest) within the axis limits; time advances to its end."""
+                speed_mm_s: float = 50.0, accel_mm_s2: float | None = None) -> None:
+        """Trapezoidal move (rest to rest) within the axis limits; time advances to its end.
+        `accel_mm_s2` (the host's current limit) is capped by the machine's own."""
         start = self._motion.end_position
         target = tuple(float(v) if v is not None else s for v, s in zip((x, y, z), start))
         self._check_target(target)
         if speed_mm_s <= 0.0:
             raise MoveError(f"move speed must be above 0 mm/s, got {speed_mm_s}")
-        self._plan_and_run(start, target, speed_mm_s)
+        self._plan_and_run(start, target, speed_mm_s, accel_mm_s2)
 
     def home_xy(self) -> None:
         """Move to the X/Y endstops at the homing speed (the endstops sit at 0, 0)."""
@@ -231,9 +236,37 @@ class VirtualPrinter:
         return self._mcu.take(self._now_s)
 
     def set_nozzle_temperature(self, target_c: float, wait: bool = False) -> None:
-        self._thermal.set_target(self._now_s, float(target_c))
+        self.set_heater_temperature("extruder", target_c)
         if wait:
-            self.dwell(self._thermal.time_to_settle_s(self._now_s))
+            self.wait_for_heater("extruder")
+
+    def heater(self, name: str) -> FirstOrderHeater:
+        """The thermal model of the host's heater `name` ("extruder" is the nozzle); others are
+        made on first use, at room temperature, with the bed heater's time constant."""
+        if name not in self._heaters:
+            p = self.params
+            self._heaters[name] = FirstOrderHeater(p.ambient_c, p.bed_heater_tau_s, p.ambient_c, self._now_s)
+        return self._heaters[name]
+
+    def heater_temperature_c(self, name: str) -> float:
+        return float(self.heater(name).temps_at(self._now_s))
+
+    def set_heater_temperature(self, name: str, target_c: float) -> None:
+        self.heater(name).set_target(self._now_s, float(target_c))
+
+    def wait_for_heater(self, name: str, within_c: float = 1.0) -> float:
+        """Let time pass until the heater is within `within_c` of its set point; returns the seconds waited."""
+        waited_s = self.heater(name).time_to_settle_s(self._now_s, within_c)
+        self.dwell(waited_s)
+        return waited_s
+
+    @property
+    def room_temperature_c(self) -> float:
+        return float(self.params.ambient_c)
+
+    def set_output(self, name: str, value: float) -> None:
+        """Record a fan speed or pin value (0..1) set now."""
+        self.outputs.set(name, self._now_s, value)
 
     def place_weight(self, grams: float) -> None:
         self.inject_fault("weight", grams=float(grams))
@@ -396,18 +429,19 @@ class VirtualPrinter:
             if not low - 1e-9 <= value <= high + 1e-9:
                 raise MoveError(f"move out of range: {axis}={value:.3f} (allowed {low:.3f} .. {high:.3f})")
 
-    def _plan(self, start, target, speed_mm_s: float) -> list[Segment]:
+    def _plan(self, start, target, speed_mm_s: float, accel_mm_s2: float | None = None) -> list[Segment]:
         delta = np.subtract(target, start)
         distance = float(np.linalg.norm(delta))
         if distance <= 0.0:
             return []
         p = self.params
-        speed, accel = move_limits(delta / distance, p.max_velocity_mm_s, p.max_accel_mm_s2,
+        max_accel = p.max_accel_mm_s2 if accel_mm_s2 is None else min(accel_mm_s2, p.max_accel_mm_s2)
+        speed, accel = move_limits(delta / distance, p.max_velocity_mm_s, max_accel,
                                    p.max_z_velocity_mm_s, p.max_z_accel_mm_s2, speed_mm_s)
         return plan_trapezoid(start, target, self._now_s, speed, accel)
 
-    def _plan_and_run(self, start, target, speed_mm_s: float) -> None:
-        segments = self._plan(start, target, speed_mm_s)
+    def _plan_and_run(self, start, target, speed_mm_s: float, accel_mm_s2: float | None = None) -> None:
+        segments = self._plan(start, target, speed_mm_s, accel_mm_s2)
         if not segments:
             return
         self._motion.append(segments)
