@@ -280,6 +280,8 @@ class GCodeDispatch:
         self._handlers: dict[str, Handler] = {}
         self._help: dict[str, str] = {}
         self._mux: dict[str, _Mux] = {}
+        # After a shutdown: (commands still allowed, the message every other command gets).
+        self._refusal: tuple[tuple[str, ...], str] | None = None
         # Parameters each command has asked for so far, to suggest a spelling for an unknown one.
         self._known_parameters: dict[str, set[str]] = {}
         self._register_builtins()
@@ -321,6 +323,10 @@ class GCodeDispatch:
 
     def _register_builtins(self) -> None:
         self.register_command("HELP", self._cmd_help, desc="List the available commands with their help text")
+
+    def set_refusal(self, allowed: tuple[str, ...] | None, message: str = "") -> None:
+        """Refuse every command but `allowed` with `message` (a halted printer); None lifts it."""
+        self._refusal = None if allowed is None else (allowed, message)
 
     def is_registered(self, name: str) -> bool:
         return name.upper() in self._handlers
@@ -399,6 +405,8 @@ class GCodeDispatch:
         parsed = parse_line(line)
         if parsed is None:
             return
+        if self._refusal is not None and parsed.command not in self._refusal[0]:
+            raise GCodeError(self._refusal[1])
         handler = self._handlers.get(parsed.command)
         if handler is None:
             raise UnknownCommandError(parsed.command)

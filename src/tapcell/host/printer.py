@@ -17,6 +17,7 @@ makes its sections "not checked" (a warning) instead of breaking the load.
 
 from __future__ import annotations
 
+import difflib
 import importlib
 import time
 from typing import Any, Callable
@@ -34,6 +35,20 @@ MODULES: dict[str, str] = {
     "z_thermal_adjust": "tapcell.extras.z_thermal_adjust",
     "prusa_probe": "tapcell.extras.prusa_probe",
     "xy_probe": "tapcell.extras.xy_probe",
+    "heater_bed": "tapcell.extras.heater_bed",
+    "heater_generic": "tapcell.extras.heater_generic",
+    "temperature_sensor": "tapcell.extras.temperature_sensor",
+    "fan": "tapcell.extras.fan",
+    "fan_generic": "tapcell.extras.fan_generic",
+    "heater_fan": "tapcell.extras.heater_fan",
+    "controller_fan": "tapcell.extras.controller_fan",
+    "output_pin": "tapcell.extras.output_pin",
+    "respond": "tapcell.extras.respond",
+    "display_status": "tapcell.extras.display_status",
+    "display": "tapcell.extras.display",
+    "exclude_object": "tapcell.extras.exclude_object",
+    "safe_z_home": "tapcell.extras.safe_z_home",
+    "homing_override": "tapcell.extras.homing_override",
 }
 
 # Sections without a module of their own -> the section whose module reads them.
@@ -42,8 +57,9 @@ READ_BY: dict[str, str] = {
     "stepper_y": "printer",
     "stepper_z": "printer",
     "extruder": "printer",
-    "heater_bed": "printer",
 }
+# Hardware and UI sections taken as written and not modelled (a real printer.cfg's [mcu], [tmc2209 ...]).
+ACCEPTED_MODULE = "tapcell.extras.accepted_sections"
 
 # The backend's section: read by the virtual printer itself.
 BACKEND_SECTION = "virtual_printer"
@@ -67,6 +83,11 @@ def _import_module(module_name: str):
         raise
 
 
+def _accepted():
+    """The table of sections taken as written (imported like the section modules)."""
+    return importlib.import_module(ACCEPTED_MODULE)
+
+
 class Printer:
     """The host side of one printer: config, backend, G-code, objects by section."""
 
@@ -78,7 +99,9 @@ class Printer:
         self.backend: Any = backend
         self.objects: dict[str, Any] = {}
         self.warnings: list[str] = []
-        self.state = "starting"  # "ready" or "error"
+        self.notices: list[str] = []  # shown once at start (what is simulated, what only accepted)
+        self._accepted: list[str] = []  # sections taken as written, not modelled
+        self.state = "starting"  # "ready", "error" or "shutdown"
         self.state_message = ""
         self._event_handlers: dict[str, list[Callable[..., Any]]] = {}
         self._loading: set[str] = set()
@@ -144,6 +167,9 @@ class Printer:
     def _build(self) -> None:
         self.objects.clear()
         self.warnings.clear()
+        self.notices.clear()
+        self._accepted.clear()
+        self.gcode.set_refusal(None)
         self._skipped.clear()
         self._loaded.clear()
         self._event_handlers.clear()
@@ -160,6 +186,8 @@ class Printer:
                 if name != BACKEND_SECTION and name not in self._loaded:
                     self._load_section(name)
             self.config.check_unused_options()
+            simulated = [n for n in self.config.sections() if n not in self._accepted and n not in self._skipped]
+            self.notices.append(_accepted().startup_notice(simulated, self._accepted))
         except (ConfigError, GCodeError) as exc:
             self.state, self.state_message = "error", str(exc)
             # Only the built-ins stay, so the user can fix the file and RESTART.
@@ -171,13 +199,14 @@ class Printer:
         self.send_event("printer:ready")
 
     def _check_section_names(self) -> None:
-        known = set(MODULES) | set(READ_BY) | {BACKEND_SECTION}
+        known = set(MODULES) | set(READ_BY) | {BACKEND_SECTION} | set(_accepted().ACCEPTED_SECTIONS)
         for name in self.config.sections():
             kind = name.split()[0]
             if kind not in known:
+                close = difflib.get_close_matches(kind, sorted(known), n=3)
+                hint = f" (did you mean {' or '.join(close)}?)" if close else ""
                 raise ConfigError(f"{self.config.section_file(name)}: [{name}]: Section '{name}' is not a "
-                                  f"valid config section (valid: {', '.join(sorted(known))})",
-                                  file=self.config.section_file(name), section=name)
+                                  f"valid config section{hint}", file=self.config.section_file(name), section=name)
             reader = READ_BY.get(name)
             if reader is not None and not self.config.has_section(reader):
                 raise ConfigError(f"{self.config.section_file(name)}: [{name}]: this section is read by "
@@ -212,6 +241,10 @@ class Printer:
         self._loaded.add(name)
         try:
             kind, _, instance = name.partition(" ")
+            if kind in _accepted().ACCEPTED_SECTIONS:
+                _accepted().accept_section(self.config, name)
+                self._accepted.append(name)
+                return
             if kind in READ_BY:
                 owner = READ_BY[kind]
                 self.load_object(owner)
@@ -259,6 +292,20 @@ class Printer:
                                     desc="Reload the config file and rebuild the printer")
         self.gcode.register_command("SAVE_CONFIG", self._cmd_save_config,
                                     desc="Write pending config changes (e.g. a calibration) and restart")
+        self.gcode.register_command("M112", self._cmd_M112, desc="Emergency stop: heaters off, printer halted")
+
+    def invoke_shutdown(self, reason: str) -> None:
+        """Halt like Klipper's shutdown: heaters and fans off, only HELP/STATUS/RESTART work."""
+        self.state, self.state_message = "shutdown", f"{reason}\nOnce the underlying issue is corrected, use RESTART"
+        heaters = self.lookup_object("heaters", None)
+        for heater in (heaters.heaters.values() if heaters else ()):
+            heater.set_temperature(0.0)
+        self.send_event("printer:shutdown")
+        self.gcode.set_refusal(("HELP", "STATUS", "RESTART", "FIRMWARE_RESTART"), self.state_message)
+
+    def _cmd_M112(self, gcmd: GCodeCommand) -> None:
+        self.invoke_shutdown("Shutdown due to M112 command")
+        raise gcmd.error(self.state_message)
 
     def _cmd_status(self, gcmd: GCodeCommand) -> None:
         name = gcmd.get("OBJECT", None)

@@ -1,0 +1,63 @@
+"""`[homing_override]`: G28 runs the user's G-code instead (a G28 inside it is the original homing).
+
+Options as in Klipper: gcode (a template with `params` and `printer`), axes (default xyz:
+a G28 for none of them homes normally), set_position_x/y/z (mark the axis homed at that
+position before the G-code runs, so it can move it).
+"""
+
+from __future__ import annotations
+
+import jinja2
+
+from tapcell.extras.gcode_macro import _ENVIRONMENT, StatusView
+from tapcell.host.config import ConfigSection
+from tapcell.host.gcode import GCodeCommand, GCodeError
+
+
+class HomingOverride:
+    def __init__(self, printer, template, axes: str, set_position: dict[str, float]):
+        self.printer = printer
+        self.template = template
+        self.axes = axes
+        self.set_position = set_position
+        self.in_script = False
+        self.home_original = printer.gcode.replace_command("G28", self.cmd_G28,
+                                                           desc="Home axes ([homing_override] G-code)")
+
+    def cmd_G28(self, gcmd: GCodeCommand) -> None:
+        if self.in_script:  # G28 inside the override's own G-code: real homing
+            self.home_original(gcmd)
+            return
+        asked = [axis for axis in "XYZ" if gcmd.has(axis)]
+        if asked and not any(axis.lower() in self.axes for axis in asked):
+            self.home_original(gcmd)
+            return
+        toolhead = self.printer.lookup_object("toolhead")
+        for axis, position_mm in self.set_position.items():
+            index = "xyz".index(axis)
+            toolhead.frame_offset_mm[axis] = position_mm - float(toolhead.backend.position[index])
+            toolhead.homed_axes.add(axis)
+        try:
+            script = self.template.render(printer=StatusView(self.printer), params=gcmd.get_command_parameters(),
+                                          rawparams=gcmd.rawparams)
+        except jinja2.TemplateError as exc:
+            raise GCodeError(f"Error in [homing_override] gcode: {exc}") from None
+        self.in_script = True
+        try:
+            self.printer.gcode.run_script(script)
+        finally:
+            self.in_script = False
+
+
+def load_config(section: ConfigSection, printer) -> HomingOverride:
+    text = section.get("gcode")
+    try:
+        template = _ENVIRONMENT.from_string(text)
+    except jinja2.TemplateSyntaxError as exc:
+        raise section.error("gcode", f"template error on line {exc.lineno} of the template: {exc.message}") from None
+    axes = section.get("axes", "xyz").strip().lower()
+    if not axes or any(axis not in "xyz" for axis in axes):
+        raise section.error("axes", "must be letters from xyz")
+    set_position = {axis: value for axis in "xyz"
+                    if (value := section.getfloat(f"set_position_{axis}", None)) is not None}
+    return HomingOverride(printer, template, axes, set_position)
