@@ -52,8 +52,16 @@ ACCEPTED_SECTIONS: dict[str, str] = {
 }
 
 
-def is_accepted(section_name: str) -> bool:
-    return section_name.split()[0] in ACCEPTED_SECTIONS
+# Hardware the virtual printer stands in for: first word of the section name -> how.
+SIMULATED_HARDWARE: dict[str, str] = {
+    "printer": "motion", "stepper_x": "motion", "stepper_y": "motion", "stepper_z": "motion",
+    "extruder": "nozzle heater, E axis without filament",
+    "heater_bed": "heater", "heater_generic": "heater",
+    "temperature_sensor": "room temperature",
+    "fan": "speed recorded", "heater_fan": "speed recorded", "controller_fan": "speed recorded",
+    "fan_generic": "speed recorded", "output_pin": "value recorded",
+    "load_cell": "load cell", "load_cell_probe": "load cell under the nozzle, bed contact",
+}
 
 
 def accept_section(config, section_name: str) -> None:
@@ -61,9 +69,16 @@ def accept_section(config, section_name: str) -> None:
     config.mark_section_read(section_name)
 
 
-def startup_notice(simulated: list[str], accepted: list[str]) -> str:
-    """What the virtual printer simulates and what it only accepted (section names)."""
-    lines = ["The virtual printer simulates: " + ", ".join(f"[{name}]" for name in simulated)]
+def startup_notice(sections: list[str], accepted: list[str]) -> str | None:
+    """What the virtual printer simulates and what it only accepted (None: no hardware sections)."""
+    simulated = [name for name in sections if name.split()[0] in SIMULATED_HARDWARE]
+    if not simulated and not accepted:
+        return None
+    by_kind: dict[str, list[str]] = {}
+    for name in simulated:
+        by_kind.setdefault(SIMULATED_HARDWARE[name.split()[0]], []).append(f"[{name}]")
+    lines = ["The virtual printer simulates: " + "; ".join(f"{' '.join(names)} ({how})"
+                                                           for how, names in by_kind.items())]
     if accepted:
         lines.append("Accepted but not modelled (options kept as written, nothing happens): "
                      + ", ".join(f"[{name}]" for name in accepted))

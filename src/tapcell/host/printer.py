@@ -187,7 +187,9 @@ class Printer:
                     self._load_section(name)
             self.config.check_unused_options()
             simulated = [n for n in self.config.sections() if n not in self._accepted and n not in self._skipped]
-            self.notices.append(_accepted().startup_notice(simulated, self._accepted))
+            notice = _accepted().startup_notice(simulated, self._accepted)
+            if notice is not None:
+                self.notices.append(notice)
         except (ConfigError, GCodeError) as exc:
             self.state, self.state_message = "error", str(exc)
             # Only the built-ins stay, so the user can fix the file and RESTART.

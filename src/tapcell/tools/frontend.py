@@ -12,7 +12,9 @@ import sys
 from pathlib import Path
 
 from tapcell.host.config import ConfigError
+from tapcell.host.gcode import GCodeError, UnknownCommandError
 from tapcell.host.printer import Printer
+from tapcell.tools.progress import ProgressBar
 
 SUBCOMMANDS = ("console", "run")
 
@@ -35,26 +37,54 @@ def _build_printer(config_path: str, program: str) -> Printer | None:
     except ConfigError as exc:
         print(f"{program}: config error: {exc}", file=sys.stderr)
         return None
+    for notice in printer.notices:
+        for line in notice.split("\n"):
+            print(f"// {line}", flush=True)
     for warning in printer.warnings:
         print(f"// Warning: {warning}", flush=True)
     return printer
 
 
-def run_script_file(printer: Printer, script_path: str, *, keep_going: bool, echo: bool) -> int:
-    """Run a G-code file line by line; 0 if every line succeeded, else 1."""
+def run_script_file(printer: Printer, script_path: str, *, keep_going: bool, echo: bool,
+                    progress: ProgressBar | None = None) -> int:
+    """Run a G-code file line by line like a print: 0 if every line succeeded, else 1.
+
+    An unknown command is answered as Klipper answers it in a print (`// Unknown command:"M205"`)
+    and the file goes on; any other error stops it (unless keep_going).
+    """
     with open(script_path, encoding="utf-8") as handle:
         lines = handle.read().splitlines()
+    progress = progress or ProgressBar(len(lines), enabled=False)
+    gcode = printer.gcode
+
+    def show(line: str) -> None:
+        progress.clear()
+        print(line, flush=True)
+
+    gcode.set_response_sink(show)
     failed = False
-    for line_number, line in enumerate(lines, start=1):
-        if echo and line.strip():
-            print(f"> {line.strip()}", flush=True)
-        if printer.gcode.run_script_reporting_errors(line):
-            continue
-        failed = True
-        if not keep_going:
-            print(f"tapcell run: {script_path}:{line_number}: stopped at the first error "
-                  f"(use --keep-going to run the rest)", file=sys.stderr)
-            return 1
+    try:
+        for line_number, line in enumerate(lines, start=1):
+            if echo and line.strip():
+                show(f"> {line.strip()}")
+            try:
+                gcode.run_line(line)
+            except UnknownCommandError as exc:
+                gcode.respond_info(str(exc))
+            except GCodeError as exc:
+                gcode.respond_error(str(exc))
+                failed = True
+                if not keep_going:
+                    progress.clear()
+                    print(f"tapcell run: {script_path}:{line_number}: stopped at the first error "
+                          f"(use --keep-going to run the rest)", file=sys.stderr)
+                    return 1
+            progress.update(line_number, printer.get_time())
+    finally:
+        progress.clear()
+        gcode.set_response_sink(_print_line)
+    if progress.enabled:
+        print(progress.summary(len(lines), printer.get_time()), file=sys.stderr)
     return 1 if failed else 0
 
 
@@ -66,6 +96,8 @@ def _main_run(argv: list[str]) -> int:
     parser.add_argument("--keep-going", action="store_true", help="run the rest of the script after an error "
                         "(the exit status is still 1)")
     parser.add_argument("--echo", action="store_true", help="print each command (as '> LINE') before its responses")
+    parser.add_argument("--progress", choices=("auto", "always", "never"), default="auto",
+                        help="progress bar on stderr (auto: when stderr is a terminal)")
     args = parser.parse_args(argv)
     if not os.path.isfile(args.script):
         print(f"tapcell run: script '{args.script}' does not exist", file=sys.stderr)
@@ -74,7 +106,10 @@ def _main_run(argv: list[str]) -> int:
     if printer is None:
         return 1
     try:
-        return run_script_file(printer, args.script, keep_going=args.keep_going, echo=args.echo)
+        with open(args.script, encoding="utf-8") as handle:
+            total = sum(1 for _ in handle)
+        progress = ProgressBar(total, enabled={"auto": None, "always": True, "never": False}[args.progress])
+        return run_script_file(printer, args.script, keep_going=args.keep_going, echo=args.echo, progress=progress)
     except UnicodeDecodeError as exc:
         print(f"tapcell run: script '{args.script}' is not UTF-8 text: {exc}", file=sys.stderr)
         return 2
