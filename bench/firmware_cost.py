@@ -115,7 +115,7 @@ def make_case(n_sections: int, n_samples: int) -> Case:
 
 def _config_words(config: dict) -> list[int]:
     order = ["reference_tare_counts", "force_limit_counts", "drift_limit_counts", "scale", "scale_frac_bits",
-             "trigger_q", "release_q", "sample_period_ticks", "watchdog_periods"]
+             "trigger_q", "release_q", "sample_period_ticks", "watchdog_periods", "stuck_samples"]
     return [config[name] for name in order]
 
 
@@ -138,7 +138,7 @@ def x86_instructions(case: Case, workdir: Path) -> tuple[float, float]:
     words = [case.n_sections, case.frac_bits, case.counts.size, case.tare_counts]
     with open(data, "wb") as out:
         out.write(struct.pack("<4i", *words))
-        out.write(struct.pack("<9i", *_config_words(case.config)))
+        out.write(struct.pack("<10i", *_config_words(case.config)))
         out.write(case.coeff.astype("<i4").tobytes())
         out.write(case.counts.astype("<i4").tobytes())
         out.write(case.ticks.astype("<u4").tobytes())
@@ -234,7 +234,7 @@ def m0_cycles(case: Case, opt: str, build) -> float:
     put("bench_frac_bits", struct.pack("<I", case.frac_bits))
     put("bench_n_samples", struct.pack("<I", case.counts.size))
     put("bench_tare_counts", struct.pack("<i", case.tare_counts))
-    put("bench_config", struct.pack("<9i", *_config_words(case.config)))
+    put("bench_config", struct.pack("<10i", *_config_words(case.config)))
     put("bench_counts", case.counts.astype("<i4").tobytes())
     put("bench_ticks", case.ticks.astype("<u4").tobytes())
 

@@ -34,6 +34,12 @@ def test_demo_calibrates_and_weighs(tmp_path, capsys):
     assert grams == pytest.approx(demo.TEST_WEIGHT_G, rel=0.01)
     assert "Sample range in grams" in out
     assert "!!" not in out
+    # Not a terminal (captured): a response line longer than 80 columns is printed whole, never
+    # wrapped (a wrapped line breaks numbers and its continuation loses the `// ` prefix).
+    calibration = re.search(r"^    // Calibration value: .*$", out, flags=re.M)[0]
+    assert len(calibration) > 80
+    assert re.fullmatch(r"    // Calibration value: -?\d+\.\d+% \(-?\d+\), Counts/gram: \d+\.\d+, "
+                        r"Total capacity: \+/- \d+\.\d+Kg", calibration)
 
 
 def test_demo_reports_a_broken_config_without_a_traceback(tmp_path, capsys):

@@ -411,3 +411,22 @@ def test_malformed_gcode_lines(tmp_path):
         responses.clear()
         assert gcode.run_script_reporting_errors(line) is False
         assert responses[-1] == message
+
+
+def test_sim_place_weight_replaces_the_weight_and_add_puts_one_on_top(tmp_path):
+    """Calibrating with 500 g and then again with 1000 g finds the true 240 counts/g both times
+    (the second weight replaced the first: a 1500 g total read 1.5 x too many counts per gram)."""
+    printer, responses = start(tmp_path, SIM_240 + CELL)
+    counts_per_gram = r"// Calibration value: .*, Counts/gram: (\d+\.\d+), .*"
+    lines = run(printer, responses, "LOAD_CELL_CALIBRATE\nTARE\nSIM_PLACE_WEIGHT GRAMS=500\nCALIBRATE GRAMS=500\n"
+                                    "SIM_PLACE_WEIGHT GRAMS=1000\nCALIBRATE GRAMS=1000")
+    found = [float(m[1]) for m in (re.fullmatch(counts_per_gram, line) for line in lines) if m]
+    assert "// A 1000 g weight now rests on the load cell" in lines
+    assert found == [pytest.approx(240.0, rel=0.003)] * 2
+    lines = run(printer, responses, "SIM_PLACE_WEIGHT GRAMS=400\nSIM_PLACE_WEIGHT GRAMS=600 ADD=1\n"
+                                    "CALIBRATE GRAMS=1000")
+    assert lines[:2] == ["// A 400 g weight now rests on the load cell",
+                         "// 600 g more on the load cell: 1000 g rest on it now"]
+    assert float(re.fullmatch(counts_per_gram, lines[2])[1]) == pytest.approx(240.0, rel=0.003)
+    with pytest.raises(GCodeError, match="ADD must have maximum of 1"):
+        run(printer, responses, "SIM_PLACE_WEIGHT GRAMS=10 ADD=2")

@@ -36,6 +36,38 @@ struct tc_hal {
     void (*irq_restore)(void *ctx, uint32_t saved_state);
 };
 
+/* Critical-section hook for state shared between contexts (the load-cell
+ * trigger's state changes; see load_cell_trigger.h, "Calling contexts").
+ * tc_irq_save() masks interrupts and returns the previous mask;
+ * tc_irq_restore() puts it back. Both are compiler barriers. On Cortex-M they
+ * use PRIMASK (the whole sequence is 3 instructions). A port with other needs
+ * (an RTOS lock, a multi-core part) names a header in TC_PORT_HEADER that
+ * defines TC_IRQ_SAVE() and TC_IRQ_RESTORE(saved); the C tests use this to
+ * play a timer interrupt inside the critical section. The host library the
+ * Python host loads is single-threaded: no-ops. */
+#ifdef TC_PORT_HEADER
+#include TC_PORT_HEADER
+#endif
+#if defined(TC_IRQ_SAVE)
+static inline uint32_t tc_irq_save(void) { return TC_IRQ_SAVE(); }
+static inline void tc_irq_restore(uint32_t saved) { TC_IRQ_RESTORE(saved); }
+#elif defined(__ARM_ARCH_6M__) || defined(__ARM_ARCH_7M__) || defined(__ARM_ARCH_7EM__) \
+    || defined(__ARM_ARCH_8M_BASE__) || defined(__ARM_ARCH_8M_MAIN__)
+static inline uint32_t tc_irq_save(void)
+{
+    uint32_t primask;
+    __asm__ volatile("mrs %0, primask\n\tcpsid i" : "=r"(primask) : : "memory");
+    return primask;
+}
+static inline void tc_irq_restore(uint32_t saved)
+{
+    __asm__ volatile("msr primask, %0" : : "r"(saved) : "memory");
+}
+#else
+static inline uint32_t tc_irq_save(void) { return 0; }
+static inline void tc_irq_restore(uint32_t saved) { (void)saved; }
+#endif
+
 /* Both 24-bit ADCs deliver two's-complement words MSB first. Flipping the
  * sign bit maps the word onto 0..2^24-1 in order; subtracting 2^23 then gives
  * the signed value without any implementation-defined shift of a negative. */

@@ -12,12 +12,15 @@
 
 enum tc_error {
     TC_OK = 0,
-    TC_ERR_FORCE_SAFETY = 1,     /* at arm: tare outside reference_tare_counts +- force limit */
+    TC_ERR_FORCE_SAFETY = 1,     /* at arm: tare outside reference_tare_counts +- force limit;
+                                    during the move: a raw sample outside that window or outside
+                                    tare +- force limit (checked on every sample, no quarantine) */
     TC_ERR_DRIFT_SAFETY = 2,     /* during the move: two samples in a row outside tare +- drift limit */
     TC_ERR_WATCHDOG_TIMEOUT = 3, /* no sample for more than watchdog_periods sample periods */
     TC_ERR_FILTER_OVERFLOW = 4,  /* a filter value left its integer range (output saturated) */
     TC_ERR_SCALE_OVERFLOW = 5,   /* counts -> grams left int32 Q16.15 (beyond +-65536 g) */
-    TC_ERR_BAD_CONFIG = 6        /* a configuration value is out of its documented range */
+    TC_ERR_BAD_CONFIG = 6,       /* a configuration value is out of its documented range */
+    TC_ERR_STUCK_SENSOR = 7      /* stuck_samples raw samples in a row with one value: sensor stuck */
 };
 
 #endif

@@ -1,8 +1,10 @@
-/* Load-cell trigger: threshold, safety limits, watchdog, glitch quarantine,
- * hysteresis, timestamps. Scale: 128 counts per gram, so 1 count = 256 LSB of
- * Q16.15 exactly and every expected value below is exact. */
+/* Load-cell trigger: threshold, safety limits, stuck sensor, watchdog, glitch
+ * quarantine, hysteresis, timestamps, critical sections. Scale: 128 counts per
+ * gram, so 1 count = 256 LSB of Q16.15 exactly and every expected value below
+ * is exact. */
 #include "unit.h"
 #include "load_cell_trigger.h"
+#include "test_port.h"
 
 #define GRAM 32768
 #define CPG 128                       /* counts per gram */
@@ -21,6 +23,7 @@ static struct tc_trigger_config base_config(void)
         .release_q = 0,
         .sample_period_ticks = PERIOD,
         .watchdog_periods = 2,
+        .stuck_samples = 0,
     };
     return c;
 }
@@ -32,6 +35,12 @@ static void setup(struct tc_trigger *t, const struct tc_trigger_config *c)
 }
 
 static int32_t counts_for_g(int32_t tare, double grams) { return tare + (int32_t)(grams * CPG); }
+
+/* A watchdog check by the timer, long after the last sample. */
+static void timer_interrupt(void *trigger)
+{
+    tc_trigger_check_watchdog(trigger, 999);
+}
 
 TEST(trigger_fires_on_first_sample_at_threshold)
 {
@@ -137,8 +146,9 @@ TEST(trigger_glitch_quarantine_drops_single_sample)
     tc_trigger_arm(&t, 500, 0);
     tc_trigger_sample(&t, counts_for_g(500, 10), 100);
     CHECK_EQ_INT(t.filtered_q, 10 * GRAM);
-    /* a corrupted frame far outside the window (and far above trigger_force) */
-    CHECK_EQ_INT(tc_trigger_sample(&t, 0x7FFFFF, 200), TC_EVENT_NONE);
+    /* a corrupted frame outside the drift window (and far above trigger_force) but
+     * inside the force window: held back */
+    CHECK_EQ_INT(tc_trigger_sample(&t, counts_for_g(500, 1500), 200), TC_EVENT_NONE);
     CHECK_EQ_INT(t.filtered_q, 10 * GRAM);                                   /* held */
     CHECK_EQ_INT(t.glitches, 0);
     CHECK_EQ_INT(tc_trigger_sample(&t, counts_for_g(500, 11), 300), TC_EVENT_NONE);
@@ -146,10 +156,163 @@ TEST(trigger_glitch_quarantine_drops_single_sample)
     CHECK_EQ_INT(t.filtered_q, 11 * GRAM);
     CHECK_EQ_INT(t.state, TC_TRIGGER_ARMED);
     /* a second isolated glitch later is counted too; a triggering neighbour still triggers */
-    tc_trigger_sample(&t, -0x800000, 400);
+    tc_trigger_sample(&t, counts_for_g(500, -1500), 400);
     CHECK_EQ_INT(tc_trigger_sample(&t, counts_for_g(500, 80), 500), TC_EVENT_TRIGGER);
     CHECK_EQ_INT(t.glitches, 2);
     CHECK_EQ_INT(t.trigger_ticks, 500);
+}
+
+TEST(trigger_force_window_is_never_quarantined)
+{
+    /* The first sample beyond the force limit stops the move on that sample, even
+     * though the drift window's quarantine would have held it (issue 10, finding 3). */
+    struct tc_trigger t;
+    struct tc_trigger_config c = base_config();
+    setup(&t, &c);
+    tc_trigger_arm(&t, REF_TARE, 0);
+    CHECK_EQ_INT(tc_trigger_sample(&t, counts_for_g(REF_TARE, 50), 100), TC_EVENT_NONE);
+    CHECK_EQ_INT(tc_trigger_sample(&t, counts_for_g(REF_TARE, 2000.0078125), 200), TC_EVENT_ERROR);
+    CHECK_EQ_INT(t.error, TC_ERR_FORCE_SAFETY);
+    CHECK_EQ_INT(t.error_ticks, 200);
+    CHECK_EQ_INT(t.glitch_held, 0);
+    /* a corrupted frame far outside stops the move too: safe, and the host sees why */
+    tc_trigger_arm(&t, REF_TARE, 0);
+    CHECK_EQ_INT(tc_trigger_sample(&t, 0x7FFFFF, 100), TC_EVENT_ERROR);
+    CHECK_EQ_INT(t.error, TC_ERR_FORCE_SAFETY);
+    tc_trigger_arm(&t, REF_TARE, 0);
+    CHECK_EQ_INT(tc_trigger_sample(&t, -0x800000, 100), TC_EVENT_ERROR);
+    /* the window edges are inside */
+    tc_trigger_arm(&t, REF_TARE, 0);
+    c.trigger_q = 4000 * GRAM;
+    c.drift_limit_counts = 0;
+    setup(&t, &c);
+    tc_trigger_arm(&t, REF_TARE, 0);
+    CHECK_EQ_INT(tc_trigger_sample(&t, REF_TARE + 2000 * CPG, 100), TC_EVENT_NONE);
+    CHECK_EQ_INT(tc_trigger_sample(&t, REF_TARE - 2000 * CPG, 200), TC_EVENT_NONE);
+    CHECK_EQ_INT(tc_trigger_sample(&t, REF_TARE - 2000 * CPG - 1, 300), TC_EVENT_ERROR);
+}
+
+TEST(trigger_force_window_is_relative_to_reference_and_tare)
+{
+    /* Tare 1500 g above the calibration zero (a bowden tube pushing): the move may
+     * add only 500 g before reaching 2000 g of true force (reference window), and
+     * may not pull more than 2000 g below the tare (tare window). */
+    struct tc_trigger t;
+    struct tc_trigger_config c = base_config();
+    c.trigger_q = 4000 * GRAM;
+    c.drift_limit_counts = 0;
+    setup(&t, &c);
+    const int32_t tare = REF_TARE + 1500 * CPG;
+    CHECK_EQ_INT(tc_trigger_arm(&t, tare, 0), TC_OK);
+    CHECK_EQ_INT(tc_trigger_sample(&t, REF_TARE + 2000 * CPG, 100), TC_EVENT_NONE);
+    CHECK_EQ_INT(tc_trigger_sample(&t, REF_TARE + 2000 * CPG + 1, 200), TC_EVENT_ERROR);
+    CHECK_EQ_INT(t.error, TC_ERR_FORCE_SAFETY);
+    tc_trigger_arm(&t, tare, 0);
+    CHECK_EQ_INT(tc_trigger_sample(&t, tare - 2000 * CPG, 100), TC_EVENT_NONE);   /* -500 g true */
+    CHECK_EQ_INT(tc_trigger_sample(&t, tare - 2000 * CPG - 1, 200), TC_EVENT_ERROR);
+    /* tare below the reference: mirror image */
+    const int32_t low_tare = REF_TARE - 700 * CPG;
+    tc_trigger_arm(&t, low_tare, 0);
+    CHECK_EQ_INT(tc_trigger_sample(&t, REF_TARE - 2000 * CPG, 100), TC_EVENT_NONE);
+    CHECK_EQ_INT(tc_trigger_sample(&t, REF_TARE - 2000 * CPG - 1, 200), TC_EVENT_ERROR);
+    tc_trigger_arm(&t, low_tare, 0);
+    CHECK_EQ_INT(tc_trigger_sample(&t, low_tare + 2000 * CPG, 100), TC_EVENT_NONE);
+    CHECK_EQ_INT(tc_trigger_sample(&t, low_tare + 2000 * CPG + 1, 200), TC_EVENT_ERROR);
+    /* a tare exactly at the reference window's edge leaves a window one limit wide */
+    tc_trigger_arm(&t, REF_TARE + 2000 * CPG, 0);
+    CHECK_EQ_INT(t.force_span, 2000u * CPG);
+    CHECK_EQ_INT(tc_trigger_sample(&t, REF_TARE, 100), TC_EVENT_NONE);
+    CHECK_EQ_INT(tc_trigger_sample(&t, REF_TARE - 1, 200), TC_EVENT_ERROR);
+}
+
+TEST(trigger_force_window_catches_what_the_filter_hides)
+{
+    /* Issue 10, finding 2: a drift high-pass with the drift check off lets a slow
+     * press reach kilograms under the trigger. Here a filter that outputs nothing
+     * at all stands for it: the raw window still stops the move. */
+    struct tc_trigger t;
+    struct tc_trigger_config c = base_config();
+    c.drift_limit_counts = 0;
+    setup(&t, &c);
+    const int32_t silent[1][TC_SOS_NCOEFF] = {{0, 0, 0, 0, 0}};
+    tc_sos_filter_configure(&t.filter, silent, 1, 30);
+    tc_trigger_arm(&t, REF_TARE, 0);
+    int event = TC_EVENT_NONE;
+    uint32_t i;
+    for (i = 1; i <= 4000 && event == TC_EVENT_NONE; i++)
+        event = tc_trigger_sample(&t, counts_for_g(REF_TARE, i), i * PERIOD);   /* 1 g per sample */
+    CHECK_EQ_INT(event, TC_EVENT_ERROR);
+    CHECK_EQ_INT(t.error, TC_ERR_FORCE_SAFETY);
+    CHECK_EQ_INT(i - 1, 2001);                                               /* the first sample past 2000 g */
+    CHECK_EQ_INT(t.filtered_q, 0);
+    c.force_limit_counts = 0;                                                /* off: nothing stops it */
+    setup(&t, &c);
+    tc_sos_filter_configure(&t.filter, silent, 1, 30);
+    tc_trigger_arm(&t, REF_TARE, 0);
+    for (i = 1; i <= 4000; i++)
+        CHECK_EQ_INT(tc_trigger_sample(&t, counts_for_g(REF_TARE, i), i * PERIOD), TC_EVENT_NONE);
+}
+
+TEST(trigger_stuck_sensor_after_n_identical_samples)
+{
+    struct tc_trigger t;
+    struct tc_trigger_config c = base_config();
+    c.stuck_samples = 4;
+    setup(&t, &c);
+    tc_trigger_arm(&t, REF_TARE, 0);
+    const int32_t v = REF_TARE + 3;
+    /* three in a row, then a change: alive */
+    const int32_t alive[] = {v, v, v, v + 1, v + 1, v + 1, v, v};
+    for (uint32_t i = 0; i < 8; i++)
+        CHECK_EQ_INT(tc_trigger_sample(&t, alive[i], (i + 1) * PERIOD), TC_EVENT_NONE);
+    CHECK_EQ_INT(t.repeats, 1);
+    CHECK_EQ_INT(tc_trigger_sample(&t, v, 900), TC_EVENT_NONE);              /* third v in a row */
+    CHECK_EQ_INT(tc_trigger_sample(&t, v, 1000), TC_EVENT_ERROR);            /* fourth */
+    CHECK_EQ_INT(t.error, TC_ERR_STUCK_SENSOR);
+    CHECK_EQ_INT(t.error_ticks, 1000);
+    CHECK_EQ_INT(t.state, TC_TRIGGER_ERROR);
+    /* the run starts with the first sample after arming, whatever came before */
+    tc_trigger_arm(&t, v, 2000);
+    CHECK_EQ_INT(t.repeats, 0);
+    for (uint32_t i = 1; i <= 3; i++)
+        CHECK_EQ_INT(tc_trigger_sample(&t, v, 2000 + i * PERIOD), TC_EVENT_NONE);
+    CHECK_EQ_INT(tc_trigger_sample(&t, v, 2400), TC_EVENT_ERROR);
+    /* quarantined samples are raw samples too: a sensor stuck outside the drift
+     * window is reported as stuck, not as a drift error, when the run is shorter */
+    c.stuck_samples = 2;
+    setup(&t, &c);
+    tc_trigger_arm(&t, REF_TARE, 0);
+    CHECK_EQ_INT(tc_trigger_sample(&t, counts_for_g(REF_TARE, 1500), 100), TC_EVENT_NONE);
+    CHECK_EQ_INT(tc_trigger_sample(&t, counts_for_g(REF_TARE, 1500), 200), TC_EVENT_ERROR);
+    CHECK_EQ_INT(t.error, TC_ERR_STUCK_SENSOR);
+    /* 0: off */
+    c.stuck_samples = 0;
+    setup(&t, &c);
+    tc_trigger_arm(&t, REF_TARE, 0);
+    for (uint32_t i = 1; i <= 1000; i++)
+        CHECK_EQ_INT(tc_trigger_sample(&t, v, i * PERIOD), TC_EVENT_NONE);
+}
+
+TEST(trigger_stuck_sensor_while_triggered_with_release_level)
+{
+    /* Hysteresis (Prusa style): while TRIGGERED the samples are still checked. */
+    struct tc_trigger t;
+    struct tc_trigger_config c = base_config();
+    c.trigger_q = 125 * GRAM;
+    c.release_q = 45 * GRAM;
+    c.stuck_samples = 3;
+    setup(&t, &c);
+    tc_trigger_arm(&t, 0, 0);
+    CHECK_EQ_INT(tc_trigger_sample(&t, 200 * CPG, 100), TC_EVENT_TRIGGER);
+    CHECK_EQ_INT(tc_trigger_sample(&t, 200 * CPG, 200), TC_EVENT_NONE);
+    CHECK_EQ_INT(tc_trigger_sample(&t, 200 * CPG, 300), TC_EVENT_ERROR);
+    CHECK_EQ_INT(t.error, TC_ERR_STUCK_SENSOR);
+    CHECK_EQ_INT(t.trigger_ticks, 100);
+    /* and the force window */
+    tc_trigger_arm(&t, 0, 0);
+    CHECK_EQ_INT(tc_trigger_sample(&t, 200 * CPG, 100), TC_EVENT_TRIGGER);
+    CHECK_EQ_INT(tc_trigger_sample(&t, 2001 * CPG, 200), TC_EVENT_ERROR);
+    CHECK_EQ_INT(t.error, TC_ERR_FORCE_SAFETY);
 }
 
 TEST(trigger_samples_before_arm_are_ignored)
@@ -218,6 +381,69 @@ TEST(trigger_timestamps_wrap)
     tc_trigger_arm(&t, 0, arm);
     tc_trigger_sample(&t, 0, 0xFFFFFFE4u);
     CHECK_EQ_INT(tc_trigger_check_watchdog(&t, 0xFFFFFFE4u + 201u), TC_ERR_WATCHDOG_TIMEOUT);
+}
+
+TEST(trigger_time_is_wrap_safe_however_long_it_stays_armed)
+{
+    /* Issue 10, finding 4: between 2^31 and 2^32 ticks after arming every sample
+     * used to count as "before the arm time" and was dropped. With the longest
+     * period the span of 2^32 ticks is 32 samples; none may be dropped. */
+    struct tc_trigger t;
+    struct tc_trigger_config c = base_config();
+    c.sample_period_ticks = TC_TRIGGER_MAX_PERIOD_TICKS - 1;
+    c.trigger_q = 4000 * GRAM;
+    setup(&t, &c);
+    const uint32_t arm = 0x12345678u;
+    tc_trigger_arm(&t, 0, arm);
+    for (uint32_t i = 1; i <= 80; i++) {
+        uint32_t ticks = arm + i * c.sample_period_ticks;                    /* wraps twice */
+        CHECK_EQ_INT(tc_trigger_sample(&t, (int32_t)i * CPG, ticks), TC_EVENT_NONE);
+        CHECK_EQ_INT(t.filtered_q, (int32_t)i * GRAM);
+        CHECK_EQ_INT(t.last_sample_ticks, ticks);
+    }
+    CHECK_EQ_INT(t.state, TC_TRIGGER_ARMED);
+    CHECK_EQ_INT(tc_trigger_check_watchdog(&t, arm + 80 * c.sample_period_ticks + 2 * c.sample_period_ticks),
+                 TC_OK);
+    /* once a sample is accepted, the base is that sample: an older one is stale */
+    CHECK_EQ_INT(tc_trigger_sample(&t, 500 * CPG, arm + 79 * c.sample_period_ticks), TC_EVENT_NONE);
+    CHECK_EQ_INT(t.filtered_q, 80 * GRAM);
+    CHECK_EQ_INT(tc_trigger_sample(&t, 81 * CPG, arm + 80 * c.sample_period_ticks), TC_EVENT_NONE);
+    CHECK_EQ_INT(t.filtered_q, 81 * GRAM);                                   /* same time: accepted */
+}
+
+TEST(trigger_a_late_timer_interrupt_wins_over_the_sample_it_preempted)
+{
+    /* The watchdog fires from a timer interrupt while tc_trigger_sample() is
+     * between deciding TRIGGER and committing it: the timeout stands, the trigger
+     * time is not written, and the sample reports the error. */
+    struct tc_trigger t;
+    struct tc_trigger_config c = base_config();
+    setup(&t, &c);
+    tc_trigger_arm(&t, 0, 0);
+    test_irq.saves = 0;
+    CHECK_EQ_INT(tc_trigger_sample(&t, 10 * CPG, 100), TC_EVENT_NONE);
+    CHECK_EQ_INT(test_irq.saves, 0);                                         /* no mask without an event */
+    t.trigger_ticks = 12345;
+    test_irq.pending = timer_interrupt;
+    test_irq.arg = &t;
+    CHECK_EQ_INT(tc_trigger_sample(&t, 80 * CPG, 200), TC_EVENT_ERROR);
+    CHECK_EQ_INT(t.error, TC_ERR_WATCHDOG_TIMEOUT);
+    CHECK_EQ_INT(t.error_ticks, 999);
+    CHECK_EQ_INT(t.trigger_ticks, 12345);
+    CHECK_EQ_INT(t.state, TC_TRIGGER_ERROR);
+    CHECK_EQ_INT(test_irq.depth, 0);
+    /* the same for an error found by the sample: the first verdict stands */
+    tc_trigger_arm(&t, 0, 0);
+    test_irq.pending = timer_interrupt;
+    CHECK_EQ_INT(tc_trigger_sample(&t, 3000 * CPG, 200), TC_EVENT_ERROR);
+    CHECK_EQ_INT(t.error, TC_ERR_WATCHDOG_TIMEOUT);
+    /* and an abort after the trigger latched changes nothing */
+    tc_trigger_arm(&t, 0, 0);
+    CHECK_EQ_INT(tc_trigger_sample(&t, 80 * CPG, 100), TC_EVENT_TRIGGER);
+    tc_trigger_abort(&t, 107, 150);
+    CHECK_EQ_INT(t.state, TC_TRIGGER_TRIGGERED);
+    CHECK_EQ_INT(t.error, TC_OK);
+    CHECK_EQ_INT(test_irq.depth, 0);
 }
 
 TEST(trigger_hysteresis_trigger_and_release)
@@ -302,11 +528,25 @@ TEST(trigger_configure_rejects_bad_values)
     BAD(sample_period_ticks, TC_TRIGGER_MAX_PERIOD_TICKS);
     BAD(watchdog_periods, 0);
     BAD(watchdog_periods, TC_TRIGGER_MAX_WATCHDOG_PERIODS + 1);
+    BAD(stuck_samples, 1);
+    BAD(stuck_samples, TC_TRIGGER_MAX_STUCK_SAMPLES + 1);
+    c = good;                                   /* reference +- force limit must fit int32 */
+    c.reference_tare_counts = INT32_MAX - 100;
+    c.force_limit_counts = 101;
+    CHECK_EQ_INT(tc_trigger_configure(&t, &c), TC_ERR_BAD_CONFIG);
+    c.reference_tare_counts = INT32_MIN + 100;
+    CHECK_EQ_INT(tc_trigger_configure(&t, &c), TC_ERR_BAD_CONFIG);
+    c.force_limit_counts = 100;
+    CHECK_EQ_INT(tc_trigger_configure(&t, &c), TC_OK);
+    tc_trigger_configure(&t, &good);
 #undef BAD
     CHECK_EQ_INT(t.cfg.trigger_q, 75 * GRAM);                                /* nothing stored */
     c = good;
     c.watchdog_periods = TC_TRIGGER_MAX_WATCHDOG_PERIODS;
     c.sample_period_ticks = TC_TRIGGER_MAX_PERIOD_TICKS - 1;
+    c.stuck_samples = TC_TRIGGER_MAX_STUCK_SAMPLES;
+    CHECK_EQ_INT(tc_trigger_configure(&t, &c), TC_OK);
+    c.stuck_samples = 2;
     CHECK_EQ_INT(tc_trigger_configure(&t, &c), TC_OK);
 }
 

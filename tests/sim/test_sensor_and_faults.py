@@ -7,7 +7,7 @@ import pytest
 
 from conftest import armed_trigger
 from tapcell.mcu.trigger import TriggerError
-from tapcell.sim import FaultError, SimParamError, VirtualPrinter
+from tapcell.sim import FaultError, McuResetError, SimParamError, VirtualPrinter
 from tapcell.sim.sensor import COUNTS_MAX
 
 
@@ -157,6 +157,73 @@ def test_bowden_tug_is_a_smooth_force_pulse():
     assert force.max() == pytest.approx(300.0, rel=0.01)
     assert t[np.argmax(force)] == pytest.approx(1.2, abs=0.01)
     assert np.all(force[t < 0.99] == 0.0) and np.all(force[t > 1.41] == 0.0)
+
+
+def test_a_pending_bowden_tug_waits_for_its_probing_move_and_then_pulls():
+    vp = VirtualPrinter.from_scenario("clean", seed=1)
+    vp.move_to(z=1.0, speed_mm_s=10.0)
+    vp.inject_fault("bowden_tug", when="probing_move", force_g=200.0, duration_s=0.3)
+    vp.dwell(0.5)                                                    # pending: no force, no error
+    assert vp.take_samples().t_s.size > 100
+    t, force = vp.truth.force_g(0.0, vp.now_s)
+    assert np.all(force == 0.0)
+    trigger = armed_trigger(vp)
+    t0 = vp.now_s
+    result = vp.probing_move(-1.0, 1.0, trigger)                     # 1 mm above the bed: the tug triggers
+    assert result.triggered and result.halt_z_mm > 0.9
+    vp.dwell(0.5)
+    t, force = vp.truth.force_g(t0, vp.now_s)
+    assert force.max() == pytest.approx(200.0, rel=0.01) and t[np.argmax(force)] == pytest.approx(t0 + 0.15, abs=0.01)
+
+
+def test_truth_reports_the_peak_nozzle_force_and_the_clearance_now():
+    vp = VirtualPrinter.from_scenario("clean", seed=1)
+    x, y, _ = vp.position
+    contact = vp.truth.contact_z_at(x, y)
+    vp.move_to(z=contact + 0.5, speed_mm_s=10.0)
+    assert vp.truth.nozzle_clearance_mm == pytest.approx(0.5, abs=0.0025)     # one 2.5 um Z step
+    assert vp.truth.take_peak_force_g() == 0.0
+    vp.move_to(z=contact - 0.1, speed_mm_s=1.0)                      # 100 um into the bed, 3.26 g/um
+    assert vp.truth.nozzle_clearance_mm == pytest.approx(-0.1, abs=0.0025)
+    pressed_g = vp.truth.stiffness_g_um * (100.0 - 0.5 * 2.0)        # linear beyond the 2 um onset
+    assert vp.truth.take_peak_force_g() == pytest.approx(pressed_g, rel=0.03)
+    vp.move_to(z=contact + 1.0, speed_mm_s=10.0)
+    vp.dwell(0.1)
+    assert vp.truth.take_peak_force_g() == pytest.approx(pressed_g, rel=0.03)   # the lift started pressed
+    assert vp.truth.take_peak_force_g() == 0.0                       # read and started again
+
+
+def test_mcu_reset_stops_the_steppers_drops_samples_and_raises_when_the_link_is_back():
+    vp = VirtualPrinter.from_scenario("clean", seed=1)
+    vp.move_to(z=5.0, speed_mm_s=10.0)
+    vp.dwell(0.1)
+    vp.take_samples()
+    t0 = vp.now_s
+    vp.inject_fault("mcu_reset", at_s=t0 + 0.2, duration_s=0.4)
+    with pytest.raises(McuResetError, match=r"reset at .* the host link was lost until") as info:
+        vp.move_to(z=15.0, speed_mm_s=10.0)                          # would take 1 s (and accelerate)
+    assert info.value.reset_s == pytest.approx(t0 + 0.2) and info.value.restored_s == pytest.approx(t0 + 0.6)
+    assert vp.now_s == pytest.approx(t0 + 0.6)
+    stopped_z = vp.position[2]
+    assert 5.5 < stopped_z < 7.0                                      # stopped 0.2 s into the move
+    vp.dwell(0.5)
+    assert vp.position[2] == stopped_z                                # nothing resumes the move
+    batch = vp.take_samples()
+    assert not np.any((batch.t_s > t0 + 0.2 + 1.0 / 320.0) & (batch.t_s < t0 + 0.6))
+    assert np.count_nonzero(batch.t_s > t0 + 0.6) > 150               # samples again after the link is back
+    vp.dwell(1.0)                                                     # a reset happens once
+
+
+def test_mcu_reset_on_contact_stops_a_probing_move_at_the_bed():
+    vp = VirtualPrinter.from_scenario("clean", seed=1)
+    contact = vp.truth.contact_z_at(*vp.position[:2])
+    vp.move_to(z=contact + 0.3, speed_mm_s=10.0)
+    trigger = armed_trigger(vp)
+    vp.inject_fault("mcu_reset", when="contact")
+    with pytest.raises(McuResetError):
+        vp.probing_move(contact - 1.0, 3.0, trigger)
+    assert vp.position[2] == pytest.approx(contact, abs=0.003)
+    assert vp.truth.take_peak_force_g() < 10.0
 
 
 def test_fault_on_contact_starts_when_the_nozzle_reaches_the_bed():

@@ -80,6 +80,13 @@ def test_workbench_capture_with_positions(tmp_path, tap):
     ({"format": "other", "time": [], "force": []}, "unknown format 'other'"),
     ({"time": list(range(20)), "force": ["a"] * 20, "z": [0.0] * 20}, "'force' must be a list of numbers"),
     ({"time": list(range(20)), "force": [1.0] * 20, "moves": [{"print_time": 0}]}, "moves[0] lacks move_t"),
+    ({"time": list(range(20)), "force": [[1.0, 2.0]] * 20, "z": [0.0] * 20}, "'force' must be a flat list of numbers"),
+    ({"time": list(range(20)), "force": ["1.0"] * 20, "z": [0.0] * 20}, "'force' must be a list of numbers"),
+    ({"time": list(range(20)), "force": [True] * 20, "z": [0.0] * 20}, "'force' must be a list of numbers"),
+    ({"time": list(range(20)), "force": [10 ** 400] + [1.0] * 19, "z": [0.0] * 20},
+     "'force' holds NaN or infinity (index 0)"),
+    ({"time": list(range(20)), "force": [1.0] * 20, "z": [0.0] * 20, "sample_rate": -(10 ** 400)},
+     "'sample_rate' must be a finite number"),
 ])
 def test_bad_files_name_the_file_and_problem(tmp_path, document, problem):
     path = tmp_path / "bad.json"
@@ -101,6 +108,9 @@ def test_nan_invalid_json_and_bad_csv(tmp_path):
     csv_file = tmp_path / "t.csv"
     csv_file.write_text("time,force\n0,1\n")
     with pytest.raises(TapFileError, match="CSV header lacks column"):
+        read_tap_file(csv_file)
+    csv_file.write_text("time,force,z\n0,1,0\n1,2\n")
+    with pytest.raises(TapFileError, match=r"CSV line 3: column 'z' is not a number \('<missing>'\)"):
         read_tap_file(csv_file)
     with pytest.raises(TapFileError, match="cannot read the file"):
         read_tap_file(tmp_path / "missing.json")

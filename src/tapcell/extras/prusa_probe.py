@@ -297,7 +297,7 @@ class PrusaProbe:
 
     # -- the mesh method -------------------------------------------------------------------------
     def probe_mesh_points(self, options, gcmd: GCodeCommand, points_xy_mm: np.ndarray, progress):
-        from tapcell.extras.bed_mesh import MeshProbeRun
+        from tapcell.extras.bed_mesh import MeshProbeRun, mesh_travel_height_mm
 
         prober = self.prober()
         toolhead = prober.toolhead
@@ -308,8 +308,9 @@ class PrusaProbe:
         reference = prober.tare("session reference")
         z_values, attempts_used, retares = [], [], 0
         offsets = retry_offsets_mm(self.options.max_attempts)
-        travel_z = options.horizontal_move_z_mm
+        contacts_xyz = []  # where the nozzle touched (toolhead Z): the travel height follows the bed
         for index, (x_mm, y_mm) in enumerate(points_xy_mm):
+            travel_z = mesh_travel_height_mm(options, contacts_xyz, (float(x_mm), float(y_mm)))
             for attempt, (dx, dy) in enumerate(offsets, start=1):
                 if toolhead.get_position()[2] < travel_z:
                     toolhead.move_to(z=travel_z, speed_mm_s=speed)
@@ -334,8 +335,7 @@ class PrusaProbe:
                                  f"{len(offsets)} attempts")
             z_values.append(hit.trigger_position_mm[2] - z_offset)
             attempts_used.append(attempt)
-            if options.horizontal_z_clearance_mm is not None:
-                travel_z = hit.trigger_position_mm[2] + options.horizontal_z_clearance_mm
+            contacts_xyz.append(tuple(float(v) for v in hit.trigger_position_mm))
             progress(index + 1, len(points_xy_mm))
         toolhead.move_to(z=max(toolhead.get_position()[2], options.horizontal_move_z_mm), speed_mm_s=speed)
         self.last_session = {"kind": "mesh", "points": len(points_xy_mm), "tares": len(prober.tares),

@@ -292,6 +292,9 @@ class Printer:
                                     desc="Report the printer state; OBJECT=name shows one object's status")
         self.gcode.register_command("RESTART", self._cmd_restart,
                                     desc="Reload the config file and rebuild the printer")
+        # The virtual printer is rebuilt on RESTART too (a power cycle), so both are the same here.
+        self.gcode.register_command("FIRMWARE_RESTART", self._cmd_restart,
+                                    desc="Restart the virtual printer and reload the config file")
         self.gcode.register_command("SAVE_CONFIG", self._cmd_save_config,
                                     desc="Write pending config changes (e.g. a calibration) and restart")
         self.gcode.register_command("M112", self._cmd_M112, desc="Emergency stop: heaters off, printer halted")

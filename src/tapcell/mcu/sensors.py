@@ -17,6 +17,7 @@ only maps names to the firmware's codes and turns its status codes into
 
 from __future__ import annotations
 
+import math
 from functools import cache
 
 import numpy as np
@@ -58,6 +59,29 @@ SAMPLE_RATES_SPS: dict[str, tuple[int, ...]] = {
 DEFAULT_SAMPLE_RATE_SPS = {"hx711": 80, "hx717": 320, "ads1220": 660}
 
 HX71X_DATA_BITS = 24
+
+# ---------------------------------------------------------------------------
+# Noise floor: the least noise a live chip shows, and the stuck-sensor run length
+#
+# The firmware calls a run of `stuck_samples` identical raw samples a stuck sensor
+# (TC_ERR_STUCK_SENSOR). A live chip's own noise changes its reading from sample to
+# sample; with Gaussian noise of sigma counts RMS (rounded to whole counts), n samples in
+# a row are all equal with probability about (2 pi sigma^2)^(-(n-1)/2) / sqrt(n). The
+# default run length keeps that below STUCK_FALSE_STOPS_PER_ARMED_HOUR at the chip's
+# lowest possible noise, from its datasheet:
+#   HX711 (HX717 taken alike): input noise 50 nV RMS at 10 sps, 90 nV at 80 sps (gain 128),
+#     assumed no lower at the smaller gains or higher rates; one count is AVDD / gain / 2^24,
+#     largest at the highest AVDD (5.5 V): 19.5 counts RMS at A-128 and 10 sps, 1.2 at B-8.
+#   ADS1220: at most 20 bits of effective resolution in any mode, so at least 2^(24-20) = 16
+#     counts RMS whatever the gain, rate or reference.
+# Real boards (lower AVDD, the bridge's own noise) are noisier, which only makes a false
+# stop rarer.
+HX71X_INPUT_NOISE_V = {"slow": 50e-9, "fast": 90e-9}   # fast: 80 sps and above
+HX71X_AVDD_MAX_V = 5.5
+ADS1220_MAX_EFFECTIVE_BITS = 20
+ADC_BITS = 24
+GENERIC_NOISE_FLOOR_COUNTS = 2.0 ** (ADC_BITS - ADS1220_MAX_EFFECTIVE_BITS)   # 16: for an unnamed sensor
+STUCK_FALSE_STOPS_PER_ARMED_HOUR = 1e-6
 
 # ---------------------------------------------------------------------------
 # Errors
@@ -270,3 +294,30 @@ def ads1220_registers(gain: int, pga_bypass: bool, sample_rate: int, input_mux: 
         # means the tables and the firmware disagree.
         raise RuntimeError(f"ads1220_registers: firmware status {status} for values the tables allow")
     return bytes(registers)
+
+
+# ---------------------------------------------------------------------------
+# Stuck-sensor defaults (see "Noise floor" above)
+
+
+def noise_floor_counts(sensor_type: str, gain: str | int, sample_rate_sps: float) -> float:
+    """The least RMS noise, in counts, a live `sensor_type` shows at this gain and rate."""
+    if sensor_type in HX71X_CHIPS:
+        if gain not in HX71X_GAINS[sensor_type]:
+            raise SensorConfigError("gain", gain, _join(HX71X_GAINS[sensor_type]))
+        volts_per_count = HX71X_AVDD_MAX_V / int(str(gain).split("-")[1]) / 2.0 ** ADC_BITS
+        return HX71X_INPUT_NOISE_V["fast" if sample_rate_sps >= 80 else "slow"] / volts_per_count
+    if sensor_type == "ads1220":
+        return GENERIC_NOISE_FLOOR_COUNTS
+    raise SensorConfigError("sensor_type", sensor_type, _join((*HX71X_CHIPS, "ads1220")))
+
+
+def stuck_sample_count(noise_counts: float, sample_rate_sps: float, max_samples: int) -> int:
+    """The shortest run of identical samples (>= 2) that a live sensor with `noise_counts` RMS
+    of noise shows less often than STUCK_FALSE_STOPS_PER_ARMED_HOUR; capped at max_samples."""
+    one_pair = 1.0 / math.sqrt(2.0 * math.pi * max(noise_counts, 1.0) ** 2)
+    budget = STUCK_FALSE_STOPS_PER_ARMED_HOUR / (3600.0 * sample_rate_sps)
+    for samples in range(2, max_samples + 1):
+        if one_pair ** (samples - 1) / math.sqrt(samples) <= budget:
+            return samples
+    return max_samples

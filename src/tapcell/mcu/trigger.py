@@ -16,6 +16,7 @@ import numpy as np
 
 from tapcell.filters import INT32_MAX, INT32_MIN, Q1615_ONE_G, QuantizedSos, choose_frac_bits
 from tapcell.mcu import _lib
+from tapcell.mcu.sensors import GENERIC_NOISE_FLOOR_COUNTS, stuck_sample_count
 
 _CDEF = """
 struct tc_sos_filter {
@@ -36,22 +37,32 @@ struct tc_trigger_config {
     int32_t release_q;
     uint32_t sample_period_ticks;
     uint32_t watchdog_periods;
+    uint32_t stuck_samples;
 };
 struct tc_trigger {
-    struct tc_sos_filter filter;
-    struct tc_trigger_config cfg;
-    uint32_t watchdog_ticks;
-    int32_t tare_counts;
-    uint32_t arm_ticks;
-    uint32_t last_sample_ticks;
-    uint32_t trigger_ticks;
-    uint32_t release_ticks;
-    uint32_t error_ticks;
-    uint32_t glitches;
-    int32_t filtered_q;
     uint8_t state;
     uint8_t error;
     uint8_t glitch_held;
+    uint32_t last_sample_ticks;
+    uint32_t force_low;
+    uint32_t force_span;
+    int32_t last_counts;
+    uint32_t repeats;
+    uint32_t drift_low;
+    uint32_t drift_span;
+    int32_t tare_counts;
+    int32_t filtered_q;
+    uint32_t glitches;
+    uint32_t arm_ticks;
+    uint32_t trigger_ticks;
+    uint32_t release_ticks;
+    uint32_t error_ticks;
+    uint32_t watchdog_ticks;
+    uint32_t stuck_repeats;
+    uint32_t scale_round;
+    uint32_t trigger_bias;
+    struct tc_trigger_config cfg;
+    struct tc_sos_filter filter;
 };
 int tc_sos_filter_configure(struct tc_sos_filter *f, const int32_t coeff[][5],
                             unsigned n_sections, unsigned frac_bits);
@@ -69,6 +80,7 @@ size_t tc_trigger_struct_size(void);
 # Mirrors of firmware/include/load_cell_trigger.h (tests check them against the headers).
 MAX_PERIOD_TICKS = 1 << 27
 MAX_WATCHDOG_PERIODS = 15
+MAX_STUCK_SAMPLES = 65535
 _EVENT_NONE, _EVENT_TRIGGER, _EVENT_RELEASE, _EVENT_ERROR = 0, 1, 2, 3
 _STATE_NAMES = ("idle", "armed", "triggered", "error")
 
@@ -83,6 +95,7 @@ class TriggerError(enum.IntEnum):
     FILTER_OVERFLOW = 4
     SCALE_OVERFLOW = 5
     BAD_CONFIG = 6
+    STUCK_SENSOR = 7
     SENSOR = 100
 
 
@@ -96,13 +109,23 @@ class TriggerParams:
     reference_tare_counts: int
     trigger_force_g: float
     sample_rate_sps: float
-    force_safety_limit_g: float = 2000.0   # 0 disables
+    force_safety_limit_g: float = 2000.0   # raw window around the reference and the tare, every sample; 0 disables
     drift_safety_limit_g: float = 1000.0   # 0 disables (and with it the glitch quarantine)
     release_force_g: float = 0.0           # hysteresis release level; 0 = latched trigger
     watchdog_periods: int = 2
     inverted: bool = False
     sos: QuantizedSos | None = None
     clock_hz: float = 1e6                  # MCU timer ticks per second used for timestamps
+    # Identical raw samples in a row that stop the move as STUCK_SENSOR; 0 disables. None: the
+    # run a sensor with 16 counts RMS of noise never shows (sensors.stuck_sample_count); the
+    # probe passes its own sensor's value (sensors.noise_floor_counts).
+    stuck_samples: int | None = None
+
+    @property
+    def effective_stuck_samples(self) -> int:
+        if self.stuck_samples is not None:
+            return self.stuck_samples
+        return stuck_sample_count(GENERIC_NOISE_FLOOR_COUNTS, self.sample_rate_sps, MAX_STUCK_SAMPLES)
 
 
 @dataclass
@@ -179,10 +202,19 @@ def _config_values(p: TriggerParams) -> dict:
     _check("watchdog_periods", p.watchdog_periods,
            isinstance(p.watchdog_periods, (int, np.integer)) and 1 <= p.watchdog_periods <= MAX_WATCHDOG_PERIODS,
            f"an integer 1 .. {MAX_WATCHDOG_PERIODS}")
+    stuck = p.effective_stuck_samples
+    _check("stuck_samples", p.stuck_samples,
+           isinstance(stuck, (int, np.integer)) and (stuck == 0 or 2 <= stuck <= MAX_STUCK_SAMPLES),
+           f"0 (disabled) or an integer 2 .. {MAX_STUCK_SAMPLES}")
     scale, scale_frac_bits = quantize_scale(p.counts_per_gram, bool(p.inverted))
+    force_limit_counts = _limit_counts("force_safety_limit_g", p.force_safety_limit_g, p.counts_per_gram)
+    _check("force_safety_limit_g", p.force_safety_limit_g,
+           INT32_MIN <= p.reference_tare_counts - force_limit_counts
+           and p.reference_tare_counts + force_limit_counts <= INT32_MAX,
+           "a window reference_tare_counts +- limit within int32")
     return {
         "reference_tare_counts": int(p.reference_tare_counts),
-        "force_limit_counts": _limit_counts("force_safety_limit_g", p.force_safety_limit_g, p.counts_per_gram),
+        "force_limit_counts": force_limit_counts,
         "drift_limit_counts": _limit_counts("drift_safety_limit_g", p.drift_safety_limit_g, p.counts_per_gram),
         "scale": scale,
         "scale_frac_bits": scale_frac_bits,
@@ -190,6 +222,7 @@ def _config_values(p: TriggerParams) -> dict:
         "release_q": round(p.release_force_g * Q1615_ONE_G),
         "sample_period_ticks": period_ticks,
         "watchdog_periods": int(p.watchdog_periods),
+        "stuck_samples": int(stuck),
     }
 
 

@@ -3,15 +3,19 @@
 On real hardware you put a weight on the scale or tap the nozzle with a finger; on
 the virtual printer these commands do it:
 
-    SIM_PLACE_WEIGHT GRAMS=500 [LOAD_CELL=name]   a known weight rests on the cell
+    SIM_PLACE_WEIGHT GRAMS=500 [ADD=1] [LOAD_CELL=name]
+                                                  a known weight rests on the cell (it replaces
+                                                  the one there; ADD=1 puts it on top)
     SIM_REMOVE_WEIGHT [LOAD_CELL=name]            take it off again
-    SIM_TAP [FORCE=300] [DURATION=0.2]            a hand tap on the nozzle (no motion)
+    SIM_TAP [FORCE=300] [DURATION=0.2] [DELAY=0]  a hand tap on the nozzle (no motion), DELAY s from now
     SIM_FAULT NAME=<fault> [AT=s] [WHEN=cond] [DURATION=s] [<PARAM>=value ...]
     SIM_TRUTH                                     what the simulator knows and the host must not
 
 SIM_TRUTH prints simulator truth (the cell's real counts_per_gram, its zero offset,
-the bed height under the nozzle): it is there to check calibration and probing by
-eye, and no tapcell algorithm ever reads it.
+the bed height under the nozzle, the largest nozzle-bed force since the previous SIM_TRUTH
+as `peak_force_g: N`, and the gap between nozzle tip and bed now as `nozzle_clearance_mm: N`,
+negative when the nozzle is pressed into the bed): it is there to check calibration and
+probing by eye and in tests, and no tapcell algorithm ever reads it.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ from tapcell.sim.printer import VirtualPrinter
 
 MAX_WEIGHT_GRAMS = 100_000.0
 MAX_TAP_FORCE_G = 10_000.0
+MAX_TAP_DELAY_S = 600.0
 # Putting a weight down (or lifting it off) takes a person about this long; the next
 # command then reads a settled cell, as it would on a real printer.
 WEIGHT_HANDLING_TIME_S = 0.5
@@ -64,9 +69,13 @@ class SimCommands:
 
     def cmd_place_weight(self, gcmd: GCodeCommand) -> None:
         grams = gcmd.get_float("GRAMS", above=0.0, maxval=MAX_WEIGHT_GRAMS)
-        self._weight_target(gcmd).place_weight(grams)
+        add = bool(gcmd.get_int("ADD", 0, minval=0, maxval=1))
+        total_g = self._weight_target(gcmd).place_weight(grams, add=add)
         self.vp.dwell(WEIGHT_HANDLING_TIME_S)
-        gcmd.respond_info(f"A {grams:g} g weight now rests on the load cell")
+        if add:
+            gcmd.respond_info(f"{grams:g} g more on the load cell: {total_g:g} g rest on it now")
+        else:
+            gcmd.respond_info(f"A {grams:g} g weight now rests on the load cell")
 
     def cmd_remove_weight(self, gcmd: GCodeCommand) -> None:
         self._weight_target(gcmd).remove_weight()
@@ -76,8 +85,10 @@ class SimCommands:
     def cmd_tap(self, gcmd: GCodeCommand) -> None:
         force_g = gcmd.get_float("FORCE", 300.0, above=0.0, maxval=MAX_TAP_FORCE_G)
         duration_s = gcmd.get_float("DURATION", 0.2, above=0.0, maxval=10.0)
-        self.vp.tap_nozzle(force_g, duration_s)
-        gcmd.respond_info(f"Tapped the nozzle: {force_g:g} g for {duration_s:g} s")
+        delay_s = gcmd.get_float("DELAY", 0.0, minval=0.0, maxval=MAX_TAP_DELAY_S)
+        self.vp.tap_nozzle(force_g, duration_s, delay_s=delay_s)
+        when = f" in {delay_s:g} s" if delay_s else ""
+        gcmd.respond_info(f"Tapped the nozzle{when}: {force_g:g} g for {duration_s:g} s")
 
     def cmd_fault(self, gcmd: GCodeCommand) -> None:
         name = gcmd.get("NAME").lower()
@@ -118,6 +129,8 @@ class SimCommands:
             f"bed surface under the nozzle (X{x:.1f} Y{y:.1f}): Z={float(truth.surface_z(x, y)):.4f} mm"
             " in machine coordinates",
             f"simulated time: {self.vp.now_s:.3f} s",
+            f"peak_force_g: {truth.take_peak_force_g():.1f}",
+            f"nozzle_clearance_mm: {truth.nozzle_clearance_mm:.4f}",
         ]
         gcmd.respond_info("\n".join(lines))
 
@@ -130,12 +143,13 @@ def register_sim_commands(printer) -> None:
     commands = SimCommands(printer, vp)
     gcode = printer.gcode
     gcode.register_command("SIM_PLACE_WEIGHT", commands.cmd_place_weight,
-                           desc="Virtual printer: rest a weight on the load cell, GRAMS=")
+                           desc="Virtual printer: rest a weight on the load cell (replacing the one there), GRAMS= [ADD=1]")
     gcode.register_command("SIM_REMOVE_WEIGHT", commands.cmd_remove_weight,
                            desc="Virtual printer: take the weight off the load cell")
     gcode.register_command("SIM_TAP", commands.cmd_tap,
-                           desc="Virtual printer: tap the nozzle by hand, [FORCE=g] [DURATION=s]")
+                           desc="Virtual printer: tap the nozzle by hand, [FORCE=g] [DURATION=s] [DELAY=s]")
     gcode.register_command("SIM_FAULT", commands.cmd_fault,
                            desc="Virtual printer: inject a fault, NAME= [AT=] [WHEN=] [DURATION=] [params]")
     gcode.register_command("SIM_TRUTH", commands.cmd_truth,
-                           desc="Virtual printer: show simulator truth (calibration, bed height)")
+                           desc="Virtual printer: show simulator truth (calibration, bed height, peak force, "
+                                "nozzle clearance)")

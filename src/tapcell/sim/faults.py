@@ -1,8 +1,10 @@
 """Sensor and machine faults, each active from a time (or from a condition) for a duration.
 
-Three places a fault can act: on the force the cell feels (weight, bowden tug), on the
+Four places a fault can act: on the force the cell feels (weight, bowden tug), on the
 counts the chip produces (chip reset offset jump, stuck value, saturation, corrupted
-frames), or on the stream itself (disconnected: no samples; chip reset: a short gap).
+frames), on the stream itself (disconnected: no samples; chip reset: a short gap), or on
+the whole MCU (mcu_reset: the steppers stop, the trigger is lost and the host link is down
+for the fault's duration; the printer raises McuResetError once the link is back).
 """
 
 from __future__ import annotations
@@ -23,13 +25,25 @@ FAULT_DEFAULTS: dict[str, dict[str, float | str | bool]] = {
     "saturation": {"level": "max"},
     "weight": {"grams": 500.0},
     "bowden_tug": {"force_g": 300.0},
+    "mcu_reset": {},
 }
-FAULT_DEFAULT_DURATION_S = {"corrupt_frame": math.inf, "bowden_tug": 0.3}
+FAULT_DEFAULT_DURATION_S = {"corrupt_frame": math.inf, "bowden_tug": 0.3, "mcu_reset": 0.5}
 CONDITIONS = ("probing_move", "contact", "trigger")
 
 
 class FaultError(ValueError):
     """A fault was asked for by an unknown name, condition or parameter."""
+
+
+class McuResetError(RuntimeError):
+    """The MCU reset during a command: its steppers stopped at `reset_s`, the host link came back at
+    `restored_s`. Positions the host knew are no longer trusted (a real MCU loses them)."""
+
+    def __init__(self, reset_s: float, restored_s: float):
+        super().__init__(f"the MCU reset at {reset_s:.3f} s (print time): the steppers stopped and the host link "
+                         f"was lost until {restored_s:.3f} s")
+        self.reset_s = reset_s
+        self.restored_s = restored_s
 
 
 @dataclass
@@ -41,6 +55,7 @@ class Fault:
     params: dict = field(default_factory=dict)
     stuck_counts: int | None = None
     first_index: int = 0             # first conversion not yet produced when the fault began
+    done: bool = False               # an mcu_reset that has happened (each resets once)
 
     @property
     def end_s(self) -> float:
@@ -77,6 +92,8 @@ def external_force_g(faults: list[Fault], t_s: np.ndarray) -> np.ndarray:
     """Force on the cell from a weight placed on it or a tug on the bowden tube."""
     force = np.zeros(t_s.shape)
     for f in faults:
+        if f.start_s is None:        # waiting for its condition
+            continue
         if f.name == "weight":
             force[f.active_mask(t_s)] += f.params["grams"]
         elif f.name == "bowden_tug":
@@ -129,13 +146,19 @@ def apply_count_faults(faults: list[Fault], k0: int, t_ready_s: np.ndarray, coun
 
 
 def stream_gap_mask(faults: list[Fault], t_ready_s: np.ndarray) -> np.ndarray:
-    """True where the MCU gets no sample: the sensor is disconnected or restarting."""
+    """True where the MCU gets no sample: the sensor is disconnected or restarting, or the MCU resets."""
     gone = np.zeros(t_ready_s.shape, dtype=bool)
     for f in faults:
         if f.start_s is None:
             continue
-        if f.name == "disconnected":
+        if f.name in ("disconnected", "mcu_reset"):
             gone |= f.active_mask(t_ready_s)
         elif f.name == "chip_reset":
             gone |= (t_ready_s >= f.start_s) & (t_ready_s < f.start_s + f.params["gap_s"])
     return gone
+
+
+def due_reset(faults: list[Fault], t_s: float) -> Fault | None:
+    """The first mcu_reset that has not happened yet and is due by t_s."""
+    due = [f for f in faults if f.name == "mcu_reset" and not f.done and f.start_s is not None and f.start_s <= t_s]
+    return min(due, key=lambda f: f.start_s) if due else None

@@ -18,7 +18,7 @@ from scipy.signal import lfilter
 
 from tapcell.sim import faults as faultlib
 from tapcell.sim.bed import BedError, bed_from_params
-from tapcell.sim.contact import ContactModel, ContactState, contact_forces
+from tapcell.sim.contact import ContactModel, ContactState, contact_forces, elastic_force_g
 from tapcell.sim.mcu import SampleBatch, SampleChunk, TriggerFeeder, VirtualMCU
 from tapcell.sim.motion import MotionHistory, Segment, move_limits, plan_trapezoid, quantize_to_steps
 from tapcell.sim.heaters import FirstOrderHeater, OutputLog
@@ -62,6 +62,7 @@ class _PhysicsState:
     contact: ContactState
     cell_warm_c: float = 0.0      # the load cell's temperature rise (low-passed nozzle heat)
     residue: list[ResidueSpot] = field(default_factory=list)   # ooze film left on the bed
+    peak_contact_g: float = 0.0   # largest nozzle-bed force since Truth.take_peak_force_g last read it
 
 
 @dataclass
@@ -113,6 +114,26 @@ class Truth:
         """Noise-free force on the cell (window average) for each delivered sample in [t0, t1]."""
         t, _, force = self._vp._mcu.log.between(t0_s, t1_s)
         return t, force
+
+    @property
+    def nozzle_clearance_mm(self) -> float:
+        """Gap between the nozzle tip and the bed (or pin) under it now; negative = pressed in."""
+        vp = self._vp
+        return float(vp._gap_um_now() / 1000.0)
+
+    def take_peak_force_g(self) -> float:
+        """The largest nozzle-bed force (bed + ooze film, g) since the last call, and start again.
+
+        Forces are known for every conversion window produced so far; the nozzle's present
+        press (the loading curve at today's gap) covers the window still open."""
+        vp = self._vp
+        vp._advance_to(vp.now_s)
+        state = vp._state
+        model = vp._contact_model
+        now_g = float(elastic_force_g(-vp._gap_um_now(), model.stiffness_g_um, model.onset_um))
+        peak_g = max(state.peak_contact_g, now_g)
+        state.peak_contact_g = 0.0
+        return peak_g
 
 
 class VirtualPrinter:
@@ -268,19 +289,32 @@ class VirtualPrinter:
         """Record a fan speed or pin value (0..1) set now."""
         self.outputs.set(name, self._now_s, value)
 
-    def place_weight(self, grams: float) -> None:
+    def place_weight(self, grams: float, add: bool = False) -> float:
+        """A weight now rests on the cell: it replaces what rested there, or with `add` joins it.
+        Returns the total weight on the cell."""
+        if not add:
+            self.remove_weight()
         self.inject_fault("weight", grams=float(grams))
+        return self.weight_on_cell_g()
 
     def remove_weight(self) -> None:
-        for f in self._faults:
-            if f.name == "weight" and f.start_s is not None and f.end_s > self._now_s:
-                f.duration_s = self._now_s - f.start_s
+        for f in self._weights_on_cell():
+            f.duration_s = self._now_s - f.start_s
 
-    def tap_nozzle(self, peak_force_g: float, duration_s: float = 0.15) -> None:
-        """A finger tap on the nozzle starting now (half-sine force pulse); time does not advance."""
+    def weight_on_cell_g(self) -> float:
+        return float(sum(f.params["grams"] for f in self._weights_on_cell()))
+
+    def _weights_on_cell(self) -> list:
+        return [f for f in self._faults
+                if f.name == "weight" and f.start_s is not None and f.start_s <= self._now_s < f.end_s]
+
+    def tap_nozzle(self, peak_force_g: float, duration_s: float = 0.15, delay_s: float = 0.0) -> None:
+        """A finger tap on the nozzle starting `delay_s` from now (half-sine force pulse); time does not advance."""
         if duration_s <= 0.0:
             raise MoveError(f"tap duration must be above 0 s, got {duration_s}")
-        self._hand_taps.append((self._now_s, float(duration_s), float(peak_force_g)))
+        if delay_s < 0.0:
+            raise MoveError(f"tap delay must not be negative, got {delay_s}")
+        self._hand_taps.append((self._now_s + float(delay_s), float(duration_s), float(peak_force_g)))
 
     def inject_fault(self, name: str, at_s: float | None = None, when: str | None = None, **params) -> None:
         """Start a fault now, at `at_s`, or when a condition happens ('probing_move', 'contact', 'trigger')."""
@@ -327,6 +361,9 @@ class VirtualPrinter:
             self._fire_condition("contact", contact_t)
         self._motion.append(segments)
         end_s = segments[-1].end_time if segments else t_start
+        reset = faultlib.due_reset(self._faults, end_s)
+        if reset is not None:
+            end_s = max(reset.start_s, t_start)      # a resetting MCU stops the move at once
         feeder = TriggerFeeder(trigger, self._timing.period_s, t_start, _trigger_error_none())
         pending_t, pending_c = self._mcu.pending(t_start)
         event = feeder.feed(pending_t, pending_c, t_start) if pending_t.size else None
@@ -347,8 +384,8 @@ class VirtualPrinter:
                 self._next_k = k1
             else:
                 undelivered_state = saved
-        if event is not None:
-            halt_s = min(event.time_s + self._mcu.stop_latency_s, end_s)
+        if event is not None or reset is not None:
+            halt_s = end_s if event is None else min(event.time_s + self._mcu.stop_latency_s, end_s)
             self._truncate_probing_move(len(segments), halt_s)
         if undelivered_state is not None:
             # That chunk was made with the untruncated move: make it again. Conversions closed
@@ -448,7 +485,8 @@ class VirtualPrinter:
         self._advance_to(segments[-1].end_time)
 
     def _truncate_probing_move(self, count: int, halt_s: float) -> None:
-        """Cut the probing move at the halt and add a zero-length marker at the stepper position."""
+        """Cut the last `count` segments (a probing move, or whatever moves when the MCU resets) at the
+        halt and add a zero-length marker at the stepper position."""
         segments = self._motion.segments[-count:]
         kept = [s.truncated(halt_s) for s in segments if s.print_time < halt_s]
         last = kept[-1] if kept else segments[0]
@@ -474,6 +512,16 @@ class VirtualPrinter:
         return self._timing.first_index_after(t_s + self._timing.pipeline_s)
 
     def _advance_to(self, t_s: float) -> None:
+        """Produce the samples up to t_s. An MCU reset due by then stops the steppers where they
+        are, time runs on until the host link is back, and McuResetError is raised."""
+        reset = faultlib.due_reset(self._faults, t_s)
+        if reset is not None:
+            reset.start_s = max(reset.start_s, self._now_s)   # a condition already past: now
+            reset.done = True
+            moving = sum(1 for segment in self._motion.segments if segment.end_time > reset.start_s)
+            if moving:
+                self._truncate_probing_move(moving, reset.start_s)
+            t_s = reset.end_s                                    # the command ends there
         self._now_s = max(self._now_s, t_s)
         k_end = self._last_index_closed_by(self._now_s)
         while self._next_k < k_end:
@@ -482,6 +530,8 @@ class VirtualPrinter:
             self._next_k = k1
         for sensor in self._aux_sensors:
             sensor.advance_to(self._now_s)
+        if reset is not None:
+            raise faultlib.McuResetError(reset.start_s, reset.end_s)
 
     def _fire_condition(self, condition: str, t_s: float) -> None:
         for f in self._faults:
@@ -527,18 +577,12 @@ class VirtualPrinter:
         grid_t = timing.grid_times(k0, k1)
         pos = quantize_to_steps(self._motion.positions_at(grid_t), self.step_distance_mm)
         temps = self._thermal.temps_at(grid_t)
-        bed_z = self._bed.surface_z(pos[:, 0], pos[:, 1])
-        extension_mm = self._thermal.extension_mm(temps)
-        pin_g = 0.0
-        if self._pin is not None:
-            pin_base_mm = float(self._bed.surface_z(self._pin.x_mm, self._pin.y_mm))
-            pin_g = self._pin.side_force_g(pos[:, 0], pos[:, 1], pos[:, 2] - extension_mm, pin_base_mm)
-            bed_z = self._pin.surface_z(pos[:, 0], pos[:, 1], bed_z, pin_base_mm)
-        contact_z = bed_z + extension_mm
-        gap_um = (pos[:, 2] - contact_z) * 1000.0
+        gap_um, pin_g = self._gaps_um(pos, temps)
         growth_um = p.ooze_growth_um_per_s_per_c * np.maximum(temps - p.ooze_temp_c, 0.0) * timing.grid_dt_s
         bed_g, film_g = contact_forces(gap_um, timing.grid_dt_s, growth_um, self._contact_model,
                                        self._state.contact)
+        if n:
+            self._state.peak_contact_g = max(self._state.peak_contact_g, float(np.max(bed_g + film_g)))
         self._place_residue()
         centre = (p.bed_x_mm / 2.0, p.bed_y_mm / 2.0)
         drag_g = (p.bowden_g_per_mm_x * (pos[:, 0] - centre[0]) + p.bowden_g_per_mm_y * (pos[:, 1] - centre[1])
@@ -568,6 +612,23 @@ class VirtualPrinter:
         keep = ~(bad | missing | late)
         return SampleChunk(t_read[keep], counts[keep], force_g[keep], int(np.count_nonzero(bad & ~missing)),
                            int(np.count_nonzero(late & ~missing & ~bad)))
+
+    def _gaps_um(self, pos: np.ndarray, temps) -> tuple[np.ndarray, np.ndarray | float]:
+        """Per (n, 3) position: how far the commanded nozzle tip is above its first touch of the bed
+        or the pin (µm, negative = pressed in), and the pin's side force (g)."""
+        bed_z = self._bed.surface_z(pos[:, 0], pos[:, 1])
+        extension_mm = self._thermal.extension_mm(temps)
+        pin_g = 0.0
+        if self._pin is not None:
+            pin_base_mm = float(self._bed.surface_z(self._pin.x_mm, self._pin.y_mm))
+            pin_g = self._pin.side_force_g(pos[:, 0], pos[:, 1], pos[:, 2] - extension_mm, pin_base_mm)
+            bed_z = self._pin.surface_z(pos[:, 0], pos[:, 1], bed_z, pin_base_mm)
+        return (pos[:, 2] - (bed_z + extension_mm)) * 1000.0, pin_g
+
+    def _gap_um_now(self) -> float:
+        pos = quantize_to_steps(self._motion.positions_at(np.array([self._now_s])), self.step_distance_mm)
+        gap_um, _ = self._gaps_um(pos, self._thermal.temps_at(np.array([self._now_s])))
+        return float(gap_um[0])
 
     def _hand_force(self, t_s: np.ndarray) -> np.ndarray:
         force = np.zeros(t_s.shape)

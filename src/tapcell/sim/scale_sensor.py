@@ -34,8 +34,12 @@ class ScaleSensor:
         return {"chip": p.chip, "sample_rate_sps": p.sample_rate_sps, "gain": p.gain, "counts_bits": 24,
                 "counts_min": -(1 << 23), "counts_max": (1 << 23) - 1}
 
-    def place_weight(self, grams: float) -> None:
-        self._weights.append((self._printer.now_s, self._load_at(self._printer.now_s) + float(grams)))
+    def place_weight(self, grams: float, add: bool = False) -> float:
+        """Like VirtualPrinter.place_weight: replaces the weight (or adds to it); returns the total."""
+        now_s = self._printer.now_s
+        total = float(grams) + (self._load_at(now_s) if add else 0.0)
+        self._weights.append((now_s, total))
+        return total
 
     def remove_weight(self) -> None:
         self._weights.append((self._printer.now_s, 0.0))

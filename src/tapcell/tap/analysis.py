@@ -23,8 +23,10 @@ import numpy as np
 
 from tapcell.tap import validate
 from tapcell.tap.angles import line_angles_deg
+from tapcell.tap.classifiers import get_classifier, run_classifier
 from tapcell.tap.contact import (ContactFit, fit_contact, fit_contact_at, search_contact, window_edges,
                                  window_mean_and_slope)
+from tapcell.tap.context import AnalysisContext, SensorTiming, recompute_points
 from tapcell.tap.hum import MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum, fit_hum, resolvable_hz, spline_knots
 from tapcell.tap.model import (
     TAP_DATA_INSUFFICIENT,
@@ -35,8 +37,10 @@ from tapcell.tap.model import (
     TapData,
 )
 from tapcell.tap.motion import Motion, MotionError, tap_motion
+from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import PrefixSums, best_five_segments, prefix_sums, segment_lines
+from tapcell.tap.toe import ToeFit, fit_toe, lag_from_halt_s
 
 MIN_SAMPLES = 12
 # Extra samples the force may keep changing after the motion stopped/started (ringing, filters).
@@ -57,17 +61,8 @@ MISFIT_REACH_SAMPLES = 10
 MIN_COMPRESSION_SAMPLES = 2
 
 
-@dataclass
-class SensorTiming:
-    delay_s: float
-    integration_s: float
-    estimate_delay: bool
-    sample_period_s: float
-    z_step_um: float  # Z resolution of the steppers (the staircase the model does not see)
-
-
 def sensor_timing(tap: TapData, options: AnalysisOptions, sample_period_s: float) -> SensorTiming:
-    estimate = options.sensor_delay_s == "auto"
+    estimate = options.sensor_delay_s in ("auto", "halt")
     delay = options.sensor_delay_s if isinstance(options.sensor_delay_s, float | int) else None
     if delay is None:
         delay = _meta_seconds(tap, "sensor_delay_s", 0.0)
@@ -109,17 +104,6 @@ def step_staircase_sigma_um(step_um: float, window_um: float) -> float:
     return sawtooth_um * (remainder_um / window_um) * (1.0 - remainder_um / step_um)
 
 
-def median(values: np.ndarray) -> float:
-    """np.median without its call overhead (a partition of a copy; the mean of the middle two for even n)."""
-    half = len(values) // 2
-    ordered = values.copy()  # the method, not np.partition: no Python wrapper in between
-    if len(values) % 2:
-        ordered.partition(half)
-        return float(ordered[half])
-    ordered.partition((half - 1, half))
-    return 0.5 * float(ordered[half - 1] + ordered[half])
-
-
 def noise_sigma_g(force_g: np.ndarray) -> float:
     """White-noise sigma from the median absolute second difference (lines and spikes do not inflate it)."""
     if len(force_g) < 3:
@@ -129,7 +113,7 @@ def noise_sigma_g(force_g: np.ndarray) -> float:
 
 def _noise_sigma_of(abs_off_mid: np.ndarray) -> float:
     # off_mid of white noise has sigma sqrt(1.5) * noise sigma.
-    return 1.4826 * median(abs_off_mid) / math.sqrt(1.5)
+    return robust_sigma(abs_off_mid) / math.sqrt(1.5)
 
 
 def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarray, int]:
@@ -160,20 +144,6 @@ def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarr
 def _indices(time_s: np.ndarray, *t: float) -> list[int]:
     """Index of the first sample at or after each time (the last sample for times past the end)."""
     return np.minimum(time_s.searchsorted(t), len(time_s) - 1).tolist()
-
-
-def _intersect(a: tuple[float, float], b: tuple[float, float], t_ref: float) -> tuple[float, float]:
-    """Intersection of two lines; computed around t_ref so large clock values lose nothing."""
-    slope_diff = a[0] - b[0]
-    if slope_diff == 0:
-        return math.nan, math.nan
-    fa, fb = a[0] * t_ref + a[1], b[0] * t_ref + b[1]
-    dt = (fb - fa) / slope_diff
-    return t_ref + dt, fa + a[0] * dt
-
-
-def _line_at(line: tuple[float, float], t: float) -> float:
-    return line[0] * t + line[1]
 
 
 @dataclass
@@ -211,15 +181,6 @@ def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_sampl
     lines = segment_lines(ps, [0, *bounds, m])
     points = recompute_points(lines, float(t[0]), float(t[-1]))
     return Decomposition(start, stop, bounds, lines, points), ps
-
-
-def recompute_points(lines: list[tuple[float, float]], t_first: float, t_last: float) -> list[tuple[float, float]]:
-    """P0 on the approach line at the window start, P1..P4 the intersections, P5 on the departure."""
-    t_mid = 0.5 * (t_first + t_last)
-    points = [(t_first, _line_at(lines[0], t_first))]
-    points += [_intersect(lines[k], lines[k + 1], t_mid) for k in range(4)]
-    points.append((t_last, _line_at(lines[4], t_last)))
-    return points
 
 
 def _segment_stats(ps: PrefixSums, i: int, j: int) -> tuple[float, float, float]:
@@ -290,8 +251,7 @@ def fit_pullback(window: ModelWindow, motion: Motion, timing: SensorTiming, dela
         return None
     fit, residual = found
     # Robust pass: drop samples the first fit cannot explain (ooze blobs, bursts), fit again.
-    robust_sigma = 1.4826 * median(np.abs(residual))
-    keep = np.abs(residual) <= options.outlier_sigma * max(robust_sigma, fit.residual_sigma_g)
+    keep = np.abs(residual) <= options.outlier_sigma * max(robust_sigma(residual), fit.residual_sigma_g)
     if not keep.all():
         refit = _fit_with_onset(y_fit[keep], x_min[keep], span[keep], fit.contact_um, spacing_um, options)
         if refit:
@@ -368,6 +328,17 @@ def _residual(y, x_min_um, span_um, fit: ContactFit) -> np.ndarray:
     return y - (fit.baseline_g + fit.stiffness_g_um * mean)
 
 
+def fit_pullback_toe(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float,
+                     contact0_um: float) -> ToeFit | None:
+    """The toe model (tapcell.tap.toe) over the samples read after the pullback began."""
+    first = int(window.time_s.searchsorted(motion.pullback_start_s + delay_s + timing.integration_s, side="right"))
+    if not math.isfinite(contact0_um):
+        return None
+    spacing_um = max(motion.pullback_speed_mm_s * 1000.0 * timing.sample_period_s, 0.05)
+    x_lo = window.x_min_um[first:]
+    return fit_toe(x_lo, x_lo + window.span_um[first:], window.force_g[first:], contact0_um, spacing_um)
+
+
 def fit_compression(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float,
                     onset_um: float) -> ContactFit | None:
     """The contact model over the approach up to the halt (onset fixed to the pullback's)."""
@@ -406,8 +377,6 @@ def compression_sample_count(window: ModelWindow, motion: Motion, delay_s: float
 
 def analyze_tap(tap: TapData, options: AnalysisOptions | None = None) -> TapAnalysis:
     """Analyse one tap. Never raises on data: what cannot be analysed is an invalid tap with a code."""
-    from tapcell.tap.classifiers import get_classifier, run_classifier
-
     started = time.perf_counter()
     options = options or AnalysisOptions()
     classifier = get_classifier(options.tap_classifier, options)  # a wrong name is a config error: raise
@@ -416,20 +385,8 @@ def analyze_tap(tap: TapData, options: AnalysisOptions | None = None) -> TapAnal
         result = run_classifier(result, context, classifier, options.tap_classifier)
     except TapInvalid as invalid:
         result = TapAnalysis(valid=False, error=invalid.code, message=invalid.message)
-    except (ValueError, TypeError, IndexError, ArithmeticError, MotionError) as failure:
-        # Data shapes no check anticipated: still an answer, never a traceback.
-        result = TapAnalysis(valid=False, error=TAP_DATA_INSUFFICIENT, message=f"cannot analyse the tap: {failure}")
     result.elapsed_ms = (time.perf_counter() - started) * 1000.0
     return result
-
-
-@dataclass
-class AnalysisContext:
-    """What a classifier may need beyond the result: the tap, its motion and sensor timing."""
-
-    tap: TapData
-    motion: Motion | None
-    timing: SensorTiming | None
 
 
 def _check_samples(tap: TapData) -> tuple[np.ndarray, np.ndarray]:
@@ -479,6 +436,10 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         hum=hum.to_json() if hum else None,
     )
     context = AnalysisContext(tap, motion, timing)
+    halt_lag_s = lag_from_halt_s(dec.points[2][0], motion.home_end_s, period_s)
+    if options.sensor_delay_s == "halt":
+        timing.delay_s = max(halt_lag_s - 0.5 * timing.integration_s, 0.0) if halt_lag_s is not None else 0.0
+        timing.estimate_delay = False
     delay_s = 0.0 if timing.estimate_delay else timing.delay_s
     t_break = dec.points[4][0]
     result.compression_force_g = abs(dec.points[2][1] - dec.points[1][1])
@@ -503,7 +464,9 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         result.valid, result.error, result.message = False, invalid.code, invalid.message
         result.z_line_mm = z_line
         return result, context
-    if pullback and compression:
+    if options.sensor_delay_s == "halt":
+        result.sensor_delay_estimate_s = delay_s
+    elif pullback and compression:
         speeds_um_s = (motion.approach_speed_mm_s + motion.pullback_speed_mm_s) * 1000.0
         result.sensor_delay_estimate_s = delay_s + (pullback.contact_um - compression.contact_um) / speeds_um_s
     if timing.estimate_delay:
@@ -532,6 +495,15 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         result.z_sigma_um = break_time_sigma_s(ps, dec, t_break) * motion.pullback_speed_mm_s * 1000.0
         result.z_method = "lines"
         result.stiffness_decompression_g_um = abs(dec.lines[3][0]) / (motion.pullback_speed_mm_s * 1000.0)
+    if options.contact_model == "toe":
+        start = pullback.contact_um if pullback else window.break_line_um
+        toe = fit_pullback_toe(window, motion, timing, delay_s, start)
+        if toe:
+            result.z_mm = motion.z_halt_mm + toe.contact_um / 1000.0
+            result.z_sigma_um = toe.sigma_um
+            result.z_method = "toe"
+            result.contact_onset_um = toe.width_um
+            result.stiffness_decompression_g_um = toe.stiffness_g_um
     result.compression_samples = compression_sample_count(window, motion, delay_s, onset_um,
                                                           pullback.contact_um if pullback else window.break_line_um)
     if result.compression_samples >= MIN_COMPRESSION_SAMPLES:

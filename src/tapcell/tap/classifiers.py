@@ -14,20 +14,17 @@ import math
 from dataclasses import dataclass, field
 from functools import lru_cache
 from importlib.metadata import entry_points
-from typing import TYPE_CHECKING, Any, Callable, Protocol
+from typing import Any, Callable, Protocol
 
 from tapcell.tap.angles import line_angles_deg, slope_angle_deg
+from tapcell.tap.context import AnalysisContext, recompute_points
 from tapcell.tap.model import (
-    CLASSIFIER_FAILED,
     LOW_COMPRESSION_FORCE,
     LOW_TAP_QUALITY,
     AnalysisOptions,
     TapAnalysis,
 )
 from tapcell.tap.validate import TapInvalid, check_break_contact, check_points
-
-if TYPE_CHECKING:
-    from tapcell.tap.analysis import AnalysisContext
 
 ENTRY_POINT_GROUP = "tapcell.tap_classifiers"
 # A clean tap's residual scatters around the noise sigma by ~±15 % (both are estimates):
@@ -208,10 +205,6 @@ def run_classifier(result: TapAnalysis, context: AnalysisContext, classifier: Ta
         result.quality_components = dict(rejected.components)
         result.valid, result.error, result.message = False, rejected.code, rejected.message
         return result
-    except Exception as failure:  # a plugin's bug must not take the probe down
-        result.valid, result.error = False, CLASSIFIER_FAILED
-        result.message = f"classifier '{name}' failed: {type(failure).__name__}: {failure}"
-        return result
     if verdict is None:
         return result
     result.quality = verdict.quality
@@ -223,8 +216,6 @@ def run_classifier(result: TapAnalysis, context: AnalysisContext, classifier: Ta
 
 def _apply_lines(result: TapAnalysis, context: AnalysisContext, lines: list[tuple[float, float]]) -> None:
     """Replace the five lines: recompute points, angles and Z, and validate again."""
-    from tapcell.tap.analysis import recompute_points
-
     result.lines = [(float(s), float(i)) for s, i in lines]
     result.points = recompute_points(result.lines, result.points[0][0], result.points[5][0])
     result.angles_deg = line_angles_deg(result.lines)

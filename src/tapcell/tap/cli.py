@@ -26,7 +26,8 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
-def _options(settings: list[str]) -> AnalysisOptions:
+def options_from_settings(settings: list[str]) -> AnalysisOptions:
+    """AnalysisOptions from `--set KEY=VALUE` items; ValueError names what is wrong."""
     overrides = {}
     for item in settings:
         key, sep, value = item.partition("=")
@@ -45,7 +46,7 @@ def _fmt(value: float | None, spec: str) -> str:
 def main(argv: list[str]) -> int:
     args = _parser().parse_args(argv)
     try:
-        options = _options(args.set)
+        options = options_from_settings(args.set)
     except (ValueError, UnknownClassifierError) as problem:
         print(f"tapcell analyze: {problem}", file=sys.stderr)
         return 2

@@ -32,7 +32,8 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import signal
+
+from tapcell.tap.robust import robust_sigma
 
 MAINS_LINES_HZ = (50.0, 60.0)
 # A line is resolvable when its alias lies this many cycles per tap away from 0 Hz and Nyquist.
@@ -160,8 +161,7 @@ def fit_hum(time_s: np.ndarray, force_g: np.ndarray, frequencies_hz, knots_s: np
         return None
     coefficients, rss = _solve(design, force_g, use)
     residual = force_g - design @ coefficients
-    robust_sigma = 1.4826 * float(np.median(np.abs(residual[use])))
-    inliers = use & (np.abs(residual) <= OUTLIER_SIGMAS * max(robust_sigma, 1e-12))
+    inliers = use & (np.abs(residual) <= OUTLIER_SIGMAS * max(robust_sigma(residual[use]), 1e-12))
     if np.count_nonzero(inliers) < np.count_nonzero(use) and np.count_nonzero(inliers) >= parameters + 4:
         use = inliers
         coefficients, rss = _solve(design, force_g, use)
@@ -201,6 +201,8 @@ def notch_zero_phase(force_g: np.ndarray, sample_rate_sps: float, frequencies_hz
     No delay, but each notch rings for about quality/frequency seconds around every corner of
     the tap; `bench tap_accuracy` compares the two. Frequencies at or above Nyquist are folded.
     """
+    from scipy import signal  # only this comparison needs scipy: the analysis imports with numpy alone
+
     filtered = np.asarray(force_g, dtype=float)
     for frequency in frequencies_hz:
         seen = alias_hz(frequency, sample_rate_sps)

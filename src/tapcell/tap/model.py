@@ -29,7 +29,6 @@ LOW_TAP_QUALITY = "LOW_TAP_QUALITY"
 # Codes of our own (documented in docs/tap-analysis.md).
 TAP_DATA_INSUFFICIENT = "TAP_DATA_INSUFFICIENT"  # a phase window holds too few samples to fit
 TAP_MOTION_INVALID = "TAP_MOTION_INVALID"  # the motion has no approach/halt/pullback to analyse
-CLASSIFIER_FAILED = "CLASSIFIER_FAILED"  # a plugin classifier raised something other than TapRejected
 TAP_CONTACT_MISMATCH = "TAP_CONTACT_MISMATCH"  # contact on the way down above break contact on the way up
 
 
@@ -91,12 +90,54 @@ def _parse_bool(text: str) -> bool:
     raise ValueError("expected true or false")
 
 
+@dataclass(frozen=True)
+class Range:
+    """The values a numeric analysis option allows."""
+
+    low: float
+    high: float
+    exclusive: bool = False  # the ends themselves are not allowed
+
+    def __contains__(self, value: float) -> bool:
+        if self.exclusive:
+            return self.low < value < self.high
+        return self.low <= value <= self.high
+
+    def describe(self) -> str:
+        return f"between {self.low:g} and {self.high:g}" + (" (exclusive)" if self.exclusive else "")
+
+
+# The one table of tap-analysis ranges; the defaults are AnalysisOptions' own. `tapcell analyze
+# --set` checks against it, and `[load_cell_probe]` takes its classifier options from both.
+ANALYSIS_RANGES: dict[str, Range] = {
+    "sensor_delay_s": Range(0.0, 1.0),
+    "sensor_integration_s": Range(0.0, 1.0),
+    "contact_onset_um": Range(0.0, 100.0),
+    "z_step_um": Range(0.0, 100.0),
+    "trigger_force_g": Range(0.0, 100000.0),
+    "pullback_distance_mm": Range(0.001, 10.0),
+    "pullback_speed_mm_s": Range(0.001, 100.0),
+    "min_tap_quality": Range(0.0, 100.0),
+    "decompression_angle": Range(0.0, 90.0, exclusive=True),
+    "max_approach_force": Range(0.0, 100.0),
+    "max_departure_force": Range(0.0, 100.0),
+    "max_baseline_force_delta": Range(0.0, 100.0),
+    "max_dwell_force_drop": Range(0.0, 100.0),
+    "max_stiffness_mismatch": Range(0.0, 100.0),
+    "max_model_misfit": Range(0.0, 100.0),
+    "outlier_sigma": Range(2.0, 1000.0),
+}
+
+
 @dataclass
 class AnalysisOptions:
     """Everything the analysis can be told. None means: from the tap file, else the default.
 
     sensor_delay_s: pipeline delay of the sensor beyond its conversion window (s); None: tap
-        meta `sensor_delay_s`, else 0. "auto": estimated from the tap (contact vs break contact).
+        meta `sensor_delay_s`, else 0. "auto": estimated from the tap (contact vs break contact);
+        "halt": from the halt (P2's time minus the motion's halt is the whole lag, tapcell.tap.toe).
+    contact_model: "sharp" (hinge, with `contact_onset_um` when calibrated) or "toe" (the contact's
+        toe width and shape fitted per tap with a departure slope, tapcell.tap.toe).
     sensor_integration_s: conversion (averaging) window of one sample (s); None: tap meta
         `sensor_integration_s`, else one sample period (a continuously converting ADC).
     z_step_um: Z distance of one (micro)step; None: tap meta `z_step_um`, else 2.5 µm. The
@@ -127,6 +168,7 @@ class AnalysisOptions:
     fit_contact_onset: bool = False
     outlier_sigma: float = 8.0
     mains_hz: tuple[float, ...] | str | None = None
+    contact_model: str = "sharp"
 
     # Options that may be reset to None ("from the tap file / default") with `--set key=none`.
     _OPTIONAL = frozenset(
@@ -134,25 +176,6 @@ class AnalysisOptions:
          "z_step_um",
          "pullback_speed_mm_s", "decompression_angle", "mains_hz")
     )
-    _RANGES = {
-        "sensor_delay_s": (0.0, 1.0),
-        "sensor_integration_s": (0.0, 1.0),
-        "contact_onset_um": (0.0, 100.0),
-        "z_step_um": (0.0, 100.0),
-        "trigger_force_g": (0.0, 100000.0),
-        "pullback_distance_mm": (0.001, 10.0),
-        "pullback_speed_mm_s": (0.001, 100.0),
-        "min_tap_quality": (0.0, 100.0),
-        "decompression_angle": (0.0, 90.0),
-        "max_approach_force": (0.0, 100.0),
-        "max_departure_force": (0.0, 100.0),
-        "max_baseline_force_delta": (0.0, 100.0),
-        "max_dwell_force_drop": (0.0, 100.0),
-        "max_stiffness_mismatch": (0.0, 100.0),
-        "max_model_misfit": (0.0, 100.0),
-        "outlier_sigma": (2.0, 1000.0),
-    }
-
     def with_overrides(self, overrides: dict[str, str]) -> AnalysisOptions:
         """A copy with `--set key=value` strings parsed; ValueError names key, value and what is allowed."""
         fields = {f.name: f for f in dataclasses.fields(self) if not f.name.startswith("_")}
@@ -164,6 +187,10 @@ class AnalysisOptions:
         return dataclasses.replace(self, **changes)
 
     def _parse_value(self, key: str, text: str) -> Any:
+        if key == "contact_model":
+            if text.strip() not in CONTACT_MODELS:
+                raise ValueError(f"option 'contact_model' = '{text}': one of {', '.join(CONTACT_MODELS)}")
+            return text.strip()
         if key == "tap_classifier":
             if not text.strip():
                 raise ValueError("option 'tap_classifier' needs a classifier name")
@@ -177,23 +204,22 @@ class AnalysisOptions:
             return None
         if key == "mains_hz":
             return _parse_mains_hz(text)
-        if key == "sensor_delay_s" and text.strip().lower() == "auto":
-            return "auto"
+        if key == "sensor_delay_s" and text.strip().lower() in ("auto", "halt"):
+            return text.strip().lower()
         try:
             value = float(text)
         except ValueError:
             raise ValueError(f"option '{key}' = '{text}': expected a number") from None
         if not math.isfinite(value):
             raise ValueError(f"option '{key}' = '{text}': expected a finite number")
-        low, high = self._RANGES.get(key, (0.0, 10.0))
-        exclusive = key == "decompression_angle"
-        if (exclusive and not low < value < high) or (not exclusive and not low <= value <= high):
-            bounds = f"between {low:g} and {high:g}" + (" (exclusive)" if exclusive else "")
-            raise ValueError(f"option '{key}' = '{text}': must be {bounds}")
+        allowed = ANALYSIS_RANGES[key]
+        if value not in allowed:
+            raise ValueError(f"option '{key}' = '{text}': must be {allowed.describe()}")
         return value
 
 
 MAINS_HZ_RANGE = (1.0, 10000.0)
+CONTACT_MODELS = ("sharp", "toe")
 
 
 def _parse_mains_hz(text: str) -> tuple[float, ...] | str:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +18,8 @@ from tapcell.tap.model import Move, TapAnalysis, TapData, TapFileError
 
 FORMAT = "tapcell.tap.v1"
 MOVE_KEYS = ("print_time", "move_t", "start_v", "accel", "start_z", "z_r")
+# JSON integers beyond this are beyond a float too (they read as infinity).
+LARGEST_FLOAT_INT = int(sys.float_info.max)
 
 
 def read_tap_file(path: str | Path) -> list[TapData]:
@@ -49,15 +52,24 @@ def _load_json(path: str, text: str, where: str) -> Any:
         raise TapFileError(path, f"{where}not valid JSON ({problem.msg} at line {problem.lineno} column {problem.colno})") from None
 
 
+def _as_float(value: Any) -> float | None:
+    """A decoded JSON number as a float (an integer beyond the float range: infinity), else None."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    if isinstance(value, int) and abs(value) > LARGEST_FLOAT_INT:
+        return math.inf if value > 0 else -math.inf
+    return float(value)
+
+
 def _numbers(path: str, where: str, name: str, values: Any) -> np.ndarray:
     if not isinstance(values, list):
         raise TapFileError(path, f"{where}'{name}' must be a list of numbers")
-    try:
-        array = np.array(values, dtype=float)
-    except (TypeError, ValueError):
-        raise TapFileError(path, f"{where}'{name}' must be a list of numbers") from None
-    if array.ndim != 1:
+    if any(isinstance(value, list) for value in values):
         raise TapFileError(path, f"{where}'{name}' must be a flat list of numbers")
+    floats = [_as_float(value) for value in values]
+    if any(value is None for value in floats):
+        raise TapFileError(path, f"{where}'{name}' must be a list of numbers")
+    array = np.array(floats, dtype=float)
     bad = np.flatnonzero(~np.isfinite(array))
     if len(bad):
         raise TapFileError(path, f"{where}'{name}' holds NaN or infinity (index {int(bad[0])})")
@@ -65,9 +77,10 @@ def _numbers(path: str, where: str, name: str, values: Any) -> np.ndarray:
 
 
 def _number(path: str, where: str, name: str, value: Any) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value):
+    number = _as_float(value)
+    if number is None or not math.isfinite(number):
         raise TapFileError(path, f"{where}'{name}' must be a finite number, got {value!r}")
-    return float(value)
+    return number
 
 
 def _moves(path: str, where: str, values: Any) -> list[Move]:
@@ -167,10 +180,10 @@ def _tap_from_csv(path: str, text: str) -> TapData:
         if not any(cell.strip() for cell in row):
             continue
         for name, index in columns.items():
+            cell = row[index] if index < len(row) else "<missing>"
             try:
-                values[name].append(float(row[index]))
-            except (IndexError, ValueError):
-                cell = row[index] if index < len(row) else "<missing>"
+                values[name].append(float(cell))
+            except ValueError:
                 raise TapFileError(path, f"CSV line {number}: column '{name}' is not a number ({cell!r})") from None
     return tap_from_object({"time": values["time"], "force": values["force"], "z": values["z"]}, path, "")
 

@@ -12,17 +12,21 @@ import sys
 
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "analyze": ("tapcell.tap.cli", "analyse tap files: Z at break contact, validation, quality"),
+    "benchmark": ("tapcell.taplab.benchmark", "score tap analyzers (ours, Kalico's, any) on independent labelled taps"),
     "scenarios": ("tapcell.sim.cli", "list the virtual printer's scenarios and their parameters"),
     "console": ("tapcell.tools.frontend", "interactive G-code console on the virtual printer"),
     "run": ("tapcell.tools.frontend", "run a G-code script on the virtual printer"),
     "demo": ("tapcell.tools.demo", "the main job on the virtual printer, explained"),
+    "serve": ("tapcell.host.api_server", "the virtual printer behind Klipper's API (for Moonraker)"),
+    "monitor": ("tapcell.tools.monitor", "analyse a real printer's taps live, through Moonraker"),
+    "kalico-plugin": ("tapcell.tools.kalico_plugin", "install tapcell as Kalico's tap classifier"),
 }
 
 
 def _usage() -> str:
     lines = ["usage: tapcell COMMAND [ARGS...]", "", "commands:"]
     for name, (_, summary) in SUBCOMMANDS.items():
-        lines.append(f"  {name:<10} {summary}")
+        lines.append(f"  {name:<14} {summary}")
     lines.append("")
     lines.append("Run 'tapcell COMMAND --help' for a command's options.")
     return "\n".join(lines)

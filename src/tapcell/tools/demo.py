@@ -171,8 +171,12 @@ class DemoRunner:
         if self._progress is not None and PER_TAP_LINE.match(line):
             self.hidden_lines += 1
             return
-        style = "red" if line.startswith("!!") else "green"
-        self.console.print(f"    {line}", style=style, markup=False, highlight=False)
+        self.print_exact(f"    {line}", "red" if line.startswith("!!") else "green")
+
+    def print_exact(self, text: str, style: str | None = None) -> None:
+        """Print as is: never wrapped (a response cut at 80 columns loses its `// ` prefix and breaks
+        numbers; the terminal may still fold a long line, a file or pipe keeps it whole)."""
+        self.console.print(text, style=style, markup=False, highlight=False, soft_wrap=True)
 
     def can_probe_a_mesh(self) -> bool:
         return self.printer.lookup_object("bed_mesh", None) is not None and \
@@ -182,7 +186,7 @@ class DemoRunner:
         self.console.rule(f"[bold]Step {number}: {step.title}")
         self.console.print(step.explanation, style="dim", markup=False, highlight=False)
         for line in step.gcode:
-            self.console.print(f"> {line}", style="bold cyan", markup=False, highlight=False)
+            self.print_exact(f"> {line}", "bold cyan")
             if step.progress:
                 self._run_with_progress(line)
             else:
@@ -200,10 +204,8 @@ class DemoRunner:
         taps = self.out_dir / "last-taps.jsonl"
         count = device.write_last_taps(taps)
         for name, (t_s, force_g) in zip(("P0", "P1", "P2", "P3", "P4", "P5"), last.analysis.points):
-            self.console.print(f"    {name}  t = {t_s - last.tap.time_s[0]:6.3f} s  force = {force_g:7.1f} g",
-                               markup=False, highlight=False)
-        self.console.print(f"Tap plot: {png}; the last {count} taps: {taps} (tapcell analyze {taps})",
-                           markup=False, highlight=False)
+            self.print_exact(f"    {name}  t = {t_s - last.tap.time_s[0]:6.3f} s  force = {force_g:7.1f} g")
+        self.print_exact(f"Tap plot: {png}; the last {count} taps: {taps} (tapcell analyze {taps})")
 
     def _run_with_progress(self, line: str) -> None:
         columns = (TextColumn("    probing"), BarColumn(), MofNCompleteColumn(), TextColumn("points"),
@@ -239,12 +241,11 @@ class DemoRunner:
             "The virtual printer knows its bed exactly (a real printer does not). The probed points "
             "show how well each tap measured; between them, what the interpolation misses.",
             style="dim", markup=False)
-        self.console.print(render_mesh_error(mesh_error(mesh, true_bed_mm)), markup=False, highlight=False)
+        self.print_exact(render_mesh_error(mesh_error(mesh, true_bed_mm)))
         out_dir.mkdir(parents=True, exist_ok=True)
         mesh_png = write_mesh_png(out_dir / "bed-mesh.png", mesh)
         error_png = write_mesh_png(out_dir / "bed-mesh-error.png", mesh, true_bed_mm)
-        self.console.print(f"Heat maps: {mesh_png} (the mesh) and {error_png} (mesh and mesh - true bed)",
-                           markup=False, highlight=False)
+        self.print_exact(f"Heat maps: {mesh_png} (the mesh) and {error_png} (mesh and mesh - true bed)")
 
 
 def main(argv: list[str] | None = None) -> int:

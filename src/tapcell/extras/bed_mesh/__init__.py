@@ -39,6 +39,7 @@ from tapcell.mesh.interpolate import ALGORITHMS, Interpolation, resolve_interpol
 from tapcell.mesh.profiles import mesh_from_profile_options, profile_options, profile_section_name
 from tapcell.mesh.report import render_mesh
 from tapcell.mesh.split import SplitSettings, split_move
+from tapcell.mesh.travel import travel_height_mm
 from tapcell.mesh.zmesh import (
     Fade,
     ZMesh,
@@ -207,7 +208,7 @@ def probe_points_by_tapping(printer, options: BedMeshOptions, gcmd: GCodeCommand
     """The `tap` method: one probe session (with the command's overrides) over every point.
 
     Between points the nozzle lifts to `horizontal_move_z`, or with `horizontal_z_clearance`
-    only that much above the last contact (the bed's shape is followed, less Z travel).
+    only that much above the bed on the way to the next point (`mesh_travel_height_mm`).
     """
     probe = printer.lookup_object("probe", None)
     if probe is None:
@@ -216,22 +217,39 @@ def probe_points_by_tapping(printer, options: BedMeshOptions, gcmd: GCodeCommand
     x_offset, y_offset = probe.options.x_offset_mm, probe.options.y_offset_mm
     z_values = []
     attempts = []
+    contacts_xyz: list[tuple[float, float, float]] = []  # where the nozzle touched (toolhead Z)
     with probe.session(gcmd) as session:
-        travel_z = options.horizontal_move_z_mm
+        lift_speed = session.options.effective_lift_speed_mm_s
         for index, (x_mm, y_mm) in enumerate(points_xy_mm):
+            travel_z = mesh_travel_height_mm(options, contacts_xyz, (float(x_mm), float(y_mm)))
             if toolhead.get_position()[2] < travel_z:
-                toolhead.move_to(z=travel_z, speed_mm_s=session.options.effective_lift_speed_mm_s)
+                toolhead.move_to(z=travel_z, speed_mm_s=lift_speed)
             toolhead.move_to(x=float(x_mm) - x_offset, y=float(y_mm) - y_offset, speed_mm_s=options.speed_mm_s)
             result = session.probe_point(float(x_mm), float(y_mm))
             z_values.append(result.z_mm)
             attempts.append(result.attempts)
-            if options.horizontal_z_clearance_mm is not None:
-                travel_z = result.z_mm + session.options.z_offset_mm + options.horizontal_z_clearance_mm
+            contacts_xyz.append((result.tapped_x_mm, result.tapped_y_mm, result.z_mm + session.options.z_offset_mm))
             progress(index + 1, len(points_xy_mm))
-        toolhead.move_to(z=max(toolhead.get_position()[2], travel_z), speed_mm_s=session.options.effective_lift_speed_mm_s)
+        toolhead.move_to(z=max(toolhead.get_position()[2], mesh_travel_height_mm(options, contacts_xyz, None)),
+                         speed_mm_s=lift_speed)
     extra = sum(attempts) - len(attempts)
     report = f"{len(attempts)} points, {sum(attempts)} taps" + (f" ({extra} retried)" if extra else "")
     return MeshProbeRun(z_values, report, {"method": "tap", "taps": int(sum(attempts))})
+
+
+def mesh_travel_height_mm(options: BedMeshOptions, contacts_xyz: Sequence[tuple[float, float, float]],
+                          next_xy_mm: tuple[float, float] | None) -> float:
+    """Toolhead Z to travel at toward the next point (None: the lift after the last point).
+
+    `horizontal_move_z`, or with `horizontal_z_clearance` that much above the bed on the way,
+    the next point's height predicted from the contacts so far (`tapcell.mesh.travel`).
+    """
+    clearance = options.horizontal_z_clearance_mm
+    if clearance is None or not contacts_xyz:
+        return options.horizontal_move_z_mm
+    if next_xy_mm is None:
+        return contacts_xyz[-1][2] + clearance
+    return travel_height_mm(np.array(contacts_xyz), next_xy_mm, clearance, options.horizontal_move_z_mm)
 
 
 def _method_function(method: str):

@@ -186,6 +186,8 @@ class RecordedTap:
     analysis: Any
     z_mm: float
     valid: bool
+    # toolhead position = virtual printer position + this (the tap's samples and moves are the printer's)
+    frame_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 class LoadCellProbe:
@@ -215,6 +217,7 @@ class LoadCellProbe:
         self.load_cell.add_client(self._on_samples)
         # Samples from this time on were taken with the nozzle clear of the bed (None: only new ones).
         self._tare_from_s: float | None = -np.inf
+        self._tap_clients: list = []  # called with every RecordedTap (the API's dump_taps)
         self.last_trigger_time_s: float | None = None
         self.tare_counts_at_tap: float | None = None
 
@@ -472,11 +475,19 @@ class LoadCellProbe:
                   "mains_hz": mains_meta(settings.analysis.mains_hz)},
         )
 
+    def add_tap_client(self, callback) -> None:
+        """Call `callback(recorded_tap)` after every tap, valid or not."""
+        self._tap_clients.append(callback)
+
     def _record(self, tap: TapData, analysis, z_mm: float, valid: bool) -> None:
-        self.last_taps.append(RecordedTap(tap, analysis, z_mm, valid))
+        offsets = self.motion.frame_offset_mm
+        recorded = RecordedTap(tap, analysis, z_mm, valid, (offsets["x"], offsets["y"], offsets["z"]))
+        self.last_taps.append(recorded)
         if self.tap_log_path:
             with open(self.tap_log_path, "a", encoding="utf-8") as log:
                 log.write(json.dumps(tap_to_json_dict(tap, analysis)) + "\n")
+        for callback in self._tap_clients:
+            callback(recorded)
 
     # -- status -------------------------------------------------------------------------------
     def get_status(self, eventtime=None) -> dict:

@@ -15,6 +15,8 @@ import numpy as np
 from tapcell.mcu.trigger import TriggerError
 from tapcell.extras.probe.options import OptionSpec
 from tapcell.tap.angles import slope_angle_deg
+from tapcell.tap.model import ANALYSIS_RANGES, AnalysisOptions
+from tapcell.tap.robust import robust_sigma
 
 # Every load-cell probing error starts with this (the spec's wording).
 ERROR_PREFIX = "Load Cell Probe Error: "
@@ -37,6 +39,10 @@ def trigger_error_message(error: TriggerError, force_safety_limit_g: float) -> s
     return ERROR_PREFIX + f"trigger error {error.name}"
 
 
+# Defaults of the tap-analysis (classifier) options: the analysis's own.
+ANALYSIS_DEFAULTS = AnalysisOptions()
+
+
 @dataclass(frozen=True)
 class TapOptions:
     """The load-cell-specific probing options (None = disabled / computed default)."""
@@ -53,14 +59,25 @@ class TapOptions:
     notch_filter_quality: float = 2.0
     pullback_distance_mm: float = 0.2
     pullback_speed_mm_s: float | None = None
-    tap_classifier: str = "tap_quality"
-    min_tap_quality: float = 40.0
-    decompression_angle: float | None = None
-    max_approach_force: float = 50.0
-    max_departure_force: float = 25.0
-    max_baseline_force_delta: float = 25.0
-    max_dwell_force_drop: float = 75.0
+    tap_classifier: str = ANALYSIS_DEFAULTS.tap_classifier
+    min_tap_quality: float = ANALYSIS_DEFAULTS.min_tap_quality
+    decompression_angle: float | None = ANALYSIS_DEFAULTS.decompression_angle
+    max_approach_force: float = ANALYSIS_DEFAULTS.max_approach_force
+    max_departure_force: float = ANALYSIS_DEFAULTS.max_departure_force
+    max_baseline_force_delta: float = ANALYSIS_DEFAULTS.max_baseline_force_delta
+    max_dwell_force_drop: float = ANALYSIS_DEFAULTS.max_dwell_force_drop
     contact_onset_um: float = 0.0  # 0: a sharp contact; LOAD_CELL_PROBE_CALIBRATE CALIBRATION=CONTACT_ONSET fits it
+
+
+def analysis_option_spec(name: str, default=None) -> OptionSpec:
+    """An option of the tap analysis: its range (and unless given, its default) from the analysis's table."""
+    default = getattr(ANALYSIS_DEFAULTS, name) if default is None else default
+    if name not in ANALYSIS_RANGES:
+        return OptionSpec(name, name, "str", default)
+    allowed = ANALYSIS_RANGES[name]
+    limits = ({"above": allowed.low, "below": allowed.high} if allowed.exclusive
+              else {"minval": allowed.low, "maxval": allowed.high})
+    return OptionSpec(name, name, "optfloat" if default is None else "float", default, **limits)
 
 
 PULLBACK_LIMITS_MM = (0.01, 2.0)  # pullback_distance's range (also the calibration's PULLBACK_DISTANCE)
@@ -80,14 +97,14 @@ TAP_OPTION_SPECS: tuple[OptionSpec, ...] = (
     OptionSpec("pullback_distance", "pullback_distance_mm", "float", 0.2,
                minval=PULLBACK_LIMITS_MM[0], maxval=PULLBACK_LIMITS_MM[1]),
     OptionSpec("pullback_speed", "pullback_speed_mm_s", "float", None, minval=0.01, maxval=2.0),
-    OptionSpec("tap_classifier", "tap_classifier", "str", "tap_quality"),
-    OptionSpec("min_tap_quality", "min_tap_quality", "float", 40.0, minval=0.0, maxval=100.0),
-    OptionSpec("decompression_angle", "decompression_angle", "optfloat", None, above=0.0, below=90.0),
-    OptionSpec("max_approach_force", "max_approach_force", "float", 50.0, minval=0.0, maxval=100.0),
-    OptionSpec("max_departure_force", "max_departure_force", "float", 25.0, minval=0.0, maxval=100.0),
-    OptionSpec("max_baseline_force_delta", "max_baseline_force_delta", "float", 25.0, minval=0.0, maxval=100.0),
-    OptionSpec("max_dwell_force_drop", "max_dwell_force_drop", "float", 75.0, minval=0.0, maxval=100.0),
-    OptionSpec("contact_onset_um", "contact_onset_um", "float", 0.0, minval=0.0, maxval=100.0),
+    analysis_option_spec("tap_classifier"),
+    analysis_option_spec("min_tap_quality"),
+    analysis_option_spec("decompression_angle"),
+    analysis_option_spec("max_approach_force"),
+    analysis_option_spec("max_departure_force"),
+    analysis_option_spec("max_baseline_force_delta"),
+    analysis_option_spec("max_dwell_force_drop"),
+    analysis_option_spec("contact_onset_um", default=0.0),
 )
 
 
@@ -140,7 +157,7 @@ def robust_tare_counts(counts: np.ndarray) -> float:
     """
     counts = np.asarray(counts, dtype=float)
     median = float(np.median(counts))
-    sigma = max(1.4826 * float(np.median(np.abs(counts - median))), 1.0)
+    sigma = max(robust_sigma(counts - median), 1.0)
     kept = counts[np.abs(counts - median) <= TARE_OUTLIER_SIGMAS * sigma]
     return float(np.mean(kept))
 

@@ -335,7 +335,7 @@ class Probe:
             "name": self.name,
             "last_query": self.last_query,
             "last_z_result": self.last_z_result,
-            "last_probe_position": None if last is None else [last.x_mm, last.y_mm, last.z_mm],
+            "last_probe_position": [0.0, 0.0, 0.0] if last is None else [last.x_mm, last.y_mm, last.z_mm],
             "last_probe_valid": None if last is None else last.valid,
             "last_attempts": None if last is None else last.attempts,
         }

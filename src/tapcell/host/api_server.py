@@ -1,0 +1,689 @@
+"""`tapcell serve`: the virtual printer behind Klipper's API on a Unix socket (for Moonraker).
+
+The wire protocol is Klipper's: every message is one JSON object followed by the byte 0x03.
+A request is `{"id": ..., "method": "...", "params": {...}}`; its reply carries the same id
+(echoed as received: Moonraker reuses ids) and either `result` or
+`error: {"error": "WebRequestError", "message": ...}`. Pushes (subscriptions, G-code output,
+streams) are the request's `response_template` with `params` added.
+
+Two threads:
+
+* the printer thread owns the printer. G-code scripts run there one at a time, and while no
+  script runs it advances the virtual printer's clock with the wall clock, so the load cell
+  streams and temperatures live. After every script and tick it takes a snapshot of all
+  status objects;
+* the asyncio loop serves the connections. Queries and subscriptions read the latest
+  snapshot, so they are answered at once, also while a long script (a bed mesh) runs.
+
+RESTART and FIRMWARE_RESTART close every connection (Moonraker then reconnects and repeats
+its handshake), as Klipper does. Bad input (malformed JSON, an unknown method, a message over
+MAX_MESSAGE_BYTES, a client that stops reading) gets an error reply or loses its own
+connection; the others are served on.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import concurrent.futures
+import json
+import math
+import os
+import platform
+import queue
+import signal
+import socket
+import sys
+import threading
+import time
+import traceback
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from tapcell import __version__
+from tapcell.host.config import ConfigError
+from tapcell.host.gcode import GCodeError, parse_line
+from tapcell.host import load_cell_streams
+from tapcell.host.webhooks import ApiObjects
+
+MAX_MESSAGE_BYTES = 8 * 1024 * 1024  # a request longer than this closes its connection
+MAX_UNSENT_BYTES = 64 * 1024 * 1024  # a client that stops reading is dropped past this
+IDLE_TICK_S = 0.1  # the printer thread's clock step while no script runs
+MAX_TICK_S = 0.5  # at most this much virtual time per tick (after a stall)
+SNAPSHOT_DURING_SCRIPT_S = 0.25  # a running script refreshes the status at most this often
+SUBSCRIPTION_PERIOD_S = 0.25  # Klipper's status push period
+STREAM_PERIOD_S = 0.1  # dump_force pushes (Klipper batches about this often)
+# G-code that works while the printer is shut down or its config is broken.
+WHEN_NOT_READY = ("RESTART", "FIRMWARE_RESTART", "HELP", "STATUS")
+RESTART_COMMANDS = {"gcode/restart": "RESTART", "gcode/firmware_restart": "FIRMWARE_RESTART"}
+PAUSE_RESUME_COMMANDS = {"pause_resume/pause": "PAUSE", "pause_resume/resume": "RESUME",
+                         "pause_resume/cancel": "CANCEL_PRINT"}
+
+
+class RequestError(Exception):
+    """A request that cannot be served; the message goes back in the error reply."""
+
+
+def strict_json(message: dict) -> bytes:
+    """The message as strict JSON plus the 0x03 terminator (NaN and infinity become null)."""
+    try:
+        text = json.dumps(message, allow_nan=False, separators=(",", ":"), default=_numpy_value)
+    except ValueError:
+        text = json.dumps(_finite(message), allow_nan=False, separators=(",", ":"), default=_numpy_value)
+    return text.encode("utf-8") + b"\x03"
+
+
+def _numpy_value(value: Any) -> Any:
+    if isinstance(value, np.generic | np.ndarray):
+        return value.tolist()
+    raise TypeError(f"{type(value).__name__} is not JSON data")
+
+
+def _finite(value: Any) -> Any:
+    if isinstance(value, np.generic | np.ndarray):
+        value = value.tolist()
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {key: _finite(item) for key, item in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite(item) for item in value]
+    return value
+
+
+def changed_fields(new: dict[str, dict], old: dict[str, dict]) -> dict[str, dict]:
+    """The objects and fields of `new` that differ from `old`."""
+    diff = {}
+    for name, fields in new.items():
+        before = old.get(name, {})
+        changed = {key: value for key, value in fields.items() if key not in before or before[key] != value}
+        if changed:
+            diff[name] = changed
+    return diff
+
+
+def select_fields(status: dict[str, dict], wanted: dict[str, list[str] | None]) -> dict[str, dict]:
+    """The requested objects and fields (None: all fields; an unknown object: {})."""
+    selected = {}
+    for name, fields in wanted.items():
+        available = status.get(name, {})
+        selected[name] = dict(available) if fields is None else {f: available[f] for f in fields if f in available}
+    return selected
+
+
+def _param(params: dict, name: str, kind: type | tuple, default: Any = ...) -> Any:
+    if name not in params:
+        if default is ...:
+            raise RequestError(f"Missing Argument [{name}]")
+        return default
+    value = params[name]
+    if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool:
+        raise RequestError(f"Invalid Argument Type [{name}]")
+    return value
+
+
+def _objects_param(params: dict) -> dict[str, list[str] | None]:
+    objects = _param(params, "objects", dict)
+    for name, fields in objects.items():
+        if fields is not None and not (isinstance(fields, list) and all(isinstance(f, str) for f in fields)):
+            raise RequestError(f"Invalid Argument Type [objects]: '{name}' must map to null or a list of field names")
+    return objects
+
+
+def _template(params: dict) -> dict:
+    return dict(_param(params, "response_template", dict))
+
+
+# ---------------------------------------------------------------------------------------------
+# The printer thread
+
+
+class PrinterThread:
+    """Runs every call into the printer on one thread; ticks the virtual clock while idle."""
+
+    def __init__(self, printer, gcodes_dir: str | None, post: Callable[..., None]):
+        self.printer = printer
+        self.gcodes_dir = gcodes_dir
+        self._post = post  # runs a function on the asyncio loop (thread-safe)
+        self._jobs: queue.Queue = queue.Queue()
+        self._stop = threading.Event()
+        self._restarted = False
+        self._last_tick = time.monotonic()
+        self._last_snapshot = 0.0
+        self.objects = ApiObjects(printer, gcodes_dir)
+        self._thread = threading.Thread(target=self._run, name="tapcell-printer", daemon=True)
+        self.on_snapshot: Callable[[dict], None] = lambda status: None
+        self.on_output: Callable[[str], None] = lambda line: None
+        self.on_restart: Callable[[], None] = lambda: None
+        self.on_tap: Callable[[str, dict], None] = lambda name, event: None
+        self.help: dict[str, str] = {}
+
+    def start(self) -> None:
+        """Attach to the printer and start the thread (the first snapshot is there at once)."""
+        self.printer.gcode.set_response_sink(self._output)
+        self._attach()
+        self.on_snapshot(self.objects.status())
+        self._thread.start()
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=5.0)
+
+    def submit(self, function: Callable[[], Any]) -> concurrent.futures.Future:
+        future: concurrent.futures.Future = concurrent.futures.Future()
+        self._jobs.put((function, future))
+        return future
+
+    # -- the loop -------------------------------------------------------------------------
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                function, future = self._jobs.get(timeout=IDLE_TICK_S)
+            except queue.Empty:
+                self._guarded(self._tick)
+                continue
+            self._run_job(function, future)
+
+    def _run_job(self, function, future) -> None:
+        try:
+            result = function()
+        except RequestError as exc:
+            outcome = ("error", str(exc))
+        except Exception as exc:  # a bug in the printer: reported to the client and in the log
+            traceback.print_exc()
+            outcome = ("error", f"Internal error: {type(exc).__name__}: {exc}")
+        else:
+            outcome = ("result", result)
+        self._guarded(self._after_job)
+        self._post(_resolve, future, outcome)
+        self._last_tick = time.monotonic()  # a script's own time is not idle time
+
+    def _guarded(self, step: Callable[[], None]) -> None:
+        """Run a step of the loop; a failure is logged and the printer keeps serving."""
+        try:
+            step()
+        except Exception:
+            traceback.print_exc()
+
+    def _tick(self) -> None:
+        now = time.monotonic()
+        elapsed_s, self._last_tick = now - self._last_tick, now
+        state, _ = self.objects.state()
+        backend = self.printer.backend
+        if state == "ready" and backend is not None and hasattr(backend, "dwell"):
+            backend.dwell(min(elapsed_s, MAX_TICK_S))
+        self._snapshot()
+
+    def _after_job(self) -> None:
+        if self._restarted:
+            self._restarted = False
+            self._attach()
+            self._snapshot()
+            self._post(self.on_restart)
+        else:
+            self._snapshot()
+
+    def _snapshot(self) -> None:
+        self._last_snapshot = time.monotonic()
+        self._post(self.on_snapshot, self.objects.status())
+
+    def _output(self, line: str) -> None:
+        self._post(self.on_output, line)
+        if time.monotonic() - self._last_snapshot >= SNAPSHOT_DURING_SCRIPT_S:
+            self._snapshot()
+
+    def _attach(self) -> None:
+        """Hook into a fresh printer build: restart event, API commands, tap clients, help."""
+        printer = self.printer
+        self.objects = ApiObjects(printer, self.gcodes_dir)
+        printer.register_event_handler("printer:restart", self._note_restart)
+        if printer.state == "ready":
+            self.objects.register_commands(printer.gcode)
+        for name, probe in load_cell_streams.tap_probes(printer).items():
+            probe.add_tap_client(lambda recorded, name=name: self.on_tap(name, load_cell_streams.tap_event(recorded)))
+        self.help = printer.gcode.get_command_help()
+
+    def _note_restart(self) -> None:
+        self._restarted = True
+
+    # -- jobs (run on this thread) --------------------------------------------------------
+
+    def run_script(self, script: str) -> dict:
+        """Each line in turn; the first error is echoed as `!! message` and fails the request."""
+        gcode = self.printer.gcode
+        try:
+            for line in script.split("\n"):
+                self._check_ready(line)
+                gcode.run_line(line)
+        except GCodeError as exc:
+            gcode.respond_error(str(exc))
+            raise RequestError(str(exc)) from None
+        return {}
+
+    def _check_ready(self, line: str) -> None:
+        state, message = self.objects.state()
+        if state == "ready":
+            return
+        parsed = parse_line(line)
+        if parsed is not None and parsed.command not in WHEN_NOT_READY:
+            raise GCodeError(message)
+
+
+def _resolve(future: concurrent.futures.Future, outcome: tuple[str, Any]) -> None:
+    kind, value = outcome
+    if future.cancelled():  # its client is gone
+        return
+    if kind == "result":
+        future.set_result(value)
+    else:
+        future.set_exception(RequestError(value))
+
+
+# ---------------------------------------------------------------------------------------------
+# Connections
+
+
+class Connection:
+    """One client: its subscription, G-code output template, streams and remote methods."""
+
+    def __init__(self, server: ApiServer, reader: asyncio.StreamReader, writer: asyncio.StreamWriter):
+        self.server = server
+        self.reader = reader
+        self.writer = writer
+        self.subscription: dict[str, list[str] | None] = {}
+        self.subscription_template: dict | None = None
+        self.sent_status: dict[str, dict] = {}
+        self.output_template: dict | None = None
+        self.force_streams: dict[str, ForceStream] = {}  # by cell name
+        self.tap_templates: dict[str, dict] = {}  # probe name -> template
+        self.tasks: set[asyncio.Task] = set()
+        self.closed = False
+
+    def send(self, message: dict) -> None:
+        if self.closed:
+            return
+        self.writer.write(strict_json(message))
+        if self.writer.transport.get_write_buffer_size() > MAX_UNSENT_BYTES:
+            print(f"tapcell serve: a client stopped reading ({MAX_UNSENT_BYTES} bytes unsent): closing it",
+                  file=sys.stderr)
+            self.close()
+
+    def push(self, template: dict, params: dict) -> None:
+        self.send({**template, "params": params})
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        self.closed = True
+        self.server.forget(self)
+        self.writer.close()
+
+    async def serve(self) -> None:
+        try:
+            while not self.closed:
+                try:
+                    data = await self.reader.readuntil(b"\x03")
+                except asyncio.LimitOverrunError:
+                    self.send({"id": None, "error": _error(f"Message too long (limit {MAX_MESSAGE_BYTES} bytes)")})
+                    break
+                except (asyncio.IncompleteReadError, ConnectionError):
+                    break
+                self._handle(data[:-1])
+        finally:
+            self.close()
+
+    def _handle(self, data: bytes) -> None:
+        try:
+            request = json.loads(data)
+        except (ValueError, UnicodeDecodeError) as exc:
+            self.send({"id": None, "error": _error(f"Malformed request: not JSON ({exc})")})
+            return
+        if not isinstance(request, dict):
+            self.send({"id": None, "error": _error("Malformed request: expected a JSON object")})
+            return
+        request_id = request.get("id")
+        method, params = request.get("method"), request.get("params", {})
+        if not isinstance(method, str) or not isinstance(params, dict):
+            self.send({"id": request_id, "error": _error("Malformed request: 'method' must be a string and "
+                                                          "'params' an object")})
+            return
+        task = asyncio.ensure_future(self._answer(request_id, method, params))
+        self.tasks.add(task)
+        task.add_done_callback(self.tasks.discard)
+
+    async def _answer(self, request_id: Any, method: str, params: dict) -> None:
+        # A connection closed meanwhile (a RESTART closes them all) cancels this: no reply, as in Klipper.
+        try:
+            result = await self.server.call(self, method, params)
+        except RequestError as exc:
+            reply = {"id": request_id, "error": _error(str(exc))}
+        else:
+            reply = {"id": request_id, "result": result}
+        self.send(reply)
+
+
+class ForceStream:
+    """One connection's dump_force stream: its template and the rows not pushed yet."""
+
+    def __init__(self, template: dict):
+        self.template = template
+        self.rows: list[list] = []
+        self.errors = 0
+        self.overflows = 0
+
+    def add(self, rows: list[list], errors: int, overflows: int) -> None:
+        self.rows.extend(rows)
+        self.errors += errors
+        self.overflows += overflows
+
+    def pushes(self) -> list[dict]:
+        """The unsent rows as push params of at most MAX_ROWS_PER_PUSH rows each."""
+        limit = load_cell_streams.MAX_ROWS_PER_PUSH
+        params = [{"data": self.rows[k:k + limit], "errors": 0, "overflows": 0}
+                  for k in range(0, len(self.rows), limit)]
+        if params:
+            params[0].update(errors=self.errors, overflows=self.overflows)
+            self.rows, self.errors, self.overflows = [], 0, 0
+        return params
+
+
+def _error(message: str) -> dict:
+    return {"error": "WebRequestError", "message": message}
+
+
+# ---------------------------------------------------------------------------------------------
+# The server
+
+
+class ApiServer:
+    """Klipper's API for one printer on a Unix socket."""
+
+    def __init__(self, printer, socket_path: str, *, log_file: str = "", gcodes_dir: str | None = None):
+        self.socket_path = str(socket_path)
+        self.log_file = log_file
+        self.config_file = os.path.abspath(printer.config_path)
+        self.connections: set[Connection] = set()
+        self.status: dict[str, dict] = {}
+        self.loop: asyncio.AbstractEventLoop | None = None
+        self.printer_thread = PrinterThread(printer, gcodes_dir, self._post)
+        self.printer_thread.on_snapshot = self._on_snapshot
+        self.printer_thread.on_output = self._on_output
+        self.printer_thread.on_restart = self._on_restart
+        self.printer_thread.on_tap = self._on_tap
+        # One sample client per streamed cell, shared by the connections: cell name -> the
+        # future of its ClientHandle (added on the printer thread).
+        self._force_clients: dict[str, asyncio.Future] = {}
+        self._endpoints: dict[str, Callable] = {
+            "info": self._info,
+            "list_endpoints": self._list_endpoints,
+            "objects/list": self._objects_list,
+            "objects/query": self._objects_query,
+            "objects/subscribe": self._objects_subscribe,
+            "gcode/script": self._gcode_script,
+            "gcode/help": self._gcode_help,
+            "gcode/subscribe_output": self._gcode_subscribe_output,
+            "register_remote_method": self._register_remote_method,
+            "emergency_stop": self._emergency_stop,
+            "load_cell/dump_force": self._dump_force,
+            "load_cell_probe/dump_taps": self._dump_taps,
+            **{name: self._gcode_command for name in (*RESTART_COMMANDS, *PAUSE_RESUME_COMMANDS)},
+        }
+
+    # -- running --------------------------------------------------------------------------
+
+    async def serve_forever(self, ready: Callable[[], None] | None = None) -> None:
+        self.loop = asyncio.get_running_loop()
+        stop = asyncio.Event()
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            self.loop.add_signal_handler(sig, stop.set)
+        if os.path.exists(self.socket_path):
+            os.unlink(self.socket_path)  # a socket left by an earlier run
+        server = await asyncio.start_unix_server(self._accept, path=self.socket_path, limit=MAX_MESSAGE_BYTES)
+        self.printer_thread.start()
+        periodic = [asyncio.ensure_future(self._every(SUBSCRIPTION_PERIOD_S, self._push_subscriptions)),
+                    asyncio.ensure_future(self._every(STREAM_PERIOD_S, self._push_force))]
+        if ready is not None:
+            ready()
+        try:
+            await stop.wait()
+        finally:
+            for task in periodic:
+                task.cancel()
+            server.close()
+            for connection in list(self.connections):
+                connection.close()
+            self.printer_thread.stop()
+            if os.path.exists(self.socket_path):
+                os.unlink(self.socket_path)
+
+    async def _accept(self, reader, writer) -> None:
+        connection = Connection(self, reader, writer)
+        self.connections.add(connection)
+        await connection.serve()
+
+    async def _every(self, period_s: float, step: Callable[[], None]) -> None:
+        while True:
+            await asyncio.sleep(period_s)
+            step()
+
+    def _post(self, function, *args) -> None:
+        """From the printer thread: run function(*args) on the loop (in order)."""
+        if self.loop is not None and not self.loop.is_closed():
+            self.loop.call_soon_threadsafe(function, *args)
+
+    def forget(self, connection: Connection) -> None:
+        self.connections.discard(connection)
+        for task in connection.tasks:
+            task.cancel()
+        for name in connection.force_streams:
+            self._release_force_client(name)
+
+    async def call(self, connection: Connection, method: str, params: dict) -> Any:
+        endpoint = self._endpoints.get(method)
+        if endpoint is None:
+            raise RequestError(f"No registered callback for path '{method}'")
+        result = endpoint(connection, method, params)
+        if asyncio.iscoroutine(result):
+            result = await result
+        return result
+
+    async def _on_printer(self, function: Callable[[], Any]) -> Any:
+        future = self.printer_thread.submit(function)
+        return await asyncio.wrap_future(future)
+
+    # -- from the printer thread ----------------------------------------------------------
+
+    def _on_snapshot(self, status: dict) -> None:
+        self.status = status
+
+    def _on_output(self, line: str) -> None:
+        for connection in list(self.connections):
+            if connection.output_template is not None:
+                connection.push(connection.output_template, {"response": line})
+
+    def _on_restart(self) -> None:
+        """Like Klipper: every connection closes; clients reconnect to the new printer."""
+        for connection in list(self.connections):
+            connection.close()
+        self._force_clients.clear()  # their cells belonged to the old printer
+
+    def _on_tap(self, probe_name: str, event: dict) -> None:
+        for connection in list(self.connections):
+            template = connection.tap_templates.get(probe_name)
+            if template is not None:
+                connection.push(template, event)
+
+    # -- periodic pushes ------------------------------------------------------------------
+
+    def _push_subscriptions(self) -> None:
+        eventtime = time.monotonic()
+        for connection in list(self.connections):
+            if connection.subscription_template is None:
+                continue
+            current = select_fields(self.status, connection.subscription)
+            diff = changed_fields(current, connection.sent_status)
+            if diff:
+                connection.sent_status = current
+                connection.push(connection.subscription_template, {"eventtime": eventtime, "status": diff})
+
+    def _push_force(self) -> None:
+        for connection in list(self.connections):
+            for stream in connection.force_streams.values():
+                for params in stream.pushes():
+                    connection.push(stream.template, params)
+
+    # -- endpoints ------------------------------------------------------------------------
+
+    def _info(self, connection, method, params) -> dict:
+        state, message = self.printer_thread.objects.state()
+        return {
+            "state": state,
+            "state_message": message,
+            "hostname": socket.gethostname(),
+            "klipper_path": str(_software_root()),
+            "python_path": sys.executable,
+            "log_file": self.log_file,
+            "config_file": self.config_file,
+            "software_version": f"tapcell {__version__}",
+            "cpu_info": f"{os.cpu_count()} core {platform.machine()}".strip(),
+            "process_id": os.getpid(),
+            "user_id": os.getuid(),
+            "group_id": os.getgid(),
+        }
+
+    def _list_endpoints(self, connection, method, params) -> dict:
+        return {"endpoints": sorted(self._endpoints)}
+
+    def _objects_list(self, connection, method, params) -> dict:
+        return {"objects": list(self.status)}
+
+    def _objects_query(self, connection, method, params) -> dict:
+        return {"eventtime": time.monotonic(), "status": select_fields(self.status, _objects_param(params))}
+
+    def _objects_subscribe(self, connection, method, params) -> dict:
+        objects = _objects_param(params)
+        template = _template(params)
+        current = select_fields(self.status, objects)
+        connection.subscription, connection.subscription_template = objects, template
+        connection.sent_status = current
+        return {"eventtime": time.monotonic(), "status": current}
+
+    async def _gcode_script(self, connection, method, params) -> dict:
+        script = _param(params, "script", str)
+        return await self._run_gcode(script)
+
+    async def _gcode_command(self, connection, method, params) -> dict:
+        command = RESTART_COMMANDS.get(method) or PAUSE_RESUME_COMMANDS[method]
+        return await self._run_gcode(command)
+
+    async def _run_gcode(self, script: str) -> dict:
+        return await self._on_printer(lambda: self.printer_thread.run_script(script))
+
+    def _gcode_help(self, connection, method, params) -> dict:
+        return dict(self.printer_thread.help)
+
+    def _gcode_subscribe_output(self, connection, method, params) -> dict:
+        connection.output_template = _template(params)
+        return {}
+
+    def _register_remote_method(self, connection, method, params) -> dict:
+        # Accepted (Moonraker registers its methods at every handshake); tapcell's G-code
+        # never calls a remote method, so nothing more is kept.
+        _param(params, "remote_method", str)
+        _template(params)
+        return {}
+
+    def _emergency_stop(self, connection, method, params) -> dict:
+        # At once, on this thread: a running script stops at its next line.
+        self.printer_thread.objects.shutdown("Shutdown due to webhooks request")
+        self._on_output("!! Shutdown due to webhooks request")
+        self.status = {**self.status, "webhooks": dict(zip(("state", "state_message"),
+                                                          self.printer_thread.objects.state()))}
+        return {}
+
+    async def _dump_force(self, connection, method, params) -> dict:
+        name = _param(params, "load_cell", str)
+        template = _template(params) if "response_template" in params else {}
+        if name not in self._force_clients:
+            self._force_clients[name] = asyncio.ensure_future(self._on_printer(lambda: self._add_force_client(name)))
+        try:
+            await asyncio.shield(self._force_clients[name])
+        except RequestError:
+            self._force_clients.pop(name, None)
+            raise
+        connection.force_streams.setdefault(name, ForceStream(template))
+        return {"header": list(load_cell_streams.FORCE_HEADER)}
+
+    def _add_force_client(self, name: str):
+        """On the printer thread: a sample client for the cell, feeding every connection's stream."""
+        cells = load_cell_streams.load_cells(self.printer_thread.printer)
+        if name not in cells:
+            raise RequestError(f"The value '{name}' is not valid for load_cell "
+                               f"(one of: {', '.join(sorted(cells)) or 'none configured'})")
+        cell = cells[name]
+        return cell.add_client(lambda batch: self._post(
+            self._queue_force_rows, name, load_cell_streams.force_rows(cell, batch), batch.errors, batch.overflows))
+
+    def _queue_force_rows(self, name: str, rows: list, errors: int, overflows: int) -> None:
+        for connection in self.connections:
+            stream = connection.force_streams.get(name)
+            if stream is not None:
+                stream.add(rows, errors, overflows)
+
+    def _release_force_client(self, name: str) -> None:
+        """When no connection streams the cell any more, its sample client goes."""
+        client = self._force_clients.get(name)
+        if client is None or any(name in c.force_streams for c in self.connections):
+            return
+        del self._force_clients[name]
+        if client.done() and client.exception() is None:
+            self.printer_thread.submit(client.result().remove)
+
+    async def _dump_taps(self, connection, method, params) -> dict:
+        name = _param(params, "load_cell_probe", str)
+        template = _template(params) if "response_template" in params else {}
+        probes = await self._on_printer(lambda: sorted(load_cell_streams.tap_probes(self.printer_thread.printer)))
+        if name not in probes:
+            raise RequestError(f"The value '{name}' is not valid for load_cell_probe "
+                               f"(one of: {', '.join(probes) or 'none configured'})")
+        connection.tap_templates[name] = template
+        return {"header": list(load_cell_streams.TAP_HEADER)}
+
+
+def _software_root() -> Path:
+    """Where tapcell's files are: the checkout (with docs/ and examples/) or the installed package."""
+    package = Path(__file__).resolve().parents[1]
+    checkout = package.parents[1]
+    return checkout if (checkout / "docs").is_dir() else package
+
+
+# ---------------------------------------------------------------------------------------------
+# The command
+
+
+def main(argv: list[str]) -> int:
+    from tapcell.host.printer import Printer
+
+    parser = argparse.ArgumentParser(prog="tapcell serve", description="Serve the virtual printer through "
+                                     "Klipper's API on a Unix socket, for Moonraker and its web UIs.")
+    parser.add_argument("--config", required=True, help="printer config file")
+    parser.add_argument("--socket", required=True, help="Unix socket path (Moonraker's klippy_uds_address)")
+    parser.add_argument("--log-file", default="", help="the log file named to clients (info.log_file)")
+    parser.add_argument("--gcodes-dir", default=None,
+                        help="the folder Moonraker serves G-code files from (configfile virtual_sdcard.path)")
+    args = parser.parse_args(argv)
+    if not os.path.isfile(args.config):
+        print(f"tapcell serve: config file '{args.config}' does not exist", file=sys.stderr)
+        return 2
+    printer = Printer(args.config)
+    try:
+        printer.restart()  # builds it; a broken config leaves it in the "error" state, served as such
+    except ConfigError as exc:
+        print(f"tapcell serve: config error (serving the error state): {exc}", file=sys.stderr)
+    server = ApiServer(printer, args.socket, log_file=args.log_file, gcodes_dir=args.gcodes_dir)
+    asyncio.run(server.serve_forever(
+        ready=lambda: print(f"tapcell serve: {printer.state_message}; listening on {args.socket}", flush=True)))
+    return 0
