@@ -18,7 +18,7 @@ from tapcell.host.printer import Printer
 class FakeBackend:
     """Stands in for the virtual printer: a clock and a record of how it was built."""
 
-    def __init__(self, section=None):
+    def __init__(self, section=None, machine=None):
         self.options = {"scenario": section.get("scenario", "clean")} if section is not None else {}
         self.now_s = 42.0
 

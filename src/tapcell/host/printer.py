@@ -64,6 +64,8 @@ ACCEPTED_MODULE = "tapcell.extras.accepted_sections"
 # The backend's section: read by the virtual printer itself.
 BACKEND_SECTION = "virtual_printer"
 BACKEND_MODULE = "tapcell.sim"
+# What the printer's own config says about the machine, for the virtual printer to follow.
+MACHINE_MODULE = "tapcell.sim.machine"
 # G-code commands that act on the virtual hardware (SIM_PLACE_WEIGHT, ...).
 BACKEND_COMMANDS_MODULE = "tapcell.sim.commands"
 
@@ -188,8 +190,9 @@ class Printer:
             self.config.check_unused_options()
             simulated = [n for n in self.config.sections() if n not in self._accepted and n not in self._skipped]
             notice = _accepted().startup_notice(simulated, self._accepted)
-            if notice is not None:
-                self.notices.append(notice)
+            world = getattr(self.backend, "world_notice", None)
+            if notice is not None:  # a config with hardware in it: say what stands in for it
+                self.notices += [world, notice] if world else [notice]
         except (ConfigError, GCodeError) as exc:
             self.state, self.state_message = "error", str(exc)
             # Only the built-ins stay, so the user can fix the file and RESTART.
@@ -225,7 +228,8 @@ class Printer:
                 self.backend = None
                 self._skip_section(BACKEND_SECTION, f"{BACKEND_MODULE}.VirtualPrinter")
                 return
-            self.backend = sim.VirtualPrinter.from_config(self.config.getsection(BACKEND_SECTION))
+            machine = importlib.import_module(MACHINE_MODULE).machine_params(self.config)
+            self.backend = sim.VirtualPrinter.from_config(self.config.getsection(BACKEND_SECTION), machine=machine)
         self.objects[BACKEND_SECTION] = self.backend
         backend_commands = _import_module(BACKEND_COMMANDS_MODULE)
         if backend_commands is not None:

@@ -53,6 +53,12 @@ class SimParams:
     microsteps: int = _p(16, "microsteps of every stepper", minval=1, maxval=256)
     full_steps_per_rotation: int = _p(200, "full steps per motor rotation", minval=1)
     homing_speed_mm_s: float = _p(50.0, "X/Y homing speed", "mm/s", minval=1.0)
+    x_position_min_mm: float = _p(0.0, "lowest X the carriage reaches", "mm")
+    x_position_max_mm: float = _p(0.0, "highest X the carriage reaches; 0 = bed_x_mm", "mm", minval=0.0)
+    y_position_min_mm: float = _p(0.0, "lowest Y the carriage reaches", "mm")
+    y_position_max_mm: float = _p(0.0, "highest Y the carriage reaches; 0 = bed_y_mm", "mm", minval=0.0)
+    x_endstop_mm: float = _p(0.0, "where the X endstop switch closes", "mm")
+    y_endstop_mm: float = _p(0.0, "where the Y endstop switch closes", "mm")
     start_z_mm: float = _p(10.0, "commanded Z at power on (Z is not homed)", "mm")
     # --- bed ------------------------------------------------------------------------
     bed_shape: str = _p("flat", "surface model", choices=("flat", "tilted", "warped", "csv"))
@@ -166,8 +172,20 @@ def check_params(params: SimParams) -> SimParams:
     if params.z_position_min_mm >= params.z_position_max_mm:
         raise SimParamError("virtual printer parameter 'z_position_min_mm' must be below 'z_position_max_mm'", "z_position_min_mm")
     sheet = SHEETS[params.sheet]
+    x_max = params.x_position_max_mm or params.bed_x_mm
+    y_max = params.y_position_max_mm or params.bed_y_mm
+    for axis, low, high, endstop in (("x", params.x_position_min_mm, x_max, params.x_endstop_mm),
+                                     ("y", params.y_position_min_mm, y_max, params.y_endstop_mm)):
+        if not low < high:
+            raise SimParamError(f"virtual printer parameter '{axis}_position_min_mm' must be below "
+                                f"'{axis}_position_max_mm'", f"{axis}_position_min_mm")
+        if not low <= endstop <= high:
+            raise SimParamError(f"virtual printer parameter '{axis}_endstop_mm' = {endstop:g} must be within "
+                                f"{low:g}..{high:g}", f"{axis}_endstop_mm")
     return dataclasses.replace(
         params,
+        x_position_max_mm=x_max,
+        y_position_max_mm=y_max,
         sample_rate_sps=float(rate),
         sheet_stiffness_g_um=params.sheet_stiffness_g_um or sheet["stiffness_g_um"],
         contact_onset_um=params.contact_onset_um if params.contact_onset_um >= 0 else sheet["onset_um"],

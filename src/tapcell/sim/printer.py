@@ -184,6 +184,7 @@ class VirtualPrinter:
         self._now_s = 0.0
         self._aux_sensors: list = []
         self.truth = Truth(self)
+        self.world_notice: str | None = None  # set by from_config: the scenario and what it changes
 
     # -- construction ------------------------------------------------------------------
     @classmethod
@@ -193,17 +194,33 @@ class VirtualPrinter:
         return cls(make_params({**SCENARIOS[name].overrides, **overrides}), seed=seed, scenario=name)
 
     @classmethod
-    def from_config(cls, section) -> VirtualPrinter:
-        """`[virtual_printer]`: scenario, seed, and any SimParams name as a physics override."""
+    def from_config(cls, section, machine: dict | None = None) -> VirtualPrinter:
+        """`[virtual_printer]`: scenario, seed and physics overrides, on the machine the printer's own
+        config describes (`machine`: tapcell.sim.machine.machine_params). The world is
+        [virtual_printer]'s; a machine value there that the printer config contradicts is an error."""
         from tapcell.sim.config import read_virtual_printer_section
 
         name, seed, overrides = read_virtual_printer_section(section)
-        try:
-            return cls.from_scenario(name, seed, **overrides)
-        except BedError as exc:
-            raise section.error("bed_csv", str(exc)) from None
-        except SimParamError as exc:
-            raise section.error(exc.option or "scenario", str(exc)) from None
+        machine = dict(machine or {})
+        for param, (value, where) in machine.items():
+            if param in overrides and overrides[param] != value:
+                raise section.error(param, f"the printer's own config sets this ({where} = {value}); "
+                                           "[virtual_printer] describes only the world (bed, noise, faults, scenario)")
+        while True:
+            try:
+                vp = cls.from_scenario(name, seed, **{**SCENARIOS[name].overrides,
+                                                      **{k: v for k, (v, _) in machine.items()}, **overrides})
+                break
+            except BedError as exc:
+                raise section.error("bed_csv", str(exc)) from None
+            except SimParamError as exc:
+                if exc.option in machine and exc.option not in overrides:
+                    # The module owning that section reports the bad value; the machine keeps its default.
+                    del machine[exc.option]
+                    continue
+                raise section.error(exc.option or "scenario", str(exc)) from None
+        vp.world_notice = describe_world(vp, overrides, machine)
+        return vp
 
     # -- what the host may know ------------------------------------------------------------
     @property
@@ -228,7 +245,8 @@ class VirtualPrinter:
     @property
     def limits(self) -> dict:
         p = self.params
-        return {"x": (0.0, p.bed_x_mm), "y": (0.0, p.bed_y_mm), "z": (p.z_position_min_mm, p.z_position_max_mm)}
+        return {"x": (p.x_position_min_mm, p.x_position_max_mm), "y": (p.y_position_min_mm, p.y_position_max_mm),
+                "z": (p.z_position_min_mm, p.z_position_max_mm)}
 
     # -- commands ---------------------------------------------------------------------------
     def move_to(self, x: float | None = None, y: float | None = None, z: float | None = None,
@@ -243,9 +261,10 @@ class VirtualPrinter:
         self._plan_and_run(start, target, speed_mm_s, accel_mm_s2)
 
     def home_xy(self) -> None:
-        """Move to the X/Y endstops at the homing speed (the endstops sit at 0, 0)."""
+        """Move to the X/Y endstops at the homing speed (x_endstop_mm, y_endstop_mm)."""
         start = self._motion.end_position
-        self._plan_and_run(start, (0.0, 0.0, start[2]), self.params.homing_speed_mm_s)
+        p = self.params
+        self._plan_and_run(start, (p.x_endstop_mm, p.y_endstop_mm, start[2]), p.homing_speed_mm_s)
 
     def dwell(self, t_s: float) -> None:
         if t_s < 0.0:
@@ -665,6 +684,24 @@ class VirtualPrinter:
             events["pullback_start_time"] = after[0].print_time
             events["pullback_end_time"] = end
         return events
+
+
+def describe_world(vp: VirtualPrinter, overrides: dict, machine: dict) -> str:
+    """One line: the scenario, what it changes, and what the printer's config decides instead."""
+    scenario = SCENARIOS[vp.scenario]
+    changed = [f"{k}={getattr(vp.params, k):g}" if isinstance(getattr(vp.params, k), float)
+               else f"{k}={getattr(vp.params, k)}" for k in scenario.overrides if k not in machine]
+    taken = [f"{k}={v}" for k, v in scenario.overrides.items() if k in machine]
+    line = f"Virtual printer: scenario '{vp.scenario}' ({scenario.description}), seed {vp.seed}: "
+    line += ("changes " + ", ".join(changed)) if changed else "no changes to the default world"
+    if taken:
+        p = vp.params
+        line += (f"; {', '.join(taken)} are for the printer config to say (it has {p.chip} at "
+                 f"{p.sample_rate_sps:g} sps)")
+    own = [f"{k}={v}" for k, v in overrides.items()]
+    if own:
+        line += "; [virtual_printer] sets " + ", ".join(own)
+    return line
 
 
 def _trigger_error_none():

@@ -28,7 +28,8 @@ def _print_line(line: str) -> None:
     print(line, flush=True)
 
 
-def _build_printer(config_path: str, program: str) -> Printer | None:
+def _build_printer(config_path: str, program: str, notices_to=None) -> Printer | None:
+    """The printer of `config_path`; the start-up notices go to `notices_to` (stdout by default)."""
     if not os.path.exists(config_path):
         print(f"{program}: config file '{config_path}' does not exist", file=sys.stderr)
         return None
@@ -39,7 +40,7 @@ def _build_printer(config_path: str, program: str) -> Printer | None:
         return None
     for notice in printer.notices:
         for line in notice.split("\n"):
-            print(f"// {line}", flush=True)
+            print(f"// {line}", file=notices_to or sys.stdout, flush=True)
     for warning in printer.warnings:
         print(f"// Warning: {warning}", flush=True)
     return printer
@@ -102,7 +103,8 @@ def _main_run(argv: list[str]) -> int:
     if not os.path.isfile(args.script):
         print(f"tapcell run: script '{args.script}' does not exist", file=sys.stderr)
         return 2
-    printer = _build_printer(args.config, "tapcell run")
+    # In a run the notices are about the session, not responses to the file: they go to stderr.
+    printer = _build_printer(args.config, "tapcell run", notices_to=sys.stderr)
     if printer is None:
         return 1
     try:
