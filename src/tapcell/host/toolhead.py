@@ -29,6 +29,8 @@ from tapcell.sim.printer import MoveError
 AXES = "xyz"
 KINEMATICS = ("cartesian",)
 PROBE_ENDSTOP_PIN = "probe:z_virtual_endstop"
+# Probes that tap the bed with the nozzle (they need Z below 0).
+NOZZLE_PROBE_SECTIONS = ("load_cell_probe", "prusa_probe")
 # G4 and M400 waits longer than this are refused (a typo in P= must not stall the printer for days).
 MAX_DWELL_S = 3600.0
 
@@ -318,6 +320,12 @@ def load_config(section: ConfigSection, printer) -> None:
         raise section.error("kinematics", "the toolhead needs the virtual printer ([virtual_printer])")
     toolhead = Toolhead(printer, read_toolhead_options(section))
     printer.add_object("toolhead", toolhead)
+    z_min_mm = toolhead.options.axes["z"].position_min_mm
+    if z_min_mm >= 0.0 and any(section.config.has_section(name) for name in NOZZLE_PROBE_SECTIONS):
+        printer.warnings.append(
+            f"[stepper_z] position_min = {z_min_mm:g}: taps need room below zero. The nozzle presses a little "
+            "past the bed before the probe triggers, so a probing move that ends at Z=0 slows down first and every "
+            "tap fails with COASTING_MOVE_ACCELERATION; set a negative position_min, e.g. position_min: -5")
     toolhead.extruder = load_extruder(section.config, printer, toolhead.options.max_velocity_mm_s)
     load_gcode_move(printer, toolhead)
     gcode = printer.gcode

@@ -15,6 +15,7 @@ from __future__ import annotations
 # Trigger on the sensor's MCU -> host -> stepper MCU: about two USB/CAN message latencies.
 MULTI_MCU_STOP_DELAY_S = 0.004
 SENSOR_PINS = ("sclk_pin", "dout_pin", "cs_pin", "data_ready_pin")
+PHYSICAL_Z_BELOW_BED_MM = 2.0
 
 
 def _number(config, section: str, option: str, default=None):
@@ -46,7 +47,7 @@ def machine_params(config) -> dict[str, tuple[object, str]]:
     """{SimParams name: (value, where the config says it)} for what the config describes."""
     found: dict[str, tuple[object, str]] = {}
 
-    def take(param: str, section: str, option: str, convert=float, default=None):
+    def take(param: str, section: str, option: str, default=None, convert=float):
         value = _number(config, section, option, default)
         if value is not None:
             found[param] = (convert(value), f"[{section}] {option}")
@@ -66,11 +67,14 @@ def machine_params(config) -> dict[str, tuple[object, str]]:
             take(f"{axis}_endstop_mm", section, "position_endstop")
     if config.has_section("stepper_x"):
         take("rotation_distance_xy_mm", "stepper_x", "rotation_distance")
-        take("microsteps", "stepper_x", "microsteps", int)
-        take("full_steps_per_rotation", "stepper_x", "full_steps_per_rotation", int)
+        take("microsteps", "stepper_x", "microsteps", convert=int)
+        take("full_steps_per_rotation", "stepper_x", "full_steps_per_rotation", convert=int)
         take("homing_speed_mm_s", "stepper_x", "homing_speed")
     if config.has_section("stepper_z"):
-        take("z_position_min_mm", "stepper_z", "position_min", default=0.0)
+        # position_min is the software limit; the screw goes further: the carriage can always
+        # reach PHYSICAL_Z_BELOW_BED_MM below the bed (so G28 Z finds the bed with position_min: 0).
+        take("z_position_min_mm", "stepper_z", "position_min", default=0.0,
+             convert=lambda v: min(float(v), -PHYSICAL_Z_BELOW_BED_MM))
         take("z_position_max_mm", "stepper_z", "position_max")
         take("rotation_distance_z_mm", "stepper_z", "rotation_distance")
     cell = probe_cell_section(config)
