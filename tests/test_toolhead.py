@@ -82,7 +82,7 @@ def test_nozzle_temperature(tmp_path):
 
 
 @pytest.mark.parametrize("change, message", [
-    (("kinematics: cartesian", "kinematics: delta"), "[printer] kinematics = delta: must be one of: cartesian"),
+    (("kinematics: cartesian", "kinematics: delta"), "[printer] kinematics = delta: must be one of: cartesian, corexy"),
     (("max_z_velocity: 15", "max_z_velocity: 400"), "[printer] max_z_velocity = 400: must be at most 300"),
     (("endstop_pin: ^PC0", "endstop_pin: probe:z_virtual_endstop"),
      "[stepper_x] endstop_pin = probe:z_virtual_endstop: probe:z_virtual_endstop can only home Z"),

@@ -46,13 +46,25 @@ class GCodeMove:
         self.toolhead = toolhead
         self.state = GCodeState()
         self.saved_states: dict[str, GCodeState] = {}
+        # (position the transforms report after our last move, the position that move asked for):
+        # the transforms' inverse (e.g. the bed mesh) is not exact, so while nothing else moved
+        # the toolhead, the asked position is the position (Klipper's last_position).
+        self._last_move: tuple[list[float], list[float]] | None = None
         printer.register_event_handler("toolhead:homed", self._after_homing)
 
     # -- positions ------------------------------------------------------------------------
     def toolhead_position(self) -> list[float]:
         """X, Y, Z as the move transforms see them, and E."""
         x, y, z = self.toolhead.move_target.get_position()
-        return [x, y, z, self.toolhead.e_position_mm]
+        now = [x, y, z, self.toolhead.e_position_mm]
+        if self._last_move is not None and self._last_move[0] == now:
+            return list(self._last_move[1])
+        return now
+
+    def _move(self, gcmd: GCodeCommand, current: list[float], target: list[float], speed_mm_s: float) -> None:
+        self.toolhead.move_xyze(gcmd, current, target, speed_mm_s)
+        x, y, z = self.toolhead.move_target.get_position()
+        self._last_move = ([x, y, z, self.toolhead.e_position_mm], list(target))
 
     def gcode_position(self) -> list[float]:
         return [p - b for p, b in zip(self.toolhead_position(), self.state.base_position)]
@@ -82,7 +94,7 @@ class GCodeMove:
             target[3] = e_value + state.base_position[3] if absolute else current[3] + e_value
         if target == current:
             return
-        self.toolhead.move_xyze(gcmd, current, target, state.speed_mm_s * state.speed_factor)
+        self._move(gcmd, current, target, state.speed_mm_s * state.speed_factor)
 
     def cmd_G90(self, gcmd: GCodeCommand) -> None:
         self.state.absolute_coordinates = True
@@ -144,7 +156,7 @@ class GCodeMove:
             current = self.toolhead_position()
             target = [p + d for p, d in zip(current, move_delta)]
             if target != current:
-                self.toolhead.move_xyze(gcmd, current, target, speed)
+                self._move(gcmd, current, target, speed)
 
     def z_offset_mm(self) -> float:
         """The SET_GCODE_OFFSET Z (what Z_OFFSET_APPLY_PROBE folds into the probe's z_offset)."""
@@ -169,7 +181,7 @@ class GCodeMove:
             speed = gcmd.get_float("MOVE_SPEED", self.state.speed_mm_s, above=0.0)
             current = self.toolhead_position()
             target = saved.last_position[:3] + [current[3]]
-            self.toolhead.move_xyze(gcmd, current, target, speed)
+            self._move(gcmd, current, target, speed)
 
     def cmd_GET_POSITION(self, gcmd: GCodeCommand) -> None:
         toolhead = self.toolhead

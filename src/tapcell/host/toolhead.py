@@ -27,7 +27,9 @@ from tapcell.host.gcode_move import load_gcode_move
 from tapcell.sim.printer import MoveError
 
 AXES = "xyz"
-KINEMATICS = ("cartesian",)
+# CoreXY moves the toolhead in the same X/Y frame; only the motor mapping differs, which the
+# virtual printer does not model (it moves X and Y directly).
+KINEMATICS = ("cartesian", "corexy")
 PROBE_ENDSTOP_PIN = "probe:z_virtual_endstop"
 # Probes that tap the bed with the nozzle (they need Z below 0).
 NOZZLE_PROBE_SECTIONS = ("load_cell_probe", "prusa_probe")

@@ -28,6 +28,20 @@ def _number(config, section: str, option: str, default=None):
         return default
 
 
+def _gear_ratio(config, section: str) -> float:
+    """'80:16' -> 5.0; several stages ('57:11, 2:1') multiply; absent or unreadable: 1."""
+    text = config.peek(section, "gear_ratio")
+    ratio = 1.0
+    try:
+        for stage in (text or "").split(","):
+            if stage.strip():
+                driven, driving = stage.split(":")
+                ratio *= float(driven) / float(driving)
+    except (ValueError, ZeroDivisionError):
+        return 1.0
+    return ratio
+
+
 def _chip_of_pin(pin: str) -> str:
     """'toolboard:PB3' -> 'toolboard'; a pin without a prefix is on the main MCU."""
     pin = pin.strip().lstrip("^~!")
@@ -66,7 +80,9 @@ def machine_params(config) -> dict[str, tuple[object, str]]:
             take(f"{axis}_position_max_mm", section, "position_max")
             take(f"{axis}_endstop_mm", section, "position_endstop")
     if config.has_section("stepper_x"):
-        take("rotation_distance_xy_mm", "stepper_x", "rotation_distance")
+        # A gearbox makes each step shorter: the distance per motor turn is rotation_distance / ratio.
+        take("rotation_distance_xy_mm", "stepper_x", "rotation_distance",
+             convert=lambda v: v / _gear_ratio(config, "stepper_x"))
         take("microsteps", "stepper_x", "microsteps", convert=int)
         take("full_steps_per_rotation", "stepper_x", "full_steps_per_rotation", convert=int)
         take("homing_speed_mm_s", "stepper_x", "homing_speed")
@@ -76,7 +92,8 @@ def machine_params(config) -> dict[str, tuple[object, str]]:
         take("z_position_min_mm", "stepper_z", "position_min", default=0.0,
              convert=lambda v: min(float(v), -PHYSICAL_Z_BELOW_BED_MM))
         take("z_position_max_mm", "stepper_z", "position_max")
-        take("rotation_distance_z_mm", "stepper_z", "rotation_distance")
+        take("rotation_distance_z_mm", "stepper_z", "rotation_distance",
+             convert=lambda v: v / _gear_ratio(config, "stepper_z"))
     cell = probe_cell_section(config)
     if cell is not None:
         _sensor_params(config, cell, found)

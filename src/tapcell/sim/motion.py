@@ -6,6 +6,7 @@ position(t) = start + direction * (start_v + accel*τ/2) * τ for τ in [0, move
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass
 
@@ -97,19 +98,24 @@ def quantize_to_steps(position_mm, step_distance_mm):
 
 
 class MotionHistory:
-    """Every executed segment, oldest first, with vectorised position lookup."""
+    """Every executed segment, oldest first, with vectorised position lookup.
+
+    Lookups bisect the start times for the span asked about, so a long session (a print of
+    thousands of moves) costs the same per move as a short one.
+    """
 
     def __init__(self, start_position):
         self.rest_position = tuple(float(v) for v in start_position)
         self.segments: list[Segment] = []
-        self._starts = np.zeros(0)
+        self._starts: list[float] = []
 
     def append(self, segments: list[Segment]) -> None:
         self.segments.extend(segments)
-        self._starts = np.array([s.print_time for s in self.segments])
+        self._starts.extend(s.print_time for s in segments)
 
     def replace_last(self, count: int, segments: list[Segment]) -> None:
         del self.segments[len(self.segments) - count:]
+        del self._starts[len(self._starts) - count:]
         self.append(segments)
 
     @property
@@ -127,7 +133,11 @@ class MotionHistory:
         if not self.segments:
             out[:] = self.rest_position
             return out
-        index = np.searchsorted(self._starts, t_s, side="right") - 1
+        if t_s.size == 0:
+            return out
+        first = max(bisect.bisect_right(self._starts, float(t_s.min())) - 1, 0)
+        last = bisect.bisect_right(self._starts, float(t_s.max()))
+        index = np.searchsorted(np.asarray(self._starts[first:last]), t_s, side="right") - 1 + first
         before = index < 0
         out[before] = self.segments[0].start
         for i in np.unique(index[~before]):
@@ -140,4 +150,6 @@ class MotionHistory:
 
     def segments_between(self, t0_s: float, t1_s: float) -> list[Segment]:
         """Segments that end at or after t0 and start at or before t1."""
-        return [s for s in self.segments if s.end_time >= t0_s and s.print_time <= t1_s]
+        first = max(bisect.bisect_left(self._starts, t0_s) - 1, 0)  # the one running at t0 (if any) and on
+        last = bisect.bisect_right(self._starts, t1_s)
+        return [s for s in self.segments[first:last] if s.end_time >= t0_s]

@@ -71,6 +71,7 @@ from tapcell.extras.load_cell_probe.options import (
     too_fast_explanation,
     too_fast_for_analysis,
 )
+from tapcell.extras.probe.calibrate import register_probe_calibrate
 from tapcell.extras.probe.patterns import serpentine_pattern
 from tapcell.scale import counts_to_grams
 from tapcell.tap import AnalysisOptions, Move, TapData, analyze_tap, get_classifier, tap_to_json_dict
@@ -784,6 +785,7 @@ def load_config(section, printer) -> LoadCellProbe:
                   printer.gcode, _template_runner(printer))
     device.probe = probe
     probe.register_commands()
+    register_probe_calibrate(printer, probe)
     register_load_cell_commands(printer.gcode, device.load_cell, device.name)
     commands = LoadCellProbeCommands(device, probe)
     commands.register(printer.gcode)
