@@ -259,7 +259,10 @@ class Toolhead:
         """Wait for moves to finish: the virtual printer runs every move to its end at once."""
 
     def cmd_M84(self, gcmd: GCodeCommand) -> None:
-        """Motors off: every axis must be homed again (the steppers may be moved by hand)."""
+        """Motors off: every axis must be homed again (the steppers may be moved by hand).
+        As in Klipper every motor goes off; axis letters (Cura's `M84 X Y E`) are taken and ignored."""
+        for axis in "XYZE":
+            gcmd.has(axis)
         self.homed_axes.clear()
         self.printer.send_event("toolhead:motors_off")
 
