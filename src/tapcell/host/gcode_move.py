@@ -67,7 +67,9 @@ class GCodeMove:
         self._last_move = ([x, y, z, self.toolhead.e_position_mm], list(target))
 
     def gcode_position(self) -> list[float]:
-        return [p - b for p, b in zip(self.toolhead_position(), self.state.base_position)]
+        position = [p - b for p, b in zip(self.toolhead_position(), self.state.base_position)]
+        position[3] /= self.state.extrude_factor  # G-code E counts before the extrude factor
+        return position
 
     def _after_homing(self, axes: str) -> None:
         """A homed axis loses its G92 offset and keeps its SET_GCODE_OFFSET (Klipper's rule)."""

@@ -1,0 +1,238 @@
+"""Klipper's basic G-code on the virtual printer: the G-code frame with E, offsets, dwell,
+motors off, emergency stop, messages, object labels, probe z_offset, unknown parameters."""
+
+from __future__ import annotations
+
+import pytest
+
+from machines import gcode_error
+from machines_klipper import BED_SLINGER, calibrated_voron, run, start
+from tapcell.host.gcode import GCodeError
+
+
+@pytest.fixture
+def slinger(tmp_path):
+    printer, responses = start(tmp_path, BED_SLINGER)
+    run(printer, responses, "G28")
+    return printer, responses
+
+
+def positions(printer):
+    status = printer.get_status()
+    return status["gcode_move"]["gcode_position"], status["toolhead"]["position"]
+
+
+def test_g92_e0_leaves_x_y_z_alone(slinger):
+    printer, responses = slinger
+    run(printer, responses, "M109 S200\nG1 X50 Y60 Z5 F6000\nG1 E5 F300\nG92 E0\nG1 Z0.2")
+    gcode, toolhead = positions(printer)
+    assert gcode == pytest.approx([50.0, 60.0, 0.2, 0.0])
+    assert toolhead == pytest.approx([50.0, 60.0, 0.2, 5.0])  # the nozzle is at Z 0.2, not 5.2
+    run(printer, responses, "G92 X10")
+    assert positions(printer)[0] == pytest.approx([10.0, 60.0, 0.2, 0.0])
+    run(printer, responses, "G92")  # no axis: every axis, E too
+    assert positions(printer)[0] == pytest.approx([0.0, 0.0, 0.0, 0.0])
+
+
+def test_extruder_axis_relative_absolute_and_factor(slinger):
+    printer, responses = slinger
+    assert gcode_error(printer, "G1 E1") == ("Error on 'G1 E1': Extrude below minimum temp\n"
+                                             "See the 'min_extrude_temp' config option for details")
+    run(printer, responses, "M109 S210\nG1 X20 Y20 F6000\nM83\nG1 X30 E0.4 F1200\nG1 X40 E0.4")
+    assert positions(printer)[1][3] == pytest.approx(0.8)
+    run(printer, responses, "M82\nG92 E0\nG1 X50 E0.5\nM221 S50\nG1 X60 E1.0")
+    # Absolute E: 0.5 at 100 %, then +0.5 of G-code E at 50 % is +0.25 at the nozzle.
+    assert positions(printer)[1][3] == pytest.approx(0.8 + 0.5 + 0.25)
+    assert positions(printer)[0][3] == pytest.approx(1.0)
+    assert printer.get_status()["gcode_move"]["extrude_factor"] == 0.5
+    assert gcode_error(printer, "M221 S100\nG1 E100") == (
+        "Error on 'G1 E100': Extrude only move too long (99.000mm vs 50.000mm)\n"
+        "See the 'max_extrude_only_distance' config option for details")
+    t0 = printer.backend.now_s
+    run(printer, responses, "M82\nG92 E0\nM221 S100\nG1 E-5 F1800")  # retraction: 5 mm at 30 mm/s
+    assert printer.backend.now_s - t0 == pytest.approx(5.0 / 30.0)
+
+
+def test_dwell_speed_factor_and_velocity_limits(slinger):
+    printer, responses = slinger
+    t0 = printer.backend.now_s
+    run(printer, responses, "G4 P1500")
+    assert printer.backend.now_s - t0 == pytest.approx(1.5)
+    run(printer, responses, "M220 S50\nG1 X100 F6000")
+    status = printer.get_status()["gcode_move"]
+    assert (status["speed_factor"], status["speed"]) == (0.5, 6000.0)
+    out = run(printer, responses, "SET_VELOCITY_LIMIT ACCEL=1000 ACCEL_TO_DECEL=500\nSET_VELOCITY_LIMIT")
+    assert out == ["// max_velocity: 300.000000", "// max_accel: 1000.000000", "// minimum_cruise_ratio: 0.500000",
+                   "// square_corner_velocity: 5.000000"]
+    run(printer, responses, "M204 P2000 R3000 T1500")
+    assert printer.get_status()["toolhead"]["max_accel"] == 1500.0
+
+
+def test_motors_off_needs_homing_again(slinger):
+    printer, responses = slinger
+    run(printer, responses, "M84 X Y E")  # Cura's axis letters: every motor goes off, as in Klipper
+    assert printer.get_status()["toolhead"]["homed_axes"] == ""
+    assert gcode_error(printer, "G1 X10") == "Must home axis first: X (run G28)"
+    run(printer, responses, "G28\nM18")
+    assert printer.get_status()["toolhead"]["homed_axes"] == ""
+
+
+def test_emergency_stop_halts_until_restart(slinger):
+    printer, responses = slinger
+    run(printer, responses, "M104 S200\nM140 S60")
+    message = gcode_error(printer, "M112")
+    assert message.startswith("Shutdown due to M112 command")
+    assert printer.state == "shutdown"
+    assert printer.backend.heater("extruder").target_c == 25.0  # heater off: heading for the room
+    assert gcode_error(printer, "G28") == message
+    run(printer, responses, "RESTART")
+    assert printer.state == "ready"
+    run(printer, responses, "G28")
+
+
+def test_messages_m117_m118_respond(slinger):
+    printer, responses = slinger
+    run(printer, responses, "M117 Printing 20% done")
+    assert printer.get_status()["display_status"]["message"] == "Printing 20% done"
+    run(printer, responses, "M73 P42 R10")
+    assert printer.get_status()["display_status"]["progress"] == 0.42
+    assert run(printer, responses, "M118 Hello world!") == ["echo: Hello world!"]
+    assert run(printer, responses, 'RESPOND TYPE=error MSG="filament out"') == ["!! filament out"]
+    assert run(printer, responses, 'RESPOND PREFIX=info: MSG="two words"') == ["info: two words"]
+    assert gcode_error(printer, "RESPOND TYPE=shout MSG=x") == (
+        "RESPOND TYPE 'shout' is invalid. Must be one of 'echo', 'command', or 'error'")
+
+
+def test_get_position_and_gcode_offsets(slinger):
+    printer, responses = slinger
+    run(printer, responses, "G1 X100 Y50 Z5 F6000\nSET_GCODE_OFFSET Z=0.1")
+    gcode, toolhead = positions(printer)
+    assert gcode[2] == pytest.approx(4.9) and toolhead[2] == pytest.approx(5.0)  # no move without MOVE=1
+    run(printer, responses, "SET_GCODE_OFFSET Z_ADJUST=-0.05 MOVE=1")
+    gcode, toolhead = positions(printer)
+    assert gcode[2] == pytest.approx(4.9) and toolhead[2] == pytest.approx(4.95)  # moved by the change
+    assert printer.get_status()["gcode_move"]["homing_origin"] == pytest.approx([0.0, 0.0, 0.05, 0.0])
+    run(printer, responses, "G1 Z1")
+    assert printer.lookup_object("toolhead").get_position()[2] == pytest.approx(1.05)
+    out = run(printer, responses, "G92 X0\nGET_POSITION")
+    machine = printer.backend.position
+    assert out == [
+        f"// mcu: stepper_x:{round(machine[0] / 0.0125)} stepper_y:{round(machine[1] / 0.0125)} "
+        f"stepper_z:{round(machine[2] / 0.0025)}",
+        f"// stepper: stepper_x:{machine[0]:.6f} stepper_y:{machine[1]:.6f} stepper_z:{machine[2]:.6f}",
+        "// kinematic: X:100.000000 Y:50.000000 Z:1.050000",
+        "// toolhead: X:100.000000 Y:50.000000 Z:1.050000 E:0.000000",
+        "// gcode: X:0.000000 Y:50.000000 Z:1.000000 E:0.000000",
+        "// gcode base: X:100.000000 Y:0.000000 Z:0.050000 E:0.000000",
+        "// gcode homing: X:0.000000 Y:0.000000 Z:0.050000",
+    ]
+    # Homing drops the G92 part of an offset and keeps the SET_GCODE_OFFSET part.
+    run(printer, responses, "G28")
+    assert printer.get_status()["gcode_move"]["gcode_position"][:3] == pytest.approx([0.0, 0.0, 9.95])
+
+
+def test_exclude_object_status_and_skipped_moves(slinger):
+    printer, responses = slinger
+    run(printer, responses, "EXCLUDE_OBJECT_DEFINE NAME=part_a CENTER=50,50 POLYGON=[[40,40],[60,40],[60,60]]\n"
+                            "EXCLUDE_OBJECT_DEFINE NAME=part_b CENTER=150,150")
+    status = printer.get_status()["exclude_object"]
+    assert status == {"objects": [{"name": "PART_A", "center": [50.0, 50.0],
+                                   "polygon": [[40.0, 40.0], [60.0, 40.0], [60.0, 60.0]]},
+                                  {"name": "PART_B", "center": [150.0, 150.0]}],
+                      "excluded_objects": [], "current_object": None}
+    assert run(printer, responses, "EXCLUDE_OBJECT NAME=part_b") == ["// Excluding object PART_B"]
+    run(printer, responses, "G1 X50 Y50 F6000\nEXCLUDE_OBJECT_START NAME=part_b\nG1 X150 Y150")
+    assert printer.get_status()["exclude_object"]["current_object"] == "PART_B"
+    assert printer.backend.position[:2] == pytest.approx((50.0, 50.0))  # the excluded object's move is skipped
+    assert positions(printer)[0][:2] == pytest.approx([150.0, 150.0])  # the G-code position follows it
+    run(printer, responses, "EXCLUDE_OBJECT_END NAME=part_b\nG1 X70 Y80")
+    assert printer.backend.position[:2] == pytest.approx((70.0, 80.0))
+    assert gcode_error(printer, "EXCLUDE_OBJECT_DEFINE NAME=c POLYGON=[[1,2],[3]]") == (
+        "Error on 'EXCLUDE_OBJECT_DEFINE NAME=c POLYGON=[[1,2],[3]]': POLYGON must be a JSON list of [x,y] points "
+        "(got '[[1,2],[3]]')")
+
+
+def test_unknown_parameter_gets_a_warning_naming_it(slinger):
+    printer, responses = slinger
+    run(printer, responses, "G1 X10 F6000")
+    assert run(printer, responses, "G1 X20 Q5") == ["// G1: unknown parameter Q ignored"]
+    assert run(printer, responses, "G4 P10 Q1") == ["// G4: unknown parameter Q ignored"]
+    printer.gcode.register_command("SAMPLER", lambda gcmd: gcmd.get_int("SAMPLES", 10))
+    run(printer, responses, "SAMPLER SAMPLES=3")
+    assert run(printer, responses, "SAMPLER SAMPLE=5") == [
+        "// SAMPLER: unknown parameter SAMPLE ignored (did you mean SAMPLES?)"]
+    # A macro takes every parameter (it may read them through params).
+    assert run(printer, responses, "M118 A=1 B=2") == ["echo: A=1 B=2"]
+
+
+def test_probe_commands_warn_and_take_kalicos_spellings(tmp_path):
+    path = calibrated_voron(tmp_path, {"probe_count: 5, 5": "probe_count: 3, 3"})
+    printer, responses = start(tmp_path, path.read_text(), "again.cfg")
+    run(printer, responses, "G28")
+    out = run(printer, responses, "PROBE_ACCURACY SAMPLE=2")
+    assert out[-1] == "// PROBE_ACCURACY: unknown parameter SAMPLE ignored (did you mean SAMPLES?)"
+    assert "(samples=10 " in out[0]  # the default ran: the warning says why
+    # Kalico's TAPS= is tapcell's COUNT=.
+    out = run(printer, responses, "SIM_TAP FORCE=300 DELAY=0.3\nLOAD_CELL_TEST_TAP TAPS=1 TIMEOUT=5")
+    assert out[-3:] == ["// Tap the load cell 1 times:", "// Tap Detected!", "// Test complete, 1 taps detected"]
+    assert gcode_error(printer, "LOAD_CELL_TEST_TAP TAPS=1 COUNT=2") == (
+        "Error on 'LOAD_CELL_TEST_TAP TAPS=1 COUNT=2': TAPS (Kalico's name) and COUNT are the same parameter; "
+        "give one")
+
+
+def test_probe_calibrate_and_z_offset_apply_probe(tmp_path):
+    path = calibrated_voron(tmp_path, {"probe_count: 5, 5": "probe_count: 3, 3"})
+    printer, responses = start(tmp_path, path.read_text(), "again.cfg")
+    run(printer, responses, "G28\nG1 X150 Y150 F6000")
+    out = run(printer, responses, "PROBE_CALIBRATE")
+    toolhead = printer.lookup_object("toolhead")
+    probed_z = printer.lookup_object("probe").last_result.z_mm  # z_offset is 0: the bed is where it triggered
+    lifted_z = toolhead.get_position()[2]
+    assert lifted_z == pytest.approx(probed_z + 5.0, abs=0.002)
+    assert out[-3:] == ["// Starting manual Z probe. Use TESTZ to adjust position.",
+                        "// Finish with ACCEPT or ABORT command.", f"// Z position: ?????? --> {lifted_z:.3f} <-- ??????"]
+    out = run(printer, responses, "TESTZ Z=-4.9")
+    paper_z = toolhead.get_position()[2]
+    assert out == [f"// Z position: ?????? --> {paper_z:.3f} <-- {lifted_z:.3f}"]
+    out = run(printer, responses, "TESTZ Z=+")  # halfway back to the nearest position tried above
+    assert out == [f"// Z position: {paper_z:.3f} --> {(paper_z + lifted_z) / 2:.3f} <-- {lifted_z:.3f}"]
+    run(printer, responses, "TESTZ Z=-")
+    assert toolhead.get_position()[2] == pytest.approx(paper_z + (lifted_z - paper_z) / 4, abs=0.002)
+    out = run(printer, responses, f"TESTZ Z={probed_z + 0.08 - toolhead.get_position()[2]:.4f}\nACCEPT")
+    z_offset = probed_z - toolhead.get_position()[2]
+    assert z_offset == pytest.approx(-0.08, abs=0.002)  # the nozzle 0.08 mm above where the probe found the bed
+    assert out[-3:] == [f"// load_cell_probe: z_offset: {z_offset:.3f}", "// The SAVE_CONFIG command will update the "
+                        "printer config file", "// with the above and restart the printer."]
+    assert printer.config.pending_changes()["load_cell_probe"] == {"z_offset": f"{z_offset:.3f}"}
+    assert not printer.gcode.is_registered("TESTZ")
+    run(printer, responses, "PROBE_CALIBRATE")
+    assert run(printer, responses, "ABORT") == ["// Manual probe aborted: z_offset unchanged"]
+    assert run(printer, responses, "Z_OFFSET_APPLY_PROBE") == ["// Nothing to do: Z Offset is 0"]
+    out = run(printer, responses, "SET_GCODE_OFFSET Z=0.025\nZ_OFFSET_APPLY_PROBE")
+    assert out[0] == "// load_cell_probe: z_offset: -0.025"
+
+
+def test_testz_refuses_to_press_the_nozzle_into_the_bed(tmp_path):
+    path = calibrated_voron(tmp_path)
+    printer, responses = start(tmp_path, path.read_text(), "again.cfg")
+    run(printer, responses, "G28\nPROBE_CALIBRATE\nTESTZ Z=-4.9")
+    z_before = printer.lookup_object("toolhead").get_position()[2]
+    with pytest.raises(GCodeError, match=r"mm below the bed the probe found .*: the nozzle would press into the bed "
+                                         r"\(at most 0.05 mm below it\)"):
+        printer.gcode.run_script("TESTZ Z=-0.2")
+    assert printer.lookup_object("toolhead").get_position()[2] == z_before
+
+
+def test_status_objects_have_klippers_fields(slinger):
+    printer, responses = slinger
+    run(printer, responses, "M106 S255")
+    status = printer.get_status()
+    assert set(status["gcode_move"]) == {"speed_factor", "speed", "extrude_factor", "absolute_coordinates",
+                                         "absolute_extrude", "homing_origin", "position", "gcode_position"}
+    assert {"homed_axes", "axis_minimum", "axis_maximum", "position", "extruder", "print_time",
+            "estimated_print_time", "stalls", "max_velocity", "max_accel", "minimum_cruise_ratio",
+            "square_corner_velocity"} <= set(status["toolhead"])
+    assert {"temperature", "target", "power", "can_extrude", "pressure_advance", "smooth_time"} <= set(status["extruder"])
+    assert set(status["heater_bed"]) == {"temperature", "target", "power"}
+    assert status["fan"] == {"speed": 1.0, "rpm": None}
+    assert status["toolhead"]["extruder"] == "extruder" and len(status["toolhead"]["position"]) == 4
