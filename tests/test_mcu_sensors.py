@@ -238,3 +238,45 @@ def test_ads1220_effective_pga_bypass():
     assert sensors.ads1220_effective_pga_bypass(8, True, "AIN0_AIN1") is False
     assert sensors.ads1220_effective_pga_bypass(1, False, "AIN2_AVSS") is True
     assert sensors.ads1220_effective_pga_bypass(2, False, "AIN1_AIN3") is False
+
+
+# ---------------------------------------------------------------------------
+# Noise floor and the stuck-sensor run length
+
+
+def test_noise_floor_from_the_datasheets():
+    # HX711: 50 nV RMS at 10 sps and 90 nV at 80 sps (gain 128); a count is 5.5 V / gain / 2^24 at most
+    assert sensors.noise_floor_counts("hx711", "A-128", 10) == pytest.approx(19.52, abs=0.01)
+    assert sensors.noise_floor_counts("hx711", "A-128", 80) == pytest.approx(35.14, abs=0.01)
+    assert sensors.noise_floor_counts("hx711", "B-32", 80) == pytest.approx(35.14 / 4, abs=0.01)
+    assert sensors.noise_floor_counts("hx717", "B-8", 20) == pytest.approx(19.52 / 16, abs=0.01)
+    # ADS1220: at most 20 effective bits of 24, in every mode
+    assert sensors.noise_floor_counts("ads1220", "1", 20) == sensors.noise_floor_counts("ads1220", "128", 2000) == 16
+    with pytest.raises(SensorConfigError, match="gain = B-8 is not allowed; allowed: A-128, B-32, A-64"):
+        sensors.noise_floor_counts("hx711", "B-8", 80)
+
+
+def test_run_probability_never_underestimates_rounded_gaussian_noise():
+    # Measured on numpy's noise, not derived from the formula: runs of n equal rounded readings.
+    # The formula may be high (a longer default run: safe), never low; measured within 1..12 %.
+    rng = np.random.default_rng(11)
+    for sigma, n in ((1.2, 2), (1.2, 3), (1.2, 5), (2.2, 3), (4.0, 3), (8.0, 2)):
+        readings = np.round(rng.normal(1000.3, sigma, 2_000_000))
+        same = np.ones(readings.size - n + 1, dtype=bool)
+        for k in range(1, n):
+            same &= readings[k:readings.size - n + 1 + k] == readings[:readings.size - n + 1]
+        model = sensors.identical_run_probability(sigma, n)
+        assert 0.85 * model <= same.mean() <= 1.02 * model, (sigma, n)
+
+
+@pytest.mark.parametrize("chip, gain, rate, samples", [
+    ("hx717", "A-128", 320, 7), ("hx711", "A-128", 80, 7), ("hx711", "A-128", 10, 7), ("hx711", "B-32", 80, 10),
+    ("hx717", "B-8", 320, 17), ("hx717", "B-8", 10, 22), ("ads1220", "128", 660, 9), ("ads1220", "1", 20, 8),
+])
+def test_default_stuck_runs(chip, gain, rate, samples):
+    noise = sensors.noise_floor_counts(chip, gain, rate)
+    assert sensors.stuck_sample_count(noise, rate, 65535) == samples
+    # the run one shorter would be seen more often than once per million armed hours
+    per_hour = 3600 * rate
+    assert sensors.identical_run_probability(noise, samples) * per_hour <= 1e-6
+    assert sensors.identical_run_probability(noise, samples - 1) * per_hour > 1e-6

@@ -90,7 +90,8 @@ def test_force_safety_at_arm():
 def test_drift_safety_and_glitch_quarantine():
     trigger = FirmwareTrigger(params(drift_safety_limit_g=1000.0, reference_tare_counts=0))
     trigger.arm(0, 1.0)
-    counts = np.array([0, 50, 0x7FFFFF, 60, -0x800000, 70, 80], dtype=np.int64)   # two isolated bad frames
+    wild = round(1900 * 245.3)                         # past the drift limit, inside the force limit
+    counts = np.array([0, 50, wild, 60, -wild, 70, 80], dtype=np.int64)   # two isolated bad frames
     result = trigger.feed(sample_times(counts.size), counts, want_filtered=True)
     assert result.error == TriggerError.NONE and result.trigger_index is None
     assert result.glitches == 2
@@ -100,6 +101,45 @@ def test_drift_safety_and_glitch_quarantine():
     result = trigger.feed(sample_times(5), np.array([0, over, over, 0, 0]))
     assert result.error == TriggerError.DRIFT_SAFETY and result.error_index == 2 and result.consumed == 3
     assert trigger.state == "error"
+
+
+def test_force_limit_stops_on_the_first_sample_past_it_with_or_without_quarantine():
+    # 2000 g at 245.3 counts/g is 490600 counts from the reference (12000) and from the tare.
+    for drift_g in (0.0, 1000.0):
+        trigger = FirmwareTrigger(params(drift_safety_limit_g=drift_g))
+        trigger.arm(12000, 1.0)
+        counts = np.array([12000, 12000 + 50 * 245, 12000 + 490601, 12000])   # 50 g, then just past 2000 g
+        result = trigger.feed(sample_times(counts.size), counts)
+        assert result.error == TriggerError.FORCE_SAFETY and result.error_index == 2, drift_g
+        # exactly at the limit it is a sample like any other: it triggers, or waits in quarantine
+        trigger.arm(12000, 1.0)
+        at_limit = trigger.feed(sample_times(2), np.array([12000, 12000 + 490600]))
+        assert at_limit.error == TriggerError.NONE
+        assert at_limit.trigger_index == (1 if drift_g == 0 else None)
+    # a tare 1500 g above the reference leaves 500 g to push (the reference window)
+    trigger = FirmwareTrigger(params(trigger_force_g=250.0, drift_safety_limit_g=0.0))
+    tare = 12000 + round(1500 * 245.3)
+    assert trigger.arm(tare, 1.0) == TriggerError.NONE
+    result = trigger.feed(sample_times(2), np.array([tare + round(200 * 245.3), 12000 + 490601]))  # +200 g, +500 g
+    assert result.error == TriggerError.FORCE_SAFETY and result.error_index == 1
+    # a single corrupted frame past the limit stops the move too (it cannot wait for the next sample)
+    trigger.arm(12000, 1.0)
+    assert trigger.feed(sample_times(3), np.array([12000, 0x7FFFFF, 12000])).error_index == 1
+
+
+def test_stuck_sensor_stops_after_the_default_run_at_660_sps():
+    trigger = FirmwareTrigger(params())                 # stuck_samples None: 9 at 660 sps (16 counts of noise)
+    assert trigger.params.effective_stuck_samples == 9
+    rng = np.random.default_rng(3)
+    live = 12000 + np.round(rng.normal(0, 16, 2000)).astype(np.int64)
+    trigger.arm(12000, 1.0)
+    alive = trigger.feed(sample_times(live.size), live)
+    assert alive.error == TriggerError.NONE and alive.consumed == live.size
+    stuck = np.concatenate([live[:100], np.full(20, live[99])])
+    trigger.arm(12000, 1.0)
+    result = trigger.feed(sample_times(stuck.size), stuck)
+    assert result.error == TriggerError.STUCK_SENSOR and result.error_index == 99 + 8
+    assert FirmwareTrigger(params(stuck_samples=0)).params.effective_stuck_samples == 0
 
 
 def test_watchdog_after_exactly_n_sample_periods():
@@ -152,6 +192,7 @@ def test_one_call_for_a_10000_sample_tap():
     trigger = FirmwareTrigger(params(sos=sos, reference_tare_counts=0))
     t = sample_times(10_000)
     grams = np.where(np.arange(10_000) >= 9000, (np.arange(10_000) - 9000) * 5.0, 0.0)
+    grams += np.random.default_rng(1).normal(0, 0.1, grams.size)    # a live sensor is never flat
     trigger.arm(0, 1.0)
     result = trigger.feed(t, np.round(grams * 245.3))
     assert result.trigger_index is not None and 9014 <= result.trigger_index <= 9030
@@ -168,6 +209,10 @@ def test_one_call_for_a_10000_sample_tap():
                                       "positive force in grams"),
     (dict(sample_rate_sps=0.001), "sample_rate_sps: 0.001 is not allowed; allowed: a sample period of "
                                   "1 .. 134217727 ticks at clock_hz 1e+06"),
+    (dict(stuck_samples=1), "stuck_samples: 1 is not allowed; allowed: 0 (disabled) or an integer 2 .. 65535"),
+    (dict(stuck_samples=70000), "stuck_samples: 70000 is not allowed; allowed: 0 (disabled) or an integer 2 .. 65535"),
+    (dict(reference_tare_counts=2 ** 31 - 1000), "force_safety_limit_g: 2000.0 is not allowed; allowed: a window "
+                                                 "reference_tare_counts +- limit within int32"),
 ])
 def test_bad_parameters_are_named(overrides, message):
     with pytest.raises(TriggerConfigError) as info:

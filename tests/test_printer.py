@@ -1,4 +1,5 @@
-"""tapcell.host.printer: loading sections through the module registry, status, events, RESTART, SAVE_CONFIG."""
+"""tapcell.host.printer: loading sections by convention ([name] -> tapcell.extras.name), status, events,
+RESTART, SAVE_CONFIG."""
 
 from __future__ import annotations
 
@@ -76,11 +77,21 @@ def fake_modules(monkeypatch):
     scale.load_config_prefix = load_scale
     sim = types.ModuleType("tapcell_test_sim")
     sim.VirtualPrinter = types.SimpleNamespace(from_config=FakeBackend)
-    for module in (toolhead, scale, sim):
+    install_extras(monkeypatch, {"load_cell": scale, "load_cell_probe": scale})
+    for module in (toolhead, sim):
         monkeypatch.setitem(sys.modules, module.__name__, module)
-    monkeypatch.setitem(printer_module.MODULES, "printer", toolhead.__name__)
-    monkeypatch.setitem(printer_module.MODULES, "load_cell", scale.__name__)
+    monkeypatch.setattr(printer_module, "TOOLHEAD_MODULE", toolhead.__name__)
     monkeypatch.setattr(printer_module, "BACKEND_MODULE", sim.__name__)
+
+
+def install_extras(monkeypatch, modules: dict[str, types.ModuleType]) -> None:
+    """Make `modules` the extras package: [name] sections load from modules[name]."""
+    package = types.ModuleType("tapcell_test_extras")
+    package.__path__ = []
+    monkeypatch.setitem(sys.modules, package.__name__, package)
+    for kind, module in modules.items():
+        monkeypatch.setitem(sys.modules, f"{package.__name__}.{kind}", module)
+    monkeypatch.setattr(printer_module, "EXTRAS_PACKAGE", package.__name__)
 
 
 CONFIG = """\
@@ -157,12 +168,22 @@ def test_status_command(tmp_path, fake_modules):
                                "(one of: load_cell, load_cell right, printer, virtual_printer)")
 
 
+def test_unknown_sections_name_the_closest_modules_of_extras(tmp_path):
+    # The real tapcell.extras (every module with a loader) and the accepted hardware sections are
+    # too many to list: the closest names are given.
+    assert config_error(tmp_path, CONFIG + "[fann]\nspeed: 1\n") == (
+        f"{tmp_path}/printer.cfg: [fann]: Section 'fann' is not a valid config section (did you mean fan?)")
+    assert config_error(tmp_path, "[probe]\n", backend=FakeBackend()) == (
+        f"{tmp_path}/printer.cfg: [probe]: Section 'probe' is not a valid config section "
+        "(tapcell.extras.probe does not support [probe])")
+    assert config_error(tmp_path, CONFIG + "[bed_mesh.two_pass]\n") == (
+        f"{tmp_path}/printer.cfg: [bed_mesh.two_pass]: Section 'bed_mesh.two_pass' is not a valid config section "
+        "(did you mean bed_mesh or endstop_phase?)")
+    assert set(printer_module.section_kinds()) >= {"fan", "heater_bed", "safe_z_home", "exclude_object", "extruder"}
+
+
 @pytest.mark.parametrize("extra, problem", [
-    # A misspelt section name gets the closest known names.
-    ("[fann]\nspeed: 1\n", "[fann]: Section 'fann' is not a valid config section (did you mean fan?)"),
     ("[widget]\n", "[widget]: Section 'widget' is not a valid config section"),
-    # A modelled section still checks its option names, as in Klipper.
-    ("[fan]\npin: PA8\nspeed: 1\n", "[fan] speed = 1: Option 'speed' is not valid in section 'fan'"),
     ("[printer extra]\n", "[printer extra]: Section 'printer extra' is not a valid config section "
                           "(tapcell_test_toolhead does not support [printer NAME])"),
     ("[stepper_y]\nrotation_distance: 40\nstep_pinn: PA1\n",
@@ -184,32 +205,27 @@ def test_stepper_section_needs_its_reader(tmp_path, fake_modules):
         f"{tmp_path}/printer.cfg: [stepper_x]: this section is read by [printer], which is missing")
 
 
-def test_duplicate_mux_registration_is_a_config_error(tmp_path, fake_modules, monkeypatch):
-    monkeypatch.setitem(printer_module.MODULES, "load_cell_probe", "tapcell_test_scale")
+def test_duplicate_mux_registration_is_a_config_error(tmp_path, fake_modules):
     assert config_error(tmp_path, CONFIG + "[load_cell_probe]\n") == (
         f"{tmp_path}/printer.cfg: [load_cell_probe]: Command 'FAKE_CALIBRATE' without LOAD_CELL= is already registered")
 
 
-def test_missing_modules_skip_their_sections_with_a_warning(tmp_path, monkeypatch):
-    monkeypatch.setitem(printer_module.MODULES, "printer", "tapcell_test_not_written_yet")
-    monkeypatch.setattr(printer_module, "BACKEND_MODULE", "tapcell_test_no_sim")
-    printer, _, _ = build(tmp_path, "[virtual_printer]\nanything: 1\n[printer]\nwhatever: 1\n"
-                                    "[stepper_x]\nfoo: 2\n")
-    assert printer.backend is None
-    assert printer.warnings == [
-        "[virtual_printer] was not loaded: tapcell_test_no_sim.VirtualPrinter is not available yet; "
-        "its options were not checked",
-        "[printer] was not loaded: tapcell_test_not_written_yet is not available yet; its options were not checked",
-        "[stepper_x] was not loaded: tapcell_test_not_written_yet is not available yet; "
-        "its options were not checked",
-    ]
+def test_a_section_module_is_found_by_its_name_alone(tmp_path, fake_modules, monkeypatch):
+    # A new config section is a new module in extras/: nothing to register.
+    spool = types.ModuleType("tapcell_test_spool_scale")
+    spool.load_config = lambda section, printer: FakeBackend(section)  # any object with a status
+    install_extras(monkeypatch, {"load_cell": sys.modules["tapcell_test_extras.load_cell"], "spool_scale": spool})
+    printer, _, _ = build(tmp_path, CONFIG + "[spool_scale]\nscenario: kitchen\n")
+    assert printer.get_status(7.0)["spool_scale"] == {"time_s": 7.0, "scenario": "kitchen"}
 
 
 def test_a_broken_import_inside_a_module_is_not_hidden(tmp_path, monkeypatch):
-    broken = tmp_path / "tapcell_test_broken.py"
-    broken.write_text("import tapcell_test_dependency_that_is_missing\n")
+    package = tmp_path / "tapcell_test_broken_extras"
+    package.mkdir()
+    (package / "__init__.py").write_text("")
+    (package / "bed_mesh.py").write_text("import tapcell_test_dependency_that_is_missing\n")
     monkeypatch.syspath_prepend(str(tmp_path))
-    monkeypatch.setitem(printer_module.MODULES, "bed_mesh", "tapcell_test_broken")
+    monkeypatch.setattr(printer_module, "EXTRAS_PACKAGE", package.name)
     with pytest.raises(ModuleNotFoundError, match="tapcell_test_dependency_that_is_missing"):
         build(tmp_path, "[bed_mesh]\n", backend=FakeBackend())
 

@@ -56,6 +56,15 @@ int tc_trigger_configure(struct tc_trigger *t, const struct tc_trigger_config *c
     return TC_OK;
 }
 
+/* The window (larger - limit) .. (smaller + limit): the intersection of
+ * larger +- limit and smaller +- limit, as low .. low + span compared modulo
+ * 2^32. A limit of 0 allows everything. */
+static void set_window(uint32_t *low, uint32_t *span, int32_t larger, int32_t smaller, int32_t limit)
+{
+    *low = (uint32_t)larger - (uint32_t)limit;
+    *span = limit ? 2u * (uint32_t)limit - ((uint32_t)larger - (uint32_t)smaller) : UINT32_MAX;
+}
+
 int tc_trigger_arm(struct tc_trigger *t, int32_t tare_counts, uint32_t arm_ticks)
 {
     const int32_t reference = t->cfg.reference_tare_counts, limit = t->cfg.force_limit_counts;
@@ -73,18 +82,14 @@ int tc_trigger_arm(struct tc_trigger *t, int32_t tare_counts, uint32_t arm_ticks
     t->filtered_q = 0;
     t->error = TC_OK;
     t->state = TC_TRIGGER_ARMED;
-    /* A window is low .. low + span, compared modulo 2^32; a limit of 0 allows everything. */
-    t->drift_low = (uint32_t)tare_counts - (uint32_t)drift;
-    t->drift_span = drift ? 2u * (uint32_t)drift : UINT32_MAX;
-    /* Force window: reference +- limit intersected with tare +- limit, i.e.
-     * larger - limit .. smaller + limit of the two centres. It exists when they
-     * are at most limit apart (the tare check); it fits int32 because
-     * reference +- limit does (configure). */
+    set_window(&t->drift_low, &t->drift_span, tare_counts, tare_counts, drift);
+    /* Force window: reference +- limit intersected with tare +- limit. It exists
+     * when the two centres are at most limit apart (the tare check); it fits
+     * int32 because reference +- limit does (configure). */
     int32_t larger = tare_counts > reference ? tare_counts : reference;
     int32_t smaller = tare_counts > reference ? reference : tare_counts;
     uint32_t apart = (uint32_t)larger - (uint32_t)smaller;
-    t->force_low = (uint32_t)larger - (uint32_t)limit;
-    t->force_span = limit ? 2u * (uint32_t)limit - apart : UINT32_MAX;
+    set_window(&t->force_low, &t->force_span, larger, smaller, limit);
     if (limit && apart > (uint32_t)limit) {
         t->error_ticks = arm_ticks;
         t->error = TC_ERR_FORCE_SAFETY;

@@ -246,34 +246,49 @@ def _wrap_int32(value: int) -> int:
     return ((value + (1 << 31)) & 0xFFFFFFFF) - (1 << 31)
 
 
-def reference_sosfilt_q(qsos: QuantizedSos | None, x_q: np.ndarray) -> tuple[np.ndarray, bool]:
-    """Bit-exact model of tc_sos_filter_apply over a signal from zero state.
+class ReferenceSosFilter:
+    """Bit-exact model of one tc_sos_filter, one sample at a time (from zero state).
 
-    Returns the int32 outputs and whether any value overflowed (saturated). Python
-    integers hold the 64-bit intermediate values exactly; saturation and the 32-bit
-    rounding-error term follow the C code (firmware/include/sos_filter.h).
+    Python integers hold the 64-bit intermediate values exactly; saturation and the
+    32-bit rounding-error term follow the C code (firmware/include/sos_filter.h).
+    `overflowed` is sticky like the C flag. The trigger model (tapcell.mcu.trigger_model)
+    steps it sample by sample; reference_sosfilt_q runs it over a whole signal.
     """
-    x = np.asarray(x_q)
-    if x.size and (x.min() < INT32_MIN or x.max() > INT32_MAX):
-        raise ValueError("x_q: values must fit int32 (Q16.15 grams)")
-    if qsos is None or qsos.n_sections == 0:
-        return x.astype(np.int32), False
-    if np.any(np.asarray(qsos.coeff) == INT32_MIN):
-        raise ValueError("sos: a coefficient of -2^31 is not allowed (the firmware refuses it)")
-    shift = qsos.frac_bits
-    half = 1 << (shift - 1)
-    coeff = [[int(c) for c in row] for row in qsos.coeff]
-    state = [[half, half] for _ in coeff]
-    out = np.empty(len(x), dtype=np.int32)
-    overflowed = False
-    for n, value in enumerate(x.tolist()):
-        for (b0, b1, b2, a1, a2), z in zip(coeff, state):
+
+    def __init__(self, qsos: QuantizedSos | None):
+        sections = [] if qsos is None else [[int(c) for c in row] for row in qsos.coeff]
+        if any(c == INT32_MIN for row in sections for c in row):
+            raise ValueError("sos: a coefficient of -2^31 is not allowed (the firmware refuses it)")
+        self._coeff = sections
+        self._shift = 0 if qsos is None else qsos.frac_bits
+        self._half = (1 << (self._shift - 1)) if sections else 0
+        self.reset()
+
+    def reset(self) -> None:
+        self._state = [[self._half, self._half] for _ in self._coeff]
+        self.overflowed = False
+
+    def apply(self, value: int) -> int:
+        shift, half = self._shift, self._half
+        for (b0, b1, b2, a1, a2), z in zip(self._coeff, self._state):
             acc, bad_add = _sat(b0 * value + z[0], INT64_MIN, INT64_MAX)
             y, bad_y = _sat(acc >> shift, INT32_MIN, INT32_MAX)
             err = _wrap_int32(acc - (y << shift) - half)
             z[0], bad_state = _sat(b1 * value - a1 * y + 2 * err + z[1], INT64_MIN, INT64_MAX)
             z[1] = b2 * value - a2 * y + half - err
-            overflowed |= bad_add or bad_y or bad_state
+            self.overflowed |= bad_add or bad_y or bad_state
             value = y
-        out[n] = value
-    return out, overflowed
+        return value
+
+
+def reference_sosfilt_q(qsos: QuantizedSos | None, x_q: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Bit-exact model of tc_sos_filter_apply over a signal from zero state.
+
+    Returns the int32 outputs and whether any value overflowed (saturated).
+    """
+    x = np.asarray(x_q)
+    if x.size and (x.min() < INT32_MIN or x.max() > INT32_MAX):
+        raise ValueError("x_q: values must fit int32 (Q16.15 grams)")
+    f = ReferenceSosFilter(qsos)
+    out = np.array([f.apply(value) for value in x.tolist()], dtype=np.int32)
+    return out, f.overflowed

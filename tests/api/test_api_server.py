@@ -97,6 +97,17 @@ def test_gcode_errors_reply_and_echo_like_klipper(client):
     assert "PROBE" in helped and "FIRMWARE_RESTART" in helped and "PAUSE" in helped
 
 
+def test_pause_resume_and_display_message(client):
+    assert client.call("pause_resume/pause")["result"] == {}
+    assert client.call("objects/query", objects={"pause_resume": None})["result"]["status"]["pause_resume"] == {
+        "is_paused": True}
+    assert client.call("pause_resume/resume")["result"] == {}
+    assert client.call("gcode/script", script="M117 Probing the bed")["result"] == {}
+    status = client.call("objects/query", objects={"pause_resume": None, "display_status": ["message"]})
+    assert status["result"]["status"] == {"pause_resume": {"is_paused": False},
+                                          "display_status": {"message": "Probing the bed"}}
+
+
 def test_dump_force_header_then_batches_of_rows(client):
     reply = client.call("load_cell/dump_force", load_cell="load_cell_probe", response_template={"method": "force"})
     assert reply["result"] == {"header": ["time", "force (g)", "counts", "tare_counts"]}
@@ -159,6 +170,8 @@ def test_emergency_stop_shuts_down_and_firmware_restart_closes_connections(tmp_p
             pass
         again = KlippyClient(socket_path)
         assert again.call("info")["result"]["state"] == "ready"
+        assert again.call("gcode/script", script="M112")["result"] == {}
+        assert again.call("info")["result"]["state_message"].startswith("Shutdown due to M112 command")
         again.close()
     finally:
         stop(process)

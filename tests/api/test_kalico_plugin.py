@@ -64,6 +64,17 @@ def test_pip_check_is_clean_next_to_kalicos_pins():
     assert checked.returncode == 0, checked.stdout + checked.stderr
 
 
+def test_the_tap_analysis_imports_with_numpy_alone():
+    """Kalico's environment has no scipy, matplotlib or rich: tapcell's core must not need them."""
+    probe = ("import sys, tapcell, tapcell.tap; from tapcell.tap import analyze_tap; "
+             "print(sorted(m for m in ('scipy', 'matplotlib', 'rich', 'jinja2', 'websockets') if m in sys.modules))")
+    done = run([str(kalico_python()), "-c", probe])
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "[]"
+    missing = run([str(kalico_python()), "-c", "import scipy"])
+    assert missing.returncode != 0  # so the line above proves something
+
+
 def test_kalico_runs_tapcell_on_our_taps(kalico, tmp_path):
     python, root = kalico
     clean = printer_taps(tmp_path / "clean", "clean", 2)

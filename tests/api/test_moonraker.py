@@ -149,3 +149,26 @@ def test_restart_makes_moonraker_reconnect(stack):
     assert "notify_klippy_disconnected" in methods
     assert methods.index("notify_klippy_disconnected") < methods.index("notify_klippy_ready")
     stack.wait_ready()
+
+
+def test_monitor_says_so_and_reconnects_when_the_printer_restarts(stack, tmp_path):
+    log, said = tmp_path / "taps.jsonl", tmp_path / "monitor.stderr"
+    with said.open("w") as stderr:
+        monitor = subprocess.Popen(
+            [sys.executable, "-m", "tapcell", "monitor", "--moonraker", stack.url, "--count", "2", "--log", str(log)],
+            stdout=subprocess.DEVNULL, stderr=stderr)
+    try:
+        wait_for(lambda: said.read_text().count("waiting for taps") == 1, 60.0, "the monitor to subscribe", monitor)
+        assert script(stack, "G28\nPROBE")[0] == 200
+        wait_for(log.exists, 30.0, "the first tap in the log", monitor)
+        assert stack.get("/printer/restart", method="POST")[0] == 200
+        stack.wait_ready()
+        wait_for(lambda: said.read_text().count("waiting for taps") == 2, 60.0, "the monitor to reconnect", monitor)
+        assert script(stack, "G28\nPROBE")[0] == 200
+        assert monitor.wait(timeout=60.0) == 0
+    finally:
+        if monitor.poll() is None:
+            monitor.kill()
+            monitor.wait(timeout=10)
+    assert "lost or refused" in said.read_text() and "reconnecting" in said.read_text()
+    assert [json.loads(line)["analysis"]["valid"] for line in log.read_text().splitlines()] == [True, True]

@@ -80,9 +80,10 @@ def test_motors_off_needs_homing_again(slinger):
 def test_emergency_stop_halts_until_restart(slinger):
     printer, responses = slinger
     run(printer, responses, "M104 S200\nM140 S60")
-    message = gcode_error(printer, "M112")
-    assert message.startswith("Shutdown due to M112 command")
+    assert run(printer, responses, "M112") == ["!! Shutdown due to M112 command"]
     assert printer.state == "shutdown"
+    message = printer.state_message
+    assert message == "Shutdown due to M112 command\nOnce the underlying issue is corrected, use RESTART"
     assert printer.backend.heater("extruder").target_c == 25.0  # heater off: heading for the room
     assert gcode_error(printer, "G28") == message
     run(printer, responses, "RESTART")

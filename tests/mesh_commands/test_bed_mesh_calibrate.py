@@ -93,7 +93,7 @@ def test_oozy_mesh_completes_with_circle(make_printer):
 def test_calibrate_needs_homing_and_checks_parameters(make_printer):
     printer = make_printer(MESH, probe=True)
     assert gcode_error(printer, "BED_MESH_CALIBRATE") == "BED_MESH_CALIBRATE: home all axes first (G28)"
-    assert gcode_error(printer, "BED_MESH_CALIBRATE METHOD=magic") == "Error on 'BED_MESH_CALIBRATE METHOD=magic': METHOD=magic: must be one of tap, two_pass, prusa"
+    assert gcode_error(printer, "BED_MESH_CALIBRATE METHOD=magic") == "Error on 'BED_MESH_CALIBRATE METHOD=magic': METHOD must be one of tap, two_pass, prusa, not 'magic'"
     assert "PROBE_COUNT=2: must be at least 3 points on each axis" in gcode_error(printer, "BED_MESH_CALIBRATE PROBE_COUNT=2")
     assert "HORIZONTAL_Z_CLEARANCE must be above 0" in gcode_error(printer, "BED_MESH_CALIBRATE HORIZONTAL_Z_CLEARANCE=0")
 

@@ -8,7 +8,7 @@ import pytest
 
 from tapcell.host.config import ConfigError
 from tapcell.host.gcode import GCodeError
-from tapcell.extras.prusa_probe import ThresholdProber
+from tapcell.extras.load_cell_probe.threshold import ThresholdProber
 
 from machines import gcode_error
 

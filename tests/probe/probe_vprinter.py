@@ -14,8 +14,9 @@ CALIBRATION_G = 1000
 
 
 def printer_text(scenario: str = "clean", probe_options: str = "", virtual_printer: str = "",
-                 replace: dict[str, str] | None = None) -> str:
-    """The example config for `scenario`; `replace`: lines of the example to change (old -> new)."""
+                 replace: dict[str, str] | None = None, sections: str = "") -> str:
+    """The example config for `scenario`; `replace`: lines of the example to change (old -> new);
+    `probe_options`: lines added to [load_cell_probe]; `sections`: whole sections added at the end."""
     # The extra [virtual_printer] lines go after the example's own (scenario, seed): later values win.
     text = EXAMPLE.read_text().replace("scenario: clean\nseed: 1\n", f"scenario: {scenario}\nseed: 1\n{virtual_printer}\n")
     for old, new in (replace or {}).items():
@@ -23,14 +24,16 @@ def printer_text(scenario: str = "clean", probe_options: str = "", virtual_print
         text = text.replace(old, new)
     if scenario == "slow-adc":
         text = text.replace("sensor_type: hx717", "sensor_type: hx711").replace("sample_rate: 320", "sample_rate: 80")
-    return text.replace("samples: 1\n", f"samples: 1\n{probe_options}\n", 1)
+    # The probe options go after [load_cell_probe]'s `samples: 1`; a changed example must fail here.
+    assert "samples: 1\n" in text, "examples/virtual-printer.cfg: [load_cell_probe] lost its 'samples: 1' line"
+    return text.replace("samples: 1\n", f"samples: 1\n{probe_options}\n", 1) + sections
 
 
 def make_printer(tmp_path: Path, scenario: str = "clean", probe_options: str = "", virtual_printer: str = "",
-                 calibrate: bool = True, home: bool = True,
-                 replace: dict[str, str] | None = None) -> tuple[Printer, list[str]]:
+                 calibrate: bool = True, home: bool = True, replace: dict[str, str] | None = None,
+                 sections: str = "") -> tuple[Printer, list[str]]:
     path = tmp_path / f"{scenario}.cfg"
-    path.write_text(printer_text(scenario, probe_options, virtual_printer, replace))
+    path.write_text(printer_text(scenario, probe_options, virtual_printer, replace, sections))
     responses: list[str] = []
     printer = Printer.from_config(str(path), responses=responses)
     if calibrate:

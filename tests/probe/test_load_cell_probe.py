@@ -122,7 +122,9 @@ def test_bad_filter_option_names_section_option_and_value(tmp_path):
     with pytest.raises(ConfigError, match=r"\[load_cell_probe\] buzz_filter_cutoff_frequency = 500: 500.0 is not allowed"):
         make_printer(tmp_path, probe_options="buzz_filter_cutoff_frequency: 500", calibrate=False, home=False)
     printer, _ = make_printer(tmp_path)
-    with pytest.raises(GCodeError, match=r"BUZZ_FILTER_CUTOFF_FREQUENCY"):
+    with pytest.raises(GCodeError, match=r"^Error on 'PROBE BUZZ_FILTER_CUTOFF_FREQUENCY=500': "
+                                         r"BUZZ_FILTER_CUTOFF_FREQUENCY: 500\.0 is not allowed; allowed: above 80 Hz "
+                                         r"and below 160 Hz at 320 sps$"):
         printer.gcode.run_script("PROBE BUZZ_FILTER_CUTOFF_FREQUENCY=500")
 
 
@@ -171,3 +173,16 @@ def test_query_endstops_and_query_probe_report_the_load_cell_open(tmp_path):
     status = printer.get_status()
     assert status["query_endstops"]["last_query"] == {"x": False, "y": False, "z": False}
     assert status["probe"]["last_query"] is False
+
+
+def test_probe_templates_render_with_printer_status_and_run(tmp_path):
+    # activate_gcode runs before the first tap of a command, deactivate_gcode after the last,
+    # through the [gcode_macro] environment: `{...}` sees printer status.
+    printer, _ = make_printer(
+        tmp_path, probe_options=("activate_gcode: SET_GCODE_VARIABLE MACRO=SEEN VARIABLE=start_z "
+                                 "VALUE={printer.toolhead.position[2]}\n"
+                                 "deactivate_gcode: SET_GCODE_VARIABLE MACRO=SEEN VARIABLE=taps "
+                                 "VALUE={printer.load_cell_probe.taps_recorded}"),
+        sections="\n[gcode_macro SEEN]\nvariable_start_z: None\nvariable_taps: None\ngcode:\n")
+    printer.gcode.run_script("G1 Z3.25\nPROBE SAMPLES=2")
+    assert printer.lookup_object("gcode_macro SEEN").variables == {"start_z": 3.25, "taps": 2}

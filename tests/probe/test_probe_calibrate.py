@@ -8,7 +8,7 @@ from probe_vprinter import make_printer
 from tapcell.host.config import ConfigFile
 from tapcell.host.gcode import GCodeError
 from tapcell.host.printer import Printer
-from tapcell.extras.load_cell_probe.options import (
+from tapcell.extras.load_cell_probe.calibration import (
     PullbackCalibration,
     break_contact_spread_um,
     calibrate_decompression_angle,

@@ -9,7 +9,7 @@ from probe_vprinter import make_printer, true_contact_z
 from tapcell.host.config import ConfigError
 from tapcell.host.gcode import GCodeError
 from tapcell.extras.load_cell_probe.device import LoadCellProbe
-from tapcell.extras.load_cell_probe.options import _parabola_minimum, fit_pooled_contact_onset
+from tapcell.extras.load_cell_probe.calibration import _parabola_minimum, fit_pooled_contact_onset
 from tapcell.tap import AnalysisOptions
 from tapcell.sim.taps import SimTapSpec, record_sim_tap
 
@@ -65,9 +65,11 @@ def test_calibrate_contact_onset_on_a_soft_sheet(tmp_path):
 
 def test_calibrate_rejects_unknown_calibration(tmp_path):
     printer, _ = make_printer(tmp_path)
-    with pytest.raises(GCodeError, match="CALIBRATION must be one of CONTACT_ONSET, PULLBACK_DISTANCE, DECOMPRESSION_ANGLE, not 'STIFFNESS'"):
+    with pytest.raises(GCodeError, match=r"^Error on 'LOAD_CELL_PROBE_CALIBRATE CALIBRATION=STIFFNESS': CALIBRATION must "
+                                         r"be one of CONTACT_ONSET, PULLBACK_DISTANCE, DECOMPRESSION_ANGLE, not 'STIFFNESS'$"):
         printer.gcode.run_script("LOAD_CELL_PROBE_CALIBRATE CALIBRATION=STIFFNESS")
-    with pytest.raises(GCodeError, match="SAMPLES"):
+    with pytest.raises(GCodeError, match=r"^Error on 'LOAD_CELL_PROBE_CALIBRATE CALIBRATION=CONTACT_ONSET SAMPLES=2': "
+                                         r"SAMPLES must have minimum of 3$"):
         printer.gcode.run_script("LOAD_CELL_PROBE_CALIBRATE CALIBRATION=CONTACT_ONSET SAMPLES=2")
 
 

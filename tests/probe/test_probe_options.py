@@ -3,6 +3,7 @@ import pytest
 from tapcell.host.config import ConfigError
 from tapcell.host.gcode import GCodeError
 from tapcell.extras.probe.options import PROBE_OPTION_SPECS, read_probe_options, with_overrides
+from tapcell.host.templates import compile_template
 
 
 def test_probe_option_defaults(make_section):
@@ -48,3 +49,23 @@ def test_gcode_overrides(make_section, make_gcmd):
         with_overrides(base, PROBE_OPTION_SPECS, make_gcmd("PROBE BAD_PROBE_STRATEGY=sometimes"))
     with pytest.raises(GCodeError, match="SAMPLES must have minimum of 1"):
         with_overrides(base, PROBE_OPTION_SPECS, make_gcmd("PROBE SAMPLES=0"))
+
+
+def test_probe_templates_use_the_macro_environment(make_section):
+    # Klipper's delimiters: `{expr}` renders (a bare jinja2.Template would leave it as text).
+    section = make_section("z_offset: 0.0\nactivate_gcode: G1 Z{params.LIFT}\n"
+                           "deactivate_gcode:\n  {% for n in range(2) %}M400\n  {% endfor %}")
+    activate = compile_template(section, "activate_gcode", "[load_cell_probe] activate_gcode")
+    assert activate.render({"params": {"LIFT": "5"}}) == "G1 Z5"
+    deactivate = compile_template(section, "deactivate_gcode", "[load_cell_probe] deactivate_gcode")
+    assert deactivate.render({}).split() == ["M400", "M400"]
+    with pytest.raises(GCodeError, match=r"^Error in \[load_cell_probe\] activate_gcode: 'dict object' has no "
+                                         r"attribute 'LIFT'$"):
+        activate.render({"params": {}})
+
+
+def test_a_template_syntax_error_is_a_config_error_at_load(make_section):
+    section = make_section("z_offset: 0.0\nnozzle_scrubber_gcode: G1 Z{params.LIFT\n")
+    with pytest.raises(ConfigError, match=r"\[load_cell_probe\] nozzle_scrubber_gcode = G1 Z\{params.LIFT: template "
+                                          r"error on line 1 of the template: "):
+        compile_template(section, "nozzle_scrubber_gcode", "scrubber")

@@ -64,11 +64,6 @@ SIMULATED_HARDWARE: dict[str, str] = {
 }
 
 
-def accept_section(config, section_name: str) -> None:
-    """Take the section's options as written."""
-    config.mark_section_read(section_name)
-
-
 def startup_notice(sections: list[str], accepted: list[str]) -> str | None:
     """What the virtual printer simulates and what it only accepted (None: no hardware sections)."""
     simulated = [name for name in sections if name.split()[0] in SIMULATED_HARDWARE]

@@ -23,46 +23,13 @@ macro with a message instead of sending half a command.
 from __future__ import annotations
 
 import ast
-from collections.abc import Mapping
-from typing import Any, Iterator
-
-import jinja2
+from typing import Any
 
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeError
+from tapcell.host.templates import StatusView, compile_template
 
 DEFAULT_DESCRIPTION = "G-Code macro"
-
-_ENVIRONMENT = jinja2.Environment(
-    block_start_string="{%", block_end_string="%}",
-    variable_start_string="{", variable_end_string="}",
-    comment_start_string="{#", comment_end_string="#}",
-    undefined=jinja2.StrictUndefined,
-    extensions=["jinja2.ext.do"],
-)
-
-
-class StatusView(Mapping):
-    """`printer` inside a template: each object's status, fetched once per render."""
-
-    def __init__(self, printer: Any):
-        self._printer = printer
-        self._cache: dict[str, dict] = {}
-
-    def __getitem__(self, name: str) -> dict:
-        if name not in self._cache:
-            obj = self._printer.lookup_object(name, None)
-            if obj is None or not hasattr(obj, "get_status"):
-                raise KeyError(name)
-            self._cache[name] = obj.get_status(self._printer.get_time())
-        return self._cache[name]
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(name for name, obj in self._printer.objects.items() if hasattr(obj, "get_status"))
-
-    def __len__(self) -> int:
-        return sum(1 for _ in self)
-
 
 def parse_variable(text: str) -> Any:
     """A `variable_*` value or SET_GCODE_VARIABLE VALUE: a Python literal."""
@@ -77,11 +44,7 @@ class GCodeMacro:
         self.section_name = section.get_name()
         self.command = section.get_instance_name().upper()
         self.description = section.get("description", DEFAULT_DESCRIPTION)
-        template_text = section.get("gcode")
-        try:
-            self.template = _ENVIRONMENT.from_string(template_text)
-        except jinja2.TemplateSyntaxError as exc:
-            raise section.error("gcode", f"template error on line {exc.lineno} of the template: {exc.message}")
+        self.template = compile_template(section, "gcode", f"macro {self.command}")
         self.variables: dict[str, Any] = {}
         for option in section.get_option_names("variable_"):
             text = section.get(option)
@@ -109,14 +72,7 @@ class GCodeMacro:
             "action_respond_info": self._action_respond_info,
             "action_raise_error": self._action_raise_error,
         }
-        try:
-            return self.template.render(context)
-        except GCodeError:
-            raise
-        except jinja2.TemplateError as exc:
-            raise GCodeError(f"Error in macro {self.command}: {exc}") from None
-        except Exception as exc:  # e.g. a type error inside an expression the user wrote
-            raise GCodeError(f"Error in macro {self.command}: {type(exc).__name__}: {exc}") from None
+        return self.template.render(context)
 
     def cmd_macro(self, gcmd: GCodeCommand) -> None:
         if self._running:
@@ -132,14 +88,14 @@ class GCodeMacro:
         name = gcmd.get("VARIABLE").lower()
         if name not in self.variables:
             known = ", ".join(sorted(self.variables)) or "none"
-            raise gcmd.error(f"Error on '{gcmd.commandline}': unknown VARIABLE '{name}' "
-                             f"(variables of {self.command}: {known})")
+            raise gcmd.param_error(f"unknown VARIABLE '{name}' "
+                                   f"(variables of {self.command}: {known})")
         text = gcmd.get("VALUE")
         try:
             self.variables[name] = parse_variable(text)
         except (ValueError, SyntaxError):
-            raise gcmd.error(f"Error on '{gcmd.commandline}': unable to parse '{text}' for VALUE "
-                             f"(expected a Python literal)") from None
+            raise gcmd.param_error(f"unable to parse '{text}' for VALUE "
+                                   f"(expected a Python literal)") from None
 
     def _action_respond_info(self, message: str) -> str:
         self.printer.gcode.respond_info(str(message))

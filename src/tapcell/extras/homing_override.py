@@ -7,11 +7,9 @@ position before the G-code runs, so it can move it).
 
 from __future__ import annotations
 
-import jinja2
-
-from tapcell.extras.gcode_macro import _ENVIRONMENT, StatusView
 from tapcell.host.config import ConfigSection
-from tapcell.host.gcode import GCodeCommand, GCodeError
+from tapcell.host.gcode import GCodeCommand
+from tapcell.host.templates import StatusView, compile_template
 
 
 class HomingOverride:
@@ -37,11 +35,8 @@ class HomingOverride:
             index = "xyz".index(axis)
             toolhead.frame_offset_mm[axis] = position_mm - float(toolhead.backend.position[index])
             toolhead.homed_axes.add(axis)
-        try:
-            script = self.template.render(printer=StatusView(self.printer), params=gcmd.get_command_parameters(),
-                                          rawparams=gcmd.rawparams)
-        except jinja2.TemplateError as exc:
-            raise GCodeError(f"Error in [homing_override] gcode: {exc}") from None
+        script = self.template.render({"printer": StatusView(self.printer), "params": gcmd.get_command_parameters(),
+                                       "rawparams": gcmd.rawparams})
         self.in_script = True
         try:
             self.printer.gcode.run_script(script)
@@ -50,11 +45,7 @@ class HomingOverride:
 
 
 def load_config(section: ConfigSection, printer) -> HomingOverride:
-    text = section.get("gcode")
-    try:
-        template = _ENVIRONMENT.from_string(text)
-    except jinja2.TemplateSyntaxError as exc:
-        raise section.error("gcode", f"template error on line {exc.lineno} of the template: {exc.message}") from None
+    template = compile_template(section, "gcode", "[homing_override] gcode")
     axes = section.get("axes", "xyz").strip().lower()
     if not axes or any(axis not in "xyz" for axis in axes):
         raise section.error("axes", "must be letters from xyz")

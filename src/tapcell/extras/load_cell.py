@@ -24,7 +24,7 @@ from tapcell import scale
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeDispatch, GCodeError
 from tapcell.mcu import sensors
-from tapcell.sim.mcu import SampleBatch
+from tapcell.host.backend import SampleBatch
 
 # ---------------------------------------------------------------------------
 # Options

@@ -19,8 +19,8 @@ Commands: PROBE_THRESHOLDS (alias SHOW_THRESHOLDS), SET_Z_FAST_THRESHOLD, SET_Z_
 SET_MESH_THRESHOLD, SET_XY_THRESHOLD (aliases SET_Z_FAST, SET_Z_SLOW, SET_MESH, SET_XY; all
 take VALUE=grams), LOADCELL_PROBE. `BED_MESH_CALIBRATE METHOD=prusa` uses this mode.
 
-`ThresholdProber` (tare, threshold probing moves in Z and XY) is shared with the two-pass
-ABL (`tapcell.extras.bed_mesh.two_pass`) and XY probing (`tapcell.extras.xy_probe`).
+The tares and threshold probing moves are `tapcell.extras.load_cell_probe.threshold`'s
+`ThresholdProber`, shared with the two-pass ABL and XY probing.
 """
 
 from __future__ import annotations
@@ -31,15 +31,11 @@ import numpy as np
 
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeError
-from tapcell.extras.load_cell_probe.options import ERROR_PREFIX, preload_refusal, trigger_error_message
-from tapcell.extras.load_cell_probe.options import force_beyond_safety_limit_g
-from tapcell.mcu.trigger import FirmwareTrigger, TriggerError, TriggerParams
 from tapcell.mesh.errors import MeshError
+from tapcell.mesh.run import MeshProbeRun, mesh_travel_height_mm
 from tapcell.mesh.prusa import (
     MESH,
     SET_COMMANDS,
-    TARE_SAMPLE_COUNT,
-    TARE_SETTLE_S,
     XY,
     Z_FAST,
     Z_SLOW,
@@ -47,9 +43,8 @@ from tapcell.mesh.prusa import (
     check_tare_deviation,
     retry_offsets_mm,
 )
+from tapcell.extras.load_cell_probe.threshold import ThresholdProber
 from tapcell.extras.probe.session import ProbeError
-from tapcell.scale import counts_to_grams
-from tapcell.tap.model import Move
 
 SECTION = "prusa_probe"
 THRESHOLD_OPTIONS = {Z_FAST: "z_fast_threshold", Z_SLOW: "z_slow_threshold", MESH: "mesh_threshold",
@@ -58,134 +53,6 @@ THRESHOLD_LABELS = {Z_FAST: "Z fast", Z_SLOW: "Z slow", MESH: "Mesh", XY: "XY"}
 # Mainsail buttons of the spec, same handlers.
 ALIASES = {"SET_Z_FAST_THRESHOLD": "SET_Z_FAST", "SET_Z_SLOW_THRESHOLD": "SET_Z_SLOW",
            "SET_MESH_THRESHOLD": "SET_MESH", "SET_XY_THRESHOLD": "SET_XY"}
-
-
-# -- threshold probing on the firmware trigger --------------------------------------------------
-
-@dataclass(frozen=True)
-class TareRecord:
-    purpose: str
-    counts: float
-    force_g: float  # relative to the calibration's reference tare
-    time_s: float
-
-
-@dataclass(frozen=True)
-class ThresholdHit:
-    """One threshold probing move. Positions are in the toolhead frame."""
-
-    triggered: bool
-    trigger_time_s: float | None
-    halt_time_s: float
-    trigger_position_mm: tuple[float, float, float] | None  # where the triggering sample was taken
-    halt_position_mm: tuple[float, float, float]  # where the steppers stopped (after the latency)
-
-
-def z_at_time_mm(move_records: list[dict], t_s: float) -> float:
-    """Commanded Z at t_s: the last move started by then (the simulator's move records)."""
-    moves = [Move.from_record(record) for record in move_records]
-    started = [move for move in moves if move.print_time <= t_s] or moves[:1]
-    return float(started[-1].z_at(t_s))
-
-
-class ThresholdProber:
-    """Tares and threshold probing moves with the `[load_cell_probe]`'s sensor and trigger."""
-
-    def __init__(self, device):
-        self.device = device  # tapcell.extras.load_cell_probe.device.LoadCellProbe
-        self.vp = device.vp
-        self.load_cell = device.load_cell
-        self.toolhead = device.motion
-        self.tares: list[TareRecord] = []
-
-    def require_calibrated(self) -> None:
-        if not self.load_cell.is_calibrated:
-            raise ProbeError(ERROR_PREFIX + "Load Cell not calibrated")
-
-    def tare(self, purpose: str, settle_s: float = TARE_SETTLE_S, sample_count: int = TARE_SAMPLE_COUNT) -> TareRecord:
-        """Wait settle_s for vibrations to die, then average sample_count samples."""
-        self.require_calibrated()
-        self.vp.dwell(settle_s)
-        batch = self.load_cell.collect(sample_count / self.device.sample_rate_sps)
-        if batch.errors:
-            raise ProbeError(ERROR_PREFIX + f"sensor reported {batch.errors} errors while taring")
-        if len(batch.counts) == 0:
-            raise ProbeError(ERROR_PREFIX + "timed out waiting for sensor data")
-        counts = float(np.mean(batch.counts[-sample_count:]))
-        force_g = counts_to_grams(counts, self.load_cell.reference_tare_counts, self.load_cell.counts_per_gram,
-                                  self.device.cell_options.inverted)
-        record = TareRecord(purpose, counts, float(force_g), self.vp.now_s)
-        self.load_cell.set_tare(counts)
-        self.tares.append(record)
-        return record
-
-    def _arm(self, tare: TareRecord, threshold_g: float, release_g: float,
-             drift_safety_limit_g: float | None = None) -> FirmwareTrigger:
-        options = self.device.options
-        # Refused before the move, with the force (the firmware would only say "too much").
-        beyond_g = force_beyond_safety_limit_g(tare.counts, self.load_cell.reference_tare_counts,
-                                               self.load_cell.counts_per_gram, options.force_safety_limit_g)
-        if beyond_g is not None:
-            raise ProbeError(preload_refusal(beyond_g, options.force_safety_limit_g))
-        if drift_safety_limit_g is None:
-            drift_safety_limit_g = options.drift_safety_limit_g
-        trigger = FirmwareTrigger(TriggerParams(
-            counts_per_gram=self.load_cell.counts_per_gram,
-            reference_tare_counts=self.load_cell.reference_tare_counts,
-            trigger_force_g=threshold_g,
-            release_force_g=release_g,
-            sample_rate_sps=self.device.sample_rate_sps,
-            force_safety_limit_g=options.force_safety_limit_g,
-            drift_safety_limit_g=drift_safety_limit_g,
-            inverted=self.device.cell_options.inverted,
-            sos=self.device.config_settings.sos,
-        ))
-        error = trigger.arm(int(round(tare.counts)), self.vp.now_s)
-        if error != TriggerError.NONE:
-            raise ProbeError(trigger_error_message(error, self.device.options.force_safety_limit_g))
-        return trigger
-
-    def _frame_mm(self) -> np.ndarray:
-        return np.array([self.toolhead.frame_offset_mm[axis] for axis in "xyz"])
-
-    def probe_z(self, tare: TareRecord, threshold_g: float, release_g: float, z_min_mm: float,
-                speed_mm_s: float, drift_safety_limit_g: float | None = None) -> ThresholdHit:
-        """Move down toward z_min_mm until the force passes threshold_g (triggered False: no contact).
-        `drift_safety_limit_g`: the load cell probe's unless given (0 disables the drift check)."""
-        trigger = self._arm(tare, threshold_g, release_g, drift_safety_limit_g)
-        frame = self._frame_mm()
-        # The toolhead's position_min, but never past the machine's own travel end.
-        machine_target = max(z_min_mm - frame[2], self.vp.limits["z"][0])
-        result = self.vp.probing_move(machine_target, speed_mm_s, trigger)
-        self.load_cell.pump()
-        if result.error != TriggerError.NONE:
-            raise ProbeError(trigger_error_message(result.error, self.device.options.force_safety_limit_g))
-        halt = tuple(np.array(self.vp.position) + frame)
-        trigger_position = None
-        if result.triggered:
-            z_mm = z_at_time_mm(result.moves, result.trigger_time_s) + frame[2]
-            trigger_position = (halt[0], halt[1], float(z_mm))
-        return ThresholdHit(result.triggered, result.trigger_time_s, result.halt_time_s, trigger_position, halt)
-
-    def probe_xy(self, tare: TareRecord, threshold_g: float, release_g: float, x_mm: float, y_mm: float,
-                 speed_mm_s: float) -> ThresholdHit:
-        """Move horizontally toward (x, y) until the force passes threshold_g."""
-        trigger = self._arm(tare, threshold_g, release_g)
-        frame = self._frame_mm()
-        start = np.array(self.vp.position)
-        result = self.vp.probing_move_xy(x_mm - frame[0], y_mm - frame[1], speed_mm_s, trigger)
-        self.load_cell.pump()
-        if result.error != TriggerError.NONE:
-            raise ProbeError(trigger_error_message(result.error, self.device.options.force_safety_limit_g))
-        halt = np.array(self.vp.position)
-        trigger_position = None
-        if result.triggered:
-            # The move cruises at speed when it meets the pin: step back along it by the latency.
-            direction = (halt - start) / max(float(np.linalg.norm(halt - start)), 1e-12)
-            trigger_position = tuple(halt - direction * speed_mm_s * (result.halt_time_s - result.trigger_time_s)
-                                     + frame)
-        return ThresholdHit(result.triggered, result.trigger_time_s, result.halt_time_s, trigger_position,
-                            tuple(halt + frame))
 
 
 # -- the [prusa_probe] object -------------------------------------------------------------------
@@ -263,7 +130,7 @@ class PrusaProbe:
             try:
                 self.thresholds = self.thresholds.with_threshold(kind, value_g)
             except MeshError as exc:
-                raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {exc}") from None
+                raise gcmd.param_error(str(exc)) from None
             self.printer.config.set(self.section_name, THRESHOLD_OPTIONS[kind], f"{value_g:g}")
             gcmd.respond_info(f"{THRESHOLD_LABELS[kind]} threshold set to {value_g:g} g (releases at "
                               f"{self.thresholds.release_g(kind):g} g); SAVE_CONFIG keeps it")
@@ -297,8 +164,6 @@ class PrusaProbe:
 
     # -- the mesh method -------------------------------------------------------------------------
     def probe_mesh_points(self, options, gcmd: GCodeCommand, points_xy_mm: np.ndarray, progress):
-        from tapcell.extras.bed_mesh import MeshProbeRun, mesh_travel_height_mm
-
         prober = self.prober()
         toolhead = prober.toolhead
         probe = self.printer.lookup_object("probe")
@@ -346,14 +211,6 @@ class PrusaProbe:
 
     def get_status(self, eventtime=None) -> dict:
         return {"thresholds": self.thresholds.to_status(), "last_session": self.last_session}
-
-
-def probe_points_prusa(printer, options, gcmd: GCodeCommand, points_xy_mm: np.ndarray, progress):
-    """BED_MESH_CALIBRATE METHOD=prusa."""
-    prusa = printer.lookup_object(SECTION, None)
-    if prusa is None:
-        raise GCodeError("METHOD=prusa needs a [prusa_probe] section")
-    return prusa.probe_mesh_points(options, gcmd, points_xy_mm, progress)
 
 
 def load_config(section: ConfigSection, printer) -> PrusaProbe:

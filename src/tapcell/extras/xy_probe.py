@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.mesh.prusa import XY, Thresholds
-from tapcell.extras.prusa_probe import ThresholdProber
+from tapcell.extras.load_cell_probe.threshold import ThresholdProber
 
 SECTION = "xy_probe"
 DIRECTIONS = {"+X": (1.0, 0.0), "-X": (-1.0, 0.0), "+Y": (0.0, 1.0), "-Y": (0.0, -1.0)}
@@ -95,9 +95,7 @@ class XYProbe:
         return hit.trigger_position_mm[0], hit.trigger_position_mm[1]
 
     def cmd_XY_PROBE(self, gcmd: GCodeCommand) -> None:
-        name = gcmd.get("DIRECTION").strip().upper()
-        if name not in DIRECTIONS:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': DIRECTION must be one of {', '.join(DIRECTIONS)}")
+        name = gcmd.get_choice("DIRECTION", list(DIRECTIONS))
         distance = gcmd.get_float("DISTANCE", self.options.max_travel_mm, above=0.0)
         speed = gcmd.get_float("SPEED", self.options.speed_mm_s, above=0.0, maxval=20.0)
         force = gcmd.get_float("FORCE", self._threshold().value_g(XY), above=0.0, maxval=1000.0)
@@ -114,7 +112,7 @@ class XYProbe:
         x_nominal = gcmd.get_float("X", opts.pin_x_mm)
         y_nominal = gcmd.get_float("Y", opts.pin_y_mm)
         if x_nominal is None or y_nominal is None:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': give X= and Y= (or pin_x, pin_y in [xy_probe])")
+            raise gcmd.param_error("give X= and Y= (or pin_x, pin_y in [xy_probe])")
         z_mm = gcmd.get_float("Z", opts.probe_z_mm)
         force = self._threshold().value_g(XY)
         prober = self._prober()

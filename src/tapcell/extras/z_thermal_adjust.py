@@ -129,8 +129,8 @@ class ZThermalAdjuster:
         hot_c = gcmd.get_float("TEMP_HOT", 290.0, above=0.0)
         samples = gcmd.get_int("SAMPLES", 10, minval=2, maxval=100)
         if hot_c - cold_c < 1.0:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': TEMP_HOT ({hot_c:g}) must be above TEMP_COLD "
-                             f"({cold_c:g}); the guide uses 180 and 290")
+            raise gcmd.param_error(f"TEMP_HOT ({hot_c:g}) must be above TEMP_COLD "
+                                   f"({cold_c:g}); the guide uses 180 and 290")
         probe = self.printer.lookup_object("probe", None)
         if probe is None:
             raise gcmd.error("Z_THERMAL_CALIBRATE needs a probe: add a [load_cell_probe] section")

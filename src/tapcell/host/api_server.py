@@ -152,7 +152,7 @@ class PrinterThread:
         self._restarted = False
         self._last_tick = time.monotonic()
         self._last_snapshot = 0.0
-        self.objects = ApiObjects(printer, gcodes_dir)
+        self.objects: ApiObjects  # made by _attach, anew for every printer build
         self._thread = threading.Thread(target=self._run, name="tapcell-printer", daemon=True)
         self.on_snapshot: Callable[[dict], None] = lambda status: None
         self.on_output: Callable[[str], None] = lambda line: None
@@ -243,7 +243,8 @@ class PrinterThread:
         if printer.state == "ready":
             self.objects.register_commands(printer.gcode)
         for name, probe in load_cell_streams.tap_probes(printer).items():
-            probe.add_tap_client(lambda recorded, name=name: self.on_tap(name, load_cell_streams.tap_event(recorded)))
+            probe.add_tap_client(
+                lambda recorded, name=name: self._post(self.on_tap, name, load_cell_streams.tap_event(recorded)))
         self.help = printer.gcode.get_command_help()
 
     def _note_restart(self) -> None:

@@ -24,6 +24,7 @@ import difflib
 import math
 import re
 from dataclasses import dataclass, field
+from collections.abc import Sequence
 from typing import Any, Callable
 
 from tapcell.host.config import ConfigError
@@ -193,7 +194,8 @@ class GCodeCommand:
     def error(self, message: str) -> GCodeError:
         return GCodeError(message)
 
-    def _fail(self, problem: str) -> GCodeError:
+    def param_error(self, problem: str) -> GCodeError:
+        """The error for a bad or missing parameter: `Error on '<the command line>': <problem>`."""
         return GCodeError(f"Error on '{self.commandline}': {problem}")
 
     def get(self, name: str, default: Any = REQUIRED) -> Any:
@@ -202,7 +204,7 @@ class GCodeCommand:
         value = self._params.get(name.upper())
         if value is None:
             if default is REQUIRED:
-                raise self._fail(f"missing {name.upper()}")
+                raise self.param_error(f"missing {name.upper()}")
             return default
         return value
 
@@ -210,21 +212,21 @@ class GCodeCommand:
         text = self.get(name, default=None)
         if text is None:
             if default is REQUIRED:
-                raise self._fail(f"missing {name.upper()}")
+                raise self.param_error(f"missing {name.upper()}")
             return default
         try:
             value = parse(text)
         except ValueError:
-            raise self._fail(f"unable to parse '{text}' for {name.upper()} (expected {kind})") from None
+            raise self.param_error(f"unable to parse '{text}' for {name.upper()} (expected {kind})") from None
         name = name.upper()
         if minval is not None and value < minval:
-            raise self._fail(f"{name} must have minimum of {_format_limit(minval)}")
+            raise self.param_error(f"{name} must have minimum of {_format_limit(minval)}")
         if maxval is not None and value > maxval:
-            raise self._fail(f"{name} must have maximum of {_format_limit(maxval)}")
+            raise self.param_error(f"{name} must have maximum of {_format_limit(maxval)}")
         if above is not None and value <= above:
-            raise self._fail(f"{name} must be above {_format_limit(above)}")
+            raise self.param_error(f"{name} must be above {_format_limit(above)}")
         if below is not None and value >= below:
-            raise self._fail(f"{name} must be below {_format_limit(below)}")
+            raise self.param_error(f"{name} must be below {_format_limit(below)}")
         return value
 
     def get_int(self, name: str, default: Any = REQUIRED, minval: int | None = None,
@@ -234,6 +236,30 @@ class GCodeCommand:
     def get_float(self, name: str, default: Any = REQUIRED, minval: float | None = None,
                   maxval: float | None = None, above: float | None = None, below: float | None = None) -> Any:
         return self._get_number(name, default, _finite_float, "a number", minval, maxval, above, below)
+
+    def get_choice(self, name: str, choices: Sequence[str], default: Any = REQUIRED) -> Any:
+        """One of `choices`, compared case-insensitively and returned as `choices` spells it."""
+        text = self.get(name, None)
+        if text is None:
+            return self.get(name, default)  # the default, or the missing-parameter error
+        chosen = {choice.lower(): choice for choice in choices}.get(text.strip().lower())
+        if chosen is None:
+            raise self.param_error(f"{name.upper()} must be one of {', '.join(choices)}, not '{text.strip()}'")
+        return chosen
+
+    def get_floatlist(self, name: str, default: Any = REQUIRED, count: int | None = None) -> Any:
+        """Finite numbers separated by commas (empty items ignored); `count`: exactly that many."""
+        text = self.get(name, None)
+        if text is None:
+            return self.get(name, default)
+        try:
+            values = [_finite_float(item) for item in text.split(",") if item.strip()]
+        except ValueError:
+            values = []
+        if not values or (count is not None and len(values) != count):
+            shape = f"{count} numbers separated by commas" if count else "numbers separated by commas"
+            raise self.param_error(f"unable to parse '{text}' for {name.upper()} (expected {shape})")
+        return values
 
     def respond_info(self, message: str) -> None:
         self._dispatch.respond_info(message)
@@ -385,10 +411,10 @@ class GCodeDispatch:
         if handler is None:
             named = sorted(v for v in mux.handlers if v is not None)
             if value is None:
-                raise GCodeError(f"Error on '{gcmd.commandline}': missing {mux.key} "
-                                 f"(one of: {', '.join(named)})")
-            raise GCodeError(f"Error on '{gcmd.commandline}': the value '{value}' is not valid for "
-                             f"{mux.key} (one of: {', '.join(named)})")
+                raise gcmd.param_error(f"missing {mux.key} "
+                                       f"(one of: {', '.join(named)})")
+            raise gcmd.param_error(f"the value '{value}' is not valid for "
+                                   f"{mux.key} (one of: {', '.join(named)})")
         handler(gcmd)
 
     def get_command_help(self) -> dict[str, str]:

@@ -94,8 +94,6 @@ class GCodeMove:
             e_value *= state.extrude_factor
             absolute = state.absolute_coordinates and state.absolute_extrude
             target[3] = e_value + state.base_position[3] if absolute else current[3] + e_value
-        if target == current:
-            return
         self._move(gcmd, current, target, state.speed_mm_s * state.speed_factor)
 
     def cmd_G90(self, gcmd: GCodeCommand) -> None:

@@ -1,55 +1,35 @@
 """Assemble a printer from a config file: one object per section, status, events, RESTART.
 
-`Printer.from_config(path)` reads the config, builds the backend (the virtual
-printer, from `[virtual_printer]`), then loads every section through the module
-registry `MODULES`: the first word of a section name picks the module, which
-provides `load_config(section, printer)` for `[name]` and/or
-`load_config_prefix(section, printer)` for `[name instance]`.  The object a
-module returns is stored under the full section name and, if it has
-`get_status(eventtime)`, appears in `get_status()` (and so in G-code macros as
-`printer.<name>` / `printer["<name>"]`).
+`Printer.from_config(path)` reads the config, builds the backend (the virtual printer, from
+`[virtual_printer]`, declared by `tapcell.host.backend.Backend`), then loads every section by
+convention: the first word of a section name is a module of `tapcell.extras` (`[load_cell]`
+and `[load_cell NAME]` -> `tapcell.extras.load_cell`; `[printer]` is the host's own toolhead),
+which provides `load_config(section, printer)` for `[name]` and/or
+`load_config_prefix(section, printer)` for `[name instance]`. A new config section is a new
+module in `extras/`; there is no table to register it in. The object a module returns is
+stored under the full section name and, if it has `get_status(eventtime)`, appears in
+`get_status()` (and so in G-code macros as `printer.<name>` / `printer["<name>"]`).
 
-Sections in `READ_BY` have no module of their own: the module of another
-section reads them (the toolhead reads `[stepper_x]`).  Modules are imported
-only when a config uses them; a registered module that is not installed yet
-makes its sections "not checked" (a warning) instead of breaking the load.
+Sections in `READ_BY` have no module of their own: the module of another section reads
+them (the toolhead reads `[stepper_x]`). Modules are imported only when a config uses them.
 """
 
 from __future__ import annotations
 
 import difflib
 import importlib
+import pkgutil
 import time
 from typing import Any, Callable
 
+from tapcell.host.backend import Backend
 from tapcell.host.config import ConfigError, ConfigFile
 from tapcell.host.gcode import GCodeCommand, GCodeDispatch, GCodeError, ResponseSink
 
-# Section kind (first word of the section name) -> module that loads it.
-MODULES: dict[str, str] = {
-    "printer": "tapcell.host.toolhead",
-    "load_cell": "tapcell.extras.load_cell",
-    "load_cell_probe": "tapcell.extras.load_cell_probe.device",
-    "bed_mesh": "tapcell.extras.bed_mesh",
-    "gcode_macro": "tapcell.extras.gcode_macro",
-    "z_thermal_adjust": "tapcell.extras.z_thermal_adjust",
-    "prusa_probe": "tapcell.extras.prusa_probe",
-    "xy_probe": "tapcell.extras.xy_probe",
-    "heater_bed": "tapcell.extras.heater_bed",
-    "heater_generic": "tapcell.extras.heater_generic",
-    "temperature_sensor": "tapcell.extras.temperature_sensor",
-    "fan": "tapcell.extras.fan",
-    "fan_generic": "tapcell.extras.fan_generic",
-    "heater_fan": "tapcell.extras.heater_fan",
-    "controller_fan": "tapcell.extras.controller_fan",
-    "output_pin": "tapcell.extras.output_pin",
-    "respond": "tapcell.extras.respond",
-    "display_status": "tapcell.extras.display_status",
-    "display": "tapcell.extras.display",
-    "exclude_object": "tapcell.extras.exclude_object",
-    "safe_z_home": "tapcell.extras.safe_z_home",
-    "homing_override": "tapcell.extras.homing_override",
-}
+# `[name]` -> module EXTRAS_PACKAGE.name; `[printer]` is the toolhead of the host itself.
+EXTRAS_PACKAGE = "tapcell.extras"
+TOOLHEAD_SECTION = "printer"
+TOOLHEAD_MODULE = "tapcell.host.toolhead"
 
 # Sections without a module of their own -> the section whose module reads them.
 READ_BY: dict[str, str] = {
@@ -70,13 +50,26 @@ MACHINE_MODULE = "tapcell.sim.machine"
 BACKEND_COMMANDS_MODULE = "tapcell.sim.commands"
 
 # Sections loaded before the others (in this order), because others look them up.
-LOAD_FIRST = ("printer",)
+LOAD_FIRST = (TOOLHEAD_SECTION,)
+LOADERS = ("load_config", "load_config_prefix")
 
 _MISSING = object()
 
 
-def _import_module(module_name: str):
-    """The module, or None if it (not one of its own imports) does not exist yet."""
+def section_module_name(kind: str) -> str | None:
+    """The module that loads sections whose first word is `kind` (None: not a module name)."""
+    if kind == TOOLHEAD_SECTION:
+        return TOOLHEAD_MODULE
+    if not kind.isidentifier() or kind.startswith("_"):
+        return None
+    return f"{EXTRAS_PACKAGE}.{kind}"
+
+
+def import_section_module(kind: str):
+    """The module of a section kind, or None when there is none (a broken import inside it raises)."""
+    module_name = section_module_name(kind)
+    if module_name is None:
+        return None
     try:
         return importlib.import_module(module_name)
     except ModuleNotFoundError as exc:
@@ -85,33 +78,44 @@ def _import_module(module_name: str):
         raise
 
 
-def _accepted():
-    """The table of sections taken as written (imported like the section modules)."""
-    return importlib.import_module(ACCEPTED_MODULE)
+def accepted_sections() -> dict[str, str]:
+    """Section kinds taken as written and not modelled (kind -> what it is)."""
+    return importlib.import_module(ACCEPTED_MODULE).ACCEPTED_SECTIONS
+
+
+def section_kinds() -> list[str]:
+    """Every section kind a config may use (for the error that lists them)."""
+    package = importlib.import_module(EXTRAS_PACKAGE)
+    kinds = {TOOLHEAD_SECTION, BACKEND_SECTION, *READ_BY}
+    for info in pkgutil.iter_modules(package.__path__):
+        module = import_section_module(info.name)
+        if module is not None and any(hasattr(module, loader) for loader in LOADERS):
+            kinds.add(info.name)
+    return sorted(kinds)
 
 
 class Printer:
     """The host side of one printer: config, backend, G-code, objects by section."""
 
-    def __init__(self, config_path: str, *, backend: Any = None, responses: ResponseSink | None = None):
+    def __init__(self, config_path: str, *, backend: Backend | None = None, responses: ResponseSink | None = None):
         self.config_path = str(config_path)
         self._given_backend = backend
         self.gcode = GCodeDispatch(responses)
         self.config: ConfigFile | None = None
-        self.backend: Any = backend
+        self.backend: Backend | None = backend
         self.objects: dict[str, Any] = {}
-        self.warnings: list[str] = []
+        self.warnings: list[str] = []  # runtime warnings, reported by the API as Klipper's printer.info does
         self.notices: list[str] = []  # shown once at start (what is simulated, what only accepted)
         self._accepted: list[str] = []  # sections taken as written, not modelled
         self.state = "starting"  # "ready", "error" or "shutdown"
         self.state_message = ""
         self._event_handlers: dict[str, list[Callable[..., Any]]] = {}
         self._loading: set[str] = set()
-        self._loaded: set[str] = set()  # sections loaded (or skipped), whether or not they made an object
-        self._skipped: dict[str, str] = {}  # section -> the missing module it needs
+        self._loaded: set[str] = set()  # sections loaded, whether or not they made an object
 
     @classmethod
-    def from_config(cls, path: str, *, backend: Any = None, responses: ResponseSink | None = None) -> Printer:
+    def from_config(cls, path: str, *, backend: Backend | None = None,
+                    responses: ResponseSink | None = None) -> Printer:
         """Build a ready printer from `path`; raises ConfigError for any problem in the file."""
         printer = cls(path, backend=backend, responses=responses)
         printer._build()
@@ -172,7 +176,6 @@ class Printer:
         self.notices.clear()
         self._accepted.clear()
         self.gcode.set_refusal(None)
-        self._skipped.clear()
         self._loaded.clear()
         self._event_handlers.clear()
         self.config = None
@@ -188,8 +191,8 @@ class Printer:
                 if name != BACKEND_SECTION and name not in self._loaded:
                     self._load_section(name)
             self.config.check_unused_options()
-            simulated = [n for n in self.config.sections() if n not in self._accepted and n not in self._skipped]
-            notice = _accepted().startup_notice(simulated, self._accepted)
+            accepted = importlib.import_module(ACCEPTED_MODULE)
+            notice = accepted.startup_notice(self.config.sections(), self._accepted)
             world = getattr(self.backend, "world_notice", None)
             if notice is not None:  # a config with hardware in it: say what stands in for it
                 self.notices += [world, notice] if world else [notice]
@@ -204,11 +207,12 @@ class Printer:
         self.send_event("printer:ready")
 
     def _check_section_names(self) -> None:
-        known = set(MODULES) | set(READ_BY) | {BACKEND_SECTION} | set(_accepted().ACCEPTED_SECTIONS)
         for name in self.config.sections():
             kind = name.split()[0]
-            if kind not in known:
-                close = difflib.get_close_matches(kind, sorted(known), n=3)
+            if (kind != BACKEND_SECTION and kind not in READ_BY and kind not in accepted_sections()
+                    and import_section_module(kind) is None):
+                # The known kinds are many (the accepted ones included): name the closest.
+                close = difflib.get_close_matches(kind, section_kinds() + sorted(accepted_sections()), n=3)
                 hint = f" (did you mean {' or '.join(close)}?)" if close else ""
                 raise ConfigError(f"{self.config.section_file(name)}: [{name}]: Section '{name}' is not a "
                                   f"valid config section{hint}", file=self.config.section_file(name), section=name)
@@ -223,51 +227,31 @@ class Printer:
             self.backend = self._given_backend
             self.config.mark_section_read(BACKEND_SECTION)
         else:
-            sim = _import_module(BACKEND_MODULE)
-            if sim is None or not hasattr(sim, "VirtualPrinter"):
-                self.backend = None
-                self._skip_section(BACKEND_SECTION, f"{BACKEND_MODULE}.VirtualPrinter")
-                return
+            sim = importlib.import_module(BACKEND_MODULE)
             machine = importlib.import_module(MACHINE_MODULE).machine_params(self.config)
             self.backend = sim.VirtualPrinter.from_config(self.config.getsection(BACKEND_SECTION), machine=machine)
         self.objects[BACKEND_SECTION] = self.backend
-        backend_commands = _import_module(BACKEND_COMMANDS_MODULE)
-        if backend_commands is not None:
-            backend_commands.register_sim_commands(self)
-
-    def _skip_section(self, name: str, module_name: str) -> None:
-        self._skipped[name] = module_name
-        if self.config.has_section(name):
-            self.config.mark_section_read(name)
-            self.warnings.append(f"[{name}] was not loaded: {module_name} is not available yet; "
-                                 f"its options were not checked")
+        importlib.import_module(BACKEND_COMMANDS_MODULE).register_sim_commands(self)
 
     def _load_section(self, name: str) -> None:
         self._loading.add(name)
         self._loaded.add(name)
         try:
             kind, _, instance = name.partition(" ")
-            if kind in _accepted().ACCEPTED_SECTIONS:
-                _accepted().accept_section(self.config, name)
+            if kind in accepted_sections():
+                self.config.mark_section_read(name)  # options taken as written
                 self._accepted.append(name)
                 return
             if kind in READ_BY:
-                owner = READ_BY[kind]
-                self.load_object(owner)
-                if owner in self._skipped:
-                    self._skip_section(name, self._skipped[owner])
+                self.load_object(READ_BY[kind])
                 return
-            module_name = MODULES[kind]
-            module = _import_module(module_name)
-            if module is None:
-                self._skip_section(name, module_name)
-                return
+            module = import_section_module(kind)
             loader_name = "load_config_prefix" if instance else "load_config"
             loader = getattr(module, loader_name, None)
             if loader is None:
                 form = f"[{kind} NAME]" if instance else f"[{kind}]"
                 raise ConfigError(f"{self.config.section_file(name)}: [{name}]: Section '{name}' is not a valid "
-                                  f"config section ({module_name} does not support {form})",
+                                  f"config section ({module.__name__} does not support {form})",
                                   file=self.config.section_file(name), section=name)
             try:
                 obj = loader(self.config.getsection(name), self)
@@ -314,20 +298,19 @@ class Printer:
 
     def _cmd_M112(self, gcmd: GCodeCommand) -> None:
         self.invoke_shutdown("Shutdown due to M112 command")
-        raise gcmd.error(self.state_message)
+        gcmd.respond_raw("!! Shutdown due to M112 command")
 
     def _cmd_status(self, gcmd: GCodeCommand) -> None:
         name = gcmd.get("OBJECT", None)
         status = self.get_status()
         if name is not None:
             if name not in status:
-                raise gcmd.error(f"Error on '{gcmd.commandline}': no status object '{name}' "
-                                 f"(one of: {', '.join(sorted(status))})")
+                raise gcmd.param_error(f"no status object '{name}' "
+                                       f"(one of: {', '.join(sorted(status))})")
             gcmd.respond_info("\n".join(f"{key}: {_format_status_value(value)}"
                                         for key, value in status[name].items()))
             return
         lines = [self.state_message]
-        lines += [f"Warning: {warning}" for warning in self.warnings]
         lines += [f"{obj}: " + " ".join(f"{key}={_format_status_value(value)}" for key, value in fields.items())
                   for obj, fields in status.items()]
         gcmd.respond_info("\n".join(lines))

@@ -24,7 +24,7 @@ from tapcell.host.config import ConfigSection
 from tapcell.host.extruder import load_extruder
 from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.host.gcode_move import load_gcode_move
-from tapcell.sim.printer import MoveError
+from tapcell.host.backend import MoveError
 
 AXES = "xyz"
 # CoreXY moves the toolhead in the same X/Y frame; only the motor mapping differs, which the
@@ -236,17 +236,19 @@ class Toolhead:
         except GCodeError as exc:
             raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {exc}") from None
         self.e_position_mm = target[3]
-        if not moved:
+        if not moved and e_distance:
             speed = min(speed_mm_s, self.extruder.max_extrude_only_velocity_mm_s)
             self.backend.dwell(abs(e_distance) / speed)
             return
+        # Nothing moved in G-code terms still goes through the transforms, as in Klipper: one that
+        # changed since (thermal adjust switched off, a new mesh) places the nozzle anew.
         speed = min(speed_mm_s, self.max_velocity_mm_s)
         if moved == ["z"]:
             speed = min(speed, self.options.max_z_velocity_mm_s)
         try:
             self.move_target.move(tuple(target[:3]), speed)
         except MoveError as exc:  # the virtual machine is smaller than the config says
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {exc}") from None
+            raise gcmd.param_error(f"{exc}") from None
 
     def cmd_G4(self, gcmd: GCodeCommand) -> None:
         """Dwell: P milliseconds (S seconds, as some slicers write it)."""

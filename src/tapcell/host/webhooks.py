@@ -92,12 +92,15 @@ class ApiObjects:
     # -- commands ------------------------------------------------------------------------
 
     def register_commands(self, gcode) -> None:
-        gcode.register_command("PAUSE", self.cmd_PAUSE, desc="Pause the current print")
-        gcode.register_command("RESUME", self.cmd_RESUME, desc="Resume the print from a pause")
-        gcode.register_command("CANCEL_PRINT", self.cmd_CANCEL_PRINT, desc="Cancel the current print")
-        # The printer's own M117 ([display_status] / [display]) and M112 come first.
-        if not gcode.is_registered("M117"):
-            gcode.register_command("M117", self.cmd_M117, desc="Show a message on the display (display_status)")
+        """Klipper's commands behind these objects; the printer's own (M117 of [display_status], M112)
+        and a config's macro of the same name win."""
+        commands = (("PAUSE", self.cmd_PAUSE, "Pause the current print"),
+                    ("RESUME", self.cmd_RESUME, "Resume the print from a pause"),
+                    ("CANCEL_PRINT", self.cmd_CANCEL_PRINT, "Cancel the current print"),
+                    ("M117", self.cmd_M117, "Show a message on the display (display_status)"))
+        for name, handler, desc in commands:
+            if not gcode.is_registered(name):
+                gcode.register_command(name, handler, desc=desc)
 
     def cmd_PAUSE(self, gcmd) -> None:
         if self.is_paused:

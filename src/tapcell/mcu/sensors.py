@@ -312,12 +312,20 @@ def noise_floor_counts(sensor_type: str, gain: str | int, sample_rate_sps: float
     raise SensorConfigError("sensor_type", sensor_type, _join((*HX71X_CHIPS, "ads1220")))
 
 
+def identical_run_probability(noise_counts: float, samples: int) -> float:
+    """Chance that `samples` readings in a row of a steady input with Gaussian noise of
+    `noise_counts` RMS (rounded to whole counts) are all equal: the sum over k of
+    P(reading = k)^samples, about (2 pi sigma^2)^(-(samples-1)/2) / sqrt(samples) for
+    sigma >= 1 (the noise floors here are all above 1 count)."""
+    sigma = max(noise_counts, 1.0)
+    return (2.0 * math.pi * sigma * sigma) ** (-(samples - 1) / 2.0) / math.sqrt(samples)
+
+
 def stuck_sample_count(noise_counts: float, sample_rate_sps: float, max_samples: int) -> int:
     """The shortest run of identical samples (>= 2) that a live sensor with `noise_counts` RMS
     of noise shows less often than STUCK_FALSE_STOPS_PER_ARMED_HOUR; capped at max_samples."""
-    one_pair = 1.0 / math.sqrt(2.0 * math.pi * max(noise_counts, 1.0) ** 2)
     budget = STUCK_FALSE_STOPS_PER_ARMED_HOUR / (3600.0 * sample_rate_sps)
     for samples in range(2, max_samples + 1):
-        if one_pair ** (samples - 1) / math.sqrt(samples) <= budget:
+        if identical_run_probability(noise_counts, samples) <= budget:
             return samples
     return max_samples

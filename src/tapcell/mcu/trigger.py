@@ -246,20 +246,40 @@ def _configure_filter(ffi, lib, filter_ptr, sos: QuantizedSos | None) -> None:
                                  "no coefficient equal to -2^31")
 
 
-class FirmwareTrigger:
-    """One instance of the firmware endstop (struct tc_trigger owned by this object)."""
+class Endstop:
+    """What the host sees of one firmware endstop: user units in, FeedResult out.
+
+    The conversions (seconds -> wrapping ticks, batch -> first event) live here once;
+    a subclass supplies the per-sample machine: FirmwareTrigger (the C code through cffi)
+    or tapcell.mcu.trigger_model.TriggerModel (its bit-exact Python model).
+    """
 
     def __init__(self, params: TriggerParams):
         self.params = params
-        values = _config_values(params)
-        self._ffi, self._lib = _firmware()
-        self._t = self._ffi.new("struct tc_trigger *")
-        _configure_filter(self._ffi, self._lib, self._ffi.addressof(self._t, "filter"), params.sos)
-        config = self._ffi.new("struct tc_trigger_config *", values)
-        if self._lib.tc_trigger_configure(self._t, config) != 0:
-            raise TriggerConfigError(f"trigger parameters rejected by the firmware: {values}")
-        self._event = self._ffi.new("int *")
+        self.config = _config_values(params)
 
+    # -- the machine (subclasses) -----------------------------------------------------
+    def _arm(self, tare_counts: int, arm_ticks: int) -> int:
+        raise NotImplementedError
+
+    def _feed(self, counts: np.ndarray, ticks: np.ndarray, filtered: np.ndarray | None) -> tuple[int, int]:
+        """tc_trigger_feed: (index of the first event or len, its event); fills `filtered`."""
+        raise NotImplementedError
+
+    def _check_watchdog(self, now_ticks: int) -> int:
+        raise NotImplementedError
+
+    def _abort(self, error_code: int, now_ticks: int) -> None:
+        raise NotImplementedError
+
+    def disarm(self) -> None:
+        raise NotImplementedError
+
+    def field(self, name: str) -> int:
+        """A member of struct tc_trigger: state, error, glitches, ..."""
+        raise NotImplementedError
+
+    # -- host units ---------------------------------------------------------------------
     def ticks(self, t_s: np.ndarray | float) -> np.ndarray:
         """Seconds -> MCU timer ticks (uint32, wrapping)."""
         scaled = np.floor(np.asarray(t_s, dtype=np.float64) * self.params.clock_hz + 0.5)
@@ -268,10 +288,10 @@ class FirmwareTrigger:
     def arm(self, tare_counts: int, t_arm_s: float) -> TriggerError:
         """Start a move; runs the force_safety check on the tare."""
         _check("tare_counts", tare_counts, INT32_MIN <= int(tare_counts) <= INT32_MAX, "an integer count within int32")
-        return _error_from_code(self._lib.tc_trigger_arm(self._t, int(tare_counts), int(self.ticks(t_arm_s))))
+        return _error_from_code(self._arm(int(tare_counts), int(self.ticks(t_arm_s))))
 
     def feed(self, t_s: np.ndarray, counts: np.ndarray, want_filtered: bool = False) -> FeedResult:
-        """Run a batch of samples through the firmware; stops after the first event."""
+        """Run a batch of samples through the endstop; stops after the first event."""
         t_s = np.ascontiguousarray(t_s, dtype=np.float64)
         counts_in = np.asarray(counts)
         if t_s.ndim != 1 or counts_in.shape != t_s.shape:
@@ -279,17 +299,11 @@ class FirmwareTrigger:
                              f"{counts_in.shape}")
         if counts_in.size and (counts_in.min() < INT32_MIN or counts_in.max() > INT32_MAX):
             raise ValueError("feed: counts must fit int32")
-        counts_i32 = np.ascontiguousarray(counts_in, dtype=np.int32)
-        ticks = self.ticks(t_s)
-        ffi = self._ffi
         filtered = np.zeros(t_s.size, dtype=np.int32) if want_filtered else None
-        index = self._lib.tc_trigger_feed(
-            self._t, ffi.from_buffer("int32_t[]", counts_i32), ffi.from_buffer("uint32_t[]", ticks), t_s.size,
-            ffi.from_buffer("int32_t[]", filtered) if want_filtered else ffi.NULL, self._event)
-        event = self._event[0]
+        index, event = self._feed(np.ascontiguousarray(counts_in, dtype=np.int32), self.ticks(t_s), filtered)
         hit = None if event == _EVENT_NONE else int(index)
         consumed = t_s.size if hit is None else hit + 1
-        error = _error_from_code(self._t.error)
+        error = self.error
         return FeedResult(
             trigger_index=hit if event == _EVENT_TRIGGER else None,
             trigger_time_s=float(t_s[hit]) if event == _EVENT_TRIGGER else None,
@@ -297,36 +311,69 @@ class FirmwareTrigger:
             release_time_s=float(t_s[hit]) if event == _EVENT_RELEASE else None,
             error=error,
             error_index=hit if event == _EVENT_ERROR else None,
-            glitches=int(self._t.glitches),
+            glitches=self.glitches,
             consumed=consumed,
             filtered_g=filtered[:consumed] / Q1615_ONE_G if want_filtered else None,
-            sensor_error_code=int(self._t.error) if error == TriggerError.SENSOR else None,
+            sensor_error_code=self.field("error") if error == TriggerError.SENSOR else None,
         )
 
     def check_watchdog(self, now_s: float) -> TriggerError:
         """The MCU timer's check: WATCHDOG_TIMEOUT after more than watchdog_periods periods without a sample."""
-        return _error_from_code(self._lib.tc_trigger_check_watchdog(self._t, int(self.ticks(now_s))))
+        return _error_from_code(self._check_watchdog(int(self.ticks(now_s))))
 
     def abort(self, error_code: int, now_s: float) -> None:
         """Stop an active move with an error code (e.g. a sensor driver's code)."""
         _check("error_code", error_code, 1 <= int(error_code) <= 255, "1 .. 255")
-        self._lib.tc_trigger_abort(self._t, int(error_code), int(self.ticks(now_s)))
-
-    def disarm(self) -> None:
-        self._lib.tc_trigger_disarm(self._t)
+        self._abort(int(error_code), int(self.ticks(now_s)))
 
     @property
     def state(self) -> str:
         """'idle' | 'armed' | 'triggered' | 'error'."""
-        return _STATE_NAMES[self._t.state]
+        return _STATE_NAMES[self.field("state")]
 
     @property
     def error(self) -> TriggerError:
-        return _error_from_code(self._t.error)
+        return _error_from_code(self.field("error"))
 
     @property
     def glitches(self) -> int:
-        return int(self._t.glitches)
+        return self.field("glitches")
+
+
+class FirmwareTrigger(Endstop):
+    """One instance of the firmware endstop (struct tc_trigger owned by this object)."""
+
+    def __init__(self, params: TriggerParams):
+        super().__init__(params)
+        self._ffi, self._lib = _firmware()
+        self._t = self._ffi.new("struct tc_trigger *")
+        _configure_filter(self._ffi, self._lib, self._ffi.addressof(self._t, "filter"), params.sos)
+        config = self._ffi.new("struct tc_trigger_config *", self.config)
+        if self._lib.tc_trigger_configure(self._t, config) != 0:
+            raise TriggerConfigError(f"trigger parameters rejected by the firmware: {self.config}")
+        self._event = self._ffi.new("int *")
+
+    def _arm(self, tare_counts: int, arm_ticks: int) -> int:
+        return self._lib.tc_trigger_arm(self._t, tare_counts, arm_ticks)
+
+    def _feed(self, counts, ticks, filtered):
+        ffi = self._ffi
+        index = self._lib.tc_trigger_feed(
+            self._t, ffi.from_buffer("int32_t[]", counts), ffi.from_buffer("uint32_t[]", ticks), counts.size,
+            ffi.NULL if filtered is None else ffi.from_buffer("int32_t[]", filtered), self._event)
+        return int(index), self._event[0]
+
+    def _check_watchdog(self, now_ticks: int) -> int:
+        return self._lib.tc_trigger_check_watchdog(self._t, now_ticks)
+
+    def _abort(self, error_code: int, now_ticks: int) -> None:
+        self._lib.tc_trigger_abort(self._t, error_code, now_ticks)
+
+    def disarm(self) -> None:
+        self._lib.tc_trigger_disarm(self._t)
+
+    def field(self, name: str) -> int:
+        return int(getattr(self._t, name))
 
 
 def sos_filter_run(qsos: QuantizedSos | None, x_q: np.ndarray) -> tuple[np.ndarray, bool]:

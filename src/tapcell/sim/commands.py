@@ -20,7 +20,7 @@ probing by eye and in tests, and no tapcell algorithm ever reads it.
 
 from __future__ import annotations
 
-from tapcell.host.gcode import GCodeCommand, GCodeError
+from tapcell.host.gcode import GCodeCommand
 from tapcell.sim.faults import CONDITIONS, FAULT_DEFAULTS, FaultError
 from tapcell.sim.printer import VirtualPrinter
 
@@ -38,7 +38,7 @@ def _parse_fault_value(gcmd: GCodeCommand, key: str, text: str, default):
     """A fault parameter in the type of its default (number, true/false or word)."""
     if isinstance(default, bool):
         if text.lower() not in ("0", "1", "true", "false"):
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {key.upper()} must be 0/1 or true/false")
+            raise gcmd.param_error(f"{key.upper()} must be 0/1 or true/false")
         return text.lower() in ("1", "true")
     if isinstance(default, (int, float)):
         return gcmd.get_float(key)
@@ -64,8 +64,8 @@ class SimCommands:
                 sensor = getattr(getattr(load_cell, "load_cell", None), "sensor", None)  # [load_cell_probe]
             if sensor is not None:
                 return sensor
-        raise gcmd.error(f"Error on '{gcmd.get_commandline()}': no load cell '{name}' "
-                         f"(no [load_cell {name}] or [{name}] section)")
+        raise gcmd.param_error(f"no load cell '{name}' "
+                               f"(no [load_cell {name}] or [{name}] section)")
 
     def cmd_place_weight(self, gcmd: GCodeCommand) -> None:
         grams = gcmd.get_float("GRAMS", above=0.0, maxval=MAX_WEIGHT_GRAMS)
@@ -91,13 +91,9 @@ class SimCommands:
         gcmd.respond_info(f"Tapped the nozzle{when}: {force_g:g} g for {duration_s:g} s")
 
     def cmd_fault(self, gcmd: GCodeCommand) -> None:
-        name = gcmd.get("NAME").lower()
-        if name not in FAULT_DEFAULTS:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': NAME must be one of: {', '.join(FAULT_DEFAULTS)}")
+        name = gcmd.get_choice("NAME", list(FAULT_DEFAULTS))
         at_s = gcmd.get_float("AT", None, minval=0.0)
-        when = gcmd.get("WHEN", None)
-        if when is not None and when.lower() not in CONDITIONS:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': WHEN must be one of: {', '.join(CONDITIONS)}")
+        when = gcmd.get_choice("WHEN", CONDITIONS, None)
         params = {}
         duration_s = gcmd.get_float("DURATION", None, above=0.0)
         if duration_s is not None:
@@ -109,14 +105,14 @@ class SimCommands:
             option = key.lower()
             if option not in defaults:
                 allowed = ", ".join(k.upper() for k in defaults) or "none"
-                raise gcmd.error(f"Error on '{gcmd.get_commandline()}': fault '{name}' has no parameter {key}"
-                                 f" (its parameters: {allowed}; and AT, WHEN, DURATION)")
+                raise gcmd.param_error(f"fault '{name}' has no parameter {key}"
+                                       f" (its parameters: {allowed}; and AT, WHEN, DURATION)")
             params[option] = _parse_fault_value(gcmd, key, text, defaults[option])
         try:
-            self.vp.inject_fault(name, at_s=at_s, when=None if when is None else when.lower(), **params)
+            self.vp.inject_fault(name, at_s=at_s, when=when, **params)
         except FaultError as exc:
-            raise GCodeError(f"Error on '{gcmd.get_commandline()}': {exc}") from None
-        start = f"at {at_s:g} s" if at_s is not None else (f"on {when.lower()}" if when else "now")
+            raise gcmd.param_error(str(exc)) from None
+        start = f"at {at_s:g} s" if at_s is not None else (f"on {when}" if when else "now")
         gcmd.respond_info(f"Fault '{name}' injected ({start})")
 
     def cmd_truth(self, gcmd: GCodeCommand) -> None:

@@ -12,17 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tapcell.host.backend import SampleBatch
 from tapcell.sim.sensor import IndexedNoise
-
-
-@dataclass
-class SampleBatch:
-    """Samples since the last take: read times (s), raw counts, and the counters since then."""
-
-    t_s: np.ndarray
-    counts: np.ndarray
-    errors: int = 0
-    overflows: int = 0
 
 
 @dataclass

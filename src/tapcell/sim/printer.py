@@ -16,10 +16,11 @@ from pathlib import Path
 import numpy as np
 from scipy.signal import lfilter
 
+from tapcell.host.backend import MoveError, ProbingMoveResult, SampleBatch
 from tapcell.sim import faults as faultlib
 from tapcell.sim.bed import BedError, bed_from_params
 from tapcell.sim.contact import ContactModel, ContactState, contact_forces, elastic_force_g
-from tapcell.sim.mcu import SampleBatch, SampleChunk, TriggerFeeder, VirtualMCU
+from tapcell.sim.mcu import SampleChunk, TriggerFeeder, VirtualMCU
 from tapcell.sim.motion import MotionHistory, Segment, move_limits, plan_trapezoid, quantize_to_steps
 from tapcell.sim.heaters import FirstOrderHeater, OutputLog
 from tapcell.sim.nozzle import NozzleThermal
@@ -32,20 +33,6 @@ TAP_FORMAT = "tapcell.tap.v1"
 CHUNK_S = 0.05            # probing chunk: the trigger is fed this much data per call
 FREE_RUN_CHUNK = 4096     # samples per chunk when nothing listens to them
 NOISE_STREAMS = ("bed", "white", "pink", "poll", "jitter", "glitch_bit", "glitch_when", "hum")
-
-
-class MoveError(ValueError):
-    """A commanded move leaves the machine's limits."""
-
-
-@dataclass
-class ProbingMoveResult:
-    triggered: bool
-    trigger_time_s: float | None
-    halt_time_s: float
-    halt_z_mm: float
-    error: object                  # TriggerError (NONE when the move ended normally or triggered)
-    moves: list[dict] = field(default_factory=list)
 
 
 @dataclass

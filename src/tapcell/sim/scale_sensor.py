@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from tapcell.sim.mcu import SampleBatch, SampleChunk, VirtualMCU
+from tapcell.host.backend import SampleBatch
+from tapcell.sim.mcu import SampleChunk, VirtualMCU
 from tapcell.sim.params import make_params
 from tapcell.sim.sensor import IndexedNoise, chip_timing, counts_from_force, pink_block_maker
 

@@ -29,6 +29,7 @@ from tapcell.tap.contact import (ContactFit, fit_contact, fit_contact_at, search
 from tapcell.tap.context import AnalysisContext, SensorTiming, recompute_points
 from tapcell.tap.hum import MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum, fit_hum, resolvable_hz, spline_knots
 from tapcell.tap.model import (
+    TAP_ADHESION,
     TAP_DATA_INSUFFICIENT,
     TAP_MOTION_INVALID,
     TAP_SHAPE_INVALID,
@@ -40,7 +41,7 @@ from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import PrefixSums, best_five_segments, prefix_sums, segment_lines
-from tapcell.tap.toe import ToeFit, fit_toe, lag_from_halt_s
+from tapcell.tap.toe import ToeFit, adhesion_dip, fit_toe, lag_from_halt_s
 
 MIN_SAMPLES = 12
 # Extra samples the force may keep changing after the motion stopped/started (ringing, filters).
@@ -59,19 +60,24 @@ MISFIT_REACH_SAMPLES = 10
 # The compression stiffness is scored only from at least this many samples whose conversion
 # window lies wholly in contact before the halt (fewer: onset, integration and the halt dominate).
 MIN_COMPRESSION_SAMPLES = 2
+# The adhesion dip (toe model) that rejects a tap, in noise sigmas. Clean independent taps reach
+# 3.2 at most (360 taps, seed 1); mild ooze has a median of 4.7 and its deepest dips err most.
+ADHESION_MAX_DIP_NOISE = 4.0
 
 
 def sensor_timing(tap: TapData, options: AnalysisOptions, sample_period_s: float) -> SensorTiming:
-    estimate = options.sensor_delay_s in ("auto", "halt")
+    """The sensor's delay and conversion window: the options, else the tap's meta."""
     delay = options.sensor_delay_s if isinstance(options.sensor_delay_s, float | int) else None
-    if delay is None:
+    from_halt = options.sensor_delay_s == "halt"
+    if options.sensor_delay_s is None:
         delay = _meta_seconds(tap, "sensor_delay_s", 0.0)
     integration = options.sensor_integration_s
     if integration is None:
         integration = _meta_seconds(tap, "sensor_integration_s", sample_period_s)
     z_step_um = options.z_step_um if options.z_step_um is not None else _meta_number(tap, "z_step_um",
                                                                                        DEFAULT_Z_STEP_UM)
-    return SensorTiming(float(delay), float(integration), estimate, sample_period_s, float(z_step_um))
+    return SensorTiming(0.0 if delay is None or from_halt else float(delay), float(integration),
+                        options.sensor_delay_s == "auto", from_halt, sample_period_s, float(z_step_um))
 
 
 def _meta_seconds(tap: TapData, key: str, default: float) -> float:
@@ -328,15 +334,43 @@ def _residual(y, x_min_um, span_um, fit: ContactFit) -> np.ndarray:
     return y - (fit.baseline_g + fit.stiffness_g_um * mean)
 
 
-def fit_pullback_toe(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float,
-                     contact0_um: float) -> ToeFit | None:
-    """The toe model (tapcell.tap.toe) over the samples read after the pullback began."""
+def free_air_slope_g_um(dec: Decomposition, motion: Motion) -> float:
+    """The force's slope against height in free air (g/µm; cable/bowden drift), from the approach line.
+
+    The approach crosses hundreds of µm of free air, so its line pins the Z-proportional drift far
+    better than the few tens of µm of departure after break contact can, and an adhesion thread
+    pulling on the nozzle over the departure cannot tilt it (the height falls while the time runs).
+    """
+    return -dec.lines[0][0] / (motion.approach_speed_mm_s * 1000.0)
+
+
+def pullback_samples(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(window low edge µm, high edge µm, force g) of the samples read after the pullback began."""
     first = int(window.time_s.searchsorted(motion.pullback_start_s + delay_s + timing.integration_s, side="right"))
+    x_lo = window.x_min_um[first:]
+    return x_lo, x_lo + window.span_um[first:], window.force_g[first:]
+
+
+def fit_pullback_toe(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float,
+                     contact0_um: float, drift_g_um: float | None) -> ToeFit | None:
+    """The toe model (tapcell.tap.toe) over the pullback."""
     if not math.isfinite(contact0_um):
         return None
     spacing_um = max(motion.pullback_speed_mm_s * 1000.0 * timing.sample_period_s, 0.05)
-    x_lo = window.x_min_um[first:]
-    return fit_toe(x_lo, x_lo + window.span_um[first:], window.force_g[first:], contact0_um, spacing_um)
+    return fit_toe(*pullback_samples(window, motion, timing, delay_s), contact0_um, spacing_um, drift_g_um)
+
+
+def check_adhesion(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float, drift_g_um: float,
+                   contact_um: float, noise_g: float) -> None:
+    """TAP_ADHESION when the force dips below the free-air level just above break contact by more
+    than ADHESION_MAX_DIP_NOISE noise sigmas (tapcell.tap.toe.adhesion_dip)."""
+    x_lo, x_hi, force_g = pullback_samples(window, motion, timing, delay_s)
+    dip_g = adhesion_dip(0.5 * (x_lo + x_hi), force_g, drift_g_um, contact_um)
+    if dip_g is not None and dip_g > ADHESION_MAX_DIP_NOISE * noise_g:
+        raise TapInvalid(TAP_ADHESION, f"the force dips {dip_g:.1f} g below free air just above break contact "
+                                       f"(more than {ADHESION_MAX_DIP_NOISE:g} x the {noise_g:.2f} g noise): "
+                                       "ooze or adhesion pulling the nozzle")
 
 
 def fit_compression(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float,
@@ -416,7 +450,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
 
     polarity = _polarity(time_s, force_raw, motion)
     force, outliers = repair_spikes(polarity * force_raw, options.outlier_sigma)
-    allowance = UNKNOWN_DELAY_ALLOWANCE_S if timing.estimate_delay else timing.delay_s
+    allowance = UNKNOWN_DELAY_ALLOWANCE_S if timing.estimate_delay or timing.delay_from_halt else timing.delay_s
     lag_samples = math.ceil((allowance + timing.integration_s) / period_s) + LAG_MARGIN_SAMPLES
     force, hum = remove_mains_hum(tap, options, time_s, force, motion, timing, lag_samples, period_s)
     dec, ps = decompose(time_s, force, motion, lag_samples, period_s)
@@ -437,9 +471,8 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
     )
     context = AnalysisContext(tap, motion, timing)
     halt_lag_s = lag_from_halt_s(dec.points[2][0], motion.home_end_s, period_s)
-    if options.sensor_delay_s == "halt":
+    if timing.delay_from_halt:
         timing.delay_s = max(halt_lag_s - 0.5 * timing.integration_s, 0.0) if halt_lag_s is not None else 0.0
-        timing.estimate_delay = False
     delay_s = 0.0 if timing.estimate_delay else timing.delay_s
     t_break = dec.points[4][0]
     result.compression_force_g = abs(dec.points[2][1] - dec.points[1][1])
@@ -464,7 +497,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         result.valid, result.error, result.message = False, invalid.code, invalid.message
         result.z_line_mm = z_line
         return result, context
-    if options.sensor_delay_s == "halt":
+    if timing.delay_from_halt:
         result.sensor_delay_estimate_s = delay_s
     elif pullback and compression:
         speeds_um_s = (motion.approach_speed_mm_s + motion.pullback_speed_mm_s) * 1000.0
@@ -497,13 +530,19 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         result.stiffness_decompression_g_um = abs(dec.lines[3][0]) / (motion.pullback_speed_mm_s * 1000.0)
     if options.contact_model == "toe":
         start = pullback.contact_um if pullback else window.break_line_um
-        toe = fit_pullback_toe(window, motion, timing, delay_s, start)
+        drift_g_um = free_air_slope_g_um(dec, motion)
+        toe = fit_pullback_toe(window, motion, timing, delay_s, start, drift_g_um)
         if toe:
             result.z_mm = motion.z_halt_mm + toe.contact_um / 1000.0
             result.z_sigma_um = toe.sigma_um
             result.z_method = "toe"
             result.contact_onset_um = toe.width_um
             result.stiffness_decompression_g_um = toe.stiffness_g_um
+            try:
+                check_adhesion(window, motion, timing, delay_s, drift_g_um, toe.contact_um, noise_g)
+            except TapInvalid as invalid:
+                result.valid, result.error, result.message = False, invalid.code, invalid.message
+                return result, context
     result.compression_samples = compression_sample_count(window, motion, delay_s, onset_um,
                                                           pullback.contact_um if pullback else window.break_line_um)
     if result.compression_samples >= MIN_COMPRESSION_SAMPLES:

@@ -13,7 +13,6 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from functools import lru_cache
-from importlib.metadata import entry_points
 from typing import Any, Callable, Protocol
 
 from tapcell.tap.angles import line_angles_deg, slope_angle_deg
@@ -166,6 +165,14 @@ BUILTIN_CLASSIFIERS: dict[str, ClassifierFactory] = {
     "tap_quality": TapQualityClassifier,
     "empty": EmptyClassifier,
 }
+
+
+def entry_points(group: str) -> list:
+    """Installed plugins' entry points in `group`. importlib.metadata is imported here, when a
+    plugin is asked for: it costs as much as the rest of the analysis' imports together."""
+    from importlib import metadata
+
+    return list(metadata.entry_points(group=group))
 
 
 def available_classifiers() -> dict[str, ClassifierFactory | Any]:

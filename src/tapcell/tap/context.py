@@ -18,7 +18,8 @@ from tapcell.tap.motion import Motion
 class SensorTiming:
     delay_s: float
     integration_s: float
-    estimate_delay: bool
+    estimate_delay: bool  # "auto": from contact vs break contact
+    delay_from_halt: bool  # from the halt (tapcell.tap.toe.lag_from_halt_s)
     sample_period_s: float
     z_step_um: float  # Z resolution of the steppers (the staircase the model does not see)
 

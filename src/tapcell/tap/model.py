@@ -30,6 +30,7 @@ LOW_TAP_QUALITY = "LOW_TAP_QUALITY"
 TAP_DATA_INSUFFICIENT = "TAP_DATA_INSUFFICIENT"  # a phase window holds too few samples to fit
 TAP_MOTION_INVALID = "TAP_MOTION_INVALID"  # the motion has no approach/halt/pullback to analyse
 TAP_CONTACT_MISMATCH = "TAP_CONTACT_MISMATCH"  # contact on the way down above break contact on the way up
+TAP_ADHESION = "TAP_ADHESION"  # (toe model) the force dips below free air just above break contact
 
 
 class TapFileError(Exception):
@@ -137,7 +138,7 @@ class AnalysisOptions:
         meta `sensor_delay_s`, else 0. "auto": estimated from the tap (contact vs break contact);
         "halt": from the halt (P2's time minus the motion's halt is the whole lag, tapcell.tap.toe).
     contact_model: "sharp" (hinge, with `contact_onset_um` when calibrated) or "toe" (the contact's
-        toe width and shape fitted per tap with a departure slope, tapcell.tap.toe).
+        toe width and shape marginalised per tap, the drift taken from the approach, tapcell.tap.toe).
     sensor_integration_s: conversion (averaging) window of one sample (s); None: tap meta
         `sensor_integration_s`, else one sample period (a continuously converting ADC).
     z_step_um: Z distance of one (micro)step; None: tap meta `z_step_um`, else 2.5 µm. The

@@ -61,15 +61,29 @@ def _as_float(value: Any) -> float | None:
     return float(value)
 
 
-def _numbers(path: str, where: str, name: str, values: Any) -> np.ndarray:
-    if not isinstance(values, list):
-        raise TapFileError(path, f"{where}'{name}' must be a list of numbers")
+_PLAIN_NUMBER_TYPES = frozenset((float, int))
+
+
+def _checked_numbers(path: str, where: str, name: str, values: list) -> np.ndarray:
+    """Item by item: names what is wrong (nested lists, strings, booleans, null)."""
     if any(isinstance(value, list) for value in values):
         raise TapFileError(path, f"{where}'{name}' must be a flat list of numbers")
     floats = [_as_float(value) for value in values]
     if any(value is None for value in floats):
         raise TapFileError(path, f"{where}'{name}' must be a list of numbers")
-    array = np.array(floats, dtype=float)
+    return np.array(floats, dtype=float)
+
+
+def _numbers(path: str, where: str, name: str, values: Any) -> np.ndarray:
+    if not isinstance(values, list):
+        raise TapFileError(path, f"{where}'{name}' must be a list of numbers")
+    try:
+        # The common case at C speed: every item a float or int (a bool's type is bool, so it is not).
+        array = np.array(values, dtype=float) if set(map(type, values)) <= _PLAIN_NUMBER_TYPES else None
+    except OverflowError:  # an integer beyond the float range: the per-item path reads it as infinity
+        array = None
+    if array is None:
+        array = _checked_numbers(path, where, name, values)
     bad = np.flatnonzero(~np.isfinite(array))
     if len(bad):
         raise TapFileError(path, f"{where}'{name}' holds NaN or infinity (index {int(bad[0])})")

@@ -10,14 +10,19 @@ Two estimates the tap itself carries (issue 12):
 * **The toe.** A first touch is not a hinge: the stiffness grows over the first micrometres
   (Hertz: force ~ depth^1.5) before the contact turns linear, and a sharp model reads such a
   contact low by a fraction of that width. Over the pullback the force is fitted as
-  baseline + departure slope · x + k · H(c − x; w, p) averaged over each sample's conversion
-  window, H a power-law toe of width w (stiffness ~ (depth/w)^p) joining the linear region with
-  a continuous slope. c, w and p are searched on a grid (every candidate c at once per toe),
-  baseline, slope and k solved in closed form; then c is refined. The departure slope lets
-  Z-proportional cable drift tilt the baseline without pulling Z.
+  baseline + drift · x + k · H(c − x; w, p) averaged over each sample's conversion window, H a
+  power-law toe of width w (stiffness ~ (depth/w)^p) joining the linear region with a continuous
+  slope. The drift (g per µm of height: a cable or bowden pulling in proportion to Z) comes from
+  the approach line when the caller knows it, else it is fitted with the rest. For every
+  (p, w, c) on a grid, baseline and k are solved in closed form (variable projection: the
+  fixed columns are projected out once, each toe column costs a few dot products).
 
-`sigma_um` is the profile-likelihood 1σ of c (minimised over the toe and the linear terms at
-each c), so the onset/contact trade-off is in it.
+`contact_um` is the mean of c with the toe marginalised out, and `sigma_um` its sd
+(`marginal_contact_um`): the toe width and the contact height trade off along a flat valley of
+the residual, and the single best toe wanders along it with the noise. Averaging over the toes the
+data allow (weighted by their likelihood) is steadier than the best one, and the sd keeps that
+trade-off: on the independent generator's clean taps the error over this sigma has an rms of
+1.0-1.3 (docs/tap-analysis.md).
 """
 
 from __future__ import annotations
@@ -32,11 +37,18 @@ TOE_POWERS = (0.5, 1.0)  # Hertz sphere on flat; a parabolic force onset
 COARSE_STEP_UM = 0.5
 COARSE_BELOW_UM = 3.0  # the sharp estimate reads a toe low: search mostly above it
 COARSE_ABOVE_UM = 10.0
-FINE_STEP_UM = 0.05
 PENETRATION_REACH_UM = 30.0  # samples deeper than this in contact are left out (relaxation, hysteresis)
-DEPARTURE_REACH_SAMPLES = 10  # samples past break contact that set the baseline and its slope
+# Samples past break contact that set the baseline. Far enough that an adhesion thread pulling for
+# the first tens of µm cannot pass for the baseline (10: mild ooze +4.7 µm, 40: +3.6 µm).
+DEPARTURE_REACH_SAMPLES = 40
 SUBSAMPLES = 2  # points per conversion window for its average
 MAX_LAG_PERIODS = 4.0
+# Adhesion (a plastic thread pulling the nozzle after break contact): the force's dip below the
+# free-air level, over the first ADHESION_REACH_UM above contact, against the level further up.
+ADHESION_REACH_UM = 40.0
+ADHESION_LEVEL_UM = 100.0  # the free-air level from samples between the reach and this height
+ADHESION_RUN_SAMPLES = 5  # the dip is the lowest mean of this many consecutive samples
+ADHESION_MIN_LEVEL_SAMPLES = 10
 
 
 @dataclass
@@ -46,7 +58,6 @@ class ToeFit:
     width_um: float
     power: float
     stiffness_g_um: float
-    departure_slope_g_um: float
     residual_sigma_g: float
 
 
@@ -75,37 +86,68 @@ def lag_from_halt_s(compression_end_time_s: float, halt_time_s: float, period_s:
     return lag_s
 
 
-def _rss_over_contacts(contacts_um, widths_um, power, window_um, x_mid, y):
-    """Residual sum of squares of the linear solve at every (toe width, candidate contact) at once.
+@dataclass
+class _Projected:
+    """The samples and linear columns of one toe fit, prepared once for every candidate toe.
 
-    contacts_um, widths_um: equal-length 1-D arrays (one row per candidate); power: the toe's.
+    basis: the linear columns beside the toe (orthonormal: the baseline, and the drift unless it
+    is known); the force has them projected out (`y_free`). For a toe column h the fit needs only
+    h·h - |hᵀB|² and h·y_free (variable projection). Samples above every candidate contact have
+    h = 0 and drop out; samples pressed past every candidate's toe have h = a - x (a = c - the
+    toe's lift deficit), so they enter through a few sums; only the samples in between are
+    evaluated per candidate.
     """
-    depth = contacts_um[:, None, None] - window_um[None]
-    h = toe_shape(depth, widths_um[:, None, None], power).mean(axis=2)  # (C, N)
-    n = len(y)
-    sx, sy = x_mid.sum(), y.sum()
-    sxx, sxy, syy = x_mid @ x_mid, x_mid @ y, y @ y
-    sh, shh, shx, shy = h.sum(axis=1), np.einsum("cn,cn->c", h, h), h @ x_mid, h @ y
-    rows = len(contacts_um)
-    normal = np.empty((rows, 3, 3))
-    normal[:, 0, 0], normal[:, 0, 1], normal[:, 0, 2] = n, sx, sh
-    normal[:, 1, 0], normal[:, 1, 1], normal[:, 1, 2] = sx, sxx, shx
-    normal[:, 2, 0], normal[:, 2, 1], normal[:, 2, 2] = sh, shx, shh
-    rhs = np.stack([np.full(rows, sy), np.full(rows, sxy), shy], axis=1)
+
+    near_window_um: np.ndarray  # (n, SUBSAMPLES) heights of the in-between samples
+    near_basis: np.ndarray
+    near_y: np.ndarray
+    pressed_n: int
+    pressed_x: float
+    pressed_xx: float
+    pressed_basis: np.ndarray  # Σ B over the pressed samples (m,)
+    pressed_x_basis: np.ndarray  # Σ x B (m,)
+    pressed_y: float
+    pressed_xy: float
+    yy: float
+
+    @classmethod
+    def prepare(cls, window_um: np.ndarray, x_mid: np.ndarray, basis: np.ndarray, y: np.ndarray,
+                lowest_contact_um: float, highest_contact_um: float, widest_um: float) -> _Projected:
+        y_free = y - basis @ (basis.T @ y)
+        pressed = window_um.max(axis=1) <= lowest_contact_um - widest_um
+        near = ~pressed & (window_um.min(axis=1) < highest_contact_um)
+        x_p, y_p, b_p = x_mid[pressed], y_free[pressed], basis[pressed]
+        return cls(window_um[near], basis[near], y_free[near], int(np.count_nonzero(pressed)), float(x_p.sum()),
+                   float(x_p @ x_p), b_p.sum(axis=0), x_p @ b_p, float(y_p.sum()), float(x_p @ y_p),
+                   float(y_free @ y_free))
+
+
+def _rss_over_contacts(contacts_um, widths_um, power, data: _Projected):
+    """Residual sum of squares of the linear solve at every (toe width, candidate contact) at once,
+    and the toe's stiffness there. contacts_um, widths_um: equal-length 1-D arrays (one row per
+    candidate); power: the toe's."""
+    depth = contacts_um[:, None, None] - data.near_window_um[None]
+    h = toe_shape(depth, widths_um[:, None, None], power).mean(axis=2)  # (C, n) the in-between samples
+    # The pressed samples: h = a - x with a = c - w p / (p + 1) (the toe lifts w / (p + 1), not w).
+    a = contacts_um - widths_um * (power / (power + 1.0))
+    h_basis = h @ data.near_basis + a[:, None] * data.pressed_basis[None] - data.pressed_x_basis[None]
+    hh_all = np.einsum("cn,cn->c", h, h) + a * a * data.pressed_n - 2.0 * a * data.pressed_x + data.pressed_xx
+    hh = hh_all - np.einsum("cm,cm->c", h_basis, h_basis)
+    hy = h @ data.near_y + a * data.pressed_y - data.pressed_xy
     # A candidate whose toe column is (nearly) a combination of the others cannot be solved.
-    usable = shh * n - sh * sh > 1e-9 * (shh * n + 1e-300)
-    rss = np.full(rows, np.inf)
-    solution = np.zeros((rows, 3))
-    if usable.any():
-        solution[usable] = np.linalg.solve(normal[usable], rhs[usable][..., None])[..., 0]
-        rss[usable] = syy - np.einsum("ck,ck->c", solution[usable], rhs[usable])
-    rss[solution[:, 2] <= 0.0] = np.inf  # the contact must press, not pull
-    return rss, solution
+    usable = hh > 1e-9 * (hh_all + 1e-300)
+    stiffness = np.divide(hy, hh, out=np.zeros_like(hy), where=usable)
+    rss = np.where(usable & (stiffness > 0.0), data.yy - stiffness * hy, np.inf)  # must press, not pull
+    return rss, stiffness
 
 
 def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, contact0_um: float,
-            spacing_um: float) -> ToeFit | None:
-    """The toe model over pullback samples (conversion windows [x_lo, x_hi], µm above the halt)."""
+            spacing_um: float, drift_g_um: float | None = None) -> ToeFit | None:
+    """The toe model over pullback samples (conversion windows [x_lo, x_hi], µm above the halt).
+
+    drift_g_um: the force's slope against height in free air when known (the approach shows it);
+    None: fitted over the departure with the rest.
+    """
     keep = (x_lo_um < contact0_um + COARSE_ABOVE_UM + DEPARTURE_REACH_SAMPLES * spacing_um) & (
         x_hi_um > contact0_um - PENETRATION_REACH_UM)
     x_lo_um, x_hi_um, y = x_lo_um[keep], x_hi_um[keep], force_g[keep]
@@ -114,41 +156,81 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
     fractions = (np.arange(SUBSAMPLES) + 0.5) / SUBSAMPLES
     window_um = x_lo_um[:, None] + (x_hi_um - x_lo_um)[:, None] * fractions[None, :]
     x_mid = 0.5 * (x_lo_um + x_hi_um)
-    x_mid = x_mid - x_mid.mean()  # the slope's column re-centred: better conditioned
+    if drift_g_um is None:
+        basis = np.linalg.qr(np.column_stack((np.ones_like(x_mid), x_mid - x_mid.mean())))[0]
+    else:
+        y = y - drift_g_um * x_mid
+        basis = np.full((len(y), 1), 1.0 / math.sqrt(len(y)))
     coarse = contact0_um + np.arange(-COARSE_BELOW_UM, COARSE_ABOVE_UM + 1e-9, COARSE_STEP_UM)
     widths = np.array(TOE_WIDTHS_UM)
+    data = _Projected.prepare(window_um, x_mid, basis, y, coarse[0], coarse[-1], widths.max())
     grid_c = np.tile(coarse, len(widths))
     grid_w = np.repeat(widths, len(coarse))
-    rss_grid = np.stack([_rss_over_contacts(grid_c, grid_w, power, window_um, x_mid, y)[0].reshape(len(widths), -1)
+    rss_grid = np.stack([_rss_over_contacts(grid_c, grid_w, power, data)[0].reshape(len(widths), -1)
                          for power in TOE_POWERS])  # (power, width, contact)
-    profile = rss_grid.min(axis=(0, 1))  # over the toes, per contact height
-    power_index, width_index, k = np.unravel_index(int(np.argmin(rss_grid)), rss_grid.shape)
-    if not math.isfinite(rss_grid[power_index, width_index, k]):
+    best = np.unravel_index(int(np.argmin(rss_grid)), rss_grid.shape)
+    if not math.isfinite(rss_grid[best]):
         return None
-    width, power = widths[width_index], TOE_POWERS[power_index]
-    fine = coarse[k] + np.arange(-COARSE_STEP_UM, COARSE_STEP_UM + 1e-9, FINE_STEP_UM)
-    rss, solution = _rss_over_contacts(fine, np.full(len(fine), width), power, window_um, x_mid, y)
-    j = int(np.argmin(rss))
-    contact = float(fine[j])
-    if 0 < j < len(fine) - 1 and np.isfinite(rss[j - 1:j + 2]).all():
-        bend = rss[j - 1] - 2 * rss[j] + rss[j + 1]
-        if bend > 0:
-            contact += 0.5 * FINE_STEP_UM * (rss[j - 1] - rss[j + 1]) / bend
-    dof = max(len(y) - 6, 1)
-    residual_var = max(float(rss[j]) / dof, 1e-12)
-    return ToeFit(contact_um=contact, sigma_um=_profile_sigma_um(coarse, profile, int(np.argmin(profile)),
-                                                                 residual_var),
-                  width_um=float(width), power=float(power), stiffness_g_um=float(solution[j, 2]),
-                  departure_slope_g_um=float(solution[j, 1]), residual_sigma_g=math.sqrt(residual_var))
+    dof = max(len(y) - 4 - basis.shape[1], 1)
+    residual_var = max(float(rss_grid[best]) / dof, 1e-12)
+    contact, sigma = marginal_contact_um(coarse, rss_grid.reshape(-1, len(coarse)), residual_var)
+    if contact is None:
+        return None
+    width, power = widths[best[1]], TOE_POWERS[best[0]]
+    _, stiffness = _rss_over_contacts(np.array([contact]), np.array([width]), power, data)
+    return ToeFit(contact_um=contact, sigma_um=sigma, width_um=float(width), power=float(power),
+                  stiffness_g_um=float(stiffness[0]), residual_sigma_g=math.sqrt(residual_var))
 
 
-def _profile_sigma_um(contacts_um: np.ndarray, profile: np.ndarray, k: int, residual_var: float) -> float:
-    """1σ of c from the profile residual: where it rises by one residual variance (parabola through
-    the minimum and its neighbours; the grid step when the profile is flatter than that)."""
-    if not 0 < k < len(profile) - 1 or not np.isfinite(profile[k - 1:k + 2]).all():
-        return COARSE_STEP_UM
-    step = contacts_um[1] - contacts_um[0]
-    curvature = (profile[k - 1] - 2 * profile[k] + profile[k + 1]) / (step * step)  # d²RSS/dc²
-    if curvature <= 0:
-        return COARSE_STEP_UM
-    return math.sqrt(2.0 * residual_var / curvature)
+def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: float) -> tuple[float | None, float]:
+    """Mean and sd of the contact height with the toe (width, shape) marginalised out.
+
+    rss: (toes, contacts) residual sums on an even grid of contact heights. Per toe, a parabola
+    through its least residual and the two neighbours gives that toe's best height, its residual
+    and its curvature (a Gaussian in c, the Laplace approximation); each toe is weighted by its
+    likelihood exp(-rss / 2 noise_var) times its width in c. The mean over toes is less noisy than
+    the single best toe (the toe width and the contact height trade off along a flat valley, and
+    noise moves the argmin along it), and the sd holds that trade-off: an honest sigma.
+    """
+    step = float(contacts_um[1] - contacts_um[0])
+    k = np.argmin(rss, axis=1)
+    rows = np.arange(rss.shape[0])
+    inner = (k > 0) & (k < rss.shape[1] - 1)
+    k_in = np.clip(k, 1, rss.shape[1] - 2)
+    before, at, after = rss[rows, k_in - 1], rss[rows, k_in], rss[rows, k_in + 1]
+    with np.errstate(invalid="ignore", over="ignore"):
+        bend = before - 2.0 * at + after
+        usable = inner & np.isfinite(before) & np.isfinite(after) & (bend > 0)
+        offset = np.where(usable, 0.5 * (before - after) / np.where(usable, bend, 1.0), 0.0)
+    centre = contacts_um[k_in] + offset * step
+    lowest = np.where(usable, at - 0.25 * offset * (before - after), np.inf)
+    if not usable.any():
+        return None, COARSE_STEP_UM
+    # d2 rss / dc2 = bend / step^2; the Gaussian in c has variance 2 noise_var / that.
+    var = np.where(usable, 2.0 * noise_var * step * step / np.where(usable, bend, 1.0), 0.0)
+    log_weight = np.where(usable, -(lowest - lowest[usable].min()) / (2.0 * noise_var), -np.inf)
+    weight = np.exp(log_weight) * np.sqrt(var)
+    weight /= weight.sum()
+    mean = float(weight @ centre)
+    spread = float(weight @ (var + (centre - mean) ** 2))
+    return mean, math.sqrt(max(spread, 0.0))
+
+
+def adhesion_dip(x_um: np.ndarray, force_g: np.ndarray, drift_g_um: float, contact_um: float) -> float | None:
+    """How far (g) the force dips below the free-air level just above break contact, or None when
+    the pullback does not reach far enough above contact to know the level.
+
+    Adhesion and a plastic thread keep pulling the nozzle after it left the surface; the toe model
+    reads that pull as more contact and puts Z high (mild ooze: +3.6 µm on the independent
+    generator's taps, and the taps with the deepest dip err most). The drift (from the approach)
+    is taken out first, so a cable pulling in proportion to Z does not look like a dip.
+    """
+    level_force = force_g - drift_g_um * x_um
+    above = x_um - contact_um
+    level = level_force[(above > ADHESION_REACH_UM) & (above < ADHESION_LEVEL_UM)]
+    near = level_force[(above > 1.0) & (above <= ADHESION_REACH_UM)]
+    if len(level) < ADHESION_MIN_LEVEL_SAMPLES or len(near) < ADHESION_RUN_SAMPLES:
+        return None
+    runs = np.convolve(near, np.full(ADHESION_RUN_SAMPLES, 1.0 / ADHESION_RUN_SAMPLES), mode="valid")
+    return float(np.median(level) - runs.min())
+

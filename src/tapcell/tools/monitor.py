@@ -208,7 +208,7 @@ class Display:
 def monitor(args, display: Display, connect: Callable) -> int:
     """Connect, subscribe, analyse taps until --count is reached; reconnect when the link drops."""
     url = bridge_url(args.moonraker)
-    taps = 0
+    seen = TapCount()  # survives reconnections
     while True:
         try:
             with connect(url, open_timeout=10, close_timeout=2) as websocket:
@@ -221,9 +221,8 @@ def monitor(args, display: Display, connect: Callable) -> int:
                     bridge.request("load_cell/dump_force", {"load_cell": args.probe.split()[-1],
                                                             "response_template": {}})
                 display.say(f"tapcell monitor: connected to {url}, waiting for taps of [{args.probe}]")
-                taps = _follow(bridge, args, options, display, taps)
-                if args.count and taps >= args.count:
-                    return 0
+                _follow(bridge, args, options, display, seen)
+                return 0
         except ApiError as exc:
             display.say(f"tapcell monitor: the printer refused: {exc}")
             return 2
@@ -233,22 +232,27 @@ def monitor(args, display: Display, connect: Callable) -> int:
         time.sleep(RECONNECT_S)
 
 
-def _follow(bridge: Bridge, args, options: AnalysisOptions, display: Display, taps: int) -> int:
+@dataclass
+class TapCount:
+    taps: int = 0
+
+
+def _follow(bridge: Bridge, args, options: AnalysisOptions, display: Display, seen: TapCount) -> None:
+    """Handle pushes until --count taps were seen (or forever); a dropped link raises."""
     force_g: list[float] = []
     last_report = time.monotonic()
-    while not (args.count and taps >= args.count):
+    while not (args.count and seen.taps >= args.count):
         push = bridge.next_push(RECV_POLL_S)
         params = (push or {}).get("params", {})
         if "tap" in params:
-            taps += 1
-            _handle_tap(taps, params, options, args, display)
+            seen.taps += 1
+            _handle_tap(seen.taps, params, options, args, display)
         elif "data" in params:
             force_g += [row[1] for row in params["data"] if row[1] is not None]
         if args.force and time.monotonic() - last_report >= FORCE_REPORT_S and force_g:
             display.say(f"force: {force_g[-1]:.1f} g (min {min(force_g):.1f}, max {max(force_g):.1f} "
                         f"over {len(force_g)} samples)")
             force_g, last_report = [], time.monotonic()
-    return taps
 
 
 def _handle_tap(number: int, event: dict, options: AnalysisOptions, args, display: Display) -> None:

@@ -25,243 +25,22 @@ front end can show as a progress bar (the demo does).
 
 from __future__ import annotations
 
-import math
-from collections.abc import Callable, Sequence
-from dataclasses import dataclass, replace
+from collections.abc import Sequence
+from dataclasses import replace
 
-import numpy as np
-
+from tapcell.extras.bed_mesh.methods import METHODS
+from tapcell.extras.bed_mesh.options import SECTION, command_options, read_bed_mesh_options
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.mesh.errors import MeshError, MeshOptionError
-from tapcell.mesh.grid import MeshGrid, matrix_from_probes, rectangular_grid, round_grid
-from tapcell.mesh.interpolate import ALGORITHMS, Interpolation, resolve_interpolation
+from tapcell.mesh.grid import matrix_from_probes
 from tapcell.mesh.profiles import mesh_from_profile_options, profile_options, profile_section_name
 from tapcell.mesh.report import render_mesh
-from tapcell.mesh.split import SplitSettings, split_move
-from tapcell.mesh.travel import travel_height_mm
-from tapcell.mesh.zmesh import (
-    Fade,
-    ZMesh,
-    build_mesh,
-    empty_mesh_status,
-    fade_target_mm,
-    gcode_z_mm,
-    resolve_zero_reference,
-)
+from tapcell.mesh.split import split_move
+from tapcell.mesh.zmesh import ZMesh, build_mesh, empty_mesh_status, fade_target_mm, gcode_z_mm
 
-SECTION = "bed_mesh"
 DEFAULT_PROFILE = "default"
-METHODS = ("tap", "two_pass", "prusa")
 PROGRESS_EVENT = "bed_mesh:progress"
-
-
-@dataclass(frozen=True)
-class BedMeshOptions:
-    """The `[bed_mesh]` options, validated (a BED_MESH_CALIBRATE may override some)."""
-
-    speed_mm_s: float
-    horizontal_move_z_mm: float
-    horizontal_z_clearance_mm: float | None  # lift this much above the last contact between points
-    grid: MeshGrid
-    interpolation: Interpolation
-    interpolation_note: str | None
-    algorithm: str  # as configured (interpolation.algorithm may be a fallback)
-    mesh_pps: tuple[int, int]
-    fade: Fade
-    split: SplitSettings
-    zero_reference_xy_mm: tuple[float, float] | None
-    method: str
-
-
-def _pair(values: list, option: str, section: ConfigSection) -> tuple:
-    if len(values) == 1:
-        return (values[0], values[0])
-    if len(values) != 2:
-        raise section.error(option, "must be one value or a pair X, Y")
-    return tuple(values)
-
-
-def _mesh_option_error(section: ConfigSection, exc: MeshOptionError):
-    return section.error(exc.option, exc.allowed)
-
-
-def _read_grid(section: ConfigSection) -> MeshGrid:
-    round_bed = section.has_option("mesh_radius")
-    rectangular = section.has_option("mesh_min") or section.has_option("mesh_max")
-    if round_bed and rectangular:
-        raise section.error("mesh_radius", "give either mesh_radius (round bed) or mesh_min/mesh_max (rectangular), not both")
-    try:
-        if round_bed:
-            radius = section.getfloat("mesh_radius", above=0.0)
-            origin = tuple(section.getfloatlist("mesh_origin", (0.0, 0.0), count=2))
-            count = section.getint("round_probe_count", 5, minval=3)
-            return round_grid(radius, origin, count)
-        mesh_min = tuple(section.getfloatlist("mesh_min", count=2))
-        mesh_max = tuple(section.getfloatlist("mesh_max", count=2))
-        probe_count = _pair(section.getintlist("probe_count", (3, 3)), "probe_count", section)
-        return rectangular_grid(mesh_min, mesh_max, probe_count)
-    except MeshOptionError as exc:
-        raise _mesh_option_error(section, exc) from None
-
-
-def read_bed_mesh_options(section: ConfigSection) -> BedMeshOptions:
-    """Read and check `[bed_mesh]`; errors name file, section, option, value and what is allowed."""
-    grid = _read_grid(section)
-    algorithm = section.getchoice("algorithm", list(ALGORITHMS), "lagrange")
-    mesh_pps = _pair(section.getintlist("mesh_pps", (2, 2)), "mesh_pps", section)
-    tension = section.getfloat("bicubic_tension", 0.2, minval=0.0, maxval=2.0)
-    fade = Fade(section.getfloat("fade_start", 1.0), section.getfloat("fade_end", 0.0),
-                section.getfloat("fade_target", None))
-    clearance = section.getfloat("horizontal_z_clearance", None, above=0.0)
-    zero_position = section.getfloatlist("zero_reference_position", None, count=2)
-    reference_index = section.getint("relative_reference_index", None, minval=0)
-    try:
-        interpolation, note = resolve_interpolation(algorithm, (grid.x_count, grid.y_count), mesh_pps, tension)
-        split = SplitSettings(section.getfloat("move_check_distance", 5.0),
-                              section.getfloat("split_delta_z", 0.025))
-        zero_reference = resolve_zero_reference(grid, None if zero_position is None else tuple(zero_position),
-                                                reference_index)
-    except MeshOptionError as exc:
-        raise _mesh_option_error(section, exc) from None
-    return BedMeshOptions(
-        speed_mm_s=section.getfloat("speed", 50.0, above=0.0),
-        horizontal_move_z_mm=section.getfloat("horizontal_move_z", 5.0),
-        horizontal_z_clearance_mm=clearance,
-        grid=grid,
-        interpolation=interpolation,
-        interpolation_note=note,
-        algorithm=algorithm,
-        mesh_pps=mesh_pps,
-        fade=fade,
-        split=split,
-        zero_reference_xy_mm=zero_reference,
-        method=section.getchoice("method", list(METHODS), "tap"),
-    )
-
-
-# -- BED_MESH_CALIBRATE parameters -----------------------------------------------------------
-
-def _gcode_floats(gcmd: GCodeCommand, name: str, count: int | None) -> list[float] | None:
-    text = gcmd.get(name, None)
-    if text is None:
-        return None
-    try:
-        values = [float(v) for v in text.split(",")]
-    except ValueError:
-        values = []
-    if not values or not all(math.isfinite(v) for v in values) or (count is not None and len(values) != count):
-        shape = f"{count} numbers separated by commas" if count else "numbers separated by commas"
-        raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {name}={text}: expected {shape}")
-    return values
-
-
-def command_options(options: BedMeshOptions, gcmd: GCodeCommand) -> BedMeshOptions:
-    """The options of one BED_MESH_CALIBRATE: the config with the command's parameters applied."""
-    mesh_min = _gcode_floats(gcmd, "MESH_MIN", 2)
-    mesh_max = _gcode_floats(gcmd, "MESH_MAX", 2)
-    counts = _gcode_floats(gcmd, "PROBE_COUNT", None)
-    algorithm = gcmd.get("ALGORITHM", options.algorithm).strip().lower()
-    method = gcmd.get("METHOD", options.method).strip().lower()
-    if method not in METHODS:
-        raise gcmd.error(f"Error on '{gcmd.get_commandline()}': METHOD={method}: must be one of {', '.join(METHODS)}")
-    clearance = gcmd.get_float("HORIZONTAL_Z_CLEARANCE", options.horizontal_z_clearance_mm, above=0.0)
-    grid = options.grid
-    try:
-        if mesh_min is not None or mesh_max is not None or counts is not None:
-            if grid.radius_mm is not None and (mesh_min is not None or mesh_max is not None):
-                raise MeshOptionError(SECTION, "mesh_min", mesh_min or mesh_max, "a round bed uses mesh_radius")
-            if counts is not None and (len(counts) not in (1, 2) or any(c != int(c) for c in counts)):
-                raise MeshOptionError(SECTION, "probe_count", gcmd.get("PROBE_COUNT"), "must be one integer or a pair X, Y")
-            count_pair = (grid.x_count, grid.y_count) if counts is None else tuple(int(c) for c in _repeat(counts))
-            grid = rectangular_grid(mesh_min or grid.mesh_min, mesh_max or grid.mesh_max, count_pair)
-        interpolation, note = resolve_interpolation(algorithm, (grid.x_count, grid.y_count), options.mesh_pps,
-                                                    options.interpolation.bicubic_tension)
-    except MeshOptionError as exc:
-        shown = gcmd.get(exc.option.upper(), exc.value)  # the value as the user wrote it, when given
-        raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {exc.option.upper()}={shown}: {exc.allowed}") from None
-    return replace(options, grid=grid, interpolation=interpolation, interpolation_note=note,
-                   horizontal_z_clearance_mm=clearance, method=method)
-
-
-def _repeat(values: list[float]) -> list[float]:
-    return values * 2 if len(values) == 1 else values
-
-
-# -- probing ----------------------------------------------------------------------------------
-
-# progress(done, total) after each probed point.
-Progress = Callable[[int, int], None]
-
-
-@dataclass
-class MeshProbeRun:
-    """What a probing method returns: bed height per point (probing order) and a report."""
-
-    z_mm: list[float]
-    report: str = ""
-    details: dict | None = None  # JSON-ready, shown in status as last_calibration
-
-
-def probe_points_by_tapping(printer, options: BedMeshOptions, gcmd: GCodeCommand,
-                            points_xy_mm: np.ndarray, progress: Progress) -> MeshProbeRun:
-    """The `tap` method: one probe session (with the command's overrides) over every point.
-
-    Between points the nozzle lifts to `horizontal_move_z`, or with `horizontal_z_clearance`
-    only that much above the bed on the way to the next point (`mesh_travel_height_mm`).
-    """
-    probe = printer.lookup_object("probe", None)
-    if probe is None:
-        raise GCodeError("BED_MESH_CALIBRATE needs a probe: add a [load_cell_probe] section")
-    toolhead = printer.lookup_object("toolhead")
-    x_offset, y_offset = probe.options.x_offset_mm, probe.options.y_offset_mm
-    z_values = []
-    attempts = []
-    contacts_xyz: list[tuple[float, float, float]] = []  # where the nozzle touched (toolhead Z)
-    with probe.session(gcmd) as session:
-        lift_speed = session.options.effective_lift_speed_mm_s
-        for index, (x_mm, y_mm) in enumerate(points_xy_mm):
-            travel_z = mesh_travel_height_mm(options, contacts_xyz, (float(x_mm), float(y_mm)))
-            if toolhead.get_position()[2] < travel_z:
-                toolhead.move_to(z=travel_z, speed_mm_s=lift_speed)
-            toolhead.move_to(x=float(x_mm) - x_offset, y=float(y_mm) - y_offset, speed_mm_s=options.speed_mm_s)
-            result = session.probe_point(float(x_mm), float(y_mm))
-            z_values.append(result.z_mm)
-            attempts.append(result.attempts)
-            contacts_xyz.append((result.tapped_x_mm, result.tapped_y_mm, result.z_mm + session.options.z_offset_mm))
-            progress(index + 1, len(points_xy_mm))
-        toolhead.move_to(z=max(toolhead.get_position()[2], mesh_travel_height_mm(options, contacts_xyz, None)),
-                         speed_mm_s=lift_speed)
-    extra = sum(attempts) - len(attempts)
-    report = f"{len(attempts)} points, {sum(attempts)} taps" + (f" ({extra} retried)" if extra else "")
-    return MeshProbeRun(z_values, report, {"method": "tap", "taps": int(sum(attempts))})
-
-
-def mesh_travel_height_mm(options: BedMeshOptions, contacts_xyz: Sequence[tuple[float, float, float]],
-                          next_xy_mm: tuple[float, float] | None) -> float:
-    """Toolhead Z to travel at toward the next point (None: the lift after the last point).
-
-    `horizontal_move_z`, or with `horizontal_z_clearance` that much above the bed on the way,
-    the next point's height predicted from the contacts so far (`tapcell.mesh.travel`).
-    """
-    clearance = options.horizontal_z_clearance_mm
-    if clearance is None or not contacts_xyz:
-        return options.horizontal_move_z_mm
-    if next_xy_mm is None:
-        return contacts_xyz[-1][2] + clearance
-    return travel_height_mm(np.array(contacts_xyz), next_xy_mm, clearance, options.horizontal_move_z_mm)
-
-
-def _method_function(method: str):
-    if method == "tap":
-        return probe_points_by_tapping
-    if method == "two_pass":
-        from tapcell.extras.bed_mesh.two_pass import probe_points_two_pass
-
-        return probe_points_two_pass
-    from tapcell.extras.prusa_probe import probe_points_prusa
-
-    return probe_points_prusa
 
 
 # -- the [bed_mesh] object --------------------------------------------------------------------
@@ -345,7 +124,7 @@ class BedMesh:
         options = command_options(self.options, gcmd)
         profile = gcmd.get("PROFILE", DEFAULT_PROFILE).strip()
         if not profile or " " in profile:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': PROFILE must be one word")
+            raise gcmd.param_error("PROFILE must be one word")
         homed = self.toolhead.status()["homed_axes"]
         if homed != "xyz":
             raise gcmd.error("BED_MESH_CALIBRATE: home all axes first (G28)")
@@ -362,7 +141,7 @@ class BedMesh:
         def progress(done: int, count: int) -> None:
             self.printer.send_event(PROGRESS_EVENT, done, count)
 
-        run = _method_function(options.method)(self.printer, options, gcmd, points, progress)
+        run = METHODS[options.method](self.printer, options, gcmd, points, progress)
         elapsed_s = self.printer.get_time() - start_s
         matrix = matrix_from_probes(options.grid, run.z_mm)
         try:
@@ -394,14 +173,14 @@ class BedMesh:
     def cmd_BED_MESH_PROFILE(self, gcmd: GCodeCommand) -> None:
         given = [key for key in ("SAVE", "LOAD", "REMOVE") if gcmd.has(key)]
         if len(given) != 1:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': give exactly one of SAVE=name, LOAD=name, REMOVE=name")
+            raise gcmd.param_error("give exactly one of SAVE=name, LOAD=name, REMOVE=name")
         action = given[0]
         name = gcmd.get(action).strip()
         if not name or " " in name:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {action} needs a one-word profile name")
+            raise gcmd.param_error(f"{action} needs a one-word profile name")
         if action != "SAVE" and name not in self.profiles:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': no bed mesh profile '{name}' "
-                             f"(known: {', '.join(sorted(self.profiles)) or 'none'})")
+            raise gcmd.param_error(f"no bed mesh profile '{name}' "
+                                   f"(known: {', '.join(sorted(self.profiles)) or 'none'})")
         if action == "SAVE":
             self.save_profile(name)
             gcmd.respond_info(f"Bed mesh profile '{name}' saved; run SAVE_CONFIG to write it to the config file")

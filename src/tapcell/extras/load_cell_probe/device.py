@@ -16,9 +16,8 @@ One tap, step by step (`LoadCellProbe.tap`):
 8. report: Z at break contact when the tap is valid, otherwise the trigger Z and the
    validation code for the probe's bad_probe_strategy.
 
-Commands: LOAD_CELL_TEST_TAP, NOZZLE_CLEANUP, LOAD_CELL_PROBE_CALIBRATE (CONTACT_ONSET, PULLBACK_DISTANCE,
-DECOMPRESSION_ANGLE), plus the [load_cell] commands and the generic
-probe commands of `tapcell.extras.probe.session`. Status: `load_cell_probe` (and `probe`).
+Its commands are in `commands.py`, next to the [load_cell] commands and the generic probe
+commands of `tapcell.extras.probe.session`. Status: `load_cell_probe` (and `probe`).
 """
 
 from __future__ import annotations
@@ -30,39 +29,26 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import jinja2
 import numpy as np
 
+from tapcell.host.backend import Backend
 from tapcell.filters import FilterDesignError, FilterOptions, design_firmware_filter
-from tapcell.host.gcode import GCodeError
-from tapcell.extras.gcode_macro import StatusView
-from tapcell.extras.load_cell import LoadCell, read_load_cell_options, register_load_cell_commands
-from tapcell.mcu.trigger import FirmwareTrigger, TriggerError, TriggerParams
-from tapcell.extras.probe.session import Probe, ProbeError, TapOutcome
-from tapcell.extras.probe.options import (
-    PROBE_TEMPLATE_OPTIONS,
-    read_probe_options,
-    read_section_values,
-    with_overrides,
-)
+from tapcell.extras.load_cell import LoadCell, read_load_cell_options
+from tapcell.mcu import sensors
+from tapcell.mcu.trigger import MAX_STUCK_SAMPLES, FirmwareTrigger, TriggerError, TriggerParams
+from tapcell.extras.probe.session import ProbeError, TapOutcome
+from tapcell.extras.probe.options import read_section_values, with_overrides
 from tapcell.extras.load_cell_probe.options import (
+    CORRUPT_FRAME_RETRIES,
     ERROR_PREFIX,
+    check_stuck_sensor_samples,
+    lone_sample_past_limit,
     preload_refusal,
     trigger_error_message,
-    CALIBRATION_PULLBACK_MM,
-    PULLBACK_LIMITS_MM,
     TAP_OPTION_SPECS,
-    MIN_ONSET_TAPS,
     TapOptions,
-    calibrate_decompression_angle,
-    covered_speed_range_mm_s,
-    decompression_angle_deg,
-    break_contact_height_um,
-    min_usable_taps,
-    propose_pullback_distance,
     default_pullback_speed_mm_s,
     dwell_sample_count,
-    fit_pooled_contact_onset,
     force_beyond_safety_limit_g,
     expected_peak_force_g,
     robust_tare_counts,
@@ -71,11 +57,8 @@ from tapcell.extras.load_cell_probe.options import (
     too_fast_explanation,
     too_fast_for_analysis,
 )
-from tapcell.extras.probe.calibrate import register_probe_calibrate
-from tapcell.extras.probe.patterns import serpentine_pattern
 from tapcell.scale import counts_to_grams
 from tapcell.tap import AnalysisOptions, Move, TapData, analyze_tap, get_classifier, tap_to_json_dict
-from tapcell.tap.motion import tap_motion
 
 BREAK_CLEAR_SAMPLES = 4  # after break contact: one conversion window plus margin before free-air samples
 KEEP_LAST_TAPS = 16
@@ -197,13 +180,19 @@ class LoadCellProbe:
     def __init__(self, section, printer):
         self.printer = printer
         self.name = section.get_name()
-        self.vp = printer.backend
+        self.backend: Backend = printer.backend
         self.cell_options = read_load_cell_options(section)
         self.sample_rate_sps = float(self.cell_options.sample_rate_sps)
         values = read_section_values(section, TAP_OPTION_SPECS)
         self.options = TapOptions(**values)
         self.tap_log_path = section.get("tap_log", None)
         self._check_classifier(self.options.tap_classifier, lambda msg: section.error("tap_classifier", msg))
+        check_stuck_sensor_samples(self.options.stuck_sensor_samples,
+                                   lambda msg: section.error("stuck_sensor_samples", msg))
+        # A live sensor of this type, gain and rate never repeats one value this often (docs/firmware.md).
+        self.default_stuck_samples = sensors.stuck_sample_count(
+            sensors.noise_floor_counts(self.cell_options.sensor_type, self.cell_options.gain, self.sample_rate_sps),
+            self.sample_rate_sps, MAX_STUCK_SAMPLES)
         try:
             self.config_settings = self._design(self.options)
         except FilterDesignError as exc:
@@ -241,10 +230,12 @@ class LoadCellProbe:
         if options is self.options:
             return self.config_settings
         self._check_classifier(options.tap_classifier, gcmd.error)
+        check_stuck_sensor_samples(options.stuck_sensor_samples,
+                                   lambda msg: gcmd.param_error(f"STUCK_SENSOR_SAMPLES: {msg}"))
         try:
             return self._design(options)
         except FilterDesignError as exc:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {exc.option.upper()}: {exc}") from None
+            raise gcmd.param_error(f"{exc.option.upper()}: {exc.value!r} is not allowed; allowed: {exc.allowed}") from None
 
     def with_options(self, settings: TapSettings, **changes) -> TapSettings:
         """`settings` with some TapOptions fields changed (a calibration's own taps)."""
@@ -257,14 +248,14 @@ class LoadCellProbe:
         self.printer.config.set(self.name, option, text)
 
     # -- the tap ---------------------------------------------------------------------------
-    def _require_calibrated(self) -> None:
+    def require_calibrated(self) -> None:
         if not self.load_cell.is_calibrated:
             raise ProbeError(ERROR_PREFIX + "Load Cell not calibrated")
 
     def _on_samples(self, batch) -> None:
-        self.history.add(batch, self.vp.now_s)
+        self.history.add(batch, self.backend.now_s)
 
-    def _tare(self, options: TapOptions) -> float:
+    def tare(self, options: TapOptions) -> float:
         """Raw counts at rest: the mean of the last ⌈tare_time·sps⌉ samples, corrupted frames left out.
 
         The tare overlaps the end of the previous move (the lift after a tap, a travel): every
@@ -274,10 +265,10 @@ class LoadCellProbe:
         """
         needed = tare_sample_count(options.tare_time_s, self.sample_rate_sps)
         period_s = 1.0 / self.sample_rate_sps
-        deadline_s = self.vp.now_s + TARE_TIMEOUT_S
+        deadline_s = self.backend.now_s + TARE_TIMEOUT_S
         while True:
             self.load_cell.pump()
-            now_s = self.vp.now_s
+            now_s = self.backend.now_s
             usable_from_s = now_s if self._tare_from_s is None else self._tare_from_s
             # Fresh samples only: a stalled sensor must not tare on what it said long ago.
             oldest_s = max(usable_from_s, now_s - (needed + TARE_FRESH_MARGIN_SAMPLES) * period_s)
@@ -289,48 +280,84 @@ class LoadCellProbe:
             if now_s >= deadline_s:
                 raise ProbeError(ERROR_PREFIX + "timed out waiting for sensor data")
             self._tare_from_s = usable_from_s
-            self.vp.dwell(max(needed - len(counts), 1) * period_s)
+            self.backend.dwell(max(needed - len(counts), 1) * period_s)
         tare_counts = robust_tare_counts(counts[-needed:])
-        beyond = force_beyond_safety_limit_g(tare_counts, self.load_cell.reference_tare_counts,
-                                             self.load_cell.counts_per_gram, options.force_safety_limit_g)
-        if beyond is not None:
-            raise ProbeError(preload_refusal(beyond, options.force_safety_limit_g))
+        self.refuse_preload(tare_counts, options)
         self.load_cell.set_tare(tare_counts)
         self.tare_counts_at_tap = tare_counts
         return tare_counts
 
-    def _arm(self, settings: TapSettings, tare_counts: float) -> FirmwareTrigger:
-        options = settings.options
-        trigger = FirmwareTrigger(TriggerParams(
+    def refuse_preload(self, tare_counts: float, options: TapOptions) -> None:
+        """Refuse to move when the force at rest is already past force_safety_limit (ProbeError, with the force)."""
+        beyond = force_beyond_safety_limit_g(tare_counts, self.load_cell.reference_tare_counts,
+                                             self.load_cell.counts_per_gram, options.force_safety_limit_g)
+        if beyond is not None:
+            raise ProbeError(preload_refusal(beyond, options.force_safety_limit_g))
+
+    def stuck_samples(self, options: TapOptions) -> int:
+        """The firmware's stuck-sensor run: the option, else the sensor's default (0: off)."""
+        return self.default_stuck_samples if options.stuck_sensor_samples is None else options.stuck_sensor_samples
+
+    def trigger_params(self, options: TapOptions, sos, trigger_force_g: float, release_force_g: float = 0.0,
+                       drift_safety_limit_g: float | None = None) -> TriggerParams:
+        """The firmware endstop's parameters for one probing move (every probing mode builds them here)."""
+        return TriggerParams(
             counts_per_gram=self.load_cell.counts_per_gram,
             reference_tare_counts=self.load_cell.reference_tare_counts,
-            trigger_force_g=options.trigger_force_g,
+            trigger_force_g=trigger_force_g,
+            release_force_g=release_force_g,
             sample_rate_sps=self.sample_rate_sps,
             force_safety_limit_g=options.force_safety_limit_g,
-            drift_safety_limit_g=options.drift_safety_limit_g,
+            drift_safety_limit_g=options.drift_safety_limit_g if drift_safety_limit_g is None else drift_safety_limit_g,
             inverted=self.cell_options.inverted,
-            sos=settings.sos,
-        ))
-        error = trigger.arm(int(round(tare_counts)), self.vp.now_s)
+            sos=sos,
+            stuck_samples=self.stuck_samples(options),
+        )
+
+    def error_message(self, error: TriggerError, options: TapOptions) -> str:
+        """What the user reads when the firmware endstop stopped a move with `error`."""
+        return trigger_error_message(error, options.force_safety_limit_g, self.stuck_samples(options))
+
+    def arm(self, settings: TapSettings, tare_counts: float, *, trigger_force_g: float | None = None,
+            release_force_g: float = 0.0, drift_safety_limit_g: float | None = None) -> FirmwareTrigger:
+        """The firmware trigger armed on `tare_counts` for one probing move (ProbeError if it refuses).
+
+        The one place a trigger is armed: a tap uses the command's options; threshold probing
+        (`threshold.ThresholdProber`) gives its own trigger force, the hysteresis release force
+        and, for fast passes, its own drift limit (0 disables it).
+        """
+        options = settings.options
+        force_g = options.trigger_force_g if trigger_force_g is None else trigger_force_g
+        trigger = FirmwareTrigger(self.trigger_params(options, settings.sos, force_g, release_force_g,
+                                                      drift_safety_limit_g))
+        error = trigger.arm(int(round(tare_counts)), self.backend.now_s)
         if error != TriggerError.NONE:
-            raise ProbeError(trigger_error_message(error, options.force_safety_limit_g))
+            raise ProbeError(self.error_message(error, options))
         return trigger
+
+    def expect_contact(self) -> None:
+        """The nozzle may touch the bed (or a hand the nozzle) from now on: the next tare waits for new samples."""
+        self._tare_from_s = None
 
     def _probing_move(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float):
         """Tare, arm and move down until the trigger halts Z; returns (move result, tare, t_start)."""
-        self._require_calibrated()
-        self._refuse_speed_beyond_force_limit(settings.options, speed_mm_s)
-        tare_counts = self._tare(settings.options)
-        # Until a pullback completes, the nozzle may be on the bed: the next tare waits for fresh samples.
-        self._tare_from_s = None
-        t_start_s = self.vp.now_s
-        trigger = self._arm(settings, tare_counts)
-        # Unhomed (G28 Z), z_min is a full axis length below: the machine stops at its own end of travel.
-        machine_z_min_mm = max(z_min_mm - self._z_frame_offset_mm(), self.vp.limits["z"][0])
-        result = self.vp.probing_move(machine_z_min_mm, speed_mm_s, trigger)
-        self.load_cell.pump()
+        for attempt in range(CORRUPT_FRAME_RETRIES + 1):
+            self.require_calibrated()
+            self._refuse_speed_beyond_force_limit(settings.options, speed_mm_s)
+            tare_counts = self.tare(settings.options)
+            # Until a pullback completes, the nozzle may be on the bed: the next tare waits for fresh samples.
+            self.expect_contact()
+            t_start_s = self.backend.now_s
+            trigger = self.arm(settings, tare_counts)
+            # Unhomed (G28 Z), z_min is a full axis length below: the machine stops at its own end of travel.
+            machine_z_min_mm = max(z_min_mm - self._z_frame_offset_mm(), self.backend.limits["z"][0])
+            result = self.backend.probing_move(machine_z_min_mm, speed_mm_s, trigger)
+            self.load_cell.pump()
+            if not (result.error == TriggerError.FORCE_SAFETY and attempt < CORRUPT_FRAME_RETRIES
+                    and self._stopped_by_a_corrupt_frame(settings.options, tare_counts, t_start_s)):
+                break
         if result.error != TriggerError.NONE:
-            message = trigger_error_message(result.error, settings.options.force_safety_limit_g)
+            message = self.error_message(result.error, settings.options)
             if result.error == TriggerError.DRIFT_SAFETY:
                 message += self._explain_drift(settings.options, tare_counts, t_start_s, speed_mm_s)
             raise ProbeError(message)
@@ -339,6 +366,19 @@ class LoadCellProbe:
                              "check that [stepper_z] position_min is negative (e.g. -2) and the nozzle reaches the bed")
         self.last_trigger_time_s = result.trigger_time_s
         return result, tare_counts, t_start_s
+
+    def _stopped_by_a_corrupt_frame(self, options: TapOptions, tare_counts: float, t_start_s: float) -> bool:
+        """Whether the force_safety_limit stop was one corrupted sample in the air (then says so)."""
+        period_s = 1.0 / self.sample_rate_sps
+        self._wait_for_samples_to(self.backend.now_s + 2.5 * period_s)     # the sample after it
+        _, counts, _ = self.history.between(t_start_s - 2.0 * period_s, self.backend.now_s)   # and the one before
+        force_g = (counts - tare_counts) / self.load_cell.counts_per_gram
+        lone = lone_sample_past_limit(force_g, options.force_safety_limit_g, options.trigger_force_g)
+        if lone is None:
+            return False
+        self.printer.gcode.respond_info(f"Load cell: one sample read {force_g[lone]:.0f}g between samples near 0g "
+                                        "(a corrupted frame); the move stopped at once, probing again")
+        return True
 
     def _refuse_speed_beyond_force_limit(self, options: TapOptions, speed_mm_s: float) -> None:
         """Refuse a speed that would press the bed harder than force_safety_limit.
@@ -362,7 +402,7 @@ class LoadCellProbe:
 
     def _explain_drift(self, options: TapOptions, tare_counts: float, t_start_s: float, speed_mm_s: float) -> str:
         """' (why)' when the move's samples show the force jumping past the limit within one sample."""
-        _, counts, _ = self.history.between(t_start_s, self.vp.now_s)
+        _, counts, _ = self.history.between(t_start_s, self.backend.now_s)
         force_g = (counts - tare_counts) / self.load_cell.counts_per_gram
         beyond = np.flatnonzero(np.abs(force_g) >= options.drift_safety_limit_g)
         if len(beyond) == 0 or beyond[0] == 0:
@@ -383,14 +423,14 @@ class LoadCellProbe:
     def tap(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float) -> TapOutcome:
         """One full tap at the current XY (see the module docstring)."""
         options = settings.options
-        self.history.keep_from_s = self.vp.now_s - HISTORY_S  # this tap's samples stay until analysed
+        self.history.keep_from_s = self.backend.now_s - HISTORY_S  # this tap's samples stay until analysed
         try:
             result, tare_counts, t_start_s = self._probing_move(settings, z_min_mm, speed_mm_s)
-            self.vp.dwell(self.dwell_samples / self.sample_rate_sps)
-            pullback_start_s = self.vp.now_s
-            self.vp.move_to(z=result.halt_z_mm + options.pullback_distance_mm,
+            self.backend.dwell(self.dwell_samples / self.sample_rate_sps)
+            pullback_start_s = self.backend.now_s
+            self.backend.move_to(z=result.halt_z_mm + options.pullback_distance_mm,
                             speed_mm_s=settings.pullback_speed_mm_s)
-            pullback_end_s = self.vp.now_s
+            pullback_end_s = self.backend.now_s
             # From here the nozzle is pullback_distance above the halt: clear of the bed for the next tare.
             self._tare_from_s = pullback_end_s
             self._wait_for_samples_to(pullback_end_s)
@@ -452,18 +492,18 @@ class LoadCellProbe:
             self.load_cell.pump()
             if self.history.newest_s >= end_s - 1.5 * period_s:
                 return
-            if self.vp.now_s >= deadline_s:
+            if self.backend.now_s >= deadline_s:
                 raise ProbeError(ERROR_PREFIX + "timed out waiting for sensor data")
-            self.vp.dwell(0.25 * period_s)
+            self.backend.dwell(0.25 * period_s)
 
     def _tap_data(self, tare_counts, t_start_s, result, pullback_start_s, pullback_end_s,
                   speed_mm_s, settings: TapSettings) -> TapData:
         t_s, counts, _ = self.history.between(t_start_s, pullback_end_s)
         force_g = counts_to_grams(counts, tare_counts, self.load_cell.counts_per_gram, self.cell_options.inverted)
         moves = [Move.from_record(m)
-                 for m in self.vp.recorded_moves(t_start_s, pullback_end_s)
+                 for m in self.backend.recorded_moves(t_start_s, pullback_end_s)
                  if m["print_time"] >= t_start_s - 1e-9]  # not the move that ended as the tap began
-        x, y, _ = self.vp.position
+        x, y, _ = self.backend.position
         options = settings.options
         return TapData(
             time_s=t_s, force_g=force_g, moves=moves, sample_rate_sps=self.sample_rate_sps,
@@ -512,283 +552,3 @@ class LoadCellProbe:
             for recorded in self.last_taps:
                 out.write(json.dumps(tap_to_json_dict(recorded.tap, recorded.analysis)) + "\n")
         return len(self.last_taps)
-
-
-class LoadCellProbeCommands:
-    """LOAD_CELL_TEST_TAP, NOZZLE_CLEANUP, QUERY_ENDSTOPS (the probe commands live in tapcell.extras.probe.session)."""
-
-    def __init__(self, device: LoadCellProbe, probe: Probe):
-        self.device = device
-        self.probe = probe
-        self.last_query: dict[str, bool] = {}
-
-    def register(self, gcode) -> None:
-        gcode.register_command("LOAD_CELL_TEST_TAP", self.cmd_LOAD_CELL_TEST_TAP,
-                               desc="Detect taps on the load cell without moving: [COUNT=3] [TIMEOUT=30]")
-        gcode.register_command("NOZZLE_CLEANUP", self.cmd_NOZZLE_CLEANUP,
-                               desc="Tap a serpentine pattern until SAMPLES good taps in a row")
-        gcode.register_command("QUERY_ENDSTOPS", self.cmd_QUERY_ENDSTOPS, desc="Report the endstop states")
-        gcode.register_command("LOAD_CELL_PROBE_CALIBRATE", self.cmd_LOAD_CELL_PROBE_CALIBRATE,
-                               desc="Calibrate the probe: CALIBRATION=CONTACT_ONSET|PULLBACK_DISTANCE|DECOMPRESSION_ANGLE [SAMPLES=10]")
-
-    def cmd_LOAD_CELL_PROBE_CALIBRATE(self, gcmd) -> None:
-        """Tap SAMPLES times at the current XY and calibrate one option from the taps.
-
-        CONTACT_ONSET: contact_onset_um from the pooled taps. PULLBACK_DISTANCE: the pullback
-        that puts break contact near the middle of the pullback. DECOMPRESSION_ANGLE: the
-        median angle of the decompression line, for the quality classifier. The value is used
-        at once and written by SAVE_CONFIG; the probing options may be overridden as on PROBE.
-        """
-        calibration = gcmd.get("CALIBRATION", "").strip().upper()
-        calibrate = {"CONTACT_ONSET": self._calibrate_contact_onset,
-                     "PULLBACK_DISTANCE": self._calibrate_pullback_distance,
-                     "DECOMPRESSION_ANGLE": self._calibrate_decompression_angle}.get(calibration)
-        if calibrate is None:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': CALIBRATION must be one of CONTACT_ONSET, "
-                             f"PULLBACK_DISTANCE, DECOMPRESSION_ANGLE, not '{calibration}'")
-        calibrate(gcmd)
-
-    def _calibration_taps(self, gcmd, samples: int, strategy: str, **option_changes):
-        """SAMPLES taps at the current XY with `strategy` for bad taps; returns (recorded taps, session).
-
-        `option_changes` change this command's TapOptions for its own taps only.
-        """
-        device = self.device
-        x_mm, y_mm = self.probe._current_probe_xy()
-        taps: list[RecordedTap] = []
-        with self.probe.session(gcmd, force_strategy=strategy) as session:
-            if option_changes:
-                session.tap_settings = device.with_options(session.tap_settings, **option_changes)
-            for _ in session.probe_repeatedly(x_mm, y_mm, samples):
-                taps.append(device.last_taps[-1])  # the accepted tap, before the lift
-        return taps, session
-
-    def _calibrate_contact_onset(self, gcmd) -> None:
-        """Fit the sheet's onset width on the pooled taps (bad taps retried in place)."""
-        samples = gcmd.get_int("SAMPLES", 10, minval=MIN_ONSET_TAPS, maxval=50)
-        x_mm, y_mm = self.probe._current_probe_xy()
-        recorded, session = self._calibration_taps(gcmd, samples, "retry")
-        try:
-            found = fit_pooled_contact_onset([r.tap for r in recorded], session.tap_settings.analysis)
-        except ValueError as exc:
-            raise ProbeError(f"LOAD_CELL_PROBE_CALIBRATE: {exc}") from None
-        self.device.set_calibrated("contact_onset_um", f"{found.onset_um:.2f}", contact_onset_um=found.onset_um)
-        gcmd.respond_info(
-            f"Contact onset calibration ({found.taps} taps at X:{x_mm:.3f} Y:{y_mm:.3f}):\n\n"
-            f"contact_onset_um: {found.onset_um:.2f}\n\n"
-            f"Z reads {found.z_shift_um:+.2f} um against a sharp contact. {SAVE_CONFIG_NOTE}")
-
-    def _calibrate_pullback_distance(self, gcmd) -> None:
-        """Tap with a long pullback, measure break contact above the halt, propose pullback_distance.
-
-        A tap counts when it is valid or its only fault is break contact in the first sixth
-        (TAP_BREAK_CONTACT_TOO_EARLY: expected with the long pullback, and the timing rule is
-        what this calibration sets). The taps use the configured speed (PROBE_SPEED overrides):
-        break contact grows with speed, so the result holds for a range of speeds around it.
-        """
-        samples = gcmd.get_int("SAMPLES", 10, minval=MIN_ONSET_TAPS, maxval=50)
-        device = self.device
-        shortest_mm, longest_mm = PULLBACK_LIMITS_MM
-        long_pullback_mm = gcmd.get_float("PULLBACK_DISTANCE", CALIBRATION_PULLBACK_MM,
-                                          minval=shortest_mm, maxval=longest_mm)
-        x_mm, y_mm = self.probe._current_probe_xy()
-        recorded, session = self._calibration_taps(gcmd, samples, "ignore", pullback_distance_mm=long_pullback_mm)
-        usable = [r for r in recorded if r.valid or r.analysis.error == "TAP_BREAK_CONTACT_TOO_EARLY"]
-        self._refuse_too_few(recorded, usable, samples, "PULLBACK_DISTANCE", long_pullback_mm)
-        heights_um = [break_contact_height_um(r.analysis.break_contact_time_s, r.analysis.sensor_delay_s or 0.0,
-                                              r.analysis.sensor_integration_s or 0.0, tap_motion(r.tap))
-                      for r in usable]
-        speed_mm_s = session.options.speed_mm_s
-        try:
-            found = propose_pullback_distance(heights_um, speed_mm_s, device.sample_rate_sps)
-        except ValueError as exc:
-            raise ProbeError(f"LOAD_CELL_PROBE_CALIBRATE: {exc}") from None
-        pullback_speed_um_s = session.tap_settings.pullback_speed_mm_s * 1000.0
-        stiffness_g_um = float(np.median([abs(r.analysis.lines[3][0]) for r in usable])) / pullback_speed_um_s
-        trigger_depth_um = session.tap_settings.options.trigger_force_g / stiffness_g_um
-        slowest, fastest = covered_speed_range_mm_s(found, speed_mm_s, device.sample_rate_sps, trigger_depth_um)
-        device.set_calibrated("pullback_distance", f"{found.pullback_distance_mm:.3f}",
-                              pullback_distance_mm=found.pullback_distance_mm)
-        gcmd.respond_info(
-            f"Pullback distance calibration ({found.taps} of {samples} taps at X:{x_mm:.3f} Y:{y_mm:.3f}, "
-            f"{speed_mm_s:g} mm/s, {long_pullback_mm:g} mm pullback):\n"
-            f"break contact {found.break_mean_um:.1f} um above the halt (sigma {found.break_sigma_um:.2f} um, "
-            f"{found.break_min_um:.1f}..{found.break_max_um:.1f} um)\n\n"
-            f"pullback_distance: {found.pullback_distance_mm:.3f}\n\n"
-            f"Break contact now comes at {found.share(found.break_mean_um):.0%} of the pullback "
-            f"({found.share(found.break_min_um):.0%}..{found.share(found.break_max_um):.0%}; the spec's middle two "
-            f"thirds: 17%..83%). {self._speed_coverage(self.probe.options, slowest, fastest)} "
-            f"{SAVE_CONFIG_NOTE}")
-
-    @staticmethod
-    def _speed_coverage(probe_options, slowest: float, fastest: float) -> str:
-        """Which probing speeds the pullback suits, and which configured speeds fall outside."""
-        coverage = f"It suits probing at about {slowest:g}..{fastest:g} mm/s (estimated from this speed)."
-        outside = [f"{name} {value:g} mm/s" for name, value in
-                   (("speed", probe_options.speed_mm_s), ("retry_speed", probe_options.effective_retry_speed_mm_s))
-                   if not slowest <= value <= fastest]
-        if outside:
-            coverage += (f" Outside that: {', '.join(outside)}; calibrate at the speed you probe at most "
-                         "(PROBE_SPEED=) or bring the speeds closer together.")
-        return coverage
-
-    def _calibrate_decompression_angle(self, gcmd) -> None:
-        """Tap SAMPLES times without the angle term, store the median decompression angle."""
-        samples = gcmd.get_int("SAMPLES", 10, minval=MIN_ONSET_TAPS, maxval=50)
-        x_mm, y_mm = self.probe._current_probe_xy()
-        # An old calibration must not reject the taps that replace it.
-        recorded, session = self._calibration_taps(gcmd, samples, "ignore", decompression_angle=None)
-        usable = [r for r in recorded if r.valid]
-        pullback_mm = session.tap_settings.options.pullback_distance_mm
-        self._refuse_too_few(recorded, usable, samples, "DECOMPRESSION_ANGLE", pullback_mm)
-        try:
-            found = calibrate_decompression_angle([decompression_angle_deg(r.analysis.lines[3][0]) for r in usable])
-        except ValueError as exc:
-            raise ProbeError(f"LOAD_CELL_PROBE_CALIBRATE: {exc}") from None
-        self.device.set_calibrated("decompression_angle", f"{found.angle_deg:.2f}", decompression_angle=found.angle_deg)
-        pullback_speed_mm_s = session.tap_settings.pullback_speed_mm_s
-        sample_rate_sps = self.device.sample_rate_sps
-        gcmd.respond_info(
-            f"Decompression angle calibration ({found.taps} of {samples} taps at X:{x_mm:.3f} Y:{y_mm:.3f}):\n"
-            f"angles {found.min_deg:.2f}..{found.max_deg:.2f} deg ({found.spread:.1%} from the median)\n\n"
-            f"decompression_angle: {found.angle_deg:.2f}\n\n"
-            f"The tap quality score now includes the normalized decompression angle. The angle holds for "
-            f"pullback_speed {pullback_speed_mm_s:g} mm/s ({pullback_speed_mm_s * 1000 / sample_rate_sps:g} um per "
-            f"sample at {sample_rate_sps:g} samples/s) on this bed: calibrate again after changing either. "
-            f"{SAVE_CONFIG_NOTE}")
-
-    @staticmethod
-    def _refuse_too_few(recorded, usable, samples: int, calibration: str, pullback_mm: float) -> None:
-        """Refuse a calibration when fewer than min_usable_taps(samples) taps are usable, saying why."""
-        needed = min_usable_taps(samples)
-        if len(usable) >= needed:
-            return
-        usable_ids = {id(r) for r in usable}
-        codes = collections.Counter(r.analysis.error for r in recorded if id(r) not in usable_ids)
-        found = ", ".join(f"{code} x{count}" for code, count in codes.most_common())
-        late = codes["TAP_PULLBACK_TOO_SHORT"] + codes["TAP_BREAK_CONTACT_TOO_LATE"]
-        if late and calibration == "PULLBACK_DISTANCE":
-            advice = (f"break contact came late in the {pullback_mm:g} mm pullback: run again with "
-                      f"PULLBACK_DISTANCE={min(2 * pullback_mm, PULLBACK_LIMITS_MM[1]):g} (or probe slower)")
-        elif late:
-            advice = "the pullback is too short: run CALIBRATION=PULLBACK_DISTANCE first"
-        elif codes["TAP_BREAK_CONTACT_TOO_EARLY"] and calibration != "PULLBACK_DISTANCE":
-            advice = "the pullback is too long: run CALIBRATION=PULLBACK_DISTANCE first"
-        else:
-            advice = ("clean the nozzle (NOZZLE_CLEANUP) and cool it below the ooze point, check the sheet, "
-                      "then calibrate again")
-        raise ProbeError(f"LOAD_CELL_PROBE_CALIBRATE CALIBRATION={calibration}: only {len(usable)} of {samples} "
-                         f"taps were good enough ({found}), at least {needed} are needed; {advice}")
-
-    def cmd_QUERY_ENDSTOPS(self, gcmd) -> None:
-        """x/y: the virtual printer's switches at machine 0; z (probe:z_virtual_endstop) is always open.
-
-        A load cell senses only while armed for a probing move, so the guide says it always
-        reports not triggered; LOAD_CELL_TEST_TAP is the way to check it.
-        """
-        x_mm, y_mm, _ = self.device.vp.position
-        self.last_query = {"x": bool(x_mm <= ENDSTOP_SWITCH_MM), "y": bool(y_mm <= ENDSTOP_SWITCH_MM), "z": False}
-        gcmd.respond_info(" ".join(f"{axis}:{'TRIGGERED' if hit else 'open'}" for axis, hit in self.last_query.items()))
-
-    def get_status(self, eventtime=None) -> dict:
-        return {"last_query": dict(self.last_query)}
-
-    def cmd_LOAD_CELL_TEST_TAP(self, gcmd) -> None:
-        count = gcmd.get_int("COUNT", 3, minval=1, maxval=10)
-        timeout_s = gcmd.get_float("TIMEOUT", 30.0, minval=1.0, maxval=120.0)
-        device = self.device
-        device._require_calibrated()
-        settings = device.command_settings(gcmd)
-        gcmd.respond_info(f"Tap the load cell {count} times:")
-        deadline_s = device.vp.now_s + timeout_s
-        for index in range(count):
-            self._wait_for_release(settings.options, deadline_s)
-            trigger = device._arm(settings, device._tare(settings.options))
-            # A hand is on the nozzle now: the next tare must wait for new samples.
-            device._tare_from_s = None
-            result = device.vp.wait_for_trigger(trigger, max(deadline_s - device.vp.now_s, 0.0))
-            device.load_cell.pump()
-            if result.error != TriggerError.NONE:
-                raise ProbeError(trigger_error_message(result.error, settings.options.force_safety_limit_g))
-            if not result.triggered:
-                raise ProbeError(f"LOAD_CELL_TEST_TAP: no tap detected within {timeout_s:g}s "
-                                 f"({index} of {count} taps detected)")
-            gcmd.respond_info("Tap Detected!")
-        gcmd.respond_info(f"Test complete, {count} taps detected")
-
-    def _wait_for_release(self, options: TapOptions, deadline_s: float) -> None:
-        """Do not tare under a hand still pressing: wait until the force is back near the tare."""
-        device = self.device
-        while device.vp.now_s < deadline_s:
-            batch = device.load_cell.collect(RELEASE_CHECK_S)
-            force_g = device.load_cell.counts_to_grams(batch.counts)
-            if force_g is None or len(force_g) == 0 or np.max(np.abs(force_g)) < 0.5 * options.trigger_force_g:
-                return
-
-    def cmd_NOZZLE_CLEANUP(self, gcmd) -> None:
-        probe_opts = self.probe.options
-        good_needed = gcmd.get_int("SAMPLES", 3, minval=1)
-        stepover_mm = gcmd.get_float("PATTERN_STEPOVER", 2.0, above=0.0)
-        count_x = gcmd.get_int("PATTERN_X", 10, minval=1)
-        count_y = gcmd.get_int("PATTERN_Y", 4, minval=1)
-        speed = gcmd.get_float("SPEED", probe_opts.speed_mm_s, above=0.0)
-        lift_speed = gcmd.get_float("LIFT_SPEED", probe_opts.effective_lift_speed_mm_s, above=0.0)
-        horizontal_speed = gcmd.get_float("HORIZONTAL_SPEED", 50.0, above=0.0)
-        retract_mm = gcmd.get_float("SAMPLE_RETRACT_DIST", probe_opts.sample_retract_dist_mm, above=0.0)
-        scrubbing_frequency = gcmd.get_int("SCRUBBING_FREQUENCY", probe_opts.scrubbing_frequency, minval=0)
-        motion = self.device.motion
-        if not motion.is_z_homed():
-            raise ProbeError("Must home before probe")
-        x0, y0, _ = motion.get_position()
-        settings = self.device.command_settings(gcmd)
-        positions = serpentine_pattern(x0, y0, count_x, count_y, stepover_mm)
-        good_in_row = 0
-        bad_taps = 0
-        for index, (x, y) in enumerate(positions):
-            if index:
-                motion.move_to(x=float(x), y=float(y), speed_mm_s=horizontal_speed)
-            outcome = self.device.tap(settings, motion.z_position_min(), speed)
-            motion.move_to(z=outcome.z_mm + retract_mm, speed_mm_s=lift_speed)
-            if outcome.valid:
-                good_in_row += 1
-                if good_in_row >= good_needed:
-                    gcmd.respond_info(f"NOZZLE_CLEANUP succeeded: {good_needed} good taps in a row "
-                                      f"after {index + 1} taps")
-                    return
-                continue
-            good_in_row = 0
-            bad_taps += 1
-            gcmd.respond_info(f"NOZZLE_CLEANUP: bad tap at {x:.3f},{y:.3f}: {outcome.error_code} - {outcome.message}")
-            if scrubbing_frequency and bad_taps % scrubbing_frequency == 0:
-                self.probe.run_template("nozzle_scrubber_gcode", {"ATTEMPT": index + 1, "RETRIES": len(positions)})
-        raise ProbeError(f"NOZZLE_CLEANUP failed after trying {len(positions)} positions")
-
-
-def _template_runner(printer):
-    """Run a probe G-code template (activate/deactivate/scrubber): Jinja2 with `printer` and `params`."""
-
-    def run(option: str, template: str, params: dict) -> None:
-        try:
-            script = jinja2.Template(template).render(printer=StatusView(printer), params=params)
-        except jinja2.TemplateError as exc:
-            raise GCodeError(f"[load_cell_probe] {option}: template error: {exc}") from exc
-        printer.gcode.run_script(script)
-
-    return run
-
-
-def load_config(section, printer) -> LoadCellProbe:
-    """Build `[load_cell_probe]`: the device, the generic probe (object `probe`), the commands."""
-    device = LoadCellProbe(section, printer)
-    templates = {name: section.get(name) for name in PROBE_TEMPLATE_OPTIONS if section.has_option(name)}
-    probe = Probe("load_cell_probe", read_probe_options(section, templates), device, device.motion,
-                  printer.gcode, _template_runner(printer))
-    device.probe = probe
-    probe.register_commands()
-    register_probe_calibrate(printer, probe)
-    register_load_cell_commands(printer.gcode, device.load_cell, device.name)
-    commands = LoadCellProbeCommands(device, probe)
-    commands.register(printer.gcode)
-    printer.add_object("probe", probe)
-    printer.add_object("query_endstops", commands)
-    return device

@@ -36,7 +36,7 @@ class ProbeCalibrate:
     def cmd_PROBE_CALIBRATE(self, gcmd: GCodeCommand) -> None:
         if self.probed_z_mm is not None:
             raise gcmd.error("Already in a manual Z probe. Use ABORT to abort it.")
-        x, y = self.probe._current_probe_xy()
+        x, y = self.probe.current_probe_xy()
         result = self.probe.probe_point(x, y, gcmd)
         self.probed_z_mm = result.z_mm + self.probe.options.z_offset_mm
         self.motion.move_to(z=self.probed_z_mm + LIFT_MM, speed_mm_s=self.probe.options.effective_lift_speed_mm_s)

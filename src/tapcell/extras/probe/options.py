@@ -85,21 +85,13 @@ def gcode_override_values(gcmd, specs: tuple[OptionSpec, ...], current) -> dict[
         elif spec.kind == "str":
             changed[spec.field] = gcmd.get(name).strip()
         elif spec.kind == "choice":
-            value = gcmd.get(name).strip().lower()
-            if value not in spec.choices:
-                raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {name} must be one of "
-                                 f"{', '.join(spec.choices)}, not '{value}'")
-            changed[spec.field] = value
+            changed[spec.field] = gcmd.get_choice(name, spec.choices)
         elif spec.kind == "floatlist":
             raw = gcmd.get(name).strip()
             if raw.lower() in DISABLE_WORDS:
                 changed[spec.field] = None
                 continue
-            try:
-                changed[spec.field] = tuple(float(v) for v in raw.split(",") if v.strip()) or None
-            except ValueError:
-                raise gcmd.error(f"Error on '{gcmd.get_commandline()}': unable to parse {name}='{raw}' "
-                                 "(expected comma-separated numbers)") from None
+            changed[spec.field] = tuple(gcmd.get_floatlist(name))
     return changed
 
 
@@ -131,7 +123,7 @@ class ProbeOptions:
     retry_speed_mm_s: float | None = None
     pattern_spacing_mm: float = 2.0
     scrubbing_frequency: int = 0
-    templates: dict = field(default_factory=dict, compare=False)  # activate/deactivate/scrubber G-code
+    templates: dict = field(default_factory=dict, compare=False)  # option -> compiled GCodeTemplate (host.templates)
 
     @property
     def effective_lift_speed_mm_s(self) -> float:

@@ -266,7 +266,7 @@ class Probe:
         with self.session(overrides) as session:
             return session.probe_point(x_mm, y_mm)
 
-    def _current_probe_xy(self) -> tuple[float, float]:
+    def current_probe_xy(self) -> tuple[float, float]:
         x, y, _ = self.motion.get_position()
         return x + self.options.x_offset_mm, y + self.options.y_offset_mm
 
@@ -274,8 +274,8 @@ class Probe:
     def cmd_PROBE(self, gcmd) -> None:
         home = gcmd.get("HOME", "").strip().upper()
         if home not in ("", "Z"):
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': HOME must be Z, not '{home}'")
-        x, y = self._current_probe_xy()
+            raise gcmd.param_error(f"HOME must be Z, not '{home}'")
+        x, y = self.current_probe_xy()
         result = self.probe_point(x, y, gcmd)
         self.last_z_result = result.z_mm
         self.respond_info(f"Result is z={result.z_mm:.6f}")
@@ -287,7 +287,7 @@ class Probe:
 
     def cmd_PROBE_ACCURACY(self, gcmd) -> None:
         samples = gcmd.get_int("SAMPLES", 10, minval=1)
-        x, y = self._current_probe_xy()
+        x, y = self.current_probe_xy()
         z_start = self.motion.get_position()[2]
         # Every tap must be trusted: a bad tap aborts unless the user picked another strategy.
         with self.session(gcmd, force_strategy="fail") as session:

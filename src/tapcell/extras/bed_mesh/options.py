@@ -1,0 +1,133 @@
+"""`[bed_mesh]` options and the parameters of one BED_MESH_CALIBRATE."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+from tapcell.host.config import ConfigSection
+from tapcell.host.gcode import GCodeCommand
+from tapcell.mesh.errors import MeshOptionError
+from tapcell.mesh.grid import MeshGrid, rectangular_grid, round_grid
+from tapcell.mesh.interpolate import ALGORITHMS, Interpolation, resolve_interpolation
+from tapcell.mesh.split import SplitSettings
+from tapcell.mesh.zmesh import Fade, resolve_zero_reference
+
+from tapcell.extras.bed_mesh.methods import METHODS
+
+SECTION = "bed_mesh"
+
+
+@dataclass(frozen=True)
+class BedMeshOptions:
+    """The `[bed_mesh]` options, validated (a BED_MESH_CALIBRATE may override some)."""
+
+    speed_mm_s: float
+    horizontal_move_z_mm: float
+    horizontal_z_clearance_mm: float | None  # lift this much above the last contact between points
+    grid: MeshGrid
+    interpolation: Interpolation
+    interpolation_note: str | None
+    algorithm: str  # as configured (interpolation.algorithm may be a fallback)
+    mesh_pps: tuple[int, int]
+    fade: Fade
+    split: SplitSettings
+    zero_reference_xy_mm: tuple[float, float] | None
+    method: str
+
+
+def _pair(values: list, option: str, section: ConfigSection) -> tuple:
+    if len(values) == 1:
+        return (values[0], values[0])
+    if len(values) != 2:
+        raise section.error(option, "must be one value or a pair X, Y")
+    return tuple(values)
+
+
+def _mesh_option_error(section: ConfigSection, exc: MeshOptionError):
+    return section.error(exc.option, exc.allowed)
+
+
+def _read_grid(section: ConfigSection) -> MeshGrid:
+    round_bed = section.has_option("mesh_radius")
+    rectangular = section.has_option("mesh_min") or section.has_option("mesh_max")
+    if round_bed and rectangular:
+        raise section.error("mesh_radius", "give either mesh_radius (round bed) or mesh_min/mesh_max (rectangular), not both")
+    try:
+        if round_bed:
+            radius = section.getfloat("mesh_radius", above=0.0)
+            origin = tuple(section.getfloatlist("mesh_origin", (0.0, 0.0), count=2))
+            count = section.getint("round_probe_count", 5, minval=3)
+            return round_grid(radius, origin, count)
+        mesh_min = tuple(section.getfloatlist("mesh_min", count=2))
+        mesh_max = tuple(section.getfloatlist("mesh_max", count=2))
+        probe_count = _pair(section.getintlist("probe_count", (3, 3)), "probe_count", section)
+        return rectangular_grid(mesh_min, mesh_max, probe_count)
+    except MeshOptionError as exc:
+        raise _mesh_option_error(section, exc) from None
+
+
+def read_bed_mesh_options(section: ConfigSection) -> BedMeshOptions:
+    """Read and check `[bed_mesh]`; errors name file, section, option, value and what is allowed."""
+    grid = _read_grid(section)
+    algorithm = section.getchoice("algorithm", list(ALGORITHMS), "lagrange")
+    mesh_pps = _pair(section.getintlist("mesh_pps", (2, 2)), "mesh_pps", section)
+    tension = section.getfloat("bicubic_tension", 0.2, minval=0.0, maxval=2.0)
+    fade = Fade(section.getfloat("fade_start", 1.0), section.getfloat("fade_end", 0.0),
+                section.getfloat("fade_target", None))
+    clearance = section.getfloat("horizontal_z_clearance", None, above=0.0)
+    zero_position = section.getfloatlist("zero_reference_position", None, count=2)
+    reference_index = section.getint("relative_reference_index", None, minval=0)
+    try:
+        interpolation, note = resolve_interpolation(algorithm, (grid.x_count, grid.y_count), mesh_pps, tension)
+        split = SplitSettings(section.getfloat("move_check_distance", 5.0),
+                              section.getfloat("split_delta_z", 0.025))
+        zero_reference = resolve_zero_reference(grid, None if zero_position is None else tuple(zero_position),
+                                                reference_index)
+    except MeshOptionError as exc:
+        raise _mesh_option_error(section, exc) from None
+    return BedMeshOptions(
+        speed_mm_s=section.getfloat("speed", 50.0, above=0.0),
+        horizontal_move_z_mm=section.getfloat("horizontal_move_z", 5.0),
+        horizontal_z_clearance_mm=clearance,
+        grid=grid,
+        interpolation=interpolation,
+        interpolation_note=note,
+        algorithm=algorithm,
+        mesh_pps=mesh_pps,
+        fade=fade,
+        split=split,
+        zero_reference_xy_mm=zero_reference,
+        method=section.getchoice("method", list(METHODS), "tap"),
+    )
+
+
+# -- BED_MESH_CALIBRATE parameters -----------------------------------------------------------
+
+def command_options(options: BedMeshOptions, gcmd: GCodeCommand) -> BedMeshOptions:
+    """The options of one BED_MESH_CALIBRATE: the config with the command's parameters applied."""
+    mesh_min = gcmd.get_floatlist("MESH_MIN", None, count=2)
+    mesh_max = gcmd.get_floatlist("MESH_MAX", None, count=2)
+    counts = gcmd.get_floatlist("PROBE_COUNT", None)
+    algorithm = gcmd.get("ALGORITHM", options.algorithm).strip().lower()
+    method = gcmd.get_choice("METHOD", list(METHODS), options.method)
+    clearance = gcmd.get_float("HORIZONTAL_Z_CLEARANCE", options.horizontal_z_clearance_mm, above=0.0)
+    grid = options.grid
+    try:
+        if mesh_min is not None or mesh_max is not None or counts is not None:
+            if grid.radius_mm is not None and (mesh_min is not None or mesh_max is not None):
+                raise MeshOptionError(SECTION, "mesh_min", mesh_min or mesh_max, "a round bed uses mesh_radius")
+            if counts is not None and (len(counts) not in (1, 2) or any(c != int(c) for c in counts)):
+                raise MeshOptionError(SECTION, "probe_count", gcmd.get("PROBE_COUNT"), "must be one integer or a pair X, Y")
+            count_pair = (grid.x_count, grid.y_count) if counts is None else tuple(int(c) for c in _repeat(counts))
+            grid = rectangular_grid(mesh_min or grid.mesh_min, mesh_max or grid.mesh_max, count_pair)
+        interpolation, note = resolve_interpolation(algorithm, (grid.x_count, grid.y_count), options.mesh_pps,
+                                                    options.interpolation.bicubic_tension)
+    except MeshOptionError as exc:
+        shown = gcmd.get(exc.option.upper(), exc.value)  # the value as the user wrote it, when given
+        raise gcmd.param_error(f"{exc.option.upper()}={shown}: {exc.allowed}") from None
+    return replace(options, grid=grid, interpolation=interpolation, interpolation_note=note,
+                   horizontal_z_clearance_mm=clearance, method=method)
+
+
+def _repeat(values: list[float]) -> list[float]:
+    return values * 2 if len(values) == 1 else values

@@ -1,0 +1,124 @@
+"""Threshold probing with the `[load_cell_probe]`'s sensor and firmware trigger: tares, and
+probing moves in Z or XY that stop when the force passes a threshold (no tap analysis).
+
+Used by `[prusa_probe]`, the two-pass ABL (`BED_MESH_CALIBRATE METHOD=two_pass`) and
+`[xy_probe]`. The Z of a threshold probe is the toolhead Z at the triggering sample (what a
+stepper position latched by an endstop gives), from the probing move's own trapezoids.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tapcell.extras.load_cell_probe.options import ERROR_PREFIX
+from tapcell.mcu.trigger import FirmwareTrigger, TriggerError
+from tapcell.mesh.prusa import TARE_SAMPLE_COUNT, TARE_SETTLE_S
+from tapcell.extras.probe.session import ProbeError
+from tapcell.scale import counts_to_grams
+from tapcell.tap.model import Move
+
+
+@dataclass(frozen=True)
+class TareRecord:
+    purpose: str
+    counts: float
+    force_g: float  # relative to the calibration's reference tare
+    time_s: float
+
+
+@dataclass(frozen=True)
+class ThresholdHit:
+    """One threshold probing move. Positions are in the toolhead frame."""
+
+    triggered: bool
+    trigger_time_s: float | None
+    halt_time_s: float
+    trigger_position_mm: tuple[float, float, float] | None  # where the triggering sample was taken
+    halt_position_mm: tuple[float, float, float]  # where the steppers stopped (after the latency)
+
+
+def z_at_time_mm(move_records: list[dict], t_s: float) -> float:
+    """Commanded Z at t_s: the last move started by then (the simulator's move records)."""
+    moves = [Move.from_record(record) for record in move_records]
+    started = [move for move in moves if move.print_time <= t_s] or moves[:1]
+    return float(started[-1].z_at(t_s))
+
+
+class ThresholdProber:
+    """Tares and threshold probing moves with the `[load_cell_probe]`'s sensor and trigger."""
+
+    def __init__(self, device):
+        self.device = device  # tapcell.extras.load_cell_probe.device.LoadCellProbe
+        self.backend = device.backend
+        self.load_cell = device.load_cell
+        self.toolhead = device.motion
+        self.tares: list[TareRecord] = []
+
+    def tare(self, purpose: str, settle_s: float = TARE_SETTLE_S, sample_count: int = TARE_SAMPLE_COUNT) -> TareRecord:
+        """Wait settle_s for vibrations to die, then average sample_count samples."""
+        self.device.require_calibrated()
+        self.backend.dwell(settle_s)
+        batch = self.load_cell.collect(sample_count / self.device.sample_rate_sps)
+        if batch.errors:
+            raise ProbeError(ERROR_PREFIX + f"sensor reported {batch.errors} errors while taring")
+        if len(batch.counts) == 0:
+            raise ProbeError(ERROR_PREFIX + "timed out waiting for sensor data")
+        counts = float(np.mean(batch.counts[-sample_count:]))
+        force_g = counts_to_grams(counts, self.load_cell.reference_tare_counts, self.load_cell.counts_per_gram,
+                                  self.device.cell_options.inverted)
+        record = TareRecord(purpose, counts, float(force_g), self.backend.now_s)
+        self.load_cell.set_tare(counts)
+        self.tares.append(record)
+        return record
+
+    def _arm(self, tare: TareRecord, threshold_g: float, release_g: float,
+             drift_safety_limit_g: float | None = None) -> FirmwareTrigger:
+        device = self.device
+        # Refused before the move, with the force (the firmware would only say "too much").
+        device.refuse_preload(tare.counts, device.options)
+        return device.arm(device.config_settings, tare.counts, trigger_force_g=threshold_g,
+                          release_force_g=release_g, drift_safety_limit_g=drift_safety_limit_g)
+
+    def _frame_mm(self) -> np.ndarray:
+        return np.array([self.toolhead.frame_offset_mm[axis] for axis in "xyz"])
+
+    def probe_z(self, tare: TareRecord, threshold_g: float, release_g: float, z_min_mm: float,
+                speed_mm_s: float, drift_safety_limit_g: float | None = None) -> ThresholdHit:
+        """Move down toward z_min_mm until the force passes threshold_g (triggered False: no contact).
+        `drift_safety_limit_g`: the load cell probe's unless given (0 disables the drift check)."""
+        trigger = self._arm(tare, threshold_g, release_g, drift_safety_limit_g)
+        frame = self._frame_mm()
+        # The toolhead's position_min, but never past the machine's own travel end.
+        machine_target = max(z_min_mm - frame[2], self.backend.limits["z"][0])
+        result = self.backend.probing_move(machine_target, speed_mm_s, trigger)
+        self.load_cell.pump()
+        if result.error != TriggerError.NONE:
+            raise ProbeError(self.device.error_message(result.error, self.device.options))
+        halt = tuple(np.array(self.backend.position) + frame)
+        trigger_position = None
+        if result.triggered:
+            z_mm = z_at_time_mm(result.moves, result.trigger_time_s) + frame[2]
+            trigger_position = (halt[0], halt[1], float(z_mm))
+        return ThresholdHit(result.triggered, result.trigger_time_s, result.halt_time_s, trigger_position, halt)
+
+    def probe_xy(self, tare: TareRecord, threshold_g: float, release_g: float, x_mm: float, y_mm: float,
+                 speed_mm_s: float) -> ThresholdHit:
+        """Move horizontally toward (x, y) until the force passes threshold_g."""
+        trigger = self._arm(tare, threshold_g, release_g)
+        frame = self._frame_mm()
+        start = np.array(self.backend.position)
+        result = self.backend.probing_move_xy(x_mm - frame[0], y_mm - frame[1], speed_mm_s, trigger)
+        self.load_cell.pump()
+        if result.error != TriggerError.NONE:
+            raise ProbeError(self.device.error_message(result.error, self.device.options))
+        halt = np.array(self.backend.position)
+        trigger_position = None
+        if result.triggered:
+            # The move cruises at speed when it meets the pin: step back along it by the latency.
+            direction = (halt - start) / max(float(np.linalg.norm(halt - start)), 1e-12)
+            trigger_position = tuple(halt - direction * speed_mm_s * (result.halt_time_s - result.trigger_time_s)
+                                     + frame)
+        return ThresholdHit(result.triggered, result.trigger_time_s, result.halt_time_s, trigger_position,
+                            tuple(halt + frame))

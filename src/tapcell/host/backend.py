@@ -1,0 +1,83 @@
+"""The backend: what the host needs from the machine under it, declared in one place.
+
+The virtual printer (`tapcell.sim.VirtualPrinter`) implements `Backend`; a link to real MCUs
+could implement the same. The host owns no clock of its own: time moves through the
+backend's commands (moves, dwell, probing moves) and is read from `now_s`. Everything here
+is plain data or a protocol; nothing imports the simulator.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+
+class MoveError(ValueError):
+    """A commanded move leaves the machine's limits."""
+
+
+@dataclass
+class SampleBatch:
+    """Samples since the last take: read times (s), raw counts, and the counters since then."""
+
+    t_s: np.ndarray
+    counts: np.ndarray
+    errors: int = 0
+    overflows: int = 0
+
+
+@dataclass
+class ProbingMoveResult:
+    triggered: bool
+    trigger_time_s: float | None
+    halt_time_s: float
+    halt_z_mm: float
+    error: object                  # TriggerError (NONE when the move ended normally or triggered)
+    moves: list[dict] = field(default_factory=list)
+
+
+class SampleSource(Protocol):
+    """A load-cell sensor: the samples read since the last call."""
+
+    def take_samples(self) -> SampleBatch: ...
+
+
+class Backend(SampleSource, Protocol):
+    """The machine under the host: motion, time, the nozzle heater and the probe's sensor.
+
+    Positions are machine coordinates in mm; `trigger` is an armed
+    `tapcell.mcu.trigger.FirmwareTrigger` that sees every sample of a probing move.
+    """
+
+    @property
+    def now_s(self) -> float: ...
+
+    @property
+    def position(self) -> tuple[float, float, float]: ...
+
+    @property
+    def limits(self) -> dict[str, tuple[float, float]]: ...
+
+    @property
+    def nozzle_temperature_c(self) -> float: ...
+
+    def move_to(self, x: float | None = None, y: float | None = None, z: float | None = None,
+                speed_mm_s: float = 50.0) -> None: ...
+
+    def home_xy(self) -> None: ...
+
+    def dwell(self, t_s: float) -> None: ...
+
+    def set_nozzle_temperature(self, target_c: float, wait: bool = False) -> None: ...
+
+    def add_sensor(self, name: str, chip: str, sample_rate_sps: float) -> SampleSource: ...
+
+    def probing_move(self, z_target_mm: float, speed_mm_s: float, trigger) -> ProbingMoveResult: ...
+
+    def probing_move_xy(self, x_mm: float, y_mm: float, speed_mm_s: float, trigger) -> ProbingMoveResult: ...
+
+    def wait_for_trigger(self, trigger, timeout_s: float) -> ProbingMoveResult: ...
+
+    def recorded_moves(self, t0_s: float, t1_s: float) -> list[dict]: ...

@@ -1,0 +1,73 @@
+"""The one Jinja2 environment of the host: `[gcode_macro]` and the probe's G-code templates
+(activate_gcode, deactivate_gcode, nozzle_scrubber_gcode) are compiled by it at config load.
+
+Klipper's delimiters: `{ expression }`, `{% statement %}`, `{# comment #}`; so
+`G1 Z{params.LIFT}` renders the parameter. An undefined name is an error, not an empty string.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any, Iterator
+
+import jinja2
+
+from tapcell.host.config import ConfigSection
+from tapcell.host.gcode import GCodeError
+
+ENVIRONMENT = jinja2.Environment(
+    block_start_string="{%", block_end_string="%}",
+    variable_start_string="{", variable_end_string="}",
+    comment_start_string="{#", comment_end_string="#}",
+    undefined=jinja2.StrictUndefined,
+    extensions=["jinja2.ext.do"],
+)
+
+
+class StatusView(Mapping):
+    """`printer` inside a template: each object's status, fetched once per render."""
+
+    def __init__(self, printer: Any):
+        self._printer = printer
+        self._cache: dict[str, dict] = {}
+
+    def __getitem__(self, name: str) -> dict:
+        if name not in self._cache:
+            obj = self._printer.lookup_object(name, None)
+            if obj is None or not hasattr(obj, "get_status"):
+                raise KeyError(name)
+            self._cache[name] = obj.get_status(self._printer.get_time())
+        return self._cache[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(name for name, obj in self._printer.objects.items() if hasattr(obj, "get_status"))
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
+
+
+class GCodeTemplate:
+    """A G-code template compiled at config load; `label` names it in errors ("macro SHOW_FORCE")."""
+
+    def __init__(self, template: jinja2.Template, label: str):
+        self.template = template
+        self.label = label
+
+    def render(self, context: dict[str, Any]) -> str:
+        """The G-code text; an error inside the template is a GCodeError naming it."""
+        try:
+            return self.template.render(context)
+        except GCodeError:
+            raise
+        except jinja2.TemplateError as exc:
+            raise GCodeError(f"Error in {self.label}: {exc}") from None
+        except Exception as exc:  # e.g. a type error inside an expression the user wrote
+            raise GCodeError(f"Error in {self.label}: {type(exc).__name__}: {exc}") from None
+
+
+def compile_template(section: ConfigSection, option: str, label: str) -> GCodeTemplate:
+    """The template in `option` of `section`; a syntax error is a config error naming the option."""
+    try:
+        return GCodeTemplate(ENVIRONMENT.from_string(section.get(option)), label)
+    except jinja2.TemplateSyntaxError as exc:
+        raise section.error(option, f"template error on line {exc.lineno} of the template: {exc.message}") from None

@@ -1,0 +1,86 @@
+"""Sensor faults during probing on the virtual printer, end to end through the firmware endstop:
+a stuck sensor stops the move within its run of identical samples, a corrupted frame past
+force_safety_limit stops it at once and the move is tried again, and the stuck_sensor_samples
+option (default from the sensor, range, message)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from probe_vprinter import make_printer, true_contact_z
+from tapcell.host.config import ConfigError
+from tapcell.host.gcode import GCodeError
+from tapcell.extras.load_cell_probe.options import lone_sample_past_limit
+
+STUCK = (r"^Load Cell Probe Error: load cell reads a constant value \({n} identical samples in a row while "
+         r"probing\): sensor stuck! Check the sensor's wiring and power \(see stuck_sensor_samples\)$")
+
+
+def true_peak_force_g(printer, since_s: float) -> float:
+    _, force_g = printer.backend.truth.force_g(since_s, printer.backend.now_s)
+    return float(np.max(np.abs(force_g)))
+
+
+@pytest.mark.parametrize("scenario, speed_mm_s, peak_below_g", [
+    ("clean", 5.0, 320.0),     # HX717 A-128 at 320 sps: 7 samples; measured 268-274 g (seeds 1-4)
+    ("slow-adc", 2.0, 450.0),  # HX711 A-128 at 80 sps: 7 samples; measured 385-395 g
+])
+def test_stuck_at_contact_stops_within_the_run(tmp_path, scenario, speed_mm_s, peak_below_g):
+    printer, _ = make_printer(tmp_path, scenario=scenario)
+    printer.gcode.run_script("G1 Z2")
+    start_s = printer.backend.now_s
+    with pytest.raises(GCodeError, match=STUCK.format(n=7)):
+        printer.gcode.run_script(f"SIM_FAULT NAME=stuck WHEN=contact\nPROBE PROBE_SPEED={speed_mm_s}")
+    # the force the cell never reported: a small part of force_safety_limit (2000 g), not kilograms
+    assert 100.0 < true_peak_force_g(printer, start_s) < peak_below_g
+
+
+def test_stuck_after_a_trigger_stops_the_retry_in_the_air(tmp_path):
+    # The tap that triggered is bad (its samples are flat): the retry's move stops on the run.
+    printer, responses = make_printer(tmp_path, probe_options="stuck_sensor_samples: 12")
+    printer.gcode.run_script("G1 Z2")
+    start_s = printer.backend.now_s
+    with pytest.raises(GCodeError, match=STUCK.format(n=12)):
+        printer.gcode.run_script("SIM_FAULT NAME=stuck WHEN=trigger\nPROBE")
+    assert "Retrying (1/6)..." in responses[-1]
+    assert true_peak_force_g(printer, start_s) < 200.0      # the first tap's own (measured 148 g)
+    nozzle_z = printer.backend.position[2] + printer.lookup_object("toolhead").frame_offset_mm["z"]
+    assert nozzle_z - true_contact_z(printer) > 1.5          # stopped 12 samples into the retry, in the air
+
+
+def test_a_corrupted_frame_past_the_limit_stops_the_move_and_it_is_probed_again(tmp_path):
+    # 500 g: every corrupted frame of the virtual sensor (one of bits 16-22 flipped) is past it
+    printer, responses = make_printer(tmp_path, probe_options="force_safety_limit: 500")
+    printer.gcode.run_script("G1 Z2\nSIM_FAULT NAME=corrupt_frame WHEN=probing_move\nPROBE")
+    notes = [r for r in responses if "(a corrupted frame); the move stopped at once, probing again" in r]
+    assert len(notes) == 1
+    assert abs(printer.lookup_object("probe").last_z_result - true_contact_z(printer)) < 0.01
+
+
+def test_stuck_sensor_samples_option(tmp_path):
+    with pytest.raises(ConfigError, match=r"\[load_cell_probe\] stuck_sensor_samples = 1: 1 is not allowed; "
+                                          r"allowed: 0 \(disabled\) or 2 \.\. 65535"):
+        make_printer(tmp_path, probe_options="stuck_sensor_samples: 1", calibrate=False, home=False)
+    with pytest.raises(ConfigError, match=r"stuck_sensor_samples = 70000: must be at most 65535"):
+        make_printer(tmp_path, probe_options="stuck_sensor_samples: 70000", calibrate=False, home=False)
+    printer, _ = make_printer(tmp_path)
+    assert printer.lookup_object("load_cell_probe").default_stuck_samples == 7     # hx717 A-128 at 320 sps
+    with pytest.raises(GCodeError, match=r"^Error on 'PROBE STUCK_SENSOR_SAMPLES=1': STUCK_SENSOR_SAMPLES: 1 is "
+                                         r"not allowed; allowed: 0 \(disabled\) or 2 \.\. 65535$"):
+        printer.gcode.run_script("PROBE STUCK_SENSOR_SAMPLES=1")
+    with pytest.raises(GCodeError, match=r"^Error on 'PROBE STUCK_SENSOR_SAMPLES=-2': STUCK_SENSOR_SAMPLES must "
+                                         r"have minimum of 0$"):
+        printer.gcode.run_script("PROBE STUCK_SENSOR_SAMPLES=-2")
+    printer.gcode.run_script("G1 Z2")
+    with pytest.raises(GCodeError, match=STUCK.format(n=30)):
+        printer.gcode.run_script("SIM_FAULT NAME=stuck WHEN=contact\nPROBE STUCK_SENSOR_SAMPLES=30")
+
+
+def test_only_a_lone_sample_between_quiet_neighbours_counts_as_a_corrupted_frame():
+    assert lone_sample_past_limit(np.array([0.0, 3.0, -2400.0, 5.0]), 2000.0, 75.0) == 2
+    assert lone_sample_past_limit(np.array([0.0, 50.0, 2100.0, 2300.0]), 2000.0, 75.0) is None   # a real press
+    assert lone_sample_past_limit(np.array([0.0, 2100.0, 80.0]), 2000.0, 75.0) is None           # in contact after
+    assert lone_sample_past_limit(np.array([0.0, 3.0, 2100.0]), 2000.0, 75.0) is None            # no sample after
+    assert lone_sample_past_limit(np.array([2100.0, 3.0]), 2000.0, 75.0) is None                 # none before
+    assert lone_sample_past_limit(np.array([0.0, 3.0, 5.0]), 2000.0, 75.0) is None
