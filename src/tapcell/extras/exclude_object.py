@@ -43,7 +43,7 @@ class ExcludeObject:
 
     # -- commands ----------------------------------------------------------------------
     def _error(self, gcmd: GCodeCommand, problem: str):
-        return gcmd.error(f"Error on '{gcmd.get_commandline()}': {problem}")
+        return gcmd.param_error(f"{problem}")
 
     def _point(self, gcmd: GCodeCommand, text: str, what: str) -> list[float]:
         try:
@@ -51,7 +51,7 @@ class ExcludeObject:
         except ValueError:
             values = []
         if len(values) != 2:
-            raise self._error(gcmd, f"{what} must be x,y (got '{text}')")
+            raise gcmd.param_error(f"{what} must be x,y (got '{text}')")
         return values
 
     def cmd_EXCLUDE_OBJECT_DEFINE(self, gcmd: GCodeCommand) -> None:
@@ -74,7 +74,7 @@ class ExcludeObject:
                 points = None
             if not (isinstance(points, list) and points and all(
                     isinstance(p, list) and len(p) == 2 and all(isinstance(v, (int, float)) for v in p) for p in points)):
-                raise self._error(gcmd, f"POLYGON must be a JSON list of [x,y] points (got '{polygon}')")
+                raise gcmd.param_error(f"POLYGON must be a JSON list of [x,y] points (got '{polygon}')")
             entry["polygon"] = [[float(x), float(y)] for x, y in points]
         self.objects = [o for o in self.objects if o["name"] != entry["name"]] + [entry]
         self.objects.sort(key=lambda o: o["name"])
@@ -104,7 +104,7 @@ class ExcludeObject:
         name = gcmd.get("NAME", None)
         if gcmd.get_int("CURRENT", 0, minval=0, maxval=1):
             if self.current_object is None:
-                raise self._error(gcmd, "There is no current object to exclude")
+                raise gcmd.param_error("There is no current object to exclude")
             name = self.current_object
         if name is None:
             gcmd.respond_info("Excluded objects: " + (" ".join(self.excluded) or "none"))

@@ -23,7 +23,7 @@ class OutputPin:
         value = gcmd.get_float("VALUE", minval=0.0, maxval=self.scale)
         gcmd.get_float("CYCLE_TIME", None, above=0.0)
         if not self.pwm and value not in (0.0, self.scale):
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': Invalid pin value (pin '{self.name}' is not "
+            raise gcmd.param_error(f"Invalid pin value (pin '{self.name}' is not "
                              "pwm: VALUE must be 0 or 1)")
         self.set_value(value)
 

@@ -170,7 +170,7 @@ class GCodeMove:
     def cmd_RESTORE_GCODE_STATE(self, gcmd: GCodeCommand) -> None:
         name = gcmd.get("NAME", "default")
         if name not in self.saved_states:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': Unknown g-code state: {name}")
+            raise gcmd.param_error(f"Unknown g-code state: {name}")
         saved = self.saved_states[name]
         e_now = self.toolhead.e_position_mm
         self.state = copy.deepcopy(saved)

@@ -91,7 +91,7 @@ class Heater:
         low, high = self.options.min_temp_c, self.options.max_temp_c
         if target_c and not low <= target_c <= high:
             problem = f"Requested temperature ({target_c:.1f}) out of range ({low:.1f}:{high:.1f})"
-            raise GCodeError(f"Error on '{gcmd.get_commandline()}': {problem}" if gcmd else problem)
+            raise gcmd.param_error(problem) if gcmd else GCodeError(problem)
         self.target_c = float(target_c)
         self.printer.backend.set_heater_temperature(self.name, self.target_c)
 
@@ -166,7 +166,7 @@ class PrinterHeaters:
             if wanted in (name, name.split()[-1]):
                 return heater
         known = ", ".join(name.split()[-1] for name in pool) or "none"
-        raise gcmd.error(f"Error on '{gcmd.get_commandline()}': unknown {option.lower()} '{wanted}' (one of: {known})")
+        raise gcmd.param_error(f"unknown {option.lower()} '{wanted}' (one of: {known})")
 
     def cmd_M105(self, gcmd: GCodeCommand) -> None:
         letters = {"extruder": "T0", "heater_bed": "B"}
@@ -183,11 +183,11 @@ class PrinterHeaters:
         minimum_c = gcmd.get_float("MINIMUM", None)
         maximum_c = gcmd.get_float("MAXIMUM", None, minval=minimum_c)
         if minimum_c is None and maximum_c is None:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': give MINIMUM and/or MAXIMUM")
+            raise gcmd.param_error(f"give MINIMUM and/or MAXIMUM")
         if not isinstance(sensor, Heater):
             temperature = sensor.temperature_c()
             if (minimum_c is not None and temperature < minimum_c) or (maximum_c is not None and temperature > maximum_c):
-                raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {sensor.name} stays at {temperature:.1f}C "
+                raise gcmd.param_error(f"{sensor.name} stays at {temperature:.1f}C "
                                  "on the virtual printer (room temperature); the wait would never end")
             return
         model = self.printer.backend.heater(sensor.name)
@@ -197,7 +197,7 @@ class PrinterHeaters:
             return
         reachable = min(goal_c, model.target_c) if goal_c == minimum_c else max(goal_c, model.target_c)
         if reachable != goal_c:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {sensor.name} is heading for "
+            raise gcmd.param_error(f"{sensor.name} is heading for "
                              f"{model.target_c:.1f}C and never reaches {goal_c:g}C")
         # Time until the exponential approach crosses the goal.
         self.printer.backend.dwell(model.time_to_settle_s(self.printer.backend.now_s,

@@ -234,7 +234,7 @@ class Toolhead:
         try:
             self.extruder.check_move(xyz_distance, e_distance)
         except GCodeError as exc:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': {exc}") from None
+            raise gcmd.param_error(f"{exc}") from None
         self.e_position_mm = target[3]
         if not moved and e_distance:
             speed = min(speed_mm_s, self.extruder.max_extrude_only_velocity_mm_s)

@@ -62,14 +62,14 @@ class ProbeCalibrate:
         if request in ("+", "-"):
             side = [z for z in self.tried_z_mm if (z > z_now + 1e-9 if request == "+" else z < z_now - 1e-9)]
             if not side:
-                raise gcmd.error(f"Error on '{gcmd.get_commandline()}': no position tried "
+                raise gcmd.param_error(f"no position tried "
                                  f"{'above' if request == '+' else 'below'} yet; give a distance, e.g. TESTZ Z=-0.1")
             target = (z_now + (min(side) if request == "+" else max(side))) / 2.0
         else:
             target = z_now + gcmd.get_float("Z", minval=-LIFT_MM, maxval=LIFT_MM)
         lowest = self.probed_z_mm - MAX_PRESS_MM
         if target < lowest:
-            raise gcmd.error(f"Error on '{gcmd.get_commandline()}': Z={target:.3f} is {self.probed_z_mm - target:.3f} mm "
+            raise gcmd.param_error(f"Z={target:.3f} is {self.probed_z_mm - target:.3f} mm "
                              f"below the bed the probe found (Z={self.probed_z_mm:.3f}): the nozzle would press into "
                              f"the bed (at most {MAX_PRESS_MM:g} mm below it)")
         self.tried_z_mm.append(z_now)
