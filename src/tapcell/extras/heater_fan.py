@@ -7,18 +7,24 @@ from tapcell.host.config import ConfigSection
 
 
 class HeaterFan(Fan):
+    """A fan that runs at fan_speed while `is_on()` says so (checked whenever its status is read)."""
+
     def __init__(self, printer, name: str, max_power: float, off_below: float, heater_names: list[str],
-                 heater_temp_c: float, fan_speed: float):
+                 fan_speed: float, heater_temp_c: float = 50.0):
         super().__init__(printer, name, max_power, off_below)
         self.heater_names = heater_names
-        self.heater_temp_c = heater_temp_c
         self.fan_speed = fan_speed
+        self.heater_temp_c = heater_temp_c
+
+    def heaters(self) -> list:
+        known = self.printer.lookup_object("heaters").heaters
+        return [known[name] for name in self.heater_names]
+
+    def is_on(self) -> bool:
+        return any(heater.target_c or heater.temperature_c() >= self.heater_temp_c for heater in self.heaters())
 
     def get_status(self, eventtime=None) -> dict:
-        heaters = self.printer.lookup_object("heaters").heaters
-        hot = any(heaters[name].target_c or heaters[name].temperature_c() >= self.heater_temp_c
-                  for name in self.heater_names)
-        self.set_speed(self.fan_speed if hot else 0.0)
+        self.set_speed(self.fan_speed if self.is_on() else 0.0)
         return super().get_status(eventtime)
 
 
@@ -37,4 +43,5 @@ def load_config_prefix(section: ConfigSection, printer) -> HeaterFan:
         printer.load_object(heater_section)
     return HeaterFan(printer, section.get_name(), max_power, off_below,
                      read_heater_names(section, "extruder", printer),
-                     section.getfloat("heater_temp", 50.0), section.getfloat("fan_speed", 1.0, minval=0.0, maxval=1.0))
+                     fan_speed=section.getfloat("fan_speed", 1.0, minval=0.0, maxval=1.0),
+                     heater_temp_c=section.getfloat("heater_temp", 50.0))
