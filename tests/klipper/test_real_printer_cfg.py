@@ -204,3 +204,19 @@ def test_bed_heater_model_is_first_order(tmp_path):
     shares = [(samples[1] - samples[0]) / (75.0 - samples[0]), (samples[2] - samples[1]) / (75.0 - samples[1])]
     assert shares[0] == pytest.approx(shares[1], abs=0.002)
     assert shares[0] == pytest.approx(1 - math.exp(-30.0 / printer.backend.params.bed_heater_tau_s), abs=0.002)
+
+
+def test_temperature_wait_and_set_heater_temperature(tmp_path):
+    printer, responses = start(tmp_path, BED_SLINGER + "\n[heater_generic chamber]\nheater_pin: PB5\n"
+                               "sensor_type: Generic 3950\nsensor_pin: PB6\nmin_temp: 0\nmax_temp: 80\n"
+                               "\n[temperature_sensor electronics]\nsensor_type: temperature_host\n"
+                               "min_temp: 0\nmax_temp: 100\n")
+    run(printer, responses, "SET_HEATER_TEMPERATURE HEATER=chamber TARGET=50\nTEMPERATURE_WAIT SENSOR=chamber MINIMUM=40")
+    assert 40.0 <= printer.get_status()["heater_generic chamber"]["temperature"] < 40.1
+    with pytest.raises(GCodeError, match=r"heater_generic chamber is heading for 50.0C and never reaches 60C"):
+        printer.gcode.run_script("TEMPERATURE_WAIT SENSOR=chamber MINIMUM=60")
+    with pytest.raises(GCodeError, match=r"temperature_sensor electronics stays at 25.0C .* never reaches 30C"):
+        printer.gcode.run_script("TEMPERATURE_WAIT SENSOR=electronics MINIMUM=30")
+    run(printer, responses, "TEMPERATURE_WAIT SENSOR=electronics MAXIMUM=30")  # already there: no wait
+    assert printer.get_status()["heaters"]["available_sensors"] == ["extruder", "heater_bed", "heater_generic chamber",
+                                                                     "temperature_sensor electronics"]

@@ -183,25 +183,20 @@ class PrinterHeaters:
         minimum_c = gcmd.get_float("MINIMUM", None)
         maximum_c = gcmd.get_float("MAXIMUM", None, minval=minimum_c)
         if minimum_c is None and maximum_c is None:
-            raise gcmd.param_error(f"give MINIMUM and/or MAXIMUM")
+            raise gcmd.param_error("give MINIMUM and/or MAXIMUM")
+        temperature = sensor.temperature_c()
+        if (minimum_c is None or temperature >= minimum_c) and (maximum_c is None or temperature <= maximum_c):
+            return
+        goal_c = minimum_c if minimum_c is not None and temperature < minimum_c else maximum_c
         if not isinstance(sensor, Heater):
-            temperature = sensor.temperature_c()
-            if (minimum_c is not None and temperature < minimum_c) or (maximum_c is not None and temperature > maximum_c):
-                raise gcmd.param_error(f"{sensor.name} stays at {temperature:.1f}C "
-                                 "on the virtual printer (room temperature); the wait would never end")
-            return
-        model = self.printer.backend.heater(sensor.name)
-        goal_c = minimum_c if minimum_c is not None and sensor.temperature_c() < minimum_c else maximum_c
-        if goal_c is None or (minimum_c is not None and maximum_c is not None and
-                              minimum_c <= sensor.temperature_c() <= maximum_c):
-            return
-        reachable = min(goal_c, model.target_c) if goal_c == minimum_c else max(goal_c, model.target_c)
-        if reachable != goal_c:
-            raise gcmd.param_error(f"{sensor.name} is heading for "
-                             f"{model.target_c:.1f}C and never reaches {goal_c:g}C")
-        # Time until the exponential approach crosses the goal.
-        self.printer.backend.dwell(model.time_to_settle_s(self.printer.backend.now_s,
-                                                          abs(model.target_c - goal_c) or SETTLE_DELTA_C))
+            raise gcmd.param_error(f"{sensor.name} stays at {temperature:.1f}C on the virtual printer (room "
+                                   f"temperature) and never reaches {goal_c:g}C")
+        backend = self.printer.backend
+        heading_c = max(sensor.target_c, backend.room_temperature_c)  # a heater cannot cool below the room
+        if abs(heading_c - temperature) < abs(goal_c - temperature) or (heading_c - temperature) * (goal_c - temperature) < 0:
+            raise gcmd.param_error(f"{sensor.name} is heading for {heading_c:.1f}C and never reaches {goal_c:g}C")
+        # The approach crosses the goal when the heater is |heading - goal| from where it heads.
+        backend.wait_for_heater(sensor.name, abs(heading_c - goal_c) or SETTLE_DELTA_C)
 
 
 def lookup_heaters(printer) -> PrinterHeaters:
