@@ -237,3 +237,18 @@ def test_status_objects_have_klippers_fields(slinger):
     assert set(status["heater_bed"]) == {"temperature", "target", "power"}
     assert status["fan"] == {"speed": 1.0, "rpm": None}
     assert status["toolhead"]["extruder"] == "extruder" and len(status["toolhead"]["position"]) == 4
+
+
+def test_save_and_restore_gcode_state(slinger):
+    printer, responses = slinger
+    run(printer, responses, "M109 S200\nG1 X30 Y40 Z5 F3000\nSAVE_GCODE_STATE NAME=before\n"
+                            "G91\nM83\nG1 X10 E2 F600\nSET_GCODE_OFFSET Z=0.2")
+    run(printer, responses, "RESTORE_GCODE_STATE NAME=before MOVE=1")
+    status = printer.get_status()["gcode_move"]
+    assert (status["absolute_coordinates"], status["absolute_extrude"], status["speed"]) == (True, True, 3000.0)
+    assert status["homing_origin"] == [0.0, 0.0, 0.0, 0.0]
+    assert printer.lookup_object("toolhead").get_position() == pytest.approx((30.0, 40.0, 5.0))  # moved back
+    assert status["gcode_position"][3] == pytest.approx(0.0)  # E continues from the saved G-code E
+    assert status["position"][3] == pytest.approx(2.0)  # the filament is not pulled back
+    assert gcode_error(printer, "RESTORE_GCODE_STATE NAME=nope") == (
+        "Error on 'RESTORE_GCODE_STATE NAME=nope': Unknown g-code state: nope")
