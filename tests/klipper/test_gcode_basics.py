@@ -252,3 +252,13 @@ def test_save_and_restore_gcode_state(slinger):
     assert status["position"][3] == pytest.approx(2.0)  # the filament is not pulled back
     assert gcode_error(printer, "RESTORE_GCODE_STATE NAME=nope") == (
         "Error on 'RESTORE_GCODE_STATE NAME=nope': Unknown g-code state: nope")
+
+
+def test_turning_off_what_the_printer_lacks_is_silent(tmp_path):
+    # The example printer has no [fan] and no [heater_bed]: a slicer's "off" lines pass, as in Klipper.
+    printer, responses = start(tmp_path, BED_SLINGER.replace("[fan]\npin: PA8\n", "").replace(
+        "[heater_bed]", "[heater_generic bed]"))
+    assert run(printer, responses, "M107\nM106 S0\nM140 S0\nM104 S0") == []
+    assert gcode_error(printer, "M106 S255") == 'Unknown command:"M106"'
+    assert gcode_error(printer, "M106") == 'Unknown command:"M106"'  # no S: full speed, which is not silent
+    assert gcode_error(printer, "M140 S60") == 'Unknown command:"M140"'

@@ -26,7 +26,8 @@ def read_fan_options(section: ConfigSection) -> tuple[float, float]:
 
 
 class Fan:
-    """A fan's speed (0..1 of max_power), recorded on the virtual printer under the fan's name."""
+    """A fan's speed, recorded on the virtual printer under the fan's name. As in Klipper the
+    speed asked for is scaled by max_power, and `speed` in the status is the scaled value."""
 
     def __init__(self, printer, name: str, max_power: float, off_below: float):
         self.printer = printer
@@ -36,10 +37,10 @@ class Fan:
         self.speed = 0.0
 
     def set_speed(self, speed: float) -> None:
-        speed = 0.0 if speed < self.off_below else min(max(speed, 0.0), 1.0)
+        speed = 0.0 if speed < self.off_below else min(max(speed, 0.0), 1.0) * self.max_power
         if speed != self.speed:
             self.speed = speed
-            self.printer.backend.set_output(self.name, speed * self.max_power)
+            self.printer.backend.set_output(self.name, speed)
 
     def get_status(self, eventtime=None) -> dict:
         return {"speed": self.speed, "rpm": None}

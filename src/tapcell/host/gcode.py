@@ -70,6 +70,9 @@ class ParsedLine:
 
 # Classic commands whose parameters are free text (`M117 Printing 20%`), as in Klipper.
 RAW_TEXT_COMMANDS = ("M117", "M118")
+# Turning off a heater or fan the printer does not have is not worth a warning (Klipper's rule):
+# when nothing registered these commands, they do nothing if their S (this default when absent) is 0.
+SILENT_WHEN_ABSENT = {"M104": "0", "M140": "0", "M106": "1", "M107": "0"}
 # Kalico's spelling of a parameter where it differs from tapcell's: (command, Kalico's name) -> ours.
 KALICO_SPELLINGS: dict[tuple[str, str], str] = {
     ("LOAD_CELL_TEST_TAP", "TAPS"): "COUNT",
@@ -268,6 +271,13 @@ class GCodeCommand:
         self._dispatch.respond_raw(message)
 
 
+def _is_zero(text: str) -> bool:
+    try:
+        return float(text) == 0.0
+    except ValueError:
+        return False
+
+
 def _with_our_spellings(parsed: ParsedLine) -> dict[str, str]:
     """The parameters with Kalico's spellings renamed to ours (both given: an error)."""
     params = dict(parsed.params)
@@ -435,6 +445,9 @@ class GCodeDispatch:
             raise GCodeError(self._refusal[1])
         handler = self._handlers.get(parsed.command)
         if handler is None:
+            if parsed.command in SILENT_WHEN_ABSENT and _is_zero(
+                    parsed.params.get("S", SILENT_WHEN_ABSENT[parsed.command])):
+                return
             raise UnknownCommandError(parsed.command)
         gcmd = GCodeCommand(self, parsed)
         try:

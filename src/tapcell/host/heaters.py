@@ -111,6 +111,8 @@ class Heater:
         if self.target_c - temperature > SETTLE_DELTA_C:
             return self.options.max_power
         room = self.printer.backend.room_temperature_c
+        if self.options.max_temp_c <= room:
+            return self.options.max_power
         return round(min(self.options.max_power, max(0.0, (temperature - room) / (self.options.max_temp_c - room))), 3)
 
     def get_status(self, eventtime=None) -> dict:
