@@ -220,3 +220,9 @@ def test_temperature_wait_and_set_heater_temperature(tmp_path):
     run(printer, responses, "TEMPERATURE_WAIT SENSOR=electronics MAXIMUM=30")  # already there: no wait
     assert printer.get_status()["heaters"]["available_sensors"] == ["extruder", "heater_bed", "heater_generic chamber",
                                                                      "temperature_sensor electronics"]
+
+
+def test_status_repeats_the_load_warnings(tmp_path):
+    printer, responses = start(tmp_path, voron_text({"position_min: -5": "position_min: 0"}))
+    out = run(printer, responses, "STATUS")
+    assert out[1] == f"// Warning: {printer.warnings[0]}"

@@ -311,6 +311,7 @@ class Printer:
                                         for key, value in status[name].items()))
             return
         lines = [self.state_message]
+        lines += [f"Warning: {warning}" for warning in self.warnings]
         lines += [f"{obj}: " + " ".join(f"{key}={_format_status_value(value)}" for key, value in fields.items())
                   for obj, fields in status.items()]
         gcmd.respond_info("\n".join(lines))
