@@ -17,7 +17,8 @@ def test_voron_printer_cfg_loads_with_one_notice_of_what_is_simulated(tmp_path):
     assert printer.state == "ready" and printer.warnings == []
     world, (simulated, accepted) = printer.notices[0], printer.notices[1].split("\n")
     assert world.startswith("Virtual printer: scenario 'clean' (well-built printer")
-    assert world.endswith("[virtual_printer] sets bed_x_mm=300.0, bed_y_mm=300.0")
+    assert world.endswith("[virtual_printer] sets bed_x_mm=300.0, bed_y_mm=300.0. The machine is the printer "
+                          "config's: load cell ads1220 at 2000 sps, gain 128; X 0..300, Y 0..300, Z down to -5 mm")
     assert simulated.startswith("The virtual printer simulates: [printer] [stepper_x] [stepper_y] [stepper_z] "
                                 "(motion); [extruder] (nozzle heater, E axis without filament); [heater_bed] (heater)")
     assert "[load_cell_probe] (load cell under the nozzle, bed contact)" in simulated

@@ -688,6 +688,11 @@ def describe_world(vp: VirtualPrinter, overrides: dict, machine: dict) -> str:
     own = [f"{k}={v}" for k, v in overrides.items()]
     if own:
         line += "; [virtual_printer] sets " + ", ".join(own)
+    if "chip" in machine:
+        p = vp.params
+        line += (f". The machine is the printer config's: load cell {p.chip} at {p.sample_rate_sps:g} sps, gain "
+                 f"{p.gain}; X {p.x_position_min_mm:g}..{p.x_position_max_mm:g}, Y {p.y_position_min_mm:g}.."
+                 f"{p.y_position_max_mm:g}, Z down to {p.z_position_min_mm:g} mm")
     return line
 
 
