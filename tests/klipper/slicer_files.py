@@ -143,7 +143,7 @@ def cube_layers(layers: int, absolute_e: bool, object_labels: bool) -> tuple[str
     lines, e_total, extrusions = [], 0.0, 0
     for layer in range(layers):
         z = LAYER_MM * (layer + 1)
-        lines += [f";LAYER_CHANGE", f";Z:{z:.1f}"]
+        lines += [";LAYER_CHANGE", f";Z:{z:.1f}"]
         if object_labels:
             lines.append(f"EXCLUDE_OBJECT_START NAME={CUBE_NAME}")
         if layer == 1:
