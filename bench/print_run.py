@@ -61,7 +61,7 @@ def run_print(sample_rate: int, moves: int, folder: Path) -> tuple[float, float,
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="bench/print_run.py", description=__doc__)
-    parser.add_argument("--moves", type=int, default=3000)
+    parser.add_argument("--moves", type=int, default=2000)
     # 2000 sps (the example's own rate) costs 3x the wall time: `--rates 330 2000` for both.
     parser.add_argument("--rates", type=int, nargs="*", default=[330])
     args = parser.parse_args(argv)
