@@ -11,6 +11,10 @@ from tapcell.host import config as config_module
 from tapcell.host.config import SAVE_CONFIG_MARKER, ConfigError, ConfigFile
 
 
+# For reading values back in tests: every numeric getter must be given a range.
+ANY = {"minval": -1e9, "maxval": 1e9}
+
+
 def write(path: Path, text: str) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(text)
@@ -45,7 +49,7 @@ Sensor_Type: hx717
     assert cfg.sections() == ["printer", "load_cell probe"]
     printer = cfg.getsection("printer")
     assert printer.get("kinematics") == "cartesian"
-    assert printer.getfloat("max_velocity") == 300.0
+    assert printer.getfloat("max_velocity", **ANY) == 300.0
     assert printer.get("pin") == "^PA1#not-a-comment"
     probe = cfg.getsection("load_cell probe")
     assert probe.get("sensor_type") == "hx717"  # option names are case-insensitive
@@ -73,8 +77,8 @@ description: Park it
 def test_duplicate_sections_merge_and_later_values_win(tmp_path):
     cfg = read(tmp_path, "[printer]\na: 1\nb: 2\n[bed_mesh]\n[printer]\nb: 3\n")
     assert cfg.sections() == ["printer", "bed_mesh"]
-    assert cfg.getsection("printer").getint("a") == 1
-    assert cfg.getsection("printer").getint("b") == 3
+    assert cfg.getsection("printer").getint("a", **ANY) == 1
+    assert cfg.getsection("printer").getint("b", **ANY) == 3
 
 
 @pytest.mark.parametrize("text, message", [
@@ -135,6 +139,37 @@ def test_include_cycle_is_an_error(tmp_path):
     assert error_of(ConfigFile.read, main) == f"{tmp_path}/a.cfg: include cycle: printer.cfg -> a.cfg -> b.cfg -> a.cfg"
 
 
+def test_include_chain_deeper_than_the_limit_names_the_file(tmp_path):
+    depth = config_module.MAX_INCLUDE_DEPTH
+    for level in range(1, 300):
+        write(tmp_path / f"level{level}.cfg", f"[include level{level + 1}.cfg]\n")
+    main = write(tmp_path / "printer.cfg", "[include level1.cfg]\n")
+    assert error_of(ConfigFile.read, main) == (
+        f"{tmp_path}/level{depth + 1}.cfg: includes are nested more than {depth} deep "
+        f"(included from {tmp_path}/level{depth}.cfg)")
+
+
+def test_include_diamond_stops_at_the_file_count_limit(tmp_path):
+    # Each file includes the next one twice: 2**16 reads without a limit, within the depth limit.
+    for level in range(16):
+        write(tmp_path / f"d{level}.cfg", f"[include d{level + 1}.cfg]\n[include d{level + 1}.cfg]\n")
+    write(tmp_path / "d16.cfg", "[printer]\n")
+    main = write(tmp_path / "printer.cfg", "[include d0.cfg]\n")
+    assert error_of(ConfigFile.read, main).endswith(
+        f".cfg: more than {config_module.MAX_CONFIG_FILES} config files read through [include]")
+
+
+@pytest.mark.parametrize("include, problem", [
+    ("/dev/zero", "printer.cfg:1: include file /dev/zero: is not a regular file, not a config file"),
+    ("big.cfg", "printer.cfg:1: include file {tmp}/big.cfg: is larger than 1,024 bytes, not a config file"),
+])
+def test_include_of_a_device_or_a_huge_file_is_refused(tmp_path, monkeypatch, include, problem):
+    monkeypatch.setattr(config_module, "MAX_CONFIG_FILE_BYTES", 1024)
+    write(tmp_path / "big.cfg", "# padding\n" * 200)
+    main = write(tmp_path / "printer.cfg", f"[include {include}]\n")
+    assert error_of(ConfigFile.read, main).endswith(problem.format(tmp=tmp_path))
+
+
 # -- typed getters ---------------------------------------------------------------
 
 
@@ -165,38 +200,41 @@ def probe_section(tmp_path):
 
 def test_getters_return_typed_values_and_defaults(probe_section):
     section, _ = probe_section
-    assert section.getfloat("trigger_force", maxval=500) == 300.0
-    assert section.getint("low", minval=1) == 5
+    assert section.getfloat("trigger_force", minval=10, maxval=500) == 300.0
+    assert section.getint("low", minval=1, maxval=10) == 5
     assert section.getboolean("flag") is True
     assert section.getchoice("gain", ["A-128", "B-64"]) == "A-128"
     assert section.getchoice("gain", {"A-128": 128, "B-64": 64}) == 128
     assert section.getchoice("ads_gain", {1: "x1", 64: "x64"}) == "x64"
-    assert section.getfloatlist("points") == [1.5, 2.0, 3.0]
+    assert section.getfloatlist("points", **ANY) == [1.5, 2.0, 3.0]
     assert section.getlist("lines", sep="\n") == ["one", "two"]
-    assert section.getfloat("absent", 75.0) == 75.0
-    assert section.getint("absent", None) is None
-    assert section.getfloatlist("absent", [50.0, 60.0], count=2) == [50.0, 60.0]
+    assert section.getfloat("absent", 75.0, **ANY) == 75.0
+    assert section.getint("absent", None, **ANY) is None
+    assert section.getfloatlist("absent", [50.0, 60.0], count=2, **ANY) == [50.0, 60.0]
     assert section.has_option("TRIGGER_FORCE") and not section.has_option("absent")
 
 
 @pytest.mark.parametrize("call, problem", [
-    (lambda s: s.getfloat("trigger_force", minval=10, maxval=250), "trigger_force = 300: must be at most 250"),
-    (lambda s: s.getfloat("low", minval=10.0), "low = 5: must be at least 10"),
-    (lambda s: s.getfloat("low", above=5), "low = 5: must be above 5"),
-    (lambda s: s.getfloat("low", below=5), "low = 5: must be below 5"),
-    (lambda s: s.getfloat("low", maxval=0.5), "low = 5: must be at most 0.5"),
-    (lambda s: s.getint("count", minval=1), "count = 10.5: expected an integer, at least 1"),
-    (lambda s: s.getfloat("word", minval=0.1, maxval=20), "word = abc: expected a number, at least 0.1 and at most 20"),
-    (lambda s: s.getfloat("infinite"), "infinite = inf: must be a finite number"),
+    (lambda s: s.getfloat("trigger_force", minval=10, maxval=250),
+     "trigger_force = 300: must be at most 250 (allowed: 10 to 250)"),
+    (lambda s: s.getfloat("low", minval=10.0, maxval=20), "low = 5: must be at least 10 (allowed: 10 to 20)"),
+    (lambda s: s.getfloat("low", above=5, maxval=20), "low = 5: must be above 5 (allowed: above 5 and at most 20)"),
+    (lambda s: s.getfloat("low", minval=0, below=5), "low = 5: must be below 5 (allowed: at least 0 and below 5)"),
+    (lambda s: s.getfloat("low", above=0, maxval=0.5), "low = 5: must be at most 0.5 (allowed: above 0 and at most 0.5)"),
+    (lambda s: s.getint("count", minval=1, maxval=20), "count = 10.5: expected an integer, 1 to 20"),
+    (lambda s: s.getfloat("word", minval=0.1, maxval=20), "word = abc: expected a number, 0.1 to 20"),
+    (lambda s: s.getfloat("infinite", **ANY), "infinite = inf: must be a finite number"),
     (lambda s: s.getboolean("bad_flag"), "bad_flag = maybe: expected True or False"),
     (lambda s: s.getchoice("bad_gain", ["A-128", "B-64"]), "bad_gain = A-12: must be one of: A-128, B-64"),
     (lambda s: s.getchoice("word", {1: 1, 2: 2}), "word = abc: must be one of: 1, 2"),
-    (lambda s: s.getintlist("steps"), "steps = 1, x, 3: item 'x' is not valid (expected a list of integers "
-                                      "separated by ',')"),
-    (lambda s: s.getfloatlist("points", count=2), "points = 1.5, 2 ,3,: has 3 items, expected exactly 2"),
+    (lambda s: s.getintlist("steps", minval=0, maxval=9),
+     "steps = 1, x, 3: item 'x' is not valid (expected a list of integers separated by ',', each 0 to 9)"),
+    (lambda s: s.getfloatlist("points", count=2, **ANY), "points = 1.5, 2 ,3,: has 3 items, expected exactly 2"),
+    (lambda s: s.getfloatlist("points", minval=0, maxval=2.5),
+     "points = 1.5, 2 ,3,: item '3' must be at most 2.5 (allowed: 0 to 2.5)"),
     (lambda s: s.getchoice("sensor_type", ["hx711", "hx717", "ads1220"]),
      "sensor_type: must be specified (one of: hx711, hx717, ads1220)"),
-    (lambda s: s.getfloat("z_offset"), "z_offset: must be specified (a number)"),
+    (lambda s: s.getfloat("z_offset", minval=-5, maxval=5), "z_offset: must be specified (a number, -5 to 5)"),
     (lambda s: s.get("pin"), "pin: must be specified (a value)"),
 ])
 def test_getter_errors_name_file_section_option_value_and_allowed(probe_section, call, problem):
@@ -204,10 +242,23 @@ def test_getter_errors_name_file_section_option_value_and_allowed(probe_section,
     assert error_of(call, section) == f"{path}: [load_cell_probe] {problem}"
 
 
+@pytest.mark.parametrize("call", [
+    lambda s: s.getfloat("trigger_force"),
+    lambda s: s.getfloat("trigger_force", 1.0, minval=0),
+    lambda s: s.getint("low", maxval=10),
+    lambda s: s.getfloatlist("points", above=0),
+    lambda s: s.getintlist("absent", None, minval=0),
+])
+def test_a_numeric_getter_without_a_range_is_a_programming_error(probe_section, call):
+    section, _ = probe_section
+    with pytest.raises(TypeError, match="must declare its range"):
+        call(section)
+
+
 def test_error_carries_structured_fields(probe_section):
     section, path = probe_section
     with pytest.raises(ConfigError) as info:
-        section.getfloat("trigger_force", maxval=250)
+        section.getfloat("trigger_force", minval=10, maxval=250)
     assert (info.value.file, info.value.section, info.value.option, info.value.value) == (
         path, "load_cell_probe", "trigger_force", "300")
 
@@ -226,13 +277,13 @@ def test_unread_option_is_an_error_and_read_ones_are_not(tmp_path):
     cfg.getsection("printer").get("kinematics")
     assert error_of(cfg.check_unused_options) == (
         f"{tmp_path}/printer.cfg: [printer] max_velocty = 300: Option 'max_velocty' is not valid in section 'printer'")
-    cfg.getsection("printer").getfloat("max_velocty")
+    cfg.getsection("printer").getfloat("max_velocty", **ANY)
     cfg.check_unused_options()
 
 
 def test_reading_with_a_default_still_counts_as_read(tmp_path):
     cfg = read(tmp_path, "[printer]\nspeed: 5\n")
-    assert cfg.getsection("printer").getfloat("speed", 1.0) == 5.0
+    assert cfg.getsection("printer").getfloat("speed", 1.0, **ANY) == 5.0
     cfg.check_unused_options()
 
 
@@ -253,7 +304,7 @@ def test_prefix_sections_and_lookup(tmp_path):
         "load_cell", "load_cell left", "load_cells", "load_cell right"]
     assert cfg.has_section("load_cell right") and not cfg.has_section("load_cell middle")
     # A missing section reads as empty: every option takes its default.
-    assert cfg.getsection("load_cell middle").getfloat("counts_per_gram", 1.5) == 1.5
+    assert cfg.getsection("load_cell middle").getfloat("counts_per_gram", 1.5, **ANY) == 1.5
 
 
 # -- SAVE_CONFIG block -----------------------------------------------------------
@@ -279,8 +330,8 @@ counts_per_gram: 10
 def test_save_config_block_overrides_earlier_values(tmp_path):
     cfg = read(tmp_path, SAVED)
     load_cell = cfg.getsection("load_cell")
-    assert load_cell.getfloat("counts_per_gram") == 87.5
-    assert load_cell.getint("reference_tare_counts") == -1234
+    assert load_cell.getfloat("counts_per_gram", **ANY) == 87.5
+    assert load_cell.getint("reference_tare_counts", **ANY) == -1234
     assert cfg.sections() == ["load_cell", "bed_mesh default"]
     assert cfg.getsection("bed_mesh default").getlist("points", sep="\n") == ["0.1, 0.2", "0.3, 0.4"]
 
@@ -316,8 +367,8 @@ def test_save_writes_block_keeps_body_and_backup(tmp_path):
     assert (tmp_path / "printer.cfg.bak").read_text() == body
     assert not cfg.has_pending_changes()
     reloaded = ConfigFile.read(path).getsection("load_cell")
-    assert reloaded.getfloat("counts_per_gram") == pytest.approx(87.94408)
-    assert reloaded.getint("reference_tare_counts") == 1234
+    assert reloaded.getfloat("counts_per_gram", **ANY) == pytest.approx(87.94408)
+    assert reloaded.getint("reference_tare_counts", **ANY) == 1234
 
 
 def test_save_merges_with_existing_block_and_removes_sections(tmp_path):
@@ -342,16 +393,18 @@ def test_save_merges_with_existing_block_and_removes_sections(tmp_path):
 
 
 class _HalfWritingFile:
-    """A temp file whose write() stores half the text, then fails like a full disk."""
+    """A file whose write() stores half the data, then fails like a full disk."""
 
     def __init__(self, real):
         self._real = real
-        self.name = real.name
 
-    def write(self, text):
-        self._real.write(text[: len(text) // 2])
+    def write(self, data):
+        self._real.write(data[: len(data) // 2])
         self._real.flush()
         raise OSError(28, "No space left on device")
+
+    def __getattr__(self, name):
+        return getattr(self._real, name)
 
     def __enter__(self):
         return self
@@ -360,33 +413,80 @@ class _HalfWritingFile:
         return self._real.__exit__(*exc)
 
 
-@pytest.mark.parametrize("failing", ["write", "fsync", "backup", "replace"])
-def test_failure_mid_save_leaves_old_file_intact(tmp_path, monkeypatch, failing):
+def _no_space(*args, **kwargs):
+    raise OSError(28, "No space left on device")
+
+
+def _fail_on_the_backup(real):
+    def replace(path, *args):
+        if path.endswith(".bak"):
+            _no_space()
+        return real(path, *args)
+    return replace
+
+
+@pytest.mark.parametrize("failing", ["write", "fsync", "fchmod", "replace", "backup"])
+def test_failure_mid_save_leaves_old_file_and_backup_intact(tmp_path, monkeypatch, failing):
     path = write(tmp_path / "printer.cfg", SAVED)
+    old_backup = write(tmp_path / "printer.cfg.bak", "# the previous backup\n")
     cfg = ConfigFile.read(path)
     cfg.set("load_cell", "counts_per_gram", "1.0")
-
-    def fail(*args, **kwargs):
-        raise OSError(28, "No space left on device")
-
     if failing == "write":
-        real_temp = config_module.tempfile.NamedTemporaryFile
-        monkeypatch.setattr(config_module.tempfile, "NamedTemporaryFile",
-                            lambda *a, **k: _HalfWritingFile(real_temp(*a, **k)))
+        real_fdopen = config_module.os.fdopen
+        monkeypatch.setattr(config_module.os, "fdopen", lambda *a, **k: _HalfWritingFile(real_fdopen(*a, **k)))
     elif failing == "backup":
-        monkeypatch.setattr(config_module, "_copy_file", fail)
+        monkeypatch.setattr(config_module, "_replace_file", _fail_on_the_backup(config_module._replace_file))
     else:
-        monkeypatch.setattr(config_module.os, failing, fail)
+        monkeypatch.setattr(config_module.os, failing, _no_space)
     message = error_of(cfg.save)
     assert message == (f"{path}: unable to write config file (old file left unchanged): "
                        "[Errno 28] No space left on device")
     monkeypatch.undo()
     assert path.read_text() == SAVED
-    leftovers = sorted(os.listdir(tmp_path))
-    assert leftovers in (["printer.cfg"], ["printer.cfg", "printer.cfg.bak"])  # no temp file left behind
-    if len(leftovers) == 2:
-        assert (tmp_path / "printer.cfg.bak").read_text() == SAVED
+    assert sorted(os.listdir(tmp_path)) == ["printer.cfg", "printer.cfg.bak"]  # no temp file left behind
+    # The backup is either the previous one or a whole copy of the old file, never torn.
+    assert old_backup.read_text() in ("# the previous backup\n", SAVED)
     # The pending change survives, so a retry can succeed.
     assert cfg.has_pending_changes()
     cfg.save()
     assert ConfigFile.read(path).getsection("load_cell").get("counts_per_gram") == "1.0"
+    assert old_backup.read_text() == SAVED
+
+
+def test_save_keeps_mode_and_owner_of_file_and_backup(tmp_path):
+    path = write(tmp_path / "printer.cfg", SAVED)
+    os.chmod(path, 0o640)
+    owner = (os.getuid(), os.getgid())
+    if os.getuid() == 0:  # as root, a foreign owner shows that the owner is kept, not just inherited
+        owner = (1234, 2345)
+        os.chown(path, *owner)
+    cfg = ConfigFile.read(path)
+    cfg.set("load_cell", "counts_per_gram", "2.0")
+    cfg.save()
+    for saved in (path, tmp_path / "printer.cfg.bak"):
+        status = os.stat(saved)
+        assert (oct(status.st_mode & 0o7777), status.st_uid, status.st_gid) == (oct(0o640), *owner)
+
+
+def test_save_writes_through_a_symlink_to_its_target(tmp_path):
+    target = write(tmp_path / "real" / "printer.cfg", SAVED)
+    link = tmp_path / "printer.cfg"
+    link.symlink_to(target)
+    cfg = ConfigFile.read(link)
+    cfg.set("load_cell", "counts_per_gram", "3.0")
+    cfg.save()
+    assert link.is_symlink() and os.readlink(link) == str(target)
+    assert ConfigFile.read(target).getsection("load_cell").get("counts_per_gram") == "3.0"
+    assert (tmp_path / "real" / "printer.cfg.bak").read_text() == SAVED  # the backup sits beside the real file
+    assert sorted(os.listdir(tmp_path)) == ["printer.cfg", "real"]
+    assert sorted(os.listdir(tmp_path / "real")) == ["printer.cfg", "printer.cfg.bak"]
+
+
+def test_save_of_an_empty_file_keeps_the_previous_backup(tmp_path):
+    path = write(tmp_path / "printer.cfg", "")
+    backup = write(tmp_path / "printer.cfg.bak", SAVED)
+    cfg = ConfigFile.read(path)
+    cfg.set("load_cell", "counts_per_gram", "4.0")
+    cfg.save()
+    assert backup.read_text() == SAVED
+    assert ConfigFile.read(path).getsection("load_cell").get("counts_per_gram") == "4.0"

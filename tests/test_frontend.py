@@ -74,6 +74,9 @@ def test_run_reports_bad_files_without_traceback(capsys, files, tmp_path):
     config.write_text(CONFIG)
     status, out, err = run(capsys, script, "--config", config)
     assert status == 2 and err.startswith(f"tapcell run: script '{script}' is not UTF-8 text:")
+    printer = Printer.from_config(str(config), responses=[])
+    assert frontend.run_script_file(printer, "/dev/zero", keep_going=False, echo=False) == 2
+    assert capsys.readouterr().err == "tapcell run: cannot read script '/dev/zero': is not a regular file\n"
 
 
 def test_console_loop_runs_lines_until_eof(capsys, files):

@@ -8,6 +8,7 @@ import types
 import pytest
 
 from tapcell.extras import gcode_macro
+from tapcell.host import gcode as gcode_module
 from tapcell.host import printer as printer_module
 from tapcell.host.gcode import GCodeCommand, GCodeDispatch, GCodeError, parse_line
 from tapcell.host.printer import Printer
@@ -87,31 +88,42 @@ def test_commands_are_case_insensitive_and_get_parameters(dispatch):
     dispatch.run_script("probe_me speed=2.5 SAMPLES=3 name=Left\nPROBE_ME")
     first, second = calls
     assert first.command == "PROBE_ME"
-    assert first.get_float("speed") == 2.5
+    assert first.get_float("speed", above=0, maxval=10) == 2.5
     assert first.get_int("samples", 1, minval=1, maxval=10) == 3
     assert first.get("NAME") == "Left"
     assert first.get_command_parameters() == {"SPEED": "2.5", "SAMPLES": "3", "NAME": "Left"}
-    assert second.get_float("SPEED", 5.0) == 5.0
-    assert second.get_int("SAMPLES", None) is None
+    assert second.get_float("SPEED", 5.0, above=0, maxval=10) == 5.0
+    assert second.get_int("SAMPLES", None, minval=1, maxval=10) is None
 
 
 @pytest.mark.parametrize("line, call, message", [
-    ("CALIBRATE", lambda g: g.get_float("GRAMS", minval=50), "Error on 'CALIBRATE': missing GRAMS"),
-    ("CALIBRATE GRAMS=abc", lambda g: g.get_float("GRAMS", minval=50),
+    ("CALIBRATE", lambda g: g.get_float("GRAMS", minval=50, maxval=25000), "Error on 'CALIBRATE': missing GRAMS"),
+    ("CALIBRATE GRAMS=abc", lambda g: g.get_float("GRAMS", minval=50, maxval=25000),
      "Error on 'CALIBRATE GRAMS=abc': unable to parse 'abc' for GRAMS (expected a number)"),
-    ("CALIBRATE GRAMS=nan", lambda g: g.get_float("GRAMS"),
+    ("CALIBRATE GRAMS=nan", lambda g: g.get_float("GRAMS", minval=50, maxval=25000),
      "Error on 'CALIBRATE GRAMS=nan': unable to parse 'nan' for GRAMS (expected a number)"),
+    ("CALIBRATE GRAMS=1e309", lambda g: g.get_float("GRAMS", minval=50, maxval=25000),
+     "Error on 'CALIBRATE GRAMS=1e309': unable to parse '1e309' for GRAMS (expected a number)"),
     ("CALIBRATE GRAMS=10", lambda g: g.get_float("GRAMS", minval=50, maxval=25000),
-     "Error on 'CALIBRATE GRAMS=10': GRAMS must have minimum of 50"),
+     "Error on 'CALIBRATE GRAMS=10': GRAMS must have minimum of 50 (allowed: 50 to 25000)"),
     ("CALIBRATE GRAMS=30000", lambda g: g.get_float("GRAMS", minval=50, maxval=25000),
-     "Error on 'CALIBRATE GRAMS=30000': GRAMS must have maximum of 25000"),
-    ("CALIBRATE GRAMS=0", lambda g: g.get_float("GRAMS", above=0), "Error on 'CALIBRATE GRAMS=0': GRAMS must be above 0"),
-    ("CALIBRATE GRAMS=2.5", lambda g: g.get_float("GRAMS", below=2.5),
-     "Error on 'CALIBRATE GRAMS=2.5': GRAMS must be below 2.5"),
+     "Error on 'CALIBRATE GRAMS=30000': GRAMS must have maximum of 25000 (allowed: 50 to 25000)"),
+    ("CALIBRATE GRAMS=0", lambda g: g.get_float("GRAMS", above=0, maxval=5),
+     "Error on 'CALIBRATE GRAMS=0': GRAMS must be above 0 (allowed: above 0 and at most 5)"),
+    ("CALIBRATE GRAMS=2.5", lambda g: g.get_float("GRAMS", minval=0, below=2.5),
+     "Error on 'CALIBRATE GRAMS=2.5': GRAMS must be below 2.5 (allowed: at least 0 and below 2.5)"),
     ("CALIBRATE taps=1.5", lambda g: g.get_int("TAPS", 3, minval=1, maxval=10),
      "Error on 'CALIBRATE taps=1.5': unable to parse '1.5' for TAPS (expected an integer)"),
     ("CALIBRATE TAPS=11", lambda g: g.get_int("taps", 3, minval=1, maxval=10),
-     "Error on 'CALIBRATE TAPS=11': TAPS must have maximum of 10"),
+     "Error on 'CALIBRATE TAPS=11': TAPS must have maximum of 10 (allowed: 1 to 10)"),
+    ("CALIBRATE TAPS=" + "9" * 5000, lambda g: g.get_int("taps", 3, minval=1, maxval=10),
+     f"Error on 'CALIBRATE TAPS={'9' * 5000}': unable to parse '{'9' * 5000}' for TAPS (expected an integer)"),
+    ("CALIBRATE AT=1,2", lambda g: g.get_floatlist("AT", count=3, minval=0, maxval=10),
+     "Error on 'CALIBRATE AT=1,2': AT needs exactly 3 comma-separated numbers, got 2"),
+    ("CALIBRATE AT=1,x", lambda g: g.get_floatlist("AT", minval=0, maxval=10),
+     "Error on 'CALIBRATE AT=1,x': unable to parse 'x' in AT (expected comma-separated numbers)"),
+    ("CALIBRATE COUNT=3,100000", lambda g: g.get_intlist("COUNT", minval=3, maxval=50),
+     "Error on 'CALIBRATE COUNT=3,100000': COUNT must have maximum of 50 (allowed: 3 to 50)"),
 ])
 def test_parameter_errors_name_the_parameter(dispatch, line, call, message):
     dispatch.register_command("CALIBRATE", call)
@@ -145,10 +157,31 @@ def test_unknown_command_and_script_stops_at_first_error(dispatch):
     assert dispatch.responses == ['!! Unknown command:"G1"']
 
 
-def test_handler_bug_becomes_an_error_message(dispatch):
+def test_handler_bug_is_not_masked_as_a_message(dispatch):
     dispatch.register_command("BROKEN", lambda gcmd: 1 / 0)
-    assert gcode_error(dispatch.run_script, "BROKEN X=1") == (
-        "Internal error on 'BROKEN X=1': ZeroDivisionError: division by zero")
+    with pytest.raises(ZeroDivisionError):
+        dispatch.run_script("BROKEN X=1")
+    # The dispatcher is still usable afterwards (nothing is left marked as running).
+    calls = capture(dispatch, "BROKEN2")
+    dispatch.run_script("BROKEN2")
+    assert len(calls) == 1
+
+
+def test_numeric_parameter_without_a_range_is_a_programming_error(dispatch):
+    dispatch.register_command("CMD", lambda gcmd: gcmd.get_float("X", 1.0, minval=0))
+    with pytest.raises(TypeError, match="CMD X: a numeric option or parameter must declare its range"):
+        dispatch.run_script("CMD")
+
+
+def test_commands_calling_themselves_or_nesting_too_deep_are_refused(dispatch):
+    dispatch.register_command("A", lambda gcmd: dispatch.run_script("B"))
+    dispatch.register_command("B", lambda gcmd: dispatch.run_script("A"))
+    assert gcode_error(dispatch.run_script, "A") == "A called recursively (A -> B -> A)"
+    depth = gcode_module.MAX_NESTING
+    for level in range(depth + 5):
+        dispatch.register_command(f"NEST{level}", lambda gcmd, level=level: dispatch.run_script(f"NEST{level + 1}"))
+    message = gcode_error(dispatch.run_script, "NEST0")
+    assert message == f"NEST{depth}: G-code nested more than {depth} commands deep (NEST0 -> NEST1 -> NEST2 -> ...)"
 
 
 def test_register_twice_and_temporary_commands(dispatch):
@@ -221,7 +254,7 @@ class FakeLoadCell:
 @pytest.fixture
 def fake_load_cell_module(monkeypatch):
     module = types.ModuleType("tapcell_test_fake_load_cell")
-    module.load_config = lambda section, printer: FakeLoadCell(section.getfloat("force_g"))
+    module.load_config = lambda section, printer: FakeLoadCell(section.getfloat("force_g", minval=-1e4, maxval=1e4))
     module.load_config_prefix = module.load_config
     package = types.ModuleType("tapcell_test_extras")
     package.__path__ = []
@@ -287,7 +320,7 @@ def test_macro_errors(tmp_path, fake_load_cell_module):
     assert gcode_error(printer.gcode.run_script, "FAIL_IF LIMIT=5") == "too much force: 12.34"
     printer.gcode.run_script("FAIL_IF LIMIT=50")
     assert responses == ["// ok - 0"]
-    assert gcode_error(printer.gcode.run_script, "LOOP") == "Macro LOOP called recursively"
+    assert gcode_error(printer.gcode.run_script, "LOOP") == "LOOP called recursively (LOOP -> LOOP)"
     assert gcode_error(printer.gcode.run_script, "TYPO") == (
         "Error in macro TYPO: 'dict object' has no attribute 'forceg'")
 
@@ -321,18 +354,19 @@ def test_macro_config_errors(tmp_path, section, problem):
 
 def test_parameter_helpers_name_the_parameter_and_what_is_allowed():
     gcmd = GCodeCommand(GCodeDispatch(), parse_line("CMD MODE=Fast AT=1,2.5 BAD=1,x THREE=1,2 INF=1,inf"))
+    at_range = {"minval": 0, "maxval": 10}
     assert gcmd.get_choice("MODE", ("slow", "fast")) == "fast"
     assert gcmd.get_choice("OTHER", ("slow", "fast"), None) is None
-    assert gcmd.get_floatlist("AT") == [1.0, 2.5]
-    assert gcmd.get_floatlist("NONE_GIVEN", None, count=2) is None
+    assert gcmd.get_floatlist("AT", **at_range) == [1.0, 2.5]
+    assert gcmd.get_floatlist("NONE_GIVEN", None, count=2, **at_range) is None
     for call, message in [
         (lambda: gcmd.get_choice("MODE", ("slow", "medium")), "MODE must be one of slow, medium, not 'Fast'"),
         (lambda: gcmd.get_choice("OTHER", ("slow",)), "missing OTHER"),
-        (lambda: gcmd.get_floatlist("BAD"), "unable to parse '1,x' for BAD (expected numbers separated by commas)"),
-        (lambda: gcmd.get_floatlist("THREE", count=3),
-         "unable to parse '1,2' for THREE (expected 3 numbers separated by commas)"),
-        (lambda: gcmd.get_floatlist("INF"), "unable to parse '1,inf' for INF (expected numbers separated by commas)"),
-        (lambda: gcmd.get_floatlist("OTHER"), "missing OTHER"),
+        (lambda: gcmd.get_floatlist("BAD", **at_range), "unable to parse 'x' in BAD (expected comma-separated numbers)"),
+        (lambda: gcmd.get_floatlist("THREE", count=3, **at_range), "THREE needs exactly 3 comma-separated numbers, got 2"),
+        (lambda: gcmd.get_floatlist("INF", **at_range), "unable to parse 'inf' in INF (expected comma-separated numbers)"),
+        (lambda: gcmd.get_floatlist("AT", minval=2, maxval=10), "AT must have minimum of 2 (allowed: 2 to 10)"),
+        (lambda: gcmd.get_floatlist("OTHER", **at_range), "missing OTHER"),
     ]:
         with pytest.raises(GCodeError) as info:
             call()

@@ -185,8 +185,8 @@ def test_calibration_errors(tmp_path):
     run(printer, responses, "TARE")
     assert error_of("ACCEPT") == ("Load cell calibration is incomplete: run CALIBRATE GRAMS=nnn before ACCEPT "
                                   "(or ABORT to quit)")
-    assert error_of("CALIBRATE GRAMS=10") == "Error on 'CALIBRATE GRAMS=10': GRAMS must have minimum of 50"
-    assert error_of("CALIBRATE GRAMS=30000") == "Error on 'CALIBRATE GRAMS=30000': GRAMS must have maximum of 25000"
+    assert error_of("CALIBRATE GRAMS=10") == "Error on 'CALIBRATE GRAMS=10': GRAMS must have minimum of 50 (allowed: 50 to 25000)"
+    assert error_of("CALIBRATE GRAMS=30000") == "Error on 'CALIBRATE GRAMS=30000': GRAMS must have maximum of 25000 (allowed: 50 to 25000)"
     assert error_of("CALIBRATE GRAMS=heavy") == ("Error on 'CALIBRATE GRAMS=heavy': unable to parse 'heavy' for "
                                                  "GRAMS (expected a number)")
     assert error_of("CALIBRATE") == "Error on 'CALIBRATE': missing GRAMS"
@@ -349,7 +349,7 @@ def test_diagnostic_counts_sensor_errors_and_refuses_silence(tmp_path):
     ("sensor_type: hx999\nsclk_pin: A\ndout_pin: B",
      "[load_cell] sensor_type = hx999: must be one of: hx711, hx717, ads1220"),
     ("sensor_type: hx717\nsclk_pin: A\ndout_pin: B\ncounts_per_gram: 0.5",
-     "[load_cell] counts_per_gram = 0.5: must be at least 1"),
+     "[load_cell] counts_per_gram = 0.5: must be at least 1 (allowed: 1 to 8388607)"),
     ("sensor_type: hx717\nsclk_pin: A\ndout_pin: B\nsample_rate: 100",
      "[load_cell] sample_rate = 100: must be one of: 10, 20, 80, 320"),
     ("sensor_type: hx711\nsclk_pin: A\ndout_pin: B\ngain: B-64",
@@ -404,7 +404,7 @@ def test_malformed_gcode_lines(tmp_path):
         ("LOAD_CELL_REED", '!! Unknown command:"LOAD_CELL_REED"'),
         ("LOAD_CELL_CALIBRATE\nCALIBRATE GRAMS=", "!! Error on 'CALIBRATE GRAMS=': unable to parse '' for GRAMS "
                                                    "(expected a number)"),
-        ("SIM_PLACE_WEIGHT GRAMS=-5", "!! Error on 'SIM_PLACE_WEIGHT GRAMS=-5': GRAMS must be above 0"),
+        ("SIM_PLACE_WEIGHT GRAMS=-5", "!! Error on 'SIM_PLACE_WEIGHT GRAMS=-5': GRAMS must be above 0 (allowed: above 0 and at most 100000)"),
         ("SIM_FAULT NAME=gremlin", "!! Error on 'SIM_FAULT NAME=gremlin': NAME must be one of disconnected, stuck, "
                                    "chip_reset, corrupt_frame, saturation, weight, bowden_tug, mcu_reset, not 'gremlin'"),
     ]:

@@ -158,7 +158,7 @@ def test_unknown_parameter_gets_a_warning_naming_it(slinger):
     run(printer, responses, "G1 X10 F6000")
     assert run(printer, responses, "G1 X20 Q5") == ["// G1: unknown parameter Q ignored"]
     assert run(printer, responses, "G4 P10 Q1") == ["// G4: unknown parameter Q ignored"]
-    printer.gcode.register_command("SAMPLER", lambda gcmd: gcmd.get_int("SAMPLES", 10))
+    printer.gcode.register_command("SAMPLER", lambda gcmd: gcmd.get_int("SAMPLES", 10, minval=1, maxval=100))
     run(printer, responses, "SAMPLER SAMPLES=3")
     assert run(printer, responses, "SAMPLER SAMPLE=5") == [
         "// SAMPLER: unknown parameter SAMPLE ignored (did you mean SAMPLES?)"]
@@ -262,3 +262,17 @@ def test_turning_off_what_the_printer_lacks_is_silent(tmp_path):
     assert gcode_error(printer, "M106 S255") == 'Unknown command:"M106"'
     assert gcode_error(printer, "M106") == 'Unknown command:"M106"'  # no S: full speed, which is not silent
     assert gcode_error(printer, "M140 S60") == 'Unknown command:"M140"'
+
+
+@pytest.mark.parametrize("line, problem", [
+    ("EXCLUDE_OBJECT_DEFINE NAME=a CENTER=1e9,0", "CENTER must be x,y within -10000..10000 mm (got '1e9,0')"),
+    ("EXCLUDE_OBJECT_DEFINE NAME=a POLYGON=[[0,Infinity]]", "POLYGON must be a JSON list of [x,y] points "
+                                                             "(got '[[0,Infinity]]')"),
+    ("G1 X100000", "X must have maximum of 10000 (allowed: -10000 to 10000)"),
+    ("M220 S0", "S must be above 0 (allowed: above 0 and at most 10000)"),
+    ("M104 S5000", "S must have maximum of 1000 (allowed: 0 to 1000)"),
+    ("SET_VELOCITY_LIMIT ACCEL=0", "ACCEL must have minimum of 1 (allowed: 1 to 1000000)"),
+])
+def test_every_number_has_a_range(slinger, line, problem):
+    printer, _ = slinger
+    assert gcode_error(printer, line) == f"Error on '{line}': {problem}"

@@ -40,7 +40,8 @@ def test_voron_printer_cfg_loads_with_one_notice_of_what_is_simulated(tmp_path):
     ("pressure_advance: 0.04", "pressure_advanse: 0.04",
      "[extruder] pressure_advanse = 0.04: Option 'pressure_advanse' is not valid in section 'extruder'"),
     ("z_hop: 10", "z_hopp: 10", "[safe_z_home] z_hopp = 10: Option 'z_hopp' is not valid in section 'safe_z_home'"),
-    ("max_temp: 120", "max_temp: -5", "[heater_bed] max_temp = -5: must be above 0"),
+    ("max_temp: 120", "max_temp: -5", "[heater_bed] max_temp = -5: must be above 0 (allowed: above 0 and at "
+                                      "most 1000)"),
 ])
 def test_typos_in_modelled_sections_are_errors(tmp_path, old, new, message):
     path = tmp_path / "printer.cfg"

@@ -47,7 +47,7 @@ def test_round_bed_skips_corners_and_fills_rows_from_the_nearest_point():
 
 
 def test_grid_errors_name_the_option():
-    with pytest.raises(MeshOptionError, match=r"\[bed_mesh\] probe_count = 2, 3: must be at least 3"):
+    with pytest.raises(MeshOptionError, match=r"\[bed_mesh\] probe_count = 2, 3: must be 3 to 50 points on each axis"):
         rectangular_grid((0, 0), (100, 100), (2, 3))
     with pytest.raises(MeshOptionError, match=r"mesh_max = 100, 50: Y must be greater than mesh_min Y \(60\)"):
         rectangular_grid((0, 60), (100, 50), 3)

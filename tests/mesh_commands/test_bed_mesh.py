@@ -51,10 +51,10 @@ def machine_z(printer) -> float:
 def test_options_are_checked_with_file_section_option_and_value(make_printer):
     with pytest.raises(ConfigError) as err:
         make_printer(MESH.replace("probe_count: 3, 3", "probe_count: 2, 3"))
-    assert "[bed_mesh] probe_count = 2, 3: must be at least 3 points on each axis" in str(err.value)
+    assert "[bed_mesh] probe_count = 2, 3: item '2' must be at least 3 (allowed: 3 to 50)" in str(err.value)
     with pytest.raises(ConfigError) as err:
         make_printer(MESH.replace("split_delta_z: 0.01", "split_delta_z: 0.001"))
-    assert "[bed_mesh] split_delta_z = 0.001: must be at least 0.01 mm" in str(err.value)
+    assert "[bed_mesh] split_delta_z = 0.001: must be at least 0.01 (allowed: 0.01 to 10)" in str(err.value)
     with pytest.raises(ConfigError) as err:
         make_printer(MESH + "relative_reference_index: 4\nzero_reference_position: 120, 120\n")
     assert "cannot be combined with zero_reference_position" in str(err.value)

@@ -94,7 +94,10 @@ def test_calibrate_needs_homing_and_checks_parameters(make_printer):
     printer = make_printer(MESH, probe=True)
     assert gcode_error(printer, "BED_MESH_CALIBRATE") == "BED_MESH_CALIBRATE: home all axes first (G28)"
     assert gcode_error(printer, "BED_MESH_CALIBRATE METHOD=magic") == "Error on 'BED_MESH_CALIBRATE METHOD=magic': METHOD must be one of tap, two_pass, prusa, not 'magic'"
-    assert "PROBE_COUNT=2: must be at least 3 points on each axis" in gcode_error(printer, "BED_MESH_CALIBRATE PROBE_COUNT=2")
+    assert gcode_error(printer, "BED_MESH_CALIBRATE PROBE_COUNT=2") == (
+        "Error on 'BED_MESH_CALIBRATE PROBE_COUNT=2': PROBE_COUNT must have minimum of 3 (allowed: 3 to 50)")
+    assert gcode_error(printer, "BED_MESH_CALIBRATE PROBE_COUNT=3,4,5") == (
+        "Error on 'BED_MESH_CALIBRATE PROBE_COUNT=3,4,5': PROBE_COUNT=3,4,5: must be one integer or a pair X, Y")
     assert "HORIZONTAL_Z_CLEARANCE must be above 0" in gcode_error(printer, "BED_MESH_CALIBRATE HORIZONTAL_Z_CLEARANCE=0")
 
 

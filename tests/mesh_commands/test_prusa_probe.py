@@ -59,7 +59,7 @@ def test_every_set_threshold_command(prusa_printer, make_printer, command, alias
     assert str(err.value) == f"Error on '{command}': missing VALUE"
     with pytest.raises(GCodeError) as err:
         gcode.run_script(f"{command} VALUE=2000")
-    assert f"{command} VALUE=2000.0: must be a number of grams above 0 and at most 1000" in str(err.value)
+    assert f"{command} VALUE=2000': VALUE must have maximum of 1000 (allowed: above 0 and at most 1000)" in str(err.value)
 
 
 def test_z_threshold_must_stay_above_the_hysteresis(prusa_printer):

@@ -56,8 +56,8 @@ def test_gcode_overrides_including_filters(make_section, make_gcmd):
     assert off.drift_filter_cutoff_frequency is None
     with pytest.raises(GCodeError, match="TRIGGER_FORCE must have maximum of 250"):
         with_overrides(base, TAP_OPTION_SPECS, make_gcmd("PROBE TRIGGER_FORCE=400"))
-    with pytest.raises(GCodeError, match=r"^Error on 'PROBE NOTCH_FILTER_FREQUENCIES=fifty': unable to parse 'fifty' for NOTCH_FILTER_FREQUENCIES "
-                                         r"\(expected numbers separated by commas\)$"):
+    with pytest.raises(GCodeError, match=r"^Error on 'PROBE NOTCH_FILTER_FREQUENCIES=fifty': unable to parse 'fifty' in "
+                                         r"NOTCH_FILTER_FREQUENCIES \(expected comma-separated numbers\)$"):
         with_overrides(base, TAP_OPTION_SPECS, make_gcmd("PROBE NOTCH_FILTER_FREQUENCIES=fifty"))
 
 

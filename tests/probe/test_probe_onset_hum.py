@@ -69,7 +69,7 @@ def test_calibrate_rejects_unknown_calibration(tmp_path):
                                          r"be one of CONTACT_ONSET, PULLBACK_DISTANCE, DECOMPRESSION_ANGLE, not 'STIFFNESS'$"):
         printer.gcode.run_script("LOAD_CELL_PROBE_CALIBRATE CALIBRATION=STIFFNESS")
     with pytest.raises(GCodeError, match=r"^Error on 'LOAD_CELL_PROBE_CALIBRATE CALIBRATION=CONTACT_ONSET SAMPLES=2': "
-                                         r"SAMPLES must have minimum of 3$"):
+                                         r"SAMPLES must have minimum of 3 \(allowed: 3 to 50\)$"):
         printer.gcode.run_script("LOAD_CELL_PROBE_CALIBRATE CALIBRATION=CONTACT_ONSET SAMPLES=2")
 
 

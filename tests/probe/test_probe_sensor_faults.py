@@ -70,7 +70,7 @@ def test_stuck_sensor_samples_option(tmp_path):
                                          r"not allowed; allowed: 0 \(disabled\) or 2 \.\. 65535$"):
         printer.gcode.run_script("PROBE STUCK_SENSOR_SAMPLES=1")
     with pytest.raises(GCodeError, match=r"^Error on 'PROBE STUCK_SENSOR_SAMPLES=-2': STUCK_SENSOR_SAMPLES must "
-                                         r"have minimum of 0$"):
+                                         r"have minimum of 0 \(allowed: 0 to 65535\)$"):
         printer.gcode.run_script("PROBE STUCK_SENSOR_SAMPLES=-2")
     printer.gcode.run_script("G1 Z2")
     with pytest.raises(GCodeError, match=STUCK.format(n=30)):

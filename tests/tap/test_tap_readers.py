@@ -7,7 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from tapcell.tap import TapFileError, analyze_tap, read_tap_file, tap_to_json_dict
+from tapcell.tap import TapFileError, analyze_tap, read_tap_file, readers, tap_to_json_dict
+from tapcell.tap.readers import tap_from_object
 from tapcell.tap.synth import synth_tap
 
 
@@ -84,9 +85,9 @@ def test_workbench_capture_with_positions(tmp_path, tap):
     ({"time": list(range(20)), "force": ["1.0"] * 20, "z": [0.0] * 20}, "'force' must be a list of numbers"),
     ({"time": list(range(20)), "force": [True] * 20, "z": [0.0] * 20}, "'force' must be a list of numbers"),
     ({"time": list(range(20)), "force": [10 ** 400] + [1.0] * 19, "z": [0.0] * 20},
-     "'force' holds NaN or infinity (index 0)"),
+     "not valid tap data: an integer with 401 digits (at most 20 allowed)"),
     ({"time": list(range(20)), "force": [1.0] * 20, "z": [0.0] * 20, "sample_rate": -(10 ** 400)},
-     "'sample_rate' must be a finite number"),
+     "not valid tap data: an integer with 401 digits (at most 20 allowed)"),
 ])
 def test_bad_files_name_the_file_and_problem(tmp_path, document, problem):
     path = tmp_path / "bad.json"
@@ -114,3 +115,48 @@ def test_nan_invalid_json_and_bad_csv(tmp_path):
         read_tap_file(csv_file)
     with pytest.raises(TapFileError, match="cannot read the file"):
         read_tap_file(tmp_path / "missing.json")
+
+
+def _valid_document():
+    return tap_to_json_dict(synth_tap(seed=3))
+
+
+# Finding 9 of issue 10: hostile tap files gave a traceback or were accepted.
+@pytest.mark.parametrize("name, text, problem", [
+    ("nested.json", "[" * 100_000 + "]" * 100_000, "not valid tap data: JSON nested too deeply"),
+    ("nested.jsonl", '{"time": ' + "[" * 100_000 + "]" * 100_000 + "}\n", "line 1: not valid tap data: JSON nested too deeply"),
+    ("digits.json", '{"time": [' + "7" * 5001 + "]}", "not valid tap data: an integer with 5001 digits (at most 20 allowed)"),
+    ("digits_meta.json", None, "not valid tap data: an integer with 400 digits"),
+    ("list.json", None, "holds a JSON list; a .json tap file holds one object"),
+    ("long_field.csv", 'time,force,z\n0,"' + "1" * 200_000 + '",0\n', "not a valid CSV file (field larger than field limit"),
+])
+def test_hostile_tap_files_give_a_tap_file_error(tmp_path, name, text, problem):
+    if name == "digits_meta.json":
+        document = _valid_document()
+        document["probe"] = {"trigger_force": int("9" * 400)}
+        text = json.dumps(document)
+    elif name == "list.json":
+        text = json.dumps([_valid_document()])
+    path = tmp_path / name
+    path.write_text(text)
+    with pytest.raises(TapFileError) as caught:
+        read_tap_file(path)
+    assert str(caught.value).startswith(f"{path}: ") and problem in str(caught.value)
+
+
+def test_devices_and_oversized_files_are_refused_without_reading_them(tmp_path, monkeypatch):
+    with pytest.raises(TapFileError, match=r"^/dev/zero: is not a regular file, not a tap file$"):
+        read_tap_file("/dev/zero")
+    path = tmp_path / "big.json"
+    path.write_text(json.dumps(_valid_document()))
+    monkeypatch.setattr(readers, "MAX_FILE_BYTES", 16 * 1024)
+    assert path.stat().st_size > readers.MAX_FILE_BYTES
+    with pytest.raises(TapFileError, match=r"big.json: is larger than 16,384 bytes, not a tap file$"):
+        read_tap_file(path)
+
+
+def test_an_in_memory_integer_beyond_a_float_reads_as_infinity():
+    document = tap_to_json_dict(synth_tap(seed=3))
+    document["force"] = [10 ** 400] + document["force"][1:]
+    with pytest.raises(TapFileError, match=r"^<memory>: 'force' holds NaN or infinity \(index 0\)$"):
+        tap_from_object(document)

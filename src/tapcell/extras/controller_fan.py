@@ -17,7 +17,7 @@ def load_config_prefix(section: ConfigSection, printer) -> ControllerFan:
     max_power, off_below = read_fan_options(section)
     fan_speed = section.getfloat("fan_speed", 1.0, minval=0.0, maxval=1.0)
     section.getfloat("idle_speed", fan_speed, minval=0.0, maxval=1.0)  # kept: the idle timeout is not modelled
-    section.getint("idle_timeout", 30, minval=0)
+    section.getint("idle_timeout", 30, minval=0, maxval=86_400)
     section.getlist("stepper", None)
     for heater_section in ("extruder", "heater_bed"):
         printer.load_object(heater_section)

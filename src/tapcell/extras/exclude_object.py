@@ -15,9 +15,17 @@ follows them); the first move after it goes straight to where the G-code is.
 from __future__ import annotations
 
 import json
+import math
 
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand
+from tapcell.host.limits import MAX_COORDINATE_MM
+
+
+def _on_a_printer(value) -> bool:
+    """A coordinate (JSON also allows Infinity and NaN, and true is an int)."""
+    return (isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+            and abs(value) <= MAX_COORDINATE_MM)
 
 
 class ExcludeObject:
@@ -50,8 +58,9 @@ class ExcludeObject:
             values = [float(v) for v in text.strip("[] ").split(",")]
         except ValueError:
             values = []
-        if len(values) != 2:
-            raise gcmd.param_error(f"{what} must be x,y (got '{text}')")
+        if len(values) != 2 or not all(_on_a_printer(v) for v in values):
+            raise gcmd.param_error(f"{what} must be x,y within -{MAX_COORDINATE_MM:g}..{MAX_COORDINATE_MM:g} mm "
+                                   f"(got '{text}')")
         return values
 
     def cmd_EXCLUDE_OBJECT_DEFINE(self, gcmd: GCodeCommand) -> None:
@@ -73,7 +82,7 @@ class ExcludeObject:
             except json.JSONDecodeError:
                 points = None
             if not (isinstance(points, list) and points and all(
-                    isinstance(p, list) and len(p) == 2 and all(isinstance(v, (int, float)) for v in p) for p in points)):
+                    isinstance(p, list) and len(p) == 2 and all(_on_a_printer(v) for v in p) for p in points)):
                 raise gcmd.param_error(f"POLYGON must be a JSON list of [x,y] points (got '{polygon}')")
             entry["polygon"] = [[float(x), float(y)] for x, y in points]
         self.objects = [o for o in self.objects if o["name"] != entry["name"]] + [entry]

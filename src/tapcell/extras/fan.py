@@ -7,6 +7,7 @@ from __future__ import annotations
 
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand
+from tapcell.host.limits import SECONDS_RANGE, SHARE_RANGE
 
 
 def read_fan_options(section: ConfigSection) -> tuple[float, float]:
@@ -14,14 +15,14 @@ def read_fan_options(section: ConfigSection) -> tuple[float, float]:
     section.get("pin")
     section.get("enable_pin", None)
     section.get("tachometer_pin", None)
-    section.getint("tachometer_ppr", 2, minval=1)
-    section.getfloat("tachometer_poll_interval", 0.0015, above=0.0)
-    section.getfloat("cycle_time", 0.010, above=0.0)
+    section.getint("tachometer_ppr", 2, minval=1, maxval=100)
+    section.getfloat("tachometer_poll_interval", 0.0015, **SECONDS_RANGE)
+    section.getfloat("cycle_time", 0.010, **SECONDS_RANGE)
     section.getboolean("hardware_pwm", False)
-    section.getfloat("kick_start_time", 0.1, minval=0.0)
-    section.getfloat("shutdown_speed", 0.0, minval=0.0, maxval=1.0)
+    section.getfloat("kick_start_time", 0.1, minval=0.0, maxval=SECONDS_RANGE["maxval"])
+    section.getfloat("shutdown_speed", 0.0, **SHARE_RANGE)
     max_power = section.getfloat("max_power", 1.0, above=0.0, maxval=1.0)
-    off_below = section.getfloat("off_below", 0.0, minval=0.0, maxval=1.0)
+    off_below = section.getfloat("off_below", 0.0, **SHARE_RANGE)
     return max_power, off_below
 
 

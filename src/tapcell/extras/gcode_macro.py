@@ -53,7 +53,6 @@ class GCodeMacro:
             except (ValueError, SyntaxError):
                 raise section.error(option, "must be a Python literal: a number, 'quoted text', "
                                             "a list, a dict, True, False or None") from None
-        self._running = False
         printer.gcode.register_command(self.command, self.cmd_macro, desc=self.description)
         printer.gcode.register_mux_command("SET_GCODE_VARIABLE", "MACRO", section.get_instance_name(),
                                            self.cmd_set_variable,
@@ -75,14 +74,8 @@ class GCodeMacro:
         return self.template.render(context)
 
     def cmd_macro(self, gcmd: GCodeCommand) -> None:
-        if self._running:
-            raise GCodeError(f"Macro {self.command} called recursively")
-        script = self.render(gcmd)
-        self._running = True
-        try:
-            self.printer.gcode.run_script(script)
-        finally:
-            self._running = False
+        # A macro calling itself (directly or through others) is refused by the dispatcher.
+        self.printer.gcode.run_script(self.render(gcmd))
 
     def cmd_set_variable(self, gcmd: GCodeCommand) -> None:
         name = gcmd.get("VARIABLE").lower()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from tapcell.extras.fan import Fan, read_fan_options
 from tapcell.host.config import ConfigSection
+from tapcell.host.limits import TEMPERATURE_RANGE
 
 
 class HeaterFan(Fan):
@@ -44,4 +45,4 @@ def load_config_prefix(section: ConfigSection, printer) -> HeaterFan:
     return HeaterFan(printer, section.get_name(), max_power, off_below,
                      read_heater_names(section, "extruder", printer),
                      fan_speed=section.getfloat("fan_speed", 1.0, minval=0.0, maxval=1.0),
-                     heater_temp_c=section.getfloat("heater_temp", 50.0))
+                     heater_temp_c=section.getfloat("heater_temp", 50.0, **TEMPERATURE_RANGE))

@@ -8,7 +8,8 @@ position before the G-code runs, so it can move it).
 from __future__ import annotations
 
 from tapcell.host.config import ConfigSection
-from tapcell.host.gcode import GCodeCommand
+from tapcell.host.gcode import GCodeCommand, parse_line
+from tapcell.host.limits import COORDINATE_RANGE
 from tapcell.host.templates import StatusView, compile_template
 
 
@@ -18,14 +19,10 @@ class HomingOverride:
         self.template = template
         self.axes = axes
         self.set_position = set_position
-        self.in_script = False
         self.home_original = printer.gcode.replace_command("G28", self.cmd_G28,
                                                            desc="Home axes ([homing_override] G-code)")
 
     def cmd_G28(self, gcmd: GCodeCommand) -> None:
-        if self.in_script:  # G28 inside the override's own G-code: real homing
-            self.home_original(gcmd)
-            return
         asked = [axis for axis in "XYZ" if gcmd.has(axis)]
         if asked and not any(axis.lower() in self.axes for axis in asked):
             self.home_original(gcmd)
@@ -37,11 +34,17 @@ class HomingOverride:
             toolhead.homed_axes.add(axis)
         script = self.template.render({"printer": StatusView(self.printer), "params": gcmd.get_command_parameters(),
                                        "rawparams": gcmd.rawparams})
-        self.in_script = True
-        try:
-            self.printer.gcode.run_script(script)
-        finally:
-            self.in_script = False
+        self._run_script(script)
+
+    def _run_script(self, script: str) -> None:
+        """The override's G-code, line by line; a G28 in it is the original homing (not this override)."""
+        gcode = self.printer.gcode
+        for line in script.split("\n"):
+            parsed = parse_line(line)
+            if parsed is not None and parsed.command == "G28":
+                self.home_original(GCodeCommand(gcode, parsed))
+            else:
+                gcode.run_line(line)
 
 
 def load_config(section: ConfigSection, printer) -> HomingOverride:
@@ -50,5 +53,5 @@ def load_config(section: ConfigSection, printer) -> HomingOverride:
     if not axes or any(axis not in "xyz" for axis in axes):
         raise section.error("axes", "must be letters from xyz")
     set_position = {axis: value for axis in "xyz"
-                    if (value := section.getfloat(f"set_position_{axis}", None)) is not None}
+                    if (value := section.getfloat(f"set_position_{axis}", None, **COORDINATE_RANGE)) is not None}
     return HomingOverride(printer, template, axes, set_position)

@@ -135,8 +135,10 @@ def read_load_cell_options(section: ConfigSection) -> LoadCellOptions:
         sensor_options = _read_hx71x_options(section, sensor_type)
     return LoadCellOptions(
         sensor_type=sensor_type,
-        counts_per_gram=section.getfloat("counts_per_gram", None, minval=scale.MIN_COUNTS_PER_GRAM),
-        reference_tare_counts=section.getint("reference_tare_counts", None),
+        counts_per_gram=section.getfloat("counts_per_gram", None, minval=scale.MIN_COUNTS_PER_GRAM,
+                                         maxval=scale.MAX_COUNTS_24BIT),
+        reference_tare_counts=section.getint("reference_tare_counts", None, minval=-scale.MAX_COUNTS_24BIT - 1,
+                                             maxval=scale.MAX_COUNTS_24BIT),
         inverted=section.getchoice("sensor_orientation", ORIENTATIONS, default=False),
         **sensor_options,
     )

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand
+from tapcell.host.limits import SECONDS_RANGE
 
 
 class OutputPin:
@@ -21,7 +22,7 @@ class OutputPin:
 
     def cmd_SET_PIN(self, gcmd: GCodeCommand) -> None:
         value = gcmd.get_float("VALUE", minval=0.0, maxval=self.scale)
-        gcmd.get_float("CYCLE_TIME", None, above=0.0)
+        gcmd.get_float("CYCLE_TIME", None, **SECONDS_RANGE)
         if not self.pwm and value not in (0.0, self.scale):
             raise gcmd.param_error(f"Invalid pin value (pin '{self.name}' is not "
                              "pwm: VALUE must be 0 or 1)")
@@ -34,10 +35,10 @@ class OutputPin:
 def load_config_prefix(section: ConfigSection, printer) -> OutputPin:
     section.get("pin")
     pwm = section.getboolean("pwm", False)
-    scale = section.getfloat("scale", 1.0, above=0.0)
+    scale = section.getfloat("scale", 1.0, above=0.0, maxval=1e6)
     value = section.getfloat("value", 0.0, minval=0.0, maxval=scale)
     section.getfloat("shutdown_value", 0.0, minval=0.0, maxval=scale)
-    section.getfloat("cycle_time", 0.100, above=0.0)
+    section.getfloat("cycle_time", 0.100, **SECONDS_RANGE)
     section.getboolean("hardware_pwm", False)
     section.getfloat("maximum_mcu_duration", 0.0, minval=0.0, maxval=5.0)
     pin = OutputPin(printer, section.get_name(), pwm, scale, value)

@@ -34,6 +34,7 @@ from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.mesh.errors import MeshError
 from tapcell.mesh.run import MeshProbeRun, mesh_travel_height_mm
 from tapcell.mesh.prusa import (
+    MAX_THRESHOLD_G,
     MESH,
     SET_COMMANDS,
     XY,
@@ -44,6 +45,7 @@ from tapcell.mesh.prusa import (
     retry_offsets_mm,
 )
 from tapcell.extras.load_cell_probe.threshold import ThresholdProber
+from tapcell.extras.probe.options import MAX_RETRACT_MM, PROBE_SPEED_MM_S
 from tapcell.extras.probe.session import ProbeError
 
 SECTION = "prusa_probe"
@@ -68,10 +70,10 @@ class PrusaOptions:
 
 def read_prusa_options(section: ConfigSection) -> PrusaOptions:
     defaults = Thresholds()
-    hysteresis = section.getfloat("hysteresis", defaults.hysteresis_g, minval=0.0)
+    hysteresis = section.getfloat("hysteresis", defaults.hysteresis_g, minval=0.0, below=MAX_THRESHOLD_G)
     thresholds = Thresholds(hysteresis_g=hysteresis)
     for kind, option in THRESHOLD_OPTIONS.items():
-        value = section.getfloat(option, defaults.value_g(kind))
+        value = section.getfloat(option, defaults.value_g(kind), above=0.0, maxval=MAX_THRESHOLD_G)
         try:
             thresholds = thresholds.with_threshold(kind, value)
         except MeshError as exc:
@@ -79,9 +81,11 @@ def read_prusa_options(section: ConfigSection) -> PrusaOptions:
             raise section.error(option, problem) from None
     return PrusaOptions(
         thresholds=thresholds,
-        z_fast_speed_mm_s=section.getfloat("z_fast_speed", 5.0, above=0.0),
-        z_slow_speed_mm_s=section.getfloat("z_slow_speed", 1.0, above=0.0),
-        back_off_mm=section.getfloat("back_off", 0.5, above=0.0),
+        z_fast_speed_mm_s=section.getfloat("z_fast_speed", 5.0, minval=PROBE_SPEED_MM_S[0],
+                                           maxval=PROBE_SPEED_MM_S[1]),
+        z_slow_speed_mm_s=section.getfloat("z_slow_speed", 1.0, minval=PROBE_SPEED_MM_S[0],
+                                           maxval=PROBE_SPEED_MM_S[1]),
+        back_off_mm=section.getfloat("back_off", 0.5, above=0.0, maxval=MAX_RETRACT_MM),
         max_attempts=section.getint("max_attempts", 40, minval=1, maxval=40),
     )
 
@@ -126,7 +130,7 @@ class PrusaProbe:
 
     def _set_threshold_handler(self, kind: str):
         def handler(gcmd: GCodeCommand) -> None:
-            value_g = gcmd.get_float("VALUE")
+            value_g = gcmd.get_float("VALUE", above=0.0, maxval=MAX_THRESHOLD_G)
             try:
                 self.thresholds = self.thresholds.with_threshold(kind, value_g)
             except MeshError as exc:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, parse_line
+from tapcell.host.limits import COORDINATE_RANGE, MAX_COORDINATE_MM, SPEED_RANGE
 
 
 class SafeZHome:
@@ -65,14 +66,14 @@ def load_config(section: ConfigSection, printer) -> SafeZHome:
     if section.config.has_section("homing_override"):
         raise section.error("home_xy_position", "[safe_z_home] and [homing_override] cannot be used together")
     toolhead = printer.lookup_object("toolhead")
-    home_xy = section.getfloatlist("home_xy_position", count=2)
+    home_xy = section.getfloatlist("home_xy_position", count=2, **COORDINATE_RANGE)
     for axis, value in zip("xy", home_xy):
         limits = toolhead.options.axes[axis]
         if not limits.position_min_mm <= value <= limits.position_max_mm:
             raise section.error("home_xy_position", f"{axis.upper()}={value:g} is outside [stepper_{axis}] "
                                 f"position_min..position_max ({limits.position_min_mm:g}..{limits.position_max_mm:g})")
     return SafeZHome(printer, home_xy,
-                     speed=section.getfloat("speed", 50.0, above=0.0),
-                     z_hop=section.getfloat("z_hop", 0.0, minval=0.0),
-                     z_hop_speed=section.getfloat("z_hop_speed", 15.0, above=0.0),
+                     speed=section.getfloat("speed", 50.0, **SPEED_RANGE),
+                     z_hop=section.getfloat("z_hop", 0.0, minval=0.0, maxval=MAX_COORDINATE_MM),
+                     z_hop_speed=section.getfloat("z_hop_speed", 15.0, **SPEED_RANGE),
                      move_to_previous=section.getboolean("move_to_previous", False))

@@ -19,13 +19,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from tapcell.extras.load_cell_probe.threshold import ThresholdProber
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeError
+from tapcell.host.toolhead import COORDINATE_RANGE, MAX_COORDINATE_MM, SPEED_RANGE
 from tapcell.mesh.prusa import XY, Thresholds
-from tapcell.extras.load_cell_probe.threshold import ThresholdProber
 
 SECTION = "xy_probe"
 DIRECTIONS = {"+X": (1.0, 0.0), "-X": (-1.0, 0.0), "+Y": (0.0, 1.0), "-Y": (0.0, -1.0)}
+# A sideways touch slower than 0.5 mm/s takes minutes of simulated sampling for nothing.
+XY_PROBE_SPEED_MM_S = (0.5, 20.0)
+MAX_TRAVEL_MM = 50.0
+MAX_SIZE_MM = 100.0  # pin and nozzle tip diameters, clearance
 
 
 @dataclass(frozen=True)
@@ -43,18 +48,18 @@ class XYProbeOptions:
 
 
 def read_xy_probe_options(section: ConfigSection) -> XYProbeOptions:
-    probe_z = section.getfloat("probe_z", 2.0)
+    probe_z = section.getfloat("probe_z", 2.0, **COORDINATE_RANGE)
     return XYProbeOptions(
-        pin_x_mm=section.getfloat("pin_x", None),
-        pin_y_mm=section.getfloat("pin_y", None),
-        pin_diameter_mm=section.getfloat("pin_diameter", 6.0, above=0.0),
-        nozzle_tip_diameter_mm=section.getfloat("nozzle_tip_diameter", 1.0, above=0.0),
+        pin_x_mm=section.getfloat("pin_x", None, **COORDINATE_RANGE),
+        pin_y_mm=section.getfloat("pin_y", None, **COORDINATE_RANGE),
+        pin_diameter_mm=section.getfloat("pin_diameter", 6.0, above=0.0, maxval=MAX_SIZE_MM),
+        nozzle_tip_diameter_mm=section.getfloat("nozzle_tip_diameter", 1.0, above=0.0, maxval=MAX_SIZE_MM),
         probe_z_mm=probe_z,
-        safe_z_mm=section.getfloat("safe_z", 10.0, above=probe_z),
-        clearance_mm=section.getfloat("clearance", 2.0, above=0.0),
-        speed_mm_s=section.getfloat("speed", 2.0, above=0.0, maxval=20.0),
-        travel_speed_mm_s=section.getfloat("travel_speed", 50.0, above=0.0),
-        max_travel_mm=section.getfloat("max_travel", 10.0, above=0.0),
+        safe_z_mm=section.getfloat("safe_z", 10.0, above=probe_z, maxval=MAX_COORDINATE_MM),
+        clearance_mm=section.getfloat("clearance", 2.0, above=0.0, maxval=MAX_SIZE_MM),
+        speed_mm_s=section.getfloat("speed", 2.0, minval=XY_PROBE_SPEED_MM_S[0], maxval=XY_PROBE_SPEED_MM_S[1]),
+        travel_speed_mm_s=section.getfloat("travel_speed", 50.0, **SPEED_RANGE),
+        max_travel_mm=section.getfloat("max_travel", 10.0, above=0.0, maxval=MAX_TRAVEL_MM),
     )
 
 
@@ -96,8 +101,9 @@ class XYProbe:
 
     def cmd_XY_PROBE(self, gcmd: GCodeCommand) -> None:
         name = gcmd.get_choice("DIRECTION", list(DIRECTIONS))
-        distance = gcmd.get_float("DISTANCE", self.options.max_travel_mm, above=0.0)
-        speed = gcmd.get_float("SPEED", self.options.speed_mm_s, above=0.0, maxval=20.0)
+        distance = gcmd.get_float("DISTANCE", self.options.max_travel_mm, above=0.0, maxval=MAX_TRAVEL_MM)
+        speed = gcmd.get_float("SPEED", self.options.speed_mm_s, minval=XY_PROBE_SPEED_MM_S[0],
+                               maxval=XY_PROBE_SPEED_MM_S[1])
         force = gcmd.get_float("FORCE", self._threshold().value_g(XY), above=0.0, maxval=1000.0)
         prober = self._prober()
         x_start, y_start, _ = prober.toolhead.get_position()
@@ -109,11 +115,11 @@ class XYProbe:
 
     def cmd_XY_PROBE_PIN(self, gcmd: GCodeCommand) -> None:
         opts = self.options
-        x_nominal = gcmd.get_float("X", opts.pin_x_mm)
-        y_nominal = gcmd.get_float("Y", opts.pin_y_mm)
+        x_nominal = gcmd.get_float("X", opts.pin_x_mm, **COORDINATE_RANGE)
+        y_nominal = gcmd.get_float("Y", opts.pin_y_mm, **COORDINATE_RANGE)
         if x_nominal is None or y_nominal is None:
             raise gcmd.param_error("give X= and Y= (or pin_x, pin_y in [xy_probe])")
-        z_mm = gcmd.get_float("Z", opts.probe_z_mm)
+        z_mm = gcmd.get_float("Z", opts.probe_z_mm, **COORDINATE_RANGE)
         force = self._threshold().value_g(XY)
         prober = self._prober()
         toolhead = prober.toolhead

@@ -29,11 +29,14 @@ from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.mesh.errors import MeshError, MeshOptionError
 from tapcell.mesh.thermal import UNLIMITED_MM, ThermalAdjustSettings, ZThermalAdjust, measure_temp_coeff
+from tapcell.extras.probe.options import MAX_SAMPLES
+from tapcell.host.limits import ABSOLUTE_ZERO_C, MAX_COORDINATE_MM, MAX_TEMP_C
 
 SECTION = "z_thermal_adjust"
 COMBINED_SENSOR = "temperature_combined"
 COMBINATION_METHODS = ("max", "min", "mean")
 VIRTUAL_SENSORS = ("extruder",)
+MAX_SMOOTH_TIME_S = 600.0
 
 
 def read_settings(section: ConfigSection) -> ThermalAdjustSettings:
@@ -48,16 +51,17 @@ def read_settings(section: ConfigSection) -> ThermalAdjustSettings:
         raise section.error("sensor_list", f"must list temperature sensors of the virtual printer "
                                            f"(one of: {', '.join(VIRTUAL_SENSORS)})")
     section.getchoice("combination_method", list(COMBINATION_METHODS), "max")
-    section.getfloat("maximum_deviation", None, above=0.0)
+    section.getfloat("maximum_deviation", None, above=0.0, maxval=MAX_TEMP_C)
     section.get("gcode_id", None)
-    min_temp = section.getfloat("min_temp")
-    max_temp = section.getfloat("max_temp", above=min_temp)
+    min_temp = section.getfloat("min_temp", minval=ABSOLUTE_ZERO_C, maxval=MAX_TEMP_C)
+    max_temp = section.getfloat("max_temp", above=min_temp, maxval=MAX_TEMP_C)
     try:
         return ThermalAdjustSettings(
             temp_coeff_mm_per_c=section.getfloat("temp_coeff", 0.0, minval=-1.0, maxval=1.0),
-            smooth_time_s=section.getfloat("smooth_time", 2.0, above=0.0),
-            z_adjust_off_above_mm=section.getfloat("z_adjust_off_above", UNLIMITED_MM),
-            max_z_adjustment_mm=section.getfloat("max_z_adjustment", UNLIMITED_MM, minval=0.0),
+            smooth_time_s=section.getfloat("smooth_time", 2.0, above=0.0, maxval=MAX_SMOOTH_TIME_S),
+            z_adjust_off_above_mm=section.getfloat("z_adjust_off_above", UNLIMITED_MM, minval=-MAX_COORDINATE_MM,
+                                                   maxval=UNLIMITED_MM),
+            max_z_adjustment_mm=section.getfloat("max_z_adjustment", UNLIMITED_MM, minval=0.0, maxval=UNLIMITED_MM),
             min_temp_c=min_temp,
             max_temp_c=max_temp,
         )
@@ -106,7 +110,7 @@ class ZThermalAdjuster:
     def cmd_SET_Z_THERMAL_ADJUST(self, gcmd: GCodeCommand) -> None:
         enable = gcmd.get_int("ENABLE", None, minval=0, maxval=1)
         coeff = gcmd.get_float("TEMP_COEFF", None, minval=-1.0, maxval=1.0)
-        reference = gcmd.get_float("REF_TEMP", None)
+        reference = gcmd.get_float("REF_TEMP", None, minval=ABSOLUTE_ZERO_C, maxval=MAX_TEMP_C)
         state = self.state
         if enable is not None:
             state.enabled = bool(enable)
@@ -125,9 +129,9 @@ class ZThermalAdjuster:
                 f"temperature {state.smoothed_c:.2f} C, current adjustment {state.applied_mm * 1000:+.1f} um")
 
     def cmd_Z_THERMAL_CALIBRATE(self, gcmd: GCodeCommand) -> None:
-        cold_c = gcmd.get_float("TEMP_COLD", 180.0, above=0.0)
-        hot_c = gcmd.get_float("TEMP_HOT", 290.0, above=0.0)
-        samples = gcmd.get_int("SAMPLES", 10, minval=2, maxval=100)
+        cold_c = gcmd.get_float("TEMP_COLD", 180.0, above=0.0, maxval=MAX_TEMP_C)
+        hot_c = gcmd.get_float("TEMP_HOT", 290.0, above=0.0, maxval=MAX_TEMP_C)
+        samples = gcmd.get_int("SAMPLES", 10, minval=2, maxval=MAX_SAMPLES)
         if hot_c - cold_c < 1.0:
             raise gcmd.param_error(f"TEMP_HOT ({hot_c:g}) must be above TEMP_COLD "
                                    f"({cold_c:g}); the guide uses 180 and 290")

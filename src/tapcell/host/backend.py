@@ -19,6 +19,11 @@ class MoveError(ValueError):
     """A commanded move leaves the machine's limits."""
 
 
+class DeviceError(RuntimeError):
+    """The machine failed under a command (e.g. its MCU reset): the command ends with a G-code
+    error saying what happened, as on a real printer; it is not a bug."""
+
+
 @dataclass
 class SampleBatch:
     """Samples since the last take: read times (s), raw counts, and the counters since then."""

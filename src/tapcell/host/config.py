@@ -22,9 +22,12 @@ import glob
 import math
 import os
 import re
+import stat
 import tempfile
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
+
+from tapcell.files import FileRefused, read_limited
 
 
 class ConfigError(Exception):
@@ -52,6 +55,14 @@ SAVE_CONFIG_MARKER = "#*# <---------------------- SAVE_CONFIG ------------------
 _SAVE_CONFIG_NOTE = "#*# # This block is rewritten by SAVE_CONFIG; its values override the ones above."
 _AUTOSAVE_PREFIX = "#*#"
 
+# Limits on what [include] can pull in: a chain of includes deeper than this is a mistake
+# (real configs nest two or three levels), and the file count stops a diamond of includes
+# (each file including the next one twice) from reading the same files millions of times.
+MAX_INCLUDE_DEPTH = 20
+MAX_CONFIG_FILES = 1000
+# A printer.cfg with every macro and a few mesh profiles is well under 1 MB.
+MAX_CONFIG_FILE_BYTES = 16 * 1024 * 1024
+
 _TRUE_WORDS = ("true", "yes", "on", "1")
 _FALSE_WORDS = ("false", "no", "off", "0")
 
@@ -73,37 +84,57 @@ class _Section:
     options: dict[str, OptionValue] = field(default_factory=dict)
 
 
-def _format_number(number: float) -> str:
+def format_number(number: float) -> str:
     """50.0 -> '50', 0.25 -> '0.25' (limits read naturally in messages)."""
     if isinstance(number, float) and number.is_integer() and abs(number) < 1e15:
         return str(int(number))
     return str(number)
 
 
-def _describe_range(minval=None, maxval=None, above=None, below=None) -> str:
+def require_range(name: str, minval=None, maxval=None, above=None, below=None) -> None:
+    """Every number has a range: a getter called without both ends of one is a programming error."""
+    if (minval is None and above is None) or (maxval is None and below is None):
+        raise TypeError(f"{name}: a numeric option or parameter must declare its range "
+                        "(minval or above, and maxval or below)")
+
+
+def describe_range(minval=None, maxval=None, above=None, below=None) -> str:
+    """The allowed range in words: '10 to 250', 'above 0 and at most 50', 'at least 0 and below 1'."""
+    if minval is not None and maxval is not None:
+        return f"{format_number(minval)} to {format_number(maxval)}"
     parts = []
     if minval is not None:
-        parts.append(f"at least {_format_number(minval)}")
+        parts.append(f"at least {format_number(minval)}")
     if above is not None:
-        parts.append(f"above {_format_number(above)}")
+        parts.append(f"above {format_number(above)}")
     if maxval is not None:
-        parts.append(f"at most {_format_number(maxval)}")
+        parts.append(f"at most {format_number(maxval)}")
     if below is not None:
-        parts.append(f"below {_format_number(below)}")
+        parts.append(f"below {format_number(below)}")
     return " and ".join(parts)
 
 
-def check_range(value: float, minval=None, maxval=None, above=None, below=None) -> str | None:
-    """The problem with `value` against the limits ('must be at most 250'), or None."""
+# How a violated bound is worded: config messages say 'must be at least 10', G-code
+# messages keep Klipper's 'must have minimum of 10'.
+CONFIG_WORDS = {"minval": "must be at least", "maxval": "must be at most", "above": "must be above",
+                "below": "must be below"}
+GCODE_WORDS = {**CONFIG_WORDS, "minval": "must have minimum of", "maxval": "must have maximum of"}
+
+
+def check_range(value: float, minval=None, maxval=None, above=None, below=None,
+                words: Mapping[str, str] = CONFIG_WORDS) -> str | None:
+    """The problem with `value` against the limits ('must be at most 250 (allowed: 10 to 250)'), or None."""
     if minval is not None and value < minval:
-        return f"must be at least {_format_number(minval)}"
-    if maxval is not None and value > maxval:
-        return f"must be at most {_format_number(maxval)}"
-    if above is not None and value <= above:
-        return f"must be above {_format_number(above)}"
-    if below is not None and value >= below:
-        return f"must be below {_format_number(below)}"
-    return None
+        bound, limit = "minval", minval
+    elif maxval is not None and value > maxval:
+        bound, limit = "maxval", maxval
+    elif above is not None and value <= above:
+        bound, limit = "above", above
+    elif below is not None and value >= below:
+        bound, limit = "below", below
+    else:
+        return None
+    return f"{words[bound]} {format_number(limit)} (allowed: {describe_range(minval, maxval, above, below)})"
 
 
 # ---------------------------------------------------------------------------
@@ -130,19 +161,23 @@ class _Parser:
     def __init__(self) -> None:
         self.sections: dict[str, _Section] = {}
         self.autosave_sections: dict[str, _Section] = {}
+        self.files_read = 0
 
-    def parse_file(self, path: str, include_stack: tuple[str, ...] = (), *, is_main: bool) -> None:
+    def parse_file(self, path: str, include_stack: tuple[str, ...] = (), *, is_main: bool,
+                   included_at: str | None = None) -> None:
+        """Parse `path`; `included_at` ('printer.cfg:12') is where an [include] named it."""
         real = os.path.realpath(path)
         if real in include_stack:
             chain = " -> ".join(os.path.basename(p) for p in (*include_stack, real))
             raise ConfigError(f"{path}: include cycle: {chain}", file=path)
-        try:
-            with open(path, encoding="utf-8") as handle:
-                text = handle.read()
-        except FileNotFoundError:
-            raise ConfigError(f"{path}: config file does not exist", file=path) from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise ConfigError(f"{path}: unable to read config file: {exc}", file=path) from None
+        if len(include_stack) > MAX_INCLUDE_DEPTH:
+            raise ConfigError(f"{path}: includes are nested more than {MAX_INCLUDE_DEPTH} deep "
+                              f"(included from {include_stack[-1]})", file=path)
+        self.files_read += 1
+        if self.files_read > MAX_CONFIG_FILES:
+            raise ConfigError(f"{path}: more than {MAX_CONFIG_FILES} config files read through [include]",
+                              file=path)
+        text = read_config_text(path, included_at)
         body_lines, autosave_lines, autosave_start = split_autosave(text, path)
         self._parse_lines(body_lines, path, 1, (*include_stack, real), self.sections, allow_include=True)
         if autosave_lines:
@@ -206,7 +241,20 @@ class _Parser:
         if not matches and not glob.has_magic(pattern):
             raise ConfigError(f"{where}: include file '{full_pattern}' does not exist", file=path)
         for match in matches:
-            self.parse_file(match, include_stack, is_main=False)
+            self.parse_file(match, include_stack, is_main=False, included_at=where)
+
+
+def read_config_text(path: str, included_at: str | None = None) -> str:
+    """The file's text; a problem names the file (and the [include] that named it, if any)."""
+    where = path if included_at is None else f"{included_at}: include file {path}"
+    try:
+        return read_limited(path, MAX_CONFIG_FILE_BYTES).decode("utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{where}: config file does not exist", file=path) from None
+    except FileRefused as exc:
+        raise ConfigError(f"{where}: {exc}, not a config file", file=path) from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{where}: unable to read config file: {exc}", file=path) from None
 
 
 def split_autosave(text: str, path: str) -> tuple[list[str], list[str], int]:
@@ -297,8 +345,8 @@ class ConfigSection:
 
     def _checked_number(self, option: str, default: Any, parse: Callable[[str], Any], kind: str,
                         minval=None, maxval=None, above=None, below=None) -> Any:
-        limits = _describe_range(minval, maxval, above, below)
-        expected = f"{kind}, {limits}" if limits else kind
+        require_range(f"[{self.name}] {option}", minval, maxval, above, below)
+        expected = f"{kind}, {describe_range(minval, maxval, above, below)}"
 
         def parse_and_check(text: str):
             value = parse(text)
@@ -313,12 +361,14 @@ class ConfigSection:
         """The option's text (multi-line values keep their newlines)."""
         return self._get_parsed(option, default, str, "a value")
 
-    def getint(self, option: str, default: Any = REQUIRED, minval: int | None = None,
+    def getint(self, option: str, default: Any = REQUIRED, *, minval: int | None = None,
                maxval: int | None = None) -> Any:
+        """An integer within the declared range (every numeric getter must declare one)."""
         return self._checked_number(option, default, _parse_int, "an integer", minval, maxval)
 
-    def getfloat(self, option: str, default: Any = REQUIRED, minval: float | None = None,
+    def getfloat(self, option: str, default: Any = REQUIRED, *, minval: float | None = None,
                  maxval: float | None = None, above: float | None = None, below: float | None = None) -> Any:
+        """A finite number within the declared range."""
         return self._checked_number(option, default, _parse_float, "a number", minval, maxval, above, below)
 
     def getboolean(self, option: str, default: Any = REQUIRED) -> Any:
@@ -349,15 +399,24 @@ class ConfigSection:
     def getlist(self, option: str, default: Any = REQUIRED, sep: str = ",", count: int | None = None) -> Any:
         return self._getlist(option, default, sep, count, str, "a list")
 
-    def getintlist(self, option: str, default: Any = REQUIRED, sep: str = ",", count: int | None = None) -> Any:
-        return self._getlist(option, default, sep, count, _parse_int, "a list of integers")
+    def getintlist(self, option: str, default: Any = REQUIRED, sep: str = ",", count: int | None = None, *,
+                   minval: int | None = None, maxval: int | None = None) -> Any:
+        """Integers, each within the declared range."""
+        return self._getlist(option, default, sep, count, _parse_int, "a list of integers", minval, maxval)
 
-    def getfloatlist(self, option: str, default: Any = REQUIRED, sep: str = ",", count: int | None = None) -> Any:
-        return self._getlist(option, default, sep, count, _parse_float, "a list of numbers")
+    def getfloatlist(self, option: str, default: Any = REQUIRED, sep: str = ",", count: int | None = None, *,
+                     minval: float | None = None, maxval: float | None = None, above: float | None = None,
+                     below: float | None = None) -> Any:
+        """Finite numbers, each within the declared range."""
+        return self._getlist(option, default, sep, count, _parse_float, "a list of numbers",
+                             minval, maxval, above, below)
 
-    def _getlist(self, option, default, sep, count, parse_item, kind):
+    def _getlist(self, option, default, sep, count, parse_item, kind, *limits):
         separator = "newline" if sep == "\n" else repr(sep)
         expected = f"{kind} separated by {separator}" + (f", exactly {count} items" if count else "")
+        if parse_item is not str:
+            require_range(f"[{self.name}] {option}", *limits)
+            expected += f", each {describe_range(*limits)}"
 
         def parse_list(text: str):
             items = [item.strip() for item in text.split(sep)]
@@ -365,14 +424,17 @@ class ConfigSection:
                 items.pop()  # a trailing separator is harmless
             if any(not item for item in items) or not items:
                 raise _ValueProblem(f"has an empty item (expected {expected})")
+            if count is not None and len(items) != count:
+                raise _ValueProblem(f"has {len(items)} items, expected exactly {count}")
             values = []
             for item in items:
                 try:
                     values.append(parse_item(item))
                 except ValueError:
                     raise _ValueProblem(f"item {item!r} is not valid (expected {expected})") from None
-            if count is not None and len(values) != count:
-                raise _ValueProblem(f"has {len(values)} items, expected exactly {count}")
+                problem = check_range(values[-1], *limits) if parse_item is not str else None
+                if problem:
+                    raise _ValueProblem(f"item {item!r} {problem}")
             return values
 
         return self._get_parsed(option, default, parse_list, expected)
@@ -518,14 +580,10 @@ class ConfigFile:
         """Rewrite the main file's SAVE_CONFIG block with the pending changes, atomically.
 
         The text above the block is kept byte for byte; the old file is kept
-        as `<name>.bak`.  On any failure the old file is left untouched.
+        as `<name>.bak` (see write_atomically: symlinks, mode and owner).  On any
+        failure the old file is left untouched.
         """
-        try:
-            with open(self.path, encoding="utf-8") as handle:
-                text = handle.read()
-        except OSError as exc:
-            raise ConfigError(f"{self.path}: unable to read config file for SAVE_CONFIG: {exc}",
-                              file=self.path) from None
+        text = read_config_text(self.path)
         body_lines, block_lines, block_start = split_autosave(text, self.path)
         parser = _Parser()
         parser._parse_lines(block_lines, self.path, block_start, (), parser.autosave_sections, allow_include=False)
@@ -535,7 +593,7 @@ class ConfigFile:
         for name, options in self._pending_set.items():
             block.setdefault(name, {}).update(options)
         new_text = render_with_autosave("\n".join(body_lines), block)
-        write_atomically(self.path, new_text, backup_path=self.path + ".bak")
+        write_atomically(self.path, new_text, keep_backup=True)
         self._pending_set.clear()
         self._pending_remove.clear()
 
@@ -557,40 +615,56 @@ def render_with_autosave(body: str, block: Mapping[str, Mapping[str, str]]) -> s
     return body + "\n\n" + "\n".join(lines) + "\n"
 
 
-def write_atomically(path: str, text: str, *, backup_path: str | None = None) -> None:
-    """Replace `path` with `text` so that a crash leaves either the old or the new file.
+def write_atomically(path: str, text: str, *, keep_backup: bool = False) -> None:
+    """Replace the file at `path` with `text` so that a crash leaves either the old or the new file.
 
-    Writes a temp file in the same directory (same filesystem, so the rename
-    is atomic), flushes and fsyncs it, keeps a copy of the old file at
-    `backup_path`, then renames the temp file over `path`.
+    A symlink is followed: its target is rewritten and the link stays a link.  The new
+    file is written to a temp file next to the target (same filesystem, so the rename is
+    atomic), given the old file's mode and owner, flushed and fsynced, then renamed over
+    the target.  With `keep_backup`, the old contents first go to `<target>.bak` the same
+    way, so the backup is never torn or empty either (an empty old file keeps the
+    previous backup).  On any failure the old file is untouched and no temp file is left.
     """
-    directory = os.path.dirname(os.path.abspath(path))
-    temp_path = None
+    target = os.path.realpath(path)
+    directory = os.path.dirname(target)
     try:
-        with tempfile.NamedTemporaryFile("w", encoding="utf-8", dir=directory, delete=False,
-                                         prefix=f".{os.path.basename(path)}.", suffix=".tmp") as handle:
-            temp_path = handle.name
-            handle.write(text)
-            handle.flush()
-            os.fsync(handle.fileno())
-        if backup_path is not None and os.path.exists(path):
-            _copy_file(path, backup_path)
-        os.replace(temp_path, path)
-        temp_path = None
+        old = _read_existing(target)
+        if keep_backup and old is not None and old[0]:
+            _replace_file(target + ".bak", old[0], old[1])
+        _replace_file(target, text.encode("utf-8"), old[1] if old else None)
         _fsync_directory(directory)
     except OSError as exc:
         raise ConfigError(f"{path}: unable to write config file (old file left unchanged): {exc}",
                           file=path) from None
-    finally:
-        if temp_path is not None and os.path.exists(temp_path):
-            os.unlink(temp_path)
 
 
-def _copy_file(source: str, destination: str) -> None:
-    with open(source, "rb") as src, open(destination, "wb") as dst:
-        dst.write(src.read())
-        dst.flush()
-        os.fsync(dst.fileno())
+def _read_existing(path: str) -> tuple[bytes, os.stat_result] | None:
+    """The file's bytes and stat, or None when it does not exist yet."""
+    try:
+        with open(path, "rb") as handle:
+            return handle.read(), os.fstat(handle.fileno())
+    except FileNotFoundError:
+        return None
+
+
+def _replace_file(path: str, data: bytes, like: os.stat_result | None) -> None:
+    """Atomically put `data` at `path` (temp file + fsync + rename), with the mode and owner of `like`."""
+    fd, temp_path = tempfile.mkstemp(dir=os.path.dirname(path), prefix=f".{os.path.basename(path)}.",
+                                     suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            handle.write(data)
+            handle.flush()
+            if like is not None:
+                os.fchmod(handle.fileno(), stat.S_IMODE(like.st_mode))
+                created = os.fstat(handle.fileno())
+                if (like.st_uid, like.st_gid) != (created.st_uid, created.st_gid):
+                    os.fchown(handle.fileno(), like.st_uid, like.st_gid)
+            os.fsync(handle.fileno())
+        os.replace(temp_path, path)
+    except BaseException:
+        os.unlink(temp_path)
+        raise
 
 
 def _fsync_directory(directory: str) -> None:

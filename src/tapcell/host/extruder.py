@@ -16,6 +16,15 @@ from dataclasses import dataclass
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.host.heaters import Heater, HeaterOptions, lookup_heaters, read_heater_options, temperature_commands
+from tapcell.host.limits import (
+    ACCEL_RANGE,
+    MAX_COORDINATE_MM,
+    MAX_FULL_STEPS_PER_ROTATION,
+    MAX_ROTATION_DISTANCE_MM,
+    MICROSTEPS,
+    SPEED_RANGE,
+    TEMPERATURE_RANGE,
+)
 
 # The nozzle heater when there is no [extruder] section.
 DEFAULT_HEATER = HeaterOptions(sensor_type="virtual", min_temp_c=0.0, max_temp_c=300.0, control="pid",
@@ -44,23 +53,24 @@ def read_extruder_options(section: ConfigSection) -> ExtruderOptions:
     for pin in ("step_pin", "dir_pin"):
         section.get(pin)
     section.get("enable_pin", None)
-    section.getfloat("rotation_distance", above=0.0)
-    section.getint("microsteps", minval=1, maxval=256)
-    section.getint("full_steps_per_rotation", 200, minval=1)
+    section.getfloat("rotation_distance", above=0.0, maxval=MAX_ROTATION_DISTANCE_MM)
+    section.getchoice("microsteps", list(MICROSTEPS))
+    section.getint("full_steps_per_rotation", 200, minval=1, maxval=MAX_FULL_STEPS_PER_ROTATION)
     section.get("gear_ratio", None)
     section.getfloat("step_pulse_duration", None, minval=0.0, maxval=0.001)
-    section.getfloat("instantaneous_corner_velocity", 1.0, minval=0.0)
-    section.getfloat("max_extrude_only_accel", None, above=0.0)
-    nozzle_mm = section.getfloat("nozzle_diameter", above=0.0)
-    filament_mm = section.getfloat("filament_diameter", minval=nozzle_mm)
+    section.getfloat("instantaneous_corner_velocity", 1.0, minval=0.0, maxval=SPEED_RANGE["maxval"])
+    section.getfloat("max_extrude_only_accel", None, **ACCEL_RANGE)
+    nozzle_mm = section.getfloat("nozzle_diameter", minval=0.01, maxval=10.0)
+    filament_mm = section.getfloat("filament_diameter", minval=nozzle_mm, maxval=10.0)
     return ExtruderOptions(
         nozzle_diameter_mm=nozzle_mm,
         filament_diameter_mm=filament_mm,
-        min_extrude_temp_c=section.getfloat("min_extrude_temp", 170.0, minval=0.0),
-        max_extrude_only_distance_mm=section.getfloat("max_extrude_only_distance", 50.0, minval=0.0),
-        max_extrude_only_velocity_mm_s=section.getfloat("max_extrude_only_velocity", None, above=0.0),
-        max_extrude_cross_section_mm2=section.getfloat("max_extrude_cross_section", None, above=0.0),
-        pressure_advance=section.getfloat("pressure_advance", 0.0, minval=0.0),
+        min_extrude_temp_c=section.getfloat("min_extrude_temp", 170.0, **TEMPERATURE_RANGE),
+        max_extrude_only_distance_mm=section.getfloat("max_extrude_only_distance", 50.0, minval=0.0,
+                                                      maxval=MAX_COORDINATE_MM),
+        max_extrude_only_velocity_mm_s=section.getfloat("max_extrude_only_velocity", None, **SPEED_RANGE),
+        max_extrude_cross_section_mm2=section.getfloat("max_extrude_cross_section", None, above=0.0, maxval=100.0),
+        pressure_advance=section.getfloat("pressure_advance", 0.0, minval=0.0, maxval=10.0),
         pressure_advance_smooth_time_s=section.getfloat("pressure_advance_smooth_time", 0.040, above=0.0,
                                                         maxval=0.200),
     )
@@ -116,7 +126,7 @@ class Extruder:
 
     def cmd_SET_PRESSURE_ADVANCE(self, gcmd: GCodeCommand) -> None:
         gcmd.get("EXTRUDER", None)
-        self.pressure_advance = gcmd.get_float("ADVANCE", self.pressure_advance, minval=0.0)
+        self.pressure_advance = gcmd.get_float("ADVANCE", self.pressure_advance, minval=0.0, maxval=10.0)
         self.smooth_time_s = gcmd.get_float("SMOOTH_TIME", self.smooth_time_s, minval=0.0, maxval=0.200)
         gcmd.respond_info(f"pressure_advance: {self.pressure_advance:.6f}\n"
                           f"pressure_advance_smooth_time: {self.smooth_time_s:.6f}")

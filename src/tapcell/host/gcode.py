@@ -27,7 +27,8 @@ from dataclasses import dataclass, field
 from collections.abc import Sequence
 from typing import Any, Callable
 
-from tapcell.host.config import ConfigError
+from tapcell.host.backend import DeviceError
+from tapcell.host.config import GCODE_WORDS, ConfigError, check_range, require_range
 
 
 class GCodeError(Exception):
@@ -49,6 +50,9 @@ class _Required:
 
 
 REQUIRED: Any = _Required()
+
+# Commands may run commands (macros, probe templates); a chain this deep is a mistake.
+MAX_NESTING = 32
 
 Handler = Callable[["GCodeCommand"], None]
 ResponseSink = Callable[[str], None] | list
@@ -157,12 +161,6 @@ def _parse_extended_params(rawparams: str, commandline: str) -> dict[str, str]:
     return params
 
 
-def _format_limit(number: float) -> str:
-    if isinstance(number, float) and number.is_integer():
-        return str(int(number))
-    return str(number)
-
-
 # ---------------------------------------------------------------------------
 # A command being run
 
@@ -211,34 +209,55 @@ class GCodeCommand:
             return default
         return value
 
-    def _get_number(self, name, default, parse, kind, minval, maxval, above, below):
-        text = self.get(name, default=None)
+    def get_int(self, name: str, default: Any = REQUIRED, *, minval: int | None = None,
+                maxval: int | None = None) -> Any:
+        """An integer parameter within the declared range (every numeric parameter must declare one)."""
+        return self._get_numbers(name, default, int, "an integer", (minval, maxval, None, None))
+
+    def get_float(self, name: str, default: Any = REQUIRED, *, minval: float | None = None,
+                  maxval: float | None = None, above: float | None = None, below: float | None = None) -> Any:
+        """A finite number parameter within the declared range."""
+        return self._get_numbers(name, default, _finite_float, "a number", (minval, maxval, above, below))
+
+    def get_intlist(self, name: str, default: Any = REQUIRED, *, count: int | None = None,
+                    minval: int | None = None, maxval: int | None = None) -> Any:
+        """Comma-separated integers, each within the declared range (`count`: exactly that many)."""
+        return self._get_numbers(name, default, int, "integers", (minval, maxval, None, None), many=True, count=count)
+
+    def get_floatlist(self, name: str, default: Any = REQUIRED, *, count: int | None = None,
+                      minval: float | None = None, maxval: float | None = None, above: float | None = None,
+                      below: float | None = None) -> Any:
+        """Comma-separated finite numbers, each within the declared range."""
+        return self._get_numbers(name, default, _finite_float, "numbers", (minval, maxval, above, below),
+                                 many=True, count=count)
+
+    def _get_numbers(self, name, default, parse, kind, limits, *, many=False, count=None):
+        """One number, or with `many` a comma-separated list (of `count` items if given), range-checked."""
+        name = name.upper()
+        require_range(f"{self.command} {name}", *limits)
+        self._read.add(name)
+        text = self._params.get(name)
         if text is None:
-            if default is REQUIRED:
-                raise self.param_error(f"missing {name.upper()}")
-            return default
+            return self.get(name, default)  # the default, or the "missing" error
+        if not many:
+            return self._parse_checked(name, text, parse, f"unable to parse '{text}' for {name} (expected {kind})",
+                                       limits)
+        items = [item.strip() for item in text.split(",")]
+        if count is not None and len(items) != count:
+            raise self.param_error(f"{name} needs exactly {count} comma-separated {kind}, got {len(items)}")
+        return [self._parse_checked(name, item, parse,
+                                    f"unable to parse '{item}' in {name} (expected comma-separated {kind})", limits)
+                for item in items]
+
+    def _parse_checked(self, name, text, parse, unparsable, limits):
         try:
             value = parse(text)
         except ValueError:
-            raise self.param_error(f"unable to parse '{text}' for {name.upper()} (expected {kind})") from None
-        name = name.upper()
-        if minval is not None and value < minval:
-            raise self.param_error(f"{name} must have minimum of {_format_limit(minval)}")
-        if maxval is not None and value > maxval:
-            raise self.param_error(f"{name} must have maximum of {_format_limit(maxval)}")
-        if above is not None and value <= above:
-            raise self.param_error(f"{name} must be above {_format_limit(above)}")
-        if below is not None and value >= below:
-            raise self.param_error(f"{name} must be below {_format_limit(below)}")
+            raise self.param_error(unparsable) from None
+        problem = check_range(value, *limits, words=GCODE_WORDS)
+        if problem:
+            raise self.param_error(f"{name} {problem}")
         return value
-
-    def get_int(self, name: str, default: Any = REQUIRED, minval: int | None = None,
-                maxval: int | None = None) -> Any:
-        return self._get_number(name, default, int, "an integer", minval, maxval, None, None)
-
-    def get_float(self, name: str, default: Any = REQUIRED, minval: float | None = None,
-                  maxval: float | None = None, above: float | None = None, below: float | None = None) -> Any:
-        return self._get_number(name, default, _finite_float, "a number", minval, maxval, above, below)
 
     def get_choice(self, name: str, choices: Sequence[str], default: Any = REQUIRED) -> Any:
         """One of `choices`, compared case-insensitively and returned as `choices` spells it."""
@@ -249,20 +268,6 @@ class GCodeCommand:
         if chosen is None:
             raise self.param_error(f"{name.upper()} must be one of {', '.join(choices)}, not '{text.strip()}'")
         return chosen
-
-    def get_floatlist(self, name: str, default: Any = REQUIRED, count: int | None = None) -> Any:
-        """Finite numbers separated by commas (empty items ignored); `count`: exactly that many."""
-        text = self.get(name, None)
-        if text is None:
-            return self.get(name, default)
-        try:
-            values = [_finite_float(item) for item in text.split(",") if item.strip()]
-        except ValueError:
-            values = []
-        if not values or (count is not None and len(values) != count):
-            shape = f"{count} numbers separated by commas" if count else "numbers separated by commas"
-            raise self.param_error(f"unable to parse '{text}' for {name.upper()} (expected {shape})")
-        return values
 
     def respond_info(self, message: str) -> None:
         self._dispatch.respond_info(message)
@@ -320,6 +325,7 @@ class GCodeDispatch:
         self._refusal: tuple[tuple[str, ...], str] | None = None
         # Parameters each command has asked for so far, to suggest a spelling for an unknown one.
         self._known_parameters: dict[str, set[str]] = {}
+        self._running: list[str] = []  # the commands running now, outermost first
         self._register_builtins()
 
     # -- responses -----------------------------------------------------------
@@ -432,12 +438,23 @@ class GCodeDispatch:
 
     # -- running -------------------------------------------------------------
 
-    def run_script(self, text: str) -> None:
-        """Run each line of `text`; the first failure raises GCodeError (the rest is not run)."""
-        for line in text.split("\n"):
-            self.run_line(line)
+    def run_script(self, text: str, caller: str | None = None) -> None:
+        """Run each line of `text`; the first failure raises GCodeError (the rest is not run).
+
+        `caller` names what runs the script when it is not a command (e.g. a probe's
+        nozzle_scrubber_gcode); it shows in the chain of a recursion error.
+        """
+        if caller is not None:
+            self._running.append(caller)
+        try:
+            for line in text.split("\n"):
+                self.run_line(line)
+        finally:
+            if caller is not None:
+                self._running.pop()
 
     def run_line(self, line: str) -> None:
+        """Run one line.  A user error raises GCodeError; any other exception is a bug and propagates."""
         parsed = parse_line(line)
         if parsed is None:
             return
@@ -449,17 +466,17 @@ class GCodeDispatch:
                     parsed.params.get("S", SILENT_WHEN_ABSENT[parsed.command])):
                 return
             raise UnknownCommandError(parsed.command)
+        self._check_nesting(parsed.command)
         gcmd = GCodeCommand(self, parsed)
+        self._running.append(parsed.command)
         try:
             handler(gcmd)
-        except GCodeError:
-            raise
-        except ConfigError as exc:
+        except ConfigError as exc:  # e.g. SAVE_CONFIG unable to write the file
             raise GCodeError(str(exc)) from exc
-        except Exception as exc:  # a bug in a handler: report it, keep the console alive
-            raise GCodeError(f"Internal error on '{parsed.commandline}': "
-                             f"{type(exc).__name__}: {exc}") from exc
+        except DeviceError as exc:  # the machine failed under the command: the user's to know, not a bug
+            raise GCodeError(f"MCU error on '{parsed.commandline}': {exc}") from exc
         finally:
+            self._running.pop()
             self._warn_unknown_parameters(gcmd)
 
     def _warn_unknown_parameters(self, gcmd: GCodeCommand) -> None:
@@ -470,6 +487,16 @@ class GCodeDispatch:
             close = difflib.get_close_matches(name, sorted(known), n=1)
             hint = f" (did you mean {close[0]}?)" if close else ""
             self.respond_info(f"{gcmd.command}: unknown parameter {name} ignored{hint}")
+
+    def _check_nesting(self, command: str) -> None:
+        """Refuse a command that runs inside itself (a macro or probe template calling it again)
+        or a chain of commands nested too deep: either would never end."""
+        if command in self._running:
+            chain = " -> ".join((*self._running[self._running.index(command):], command))
+            raise GCodeError(f"{command} called recursively ({chain})")
+        if len(self._running) >= MAX_NESTING:
+            raise GCodeError(f"{command}: G-code nested more than {MAX_NESTING} commands deep "
+                             f"({' -> '.join(self._running[:3])} -> ...)")
 
     def run_script_reporting_errors(self, text: str) -> bool:
         """Run like a console: a failure becomes a `!! message` response.  True if all succeeded."""

@@ -21,8 +21,11 @@ import copy
 from dataclasses import dataclass, field
 
 from tapcell.host.gcode import GCodeCommand
+from tapcell.host.limits import COORDINATE_RANGE, FEED_RANGE, SPEED_RANGE
 
 AXES4 = "XYZE"
+# M220 / M221 in percent: a factor must be positive and no slicer asks for 100x.
+FACTOR_PERCENT_RANGE = {"above": 0.0, "maxval": 10_000.0}
 DEFAULT_SPEED_MM_S = 25.0  # until the first F (Klipper's default feed rate)
 
 
@@ -80,16 +83,16 @@ class GCodeMove:
     # -- moves --------------------------------------------------------------------------
     def cmd_G1(self, gcmd: GCodeCommand) -> None:
         state = self.state
-        feed_mm_min = gcmd.get_float("F", None, above=0.0)
+        feed_mm_min = gcmd.get_float("F", None, **FEED_RANGE)
         if feed_mm_min is not None:
             state.speed_mm_s = feed_mm_min / 60.0
         current = self.toolhead_position()
         target = list(current)
         for index, axis in enumerate("XYZ"):
-            value = gcmd.get_float(axis, None)
+            value = gcmd.get_float(axis, None, **COORDINATE_RANGE)
             if value is not None:
                 target[index] = value + state.base_position[index] if state.absolute_coordinates else current[index] + value
-        e_value = gcmd.get_float("E", None)
+        e_value = gcmd.get_float("E", None, **COORDINATE_RANGE)
         if e_value is not None:
             e_value *= state.extrude_factor
             absolute = state.absolute_coordinates and state.absolute_extrude
@@ -110,7 +113,7 @@ class GCodeMove:
 
     def cmd_G92(self, gcmd: GCodeCommand) -> None:
         position = self.toolhead_position()
-        given = {index: gcmd.get_float(axis, None) for index, axis in enumerate(AXES4)}
+        given = {index: gcmd.get_float(axis, None, **COORDINATE_RANGE) for index, axis in enumerate(AXES4)}
         if all(value is None for value in given.values()):
             self.state.base_position = list(position)
             return
@@ -126,10 +129,10 @@ class GCodeMove:
         gcmd.respond_raw(f"X:{x:.3f} Y:{y:.3f} Z:{z:.3f} E:{e:.3f}")
 
     def cmd_M220(self, gcmd: GCodeCommand) -> None:
-        self.state.speed_factor = gcmd.get_float("S", 100.0, above=0.0) / 100.0
+        self.state.speed_factor = gcmd.get_float("S", 100.0, **FACTOR_PERCENT_RANGE) / 100.0
 
     def cmd_M221(self, gcmd: GCodeCommand) -> None:
-        new_factor = gcmd.get_float("S", 100.0, above=0.0) / 100.0
+        new_factor = gcmd.get_float("S", 100.0, **FACTOR_PERCENT_RANGE) / 100.0
         gcmd.get_int("T", None, minval=0, maxval=0)
         # Keep the G-code E where it is: the toolhead E does not jump.
         e_toolhead = self.toolhead.e_position_mm
@@ -141,8 +144,8 @@ class GCodeMove:
     def cmd_SET_GCODE_OFFSET(self, gcmd: GCodeCommand) -> None:
         move_delta = [0.0] * 4
         for index, axis in enumerate(AXES4):
-            offset = gcmd.get_float(axis, None)
-            adjust = gcmd.get_float(f"{axis}_ADJUST", None)
+            offset = gcmd.get_float(axis, None, **COORDINATE_RANGE)
+            adjust = gcmd.get_float(f"{axis}_ADJUST", None, **COORDINATE_RANGE)
             if offset is None and adjust is None:
                 continue
             if offset is None:
@@ -152,7 +155,7 @@ class GCodeMove:
             self.state.base_position[index] += delta
             self.state.homing_position[index] = offset
         if gcmd.get_int("MOVE", 0, minval=0, maxval=1):
-            speed = gcmd.get_float("MOVE_SPEED", self.state.speed_mm_s, above=0.0)
+            speed = gcmd.get_float("MOVE_SPEED", self.state.speed_mm_s, **SPEED_RANGE)
             current = self.toolhead_position()
             target = [p + d for p, d in zip(current, move_delta)]
             if target != current:
@@ -178,7 +181,7 @@ class GCodeMove:
         self.state.base_position[3] += e_now - saved.last_position[3]
         self.state.last_position = None
         if gcmd.get_int("MOVE", 0, minval=0, maxval=1):
-            speed = gcmd.get_float("MOVE_SPEED", self.state.speed_mm_s, above=0.0)
+            speed = gcmd.get_float("MOVE_SPEED", self.state.speed_mm_s, **SPEED_RANGE)
             current = self.toolhead_position()
             target = saved.last_position[:3] + [current[3]]
             self._move(gcmd, current, target, speed)

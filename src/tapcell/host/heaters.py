@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeError
+from tapcell.host.limits import MAX_TEMP_C, SECONDS_RANGE, TEMPERATURE_RANGE
 
 # A heater is at its target when within this many degrees (Klipper's PID settle delta).
 SETTLE_DELTA_C = 1.0
@@ -29,8 +30,10 @@ SENSOR_TEXT_OPTIONS = ("sensor_pin", "sensor_mcu", "spi_bus", "spi_software_sclk
                        "spi_software_miso_pin", "tc_type", "rtd_reference_r", "rtd_num_of_wires", "rtd_use_50Hz_filter",
                        "i2c_mcu", "i2c_bus", "i2c_address", "i2c_speed", "i2c_software_scl_pin",
                        "i2c_software_sda_pin")
-SENSOR_NUMBER_OPTIONS = ("pullup_resistor", "inline_resistor", "spi_speed", "tc_averaging_count",
-                         "rtd_nominal_r", "adc_voltage", "voltage_offset")
+SENSOR_NUMBER_OPTIONS = {"pullup_resistor": (0.0, 1e7), "inline_resistor": (0.0, 1e7), "spi_speed": (1.0, 1e9),
+                         "tc_averaging_count": (1.0, 16.0), "rtd_nominal_r": (1.0, 1e5), "adc_voltage": (0.1, 50.0),
+                         "voltage_offset": (-50.0, 50.0)}
+PID_GAIN_RANGE = {"minval": 0.0, "maxval": 10_000.0}
 
 
 @dataclass(frozen=True)
@@ -47,9 +50,16 @@ def read_sensor_options(section: ConfigSection) -> str:
     sensor_type = section.get("sensor_type")
     for option in SENSOR_TEXT_OPTIONS:
         section.get(option, None)
-    for option in SENSOR_NUMBER_OPTIONS:
-        section.getfloat(option, None)
+    for option, (low, high) in SENSOR_NUMBER_OPTIONS.items():
+        section.getfloat(option, None, minval=low, maxval=high)
     return sensor_type
+
+
+def read_temperature_limits(section: ConfigSection) -> tuple[float, float]:
+    """min_temp and max_temp (required, as in Klipper)."""
+    min_temp = section.getfloat("min_temp", **TEMPERATURE_RANGE)
+    max_temp = section.getfloat("max_temp", above=min_temp, maxval=TEMPERATURE_RANGE["maxval"])
+    return min_temp, max_temp
 
 
 def read_heater_options(section: ConfigSection) -> HeaterOptions:
@@ -57,16 +67,15 @@ def read_heater_options(section: ConfigSection) -> HeaterOptions:
     section.get("heater_pin")
     sensor_type = read_sensor_options(section)
     max_power = section.getfloat("max_power", 1.0, above=0.0, maxval=1.0)
-    section.getfloat("smooth_time", 1.0, above=0.0)
+    section.getfloat("smooth_time", 1.0, **SECONDS_RANGE)
     section.getfloat("pwm_cycle_time", 0.1, above=0.0, maxval=1.0)
-    min_temp = section.getfloat("min_temp", minval=-273.15)
-    max_temp = section.getfloat("max_temp", above=min_temp)
+    min_temp, max_temp = read_temperature_limits(section)
     control = section.getchoice("control", list(CONTROLS), "pid")
     if control == "pid":
         for option in ("pid_kp", "pid_ki", "pid_kd"):
-            section.getfloat(option, None)
+            section.getfloat(option, None, **PID_GAIN_RANGE)
     else:
-        section.getfloat("max_delta", 2.0, above=0.0)
+        section.getfloat("max_delta", 2.0, above=0.0, maxval=MAX_TEMP_C)
     return HeaterOptions(sensor_type, min_temp, max_temp, control, max_power)
 
 
@@ -178,12 +187,13 @@ class PrinterHeaters:
 
     def cmd_SET_HEATER_TEMPERATURE(self, gcmd: GCodeCommand) -> None:
         heater = self._heater_by_short_name(gcmd, "HEATER")
-        heater.set_temperature(gcmd.get_float("TARGET", 0.0), gcmd)
+        heater.set_temperature(gcmd.get_float("TARGET", 0.0, **TEMPERATURE_RANGE), gcmd)
 
     def cmd_TEMPERATURE_WAIT(self, gcmd: GCodeCommand) -> None:
         sensor = self._heater_by_short_name(gcmd, "SENSOR")
-        minimum_c = gcmd.get_float("MINIMUM", None)
-        maximum_c = gcmd.get_float("MAXIMUM", None, minval=minimum_c)
+        minimum_c = gcmd.get_float("MINIMUM", None, **TEMPERATURE_RANGE)
+        maximum_c = gcmd.get_float("MAXIMUM", None, minval=TEMPERATURE_RANGE["minval"] if minimum_c is None
+                                   else minimum_c, maxval=MAX_TEMP_C)
         if minimum_c is None and maximum_c is None:
             raise gcmd.param_error("give MINIMUM and/or MAXIMUM")
         temperature = sensor.temperature_c()
@@ -221,7 +231,7 @@ def temperature_commands(heater: Heater, set_name: str, wait_name: str, printer)
 
     def set_temperature(gcmd: GCodeCommand) -> None:
         gcmd.get_int("T", None, minval=0, maxval=0)  # the tool: the virtual printer has one
-        heater.set_temperature(gcmd.get_float("S", 0.0, minval=0.0), gcmd)
+        heater.set_temperature(gcmd.get_float("S", 0.0, minval=0.0, maxval=MAX_TEMP_C), gcmd)
 
     def set_and_wait(gcmd: GCodeCommand) -> None:
         set_temperature(gcmd)

@@ -20,11 +20,22 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from tapcell.host.config import ConfigSection
 from tapcell.host.extruder import load_extruder
-from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.host.gcode_move import load_gcode_move
+from tapcell.host.limits import (
+    ACCEL_MM_S2,
+    ACCEL_RANGE,
+    COORDINATE_RANGE,
+    MAX_COORDINATE_MM,
+    MAX_FULL_STEPS_PER_ROTATION,
+    MAX_ROTATION_DISTANCE_MM,
+    MICROSTEPS,
+    SPEED_MM_S,
+    SPEED_RANGE,
+)
 from tapcell.host.backend import MoveError
+from tapcell.host.config import ConfigSection
+from tapcell.host.gcode import GCodeCommand, GCodeError
 
 AXES = "xyz"
 # CoreXY moves the toolhead in the same X/Y frame; only the motor mapping differs, which the
@@ -78,32 +89,33 @@ def read_axis_options(section: ConfigSection) -> AxisOptions:
     section.getfloat("step_pulse_duration", None, minval=0.0, maxval=0.001)
     endstop_pin = section.get("endstop_pin")
     homes_with_probe = endstop_pin.strip() == PROBE_ENDSTOP_PIN
-    position_min = section.getfloat("position_min", 0.0)
-    position_max = section.getfloat("position_max", above=position_min)
+    position_min = section.getfloat("position_min", 0.0, **COORDINATE_RANGE)
+    position_max = section.getfloat("position_max", above=position_min, maxval=MAX_COORDINATE_MM)
     if homes_with_probe:
         position_endstop = None
     else:
         position_endstop = section.getfloat("position_endstop", minval=position_min, maxval=position_max)
-    homing_speed = section.getfloat("homing_speed", 5.0, above=0.0)
-    section.getfloat("homing_retract_dist", 5.0, minval=0.0)
-    section.getfloat("homing_retract_speed", homing_speed, above=0.0)
-    section.getfloat("second_homing_speed", homing_speed / 2.0, above=0.0)
+    homing_speed = section.getfloat("homing_speed", 5.0, **SPEED_RANGE)
+    section.getfloat("homing_retract_dist", 5.0, minval=0.0, maxval=MAX_COORDINATE_MM)
+    section.getfloat("homing_retract_speed", homing_speed, **SPEED_RANGE)
+    section.getfloat("second_homing_speed", homing_speed / 2.0, **SPEED_RANGE)
     section.getboolean("homing_positive_dir", None)
     return AxisOptions(
         position_min_mm=position_min,
         position_max_mm=position_max,
         position_endstop_mm=position_endstop,
         homing_speed_mm_s=homing_speed,
-        rotation_distance_mm=section.getfloat("rotation_distance", above=0.0),
-        microsteps=section.getchoice("microsteps", [1, 2, 4, 8, 16, 32, 64, 128, 256]),
-        full_steps_per_rotation=section.getint("full_steps_per_rotation", 200, minval=1),
+        rotation_distance_mm=section.getfloat("rotation_distance", above=0.0, maxval=MAX_ROTATION_DISTANCE_MM),
+        microsteps=section.getchoice("microsteps", list(MICROSTEPS)),
+        full_steps_per_rotation=section.getint("full_steps_per_rotation", 200, minval=1,
+                                               maxval=MAX_FULL_STEPS_PER_ROTATION),
         homes_with_probe=homes_with_probe,
     )
 
 
 def read_toolhead_options(section: ConfigSection) -> ToolheadOptions:
-    max_velocity = section.getfloat("max_velocity", above=0.0)
-    max_accel = section.getfloat("max_accel", above=0.0)
+    max_velocity = section.getfloat("max_velocity", **SPEED_RANGE)
+    max_accel = section.getfloat("max_accel", minval=ACCEL_MM_S2[0], maxval=ACCEL_MM_S2[1])
     axes = {}
     for axis in AXES:
         stepper = section.getsection(f"stepper_{axis}")
@@ -118,10 +130,12 @@ def read_toolhead_options(section: ConfigSection) -> ToolheadOptions:
         kinematics=section.getchoice("kinematics", list(KINEMATICS)),
         max_velocity_mm_s=max_velocity,
         max_accel_mm_s2=max_accel,
-        max_z_velocity_mm_s=section.getfloat("max_z_velocity", max_velocity, above=0.0, maxval=max_velocity),
-        max_z_accel_mm_s2=section.getfloat("max_z_accel", max_accel, above=0.0, maxval=max_accel),
+        max_z_velocity_mm_s=section.getfloat("max_z_velocity", max_velocity, minval=SPEED_MM_S[0],
+                                             maxval=max_velocity),
+        max_z_accel_mm_s2=section.getfloat("max_z_accel", max_accel, minval=ACCEL_MM_S2[0], maxval=max_accel),
         minimum_cruise_ratio=section.getfloat("minimum_cruise_ratio", 0.5, minval=0.0, below=1.0),
-        square_corner_velocity_mm_s=section.getfloat("square_corner_velocity", 5.0, minval=0.0),
+        square_corner_velocity_mm_s=section.getfloat("square_corner_velocity", 5.0, minval=0.0,
+                                                     maxval=SPEED_MM_S[1]),
         axes=axes,
     )
 
@@ -167,11 +181,27 @@ class Toolhead:
 
     def move_to(self, x: float | None = None, y: float | None = None, z: float | None = None,
                 speed_mm_s: float = 5.0) -> None:
-        """A move in toolhead coordinates, with no limit checks (the caller checked)."""
+        """A move in toolhead coordinates; outside the configured axis ranges it is refused
+        (GCodeError) before anything moves, wherever the target came from."""
         target = {"x": x, "y": y, "z": z}
+        moved = [axis for axis in AXES if target[axis] is not None]
+        current = self.get_position()
+        self._check_in_range({axis: current[i] if target[axis] is None else target[axis]
+                              for i, axis in enumerate(AXES)}, moved)
         machine = {axis: None if value is None else value - self.frame_offset_mm[axis]
                    for axis, value in target.items()}
-        self.backend.move_to(**machine, speed_mm_s=speed_mm_s, accel_mm_s2=self.max_accel_mm_s2)
+        try:
+            self.backend.move_to(**machine, speed_mm_s=speed_mm_s, accel_mm_s2=self.max_accel_mm_s2)
+        except MoveError as exc:  # the virtual machine is smaller than the config says
+            raise GCodeError(f"Move refused by the virtual printer: {exc}") from None
+
+    def _check_in_range(self, position: dict[str, float], moved: list[str]) -> None:
+        for axis in moved:
+            limits = self.options.axes[axis]
+            if not limits.position_min_mm <= position[axis] <= limits.position_max_mm:
+                shown = " ".join(f"{position[a]:.3f}" for a in AXES)
+                raise GCodeError(f"Move out of range: {shown} ({axis.upper()} must be within "
+                                 f"{limits.position_min_mm:g} to {limits.position_max_mm:g})")
 
     def z_position_min(self) -> float:
         return self.options.axes["z"].position_min_mm
@@ -223,12 +253,7 @@ class Toolhead:
         unhomed = [axis.upper() for axis in moved if axis not in self.homed_axes]
         if unhomed:
             raise gcmd.error(f"Must home axis first: {' '.join(unhomed)} (run G28)")
-        for axis in moved:
-            limits = self.options.axes[axis]
-            if not limits.position_min_mm <= target[AXES.index(axis)] <= limits.position_max_mm:
-                shown = " ".join(f"{value:.3f}" for value in target[:3])
-                raise gcmd.error(f"Move out of range: {shown} [{target[3]:.3f}] ({axis.upper()} must be within "
-                                 f"{limits.position_min_mm:g} to {limits.position_max_mm:g})")
+        self._check_in_range(dict(zip(AXES, target)), moved)
         xyz_distance = sum((t - c) ** 2 for t, c in zip(target[:3], current[:3])) ** 0.5
         e_distance = target[3] - current[3]
         try:
@@ -245,10 +270,7 @@ class Toolhead:
         speed = min(speed_mm_s, self.max_velocity_mm_s)
         if moved == ["z"]:
             speed = min(speed, self.options.max_z_velocity_mm_s)
-        try:
-            self.move_target.move(tuple(target[:3]), speed)
-        except MoveError as exc:  # the virtual machine is smaller than the config says
-            raise gcmd.param_error(f"{exc}") from None
+        self.move_target.move(tuple(target[:3]), speed)
 
     def cmd_G4(self, gcmd: GCodeCommand) -> None:
         """Dwell: P milliseconds (S seconds, as some slicers write it)."""
@@ -269,12 +291,12 @@ class Toolhead:
         self.printer.send_event("toolhead:motors_off")
 
     def cmd_M204(self, gcmd: GCodeCommand) -> None:
-        accel = gcmd.get_float("S", None, above=0.0)
+        accel = gcmd.get_float("S", None, **ACCEL_RANGE)
         if accel is None:
             # P (printing) and T (travel): the smaller one; R (retract) does not apply (as in Klipper).
-            printing = gcmd.get_float("P", None, above=0.0)
-            travel = gcmd.get_float("T", None, above=0.0)
-            gcmd.get_float("R", None, above=0.0)
+            printing = gcmd.get_float("P", None, **ACCEL_RANGE)
+            travel = gcmd.get_float("T", None, **ACCEL_RANGE)
+            gcmd.get_float("R", None, **ACCEL_RANGE)
             if printing is None or travel is None:
                 gcmd.respond_info(f'Invalid M204 command "{gcmd.get_commandline()}"')
                 return
@@ -282,11 +304,11 @@ class Toolhead:
         self.max_accel_mm_s2 = accel
 
     def cmd_SET_VELOCITY_LIMIT(self, gcmd: GCodeCommand) -> None:
-        velocity = gcmd.get_float("VELOCITY", None, above=0.0)
-        accel = gcmd.get_float("ACCEL", None, above=0.0)
-        corner = gcmd.get_float("SQUARE_CORNER_VELOCITY", None, minval=0.0)
+        velocity = gcmd.get_float("VELOCITY", None, **SPEED_RANGE)
+        accel = gcmd.get_float("ACCEL", None, **ACCEL_RANGE)
+        corner = gcmd.get_float("SQUARE_CORNER_VELOCITY", None, minval=0.0, maxval=SPEED_MM_S[1])
         cruise_ratio = gcmd.get_float("MINIMUM_CRUISE_RATIO", None, minval=0.0, below=1.0)
-        accel_to_decel = gcmd.get_float("ACCEL_TO_DECEL", None, above=0.0)  # the older spelling (OrcaSlicer)
+        accel_to_decel = gcmd.get_float("ACCEL_TO_DECEL", None, **ACCEL_RANGE)  # the older spelling (OrcaSlicer)
         self.max_velocity_mm_s = velocity or self.max_velocity_mm_s
         self.max_accel_mm_s2 = accel or self.max_accel_mm_s2
         self.square_corner_velocity_mm_s = corner if corner is not None else self.square_corner_velocity_mm_s

@@ -23,6 +23,8 @@ from tapcell.mesh.errors import MeshError, MeshOptionError
 
 SECTION = "bed_mesh"
 MIN_PROBE_COUNT = 3
+# 50 x 50 = 2500 taps is about half an hour of probing; more is a typo, not a mesh.
+MAX_PROBE_COUNT = 50
 # Points exactly on the circle must survive floating-point rounding of the grid positions.
 _RADIUS_TOLERANCE_MM = 1e-6
 
@@ -82,9 +84,10 @@ def _count_pair(option: str, probe_count: int | tuple[int, int] | list[int]) -> 
     counts = (probe_count, probe_count) if isinstance(probe_count, int) else tuple(probe_count)
     if len(counts) != 2 or not all(isinstance(c, (int, np.integer)) for c in counts):
         raise MeshOptionError(SECTION, option, probe_count, "must be one integer or a pair X, Y of integers")
-    if min(counts) < MIN_PROBE_COUNT:
+    if min(counts) < MIN_PROBE_COUNT or max(counts) > MAX_PROBE_COUNT:
         raise MeshOptionError(
-            SECTION, option, _format_pair(counts), f"must be at least {MIN_PROBE_COUNT} points on each axis"
+            SECTION, option, _format_pair(counts),
+            f"must be {MIN_PROBE_COUNT} to {MAX_PROBE_COUNT} points on each axis"
         )
     return int(counts[0]), int(counts[1])
 
@@ -120,9 +123,11 @@ def round_grid(mesh_radius_mm: float, mesh_origin: tuple[float, float] = (0.0, 0
     """The grid of a round bed: a square of side 2 * radius around the origin, corners skipped."""
     if not math.isfinite(mesh_radius_mm) or mesh_radius_mm <= 0:
         raise MeshOptionError(SECTION, "mesh_radius", mesh_radius_mm, "must be a positive number of mm")
-    if not isinstance(round_probe_count, int) or round_probe_count < MIN_PROBE_COUNT or round_probe_count % 2 == 0:
+    if (not isinstance(round_probe_count, int) or not MIN_PROBE_COUNT <= round_probe_count <= MAX_PROBE_COUNT
+            or round_probe_count % 2 == 0):
         raise MeshOptionError(
-            SECTION, "round_probe_count", round_probe_count, f"must be an odd integer of at least {MIN_PROBE_COUNT}"
+            SECTION, "round_probe_count", round_probe_count,
+            f"must be an odd integer from {MIN_PROBE_COUNT} to {MAX_PROBE_COUNT}"
         )
     origin_x, origin_y = (float(v) for v in mesh_origin)
     return MeshGrid(

@@ -31,6 +31,8 @@ from tapcell.mesh.errors import MeshOptionError
 SECTION = "bed_mesh"
 ALGORITHMS = ("lagrange", "bicubic")
 LAGRANGE_MAX_POINTS = 6
+# Points interpolated between two probed ones; the fine mesh grows with its square.
+MAX_MESH_PPS = 10
 BICUBIC_MIN_POINTS = 4
 TENSION_RANGE = (0.0, 2.0)
 
@@ -61,8 +63,8 @@ def resolve_interpolation(
     if algorithm not in ALGORITHMS:
         raise MeshOptionError(SECTION, "algorithm", algorithm, "must be one of: " + ", ".join(ALGORITHMS))
     pps = (mesh_pps, mesh_pps) if isinstance(mesh_pps, int) else tuple(mesh_pps)
-    if len(pps) != 2 or not all(isinstance(p, (int, np.integer)) and p >= 0 for p in pps):
-        raise MeshOptionError(SECTION, "mesh_pps", mesh_pps, "must be one or two integers X, Y of at least 0")
+    if len(pps) != 2 or not all(isinstance(p, (int, np.integer)) and 0 <= p <= MAX_MESH_PPS for p in pps):
+        raise MeshOptionError(SECTION, "mesh_pps", mesh_pps, f"must be one or two integers X, Y from 0 to {MAX_MESH_PPS}")
     low, high = TENSION_RANGE
     if not (math.isfinite(bicubic_tension) and low <= bicubic_tension <= high):
         raise MeshOptionError(SECTION, "bicubic_tension", bicubic_tension, f"must be between {low} and {high}")

@@ -12,6 +12,10 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.interpolate import RegularGridInterpolator
 
+from tapcell.files import FileRefused, read_limited
+
+MAX_CSV_BYTES = 16 * 1024 * 1024  # a 1000 x 1000 grid of heights is ~10 MB
+
 
 class BedError(ValueError):
     """The bed height CSV cannot be used."""
@@ -39,10 +43,12 @@ def random_warp_modes(rng: np.random.Generator, count: int, peak_mm: float) -> l
 def read_height_csv(path: str) -> np.ndarray:
     """Rows are Y (first row = front, y=0), columns X; values in mm."""
     try:
-        with open(path, newline="") as fh:
-            rows = [row for row in csv.reader(fh) if row and not row[0].lstrip().startswith("#")]
+        text = read_limited(path, MAX_CSV_BYTES).decode("utf-8")
+        rows = [row for row in csv.reader(text.splitlines()) if row and not row[0].lstrip().startswith("#")]
     except OSError as exc:
         raise BedError(f"bed CSV '{path}': cannot read ({exc.strerror})") from None
+    except (FileRefused, UnicodeDecodeError, csv.Error) as exc:
+        raise BedError(f"bed CSV '{path}': {exc}") from None
     try:
         grid = np.array([[float(v) for v in row] for row in rows])
     except ValueError as exc:

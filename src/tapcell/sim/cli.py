@@ -29,11 +29,14 @@ def scenarios_table() -> Table:
 def parameters_table(name: str) -> Table:
     params = make_params(SCENARIOS[name].overrides)
     table = Table(title=f"scenario '{name}': {SCENARIOS[name].description}")
-    for column in ("parameter", "value", "unit", "meaning"):
+    for column in ("parameter", "value", "unit", "allowed", "meaning"):
         table.add_column(column)
     for option, f in PARAM_FIELDS.items():
         mark = "bold yellow" if option in SCENARIOS[name].overrides else None
-        table.add_row(option, _format(getattr(params, option)), f.metadata["unit"], f.metadata["doc"], style=mark)
+        meta = f.metadata
+        allowed = (", ".join(str(c) for c in meta["choices"]) if meta["choices"] else
+                   f"{_format(meta['minval'])} to {_format(meta['maxval'])}" if meta["minval"] is not None else "")
+        table.add_row(option, _format(getattr(params, option)), meta["unit"], allowed, meta["doc"], style=mark)
     return table
 
 

@@ -32,16 +32,28 @@ MAX_TAP_DELAY_S = 600.0
 WEIGHT_HANDLING_TIME_S = 0.5
 # Parameters of SIM_FAULT itself; every other parameter is passed to the fault.
 SIM_FAULT_OWN_PARAMETERS = ("NAME", "AT", "WHEN", "DURATION")
+MAX_FAULT_TIME_S = 86_400.0  # AT and DURATION: a fault a day away is as good as never
+# The range of every numeric fault parameter (tapcell.sim.faults.FAULT_DEFAULTS), by name.
+FAULT_PARAMETER_RANGES: dict[str, tuple[float, float]] = {
+    "offset_jump_counts": (-(1 << 24), 1 << 24),  # a 24-bit chip's whole span, either way
+    "gap_s": (0.0, 10.0),
+    "count": (1, 1000),
+    "spacing_s": (0.001, 60.0),
+    "grams": (-MAX_WEIGHT_GRAMS, MAX_WEIGHT_GRAMS),
+    "force_g": (-MAX_TAP_FORCE_G, MAX_TAP_FORCE_G),
+}
 
 
 def _parse_fault_value(gcmd: GCodeCommand, key: str, text: str, default):
-    """A fault parameter in the type of its default (number, true/false or word)."""
+    """A fault parameter in the type of its default (number, true/false or word), numbers range-checked."""
     if isinstance(default, bool):
         if text.lower() not in ("0", "1", "true", "false"):
             raise gcmd.param_error(f"{key.upper()} must be 0/1 or true/false")
         return text.lower() in ("1", "true")
     if isinstance(default, (int, float)):
-        return gcmd.get_float(key)
+        low, high = FAULT_PARAMETER_RANGES[key.lower()]
+        getter = gcmd.get_int if isinstance(default, int) else gcmd.get_float
+        return getter(key, minval=low, maxval=high)
     return text
 
 
@@ -92,10 +104,10 @@ class SimCommands:
 
     def cmd_fault(self, gcmd: GCodeCommand) -> None:
         name = gcmd.get_choice("NAME", list(FAULT_DEFAULTS))
-        at_s = gcmd.get_float("AT", None, minval=0.0)
+        at_s = gcmd.get_float("AT", None, minval=0.0, maxval=MAX_FAULT_TIME_S)
         when = gcmd.get_choice("WHEN", CONDITIONS, None)
         params = {}
-        duration_s = gcmd.get_float("DURATION", None, above=0.0)
+        duration_s = gcmd.get_float("DURATION", None, above=0.0, maxval=MAX_FAULT_TIME_S)
         if duration_s is not None:
             params["duration_s"] = duration_s
         defaults = FAULT_DEFAULTS[name]

@@ -9,11 +9,13 @@ from __future__ import annotations
 from tapcell.sim.params import PARAM_FIELDS, make_params
 from tapcell.sim.scenarios import SCENARIOS
 
+MAX_SEED = (1 << 32) - 1
+
 
 def read_virtual_printer_section(section) -> tuple[str, int, dict]:
     """(scenario name, seed, overrides) from a ConfigSection; bad values raise ConfigError."""
     name = section.getchoice("scenario", list(SCENARIOS), default="clean")
-    seed = section.getint("seed", 1, minval=0)
+    seed = section.getint("seed", 1, minval=0, maxval=MAX_SEED)
     base = make_params(SCENARIOS[name].overrides)
     overrides = {}
     for option, f in PARAM_FIELDS.items():

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tapcell.host.backend import DeviceError
 from tapcell.sim.sensor import COUNTS_MAX, COUNTS_MIN
 
 # name -> default parameters (every fault also takes duration_s)
@@ -35,7 +36,7 @@ class FaultError(ValueError):
     """A fault was asked for by an unknown name, condition or parameter."""
 
 
-class McuResetError(RuntimeError):
+class McuResetError(DeviceError):
     """The MCU reset during a command: its steppers stopped at `reset_s`, the host link came back at
     `restored_s`. Positions the host knew are no longer trusted (a real MCU loses them)."""
 

@@ -32,6 +32,12 @@ SHEETS: dict[str, dict[str, float]] = {
 }
 
 
+# Ranges shared by many knobs: sizes and positions (10 m), stiffnesses, and the 24-bit chip's span.
+MAX_SIZE_MM = 10_000.0
+MAX_STIFFNESS_G_UM = 10_000.0
+COUNTS_SPAN = float(1 << 24)
+
+
 def _p(default, doc: str, unit: str = "", choices: tuple | None = None, minval=None, maxval=None):
     return field(default=default, metadata={"doc": doc, "unit": unit, "choices": choices,
                                             "minval": minval, "maxval": maxval})
@@ -40,99 +46,123 @@ def _p(default, doc: str, unit: str = "", choices: tuple | None = None, minval=N
 @dataclass(frozen=True)
 class SimParams:
     # --- machine and motion -------------------------------------------------------
-    bed_x_mm: float = _p(235.0, "bed size along X", "mm", minval=10.0)
-    bed_y_mm: float = _p(235.0, "bed size along Y", "mm", minval=10.0)
-    max_velocity_mm_s: float = _p(300.0, "max toolhead velocity (XY)", "mm/s", minval=1.0)
-    max_accel_mm_s2: float = _p(3000.0, "max toolhead acceleration (XY)", "mm/s²", minval=1.0)
-    max_z_velocity_mm_s: float = _p(15.0, "max Z velocity", "mm/s", minval=0.1)
-    max_z_accel_mm_s2: float = _p(200.0, "max Z acceleration", "mm/s²", minval=1.0)
-    z_position_min_mm: float = _p(-2.0, "lowest commanded Z (negative lets a probe move past 0)", "mm")
-    z_position_max_mm: float = _p(250.0, "highest commanded Z", "mm", minval=1.0)
-    rotation_distance_xy_mm: float = _p(40.0, "X/Y rotation_distance", "mm", minval=0.1)
-    rotation_distance_z_mm: float = _p(8.0, "Z rotation_distance", "mm", minval=0.1)
+    bed_x_mm: float = _p(235.0, "bed size along X", "mm", minval=10.0, maxval=MAX_SIZE_MM)
+    bed_y_mm: float = _p(235.0, "bed size along Y", "mm", minval=10.0, maxval=MAX_SIZE_MM)
+    max_velocity_mm_s: float = _p(300.0, "max toolhead velocity (XY)", "mm/s", minval=1.0, maxval=10_000.0)
+    max_accel_mm_s2: float = _p(3000.0, "max toolhead acceleration (XY)", "mm/s²", minval=1.0, maxval=1_000_000.0)
+    max_z_velocity_mm_s: float = _p(15.0, "max Z velocity", "mm/s", minval=0.1, maxval=10_000.0)
+    max_z_accel_mm_s2: float = _p(200.0, "max Z acceleration", "mm/s²", minval=1.0, maxval=1_000_000.0)
+    z_position_min_mm: float = _p(-2.0, "lowest commanded Z (negative lets a probe move past 0)", "mm",
+                                  minval=-MAX_SIZE_MM, maxval=MAX_SIZE_MM)
+    z_position_max_mm: float = _p(250.0, "highest commanded Z", "mm", minval=1.0, maxval=MAX_SIZE_MM)
+    rotation_distance_xy_mm: float = _p(40.0, "X/Y rotation_distance", "mm", minval=0.1, maxval=1000.0)
+    rotation_distance_z_mm: float = _p(8.0, "Z rotation_distance", "mm", minval=0.1, maxval=1000.0)
     microsteps: int = _p(16, "microsteps of every stepper", minval=1, maxval=256)
-    full_steps_per_rotation: int = _p(200, "full steps per motor rotation", minval=1)
-    homing_speed_mm_s: float = _p(50.0, "X/Y homing speed", "mm/s", minval=1.0)
-    x_position_min_mm: float = _p(0.0, "lowest X the carriage reaches", "mm")
-    x_position_max_mm: float = _p(0.0, "highest X the carriage reaches; 0 = bed_x_mm", "mm", minval=0.0)
-    y_position_min_mm: float = _p(0.0, "lowest Y the carriage reaches", "mm")
-    y_position_max_mm: float = _p(0.0, "highest Y the carriage reaches; 0 = bed_y_mm", "mm", minval=0.0)
-    x_endstop_mm: float = _p(0.0, "where the X endstop switch closes", "mm")
-    y_endstop_mm: float = _p(0.0, "where the Y endstop switch closes", "mm")
-    start_z_mm: float = _p(10.0, "commanded Z at power on (Z is not homed)", "mm")
+    full_steps_per_rotation: int = _p(200, "full steps per motor rotation", minval=1, maxval=10_000)
+    homing_speed_mm_s: float = _p(50.0, "X/Y homing speed", "mm/s", minval=1.0, maxval=10_000.0)
+    x_position_min_mm: float = _p(0.0, "lowest X the carriage reaches", "mm", minval=-MAX_SIZE_MM, maxval=MAX_SIZE_MM)
+    x_position_max_mm: float = _p(0.0, "highest X the carriage reaches; 0 = bed_x_mm", "mm", minval=0.0,
+                                  maxval=MAX_SIZE_MM)
+    y_position_min_mm: float = _p(0.0, "lowest Y the carriage reaches", "mm", minval=-MAX_SIZE_MM, maxval=MAX_SIZE_MM)
+    y_position_max_mm: float = _p(0.0, "highest Y the carriage reaches; 0 = bed_y_mm", "mm", minval=0.0,
+                                  maxval=MAX_SIZE_MM)
+    x_endstop_mm: float = _p(0.0, "where the X endstop switch closes", "mm", minval=-MAX_SIZE_MM, maxval=MAX_SIZE_MM)
+    y_endstop_mm: float = _p(0.0, "where the Y endstop switch closes", "mm", minval=-MAX_SIZE_MM, maxval=MAX_SIZE_MM)
+    start_z_mm: float = _p(10.0, "commanded Z at power on (Z is not homed)", "mm",
+                           minval=-MAX_SIZE_MM, maxval=MAX_SIZE_MM)
     # --- bed ------------------------------------------------------------------------
     bed_shape: str = _p("flat", "surface model", choices=("flat", "tilted", "warped", "csv"))
-    bed_z_offset_mm: float = _p(0.0, "height of the bed surface at its centre", "mm")
-    bed_tilt_x_mm: float = _p(0.0, "height change across the bed along X (tilted)", "mm")
-    bed_tilt_y_mm: float = _p(0.0, "height change across the bed along Y (tilted)", "mm")
-    bed_warp_mm: float = _p(0.0, "peak amplitude of the smooth warp modes (warped)", "mm")
+    bed_z_offset_mm: float = _p(0.0, "height of the bed surface at its centre", "mm", minval=-100.0, maxval=100.0)
+    bed_tilt_x_mm: float = _p(0.0, "height change across the bed along X (tilted)", "mm", minval=-100.0, maxval=100.0)
+    bed_tilt_y_mm: float = _p(0.0, "height change across the bed along Y (tilted)", "mm", minval=-100.0, maxval=100.0)
+    bed_warp_mm: float = _p(0.0, "peak amplitude of the smooth warp modes (warped)", "mm",
+                            minval=-100.0, maxval=100.0)
     bed_warp_modes: int = _p(3, "number of smooth sine modes in the warp", minval=1, maxval=8)
     bed_csv: str = _p("", "CSV height grid (rows = Y, columns = X, mm) spread over the bed (csv)")
     sheet: str = _p("smooth_pei", "build sheet", choices=tuple(SHEETS))
     # --- contact physics --------------------------------------------------------------
-    frame_stiffness_g_um: float = _p(5.0, "stiffness of frame + gantry + toolhead", "g/µm", minval=0.1)
-    cell_stiffness_g_um: float = _p(10.0, "stiffness of the load cell body", "g/µm", minval=0.1)
-    sheet_stiffness_g_um: float = _p(0.0, "sheet stiffness; 0 = the sheet's own value", "g/µm", minval=0.0)
-    contact_onset_um: float = _p(-1.0, "length of the nonlinear first touch; <0 = the sheet's own", "µm")
+    frame_stiffness_g_um: float = _p(5.0, "stiffness of frame + gantry + toolhead", "g/µm",
+                                     minval=0.1, maxval=MAX_STIFFNESS_G_UM)
+    cell_stiffness_g_um: float = _p(10.0, "stiffness of the load cell body", "g/µm",
+                                    minval=0.1, maxval=MAX_STIFFNESS_G_UM)
+    sheet_stiffness_g_um: float = _p(0.0, "sheet stiffness; 0 = the sheet's own value", "g/µm",
+                                     minval=0.0, maxval=MAX_STIFFNESS_G_UM)
+    contact_onset_um: float = _p(-1.0, "length of the nonlinear first touch; <0 = the sheet's own", "µm",
+                                 minval=-1.0, maxval=1000.0)
     relax_fraction: float = _p(0.03, "share of a sudden load that relaxes away during a dwell", "", 
                                minval=0.0, maxval=0.5)
-    relax_tau_s: float = _p(0.25, "stress-relaxation time constant", "s", minval=1e-3)
+    relax_tau_s: float = _p(0.25, "stress-relaxation time constant", "s", minval=1e-3, maxval=1000.0)
     hysteresis_fraction: float = _p(0.04, "unloading force is this much lower than loading", "",
                                     minval=0.0, maxval=0.5)
-    hysteresis_travel_um: float = _p(3.0, "travel reversing from loading to unloading curve", "µm", minval=0.01)
+    hysteresis_travel_um: float = _p(3.0, "travel reversing from loading to unloading curve", "µm",
+                                     minval=0.01, maxval=1000.0)
     # --- sensor -------------------------------------------------------------------------
     chip: str = _p("hx717", "ADC chip", choices=tuple(CHIP_RATES_SPS))
-    sample_rate_sps: float = _p(0.0, "conversion rate; 0 = the chip's default", "sps", minval=0.0)
+    sample_rate_sps: float = _p(0.0, "conversion rate; 0 = the chip's default", "sps", minval=0.0, maxval=10_000.0)
     gain: int = _p(128, "PGA gain", minval=1, maxval=128)
     chip_rate_error: float = _p(0.0, "real rate / nominal rate - 1 (the chip's own oscillator)", "",
                                 minval=-0.2, maxval=0.2)
-    counts_per_gram: float = _p(110.0, "cell sensitivity at gain 128 (scales with gain)", "counts/g", minval=0.01)
-    zero_offset_counts: float = _p(-38000.0, "counts with no force at gain 128 (scales with gain)", "counts")
+    counts_per_gram: float = _p(110.0, "cell sensitivity at gain 128 (scales with gain)", "counts/g",
+                                minval=0.01, maxval=100_000.0)
+    zero_offset_counts: float = _p(-38000.0, "counts with no force at gain 128 (scales with gain)", "counts",
+                                   minval=-COUNTS_SPAN, maxval=COUNTS_SPAN)
     cell_polarity: int = _p(1, "+1: compression raises counts; -1: lowers them", choices=(1, -1))
-    white_noise_counts: float = _p(80.0, "white noise RMS per sample", "counts", minval=0.0)
-    pink_noise_counts: float = _p(30.0, "1/f noise RMS", "counts", minval=0.0)
-    hum_counts: float = _p(0.0, "mains hum amplitude before the conversion average", "counts", minval=0.0)
+    white_noise_counts: float = _p(80.0, "white noise RMS per sample", "counts", minval=0.0, maxval=COUNTS_SPAN)
+    pink_noise_counts: float = _p(30.0, "1/f noise RMS", "counts", minval=0.0, maxval=COUNTS_SPAN)
+    hum_counts: float = _p(0.0, "mains hum amplitude before the conversion average", "counts",
+                           minval=0.0, maxval=COUNTS_SPAN)
     hum_hz: int = _p(50, "mains frequency", "Hz", choices=(50, 60))
-    bowden_g_per_mm_x: float = _p(0.0, "bowden/umbilical force change per mm of X", "g/mm")
-    bowden_g_per_mm_y: float = _p(0.0, "bowden/umbilical force change per mm of Y", "g/mm")
-    bowden_g_per_mm_z: float = _p(0.0, "bowden/umbilical force change per mm of Z", "g/mm")
-    thermal_drift_g_per_c: float = _p(0.2, "cell reading change per °C of cell warming", "g/°C")
+    bowden_g_per_mm_x: float = _p(0.0, "bowden/umbilical force change per mm of X", "g/mm",
+                                  minval=-1000.0, maxval=1000.0)
+    bowden_g_per_mm_y: float = _p(0.0, "bowden/umbilical force change per mm of Y", "g/mm",
+                                  minval=-1000.0, maxval=1000.0)
+    bowden_g_per_mm_z: float = _p(0.0, "bowden/umbilical force change per mm of Z", "g/mm",
+                                  minval=-1000.0, maxval=1000.0)
+    thermal_drift_g_per_c: float = _p(0.2, "cell reading change per °C of cell warming", "g/°C",
+                                      minval=-100.0, maxval=100.0)
     cell_heat_coupling: float = _p(0.1, "cell warms by this share of the nozzle's rise", "", minval=0.0, maxval=1.0)
-    cell_heat_tau_s: float = _p(120.0, "cell warming time constant", "s", minval=1.0)
+    cell_heat_tau_s: float = _p(120.0, "cell warming time constant", "s", minval=1.0, maxval=100_000.0)
     # --- nozzle ---------------------------------------------------------------------------
-    ambient_c: float = _p(25.0, "room and cold-nozzle temperature", "°C")
-    heater_tau_s: float = _p(15.0, "nozzle heating time constant", "s", minval=0.1)
-    bed_heater_tau_s: float = _p(60.0, "heated bed (and any other heater) time constant", "s", minval=0.1)
-    nozzle_expansion_um_per_c: float = _p(0.45, "nozzle lengthens toward the bed per °C", "µm/°C")
-    start_nozzle_c: float = _p(25.0, "nozzle temperature at power on", "°C")
-    ooze_film_um: float = _p(0.0, "initial ooze film on the nozzle tip", "µm", minval=0.0)
-    ooze_temp_c: float = _p(170.0, "filament starts to ooze above this nozzle temperature", "°C")
+    ambient_c: float = _p(25.0, "room and cold-nozzle temperature", "°C", minval=-50.0, maxval=100.0)
+    heater_tau_s: float = _p(15.0, "nozzle heating time constant", "s", minval=0.1, maxval=10_000.0)
+    bed_heater_tau_s: float = _p(60.0, "heated bed (and any other heater) time constant", "s", minval=0.1,
+                                 maxval=10_000.0)
+    nozzle_expansion_um_per_c: float = _p(0.45, "nozzle lengthens toward the bed per °C", "µm/°C",
+                                          minval=-100.0, maxval=100.0)
+    start_nozzle_c: float = _p(25.0, "nozzle temperature at power on", "°C", minval=-50.0, maxval=1000.0)
+    ooze_film_um: float = _p(0.0, "initial ooze film on the nozzle tip", "µm", minval=0.0, maxval=1000.0)
+    ooze_temp_c: float = _p(170.0, "filament starts to ooze above this nozzle temperature", "°C",
+                            minval=0.0, maxval=1000.0)
     ooze_growth_um_per_s_per_c: float = _p(0.02, "film growth per second per °C above ooze_temp_c", "µm/s/°C",
-                                           minval=0.0)
-    ooze_max_um: float = _p(150.0, "thickest film that stays on the nozzle", "µm", minval=0.0)
-    ooze_stiffness_g_um: float = _p(1.2, "film stiffness when squeezed", "g/µm", minval=0.0)
-    ooze_squeeze_tau_s: float = _p(0.12, "time constant of the film flowing out under load", "s", minval=1e-3)
-    ooze_pull_g: float = _p(25.0, "largest pull of the film stretched on lift", "g", minval=0.0)
-    ooze_break_um: float = _p(40.0, "stretch at which the film strand breaks", "µm", minval=0.1)
+                                           minval=0.0, maxval=100.0)
+    ooze_max_um: float = _p(150.0, "thickest film that stays on the nozzle", "µm", minval=0.0, maxval=1000.0)
+    ooze_stiffness_g_um: float = _p(1.2, "film stiffness when squeezed", "g/µm",
+                                    minval=0.0, maxval=MAX_STIFFNESS_G_UM)
+    ooze_squeeze_tau_s: float = _p(0.12, "time constant of the film flowing out under load", "s",
+                                   minval=1e-3, maxval=1000.0)
+    ooze_pull_g: float = _p(25.0, "largest pull of the film stretched on lift", "g", minval=0.0, maxval=10_000.0)
+    ooze_break_um: float = _p(40.0, "stretch at which the film strand breaks", "µm", minval=0.1, maxval=10_000.0)
     ooze_clear_fraction: float = _p(0.4, "share of the film left on the bed at each tap", "", minval=0.0, maxval=1.0)
     ooze_residue_radius_mm: float = _p(0.5, "a tap this close to film left on the bed meets it first", "mm",
-                                       minval=0.0)
+                                       minval=0.0, maxval=MAX_SIZE_MM)
     # --- calibration pin (XY probing; tapcell.sim.pin) ---------------------------------------
-    pin_diameter_mm: float = _p(0.0, "calibration pin diameter; 0 = no pin", "mm", minval=0.0)
-    pin_x_mm: float = _p(225.0, "calibration pin centre X", "mm")
-    pin_y_mm: float = _p(225.0, "calibration pin centre Y", "mm")
-    pin_height_mm: float = _p(5.0, "calibration pin height above the bed", "mm", minval=0.1)
-    nozzle_tip_diameter_mm: float = _p(1.0, "outside diameter of the nozzle tip", "mm", minval=0.1)
+    pin_diameter_mm: float = _p(0.0, "calibration pin diameter; 0 = no pin", "mm", minval=0.0, maxval=100.0)
+    pin_x_mm: float = _p(225.0, "calibration pin centre X", "mm", minval=-MAX_SIZE_MM, maxval=MAX_SIZE_MM)
+    pin_y_mm: float = _p(225.0, "calibration pin centre Y", "mm", minval=-MAX_SIZE_MM, maxval=MAX_SIZE_MM)
+    pin_height_mm: float = _p(5.0, "calibration pin height above the bed", "mm", minval=0.1, maxval=100.0)
+    nozzle_tip_diameter_mm: float = _p(1.0, "outside diameter of the nozzle tip", "mm", minval=0.1, maxval=100.0)
     pin_side_stiffness_g_um: float = _p(4.0, "sideways stiffness of the toolhead against the pin", "g/µm",
-                                        minval=0.01)
+                                        minval=0.01, maxval=MAX_STIFFNESS_G_UM)
     pin_side_coupling: float = _p(0.5, "share of a sideways force the load cell reads", "", minval=0.0, maxval=1.0)
     # --- scheduled sensor trouble ----------------------------------------------------------
-    glitch_rate_per_s: float = _p(0.0, "random single corrupted frames per second", "1/s", minval=0.0)
-    disconnect_at_s: float = _p(-1.0, "the sensor stops delivering samples at this time; <0 = never", "s")
+    glitch_rate_per_s: float = _p(0.0, "random single corrupted frames per second", "1/s", minval=0.0, maxval=1000.0)
+    disconnect_at_s: float = _p(-1.0, "the sensor stops delivering samples at this time; <0 = never", "s",
+                                minval=-1.0, maxval=1e9)
     # --- virtual MCU ------------------------------------------------------------------------
-    read_jitter_s: float = _p(15e-6, "mean extra delay of the MCU task reading a sample", "s", minval=0.0)
-    stop_delay_s: float = _p(0.2e-3, "trigger to steppers stopped on the same MCU", "s", minval=0.0)
-    multi_mcu_delay_s: float = _p(0.0, "extra stop delay when Z steppers are on another MCU", "s", minval=0.0)
+    read_jitter_s: float = _p(15e-6, "mean extra delay of the MCU task reading a sample", "s", minval=0.0, maxval=1.0)
+    stop_delay_s: float = _p(0.2e-3, "trigger to steppers stopped on the same MCU", "s", minval=0.0, maxval=1.0)
+    multi_mcu_delay_s: float = _p(0.0, "extra stop delay when Z steppers are on another MCU", "s",
+                                  minval=0.0, maxval=1.0)
 
 
 PARAM_FIELDS = {f.name: f for f in fields(SimParams)}

@@ -13,22 +13,27 @@ from typing import Any
 
 import numpy as np
 
+from tapcell.files import FileRefused, read_limited
 from tapcell.tap.analysis import MIN_SAMPLES  # a file with fewer samples could not be analysed
 from tapcell.tap.model import Move, TapAnalysis, TapData, TapFileError
 
 FORMAT = "tapcell.tap.v1"
 MOVE_KEYS = ("print_time", "move_t", "start_v", "accel", "start_z", "z_r")
-# JSON integers beyond this are beyond a float too (they read as infinity).
+# A log of a few thousand taps is tens of MB; anything far bigger is not a tap file, and reading
+# it whole (or an endless device such as /dev/zero) would exhaust memory.
+MAX_FILE_BYTES = 256 * 1024 * 1024
+# JSON integers longer than this are no measurement (a float64 holds 15-17 digits); refusing them
+# at parse time keeps every later float() and isfinite() from overflowing.
+MAX_INTEGER_DIGITS = 20
+# Integers beyond this (from a caller of tap_from_object, not a file) are beyond a float too:
+# they read as infinity.
 LARGEST_FLOAT_INT = int(sys.float_info.max)
 
 
 def read_tap_file(path: str | Path) -> list[TapData]:
     """All taps in a file (one for .json/.csv, one per line for .jsonl)."""
     path = Path(path)
-    try:
-        text = path.read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as problem:
-        raise TapFileError(str(path), f"cannot read the file ({problem})") from None
+    text = _read_text(path)
     if not text.strip():
         raise TapFileError(str(path), "the file is empty")
     if path.suffix.lower() == ".csv":
@@ -41,15 +46,41 @@ def read_tap_file(path: str | Path) -> list[TapData]:
         return taps
     document = _load_json(str(path), text, "")
     if isinstance(document, list):
-        return [tap_from_object(item, str(path), f"tap {k}: ") for k, item in enumerate(document)]
+        raise TapFileError(str(path), "holds a JSON list; a .json tap file holds one object "
+                                      "(write many taps as .jsonl, one object per line)")
     return [tap_from_object(document, str(path), "")]
+
+
+def _read_text(path: Path) -> str:
+    try:
+        return read_limited(path, MAX_FILE_BYTES).decode("utf-8")
+    except FileRefused as problem:
+        raise TapFileError(str(path), f"{problem}, not a tap file") from None
+    except (OSError, UnicodeDecodeError) as problem:
+        raise TapFileError(str(path), f"cannot read the file ({problem})") from None
+
+
+class _HugeInteger(ValueError):
+    def __init__(self, digits: int):
+        super().__init__(f"an integer with {digits} digits (at most {MAX_INTEGER_DIGITS} allowed)")
+
+
+def _bounded_int(text: str) -> int:
+    digits = len(text.lstrip("-"))
+    if digits > MAX_INTEGER_DIGITS:
+        raise _HugeInteger(digits)
+    return int(text)
 
 
 def _load_json(path: str, text: str, where: str) -> Any:
     try:
-        return json.loads(text)
+        return json.loads(text, parse_int=_bounded_int)
     except json.JSONDecodeError as problem:
         raise TapFileError(path, f"{where}not valid JSON ({problem.msg} at line {problem.lineno} column {problem.colno})") from None
+    except _HugeInteger as problem:
+        raise TapFileError(path, f"{where}not valid tap data: {problem}") from None
+    except RecursionError:  # the json module's own limit on nested arrays/objects
+        raise TapFileError(path, f"{where}not valid tap data: JSON nested too deeply") from None
 
 
 def _as_float(value: Any) -> float | None:
@@ -183,7 +214,10 @@ def tap_from_object(obj: Any, path: str = "<memory>", where: str = "") -> TapDat
 
 
 def _tap_from_csv(path: str, text: str) -> TapData:
-    rows = list(csv.reader(text.splitlines()))
+    try:
+        rows = list(csv.reader(text.splitlines()))
+    except csv.Error as problem:  # e.g. a NUL byte, or a field beyond the csv module's size limit
+        raise TapFileError(path, f"not a valid CSV file ({problem})") from None
     header = [name.strip().lower() for name in rows[0]]
     missing = [name for name in ("time", "force", "z") if name not in header]
     if missing:

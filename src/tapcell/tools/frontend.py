@@ -11,6 +11,7 @@ import os
 import sys
 from pathlib import Path
 
+from tapcell.files import FileRefused, read_limited
 from tapcell.host.config import ConfigError
 from tapcell.host.gcode import GCodeError, UnknownCommandError
 from tapcell.host.printer import Printer
@@ -22,6 +23,7 @@ DEFAULT_CONFIG = Path(__file__).resolve().parents[3] / "examples" / "virtual-pri
 HISTORY_FILE = Path("~/.tapcell_history").expanduser()
 HISTORY_LENGTH = 1000
 PROMPT = "tapcell> "
+MAX_SCRIPT_BYTES = 256 * 1024 * 1024  # a G-code file for the virtual printer; read whole, so bounded
 
 
 def _print_line(line: str) -> None:
@@ -47,19 +49,26 @@ def _build_printer(config_path: str, program: str, notices_to=None) -> Printer |
 
 
 def run_script_file(printer: Printer, script_path: str, *, keep_going: bool, echo: bool,
-                    progress: ProgressBar | None = None) -> int:
-    """Run a G-code file line by line like a print: 0 if every line succeeded, else 1.
+                    progress: bool | None = False) -> int:
+    """Run a G-code file line by line like a print: 0 if every line succeeded, else 1 (2: the file
+    cannot be read). `progress`: a progress bar on stderr (None: when stderr is a terminal).
 
     An unknown command is answered as Klipper answers it in a print (`// Unknown command:"M205"`)
     and the file goes on; any other error stops it (unless keep_going).
     """
-    with open(script_path, encoding="utf-8") as handle:
-        lines = handle.read().splitlines()
-    progress = progress or ProgressBar(len(lines), enabled=False)
+    try:
+        lines = read_limited(script_path, MAX_SCRIPT_BYTES).decode("utf-8").splitlines()
+    except (OSError, FileRefused) as exc:
+        print(f"tapcell run: cannot read script '{script_path}': {exc}", file=sys.stderr)
+        return 2
+    except UnicodeDecodeError as exc:
+        print(f"tapcell run: script '{script_path}' is not UTF-8 text: {exc}", file=sys.stderr)
+        return 2
+    bar = ProgressBar(len(lines), enabled=progress)
     gcode = printer.gcode
 
     def show(line: str) -> None:
-        progress.clear()
+        bar.clear()
         print(line, flush=True)
 
     gcode.set_response_sink(show)
@@ -76,16 +85,16 @@ def run_script_file(printer: Printer, script_path: str, *, keep_going: bool, ech
                 gcode.respond_error(str(exc))
                 failed = True
                 if not keep_going:
-                    progress.clear()
+                    bar.clear()
                     print(f"tapcell run: {script_path}:{line_number}: stopped at the first error "
                           f"(use --keep-going to run the rest)", file=sys.stderr)
                     return 1
-            progress.update(line_number, printer.get_time())
+            bar.update(line_number, printer.get_time())
     finally:
-        progress.clear()
+        bar.clear()
         gcode.set_response_sink(_print_line)
-    if progress.enabled:
-        print(progress.summary(len(lines), printer.get_time()), file=sys.stderr)
+    if bar.enabled:
+        print(bar.summary(len(lines), printer.get_time()), file=sys.stderr)
     return 1 if failed else 0
 
 
@@ -107,14 +116,8 @@ def _main_run(argv: list[str]) -> int:
     printer = _build_printer(args.config, "tapcell run", notices_to=sys.stderr)
     if printer is None:
         return 1
-    try:
-        with open(args.script, encoding="utf-8") as handle:
-            total = sum(1 for _ in handle)
-        progress = ProgressBar(total, enabled={"auto": None, "always": True, "never": False}[args.progress])
-        return run_script_file(printer, args.script, keep_going=args.keep_going, echo=args.echo, progress=progress)
-    except UnicodeDecodeError as exc:
-        print(f"tapcell run: script '{args.script}' is not UTF-8 text: {exc}", file=sys.stderr)
-        return 2
+    return run_script_file(printer, args.script, keep_going=args.keep_going, echo=args.echo,
+                           progress={"auto": None, "always": True, "never": False}[args.progress])
 
 
 def _setup_readline():

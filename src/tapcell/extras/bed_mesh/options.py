@@ -6,15 +6,17 @@ from dataclasses import dataclass, replace
 
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand
+from tapcell.host.toolhead import COORDINATE_RANGE, MAX_COORDINATE_MM, SPEED_RANGE
 from tapcell.mesh.errors import MeshOptionError
-from tapcell.mesh.grid import MeshGrid, rectangular_grid, round_grid
-from tapcell.mesh.interpolate import ALGORITHMS, Interpolation, resolve_interpolation
-from tapcell.mesh.split import SplitSettings
+from tapcell.mesh.grid import MAX_PROBE_COUNT, MIN_PROBE_COUNT, MeshGrid, rectangular_grid, round_grid
+from tapcell.mesh.interpolate import ALGORITHMS, MAX_MESH_PPS, TENSION_RANGE, Interpolation, resolve_interpolation
+from tapcell.mesh.split import MIN_MOVE_CHECK_DISTANCE_MM, MIN_SPLIT_DELTA_Z_MM, SplitSettings
 from tapcell.mesh.zmesh import Fade, resolve_zero_reference
 
 from tapcell.extras.bed_mesh.methods import METHODS
 
 SECTION = "bed_mesh"
+MAX_CLEARANCE_MM = 50.0  # horizontal_z_clearance: the lift between points
 
 
 @dataclass(frozen=True)
@@ -54,13 +56,14 @@ def _read_grid(section: ConfigSection) -> MeshGrid:
         raise section.error("mesh_radius", "give either mesh_radius (round bed) or mesh_min/mesh_max (rectangular), not both")
     try:
         if round_bed:
-            radius = section.getfloat("mesh_radius", above=0.0)
-            origin = tuple(section.getfloatlist("mesh_origin", (0.0, 0.0), count=2))
-            count = section.getint("round_probe_count", 5, minval=3)
+            radius = section.getfloat("mesh_radius", above=0.0, maxval=MAX_COORDINATE_MM)
+            origin = tuple(section.getfloatlist("mesh_origin", (0.0, 0.0), count=2, **COORDINATE_RANGE))
+            count = section.getint("round_probe_count", 5, minval=MIN_PROBE_COUNT, maxval=MAX_PROBE_COUNT)
             return round_grid(radius, origin, count)
-        mesh_min = tuple(section.getfloatlist("mesh_min", count=2))
-        mesh_max = tuple(section.getfloatlist("mesh_max", count=2))
-        probe_count = _pair(section.getintlist("probe_count", (3, 3)), "probe_count", section)
+        mesh_min = tuple(section.getfloatlist("mesh_min", count=2, **COORDINATE_RANGE))
+        mesh_max = tuple(section.getfloatlist("mesh_max", count=2, **COORDINATE_RANGE))
+        probe_count = _pair(section.getintlist("probe_count", (3, 3), minval=MIN_PROBE_COUNT, maxval=MAX_PROBE_COUNT),
+                            "probe_count", section)
         return rectangular_grid(mesh_min, mesh_max, probe_count)
     except MeshOptionError as exc:
         raise _mesh_option_error(section, exc) from None
@@ -70,24 +73,27 @@ def read_bed_mesh_options(section: ConfigSection) -> BedMeshOptions:
     """Read and check `[bed_mesh]`; errors name file, section, option, value and what is allowed."""
     grid = _read_grid(section)
     algorithm = section.getchoice("algorithm", list(ALGORITHMS), "lagrange")
-    mesh_pps = _pair(section.getintlist("mesh_pps", (2, 2)), "mesh_pps", section)
-    tension = section.getfloat("bicubic_tension", 0.2, minval=0.0, maxval=2.0)
-    fade = Fade(section.getfloat("fade_start", 1.0), section.getfloat("fade_end", 0.0),
-                section.getfloat("fade_target", None))
-    clearance = section.getfloat("horizontal_z_clearance", None, above=0.0)
-    zero_position = section.getfloatlist("zero_reference_position", None, count=2)
-    reference_index = section.getint("relative_reference_index", None, minval=0)
+    mesh_pps = _pair(section.getintlist("mesh_pps", (2, 2), minval=0, maxval=MAX_MESH_PPS), "mesh_pps", section)
+    tension = section.getfloat("bicubic_tension", 0.2, minval=TENSION_RANGE[0], maxval=TENSION_RANGE[1])
+    fade = Fade(section.getfloat("fade_start", 1.0, **COORDINATE_RANGE),
+                section.getfloat("fade_end", 0.0, **COORDINATE_RANGE),
+                section.getfloat("fade_target", None, **COORDINATE_RANGE))
+    clearance = section.getfloat("horizontal_z_clearance", None, above=0.0, maxval=MAX_CLEARANCE_MM)
+    zero_position = section.getfloatlist("zero_reference_position", None, count=2, **COORDINATE_RANGE)
+    reference_index = section.getint("relative_reference_index", None, minval=0,
+                                     maxval=MAX_PROBE_COUNT * MAX_PROBE_COUNT - 1)
     try:
         interpolation, note = resolve_interpolation(algorithm, (grid.x_count, grid.y_count), mesh_pps, tension)
-        split = SplitSettings(section.getfloat("move_check_distance", 5.0),
-                              section.getfloat("split_delta_z", 0.025))
+        split = SplitSettings(section.getfloat("move_check_distance", 5.0, minval=MIN_MOVE_CHECK_DISTANCE_MM,
+                                               maxval=MAX_COORDINATE_MM),
+                              section.getfloat("split_delta_z", 0.025, minval=MIN_SPLIT_DELTA_Z_MM, maxval=10.0))
         zero_reference = resolve_zero_reference(grid, None if zero_position is None else tuple(zero_position),
                                                 reference_index)
     except MeshOptionError as exc:
         raise _mesh_option_error(section, exc) from None
     return BedMeshOptions(
-        speed_mm_s=section.getfloat("speed", 50.0, above=0.0),
-        horizontal_move_z_mm=section.getfloat("horizontal_move_z", 5.0),
+        speed_mm_s=section.getfloat("speed", 50.0, **SPEED_RANGE),
+        horizontal_move_z_mm=section.getfloat("horizontal_move_z", 5.0, minval=0.0, maxval=MAX_COORDINATE_MM),
         horizontal_z_clearance_mm=clearance,
         grid=grid,
         interpolation=interpolation,
@@ -105,20 +111,21 @@ def read_bed_mesh_options(section: ConfigSection) -> BedMeshOptions:
 
 def command_options(options: BedMeshOptions, gcmd: GCodeCommand) -> BedMeshOptions:
     """The options of one BED_MESH_CALIBRATE: the config with the command's parameters applied."""
-    mesh_min = gcmd.get_floatlist("MESH_MIN", None, count=2)
-    mesh_max = gcmd.get_floatlist("MESH_MAX", None, count=2)
-    counts = gcmd.get_floatlist("PROBE_COUNT", None)
+    mesh_min = gcmd.get_floatlist("MESH_MIN", None, count=2, **COORDINATE_RANGE)
+    mesh_max = gcmd.get_floatlist("MESH_MAX", None, count=2, **COORDINATE_RANGE)
+    counts = gcmd.get_intlist("PROBE_COUNT", None, minval=MIN_PROBE_COUNT, maxval=MAX_PROBE_COUNT)
     algorithm = gcmd.get("ALGORITHM", options.algorithm).strip().lower()
     method = gcmd.get_choice("METHOD", list(METHODS), options.method)
-    clearance = gcmd.get_float("HORIZONTAL_Z_CLEARANCE", options.horizontal_z_clearance_mm, above=0.0)
+    clearance = gcmd.get_float("HORIZONTAL_Z_CLEARANCE", options.horizontal_z_clearance_mm, above=0.0,
+                               maxval=MAX_CLEARANCE_MM)
     grid = options.grid
     try:
         if mesh_min is not None or mesh_max is not None or counts is not None:
             if grid.radius_mm is not None and (mesh_min is not None or mesh_max is not None):
                 raise MeshOptionError(SECTION, "mesh_min", mesh_min or mesh_max, "a round bed uses mesh_radius")
-            if counts is not None and (len(counts) not in (1, 2) or any(c != int(c) for c in counts)):
+            if counts is not None and len(counts) not in (1, 2):
                 raise MeshOptionError(SECTION, "probe_count", gcmd.get("PROBE_COUNT"), "must be one integer or a pair X, Y")
-            count_pair = (grid.x_count, grid.y_count) if counts is None else tuple(int(c) for c in _repeat(counts))
+            count_pair = (grid.x_count, grid.y_count) if counts is None else tuple(_repeat(counts))
             grid = rectangular_grid(mesh_min or grid.mesh_min, mesh_max or grid.mesh_max, count_pair)
         interpolation, note = resolve_interpolation(algorithm, (grid.x_count, grid.y_count), options.mesh_pps,
                                                     options.interpolation.bicubic_tension)
@@ -129,5 +136,5 @@ def command_options(options: BedMeshOptions, gcmd: GCodeCommand) -> BedMeshOptio
                    horizontal_z_clearance_mm=clearance, method=method)
 
 
-def _repeat(values: list[float]) -> list[float]:
+def _repeat(values: list[int]) -> list[int]:
     return values * 2 if len(values) == 1 else values

@@ -20,7 +20,8 @@ def _template_runner(printer):
     """Run a probe G-code template (activate/deactivate/scrubber) with `printer` and `params`."""
 
     def run(option: str, template: GCodeTemplate, params: dict) -> None:
-        printer.gcode.run_script(template.render({"printer": StatusView(printer), "params": params}))
+        script = template.render({"printer": StatusView(printer), "params": params})
+        printer.gcode.run_script(script, caller=template.label)  # named in a recursion error
 
     return run
 

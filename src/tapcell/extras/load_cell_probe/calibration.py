@@ -17,6 +17,7 @@ from tapcell.tap.angles import slope_angle_deg
 # (smooth PEI ~2, textured ~8), coarser up to soft sheets and beyond.
 ONSET_GRID_UM = (0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 10.0, 12.0, 15.0, 18.0, 22.0, 26.0, 30.0, 35.0, 40.0)
 MIN_ONSET_TAPS = 3
+MAX_CALIBRATION_TAPS = 50  # a LOAD_CELL_PROBE_CALIBRATE taps at most this many times
 
 
 @dataclass(frozen=True)

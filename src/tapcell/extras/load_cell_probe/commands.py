@@ -9,6 +9,7 @@ import numpy as np
 
 from tapcell.extras.load_cell_probe.calibration import (
     CALIBRATION_PULLBACK_MM,
+    MAX_CALIBRATION_TAPS,
     MIN_ONSET_TAPS,
     break_contact_height_um,
     calibrate_decompression_angle,
@@ -26,10 +27,17 @@ from tapcell.extras.load_cell_probe.device import (
     RecordedTap,
 )
 from tapcell.extras.load_cell_probe.options import PULLBACK_LIMITS_MM, TapOptions
+from tapcell.extras.probe.options import (LIFT_SPEED_MM_S, MAX_RETRACT_MM, MAX_RETRIES, MAX_SAMPLES,
+                                          PROBE_SPEED_MM_S)
 from tapcell.extras.probe.patterns import serpentine_pattern
 from tapcell.extras.probe.session import Probe, ProbeError
+from tapcell.host.toolhead import SPEED_RANGE
 from tapcell.mcu.trigger import TriggerError
 from tapcell.tap.motion import tap_motion
+
+# NOZZLE_CLEANUP's pattern: at most 20 x 20 taps, at most 20 mm apart.
+MAX_PATTERN_COUNT = 20
+MAX_PATTERN_STEPOVER_MM = 20.0
 
 
 class LoadCellProbeCommands:
@@ -79,7 +87,7 @@ class LoadCellProbeCommands:
 
     def _calibrate_contact_onset(self, gcmd) -> None:
         """Fit the sheet's onset width on the pooled taps (bad taps retried in place)."""
-        samples = gcmd.get_int("SAMPLES", 10, minval=MIN_ONSET_TAPS, maxval=50)
+        samples = gcmd.get_int("SAMPLES", 10, minval=MIN_ONSET_TAPS, maxval=MAX_CALIBRATION_TAPS)
         x_mm, y_mm = self.probe.current_probe_xy()
         recorded, session = self._calibration_taps(gcmd, samples, "retry")
         try:
@@ -100,7 +108,7 @@ class LoadCellProbeCommands:
         what this calibration sets). The taps use the configured speed (PROBE_SPEED overrides):
         break contact grows with speed, so the result holds for a range of speeds around it.
         """
-        samples = gcmd.get_int("SAMPLES", 10, minval=MIN_ONSET_TAPS, maxval=50)
+        samples = gcmd.get_int("SAMPLES", 10, minval=MIN_ONSET_TAPS, maxval=MAX_CALIBRATION_TAPS)
         device = self.device
         shortest_mm, longest_mm = PULLBACK_LIMITS_MM
         long_pullback_mm = gcmd.get_float("PULLBACK_DISTANCE", CALIBRATION_PULLBACK_MM,
@@ -148,7 +156,7 @@ class LoadCellProbeCommands:
 
     def _calibrate_decompression_angle(self, gcmd) -> None:
         """Tap SAMPLES times without the angle term, store the median decompression angle."""
-        samples = gcmd.get_int("SAMPLES", 10, minval=MIN_ONSET_TAPS, maxval=50)
+        samples = gcmd.get_int("SAMPLES", 10, minval=MIN_ONSET_TAPS, maxval=MAX_CALIBRATION_TAPS)
         x_mm, y_mm = self.probe.current_probe_xy()
         # An old calibration must not reject the taps that replace it.
         recorded, session = self._calibration_taps(gcmd, samples, "ignore", decompression_angle=None)
@@ -241,15 +249,19 @@ class LoadCellProbeCommands:
 
     def cmd_NOZZLE_CLEANUP(self, gcmd) -> None:
         probe_opts = self.probe.options
-        good_needed = gcmd.get_int("SAMPLES", 3, minval=1)
-        stepover_mm = gcmd.get_float("PATTERN_STEPOVER", 2.0, above=0.0)
-        count_x = gcmd.get_int("PATTERN_X", 10, minval=1)
-        count_y = gcmd.get_int("PATTERN_Y", 4, minval=1)
-        speed = gcmd.get_float("SPEED", probe_opts.speed_mm_s, above=0.0)
-        lift_speed = gcmd.get_float("LIFT_SPEED", probe_opts.effective_lift_speed_mm_s, above=0.0)
-        horizontal_speed = gcmd.get_float("HORIZONTAL_SPEED", 50.0, above=0.0)
-        retract_mm = gcmd.get_float("SAMPLE_RETRACT_DIST", probe_opts.sample_retract_dist_mm, above=0.0)
-        scrubbing_frequency = gcmd.get_int("SCRUBBING_FREQUENCY", probe_opts.scrubbing_frequency, minval=0)
+        good_needed = gcmd.get_int("SAMPLES", 3, minval=1, maxval=MAX_SAMPLES)
+        stepover_mm = gcmd.get_float("PATTERN_STEPOVER", 2.0, above=0.0, maxval=MAX_PATTERN_STEPOVER_MM)
+        count_x = gcmd.get_int("PATTERN_X", 10, minval=1, maxval=MAX_PATTERN_COUNT)
+        count_y = gcmd.get_int("PATTERN_Y", 4, minval=1, maxval=MAX_PATTERN_COUNT)
+        speed = gcmd.get_float("SPEED", probe_opts.speed_mm_s, minval=PROBE_SPEED_MM_S[0],
+                               maxval=PROBE_SPEED_MM_S[1])
+        lift_speed = gcmd.get_float("LIFT_SPEED", probe_opts.effective_lift_speed_mm_s, minval=LIFT_SPEED_MM_S[0],
+                                    maxval=LIFT_SPEED_MM_S[1])
+        horizontal_speed = gcmd.get_float("HORIZONTAL_SPEED", 50.0, **SPEED_RANGE)
+        retract_mm = gcmd.get_float("SAMPLE_RETRACT_DIST", probe_opts.sample_retract_dist_mm, above=0.0,
+                                    maxval=MAX_RETRACT_MM)
+        scrubbing_frequency = gcmd.get_int("SCRUBBING_FREQUENCY", probe_opts.scrubbing_frequency, minval=0,
+                                           maxval=MAX_RETRIES)
         motion = self.device.motion
         if not motion.is_z_homed():
             raise ProbeError("Must home before probe")

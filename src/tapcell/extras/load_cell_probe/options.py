@@ -11,6 +11,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tapcell.filters import (DRIFT_CUTOFF_MAX_HZ, DRIFT_CUTOFF_MIN_HZ, FILTER_ORDERS, NOTCH_QUALITY_MAX,
+                             NOTCH_QUALITY_MIN)
 from tapcell.mcu.trigger import MAX_STUCK_SAMPLES, TriggerError
 from tapcell.extras.probe.options import OptionSpec
 from tapcell.tap.model import ANALYSIS_RANGES, AnalysisOptions
@@ -84,18 +86,27 @@ def analysis_option_spec(name: str, default=None) -> OptionSpec:
 
 PULLBACK_LIMITS_MM = (0.01, 2.0)  # pullback_distance's range (also the calibration's PULLBACK_DISTANCE)
 
-# Filter options are range-checked by tapcell.filters (the limits depend on the sample rate).
+# The filter options' ranges here are the widest any sample rate allows (the fastest chip,
+# an ADS1220 at 2000 sps, has its half rate at 1000 Hz); tapcell.filters then checks them
+# against the configured sample rate and each other.
+FILTER_HALF_RATE_MAX_HZ = 1000.0
 TAP_OPTION_SPECS: tuple[OptionSpec, ...] = (
     OptionSpec("trigger_force", "trigger_force_g", "float", 75.0, minval=10.0, maxval=250.0),
     OptionSpec("force_safety_limit", "force_safety_limit_g", "float", 2000.0, minval=0.0, maxval=10000.0),
     OptionSpec("drift_safety_limit", "drift_safety_limit_g", "float", 1000.0, minval=0.0, maxval=10000.0),
     OptionSpec("tare_time", "tare_time_s", "float", 4.0 / 60.0, minval=0.01, maxval=1.0),
-    OptionSpec("drift_filter_cutoff_frequency", "drift_filter_cutoff_frequency", "optfloat", None),
-    OptionSpec("drift_filter_delay", "drift_filter_delay", "int", 2),
-    OptionSpec("buzz_filter_cutoff_frequency", "buzz_filter_cutoff_frequency", "optfloat", None),
-    OptionSpec("buzz_filter_delay", "buzz_filter_delay", "int", 2),
-    OptionSpec("notch_filter_frequencies", "notch_filter_frequencies", "floatlist", None),
-    OptionSpec("notch_filter_quality", "notch_filter_quality", "float", 2.0),
+    OptionSpec("drift_filter_cutoff_frequency", "drift_filter_cutoff_frequency", "optfloat", None,
+               minval=DRIFT_CUTOFF_MIN_HZ, maxval=DRIFT_CUTOFF_MAX_HZ),
+    OptionSpec("drift_filter_delay", "drift_filter_delay", "int", 2, minval=min(FILTER_ORDERS),
+               maxval=max(FILTER_ORDERS)),
+    OptionSpec("buzz_filter_cutoff_frequency", "buzz_filter_cutoff_frequency", "optfloat", None,
+               above=0.0, below=FILTER_HALF_RATE_MAX_HZ),
+    OptionSpec("buzz_filter_delay", "buzz_filter_delay", "int", 2, minval=min(FILTER_ORDERS),
+               maxval=max(FILTER_ORDERS)),
+    OptionSpec("notch_filter_frequencies", "notch_filter_frequencies", "floatlist", None,
+               above=0.0, below=FILTER_HALF_RATE_MAX_HZ),
+    OptionSpec("notch_filter_quality", "notch_filter_quality", "float", 2.0, minval=NOTCH_QUALITY_MIN,
+               maxval=NOTCH_QUALITY_MAX),
     OptionSpec("pullback_distance", "pullback_distance_mm", "float", 0.2,
                minval=PULLBACK_LIMITS_MM[0], maxval=PULLBACK_LIMITS_MM[1]),
     OptionSpec("pullback_speed", "pullback_speed_mm_s", "float", None, minval=0.01, maxval=2.0),

@@ -55,7 +55,7 @@ def read_section_values(section, specs: tuple[OptionSpec, ...]) -> dict[str, Any
         elif spec.kind == "choice":
             values[spec.field] = section.getchoice(spec.option, list(spec.choices), spec.default)
         elif spec.kind == "floatlist":
-            values[spec.field] = _tuple_or_none(section.getfloatlist(spec.option, spec.default))
+            values[spec.field] = _tuple_or_none(section.getfloatlist(spec.option, spec.default, **spec.limits()))
         else:
             raise AssertionError(f"unknown option kind {spec.kind}")
     return values
@@ -91,7 +91,7 @@ def gcode_override_values(gcmd, specs: tuple[OptionSpec, ...], current) -> dict[
             if raw.lower() in DISABLE_WORDS:
                 changed[spec.field] = None
                 continue
-            changed[spec.field] = tuple(gcmd.get_floatlist(name))
+            changed[spec.field] = tuple(gcmd.get_floatlist(name, **spec.limits()))
     return changed
 
 
@@ -134,21 +134,35 @@ class ProbeOptions:
         return self.retry_speed_mm_s if self.retry_speed_mm_s is not None else self.speed_mm_s
 
 
+# Ranges of the probe options. Probing slower than PROBE_SPEED_MM_S[0] gets no more accurate
+# (at 320 sps 0.5 mm/s is already 1.6 µm per sample) but a tap takes seconds of real time;
+# more than MAX_SAMPLES taps per point or retries per tap is a mistake, not a measurement.
+PROBE_SPEED_MM_S = (0.5, 100.0)
+LIFT_SPEED_MM_S = (0.5, 500.0)
+MAX_PROBE_OFFSET_MM = 500.0
+MAX_Z_OFFSET_MM = 50.0
+MAX_SAMPLES = 100
+MAX_RETRIES = 100
+MAX_RETRACT_MM = 50.0
+
 PROBE_OPTION_SPECS: tuple[OptionSpec, ...] = (
-    OptionSpec("x_offset", "x_offset_mm", "float", 0.0),
-    OptionSpec("y_offset", "y_offset_mm", "float", 0.0),
-    OptionSpec("speed", "speed_mm_s", "float", 5.0, above=0.0, aliases=("PROBE_SPEED",)),
-    OptionSpec("lift_speed", "lift_speed_mm_s", "float", None, above=0.0),
-    OptionSpec("samples", "samples", "int", 1, minval=1),
-    OptionSpec("sample_retract_dist", "sample_retract_dist_mm", "float", 2.0, above=0.0),
+    OptionSpec("x_offset", "x_offset_mm", "float", 0.0, minval=-MAX_PROBE_OFFSET_MM, maxval=MAX_PROBE_OFFSET_MM),
+    OptionSpec("y_offset", "y_offset_mm", "float", 0.0, minval=-MAX_PROBE_OFFSET_MM, maxval=MAX_PROBE_OFFSET_MM),
+    OptionSpec("speed", "speed_mm_s", "float", 5.0, minval=PROBE_SPEED_MM_S[0], maxval=PROBE_SPEED_MM_S[1],
+               aliases=("PROBE_SPEED",)),
+    OptionSpec("lift_speed", "lift_speed_mm_s", "float", None, minval=LIFT_SPEED_MM_S[0],
+               maxval=LIFT_SPEED_MM_S[1]),
+    OptionSpec("samples", "samples", "int", 1, minval=1, maxval=MAX_SAMPLES),
+    OptionSpec("sample_retract_dist", "sample_retract_dist_mm", "float", 2.0, above=0.0, maxval=MAX_RETRACT_MM),
     OptionSpec("samples_result", "samples_result", "choice", "average", choices=SAMPLES_RESULT_CHOICES),
-    OptionSpec("samples_tolerance", "samples_tolerance_mm", "float", 0.1, minval=0.0),
-    OptionSpec("samples_tolerance_retries", "samples_tolerance_retries", "int", 0, minval=0),
+    OptionSpec("samples_tolerance", "samples_tolerance_mm", "float", 0.1, minval=0.0, maxval=10.0),
+    OptionSpec("samples_tolerance_retries", "samples_tolerance_retries", "int", 0, minval=0, maxval=MAX_RETRIES),
     OptionSpec("bad_probe_strategy", "bad_probe_strategy", "choice", "retry", choices=BAD_PROBE_STRATEGIES),
-    OptionSpec("bad_probe_retries", "bad_probe_retries", "int", 6, minval=0),
-    OptionSpec("retry_speed", "retry_speed_mm_s", "float", None, above=0.0),
+    OptionSpec("bad_probe_retries", "bad_probe_retries", "int", 6, minval=0, maxval=MAX_RETRIES),
+    OptionSpec("retry_speed", "retry_speed_mm_s", "float", None, minval=PROBE_SPEED_MM_S[0],
+               maxval=PROBE_SPEED_MM_S[1]),
     OptionSpec("pattern_spacing", "pattern_spacing_mm", "float", 2.0, above=0.0, maxval=20.0),
-    OptionSpec("scrubbing_frequency", "scrubbing_frequency", "int", 0, minval=0),
+    OptionSpec("scrubbing_frequency", "scrubbing_frequency", "int", 0, minval=0, maxval=MAX_RETRIES),
 )
 
 PROBE_TEMPLATE_OPTIONS = ("activate_gcode", "deactivate_gcode", "nozzle_scrubber_gcode")
@@ -165,7 +179,8 @@ def check_probe_options(options: ProbeOptions) -> str | None:
 def read_probe_options(section, templates: dict) -> ProbeOptions:
     """`[probe]` options of a section (z_offset is required)."""
     values = read_section_values(section, PROBE_OPTION_SPECS)
-    options = ProbeOptions(z_offset_mm=section.getfloat("z_offset"), templates=templates, **values)
+    z_offset_mm = section.getfloat("z_offset", minval=-MAX_Z_OFFSET_MM, maxval=MAX_Z_OFFSET_MM)
+    options = ProbeOptions(z_offset_mm=z_offset_mm, templates=templates, **values)
     problem = check_probe_options(options)
     if problem is not None:
         raise section.error("bad_probe_retries", problem.split(": ", 1)[1])

@@ -25,7 +25,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from tapcell.host.gcode import GCodeError
-from tapcell.extras.probe.options import PROBE_OPTION_SPECS, ProbeOptions, check_probe_options, with_overrides
+from tapcell.extras.probe.options import MAX_SAMPLES, PROBE_OPTION_SPECS, ProbeOptions, check_probe_options, with_overrides
 from tapcell.extras.probe.patterns import next_clean_spot
 from tapcell.extras.probe.stats import AccuracyStats, accuracy_stats, combine_samples, format_accuracy, spread_mm
 
@@ -286,7 +286,7 @@ class Probe:
             self.respond_info(f"Z homed by probing: toolhead Z is now {z_now - result.z_mm:.6f}")
 
     def cmd_PROBE_ACCURACY(self, gcmd) -> None:
-        samples = gcmd.get_int("SAMPLES", 10, minval=1)
+        samples = gcmd.get_int("SAMPLES", 10, minval=1, maxval=MAX_SAMPLES)
         x, y = self.current_probe_xy()
         z_start = self.motion.get_position()[2]
         # Every tap must be trusted: a bad tap aborts unless the user picked another strategy.
