@@ -12,6 +12,8 @@ Values are read as written, without checks: the modules that own these sections 
 
 from __future__ import annotations
 
+import math
+
 # Trigger on the sensor's MCU -> host -> stepper MCU: about two USB/CAN message latencies.
 MULTI_MCU_STOP_DELAY_S = 0.004
 SENSOR_PINS = ("sclk_pin", "dout_pin", "cs_pin", "data_ready_pin")
@@ -23,9 +25,10 @@ def _number(config, section: str, option: str, default=None):
     if text is None:
         return default
     try:
-        return float(text)
+        value = float(text)
     except ValueError:
         return default
+    return value if math.isfinite(value) else default
 
 
 def _gear_ratio(config, section: str) -> float:
