@@ -109,9 +109,12 @@ def test_virtual_printer_follows_the_printers_sensor(tmp_path):
     assert abs(rate - 2000.0) < 2.0 and measured[0].endswith("configured: 2000.0")
     # An HX711 measures its 80 samples/s, on the main board.
     hx711 = {"sensor_type: ads1220\ncs_pin: toolboard:PA4\ndata_ready_pin: toolboard:PA2\nspi_bus: spi1\n"
-             "gain: 128\nsample_rate: 2000": "sensor_type: hx711\nsclk_pin: PA5\ndout_pin: PA4\nsample_rate: 80"}
+             "gain: 128\nsample_rate: 2000": "sensor_type: hx711\nsclk_pin: PA5\ndout_pin: PA4\nsample_rate: 80\n"
+                                               "gain: A-64"}
     printer, responses = start(tmp_path, voron_text(hx711), "hx711.cfg")
     assert (printer.backend.params.chip, printer.backend.params.multi_mcu_delay_s) == ("hx711", 0.0)
+    # Gain 64: half the counts per gram of the same cell at 128 (110 counts/g in the clean scenario).
+    assert printer.backend.truth.counts_per_gram == pytest.approx(55.0)
     measured = [line for line in run(printer, responses, "LOAD_CELL_DIAGNOSTIC") if "Measured" in line]
     assert abs(float(measured[0].split(": ")[1].split(",")[0]) - 80.0) < 1.0
 
