@@ -7,7 +7,9 @@ import pytest
 
 from machines import gcode_error
 from machines_klipper import BED_SLINGER, calibrated_voron, run, start
+from tapcell.host.config import ConfigError
 from tapcell.host.gcode import GCodeError
+from tapcell.host.printer import Printer
 
 
 @pytest.fixture
@@ -276,3 +278,50 @@ def test_turning_off_what_the_printer_lacks_is_silent(tmp_path):
 def test_every_number_has_a_range(slinger, line, problem):
     printer, _ = slinger
     assert gcode_error(printer, line) == f"Error on '{line}': {problem}"
+
+
+# A web UI's include, in the style every Mainsail/Fluidd user has: macros that wrap the built-ins.
+UI_MACROS = """
+[gcode_macro PAUSE]
+description: Pause and park
+rename_existing: PAUSE_BASE
+gcode:
+    PAUSE_BASE
+    G91
+    G1 Z5 F600
+    G90
+    G1 X10 Y10 F6000
+
+[gcode_macro RESUME]
+rename_existing: RESUME_BASE
+gcode:
+    RESUME_BASE VELOCITY=100
+
+[gcode_macro CANCEL_PRINT]
+rename_existing: CANCEL_PRINT_BASE
+gcode:
+    M104 S0
+    CANCEL_PRINT_BASE
+"""
+
+
+def test_macros_wrap_the_pause_commands_with_rename_existing(tmp_path):
+    # [pause_resume] comes after the macros that rename its commands, as in many configs.
+    printer, responses = start(tmp_path, BED_SLINGER + UI_MACROS + "\n[pause_resume]\nrecover_velocity: 80\n")
+    run(printer, responses, "G28\nG1 X50 Y60 Z1 F6000\nPAUSE")
+    toolhead = printer.lookup_object("toolhead")
+    assert printer.get_status()["pause_resume"] == {"is_paused": True}
+    assert toolhead.get_position() == pytest.approx((10.0, 10.0, 6.0))  # parked
+    assert run(printer, responses, "PAUSE_BASE") == ["// Print already paused"]
+    run(printer, responses, "RESUME")
+    assert toolhead.get_position() == pytest.approx((50.0, 60.0, 1.0))  # back where it paused
+    assert run(printer, responses, "RESUME") == ["// Print is not paused, resume aborted"]
+    run(printer, responses, "M104 S200\nPAUSE\nCANCEL_PRINT")
+    assert printer.get_status()["pause_resume"] == {"is_paused": False}
+    assert printer.get_status()["extruder"]["target"] == 0.0
+    path = tmp_path / "missing.cfg"
+    path.write_text(BED_SLINGER + UI_MACROS)  # no [pause_resume]: nothing to rename
+    with pytest.raises(ConfigError) as info:
+        Printer.from_config(str(path))
+    assert str(info.value) == (f"{path}: [gcode_macro PAUSE]: Existing command 'PAUSE' not found in "
+                               "gcode_macro rename")

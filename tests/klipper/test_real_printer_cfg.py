@@ -24,10 +24,10 @@ def test_voron_printer_cfg_loads_with_one_notice_of_what_is_simulated(tmp_path):
     assert "[load_cell_probe] (load cell under the nozzle, bed contact)" in simulated
     for section in ("[mcu]", "[mcu toolboard]", "[board_pins octopus]", "[tmc2209 stepper_x]", "[stepper_z1]",
                     "[neopixel sb_leds]", "[adxl345]", "[input_shaper]", "[idle_timeout]", "[virtual_sdcard]",
-                    "[pause_resume]", "[save_variables]", "[force_move]", "[firmware_retraction]", "[z_tilt]"):
+                    "[save_variables]", "[force_move]", "[firmware_retraction]", "[z_tilt]"):
         assert section in accepted, section
     status = printer.get_status()
-    assert {"toolhead", "gcode_move", "extruder", "heater_bed", "fan", "heater_fan hotend_fan", "heaters",
+    assert {"toolhead", "gcode_move", "extruder", "heater_bed", "fan", "heater_fan hotend_fan", "heaters", "pause_resume",
             "display_status", "exclude_object", "temperature_sensor chamber", "output_pin caselight"} <= set(status)
     assert status["heaters"]["available_heaters"] == ["extruder", "heater_bed"]
     assert status["output_pin caselight"] == {"value": 0.5}

@@ -23,7 +23,6 @@ ACCEPTED_SECTIONS: dict[str, str] = {
     "extruder_stepper": "extra extruder motor",
     "idle_timeout": "idle timeout",
     "virtual_sdcard": "print files",
-    "pause_resume": "pause/resume",
     "save_variables": "saved variables",
     "force_move": "manual stepper moves",
     "firmware_retraction": "firmware retraction",

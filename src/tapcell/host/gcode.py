@@ -394,6 +394,18 @@ class GCodeDispatch:
             self._help[name] = desc
         return previous
 
+    def rename_command(self, name: str, new_name: str) -> None:
+        """Move a command to another name (a macro's `rename_existing`), with its help text."""
+        name, new_name = name.upper(), new_name.upper()
+        if name not in self._handlers:
+            raise GCodeError(f"Existing command '{name}' not found in gcode_macro rename")
+        if new_name in self._handlers:
+            raise GCodeError(f"Command '{new_name}' is already registered")
+        self._handlers[new_name] = self._handlers.pop(name)
+        self._help[new_name] = self._help.pop(name, f"Renamed builtin of '{name}'")
+        if name in self._mux:
+            self._mux[new_name] = self._mux.pop(name)
+
     def unregister_command(self, name: str) -> None:
         """Remove a command (e.g. the temporary TARE/ACCEPT of a calibration)."""
         name = name.upper()
@@ -483,7 +495,8 @@ class GCodeDispatch:
         """One line per parameter the handler never asked for (a misspelt SAMPLE= silently did nothing)."""
         known = self._known_parameters.setdefault(gcmd.command, set())
         known.update(gcmd._read)
-        for name in gcmd.unread_parameters():
+        # A name the command read in another call is known: this call ended before it got to it.
+        for name in (name for name in gcmd.unread_parameters() if name not in known):
             close = difflib.get_close_matches(name, sorted(known), n=1)
             hint = f" (did you mean {close[0]}?)" if close else ""
             self.respond_info(f"{gcmd.command}: unknown parameter {name} ignored{hint}")

@@ -158,7 +158,7 @@ class ApiObjects:
         status["virtual_sdcard"] = {"file_path": None, "progress": 0.0, "is_active": False,
                                     "file_position": 0, "file_size": 0}
         status.setdefault("display_status", {"progress": 0.0, "message": self.display_message})
-        status["pause_resume"] = {"is_paused": self.is_paused}
+        status.setdefault("pause_resume", {"is_paused": self.is_paused})
         return status
 
     @staticmethod
