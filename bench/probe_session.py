@@ -106,7 +106,7 @@ def run_case(scenario: str, speed_mm_s: float, extra: str, workdir: Path) -> dic
     frame_z = device.motion.frame_offset_mm["z"]
     x, y, _ = vp.position
     truth_z = float(vp.truth.contact_z_at(x, y)) + frame_z
-    z = np.array([t.analysis.z_mm + frame_z for t in taps if t.analysis.z_mm is not None])
+    z = np.array([t.analysis.z_mm for t in taps if t.analysis.z_mm is not None])  # the toolhead's frame
     codes = collections.Counter(t.analysis.error for t in taps if not t.valid)
     shares = [(t.analysis.break_contact_time_s - t.tap.events["pullback_start_time"])
               / (t.tap.events["pullback_end_time"] - t.tap.events["pullback_start_time"])

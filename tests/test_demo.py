@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import io
 import re
 
 import pytest
 
-from tapcell.tools import demo
+from tapcell.tools import cli, demo
 from tapcell.tap import read_tap_file
 
 SCALE_CONFIG = """\
@@ -22,9 +23,10 @@ dout_pin: PA4
 def test_demo_calibrates_and_weighs(tmp_path, capsys):
     config = tmp_path / "scale.cfg"
     config.write_text(SCALE_CONFIG)
-    assert demo.main(["--config", str(config)]) == 0
+    assert demo.main(["--config", str(config), "--out", str(tmp_path / "out")]) == 0
     out = capsys.readouterr().out
     assert config.read_text() == SCALE_CONFIG  # the demo works on a copy
+    assert "counts_per_gram" in (tmp_path / "out" / "printer.cfg").read_text()  # the calibration, saved there
     for command in ("> LOAD_CELL_DIAGNOSTIC", "> CALIBRATE GRAMS=1000", "> ACCEPT", "> SAVE_CONFIG",
                     "> LOAD_CELL_READ"):
         assert command in out
@@ -45,11 +47,11 @@ def test_demo_calibrates_and_weighs(tmp_path, capsys):
 def test_demo_reports_a_broken_config_without_a_traceback(tmp_path, capsys):
     config = tmp_path / "broken.cfg"
     config.write_text(SCALE_CONFIG + "counts_per_gram: 0.1\n")
-    assert demo.main(["--config", str(config)]) == 1
+    assert demo.main(["--config", str(config), "--out", str(tmp_path / "out")]) == 1
     assert "The printer did not start:" in capsys.readouterr().out
 
 
-def test_make_demo_default_runs(tmp_path, capsys):
+def test_make_demo_default_runs(tmp_path, capsys, monkeypatch):
     assert demo.main(["--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "!!" not in out and "> LOAD_CELL_READ" in out
@@ -70,3 +72,14 @@ def test_make_demo_default_runs(tmp_path, capsys):
     assert worst_um < 2.5
     assert (tmp_path / "bed-mesh.png").read_bytes()[:4] == b"\x89PNG"
     assert (tmp_path / "bed-mesh-error.png").read_bytes()[:4] == b"\x89PNG"
+    # The calibrated printer stays in the output folder, and the demo ends with the command to go on.
+    saved = (tmp_path / "printer.cfg").read_text()
+    assert "counts_per_gram" in saved and "[bed_mesh default]" in saved
+    command = demo.console_command(tmp_path / "printer.cfg")
+    assert out.rstrip().splitlines()[-1] == f"    {command}"
+    assert command.endswith(f"tapcell console --config {tmp_path / 'printer.cfg'}")
+    # ... and the console goes on from there: calibrated, the mesh loaded.
+    monkeypatch.setattr("sys.stdin", io.StringIO("LOAD_CELL_READ\nBED_MESH_OUTPUT\n"))
+    assert cli.main(["console", "--config", str(tmp_path / "printer.cfg")]) == 0
+    console_out = capsys.readouterr().out
+    assert "Mesh Leveling Probed Z positions:" in console_out and "!!" not in console_out

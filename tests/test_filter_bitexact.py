@@ -8,7 +8,7 @@ from hypothesis import example, given, settings, strategies as st
 from scipy import signal
 
 from tapcell.filters import (
-    FilterOptions, QuantizedSos, buzz_cutoff_minimum_hz, design_firmware_filter, design_sos, grams_to_q1615,
+    NOTCH_QUALITY_MAX, FilterOptions, QuantizedSos, buzz_cutoff_minimum_hz, design_firmware_filter, design_sos, grams_to_q1615,
     half_rate_hz, q1615_to_grams, reference_sosfilt_q,
 )
 from tapcell.mcu.trigger import TriggerConfigError, sos_filter_run
@@ -30,7 +30,7 @@ def valid_designs(draw) -> FilterOptions:
     # a notch's width (frequency / quality) must stay below half the sample rate
     q_min = max([0.5] + [1.01 * f0 / (sps / 2) for f0 in notches])
     return FilterOptions(sps, drift, draw(st.sampled_from((1, 2))), buzz, draw(st.sampled_from((1, 2))),
-                         tuple(notches), draw(st.floats(q_min, 6.0)))
+                         tuple(notches), draw(st.floats(q_min, NOTCH_QUALITY_MAX)))
 
 
 @settings(max_examples=60, deadline=None)

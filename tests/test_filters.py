@@ -79,8 +79,9 @@ def test_quantize_rejects_bad_sections(sos, message):
      "330 Hz (half of 660 sps)"),
     (dict(notch_filter_frequencies="50"),
      "notch_filter_frequencies: '50' is not allowed; allowed: a list of at most 2 frequencies"),
-    (dict(notch_filter_quality=0.4), "notch_filter_quality: 0.4 is not allowed; allowed: 0.5 to 6"),
-    (dict(notch_filter_quality=6.5), "notch_filter_quality: 6.5 is not allowed; allowed: 0.5 to 6"),
+    (dict(notch_filter_quality=0.4), "notch_filter_quality: 0.4 is not allowed; allowed: 0.5 to 3"),
+    # The config reference: "Minimum value is 0.5 and maximum is 3.0".
+    (dict(notch_filter_quality=3.5), "notch_filter_quality: 3.5 is not allowed; allowed: 0.5 to 3"),
     (dict(sample_rate_sps=80, notch_filter_frequencies=(30,), notch_filter_quality=0.5),
      "notch_filter_quality: 0.5 is not allowed; allowed: above 0.75 for a notch at 30 Hz (its width, frequency / "
      "quality, must stay below half of 80 sps)"),
@@ -107,7 +108,7 @@ def test_limits_relative_to_the_sample_rate():
     assert str(info.value) == ("drift_filter_cutoff_frequency: 15 is not allowed; allowed: 0.1 to 20 Hz, "
                                "below 10 Hz (half of 20 sps)")
     # the range ends are allowed
-    assert design_sos(FilterOptions(660, drift_filter_cutoff_frequency=0.1, notch_filter_quality=6.0,
+    assert design_sos(FilterOptions(660, drift_filter_cutoff_frequency=0.1, notch_filter_quality=3.0,
                                     notch_filter_frequencies=(0.2,))).shape == (2, 6)
     assert design_sos(FilterOptions(660, drift_filter_cutoff_frequency=20, notch_filter_quality=0.5)).shape == (1, 6)
 

@@ -177,7 +177,8 @@ def test_probe_commands_warn_and_take_kalicos_spellings(tmp_path):
     assert "(samples=10 " in out[0]  # the default ran: the warning says why
     # Kalico's TAPS= is tapcell's COUNT=.
     out = run(printer, responses, "SIM_TAP FORCE=300 DELAY=0.3\nLOAD_CELL_TEST_TAP TAPS=1 TIMEOUT=5")
-    assert out[-3:] == ["// Tap the load cell 1 times:", "// Tap Detected!", "// Test complete, 1 taps detected"]
+    assert out[-3].endswith("Tap the load cell 1 times:") and out[-2].startswith("// Tap Detected!")
+    assert out[-1].startswith("// Test complete, 1 taps detected")
     assert gcode_error(printer, "LOAD_CELL_TEST_TAP TAPS=1 COUNT=2") == (
         "Error on 'LOAD_CELL_TEST_TAP TAPS=1 COUNT=2': TAPS (Kalico's name) and COUNT are the same parameter; "
         "give one")

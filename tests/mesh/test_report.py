@@ -10,32 +10,76 @@ import pytest
 from tapcell.mesh.abl import TwoPassPoint, topology_report
 from tapcell.mesh.grid import rectangular_grid
 from tapcell.mesh.interpolate import Interpolation, resolve_interpolation
-from tapcell.mesh.report import mesh_error, render_mesh, render_mesh_error, render_topology, write_mesh_png
+from tapcell.mesh.faulty_regions import make_regions, probing_plan
+from tapcell.mesh.report import (
+    mesh_error,
+    render_generated_points,
+    render_mesh,
+    render_mesh_error,
+    render_mesh_map,
+    render_probed_matrix,
+    render_topology,
+    mesh_figure,
+    write_mesh_png,
+)
 from tapcell.mesh.zmesh import build_mesh
 
 GRID = rectangular_grid((0, 0), (200, 100), 3)
 PROBED = np.array([[0.0, 0.01, 0.02], [0.03, 0.04, 0.05], [0.06, 0.07, 0.08]])
 
 
-def test_render_mesh_lays_out_rows_from_the_back():
+def test_bed_mesh_output_in_klippers_format():
+    """Klipper prints the probed rows front first, then the interpolated mesh back row first."""
     mesh = build_mesh(PROBED, GRID, resolve_interpolation("lagrange", (3, 3))[0], profile_name="default")
-    assert render_mesh(mesh).splitlines() == [
-        "Mesh 'default': 3 x 3 probed points, X 0.0 .. 200.0 mm, Y 0.0 .. 100.0 mm",
-        "Probed bed height in mm (back of the bed at the top, front at the bottom):",
-        "   Y \\ X       0.0    100.0    200.0",
-        "   100.0    0.0600   0.0700   0.0800",
-        "    50.0    0.0300   0.0400   0.0500",
-        "     0.0    0.0000   0.0100   0.0200",
-        "Lowest 0.0000 mm, highest 0.0800 mm: the bed varies by 0.0800 mm",
-        "Interpolation: lagrange, 2, 2 points between probed points -> 7 x 7 mesh points",
+    assert render_probed_matrix(mesh).splitlines() == [
+        "Mesh Leveling Probed Z positions:",
+        " 0.000000 0.010000 0.020000",
+        " 0.030000 0.040000 0.050000",
+        " 0.060000 0.070000 0.080000",
     ]
+    lines = render_mesh(mesh, 5.0, (0.0, -1.5)).splitlines()
+    assert lines[:7] == [
+        "Mesh X,Y: 7,7",
+        "Search Height: 5",
+        "Mesh Offsets: X=0.0000, Y=-1.5000",
+        "Mesh Average: 0.04",
+        "Mesh Range: min=0.0000 max=0.0800",
+        "Interpolation Algorithm: lagrange",
+        "Measured points:",
+    ]
+    # A plane stays a plane: 7 x 7 points (2 between probed ones), 0.01 / 3 mm per column,
+    # 0.03 / 3 mm per row, back row first.
+    rows = [[float(v) for v in line.split()] for line in lines[7:]]
+    expected = [[0.01 * row + 0.01 / 3 * column for column in range(7)] for row in range(6, -1, -1)]
+    assert np.array(rows) == pytest.approx(np.array(expected), abs=1e-6)
+    assert lines[7].startswith("  0.060000  0.063333")
 
 
-def test_render_mesh_direct_and_zero_reference_lines():
+def test_bed_mesh_map_and_generated_points():
     mesh = build_mesh(PROBED, GRID, Interpolation("direct", 0, 0), zero_reference_xy_mm=(100, 50))
-    lines = render_mesh(mesh).splitlines()
-    assert lines[-2] == "Moves follow the probed points directly (bilinear between them)"
-    assert lines[-1] == "Shifted by -0.0400 mm so the zero reference position is at Z 0"
+    mapped = json.loads(render_mesh_map(mesh).removeprefix("mesh_map_output "))
+    assert mapped["mesh_min"] == [0.0, 0.0] and mapped["mesh_max"] == [200.0, 100.0]
+    # The probed heights after the zero reference shift (0.04 mm at 100, 50).
+    assert np.array(mapped["z_positions"]) == pytest.approx(PROBED - 0.04, abs=1e-12)
+    assert render_mesh_map(mesh).startswith("mesh_map_output {")
+    plan = probing_plan(GRID, make_regions({1: ((90, 40), (110, 60))}))
+    assert render_generated_points(plan, (0.0, 10.0), (100, 50)).splitlines() == [
+        "bed_mesh: generated points",
+        "Index |  Tool Adjusted  |   Probe",
+        "  0   | (0.0, -10.0)    | (0.0, 0.0)",
+        "  1   | (100.0, -10.0)  | (100.0, 0.0)",
+        "  2   | (200.0, -10.0)  | (200.0, 0.0)",
+        "  3   | (200.0, 40.0)   | (200.0, 50.0)",
+        "  4   | (100.0, 40.0)   | (100.0, 50.0)",
+        "  5   | (0.0, 40.0)     | (0.0, 50.0)",
+        "  6   | (0.0, 90.0)     | (0.0, 100.0)",
+        "  7   | (100.0, 90.0)   | (100.0, 100.0)",
+        "  8   | (200.0, 90.0)   | (200.0, 100.0)",
+        "bed_mesh: zero_reference_position is (100.00, 50.00)",
+        "bed_mesh: faulty region points",
+        # Row 1 runs toward -X: the substitutes come from the +X edge first.
+        "4 (100.00, 50.00), substituted points: [(110.0, 50.0), (100.0, 60.0), (100.0, 40.0), (90.0, 50.0)]",
+    ]
 
 
 def test_mesh_error_against_a_truth_with_a_bump_between_points():
@@ -82,3 +126,19 @@ def test_heat_map_png_has_two_panels_with_truth(tmp_path):
     double = write_mesh_png(tmp_path / "mesh_and_error.png", mesh, lambda x, y: 0.0003 * x, samples_per_axis=21)
     assert matplotlib.image.imread(single).shape[:2] == (480, 550)
     assert matplotlib.image.imread(double).shape[:2] == (480, 1100)
+
+
+def test_heat_map_in_mm_with_the_meshs_one_range():
+    """The heat map reports the same range as BED_MESH_OUTPUT and BED_MESH_CALIBRATE, in mm, with
+    a labelled colour bar whose ends are that range."""
+    mesh = build_mesh(PROBED, GRID, resolve_interpolation("lagrange", (3, 3))[0])
+    figure = mesh_figure(mesh, lambda x, y: 0.0003 * x, samples_per_axis=21)
+    height, height_bar, error, error_bar = figure.axes
+    low, high = mesh.z_range_mm()
+    range_line = next(line for line in render_mesh(mesh, 5, (0, 0)).splitlines() if line.startswith("Mesh Range"))
+    assert range_line == f"Mesh Range: min={low:.4f} max={high:.4f}"
+    assert height.get_title() == f"Mesh: bed height\nmin {low:.4f} mm, max {high:.4f} mm, range {high - low:.4f} mm"
+    assert height_bar.get_ylabel() == "bed height (mm)" and error_bar.get_ylabel() == "mesh - true bed (µm)"
+    assert height.images[0].get_clim() == (low, high)
+    assert float(np.max(height.images[0].get_array())) == pytest.approx(high)  # mm, not µm
+    assert [t.get_text() for t in height.get_legend().get_texts()] == ["probed points"]

@@ -69,15 +69,19 @@ def test_options_are_checked_with_file_section_option_and_value(make_printer):
 def test_no_mesh_output_and_status(make_printer):
     printer = make_printer(MESH)
     printer.gcode.run_script("BED_MESH_OUTPUT")
-    assert make_printer.responses[-1] == "// Bed has not been probed (no active mesh)"
+    assert make_printer.responses[-1] == "// Bed has not been probed"
+    printer.gcode.run_script("BED_MESH_MAP")
+    assert make_printer.responses[-1] == "// Bed has not been probed"
     status = printer.get_status()["bed_mesh"]
     assert status["profile_name"] == "" and status["profiles"] == {}
     printer.gcode.run_script("BED_MESH_OUTPUT PGP=1")
-    assert make_printer.responses[-10:] == [
-        "// Probe points (probing order):",
-        "//   0: X 20.000 Y 20.000", "//   1: X 120.000 Y 20.000", "//   2: X 220.000 Y 20.000",
-        "//   3: X 220.000 Y 120.000", "//   4: X 120.000 Y 120.000", "//   5: X 20.000 Y 120.000",
-        "//   6: X 20.000 Y 220.000", "//   7: X 120.000 Y 220.000", "//   8: X 220.000 Y 220.000"]
+    assert make_printer.responses[-11:] == [
+        "// bed_mesh: generated points", "// Index |  Tool Adjusted  |   Probe",
+        "//   0   | (20.0, 20.0)    | (20.0, 20.0)", "//   1   | (120.0, 20.0)   | (120.0, 20.0)",
+        "//   2   | (220.0, 20.0)   | (220.0, 20.0)", "//   3   | (220.0, 120.0)  | (220.0, 120.0)",
+        "//   4   | (120.0, 120.0)  | (120.0, 120.0)", "//   5   | (20.0, 120.0)   | (20.0, 120.0)",
+        "//   6   | (20.0, 220.0)   | (20.0, 220.0)", "//   7   | (120.0, 220.0)  | (120.0, 220.0)",
+        "//   8   | (220.0, 220.0)  | (220.0, 220.0)"]
 
 
 def test_g1_follows_the_loaded_mesh_and_m114_reports_gcode_z(make_printer, home_without_probe):
@@ -155,9 +159,11 @@ def test_profiles_survive_save_config_and_restart(make_printer):
     assert status["profiles"]["copy"]["points"][2] == pytest.approx([0.13, 0.23, 0.33])
     assert status["profile_name"] == ""  # only 'default' loads by itself
     restarted.gcode.run_script("BED_MESH_PROFILE LOAD=copy\nBED_MESH_OUTPUT")
-    out = "\n".join(make_printer.responses[-8:])
-    assert "Mesh 'copy': 3 x 3 probed points" in out
-    assert "   220.0    0.1300   0.2300   0.3300" in out
+    out = make_printer.responses[-14:]
+    assert out[:4] == ["// Mesh Leveling Probed Z positions:", "//  0.030000 0.130000 0.230000",
+                       "//  0.080000 0.180000 0.280000", "//  0.130000 0.230000 0.330000"]
+    assert out[8] == "Mesh Range: min=0.0300 max=0.3300"
+    assert out[-3] == "  0.130000  0.230000  0.330000"  # direct: the probed points, back row first
     restarted.gcode.run_script("BED_MESH_PROFILE REMOVE=copy\nSAVE_CONFIG")
     assert "[bed_mesh copy]" not in printer.read_text()
     assert sorted(restarted.get_status()["bed_mesh"]["profiles"]) == ["tilted"]

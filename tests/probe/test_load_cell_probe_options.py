@@ -43,6 +43,12 @@ def test_config_values_and_ranges(make_section):
     with pytest.raises(ConfigError, match=r"pullback_distance = 3"):
         read(make_section, "pullback_distance: 3")
     assert read(make_section, "force_safety_limit: 0").force_safety_limit_g == 0.0  # 0 disables
+    # notch_filter_quality: "Minimum value is 0.5 and maximum is 3.0" (the config reference).
+    assert read(make_section, "notch_filter_quality: 3").notch_filter_quality == 3.0
+    with pytest.raises(ConfigError, match=r"\[load_cell_probe\] notch_filter_quality = 3.5: must be at most 3"):
+        read(make_section, "notch_filter_quality: 3.5")
+    with pytest.raises(ConfigError, match=r"notch_filter_quality = 0.4: must be at least 0.5"):
+        read(make_section, "notch_filter_quality: 0.4")
 
 
 def test_gcode_overrides_including_filters(make_section, make_gcmd):

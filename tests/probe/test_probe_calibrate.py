@@ -153,8 +153,9 @@ def test_pullback_calibration_names_configured_speeds_it_does_not_suit(tmp_path)
 def test_pullback_calibration_refuses_when_break_contact_comes_too_late(tmp_path):
     printer, _ = make_printer(tmp_path)
     printer.gcode.run_script("PROBE HOME=Z\nG1 Z0.4")
-    with pytest.raises(GCodeError, match=r"CALIBRATION=PULLBACK_DISTANCE: only 1 of 3 taps were good enough "
-                                         r"\(TAP_BREAK_CONTACT_TOO_LATE x2\), at least 3 are needed; break contact came "
+    with pytest.raises(GCodeError, match=r"CALIBRATION=PULLBACK_DISTANCE: only 0 of 3 taps were good enough "
+                                         r"\(TAP_BREAK_CONTACT_TOO_LATE x2, TAP_PULLBACK_TOO_SHORT x1\), at least 3 "
+                                         r"are needed; break contact came "
                                          r"late in the 0.04 mm pullback: run again with PULLBACK_DISTANCE=0.08"):
         printer.gcode.run_script("LOAD_CELL_PROBE_CALIBRATE CALIBRATION=PULLBACK_DISTANCE SAMPLES=3 "
                                  "PULLBACK_DISTANCE=0.04 SAMPLE_RETRACT_DIST=0.4")

@@ -49,6 +49,11 @@ def test_gcode_overrides(make_section, make_gcmd):
         with_overrides(base, PROBE_OPTION_SPECS, make_gcmd("PROBE BAD_PROBE_STRATEGY=sometimes"))
     with pytest.raises(GCodeError, match="SAMPLES must have minimum of 1"):
         with_overrides(base, PROBE_OPTION_SPECS, make_gcmd("PROBE SAMPLES=0"))
+    # The guide spells it `BED_MESH STRATEGY=CIRCLE`: the same option (was silently ignored).
+    assert with_overrides(base, PROBE_OPTION_SPECS,
+                          make_gcmd("BED_MESH_CALIBRATE STRATEGY=CIRCLE")).bad_probe_strategy == "circle"
+    with pytest.raises(GCodeError, match="STRATEGY must be one of fail, ignore, retry, circle, not 'spiral'"):
+        with_overrides(base, PROBE_OPTION_SPECS, make_gcmd("BED_MESH_CALIBRATE STRATEGY=spiral"))
 
 
 def test_probe_templates_use_the_macro_environment(make_section):

@@ -53,12 +53,10 @@ def force_rows(load_cell, batch) -> list[list]:
 def tap_event(recorded) -> dict:
     """One recorded tap (tapcell.extras.load_cell_probe.RecordedTap) as a dump_taps push."""
     tap, analysis = recorded.tap, recorded.analysis
-    offset_x, offset_y, offset_z = recorded.frame_offset_mm
     t0_s = float(tap.time_s[0])
-    x_mm = float(tap.probe.get("x", 0.0)) + offset_x
-    y_mm = float(tap.probe.get("y", 0.0)) + offset_y
+    x_mm, y_mm = float(tap.probe.get("x", 0.0)), float(tap.probe.get("y", 0.0))  # the toolhead's frame
     moves = [{"print_time": m.print_time - t0_s, "move_t": m.move_t, "start_v": m.start_v, "accel": m.accel,
-              "start_x": x_mm, "start_y": y_mm, "start_z": m.start_z + offset_z,
+              "start_x": x_mm, "start_y": y_mm, "start_z": m.start_z,
               "x_r": 0.0, "y_r": 0.0, "z_r": m.z_r} for m in tap.moves]
     error = None if recorded.valid else {"error_code": analysis.error or "TAP_INVALID", "message": analysis.message}
     event = {
@@ -68,7 +66,7 @@ def tap_event(recorded) -> dict:
         # f = slope*t + intercept, with t counted from the first sample
         "tap_lines": [{"slope": slope, "intercept": intercept + slope * t0_s} for slope, intercept in analysis.lines],
         "tap_angles": list(analysis.angles_deg),
-        "tap_pos": None if analysis.z_mm is None else [x_mm, y_mm, float(analysis.z_mm) + offset_z],
+        "tap_pos": None if analysis.z_mm is None else [x_mm, y_mm, float(analysis.z_mm)],
         "moves": moves,
         **{name: float(tap.events[name]) - t0_s for name in ("home_end_time", "pullback_start_time",
                                                               "pullback_end_time") if name in tap.events},

@@ -6,6 +6,7 @@ writer uses matplotlib's object API, so no display or global pyplot state is inv
 
 from __future__ import annotations
 
+import json
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,38 +15,68 @@ import numpy as np
 
 from tapcell.mesh.abl import TopologyReport, TwoPassPoint
 from tapcell.mesh.errors import MeshError
+from tapcell.mesh.faulty_regions import ProbingPlan
 from tapcell.mesh.zmesh import ZMesh
 
 # Bed height in mm at arrays of x, y (mm): the truth a simulated bed is built from.
 TruthFn = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
-def render_mesh(mesh: ZMesh) -> str:
-    """The BED_MESH_OUTPUT text: probed heights laid out like the bed seen from above."""
-    grid, interpolation = mesh.grid, mesh.interpolation
-    probed = mesh.probed_matrix_mm
-    x_positions, y_positions = grid.x_positions_mm(), grid.y_positions_mm()
-    lines = [
-        f"Mesh '{mesh.profile_name}': {grid.x_count} x {grid.y_count} probed points, "
-        f"X {grid.min_x_mm:.1f} .. {grid.max_x_mm:.1f} mm, Y {grid.min_y_mm:.1f} .. {grid.max_y_mm:.1f} mm",
-        "Probed bed height in mm (back of the bed at the top, front at the bottom):",
-        "   Y \\ X " + "".join(f"{x:>9.1f}" for x in x_positions),
-    ]
-    for row in range(grid.y_count - 1, -1, -1):
-        lines.append(f"{y_positions[row]:>8.1f} " + "".join(f"{z:>9.4f}" for z in probed[row]))
-    low, high = float(probed.min()), float(probed.max())
-    lines.append(f"Lowest {low:.4f} mm, highest {high:.4f} mm: the bed varies by {high - low:.4f} mm")
-    mesh_rows, mesh_columns = mesh.mesh_matrix_mm.shape
-    if interpolation.algorithm == "direct":
-        lines.append("Moves follow the probed points directly (bilinear between them)")
-    else:
-        lines.append(
-            f"Interpolation: {interpolation.algorithm}, {interpolation.mesh_x_pps}, {interpolation.mesh_y_pps} "
-            f"points between probed points -> {mesh_columns} x {mesh_rows} mesh points"
-        )
-    if mesh.zero_reference_offset_mm != 0.0:
-        lines.append(f"Shifted by {-mesh.zero_reference_offset_mm:+.4f} mm so the zero reference position is at Z 0")
+def render_probed_matrix(mesh: ZMesh) -> str:
+    """BED_MESH_OUTPUT's first part, as Klipper prints it: the probed Z, front row first."""
+    lines = ["Mesh Leveling Probed Z positions:"]
+    lines += ["".join(f" {z:f}" for z in row) for row in mesh.probed_matrix_mm]
     return "\n".join(lines)
+
+
+def render_mesh(mesh: ZMesh, search_height_mm: float, probe_offsets_xy_mm: tuple[float, float]) -> str:
+    """BED_MESH_OUTPUT's second part, as Klipper prints it: the interpolated mesh (back row first).
+
+    `Mesh Range` is `ZMesh.z_range_mm`, the one range every report of this mesh gives."""
+    rows, columns = mesh.mesh_matrix_mm.shape
+    low, high = mesh.z_range_mm()
+    lines = [
+        f"Mesh X,Y: {columns},{rows}",
+        f"Search Height: {search_height_mm:.0f}",
+        f"Mesh Offsets: X={probe_offsets_xy_mm[0]:.4f}, Y={probe_offsets_xy_mm[1]:.4f}",
+        f"Mesh Average: {mesh.average_mm():.2f}",
+        f"Mesh Range: min={low:.4f} max={high:.4f}",
+        f"Interpolation Algorithm: {mesh.interpolation.algorithm}",
+        "Measured points:",
+    ]
+    lines += ["".join(f"  {z:f}" for z in row) for row in mesh.mesh_matrix_mm[::-1]]
+    return "\n".join(lines)
+
+
+def render_generated_points(plan: ProbingPlan, probe_offsets_xy_mm: tuple[float, float],
+                            zero_reference_xy_mm: tuple[float, float] | None) -> str:
+    """BED_MESH_OUTPUT PGP=1, as Klipper prints it: each point where the nozzle goes and where the
+    probe is, then the zero reference and the faulty-region substitutes."""
+    x_offset, y_offset = probe_offsets_xy_mm
+    lines = ["bed_mesh: generated points", "Index |  Tool Adjusted  |   Probe"]
+    for index, (x_mm, y_mm) in enumerate(plan.points_mm):
+        nozzle = f"({x_mm - x_offset:.1f}, {y_mm - y_offset:.1f})"
+        lines.append(f"  {index:<4d}| {nozzle:<16s}| ({x_mm:.1f}, {y_mm:.1f})")
+    if zero_reference_xy_mm is not None:
+        lines.append(f"bed_mesh: zero_reference_position is ({zero_reference_xy_mm[0]:.2f}, "
+                     f"{zero_reference_xy_mm[1]:.2f})")
+    substituted = plan.substituted
+    if substituted:
+        lines.append("bed_mesh: faulty region points")
+        for index, places in substituted.items():
+            x_mm, y_mm = plan.points_mm[index]
+            listed = ", ".join(f"({px:.1f}, {py:.1f})" for px, py in places)
+            lines.append(f"{index} ({x_mm:.2f}, {y_mm:.2f}), substituted points: [{listed}]")
+    return "\n".join(lines)
+
+
+def render_mesh_map(mesh: ZMesh) -> str:
+    """BED_MESH_MAP: the probed mesh as one JSON line for tools (Klipper's `mesh_map_output`)."""
+    return "mesh_map_output " + json.dumps({
+        "mesh_min": [mesh.grid.min_x_mm, mesh.grid.min_y_mm],
+        "mesh_max": [mesh.grid.max_x_mm, mesh.grid.max_y_mm],
+        "z_positions": mesh.probed_matrix_mm.tolist(),
+    })
 
 
 @dataclass(frozen=True)
@@ -134,31 +165,39 @@ def render_topology(points: Sequence[TwoPassPoint], topology: TopologyReport) ->
 
 def write_mesh_png(path: str | Path, mesh: ZMesh, truth_z_mm: TruthFn | None = None, samples_per_axis: int = 101) -> Path:
     """Heat map of the mesh (and of mesh - truth, when the truth is known) as a PNG."""
-    from matplotlib.figure import Figure  # imported here: only this function needs matplotlib
+    output = Path(path)
+    mesh_figure(mesh, truth_z_mm, samples_per_axis).savefig(output, dpi=100)
+    return output
+
+
+def mesh_figure(mesh: ZMesh, truth_z_mm: TruthFn | None = None, samples_per_axis: int = 101):
+    """The heat map figure: the mesh in mm, its colour bar labelled and limited to the mesh's
+    range (ZMesh.z_range_mm, as BED_MESH_OUTPUT's Mesh Range), min/max/range in the title; with
+    the truth a second panel of mesh - truth in µm, zero the neutral colour."""
+    from matplotlib.figure import Figure  # imported here: only the heat maps need matplotlib
 
     area_x, area_y = _area_grid(mesh, samples_per_axis)
-    panels = [("Mesh: bed height (um)", mesh.z_at(area_x, area_y) * 1000.0, "viridis")]
+    low, high = mesh.z_range_mm()
+    height = ("Mesh: bed height\n"
+              f"min {low:.4f} mm, max {high:.4f} mm, range {high - low:.4f} mm",
+              mesh.z_at(area_x, area_y), "viridis", "bed height (mm)", (low, high))
+    panels = [height]
     if truth_z_mm is not None:
-        panels.append(
-            ("Mesh - true bed (um)", (mesh.z_at(area_x, area_y) - truth_z_mm(area_x, area_y)) * 1000.0, "coolwarm")
-        )
+        error_um = (mesh.z_at(area_x, area_y) - truth_z_mm(area_x, area_y)) * 1000.0
+        limit = max(float(np.max(np.abs(error_um))), 1e-9)  # symmetric: zero error is the neutral colour
+        panels.append((f"Mesh - true bed\nlargest {limit:.1f} µm", error_um, "coolwarm", "mesh - true bed (µm)",
+                       (-limit, limit)))
     grid = mesh.grid
     extent = (grid.min_x_mm, grid.max_x_mm, grid.min_y_mm, grid.max_y_mm)
     probed = grid.probe_points_mm()
     figure = Figure(figsize=(5.5 * len(panels), 4.8), layout="constrained")
-    for number, (title, values_um, colormap) in enumerate(panels, start=1):
+    for number, (title, values, colormap, unit, (vmin, vmax)) in enumerate(panels, start=1):
         axes = figure.add_subplot(1, len(panels), number)
-        if colormap == "coolwarm":
-            # Symmetric limits so zero error is the neutral colour.
-            limit = max(float(np.max(np.abs(values_um))), 1e-9)
-            image = axes.imshow(values_um, origin="lower", extent=extent, cmap=colormap, vmin=-limit, vmax=limit)
-        else:
-            image = axes.imshow(values_um, origin="lower", extent=extent, cmap=colormap)
-        axes.plot(probed[:, 0], probed[:, 1], "k.", markersize=4, label="probed points")
-        axes.set_title(title)
+        image = axes.imshow(values, origin="lower", extent=extent, cmap=colormap, vmin=vmin, vmax=vmax)
+        axes.plot(probed[:, 0], probed[:, 1], "k.", markersize=4, label="probed points", clip_on=False)
+        axes.set_title(title, fontsize=10)
         axes.set_xlabel("X (mm)")
         axes.set_ylabel("Y (mm)")
-        figure.colorbar(image, ax=axes)
-    output = Path(path)
-    figure.savefig(output, dpi=100)
-    return output
+        axes.legend(loc="upper right", fontsize=7, framealpha=0.8)
+        figure.colorbar(image, ax=axes, label=unit)
+    return figure

@@ -47,6 +47,8 @@ class ZMesh:
         return float(self.mesh_matrix_mm.mean())
 
     def z_range_mm(self) -> tuple[float, float]:
+        """(lowest, highest) of the mesh moves follow (the interpolated matrix, as Klipper's `Mesh
+        Range`): BED_MESH_CALIBRATE, BED_MESH_OUTPUT and the heat map all give this one range."""
         return float(self.mesh_matrix_mm.min()), float(self.mesh_matrix_mm.max())
 
     def to_status(self) -> dict:

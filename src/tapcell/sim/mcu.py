@@ -8,11 +8,13 @@ host in batches; during a probing move each one also goes through the firmware t
 
 from __future__ import annotations
 
+import bisect
 from dataclasses import dataclass
 
 import numpy as np
 
 from tapcell.host.backend import SampleBatch
+from tapcell.sim.motion import FORGET_BATCH, HISTORY_KEEP_S
 from tapcell.sim.sensor import IndexedNoise
 
 
@@ -37,17 +39,24 @@ class SampleChunk:
 
 
 class SampleLog:
-    """Every delivered sample, kept for tap files: times, counts and the true cell force."""
+    """The delivered samples of the last HISTORY_KEEP_S, kept for tap files and truth: times,
+    counts and the true cell force. Older chunks are dropped (the cost per tap stays flat)."""
 
     def __init__(self):
         self._parts: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self._part_ends: list[float] = []  # last sample time of each part (non-decreasing)
 
     def append(self, t_s, counts, force_g) -> None:
         if t_s.size:
             self._parts.append((t_s, counts, force_g))
+            self._part_ends.append(float(t_s[-1]))
+            old = bisect.bisect_left(self._part_ends, self._part_ends[-1] - HISTORY_KEEP_S)
+            if old > FORGET_BATCH:
+                del self._parts[:old], self._part_ends[:old]
 
     def between(self, t0_s: float, t1_s: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        parts = [p for p in self._parts if p[0][-1] >= t0_s and p[0][0] <= t1_s]
+        first = bisect.bisect_left(self._part_ends, t0_s)
+        parts = [p for p in self._parts[first:] if p[0][0] <= t1_s]
         if not parts:
             return np.zeros(0), np.zeros(0, dtype=np.int32), np.zeros(0)
         t, c, f = (np.concatenate(col) for col in zip(*parts))

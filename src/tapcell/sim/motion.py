@@ -6,11 +6,16 @@ position(t) = start + direction * (start_v + accel*τ/2) * τ for τ in [0, move
 
 from __future__ import annotations
 
-import bisect
 import math
 from dataclasses import dataclass
 
 import numpy as np
+
+# Simulated time of motion (and samples, see mcu.SampleLog) the virtual printer remembers: far
+# more than one command looks back over (a tap file, a whole mesh's truth), and bounded, so the
+# cost per tap stays flat over a session of thousands of taps.
+HISTORY_KEEP_S = 600.0
+FORGET_BATCH = 256
 
 
 @dataclass(frozen=True)
@@ -98,25 +103,36 @@ def quantize_to_steps(position_mm, step_distance_mm):
 
 
 class MotionHistory:
-    """Every executed segment, oldest first, with vectorised position lookup.
+    """The executed segments of the last HISTORY_KEEP_S, oldest first, with vectorised lookup.
 
-    Lookups bisect the start times for the span asked about, so a long session (a print of
-    thousands of moves) costs the same per move as a short one.
+    Older segments are dropped as new ones come, so a long session costs the same per move as
+    a short one (the lookups bisect arrays of start and end times instead of scanning a list).
+    Positions before the oldest kept segment read as its start.
     """
 
     def __init__(self, start_position):
         self.rest_position = tuple(float(v) for v in start_position)
         self.segments: list[Segment] = []
-        self._starts: list[float] = []
+        self._starts = np.zeros(0)
+        self._ends = np.zeros(0)
 
     def append(self, segments: list[Segment]) -> None:
         self.segments.extend(segments)
-        self._starts.extend(s.print_time for s in segments)
+        self._starts = np.concatenate([self._starts, [s.print_time for s in segments]])
+        self._ends = np.concatenate([self._ends, [s.end_time for s in segments]])
+        self._forget_before(self._ends[-1] - HISTORY_KEEP_S if len(self._ends) else 0.0)
 
     def replace_last(self, count: int, segments: list[Segment]) -> None:
-        del self.segments[len(self.segments) - count:]
-        del self._starts[len(self._starts) - count:]
+        keep = len(self.segments) - count
+        del self.segments[keep:]
+        self._starts, self._ends = self._starts[:keep], self._ends[:keep]
         self.append(segments)
+
+    def _forget_before(self, t_s: float) -> None:
+        old = int(np.searchsorted(self._ends, t_s, side="left"))
+        if old > FORGET_BATCH:  # in batches: the slices copy the arrays
+            del self.segments[:old]
+            self._starts, self._ends = self._starts[old:], self._ends[old:]
 
     @property
     def end_time(self) -> float:
@@ -133,11 +149,7 @@ class MotionHistory:
         if not self.segments:
             out[:] = self.rest_position
             return out
-        if t_s.size == 0:
-            return out
-        first = max(bisect.bisect_right(self._starts, float(t_s.min())) - 1, 0)
-        last = bisect.bisect_right(self._starts, float(t_s.max()))
-        index = np.searchsorted(np.asarray(self._starts[first:last]), t_s, side="right") - 1 + first
+        index = np.searchsorted(self._starts, t_s, side="right") - 1
         before = index < 0
         out[before] = self.segments[0].start
         for i in np.unique(index[~before]):
@@ -150,6 +162,6 @@ class MotionHistory:
 
     def segments_between(self, t0_s: float, t1_s: float) -> list[Segment]:
         """Segments that end at or after t0 and start at or before t1."""
-        first = max(bisect.bisect_left(self._starts, t0_s) - 1, 0)  # the one running at t0 (if any) and on
-        last = bisect.bisect_right(self._starts, t1_s)
-        return [s for s in self.segments[first:last] if s.end_time >= t0_s]
+        first = int(np.searchsorted(self._ends, t0_s, side="left"))
+        last = int(np.searchsorted(self._starts, t1_s, side="right"))
+        return self.segments[first:last]

@@ -20,9 +20,17 @@ from tapcell.host.backend import MoveError, ProbingMoveResult, SampleBatch
 from tapcell.sim import faults as faultlib
 from tapcell.sim.bed import BedError, bed_from_params
 from tapcell.sim.contact import ContactModel, ContactState, contact_forces, elastic_force_g
-from tapcell.sim.mcu import SampleChunk, TriggerFeeder, VirtualMCU
-from tapcell.sim.motion import MotionHistory, Segment, move_limits, plan_trapezoid, quantize_to_steps
 from tapcell.sim.heaters import FirstOrderHeater, OutputLog
+from tapcell.sim.mcu import SampleChunk, TriggerFeeder, VirtualMCU
+from tapcell.sim.motion import (
+    FORGET_BATCH,
+    HISTORY_KEEP_S,
+    MotionHistory,
+    Segment,
+    move_limits,
+    plan_trapezoid,
+    quantize_to_steps,
+)
 from tapcell.sim.nozzle import NozzleThermal
 from tapcell.sim.params import SimParamError, SimParams, make_params, series_stiffness_g_um
 from tapcell.sim.pin import pin_from_params
@@ -403,6 +411,8 @@ class VirtualPrinter:
         probe_moves = [s.as_tap_move() for s in self._motion.segments_between(t_start, halt_s)
                        if s.print_time >= t_start]
         self._probes.append(_ProbeRecord(t_start, halt_s, start[0], start[1], film_at_start_um))
+        if len(self._probes) > FORGET_BATCH and self._probes[0].halt_time_s < halt_s - HISTORY_KEEP_S:
+            self._probes = [r for r in self._probes if r.halt_time_s >= halt_s - HISTORY_KEEP_S]
         halt_z = float(self._motion.end_position[2])
         no_error = _trigger_error_none()
         return ProbingMoveResult(

@@ -60,6 +60,8 @@ MISFIT_REACH_SAMPLES = 10
 # The compression stiffness is scored only from at least this many samples whose conversion
 # window lies wholly in contact before the halt (fewer: onset, integration and the halt dominate).
 MIN_COMPRESSION_SAMPLES = 2
+# The force at the end of the pullback: the median of this many samples before it (did the nozzle leave the bed?).
+END_SAMPLES = 3
 # The adhesion dip (toe model) that rejects a tap, in noise sigmas. Clean independent taps reach
 # 3.2 at most (360 taps, seed 1); mild ooze has a median of 4.7 and its deepest dips err most.
 ADHESION_MAX_DIP_NOISE = 4.0
@@ -479,6 +481,9 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
     result.break_contact_time_s = t_break
     result.sensor_delay_s = delay_s
     try:
+        end = _indices(time_s, motion.pullback_end_s)[0]
+        remaining_g = median(force[max(end - END_SAMPLES, 0):end + 1]) - dec.points[1][1]
+        validate.check_left_the_bed(dec.points[2][1] - dec.points[1][1], remaining_g)
         validate.check_points(dec.points, angles)
         validate.check_break_contact(t_break - delay_s - 0.5 * timing.integration_s, motion, period_s)
     except TapInvalid as invalid:

@@ -6,7 +6,8 @@ known weight, heats the nozzle to the probing temperature, homes, measures the p
 repeatability (PROBE_ACCURACY), plots the last tap with its five lines and six points into
 `out/last-tap.png`, cleans the nozzle (NOZZLE_CLEANUP), probes a 7 x 7 mesh (BED_MESH_CALIBRATE, with a progress bar), prints the
 mesh and how far it is from the true bed (which only the simulator knows), writes heat maps
-of the mesh and of its error into `out/`, and shows a first-layer move following the bed.
+of the mesh and of its error into `out/`, shows a first-layer move following the bed, and saves the
+calibrated printer in `out/printer.cfg`, ending with the command to go on from it in the console.
 Every G-code line is printed with the printer's responses and a short explanation, so a
 newcomer can follow and repeat it in `tapcell console`.
 
@@ -17,9 +18,10 @@ is a `DemoStep` (an explanation, G-code lines, and optionally something the runn
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import shutil
-import tempfile
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -34,6 +36,7 @@ from tapcell.host.gcode import GCodeError
 from tapcell.mesh.report import mesh_error, render_mesh_error, write_mesh_png
 from tapcell.host.printer import Printer
 from tapcell.tap.plot import plot_tap
+from tapcell.tools.workspace import with_scenario
 
 DEMO_SCENARIO = "warped-bed"
 CALIBRATION_WEIGHT_G = 1000.0
@@ -141,8 +144,9 @@ MESH_STEPS = (
     ),
     DemoStep(
         "Look at the mesh",
-        "BED_MESH_OUTPUT prints the probed heights as seen from above (back of the bed on top). "
-        "Between the points the mesh is interpolated (bicubic) so moves follow a smooth surface.",
+        "BED_MESH_OUTPUT prints the mesh as Klipper does: the probed heights (front row first), then "
+        "the mesh moves follow, interpolated (bicubic) between the points into a smooth surface, with "
+        "its average and range (back row first, as seen from above).",
         ("BED_MESH_OUTPUT",),
     ),
     DemoStep(
@@ -152,6 +156,14 @@ MESH_STEPS = (
         "the G-code position: Z 0.2 above the bed, wherever the bed is (to the nearest Z motor step, 2.5 um).",
         ("G1 X30 Y30 Z0.2 F6000", "G1 X200 Y200", "M114"),
     ),
+)
+
+
+KEEP_STEP = DemoStep(
+    "Keep it",
+    "SAVE_CONFIG writes what is still pending (the mesh profile 'default') into the printer config; "
+    "at the next start the mesh is loaded by itself.",
+    ("SAVE_CONFIG",),
 )
 
 
@@ -248,38 +260,55 @@ class DemoRunner:
         self.print_exact(f"Heat maps: {mesh_png} (the mesh) and {error_png} (mesh and mesh - true bed)")
 
 
+def console_command(config_path: Path) -> str:
+    """The exact command that opens the console on `config_path` from here (this Python's tapcell)."""
+    script = Path(sys.executable).with_name("tapcell")
+    if not script.exists():
+        return f"{sys.executable} -m tapcell console --config {config_path}"
+    found = shutil.which("tapcell")
+    if found and Path(found).resolve() == script.resolve():
+        return f"tapcell console --config {config_path}"
+    relative = os.path.relpath(script)
+    return f"{relative if not relative.startswith('..') else script} console --config {config_path}"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="tapcell demo", description=__doc__.split("\n\n")[0])
     parser.add_argument("--config", type=Path, default=None,
                         help="printer config to start from (copied: the demo never changes it); "
                              f"default: {EXAMPLE_CONFIG.name} with the '{DEMO_SCENARIO}' scenario")
-    parser.add_argument("--out", type=Path, default=Path("out"), help="where the PNGs and the tap file go (default: out)")
+    parser.add_argument("--out", type=Path, default=Path("out"),
+                        help="where the printer config, the PNGs and the tap file go (default: out)")
     args = parser.parse_args(argv)
     console = Console(highlight=False)
-    with tempfile.TemporaryDirectory(prefix="tapcell-demo-") as workdir:
-        config_path = Path(workdir) / "printer.cfg"
-        if args.config is None:
-            text = EXAMPLE_CONFIG.read_text(encoding="utf-8")
-            config_path.write_text(re.sub(r"(?m)^scenario:.*$", f"scenario: {DEMO_SCENARIO}", text, count=1))
-            console.print(f"Starting the virtual printer from {EXAMPLE_CONFIG.name} with a warped bed "
-                          f"(scenario '{DEMO_SCENARIO}'; config copy: {config_path}).")
-        else:
-            shutil.copyfile(args.config, config_path)
-            console.print(f"Starting the virtual printer from {args.config} (a copy in {config_path}).")
-        try:
-            runner = DemoRunner(config_path, console, args.out)
-        except ConfigError as exc:
-            console.print(f"The printer did not start: {exc}", style="bold red", markup=False)
-            return 1
-        try:
-            steps = SCALE_STEPS + (PROBE_STEPS + MESH_STEPS if runner.can_probe_a_mesh() else ())
-            for number, step in enumerate(steps, start=1):
-                runner.run_step(number, step)
-            if runner.can_probe_a_mesh():
-                runner.compare_with_truth(args.out)
-        except GCodeError as exc:
-            console.print(f"!! {exc}", style="bold red", markup=False)
-            return 1
-        console.rule("[bold]Done")
-        console.print("Try it yourself: tapcell console  (HELP lists the commands)", markup=False)
+    # The demo's printer config lives in the output folder: calibrated by the demo, it is where
+    # the user continues from (never the tracked example).
+    args.out.mkdir(parents=True, exist_ok=True)
+    config_path = args.out / "printer.cfg"
+    if args.config is None:
+        config_path.write_text(with_scenario(EXAMPLE_CONFIG.read_text(encoding="utf-8"), DEMO_SCENARIO),
+                               encoding="utf-8")
+        console.print(f"Starting the virtual printer from {EXAMPLE_CONFIG.name} with a warped bed "
+                      f"(scenario '{DEMO_SCENARIO}'; the demo works on {config_path}).")
+    else:
+        shutil.copyfile(args.config, config_path)
+        console.print(f"Starting the virtual printer from {args.config} (the demo works on a copy: {config_path}).")
+    try:
+        runner = DemoRunner(config_path, console, args.out)
+    except ConfigError as exc:
+        console.print(f"The printer did not start: {exc}", style="bold red", markup=False)
+        return 1
+    try:
+        steps = SCALE_STEPS + (PROBE_STEPS + MESH_STEPS if runner.can_probe_a_mesh() else ())
+        for number, step in enumerate(steps, start=1):
+            runner.run_step(number, step)
+        if runner.can_probe_a_mesh():
+            runner.compare_with_truth(args.out)
+            runner.run_step(len(steps) + 1, KEEP_STEP)
+    except GCodeError as exc:
+        console.print(f"!! {exc}", style="bold red", markup=False)
+        return 1
+    console.rule("[bold]Done")
+    console.print(f"The calibrated printer is in {config_path}. Continue from it:", markup=False)
+    runner.print_exact(f"    {console_command(config_path)}")
     return 0

@@ -1,7 +1,8 @@
 """`tapcell console` (interactive) and `tapcell run` (batch): G-code on the virtual printer.
 
 Both build a `Printer` from a config file (default: examples/virtual-printer.cfg)
-and print every response line as soon as it is produced.
+and print every response line as soon as it is produced. The console never rewrites a
+file git tracks: it works on a copy in the user's folder (`tapcell.tools.workspace`).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from tapcell.host.config import ConfigError
 from tapcell.host.gcode import GCodeError, UnknownCommandError
 from tapcell.host.printer import Printer
 from tapcell.tools.progress import ProgressBar
+from tapcell.tools.workspace import ScenarioError, set_scenario, working_config
 
 SUBCOMMANDS = ("console", "run")
 
@@ -157,9 +159,26 @@ def console_loop(printer: Printer, read_line=input) -> None:
 def _main_console(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="tapcell console", description="Interactive G-code console on the "
                                      "virtual printer (HELP lists the commands, exit or Ctrl-D quits).")
-    parser.add_argument("--config", default=str(DEFAULT_CONFIG), help="printer config (default: %(default)s)")
+    parser.add_argument("--config", default=str(DEFAULT_CONFIG),
+                        help="printer config (default: %(default)s); a file git tracks is never rewritten: the "
+                             "console works on a copy in your folder (TAPCELL_HOME, else ~/.config/tapcell)")
+    parser.add_argument("--scenario", metavar="NAME", help="the virtual printer's world, written into the config "
+                        "worked on ([virtual_printer] scenario; 'tapcell scenarios' lists them)")
+    parser.add_argument("--fresh", action="store_true", help="start your copy again from the tracked config")
     args = parser.parse_args(argv)
-    printer = _build_printer(args.config, "tapcell console")
+    if not os.path.exists(args.config):
+        print(f"tapcell console: config file '{args.config}' does not exist", file=sys.stderr)
+        return 1
+    config_path, where = working_config(Path(args.config), fresh=args.fresh)
+    if args.scenario:
+        try:
+            set_scenario(config_path, args.scenario)
+        except ScenarioError as exc:
+            print(f"tapcell console: --scenario: {exc}", file=sys.stderr)
+            return 2
+        where += f"; scenario {args.scenario}"
+    print(f"// {where}", flush=True)
+    printer = _build_printer(str(config_path), "tapcell console")
     if printer is None:
         return 1
     print(f"// {printer.state_message}. Type HELP for the commands, exit to quit.", flush=True)

@@ -35,7 +35,8 @@ from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.mesh.errors import MeshError, MeshOptionError
 from tapcell.mesh.grid import matrix_from_probes
 from tapcell.mesh.profiles import mesh_from_profile_options, profile_options, profile_section_name
-from tapcell.mesh.report import render_mesh
+from tapcell.mesh.faulty_regions import probing_plan
+from tapcell.mesh.report import render_generated_points, render_mesh, render_mesh_map, render_probed_matrix
 from tapcell.mesh.split import split_move
 from tapcell.mesh.zmesh import ZMesh, build_mesh, empty_mesh_status, fade_target_mm, gcode_z_mm
 
@@ -62,8 +63,11 @@ class BedMesh:
         gcode = printer.gcode
         gcode.register_command("BED_MESH_CALIBRATE", self.cmd_BED_MESH_CALIBRATE,
                                desc="Probe the bed and build a mesh: [PROFILE=] [METHOD=tap|two_pass|prusa] "
-                                    "[BAD_PROBE_STRATEGY=] [HORIZONTAL_Z_CLEARANCE=]")
-        gcode.register_command("BED_MESH_OUTPUT", self.cmd_BED_MESH_OUTPUT, desc="Show the active mesh [PGP=1]")
+                                    "[STRATEGY=CIRCLE] [ADAPTIVE=1 [ADAPTIVE_MARGIN=]] [HORIZONTAL_Z_CLEARANCE=]")
+        gcode.register_command("BED_MESH_OUTPUT", self.cmd_BED_MESH_OUTPUT,
+                               desc="Show the active mesh as Klipper does [PGP=1: the probe points]")
+        gcode.register_command("BED_MESH_MAP", self.cmd_BED_MESH_MAP,
+                               desc="The active mesh as one JSON line (mesh_map_output) for tools")
         gcode.register_command("BED_MESH_PROFILE", self.cmd_BED_MESH_PROFILE,
                                desc="Mesh profiles: SAVE=name | LOAD=name | REMOVE=name")
         gcode.register_command("BED_MESH_CLEAR", self.cmd_BED_MESH_CLEAR, desc="Stop following the mesh")
@@ -121,29 +125,34 @@ class BedMesh:
 
     # -- commands -------------------------------------------------------------------------------
     def cmd_BED_MESH_CALIBRATE(self, gcmd: GCodeCommand) -> None:
-        options = command_options(self.options, gcmd)
+        options = command_options(self.options, gcmd, self._print_objects())
         profile = gcmd.get("PROFILE", DEFAULT_PROFILE).strip()
         if not profile or " " in profile:
             raise gcmd.param_error("PROFILE must be one word")
         homed = self.toolhead.status()["homed_axes"]
         if homed != "xyz":
             raise gcmd.error("BED_MESH_CALIBRATE: home all axes first (G28)")
-        if options.interpolation_note:
-            gcmd.respond_info(options.interpolation_note)
-        points = options.grid.probe_points_mm()
+        for note in (options.adaptive_note, options.interpolation_note):
+            if note:
+                gcmd.respond_info(note)
+        plan = self._probing_plan(options, gcmd)
+        places = plan.flat_places_mm()
         # Probe without the old mesh: results are bed heights in the toolhead frame.
         self.set_mesh(None)
-        total = len(points)
+        total = len(plan.points_mm)
+        substituted = plan.substituted
+        faulty = (f"; {len(substituted)} in faulty regions, probed at {len(places) - total + len(substituted)} "
+                  "places around them" if substituted else "")
         gcmd.respond_info(f"Probing {total} points ({options.grid.x_count} x {options.grid.y_count}, "
-                          f"method {options.method})")
+                          f"method {options.method}{faulty})")
         start_s = self.printer.get_time()
 
         def progress(done: int, count: int) -> None:
             self.printer.send_event(PROGRESS_EVENT, done, count)
 
-        run = METHODS[options.method](self.printer, options, gcmd, points, progress)
+        run = METHODS[options.method](self.printer, options, gcmd, places, progress)
         elapsed_s = self.printer.get_time() - start_s
-        matrix = matrix_from_probes(options.grid, run.z_mm)
+        matrix = matrix_from_probes(options.grid, plan.fold(run.z_mm))
         try:
             mesh = build_mesh(matrix, options.grid, options.interpolation, profile, options.zero_reference_xy_mm)
         except MeshError as exc:
@@ -155,20 +164,45 @@ class BedMesh:
                                  "method": options.method, **(run.details or {})}
         if run.report:
             gcmd.respond_info(run.report)
-        gcmd.respond_info(f"Mesh '{profile}' done in {elapsed_s:.1f} s: bed from {low:.4f} to {high:.4f} mm "
-                          f"(range {high - low:.4f} mm). Moves now follow it; SAVE_CONFIG keeps the profile.")
+        gcmd.respond_info(f"Mesh '{profile}' done in {elapsed_s:.1f} s: Mesh Range: min={low:.4f} max={high:.4f} "
+                          f"({high - low:.4f} mm). Moves now follow it; SAVE_CONFIG keeps the profile.")
+
+    def _print_objects(self) -> list | None:
+        """The print's objects (`exclude_object` status `objects`), None without [exclude_object]."""
+        exclude_object = self.printer.lookup_object("exclude_object", None)
+        if exclude_object is None:
+            return None
+        return list(exclude_object.get_status(self.printer.get_time()).get("objects") or [])
+
+    @staticmethod
+    def _probing_plan(options: BedMeshOptions, gcmd: GCodeCommand):
+        try:
+            return probing_plan(options.grid, options.faulty_regions)
+        except MeshOptionError as exc:  # a MESH_MIN/MAX or ADAPTIVE=1 mesh with no way around a region
+            raise gcmd.error(f"BED_MESH_CALIBRATE: [{SECTION}] {exc.option}: {exc.allowed}") from None
+
+    def _probe_offsets_mm(self) -> tuple[float, float]:
+        probe = self.printer.lookup_object("probe", None)
+        return (0.0, 0.0) if probe is None else (probe.options.x_offset_mm, probe.options.y_offset_mm)
 
     def cmd_BED_MESH_OUTPUT(self, gcmd: GCodeCommand) -> None:
+        """Klipper's output: the probed matrix (as `//` info) then the mesh (raw lines)."""
         if gcmd.get_int("PGP", 0, minval=0, maxval=1):
             grid = self.options.grid if self.mesh is None else self.mesh.grid
-            lines = ["Probe points (probing order):"]
-            lines += [f"  {n}: X {x:.3f} Y {y:.3f}" for n, (x, y) in enumerate(grid.probe_points_mm())]
-            gcmd.respond_info("\n".join(lines))
+            gcmd.respond_info(render_generated_points(probing_plan(grid, self.options.faulty_regions),
+                                                      self._probe_offsets_mm(), self.options.zero_reference_xy_mm))
             return
         if self.mesh is None:
-            gcmd.respond_info("Bed has not been probed (no active mesh)")
+            gcmd.respond_info("Bed has not been probed")
             return
-        gcmd.respond_info(render_mesh(self.mesh))
+        gcmd.respond_info(render_probed_matrix(self.mesh))
+        gcmd.respond_raw(render_mesh(self.mesh, self.options.horizontal_move_z_mm, self._probe_offsets_mm()))
+
+    def cmd_BED_MESH_MAP(self, gcmd: GCodeCommand) -> None:
+        if self.mesh is None:
+            gcmd.respond_info("Bed has not been probed")
+            return
+        gcmd.respond_raw(render_mesh_map(self.mesh))
 
     def cmd_BED_MESH_PROFILE(self, gcmd: GCodeCommand) -> None:
         given = [key for key in ("SAVE", "LOAD", "REMOVE") if gcmd.has(key)]

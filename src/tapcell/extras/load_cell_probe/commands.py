@@ -26,15 +26,20 @@ from tapcell.extras.load_cell_probe.device import (
     LoadCellProbe,
     RecordedTap,
 )
+from tapcell.extras.load_cell_probe.hand_tap import HandTap, check_hand_tap
 from tapcell.extras.load_cell_probe.options import PULLBACK_LIMITS_MM, TapOptions
+from tapcell.extras.probe.advice import advised
 from tapcell.extras.probe.options import (LIFT_SPEED_MM_S, MAX_RETRACT_MM, MAX_RETRIES, MAX_SAMPLES,
                                           PROBE_SPEED_MM_S)
 from tapcell.extras.probe.patterns import serpentine_pattern
 from tapcell.extras.probe.session import Probe, ProbeError
 from tapcell.host.toolhead import SPEED_RANGE
 from tapcell.mcu.trigger import TriggerError
+from tapcell.scale import counts_to_grams
 from tapcell.tap.motion import tap_motion
 
+HAND_RELEASE_S = 2.0  # a tap by hand is released within this; longer, it is checked as it is
+HAND_SETTLE_S = 0.1  # after the release, the force over this long is where it came back to
 # NOZZLE_CLEANUP's pattern: at most 20 x 20 taps, at most 20 mm apart.
 MAX_PATTERN_COUNT = 20
 MAX_PATTERN_STEPOVER_MM = 20.0
@@ -223,20 +228,41 @@ class LoadCellProbeCommands:
         settings = device.command_settings(gcmd)
         gcmd.respond_info(f"Tap the load cell {count} times:")
         deadline_s = device.backend.now_s + timeout_s
+        good = 0
         for index in range(count):
             self._wait_for_release(settings.options, deadline_s)
-            trigger = device.arm(settings, device.tare(settings.options))
-            # A hand is on the nozzle now: the next tare must wait for new samples.
-            device.expect_contact()
-            result = device.backend.wait_for_trigger(trigger, max(deadline_s - device.backend.now_s, 0.0))
-            device.load_cell.pump()
-            if result.error != TriggerError.NONE:
-                raise ProbeError(device.error_message(result.error, settings.options))
-            if not result.triggered:
-                raise ProbeError(f"LOAD_CELL_TEST_TAP: no tap detected within {timeout_s:g}s "
-                                 f"({index} of {count} taps detected)")
-            gcmd.respond_info("Tap Detected!")
-        gcmd.respond_info(f"Test complete, {count} taps detected")
+            tare_counts = device.tare(settings.options)
+            armed_s = device.backend.now_s
+            device.history.keep_from_s = armed_s  # the tap's samples stay until checked
+            try:
+                trigger = device.arm(settings, tare_counts)
+                # A hand is on the nozzle now: the next tare must wait for new samples.
+                device.expect_contact()
+                result = device.backend.wait_for_trigger(trigger, max(deadline_s - device.backend.now_s, 0.0))
+                device.load_cell.pump()
+                if result.error != TriggerError.NONE:
+                    raise ProbeError(device.error_message(result.error, settings.options))
+                if not result.triggered:
+                    raise ProbeError(f"LOAD_CELL_TEST_TAP: no tap detected within {timeout_s:g}s "
+                                     f"({index} of {count} taps detected)")
+                tap = self._check_hand_tap(settings.options, armed_s, tare_counts)
+            finally:
+                device.history.keep_from_s = None
+            good += tap.problem is None
+            gcmd.respond_info(f"Tap Detected! {tap.describe()}")
+        gcmd.respond_info(f"Test complete, {count} taps detected ({good} good)")
+
+    def _check_hand_tap(self, options: TapOptions, armed_s: float, tare_counts: float) -> HandTap:
+        """Wait for the release (at most HAND_RELEASE_S), let the cell settle, check the tap."""
+        device = self.device
+        self._wait_for_release(options, device.backend.now_s + HAND_RELEASE_S)
+        device.load_cell.collect(HAND_SETTLE_S)
+        now_s = device.backend.now_s
+        t_s, counts, errors = device.history.between(armed_s, now_s)
+        force_g = counts_to_grams(counts, tare_counts, device.load_cell.counts_per_gram, device.cell_options.inverted)
+        settled = force_g[t_s >= now_s - HAND_SETTLE_S]
+        after_g = float(np.median(settled)) if len(settled) else float("nan")
+        return check_hand_tap(force_g, after_g, options.trigger_force_g, options.max_baseline_force_delta, errors)
 
     def _wait_for_release(self, options: TapOptions, deadline_s: float) -> None:
         """Do not tare under a hand still pressing: wait until the force is back near the tare."""
@@ -269,7 +295,7 @@ class LoadCellProbeCommands:
         settings = self.device.command_settings(gcmd)
         positions = serpentine_pattern(x0, y0, count_x, count_y, stepover_mm)
         good_in_row = 0
-        bad_taps = 0
+        bad_taps = []
         for index, (x, y) in enumerate(positions):
             if index:
                 motion.move_to(x=float(x), y=float(y), speed_mm_s=horizontal_speed)
@@ -283,8 +309,8 @@ class LoadCellProbeCommands:
                     return
                 continue
             good_in_row = 0
-            bad_taps += 1
+            bad_taps.append(outcome)
             gcmd.respond_info(f"NOZZLE_CLEANUP: bad tap at {x:.3f},{y:.3f}: {outcome.error_code} - {outcome.message}")
-            if scrubbing_frequency and bad_taps % scrubbing_frequency == 0:
+            if scrubbing_frequency and len(bad_taps) % scrubbing_frequency == 0:
                 self.probe.run_template("nozzle_scrubber_gcode", {"ATTEMPT": index + 1, "RETRIES": len(positions)})
-        raise ProbeError(f"NOZZLE_CLEANUP failed after trying {len(positions)} positions")
+        raise ProbeError(advised(f"NOZZLE_CLEANUP failed after trying {len(positions)} positions", bad_taps))

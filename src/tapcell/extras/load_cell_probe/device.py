@@ -36,6 +36,7 @@ from tapcell.filters import FilterDesignError, FilterOptions, design_firmware_fi
 from tapcell.extras.load_cell import LoadCell, read_load_cell_options
 from tapcell.mcu import sensors
 from tapcell.mcu.trigger import MAX_STUCK_SAMPLES, FirmwareTrigger, TriggerError, TriggerParams
+from tapcell.extras.probe.approach import NO_CONTACT_DEPTH_MM, BedHeightMemory, approach_height_mm, no_contact_message
 from tapcell.extras.probe.session import ProbeError, TapOutcome
 from tapcell.extras.probe.options import read_section_values, with_overrides
 from tapcell.extras.load_cell_probe.options import (
@@ -170,8 +171,6 @@ class RecordedTap:
     analysis: Any
     z_mm: float
     valid: bool
-    # toolhead position = virtual printer position + this (the tap's samples and moves are the printer's)
-    frame_offset_mm: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
 class LoadCellProbe:
@@ -210,6 +209,8 @@ class LoadCellProbe:
         self._tap_clients: list = []  # called with every RecordedTap (the API's dump_taps)
         self.last_trigger_time_s: float | None = None
         self.tare_counts_at_tap: float | None = None
+        self.bed_heights = BedHeightMemory(self._mesh_height_mm)
+        printer.register_event_handler("toolhead:z_homed", self.bed_heights.forget)
 
     # -- settings per command -----------------------------------------------------------
     @staticmethod
@@ -339,11 +340,18 @@ class LoadCellProbe:
         """The nozzle may touch the bed (or a hand the nozzle) from now on: the next tare waits for new samples."""
         self._tare_from_s = None
 
-    def _probing_move(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float):
-        """Tare, arm and move down until the trigger halts Z; returns (move result, tare, t_start)."""
+    def _probing_move(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float,
+                      expected_z_mm: float | None = None):
+        """Tare, arm and move down until the trigger halts Z; returns (move result, tare, t_start).
+
+        `expected_z_mm`: the bed height expected here (a tap): the nozzle lifts first when it is too
+        close to reach the speed before it, and the move stops 2 mm below it.
+        """
         for attempt in range(CORRUPT_FRAME_RETRIES + 1):
             self.require_calibrated()
             self._refuse_speed_beyond_force_limit(settings.options, speed_mm_s)
+            if expected_z_mm is not None:
+                self._make_room_to_reach_speed(expected_z_mm, speed_mm_s)
             tare_counts = self.tare(settings.options)
             # Until a pullback completes, the nozzle may be on the bed: the next tare waits for fresh samples.
             self.expect_contact()
@@ -361,6 +369,8 @@ class LoadCellProbe:
             if result.error == TriggerError.DRIFT_SAFETY:
                 message += self._explain_drift(settings.options, tare_counts, t_start_s, speed_mm_s)
             raise ProbeError(message)
+        if not result.triggered and expected_z_mm is not None and z_min_mm > self.motion.z_position_min():
+            raise ProbeError(ERROR_PREFIX + no_contact_message(z_min_mm, expected_z_mm))
         if not result.triggered:
             raise ProbeError(ERROR_PREFIX + f"No trigger on probe after full movement (down to Z={z_min_mm:.3f}); "
                              "check that [stepper_z] position_min is negative (e.g. -2) and the nozzle reaches the bed")
@@ -423,9 +433,12 @@ class LoadCellProbe:
     def tap(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float) -> TapOutcome:
         """One full tap at the current XY (see the module docstring)."""
         options = settings.options
+        x_mm, y_mm, _ = self.motion.get_position()
+        expected_z_mm = self.bed_heights.expected_z_mm(x_mm, y_mm)
+        z_min_mm = max(z_min_mm, expected_z_mm - NO_CONTACT_DEPTH_MM)
         self.history.keep_from_s = self.backend.now_s - HISTORY_S  # this tap's samples stay until analysed
         try:
-            result, tare_counts, t_start_s = self._probing_move(settings, z_min_mm, speed_mm_s)
+            result, tare_counts, t_start_s = self._probing_move(settings, z_min_mm, speed_mm_s, expected_z_mm)
             self.backend.dwell(self.dwell_samples / self.sample_rate_sps)
             pullback_start_s = self.backend.now_s
             self.backend.move_to(z=result.halt_z_mm + options.pullback_distance_mm,
@@ -445,16 +458,34 @@ class LoadCellProbe:
             # (one conversion window plus a margin later) already belong to the next tare.
             clear_s = analysis.break_contact_time_s + BREAK_CLEAR_SAMPLES / self.sample_rate_sps
             self._tare_from_s = min(clear_s, pullback_end_s)
-        z_mm = (float(analysis.z_mm) if valid else float(result.halt_z_mm)) + self._z_frame_offset_mm()
+        z_mm = float(analysis.z_mm) if valid else float(result.halt_z_mm) + self._z_frame_offset_mm()
         message = analysis.message
-        if not valid:
-            why = self._explain_bad_tap(tap, analysis.error, options, speed_mm_s)
-            message = message if why is None else f"{message} ({why})"
+        why = None if valid else self._explain_bad_tap(tap, analysis.error, options, speed_mm_s)
+        if why is not None:
+            message = f"{message} ({why})"
         # Kept after the stiffness guess above: a bad tap's stiffness must not explain itself.
         self._record(tap, analysis, z_mm, valid)
+        if valid:
+            self.bed_heights.remember(x_mm, y_mm, z_mm)
         if analysis.quality is not None:
             self.printer.gcode.respond_info(f"Tap Quality: {analysis.quality:.1f}%")
-        return TapOutcome(z_mm=z_mm, valid=valid, error_code=analysis.error, message=message, analysis=analysis)
+        return TapOutcome(z_mm=z_mm, valid=valid, error_code=analysis.error, message=message, analysis=analysis,
+                          explained=why is not None)
+
+    def _make_room_to_reach_speed(self, expected_z_mm: float, speed_mm_s: float) -> None:
+        """Lift first when the nozzle is too close to the bed for the probing move to reach its
+        speed before contact (else COASTING_MOVE_ACCELERATION), e.g. right after a pullback."""
+        toolhead = self.motion.options
+        accel = min(toolhead.max_z_accel_mm_s2, toolhead.max_accel_mm_s2)
+        speed = min(speed_mm_s, toolhead.max_z_velocity_mm_s)
+        start_z_mm = expected_z_mm + approach_height_mm(speed, accel, self.sample_rate_sps)
+        if self.motion.get_position()[2] < start_z_mm:
+            self.motion.move_to(z=start_z_mm, speed_mm_s=self.probe.options.effective_lift_speed_mm_s)
+
+    def _mesh_height_mm(self, x_mm: float, y_mm: float) -> float | None:
+        bed_mesh = self.printer.lookup_object("bed_mesh", None)
+        mesh = getattr(bed_mesh, "mesh", None)
+        return None if mesh is None else float(mesh.z_at(x_mm, y_mm))
 
     def _known_stiffness_g_um(self, *, valid_only: bool = True) -> float | None:
         """The bed's stiffness measured by the kept taps (the stiffest), None before any.
@@ -500,10 +531,13 @@ class LoadCellProbe:
                   speed_mm_s, settings: TapSettings) -> TapData:
         t_s, counts, _ = self.history.between(t_start_s, pullback_end_s)
         force_g = counts_to_grams(counts, tare_counts, self.load_cell.counts_per_gram, self.cell_options.inverted)
-        moves = [Move.from_record(m)
+        # One Z frame for every report of this tap (console, tap file, plot, tapcell analyze): the
+        # toolhead's. The virtual printer's own (machine) frame is kept as a named offset.
+        offset = self.motion.frame_offset_mm
+        moves = [dataclasses.replace(Move.from_record(m), start_z=m["start_z"] + offset["z"])
                  for m in self.backend.recorded_moves(t_start_s, pullback_end_s)
                  if m["print_time"] >= t_start_s - 1e-9]  # not the move that ended as the tap began
-        x, y, _ = self.backend.position
+        x, y, _ = self.motion.get_position()
         options = settings.options
         return TapData(
             time_s=t_s, force_g=force_g, moves=moves, sample_rate_sps=self.sample_rate_sps,
@@ -513,7 +547,9 @@ class LoadCellProbe:
                    "pullback_distance": options.pullback_distance_mm,
                    "pullback_speed": settings.pullback_speed_mm_s, "trigger_force": options.trigger_force_g},
             meta={"source": "tapcell load_cell_probe", "sensor_type": self.cell_options.sensor_type,
-                  "mains_hz": mains_meta(settings.analysis.mains_hz)},
+                  "mains_hz": mains_meta(settings.analysis.mains_hz), "frame": "toolhead",
+                  # machine (virtual printer) position = toolhead position - this
+                  "machine_offset_mm": [offset["x"], offset["y"], offset["z"]]},
         )
 
     def add_tap_client(self, callback) -> None:
@@ -521,8 +557,7 @@ class LoadCellProbe:
         self._tap_clients.append(callback)
 
     def _record(self, tap: TapData, analysis, z_mm: float, valid: bool) -> None:
-        offsets = self.motion.frame_offset_mm
-        recorded = RecordedTap(tap, analysis, z_mm, valid, (offsets["x"], offsets["y"], offsets["z"]))
+        recorded = RecordedTap(tap, analysis, z_mm, valid)
         self.last_taps.append(recorded)
         if self.tap_log_path:
             with open(self.tap_log_path, "a", encoding="utf-8") as log:

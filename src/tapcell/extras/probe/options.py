@@ -157,7 +157,9 @@ PROBE_OPTION_SPECS: tuple[OptionSpec, ...] = (
     OptionSpec("samples_result", "samples_result", "choice", "average", choices=SAMPLES_RESULT_CHOICES),
     OptionSpec("samples_tolerance", "samples_tolerance_mm", "float", 0.1, minval=0.0, maxval=10.0),
     OptionSpec("samples_tolerance_retries", "samples_tolerance_retries", "int", 0, minval=0, maxval=MAX_RETRIES),
-    OptionSpec("bad_probe_strategy", "bad_probe_strategy", "choice", "retry", choices=BAD_PROBE_STRATEGIES),
+    # STRATEGY= is how the load-cell guide spells it ("BED_MESH STRATEGY=CIRCLE").
+    OptionSpec("bad_probe_strategy", "bad_probe_strategy", "choice", "retry", choices=BAD_PROBE_STRATEGIES,
+               aliases=("STRATEGY",)),
     OptionSpec("bad_probe_retries", "bad_probe_retries", "int", 6, minval=0, maxval=MAX_RETRIES),
     OptionSpec("retry_speed", "retry_speed_mm_s", "float", None, minval=PROBE_SPEED_MM_S[0],
                maxval=PROBE_SPEED_MM_S[1]),

@@ -25,7 +25,10 @@ from typing import Any, Protocol
 import numpy as np
 
 from tapcell.host.gcode import GCodeError
+from tapcell.extras.probe.advice import advised
 from tapcell.extras.probe.options import MAX_SAMPLES, PROBE_OPTION_SPECS, ProbeOptions, check_probe_options, with_overrides
+
+STRATEGY_SPEC = next(spec for spec in PROBE_OPTION_SPECS if spec.field == "bad_probe_strategy")
 from tapcell.extras.probe.patterns import next_clean_spot
 from tapcell.extras.probe.stats import AccuracyStats, accuracy_stats, combine_samples, format_accuracy, spread_mm
 
@@ -43,6 +46,7 @@ class TapOutcome:
     error_code: str | None = None  # validation code of a bad tap (TAP_SHAPE_INVALID, LOW_TAP_QUALITY, ...)
     message: str = ""
     analysis: Any = None  # tapcell.tap.TapAnalysis, None for trigger-only taps
+    explained: bool = False  # the message already ends with the likely cause and the fix
 
 
 @dataclass
@@ -98,7 +102,8 @@ class ProbeSession:
     def __init__(self, probe: Probe, gcmd=None, *, force_strategy: str | None = None):
         self.probe = probe
         options = with_overrides(probe.options, PROBE_OPTION_SPECS, gcmd)
-        if force_strategy is not None and (gcmd is None or not gcmd.has("BAD_PROBE_STRATEGY")):
+        strategy_given = gcmd is not None and any(gcmd.has(name) for name in STRATEGY_SPEC.gcode_names)
+        if force_strategy is not None and not strategy_given:
             options = dataclasses.replace(options, bad_probe_strategy=force_strategy)
         problem = check_probe_options(options)
         if problem is not None:
@@ -178,7 +183,7 @@ class ProbeSession:
         """Tap, then follow bad_probe_strategy until a tap is accepted; returns (outcome, where, taps)."""
         opts = self.options
         motion = self.probe.motion
-        bad_here = 0
+        bad_here: list[TapOutcome] = []
         taps = 0
         speed = opts.speed_mm_s
         while True:
@@ -197,16 +202,17 @@ class ProbeSession:
                 self.probe.respond_info(f"Bad probe ignored (bad_probe_strategy=ignore): {reason}")
                 return outcome, where, taps
             if opts.bad_probe_strategy == "fail":
-                raise ProbeError(f"Probe failed because it was deemed bad quality: {reason}")
+                raise ProbeError(advised(f"Probe failed because it was deemed bad quality: {reason}", [outcome]))
             self.fouled_xy_mm.append(where)
-            bad_here += 1
-            if bad_here > opts.bad_probe_retries:
-                raise ProbeError(f"Probing failed after {bad_here} bad probes (last: {reason})")
-            self.probe.respond_info(f"Bad probe detected: {reason}. Retrying ({bad_here}/{opts.bad_probe_retries})...")
+            bad_here.append(outcome)
+            if len(bad_here) > opts.bad_probe_retries:
+                raise ProbeError(advised(f"Probing failed after {len(bad_here)} bad probes (last: {reason})", bad_here))
+            self.probe.respond_info(f"Bad probe detected: {reason}. Retrying "
+                                    f"({len(bad_here)}/{opts.bad_probe_retries})...")
             self._retract(outcome.z_mm)
-            if opts.scrubbing_frequency and bad_here % opts.scrubbing_frequency == 0:
+            if opts.scrubbing_frequency and len(bad_here) % opts.scrubbing_frequency == 0:
                 self.probe.run_template("nozzle_scrubber_gcode",
-                                        {"ATTEMPT": bad_here, "RETRIES": opts.bad_probe_retries})
+                                        {"ATTEMPT": len(bad_here), "RETRIES": opts.bad_probe_retries})
             speed = opts.effective_retry_speed_mm_s
 
     def _tap_position(self, x_mm: float, y_mm: float) -> tuple[float, float]:

@@ -1,0 +1,101 @@
+"""What a bad tap most likely means and what to do about it, in plain words.
+
+The load-cell guide lists, for every tap validation and quality code, its common causes
+("Tap Validation Error Codes", "Tap Quality Error Codes", the drift-filter tuning notes).
+Every probing error that ends in a bad tap closes with this: `Likely cause: ... Fix: ...`.
+A low quality score is explained by the component that pulled it down the most.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+FOULED = "plastic on the nozzle (ooze) distorts the tap"
+CLEAN_AND_COOL = ("clean the nozzle (NOZZLE_CLEANUP), probe below the ooze point (about 140 C, M109 S140) "
+                  "and probe fouled places around, not again (BED_MESH_CALIBRATE STRATEGY=CIRCLE)")
+CALIBRATE_PULLBACK = "LOAD_CELL_PROBE_CALIBRATE CALIBRATION=PULLBACK_DISTANCE measures the right one"
+
+# code -> (likely cause, fix)
+ADVICE: dict[str, tuple[str, str]] = {
+    "TAP_CHRONOLOGY": (FOULED + " so much that it no longer looks like a tap", CLEAN_AND_COOL),
+    "TAP_SHAPE_INVALID": (FOULED + " so much that it no longer looks like a tap", CLEAN_AND_COOL),
+    "TAP_BREAK_CONTACT_TOO_EARLY": ("pullback_distance is longer than it needs to be",
+                                    f"shorten pullback_distance; {CALIBRATE_PULLBACK}"),
+    "TAP_BREAK_CONTACT_TOO_LATE": ("pullback_distance is too short for this speed and bed, or a drift filter "
+                                   "set too high (drift_filter_cutoff_frequency) delays the tap",
+                                   f"lengthen pullback_distance ({CALIBRATE_PULLBACK}), or lower "
+                                   "drift_filter_cutoff_frequency or the probing speed"),
+    "TAP_PULLBACK_TOO_SHORT": ("the pullback ended before the nozzle left the bed",
+                               f"lengthen pullback_distance; {CALIBRATE_PULLBACK}"),
+    "COASTING_MOVE_ACCELERATION": ("the probing move was still speeding up when it met the bed: Z cannot go below "
+                                   "0, or the probe started too close to the bed",
+                                   "give [stepper_z] a negative position_min (e.g. -5) and start the probe higher"),
+    "TOO_FEW_PROBING_MOVES": ("the probing move was cut short (uncommon)",
+                              "check that position_min leaves room below the bed; report it if it persists"),
+    "TOO_MANY_PROBING_MOVES": ("the probing move was split into more pieces than a tap has (uncommon)",
+                               "report it with the tap file (tap_log)"),
+    "LOW_COMPRESSION_FORCE": ("hot plastic on the nozzle made the force rise slowly, or the probe pressed "
+                              "something soft", CLEAN_AND_COOL + "; check that the sheet lies flat"),
+    "TAP_CONTACT_MISMATCH": ("the nozzle pressed something away before it met the bed (an ooze film, debris)",
+                             CLEAN_AND_COOL),
+    "TAP_ADHESION": ("a thread of plastic held the nozzle as it left the bed (the force dipped below free air)",
+                     CLEAN_AND_COOL),
+    "TAP_DATA_INSUFFICIENT": ("too few samples in part of the tap: the sensor is slow for this probing speed",
+                              "probe slower (PROBE_SPEED=) or use a faster sample_rate"),
+    "TAP_MOTION_INVALID": ("the recorded motion does not describe a tap (a move was interrupted)",
+                           "probe again; report it with the tap file (tap_log) if it persists"),
+    "CLASSIFIER_FAILED": ("the tap_classifier plug-in failed", "check the plug-in, or use tap_classifier: tap_quality"),
+}
+
+# LOW_TAP_QUALITY, by the quality component that pulled the score down the most.
+QUALITY_ADVICE: dict[str, tuple[str, str]] = {
+    "approach": ("the force rose before the nozzle reached the bed: molten plastic under the nozzle, or "
+                 "drift from the bowden tube or cable chain", CLEAN_AND_COOL + "; against drift set "
+                 "drift_filter_cutoff_frequency (start at 0.5)"),
+    "departure": ("ooze pulled on the nozzle as it left the bed", CLEAN_AND_COOL),
+    "baseline": ("the force did not come back to where it started: ooze, or drift from the bowden tube or "
+                 "cable chain", CLEAN_AND_COOL + "; against drift set drift_filter_cutoff_frequency "
+                 "(start at 0.5)"),
+    "dwell_drop": ("plastic flowed out from under the nozzle while it pressed, or the sheet does not lie firmly "
+                   "on the bed", CLEAN_AND_COOL + "; check the sheet for debris underneath"),
+    "angle": ("ooze changed how the force fell as the nozzle lifted",
+              CLEAN_AND_COOL + "; after changing pullback_speed or the bed, calibrate DECOMPRESSION_ANGLE again"),
+    "stiffness": ("the bed felt softer on the way up than on the way down: a film between nozzle and bed",
+                  CLEAN_AND_COOL),
+    "misfit": ("the pullback does not follow a clean contact: ooze or a noisy sensor",
+               CLEAN_AND_COOL + "; run LOAD_CELL_DIAGNOSTIC to check the noise"),
+}
+QUALITY_DEFAULT = (FOULED + ": the tap's features are there but distorted",
+                   CLEAN_AND_COOL + "; if clean taps are refused, min_tap_quality may be set too strict")
+
+
+def bad_tap_advice(code: str | None, quality_components: Mapping[str, float] | None = None) -> str:
+    """'Likely cause: ... Fix: ...' for a bad tap's code ('' for no code)."""
+    if not code:
+        return ""
+    if code == "LOW_TAP_QUALITY":
+        worst = max(quality_components, key=quality_components.get) if quality_components else None
+        cause, fix = QUALITY_ADVICE.get(worst, QUALITY_DEFAULT)
+    else:
+        cause, fix = ADVICE.get(code, (FOULED, CLEAN_AND_COOL))
+    return f"Likely cause: {cause}. Fix: {fix}."
+
+
+def with_advice(message: str, code: str | None, quality_components: Mapping[str, float] | None = None) -> str:
+    """`message` ending with the advice for `code`."""
+    advice = bad_tap_advice(code, quality_components)
+    return f"{message.rstrip('. ')}. {advice}" if advice else message
+
+
+def advised(message: str, bad_taps) -> str:
+    """`message` ending with the likely cause and fix of the most common code among `bad_taps`
+    (TapOutcome-like: error_code, analysis, explained); unchanged when the tap's own message
+    already explains it (e.g. probing too fast for the sensor)."""
+    codes = [tap.error_code for tap in bad_taps if tap.error_code]
+    if not codes:
+        return message
+    code = max(codes, key=codes.count)  # the most common; the earliest among equals
+    last = next(tap for tap in reversed(bad_taps) if tap.error_code == code)
+    if last.explained:
+        return message
+    return with_advice(message, code, getattr(last.analysis, "quality_components", None))

@@ -1,0 +1,61 @@
+"""`tapcell console` never rewrites a file git tracks (tapcell.tools.workspace): it works on a
+copy in the user's folder, where SAVE_CONFIG writes; `--scenario NAME`."""
+
+from __future__ import annotations
+
+import io
+
+import pytest
+
+from tapcell.tools import cli, frontend
+from tapcell.tools.workspace import ScenarioError, is_tracked, with_scenario
+
+CALIBRATE = ["LOAD_CELL_CALIBRATE\n", "TARE\n", "SIM_PLACE_WEIGHT GRAMS=1000\n", "CALIBRATE GRAMS=1000\n",
+             "ACCEPT\n", "SAVE_CONFIG\n"]
+
+
+def console(monkeypatch, capsys, lines, *args) -> tuple[int, str]:
+    monkeypatch.setattr("sys.stdin", io.StringIO("".join(lines)))  # not a terminal, like a pipe
+    status = cli.main(["console", *map(str, args)])
+    return status, capsys.readouterr().out
+
+
+def test_save_config_in_the_console_writes_a_copy_not_the_tracked_example(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("TAPCELL_HOME", str(tmp_path / "home"))
+    example = frontend.DEFAULT_CONFIG
+    assert is_tracked(example)
+    before = example.read_bytes()
+    status, out = console(monkeypatch, capsys, CALIBRATE)
+    copy = tmp_path / "home" / example.name
+    assert status == 0 and example.read_bytes() == before
+    assert out.splitlines()[0] == (f"// Working on a copy of {example} (git tracks it, so it is never rewritten): "
+                                   f"{copy}; SAVE_CONFIG writes there")
+    assert f"// Config saved to {copy}; restarting" in out
+    assert "counts_per_gram" in copy.read_text()
+    # The next session goes on from the saved calibration; --fresh starts over.
+    status, out = console(monkeypatch, capsys, ["LOAD_CELL_READ\n"])
+    assert out.splitlines()[0].startswith(f"// Working on your copy {copy} (of {example}, which git tracks)")
+    assert "Load Cell Probe Error" not in out and "not calibrated" not in out
+    console(monkeypatch, capsys, [], "--fresh")
+    assert copy.read_bytes() == before
+
+
+def test_an_untracked_config_is_used_in_place_and_scenario_is_written_there(tmp_path, monkeypatch, capsys):
+    config = tmp_path / "mine.cfg"
+    config.write_text("[virtual_printer]\nscenario: clean\nseed: 3\n")
+    status, out = console(monkeypatch, capsys, ["SIM_TRUTH\n"], "--config", config, "--scenario", "warped-bed")
+    assert status == 0
+    assert out.splitlines()[0] == f"// Working on {config} (SAVE_CONFIG writes there); scenario warped-bed"
+    assert config.read_text() == "[virtual_printer]\nscenario: warped-bed\nseed: 3\n"
+    status, out = console(monkeypatch, capsys, [], "--config", config, "--scenario", "lava")
+    assert status == 2 and config.read_text().count("warped-bed") == 1
+
+
+def test_with_scenario_edits_only_the_virtual_printer_section():
+    text = "[printer]\nscenario_note: x\n\n[virtual_printer]\nseed: 1\n\n[bed_mesh]\nspeed: 5\n"
+    assert with_scenario(text, "oozy") == ("[printer]\nscenario_note: x\n\n[virtual_printer]\nscenario: oozy\n"
+                                           "seed: 1\n\n[bed_mesh]\nspeed: 5\n")
+    assert with_scenario("[virtual_printer]\nscenario = clean\n", "oozy") == "[virtual_printer]\nscenario: oozy\n"
+    assert with_scenario("[printer]\n", "oozy") == "[virtual_printer]\nscenario: oozy\n\n[printer]\n"
+    with pytest.raises(ScenarioError, match=r"unknown scenario 'lava'; one of: clean, "):
+        with_scenario("", "lava")
