@@ -162,8 +162,17 @@ ALL_SECTIONS = """
 [extruder]
 step_pin: PA0
 dir_pin: PA1
+rotation_distance: 33.5
+microsteps: 16
 nozzle_diameter: 0.4
 filament_diameter: 1.75
+heater_pin: PA2
+sensor_type: EPCOS 100K B57560G104F
+sensor_pin: PA3
+control: pid
+pid_kp: 21.5
+pid_ki: 1.06
+pid_kd: 108.5
 min_temp: 0
 max_temp: 300
 
@@ -254,10 +263,11 @@ def test_mutated_config_files_load_or_give_a_config_error(tmp_path):
 
 # -- G-code ---------------------------------------------------------------------------------
 
-# Commands that take the printer apart (RESTART reloads the config, dropping the calibration)
-# run once at the end instead of at random.
-RUN_LAST = ("RESTART", "FIRMWARE_RESTART", "SAVE_CONFIG")
-PROBE_OVERRIDE_COMMANDS = ("PROBE", "PROBE_ACCURACY", "NOZZLE_CLEANUP", "BED_MESH_CALIBRATE", "LOAD_CELL_TEST_TAP",
+# Commands that take the printer apart (RESTART reloads the config, dropping the calibration;
+# M112 halts it) run once at the end instead of at random.
+RUN_LAST = ("RESTART", "FIRMWARE_RESTART", "SAVE_CONFIG", "M112")
+PROBE_OVERRIDE_COMMANDS = ("PROBE", "PROBE_ACCURACY", "PROBE_CALIBRATE", "NOZZLE_CLEANUP", "BED_MESH_CALIBRATE",
+                           "LOAD_CELL_TEST_TAP",
                            "LOAD_CELL_PROBE_CALIBRATE", "G28")
 # Lines start with these, so that the defaults (10 taps, a 30 s wait) do not eat the time budget;
 # the random parameters after them may still ask for more.

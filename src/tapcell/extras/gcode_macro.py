@@ -53,6 +53,13 @@ class GCodeMacro:
             except (ValueError, SyntaxError):
                 raise section.error(option, "must be a Python literal: a number, 'quoted text', "
                                             "a list, a dict, True, False or None") from None
+        rename_existing = section.get("rename_existing", None)
+        if rename_existing is not None:
+            # The command to rename may come from a section further down the file: load those first.
+            for name in section.config.sections():
+                if not name.startswith("gcode_macro ") and name not in printer.objects:
+                    printer.load_object(name)
+            printer.gcode.rename_command(self.command, rename_existing)
         printer.gcode.register_command(self.command, self.cmd_macro, desc=self.description)
         printer.gcode.register_mux_command("SET_GCODE_VARIABLE", "MACRO", section.get_instance_name(),
                                            self.cmd_set_variable,

@@ -30,7 +30,7 @@ from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.mesh.errors import MeshError, MeshOptionError
 from tapcell.mesh.thermal import UNLIMITED_MM, ThermalAdjustSettings, ZThermalAdjust, measure_temp_coeff
 from tapcell.extras.probe.options import MAX_SAMPLES
-from tapcell.host.toolhead import ABSOLUTE_ZERO_C, MAX_COORDINATE_MM, MAX_TEMP_C
+from tapcell.host.limits import ABSOLUTE_ZERO_C, MAX_COORDINATE_MM, MAX_TEMP_C
 
 SECTION = "z_thermal_adjust"
 COMBINED_SENSOR = "temperature_combined"

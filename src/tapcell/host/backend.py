@@ -9,6 +9,7 @@ is plain data or a protocol; nothing imports the simulator.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from collections.abc import Sequence
 from typing import Protocol
 
 import numpy as np
@@ -52,7 +53,7 @@ class SampleSource(Protocol):
 
 
 class Backend(SampleSource, Protocol):
-    """The machine under the host: motion, time, the nozzle heater and the probe's sensor.
+    """The machine under the host: motion, time, heaters, fans/pins and the probe's sensor.
 
     Positions are machine coordinates in mm; `trigger` is an armed
     `tapcell.mcu.trigger.FirmwareTrigger` that sees every sample of a probing move.
@@ -70,14 +71,28 @@ class Backend(SampleSource, Protocol):
     @property
     def nozzle_temperature_c(self) -> float: ...
 
+    @property
+    def step_distance_mm(self) -> Sequence[float]: ...
+
+    @property
+    def room_temperature_c(self) -> float: ...
+
     def move_to(self, x: float | None = None, y: float | None = None, z: float | None = None,
-                speed_mm_s: float = 50.0) -> None: ...
+                speed_mm_s: float = 50.0, accel_mm_s2: float | None = None) -> None: ...
 
     def home_xy(self) -> None: ...
 
     def dwell(self, t_s: float) -> None: ...
 
     def set_nozzle_temperature(self, target_c: float, wait: bool = False) -> None: ...
+
+    def heater_temperature_c(self, name: str) -> float: ...
+
+    def set_heater_temperature(self, name: str, target_c: float) -> None: ...
+
+    def wait_for_heater(self, name: str, within_c: float = 1.0) -> float: ...
+
+    def set_output(self, name: str, value: float) -> None: ...
 
     def add_sensor(self, name: str, chip: str, sample_rate_sps: float) -> SampleSource: ...
 

@@ -530,6 +530,12 @@ class ConfigFile:
                 return source[section].options[option]
         return None
 
+    def peek(self, section: str, option: str) -> str | None:
+        """An option's text without checking or counting it as read (None when absent): for the
+        virtual printer, which mirrors the hardware before the modules check their sections."""
+        stored = self._lookup(section, option)
+        return None if stored is None else stored.text
+
     def _note_read(self, section: str, option: str) -> None:
         self._read.add((section, option.lower()))
 

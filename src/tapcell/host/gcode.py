@@ -20,6 +20,7 @@ Responses go to a sink (a list or a callable) one line at a time:
 
 from __future__ import annotations
 
+import difflib
 import math
 import re
 from dataclasses import dataclass, field
@@ -32,6 +33,15 @@ from tapcell.host.config import GCODE_WORDS, ConfigError, check_range, require_r
 
 class GCodeError(Exception):
     """A command failed; the message is what the user sees after `!! `."""
+
+
+class UnknownCommandError(GCodeError):
+    """No handler for the command. Klipper answers `// Unknown command:"M205"` and goes on with a
+    print file; the console and scripts stop on it (a typo must not pass for success)."""
+
+    def __init__(self, command: str):
+        super().__init__(f'Unknown command:"{command}"')
+        self.command = command
 
 
 class _Required:
@@ -61,6 +71,16 @@ class ParsedLine:
     commandline: str  # the line without comment, line number and checksum
     rawparams: str  # everything after the command name, as typed
 
+
+# Classic commands whose parameters are free text (`M117 Printing 20%`), as in Klipper.
+RAW_TEXT_COMMANDS = ("M117", "M118")
+# Turning off a heater or fan the printer does not have is not worth a warning (Klipper's rule):
+# when nothing registered these commands, they do nothing if their S (this default when absent) is 0.
+SILENT_WHEN_ABSENT = {"M104": "0", "M140": "0", "M106": "1", "M107": "0"}
+# Kalico's spelling of a parameter where it differs from tapcell's: (command, Kalico's name) -> ours.
+KALICO_SPELLINGS: dict[tuple[str, str], str] = {
+    ("LOAD_CELL_TEST_TAP", "TAPS"): "COUNT",
+}
 
 _CLASSIC_RE = re.compile(r"^([A-Za-z])\s*(\d+(?:\.\d+)?)")
 _LINE_NUMBER_RE = re.compile(r"^[Nn]\d+\s*")
@@ -99,6 +119,8 @@ def parse_line(line: str) -> ParsedLine | None:
         number = str(int(integer)) + (f".{fraction}" if fraction else "")
         command = classic.group(1).upper() + number
         rawparams = text[classic.end():].strip()
+        if command in RAW_TEXT_COMMANDS:
+            return ParsedLine(command, {}, text, rawparams)
         return ParsedLine(command, _parse_classic_params(rawparams, text), text, rawparams)
     name, _, rawparams = text.partition(" ")
     rawparams = rawparams.strip()
@@ -151,17 +173,24 @@ class GCodeCommand:
         self.command = parsed.command
         self.commandline = parsed.commandline
         self.rawparams = parsed.rawparams
-        self._params = dict(parsed.params)
+        self._params = _with_our_spellings(parsed)
+        self._read: set[str] = set()  # parameters the handler asked for (the others are unknown to it)
 
     def get_commandline(self) -> str:
         return self.commandline
 
     def get_command_parameters(self) -> dict[str, str]:
-        """All parameters, upper-case names to their text."""
+        """All parameters, upper-case names to their text (the handler takes them all)."""
+        self._read.update(self._params)
         return dict(self._params)
 
     def has(self, name: str) -> bool:
+        self._read.add(name.upper())
         return name.upper() in self._params
+
+    def unread_parameters(self) -> list[str]:
+        """Parameters given but never asked for: the command does not know them."""
+        return [name for name in self._params if name not in self._read]
 
     def error(self, message: str) -> GCodeError:
         return GCodeError(message)
@@ -172,6 +201,7 @@ class GCodeCommand:
 
     def get(self, name: str, default: Any = REQUIRED) -> Any:
         """The parameter's text, `default` when absent (absent and no default: error)."""
+        self._read.add(name.upper())
         value = self._params.get(name.upper())
         if value is None:
             if default is REQUIRED:
@@ -205,6 +235,7 @@ class GCodeCommand:
         """One number, or with `many` a comma-separated list (of `count` items if given), range-checked."""
         name = name.upper()
         require_range(f"{self.command} {name}", *limits)
+        self._read.add(name)
         text = self._params.get(name)
         if text is None:
             return self.get(name, default)  # the default, or the "missing" error
@@ -245,6 +276,26 @@ class GCodeCommand:
         self._dispatch.respond_raw(message)
 
 
+def _is_zero(text: str) -> bool:
+    try:
+        return float(text) == 0.0
+    except ValueError:
+        return False
+
+
+def _with_our_spellings(parsed: ParsedLine) -> dict[str, str]:
+    """The parameters with Kalico's spellings renamed to ours (both given: an error)."""
+    params = dict(parsed.params)
+    for (command, kalico_name), our_name in KALICO_SPELLINGS.items():
+        if command != parsed.command or kalico_name not in params:
+            continue
+        if our_name in params:
+            raise GCodeError(f"Error on '{parsed.commandline}': {kalico_name} (Kalico's name) and {our_name} "
+                             f"are the same parameter; give one")
+        params[our_name] = params.pop(kalico_name)
+    return params
+
+
 def _finite_float(text: str) -> float:
     value = float(text)
     if not math.isfinite(value):
@@ -270,6 +321,10 @@ class GCodeDispatch:
         self._handlers: dict[str, Handler] = {}
         self._help: dict[str, str] = {}
         self._mux: dict[str, _Mux] = {}
+        # After a shutdown: (commands still allowed, the message every other command gets).
+        self._refusal: tuple[tuple[str, ...], str] | None = None
+        # Parameters each command has asked for so far, to suggest a spelling for an unknown one.
+        self._known_parameters: dict[str, set[str]] = {}
         self._running: list[str] = []  # the commands running now, outermost first
         # Told when the machine fails under a command; each returns what the user must know more.
         self._device_error_listeners: list[Callable[[DeviceError], str]] = []
@@ -318,6 +373,10 @@ class GCodeDispatch:
         the text it returns is added to the command's error message."""
         self._device_error_listeners.append(listener)
 
+    def set_refusal(self, allowed: tuple[str, ...] | None, message: str = "") -> None:
+        """Refuse every command but `allowed` with `message` (a halted printer); None lifts it."""
+        self._refusal = None if allowed is None else (allowed, message)
+
     def is_registered(self, name: str) -> bool:
         return name.upper() in self._handlers
 
@@ -329,6 +388,30 @@ class GCodeDispatch:
         self._handlers[name] = handler
         if desc:
             self._help[name] = desc
+
+    def replace_command(self, name: str, handler: Handler, desc: str | None = None) -> Handler:
+        """Put `handler` in place of a registered command; returns the handler it replaced
+        (so [safe_z_home] can wrap G28 and call the original for the actual homing)."""
+        name = name.upper()
+        if name not in self._handlers:
+            raise GCodeError(f"Command '{name}' is not registered, so it cannot be replaced")
+        previous = self._handlers[name]
+        self._handlers[name] = handler
+        if desc:
+            self._help[name] = desc
+        return previous
+
+    def rename_command(self, name: str, new_name: str) -> None:
+        """Move a command to another name (a macro's `rename_existing`), with its help text."""
+        name, new_name = name.upper(), new_name.upper()
+        if name not in self._handlers:
+            raise GCodeError(f"Existing command '{name}' not found in gcode_macro rename")
+        if new_name in self._handlers:
+            raise GCodeError(f"Command '{new_name}' is already registered")
+        self._handlers[new_name] = self._handlers.pop(name)
+        self._help[new_name] = self._help.pop(name, f"Renamed builtin of '{name}'")
+        if name in self._mux:
+            self._mux[new_name] = self._mux.pop(name)
 
     def unregister_command(self, name: str) -> None:
         """Remove a command (e.g. the temporary TARE/ACCEPT of a calibration)."""
@@ -394,13 +477,19 @@ class GCodeDispatch:
         parsed = parse_line(line)
         if parsed is None:
             return
+        if self._refusal is not None and parsed.command not in self._refusal[0]:
+            raise GCodeError(self._refusal[1])
         handler = self._handlers.get(parsed.command)
         if handler is None:
-            raise GCodeError(f'Unknown command:"{parsed.command}"')
+            if parsed.command in SILENT_WHEN_ABSENT and _is_zero(
+                    parsed.params.get("S", SILENT_WHEN_ABSENT[parsed.command])):
+                return
+            raise UnknownCommandError(parsed.command)
         self._check_nesting(parsed.command)
+        gcmd = GCodeCommand(self, parsed)
         self._running.append(parsed.command)
         try:
-            handler(GCodeCommand(self, parsed))
+            handler(gcmd)
         except ConfigError as exc:  # e.g. SAVE_CONFIG unable to write the file
             raise GCodeError(str(exc)) from exc
         except DeviceError as exc:  # the machine failed under the command: the user's to know, not a bug
@@ -408,6 +497,17 @@ class GCodeDispatch:
             raise GCodeError(f"MCU error on '{parsed.commandline}': {exc}{more}") from exc
         finally:
             self._running.pop()
+            self._warn_unknown_parameters(gcmd)
+
+    def _warn_unknown_parameters(self, gcmd: GCodeCommand) -> None:
+        """One line per parameter the handler never asked for (a misspelt SAMPLE= silently did nothing)."""
+        known = self._known_parameters.setdefault(gcmd.command, set())
+        known.update(gcmd._read)
+        # A name the command read in another call is known: this call ended before it got to it.
+        for name in (name for name in gcmd.unread_parameters() if name not in known):
+            close = difflib.get_close_matches(name, sorted(known), n=1)
+            hint = f" (did you mean {close[0]}?)" if close else ""
+            self.respond_info(f"{gcmd.command}: unknown parameter {name} ignored{hint}")
 
     def _check_nesting(self, command: str) -> None:
         """Refuse a command that runs inside itself (a macro or probe template calling it again)

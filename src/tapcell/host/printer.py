@@ -16,6 +16,7 @@ them (the toolhead reads `[stepper_x]`). Modules are imported only when a config
 
 from __future__ import annotations
 
+import difflib
 import importlib
 import pkgutil
 import time
@@ -36,12 +37,15 @@ READ_BY: dict[str, str] = {
     "stepper_y": "printer",
     "stepper_z": "printer",
     "extruder": "printer",
-    "heater_bed": "printer",
 }
+# Hardware and UI sections taken as written and not modelled (a real printer.cfg's [mcu], [tmc2209 ...]).
+ACCEPTED_MODULE = "tapcell.extras.accepted_sections"
 
 # The backend's section: read by the virtual printer itself.
 BACKEND_SECTION = "virtual_printer"
 BACKEND_MODULE = "tapcell.sim"
+# What the printer's own config says about the machine, for the virtual printer to follow.
+MACHINE_MODULE = "tapcell.sim.machine"
 # G-code commands that act on the virtual hardware (SIM_PLACE_WEIGHT, ...).
 BACKEND_COMMANDS_MODULE = "tapcell.sim.commands"
 
@@ -74,6 +78,11 @@ def import_section_module(kind: str):
         raise
 
 
+def accepted_sections() -> dict[str, str]:
+    """Section kinds taken as written and not modelled (kind -> what it is)."""
+    return importlib.import_module(ACCEPTED_MODULE).ACCEPTED_SECTIONS
+
+
 def section_kinds() -> list[str]:
     """Every section kind a config may use (for the error that lists them)."""
     package = importlib.import_module(EXTRAS_PACKAGE)
@@ -97,7 +106,9 @@ class Printer:
         self.backend: Backend | None = backend
         self.objects: dict[str, Any] = {}
         self.warnings: list[str] = []  # runtime warnings, reported by the API as Klipper's printer.info does
-        self.state = "starting"  # "ready" or "error"
+        self.notices: list[str] = []  # shown once at start (what is simulated, what only accepted)
+        self._accepted: list[str] = []  # sections taken as written, not modelled
+        self.state = "starting"  # "ready", "error" or "shutdown"
         self.state_message = ""
         self._event_handlers: dict[str, list[Callable[..., Any]]] = {}
         self._loading: set[str] = set()
@@ -164,6 +175,9 @@ class Printer:
     def _build(self) -> None:
         self.objects.clear()
         self.warnings.clear()
+        self.notices.clear()
+        self._accepted.clear()
+        self.gcode.set_refusal(None)
         self._loaded.clear()
         self._event_handlers.clear()
         self.config = None
@@ -179,6 +193,11 @@ class Printer:
                 if name != BACKEND_SECTION and name not in self._loaded:
                     self._load_section(name)
             self.config.check_unused_options()
+            accepted = importlib.import_module(ACCEPTED_MODULE)
+            notice = accepted.startup_notice(self.config.sections(), self._accepted)
+            world = getattr(self.backend, "world_notice", None)
+            if notice is not None:  # a config with hardware in it: say what stands in for it
+                self.notices += [world, notice] if world else [notice]
         except (ConfigError, GCodeError) as exc:
             self.state, self.state_message = "error", str(exc)
             # Only the built-ins stay, so the user can fix the file and RESTART.
@@ -192,10 +211,13 @@ class Printer:
     def _check_section_names(self) -> None:
         for name in self.config.sections():
             kind = name.split()[0]
-            if kind != BACKEND_SECTION and kind not in READ_BY and import_section_module(kind) is None:
+            if (kind != BACKEND_SECTION and kind not in READ_BY and kind not in accepted_sections()
+                    and import_section_module(kind) is None):
+                # The known kinds are many (the accepted ones included): name the closest.
+                close = difflib.get_close_matches(kind, section_kinds() + sorted(accepted_sections()), n=3)
+                hint = f" (did you mean {' or '.join(close)}?)" if close else ""
                 raise ConfigError(f"{self.config.section_file(name)}: [{name}]: Section '{name}' is not a "
-                                  f"valid config section (valid: {', '.join(section_kinds())})",
-                                  file=self.config.section_file(name), section=name)
+                                  f"valid config section{hint}", file=self.config.section_file(name), section=name)
             reader = READ_BY.get(name)
             if reader is not None and not self.config.has_section(reader):
                 raise ConfigError(f"{self.config.section_file(name)}: [{name}]: this section is read by "
@@ -208,7 +230,8 @@ class Printer:
             self.config.mark_section_read(BACKEND_SECTION)
         else:
             sim = importlib.import_module(BACKEND_MODULE)
-            self.backend = sim.VirtualPrinter.from_config(self.config.getsection(BACKEND_SECTION))
+            machine = importlib.import_module(MACHINE_MODULE).machine_params(self.config)
+            self.backend = sim.VirtualPrinter.from_config(self.config.getsection(BACKEND_SECTION), machine=machine)
         self.objects[BACKEND_SECTION] = self.backend
         importlib.import_module(BACKEND_COMMANDS_MODULE).register_sim_commands(self)
 
@@ -226,6 +249,10 @@ class Printer:
         self._loaded.add(name)
         try:
             kind, _, instance = name.partition(" ")
+            if kind in accepted_sections():
+                self.config.mark_section_read(name)  # options taken as written
+                self._accepted.append(name)
+                return
             if kind in READ_BY:
                 self.load_object(READ_BY[kind])
                 return
@@ -269,6 +296,20 @@ class Printer:
                                     desc="Restart the virtual printer and reload the config file")
         self.gcode.register_command("SAVE_CONFIG", self._cmd_save_config,
                                     desc="Write pending config changes (e.g. a calibration) and restart")
+        self.gcode.register_command("M112", self._cmd_M112, desc="Emergency stop: heaters off, printer halted")
+
+    def invoke_shutdown(self, reason: str) -> None:
+        """Halt like Klipper's shutdown: heaters and fans off, only HELP/STATUS/RESTART work."""
+        self.state, self.state_message = "shutdown", f"{reason}\nOnce the underlying issue is corrected, use RESTART"
+        heaters = self.lookup_object("heaters", None)
+        for heater in (heaters.heaters.values() if heaters else ()):
+            heater.set_temperature(0.0)
+        self.send_event("printer:shutdown")
+        self.gcode.set_refusal(("HELP", "STATUS", "RESTART", "FIRMWARE_RESTART"), self.state_message)
+
+    def _cmd_M112(self, gcmd: GCodeCommand) -> None:
+        self.invoke_shutdown("Shutdown due to M112 command")
+        gcmd.respond_raw("!! Shutdown due to M112 command")
 
     def _cmd_status(self, gcmd: GCodeCommand) -> None:
         name = gcmd.get("OBJECT", None)
@@ -281,6 +322,7 @@ class Printer:
                                         for key, value in status[name].items()))
             return
         lines = [self.state_message]
+        lines += [f"Warning: {warning}" for warning in self.warnings]
         lines += [f"{obj}: " + " ".join(f"{key}={_format_status_value(value)}" for key, value in fields.items())
                   for obj, fields in status.items()]
         gcmd.respond_info("\n".join(lines))

@@ -1,7 +1,6 @@
 """`[printer]` and `[stepper_x/y/z]`: the toolhead and its G-code commands.
 
-The toolhead keeps the G-code state (absolute/relative, G92 offsets, feed rate) and
-the homing state, checks every move against the axis limits and drives the virtual
+The toolhead keeps the homing state and the velocity limits, checks every move against the axis limits and drives the virtual
 printer (`printer.backend`). Z homes through the probe: G28 Z calls
 `printer.lookup_object("probe").home_z(gcmd)`, and the probe re-bases Z with
 `set_z_position` (the toolhead implements the probe's Motion protocol:
@@ -12,38 +11,41 @@ coordinates are those plus a per-axis frame offset set by homing (X/Y endstops a
 position_endstop, Z at the probed bed). G-code coordinates are the toolhead's minus
 the G92 offsets.
 
-Commands: G28, G0/G1 (F in mm/min), G90/G91, G92, M400, M114, M104/M109 (the
-virtual nozzle heater). Status objects: `toolhead` and `extruder`.
+Commands: G28, G4, M400, M84/M18, M204, SET_VELOCITY_LIMIT; the G-code frame and G0/G1
+live in `tapcell.host.gcode_move`, the nozzle heater and E axis in `tapcell.host.extruder`.
+Status objects: `toolhead` (Klipper's fields), `gcode_move`, `extruder`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
+from tapcell.host.extruder import load_extruder
+from tapcell.host.gcode_move import load_gcode_move
+from tapcell.host.limits import (
+    ACCEL_MM_S2,
+    ACCEL_RANGE,
+    COORDINATE_RANGE,
+    MAX_COORDINATE_MM,
+    MAX_FULL_STEPS_PER_ROTATION,
+    MAX_ROTATION_DISTANCE_MM,
+    MICROSTEPS,
+    SPEED_MM_S,
+    SPEED_RANGE,
+)
 from tapcell.host.backend import MoveError
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeError
 
 AXES = "xyz"
-KINEMATICS = ("cartesian",)
+# CoreXY moves the toolhead in the same X/Y frame; only the motor mapping differs, which the
+# virtual printer does not model (it moves X and Y directly).
+KINEMATICS = ("cartesian", "corexy")
 PROBE_ENDSTOP_PIN = "probe:z_virtual_endstop"
-# M104/M109 range when there is no [extruder] section to say otherwise.
-DEFAULT_MIN_TEMP_C = 0.0
-DEFAULT_MAX_TEMP_C = 300.0
-# The ranges every toolhead number is checked against: no printer is 10 m wide, and speeds,
-# accelerations and temperatures have ceilings far above any real machine. The floor of
-# the speeds keeps a move from lasting days (the virtual printer simulates every second).
-MAX_COORDINATE_MM = 10_000.0
-SPEED_MM_S = (0.1, 10_000.0)
-# As getter keywords: getfloat("position_min", 0.0, **COORDINATE_RANGE).
-COORDINATE_RANGE = {"minval": -MAX_COORDINATE_MM, "maxval": MAX_COORDINATE_MM}
-SPEED_RANGE = {"minval": SPEED_MM_S[0], "maxval": SPEED_MM_S[1]}
-ACCEL_MM_S2 = (1.0, 1_000_000.0)
-MAX_TEMP_C = 1000.0
-ABSOLUTE_ZERO_C = -273.15
-MICROSTEPS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
-MAX_ROTATION_DISTANCE_MM = 1000.0
-MAX_FULL_STEPS_PER_ROTATION = 10_000
+# Probes that tap the bed with the nozzle (they need Z below 0).
+NOZZLE_PROBE_SECTIONS = ("load_cell_probe", "prusa_probe")
+# G4 and M400 waits longer than this are refused (a typo in P= must not stall the printer for days).
+MAX_DWELL_S = 3600.0
 
 
 @dataclass(frozen=True)
@@ -140,55 +142,6 @@ def read_toolhead_options(section: ConfigSection) -> ToolheadOptions:
     )
 
 
-class Extruder:
-    """The virtual nozzle heater: M104/M109 targets and the `extruder` status."""
-
-    def __init__(self, backend, min_temp_c: float, max_temp_c: float):
-        self.backend = backend
-        self.min_temp_c = min_temp_c
-        self.max_temp_c = max_temp_c
-        self.target_c = 0.0
-
-    def set_target(self, target_c: float, wait: bool) -> None:
-        self.target_c = target_c
-        self.backend.set_nozzle_temperature(target_c, wait=wait)
-
-    def get_status(self, eventtime=None) -> dict:
-        return {"temperature": round(float(self.backend.nozzle_temperature_c), 2), "target": self.target_c,
-                "min_temp": self.min_temp_c, "max_temp": self.max_temp_c}
-
-
-# [extruder] options the virtual printer has no use for: read only to check them.
-EXTRUDER_UNUSED_RANGES = {
-    "rotation_distance": (0.001, MAX_ROTATION_DISTANCE_MM),
-    "nozzle_diameter": (0.01, 10.0),
-    "filament_diameter": (0.01, 10.0),
-    "pid_kp": (0.0, 10_000.0),
-    "pid_ki": (0.0, 10_000.0),
-    "pid_kd": (0.0, 10_000.0),
-    "pressure_advance": (0.0, 10.0),
-    "min_extrude_temp": (ABSOLUTE_ZERO_C, MAX_TEMP_C),
-    "max_extrude_only_distance": (0.0, MAX_COORDINATE_MM),
-}
-
-
-def read_extruder(config, backend) -> Extruder:
-    """[extruder] is optional on the virtual printer: only its temperature range matters."""
-    if not config.has_section("extruder"):
-        return Extruder(backend, DEFAULT_MIN_TEMP_C, DEFAULT_MAX_TEMP_C)
-    section = config.getsection("extruder")
-    for option in ("step_pin", "dir_pin", "heater_pin", "sensor_type", "sensor_pin"):
-        section.get(option, None)
-    for option in ("enable_pin", "control", "gear_ratio"):
-        section.get(option, None)
-    section.getchoice("microsteps", list(MICROSTEPS), None)
-    for option, (low, high) in EXTRUDER_UNUSED_RANGES.items():
-        section.getfloat(option, None, minval=low, maxval=high)
-    min_temp = section.getfloat("min_temp", DEFAULT_MIN_TEMP_C, minval=ABSOLUTE_ZERO_C, maxval=MAX_TEMP_C)
-    max_temp = section.getfloat("max_temp", DEFAULT_MAX_TEMP_C, above=min_temp, maxval=MAX_TEMP_C)
-    return Extruder(backend, min_temp, max_temp)
-
-
 class Toolhead:
     """Moves and homing on the virtual printer, in the toolhead's coordinates."""
 
@@ -199,10 +152,13 @@ class Toolhead:
         self.homed_axes: set[str] = set()
         # toolhead coordinate = virtual printer coordinate + frame offset (set by homing)
         self.frame_offset_mm = {axis: 0.0 for axis in AXES}
-        # G-code coordinate = toolhead coordinate - G92 offset
-        self.gcode_offset_mm = {axis: 0.0 for axis in AXES}
-        self.absolute_coordinates = True
-        self.speed_mm_s = 25.0  # until a G1 F sets it (Klipper's default feed rate)
+        self.e_position_mm = 0.0  # the commanded extruder position (no filament on the virtual printer)
+        # Limits SET_VELOCITY_LIMIT / M204 change at run time.
+        self.max_velocity_mm_s = options.max_velocity_mm_s
+        self.max_accel_mm_s2 = options.max_accel_mm_s2
+        self.square_corner_velocity_mm_s = options.square_corner_velocity_mm_s
+        self.minimum_cruise_ratio = options.minimum_cruise_ratio
+        self.extruder = None  # set by load_config
         # Where G-code moves go: the toolhead itself, or a transform wrapping it (bed mesh,
         # thermal adjust). A transform has move(position_xyz, speed_mm_s) and get_position().
         self.move_target = self
@@ -237,7 +193,7 @@ class Toolhead:
         machine = {axis: None if value is None else value - self.frame_offset_mm[axis]
                    for axis, value in target.items()}
         try:
-            self.backend.move_to(**machine, speed_mm_s=speed_mm_s)
+            self.backend.move_to(**machine, speed_mm_s=speed_mm_s, accel_mm_s2=self.max_accel_mm_s2)
         except MoveError as exc:  # the virtual machine is smaller than the config says
             raise GCodeError(f"Move refused by the virtual printer: {exc}") from None
 
@@ -290,119 +246,131 @@ class Toolhead:
                     "add a [load_cell_probe] section")
             probe.home_z(gcmd)
             self.homed_axes.add("z")
+        self.printer.send_event("toolhead:homed", "".join(axes))
 
-    def _gcode_position(self) -> dict[str, float]:
-        toolhead = self.move_target.get_position()
-        return {axis: toolhead[i] - self.gcode_offset_mm[axis] for i, axis in enumerate(AXES)}
-
-    def cmd_G1(self, gcmd: GCodeCommand) -> None:
-        if gcmd.has("E"):
-            raise gcmd.param_error("the virtual printer has no extruder motor,"
-                                   " E moves are not supported")
-        feed_mm_min = gcmd.get_float("F", None, minval=SPEED_MM_S[0] * 60.0, maxval=SPEED_MM_S[1] * 60.0)
-        if feed_mm_min is not None:
-            self.speed_mm_s = feed_mm_min / 60.0
-        current = self._gcode_position()
-        target = dict(current)
-        moved = []
-        for axis in AXES:
-            value = gcmd.get_float(axis, None, **COORDINATE_RANGE)
-            if value is None:
-                continue
-            target[axis] = value if self.absolute_coordinates else current[axis] + value
-            moved.append(axis)
-        if not moved:
-            return
+    def move_xyze(self, gcmd: GCodeCommand, current: list[float], target: list[float], speed_mm_s: float) -> None:
+        """A G-code move from `current` to `target` (toolhead X, Y, Z, E): homing, limits and the
+        extruder's checks, then X/Y/Z through the move transforms; an E-only move takes its time."""
+        moved = [axis for index, axis in enumerate(AXES) if target[index] != current[index]]
         unhomed = [axis.upper() for axis in moved if axis not in self.homed_axes]
         if unhomed:
             raise gcmd.error(f"Must home axis first: {' '.join(unhomed)} (run G28)")
-        toolhead_target = {axis: target[axis] + self.gcode_offset_mm[axis] for axis in AXES}
-        self._check_in_range(toolhead_target, moved)
-        speed = min(self.speed_mm_s, self.options.max_velocity_mm_s)
+        self._check_in_range(dict(zip(AXES, target)), moved)
+        xyz_distance = sum((t - c) ** 2 for t, c in zip(target[:3], current[:3])) ** 0.5
+        e_distance = target[3] - current[3]
+        try:
+            self.extruder.check_move(xyz_distance, e_distance)
+        except GCodeError as exc:
+            raise gcmd.param_error(f"{exc}") from None
+        self.e_position_mm = target[3]
+        if not moved and e_distance:
+            speed = min(speed_mm_s, self.extruder.max_extrude_only_velocity_mm_s)
+            self.backend.dwell(abs(e_distance) / speed)
+            return
+        # Nothing moved in G-code terms still goes through the transforms, as in Klipper: one that
+        # changed since (thermal adjust switched off, a new mesh) places the nozzle anew.
+        speed = min(speed_mm_s, self.max_velocity_mm_s)
         if moved == ["z"]:
             speed = min(speed, self.options.max_z_velocity_mm_s)
-        self.move_target.move(tuple(toolhead_target[axis] for axis in AXES), speed)
+        self.move_target.move(tuple(target[:3]), speed)
 
-    def cmd_G90(self, gcmd: GCodeCommand) -> None:
-        self.absolute_coordinates = True
-
-    def cmd_G91(self, gcmd: GCodeCommand) -> None:
-        self.absolute_coordinates = False
-
-    def cmd_G92(self, gcmd: GCodeCommand) -> None:
-        toolhead = self.move_target.get_position()
-        given = {axis: gcmd.get_float(axis, None, **COORDINATE_RANGE)
-                 for axis in AXES}
-        if all(value is None for value in given.values()):
-            given = {axis: 0.0 for axis in AXES}
-        for i, axis in enumerate(AXES):
-            if given[axis] is not None:
-                self.gcode_offset_mm[axis] = toolhead[i] - given[axis]
+    def cmd_G4(self, gcmd: GCodeCommand) -> None:
+        """Dwell: P milliseconds (S seconds, as some slicers write it)."""
+        seconds = gcmd.get_float("S", None, minval=0.0, maxval=MAX_DWELL_S)
+        if seconds is None:
+            seconds = gcmd.get_float("P", 0.0, minval=0.0, maxval=MAX_DWELL_S * 1000.0) / 1000.0
+        self.backend.dwell(seconds)
 
     def cmd_M400(self, gcmd: GCodeCommand) -> None:
         """Wait for moves to finish: the virtual printer runs every move to its end at once."""
 
-    def cmd_M114(self, gcmd: GCodeCommand) -> None:
-        position = self._gcode_position()
-        gcmd.respond_raw("X:{x:.3f} Y:{y:.3f} Z:{z:.3f} E:0.000".format(**position))
+    def cmd_M84(self, gcmd: GCodeCommand) -> None:
+        """Motors off: every axis must be homed again (the steppers may be moved by hand).
+        As in Klipper every motor goes off; axis letters (Cura's `M84 X Y E`) are taken and ignored."""
+        for axis in "XYZE":
+            gcmd.has(axis)
+        self.homed_axes.clear()
+        self.printer.send_event("toolhead:motors_off")
+
+    def cmd_M204(self, gcmd: GCodeCommand) -> None:
+        accel = gcmd.get_float("S", None, **ACCEL_RANGE)
+        if accel is None:
+            # P (printing) and T (travel): the smaller one; R (retract) does not apply (as in Klipper).
+            printing = gcmd.get_float("P", None, **ACCEL_RANGE)
+            travel = gcmd.get_float("T", None, **ACCEL_RANGE)
+            gcmd.get_float("R", None, **ACCEL_RANGE)
+            if printing is None or travel is None:
+                gcmd.respond_info(f'Invalid M204 command "{gcmd.get_commandline()}"')
+                return
+            accel = min(printing, travel)
+        self.max_accel_mm_s2 = accel
+
+    def cmd_SET_VELOCITY_LIMIT(self, gcmd: GCodeCommand) -> None:
+        velocity = gcmd.get_float("VELOCITY", None, **SPEED_RANGE)
+        accel = gcmd.get_float("ACCEL", None, **ACCEL_RANGE)
+        corner = gcmd.get_float("SQUARE_CORNER_VELOCITY", None, minval=0.0, maxval=SPEED_MM_S[1])
+        cruise_ratio = gcmd.get_float("MINIMUM_CRUISE_RATIO", None, minval=0.0, below=1.0)
+        accel_to_decel = gcmd.get_float("ACCEL_TO_DECEL", None, **ACCEL_RANGE)  # the older spelling (OrcaSlicer)
+        self.max_velocity_mm_s = velocity or self.max_velocity_mm_s
+        self.max_accel_mm_s2 = accel or self.max_accel_mm_s2
+        self.square_corner_velocity_mm_s = corner if corner is not None else self.square_corner_velocity_mm_s
+        if cruise_ratio is None and accel_to_decel is not None:
+            cruise_ratio = 1.0 - min(1.0, accel_to_decel / self.max_accel_mm_s2)
+        self.minimum_cruise_ratio = cruise_ratio if cruise_ratio is not None else self.minimum_cruise_ratio
+        if all(value is None for value in (velocity, accel, corner, cruise_ratio)):
+            gcmd.respond_info(f"max_velocity: {self.max_velocity_mm_s:.6f}\nmax_accel: {self.max_accel_mm_s2:.6f}\n"
+                              f"minimum_cruise_ratio: {self.minimum_cruise_ratio:.6f}\n"
+                              f"square_corner_velocity: {self.square_corner_velocity_mm_s:.6f}")
 
     def status(self) -> dict:
+        """Klipper's toolhead fields (positions in the toolhead frame, E last)."""
         axes = self.options.axes
+        now_s = float(self.backend.now_s)
         return {
-            "position": [*self.get_position(), 0.0],
-            "gcode_position": [*self._gcode_position().values(), 0.0],
             "homed_axes": "".join(axis for axis in AXES if axis in self.homed_axes),
             "axis_minimum": [axes[a].position_min_mm for a in AXES] + [0.0],
             "axis_maximum": [axes[a].position_max_mm for a in AXES] + [0.0],
-            "absolute_coordinates": self.absolute_coordinates,
-            "speed": self.speed_mm_s,
-            "max_velocity": self.options.max_velocity_mm_s,
-            "max_accel": self.options.max_accel_mm_s2,
-            "max_z_velocity": self.options.max_z_velocity_mm_s,
-            "max_z_accel": self.options.max_z_accel_mm_s2,
-            "print_time": float(self.backend.now_s),
+            "position": [*self.get_position(), self.e_position_mm],
+            "extruder": "extruder",
+            "print_time": now_s,
+            "estimated_print_time": now_s,
+            "stalls": 0,
+            "max_velocity": self.max_velocity_mm_s,
+            "max_accel": self.max_accel_mm_s2,
+            "minimum_cruise_ratio": self.minimum_cruise_ratio,
+            "square_corner_velocity": self.square_corner_velocity_mm_s,
         }
 
     def get_status(self, eventtime=None) -> dict:
         return self.status()
 
 
-def _temperature_commands(extruder: Extruder):
-    def set_temperature(gcmd: GCodeCommand, wait: bool) -> None:
-        target = gcmd.get_float("S", 0.0, minval=0.0, maxval=MAX_TEMP_C)
-        if target and not extruder.min_temp_c <= target <= extruder.max_temp_c:
-            raise gcmd.param_error(f"S={target:g} is outside the nozzle's range "
-                                   f"{extruder.min_temp_c:g} to {extruder.max_temp_c:g} (min_temp / max_temp)")
-        extruder.set_target(target, wait)
-        if wait:
-            gcmd.respond_info(f"Nozzle at {extruder.backend.nozzle_temperature_c:.1f}C (target {target:g}C)")
-
-    return (lambda gcmd: set_temperature(gcmd, wait=False)), (lambda gcmd: set_temperature(gcmd, wait=True))
-
-
 def load_config(section: ConfigSection, printer) -> None:
-    """[printer]: builds the toolhead and extruder objects and their commands."""
+    """[printer]: builds the toolhead, the G-code frame and the extruder, with their commands."""
     if printer.backend is None:
         raise section.error("kinematics", "the toolhead needs the virtual printer ([virtual_printer])")
     toolhead = Toolhead(printer, read_toolhead_options(section))
     # A machine that lost the stepper positions (its MCU reset): every axis must be homed again.
     printer.register_event_handler("printer:positions_lost", toolhead.homed_axes.clear)
-    extruder = read_extruder(section.config, printer.backend)
     printer.add_object("toolhead", toolhead)
-    printer.add_object("extruder", extruder)
+    z_min_mm = toolhead.options.axes["z"].position_min_mm
+    if z_min_mm >= 0.0 and any(section.config.has_section(name) for name in NOZZLE_PROBE_SECTIONS):
+        printer.warnings.append(
+            f"[stepper_z] position_min = {z_min_mm:g}: taps need room below zero. The nozzle presses a little "
+            "past the bed before the probe triggers, so a probing move that ends at Z=0 slows down first and every "
+            "tap fails with COASTING_MOVE_ACCELERATION; set a negative position_min, e.g. position_min: -5")
+    toolhead.extruder = load_extruder(section.config, printer, toolhead.options.max_velocity_mm_s)
+    load_gcode_move(printer, toolhead)
     gcode = printer.gcode
     for name, handler, desc in (
         ("G28", toolhead.cmd_G28, "Home axes: G28 [X] [Y] [Z] (Z through the probe)"),
-        ("G0", toolhead.cmd_G1, "Move: G0 [X] [Y] [Z] [F mm/min]"),
-        ("G1", toolhead.cmd_G1, "Move: G1 [X] [Y] [Z] [F mm/min]"),
-        ("G90", toolhead.cmd_G90, "Absolute coordinates"),
-        ("G91", toolhead.cmd_G91, "Relative coordinates"),
-        ("G92", toolhead.cmd_G92, "Set the G-code position: G92 [X] [Y] [Z]"),
+        ("G4", toolhead.cmd_G4, "Dwell: G4 P<milliseconds>"),
         ("M400", toolhead.cmd_M400, "Wait for the moves to finish"),
-        ("M114", toolhead.cmd_M114, "Report the G-code position"),
+        ("M84", toolhead.cmd_M84, "Motors off (the axes must be homed again)"),
+        ("M18", toolhead.cmd_M84, "Motors off (the axes must be homed again)"),
+        ("M204", toolhead.cmd_M204, "Set the acceleration: M204 S<mm/s^2> (or P and T)"),
+        ("SET_VELOCITY_LIMIT", toolhead.cmd_SET_VELOCITY_LIMIT,
+         "Change the velocity limits: [VELOCITY=] [ACCEL=] [SQUARE_CORNER_VELOCITY=] [MINIMUM_CRUISE_RATIO=]"),
     ):
         gcode.register_command(name, handler, desc=desc)
-    set_nozzle, set_nozzle_and_wait = _temperature_commands(extruder)
-    gcode.register_command("M104", set_nozzle, desc="Set the nozzle temperature: M104 S<celsius>")
-    gcode.register_command("M109", set_nozzle_and_wait, desc="Set the nozzle temperature and wait: M109 S<celsius>")
     return None

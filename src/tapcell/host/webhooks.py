@@ -75,6 +75,8 @@ class ApiObjects:
         """(webhooks state, state message): startup, ready, error or shutdown."""
         if self.shutdown_message is not None:
             return "shutdown", self.shutdown_message
+        if self.printer.state == "shutdown":  # M112 on the printer itself
+            return "shutdown", self.printer.state_message
         state = {"ready": "ready", "error": "error"}.get(self.printer.state, "startup")
         message = READY_MESSAGE if state == "ready" else self.printer.state_message
         return state, message
@@ -83,18 +85,19 @@ class ApiObjects:
         """Halt like Klipper's shutdown: only RESTART, FIRMWARE_RESTART, HELP and STATUS work after it."""
         if self.shutdown_message is None:
             self.shutdown_message = f"{reason}\n{SHUTDOWN_ADVICE}"
+            self.printer.invoke_shutdown(reason)
             if self.print_state in ("printing", "paused"):
                 self.print_state = "error"
 
     # -- commands ------------------------------------------------------------------------
 
     def register_commands(self, gcode) -> None:
-        """Klipper's commands behind these objects; a config's own macro of the same name wins."""
+        """Klipper's commands behind these objects; the printer's own (M117 of [display_status], M112)
+        and a config's macro of the same name win."""
         commands = (("PAUSE", self.cmd_PAUSE, "Pause the current print"),
                     ("RESUME", self.cmd_RESUME, "Resume the print from a pause"),
                     ("CANCEL_PRINT", self.cmd_CANCEL_PRINT, "Cancel the current print"),
-                    ("M117", self.cmd_M117, "Show a message on the display (display_status)"),
-                    ("M112", self.cmd_M112, "Emergency stop: shut the printer down"))
+                    ("M117", self.cmd_M117, "Show a message on the display (display_status)"))
         for name, handler, desc in commands:
             if not gcode.is_registered(name):
                 gcode.register_command(name, handler, desc=desc)
@@ -123,10 +126,6 @@ class ApiObjects:
     def cmd_M117(self, gcmd) -> None:
         self.display_message = gcmd.rawparams or None
 
-    def cmd_M112(self, gcmd) -> None:
-        self.shutdown("Shutdown due to M112 command")
-        gcmd.respond_raw("!! Shutdown due to M112 command")
-
     # -- status ----------------------------------------------------------------------------
 
     def names(self) -> list[str]:
@@ -144,19 +143,22 @@ class ApiObjects:
         for heater in HEATERS:
             if heater not in status:
                 status[heater] = {**HEATER_FIELDS, "temperature": self._room_temperature_c()}
-        status["heaters"] = {"available_heaters": list(HEATERS), "available_sensors": list(HEATERS),
-                             "available_monitors": []}
+        own_heaters = own.get("heaters", {})
+        status["heaters"] = {
+            "available_heaters": list(HEATERS) + [h for h in own_heaters.get("available_heaters", ()) if h not in HEATERS],
+            "available_sensors": list(HEATERS) + [h for h in own_heaters.get("available_sensors", ()) if h not in HEATERS],
+            "available_monitors": []}
         if "toolhead" in status:
             toolhead = status["toolhead"]
             toolhead.setdefault("estimated_print_time", toolhead.get("print_time", 0.0))
-            status["gcode_move"] = self._gcode_move(toolhead)
+            status.setdefault("gcode_move", self._gcode_move(toolhead))
         status["print_stats"] = {"filename": "", "total_duration": 0.0, "print_duration": 0.0,
                                  "filament_used": 0.0, "state": self.print_state, "message": "",
                                  "info": {"total_layer": None, "current_layer": None}}
         status["virtual_sdcard"] = {"file_path": None, "progress": 0.0, "is_active": False,
                                     "file_position": 0, "file_size": 0}
-        status["display_status"] = {"progress": 0.0, "message": self.display_message}
-        status["pause_resume"] = {"is_paused": self.is_paused}
+        status.setdefault("display_status", {"progress": 0.0, "message": self.display_message})
+        status.setdefault("pause_resume", {"is_paused": self.is_paused})
         return status
 
     @staticmethod

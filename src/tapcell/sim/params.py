@@ -60,6 +60,14 @@ class SimParams:
     microsteps: int = _p(16, "microsteps of every stepper", minval=1, maxval=256)
     full_steps_per_rotation: int = _p(200, "full steps per motor rotation", minval=1, maxval=10_000)
     homing_speed_mm_s: float = _p(50.0, "X/Y homing speed", "mm/s", minval=1.0, maxval=10_000.0)
+    x_position_min_mm: float = _p(0.0, "lowest X the carriage reaches", "mm", minval=-MAX_SIZE_MM, maxval=MAX_SIZE_MM)
+    x_position_max_mm: float = _p(0.0, "highest X the carriage reaches; 0 = bed_x_mm", "mm", minval=0.0,
+                                  maxval=MAX_SIZE_MM)
+    y_position_min_mm: float = _p(0.0, "lowest Y the carriage reaches", "mm", minval=-MAX_SIZE_MM, maxval=MAX_SIZE_MM)
+    y_position_max_mm: float = _p(0.0, "highest Y the carriage reaches; 0 = bed_y_mm", "mm", minval=0.0,
+                                  maxval=MAX_SIZE_MM)
+    x_endstop_mm: float = _p(0.0, "where the X endstop switch closes", "mm", minval=-MAX_SIZE_MM, maxval=MAX_SIZE_MM)
+    y_endstop_mm: float = _p(0.0, "where the Y endstop switch closes", "mm", minval=-MAX_SIZE_MM, maxval=MAX_SIZE_MM)
     start_z_mm: float = _p(10.0, "commanded Z at power on (Z is not homed)", "mm",
                            minval=-MAX_SIZE_MM, maxval=MAX_SIZE_MM)
     # --- bed ------------------------------------------------------------------------
@@ -117,6 +125,8 @@ class SimParams:
     # --- nozzle ---------------------------------------------------------------------------
     ambient_c: float = _p(25.0, "room and cold-nozzle temperature", "°C", minval=-50.0, maxval=100.0)
     heater_tau_s: float = _p(15.0, "nozzle heating time constant", "s", minval=0.1, maxval=10_000.0)
+    bed_heater_tau_s: float = _p(60.0, "heated bed (and any other heater) time constant", "s", minval=0.1,
+                                 maxval=10_000.0)
     nozzle_expansion_um_per_c: float = _p(0.45, "nozzle lengthens toward the bed per °C", "µm/°C",
                                           minval=-100.0, maxval=100.0)
     start_nozzle_c: float = _p(25.0, "nozzle temperature at power on", "°C", minval=-50.0, maxval=1000.0)
@@ -192,8 +202,20 @@ def check_params(params: SimParams) -> SimParams:
     if params.z_position_min_mm >= params.z_position_max_mm:
         raise SimParamError("virtual printer parameter 'z_position_min_mm' must be below 'z_position_max_mm'", "z_position_min_mm")
     sheet = SHEETS[params.sheet]
+    x_max = params.x_position_max_mm or params.bed_x_mm
+    y_max = params.y_position_max_mm or params.bed_y_mm
+    for axis, low, high, endstop in (("x", params.x_position_min_mm, x_max, params.x_endstop_mm),
+                                     ("y", params.y_position_min_mm, y_max, params.y_endstop_mm)):
+        if not low < high:
+            raise SimParamError(f"virtual printer parameter '{axis}_position_min_mm' must be below "
+                                f"'{axis}_position_max_mm'", f"{axis}_position_min_mm")
+        if not low <= endstop <= high:
+            raise SimParamError(f"virtual printer parameter '{axis}_endstop_mm' = {endstop:g} must be within "
+                                f"{low:g}..{high:g}", f"{axis}_endstop_mm")
     return dataclasses.replace(
         params,
+        x_position_max_mm=x_max,
+        y_position_max_mm=y_max,
         sample_rate_sps=float(rate),
         sheet_stiffness_g_um=params.sheet_stiffness_g_um or sheet["stiffness_g_um"],
         contact_onset_um=params.contact_onset_um if params.contact_onset_um >= 0 else sheet["onset_um"],

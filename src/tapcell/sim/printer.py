@@ -20,6 +20,7 @@ from tapcell.host.backend import MoveError, ProbingMoveResult, SampleBatch
 from tapcell.sim import faults as faultlib
 from tapcell.sim.bed import BedError, bed_from_params
 from tapcell.sim.contact import ContactModel, ContactState, contact_forces, elastic_force_g
+from tapcell.sim.heaters import FirstOrderHeater, OutputLog
 from tapcell.sim.mcu import SampleChunk, TriggerFeeder, VirtualMCU
 from tapcell.sim.motion import (
     FORGET_BATCH,
@@ -162,8 +163,11 @@ class VirtualPrinter:
             params.ooze_squeeze_tau_s, params.ooze_pull_g, params.ooze_break_um, params.ooze_clear_fraction,
             params.ooze_max_um)
         self._state = _PhysicsState(ContactState(film_um=params.ooze_film_um))
-        self._thermal = NozzleThermal(params.ambient_c, params.heater_tau_s, params.nozzle_expansion_um_per_c,
-                                      params.start_nozzle_c)
+        self._thermal = NozzleThermal(params.ambient_c, params.heater_tau_s, params.start_nozzle_c,
+                                      expansion_um_per_c=params.nozzle_expansion_um_per_c)
+        # Heaters by the host's name: the nozzle is "extruder"; others ([heater_bed], ...) come with add_heater.
+        self._heaters: dict[str, FirstOrderHeater] = {"extruder": self._thermal}
+        self.outputs = OutputLog()
         self._faults: list[faultlib.Fault] = []
         if params.disconnect_at_s >= 0.0:
             self._faults.append(faultlib.make_fault("disconnected", params.disconnect_at_s, None, 0.0, {}))
@@ -175,6 +179,7 @@ class VirtualPrinter:
         self._now_s = 0.0
         self._aux_sensors: list = []
         self.truth = Truth(self)
+        self.world_notice: str | None = None  # set by from_config: the scenario and what it changes
 
     # -- construction ------------------------------------------------------------------
     @classmethod
@@ -184,17 +189,33 @@ class VirtualPrinter:
         return cls(make_params({**SCENARIOS[name].overrides, **overrides}), seed=seed, scenario=name)
 
     @classmethod
-    def from_config(cls, section) -> VirtualPrinter:
-        """`[virtual_printer]`: scenario, seed, and any SimParams name as a physics override."""
+    def from_config(cls, section, machine: dict | None = None) -> VirtualPrinter:
+        """`[virtual_printer]`: scenario, seed and physics overrides, on the machine the printer's own
+        config describes (`machine`: tapcell.sim.machine.machine_params). The world is
+        [virtual_printer]'s; a machine value there that the printer config contradicts is an error."""
         from tapcell.sim.config import read_virtual_printer_section
 
         name, seed, overrides = read_virtual_printer_section(section)
-        try:
-            return cls.from_scenario(name, seed, **overrides)
-        except BedError as exc:
-            raise section.error("bed_csv", str(exc)) from None
-        except SimParamError as exc:
-            raise section.error(exc.option or "scenario", str(exc)) from None
+        machine = dict(machine or {})
+        for param, (value, where) in machine.items():
+            if param in overrides and overrides[param] != value:
+                raise section.error(param, f"the printer's own config sets this ({where} = {value}); "
+                                           "[virtual_printer] describes only the world (bed, noise, faults, scenario)")
+        while True:
+            try:
+                vp = cls.from_scenario(name, seed, **{**SCENARIOS[name].overrides,
+                                                      **{k: v for k, (v, _) in machine.items()}, **overrides})
+                break
+            except BedError as exc:
+                raise section.error("bed_csv", str(exc)) from None
+            except SimParamError as exc:
+                if exc.option in machine and exc.option not in overrides:
+                    # The module owning that section reports the bad value; the machine keeps its default.
+                    del machine[exc.option]
+                    continue
+                raise section.error(exc.option or "scenario", str(exc)) from None
+        vp.world_notice = describe_world(vp, overrides, machine)
+        return vp
 
     # -- what the host may know ------------------------------------------------------------
     @property
@@ -219,23 +240,26 @@ class VirtualPrinter:
     @property
     def limits(self) -> dict:
         p = self.params
-        return {"x": (0.0, p.bed_x_mm), "y": (0.0, p.bed_y_mm), "z": (p.z_position_min_mm, p.z_position_max_mm)}
+        return {"x": (p.x_position_min_mm, p.x_position_max_mm), "y": (p.y_position_min_mm, p.y_position_max_mm),
+                "z": (p.z_position_min_mm, p.z_position_max_mm)}
 
     # -- commands ---------------------------------------------------------------------------
     def move_to(self, x: float | None = None, y: float | None = None, z: float | None = None,
-                speed_mm_s: float = 50.0) -> None:
-        """Trapezoidal move (rest to rest) within the axis limits; time advances to its end."""
+                speed_mm_s: float = 50.0, accel_mm_s2: float | None = None) -> None:
+        """Trapezoidal move (rest to rest) within the axis limits; time advances to its end.
+        `accel_mm_s2` (the host's current limit) is capped by the machine's own."""
         start = self._motion.end_position
         target = tuple(float(v) if v is not None else s for v, s in zip((x, y, z), start))
         self._check_target(target)
         if speed_mm_s <= 0.0:
             raise MoveError(f"move speed must be above 0 mm/s, got {speed_mm_s}")
-        self._plan_and_run(start, target, speed_mm_s)
+        self._plan_and_run(start, target, speed_mm_s, accel_mm_s2)
 
     def home_xy(self) -> None:
-        """Move to the X/Y endstops at the homing speed (the endstops sit at 0, 0)."""
+        """Move to the X/Y endstops at the homing speed (x_endstop_mm, y_endstop_mm)."""
         start = self._motion.end_position
-        self._plan_and_run(start, (0.0, 0.0, start[2]), self.params.homing_speed_mm_s)
+        p = self.params
+        self._plan_and_run(start, (p.x_endstop_mm, p.y_endstop_mm, start[2]), p.homing_speed_mm_s)
 
     def dwell(self, t_s: float) -> None:
         if t_s < 0.0:
@@ -247,9 +271,37 @@ class VirtualPrinter:
         return self._mcu.take(self._now_s)
 
     def set_nozzle_temperature(self, target_c: float, wait: bool = False) -> None:
-        self._thermal.set_target(self._now_s, float(target_c))
+        self.set_heater_temperature("extruder", target_c)
         if wait:
-            self.dwell(self._thermal.time_to_settle_s(self._now_s))
+            self.wait_for_heater("extruder")
+
+    def heater(self, name: str) -> FirstOrderHeater:
+        """The thermal model of the host's heater `name` ("extruder" is the nozzle); others are
+        made on first use, at room temperature, with the bed heater's time constant."""
+        if name not in self._heaters:
+            p = self.params
+            self._heaters[name] = FirstOrderHeater(p.ambient_c, p.bed_heater_tau_s, p.ambient_c, self._now_s)
+        return self._heaters[name]
+
+    def heater_temperature_c(self, name: str) -> float:
+        return float(self.heater(name).temps_at(self._now_s))
+
+    def set_heater_temperature(self, name: str, target_c: float) -> None:
+        self.heater(name).set_target(self._now_s, float(target_c))
+
+    def wait_for_heater(self, name: str, within_c: float = 1.0) -> float:
+        """Let time pass until the heater is within `within_c` of its set point; returns the seconds waited."""
+        waited_s = self.heater(name).time_to_settle_s(self._now_s, within_c)
+        self.dwell(waited_s)
+        return waited_s
+
+    @property
+    def room_temperature_c(self) -> float:
+        return float(self.params.ambient_c)
+
+    def set_output(self, name: str, value: float) -> None:
+        """Record a fan speed or pin value (0..1) set now."""
+        self.outputs.set(name, self._now_s, value)
 
     def place_weight(self, grams: float, add: bool = False) -> float:
         """A weight now rests on the cell: it replaces what rested there, or with `add` joins it.
@@ -430,18 +482,19 @@ class VirtualPrinter:
             if not low - 1e-9 <= value <= high + 1e-9:
                 raise MoveError(f"move out of range: {axis}={value:.3f} (allowed {low:.3f} .. {high:.3f})")
 
-    def _plan(self, start, target, speed_mm_s: float) -> list[Segment]:
+    def _plan(self, start, target, speed_mm_s: float, accel_mm_s2: float | None = None) -> list[Segment]:
         delta = np.subtract(target, start)
         distance = float(np.linalg.norm(delta))
         if distance <= 0.0:
             return []
         p = self.params
-        speed, accel = move_limits(delta / distance, p.max_velocity_mm_s, p.max_accel_mm_s2,
+        max_accel = p.max_accel_mm_s2 if accel_mm_s2 is None else min(accel_mm_s2, p.max_accel_mm_s2)
+        speed, accel = move_limits(delta / distance, p.max_velocity_mm_s, max_accel,
                                    p.max_z_velocity_mm_s, p.max_z_accel_mm_s2, speed_mm_s)
         return plan_trapezoid(start, target, self._now_s, speed, accel)
 
-    def _plan_and_run(self, start, target, speed_mm_s: float) -> None:
-        segments = self._plan(start, target, speed_mm_s)
+    def _plan_and_run(self, start, target, speed_mm_s: float, accel_mm_s2: float | None = None) -> None:
+        segments = self._plan(start, target, speed_mm_s, accel_mm_s2)
         if not segments:
             return
         self._motion.append(segments)
@@ -628,6 +681,29 @@ class VirtualPrinter:
             events["pullback_start_time"] = after[0].print_time
             events["pullback_end_time"] = end
         return events
+
+
+def describe_world(vp: VirtualPrinter, overrides: dict, machine: dict) -> str:
+    """One line: the scenario, what it changes, and what the printer's config decides instead."""
+    scenario = SCENARIOS[vp.scenario]
+    changed = [f"{k}={getattr(vp.params, k):g}" if isinstance(getattr(vp.params, k), float)
+               else f"{k}={getattr(vp.params, k)}" for k in scenario.overrides if k not in machine]
+    taken = [f"{k}={v}" for k, v in scenario.overrides.items() if k in machine]
+    line = f"Virtual printer: scenario '{vp.scenario}' ({scenario.description}), seed {vp.seed}: "
+    line += ("changes " + ", ".join(changed)) if changed else "no changes to the default world"
+    if taken:
+        p = vp.params
+        line += (f"; {', '.join(taken)} are for the printer config to say (it has {p.chip} at "
+                 f"{p.sample_rate_sps:g} sps)")
+    own = [f"{k}={v}" for k, v in overrides.items()]
+    if own:
+        line += "; [virtual_printer] sets " + ", ".join(own)
+    if "chip" in machine:
+        p = vp.params
+        line += (f". The machine is the printer config's: load cell {p.chip} at {p.sample_rate_sps:g} sps, gain "
+                 f"{p.gain}; X {p.x_position_min_mm:g}..{p.x_position_max_mm:g}, Y {p.y_position_min_mm:g}.."
+                 f"{p.y_position_max_mm:g}, Z down to {p.z_position_min_mm:g} mm")
+    return line
 
 
 def _trigger_error_none():

@@ -49,16 +49,26 @@ class TapInvalid(Exception):
 
 
 def check_moves(moves: list[Move]) -> None:
-    """Move count and the coasting check (only when moves are given)."""
+    """Move count and the coasting check (only when moves are given).
+
+    The move before the halt marker must be the approach's cruise. One that slows down means
+    the probing move reached its end (Z position_min) before the probe triggered: the move
+    list then also holds the deceleration, which is that cause and not a miscount.
+    """
     if not moves:
         return
     if len(moves) < MIN_PROBING_MOVES:
         raise TapInvalid(TOO_FEW_PROBING_MOVES,
                          f"{len(moves)} moves, a tap needs {MIN_PROBING_MOVES} or {MAX_PROBING_MOVES}")
+    cruise = moves[-5]
+    if cruise.accel < 0:
+        raise TapInvalid(COASTING_MOVE_ACCELERATION,
+                         "the probing move was slowing down when the probe triggered: it reached its end "
+                         "([stepper_z] position_min) before the nozzle pressed the bed hard enough. Taps need "
+                         "room below Z=0: set a negative position_min, e.g. position_min: -5")
     if len(moves) > MAX_PROBING_MOVES:
         raise TapInvalid(TOO_MANY_PROBING_MOVES,
                          f"{len(moves)} moves, a tap needs {MIN_PROBING_MOVES} or {MAX_PROBING_MOVES}")
-    cruise = moves[-5]
     if cruise.accel != 0:
         raise TapInvalid(COASTING_MOVE_ACCELERATION,
                          f"the probing move was accelerating ({cruise.accel:g} mm/s²) when the probe triggered; "

@@ -14,7 +14,9 @@ from pathlib import Path
 
 from tapcell.files import FileRefused, read_limited
 from tapcell.host.config import ConfigError
+from tapcell.host.gcode import GCodeError, UnknownCommandError
 from tapcell.host.printer import Printer
+from tapcell.tools.progress import ProgressBar
 from tapcell.tools.workspace import ScenarioError, set_scenario, working_config
 
 SUBCOMMANDS = ("console", "run")
@@ -30,7 +32,8 @@ def _print_line(line: str) -> None:
     print(line, flush=True)
 
 
-def _build_printer(config_path: str, program: str) -> Printer | None:
+def _build_printer(config_path: str, program: str, notices_to=None) -> Printer | None:
+    """The printer of `config_path`; the start-up notices go to `notices_to` (stdout by default)."""
     if not os.path.exists(config_path):
         print(f"{program}: config file '{config_path}' does not exist", file=sys.stderr)
         return None
@@ -39,11 +42,22 @@ def _build_printer(config_path: str, program: str) -> Printer | None:
     except ConfigError as exc:
         print(f"{program}: config error: {exc}", file=sys.stderr)
         return None
+    for notice in printer.notices:
+        for line in notice.split("\n"):
+            print(f"// {line}", file=notices_to or sys.stdout, flush=True)
+    for warning in printer.warnings:
+        print(f"// Warning: {warning}", flush=True)
     return printer
 
 
-def run_script_file(printer: Printer, script_path: str, *, keep_going: bool, echo: bool) -> int:
-    """Run a G-code file line by line; 0 if every line succeeded, else 1 (2: the file cannot be read)."""
+def run_script_file(printer: Printer, script_path: str, *, keep_going: bool, echo: bool,
+                    progress: bool | None = False) -> int:
+    """Run a G-code file line by line like a print: 0 if every line succeeded, else 1 (2: the file
+    cannot be read). `progress`: a progress bar on stderr (None: when stderr is a terminal).
+
+    An unknown command is answered as Klipper answers it in a print (`// Unknown command:"M205"`)
+    and the file goes on; any other error stops it (unless keep_going).
+    """
     try:
         lines = read_limited(script_path, MAX_SCRIPT_BYTES).decode("utf-8").splitlines()
     except (OSError, FileRefused) as exc:
@@ -52,17 +66,37 @@ def run_script_file(printer: Printer, script_path: str, *, keep_going: bool, ech
     except UnicodeDecodeError as exc:
         print(f"tapcell run: script '{script_path}' is not UTF-8 text: {exc}", file=sys.stderr)
         return 2
+    bar = ProgressBar(len(lines), enabled=progress)
+    gcode = printer.gcode
+
+    def show(line: str) -> None:
+        bar.clear()
+        print(line, flush=True)
+
+    gcode.set_response_sink(show)
     failed = False
-    for line_number, line in enumerate(lines, start=1):
-        if echo and line.strip():
-            print(f"> {line.strip()}", flush=True)
-        if printer.gcode.run_script_reporting_errors(line):
-            continue
-        failed = True
-        if not keep_going:
-            print(f"tapcell run: {script_path}:{line_number}: stopped at the first error "
-                  f"(use --keep-going to run the rest)", file=sys.stderr)
-            return 1
+    try:
+        for line_number, line in enumerate(lines, start=1):
+            if echo and line.strip():
+                show(f"> {line.strip()}")
+            try:
+                gcode.run_line(line)
+            except UnknownCommandError as exc:
+                gcode.respond_info(str(exc))
+            except GCodeError as exc:
+                gcode.respond_error(str(exc))
+                failed = True
+                if not keep_going:
+                    bar.clear()
+                    print(f"tapcell run: {script_path}:{line_number}: stopped at the first error "
+                          f"(use --keep-going to run the rest)", file=sys.stderr)
+                    return 1
+            bar.update(line_number, printer.get_time())
+    finally:
+        bar.clear()
+        gcode.set_response_sink(_print_line)
+    if bar.enabled:
+        print(bar.summary(len(lines), printer.get_time()), file=sys.stderr)
     return 1 if failed else 0
 
 
@@ -74,14 +108,18 @@ def _main_run(argv: list[str]) -> int:
     parser.add_argument("--keep-going", action="store_true", help="run the rest of the script after an error "
                         "(the exit status is still 1)")
     parser.add_argument("--echo", action="store_true", help="print each command (as '> LINE') before its responses")
+    parser.add_argument("--progress", choices=("auto", "always", "never"), default="auto",
+                        help="progress bar on stderr (auto: when stderr is a terminal)")
     args = parser.parse_args(argv)
     if not os.path.isfile(args.script):
         print(f"tapcell run: script '{args.script}' does not exist", file=sys.stderr)
         return 2
-    printer = _build_printer(args.config, "tapcell run")
+    # In a run the notices are about the session, not responses to the file: they go to stderr.
+    printer = _build_printer(args.config, "tapcell run", notices_to=sys.stderr)
     if printer is None:
         return 1
-    return run_script_file(printer, args.script, keep_going=args.keep_going, echo=args.echo)
+    return run_script_file(printer, args.script, keep_going=args.keep_going, echo=args.echo,
+                           progress={"auto": None, "always": True, "never": False}[args.progress])
 
 
 def _setup_readline():

@@ -10,6 +10,7 @@ from __future__ import annotations
 from tapcell.extras.load_cell import register_load_cell_commands
 from tapcell.extras.load_cell_probe.commands import LoadCellProbeCommands
 from tapcell.extras.load_cell_probe.device import LoadCellProbe
+from tapcell.extras.probe.calibrate import register_probe_calibrate
 from tapcell.extras.probe.options import PROBE_TEMPLATE_OPTIONS, read_probe_options
 from tapcell.extras.probe.session import Probe
 from tapcell.host.templates import GCodeTemplate, StatusView, compile_template
@@ -35,6 +36,7 @@ def load_config(section, printer) -> LoadCellProbe:
     device.probe = probe
     device.refuse_a_hiding_drift_filter(section, probe.options)
     probe.register_commands()
+    register_probe_calibrate(printer, probe)
     register_load_cell_commands(printer.gcode, device.load_cell, device.name)
     commands = LoadCellProbeCommands(device, probe)
     commands.register(printer.gcode)

@@ -69,10 +69,10 @@ def gcode_override_values(gcmd, specs: tuple[OptionSpec, ...], current) -> dict[
     """The options a G-code command overrides, typed and range-checked by the G-code layer."""
     if gcmd is None:
         return {}
-    params = {name.upper() for name in gcmd.get_command_parameters()}
     changed: dict[str, Any] = {}
     for spec in specs:
-        name = next((n for n in spec.gcode_names if n in params), None)
+        # has() (not the whole parameter list): a parameter no spec names stays unknown, and is warned about.
+        name = next((n for n in spec.gcode_names if gcmd.has(n)), None)
         if name is None:
             continue
         default = getattr(current, spec.field)
