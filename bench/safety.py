@@ -38,14 +38,13 @@ from rich.table import Table
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "virtual-printer.cfg"
 SPEEDS_MM_S = (1.0, 5.0, 20.0, 50.0)
-# sensor -> ([load_cell_probe] lines, [virtual_printer] lines)
+# sensor -> ([load_cell_probe] lines, [virtual_printer] lines); the virtual printer takes the chip,
+# its rate and the machine's speeds from the printer's own sections.
 SENSORS = {
-    "HX711": ("sensor_type: hx711\nsclk_pin: PA5\ndout_pin: PA4\nsample_rate: 80\n",
-              "chip: hx711\nsample_rate_sps: 80\n"),
-    "HX717": ("sensor_type: hx717\nsclk_pin: PA5\ndout_pin: PA4\nsample_rate: 320\n",
-              "chip: hx717\nsample_rate_sps: 320\n"),
+    "HX711": ("sensor_type: hx711\nsclk_pin: PA5\ndout_pin: PA4\nsample_rate: 80\n", ""),
+    "HX717": ("sensor_type: hx717\nsclk_pin: PA5\ndout_pin: PA4\nsample_rate: 320\n", ""),
     "ADS1220": ("sensor_type: ads1220\ncs_pin: PA4\ndata_ready_pin: PA3\nsample_rate: 660\n",
-                "chip: ads1220\nsample_rate_sps: 660\nwhite_noise_counts: 60\n"),
+                "white_noise_counts: 60\n"),
 }
 # A drift filter that hides a slow tap on this bed (3.26 g/um): the drift window must stop it.
 DRIFT_FILTER_HZ = 10.0
@@ -130,8 +129,7 @@ def config_text(row: Row) -> str:
     probe_lines, sim_lines = SENSORS[row.sensor]
     speed = row.speed_mm_s
     text = EXAMPLE.read_text()
-    text = text.replace("scenario: clean\nseed: 1\n",
-                        f"scenario: clean\nseed: 1\n{sim_lines}max_z_velocity_mm_s: 60\n")
+    text = text.replace("scenario: clean\nseed: 1\n", f"scenario: clean\nseed: 1\n{sim_lines}")
     text = text.replace("max_z_velocity: 15", f"max_z_velocity: {max(speed, 5.0):g}")
     text = text.replace("sensor_type: hx717\nsclk_pin: PA5\ndout_pin: PA4\nsample_rate: 320\n", probe_lines)
     text = text.replace("\nspeed: 5\n", f"\nspeed: {speed:g}\n", 1)

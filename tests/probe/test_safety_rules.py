@@ -7,6 +7,7 @@ import pytest
 
 from tapcell.extras.load_cell_probe import safety
 from tapcell.filters import FilterOptions, design_firmware_filter
+from tapcell.host.config import pin_mcu
 from tapcell.mcu.trigger import TriggerError, TriggerParams
 from tapcell.scale import SENSOR_24BIT
 
@@ -49,8 +50,8 @@ def test_a_drift_filter_hides_a_slow_tap_and_a_raw_window_stops_it():
 
 
 def test_the_stop_latency_follows_the_pins():
-    assert safety.pin_mcu("PA4") == safety.pin_mcu("^!PA4") == "mcu"
-    assert safety.pin_mcu("toolboard:PA4") == safety.pin_mcu("^toolboard: PA4") == "toolboard"
+    assert pin_mcu("PA4") == pin_mcu("^!PA4") == "mcu"
+    assert pin_mcu("toolboard:PA4") == pin_mcu("^toolboard: PA4") == "toolboard"
     assert safety.stop_timing("hx717", 320, "toolboard", "mcu").stop_latency_s == 0.025
     assert safety.stop_timing("hx717", 320, "mcu", "mcu").stop_latency_s == 0.001
 

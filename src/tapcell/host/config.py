@@ -244,6 +244,13 @@ class _Parser:
             self.parse_file(match, include_stack, is_main=False, included_at=where)
 
 
+def pin_mcu(pin: str) -> str:
+    """The MCU a Klipper pin names: `toolboard:PB3` -> toolboard; a pin without a prefix (`^!PC0`)
+    is on the main MCU, `mcu`."""
+    name = pin.strip().lstrip("^~!").strip()
+    return name.split(":", 1)[0].strip() if ":" in name else "mcu"
+
+
 def read_config_text(path: str, included_at: str | None = None) -> str:
     """The file's text; a problem names the file (and the [include] that named it, if any)."""
     where = path if included_at is None else f"{included_at}: include file {path}"

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import math
 
+from tapcell.host.config import pin_mcu
+
 # Trigger on the sensor's MCU -> host -> stepper MCU: about two USB/CAN message latencies.
 MULTI_MCU_STOP_DELAY_S = 0.004
 SENSOR_PINS = ("sclk_pin", "dout_pin", "cs_pin", "data_ready_pin")
@@ -43,12 +45,6 @@ def _gear_ratio(config, section: str) -> float:
     except (ValueError, ZeroDivisionError):
         return 1.0
     return ratio
-
-
-def _chip_of_pin(pin: str) -> str:
-    """'toolboard:PB3' -> 'toolboard'; a pin without a prefix is on the main MCU."""
-    pin = pin.strip().lstrip("^~!")
-    return pin.split(":")[0].strip() if ":" in pin else "mcu"
 
 
 def probe_cell_section(config) -> str | None:
@@ -119,9 +115,9 @@ def _sensor_params(config, cell: str, found: dict) -> None:
             pass
     else:
         found["gain"] = (128, f"[{cell}] gain")  # every chip's default
-    sensor_chips = {_chip_of_pin(config.peek(cell, pin)) for pin in SENSOR_PINS if config.peek(cell, pin)}
+    sensor_chips = {pin_mcu(config.peek(cell, pin)) for pin in SENSOR_PINS if config.peek(cell, pin)}
     z_pin = config.peek("stepper_z", "step_pin")
     if sensor_chips and z_pin is not None:
-        relayed = _chip_of_pin(z_pin) not in sensor_chips
+        relayed = pin_mcu(z_pin) not in sensor_chips
         found["multi_mcu_delay_s"] = (MULTI_MCU_STOP_DELAY_S if relayed else 0.0,
                                       f"[{cell}] pins' MCU vs [stepper_z] step_pin")

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 
 from tapcell.host.backend import Backend
+from tapcell.host.config import pin_mcu
 from tapcell.filters import FilterDesignError, FilterOptions, design_firmware_filter
 from tapcell.extras.load_cell import LoadCell, read_load_cell_options
 from tapcell.mcu import sensors
@@ -217,8 +218,7 @@ class LoadCellProbe:
         self.tare_counts_at_tap: float | None = None
         sensor_pin = self.cell_options.dout_pin or self.cell_options.data_ready_pin
         self.stop_timing = safety.stop_timing(self.cell_options.sensor_type, self.sample_rate_sps,
-                                              safety.pin_mcu(sensor_pin),
-                                              safety.pin_mcu(self.motion.options.axes["z"].step_pin))
+                                              pin_mcu(sensor_pin), pin_mcu(self.motion.options.axes["z"].step_pin))
         # Inside a probing command (`guarded`): how deep, the speed notes already given, and the
         # machine Z the last probing move started from (clear of the bed at that XY).
         self._guard_depth = 0

@@ -75,12 +75,6 @@ class StopTiming:
         return 1.0 / self.sample_rate_sps
 
 
-def pin_mcu(pin: str) -> str:
-    """The MCU a Klipper pin names: `toolboard:PA5` -> toolboard, `^!PC0` -> mcu."""
-    name = pin.strip().lstrip("^~!").strip()
-    return name.split(":", 1)[0].strip() if ":" in name else "mcu"
-
-
 def stop_timing(sensor_type: str, sample_rate_sps: float, sensor_mcu: str, z_stepper_mcu: str) -> StopTiming:
     period_s = 1.0 / sample_rate_sps
     latency_s = ONE_MCU_STOP_LATENCY_S if sensor_mcu == z_stepper_mcu else MULTI_MCU_STOP_LATENCY_S
