@@ -63,6 +63,8 @@ def test_run_reports_bad_files_without_traceback(capsys, files, tmp_path):
     config, script = files
     status, out, err = run(capsys, tmp_path / "missing.gcode", "--config", config)
     assert (status, out, err) == (2, [], f"tapcell run: script '{tmp_path / 'missing.gcode'}' does not exist\n")
+    status, out, err = run(capsys, "/dev/zero", "--config", config)   # exists, but is no file to read
+    assert (status, err.splitlines()[-1]) == (2, "tapcell run: cannot read script '/dev/zero': is not a regular file")
     script.write_text("HELLO\n")
     status, out, err = run(capsys, script, "--config", tmp_path / "nope.cfg")
     assert (status, err) == (1, f"tapcell run: config file '{tmp_path / 'nope.cfg'}' does not exist\n")

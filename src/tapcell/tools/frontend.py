@@ -111,7 +111,7 @@ def _main_run(argv: list[str]) -> int:
     parser.add_argument("--progress", choices=("auto", "always", "never"), default="auto",
                         help="progress bar on stderr (auto: when stderr is a terminal)")
     args = parser.parse_args(argv)
-    if not os.path.isfile(args.script):
+    if not os.path.exists(args.script):
         print(f"tapcell run: script '{args.script}' does not exist", file=sys.stderr)
         return 2
     # In a run the notices are about the session, not responses to the file: they go to stderr.
