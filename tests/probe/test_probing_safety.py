@@ -69,7 +69,7 @@ def test_a_stuck_sensor_stops_the_move_blames_the_sensor_and_lifts(tmp_path, whe
     printer.gcode.run_script(f"SIM_FAULT NAME=stuck WHEN={when}")
     assert re.fullmatch(STUCK_IN_FIRMWARE, gcode_error(printer, command))
     peak_g, clearance_mm = sim_truth(printer)
-    assert 50.0 < peak_g < 500.0 < FORCE_SAFETY_LIMIT_G
+    assert 50.0 < peak_g < 500.0
     assert clearance_mm > 1.5 and lifted(responses)
 
 
@@ -200,7 +200,7 @@ def test_the_nozzle_is_lifted_clear_of_the_bed_after_an_error(tmp_path, fault, c
         printer.gcode.run_script(f"SIM_FAULT {fault}")
     assert gcode_error(printer, command).startswith(error)
     peak_g, clearance_mm = sim_truth(printer)
-    assert peak_g < 1200.0 and clearance_mm > 1.5 and lifted(responses)
+    assert peak_g < 300.0 and clearance_mm > 1.5 and lifted(responses)   # measured 39-139 g
 
 
 def test_an_mcu_reset_lifts_the_nozzle_says_so_and_unhomes(tmp_path):
@@ -214,7 +214,9 @@ def test_an_mcu_reset_lifts_the_nozzle_says_so_and_unhomes(tmp_path):
     assert printer.lookup_object("toolhead").status()["homed_axes"] == ""
     assert gcode_error(printer, "G1 Z5") == "Must home axis first: Z (run G28)"
     assert gcode_error(printer, "PROBE") == "Must home before probe"
+    responses.clear()
     printer.gcode.run_script("G28\nG1 X110 Y110 F6000\nPROBE")       # homed again, it probes again
+    assert any(line.startswith("// Result is z=") for line in responses)
 
 
 # -- finding 7: a push on the nozzle in the air never becomes a Z datum or a mesh point ---------------
@@ -247,7 +249,7 @@ def test_a_touch_in_the_air_never_becomes_a_mesh_point(tmp_path, method):
     xs, ys = np.meshgrid(np.linspace(15.0, 220.0, 9), np.linspace(15.0, 220.0, 9))
     truth = printer.backend.truth.contact_z_at(xs - frame["x"], ys - frame["y"]) + frame["z"]
     assert np.max(np.abs(mesh.z_at(xs, ys) - truth)) < 0.1
-    assert sim_truth(printer)[0] < FORCE_SAFETY_LIMIT_G
+    assert sim_truth(printer)[0] < 400.0   # measured 207 g (two_pass and prusa)
 
 
 # -- finding 9 (host side): a pending bowden tug --------------------------------------------------------
