@@ -511,12 +511,16 @@ class LoadCellProbe:
                              "check that [stepper_z] position_min is negative (e.g. -2) and the nozzle reaches the bed")
         return result, tare_counts, t_start_s, speed_mm_s
 
+    def _force_between(self, t0_s: float, t1_s: float, tare_counts: float) -> tuple[np.ndarray, np.ndarray]:
+        """(sample times, force in grams against `tare_counts`) of the kept samples from t0_s to t1_s."""
+        t_s, counts, _ = self.history.between(t0_s, t1_s)
+        return t_s, counts_to_grams(counts, tare_counts, self.load_cell.counts_per_gram, self.cell_options.inverted)
+
     def _stopped_by_a_corrupt_frame(self, options: TapOptions, tare_counts: float, t_start_s: float) -> bool:
         """Whether the force_safety_limit stop was one corrupted sample in the air (then says so)."""
         period_s = 1.0 / self.sample_rate_sps
         self._wait_for_samples_to(self.backend.now_s + 2.5 * period_s)     # the sample after it
-        _, counts, _ = self.history.between(t_start_s - 2.0 * period_s, self.backend.now_s)   # and the one before
-        force_g = (counts - tare_counts) / self.load_cell.counts_per_gram
+        _, force_g = self._force_between(t_start_s - 2.0 * period_s, self.backend.now_s, tare_counts)  # and the one before
         lone = lone_sample_past_limit(force_g, options.force_safety_limit_g, options.trigger_force_g)
         if lone is None:
             return False
@@ -526,8 +530,7 @@ class LoadCellProbe:
 
     def _explain_drift(self, options: TapOptions, tare_counts: float, t_start_s: float, speed_mm_s: float) -> str:
         """' (why)' when the move's samples show the force jumping past the limit within one sample."""
-        _, counts, _ = self.history.between(t_start_s, self.backend.now_s)
-        force_g = (counts - tare_counts) / self.load_cell.counts_per_gram
+        _, force_g = self._force_between(t_start_s, self.backend.now_s, tare_counts)
         beyond = np.flatnonzero(np.abs(force_g) >= options.drift_safety_limit_g)
         if len(beyond) == 0 or beyond[0] == 0:
             return ""
@@ -576,8 +579,7 @@ class LoadCellProbe:
         halt_s = self.backend.now_s
         self.backend.dwell(safety.CONTACT_CHECK_SAMPLES / self.sample_rate_sps)
         self.load_cell.pump()
-        _, counts, _ = self.history.between(halt_s, self.backend.now_s)
-        force_g = counts_to_grams(counts, tare_counts, self.load_cell.counts_per_gram, self.cell_options.inverted)
+        _, force_g = self._force_between(halt_s, self.backend.now_s, tare_counts)
         return safety.contact_holds(force_g, threshold_g)
 
     def tap(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float) -> TapOutcome:
@@ -680,8 +682,7 @@ class LoadCellProbe:
 
     def _tap_data(self, tare_counts, t_start_s, result, pullback_start_s, pullback_end_s,
                   speed_mm_s, settings: TapSettings) -> TapData:
-        t_s, counts, _ = self.history.between(t_start_s, pullback_end_s)
-        force_g = counts_to_grams(counts, tare_counts, self.load_cell.counts_per_gram, self.cell_options.inverted)
+        t_s, force_g = self._force_between(t_start_s, pullback_end_s, tare_counts)
         # One Z frame for every report of this tap (console, tap file, plot, tapcell analyze): the
         # toolhead's. The virtual printer's own (machine) frame is kept as a named offset.
         offset = self.motion.frame_offset_mm
