@@ -58,10 +58,10 @@ def test_the_stop_latency_follows_the_pins():
 
 def test_sensor_faults_from_raw_samples():
     live = np.array([-38000, -37990, -38012, -38004, -37998, -38007, -38001, -37995, -38003])
-    assert safety.sensor_fault(live, SENSOR_24BIT) is None
-    assert safety.sensor_fault(np.r_[live, [-38124] * 8], SENSOR_24BIT) == "stuck"
-    assert safety.sensor_fault(np.r_[live, [-38124] * 7], SENSOR_24BIT) is None
-    assert safety.sensor_fault(np.r_[live, [(1 << 23) - 1]], SENSOR_24BIT) == "saturated"
+    assert safety.sensor_fault(live, SENSOR_24BIT, 8) is None
+    assert safety.sensor_fault(np.r_[live, [-38124] * 8], SENSOR_24BIT, 8) == "stuck"
+    assert safety.sensor_fault(np.r_[live, [-38124] * 7], SENSOR_24BIT, 8) is None
+    assert safety.sensor_fault(np.r_[live, [(1 << 23) - 1]], SENSOR_24BIT, 8) == "saturated"
 
 
 def test_a_contact_holds_a_glitch_or_a_swing_does_not():

@@ -385,7 +385,7 @@ class LoadCellProbe:
         _, counts, _ = self.history.between(t_start_s, self.backend.now_s)
         # The firmware names a stuck sensor itself; with its check off (stuck_sensor_samples: 0), or
         # a saturated sensor, the move's own samples say why it failed (not position_min).
-        fault = safety.sensor_fault(counts, self.load_cell.counts_range)
+        fault = safety.sensor_fault(counts, self.load_cell.counts_range, self.default_stuck_samples)
         if (fault is not None and result.error != TriggerError.STUCK_SENSOR
                 and (result.error != TriggerError.NONE or not result.triggered)):
             raise ProbeError(ERROR_PREFIX + safety.sensor_fault_message(fault, counts, z_min_mm))

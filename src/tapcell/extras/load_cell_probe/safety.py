@@ -201,19 +201,16 @@ def hiding_filter_refusal(cutoff_hz: float, speed_mm_s: float, options, allowed_
 
 # -- the sensor itself ---------------------------------------------------------------------------
 
-# This many identical raw samples in a row: no live sensor does that (its noise is several counts).
-STUCK_SAMPLES = 8
-
-
-def sensor_fault(counts: np.ndarray, counts_range: scale.CountsRange) -> str | None:
+def sensor_fault(counts: np.ndarray, counts_range: scale.CountsRange, stuck_samples: int) -> str | None:
     """'saturated' when the newest sample sits at a limit of the ADC's range, 'stuck' when the
-    newest STUCK_SAMPLES raw samples are identical, else None."""
+    newest `stuck_samples` raw samples are identical (the firmware's rule for this sensor, which a
+    live sensor never meets: tapcell.mcu.sensors.stuck_sample_count), else None."""
     counts = np.asarray(counts)
     if counts.size == 0:
         return None
     if scale.saturated_mask(counts[-1:], counts_range)[0]:
         return "saturated"
-    if counts.size >= STUCK_SAMPLES and np.all(counts[-STUCK_SAMPLES:] == counts[-1]):
+    if counts.size >= stuck_samples and np.all(counts[-stuck_samples:] == counts[-1]):
         return "stuck"
     return None
 
