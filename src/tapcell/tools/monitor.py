@@ -247,7 +247,7 @@ def _follow(bridge: Bridge, args, options: AnalysisOptions, display: Display, se
         if "tap" in params:
             seen.taps += 1
             _handle_tap(seen.taps, params, options, args, display)
-        elif "data" in params:
+        elif "data" in params and args.force:   # kept only to be reported, then emptied
             force_g += [row[1] for row in params["data"] if row[1] is not None]
         if args.force and time.monotonic() - last_report >= FORCE_REPORT_S and force_g:
             display.say(f"force: {force_g[-1]:.1f} g (min {min(force_g):.1f}, max {max(force_g):.1f} "
