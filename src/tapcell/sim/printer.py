@@ -597,13 +597,14 @@ class VirtualPrinter:
         growth_um = p.ooze_growth_um_per_s_per_c * np.maximum(temps - p.ooze_temp_c, 0.0) * timing.grid_dt_s
         bed_g, film_g = contact_forces(gap_um, timing.grid_dt_s, growth_um, self._contact_model,
                                        self._state.contact)
+        contact_g = bed_g + film_g   # the true nozzle-bed force (SIM_TRUTH's peak_force_g)
         if n:
-            self._state.peak_contact_g = max(self._state.peak_contact_g, float(np.max(bed_g + film_g)))
+            self._state.peak_contact_g = max(self._state.peak_contact_g, float(np.max(contact_g)))
         self._place_residue()
         centre = (p.bed_x_mm / 2.0, p.bed_y_mm / 2.0)
         drag_g = (p.bowden_g_per_mm_x * (pos[:, 0] - centre[0]) + p.bowden_g_per_mm_y * (pos[:, 1] - centre[1])
                   + p.bowden_g_per_mm_z * pos[:, 2])
-        grid_force = (bed_g + film_g + drag_g + pin_g + faultlib.external_force_g(self._faults, grid_t)
+        grid_force = (contact_g + drag_g + pin_g + faultlib.external_force_g(self._faults, grid_t)
                       + self._hand_force(grid_t))
         force_g = grid_force.reshape(n, sub).mean(axis=1)
         t_ready = timing.ready_times(k0, k1)
