@@ -84,6 +84,17 @@ def test_contact_onset_option_reaches_the_analysis_and_is_range_checked(tmp_path
         make_printer(tmp_path, probe_options="contact_onset_um: 150", calibrate=False, home=False)
 
 
+def test_contact_model_option_reaches_the_analysis_and_is_checked(tmp_path):
+    printer, _ = make_printer(tmp_path, calibrate=False, home=False)
+    analysis = printer.lookup_object("load_cell_probe").config_settings.analysis
+    assert analysis.contact_model == "toe" and analysis.contact_onset_um is None and analysis.uses_toe_model
+    printer, _ = make_printer(tmp_path, probe_options="contact_model: sharp", calibrate=False, home=False)
+    assert printer.lookup_object("load_cell_probe").config_settings.analysis.contact_model == "sharp"
+    with pytest.raises(ConfigError, match=r"clean\.cfg: \[load_cell_probe\] contact_model = hertz: "
+                                          r"must be one of: sharp, toe$"):
+        make_printer(tmp_path, probe_options="contact_model: hertz", calibrate=False, home=False)
+
+
 def test_noisy_mains_probe_removes_hum(tmp_path):
     printer, _ = make_printer(tmp_path, "noisy-mains")
     printer.gcode.run_script("PROBE HOME=Z\nG1 Z0.4")

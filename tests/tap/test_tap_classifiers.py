@@ -146,6 +146,10 @@ def test_options_from_strings():
     assert options.sensor_delay_s == "auto" and options.fit_contact_onset is True
     with pytest.raises(ValueError, match="option 'decompression_angle' = '90': must be between 0 and 90 \\(exclusive\\)"):
         AnalysisOptions().with_overrides({"decompression_angle": "90"})
+    assert AnalysisOptions().contact_model == "toe"
+    assert AnalysisOptions().with_overrides({"contact_model": "sharp"}).contact_model == "sharp"
+    with pytest.raises(ValueError, match="option 'contact_model' = 'hertz': one of sharp, toe"):
+        AnalysisOptions().with_overrides({"contact_model": "hertz"})
     with pytest.raises(ValueError, match="unknown option 'min_quality'; allowed: "):
         AnalysisOptions().with_overrides({"min_quality": "1"})
     with pytest.raises(ValueError, match="option 'max_approach_force' = 'lots': expected a number"):
