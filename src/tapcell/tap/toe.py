@@ -34,6 +34,18 @@ import numpy as np
 
 TOE_WIDTHS_UM = (0.0, 1.0, 2.0, 3.0, 4.5, 6.0, 8.0, 10.0, 13.0, 16.0)
 TOE_POWERS = (0.5, 1.0)  # Hertz sphere on flat; a parabolic force onset
+
+
+def _width_prior(widths_um: tuple[float, ...]) -> np.ndarray:
+    """Each grid width's share of a uniform prior over 0..widest: the span it stands for (half the
+    gaps to its neighbours). The grid is finer at narrow toes; counting every width alike would
+    favour narrow toes, which read the contact low."""
+    w = np.array(widths_um)
+    edges = np.concatenate(([w[0]], 0.5 * (w[1:] + w[:-1]), [w[-1]]))
+    return np.diff(edges) / (w[-1] - w[0])
+
+
+WIDTH_PRIOR = _width_prior(TOE_WIDTHS_UM)
 COARSE_STEP_UM = 0.5
 COARSE_BELOW_UM = 3.0  # the sharp estimate reads a toe low: search mostly above it
 COARSE_ABOVE_UM = 10.0
@@ -272,7 +284,8 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
         return None
     dof = max(len(y) - 4 - basis.shape[1], 1)
     residual_var = max(float(rss_grid[best]) / dof, 1e-12)
-    contact, sigma = marginal_contact_um(coarse, rss_grid.reshape(-1, len(coarse)), residual_var)
+    contact, sigma = marginal_contact_um(coarse, rss_grid.reshape(-1, len(coarse)), residual_var,
+                                         np.tile(WIDTH_PRIOR, len(TOE_POWERS)))
     if contact is None:
         return None
     width, power = widths[best[1]], TOE_POWERS[best[0]]
@@ -281,7 +294,8 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
                   stiffness_g_um=float(stiffness[0]), residual_sigma_g=math.sqrt(residual_var * g2_per_unit))
 
 
-def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: float) -> tuple[float | None, float]:
+def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: float,
+                        prior: np.ndarray | None = None) -> tuple[float | None, float]:
     """Mean and sd of the contact height with the toe (width, shape) marginalised out.
 
     rss: (toes, contacts) residual sums on an even grid of contact heights. Per toe, a parabola
@@ -308,7 +322,7 @@ def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: flo
     # d2 rss / dc2 = bend / step^2; the Gaussian in c has variance 2 noise_var / that.
     var = np.where(usable, 2.0 * noise_var * step * step / np.where(usable, bend, 1.0), 0.0)
     log_weight = np.where(usable, -(lowest - lowest[usable].min()) / (2.0 * noise_var), -np.inf)
-    weight = np.exp(log_weight) * np.sqrt(var)
+    weight = np.exp(log_weight) * np.sqrt(var) * (1.0 if prior is None else prior)
     weight /= weight.sum()
     mean = float(weight @ centre)
     spread = float(weight @ (var + (centre - mean) ** 2))
