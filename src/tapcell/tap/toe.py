@@ -17,7 +17,13 @@ Two estimates the tap itself carries (issue 12):
   (p, w, c) on a grid, baseline and k are solved in closed form (variable projection: the
   fixed columns are projected out once, each toe column costs a few dot products).
 
-`contact_um` is the mean of c with the toe marginalised out, and `sigma_um` its sd
+The baseline may also wander (a random walk: temperature, a cable settling). When the tap's free
+air shows a walk that matters over the fit (`wander_from_free_air`, `Wander.matters`), the fit
+weighs the samples by white + walk covariance (`_Whitened`: the same grid, the same three parts
+of the toe column, a recursion instead of plain sums).
+
+`contact_um` is the mean of c with the toe marginalised out (the widths weighed as a uniform
+prior over 0-16 µm, the two shapes alike), and `sigma_um` its sd
 (`marginal_contact_um`): the toe width and the contact height trade off along a flat valley of
 the residual, and the single best toe wanders along it with the noise. Averaging over the toes the
 data allow (weighted by their likelihood) is steadier than the best one, and the sd keeps that
@@ -64,9 +70,11 @@ ADHESION_MIN_LEVEL_SAMPLES = 10
 # The baseline's random walk is weighed in when over the fit it adds as much variance as the white noise
 # (0.25 and 0.5 gave the same drift sigma and 0.01 um more on clean taps).
 WANDER_SHARE = 1.0
-# Variogram lags (samples) for the walk estimate. From 3: an ADS1220's sinc3 averages over three
-# periods, so neighbouring samples share noise and short lags would read that as a walk.
-WANDER_LAGS = range(3, 15)
+# Variogram lags (samples) for the walk estimate. Not below 4: an ADS1220's sinc3 averages over
+# three periods, so neighbouring samples share signal. Up to 40: mains hum (6.4 samples a cycle at
+# 320 sps, 40 at 2000) and 1/f noise raise short lags like a walk but stop growing; with lags 3-14
+# the walk path was taken on 14 of 30 clean 2000-sps taps and 13 of 30 hum taps, now on none.
+WANDER_LAGS = range(4, 41, 4)
 
 
 @dataclass
@@ -166,7 +174,8 @@ class Wander:
     white_var_g2: per sample; walk_var_g2: the walk's variance growth per sample. Over the ~100
     samples of a toe fit a walk of a few g/sqrt(s) bends the baseline by as much as the white
     noise, and an ordinary least-squares fit reads the bend as toe (bowden/cable drift taps of the
-    independent generator: sigma 0.85 um; weighting by the true covariance: 0.71).
+    independent generator, 60 on seed 5: sigma 0.85 um; weighed by the true covariance 0.71; by
+    the one estimated from the tap's free air, `wander_from_free_air`, 0.70).
     """
 
     white_var_g2: float
@@ -181,63 +190,124 @@ def wander_from_free_air(segments: list[np.ndarray]) -> Wander | None:
     """White and random-walk variances from force samples in free air (each segment evenly sampled).
 
     Each segment's straight line is removed (Z-proportional drift, a steady trend); the variogram
-    of what is left, E[(r[i+L] - r[i])^2] = 2 white + L walk, is pooled over the segments for
-    WANDER_LAGS and fitted by least squares. None when the segments are too short.
+    of what is left, E[(r[i+L] - r[i])^2], is pooled over the segments for WANDER_LAGS and fitted
+    by least squares to its exact expectation under white noise plus a walk (removing the line
+    takes a share of both, most of the walk at lags near the segment's length). None when the
+    segments are too short.
     """
-    lags, values = [], []
+    rows, values = [], []
     for force_g in segments:
         n = len(force_g)
-        if n < 2 * WANDER_LAGS[-1]:
+        lags = [lag for lag in WANDER_LAGS if 3 * lag <= n]  # longer ones: the line takes the walk
+        if len(lags) < 3:
             continue
         i = np.arange(n, dtype=float) - 0.5 * (n - 1)
         r = force_g - force_g.mean() - i * (i @ force_g) / (i @ i)
-        for lag in WANDER_LAGS:
+        white_share = _detrended_variogram(np.eye(n), lags)
+        walk_share = _detrended_variogram(np.minimum.outer(np.arange(n), np.arange(n)).astype(float), lags)
+        for lag, white, walk in zip(lags, white_share, walk_share):
             d = r[lag:] - r[:-lag]
-            lags.append(lag)
+            rows.append((white, walk))
             values.append(float(d @ d) / len(d))
-    if not lags:
+    if not rows:
         return None
-    design = np.column_stack((np.full(len(lags), 2.0), np.array(lags, dtype=float)))
-    (white, walk), *_ = np.linalg.lstsq(design, np.array(values), rcond=None)
+    (white, walk), *_ = np.linalg.lstsq(np.array(rows), np.array(values), rcond=None)
     if not white > 0.0:
         return None
     return Wander(white_var_g2=float(white), walk_var_g2=max(float(walk), 0.0))
 
 
+def _detrended_variogram(covariance: np.ndarray, lags) -> np.ndarray:
+    """Mean E[(r[i+L] - r[i])^2] per lag for noise of unit `covariance` once a line is fitted out."""
+    n = len(covariance)
+    line = np.column_stack((np.ones(n), np.arange(n) - 0.5 * (n - 1)))
+    hat = line / np.array([n, line[:, 1] @ line[:, 1]])  # line (lineᵀline)⁻¹ (the columns are orthogonal)
+    cov_line = covariance @ line
+    residual = (covariance - hat @ cov_line.T - cov_line @ hat.T + hat @ (line.T @ cov_line) @ hat.T)
+    variance = np.diagonal(residual)
+    return np.array([np.mean(variance[lag:] + variance[:-lag] - 2.0 * np.diagonal(residual, -lag)) for lag in lags])
+
+
 @dataclass
 class _Whitened:
-    """The samples of one toe fit whitened by the Cholesky factor of white + random-walk covariance.
+    """`_Projected` under the metric of white + random-walk noise (generalised least squares).
 
-    Whitening mixes every sample into the ones after it, so the pressed-sample sums of `_Projected`
-    do not apply: each candidate's toe column is evaluated over all samples (only taps whose walk
-    matters take this path).
+    Differencing consecutive samples removes the baseline exactly and turns white noise σ² plus
+    a walk of q per sample into noise with a tridiagonal covariance (2σ² + q on the diagonal, -σ²
+    beside it), whose Cholesky factor is bidiagonal: whitening is then a recursion along the
+    samples. The toe column keeps its three parts in time order: pressed past every toe first
+    (h = a - x: its differences do not depend on the candidate), the in-between samples, then free
+    air (h = 0: whitened, it decays geometrically). So each candidate costs a recursion over the
+    in-between samples only; the pressed part and the free tail enter through precomputed sums.
+    Residuals come out in units of the white noise variance.
     """
 
-    window_um: np.ndarray  # (n, SUBSAMPLES)
-    whiten: np.ndarray  # (n, n) L^-1
-    basis: np.ndarray  # whitened, orthonormal baseline column(s)
-    y_free: np.ndarray
+    near_window_um: np.ndarray  # (n, SUBSAMPLES) heights of the in-between samples
+    first_near: int  # index of the first in-between sample (= number of pressed samples)
+    diag: np.ndarray  # the bidiagonal Cholesky factor of the differences' covariance
+    sub: np.ndarray
+    x_mid: np.ndarray
+    y_white: np.ndarray  # the force, differenced and whitened
+    pressed_z: float  # the whitened toe column at the last pressed-pressed difference
+    pressed_zz: float
+    pressed_zy: float
+    tail_zz: float  # free tail: Σ z² and Σ z·y_white per unit of the column at its start
+    tail_zy: float
     yy: float
 
     @classmethod
-    def prepare(cls, window_um: np.ndarray, x_mid: np.ndarray, y: np.ndarray, wander: Wander) -> _Whitened:
-        # The pullback rises monotonically, so the sample order is the time order of the walk.
-        order = np.arange(len(y), dtype=float)
-        covariance = wander.white_var_g2 * np.eye(len(y)) + wander.walk_var_g2 * np.minimum.outer(order, order)
-        whiten = np.linalg.inv(np.linalg.cholesky(covariance))
-        basis = np.linalg.qr(whiten @ np.ones((len(y), 1)))[0]
-        y_w = whiten @ y
-        y_free = y_w - basis @ (basis.T @ y_w)
-        return cls(window_um, whiten, basis, y_free, float(y_free @ y_free))
+    def prepare(cls, window_um: np.ndarray, x_mid: np.ndarray, y: np.ndarray, wander: Wander,
+                lowest_contact_um: float, highest_contact_um: float, widest_um: float) -> _Whitened | None:
+        pressed = window_um.max(axis=1) <= lowest_contact_um - widest_um
+        near = ~pressed & (window_um.min(axis=1) < highest_contact_um)
+        first, count = int(np.count_nonzero(pressed)), int(np.count_nonzero(near))
+        if count < 2 or not (pressed[:first].all() and near[first:first + count].all()):
+            return None  # not pressed, then in between, then free: not a plain rise
+        m = len(y) - 1
+        diag, sub = np.empty(m), np.zeros(m)
+        diag[0] = math.sqrt(2.0 * wander.white_var_g2 + wander.walk_var_g2)
+        for j in range(1, m):
+            sub[j] = -wander.white_var_g2 / diag[j - 1]
+            diag[j] = math.sqrt(2.0 * wander.white_var_g2 + wander.walk_var_g2 - sub[j] * sub[j])
+        y_white = _whiten(np.diff(y)[None], diag, sub, 0, 0.0)[0]
+        pressed_z = pressed_zz = pressed_zy = 0.0
+        if first >= 2:
+            z = _whiten(-np.diff(x_mid[:first])[None], diag, sub, 0, 0.0)[0]
+            pressed_z, pressed_zz, pressed_zy = float(z[-1]), float(z @ z), float(z @ y_white[:first - 1])
+        # Free air after the last in-between sample: z_j = z_k · Π (-sub / diag) over the tail.
+        tail_start = first + count  # the first difference wholly in free air
+        gain = np.cumprod(-sub[tail_start:] / diag[tail_start:])
+        return cls(window_um[near], first, diag, sub, x_mid, y_white, pressed_z, pressed_zz, pressed_zy,
+                   float(gain @ gain), float(gain @ y_white[tail_start:]), float(y_white @ y_white))
+
+
+def _whiten(differences: np.ndarray, diag: np.ndarray, sub: np.ndarray, j0: int, z_before) -> np.ndarray:
+    """Forward substitution through the bidiagonal factor for differences j0.. (rows: candidates)."""
+    z = np.empty_like(differences)
+    previous = z_before
+    for i in range(differences.shape[1]):
+        j = j0 + i
+        previous = z[:, i] = (differences[:, i] - sub[j] * previous) / diag[j]
+    return z
 
 
 def _rss_whitened(contacts_um, widths_um, power, data: _Whitened):
-    """`_rss_over_contacts` under the whitened inner product (residuals in white-noise units)."""
-    depth = contacts_um[:, None, None] - data.window_um[None]
-    h = toe_shape(depth, widths_um[:, None, None], power).mean(axis=2) @ data.whiten.T  # (C, n)
-    h -= (h @ data.basis) @ data.basis.T
-    hh = np.einsum("cn,cn->c", h, h)
-    hy = h @ data.y_free
+    """`_rss_over_contacts` under the noise's metric (residuals in white-noise units)."""
+    depth = contacts_um[:, None, None] - data.near_window_um[None]
+    h = toe_shape(depth, widths_um[:, None, None], power).mean(axis=2)  # (C, n) the in-between samples
+    first = data.first_near
+    columns = [h]
+    if first:  # the pressed sample before: h = a - x, with a = c - the toe's lift deficit
+        a = contacts_um - widths_um * (power / (power + 1.0))
+        columns.insert(0, (a - data.x_mid[first - 1])[:, None])
+    if first + h.shape[1] < len(data.x_mid):  # the free sample after: h = 0
+        columns.append(np.zeros((len(h), 1)))
+    column = np.hstack(columns)
+    j0 = max(first - 1, 0)
+    z = _whiten(np.diff(column, axis=1), data.diag, data.sub, j0, data.pressed_z)
+    z_end = z[:, -1]
+    hh = data.pressed_zz + np.einsum("cn,cn->c", z, z) + z_end * z_end * data.tail_zz
+    hy = data.pressed_zy + z @ data.y_white[j0:j0 + z.shape[1]] + z_end * data.tail_zy
     usable = hh > 1e-12
     stiffness = np.divide(hy, hh, out=np.zeros_like(hy), where=usable)
     rss = np.where(usable & (stiffness > 0.0), data.yy - stiffness * hy, np.inf)
@@ -270,10 +340,11 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
     grid_c = np.tile(coarse, len(widths))
     grid_w = np.repeat(widths, len(coarse))
     g2_per_unit = 1.0  # the residual's unit: g^2, or the white variance once whitened
+    whitened = None
     if wander is not None and wander.matters(len(y)):
-        data = _Whitened.prepare(window_um, x_mid, y, wander)
-        solve = _rss_whitened
-        g2_per_unit = wander.white_var_g2
+        whitened = _Whitened.prepare(window_um, x_mid, y, wander, coarse[0], coarse[-1], widths.max())
+    if whitened is not None:
+        data, solve, g2_per_unit = whitened, _rss_whitened, wander.white_var_g2
     else:
         data = _Projected.prepare(window_um, x_mid, basis, y, coarse[0], coarse[-1], widths.max())
         solve = _rss_over_contacts
