@@ -70,10 +70,13 @@ ADHESION_MIN_LEVEL_SAMPLES = 10
 # The baseline's random walk is weighed in when over the fit it adds as much variance as the white noise
 # (0.25 and 0.5 gave the same drift sigma and 0.01 um more on clean taps).
 WANDER_SHARE = 1.0
-# Variogram lags (samples) for the walk estimate. Not below 4: an ADS1220's sinc3 averages over
-# three periods, so neighbouring samples share signal. Up to 40: mains hum (6.4 samples a cycle at
-# 320 sps, 40 at 2000) and 1/f noise raise short lags like a walk but stop growing; with lags 3-14
-# the walk path was taken on 14 of 30 clean 2000-sps taps and 13 of 30 hum taps, now on none.
+# Variogram lags (samples) for the walk estimate, each up to a third of its segment (the fitted
+# line takes most of a walk at longer lags). Not below 4: an ADS1220's sinc3 averages over three
+# periods, so neighbouring samples share signal. Up to 40: mains hum (6.4 samples a cycle at 320
+# sps, 40 at 2000) and 1/f noise raise short lags like a walk but stop growing. On 30 taps each the
+# walk path is taken for 23 cable-drift, 10 clean HX717, 8 clean 2000-sps and 2 hum taps (with
+# lags 3-14 and no line correction: 14 of 30 clean 2000-sps, 13 of 30 hum); on clean taps it
+# leaves Z as it was (sigma 0.61 um either way on 60 HX717 taps).
 WANDER_LAGS = range(4, 41, 4)
 
 
