@@ -127,8 +127,7 @@ def test_virtual_printer_noisy_mains_taps_are_valid_with_hum_removed(speed_mm_s,
     assert -1.8 < np.mean(errors_um) < -0.9
     assert np.std(errors_um) < 0.35
     assert valid_without == valid_with_hum
-    # The toe model on clean taps (20 seeds): +0.33 ± 0.46 µm at 2 mm/s, -0.09 ± 0.34 at 10 mm/s;
-    # with the hum removed, over these 5 seeds: +0.61 and -0.01.
+    # The toe model on clean taps (20 seeds): +0.55 ± 0.42 µm at 2 mm/s, +0.17 ± 0.31 at 10 mm/s.
     assert -0.8 < np.mean(toe_errors_um) < 1.3
 
 

@@ -92,6 +92,6 @@ def test_contact_search_beside_an_unusable_candidate_emits_no_warning():
         result = analyze_tap(tap)
         sharp = analyze_tap(tap, AnalysisOptions(contact_model="sharp", sensor_delay_s=0.0))
     assert result.valid, result.message
-    # The toe model over seeds 0-11 of this tap: -0.68 ± 0.27 µm (this seed -0.35).
-    assert -2.0 < (result.z_mm - tap.truth["z_contact"]) * 1000 < 0.7
+    # The toe model over seeds 0-11 of this tap: -0.45 ± 0.32 µm (this seed -0.23).
+    assert -2.0 < (result.z_mm - tap.truth["z_contact"]) * 1000 < 1.2
     assert -2.2 < (sharp.z_mm - tap.truth["z_contact"]) * 1000 < -1.6  # measured -1.88 µm
