@@ -56,6 +56,7 @@ def test_calibrate_contact_onset_on_a_soft_sheet(tmp_path):
     assert printer.config.pending_changes()["load_cell_probe"]["contact_onset_um"] == f"{onset_um:.2f}"
     assert f"contact_onset_um: {onset_um:.2f}" in "\n".join(responses)
     assert "The SAVE_CONFIG command will update the printer config file" in "\n".join(responses)
+    assert "A calibrated onset selects the sharp contact model with this onset" in "\n".join(responses)
     after_um, sigma_um = accuracy_bias_um(printer)
     # Uncalibrated, the toe model (widths up to 16 µm) reads the 25 µm onset -6.8 µm low (a sharp
     # contact: about half the onset, -12 µm); calibrated (the sharp model with that onset), within
