@@ -51,6 +51,13 @@ ADHESION_RUN_SAMPLES = 5  # the dip is the lowest mean of this many consecutive 
 ADHESION_MIN_LEVEL_SAMPLES = 10
 
 
+# The candidate grid (widths × contacts around the start), built once: contacts vary fastest.
+_CONTACT_OFFSETS_UM = np.arange(-COARSE_BELOW_UM, COARSE_ABOVE_UM + 1e-9, COARSE_STEP_UM)
+_GRID_OFFSETS_UM = np.tile(_CONTACT_OFFSETS_UM, len(TOE_WIDTHS_UM))
+_GRID_WIDTHS_UM = np.repeat(TOE_WIDTHS_UM, len(_CONTACT_OFFSETS_UM))
+_SUBSAMPLE_FRACTIONS = (np.arange(SUBSAMPLES) + 0.5) / SUBSAMPLES
+
+
 @dataclass
 class ToeFit:
     contact_um: float  # height above the halt where the force reaches the baseline
@@ -92,53 +99,94 @@ class _Projected:
 
     basis: the linear columns beside the toe (orthonormal: the baseline, and the drift unless it
     is known); the force has them projected out (`y_free`). For a toe column h the fit needs only
-    h·h - |hᵀB|² and h·y_free (variable projection). Samples above every candidate contact have
-    h = 0 and drop out; samples pressed past every candidate's toe have h = a - x (a = c - the
-    toe's lift deficit), so they enter through a few sums; only the samples in between are
-    evaluated per candidate.
+    h·h - |hᵀB|² and h·y_free (variable projection). For a candidate (contact c, toe width w) the
+    samples fall in three runs along the pullback: pressed past the toe (h = a - x, a = c - the
+    toe's lift deficit: they enter through prefix sums of 1, x, x², y, x y, B, x B), in the toe
+    (evaluated, a few samples per candidate) and in free air (h = 0: nothing to add).
     """
 
-    near_window_um: np.ndarray  # (n, SUBSAMPLES) heights of the in-between samples
-    near_basis: np.ndarray
-    near_y: np.ndarray
-    pressed_n: int
-    pressed_x: float
-    pressed_xx: float
-    pressed_basis: np.ndarray  # Σ B over the pressed samples (m,)
-    pressed_x_basis: np.ndarray  # Σ x B (m,)
-    pressed_y: float
-    pressed_xy: float
+    window_um: np.ndarray  # (n, SUBSAMPLES) heights each sample averages over
+    points_um: np.ndarray  # the same heights subsample-major, flat: subsample k of sample i at k n + i
+    y_free: np.ndarray
+    basis_rows: np.ndarray  # (m, n): the basis, one column per row
+    # Sample i and every one before it are pressed past a toe ending at or above pressed_to_um[i]
+    # (running max of the windows' tops); from i on every sample is free of a contact at or below
+    # free_from_um[i] (running min, from the end, of the windows' bottoms). Both sorted, so one
+    # searchsorted per candidate bounds its run in the toe, whatever the order of the samples.
+    pressed_to_um: np.ndarray
+    free_from_um: np.ndarray
+    pressed_sums: np.ndarray  # (5 + 2m, n + 1) prefix sums of 1, x, x², y, x y, B (m), x B (m)
     yy: float
 
     @classmethod
-    def prepare(cls, window_um: np.ndarray, x_mid: np.ndarray, basis: np.ndarray, y: np.ndarray,
-                lowest_contact_um: float, highest_contact_um: float, widest_um: float) -> _Projected:
+    def prepare(cls, window_um: np.ndarray, x_mid: np.ndarray, basis: np.ndarray, y: np.ndarray) -> _Projected:
         y_free = y - basis @ (basis.T @ y)
-        pressed = window_um.max(axis=1) <= lowest_contact_um - widest_um
-        near = ~pressed & (window_um.min(axis=1) < highest_contact_um)
-        x_p, y_p, b_p = x_mid[pressed], y_free[pressed], basis[pressed]
-        return cls(window_um[near], basis[near], y_free[near], int(np.count_nonzero(pressed)), float(x_p.sum()),
-                   float(x_p @ x_p), b_p.sum(axis=0), x_p @ b_p, float(y_p.sum()), float(x_p @ y_p),
+        columns = np.vstack((np.ones_like(x_mid), x_mid, x_mid * x_mid, y_free, x_mid * y_free, basis.T,
+                             x_mid * basis.T))
+        sums = np.zeros((len(columns), len(x_mid) + 1))
+        np.cumsum(columns, axis=1, out=sums[:, 1:])
+        pressed_to = np.maximum.accumulate(window_um[:, -1])
+        free_from = np.minimum.accumulate(window_um[::-1, 0])[::-1]
+        return cls(window_um, window_um.T.ravel(), y_free, np.ascontiguousarray(basis.T), pressed_to, free_from, sums,
                    float(y_free @ y_free))
 
 
-def _rss_over_contacts(contacts_um, widths_um, power, data: _Projected):
-    """Residual sum of squares of the linear solve at every (toe width, candidate contact) at once,
-    and the toe's stiffness there. contacts_um, widths_um: equal-length 1-D arrays (one row per
-    candidate); power: the toe's."""
-    depth = contacts_um[:, None, None] - data.near_window_um[None]
-    h = toe_shape(depth, widths_um[:, None, None], power).mean(axis=2)  # (C, n) the in-between samples
-    # The pressed samples: h = a - x with a = c - w p / (p + 1) (the toe lifts w / (p + 1), not w).
-    a = contacts_um - widths_um * (power / (power + 1.0))
-    h_basis = h @ data.near_basis + a[:, None] * data.pressed_basis[None] - data.pressed_x_basis[None]
-    hh_all = np.einsum("cn,cn->c", h, h) + a * a * data.pressed_n - 2.0 * a * data.pressed_x + data.pressed_xx
-    hh = hh_all - np.einsum("cm,cm->c", h_basis, h_basis)
-    hy = h @ data.near_y + a * data.pressed_y - data.pressed_xy
+def _solve(hh_all, h_basis, hy, yy: float):
+    """Residual sum of squares and toe stiffness of the linear solve from a toe column's sums
+    (h·h, Bᵀh (m, ...), h·y_free); inf where the toe would pull, or cannot be told from B."""
+    hh = hh_all - (h_basis * h_basis).sum(axis=0)
     # A candidate whose toe column is (nearly) a combination of the others cannot be solved.
     usable = hh > 1e-9 * (hh_all + 1e-300)
     stiffness = np.divide(hy, hh, out=np.zeros_like(hy), where=usable)
-    rss = np.where(usable & (stiffness > 0.0), data.yy - stiffness * hy, np.inf)  # must press, not pull
+    rss = np.where(usable & (stiffness > 0.0), yy - stiffness * hy, np.inf)  # must press, not pull
     return rss, stiffness
+
+
+def _rss_over_contacts(contacts_um: np.ndarray, widths_um: np.ndarray, data: _Projected):
+    """Residual sum of squares of the linear solve at every (toe shape, width, candidate contact)
+    at once: (len(TOE_POWERS), candidates). contacts_um, widths_um: equal-length 1-D arrays (one
+    entry per candidate).
+
+    Only the samples in each candidate's toe are evaluated, laid end to end in one flat array
+    (`owner`: the candidate of each), and summed per candidate by bincount; the toe's run of
+    samples depends on its width, not its shape, so every shape shares it.
+    """
+    candidates = len(contacts_um)
+    first = data.pressed_to_um.searchsorted(contacts_um - widths_um, side="right")
+    counts = np.maximum(data.free_from_um.searchsorted(contacts_um, side="left") - first, 0)
+    owner = np.repeat(np.arange(candidates), counts)
+    ends = counts.cumsum()
+    index = np.arange(ends[-1]) + np.repeat(first - (ends - counts), counts)
+    # One flat array, subsample-major (every array the same 1-D shape: numpy's fastest loops), and
+    # take rather than fancy indexing (several times faster on these small arrays).
+    in_toe = len(index)
+    subsamples = len(data.points_um) // len(data.y_free)
+    owners = np.tile(owner, subsamples)
+    depth = contacts_um.take(owners) - data.points_um.take(np.concatenate(
+        [index + k * len(data.y_free) for k in range(subsamples)]))
+    toe_widths = widths_um.take(owners)
+    y_free, basis_rows = data.y_free.take(index), data.basis_rows.take(index, axis=1)
+    pressed = data.pressed_sums.take(first, axis=1)  # 1, x, x², y, x y, B (m), x B (m) per candidate
+    m = len(basis_rows)
+    rss = np.empty((len(TOE_POWERS), candidates))
+    for row, power in enumerate(TOE_POWERS):
+        h = toe_shape(depth, toe_widths, power).reshape(subsamples, in_toe).sum(axis=0) * (1.0 / subsamples)
+        # The pressed samples: h = a - x with a = c - w p / (p + 1) (the toe lifts w / (p + 1), not w).
+        a = contacts_um - widths_um * (power / (power + 1.0))
+        # (bincount answers in integers when no candidate has a sample in its toe)
+        h_basis = np.array([np.bincount(owner, h * column, candidates) for column in basis_rows], dtype=float)
+        h_basis += a * pressed[5:5 + m] - pressed[5 + m:]
+        hh_all = np.bincount(owner, h * h, candidates) + (a * pressed[0] - 2.0 * pressed[1]) * a + pressed[2]
+        hy = np.bincount(owner, h * y_free, candidates) + a * pressed[3] - pressed[4]
+        rss[row] = _solve(hh_all, h_basis, hy, data.yy)[0]
+    return rss
+
+
+def _stiffness_at(contact_um: float, width_um: float, power: float, data: _Projected) -> float:
+    """The toe's stiffness at one contact height and toe, its column evaluated over every sample."""
+    h = toe_shape(contact_um - data.window_um, width_um, power).sum(axis=1) * (1.0 / data.window_um.shape[1])
+    _, stiffness = _solve(np.array([h @ h]), (data.basis_rows @ h)[:, None], np.array([h @ data.y_free]), data.yy)
+    return float(stiffness[0])
 
 
 def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, contact0_um: float,
@@ -153,33 +201,28 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
     x_lo_um, x_hi_um, y = x_lo_um[keep], x_hi_um[keep], force_g[keep]
     if len(y) < 8:
         return None
-    fractions = (np.arange(SUBSAMPLES) + 0.5) / SUBSAMPLES
-    window_um = x_lo_um[:, None] + (x_hi_um - x_lo_um)[:, None] * fractions[None, :]
+    window_um = x_lo_um[:, None] + (x_hi_um - x_lo_um)[:, None] * _SUBSAMPLE_FRACTIONS
     x_mid = 0.5 * (x_lo_um + x_hi_um)
     if drift_g_um is None:
         basis = np.linalg.qr(np.column_stack((np.ones_like(x_mid), x_mid - x_mid.mean())))[0]
     else:
         y = y - drift_g_um * x_mid
         basis = np.full((len(y), 1), 1.0 / math.sqrt(len(y)))
-    coarse = contact0_um + np.arange(-COARSE_BELOW_UM, COARSE_ABOVE_UM + 1e-9, COARSE_STEP_UM)
-    widths = np.array(TOE_WIDTHS_UM)
-    data = _Projected.prepare(window_um, x_mid, basis, y, coarse[0], coarse[-1], widths.max())
-    grid_c = np.tile(coarse, len(widths))
-    grid_w = np.repeat(widths, len(coarse))
-    rss_grid = np.stack([_rss_over_contacts(grid_c, grid_w, power, data)[0].reshape(len(widths), -1)
-                         for power in TOE_POWERS])  # (power, width, contact)
-    best = np.unravel_index(int(np.argmin(rss_grid)), rss_grid.shape)
+    data = _Projected.prepare(window_um, x_mid, basis, y)
+    rss_grid = _rss_over_contacts(contact0_um + _GRID_OFFSETS_UM, _GRID_WIDTHS_UM, data).reshape(
+        len(TOE_POWERS), len(TOE_WIDTHS_UM), -1)  # (power, width, contact)
+    best = np.unravel_index(int(rss_grid.argmin()), rss_grid.shape)
     if not math.isfinite(rss_grid[best]):
         return None
     dof = max(len(y) - 4 - basis.shape[1], 1)
     residual_var = max(float(rss_grid[best]) / dof, 1e-12)
-    contact, sigma = marginal_contact_um(coarse, rss_grid.reshape(-1, len(coarse)), residual_var)
+    contact, sigma = marginal_contact_um(contact0_um + _CONTACT_OFFSETS_UM, rss_grid.reshape(-1, len(_CONTACT_OFFSETS_UM)),
+                                         residual_var)
     if contact is None:
         return None
-    width, power = widths[best[1]], TOE_POWERS[best[0]]
-    _, stiffness = _rss_over_contacts(np.array([contact]), np.array([width]), power, data)
+    width, power = TOE_WIDTHS_UM[best[1]], TOE_POWERS[best[0]]
     return ToeFit(contact_um=contact, sigma_um=sigma, width_um=float(width), power=float(power),
-                  stiffness_g_um=float(stiffness[0]), residual_sigma_g=math.sqrt(residual_var))
+                  stiffness_g_um=_stiffness_at(contact, width, power, data), residual_sigma_g=math.sqrt(residual_var))
 
 
 def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: float) -> tuple[float | None, float]:
