@@ -32,6 +32,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tapcell.tap.robust import median
+
 TOE_WIDTHS_UM = (0.0, 1.0, 2.0, 3.0, 4.5, 6.0, 8.0, 10.0, 13.0, 16.0)
 TOE_POWERS = (0.5, 1.0)  # Hertz sphere on flat; a parabolic force onset
 COARSE_STEP_UM = 0.5
@@ -56,6 +58,8 @@ _CONTACT_OFFSETS_UM = np.arange(-COARSE_BELOW_UM, COARSE_ABOVE_UM + 1e-9, COARSE
 _GRID_OFFSETS_UM = np.tile(_CONTACT_OFFSETS_UM, len(TOE_WIDTHS_UM))
 _GRID_WIDTHS_UM = np.repeat(TOE_WIDTHS_UM, len(_CONTACT_OFFSETS_UM))
 _SUBSAMPLE_FRACTIONS = (np.arange(SUBSAMPLES) + 0.5) / SUBSAMPLES
+_RUN_MEAN_KERNEL = np.full(ADHESION_RUN_SAMPLES, 1.0 / ADHESION_RUN_SAMPLES)
+_LIFT_DEFICIT = np.array([power / (power + 1.0) for power in TOE_POWERS])  # of a toe's width
 
 
 @dataclass
@@ -73,16 +77,25 @@ def toe_shape(depth_um: np.ndarray, width_um, power: float) -> np.ndarray:
 
     width_um may be an array broadcasting against depth_um (a width of 0 is a hinge).
     """
+    return toe_shapes(depth_um, width_um, (power,))[0]
+
+
+def toe_shapes(depth_um: np.ndarray, width_um, powers) -> np.ndarray:
+    """`toe_shape` for each of `powers` (stacked on a new first axis), sharing the work they have in common."""
     depth_um = np.maximum(depth_um, 0.0)
     width_um = np.maximum(width_um, 1e-9)
     u = np.minimum(depth_um / width_um, 1.0)
-    if power == 0.5:
-        lifted = u * np.sqrt(u)  # the Hertz toe without a general power (the hot path)
-    elif power == 1.0:
-        lifted = u * u
-    else:
-        lifted = u ** (power + 1.0)
-    return width_um * lifted / (power + 1.0) + np.maximum(depth_um - width_um, 0.0)
+    beyond = np.maximum(depth_um - width_um, 0.0)
+    shapes = np.empty((len(powers), *beyond.shape))
+    for row, power in zip(shapes, powers):
+        if power == 0.5:
+            lifted = u * np.sqrt(u)  # the Hertz toe without a general power (the hot path)
+        elif power == 1.0:
+            lifted = u * u
+        else:
+            lifted = u ** (power + 1.0)
+        np.add(width_um * lifted / (power + 1.0), beyond, out=row)
+    return shapes
 
 
 def lag_from_halt_s(compression_end_time_s: float, halt_time_s: float, period_s: float) -> float | None:
@@ -168,18 +181,24 @@ def _rss_over_contacts(contacts_um: np.ndarray, widths_um: np.ndarray, data: _Pr
     y_free, basis_rows = data.y_free.take(index), data.basis_rows.take(index, axis=1)
     pressed = data.pressed_sums.take(first, axis=1)  # 1, x, x², y, x y, B (m), x B (m) per candidate
     m = len(basis_rows)
-    rss = np.empty((len(TOE_POWERS), candidates))
-    for row, power in enumerate(TOE_POWERS):
-        h = toe_shape(depth, toe_widths, power).reshape(subsamples, in_toe).sum(axis=0) * (1.0 / subsamples)
-        # The pressed samples: h = a - x with a = c - w p / (p + 1) (the toe lifts w / (p + 1), not w).
-        a = contacts_um - widths_um * (power / (power + 1.0))
+    # Every shape's column over the run, (power, sample in a toe); the sums per (power, candidate)
+    # by one bincount each, the powers' candidates numbered after one another.
+    h = toe_shapes(depth, toe_widths, TOE_POWERS).reshape(len(TOE_POWERS), subsamples, in_toe).sum(axis=1)
+    h *= 1.0 / subsamples
+    owner_of_shape = (owner + candidates * np.arange(len(TOE_POWERS))[:, None]).ravel()
+    bins = len(TOE_POWERS) * candidates
+
+    def sum_per_candidate(values: np.ndarray) -> np.ndarray:
         # (bincount answers in integers when no candidate has a sample in its toe)
-        h_basis = np.array([np.bincount(owner, h * column, candidates) for column in basis_rows], dtype=float)
-        h_basis += a * pressed[5:5 + m] - pressed[5 + m:]
-        hh_all = np.bincount(owner, h * h, candidates) + (a * pressed[0] - 2.0 * pressed[1]) * a + pressed[2]
-        hy = np.bincount(owner, h * y_free, candidates) + a * pressed[3] - pressed[4]
-        rss[row] = _solve(hh_all, h_basis, hy, data.yy)[0]
-    return rss
+        return np.bincount(owner_of_shape, values.ravel(), bins).reshape(len(TOE_POWERS), candidates).astype(float)
+
+    # The pressed samples: h = a - x with a = c - w p / (p + 1) (the toe lifts w / (p + 1), not w).
+    a = contacts_um - widths_um * _LIFT_DEFICIT[:, None]  # (power, candidate)
+    h_basis = np.array([sum_per_candidate(h * column) for column in basis_rows])
+    h_basis += a * pressed[5:5 + m, None] - pressed[5 + m:, None]
+    hh_all = sum_per_candidate(h * h) + (a * pressed[0] - 2.0 * pressed[1]) * a + pressed[2]
+    hy = sum_per_candidate(h * y_free) + a * pressed[3] - pressed[4]
+    return _solve(hh_all, h_basis, hy, data.yy)[0]
 
 
 def _stiffness_at(contact_um: float, width_um: float, power: float, data: _Projected) -> float:
@@ -236,16 +255,18 @@ def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: flo
     noise moves the argmin along it), and the sd holds that trade-off: an honest sigma.
     """
     step = float(contacts_um[1] - contacts_um[0])
-    k = np.argmin(rss, axis=1)
-    rows = np.arange(rss.shape[0])
-    inner = (k > 0) & (k < rss.shape[1] - 1)
-    k_in = np.clip(k, 1, rss.shape[1] - 2)
-    before, at, after = rss[rows, k_in - 1], rss[rows, k_in], rss[rows, k_in + 1]
+    toes, count = rss.shape
+    k = rss.argmin(axis=1)
+    inner = (k > 0) & (k < count - 1)
+    k_in = np.minimum(np.maximum(k, 1), count - 2)
+    at_index = k_in + count * np.arange(toes)  # flat index: take, not 2-D fancy indexing
+    flat = rss.ravel()
+    before, at, after = flat.take(at_index - 1), flat.take(at_index), flat.take(at_index + 1)
     with np.errstate(invalid="ignore", over="ignore"):
         bend = before - 2.0 * at + after
         usable = inner & np.isfinite(before) & np.isfinite(after) & (bend > 0)
         offset = np.where(usable, 0.5 * (before - after) / np.where(usable, bend, 1.0), 0.0)
-    centre = contacts_um[k_in] + offset * step
+    centre = contacts_um.take(k_in) + offset * step
     lowest = np.where(usable, at - 0.25 * offset * (before - after), np.inf)
     if not usable.any():
         return None, COARSE_STEP_UM
@@ -274,6 +295,6 @@ def adhesion_dip(x_um: np.ndarray, force_g: np.ndarray, drift_g_um: float, conta
     near = level_force[(above > 1.0) & (above <= ADHESION_REACH_UM)]
     if len(level) < ADHESION_MIN_LEVEL_SAMPLES or len(near) < ADHESION_RUN_SAMPLES:
         return None
-    runs = np.convolve(near, np.full(ADHESION_RUN_SAMPLES, 1.0 / ADHESION_RUN_SAMPLES), mode="valid")
-    return float(np.median(level) - runs.min())
+    runs = np.convolve(near, _RUN_MEAN_KERNEL, mode="valid")
+    return median(level) - float(runs.min())
 
