@@ -144,12 +144,17 @@ class _Projected:
                    float(y_free @ y_free))
 
 
+def _solvable(hh, hh_all):
+    """A candidate whose toe column is (nearly) a combination of the others cannot be solved
+    (hh: its squared norm with the basis projected out; floats or arrays)."""
+    return hh > 1e-9 * (hh_all + 1e-300)
+
+
 def _solve(hh_all, h_basis, hy, yy: float):
     """Residual sum of squares and toe stiffness of the linear solve from a toe column's sums
     (h·h, Bᵀh (m, ...), h·y_free); inf where the toe would pull, or cannot be told from B."""
     hh = hh_all - (h_basis * h_basis).sum(axis=0)
-    # A candidate whose toe column is (nearly) a combination of the others cannot be solved.
-    usable = hh > 1e-9 * (hh_all + 1e-300)
+    usable = _solvable(hh, hh_all)
     stiffness = np.divide(hy, hh, out=np.zeros_like(hy), where=usable)
     rss = np.where(usable & (stiffness > 0.0), yy - stiffness * hy, np.inf)  # must press, not pull
     return rss, stiffness
@@ -174,7 +179,7 @@ def _rss_over_contacts(contacts_um: np.ndarray, widths_um: np.ndarray, data: _Pr
     # take rather than fancy indexing (several times faster on these small arrays).
     in_toe = len(index)
     subsamples = len(data.points_um) // len(data.y_free)
-    owners = np.tile(owner, subsamples)
+    owners = np.concatenate([owner] * subsamples)
     depth = contacts_um.take(owners) - data.points_um.take(np.concatenate(
         [index + k * len(data.y_free) for k in range(subsamples)]))
     toe_widths = widths_um.take(owners)
@@ -204,8 +209,10 @@ def _rss_over_contacts(contacts_um: np.ndarray, widths_um: np.ndarray, data: _Pr
 def _stiffness_at(contact_um: float, width_um: float, power: float, data: _Projected) -> float:
     """The toe's stiffness at one contact height and toe, its column evaluated over every sample."""
     h = toe_shape(contact_um - data.window_um, width_um, power).sum(axis=1) * (1.0 / data.window_um.shape[1])
-    _, stiffness = _solve(np.array([h @ h]), (data.basis_rows @ h)[:, None], np.array([h @ data.y_free]), data.yy)
-    return float(stiffness[0])
+    h_basis = data.basis_rows @ h
+    hh_all = float(h @ h)
+    hh = hh_all - float(h_basis @ h_basis)
+    return float(h @ data.y_free) / hh if _solvable(hh, hh_all) else 0.0
 
 
 def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, contact0_um: float,
@@ -255,28 +262,30 @@ def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: flo
     noise moves the argmin along it), and the sd holds that trade-off: an honest sigma.
     """
     step = float(contacts_um[1] - contacts_um[0])
-    toes, count = rss.shape
-    k = rss.argmin(axis=1)
-    inner = (k > 0) & (k < count - 1)
-    k_in = np.minimum(np.maximum(k, 1), count - 2)
-    at_index = k_in + count * np.arange(toes)  # flat index: take, not 2-D fancy indexing
-    flat = rss.ravel()
-    before, at, after = flat.take(at_index - 1), flat.take(at_index), flat.take(at_index + 1)
-    with np.errstate(invalid="ignore", over="ignore"):
+    count = rss.shape[1]
+    heights = contacts_um.tolist()
+    # Plain floats: a score of toes is far too few for numpy's per-call cost to pay.
+    toes = []  # (best height, least residual, variance in c) of each toe with a curved interior minimum
+    for row, k in zip(rss.tolist(), rss.argmin(axis=1).tolist()):
+        if not 0 < k < count - 1:
+            continue
+        before, at, after = row[k - 1], row[k], row[k + 1]
+        if not (math.isfinite(before) and math.isfinite(after)):
+            continue
         bend = before - 2.0 * at + after
-        usable = inner & np.isfinite(before) & np.isfinite(after) & (bend > 0)
-        offset = np.where(usable, 0.5 * (before - after) / np.where(usable, bend, 1.0), 0.0)
-    centre = contacts_um.take(k_in) + offset * step
-    lowest = np.where(usable, at - 0.25 * offset * (before - after), np.inf)
-    if not usable.any():
+        if not bend > 0:
+            continue
+        offset = 0.5 * (before - after) / bend
+        # d2 rss / dc2 = bend / step^2; the Gaussian in c has variance 2 noise_var / that.
+        toes.append((heights[k] + offset * step, at - 0.25 * offset * (before - after),
+                     2.0 * noise_var * step * step / bend))
+    if not toes:
         return None, COARSE_STEP_UM
-    # d2 rss / dc2 = bend / step^2; the Gaussian in c has variance 2 noise_var / that.
-    var = np.where(usable, 2.0 * noise_var * step * step / np.where(usable, bend, 1.0), 0.0)
-    log_weight = np.where(usable, -(lowest - lowest[usable].min()) / (2.0 * noise_var), -np.inf)
-    weight = np.exp(log_weight) * np.sqrt(var)
-    weight /= weight.sum()
-    mean = float(weight @ centre)
-    spread = float(weight @ (var + (centre - mean) ** 2))
+    least = min(lowest for _, lowest, _ in toes)
+    weights = [math.exp(-(lowest - least) / (2.0 * noise_var)) * math.sqrt(var) for _, lowest, var in toes]
+    total = sum(weights)
+    mean = sum(weight * centre for weight, (centre, _, _) in zip(weights, toes)) / total
+    spread = sum(weight * (var + (centre - mean) ** 2) for weight, (centre, _, var) in zip(weights, toes)) / total
     return mean, math.sqrt(max(spread, 0.0))
 
 
