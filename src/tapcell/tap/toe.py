@@ -82,19 +82,25 @@ def toe_shape(depth_um: np.ndarray, width_um, power: float) -> np.ndarray:
 
 def toe_shapes(depth_um: np.ndarray, width_um, powers) -> np.ndarray:
     """`toe_shape` for each of `powers` (stacked on a new first axis), sharing the work they have in common."""
-    depth_um = np.maximum(depth_um, 0.0)
+    pressed_um = np.maximum(depth_um, 0.0)
     width_um = np.maximum(width_um, 1e-9)
-    u = np.minimum(depth_um / width_um, 1.0)
-    beyond = np.maximum(depth_um - width_um, 0.0)
-    shapes = np.empty((len(powers), *beyond.shape))
+    u = np.divide(pressed_um, width_um)  # depth over width, 1 past the toe
+    np.minimum(u, 1.0, out=u)
+    beyond_um = np.subtract(pressed_um, width_um, out=pressed_um)  # the linear part past the toe
+    np.maximum(beyond_um, 0.0, out=beyond_um)
+    shapes = np.empty((len(powers), *beyond_um.shape))
+    # In place (out=): these arrays hold thousands of values and run once per candidate grid.
     for row, power in zip(shapes, powers):
         if power == 0.5:
-            lifted = u * np.sqrt(u)  # the Hertz toe without a general power (the hot path)
+            np.sqrt(u, out=row)  # the Hertz toe without a general power (the hot path)
+            row *= u
         elif power == 1.0:
-            lifted = u * u
+            np.multiply(u, u, out=row)
         else:
-            lifted = u ** (power + 1.0)
-        np.add(width_um * lifted / (power + 1.0), beyond, out=row)
+            np.power(u, power + 1.0, out=row)
+        row *= width_um
+        row *= 1.0 / (power + 1.0)
+        row += beyond_um
     return shapes
 
 
