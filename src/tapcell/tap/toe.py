@@ -17,7 +17,13 @@ Two estimates the tap itself carries (issue 12):
   (p, w, c) on a grid, baseline and k are solved in closed form (variable projection: the
   fixed columns are projected out once, each toe column costs a few dot products).
 
-`contact_um` is the mean of c with the toe marginalised out, and `sigma_um` its sd
+The baseline may also wander (a random walk: temperature, a cable settling). When the tap's free
+air shows a walk that matters over the fit (`wander_from_free_air`, `Wander.matters`), the fit
+weighs the samples by white + walk covariance (`_Whitened`: the same grid, the same three parts
+of the toe column, a recursion instead of plain sums).
+
+`contact_um` is the mean of c with the toe marginalised out (the widths weighed as a uniform
+prior over 0-16 µm, the two shapes alike), and `sigma_um` its sd
 (`marginal_contact_um`): the toe width and the contact height trade off along a flat valley of
 the residual, and the single best toe wanders along it with the noise. Averaging over the toes the
 data allow (weighted by their likelihood) is steadier than the best one, and the sd keeps that
@@ -48,6 +54,18 @@ from tapcell.tap.robust import median
 
 TOE_WIDTHS_UM = (0.0, 1.0, 2.0, 3.0, 4.5, 6.0, 8.0, 10.0, 13.0, 16.0)
 TOE_POWERS = (0.5, 1.0)  # Hertz sphere on flat; a parabolic force onset
+
+
+def _width_prior(widths_um: tuple[float, ...]) -> np.ndarray:
+    """Each grid width's share of a uniform prior over 0..widest: the span it stands for (half the
+    gaps to its neighbours). The grid is finer at narrow toes; counting every width alike would
+    favour narrow toes, which read the contact low."""
+    w = np.array(widths_um)
+    edges = np.concatenate(([w[0]], 0.5 * (w[1:] + w[:-1]), [w[-1]]))
+    return np.diff(edges) / (w[-1] - w[0])
+
+
+WIDTH_PRIOR = _width_prior(TOE_WIDTHS_UM)
 COARSE_STEP_UM = 0.5
 COARSE_BELOW_UM = 3.0  # the sharp estimate reads a toe low: search mostly above it
 COARSE_ABOVE_UM = 10.0
@@ -63,6 +81,17 @@ ADHESION_REACH_UM = 40.0
 ADHESION_LEVEL_UM = 100.0  # the free-air level from samples between the reach and this height
 ADHESION_RUN_SAMPLES = 5  # the dip is the lowest mean of this many consecutive samples
 ADHESION_MIN_LEVEL_SAMPLES = 10
+# The baseline's random walk is weighed in when over the fit it adds as much variance as the white noise
+# (0.25 and 0.5 gave the same drift sigma and 0.01 um more on clean taps).
+WANDER_SHARE = 1.0
+# Variogram lags (samples) for the walk estimate, each up to a third of its segment (the fitted
+# line takes most of a walk at longer lags). Not below 4: an ADS1220's sinc3 averages over three
+# periods, so neighbouring samples share signal. Up to 40: mains hum (6.4 samples a cycle at 320
+# sps, 40 at 2000) and 1/f noise raise short lags like a walk but stop growing. On 30 taps each the
+# walk path is taken for 23 cable-drift, 10 clean HX717, 8 clean 2000-sps and 2 hum taps (with
+# lags 3-14 and no line correction: 14 of 30 clean 2000-sps, 13 of 30 hum); on clean taps it
+# leaves Z as it was (sigma 0.61 um either way on 60 HX717 taps).
+WANDER_LAGS = range(4, 41, 4)
 
 
 # The candidate grid (widths × contacts around the start), built once: contacts vary fastest.
@@ -71,6 +100,7 @@ _GRID_OFFSETS_UM = np.tile(_CONTACT_OFFSETS_UM, len(TOE_WIDTHS_UM))
 _GRID_WIDTHS_UM = np.repeat(TOE_WIDTHS_UM, len(_CONTACT_OFFSETS_UM))
 _SUBSAMPLE_FRACTIONS = (np.arange(SUBSAMPLES) + 0.5) / SUBSAMPLES
 _RUN_MEAN_KERNEL = np.full(ADHESION_RUN_SAMPLES, 1.0 / ADHESION_RUN_SAMPLES)
+_TOE_PRIOR = np.tile(WIDTH_PRIOR, len(TOE_POWERS))  # per row of the grid: (shape, width)
 _LIFT_DEFICIT = np.array([power / (power + 1.0) for power in TOE_POWERS])  # of a toe's width
 
 
@@ -233,12 +263,160 @@ def _stiffness_at(contact_um: float, width_um: float, power: float, data: _Proje
     return float(h @ data.y_free) / hh if _solvable(hh, hh_all) else 0.0
 
 
+@dataclass(frozen=True)
+class Wander:
+    """White noise plus a random walk of the baseline (thermal drift of the cell, a cable settling).
+
+    white_var_g2: per sample; walk_var_g2: the walk's variance growth per sample. Over the ~100
+    samples of a toe fit a walk of a few g/sqrt(s) bends the baseline by as much as the white
+    noise, and an ordinary least-squares fit reads the bend as toe (bowden/cable drift taps of the
+    independent generator, 60 on seed 5: sigma 0.85 um; weighed by the true covariance 0.71; by
+    the one estimated from the tap's free air, `wander_from_free_air`, 0.70).
+    """
+
+    white_var_g2: float
+    walk_var_g2: float
+
+    def matters(self, samples: int) -> bool:
+        """Whether the walk over `samples` adds a noticeable share to the white variance."""
+        return self.walk_var_g2 * samples > WANDER_SHARE * self.white_var_g2
+
+
+def wander_from_free_air(segments: list[np.ndarray]) -> Wander | None:
+    """White and random-walk variances from force samples in free air (each segment evenly sampled).
+
+    Each segment's straight line is removed (Z-proportional drift, a steady trend); the variogram
+    of what is left, E[(r[i+L] - r[i])^2], is pooled over the segments for WANDER_LAGS and fitted
+    by least squares to its exact expectation under white noise plus a walk (removing the line
+    takes a share of both, most of the walk at lags near the segment's length). None when the
+    segments are too short.
+    """
+    rows, values = [], []
+    for force_g in segments:
+        n = len(force_g)
+        lags = [lag for lag in WANDER_LAGS if 3 * lag <= n]  # longer ones: the line takes the walk
+        if len(lags) < 3:
+            continue
+        i = np.arange(n, dtype=float) - 0.5 * (n - 1)
+        r = force_g - force_g.mean() - i * (i @ force_g) / (i @ i)
+        white_share = _detrended_variogram(np.eye(n), lags)
+        walk_share = _detrended_variogram(np.minimum.outer(np.arange(n), np.arange(n)).astype(float), lags)
+        for lag, white, walk in zip(lags, white_share, walk_share):
+            d = r[lag:] - r[:-lag]
+            rows.append((white, walk))
+            values.append(float(d @ d) / len(d))
+    if not rows:
+        return None
+    (white, walk), *_ = np.linalg.lstsq(np.array(rows), np.array(values), rcond=None)
+    if not white > 0.0:
+        return None
+    return Wander(white_var_g2=float(white), walk_var_g2=max(float(walk), 0.0))
+
+
+def _detrended_variogram(covariance: np.ndarray, lags) -> np.ndarray:
+    """Mean E[(r[i+L] - r[i])^2] per lag for noise of unit `covariance` once a line is fitted out."""
+    n = len(covariance)
+    line = np.column_stack((np.ones(n), np.arange(n) - 0.5 * (n - 1)))
+    hat = line / np.array([n, line[:, 1] @ line[:, 1]])  # line (lineᵀline)⁻¹ (the columns are orthogonal)
+    cov_line = covariance @ line
+    residual = (covariance - hat @ cov_line.T - cov_line @ hat.T + hat @ (line.T @ cov_line) @ hat.T)
+    variance = np.diagonal(residual)
+    return np.array([np.mean(variance[lag:] + variance[:-lag] - 2.0 * np.diagonal(residual, -lag)) for lag in lags])
+
+
+@dataclass
+class _Whitened:
+    """`_Projected` under the metric of white + random-walk noise (generalised least squares).
+
+    Differencing consecutive samples removes the baseline exactly and turns white noise σ² plus
+    a walk of q per sample into noise with a tridiagonal covariance (2σ² + q on the diagonal, -σ²
+    beside it), whose Cholesky factor is bidiagonal: whitening is then a recursion along the
+    samples. The toe column keeps its three parts in time order: pressed past every toe first
+    (h = a - x: its differences do not depend on the candidate), the in-between samples, then free
+    air (h = 0: whitened, it decays geometrically). So each candidate costs a recursion over the
+    in-between samples only; the pressed part and the free tail enter through precomputed sums.
+    Residuals come out in units of the white noise variance.
+    """
+
+    near_window_um: np.ndarray  # (n, SUBSAMPLES) heights of the in-between samples
+    first_near: int  # index of the first in-between sample (= number of pressed samples)
+    diag: np.ndarray  # the bidiagonal Cholesky factor of the differences' covariance
+    sub: np.ndarray
+    x_mid: np.ndarray
+    y_white: np.ndarray  # the force, differenced and whitened
+    pressed_z: float  # the whitened toe column at the last pressed-pressed difference
+    pressed_zz: float
+    pressed_zy: float
+    tail_zz: float  # free tail: Σ z² and Σ z·y_white per unit of the column at its start
+    tail_zy: float
+    yy: float
+
+    @classmethod
+    def prepare(cls, window_um: np.ndarray, x_mid: np.ndarray, y: np.ndarray, wander: Wander,
+                lowest_contact_um: float, highest_contact_um: float, widest_um: float) -> _Whitened | None:
+        pressed = window_um.max(axis=1) <= lowest_contact_um - widest_um
+        near = ~pressed & (window_um.min(axis=1) < highest_contact_um)
+        first, count = int(np.count_nonzero(pressed)), int(np.count_nonzero(near))
+        if count < 2 or not (pressed[:first].all() and near[first:first + count].all()):
+            return None  # not pressed, then in between, then free: not a plain rise
+        m = len(y) - 1
+        diag, sub = np.empty(m), np.zeros(m)
+        diag[0] = math.sqrt(2.0 * wander.white_var_g2 + wander.walk_var_g2)
+        for j in range(1, m):
+            sub[j] = -wander.white_var_g2 / diag[j - 1]
+            diag[j] = math.sqrt(2.0 * wander.white_var_g2 + wander.walk_var_g2 - sub[j] * sub[j])
+        y_white = _whiten(np.diff(y)[None], diag, sub, 0, 0.0)[0]
+        pressed_z = pressed_zz = pressed_zy = 0.0
+        if first >= 2:
+            z = _whiten(-np.diff(x_mid[:first])[None], diag, sub, 0, 0.0)[0]
+            pressed_z, pressed_zz, pressed_zy = float(z[-1]), float(z @ z), float(z @ y_white[:first - 1])
+        # Free air after the last in-between sample: z_j = z_k · Π (-sub / diag) over the tail.
+        tail_start = first + count  # the first difference wholly in free air
+        gain = np.cumprod(-sub[tail_start:] / diag[tail_start:])
+        return cls(window_um[near], first, diag, sub, x_mid, y_white, pressed_z, pressed_zz, pressed_zy,
+                   float(gain @ gain), float(gain @ y_white[tail_start:]), float(y_white @ y_white))
+
+
+def _whiten(differences: np.ndarray, diag: np.ndarray, sub: np.ndarray, j0: int, z_before) -> np.ndarray:
+    """Forward substitution through the bidiagonal factor for differences j0.. (rows: candidates)."""
+    z = np.empty_like(differences)
+    previous = z_before
+    for i in range(differences.shape[1]):
+        j = j0 + i
+        previous = z[:, i] = (differences[:, i] - sub[j] * previous) / diag[j]
+    return z
+
+
+def _rss_whitened(contacts_um, widths_um, power, data: _Whitened):
+    """`_rss_over_contacts` under the noise's metric (residuals in white-noise units)."""
+    depth = contacts_um[:, None, None] - data.near_window_um[None]
+    h = toe_shape(depth, widths_um[:, None, None], power).mean(axis=2)  # (C, n) the in-between samples
+    first = data.first_near
+    columns = [h]
+    if first:  # the pressed sample before: h = a - x, with a = c - the toe's lift deficit
+        a = contacts_um - widths_um * (power / (power + 1.0))
+        columns.insert(0, (a - data.x_mid[first - 1])[:, None])
+    if first + h.shape[1] < len(data.x_mid):  # the free sample after: h = 0
+        columns.append(np.zeros((len(h), 1)))
+    column = np.hstack(columns)
+    j0 = max(first - 1, 0)
+    z = _whiten(np.diff(column, axis=1), data.diag, data.sub, j0, data.pressed_z)
+    z_end = z[:, -1]
+    hh = data.pressed_zz + np.einsum("cn,cn->c", z, z) + z_end * z_end * data.tail_zz
+    hy = data.pressed_zy + z @ data.y_white[j0:j0 + z.shape[1]] + z_end * data.tail_zy
+    usable = hh > 1e-12
+    stiffness = np.divide(hy, hh, out=np.zeros_like(hy), where=usable)
+    rss = np.where(usable & (stiffness > 0.0), data.yy - stiffness * hy, np.inf)
+    return rss, stiffness
+
+
 def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, contact0_um: float,
-            spacing_um: float, drift_g_um: float | None = None) -> ToeFit | None:
+            spacing_um: float, drift_g_um: float | None = None, wander: Wander | None = None) -> ToeFit | None:
     """The toe model over pullback samples (conversion windows [x_lo, x_hi], µm above the halt).
 
     drift_g_um: the force's slope against height in free air when known (the approach shows it);
-    None: fitted over the departure with the rest.
+    None: fitted over the departure with the rest. wander: the baseline's random walk when the
+    tap shows one (`Wander.matters`); the fit then weighs the samples by its covariance.
     """
     keep = (x_lo_um < contact0_um + COARSE_ABOVE_UM + DEPARTURE_REACH_SAMPLES * spacing_um) & (
         x_hi_um > contact0_um - PENETRATION_REACH_UM)
@@ -252,24 +430,39 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
     else:
         y = y - drift_g_um * x_mid
         basis = np.full((len(y), 1), 1.0 / math.sqrt(len(y)))
-    data = _Projected.prepare(window_um, x_mid, basis, y)
-    rss_grid = _rss_over_contacts(contact0_um + _GRID_OFFSETS_UM, _GRID_WIDTHS_UM, data).reshape(
-        len(TOE_POWERS), len(TOE_WIDTHS_UM), -1)  # (power, width, contact)
+    contacts_um = contact0_um + _CONTACT_OFFSETS_UM
+    grid_c = contact0_um + _GRID_OFFSETS_UM
+    g2_per_unit = 1.0  # the residual's unit: g^2, or the white variance once whitened
+    whitened = None
+    if wander is not None and wander.matters(len(y)):
+        whitened = _Whitened.prepare(window_um, x_mid, y, wander, contacts_um[0], contacts_um[-1], TOE_WIDTHS_UM[-1])
+    if whitened is not None:
+        g2_per_unit = wander.white_var_g2
+        rss_grid = np.stack([_rss_whitened(grid_c, _GRID_WIDTHS_UM, power, whitened)[0] for power in TOE_POWERS])
+    else:
+        data = _Projected.prepare(window_um, x_mid, basis, y)
+        rss_grid = _rss_over_contacts(grid_c, _GRID_WIDTHS_UM, data)
+    rss_grid = rss_grid.reshape(len(TOE_POWERS), len(TOE_WIDTHS_UM), -1)  # (power, width, contact)
     best = np.unravel_index(int(rss_grid.argmin()), rss_grid.shape)
     if not math.isfinite(rss_grid[best]):
         return None
     dof = max(len(y) - 4 - basis.shape[1], 1)
     residual_var = max(float(rss_grid[best]) / dof, 1e-12)
-    contact, sigma = marginal_contact_um(contact0_um + _CONTACT_OFFSETS_UM, rss_grid.reshape(-1, len(_CONTACT_OFFSETS_UM)),
-                                         residual_var)
+    contact, sigma = marginal_contact_um(contacts_um, rss_grid.reshape(-1, len(contacts_um)), residual_var,
+                                         _TOE_PRIOR)
     if contact is None:
         return None
     width, power = TOE_WIDTHS_UM[best[1]], TOE_POWERS[best[0]]
+    if whitened is not None:
+        stiffness = float(_rss_whitened(np.array([contact]), np.array([width]), power, whitened)[1][0])
+    else:
+        stiffness = _stiffness_at(contact, width, power, data)
     return ToeFit(contact_um=contact, sigma_um=sigma, width_um=float(width), power=float(power),
-                  stiffness_g_um=_stiffness_at(contact, width, power, data), residual_sigma_g=math.sqrt(residual_var))
+                  stiffness_g_um=stiffness, residual_sigma_g=math.sqrt(residual_var * g2_per_unit))
 
 
-def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: float) -> tuple[float | None, float]:
+def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: float,
+                        prior: np.ndarray | None = None) -> tuple[float | None, float]:
     """Mean and sd of the contact height with the toe (width, shape) marginalised out.
 
     rss: (toes, contacts) residual sums on an even grid of contact heights. Per toe, a parabola
@@ -277,14 +470,16 @@ def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: flo
     and its curvature (a Gaussian in c, the Laplace approximation); each toe is weighted by its
     likelihood exp(-rss / 2 noise_var) times its width in c. The mean over toes is less noisy than
     the single best toe (the toe width and the contact height trade off along a flat valley, and
-    noise moves the argmin along it), and the sd holds that trade-off: an honest sigma.
+    noise moves the argmin along it), and the sd holds that trade-off: an honest sigma. prior: a
+    weight per toe (row), e.g. `WIDTH_PRIOR` for each shape; None: every toe alike.
     """
     step = float(contacts_um[1] - contacts_um[0])
     count = rss.shape[1]
     heights = contacts_um.tolist()
     # Plain floats: a score of toes is far too few for numpy's per-call cost to pay.
-    toes = []  # (best height, least residual, variance in c) of each toe with a curved interior minimum
-    for row, k in zip(rss.tolist(), rss.argmin(axis=1).tolist()):
+    toes = []  # (best height, least residual, variance in c, prior) of each toe with a curved interior minimum
+    prior = [1.0] * len(rss) if prior is None else prior.tolist()
+    for row, k, row_prior in zip(rss.tolist(), rss.argmin(axis=1).tolist(), prior):
         if not 0 < k < count - 1:
             continue
         before, at, after = row[k - 1], row[k], row[k + 1]
@@ -296,14 +491,15 @@ def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: flo
         offset = 0.5 * (before - after) / bend
         # d2 rss / dc2 = bend / step^2; the Gaussian in c has variance 2 noise_var / that.
         toes.append((heights[k] + offset * step, at - 0.25 * offset * (before - after),
-                     2.0 * noise_var * step * step / bend))
+                     2.0 * noise_var * step * step / bend, row_prior))
     if not toes:
         return None, COARSE_STEP_UM
-    least = min(lowest for _, lowest, _ in toes)
-    weights = [math.exp(-(lowest - least) / (2.0 * noise_var)) * math.sqrt(var) for _, lowest, var in toes]
+    least = min(toe[1] for toe in toes)
+    weights = [math.exp(-(lowest - least) / (2.0 * noise_var)) * math.sqrt(var) * toe_prior
+               for _, lowest, var, toe_prior in toes]
     total = sum(weights)
-    mean = sum(weight * centre for weight, (centre, _, _) in zip(weights, toes)) / total
-    spread = sum(weight * (var + (centre - mean) ** 2) for weight, (centre, _, var) in zip(weights, toes)) / total
+    mean = sum(weight * centre for weight, (centre, *_) in zip(weights, toes)) / total
+    spread = sum(weight * (var + (centre - mean) ** 2) for weight, (centre, _, var, _) in zip(weights, toes)) / total
     return mean, math.sqrt(max(spread, 0.0))
 
 
