@@ -299,8 +299,7 @@ def wander_from_free_air(segments: list[np.ndarray]) -> Wander | None:
             continue
         i = np.arange(n, dtype=float) - 0.5 * (n - 1)
         r = force_g - force_g.mean() - i * (i @ force_g) / (i @ i)
-        white_share = _detrended_variogram(np.eye(n), lags)
-        walk_share = _detrended_variogram(np.minimum.outer(np.arange(n), np.arange(n)).astype(float), lags)
+        white_share, walk_share = _detrended_variogram(n, lags)
         for lag, white, walk in zip(lags, white_share, walk_share):
             d = r[lag:] - r[:-lag]
             rows.append((white, walk))
@@ -313,15 +312,26 @@ def wander_from_free_air(segments: list[np.ndarray]) -> Wander | None:
     return Wander(white_var_g2=float(white), walk_var_g2=max(float(walk), 0.0))
 
 
-def _detrended_variogram(covariance: np.ndarray, lags) -> np.ndarray:
-    """Mean E[(r[i+L] - r[i])^2] per lag for noise of unit `covariance` once a line is fitted out."""
-    n = len(covariance)
-    line = np.column_stack((np.ones(n), np.arange(n) - 0.5 * (n - 1)))
-    hat = line / np.array([n, line[:, 1] @ line[:, 1]])  # line (lineᵀline)⁻¹ (the columns are orthogonal)
-    cov_line = covariance @ line
-    residual = (covariance - hat @ cov_line.T - cov_line @ hat.T + hat @ (line.T @ cov_line) @ hat.T)
-    variance = np.diagonal(residual)
-    return np.array([np.mean(variance[lag:] + variance[:-lag] - 2.0 * np.diagonal(residual, -lag)) for lag in lags])
+def _detrended_variogram(n: int, lags) -> tuple[np.ndarray, np.ndarray]:
+    """Mean E[(r[i+L] - r[i])^2] per lag once a line is fitted out of n samples: for unit white
+    noise, and for a unit random walk (covariance min(i, j)).
+
+    In closed form (the n × n covariance algebra costs milliseconds a tap): with t the centred
+    sample index, S = Σt² and P the line's projection, a difference d = e[i+L] - e[i] leaves the
+    fit as v = d - t L / S (P d = t L / S). White: |v|² = 2 - L²/S. Walk: vᵀCv = L - 2 (L/S) tᵀCd
+    + (L/S)² tᵀCt, where tᵀCd = f(i+L) - f(i) with f(m) = Σ t_k min(k, m), a running sum.
+    """
+    k = np.arange(n, dtype=float)
+    t = k - 0.5 * (n - 1)
+    s = float(t @ t)
+    f = np.cumsum(k * t) - k * np.cumsum(t)  # f(m) = Σ t_k min(k, m) (Σ t = 0)
+    f_sums = np.concatenate(([0.0], np.cumsum(f)))  # f_sums[m] = Σ f(k) over k < m
+    lag = np.asarray(lags, dtype=float)
+    at = np.asarray(lags)
+    mean_df = (f_sums[n] - f_sums[at] - f_sums[n - at]) / (n - lag)  # mean of f(i+L) - f(i), i < n - L
+    white = 2.0 - lag * lag / s
+    walk = lag - 2.0 * (lag / s) * mean_df + (lag / s) ** 2 * float(t @ f)
+    return white, walk
 
 
 @dataclass
