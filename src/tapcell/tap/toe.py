@@ -300,13 +300,23 @@ def wander_from_free_air(segments: list[np.ndarray]) -> Wander | None:
         i = np.arange(n, dtype=float) - 0.5 * (n - 1)
         r = force_g - force_g.mean() - i * (i @ force_g) / (i @ i)
         white_share, walk_share = _detrended_variogram(n, lags)
-        for lag, white, walk in zip(lags, white_share, walk_share):
+        for lag, white, walk in zip(lags, white_share.tolist(), walk_share.tolist()):
             d = r[lag:] - r[:-lag]
             rows.append((white, walk))
             values.append(float(d @ d) / len(d))
     if not rows:
         return None
-    (white, walk), *_ = np.linalg.lstsq(np.array(rows), np.array(values), rcond=None)
+    # Least squares in two unknowns by the normal equations, in plain floats: np.linalg.lstsq
+    # costs ~0.05-0.4 ms a call here (LAPACK's set-up, its threads waking on a busy machine).
+    ww = sum(white * white for white, _ in rows)
+    wk = sum(white * walk for white, walk in rows)
+    kk = sum(walk * walk for _, walk in rows)
+    wv = sum(white * value for (white, _), value in zip(rows, values))
+    kv = sum(walk * value for (_, walk), value in zip(rows, values))
+    determinant = ww * kk - wk * wk
+    if not determinant > 0.0:
+        return None
+    white, walk = (kk * wv - wk * kv) / determinant, (ww * kv - wk * wv) / determinant
     if not white > 0.0:
         return None
     return Wander(white_var_g2=float(white), walk_var_g2=max(float(walk), 0.0))
@@ -388,24 +398,41 @@ class _Whitened:
 
 
 def _whiten(differences: np.ndarray, diag: np.ndarray, sub: np.ndarray, j0: int, z_before) -> np.ndarray:
-    """Forward substitution through the bidiagonal factor for differences j0.. (rows: candidates)."""
-    z = np.empty_like(differences)
+    """Forward substitution through the bidiagonal factor for differences j0.. (rows: candidates).
+
+    One row runs on plain floats (numpy's per-call cost would dominate a step on one value); many
+    rows step a column at a time, held as contiguous rows.
+    """
+    steps = differences.shape[1]
+    subs, diags = sub[j0:j0 + steps].tolist(), diag[j0:j0 + steps].tolist()
+    if len(differences) == 1:
+        whitened, previous = [], float(z_before)
+        for difference, s, d in zip(differences[0].tolist(), subs, diags):
+            previous = (difference - s * previous) / d
+            whitened.append(previous)
+        return np.array([whitened])
+    columns = differences.T.copy()  # (step, candidate)
     previous = z_before
-    for i in range(differences.shape[1]):
-        j = j0 + i
-        previous = z[:, i] = (differences[:, i] - sub[j] * previous) / diag[j]
-    return z
+    for column, s, d in zip(columns, subs, diags):
+        column -= s * previous
+        column /= d
+        previous = column
+    return columns.T
 
 
 def _rss_whitened(contacts_um, widths_um, power, data: _Whitened):
-    """`_rss_over_contacts` under the noise's metric (residuals in white-noise units)."""
+    """`_rss_over_contacts` under the noise's metric (residuals in white-noise units), and the
+    stiffness. power: one shape's, or a tuple of them: then every shape's candidates go through
+    one recursion and both results are (shape, candidate)."""
+    powers = power if isinstance(power, tuple) else (power,)
     depth = contacts_um[:, None, None] - data.near_window_um[None]
-    h = toe_shape(depth, widths_um[:, None, None], power).mean(axis=2)  # (C, n) the in-between samples
+    # (shape × candidate, n) the in-between samples
+    h = toe_shapes(depth, widths_um[:, None, None], powers).mean(axis=3).reshape(len(powers) * len(contacts_um), -1)
     first = data.first_near
     columns = [h]
     if first:  # the pressed sample before: h = a - x, with a = c - the toe's lift deficit
-        a = contacts_um - widths_um * (power / (power + 1.0))
-        columns.insert(0, (a - data.x_mid[first - 1])[:, None])
+        a = contacts_um - widths_um * np.array([p / (p + 1.0) for p in powers])[:, None]
+        columns.insert(0, (a - data.x_mid[first - 1]).reshape(-1, 1))
     if first + h.shape[1] < len(data.x_mid):  # the free sample after: h = 0
         columns.append(np.zeros((len(h), 1)))
     column = np.hstack(columns)
@@ -417,7 +444,9 @@ def _rss_whitened(contacts_um, widths_um, power, data: _Whitened):
     usable = hh > 1e-12
     stiffness = np.divide(hy, hh, out=np.zeros_like(hy), where=usable)
     rss = np.where(usable & (stiffness > 0.0), data.yy - stiffness * hy, np.inf)
-    return rss, stiffness
+    if not isinstance(power, tuple):
+        return rss, stiffness
+    return rss.reshape(len(powers), -1), stiffness.reshape(len(powers), -1)
 
 
 def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, contact0_um: float,
@@ -448,7 +477,7 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
         whitened = _Whitened.prepare(window_um, x_mid, y, wander, contacts_um[0], contacts_um[-1], TOE_WIDTHS_UM[-1])
     if whitened is not None:
         g2_per_unit = wander.white_var_g2
-        rss_grid = np.stack([_rss_whitened(grid_c, _GRID_WIDTHS_UM, power, whitened)[0] for power in TOE_POWERS])
+        rss_grid = _rss_whitened(grid_c, _GRID_WIDTHS_UM, TOE_POWERS, whitened)[0]
     else:
         data = _Projected.prepare(window_um, x_mid, basis, y)
         rss_grid = _rss_over_contacts(grid_c, _GRID_WIDTHS_UM, data)
