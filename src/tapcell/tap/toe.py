@@ -45,6 +45,7 @@ to ~1e-9 µm.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -299,11 +300,11 @@ def wander_from_free_air(segments: list[np.ndarray]) -> Wander | None:
             continue
         i = np.arange(n, dtype=float) - 0.5 * (n - 1)
         r = force_g - force_g.mean() - i * (i @ force_g) / (i @ i)
-        white_share, walk_share = _detrended_variogram(n, lags)
-        for lag, white, walk in zip(lags, white_share.tolist(), walk_share.tolist()):
-            d = r[lag:] - r[:-lag]
-            rows.append((white, walk))
-            values.append(float(d @ d) / len(d))
+        rows += _detrended_variogram(n, tuple(lags))
+        # Σ (r[i+L] - r[i])² = Σ_{i >= L} r² + Σ_{i < n-L} r² - 2 Σ r[i] r[i+L]: one running sum of r²
+        squares = np.concatenate(([0.0], np.cumsum(r * r))).tolist()
+        values += [(squares[n] - squares[lag] + squares[n - lag] - 2.0 * float(r[lag:] @ r[:-lag])) / (n - lag)
+                   for lag in lags]
     if not rows:
         return None
     # Least squares in two unknowns by the normal equations, in plain floats: np.linalg.lstsq
@@ -322,9 +323,10 @@ def wander_from_free_air(segments: list[np.ndarray]) -> Wander | None:
     return Wander(white_var_g2=float(white), walk_var_g2=max(float(walk), 0.0))
 
 
-def _detrended_variogram(n: int, lags) -> tuple[np.ndarray, np.ndarray]:
-    """Mean E[(r[i+L] - r[i])^2] per lag once a line is fitted out of n samples: for unit white
-    noise, and for a unit random walk (covariance min(i, j)).
+@functools.lru_cache(maxsize=4096)
+def _detrended_variogram(n: int, lags: tuple[int, ...]) -> tuple[tuple[float, float], ...]:
+    """Mean E[(r[i+L] - r[i])^2] per lag once a line is fitted out of n samples: (for unit white
+    noise, for a unit random walk (covariance min(i, j))) per lag. Cached: it depends on n alone.
 
     In closed form (the n × n covariance algebra costs milliseconds a tap): with t the centred
     sample index, S = Σt² and P the line's projection, a difference d = e[i+L] - e[i] leaves the
@@ -341,7 +343,7 @@ def _detrended_variogram(n: int, lags) -> tuple[np.ndarray, np.ndarray]:
     mean_df = (f_sums[n] - f_sums[at] - f_sums[n - at]) / (n - lag)  # mean of f(i+L) - f(i), i < n - L
     white = 2.0 - lag * lag / s
     walk = lag - 2.0 * (lag / s) * mean_df + (lag / s) ** 2 * float(t @ f)
-    return white, walk
+    return tuple(zip(white.tolist(), walk.tolist()))
 
 
 @dataclass
