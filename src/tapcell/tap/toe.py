@@ -382,11 +382,11 @@ class _Whitened:
         if count < 2 or not (pressed[:first].all() and near[first:first + count].all()):
             return None  # not pressed, then in between, then free: not a plain rise
         m = len(y) - 1
-        diag, sub = np.empty(m), np.zeros(m)
-        diag[0] = math.sqrt(2.0 * wander.white_var_g2 + wander.walk_var_g2)
-        for j in range(1, m):
-            sub[j] = -wander.white_var_g2 / diag[j - 1]
-            diag[j] = math.sqrt(2.0 * wander.white_var_g2 + wander.walk_var_g2 - sub[j] * sub[j])
+        diag, sub = [math.sqrt(2.0 * wander.white_var_g2 + wander.walk_var_g2)], [0.0]  # plain floats: m steps
+        for _ in range(1, m):
+            sub.append(-wander.white_var_g2 / diag[-1])
+            diag.append(math.sqrt(2.0 * wander.white_var_g2 + wander.walk_var_g2 - sub[-1] * sub[-1]))
+        diag, sub = np.array(diag), np.array(sub)
         y_white = _whiten(np.diff(y)[None], diag, sub, 0, 0.0)[0]
         pressed_z = pressed_zz = pressed_zy = 0.0
         if first >= 2:
@@ -427,9 +427,10 @@ def _rss_whitened(contacts_um, widths_um, power, data: _Whitened):
     stiffness. power: one shape's, or a tuple of them: then every shape's candidates go through
     one recursion and both results are (shape, candidate)."""
     powers = power if isinstance(power, tuple) else (power,)
-    depth = contacts_um[:, None, None] - data.near_window_um[None]
-    # (shape × candidate, n) the in-between samples
-    h = toe_shapes(depth, widths_um[:, None, None], powers).mean(axis=3).reshape(len(powers) * len(contacts_um), -1)
+    # (subsample, candidate, in-between sample): the long axes innermost
+    depth = contacts_um[:, None] - data.near_window_um.T[:, None, :]
+    # (shape × candidate, in-between sample)
+    h = toe_shapes(depth, widths_um[:, None], powers).mean(axis=1).reshape(len(powers) * len(contacts_um), -1)
     first = data.first_near
     columns = [h]
     if first:  # the pressed sample before: h = a - x, with a = c - the toe's lift deficit
