@@ -36,11 +36,14 @@ Speed (the grid is 2 shapes × 10 widths × 27 contacts, every candidate solved 
   samples each: the only ones evaluated) and in free air (zero). All candidates' in-toe samples
   are laid end to end in one flat array and summed per candidate by `np.bincount`;
 * the in-toe run depends on the width, not the shape, so both shapes share it (`toe_shapes`);
+  the walk-weighted fit runs both shapes' candidates through one recursion (`_rss_whitened`);
 * flat 1-D arrays and `take` (2-D fancy indexing and broadcasting over a short last axis cost
-  several times more on arrays this small), and plain floats for the score of toes in
-  `marginal_contact_um` and the one toe of `_stiffness_at`.
-On the independent benchmark this took the toe fit from ~1.7 ms to ~0.6 ms a tap, results equal
-to ~1e-9 µm.
+  several times more on arrays this small), and plain floats where there are only a score of
+  values or one series to step through (`marginal_contact_um`, `_stiffness_at`, `_whiten` on one
+  row, the walk's least squares);
+* the walk estimate's detrended variogram in closed form, cached per segment length.
+On the independent benchmark this took the toe configuration from ~9 ms to ~3 ms a tap (this
+machine, loaded), results equal to ~1e-9 µm.
 """
 
 from __future__ import annotations
