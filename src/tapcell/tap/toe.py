@@ -304,10 +304,10 @@ def wander_from_free_air(segments: list[np.ndarray]) -> Wander | None:
         i = np.arange(n, dtype=float) - 0.5 * (n - 1)
         r = force_g - force_g.mean() - i * (i @ force_g) / (i @ i)
         rows += _detrended_variogram(n, tuple(lags))
-        # Σ (r[i+L] - r[i])² = Σ_{i >= L} r² + Σ_{i < n-L} r² - 2 Σ r[i] r[i+L]: one running sum of r²
-        squares = np.concatenate(([0.0], np.cumsum(r * r))).tolist()
-        values += [(squares[n] - squares[lag] + squares[n - lag] - 2.0 * float(r[lag:] @ r[:-lag])) / (n - lag)
-                   for lag in lags]
+        # Every lag's differences in one flat array, averaged per lag by bincount.
+        later, earlier, lag_of, pairs = _lag_pairs(n, tuple(lags))
+        d = r.take(later) - r.take(earlier)
+        values += (np.bincount(lag_of, d * d, len(lags)) / pairs).tolist()
     if not rows:
         return None
     # Least squares in two unknowns by the normal equations, in plain floats: np.linalg.lstsq
@@ -324,6 +324,16 @@ def wander_from_free_air(segments: list[np.ndarray]) -> Wander | None:
     if not white > 0.0:
         return None
     return Wander(white_var_g2=float(white), walk_var_g2=max(float(walk), 0.0))
+
+
+@functools.lru_cache(maxsize=4096)
+def _lag_pairs(n: int, lags: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(i + L, i, the lag's number, pairs per lag) for every lag and i < n - L, laid end to end.
+    Cached: it depends on n alone."""
+    pairs = np.array([n - lag for lag in lags])
+    lag_of = np.repeat(np.arange(len(lags)), pairs)
+    earlier = np.concatenate([np.arange(n - lag) for lag in lags])
+    return earlier + np.repeat(lags, pairs), earlier, lag_of, pairs
 
 
 @functools.lru_cache(maxsize=4096)
