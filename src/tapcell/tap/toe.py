@@ -246,13 +246,14 @@ def _rss_over_contacts(contacts_um: np.ndarray, widths_um: np.ndarray, data: _Pr
     bins = len(TOE_POWERS) * candidates
 
     def sum_per_candidate(values: np.ndarray) -> np.ndarray:
-        # (bincount answers in integers when no candidate has a sample in its toe)
-        return np.bincount(owner_of_shape, values.ravel(), bins).reshape(len(TOE_POWERS), candidates).astype(float)
+        # (in integers when no candidate has a sample in its toe: the pressed part's floats are
+        # added to it, never into it)
+        return np.bincount(owner_of_shape, values.ravel(), bins).reshape(len(TOE_POWERS), candidates)
 
     # The pressed samples: h = a - x with a = c - w p / (p + 1) (the toe lifts w / (p + 1), not w).
     a = contacts_um - widths_um * _LIFT_DEFICIT[:, None]  # (power, candidate)
-    h_basis = np.array([sum_per_candidate(h * column) for column in basis_rows])
-    h_basis += a * pressed[5:5 + m, None] - pressed[5 + m:, None]
+    h_basis = np.array([sum_per_candidate(h * column) for column in basis_rows]) + (
+        a * pressed[5:5 + m, None] - pressed[5 + m:, None])
     hh_all = sum_per_candidate(h * h) + (a * pressed[0] - 2.0 * pressed[1]) * a + pressed[2]
     hy = sum_per_candidate(h * y_free) + a * pressed[3] - pressed[4]
     return _solve(hh_all, h_basis, hy, data.yy)[0]
