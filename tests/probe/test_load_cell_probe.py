@@ -217,3 +217,8 @@ def test_probe_templates_render_with_printer_status_and_run(tmp_path):
         sections="\n[gcode_macro SEEN]\nvariable_start_z: None\nvariable_taps: None\ngcode:\n")
     printer.gcode.run_script("G1 Z3.25\nPROBE SAMPLES=2")
     assert printer.lookup_object("gcode_macro SEEN").variables == {"start_z": 3.25, "taps": 2}
+
+
+def test_an_unknown_classifier_under_the_guides_option_name_is_named_there(tmp_path):
+    with pytest.raises(ConfigError, match=r"\[load_cell_probe\] tap_classifier_module = nope: unknown tap classifier 'nope' \(unknown tap_classifier 'nope'; available: empty, "):
+        make_printer(tmp_path, probe_options="tap_classifier_module: nope", calibrate=False, home=False)

@@ -7,14 +7,15 @@ from tapcell.extras.load_cell_probe.options import (
     TapOptions,
     default_pullback_speed_mm_s,
     force_beyond_safety_limit_g,
+    read_tap_options,
     tare_sample_count,
     too_fast_for_analysis,
 )
-from tapcell.extras.probe.options import read_section_values, with_overrides
+from tapcell.extras.probe.options import with_overrides
 
 
 def read(make_section, text):
-    return TapOptions(**read_section_values(make_section(text), TAP_OPTION_SPECS))
+    return read_tap_options(make_section(text))
 
 
 def test_defaults(make_section):
@@ -49,6 +50,14 @@ def test_config_values_and_ranges(make_section):
         read(make_section, "notch_filter_quality: 3.5")
     with pytest.raises(ConfigError, match=r"notch_filter_quality = 0.4: must be at least 0.5"):
         read(make_section, "notch_filter_quality: 0.4")
+
+
+def test_the_guides_name_for_the_classifier_option(make_section):
+    # The load-cell guide calls it tap_classifier_module; Kalico (and our reference) tap_classifier.
+    assert read(make_section, "tap_classifier_module: empty").tap_classifier == "empty"
+    with pytest.raises(ConfigError, match=r"\[load_cell_probe\] tap_classifier_module = empty: the same option as "
+                                          r"tap_classifier \(the guide's name for it\): give one of them"):
+        read(make_section, "tap_classifier: empty\ntap_classifier_module: empty")
 
 
 def test_gcode_overrides_including_filters(make_section, make_gcmd):

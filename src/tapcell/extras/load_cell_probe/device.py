@@ -40,13 +40,15 @@ from tapcell.mcu import sensors
 from tapcell.mcu.trigger import MAX_STUCK_SAMPLES, FirmwareTrigger, TriggerError, TriggerParams
 from tapcell.extras.probe.approach import NO_CONTACT_DEPTH_MM, BedHeightMemory, approach_height_mm, no_contact_message
 from tapcell.extras.probe.session import ProbeError, TapOutcome
-from tapcell.extras.probe.options import read_section_values, with_overrides
+from tapcell.extras.probe.options import with_overrides
 from tapcell.extras.load_cell_probe.options import (
     CORRUPT_FRAME_RETRIES,
     ERROR_PREFIX,
+    GUIDE_CLASSIFIER_OPTION,
     check_stuck_sensor_samples,
     lone_sample_past_limit,
     preload_refusal,
+    read_tap_options,
     trigger_error_message,
     TAP_OPTION_SPECS,
     TapOptions,
@@ -190,10 +192,10 @@ class LoadCellProbe:
         self.backend: Backend = printer.backend
         self.cell_options = read_load_cell_options(section)
         self.sample_rate_sps = float(self.cell_options.sample_rate_sps)
-        values = read_section_values(section, TAP_OPTION_SPECS)
-        self.options = TapOptions(**values)
+        self.options = read_tap_options(section)
         self.tap_log_path = section.get("tap_log", None)
-        self._check_classifier(self.options.tap_classifier, lambda msg: section.error("tap_classifier", msg))
+        classifier_option = GUIDE_CLASSIFIER_OPTION if section.has_option(GUIDE_CLASSIFIER_OPTION) else "tap_classifier"
+        self._check_classifier(self.options.tap_classifier, lambda msg: section.error(classifier_option, msg))
         check_stuck_sensor_samples(self.options.stuck_sensor_samples,
                                    lambda msg: section.error("stuck_sensor_samples", msg))
         # A live sensor of this type, gain and rate never repeats one value this often (docs/firmware.md).

@@ -14,7 +14,7 @@ import numpy as np
 from tapcell.filters import (DRIFT_CUTOFF_MAX_HZ, DRIFT_CUTOFF_MIN_HZ, FILTER_ORDERS, NOTCH_QUALITY_MAX,
                              NOTCH_QUALITY_MIN)
 from tapcell.mcu.trigger import MAX_STUCK_SAMPLES, TriggerError
-from tapcell.extras.probe.options import OptionSpec
+from tapcell.extras.probe.options import OptionSpec, read_section_values
 from tapcell.tap.model import ANALYSIS_RANGES, CONTACT_MODELS, AnalysisOptions
 from tapcell.tap.robust import robust_sigma
 
@@ -127,6 +127,22 @@ TAP_OPTION_SPECS: tuple[OptionSpec, ...] = (
     # 1 is refused too (check_stuck_sensor_samples): a run of one sample is every sample.
     OptionSpec("stuck_sensor_samples", "stuck_sensor_samples", "int", None, minval=0, maxval=MAX_STUCK_SAMPLES),
 )
+# The load-cell guide names the classifier option `tap_classifier_module`; Kalico reads
+# `tap_classifier`. A config may use either name, not both.
+GUIDE_CLASSIFIER_OPTION = "tap_classifier_module"
+
+
+def read_tap_options(section) -> TapOptions:
+    """`[load_cell_probe]`'s tap options (TAP_OPTION_SPECS), the guide's classifier name included."""
+    values = read_section_values(section, TAP_OPTION_SPECS)
+    if section.has_option(GUIDE_CLASSIFIER_OPTION):
+        if section.has_option("tap_classifier"):
+            raise section.error(GUIDE_CLASSIFIER_OPTION,
+                                "the same option as tap_classifier (the guide's name for it): give one of them")
+        values["tap_classifier"] = section.get(GUIDE_CLASSIFIER_OPTION).strip()
+    return TapOptions(**values)
+
+
 STUCK_SENSOR_SAMPLES_ALLOWED = f"0 (disabled) or 2 .. {MAX_STUCK_SAMPLES}"
 
 
