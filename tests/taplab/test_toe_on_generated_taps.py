@@ -54,3 +54,24 @@ def test_toe_rejects_taps_an_adhesion_thread_pulls(tmp_path):
     rejected = [code for code in codes if code]
     assert 2 <= len(rejected) <= 7
     assert set(rejected) == {"TAP_ADHESION"}
+
+
+def test_a_thread_pulling_the_whole_departure_is_rejected_against_the_approach():
+    # Heavy ooze, seed 2, tap 28: a 28 um film stays under the nozzle and a 40 um thread pulls
+    # 18 g over the whole departure. Down and up contacts agree within the film's squeeze (one
+    # 15.6 um approach sample), and the adhesion dip sees nothing because the thread pulls its
+    # own reference down too: it read valid, 31 um high. Against the approach's free-air line at
+    # the same heights the departure lies 21 noise sigmas low (clean taps of 12 scenarios x 100:
+    # within 2.7, cable drift 7.2 with its walk allowed for).
+    import tapcell.taplab.generate as gen
+    from tapcell.tap.readers import tap_from_object
+
+    rng = np.random.default_rng([2, list(gen.SCENARIOS).index("heavy_ooze") + 1, 28])
+    tap, truth = gen.make_tap(gen.SCENARIOS["heavy_ooze"].draw(rng), rng)
+    assert truth["film_left_um"] > 20.0
+    result = analyze_tap(tap_from_object(tap), TOE)
+    assert result.error == "TAP_ADHESION"
+    assert "below the approach's free-air level" in result.message
+    # The sharp model has no such check: the same tap is valid there, 30 um off.
+    sharp = analyze_tap(tap_from_object(tap), SHARP_NO_LAG)
+    assert sharp.valid and (sharp.z_mm - truth["z_contact"]) * 1000.0 > 20.0

@@ -65,6 +65,14 @@ END_SAMPLES = 3
 # The adhesion dip (toe model) that rejects a tap, in noise sigmas. Clean independent taps reach
 # 3.2 at most (360 taps, seed 1); mild ooze has a median of 4.7 and its deepest dips err most.
 ADHESION_MAX_DIP_NOISE = 4.0
+# The departure against the approach's free-air line (check_thread): heights above contact looked
+# at (µm), the fewest samples there, and the limit in noise sigmas. Measured on 100 taps per
+# scenario of the independent generator (seed 2), in noise sigmas: clean, soft, latency, hum and
+# corrupt-frame taps -2.7..+2.6, cable drift -7.2 (its walk, allowed for separately), mild ooze
+# down to -7.1, heavy ooze the generator's checks let through -10.6..-37.
+THREAD_REACH_UM = (10.0, 60.0)
+THREAD_MIN_SAMPLES = 5
+THREAD_MAX_NOISE = 8.0
 # ... and by more than this fraction of the compression force: a noise-free tap (noise 0) has no
 # dip, only rounding. Below any real sensor's 4 sigmas (75 g x 1 % = 0.75 g; HX717 ~1 g noise).
 ADHESION_MIN_DIP_FRACTION = 0.01
@@ -358,10 +366,12 @@ def pullback_samples(window: ModelWindow, motion: Motion, timing: SensorTiming, 
     return x_lo, x_lo + window.span_um[first:], window.force_g[first:]
 
 
-def free_air_wander(force_g: np.ndarray, dec: Decomposition) -> Wander | None:
-    """The baseline's white noise and random walk, from the approach and departure lines' samples."""
+def free_air_wander(force_g: np.ndarray, dec: Decomposition, approach_only: bool = False) -> Wander | None:
+    """The baseline's white noise and random walk, from the approach and departure lines' samples
+    (`approach_only`: from the approach's alone, which no ooze thread after the tap can pull)."""
     first, *_, last = dec.bounds
-    return wander_from_free_air([force_g[dec.start:dec.start + first], force_g[dec.start + last:dec.stop]])
+    approach = force_g[dec.start:dec.start + first]
+    return wander_from_free_air([approach] if approach_only else [approach, force_g[dec.start + last:dec.stop]])
 
 
 def fit_pullback_toe(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float,
@@ -383,6 +393,45 @@ def check_adhesion(window: ModelWindow, motion: Motion, timing: SensorTiming, de
                                          ADHESION_MIN_DIP_FRACTION * compression_force_g):
         raise TapInvalid(TAP_ADHESION, f"the force dips {dip_g:.1f} g below free air just above break contact "
                                        f"(more than {ADHESION_MAX_DIP_NOISE:g} x the {noise_g:.2f} g noise): "
+                                       "ooze or adhesion pulling the nozzle")
+
+
+def thread_pull_g(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float, dec: Decomposition,
+                  contact_um: float) -> float | None:
+    """How far (g) the departure lies below the approach's free-air line at the same heights, or
+    None when too few pullback samples lie between THREAD_REACH_UM above contact.
+
+    A thread of ooze pulling the nozzle for a long way after break contact pulls the departure's
+    whole level down, so the adhesion dip (departure against itself) cannot see it; the approach
+    crossed the same heights in free air before the tap, so its line is a reference the thread
+    never touched (a heavy-ooze tap of the independent generator read valid 31 um high that way).
+    """
+    x_lo, x_hi, force_g = pullback_samples(window, motion, timing, delay_s)
+    x_um = 0.5 * (x_lo + x_hi)
+    above = x_um - contact_um
+    near = (above > THREAD_REACH_UM[0]) & (above < THREAD_REACH_UM[1])
+    if np.count_nonzero(near) < THREAD_MIN_SAMPLES:
+        return None
+    # The approach passed height x (above the halt) at halt - x / speed.
+    passed_s = motion.home_end_s - x_um[near] / (motion.approach_speed_mm_s * 1000.0)
+    slope, intercept = dec.lines[0]
+    return median(slope * passed_s + intercept - force_g[near])
+
+
+def check_thread(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float, dec: Decomposition,
+                 contact_um: float, noise_g: float, wander: Wander | None) -> None:
+    """TAP_ADHESION when the departure lies below the approach's line by more than THREAD_MAX_NOISE
+    noise sigmas plus what the baseline's walk can move it between the two (3 sigma). The walk is
+    the approach's own: a thread pulling over the departure would pass for a walk there."""
+    pull_g = thread_pull_g(window, motion, timing, delay_s, dec, contact_um)
+    if pull_g is None:
+        return
+    apart_samples = (motion.pullback_start_s - motion.home_end_s) / timing.sample_period_s + 2 * THREAD_REACH_UM[1]
+    walk_g = 3.0 * math.sqrt(wander.walk_var_g2 * max(apart_samples, 0.0)) if wander else 0.0
+    limit_g = THREAD_MAX_NOISE * noise_g + walk_g
+    if pull_g > limit_g:
+        raise TapInvalid(TAP_ADHESION, f"the force after break contact lies {pull_g:.1f} g below the approach's "
+                                       f"free-air level at the same heights (more than {limit_g:.1f} g): "
                                        "ooze or adhesion pulling the nozzle")
 
 
@@ -551,7 +600,8 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         lag_shift_um = (delay_s - window_delay_s) * motion.pullback_speed_mm_s * 1000.0
         start = pullback.contact_um + lag_shift_um if pullback else window.break_line_um
         drift_g_um = free_air_slope_g_um(dec, motion)
-        toe = fit_pullback_toe(window, motion, timing, window_delay_s, start, drift_g_um, free_air_wander(force, dec))
+        wander = free_air_wander(force, dec)
+        toe = fit_pullback_toe(window, motion, timing, window_delay_s, start, drift_g_um, wander)
         if toe:
             result.z_mm = motion.z_halt_mm + (toe.contact_um - lag_shift_um) / 1000.0
             result.z_sigma_um = toe.sigma_um
@@ -561,6 +611,8 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
             try:
                 check_adhesion(window, motion, timing, window_delay_s, drift_g_um, toe.contact_um, noise_g,
                                result.compression_force_g)
+                check_thread(window, motion, timing, window_delay_s, dec, toe.contact_um, noise_g,
+                             free_air_wander(force, dec, approach_only=True))
             except TapInvalid as invalid:
                 result.valid, result.error, result.message = False, invalid.code, invalid.message
                 return result, context
