@@ -268,16 +268,23 @@ def _trigger_read_s(spec: TapSpec, samples_g: np.ndarray, read_s: np.ndarray) ->
     raise ValueError("the approach never reached the trigger force")
 
 
+def noise_record_length(spec: TapSpec) -> tuple[int, int]:
+    """(fine steps, samples) of the noise drawn up front: enough for the longest tap `spec` can make.
+    The 1/f noise is made over this many samples, so its spectrum depends on it."""
+    period = spec.adc.period_s
+    longest_s = (spec.approach_mm + 0.5) / spec.approach_speed_mm_s + spec.dwell_s + 1.0 / spec.pullback_speed_mm_s \
+        + spec.tail_s + 4 * period
+    most_fine = int(longest_s / period * SUBSAMPLES) + 8 * SUBSAMPLES
+    return most_fine, most_fine // SUBSAMPLES
+
+
 def make_tap(spec: TapSpec, rng: np.random.Generator) -> tuple[dict, dict]:
     """One tap: (tap-format object, truth). Deterministic from `rng`'s state."""
     adc = spec.adc
     period = adc.period_s
     # Everything random is drawn up front for the longest tap this spec can make.
-    longest_s = (spec.approach_mm + 0.5) / spec.approach_speed_mm_s + spec.dwell_s + 1.0 / spec.pullback_speed_mm_s \
-        + spec.tail_s + 4 * period
-    most_fine = int(longest_s / period * SUBSAMPLES) + 8 * SUBSAMPLES
+    most_fine, most_samples = noise_record_length(spec)
     walk = np.cumsum(rng.normal(size=most_fine)) * spec.walk_g_per_sqrt_s * math.sqrt(period / SUBSAMPLES)
-    most_samples = most_fine // SUBSAMPLES
     noise = rng.normal(size=most_samples) * adc.white_g + pink_noise(most_samples, adc.pink_g, rng)
     jitter = rng.normal(size=most_samples) * adc.jitter_s
 
