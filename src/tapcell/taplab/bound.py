@@ -260,22 +260,25 @@ def smoothed_uniform_information(intervals: list[tuple[float, float, float]], sm
     return float(np.sum(slope ** 2 / density) * (x[1] - x[0]))
 
 
-def prior_information(scenario: Scenario, draws: int = PRIOR_DRAWS, seed: int = 0) -> np.ndarray:
-    """Diagonal Fisher information (per NAMES) of the smoothed generator's priors for a scenario.
-
-    The ranges come from draws of the scenario itself. Hum components get infinite information
-    (held known: their prior, amplitude uniform × phase uniform, has none finite); holding them
-    known only lowers the bound, so it stays valid."""
+def prior_ranges(scenario: Scenario, draws: int = PRIOR_DRAWS, seed: int = 0) -> dict[str, list[tuple]]:
+    """Per parameter of PARAMETERS, the intervals the scenario draws it from (low, high, share),
+    read from `draws` draws of the scenario itself; [] for a constant."""
     rng = np.random.default_rng([seed, 12])
     specs = [scenario.draw(rng) for _ in range(draws)]
+    return {p.name: _support(np.array([p.value(s) for s in specs])) for p in PARAMETERS}
+
+
+def prior_information(ranges: dict[str, list[tuple]]) -> np.ndarray:
+    """Diagonal Fisher information (per NAMES) of the smoothed generator's priors (`prior_ranges`).
+
+    Hum components and constants get infinite information (held known: the hum's prior, amplitude
+    uniform × phase uniform, has none finite); holding them known only lowers the bound."""
     information = np.full(len(NAMES), np.inf)
     for i, parameter in enumerate(PARAMETERS):
-        values = np.array([parameter.value(s) for s in specs])
-        intervals = _support(values)
-        if not intervals:  # a constant: known
-            continue
-        span = max(b for _, b, _ in intervals) - min(a for a, _, _ in intervals)
-        information[i] = smoothed_uniform_information(intervals, PRIOR_SMOOTHING * span)
+        intervals = ranges[parameter.name]
+        if intervals:
+            span = intervals[-1][1] - intervals[0][0]
+            information[i] = smoothed_uniform_information(intervals, PRIOR_SMOOTHING * span)
     return information
 
 
@@ -285,3 +288,85 @@ def van_trees_sigma_um(fishers: list[np.ndarray], prior: np.ndarray, unknown: It
     Parameters with infinite prior information are held known (dropped from the unknowns)."""
     unknown = [name for name in unknown if np.isfinite(prior[NAMES.index(name)])]
     return crb(np.mean(fishers, axis=0), unknown, prior=prior)
+
+
+# --- the two-point floor: a twin the samples cannot tell apart --------------------------------------
+
+TWIN_INTERIOR = 0.0  # share of each contact parameter's range at either end that twins keep out of
+_CONTACT = ("stiffness_g_um", "onset_um", "onset_power", "onset_blend", "unload_ratio", "relax_fraction", "relax_tau_s")
+
+
+def pair_floor_um(shift_um: float, distance: float) -> float:
+    """The least rms error of z any analysis can have over two taps, `shift_um` apart in z, whose
+    noise-free samples are `distance` noise sigmas apart (Mahalanobis), each equally likely: the
+    Bayes error of the pair, shift × sqrt(E[p(1 − p)]) with p the posterior of one of them (its
+    log-odds ~ N(distance²/2, distance²)). At distance 0 it is half the shift."""
+    z = np.linspace(-8.0, 8.0, 1601)
+    weight = np.exp(-0.5 * z * z)
+    weight /= weight.sum()
+    log_odds = np.clip(0.5 * distance ** 2 + distance * z, -700.0, 700.0)
+    p = 1.0 / (1.0 + np.exp(-log_odds))
+    return abs(shift_um) * float(np.sqrt(np.sum(weight * p * (1.0 - p))))
+
+
+@dataclass(frozen=True)
+class Twin:
+    shift_um: float  # its z_contact − the tap's
+    distance: float  # between the two taps' noise-free samples, in white-noise sigmas (hum projected out)
+    parameters: dict[str, float]  # the twin's other parameters (PARAMETERS after z_contact)
+    floor_um: float  # pair_floor_um(shift_um, distance)
+
+
+def _with_values(spec: TapSpec, values: np.ndarray) -> TapSpec:
+    for parameter, value in zip(PARAMETERS[1:], values):
+        spec = parameter.shift(spec, float(value) - parameter.value(spec))
+    return spec
+
+
+def nearest_twin(spec: TapSpec, motion: RecordedMotion, shift_um: float, ranges: dict[str, list[tuple]],
+                 interior: float = TWIN_INTERIOR, iterations: int = 40) -> Twin:
+    """A tap `shift_um` higher or lower whose samples come as close as a search finds to this tap's,
+    its other parameters inside the scenario's ranges (the contact's inside the central
+    1 − 2 × interior of each) and its hum free. Projected Levenberg-Marquardt from the tap's own
+    parameters: a local search, so the distance is an upper bound on the nearest twin's and the
+    floor it gives a lower bound on the pair's."""
+    low, high = [], []
+    for parameter in PARAMETERS[1:]:
+        a, b = ranges[parameter.name][0][0], ranges[parameter.name][-1][1]  # hull of the intervals
+        margin = interior * (b - a) if parameter.name in _CONTACT else 0.0
+        low.append(a + margin)
+        high.append(b - margin)
+    low, high = np.array(low), np.array(high)
+    noise_g = spec.adc.white_g
+    target = _samples(spec, motion)
+    shifted = PARAMETERS[0].shift(spec, shift_um)
+    hum = sensitivities(shifted, motion)[:, len(PARAMETERS):]
+    keep_out_hum = np.eye(len(target)) - hum @ np.linalg.pinv(hum)
+
+    def residual(values: np.ndarray) -> np.ndarray:
+        return keep_out_hum @ (_samples(_with_values(shifted, values), motion) - target) / noise_g
+
+    values = np.clip([p.value(spec) for p in PARAMETERS[1:]], low, high)
+    r = residual(values)
+    cost = float(r @ r)
+    damping = 1e-2
+    for _ in range(iterations):
+        G = keep_out_hum @ sensitivities(_with_values(shifted, values), motion)[:, 1:len(PARAMETERS)] / noise_g
+        normal, gradient = G.T @ G, G.T @ r
+        for _ in range(8):
+            trial = np.clip(values - np.linalg.solve(normal + damping * np.diag(np.diag(normal)), gradient), low, high)
+            r_trial = residual(trial)
+            cost_trial = float(r_trial @ r_trial)
+            if cost_trial < cost:
+                break
+            damping *= 4.0
+        else:
+            break  # no step downhill
+        gain = (cost - cost_trial) / cost
+        values, r, cost, damping = trial, r_trial, cost_trial, damping / 3.0
+        if gain < 1e-5:
+            break
+    distance = float(np.sqrt(cost))
+    return Twin(shift_um=shift_um, distance=distance,
+                parameters={p.name: float(v) for p, v in zip(PARAMETERS[1:], values)},
+                floor_um=pair_floor_um(shift_um, distance))
