@@ -24,7 +24,8 @@ What it is, and is not:
   (the sample clock, timestamp jitter, the mains frequency, the polarity, the motion) only makes
   the real problem harder, so those choices keep the bound a valid floor; so does the white bound
   against the coloured one, and `coloured` leaves out the hum's randomness (its amplitudes are
-  unknowns instead) and the corrupt frames.
+  unknowns instead) and the corrupt frames. The 1/f covariance is its spectrum's; the generator
+  also rescales every draw to its rms, which makes the real noise slightly less correlated.
 * Not reachable in general: the CRB is approached by maximum likelihood only when the model is
   right and the noise small against the curvature of the likelihood. It is a floor, not a goal.
 * Not a bound on a *biased* estimator: one that pulls the toe's shape towards its prior (as any
@@ -34,7 +35,15 @@ What it is, and is not:
   averaged over the scenario's taps and J_prior the Fisher information of the priors. The
   generator's uniform priors have no finite Fisher information (their edges are steps), so this
   is the bound for a *smoothed generator*: every uniform convolved with a Gaussian of
-  `PRIOR_SMOOTHING` × its span (the ranges are read from many draws of the scenario).
+  `PRIOR_SMOOTHING` × its span (the ranges are read from many draws of the scenario), with E J
+  taken over the taps given (a Monte Carlo mean). It is loose here: averaging J over taps whose
+  nearly degenerate directions differ fills those directions in (Jensen), so it sits well below
+  what the toe costs any single tap.
+* The two-point floor (`nearest_twin`) covers every estimator too, for one pair of taps: a twin
+  `shift` higher or lower, its other parameters inside the scenario's ranges, found by a local
+  search for the samples closest to this tap's; no analysis has a smaller rms error over the two
+  than `pair_floor_um` (their Bayes error with equal weights). It is a floor for an analysis that
+  must do well on *every* tap of the ranges, not for the average over the prior.
 * Degenerate directions (two parameters that move the samples alike) show as a near-singular J.
   Columns are scaled to unit information first; eigenvalues below `DEGENERATE` × the largest are
   dropped (a pseudo-inverse: the bound of the estimable part) and the tap is flagged.
