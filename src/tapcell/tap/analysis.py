@@ -41,7 +41,7 @@ from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import PrefixSums, best_five_segments, prefix_sums, segment_lines
-from tapcell.tap.toe import ToeFit, adhesion_dip, fit_toe, lag_from_halt_s
+from tapcell.tap.toe import ToeFit, Wander, adhesion_dip, fit_toe, lag_from_halt_s, wander_from_free_air
 
 MIN_SAMPLES = 12
 # Extra samples the force may keep changing after the motion stopped/started (ringing, filters).
@@ -354,13 +354,19 @@ def pullback_samples(window: ModelWindow, motion: Motion, timing: SensorTiming, 
     return x_lo, x_lo + window.span_um[first:], window.force_g[first:]
 
 
+def free_air_wander(force_g: np.ndarray, dec: Decomposition) -> Wander | None:
+    """The baseline's white noise and random walk, from the approach and departure lines' samples."""
+    first, *_, last = dec.bounds
+    return wander_from_free_air([force_g[dec.start:dec.start + first], force_g[dec.start + last:dec.stop]])
+
+
 def fit_pullback_toe(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float,
-                     contact0_um: float, drift_g_um: float | None) -> ToeFit | None:
+                     contact0_um: float, drift_g_um: float | None, wander: Wander | None = None) -> ToeFit | None:
     """The toe model (tapcell.tap.toe) over the pullback."""
     if not math.isfinite(contact0_um):
         return None
     spacing_um = max(motion.pullback_speed_mm_s * 1000.0 * timing.sample_period_s, 0.05)
-    return fit_toe(*pullback_samples(window, motion, timing, delay_s), contact0_um, spacing_um, drift_g_um)
+    return fit_toe(*pullback_samples(window, motion, timing, delay_s), contact0_um, spacing_um, drift_g_um, wander)
 
 
 def check_adhesion(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float, drift_g_um: float,
@@ -536,7 +542,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
     if options.contact_model == "toe":
         start = pullback.contact_um if pullback else window.break_line_um
         drift_g_um = free_air_slope_g_um(dec, motion)
-        toe = fit_pullback_toe(window, motion, timing, delay_s, start, drift_g_um)
+        toe = fit_pullback_toe(window, motion, timing, delay_s, start, drift_g_um, free_air_wander(force, dec))
         if toe:
             result.z_mm = motion.z_halt_mm + toe.contact_um / 1000.0
             result.z_sigma_um = toe.sigma_um

@@ -34,6 +34,18 @@ import numpy as np
 
 TOE_WIDTHS_UM = (0.0, 1.0, 2.0, 3.0, 4.5, 6.0, 8.0, 10.0, 13.0, 16.0)
 TOE_POWERS = (0.5, 1.0)  # Hertz sphere on flat; a parabolic force onset
+
+
+def _width_prior(widths_um: tuple[float, ...]) -> np.ndarray:
+    """Each grid width's share of a uniform prior over 0..widest: the span it stands for (half the
+    gaps to its neighbours). The grid is finer at narrow toes; counting every width alike would
+    favour narrow toes, which read the contact low."""
+    w = np.array(widths_um)
+    edges = np.concatenate(([w[0]], 0.5 * (w[1:] + w[:-1]), [w[-1]]))
+    return np.diff(edges) / (w[-1] - w[0])
+
+
+WIDTH_PRIOR = _width_prior(TOE_WIDTHS_UM)
 COARSE_STEP_UM = 0.5
 COARSE_BELOW_UM = 3.0  # the sharp estimate reads a toe low: search mostly above it
 COARSE_ABOVE_UM = 10.0
@@ -49,6 +61,12 @@ ADHESION_REACH_UM = 40.0
 ADHESION_LEVEL_UM = 100.0  # the free-air level from samples between the reach and this height
 ADHESION_RUN_SAMPLES = 5  # the dip is the lowest mean of this many consecutive samples
 ADHESION_MIN_LEVEL_SAMPLES = 10
+# The baseline's random walk is weighed in when over the fit it adds as much variance as the white noise
+# (0.25 and 0.5 gave the same drift sigma and 0.01 um more on clean taps).
+WANDER_SHARE = 1.0
+# Variogram lags (samples) for the walk estimate. From 3: an ADS1220's sinc3 averages over three
+# periods, so neighbouring samples share noise and short lags would read that as a walk.
+WANDER_LAGS = range(3, 15)
 
 
 @dataclass
@@ -141,12 +159,98 @@ def _rss_over_contacts(contacts_um, widths_um, power, data: _Projected):
     return rss, stiffness
 
 
+@dataclass(frozen=True)
+class Wander:
+    """White noise plus a random walk of the baseline (thermal drift of the cell, a cable settling).
+
+    white_var_g2: per sample; walk_var_g2: the walk's variance growth per sample. Over the ~100
+    samples of a toe fit a walk of a few g/sqrt(s) bends the baseline by as much as the white
+    noise, and an ordinary least-squares fit reads the bend as toe (bowden/cable drift taps of the
+    independent generator: sigma 0.85 um; weighting by the true covariance: 0.71).
+    """
+
+    white_var_g2: float
+    walk_var_g2: float
+
+    def matters(self, samples: int) -> bool:
+        """Whether the walk over `samples` adds a noticeable share to the white variance."""
+        return self.walk_var_g2 * samples > WANDER_SHARE * self.white_var_g2
+
+
+def wander_from_free_air(segments: list[np.ndarray]) -> Wander | None:
+    """White and random-walk variances from force samples in free air (each segment evenly sampled).
+
+    Each segment's straight line is removed (Z-proportional drift, a steady trend); the variogram
+    of what is left, E[(r[i+L] - r[i])^2] = 2 white + L walk, is pooled over the segments for
+    WANDER_LAGS and fitted by least squares. None when the segments are too short.
+    """
+    lags, values = [], []
+    for force_g in segments:
+        n = len(force_g)
+        if n < 2 * WANDER_LAGS[-1]:
+            continue
+        i = np.arange(n, dtype=float) - 0.5 * (n - 1)
+        r = force_g - force_g.mean() - i * (i @ force_g) / (i @ i)
+        for lag in WANDER_LAGS:
+            d = r[lag:] - r[:-lag]
+            lags.append(lag)
+            values.append(float(d @ d) / len(d))
+    if not lags:
+        return None
+    design = np.column_stack((np.full(len(lags), 2.0), np.array(lags, dtype=float)))
+    (white, walk), *_ = np.linalg.lstsq(design, np.array(values), rcond=None)
+    if not white > 0.0:
+        return None
+    return Wander(white_var_g2=float(white), walk_var_g2=max(float(walk), 0.0))
+
+
+@dataclass
+class _Whitened:
+    """The samples of one toe fit whitened by the Cholesky factor of white + random-walk covariance.
+
+    Whitening mixes every sample into the ones after it, so the pressed-sample sums of `_Projected`
+    do not apply: each candidate's toe column is evaluated over all samples (only taps whose walk
+    matters take this path).
+    """
+
+    window_um: np.ndarray  # (n, SUBSAMPLES)
+    whiten: np.ndarray  # (n, n) L^-1
+    basis: np.ndarray  # whitened, orthonormal baseline column(s)
+    y_free: np.ndarray
+    yy: float
+
+    @classmethod
+    def prepare(cls, window_um: np.ndarray, x_mid: np.ndarray, y: np.ndarray, wander: Wander) -> _Whitened:
+        # The pullback rises monotonically, so the sample order is the time order of the walk.
+        order = np.arange(len(y), dtype=float)
+        covariance = wander.white_var_g2 * np.eye(len(y)) + wander.walk_var_g2 * np.minimum.outer(order, order)
+        whiten = np.linalg.inv(np.linalg.cholesky(covariance))
+        basis = np.linalg.qr(whiten @ np.ones((len(y), 1)))[0]
+        y_w = whiten @ y
+        y_free = y_w - basis @ (basis.T @ y_w)
+        return cls(window_um, whiten, basis, y_free, float(y_free @ y_free))
+
+
+def _rss_whitened(contacts_um, widths_um, power, data: _Whitened):
+    """`_rss_over_contacts` under the whitened inner product (residuals in white-noise units)."""
+    depth = contacts_um[:, None, None] - data.window_um[None]
+    h = toe_shape(depth, widths_um[:, None, None], power).mean(axis=2) @ data.whiten.T  # (C, n)
+    h -= (h @ data.basis) @ data.basis.T
+    hh = np.einsum("cn,cn->c", h, h)
+    hy = h @ data.y_free
+    usable = hh > 1e-12
+    stiffness = np.divide(hy, hh, out=np.zeros_like(hy), where=usable)
+    rss = np.where(usable & (stiffness > 0.0), data.yy - stiffness * hy, np.inf)
+    return rss, stiffness
+
+
 def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, contact0_um: float,
-            spacing_um: float, drift_g_um: float | None = None) -> ToeFit | None:
+            spacing_um: float, drift_g_um: float | None = None, wander: Wander | None = None) -> ToeFit | None:
     """The toe model over pullback samples (conversion windows [x_lo, x_hi], µm above the halt).
 
     drift_g_um: the force's slope against height in free air when known (the approach shows it);
-    None: fitted over the departure with the rest.
+    None: fitted over the departure with the rest. wander: the baseline's random walk when the
+    tap shows one (`Wander.matters`); the fit then weighs the samples by its covariance.
     """
     keep = (x_lo_um < contact0_um + COARSE_ABOVE_UM + DEPARTURE_REACH_SAMPLES * spacing_um) & (
         x_hi_um > contact0_um - PENETRATION_REACH_UM)
@@ -163,26 +267,35 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
         basis = np.full((len(y), 1), 1.0 / math.sqrt(len(y)))
     coarse = contact0_um + np.arange(-COARSE_BELOW_UM, COARSE_ABOVE_UM + 1e-9, COARSE_STEP_UM)
     widths = np.array(TOE_WIDTHS_UM)
-    data = _Projected.prepare(window_um, x_mid, basis, y, coarse[0], coarse[-1], widths.max())
     grid_c = np.tile(coarse, len(widths))
     grid_w = np.repeat(widths, len(coarse))
-    rss_grid = np.stack([_rss_over_contacts(grid_c, grid_w, power, data)[0].reshape(len(widths), -1)
+    g2_per_unit = 1.0  # the residual's unit: g^2, or the white variance once whitened
+    if wander is not None and wander.matters(len(y)):
+        data = _Whitened.prepare(window_um, x_mid, y, wander)
+        solve = _rss_whitened
+        g2_per_unit = wander.white_var_g2
+    else:
+        data = _Projected.prepare(window_um, x_mid, basis, y, coarse[0], coarse[-1], widths.max())
+        solve = _rss_over_contacts
+    rss_grid = np.stack([solve(grid_c, grid_w, power, data)[0].reshape(len(widths), -1)
                          for power in TOE_POWERS])  # (power, width, contact)
     best = np.unravel_index(int(np.argmin(rss_grid)), rss_grid.shape)
     if not math.isfinite(rss_grid[best]):
         return None
     dof = max(len(y) - 4 - basis.shape[1], 1)
     residual_var = max(float(rss_grid[best]) / dof, 1e-12)
-    contact, sigma = marginal_contact_um(coarse, rss_grid.reshape(-1, len(coarse)), residual_var)
+    contact, sigma = marginal_contact_um(coarse, rss_grid.reshape(-1, len(coarse)), residual_var,
+                                         np.tile(WIDTH_PRIOR, len(TOE_POWERS)))
     if contact is None:
         return None
     width, power = widths[best[1]], TOE_POWERS[best[0]]
-    _, stiffness = _rss_over_contacts(np.array([contact]), np.array([width]), power, data)
+    _, stiffness = solve(np.array([contact]), np.array([width]), power, data)
     return ToeFit(contact_um=contact, sigma_um=sigma, width_um=float(width), power=float(power),
-                  stiffness_g_um=float(stiffness[0]), residual_sigma_g=math.sqrt(residual_var))
+                  stiffness_g_um=float(stiffness[0]), residual_sigma_g=math.sqrt(residual_var * g2_per_unit))
 
 
-def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: float) -> tuple[float | None, float]:
+def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: float,
+                        prior: np.ndarray | None = None) -> tuple[float | None, float]:
     """Mean and sd of the contact height with the toe (width, shape) marginalised out.
 
     rss: (toes, contacts) residual sums on an even grid of contact heights. Per toe, a parabola
@@ -209,7 +322,7 @@ def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: flo
     # d2 rss / dc2 = bend / step^2; the Gaussian in c has variance 2 noise_var / that.
     var = np.where(usable, 2.0 * noise_var * step * step / np.where(usable, bend, 1.0), 0.0)
     log_weight = np.where(usable, -(lowest - lowest[usable].min()) / (2.0 * noise_var), -np.inf)
-    weight = np.exp(log_weight) * np.sqrt(var)
+    weight = np.exp(log_weight) * np.sqrt(var) * (1.0 if prior is None else prior)
     weight /= weight.sum()
     mean = float(weight @ centre)
     spread = float(weight @ (var + (centre - mean) ** 2))
