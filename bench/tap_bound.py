@@ -84,6 +84,7 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--twins", type=int, default=0, metavar="N", help="two-point floor on N taps per scenario "
                         "(slow: 5-60 s per tap)")
     parser.add_argument("--twin-shift", type=float, default=1.5, metavar="UM")
+    parser.add_argument("--twin-noise", choices=("white", "coloured"), default="coloured")
     args = parser.parse_args(argv)
     names = args.scenarios.split(",")
     unknown = [n for n in names if n not in ACCEPT]
@@ -109,7 +110,8 @@ def main(argv: list[str]) -> int:
                     motion = RecordedMotion.of_tap(tap)
                     floors.setdefault(name, []).append(bound.tap_floor(spec, motion))
                     if k < args.twins:  # the closer of a twin above and one below
-                        pair = [bound.nearest_twin(spec, motion, sign * args.twin_shift, ranges[name]) for sign in (1, -1)]
+                        pair = [bound.nearest_twin(spec, motion, sign * args.twin_shift, ranges[name],
+                                                   coloured=args.twin_noise == "coloured") for sign in (1, -1)]
                         twins.setdefault(name, []).append(max(pair, key=lambda twin: twin.floor_um))
             print(f"  {name}: {len(files[name])} taps", file=sys.stderr, flush=True)
         answers = _analyse([Path(scratch, f) for fs in files.values() for f in fs], not args.no_kalico)
@@ -133,7 +135,7 @@ def main(argv: list[str]) -> int:
 
     if twins:
         print(f"\ntwo-point floor: nearest twin {args.twin_shift} µm higher or lower (contact inside the central "
-              f"{100 - 200 * bound.TWIN_INTERIOR:.0f} % of each range), white noise")
+              f"{100 - 200 * bound.TWIN_INTERIOR:.0f} % of each range), {args.twin_noise} noise")
         print(f"{'scenario':<20}{'taps':>6}{'median distance':>17}{'rms pair floor':>16}{'pair floor >= 0.4':>19}")
         for name in names:
             found = twins[name]

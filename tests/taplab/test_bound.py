@@ -80,6 +80,10 @@ def test_bound_does_not_depend_on_the_finite_difference_step():
         J = bound.fisher(bound.sensitivities(spec, motion, step_scale=scale), spec, coloured=False)
         floors.append([bound.crb(J, unknown).sigma_um for unknown in bound.UNKNOWN_SETS.values()])
     assert floors[0] == pytest.approx(floors[1], rel=0.01)
+    # the coloured Fisher information is the whitened samples' (the twins' distances use the whitener)
+    G = bound.sensitivities(spec, motion)
+    whitened = bound.whitener(spec, G.shape[0], coloured=True) @ G
+    assert bound.fisher(G, spec, coloured=True) == pytest.approx(whitened.T @ whitened, rel=1e-6)
     # knowing more never loosens the floor
     assert floors[0] == sorted(floors[0], reverse=True)
 

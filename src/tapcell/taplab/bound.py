@@ -190,13 +190,23 @@ def pink_covariance(spec: TapSpec, count: int) -> np.ndarray:
     return autocovariance[lags]
 
 
+def noise_covariance(spec: TapSpec, count: int) -> np.ndarray:
+    """Σ of the coloured bound: white + 1/f + random walk (g²) over the first `count` samples."""
+    return spec.adc.white_g ** 2 * np.eye(count) + pink_covariance(spec, count) + walk_covariance(spec, count)
+
+
 def fisher(G: np.ndarray, spec: TapSpec, coloured: bool) -> np.ndarray:
     """J = Gᵀ Σ⁻¹ G with the white or the coloured noise covariance."""
     if not coloured:
         return G.T @ G / spec.adc.white_g ** 2
-    count = G.shape[0]
-    sigma = spec.adc.white_g ** 2 * np.eye(count) + pink_covariance(spec, count) + walk_covariance(spec, count)
-    return G.T @ np.linalg.solve(sigma, G)
+    return G.T @ np.linalg.solve(noise_covariance(spec, G.shape[0]), G)
+
+
+def whitener(spec: TapSpec, count: int, coloured: bool) -> np.ndarray:
+    """W with W Σ Wᵀ = I (the inverse of Σ's Cholesky factor): noise sigmas from grams."""
+    if not coloured:
+        return np.eye(count) / spec.adc.white_g
+    return np.linalg.inv(np.linalg.cholesky(noise_covariance(spec, count)))
 
 
 @dataclass(frozen=True)
@@ -321,7 +331,7 @@ def pair_floor_um(shift_um: float, distance: float) -> float:
 @dataclass(frozen=True)
 class Twin:
     shift_um: float  # its z_contact − the tap's
-    distance: float  # between the two taps' noise-free samples, in white-noise sigmas (hum projected out)
+    distance: float  # between the two taps' noise-free samples, in noise sigmas (Mahalanobis; hum projected out)
     parameters: dict[str, float]  # the twin's other parameters (PARAMETERS after z_contact)
     floor_um: float  # pair_floor_um(shift_um, distance)
 
@@ -333,10 +343,10 @@ def _with_values(spec: TapSpec, values: np.ndarray) -> TapSpec:
 
 
 def nearest_twin(spec: TapSpec, motion: RecordedMotion, shift_um: float, ranges: dict[str, list[tuple]],
-                 interior: float = TWIN_INTERIOR, iterations: int = 40) -> Twin:
+                 interior: float = TWIN_INTERIOR, coloured: bool = False, iterations: int = 40) -> Twin:
     """A tap `shift_um` higher or lower whose samples come as close as a search finds to this tap's,
     its other parameters inside the scenario's ranges (the contact's inside the central
-    1 − 2 × interior of each) and its hum free. Projected Levenberg-Marquardt from the tap's own
+    1 − 2 × interior of each) and its hum free; distances with the white or the coloured noise. Projected Levenberg-Marquardt from the tap's own
     parameters: a local search, so the distance is an upper bound on the nearest twin's and the
     floor it gives a lower bound on the pair's."""
     low, high = [], []
@@ -346,21 +356,21 @@ def nearest_twin(spec: TapSpec, motion: RecordedMotion, shift_um: float, ranges:
         low.append(a + margin)
         high.append(b - margin)
     low, high = np.array(low), np.array(high)
-    noise_g = spec.adc.white_g
     target = _samples(spec, motion)
+    white = whitener(spec, len(target), coloured)
     shifted = PARAMETERS[0].shift(spec, shift_um)
-    hum = sensitivities(shifted, motion)[:, len(PARAMETERS):]
-    keep_out_hum = np.eye(len(target)) - hum @ np.linalg.pinv(hum)
+    hum = white @ sensitivities(shifted, motion)[:, len(PARAMETERS):]
+    keep_out_hum = (np.eye(len(target)) - hum @ np.linalg.pinv(hum)) @ white
 
     def residual(values: np.ndarray) -> np.ndarray:
-        return keep_out_hum @ (_samples(_with_values(shifted, values), motion) - target) / noise_g
+        return keep_out_hum @ (_samples(_with_values(shifted, values), motion) - target)
 
     values = np.clip([p.value(spec) for p in PARAMETERS[1:]], low, high)
     r = residual(values)
     cost = float(r @ r)
     damping = 1e-2
     for _ in range(iterations):
-        G = keep_out_hum @ sensitivities(_with_values(shifted, values), motion)[:, 1:len(PARAMETERS)] / noise_g
+        G = keep_out_hum @ sensitivities(_with_values(shifted, values), motion)[:, 1:len(PARAMETERS)]
         normal, gradient = G.T @ G, G.T @ r
         for _ in range(8):
             trial = np.clip(values - np.linalg.solve(normal + damping * np.diag(np.diag(normal)), gradient), low, high)
