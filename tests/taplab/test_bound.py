@@ -132,3 +132,11 @@ def test_a_twin_stays_in_the_ranges_and_is_no_farther_than_the_tap_itself_moved(
     start = np.linalg.norm(difference) / spec.adc.white_g
     assert 0.0 < twin.distance < start
     assert twin.floor_um == pytest.approx(bound.pair_floor_um(1.0, twin.distance))
+
+
+def test_prior_information_of_a_smoothed_uniform_has_the_gaussian_limit():
+    """Smoothed far more than its width, a uniform is a Gaussian of variance s² + L²/12: information 1/variance."""
+    assert bound.smoothed_uniform_information([(0.0, 1.0, 1.0)], 3.0) == pytest.approx(1.0 / (9.0 + 1.0 / 12.0), rel=0.01)
+    # and a narrow smoothing puts the information at the edges: ~ 2 c / (s L), more for less smoothing
+    assert bound.smoothed_uniform_information([(0.0, 1.0, 1.0)], 0.01) > bound.smoothed_uniform_information(
+        [(0.0, 1.0, 1.0)], 0.05) > 12.0

@@ -125,11 +125,10 @@ PARAMETERS: tuple[Parameter, ...] = (
 HUM = tuple(f"hum{k + 1}_{part}_g" for k in range(3) for part in ("sin", "cos"))
 NAMES: tuple[str, ...] = tuple(p.name for p in PARAMETERS) + HUM
 
-_ALL = NAMES
 UNKNOWN_SETS: dict[str, tuple[str, ...]] = {
-    "all unknown": _ALL,
-    "toe shape known": tuple(n for n in _ALL if n not in ("onset_power", "onset_blend")),
-    "toe known": tuple(n for n in _ALL if n not in ("onset_um", "onset_power", "onset_blend")),
+    "all unknown": NAMES,
+    "toe shape known": tuple(n for n in NAMES if n not in ("onset_power", "onset_blend")),
+    "toe known": tuple(n for n in NAMES if n not in ("onset_um", "onset_power", "onset_blend")),
     "only z unknown": ("z_contact_um",),
 }
 
@@ -240,15 +239,14 @@ class TapFloor:
     fisher_coloured: np.ndarray
 
 
-def tap_floor(spec: TapSpec, motion: RecordedMotion, coloured: bool = True) -> TapFloor:
-    """The Cramér-Rao floor of one tap for every set of unknowns (coloured: also the 1/f + walk bound)."""
+def tap_floor(spec: TapSpec, motion: RecordedMotion) -> TapFloor:
+    """The Cramér-Rao floor of one tap for every set of unknowns, with either noise."""
     G = sensitivities(spec, motion)
     J_white = fisher(G, spec, coloured=False)
-    J_coloured = fisher(G, spec, coloured=True) if coloured else np.full_like(J_white, np.nan)
-    return TapFloor(
-        white={name: crb(J_white, unknown) for name, unknown in UNKNOWN_SETS.items()},
-        coloured={name: crb(J_coloured, unknown) for name, unknown in UNKNOWN_SETS.items()} if coloured else {},
-        fisher_white=J_white, fisher_coloured=J_coloured)
+    J_coloured = fisher(G, spec, coloured=True)
+    return TapFloor(white={name: crb(J_white, unknown) for name, unknown in UNKNOWN_SETS.items()},
+                    coloured={name: crb(J_coloured, unknown) for name, unknown in UNKNOWN_SETS.items()},
+                    fisher_white=J_white, fisher_coloured=J_coloured)
 
 
 # --- the Van Trees bound of a scenario -------------------------------------------------------------
