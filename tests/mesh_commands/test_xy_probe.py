@@ -54,3 +54,17 @@ def test_missing_the_pin_is_an_error(pin_printer):
     pin_printer.gcode.run_script("G1 X100 Y100 Z2 F3000")
     assert gcode_error(pin_printer, "XY_PROBE DIRECTION=-Y DISTANCE=5") == "XY probe: no contact within 5 mm from X=100.000 Y=100.000"
     assert "DIRECTION must be one of +X, -X, +Y, -Y" in gcode_error(pin_printer, "XY_PROBE DIRECTION=up")
+
+
+def test_an_error_during_an_xy_probing_move_backs_the_nozzle_off(pin_printer, make_printer):
+    # The sensor freezes as the move starts: the firmware's stuck-sensor check stops it. Wherever
+    # an XY probing move stops on an error (pressed against the pin, as a frozen sensor near it
+    # would leave it), the nozzle goes back to where the move started before the error is reported.
+    gcode = pin_printer.gcode
+    gcode.run_script("G1 X215 Y224.8 F3000\nG1 Z2\nSIM_FAULT NAME=stuck WHEN=probing_move")
+    message = gcode_error(pin_printer, "XY_PROBE DIRECTION=+X")
+    assert "stuck" in message.lower()
+    assert pin_printer.backend.position[:2] == pytest.approx((215.0, 224.8), abs=1e-9)
+    backed = [line for line in make_printer.responses if line.startswith("// Backed the nozzle off")]
+    # 7 identical samples at 320 sps (about 22 ms) at 2 mm/s: some 0.04-0.05 mm into the move.
+    assert len(backed) == 1 and 0.02 < float(backed[0].split()[5]) < 0.08

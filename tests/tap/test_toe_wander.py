@@ -27,22 +27,25 @@ def _free_air(rng, white_var: float, walk_var: float) -> list[np.ndarray]:
 
 @pytest.mark.parametrize("walk_var", [0.0, 0.05])
 def test_wander_estimate_recovers_white_noise_and_walk(walk_var):
-    # 40 seeds each, white 0.5 g^2: white 0.49 / 0.50 mean (0.35..0.72 per seed); walk 0.003 mean
-    # (0..0.013) when there is none, 0.046 (0.009..0.145) for 0.05.
+    # 40 seeds each, white 0.5 g^2: white 0.49 mean (0.05..0.83 per seed); walk 0.004 mean
+    # (0..0.022) when there is none, 0.050 (0.008..0.154) for 0.05, where 3 of 40 seeds give no
+    # estimate (the white share fitted <= 0).
     estimates = [wander_from_free_air(_free_air(np.random.default_rng(seed), 0.5, walk_var)) for seed in range(40)]
-    assert 0.45 < np.mean([w.white_var_g2 for w in estimates]) < 0.55
-    walk = np.mean([w.walk_var_g2 for w in estimates])
-    assert walk < 0.008 if walk_var == 0.0 else 0.035 < walk < 0.06
+    found = [w for w in estimates if w is not None]
+    assert len(found) >= 35
+    assert 0.42 < np.mean([w.white_var_g2 for w in found]) < 0.56
+    walk = np.mean([w.walk_var_g2 for w in found])
+    assert walk < 0.009 if walk_var == 0.0 else 0.035 < walk < 0.065
 
 
 def test_too_little_free_air_gives_no_estimate():
-    assert wander_from_free_air([np.zeros(20), np.ones(10)]) is None
+    assert wander_from_free_air([np.zeros(20), np.arange(10.0)]) is None  # lags of 4, 8, 12 need 36 samples
 
 
 def test_weighing_the_walk_tightens_cable_drift_taps(tmp_path, monkeypatch):
     # Independent generator, cable drift (thermal walk 1-4 g/sqrt(s)), 12 taps on each of seeds
-    # 11-16: rms error 0.55-0.96 um per seed with the walk weighed, 0.65-1.18 without; pooled
-    # 0.76 against 0.89 (ratio 0.85; per seed 0.62-1.03).
+    # 11-16: rms error 0.55-0.85 um per seed with the walk weighed, 0.61-1.19 without; pooled
+    # 0.71 against 0.85 (ratio 0.84; per seed 0.70-0.98).
     labels = {seed: generate_set(tmp_path / str(seed), seed=seed, taps_per_scenario=12, scenarios=["cable_drift"])
               for seed in range(11, 17)}
 
@@ -56,3 +59,32 @@ def test_weighing_the_walk_tightens_cable_drift_taps(tmp_path, monkeypatch):
     weighed = rms_error_um()
     monkeypatch.setattr(analysis, "free_air_wander", lambda force_g, dec: None)
     assert weighed < 0.93 * rms_error_um()
+
+
+def test_walk_weighted_residuals_equal_dense_generalised_least_squares():
+    # The recursion (differences, bidiagonal factor, pressed and free parts as sums) against the
+    # textbook form: whiten with the Cholesky factor of the full covariance, project out the baseline.
+    from tapcell.tap.toe import SUBSAMPLES, Wander, _rss_whitened, _Whitened, toe_shape
+
+    rng = np.random.default_rng(3)
+    x_lo = np.arange(-40.0, 50.0)  # a pullback at 1 um per sample, contact near 0
+    window_um = x_lo[:, None] + (np.arange(SUBSAMPLES) + 0.5)[None] / SUBSAMPLES
+    x_mid = x_lo + 0.5
+    y = 4.0 * toe_shape(0.3 - window_um, 5.0, 0.5).mean(axis=1) + rng.normal(size=len(x_lo)) * 0.8
+    wander = Wander(white_var_g2=0.6, walk_var_g2=0.05)
+    contacts = np.linspace(-3.0, 10.0, 27)
+    widths = np.full_like(contacts, 4.5)
+    data = _Whitened.prepare(window_um, x_mid, y, wander, contacts[0], contacts[-1], 16.0)
+    rss, stiffness = _rss_whitened(contacts, widths, 0.5, data)
+
+    order = np.arange(len(y), dtype=float)
+    whiten = np.linalg.inv(np.linalg.cholesky(0.6 * np.eye(len(y)) + 0.05 * np.minimum.outer(order, order)))
+    baseline = np.linalg.qr(whiten @ np.ones((len(y), 1)))[0]
+    y_w = whiten @ y
+    y_w -= baseline @ (baseline.T @ y_w)
+    for c, w, r, k in zip(contacts, widths, rss, stiffness):
+        h = whiten @ toe_shape(c - window_um, w, 0.5).mean(axis=1)
+        h -= baseline @ (baseline.T @ h)
+        k_dense = (h @ y_w) / (h @ h)
+        assert k == pytest.approx(k_dense, rel=1e-9)
+        assert r == pytest.approx(y_w @ y_w - k_dense * (h @ y_w), rel=1e-9)

@@ -71,7 +71,9 @@ def main(argv: list[str]) -> int:
 
                 plot_tap(tap, analysis, target, title=f"{name}" + (f" #{index + 1}" if len(taps) > 1 else ""))
     if args.json:
-        print(json.dumps([{"file": name, **analysis.to_json()} for name, _, _, analysis in results], indent=1))
+        # One tap per line: json's C encoder (indent= falls back to the pure-Python one, ~0.2 ms a tap).
+        taps = [json.dumps({"file": name, **analysis.to_json()}) for name, _, _, analysis in results]
+        print("[\n" + ",\n".join(taps) + "\n]")
     else:
         print(f"{'file':<32} {'valid':<6} {'Z (mm)':>11} {'±σ (µm)':>8} {'quality':>8}  code")
         for name, index, count, a in results:

@@ -66,7 +66,10 @@ def _sse_of_sums(sums: np.ndarray) -> np.ndarray:
     t_mean *= sf
     sxy = np.subtract(stf, t_mean, out=stf)
     sxy *= sxy
-    explained = np.divide(sxy, sxx, out=np.zeros_like(sxx), where=sxx > 0)
+    # Only too-short segments can have sxx <= 0 (n >= 2 distinct times spread), and their result is
+    # replaced below: a harmless divisor for them, then one plain division (no where=, no scratch array).
+    sxx[too_short] = 1.0
+    explained = np.divide(sxy, sxx, out=sxy)
     sf *= sf
     sf *= inv_n
     sse = np.subtract(sff, sf, out=sff)

@@ -17,20 +17,44 @@ Two estimates the tap itself carries (issue 12):
   (p, w, c) on a grid, baseline and k are solved in closed form (variable projection: the
   fixed columns are projected out once, each toe column costs a few dot products).
 
-`contact_um` is the mean of c with the toe marginalised out, and `sigma_um` its sd
+The baseline may also wander (a random walk: temperature, a cable settling). When the tap's free
+air shows a walk that matters over the fit (`wander_from_free_air`, `Wander.matters`), the fit
+weighs the samples by white + walk covariance (`_Whitened`: the same grid, the same three parts
+of the toe column, a recursion instead of plain sums).
+
+`contact_um` is the mean of c with the toe marginalised out (the widths weighed as a uniform
+prior over 0-16 µm, the two shapes alike), and `sigma_um` its sd
 (`marginal_contact_um`): the toe width and the contact height trade off along a flat valley of
 the residual, and the single best toe wanders along it with the noise. Averaging over the toes the
 data allow (weighted by their likelihood) is steadier than the best one, and the sd keeps that
 trade-off: on the independent generator's clean taps the error over this sigma has an rms of
 1.0-1.3 (docs/tap-analysis.md).
+
+Speed (the grid is 2 shapes × 10 widths × 27 contacts, every candidate solved exactly):
+* a candidate's samples fall in three runs along the pullback: pressed past its toe (their toe
+  column is linear in x, so they enter through prefix sums, `_Projected`), in its toe (a few
+  samples each: the only ones evaluated) and in free air (zero). All candidates' in-toe samples
+  are laid end to end in one flat array and summed per candidate by `np.bincount`;
+* the in-toe run depends on the width, not the shape, so both shapes share it (`toe_shapes`);
+  the walk-weighted fit runs both shapes' candidates through one recursion (`_rss_whitened`);
+* flat 1-D arrays and `take` (2-D fancy indexing and broadcasting over a short last axis cost
+  several times more on arrays this small), and plain floats where there are only a score of
+  values or one series to step through (`marginal_contact_um`, `_stiffness_at`, `_whiten` on one
+  row, the walk's least squares);
+* the walk estimate's detrended variogram in closed form, cached per segment length.
+On the independent benchmark this took the toe configuration from ~9 ms to ~3 ms a tap (this
+machine, loaded), results equal to ~1e-9 µm.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from tapcell.tap.robust import median
 
 TOE_WIDTHS_UM = (0.0, 1.0, 2.0, 3.0, 4.5, 6.0, 8.0, 10.0, 13.0, 16.0)
 TOE_POWERS = (0.5, 1.0)  # Hertz sphere on flat; a parabolic force onset
@@ -64,9 +88,24 @@ ADHESION_MIN_LEVEL_SAMPLES = 10
 # The baseline's random walk is weighed in when over the fit it adds as much variance as the white noise
 # (0.25 and 0.5 gave the same drift sigma and 0.01 um more on clean taps).
 WANDER_SHARE = 1.0
-# Variogram lags (samples) for the walk estimate. From 3: an ADS1220's sinc3 averages over three
-# periods, so neighbouring samples share noise and short lags would read that as a walk.
-WANDER_LAGS = range(3, 15)
+# Variogram lags (samples) for the walk estimate, each up to a third of its segment (the fitted
+# line takes most of a walk at longer lags). Not below 4: an ADS1220's sinc3 averages over three
+# periods, so neighbouring samples share signal. Up to 40: mains hum (6.4 samples a cycle at 320
+# sps, 40 at 2000) and 1/f noise raise short lags like a walk but stop growing. On 30 taps each the
+# walk path is taken for 23 cable-drift, 10 clean HX717, 8 clean 2000-sps and 2 hum taps (with
+# lags 3-14 and no line correction: 14 of 30 clean 2000-sps, 13 of 30 hum); on clean taps it
+# leaves Z as it was (sigma 0.61 um either way on 60 HX717 taps).
+WANDER_LAGS = range(4, 41, 4)
+
+
+# The candidate grid (widths × contacts around the start), built once: contacts vary fastest.
+_CONTACT_OFFSETS_UM = np.arange(-COARSE_BELOW_UM, COARSE_ABOVE_UM + 1e-9, COARSE_STEP_UM)
+_GRID_OFFSETS_UM = np.tile(_CONTACT_OFFSETS_UM, len(TOE_WIDTHS_UM))
+_GRID_WIDTHS_UM = np.repeat(TOE_WIDTHS_UM, len(_CONTACT_OFFSETS_UM))
+_SUBSAMPLE_FRACTIONS = (np.arange(SUBSAMPLES) + 0.5) / SUBSAMPLES
+_RUN_MEAN_KERNEL = np.full(ADHESION_RUN_SAMPLES, 1.0 / ADHESION_RUN_SAMPLES)
+_TOE_PRIOR = np.tile(WIDTH_PRIOR, len(TOE_POWERS))  # per row of the grid: (shape, width)
+_LIFT_DEFICIT = np.array([power / (power + 1.0) for power in TOE_POWERS])  # of a toe's width
 
 
 @dataclass
@@ -84,16 +123,31 @@ def toe_shape(depth_um: np.ndarray, width_um, power: float) -> np.ndarray:
 
     width_um may be an array broadcasting against depth_um (a width of 0 is a hinge).
     """
-    depth_um = np.maximum(depth_um, 0.0)
+    return toe_shapes(depth_um, width_um, (power,))[0]
+
+
+def toe_shapes(depth_um: np.ndarray, width_um, powers) -> np.ndarray:
+    """`toe_shape` for each of `powers` (stacked on a new first axis), sharing the work they have in common."""
+    pressed_um = np.maximum(depth_um, 0.0)
     width_um = np.maximum(width_um, 1e-9)
-    u = np.minimum(depth_um / width_um, 1.0)
-    if power == 0.5:
-        lifted = u * np.sqrt(u)  # the Hertz toe without a general power (the hot path)
-    elif power == 1.0:
-        lifted = u * u
-    else:
-        lifted = u ** (power + 1.0)
-    return width_um * lifted / (power + 1.0) + np.maximum(depth_um - width_um, 0.0)
+    u = np.divide(pressed_um, width_um)  # depth over width, 1 past the toe
+    np.minimum(u, 1.0, out=u)
+    beyond_um = np.subtract(pressed_um, width_um, out=pressed_um)  # the linear part past the toe
+    np.maximum(beyond_um, 0.0, out=beyond_um)
+    shapes = np.empty((len(powers), *beyond_um.shape))
+    # In place (out=): these arrays hold thousands of values and run once per candidate grid.
+    for row, power in zip(shapes, powers):
+        if power == 0.5:
+            np.sqrt(u, out=row)  # the Hertz toe without a general power (the hot path)
+            row *= u
+        elif power == 1.0:
+            np.multiply(u, u, out=row)
+        else:
+            np.power(u, power + 1.0, out=row)
+        row *= width_um
+        row *= 1.0 / (power + 1.0)
+        row += beyond_um
+    return shapes
 
 
 def lag_from_halt_s(compression_end_time_s: float, halt_time_s: float, period_s: float) -> float | None:
@@ -110,53 +164,108 @@ class _Projected:
 
     basis: the linear columns beside the toe (orthonormal: the baseline, and the drift unless it
     is known); the force has them projected out (`y_free`). For a toe column h the fit needs only
-    h·h - |hᵀB|² and h·y_free (variable projection). Samples above every candidate contact have
-    h = 0 and drop out; samples pressed past every candidate's toe have h = a - x (a = c - the
-    toe's lift deficit), so they enter through a few sums; only the samples in between are
-    evaluated per candidate.
+    h·h - |hᵀB|² and h·y_free (variable projection). For a candidate (contact c, toe width w) the
+    samples fall in three runs along the pullback: pressed past the toe (h = a - x, a = c - the
+    toe's lift deficit: they enter through prefix sums of 1, x, x², y, x y, B, x B), in the toe
+    (evaluated, a few samples per candidate) and in free air (h = 0: nothing to add).
     """
 
-    near_window_um: np.ndarray  # (n, SUBSAMPLES) heights of the in-between samples
-    near_basis: np.ndarray
-    near_y: np.ndarray
-    pressed_n: int
-    pressed_x: float
-    pressed_xx: float
-    pressed_basis: np.ndarray  # Σ B over the pressed samples (m,)
-    pressed_x_basis: np.ndarray  # Σ x B (m,)
-    pressed_y: float
-    pressed_xy: float
+    window_um: np.ndarray  # (n, SUBSAMPLES) heights each sample averages over
+    points_um: np.ndarray  # the same heights subsample-major, flat: subsample k of sample i at k n + i
+    y_free: np.ndarray
+    basis_rows: np.ndarray  # (m, n): the basis, one column per row
+    # Sample i and every one before it are pressed past a toe ending at or above pressed_to_um[i]
+    # (running max of the windows' tops); from i on every sample is free of a contact at or below
+    # free_from_um[i] (running min, from the end, of the windows' bottoms). Both sorted, so one
+    # searchsorted per candidate bounds its run in the toe, whatever the order of the samples.
+    pressed_to_um: np.ndarray
+    free_from_um: np.ndarray
+    pressed_sums: np.ndarray  # (5 + 2m, n + 1) prefix sums of 1, x, x², y, x y, B (m), x B (m)
     yy: float
 
     @classmethod
-    def prepare(cls, window_um: np.ndarray, x_mid: np.ndarray, basis: np.ndarray, y: np.ndarray,
-                lowest_contact_um: float, highest_contact_um: float, widest_um: float) -> _Projected:
+    def prepare(cls, window_um: np.ndarray, x_mid: np.ndarray, basis: np.ndarray, y: np.ndarray) -> _Projected:
         y_free = y - basis @ (basis.T @ y)
-        pressed = window_um.max(axis=1) <= lowest_contact_um - widest_um
-        near = ~pressed & (window_um.min(axis=1) < highest_contact_um)
-        x_p, y_p, b_p = x_mid[pressed], y_free[pressed], basis[pressed]
-        return cls(window_um[near], basis[near], y_free[near], int(np.count_nonzero(pressed)), float(x_p.sum()),
-                   float(x_p @ x_p), b_p.sum(axis=0), x_p @ b_p, float(y_p.sum()), float(x_p @ y_p),
+        columns = np.vstack((np.ones_like(x_mid), x_mid, x_mid * x_mid, y_free, x_mid * y_free, basis.T,
+                             x_mid * basis.T))
+        sums = np.zeros((len(columns), len(x_mid) + 1))
+        np.cumsum(columns, axis=1, out=sums[:, 1:])
+        pressed_to = np.maximum.accumulate(window_um[:, -1])
+        free_from = np.minimum.accumulate(window_um[::-1, 0])[::-1]
+        return cls(window_um, window_um.T.ravel(), y_free, np.ascontiguousarray(basis.T), pressed_to, free_from, sums,
                    float(y_free @ y_free))
 
 
-def _rss_over_contacts(contacts_um, widths_um, power, data: _Projected):
-    """Residual sum of squares of the linear solve at every (toe width, candidate contact) at once,
-    and the toe's stiffness there. contacts_um, widths_um: equal-length 1-D arrays (one row per
-    candidate); power: the toe's."""
-    depth = contacts_um[:, None, None] - data.near_window_um[None]
-    h = toe_shape(depth, widths_um[:, None, None], power).mean(axis=2)  # (C, n) the in-between samples
-    # The pressed samples: h = a - x with a = c - w p / (p + 1) (the toe lifts w / (p + 1), not w).
-    a = contacts_um - widths_um * (power / (power + 1.0))
-    h_basis = h @ data.near_basis + a[:, None] * data.pressed_basis[None] - data.pressed_x_basis[None]
-    hh_all = np.einsum("cn,cn->c", h, h) + a * a * data.pressed_n - 2.0 * a * data.pressed_x + data.pressed_xx
-    hh = hh_all - np.einsum("cm,cm->c", h_basis, h_basis)
-    hy = h @ data.near_y + a * data.pressed_y - data.pressed_xy
-    # A candidate whose toe column is (nearly) a combination of the others cannot be solved.
-    usable = hh > 1e-9 * (hh_all + 1e-300)
+def _solvable(hh, hh_all):
+    """A candidate whose toe column is (nearly) a combination of the others cannot be solved
+    (hh: its squared norm with the basis projected out; floats or arrays)."""
+    return hh > 1e-9 * (hh_all + 1e-300)
+
+
+def _solve(hh_all, h_basis, hy, yy: float):
+    """Residual sum of squares and toe stiffness of the linear solve from a toe column's sums
+    (h·h, Bᵀh (m, ...), h·y_free); inf where the toe would pull, or cannot be told from B."""
+    hh = hh_all - (h_basis * h_basis).sum(axis=0)
+    usable = _solvable(hh, hh_all)
     stiffness = np.divide(hy, hh, out=np.zeros_like(hy), where=usable)
-    rss = np.where(usable & (stiffness > 0.0), data.yy - stiffness * hy, np.inf)  # must press, not pull
+    rss = np.where(usable & (stiffness > 0.0), yy - stiffness * hy, np.inf)  # must press, not pull
     return rss, stiffness
+
+
+def _rss_over_contacts(contacts_um: np.ndarray, widths_um: np.ndarray, data: _Projected):
+    """Residual sum of squares of the linear solve at every (toe shape, width, candidate contact)
+    at once: (len(TOE_POWERS), candidates). contacts_um, widths_um: equal-length 1-D arrays (one
+    entry per candidate).
+
+    Only the samples in each candidate's toe are evaluated, laid end to end in one flat array
+    (`owner`: the candidate of each), and summed per candidate by bincount; the toe's run of
+    samples depends on its width, not its shape, so every shape shares it.
+    """
+    candidates = len(contacts_um)
+    first = data.pressed_to_um.searchsorted(contacts_um - widths_um, side="right")
+    counts = np.maximum(data.free_from_um.searchsorted(contacts_um, side="left") - first, 0)
+    owner = np.repeat(np.arange(candidates), counts)
+    ends = counts.cumsum()
+    index = np.arange(ends[-1]) + np.repeat(first - (ends - counts), counts)
+    # One flat array, subsample-major (every array the same 1-D shape: numpy's fastest loops), and
+    # take rather than fancy indexing (several times faster on these small arrays).
+    in_toe = len(index)
+    subsamples = len(data.points_um) // len(data.y_free)
+    owners = np.concatenate([owner] * subsamples)
+    depth = contacts_um.take(owners) - data.points_um.take(np.concatenate(
+        [index + k * len(data.y_free) for k in range(subsamples)]))
+    toe_widths = widths_um.take(owners)
+    y_free, basis_rows = data.y_free.take(index), data.basis_rows.take(index, axis=1)
+    pressed = data.pressed_sums.take(first, axis=1)  # 1, x, x², y, x y, B (m), x B (m) per candidate
+    m = len(basis_rows)
+    # Every shape's column over the run, (power, sample in a toe); the sums per (power, candidate)
+    # by one bincount each, the powers' candidates numbered after one another.
+    h = toe_shapes(depth, toe_widths, TOE_POWERS).reshape(len(TOE_POWERS), subsamples, in_toe).sum(axis=1)
+    h *= 1.0 / subsamples
+    owner_of_shape = (owner + candidates * np.arange(len(TOE_POWERS))[:, None]).ravel()
+    bins = len(TOE_POWERS) * candidates
+
+    def sum_per_candidate(values: np.ndarray) -> np.ndarray:
+        # (in integers when no candidate has a sample in its toe: the pressed part's floats are
+        # added to it, never into it)
+        return np.bincount(owner_of_shape, values.ravel(), bins).reshape(len(TOE_POWERS), candidates)
+
+    # The pressed samples: h = a - x with a = c - w p / (p + 1) (the toe lifts w / (p + 1), not w).
+    a = contacts_um - widths_um * _LIFT_DEFICIT[:, None]  # (power, candidate)
+    h_basis = np.array([sum_per_candidate(h * column) for column in basis_rows]) + (
+        a * pressed[5:5 + m, None] - pressed[5 + m:, None])
+    hh_all = sum_per_candidate(h * h) + (a * pressed[0] - 2.0 * pressed[1]) * a + pressed[2]
+    hy = sum_per_candidate(h * y_free) + a * pressed[3] - pressed[4]
+    return _solve(hh_all, h_basis, hy, data.yy)[0]
+
+
+def _stiffness_at(contact_um: float, width_um: float, power: float, data: _Projected) -> float:
+    """The toe's stiffness at one contact height and toe, its column evaluated over every sample."""
+    h = toe_shape(contact_um - data.window_um, width_um, power).sum(axis=1) * (1.0 / data.window_um.shape[1])
+    h_basis = data.basis_rows @ h
+    hh_all = float(h @ h)
+    hh = hh_all - float(h_basis @ h_basis)
+    return float(h @ data.y_free) / hh if _solvable(hh, hh_all) else 0.0
 
 
 @dataclass(frozen=True)
@@ -166,7 +275,8 @@ class Wander:
     white_var_g2: per sample; walk_var_g2: the walk's variance growth per sample. Over the ~100
     samples of a toe fit a walk of a few g/sqrt(s) bends the baseline by as much as the white
     noise, and an ordinary least-squares fit reads the bend as toe (bowden/cable drift taps of the
-    independent generator: sigma 0.85 um; weighting by the true covariance: 0.71).
+    independent generator, 60 on seed 5: sigma 0.85 um; weighed by the true covariance 0.71; by
+    the one estimated from the tap's free air, `wander_from_free_air`, 0.70).
     """
 
     white_var_g2: float
@@ -181,67 +291,179 @@ def wander_from_free_air(segments: list[np.ndarray]) -> Wander | None:
     """White and random-walk variances from force samples in free air (each segment evenly sampled).
 
     Each segment's straight line is removed (Z-proportional drift, a steady trend); the variogram
-    of what is left, E[(r[i+L] - r[i])^2] = 2 white + L walk, is pooled over the segments for
-    WANDER_LAGS and fitted by least squares. None when the segments are too short.
+    of what is left, E[(r[i+L] - r[i])^2], is pooled over the segments for WANDER_LAGS and fitted
+    by least squares to its exact expectation under white noise plus a walk (removing the line
+    takes a share of both, most of the walk at lags near the segment's length). None when the
+    segments are too short.
     """
-    lags, values = [], []
+    rows, values = [], []
     for force_g in segments:
         n = len(force_g)
-        if n < 2 * WANDER_LAGS[-1]:
+        lags = [lag for lag in WANDER_LAGS if 3 * lag <= n]  # longer ones: the line takes the walk
+        if len(lags) < 3:
             continue
         i = np.arange(n, dtype=float) - 0.5 * (n - 1)
         r = force_g - force_g.mean() - i * (i @ force_g) / (i @ i)
-        for lag in WANDER_LAGS:
-            d = r[lag:] - r[:-lag]
-            lags.append(lag)
-            values.append(float(d @ d) / len(d))
-    if not lags:
+        rows += _detrended_variogram(n, tuple(lags))
+        # Every lag's differences in one flat array, averaged per lag by bincount.
+        later, earlier, lag_of, pairs = _lag_pairs(n, tuple(lags))
+        d = r.take(later) - r.take(earlier)
+        values += (np.bincount(lag_of, d * d, len(lags)) / pairs).tolist()
+    if not rows:
         return None
-    design = np.column_stack((np.full(len(lags), 2.0), np.array(lags, dtype=float)))
-    (white, walk), *_ = np.linalg.lstsq(design, np.array(values), rcond=None)
+    # Least squares in two unknowns by the normal equations, in plain floats: np.linalg.lstsq
+    # costs ~0.05-0.4 ms a call here (LAPACK's set-up, its threads waking on a busy machine).
+    ww = sum(white * white for white, _ in rows)
+    wk = sum(white * walk for white, walk in rows)
+    kk = sum(walk * walk for _, walk in rows)
+    wv = sum(white * value for (white, _), value in zip(rows, values))
+    kv = sum(walk * value for (_, walk), value in zip(rows, values))
+    determinant = ww * kk - wk * wk
+    if not determinant > 0.0:
+        return None
+    white, walk = (kk * wv - wk * kv) / determinant, (ww * kv - wk * wv) / determinant
     if not white > 0.0:
         return None
     return Wander(white_var_g2=float(white), walk_var_g2=max(float(walk), 0.0))
 
 
+@functools.lru_cache(maxsize=4096)
+def _lag_pairs(n: int, lags: tuple[int, ...]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(i + L, i, the lag's number, pairs per lag) for every lag and i < n - L, laid end to end.
+    Cached: it depends on n alone."""
+    pairs = np.array([n - lag for lag in lags])
+    lag_of = np.repeat(np.arange(len(lags)), pairs)
+    earlier = np.concatenate([np.arange(n - lag) for lag in lags])
+    return earlier + np.repeat(lags, pairs), earlier, lag_of, pairs
+
+
+@functools.lru_cache(maxsize=4096)
+def _detrended_variogram(n: int, lags: tuple[int, ...]) -> tuple[tuple[float, float], ...]:
+    """Mean E[(r[i+L] - r[i])^2] per lag once a line is fitted out of n samples: (for unit white
+    noise, for a unit random walk (covariance min(i, j))) per lag. Cached: it depends on n alone.
+
+    In closed form (the n × n covariance algebra costs milliseconds a tap): with t the centred
+    sample index, S = Σt² and P the line's projection, a difference d = e[i+L] - e[i] leaves the
+    fit as v = d - t L / S (P d = t L / S). White: |v|² = 2 - L²/S. Walk: vᵀCv = L - 2 (L/S) tᵀCd
+    + (L/S)² tᵀCt, where tᵀCd = f(i+L) - f(i) with f(m) = Σ t_k min(k, m), a running sum.
+    """
+    k = np.arange(n, dtype=float)
+    t = k - 0.5 * (n - 1)
+    s = float(t @ t)
+    f = np.cumsum(k * t) - k * np.cumsum(t)  # f(m) = Σ t_k min(k, m) (Σ t = 0)
+    f_sums = np.concatenate(([0.0], np.cumsum(f)))  # f_sums[m] = Σ f(k) over k < m
+    lag = np.asarray(lags, dtype=float)
+    at = np.asarray(lags)
+    mean_df = (f_sums[n] - f_sums[at] - f_sums[n - at]) / (n - lag)  # mean of f(i+L) - f(i), i < n - L
+    white = 2.0 - lag * lag / s
+    walk = lag - 2.0 * (lag / s) * mean_df + (lag / s) ** 2 * float(t @ f)
+    return tuple(zip(white.tolist(), walk.tolist()))
+
+
 @dataclass
 class _Whitened:
-    """The samples of one toe fit whitened by the Cholesky factor of white + random-walk covariance.
+    """`_Projected` under the metric of white + random-walk noise (generalised least squares).
 
-    Whitening mixes every sample into the ones after it, so the pressed-sample sums of `_Projected`
-    do not apply: each candidate's toe column is evaluated over all samples (only taps whose walk
-    matters take this path).
+    Differencing consecutive samples removes the baseline exactly and turns white noise σ² plus
+    a walk of q per sample into noise with a tridiagonal covariance (2σ² + q on the diagonal, -σ²
+    beside it), whose Cholesky factor is bidiagonal: whitening is then a recursion along the
+    samples. The toe column keeps its three parts in time order: pressed past every toe first
+    (h = a - x: its differences do not depend on the candidate), the in-between samples, then free
+    air (h = 0: whitened, it decays geometrically). So each candidate costs a recursion over the
+    in-between samples only; the pressed part and the free tail enter through precomputed sums.
+    Residuals come out in units of the white noise variance.
     """
 
-    window_um: np.ndarray  # (n, SUBSAMPLES)
-    whiten: np.ndarray  # (n, n) L^-1
-    basis: np.ndarray  # whitened, orthonormal baseline column(s)
-    y_free: np.ndarray
+    near_window_um: np.ndarray  # (n, SUBSAMPLES) heights of the in-between samples
+    first_near: int  # index of the first in-between sample (= number of pressed samples)
+    diag: np.ndarray  # the bidiagonal Cholesky factor of the differences' covariance
+    sub: np.ndarray
+    x_mid: np.ndarray
+    y_white: np.ndarray  # the force, differenced and whitened
+    pressed_z: float  # the whitened toe column at the last pressed-pressed difference
+    pressed_zz: float
+    pressed_zy: float
+    tail_zz: float  # free tail: Σ z² and Σ z·y_white per unit of the column at its start
+    tail_zy: float
     yy: float
 
     @classmethod
-    def prepare(cls, window_um: np.ndarray, x_mid: np.ndarray, y: np.ndarray, wander: Wander) -> _Whitened:
-        # The pullback rises monotonically, so the sample order is the time order of the walk.
-        order = np.arange(len(y), dtype=float)
-        covariance = wander.white_var_g2 * np.eye(len(y)) + wander.walk_var_g2 * np.minimum.outer(order, order)
-        whiten = np.linalg.inv(np.linalg.cholesky(covariance))
-        basis = np.linalg.qr(whiten @ np.ones((len(y), 1)))[0]
-        y_w = whiten @ y
-        y_free = y_w - basis @ (basis.T @ y_w)
-        return cls(window_um, whiten, basis, y_free, float(y_free @ y_free))
+    def prepare(cls, window_um: np.ndarray, x_mid: np.ndarray, y: np.ndarray, wander: Wander,
+                lowest_contact_um: float, highest_contact_um: float, widest_um: float) -> _Whitened | None:
+        pressed = window_um.max(axis=1) <= lowest_contact_um - widest_um
+        near = ~pressed & (window_um.min(axis=1) < highest_contact_um)
+        first, count = int(np.count_nonzero(pressed)), int(np.count_nonzero(near))
+        if count < 2 or not (pressed[:first].all() and near[first:first + count].all()):
+            return None  # not pressed, then in between, then free: not a plain rise
+        m = len(y) - 1
+        diag, sub = [math.sqrt(2.0 * wander.white_var_g2 + wander.walk_var_g2)], [0.0]  # plain floats: m steps
+        for _ in range(1, m):
+            sub.append(-wander.white_var_g2 / diag[-1])
+            diag.append(math.sqrt(2.0 * wander.white_var_g2 + wander.walk_var_g2 - sub[-1] * sub[-1]))
+        diag, sub = np.array(diag), np.array(sub)
+        y_white = _whiten(np.diff(y)[None], diag, sub, 0, 0.0)[0]
+        pressed_z = pressed_zz = pressed_zy = 0.0
+        if first >= 2:
+            z = _whiten(-np.diff(x_mid[:first])[None], diag, sub, 0, 0.0)[0]
+            pressed_z, pressed_zz, pressed_zy = float(z[-1]), float(z @ z), float(z @ y_white[:first - 1])
+        # Free air after the last in-between sample: z_j = z_k · Π (-sub / diag) over the tail.
+        tail_start = first + count  # the first difference wholly in free air
+        gain = np.cumprod(-sub[tail_start:] / diag[tail_start:])
+        return cls(window_um[near], first, diag, sub, x_mid, y_white, pressed_z, pressed_zz, pressed_zy,
+                   float(gain @ gain), float(gain @ y_white[tail_start:]), float(y_white @ y_white))
+
+
+def _whiten(differences: np.ndarray, diag: np.ndarray, sub: np.ndarray, j0: int, z_before) -> np.ndarray:
+    """Forward substitution through the bidiagonal factor for differences j0.. (rows: candidates).
+
+    One row runs on plain floats (numpy's per-call cost would dominate a step on one value); many
+    rows step a column at a time, held as contiguous rows.
+    """
+    steps = differences.shape[1]
+    subs, diags = sub[j0:j0 + steps].tolist(), diag[j0:j0 + steps].tolist()
+    if len(differences) == 1:
+        whitened, previous = [], float(z_before)
+        for difference, s, d in zip(differences[0].tolist(), subs, diags):
+            previous = (difference - s * previous) / d
+            whitened.append(previous)
+        return np.array([whitened])
+    columns = differences.T.copy()  # (step, candidate)
+    previous = z_before
+    for column, s, d in zip(columns, subs, diags):
+        column -= s * previous
+        column /= d
+        previous = column
+    return columns.T
 
 
 def _rss_whitened(contacts_um, widths_um, power, data: _Whitened):
-    """`_rss_over_contacts` under the whitened inner product (residuals in white-noise units)."""
-    depth = contacts_um[:, None, None] - data.window_um[None]
-    h = toe_shape(depth, widths_um[:, None, None], power).mean(axis=2) @ data.whiten.T  # (C, n)
-    h -= (h @ data.basis) @ data.basis.T
-    hh = np.einsum("cn,cn->c", h, h)
-    hy = h @ data.y_free
+    """`_rss_over_contacts` under the noise's metric (residuals in white-noise units), and the
+    stiffness. power: one shape's, or a tuple of them: then every shape's candidates go through
+    one recursion and both results are (shape, candidate)."""
+    powers = power if isinstance(power, tuple) else (power,)
+    # (subsample, candidate, in-between sample): the long axes innermost
+    depth = contacts_um[:, None] - data.near_window_um.T[:, None, :]
+    # (shape × candidate, in-between sample)
+    h = toe_shapes(depth, widths_um[:, None], powers).mean(axis=1).reshape(len(powers) * len(contacts_um), -1)
+    first = data.first_near
+    columns = [h]
+    if first:  # the pressed sample before: h = a - x, with a = c - the toe's lift deficit
+        a = contacts_um - widths_um * np.array([p / (p + 1.0) for p in powers])[:, None]
+        columns.insert(0, (a - data.x_mid[first - 1]).reshape(-1, 1))
+    if first + h.shape[1] < len(data.x_mid):  # the free sample after: h = 0
+        columns.append(np.zeros((len(h), 1)))
+    column = np.hstack(columns)
+    j0 = max(first - 1, 0)
+    z = _whiten(np.diff(column, axis=1), data.diag, data.sub, j0, data.pressed_z)
+    z_end = z[:, -1]
+    hh = data.pressed_zz + np.einsum("cn,cn->c", z, z) + z_end * z_end * data.tail_zz
+    hy = data.pressed_zy + z @ data.y_white[j0:j0 + z.shape[1]] + z_end * data.tail_zy
     usable = hh > 1e-12
     stiffness = np.divide(hy, hh, out=np.zeros_like(hy), where=usable)
     rss = np.where(usable & (stiffness > 0.0), data.yy - stiffness * hy, np.inf)
-    return rss, stiffness
+    if not isinstance(power, tuple):
+        return rss, stiffness
+    return rss.reshape(len(powers), -1), stiffness.reshape(len(powers), -1)
 
 
 def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, contact0_um: float,
@@ -257,41 +479,42 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
     x_lo_um, x_hi_um, y = x_lo_um[keep], x_hi_um[keep], force_g[keep]
     if len(y) < 8:
         return None
-    fractions = (np.arange(SUBSAMPLES) + 0.5) / SUBSAMPLES
-    window_um = x_lo_um[:, None] + (x_hi_um - x_lo_um)[:, None] * fractions[None, :]
+    window_um = x_lo_um[:, None] + (x_hi_um - x_lo_um)[:, None] * _SUBSAMPLE_FRACTIONS
     x_mid = 0.5 * (x_lo_um + x_hi_um)
     if drift_g_um is None:
         basis = np.linalg.qr(np.column_stack((np.ones_like(x_mid), x_mid - x_mid.mean())))[0]
     else:
         y = y - drift_g_um * x_mid
         basis = np.full((len(y), 1), 1.0 / math.sqrt(len(y)))
-    coarse = contact0_um + np.arange(-COARSE_BELOW_UM, COARSE_ABOVE_UM + 1e-9, COARSE_STEP_UM)
-    widths = np.array(TOE_WIDTHS_UM)
-    grid_c = np.tile(coarse, len(widths))
-    grid_w = np.repeat(widths, len(coarse))
+    contacts_um = contact0_um + _CONTACT_OFFSETS_UM
+    grid_c = contact0_um + _GRID_OFFSETS_UM
     g2_per_unit = 1.0  # the residual's unit: g^2, or the white variance once whitened
+    whitened = None
     if wander is not None and wander.matters(len(y)):
-        data = _Whitened.prepare(window_um, x_mid, y, wander)
-        solve = _rss_whitened
+        whitened = _Whitened.prepare(window_um, x_mid, y, wander, contacts_um[0], contacts_um[-1], TOE_WIDTHS_UM[-1])
+    if whitened is not None:
         g2_per_unit = wander.white_var_g2
+        rss_grid = _rss_whitened(grid_c, _GRID_WIDTHS_UM, TOE_POWERS, whitened)[0]
     else:
-        data = _Projected.prepare(window_um, x_mid, basis, y, coarse[0], coarse[-1], widths.max())
-        solve = _rss_over_contacts
-    rss_grid = np.stack([solve(grid_c, grid_w, power, data)[0].reshape(len(widths), -1)
-                         for power in TOE_POWERS])  # (power, width, contact)
-    best = np.unravel_index(int(np.argmin(rss_grid)), rss_grid.shape)
+        data = _Projected.prepare(window_um, x_mid, basis, y)
+        rss_grid = _rss_over_contacts(grid_c, _GRID_WIDTHS_UM, data)
+    rss_grid = rss_grid.reshape(len(TOE_POWERS), len(TOE_WIDTHS_UM), -1)  # (power, width, contact)
+    best = np.unravel_index(int(rss_grid.argmin()), rss_grid.shape)
     if not math.isfinite(rss_grid[best]):
         return None
     dof = max(len(y) - 4 - basis.shape[1], 1)
     residual_var = max(float(rss_grid[best]) / dof, 1e-12)
-    contact, sigma = marginal_contact_um(coarse, rss_grid.reshape(-1, len(coarse)), residual_var,
-                                         np.tile(WIDTH_PRIOR, len(TOE_POWERS)))
+    contact, sigma = marginal_contact_um(contacts_um, rss_grid.reshape(-1, len(contacts_um)), residual_var,
+                                         _TOE_PRIOR)
     if contact is None:
         return None
-    width, power = widths[best[1]], TOE_POWERS[best[0]]
-    _, stiffness = solve(np.array([contact]), np.array([width]), power, data)
+    width, power = TOE_WIDTHS_UM[best[1]], TOE_POWERS[best[0]]
+    if whitened is not None:
+        stiffness = float(_rss_whitened(np.array([contact]), np.array([width]), power, whitened)[1][0])
+    else:
+        stiffness = _stiffness_at(contact, width, power, data)
     return ToeFit(contact_um=contact, sigma_um=sigma, width_um=float(width), power=float(power),
-                  stiffness_g_um=float(stiffness[0]), residual_sigma_g=math.sqrt(residual_var * g2_per_unit))
+                  stiffness_g_um=stiffness, residual_sigma_g=math.sqrt(residual_var * g2_per_unit))
 
 
 def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: float,
@@ -303,29 +526,36 @@ def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: flo
     and its curvature (a Gaussian in c, the Laplace approximation); each toe is weighted by its
     likelihood exp(-rss / 2 noise_var) times its width in c. The mean over toes is less noisy than
     the single best toe (the toe width and the contact height trade off along a flat valley, and
-    noise moves the argmin along it), and the sd holds that trade-off: an honest sigma.
+    noise moves the argmin along it), and the sd holds that trade-off: an honest sigma. prior: a
+    weight per toe (row), e.g. `WIDTH_PRIOR` for each shape; None: every toe alike.
     """
     step = float(contacts_um[1] - contacts_um[0])
-    k = np.argmin(rss, axis=1)
-    rows = np.arange(rss.shape[0])
-    inner = (k > 0) & (k < rss.shape[1] - 1)
-    k_in = np.clip(k, 1, rss.shape[1] - 2)
-    before, at, after = rss[rows, k_in - 1], rss[rows, k_in], rss[rows, k_in + 1]
-    with np.errstate(invalid="ignore", over="ignore"):
+    count = rss.shape[1]
+    heights = contacts_um.tolist()
+    # Plain floats: a score of toes is far too few for numpy's per-call cost to pay.
+    toes = []  # (best height, least residual, variance in c, prior) of each toe with a curved interior minimum
+    prior = [1.0] * len(rss) if prior is None else prior.tolist()
+    for row, k, row_prior in zip(rss.tolist(), rss.argmin(axis=1).tolist(), prior):
+        if not 0 < k < count - 1:
+            continue
+        before, at, after = row[k - 1], row[k], row[k + 1]
+        if not (math.isfinite(before) and math.isfinite(after)):
+            continue
         bend = before - 2.0 * at + after
-        usable = inner & np.isfinite(before) & np.isfinite(after) & (bend > 0)
-        offset = np.where(usable, 0.5 * (before - after) / np.where(usable, bend, 1.0), 0.0)
-    centre = contacts_um[k_in] + offset * step
-    lowest = np.where(usable, at - 0.25 * offset * (before - after), np.inf)
-    if not usable.any():
+        if not bend > 0:
+            continue
+        offset = 0.5 * (before - after) / bend
+        # d2 rss / dc2 = bend / step^2; the Gaussian in c has variance 2 noise_var / that.
+        toes.append((heights[k] + offset * step, at - 0.25 * offset * (before - after),
+                     2.0 * noise_var * step * step / bend, row_prior))
+    if not toes:
         return None, COARSE_STEP_UM
-    # d2 rss / dc2 = bend / step^2; the Gaussian in c has variance 2 noise_var / that.
-    var = np.where(usable, 2.0 * noise_var * step * step / np.where(usable, bend, 1.0), 0.0)
-    log_weight = np.where(usable, -(lowest - lowest[usable].min()) / (2.0 * noise_var), -np.inf)
-    weight = np.exp(log_weight) * np.sqrt(var) * (1.0 if prior is None else prior)
-    weight /= weight.sum()
-    mean = float(weight @ centre)
-    spread = float(weight @ (var + (centre - mean) ** 2))
+    least = min(toe[1] for toe in toes)
+    weights = [math.exp(-(lowest - least) / (2.0 * noise_var)) * math.sqrt(var) * toe_prior
+               for _, lowest, var, toe_prior in toes]
+    total = sum(weights)
+    mean = sum(weight * centre for weight, (centre, *_) in zip(weights, toes)) / total
+    spread = sum(weight * (var + (centre - mean) ** 2) for weight, (centre, _, var, _) in zip(weights, toes)) / total
     return mean, math.sqrt(max(spread, 0.0))
 
 
@@ -344,6 +574,6 @@ def adhesion_dip(x_um: np.ndarray, force_g: np.ndarray, drift_g_um: float, conta
     near = level_force[(above > 1.0) & (above <= ADHESION_REACH_UM)]
     if len(level) < ADHESION_MIN_LEVEL_SAMPLES or len(near) < ADHESION_RUN_SAMPLES:
         return None
-    runs = np.convolve(near, np.full(ADHESION_RUN_SAMPLES, 1.0 / ADHESION_RUN_SAMPLES), mode="valid")
-    return float(np.median(level) - runs.min())
+    runs = np.convolve(near, _RUN_MEAN_KERNEL, mode="valid")
+    return median(level) - float(runs.min())
 

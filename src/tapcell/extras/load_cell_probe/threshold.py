@@ -117,6 +117,12 @@ class ThresholdProber:
         result = self.backend.probing_move_xy(x_mm - frame[0], y_mm - frame[1], speed_mm_s, trigger)
         self.load_cell.pump()
         if result.error != TriggerError.NONE:
+            # The move stopped on an error, maybe pressed against the pin: back away to where it
+            # started before the error goes on (the XY counterpart of lifting after a Z error).
+            travelled_mm = float(np.linalg.norm(np.array(self.backend.position) - start))
+            self.backend.move_to(x=float(start[0]), y=float(start[1]), speed_mm_s=speed_mm_s)
+            self.device.printer.gcode.respond_info(
+                f"Backed the nozzle off {travelled_mm:.3f} mm to where the XY probing move started, after the error")
             raise ProbeError(self.device.error_message(result.error, self.device.options))
         halt = np.array(self.backend.position)
         trigger_position = None
