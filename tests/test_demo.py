@@ -58,7 +58,9 @@ def test_make_demo_default_runs(tmp_path, capsys, monkeypatch):
     # Probing: PROBE_ACCURACY on the warped bed's centre, then the last tap's plot and tap file.
     assert f"> PROBE_ACCURACY SAMPLES={demo.ACCURACY_SAMPLES} SAMPLE_RETRACT_DIST=0.4" in out
     sigma_mm = float(re.search(r"standard deviation (\d+\.\d+)", out)[1])
-    assert sigma_mm <= 0.0002  # measured 0.075 µm: well below the 1 µm a load cell can do
+    # Measured 0.32 µm with the toe model (the sharp model's 0.075 µm left its ~1.4 µm onset bias in):
+    # well below the 1 µm a load cell can do.
+    assert sigma_mm <= 0.0006
     points = re.findall(r"^    P(\d)  t = +(\d+\.\d+) s  force = +(-?\d+\.\d) g$", out, flags=re.M)
     assert [p[0] for p in points] == ["0", "1", "2", "3", "4", "5"]
     assert [float(p[1]) for p in points] == sorted(float(p[1]) for p in points)  # in time order

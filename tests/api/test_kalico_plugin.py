@@ -101,8 +101,9 @@ def test_kalico_runs_tapcell_on_our_taps(kalico, tmp_path):
             assert result["is_valid"] is False
             assert result["error_code"] == ours.error
     assert [r["is_valid"] for r in report["results"]] == [True, True, False]
-    # Kalico's Z is tapcell's, which (same samples, same moves) is the printer's own Z to the nm.
-    assert np.allclose([r["tap_pos"][2] for r in report["results"][:2]], [e["tap_pos"][2] for e in clean], atol=1e-6)
+    # Kalico's Z is tapcell's, which (same samples, same moves) is the printer's own Z to a few nm: the
+    # lag read off the halt takes the halt from Kalico's event times (measured 3 nm apart).
+    assert np.allclose([r["tap_pos"][2] for r in report["results"][:2]], [e["tap_pos"][2] for e in clean], atol=1e-5)
 
 
 def test_uninstall_removes_only_our_plugin(tmp_path):

@@ -109,8 +109,10 @@ def test_thermal_calibrate_measures_the_nozzle_growth(make_printer):
     printer = make_printer(THERMAL, probe=True)
     printer.gcode.run_script("G28\nG1 X117.5 Y117.5 Z2 F6000\nZ_THERMAL_CALIBRATE SAMPLES=5")
     coeff = printer.lookup_object("z_thermal_adjust").state.settings.temp_coeff_mm_per_c
-    # The virtual nozzle grows 0.45 um per degree C: the guide's -0.00045455 mm/C.
-    assert coeff == pytest.approx(-0.00045455, rel=0.02)  # measured: -0.00045455
+    # The virtual nozzle grows 0.45 um per degree C: the guide's -0.00045455 mm/C. Measured on seeds
+    # 1-3: +1.9, +0.7, +1.7 % off (the hot pass's taps keep a thin ooze film, whose strand no longer
+    # pulls hard enough to reject them; the sharp model +4.6 ... +6.6 %).
+    assert coeff == pytest.approx(-0.00045455, rel=0.035)
     assert printer.config.pending_changes()["z_thermal_adjust"]["temp_coeff"] == f"{coeff:.8f}"
 
 

@@ -98,13 +98,16 @@ def test_classifier_uses_the_calibrated_angle_clean_high_fouled_lower():
         scored = analyze_tap(tap, AnalysisOptions(decompression_angle=angle))
         assert scored.valid and scored.quality > 90
         assert scored.quality_components["angle"] < 0.003
-    # A 5 µm ooze film at 10 mm/s passes validation; its decompression is softer (75.1°).
+    # A 15 µm ooze film at 10 mm/s: its strand pulls ~19 g after break contact, which the toe model
+    # rejects (TAP_ADHESION); the sharp model passes it, its decompression 77.1-77.2° against the
+    # calibrated 76.5° (angle component 0.0071-0.0084 over seeds 2-4).
     fouled = record_sim_tap(SimTapSpec("oozy", 10.0, 2, pullback_distance_mm=0.1, dwell_samples=10,
-                                       overrides={"ooze_film_um": 5}))
-    without = analyze_tap(fouled, AnalysisOptions())
-    scored = analyze_tap(fouled, AnalysisOptions(decompression_angle=angle))
+                                       overrides={"ooze_film_um": 15}))
+    assert analyze_tap(fouled).error == "TAP_ADHESION"
+    without = analyze_tap(fouled, AnalysisOptions(contact_model="sharp"))
+    scored = analyze_tap(fouled, AnalysisOptions(decompression_angle=angle, contact_model="sharp"))
     assert "angle" not in without.quality_components
-    assert scored.quality_components["angle"] == pytest.approx(0.018, abs=0.003)
+    assert scored.quality_components["angle"] == pytest.approx(0.0078, abs=0.0015)
     assert scored.quality == pytest.approx(without.quality * (1 - scored.quality_components["angle"]), rel=1e-9)
 
 
@@ -114,10 +117,13 @@ def break_shares(taps) -> list[float]:
             / (t.tap.events["pullback_end_time"] - t.tap.events["pullback_start_time"]) for t in taps]
 
 
-# Before: the clean bed breaks contact in the first sixth (TOO_EARLY), the soft sheet (35 µm up) at 18 %.
-# Measured (seeds 1-4): clean 0.081-0.084 mm, soft sheet 0.096-0.102 mm.
+# Before: the clean bed breaks contact in the first sixth (TOO_EARLY); the soft sheet (35 µm up) on its
+# edge: 16.65 % of the pullback with the lag read off the halt (0.92 ms: its relaxation rounds the halt's
+# corner; 16.80 % with no lag removed), so TOO_EARLY too. Measured (seeds 1-4): clean 0.081-0.084 mm,
+# soft sheet 0.096-0.102 mm.
 @pytest.mark.parametrize("scenario, before, pullback_mm", [("clean", "TAP_BREAK_CONTACT_TOO_EARLY", (0.078, 0.087)),
-                                                           ("soft-sheet", None, (0.093, 0.105))])
+                                                           ("soft-sheet", "TAP_BREAK_CONTACT_TOO_EARLY",
+                                                            (0.093, 0.105))])
 def test_pullback_calibration_makes_2mm_s_taps_valid(tmp_path, scenario, before, pullback_mm):
     printer, responses = make_printer(tmp_path, scenario, replace=SPEC_PULLBACK_2MM_S)
     device = printer.lookup_object("load_cell_probe")

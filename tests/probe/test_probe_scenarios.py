@@ -39,9 +39,11 @@ def accuracy(printer, speed_mm_s: float, samples: int = 20, extra: str = "") -> 
 def test_clean_accuracy_does_not_depend_on_speed(tmp_path, speed_mm_s):
     printer, _ = make_printer(tmp_path)
     sigma_um, bias_um = accuracy(printer, speed_mm_s)
-    # Measured: sigma 0.14 / 0.10 / 0.18 um, bias -1.20 / -1.36 / -1.71 um at 2 / 5 / 10 mm/s.
-    assert sigma_um <= 0.3
-    assert abs(bias_um) <= 2.0
+    # Measured (the toe model): sigma 0.39 / 0.44 / 0.44 um, bias +0.45 / +0.39 / -0.06 um at 2 / 5 / 10
+    # mm/s; per tap over 20 seeds +0.55 ± 0.42 / +0.12 ± 0.31 / +0.17 ± 0.31 um (test_sim_taps). CONTACT_MODEL=sharp: sigma
+    # 0.12 / 0.12 / 0.20 um, bias -1.32 / -1.38 / -1.78 um (the sim's 2 um onset read half low).
+    assert sigma_um <= 0.8
+    assert abs(bias_um) <= 0.8
     assert true_peak_force_g(printer) < 2000.0
 
 
@@ -135,7 +137,7 @@ def test_slow_adc_first_tap_too_fast_estimates_the_bed_from_the_jump(tmp_path):
 def test_glitchy_frames_never_abort(tmp_path):
     printer, _ = make_printer(tmp_path, scenario="glitchy", probe_options=NO_SCORE)
     sigma_um, bias_um = accuracy(printer, 5.0)  # ~10 s of probing: about 5 corrupted frames
-    assert sigma_um <= 0.3 and abs(bias_um) <= 2.0  # measured 0.10 and -1.36 um, as on the clean bed
+    assert sigma_um <= 0.8 and abs(bias_um) <= 0.8  # measured 0.44 and +0.37 um, as on the clean bed
     assert true_peak_force_g(printer) < 2000.0
 
 
@@ -212,7 +214,10 @@ def test_oozy_circle_moves_to_clean_spots(tmp_path, classifier):
     assert result.valid and result.attempts >= 2
     assert any(line.startswith("// Bad probe detected: TAP_") for line in responses)
     assert (result.tapped_x_mm, result.tapped_y_mm) != (110.0, 110.0)
-    assert abs(result.z_mm - true_contact_z(printer)) < 0.002
+    # The accepted tap still had a few µm of film on the nozzle (1.1 µm left after it): the toe model
+    # reads the film's soft first touch as part of the contact, +3.8 µm (CONTACT_MODEL=sharp: -0.24 µm;
+    # +3.0 µm before the toe model's walk weighting).
+    assert abs(result.z_mm - true_contact_z(printer)) < 0.005
     assert true_peak_force_g(printer) < 2000.0
 
 

@@ -14,7 +14,7 @@ from tapcell.sim.contact import ContactModel, ContactState, contact_forces, elas
 def _model(**kw) -> ContactModel:
     base = dict(stiffness_g_um=28.0, onset_um=2.0, relax_fraction=0.0, relax_tau_s=0.25,
                 hysteresis_fraction=0.0, hysteresis_travel_um=3.0, film_stiffness_g_um=1.0,
-                film_squeeze_tau_s=0.1, film_pull_g=20.0, film_break_um=40.0, film_clear_fraction=0.4,
+                film_squeeze_tau_s=0.1, film_pull_g=20.0, film_pull_full_um=20.0, film_break_um=40.0, film_clear_fraction=0.4,
                 film_max_um=150.0)
     return ContactModel(**{**base, **kw})
 

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from tapcell.tap import analyze_tap
+from tapcell.tap import AnalysisOptions, analyze_tap
 from tapcell.tap.analysis import step_staircase_sigma_um
 from tapcell.sim.taps import SimTapSpec, record_sim_tap
 
@@ -26,11 +26,16 @@ def test_clean_virtual_taps_are_accepted_and_accurate(speed_mm_s):
     for seed in range(4):
         tap = record_sim_tap(SimTapSpec(speed_mm_s=speed_mm_s, seed=seed, pullback_distance_mm=0.1))
         result = analyze_tap(tap)
+        sharp = analyze_tap(tap, AnalysisOptions(contact_model="sharp"))
         assert tap.truth["label"] == "clean"
         assert result.valid, result.message
         assert result.quality > 80.0
-        # The sim's 2 µm smooth-PEI onset reads onset/2 low; nothing else is left.
-        assert -1.8 < (result.z_mm - tap.truth["z_contact"]) * 1000 < -0.9
+        # The toe model over 20 seeds: +0.55 ± 0.42 / +0.12 ± 0.31 / +0.17 ± 0.31 µm at 2 / 5 / 10 mm/s
+        # (every tap within -0.40 ... +1.47).
+        assert -1.3 < (result.z_mm - tap.truth["z_contact"]) * 1000 < 2.2
+        # The sharp model reads the sim's 2 µm smooth-PEI onset onset/2 low, and the halt lag a little
+        # lower (10 seeds: -1.24 ± 0.10 / -1.54 ± 0.14 / -1.64 ± 0.14 µm).
+        assert -2.2 < (sharp.z_mm - tap.truth["z_contact"]) * 1000 < -0.9
         # Step staircase at 3.26 g/µm, 2.5 µm steps, 1 µm windows: 3.26 × 0.6 × 0.7217 = 1.41 g.
         assert result.step_sigma_g == pytest.approx(1.41, abs=0.02)
 

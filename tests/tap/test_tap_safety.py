@@ -44,9 +44,10 @@ def test_the_same_taps_without_the_film_stay_valid_and_accurate():
                            trigger_force_g=spec.trigger_force_g, pullback_distance_mm=spec.pullback_distance_mm,
                            dwell_samples=spec.dwell_samples)
         tap = record_sim_tap(clean)
-        result = analyze_tap(tap, AnalysisOptions(sensor_delay_s="auto"))
+        result = analyze_tap(tap, AnalysisOptions(sensor_delay_s="auto", contact_model="sharp"))
         assert result.valid, result.message
-        # The virtual printer's clean taps read 0.9-1.8 µm low (test_sim_taps); these: -1.57 and -1.59 µm.
+        # The sharp model reads the virtual printer's clean taps 0.9-1.8 µm low (its 2 µm onset,
+        # test_sim_taps); these: -1.57 and -1.59 µm.
         assert -1.8 < (result.z_mm - tap.truth["z_contact"]) * 1000 < -1.35
 
 
@@ -89,5 +90,8 @@ def test_contact_search_beside_an_unusable_candidate_emits_no_warning():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         result = analyze_tap(tap)
+        sharp = analyze_tap(tap, AnalysisOptions(contact_model="sharp", sensor_delay_s=0.0))
     assert result.valid, result.message
-    assert -2.2 < (result.z_mm - tap.truth["z_contact"]) * 1000 < -1.6  # measured -1.88 µm
+    # The toe model over seeds 0-11 of this tap: -0.45 ± 0.32 µm (this seed -0.23).
+    assert -2.0 < (result.z_mm - tap.truth["z_contact"]) * 1000 < 1.2
+    assert -2.2 < (sharp.z_mm - tap.truth["z_contact"]) * 1000 < -1.6  # measured -1.88 µm

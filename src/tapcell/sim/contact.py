@@ -47,6 +47,7 @@ class ContactModel:
     film_stiffness_g_um: float
     film_squeeze_tau_s: float
     film_pull_g: float
+    film_pull_full_um: float  # the film from which the strand can pull film_pull_g (thinner: in proportion)
     film_break_um: float
     film_clear_fraction: float
     film_max_um: float
@@ -118,7 +119,8 @@ def contact_forces(gap_um: np.ndarray, dt_s: float, growth_um: np.ndarray, model
             elif stuck:
                 stretch = -squeeze
                 if stretch < model.film_break_um:
-                    film_g[i] = -min(model.film_stiffness_g_um * stretch, model.film_pull_g)
+                    most_g = model.film_pull_g * min(1.0, film / model.film_pull_full_um)
+                    film_g[i] = -min(model.film_stiffness_g_um * stretch, most_g)
                 else:
                     state.film_um = film
                     _break_strand(state, model)

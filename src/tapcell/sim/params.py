@@ -141,6 +141,10 @@ class SimParams:
     ooze_squeeze_tau_s: float = _p(0.12, "time constant of the film flowing out under load", "s",
                                    minval=1e-3, maxval=1000.0)
     ooze_pull_g: float = _p(25.0, "largest pull of the film stretched on lift", "g", minval=0.0, maxval=10_000.0)
+    # A strand is drawn from the film: its cross-section, and so the force it carries, shrinks with
+    # the film (a 0.5 µm film holding 25 g over 40 µm would need ~150 MPa, beyond solid PETG).
+    ooze_pull_full_um: float = _p(20.0, "film from which the strand pulls the full ooze_pull_g (thinner: "
+                                  "in proportion)", "µm", minval=0.001, maxval=1000.0)
     ooze_break_um: float = _p(40.0, "stretch at which the film strand breaks", "µm", minval=0.1, maxval=10_000.0)
     ooze_clear_fraction: float = _p(0.4, "share of the film left on the bed at each tap", "", minval=0.0, maxval=1.0)
     ooze_residue_radius_mm: float = _p(0.5, "a tap this close to film left on the bed meets it first", "mm",

@@ -160,7 +160,7 @@ class VirtualPrinter:
         self._contact_model = ContactModel(
             series_stiffness_g_um(params), params.contact_onset_um, params.relax_fraction, params.relax_tau_s,
             params.hysteresis_fraction, params.hysteresis_travel_um, params.ooze_stiffness_g_um,
-            params.ooze_squeeze_tau_s, params.ooze_pull_g, params.ooze_break_um, params.ooze_clear_fraction,
+            params.ooze_squeeze_tau_s, params.ooze_pull_g, params.ooze_pull_full_um, params.ooze_break_um, params.ooze_clear_fraction,
             params.ooze_max_um)
         self._state = _PhysicsState(ContactState(film_um=params.ooze_film_um))
         self._thermal = NozzleThermal(params.ambient_c, params.heater_tau_s, params.start_nozzle_c,

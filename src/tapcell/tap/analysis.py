@@ -65,24 +65,28 @@ END_SAMPLES = 3
 # The adhesion dip (toe model) that rejects a tap, in noise sigmas. Clean independent taps reach
 # 3.2 at most (360 taps, seed 1); mild ooze has a median of 4.7 and its deepest dips err most.
 ADHESION_MAX_DIP_NOISE = 4.0
+# ... and by more than this fraction of the compression force: a noise-free tap (noise 0) has no
+# dip, only rounding. Below any real sensor's 4 sigmas (75 g x 1 % = 0.75 g; HX717 ~1 g noise).
+ADHESION_MIN_DIP_FRACTION = 0.01
 
 
 def sensor_timing(tap: TapData, options: AnalysisOptions, sample_period_s: float) -> SensorTiming:
     """The sensor's delay and conversion window: the options, else the tap's meta."""
-    delay = options.sensor_delay_s if isinstance(options.sensor_delay_s, float | int) else None
-    from_halt = options.sensor_delay_s == "halt"
-    if options.sensor_delay_s is None:
-        delay = _meta_seconds(tap, "sensor_delay_s", 0.0)
+    delay = options.sensor_delay_s
+    if delay is None:
+        # A delay the recorder knew wins over the estimate from the halt (docs/tap-analysis.md).
+        delay = _meta_seconds(tap, "sensor_delay_s", None)
+    from_halt = delay is None or delay == "halt"
     integration = options.sensor_integration_s
     if integration is None:
         integration = _meta_seconds(tap, "sensor_integration_s", sample_period_s)
     z_step_um = options.z_step_um if options.z_step_um is not None else _meta_number(tap, "z_step_um",
                                                                                        DEFAULT_Z_STEP_UM)
-    return SensorTiming(0.0 if delay is None or from_halt else float(delay), float(integration),
-                        options.sensor_delay_s == "auto", from_halt, sample_period_s, float(z_step_um))
+    return SensorTiming(float(delay) if isinstance(delay, float | int) else 0.0, float(integration),
+                        delay == "auto", from_halt, sample_period_s, float(z_step_um))
 
 
-def _meta_seconds(tap: TapData, key: str, default: float) -> float:
+def _meta_seconds(tap: TapData, key: str, default: float | None) -> float | None:
     """A sensor time from the tap's meta: a number in [0, 1) s, else `default`."""
     value = _meta_number(tap, key, math.inf)
     return value if value < 1 else default
@@ -370,12 +374,13 @@ def fit_pullback_toe(window: ModelWindow, motion: Motion, timing: SensorTiming, 
 
 
 def check_adhesion(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float, drift_g_um: float,
-                   contact_um: float, noise_g: float) -> None:
+                   contact_um: float, noise_g: float, compression_force_g: float) -> None:
     """TAP_ADHESION when the force dips below the free-air level just above break contact by more
     than ADHESION_MAX_DIP_NOISE noise sigmas (tapcell.tap.toe.adhesion_dip)."""
     x_lo, x_hi, force_g = pullback_samples(window, motion, timing, delay_s)
     dip_g = adhesion_dip(0.5 * (x_lo + x_hi), force_g, drift_g_um, contact_um)
-    if dip_g is not None and dip_g > ADHESION_MAX_DIP_NOISE * noise_g:
+    if dip_g is not None and dip_g > max(ADHESION_MAX_DIP_NOISE * noise_g,
+                                         ADHESION_MIN_DIP_FRACTION * compression_force_g):
         raise TapInvalid(TAP_ADHESION, f"the force dips {dip_g:.1f} g below free air just above break contact "
                                        f"(more than {ADHESION_MAX_DIP_NOISE:g} x the {noise_g:.2f} g noise): "
                                        "ooze or adhesion pulling the nozzle")
@@ -497,6 +502,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         result.valid, result.error, result.message = False, invalid.code, invalid.message
         return result, context
     window = model_window(time_s, force, motion, timing, delay_s, dec)
+    window_delay_s = delay_s  # the delay the window's heights were read with ("auto": 0, estimated below)
     z_line = motion.z_halt_mm + window.break_line_um / 1000.0  # P4 mapped, delay-corrected
     pullback_found = fit_pullback(window, motion, timing, delay_s, options)
     pullback, near_sigma_g = pullback_found if pullback_found else (None, None)
@@ -539,18 +545,22 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         result.z_sigma_um = break_time_sigma_s(ps, dec, t_break) * motion.pullback_speed_mm_s * 1000.0
         result.z_method = "lines"
         result.stiffness_decompression_g_um = abs(dec.lines[3][0]) / (motion.pullback_speed_mm_s * 1000.0)
-    if options.contact_model == "toe":
-        start = pullback.contact_um if pullback else window.break_line_um
+    if options.uses_toe_model:
+        # The toe is fitted in the window's heights; a delay estimated since ("auto") moves its
+        # contact down by pullback speed x delay, as it moved the sharp fit's above.
+        lag_shift_um = (delay_s - window_delay_s) * motion.pullback_speed_mm_s * 1000.0
+        start = pullback.contact_um + lag_shift_um if pullback else window.break_line_um
         drift_g_um = free_air_slope_g_um(dec, motion)
-        toe = fit_pullback_toe(window, motion, timing, delay_s, start, drift_g_um, free_air_wander(force, dec))
+        toe = fit_pullback_toe(window, motion, timing, window_delay_s, start, drift_g_um, free_air_wander(force, dec))
         if toe:
-            result.z_mm = motion.z_halt_mm + toe.contact_um / 1000.0
+            result.z_mm = motion.z_halt_mm + (toe.contact_um - lag_shift_um) / 1000.0
             result.z_sigma_um = toe.sigma_um
             result.z_method = "toe"
             result.contact_onset_um = toe.width_um
             result.stiffness_decompression_g_um = toe.stiffness_g_um
             try:
-                check_adhesion(window, motion, timing, delay_s, drift_g_um, toe.contact_um, noise_g)
+                check_adhesion(window, motion, timing, window_delay_s, drift_g_um, toe.contact_um, noise_g,
+                               result.compression_force_g)
             except TapInvalid as invalid:
                 result.valid, result.error, result.message = False, invalid.code, invalid.message
                 return result, context

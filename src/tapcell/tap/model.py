@@ -135,10 +135,13 @@ class AnalysisOptions:
     """Everything the analysis can be told. None means: from the tap file, else the default.
 
     sensor_delay_s: pipeline delay of the sensor beyond its conversion window (s); None: tap
-        meta `sensor_delay_s`, else 0. "auto": estimated from the tap (contact vs break contact);
-        "halt": from the halt (P2's time minus the motion's halt is the whole lag, tapcell.tap.toe).
-    contact_model: "sharp" (hinge, with `contact_onset_um` when calibrated) or "toe" (the contact's
-        toe width and shape marginalised per tap, the drift taken from the approach, tapcell.tap.toe).
+        meta `sensor_delay_s`, else "halt". "halt": from the halt (P2's time minus the motion's
+        halt is the whole lag, tapcell.tap.toe). "auto": estimated from the tap (contact vs break
+        contact).
+    contact_model: "toe" (the contact's toe width and shape marginalised per tap, the drift taken
+        from the approach, tapcell.tap.toe) or "sharp" (a hinge, with `contact_onset_um`'s
+        parabola). A known onset (`contact_onset_um` calibrated, or `fit_contact_onset`) leaves no
+        toe to marginalise: the sharp model with that onset is used (`uses_toe_model`).
     sensor_integration_s: conversion (averaging) window of one sample (s); None: tap meta
         `sensor_integration_s`, else one sample period (a continuously converting ADC).
     z_step_um: Z distance of one (micro)step; None: tap meta `z_step_um`, else 2.5 µm. The
@@ -169,7 +172,7 @@ class AnalysisOptions:
     fit_contact_onset: bool = False
     outlier_sigma: float = 8.0
     mains_hz: tuple[float, ...] | str | None = None
-    contact_model: str = "sharp"
+    contact_model: str = "toe"
 
     # Options that may be reset to None ("from the tap file / default") with `--set key=none`.
     _OPTIONAL = frozenset(
@@ -177,6 +180,12 @@ class AnalysisOptions:
          "z_step_um",
          "pullback_speed_mm_s", "decompression_angle", "mains_hz")
     )
+
+    @property
+    def uses_toe_model(self) -> bool:
+        """The toe model reads Z: chosen, and the onset is neither calibrated nor fitted per tap."""
+        return self.contact_model == "toe" and self.contact_onset_um is None and not self.fit_contact_onset
+
     def with_overrides(self, overrides: dict[str, str]) -> AnalysisOptions:
         """A copy with `--set key=value` strings parsed; ValueError names key, value and what is allowed."""
         fields = {f.name: f for f in dataclasses.fields(self) if not f.name.startswith("_")}

@@ -44,7 +44,8 @@ def fit_pooled_contact_onset(taps, options, grid_um=ONSET_GRID_UM) -> OnsetCalib
     from tapcell.tap import analyze_tap  # the analysis is heavy to import; only this needs it
 
     grid = np.asarray(grid_um, dtype=float)
-    base = dataclasses.replace(options, fit_contact_onset=False, tap_classifier="empty")
+    # The onset parabola belongs to the sharp model (a fixed onset selects it anyway; said here for the reader).
+    base = dataclasses.replace(options, contact_model="sharp", fit_contact_onset=False, tap_classifier="empty")
     variances = np.full((len(grid), len(taps)), np.nan)
     z_um = np.full((len(grid), len(taps)), np.nan)
     for g, onset_um in enumerate(grid):

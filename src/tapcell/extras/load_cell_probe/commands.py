@@ -103,7 +103,8 @@ class LoadCellProbeCommands:
         gcmd.respond_info(
             f"Contact onset calibration ({found.taps} taps at X:{x_mm:.3f} Y:{y_mm:.3f}):\n\n"
             f"contact_onset_um: {found.onset_um:.2f}\n\n"
-            f"Z reads {found.z_shift_um:+.2f} um against a sharp contact. {SAVE_CONFIG_NOTE}")
+            f"Z reads {found.z_shift_um:+.2f} um against a sharp contact. A calibrated onset selects the sharp "
+            f"contact model with this onset (the toe model needs contact_onset_um unset). {SAVE_CONFIG_NOTE}")
 
     def _calibrate_pullback_distance(self, gcmd) -> None:
         """Tap with a long pullback, measure break contact above the halt, propose pullback_distance.

@@ -144,7 +144,8 @@ def analysis_options(options: TapOptions, pullback_speed_mm_s: float) -> Analysi
         max_departure_force=options.max_departure_force,
         max_baseline_force_delta=options.max_baseline_force_delta,
         max_dwell_force_drop=options.max_dwell_force_drop,
-        contact_onset_um=options.contact_onset_um or None,
+        contact_model=options.contact_model,
+        contact_onset_um=options.contact_onset_um,
         mains_hz=mains_lines_hz(options),
     )
 

@@ -15,7 +15,7 @@ from tapcell.filters import (DRIFT_CUTOFF_MAX_HZ, DRIFT_CUTOFF_MIN_HZ, FILTER_OR
                              NOTCH_QUALITY_MIN)
 from tapcell.mcu.trigger import MAX_STUCK_SAMPLES, TriggerError
 from tapcell.extras.probe.options import OptionSpec
-from tapcell.tap.model import ANALYSIS_RANGES, AnalysisOptions
+from tapcell.tap.model import ANALYSIS_RANGES, CONTACT_MODELS, AnalysisOptions
 from tapcell.tap.robust import robust_sigma
 
 # Every load-cell probing error starts with this (the spec's wording).
@@ -69,13 +69,18 @@ class TapOptions:
     max_departure_force: float = ANALYSIS_DEFAULTS.max_departure_force
     max_baseline_force_delta: float = ANALYSIS_DEFAULTS.max_baseline_force_delta
     max_dwell_force_drop: float = ANALYSIS_DEFAULTS.max_dwell_force_drop
-    contact_onset_um: float = 0.0  # 0: a sharp contact; LOAD_CELL_PROBE_CALIBRATE CALIBRATION=CONTACT_ONSET fits it
+    contact_model: str = ANALYSIS_DEFAULTS.contact_model
+    # None: not calibrated (the contact model decides); a number, LOAD_CELL_PROBE_CALIBRATE
+    # CALIBRATION=CONTACT_ONSET's result, selects the sharp model with that onset.
+    contact_onset_um: float | None = None
     stuck_sensor_samples: int | None = None  # None: from the sensor's noise floor; 0: off
 
 
 def analysis_option_spec(name: str, default=None) -> OptionSpec:
     """An option of the tap analysis: its range (and unless given, its default) from the analysis's table."""
     default = getattr(ANALYSIS_DEFAULTS, name) if default is None else default
+    if name == "contact_model":
+        return OptionSpec(name, name, "choice", default, choices=CONTACT_MODELS)
     if name not in ANALYSIS_RANGES:
         return OptionSpec(name, name, "str", default)
     allowed = ANALYSIS_RANGES[name]
@@ -117,7 +122,8 @@ TAP_OPTION_SPECS: tuple[OptionSpec, ...] = (
     analysis_option_spec("max_departure_force"),
     analysis_option_spec("max_baseline_force_delta"),
     analysis_option_spec("max_dwell_force_drop"),
-    analysis_option_spec("contact_onset_um", default=0.0),
+    analysis_option_spec("contact_model"),
+    analysis_option_spec("contact_onset_um"),
     # 1 is refused too (check_stuck_sensor_samples): a run of one sample is every sample.
     OptionSpec("stuck_sensor_samples", "stuck_sensor_samples", "int", None, minval=0, maxval=MAX_STUCK_SAMPLES),
 )
