@@ -204,11 +204,12 @@ def _motion(spec: TapSpec, halt_s: float | None, pullback_mm: float) -> Callable
     return at
 
 
-def _input_g(spec: TapSpec, fine_s: np.ndarray, motion, walk: np.ndarray) -> tuple[np.ndarray, dict]:
+def _input_g(spec: TapSpec, fine_s: np.ndarray, motion, walk: np.ndarray,
+             touch_s: float | None = None) -> tuple[np.ndarray, dict]:
     """The force the sensor's input sees on the fine grid (before conversion), and truth facts."""
     z_mm, closing, pulling = motion(fine_s)
     overtravel_um = (spec.z_contact_mm - z_mm) * 1000.0
-    force, facts = contact_force_g(fine_s, overtravel_um, closing, pulling, spec.contact, spec.ooze)
+    force, facts = contact_force_g(fine_s, overtravel_um, closing, pulling, spec.contact, spec.ooze, touch_s)
     z_start = spec.z_contact_mm + spec.approach_mm
     mains_s = fine_s + spec.time_origin_s  # the mains phase is whatever the clock says
     hum = sum(a * np.sin(2 * np.pi * (k + 1) * spec.mains_hz * mains_s + 1.3 * k)
@@ -216,6 +217,41 @@ def _input_g(spec: TapSpec, fine_s: np.ndarray, motion, walk: np.ndarray) -> tup
     signal = (spec.polarity * force + spec.offset_g + spec.drift_g_per_mm * (z_mm - z_start)
               + walk[:len(fine_s)] + hum)
     return signal, facts
+
+
+def _converted_g(spec: TapSpec, timeline: _Timeline, motion, walk: np.ndarray,
+                 touch_s: float | None = None) -> tuple[np.ndarray, dict]:
+    """The sensor's samples of one tap before output noise (one per conversion of the timeline), and truth facts."""
+    signal, facts = _input_g(spec, timeline.fine_s, motion, walk, touch_s)
+    return convert(signal, spec.adc)[:len(timeline.conversion_end_s)], facts
+
+
+@dataclass(frozen=True)
+class RecordedMotion:
+    """What a tap file fixes about the motion: when the approach halted, how far it pulled back,
+    how many samples it kept."""
+
+    halt_s: float  # from the start of the approach cruise
+    pullback_mm: float
+    sample_count: int
+
+    @classmethod
+    def of_tap(cls, tap: dict) -> RecordedMotion:
+        return cls(halt_s=float(tap["moves"][0]["move_t"]), pullback_mm=float(tap["probe"]["pullback_distance"]),
+                   sample_count=len(tap["time"]))
+
+
+def noise_free_samples(spec: TapSpec, motion: RecordedMotion, touch_s: float | None = None) -> np.ndarray:
+    """The samples `spec` makes along a recorded motion with no noise (white, 1/f, walk, jitter);
+    hum as `spec.hum_g` says. touch_s: see `physics.contact_force_g` (None: as make_tap).
+
+    The sample times stay the conversions `spec` implies (its clock and sample phase), so changing
+    what the analysis cannot see (stiffness, onset, drift ...) changes only the values."""
+    period = spec.adc.period_s
+    timeline = _Timeline(spec).build(spec.sample_phase * period + (motion.sample_count + 1) * period)
+    walk = np.zeros(len(timeline.fine_s))
+    values, _ = _converted_g(spec, timeline, _motion(spec, motion.halt_s, motion.pullback_mm), walk, touch_s)
+    return values[:motion.sample_count]
 
 
 def _trigger_read_s(spec: TapSpec, samples_g: np.ndarray, read_s: np.ndarray) -> float:
@@ -232,22 +268,28 @@ def _trigger_read_s(spec: TapSpec, samples_g: np.ndarray, read_s: np.ndarray) ->
     raise ValueError("the approach never reached the trigger force")
 
 
+def noise_record_length(spec: TapSpec) -> tuple[int, int]:
+    """(fine steps, samples) of the noise drawn up front: enough for the longest tap `spec` can make.
+    The 1/f noise is made over this many samples, so its spectrum depends on it."""
+    period = spec.adc.period_s
+    longest_s = (spec.approach_mm + 0.5) / spec.approach_speed_mm_s + spec.dwell_s + 1.0 / spec.pullback_speed_mm_s \
+        + spec.tail_s + 4 * period
+    most_fine = int(longest_s / period * SUBSAMPLES) + 8 * SUBSAMPLES
+    return most_fine, most_fine // SUBSAMPLES
+
+
 def make_tap(spec: TapSpec, rng: np.random.Generator) -> tuple[dict, dict]:
     """One tap: (tap-format object, truth). Deterministic from `rng`'s state."""
     adc = spec.adc
     period = adc.period_s
     # Everything random is drawn up front for the longest tap this spec can make.
-    longest_s = (spec.approach_mm + 0.5) / spec.approach_speed_mm_s + spec.dwell_s + 1.0 / spec.pullback_speed_mm_s \
-        + spec.tail_s + 4 * period
-    most_fine = int(longest_s / period * SUBSAMPLES) + 8 * SUBSAMPLES
+    most_fine, most_samples = noise_record_length(spec)
     walk = np.cumsum(rng.normal(size=most_fine)) * spec.walk_g_per_sqrt_s * math.sqrt(period / SUBSAMPLES)
-    most_samples = most_fine // SUBSAMPLES
     noise = rng.normal(size=most_samples) * adc.white_g + pink_noise(most_samples, adc.pink_g, rng)
     jitter = rng.normal(size=most_samples) * adc.jitter_s
 
     def samples_on(timeline: _Timeline, motion, tap_spec: TapSpec = spec) -> tuple[np.ndarray, np.ndarray, dict]:
-        signal, facts = _input_g(tap_spec, timeline.fine_s, motion, walk)
-        values = convert(signal, adc)[:len(timeline.conversion_end_s)]
+        values, facts = _converted_g(tap_spec, timeline, motion, walk)
         n = len(values)
         read = timeline.conversion_end_s[:n] + adc.latency_periods * period + jitter[:n]
         return values + noise[:n], read, facts

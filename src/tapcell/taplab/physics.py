@@ -107,11 +107,14 @@ def thread_pull_g(rise_um: np.ndarray, ooze: Ooze) -> np.ndarray:
 
 
 def contact_force_g(t_s: np.ndarray, overtravel_um: np.ndarray, closing_mm_s: np.ndarray, pulling_back: np.ndarray,
-                    contact: Contact, ooze: Ooze | None) -> tuple[np.ndarray, dict[str, float]]:
+                    contact: Contact, ooze: Ooze | None,
+                    touch_s: float | None = None) -> tuple[np.ndarray, dict[str, float]]:
     """Force on the nozzle (g, positive pressing up) along a fine time grid, and facts for the truth.
 
     overtravel_um: commanded overtravel below the bare bed; closing_mm_s: speed towards the bed
-    (negative while lifting); pulling_back: True from the pullback's start on.
+    (negative while lifting); pulling_back: True from the pullback's start on. touch_s: when the
+    relaxation starts; by default the first grid time that touches (the generator), given exactly
+    where the force must be smooth in the contact height (`taplab.bound`'s derivatives).
     """
     film_um = np.zeros_like(t_s)
     if ooze is not None:
@@ -128,7 +131,8 @@ def contact_force_g(t_s: np.ndarray, overtravel_um: np.ndarray, closing_mm_s: np
     effective_um = overtravel_um + film_um
     touching = effective_um > 0.0
     # Heavy ooze can stop the nozzle on the bead before it ever touches the bed through the film.
-    touch_s = float(t_s[np.argmax(touching)]) if touching.any() else float("inf")
+    if touch_s is None:
+        touch_s = float(t_s[np.argmax(touching)]) if touching.any() else float("inf")
     elastic = elastic_force_g(effective_um, contact) * (1.0 - relaxed_share(t_s, touch_s, contact))
     facts = {"touch_time_s": touch_s, "film_left_um": float(film_um[-1])}
     if ooze is None:
