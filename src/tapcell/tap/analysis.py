@@ -419,16 +419,17 @@ def thread_pull_g(window: ModelWindow, motion: Motion, timing: SensorTiming, del
 
 
 def check_thread(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float, dec: Decomposition,
-                 contact_um: float, noise_g: float, wander: Wander | None) -> None:
+                 contact_um: float, noise_g: float, wander: Wander | None, compression_force_g: float) -> None:
     """TAP_ADHESION when the departure lies below the approach's line by more than THREAD_MAX_NOISE
-    noise sigmas plus what the baseline's walk can move it between the two (3 sigma). The walk is
-    the approach's own: a thread pulling over the departure would pass for a walk there."""
+    noise sigmas plus what the baseline's walk can move it between the two (3 sigma), and by more
+    than the dip check's share of the compression force (noise-free taps). The walk is the
+    approach's own: a thread pulling over the departure would pass for a walk there."""
     pull_g = thread_pull_g(window, motion, timing, delay_s, dec, contact_um)
     if pull_g is None:
         return
     apart_samples = (motion.pullback_start_s - motion.home_end_s) / timing.sample_period_s + 2 * THREAD_REACH_UM[1]
     walk_g = 3.0 * math.sqrt(wander.walk_var_g2 * max(apart_samples, 0.0)) if wander else 0.0
-    limit_g = THREAD_MAX_NOISE * noise_g + walk_g
+    limit_g = max(THREAD_MAX_NOISE * noise_g + walk_g, ADHESION_MIN_DIP_FRACTION * compression_force_g)
     if pull_g > limit_g:
         raise TapInvalid(TAP_ADHESION, f"the force after break contact lies {pull_g:.1f} g below the approach's "
                                        f"free-air level at the same heights (more than {limit_g:.1f} g): "
@@ -612,7 +613,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
                 check_adhesion(window, motion, timing, window_delay_s, drift_g_um, toe.contact_um, noise_g,
                                result.compression_force_g)
                 check_thread(window, motion, timing, window_delay_s, dec, toe.contact_um, noise_g,
-                             free_air_wander(force, dec, approach_only=True))
+                             free_air_wander(force, dec, approach_only=True), result.compression_force_g)
             except TapInvalid as invalid:
                 result.valid, result.error, result.message = False, invalid.code, invalid.message
                 return result, context
