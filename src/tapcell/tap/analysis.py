@@ -41,7 +41,8 @@ from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import PrefixSums, best_five_segments, prefix_sums, segment_lines
-from tapcell.tap.toe import ToeFit, Wander, adhesion_dip, fit_toe, lag_from_halt_s, wander_from_free_air
+from tapcell.tap.toe import (ToeFit, Wander, adhesion_dip, fit_toe, free_air_variogram, lag_from_halt_s,
+                             wander_from_variograms)
 
 MIN_SAMPLES = 12
 # Extra samples the force may keep changing after the motion stopped/started (ringing, filters).
@@ -366,12 +367,14 @@ def pullback_samples(window: ModelWindow, motion: Motion, timing: SensorTiming, 
     return x_lo, x_lo + window.span_um[first:], window.force_g[first:]
 
 
-def free_air_wander(force_g: np.ndarray, dec: Decomposition, approach_only: bool = False) -> Wander | None:
-    """The baseline's white noise and random walk, from the approach and departure lines' samples
-    (`approach_only`: from the approach's alone, which no ooze thread after the tap can pull)."""
+def free_air_wanders(force_g: np.ndarray, dec: Decomposition) -> tuple[Wander | None, Wander | None]:
+    """The baseline's white noise and random walk from the approach and departure lines' samples
+    (for the toe fit), and from the approach's alone, which no ooze thread after the tap can pull
+    (for the thread check); the approach's variogram is measured once for both."""
     first, *_, last = dec.bounds
-    approach = force_g[dec.start:dec.start + first]
-    return wander_from_free_air([approach] if approach_only else [approach, force_g[dec.start + last:dec.stop]])
+    approach = free_air_variogram(force_g[dec.start:dec.start + first])
+    departure = free_air_variogram(force_g[dec.start + last:dec.stop])
+    return wander_from_variograms([approach, departure]), wander_from_variograms([approach])
 
 
 def fit_pullback_toe(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float,
@@ -601,7 +604,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         lag_shift_um = (delay_s - window_delay_s) * motion.pullback_speed_mm_s * 1000.0
         start = pullback.contact_um + lag_shift_um if pullback else window.break_line_um
         drift_g_um = free_air_slope_g_um(dec, motion)
-        wander = free_air_wander(force, dec)
+        wander, approach_wander = free_air_wanders(force, dec)
         toe = fit_pullback_toe(window, motion, timing, window_delay_s, start, drift_g_um, wander)
         if toe:
             result.z_mm = motion.z_halt_mm + (toe.contact_um - lag_shift_um) / 1000.0
@@ -613,7 +616,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
                 check_adhesion(window, motion, timing, window_delay_s, drift_g_um, toe.contact_um, noise_g,
                                result.compression_force_g)
                 check_thread(window, motion, timing, window_delay_s, dec, toe.contact_um, noise_g,
-                             free_air_wander(force, dec, approach_only=True), result.compression_force_g)
+                             approach_wander, result.compression_force_g)
             except TapInvalid as invalid:
                 result.valid, result.error, result.message = False, invalid.code, invalid.message
                 return result, context

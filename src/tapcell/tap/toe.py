@@ -296,19 +296,32 @@ def wander_from_free_air(segments: list[np.ndarray]) -> Wander | None:
     takes a share of both, most of the walk at lags near the segment's length). None when the
     segments are too short.
     """
-    rows, values = [], []
-    for force_g in segments:
-        n = len(force_g)
-        lags = [lag for lag in WANDER_LAGS if 3 * lag <= n]  # longer ones: the line takes the walk
-        if len(lags) < 3:
-            continue
-        i = np.arange(n, dtype=float) - 0.5 * (n - 1)
-        r = force_g - force_g.mean() - i * (i @ force_g) / (i @ i)
-        rows += _detrended_variogram(n, tuple(lags))
-        # Every lag's differences in one flat array, averaged per lag by bincount.
-        later, earlier, lag_of, pairs = _lag_pairs(n, tuple(lags))
-        d = r.take(later) - r.take(earlier)
-        values += (np.bincount(lag_of, d * d, len(lags)) / pairs).tolist()
+    return wander_from_variograms([free_air_variogram(force_g) for force_g in segments])
+
+
+FreeAirVariogram = tuple[list[tuple[float, float]], list[float]]
+
+
+def free_air_variogram(force_g: np.ndarray) -> FreeAirVariogram:
+    """One free-air segment's share of `wander_from_free_air`: per lag, (its expectation for unit
+    white noise, for a unit walk) and the measured mean squared difference; empty when too short.
+    Kept apart so that estimates pooling different segments share the work."""
+    n = len(force_g)
+    lags = [lag for lag in WANDER_LAGS if 3 * lag <= n]  # longer ones: the line takes the walk
+    if len(lags) < 3:
+        return [], []
+    i = np.arange(n, dtype=float) - 0.5 * (n - 1)
+    r = force_g - force_g.mean() - i * (i @ force_g) / (i @ i)
+    # Every lag's differences in one flat array, averaged per lag by bincount.
+    later, earlier, lag_of, pairs = _lag_pairs(n, tuple(lags))
+    d = r.take(later) - r.take(earlier)
+    return list(_detrended_variogram(n, tuple(lags))), (np.bincount(lag_of, d * d, len(lags)) / pairs).tolist()
+
+
+def wander_from_variograms(variograms: list[FreeAirVariogram]) -> Wander | None:
+    """The white and walk variances that fit the segments' variograms pooled (`wander_from_free_air`)."""
+    rows = [row for expected, _ in variograms for row in expected]
+    values = [value for _, measured in variograms for value in measured]
     if not rows:
         return None
     # Least squares in two unknowns by the normal equations, in plain floats: np.linalg.lstsq
