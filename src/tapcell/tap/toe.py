@@ -144,8 +144,7 @@ def toe_shapes(depth_um: np.ndarray, width_um, powers) -> np.ndarray:
             np.multiply(u, u, out=row)
         else:
             np.power(u, power + 1.0, out=row)
-        row *= width_um
-        row *= 1.0 / (power + 1.0)
+        row *= width_um * (1.0 / (power + 1.0))  # the widths are few: scale them, not the whole grid
         row += beyond_um
     return shapes
 
