@@ -30,7 +30,7 @@ LOW_TAP_QUALITY = "LOW_TAP_QUALITY"
 TAP_DATA_INSUFFICIENT = "TAP_DATA_INSUFFICIENT"  # a phase window holds too few samples to fit
 TAP_MOTION_INVALID = "TAP_MOTION_INVALID"  # the motion has no approach/halt/pullback to analyse
 TAP_CONTACT_MISMATCH = "TAP_CONTACT_MISMATCH"  # contact on the way down above break contact on the way up
-TAP_ADHESION = "TAP_ADHESION"  # (toe model) the force dips below free air just above break contact
+TAP_ADHESION = "TAP_ADHESION"  # (toe model) the force dips below free air after break contact (a thread pulling)
 
 
 class TapFileError(Exception):
