@@ -239,6 +239,35 @@ def test_fault_on_contact_starts_when_the_nozzle_reaches_the_bed():
     assert contact_time - t0 == pytest.approx(0.3 / 3.0 + 3.0 / 200.0 / 2, abs=0.003)
 
 
+def _fault_session(vp):
+    """Faults one after another (one begun in the past, one waiting for a condition) and the
+    samples they give."""
+    vp.inject_fault("stuck", when="trigger")
+    vp.dwell(0.3)
+    vp.inject_fault("weight", at_s=vp.now_s - 0.01, grams=200.0, duration_s=0.05)
+    vp.inject_fault("corrupt_frame", count=3, spacing_s=0.05)
+    vp.inject_fault("bowden_tug", at_s=vp.now_s + 0.5)
+    vp.dwell(0.2)
+    faults_then = [f.name for f in vp._faults]
+    vp.inject_fault("saturation", duration_s=0.05)
+    vp.inject_fault("chip_reset", duration_s=0.05)
+    for _ in range(8):
+        vp.dwell(0.1)
+    return faults_then, vp.take_samples()
+
+
+def test_finished_faults_are_forgotten_and_forgetting_changes_no_sample(monkeypatch):
+    vp = VirtualPrinter.from_scenario("clean", seed=2)
+    faults_then, pruned = _fault_session(vp)
+    assert faults_then == ["stuck", "bowden_tug"]       # the weight and the 3 frames are over, the tug to come
+    # the tug and the saturation are over too; the offset jump lasts; the stuck one still waits
+    assert [f.name for f in vp._faults] == ["stuck", "chip_reset"]
+    monkeypatch.setattr("tapcell.sim.faults.still_acting", lambda faults, *_: faults)
+    _, kept_all = _fault_session(VirtualPrinter.from_scenario("clean", seed=2))
+    np.testing.assert_array_equal(pruned.t_s, kept_all.t_s)
+    np.testing.assert_array_equal(pruned.counts, kept_all.counts)
+
+
 def test_hand_tap_triggers_the_firmware_with_no_motion():
     vp = VirtualPrinter.from_scenario("clean", seed=1)
     trigger = armed_trigger(vp, trigger_force_g=75.0)

@@ -135,17 +135,42 @@ def apply_count_faults(faults: list[Fault], k0: int, t_ready_s: np.ndarray, coun
         elif f.name == "saturation":
             counts[mask] = COUNTS_MAX if f.params["level"] == "max" else COUNTS_MIN
         elif f.name == "corrupt_frame":
-            for i in range(int(f.params["count"])):
-                frame_t = f.start_s + i * f.params["spacing_s"]
-                if frame_t >= f.end_s:
-                    break
-                # the first conversion ready at or after the frame time that is still to be produced
-                k_frame = max(math.ceil((frame_t - first_ready_s) / period_s - 1e-9), f.first_index)
+            for k_frame in corrupt_frame_indices(f, first_ready_s, period_s):
                 idx = k_frame - k0
                 if 0 <= idx < counts.size:
                     counts[idx] = counts[idx] ^ np.int32(1 << int(glitch_bits[idx]))
                     detected_bad[idx] = bool(f.params["detected"])
     return counts, detected_bad
+
+
+def corrupt_frame_indices(f: Fault, first_ready_s: float, period_s: float) -> list[int]:
+    """The conversions a (started) corrupt_frame fault corrupts: for each frame time within the
+    fault, the first conversion ready at or after it that was still to be produced when it began."""
+    indices = []
+    for i in range(int(f.params["count"])):
+        frame_t = f.start_s + i * f.params["spacing_s"]
+        if frame_t >= f.end_s:
+            break
+        indices.append(max(math.ceil((frame_t - first_ready_s) / period_s - 1e-9), f.first_index))
+    return indices
+
+
+def still_acting(faults: list[Fault], next_index: int, earliest_t_s: float, first_ready_s: float,
+                 period_s: float) -> list[Fault]:
+    """The faults that may still act on conversions from `next_index` on, none of which looks at
+    anything before `earliest_t_s`; the others are finished and can be forgotten (so a long session
+    does not pay for every fault it ever had on each chunk)."""
+    def acting(f: Fault) -> bool:
+        if f.start_s is None:                        # waiting for its condition
+            return True
+        if f.name == "chip_reset":                   # its offset jump lasts after the fault
+            return True
+        if f.name == "mcu_reset" and not f.done:     # one already due still resets (at once)
+            return True
+        if f.name == "corrupt_frame":
+            return any(k >= next_index for k in corrupt_frame_indices(f, first_ready_s, period_s))
+        return f.end_s >= earliest_t_s
+    return [f for f in faults if acting(f)]
 
 
 def stream_gap_mask(faults: list[Fault], t_ready_s: np.ndarray) -> np.ndarray:

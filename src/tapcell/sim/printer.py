@@ -544,6 +544,10 @@ class VirtualPrinter:
             k1 = min(k_end, self._next_k + FREE_RUN_CHUNK)
             self._mcu.deliver(self._compute(self._next_k, k1))
             self._next_k = k1
+        timing = self._timing
+        self._faults = faultlib.still_acting(self._faults, self._next_k,
+                                             min(self._now_s, timing.window_start_s(self._next_k)),
+                                             timing.first_ready_s, timing.period_s)
         for sensor in self._aux_sensors:
             sensor.advance_to(self._now_s)
         if reset is not None:

@@ -39,11 +39,14 @@ class ChipTiming:
         """First conversion whose data-ready time is after t_s."""
         return max(0, math.floor((t_s - self.first_ready_s) / self.period_s) + 1)
 
+    def window_start_s(self, k: int) -> float:
+        """When the integration window of conversion k opens."""
+        return self.first_ready_s - self.pipeline_s - self.period_s + k * self.period_s
+
     def grid_times(self, k0: int, k1: int) -> np.ndarray:
         """Midpoints of the physics grid covering the windows of conversions k0..k1-1."""
-        start = self.first_ready_s - self.pipeline_s - self.period_s
         j = np.arange(k0 * self.substeps, k1 * self.substeps)
-        return start + (j + 0.5) * self.grid_dt_s
+        return self.window_start_s(0) + (j + 0.5) * self.grid_dt_s
 
 
 def chip_timing(params: SimParams, t0_s: float = 0.0) -> ChipTiming:
