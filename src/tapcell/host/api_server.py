@@ -46,6 +46,7 @@ from tapcell import __version__
 from tapcell.host.config import ConfigError
 from tapcell.host.gcode import GCodeError, parse_line
 from tapcell.host import load_cell_streams
+from tapcell.host.printer import WHEN_NOT_READY, Printer
 from tapcell.host.webhooks import ApiObjects
 
 MAX_MESSAGE_BYTES = 8 * 1024 * 1024  # a request longer than this closes its connection
@@ -55,8 +56,6 @@ MAX_TICK_S = 0.5  # at most this much virtual time per tick (after a stall)
 SNAPSHOT_DURING_SCRIPT_S = 0.25  # a running script refreshes the status at most this often
 SUBSCRIPTION_PERIOD_S = 0.25  # Klipper's status push period
 STREAM_PERIOD_S = 0.1  # dump_force pushes (Klipper batches about this often)
-# G-code that works while the printer is shut down or its config is broken.
-WHEN_NOT_READY = ("RESTART", "FIRMWARE_RESTART", "HELP", "STATUS")
 RESTART_COMMANDS = {"gcode/restart": "RESTART", "gcode/firmware_restart": "FIRMWARE_RESTART"}
 PAUSE_RESUME_COMMANDS = {"pause_resume/pause": "PAUSE", "pause_resume/resume": "RESUME",
                          "pause_resume/cancel": "CANCEL_PRINT"}
@@ -265,6 +264,11 @@ class PrinterThread:
         return {}
 
     def _check_ready(self, line: str) -> None:
+        """Webhooks refuse G-code in every state but ready (startup, error, shutdown) with their state
+        message, as Klipper answers Moonraker. Not the G-code layer's refusal: that one is set only
+        by a shutdown and says the printer's own message (a webhooks emergency_stop says Klipper's
+        FIRMWARE_RESTART advice), and after a broken config the console still answers "Unknown
+        command" (tests/test_printer.py), where the API answers with the config error."""
         state, message = self.objects.state()
         if state == "ready":
             return
@@ -666,8 +670,6 @@ def _software_root() -> Path:
 
 
 def main(argv: list[str]) -> int:
-    from tapcell.host.printer import Printer
-
     parser = argparse.ArgumentParser(prog="tapcell serve", description="Serve the virtual printer through "
                                      "Klipper's API on a Unix socket, for Moonraker and its web UIs.")
     parser.add_argument("--config", required=True, help="printer config file")

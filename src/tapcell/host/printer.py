@@ -49,6 +49,9 @@ MACHINE_MODULE = "tapcell.sim.machine"
 # G-code commands that act on the virtual hardware (SIM_PLACE_WEIGHT, ...).
 BACKEND_COMMANDS_MODULE = "tapcell.sim.commands"
 
+# G-code that still works while the printer is shut down or its config is broken.
+WHEN_NOT_READY = ("RESTART", "FIRMWARE_RESTART", "HELP", "STATUS")
+
 # Sections loaded before the others (in this order), because others look them up.
 LOAD_FIRST = (TOOLHEAD_SECTION,)
 LOADERS = ("load_config", "load_config_prefix")
@@ -305,7 +308,7 @@ class Printer:
         for heater in (heaters.heaters.values() if heaters else ()):
             heater.set_temperature(0.0)
         self.send_event("printer:shutdown")
-        self.gcode.set_refusal(("HELP", "STATUS", "RESTART", "FIRMWARE_RESTART"), self.state_message)
+        self.gcode.set_refusal(WHEN_NOT_READY, self.state_message)
 
     def _cmd_M112(self, gcmd: GCodeCommand) -> None:
         self.invoke_shutdown("Shutdown due to M112 command")
