@@ -361,7 +361,8 @@ class LoadCellProbe:
 
     def probing_move(self, settings: TapSettings, tare_counts: float, z_min_mm: float, speed_mm_s: float,
                      **trigger):
-        """Every Z probing move of this probe (taps, homing, threshold probing) goes through here.
+        """One Z probing move (threshold probing); taps and homing run the same steps through
+        `_probing_move`, which checks the speed once, before its lift.
 
         The speed is capped by [printer] max_z_velocity (said once per command) and refused when
         the worst-case overshoot could press harder than force_safety_limit; then the firmware
@@ -372,8 +373,16 @@ class LoadCellProbe:
         Returns (move result, the speed used, when the last attempt started); result.triggered is
         False when the move reached z_min_mm without a trigger.
         """
-        options = settings.options
         speed_mm_s = self.check_probing_speed(self.move_params(settings, **trigger), speed_mm_s)
+        result, t_start_s = self._move_at_checked_speed(settings, tare_counts, z_min_mm, speed_mm_s, **trigger)
+        return result, speed_mm_s, t_start_s
+
+    def _move_at_checked_speed(self, settings: TapSettings, tare_counts: float, z_min_mm: float, speed_mm_s: float,
+                               **trigger):
+        """`probing_move` after its speed check: the caller has passed `speed_mm_s` through
+        `check_probing_speed` with these settings and trigger. Returns (move result, when the
+        last attempt started)."""
+        options = settings.options
         self._clear_machine_z_mm = float(self.backend.position[2])
         for attempt in range(CORRUPT_FRAME_RETRIES + 1):
             firmware = self.arm(settings, tare_counts, **trigger)
@@ -399,7 +408,7 @@ class LoadCellProbe:
             raise ProbeError(message)
         if result.triggered:
             self.last_trigger_time_s = result.trigger_time_s
-        return result, speed_mm_s, t_start_s
+        return result, t_start_s
 
     def check_probing_speed(self, params: TriggerParams, speed_mm_s: float) -> float:
         """The probing speed capped by max_z_velocity; ProbeError (why, and the safe speed) when it
@@ -493,20 +502,21 @@ class LoadCellProbe:
 
     def _probing_move(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float,
                       expected_z_mm: float | None = None):
-        """Tare, then the probing move; returns (move result, tare, t_start, the speed used).
+        """The speed check of `probing_move`, tare, then the probing move; returns (move result,
+        tare, t_start, the speed used).
 
         `expected_z_mm`: the bed height expected here (a tap): the nozzle lifts first when it is too
         close to reach the speed before it, and the move stops 2 mm below it.
         """
         self.require_calibrated()
+        # The force guard of `probing_move`, run once here: an unsafe speed is refused before the lift.
+        speed_mm_s = self.check_probing_speed(self.move_params(settings), speed_mm_s)
         if expected_z_mm is not None:
-            # Refused before the lift too, not only before the probing move.
-            speed_mm_s = self.check_probing_speed(self.move_params(settings), speed_mm_s)
             self._make_room_to_reach_speed(expected_z_mm, speed_mm_s)
         tare_counts = self.tare(settings.options)
         # Until a pullback completes, the nozzle may be on the bed: the next tare waits for fresh samples.
         self.expect_contact()
-        result, speed_mm_s, t_start_s = self.probing_move(settings, tare_counts, z_min_mm, speed_mm_s)
+        result, t_start_s = self._move_at_checked_speed(settings, tare_counts, z_min_mm, speed_mm_s)
         if not result.triggered and expected_z_mm is not None and z_min_mm > self.motion.z_position_min():
             raise ProbeError(ERROR_PREFIX + no_contact_message(z_min_mm, expected_z_mm))
         if not result.triggered:
