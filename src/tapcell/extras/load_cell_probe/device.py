@@ -653,13 +653,14 @@ class LoadCellProbe:
         mesh = getattr(bed_mesh, "mesh", None)
         return None if mesh is None else float(mesh.z_at(x_mm, y_mm))
 
-    def _known_stiffness_g_um(self, *, valid_only: bool = True) -> float | None:
-        """The bed's stiffness measured by the kept taps (the stiffest), None before any.
+    def _known_stiffness_g_um(self) -> float | None:
+        """The bed's stiffness measured by the kept valid taps (the stiffest), None before any.
 
-        The force guard counts bad taps too (to be safe); explaining a bad tap trusts valid ones only.
+        A bad tap's stiffness is not trusted: neither the force guard (`assumed_stiffness_g_um`)
+        nor the explanation of a bad tap uses it.
         """
         stiffness = [t.analysis.stiffness_decompression_g_um for t in self.last_taps
-                     if (t.valid or not valid_only) and t.analysis.stiffness_decompression_g_um]
+                     if t.valid and t.analysis.stiffness_decompression_g_um]
         return max(stiffness) if stiffness else None
 
     def _explain_bad_tap(self, tap: TapData, error_code: str | None, options: TapOptions,
