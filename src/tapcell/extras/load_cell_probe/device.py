@@ -44,8 +44,8 @@ from tapcell.extras.probe.options import with_overrides
 from tapcell.extras.load_cell_probe.options import (
     CORRUPT_FRAME_RETRIES,
     ERROR_PREFIX,
-    GUIDE_CLASSIFIER_OPTION,
     check_stuck_sensor_samples,
+    classifier_option,
     lone_sample_past_limit,
     preload_refusal,
     read_tap_options,
@@ -194,8 +194,8 @@ class LoadCellProbe:
         self.sample_rate_sps = float(self.cell_options.sample_rate_sps)
         self.options = read_tap_options(section)
         self.tap_log_path = section.get("tap_log", None)
-        classifier_option = GUIDE_CLASSIFIER_OPTION if section.has_option(GUIDE_CLASSIFIER_OPTION) else "tap_classifier"
-        self._check_classifier(self.options.tap_classifier, lambda msg: section.error(classifier_option, msg))
+        self._check_classifier(self.options.tap_classifier,
+                               lambda msg: section.error(classifier_option(section), msg))
         check_stuck_sensor_samples(self.options.stuck_sensor_samples,
                                    lambda msg: section.error("stuck_sensor_samples", msg))
         # A live sensor of this type, gain and rate never repeats one value this often (docs/firmware.md).
