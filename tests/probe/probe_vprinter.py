@@ -55,7 +55,9 @@ def true_contact_z(printer: Printer) -> float:
     return float(vp.truth.contact_z_at(x, y)) + printer.lookup_object("toolhead").frame_offset_mm["z"]
 
 
-def peak_force_g(printer: Printer) -> float:
-    """Largest |force| of every tap the probe kept."""
-    taps = printer.lookup_object("load_cell_probe").last_taps
-    return max(float(np.max(np.abs(t.tap.force_g))) for t in taps)
+def true_peak_force_g(printer: Printer, since_s: float | None = None) -> float:
+    """The largest true force on the cell (simulator truth, noise-free: corrupted frames do not
+    count) from `since_s` to now; by default since homing (the calibration weight came before)."""
+    start_s = printer.homed_at_s if since_s is None else since_s
+    _, force_g = printer.backend.truth.force_g(start_s, printer.backend.now_s)
+    return float(np.max(np.abs(force_g)))

@@ -10,19 +10,12 @@ from __future__ import annotations
 
 import re
 
-import numpy as np
 import pytest
 
-from probe_vprinter import make_printer, true_contact_z
+from probe_vprinter import make_printer, true_contact_z, true_peak_force_g
 from tapcell.host.gcode import GCodeError
 
 NO_SCORE = "tap_classifier: empty"
-
-
-def true_peak_force_g(printer) -> float:
-    """Peak true force since homing (the calibration weight came before)."""
-    _, force_g = printer.backend.truth.force_g(printer.homed_at_s, printer.backend.now_s)
-    return float(np.max(np.abs(force_g)))
 
 
 def accuracy(printer, speed_mm_s: float, samples: int = 20, extra: str = "") -> tuple[float, float]:

@@ -8,18 +8,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from probe_vprinter import make_printer, true_contact_z
+from probe_vprinter import make_printer, true_contact_z, true_peak_force_g
 from tapcell.host.config import ConfigError
 from tapcell.host.gcode import GCodeError
 from tapcell.extras.load_cell_probe.options import lone_sample_past_limit
 
 STUCK = (r"^Load Cell Probe Error: load cell reads a constant value \({n} identical samples in a row while "
          r"probing\): sensor stuck! Check the sensor's wiring and power \(see stuck_sensor_samples\)$")
-
-
-def true_peak_force_g(printer, since_s: float) -> float:
-    _, force_g = printer.backend.truth.force_g(since_s, printer.backend.now_s)
-    return float(np.max(np.abs(force_g)))
 
 
 @pytest.mark.parametrize("scenario, speed_mm_s, peak_below_g", [

@@ -76,7 +76,7 @@ def test_walk_weighted_residuals_equal_dense_generalised_least_squares():
     contacts = np.linspace(-3.0, 10.0, 27)
     widths = np.full_like(contacts, 4.5)
     data = _Whitened.prepare(window_um, x_mid, y, wander, contacts[0], contacts[-1], 16.0)
-    rss, stiffness = _rss_whitened(contacts, widths, 0.5, data)
+    rss, stiffness = (values[0] for values in _rss_whitened(contacts, widths, (0.5,), data))
 
     order = np.arange(len(y), dtype=float)
     whiten = np.linalg.inv(np.linalg.cholesky(0.6 * np.eye(len(y)) + 0.05 * np.minimum.outer(order, order)))

@@ -22,32 +22,45 @@ NEIGHBOUR_SPACINGS = 1.5   # neighbours: within this many nearest-point spacings
 OUTLIER_MM = 0.15
 
 
-def neighbour_residuals_mm(points_xy_mm: np.ndarray, z_mm: np.ndarray) -> np.ndarray:
-    """|z - the plane fitted through each point's neighbours| at each point (0 with < 3 neighbours)."""
+def neighbour_planes(points_xy_mm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each point's neighbours' plane as weights on their heights: (W, has_plane), W (n, n) with row
+    i giving the least-squares plane through point i's neighbours, evaluated at point i, as W[i] @ z.
+    has_plane is False where there are fewer than 3 neighbours or they lie on one line. The weights
+    depend on the positions only, so a mesh computes them once however often its heights change."""
     xy = np.asarray(points_xy_mm, dtype=float)
-    z = np.asarray(z_mm, dtype=float)
+    n = len(xy)
+    weights = np.zeros((n, n))
+    has_plane = np.zeros(n, dtype=bool)
+    if n < 4:
+        return weights, has_plane
     distance = np.hypot(xy[:, 0, None] - xy[None, :, 0], xy[:, 1, None] - xy[None, :, 1])
     np.fill_diagonal(distance, np.inf)
-    if len(z) < 4:
-        return np.zeros(len(z))
     spacing = float(np.min(distance))
-    residuals = np.zeros(len(z))
-    for i in range(len(z)):
+    for i in range(n):
         near = np.flatnonzero(distance[i] <= NEIGHBOUR_SPACINGS * spacing)
         if len(near) < 3:
             continue
         design = np.column_stack([np.ones(len(near)), xy[near, 0] - xy[i, 0], xy[near, 1] - xy[i, 1]])
-        coefficients, _, rank, _ = np.linalg.lstsq(design, z[near], rcond=None)
-        if rank == 3:  # neighbours on one line give no plane
-            residuals[i] = abs(z[i] - coefficients[0])
-    return residuals
+        if np.linalg.matrix_rank(design) == 3:  # neighbours on one line give no plane
+            weights[i, near] = np.linalg.pinv(design)[0]  # the fitted plane's height at point i
+            has_plane[i] = True
+    return weights, has_plane
+
+
+def neighbour_residuals_mm(points_xy_mm: np.ndarray, z_mm: np.ndarray,
+                           planes: tuple[np.ndarray, np.ndarray] | None = None) -> np.ndarray:
+    """|z - the plane fitted through each point's neighbours| at each point (0 without a plane).
+    planes: `neighbour_planes(points_xy_mm)` when already computed."""
+    weights, has_plane = neighbour_planes(points_xy_mm) if planes is None else planes
+    z = np.asarray(z_mm, dtype=float)
+    return np.where(has_plane, np.abs(z - weights @ z), 0.0)
 
 
 def worst_outlier(points_xy_mm: np.ndarray, z_mm: np.ndarray, settled: set[int],
-                  limit_mm: float = OUTLIER_MM) -> int | None:
+                  limit_mm: float = OUTLIER_MM, planes: tuple[np.ndarray, np.ndarray] | None = None) -> int | None:
     """The index of the point furthest from its neighbours beyond limit_mm, leaving out `settled`
     points (probed again and confirmed); None when no such point is left."""
-    residuals = neighbour_residuals_mm(points_xy_mm, z_mm)
+    residuals = neighbour_residuals_mm(points_xy_mm, z_mm, planes)
     residuals[list(settled)] = 0.0
     worst = int(np.argmax(residuals))
     return worst if residuals[worst] > limit_mm else None
@@ -67,7 +80,8 @@ def recheck_outliers(points_xy_mm: np.ndarray, z_mm: list[float], probe_again: C
     """
     z = list(z_mm)
     settled: set[int] = set()
-    while (index := worst_outlier(points_xy_mm, z, settled)) is not None:
+    planes = neighbour_planes(points_xy_mm)  # the positions do not change between passes
+    while (index := worst_outlier(points_xy_mm, z, settled, planes=planes)) is not None:
         x_mm, y_mm = points_xy_mm[index]
         first = z[index]
         second = probe_again(index)

@@ -41,8 +41,8 @@ from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import PrefixSums, best_five_segments, prefix_sums, segment_lines
-from tapcell.tap.toe import (ToeFit, Wander, adhesion_dip, fit_toe, free_air_variogram, lag_from_halt_s,
-                             wander_from_variograms)
+from tapcell.tap.toe import (THREAD_REACH_UM, ToeFit, Wander, adhesion_dip, fit_toe, free_air_variogram,
+                             lag_from_halt_s, thread_pull_g, wander_from_variograms)
 
 MIN_SAMPLES = 12
 # Extra samples the force may keep changing after the motion stopped/started (ringing, filters).
@@ -66,13 +66,11 @@ END_SAMPLES = 3
 # The adhesion dip (toe model) that rejects a tap, in noise sigmas. Clean independent taps reach
 # 3.2 at most (360 taps, seed 1); mild ooze has a median of 4.7 and its deepest dips err most.
 ADHESION_MAX_DIP_NOISE = 4.0
-# The departure against the approach's free-air line (check_thread): heights above contact looked
-# at (µm), the fewest samples there, and the limit in noise sigmas. Measured on 100 taps per
+# The departure against the approach's free-air line (check_adhesion, tapcell.tap.toe.thread_pull_g):
+# the limit in noise sigmas. Measured on 100 taps per
 # scenario of the independent generator (seed 2), in noise sigmas: clean, soft, latency, hum and
 # corrupt-frame taps -2.7..+2.6, cable drift -7.2 (its walk, allowed for separately), mild ooze
 # down to -7.1, heavy ooze the generator's checks let through -10.6..-37.
-THREAD_REACH_UM = (10.0, 60.0)
-THREAD_MIN_SAMPLES = 5
 THREAD_MAX_NOISE = 8.0
 # ... and by more than this fraction of the compression force: a noise-free tap (noise 0) has no
 # dip, only rounding. Below any real sensor's 4 sigmas (75 g x 1 % = 0.75 g; HX717 ~1 g noise).
@@ -386,53 +384,34 @@ def fit_pullback_toe(window: ModelWindow, motion: Motion, timing: SensorTiming, 
     return fit_toe(*pullback_samples(window, motion, timing, delay_s), contact0_um, spacing_um, drift_g_um, wander)
 
 
-def check_adhesion(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float, drift_g_um: float,
-                   contact_um: float, noise_g: float, compression_force_g: float) -> None:
-    """TAP_ADHESION when the force dips below the free-air level just above break contact by more
-    than ADHESION_MAX_DIP_NOISE noise sigmas (tapcell.tap.toe.adhesion_dip)."""
-    x_lo, x_hi, force_g = pullback_samples(window, motion, timing, delay_s)
-    dip_g = adhesion_dip(0.5 * (x_lo + x_hi), force_g, drift_g_um, contact_um)
-    if dip_g is not None and dip_g > max(ADHESION_MAX_DIP_NOISE * noise_g,
-                                         ADHESION_MIN_DIP_FRACTION * compression_force_g):
-        raise TapInvalid(TAP_ADHESION, f"the force dips {dip_g:.1f} g below free air just above break contact "
-                                       f"(more than {ADHESION_MAX_DIP_NOISE:g} x the {noise_g:.2f} g noise): "
-                                       "ooze or adhesion pulling the nozzle")
-
-
-def thread_pull_g(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float, dec: Decomposition,
-                  contact_um: float) -> float | None:
-    """How far (g) the departure lies below the approach's free-air line at the same heights, or
-    None when too few pullback samples lie between THREAD_REACH_UM above contact.
-
-    A thread of ooze pulling the nozzle for a long way after break contact pulls the departure's
-    whole level down, so the adhesion dip (departure against itself) cannot see it; the approach
-    crossed the same heights in free air before the tap, so its line is a reference the thread
-    never touched (a heavy-ooze tap of the independent generator read valid 31 um high that way).
+def check_adhesion(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float, dec: Decomposition,
+                   drift_g_um: float, contact_um: float, noise_g: float, approach_wander: Wander | None,
+                   compression_force_g: float) -> None:
+    """TAP_ADHESION when ooze or adhesion pulls the nozzle after break contact, seen either way:
+    the force dips below the departure's own free-air level just above break contact by more than
+    ADHESION_MAX_DIP_NOISE noise sigmas (`adhesion_dip`), or the departure lies below the
+    approach's free-air line at the same heights by more than THREAD_MAX_NOISE noise sigmas plus
+    what the baseline's walk can move it between the two, 3 sigma (`thread_pull_g`: a thread
+    pulling the whole departure pulls the dip's own reference too). The walk is the approach's
+    own: a thread pulling over the departure would pass for a walk there. Either must also exceed
+    ADHESION_MIN_DIP_FRACTION of the compression force (a noise-free tap has no noise to compare with).
     """
     x_lo, x_hi, force_g = pullback_samples(window, motion, timing, delay_s)
     x_um = 0.5 * (x_lo + x_hi)
-    above = x_um - contact_um
-    near = (above > THREAD_REACH_UM[0]) & (above < THREAD_REACH_UM[1])
-    if np.count_nonzero(near) < THREAD_MIN_SAMPLES:
-        return None
-    # The approach passed height x (above the halt) at halt - x / speed.
-    passed_s = motion.home_end_s - x_um[near] / (motion.approach_speed_mm_s * 1000.0)
-    slope, intercept = dec.lines[0]
-    return median(slope * passed_s + intercept - force_g[near])
-
-
-def check_thread(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float, dec: Decomposition,
-                 contact_um: float, noise_g: float, wander: Wander | None, compression_force_g: float) -> None:
-    """TAP_ADHESION when the departure lies below the approach's line by more than THREAD_MAX_NOISE
-    noise sigmas plus what the baseline's walk can move it between the two (3 sigma), and by more
-    than the dip check's share of the compression force (noise-free taps). The walk is the
-    approach's own: a thread pulling over the departure would pass for a walk there."""
-    pull_g = thread_pull_g(window, motion, timing, delay_s, dec, contact_um)
+    floor_g = ADHESION_MIN_DIP_FRACTION * compression_force_g
+    dip_g = adhesion_dip(x_um, force_g, drift_g_um, contact_um)
+    if dip_g is not None and dip_g > max(ADHESION_MAX_DIP_NOISE * noise_g, floor_g):
+        raise TapInvalid(TAP_ADHESION, f"the force dips {dip_g:.1f} g below free air just above break contact "
+                                       f"(more than {ADHESION_MAX_DIP_NOISE:g} x the {noise_g:.2f} g noise): "
+                                       "ooze or adhesion pulling the nozzle")
+    # The approach line's force where the approach passed the halt's height (its time is the halt).
+    slope_g_s, intercept_g = dec.lines[0]
+    pull_g = thread_pull_g(x_um, force_g, drift_g_um, slope_g_s * motion.home_end_s + intercept_g, contact_um)
     if pull_g is None:
         return
     apart_samples = (motion.pullback_start_s - motion.home_end_s) / timing.sample_period_s + 2 * THREAD_REACH_UM[1]
-    walk_g = 3.0 * math.sqrt(wander.walk_var_g2 * max(apart_samples, 0.0)) if wander else 0.0
-    limit_g = max(THREAD_MAX_NOISE * noise_g + walk_g, ADHESION_MIN_DIP_FRACTION * compression_force_g)
+    walk_g = 3.0 * math.sqrt(approach_wander.walk_var_g2 * max(apart_samples, 0.0)) if approach_wander else 0.0
+    limit_g = max(THREAD_MAX_NOISE * noise_g + walk_g, floor_g)
     if pull_g > limit_g:
         raise TapInvalid(TAP_ADHESION, f"the force after break contact lies {pull_g:.1f} g below the approach's "
                                        f"free-air level at the same heights (more than {limit_g:.1f} g): "
@@ -613,10 +592,8 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
             result.contact_onset_um = toe.width_um
             result.stiffness_decompression_g_um = toe.stiffness_g_um
             try:
-                check_adhesion(window, motion, timing, window_delay_s, drift_g_um, toe.contact_um, noise_g,
-                               result.compression_force_g)
-                check_thread(window, motion, timing, window_delay_s, dec, toe.contact_um, noise_g,
-                             approach_wander, result.compression_force_g)
+                check_adhesion(window, motion, timing, window_delay_s, dec, drift_g_um, toe.contact_um, noise_g,
+                               approach_wander, result.compression_force_g)
             except TapInvalid as invalid:
                 result.valid, result.error, result.message = False, invalid.code, invalid.message
                 return result, context

@@ -85,6 +85,10 @@ ADHESION_REACH_UM = 40.0
 ADHESION_LEVEL_UM = 100.0  # the free-air level from samples between the reach and this height
 ADHESION_RUN_SAMPLES = 5  # the dip is the lowest mean of this many consecutive samples
 ADHESION_MIN_LEVEL_SAMPLES = 10
+# A thread pulling the whole departure (`thread_pull_g`): heights above contact looked at (µm), and
+# the fewest samples there.
+THREAD_REACH_UM = (10.0, 60.0)
+THREAD_MIN_SAMPLES = 5
 # The baseline's random walk is weighed in when over the fit it adds as much variance as the white noise
 # (0.25 and 0.5 gave the same drift sigma and 0.01 um more on clean taps).
 WANDER_SHARE = 1.0
@@ -105,7 +109,12 @@ _GRID_WIDTHS_UM = np.repeat(TOE_WIDTHS_UM, len(_CONTACT_OFFSETS_UM))
 _SUBSAMPLE_FRACTIONS = (np.arange(SUBSAMPLES) + 0.5) / SUBSAMPLES
 _RUN_MEAN_KERNEL = np.full(ADHESION_RUN_SAMPLES, 1.0 / ADHESION_RUN_SAMPLES)
 _TOE_PRIOR = np.tile(WIDTH_PRIOR, len(TOE_POWERS))  # per row of the grid: (shape, width)
-_LIFT_DEFICIT = np.array([power / (power + 1.0) for power in TOE_POWERS])  # of a toe's width
+def _lift_deficits(powers) -> np.ndarray:
+    """How far short of its width a toe of each power lifts the linear part: w p / (p + 1), per unit w."""
+    return np.array([power / (power + 1.0) for power in powers])
+
+
+_LIFT_DEFICIT = _lift_deficits(TOE_POWERS)
 
 
 @dataclass
@@ -448,11 +457,9 @@ def _whiten(differences: np.ndarray, diag: np.ndarray, sub: np.ndarray, j0: int,
     return columns.T
 
 
-def _rss_whitened(contacts_um, widths_um, power, data: _Whitened):
+def _rss_whitened(contacts_um, widths_um, powers: tuple[float, ...], data: _Whitened):
     """`_rss_over_contacts` under the noise's metric (residuals in white-noise units), and the
-    stiffness. power: one shape's, or a tuple of them: then every shape's candidates go through
-    one recursion and both results are (shape, candidate)."""
-    powers = power if isinstance(power, tuple) else (power,)
+    stiffness, both (shape, candidate): every shape's candidates go through one recursion."""
     # (subsample, candidate, in-between sample): the long axes innermost
     depth = contacts_um[:, None] - data.near_window_um.T[:, None, :]
     # (shape × candidate, in-between sample)
@@ -460,7 +467,7 @@ def _rss_whitened(contacts_um, widths_um, power, data: _Whitened):
     first = data.first_near
     columns = [h]
     if first:  # the pressed sample before: h = a - x, with a = c - the toe's lift deficit
-        a = contacts_um - widths_um * np.array([p / (p + 1.0) for p in powers])[:, None]
+        a = contacts_um - widths_um * _lift_deficits(powers)[:, None]
         columns.insert(0, (a - data.x_mid[first - 1]).reshape(-1, 1))
     if first + h.shape[1] < len(data.x_mid):  # the free sample after: h = 0
         columns.append(np.zeros((len(h), 1)))
@@ -473,8 +480,6 @@ def _rss_whitened(contacts_um, widths_um, power, data: _Whitened):
     usable = hh > 1e-12
     stiffness = np.divide(hy, hh, out=np.zeros_like(hy), where=usable)
     rss = np.where(usable & (stiffness > 0.0), data.yy - stiffness * hy, np.inf)
-    if not isinstance(power, tuple):
-        return rss, stiffness
     return rss.reshape(len(powers), -1), stiffness.reshape(len(powers), -1)
 
 
@@ -522,7 +527,7 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
         return None
     width, power = TOE_WIDTHS_UM[best[1]], TOE_POWERS[best[0]]
     if whitened is not None:
-        stiffness = float(_rss_whitened(np.array([contact]), np.array([width]), power, whitened)[1][0])
+        stiffness = float(_rss_whitened(np.array([contact]), np.array([width]), (power,), whitened)[1][0, 0])
     else:
         stiffness = _stiffness_at(contact, width, power, data)
     return ToeFit(contact_um=contact, sigma_um=sigma, width_um=float(width), power=float(power),
@@ -589,3 +594,21 @@ def adhesion_dip(x_um: np.ndarray, force_g: np.ndarray, drift_g_um: float, conta
     runs = np.convolve(near, _RUN_MEAN_KERNEL, mode="valid")
     return median(level) - float(runs.min())
 
+
+
+def thread_pull_g(x_um: np.ndarray, force_g: np.ndarray, drift_g_um: float, approach_at_halt_g: float,
+                  contact_um: float) -> float | None:
+    """How far (g) the departure lies below the approach's free-air line at the same heights, or
+    None when too few samples lie between THREAD_REACH_UM above contact.
+
+    A thread of ooze pulling the nozzle for a long way after break contact pulls the departure's
+    whole level down, so `adhesion_dip` (the departure against itself) cannot see it; the approach
+    crossed the same heights in free air before the tap, so its line, approach_at_halt_g at the
+    halt's height plus drift_g_um per µm above it, is a reference the thread never touched (a
+    heavy-ooze tap of the independent generator read valid 31 µm high that way).
+    """
+    above = x_um - contact_um
+    near = (above > THREAD_REACH_UM[0]) & (above < THREAD_REACH_UM[1])
+    if np.count_nonzero(near) < THREAD_MIN_SAMPLES:
+        return None
+    return median(approach_at_halt_g + drift_g_um * x_um[near] - force_g[near])

@@ -44,8 +44,8 @@ from tapcell.extras.probe.options import with_overrides
 from tapcell.extras.load_cell_probe.options import (
     CORRUPT_FRAME_RETRIES,
     ERROR_PREFIX,
-    GUIDE_CLASSIFIER_OPTION,
     check_stuck_sensor_samples,
+    classifier_option,
     lone_sample_past_limit,
     preload_refusal,
     read_tap_options,
@@ -194,8 +194,8 @@ class LoadCellProbe:
         self.sample_rate_sps = float(self.cell_options.sample_rate_sps)
         self.options = read_tap_options(section)
         self.tap_log_path = section.get("tap_log", None)
-        classifier_option = GUIDE_CLASSIFIER_OPTION if section.has_option(GUIDE_CLASSIFIER_OPTION) else "tap_classifier"
-        self._check_classifier(self.options.tap_classifier, lambda msg: section.error(classifier_option, msg))
+        self._check_classifier(self.options.tap_classifier,
+                               lambda msg: section.error(classifier_option(section), msg))
         check_stuck_sensor_samples(self.options.stuck_sensor_samples,
                                    lambda msg: section.error("stuck_sensor_samples", msg))
         # A live sensor of this type, gain and rate never repeats one value this often (docs/firmware.md).
@@ -361,7 +361,8 @@ class LoadCellProbe:
 
     def probing_move(self, settings: TapSettings, tare_counts: float, z_min_mm: float, speed_mm_s: float,
                      **trigger):
-        """Every Z probing move of this probe (taps, homing, threshold probing) goes through here.
+        """One Z probing move (threshold probing); taps and homing run the same steps through
+        `_probing_move`, which checks the speed once, before its lift.
 
         The speed is capped by [printer] max_z_velocity (said once per command) and refused when
         the worst-case overshoot could press harder than force_safety_limit; then the firmware
@@ -372,8 +373,16 @@ class LoadCellProbe:
         Returns (move result, the speed used, when the last attempt started); result.triggered is
         False when the move reached z_min_mm without a trigger.
         """
-        options = settings.options
         speed_mm_s = self.check_probing_speed(self.move_params(settings, **trigger), speed_mm_s)
+        result, t_start_s = self._move_at_checked_speed(settings, tare_counts, z_min_mm, speed_mm_s, **trigger)
+        return result, speed_mm_s, t_start_s
+
+    def _move_at_checked_speed(self, settings: TapSettings, tare_counts: float, z_min_mm: float, speed_mm_s: float,
+                               **trigger):
+        """`probing_move` after its speed check: the caller has passed `speed_mm_s` through
+        `check_probing_speed` with these settings and trigger. Returns (move result, when the
+        last attempt started)."""
+        options = settings.options
         self._clear_machine_z_mm = float(self.backend.position[2])
         for attempt in range(CORRUPT_FRAME_RETRIES + 1):
             firmware = self.arm(settings, tare_counts, **trigger)
@@ -399,7 +408,7 @@ class LoadCellProbe:
             raise ProbeError(message)
         if result.triggered:
             self.last_trigger_time_s = result.trigger_time_s
-        return result, speed_mm_s, t_start_s
+        return result, t_start_s
 
     def check_probing_speed(self, params: TriggerParams, speed_mm_s: float) -> float:
         """The probing speed capped by max_z_velocity; ProbeError (why, and the safe speed) when it
@@ -493,20 +502,21 @@ class LoadCellProbe:
 
     def _probing_move(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float,
                       expected_z_mm: float | None = None):
-        """Tare, then the probing move; returns (move result, tare, t_start, the speed used).
+        """The speed check of `probing_move`, tare, then the probing move; returns (move result,
+        tare, t_start, the speed used).
 
         `expected_z_mm`: the bed height expected here (a tap): the nozzle lifts first when it is too
         close to reach the speed before it, and the move stops 2 mm below it.
         """
         self.require_calibrated()
+        # The force guard of `probing_move`, run once here: an unsafe speed is refused before the lift.
+        speed_mm_s = self.check_probing_speed(self.move_params(settings), speed_mm_s)
         if expected_z_mm is not None:
-            # Refused before the lift too, not only before the probing move.
-            speed_mm_s = self.check_probing_speed(self.move_params(settings), speed_mm_s)
             self._make_room_to_reach_speed(expected_z_mm, speed_mm_s)
         tare_counts = self.tare(settings.options)
         # Until a pullback completes, the nozzle may be on the bed: the next tare waits for fresh samples.
         self.expect_contact()
-        result, speed_mm_s, t_start_s = self.probing_move(settings, tare_counts, z_min_mm, speed_mm_s)
+        result, t_start_s = self._move_at_checked_speed(settings, tare_counts, z_min_mm, speed_mm_s)
         if not result.triggered and expected_z_mm is not None and z_min_mm > self.motion.z_position_min():
             raise ProbeError(ERROR_PREFIX + no_contact_message(z_min_mm, expected_z_mm))
         if not result.triggered:
@@ -643,13 +653,14 @@ class LoadCellProbe:
         mesh = getattr(bed_mesh, "mesh", None)
         return None if mesh is None else float(mesh.z_at(x_mm, y_mm))
 
-    def _known_stiffness_g_um(self, *, valid_only: bool = True) -> float | None:
-        """The bed's stiffness measured by the kept taps (the stiffest), None before any.
+    def _known_stiffness_g_um(self) -> float | None:
+        """The bed's stiffness measured by the kept valid taps (the stiffest), None before any.
 
-        The force guard counts bad taps too (to be safe); explaining a bad tap trusts valid ones only.
+        A bad tap's stiffness is not trusted: neither the force guard (`assumed_stiffness_g_um`)
+        nor the explanation of a bad tap uses it.
         """
         stiffness = [t.analysis.stiffness_decompression_g_um for t in self.last_taps
-                     if (t.valid or not valid_only) and t.analysis.stiffness_decompression_g_um]
+                     if t.valid and t.analysis.stiffness_decompression_g_um]
         return max(stiffness) if stiffness else None
 
     def _explain_bad_tap(self, tap: TapData, error_code: str | None, options: TapOptions,

@@ -132,10 +132,15 @@ TAP_OPTION_SPECS: tuple[OptionSpec, ...] = (
 GUIDE_CLASSIFIER_OPTION = "tap_classifier_module"
 
 
+def classifier_option(section) -> str:
+    """The name this config gives the classifier option: the guide's, or Kalico's `tap_classifier`."""
+    return GUIDE_CLASSIFIER_OPTION if section.has_option(GUIDE_CLASSIFIER_OPTION) else "tap_classifier"
+
+
 def read_tap_options(section) -> TapOptions:
     """`[load_cell_probe]`'s tap options (TAP_OPTION_SPECS), the guide's classifier name included."""
     values = read_section_values(section, TAP_OPTION_SPECS)
-    if section.has_option(GUIDE_CLASSIFIER_OPTION):
+    if classifier_option(section) == GUIDE_CLASSIFIER_OPTION:
         if section.has_option("tap_classifier"):
             raise section.error(GUIDE_CLASSIFIER_OPTION,
                                 "the same option as tap_classifier (the guide's name for it): give one of them")
