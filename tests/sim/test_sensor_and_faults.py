@@ -268,6 +268,19 @@ def test_finished_faults_are_forgotten_and_forgetting_changes_no_sample(monkeypa
     np.testing.assert_array_equal(pruned.counts, kept_all.counts)
 
 
+def test_finished_hand_taps_are_forgotten_and_a_delayed_one_still_presses():
+    vp = VirtualPrinter.from_scenario("clean", seed=2)
+    vp.tap_nozzle(300.0, duration_s=0.1)
+    vp.tap_nozzle(300.0, duration_s=0.1, delay_s=1.0)
+    vp.dwell(0.5)
+    assert len(vp._hand_taps) == 1                      # the first is over, the delayed one to come
+    vp.take_samples()
+    vp.dwell(0.65)
+    counts = vp.take_samples().counts
+    assert np.ptp(counts) > 100.0 * abs(vp.truth.counts_per_gram)  # the delayed tap still pressed (300 g)
+    assert vp._hand_taps == []
+
+
 def test_hand_tap_triggers_the_firmware_with_no_motion():
     vp = VirtualPrinter.from_scenario("clean", seed=1)
     trigger = armed_trigger(vp, trigger_force_g=75.0)

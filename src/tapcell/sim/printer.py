@@ -545,9 +545,11 @@ class VirtualPrinter:
             self._mcu.deliver(self._compute(self._next_k, k1))
             self._next_k = k1
         timing = self._timing
-        self._faults = faultlib.still_acting(self._faults, self._next_k,
-                                             min(self._now_s, timing.window_start_s(self._next_k)),
-                                             timing.first_ready_s, timing.period_s)
+        earliest_s = min(self._now_s, timing.window_start_s(self._next_k))  # nothing later looks before this
+        self._faults = faultlib.still_acting(self._faults, self._next_k, earliest_s, timing.first_ready_s,
+                                             timing.period_s)
+        # Hand taps over before then can no longer press on the cell: forget them too.
+        self._hand_taps = [tap for tap in self._hand_taps if tap[0] + tap[1] >= earliest_s]
         for sensor in self._aux_sensors:
             sensor.advance_to(self._now_s)
         if reset is not None:
