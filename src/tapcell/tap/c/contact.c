@@ -1,0 +1,11 @@
+/* The contact kernels of the tap analysis (numpy twins: tapcell/tap/contact.py). */
+#include "buffers.h"
+
+static PyMethodDef methods[] = {
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_c_contact", "The contact kernels of the tap analysis.", -1,
+                                    methods, NULL, NULL, NULL, NULL};
+
+PyMODINIT_FUNC PyInit__c_contact(void) { return PyModule_Create(&module); }

@@ -1,0 +1,11 @@
+/* The toe kernels of the tap analysis (numpy twins: tapcell/tap/toe.py). */
+#include "buffers.h"
+
+static PyMethodDef methods[] = {
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_c_toe", "The toe kernels of the tap analysis.", -1,
+                                    methods, NULL, NULL, NULL, NULL};
+
+PyMODINIT_FUNC PyInit__c_toe(void) { return PyModule_Create(&module); }
