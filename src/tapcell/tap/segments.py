@@ -3,6 +3,10 @@
 Segments are half-open index ranges [i, j). Prefix sums are taken over time and force
 re-centred on the analysed region, so the expanded sums stay small and the
 "sum of squares minus square of sums" differences do not cancel catastrophically.
+
+`prefix_sums` and `best_five_segments` run in C when the kernel tapcell.tap._c_segments is built
+(same arithmetic: the same sums, the same boundaries, ties included); the numpy code below is the
+reference and the fallback.
 """
 
 from __future__ import annotations
@@ -12,6 +16,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from tapcell.tap import native
+
+_C = native.load("segments")
 
 MIN_SEGMENT_SAMPLES = 2
 
@@ -38,6 +46,9 @@ def prefix_sums(time_s: np.ndarray, force_g: np.ndarray) -> PrefixSums:
     t_ref = float(time_s[n // 2])
     f_ref = float(force_g.sum()) / n  # the mean, without np.mean's call overhead
     sums = np.empty((6, n + 1))
+    if _C is not None:
+        _C.prefix_sums(time_s, force_g, t_ref, f_ref, sums)
+        return PrefixSums(t_ref, f_ref, sums)
     sums[0] = np.arange(n + 1)  # the running count needs no summing
     sums[1:, 0] = 0.0
     t, f, tt, tf, ff = sums[1:, 1:]
@@ -135,6 +146,9 @@ def best_five_segments(
     decompression [release, break), departure [break, stop). The sums of a block of segments
     (first boundary × second boundary) are one broadcast difference of two column slices.
     """
+    if _C is not None:
+        return _C.best_five_segments(ps.sums, start, stop, contact.start, contact.stop, peak.start, peak.stop,
+                                     release.start, release.stop, breaking.start, breaking.stop)
     c, p, r, b = len(contact), len(peak), len(release), len(breaking)
     columns = ps.sums
     at_contact = columns[:, contact.start:contact.stop]

@@ -1,7 +1,216 @@
-/* The segments kernels of the tap analysis (numpy twins: tapcell/tap/segments.py). */
+/* The segments kernels of the tap analysis (numpy twins: tapcell/tap/segments.py).
+ *
+ * best_five_segments: the exhaustive joint search of the four boundaries of the five-line split.
+ * The numpy twin costs every candidate segment in one big work array; here each segment is costed
+ * where it is needed, with the twin's arithmetic in the twin's order (`_sse_of_sums`), so both
+ * see the same residuals bit for bit and pick the same boundaries, exact ties included. */
 #include "buffers.h"
 
+#include <math.h>
+
+#define MIN_SEGMENT_SAMPLES 2.0
+#define SUM_ROWS 6
+
+/* The prefix sums: SUM_ROWS rows (count, Σt, Σf, Σt², Σtf, Σf²) of `columns` values each. */
+typedef struct {
+    const double *rows;
+    Py_ssize_t columns;
+} PrefixSums;
+
+/* Residual sum of squares of the best line through a segment's sums: `_sse_of_sums` step by step
+ * (same operations, same order), +inf for fewer than MIN_SEGMENT_SAMPLES samples. */
+static inline double sse_of_sums(double n, double st, double sf, double stt, double stf, double sff)
+{
+    double inv_n = 1.0 / n;
+    double t_mean = st * inv_n;
+    double sxx = stt - st * t_mean;
+    double sxy = stf - t_mean * sf;
+    double explained = (sxy * sxy) / sxx;
+    double sse = (sff - (sf * sf) * inv_n) - explained;
+    sse = sse < 0.0 ? 0.0 : sse; /* np.maximum(sse, 0): a NaN stays NaN */
+    /* Selected, not branched on: the loops below stay branch-free (too short is rare, at the ends). */
+    return n < MIN_SEGMENT_SAMPLES ? INFINITY : sse;
+}
+
+/* The column `j` of row `k` of the prefix sums. */
+#define AT(ps, k, j) ((ps)->rows[(k) * (ps)->columns + (j)])
+
+/* sse[k] of the segments [first + k, end) for k < count: one end fixed, the start moving. */
+static void sse_ending_at(const PrefixSums *ps, Py_ssize_t first, Py_ssize_t count, Py_ssize_t end, double *sse)
+{
+    for (Py_ssize_t k = 0; k < count; k++) {
+        Py_ssize_t i = first + k;
+        sse[k] = sse_of_sums(AT(ps, 0, end) - AT(ps, 0, i), AT(ps, 1, end) - AT(ps, 1, i), AT(ps, 2, end) - AT(ps, 2, i),
+                             AT(ps, 3, end) - AT(ps, 3, i), AT(ps, 4, end) - AT(ps, 4, i), AT(ps, 5, end) - AT(ps, 5, i));
+    }
+}
+
+/* sse[k] of the segments [begin, first + k) for k < count: one start fixed, the end moving. */
+static void sse_starting_at(const PrefixSums *ps, Py_ssize_t begin, Py_ssize_t first, Py_ssize_t count, double *sse)
+{
+    for (Py_ssize_t k = 0; k < count; k++) {
+        Py_ssize_t j = first + k;
+        sse[k] = sse_of_sums(AT(ps, 0, j) - AT(ps, 0, begin), AT(ps, 1, j) - AT(ps, 1, begin),
+                             AT(ps, 2, j) - AT(ps, 2, begin), AT(ps, 3, j) - AT(ps, 3, begin),
+                             AT(ps, 4, j) - AT(ps, 4, begin), AT(ps, 5, j) - AT(ps, 5, begin));
+    }
+}
+
+/* The least of `count` values and its index (*at), in numpy's min/argmin order: the first
+ * minimum, and a NaN wins (and stays) as numpy propagates it. */
+static double first_min(const double *values, Py_ssize_t count, Py_ssize_t *at)
+{
+    double best = values[0];
+    *at = 0;
+    for (Py_ssize_t k = 1; k < count && !isnan(best); k++) {
+        if (values[k] < best || isnan(values[k])) {
+            best = values[k];
+            *at = k;
+        }
+    }
+    return best;
+}
+
+PyDoc_STRVAR(best_five_segments_doc,
+             "best_five_segments(sums, start, stop, contact_first, contact_end, peak_first, peak_end,\n"
+             "                   release_first, release_end, break_first, break_end) -> (contact, peak, release, break) | None\n"
+             "\n"
+             "The boundaries of five lines over [start, stop) with the least total residual, each boundary\n"
+             "from its half-open candidate range, as tapcell.tap.segments.best_five_segments (same ties).\n"
+             "`sums`: the (6, n + 1) float64 prefix sums, C order. None when no split gives every line two samples.");
+
+static PyObject *best_five_segments(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer buffer;
+    Py_ssize_t start, stop, c0, c1, p0, p1, r0, r1, b0, b1;
+    if (!PyArg_ParseTuple(args, "y*nnnnnnnnnn", &buffer, &start, &stop, &c0, &c1, &p0, &p1, &r0, &r1, &b0, &b1))
+        return NULL;
+    PyObject *result = NULL;
+    double *scratch = NULL;
+    Py_ssize_t count;
+    const double *rows = doubles_of(&buffer, &count, "sums");
+    if (rows == NULL)
+        goto done;
+    if (count % SUM_ROWS != 0) {
+        PyErr_Format(PyExc_ValueError, "sums: %zd values is not 6 rows", count);
+        goto done;
+    }
+    const PrefixSums ps = {rows, count / SUM_ROWS};
+    const Py_ssize_t edges[] = {start, stop, c0, c1, p0, p1, r0, r1, b0, b1};
+    for (size_t k = 0; k < sizeof edges / sizeof edges[0]; k++) {
+        /* start and stop are columns; a candidate range's end may be one past the last column */
+        if (edges[k] < 0 || edges[k] > ps.columns - 1 + (k >= 2 && k % 2)) {
+            PyErr_Format(PyExc_ValueError, "boundary %zd outside the %zd prefix-sum columns", edges[k], ps.columns);
+            goto done;
+        }
+    }
+    const Py_ssize_t c = c1 - c0, p = p1 - p0, r = r1 - r0, b = b1 - b0;
+    if (c <= 0 || p <= 0 || r <= 0 || b <= 0) {
+        PyErr_SetString(PyExc_ValueError, "an empty candidate range");
+        goto done;
+    }
+    /* One scratch block per call: the approach per contact, the departure per break, one row of
+     * the compression or decompression, the best half per peak and per release, and their argmins. */
+    scratch = PyMem_Malloc(sizeof(double) * (size_t)(c + b + (c > b ? c : b) + 2 * (p + r)));
+    if (scratch == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    double *approach = scratch, *departure = approach + c, *row = departure + b;
+    double *left = row + (c > b ? c : b), *right = left + p;
+    Py_ssize_t *left_at = (Py_ssize_t *)(right + r), *right_at = left_at + p; /* doubles and indices are 8 bytes */
+    sse_starting_at(&ps, start, c0, c, approach);
+    sse_ending_at(&ps, b0, b, stop, departure);
+    /* Per peak, the best contact: compression + approach (the twin's order of the sum). */
+    for (Py_ssize_t ip = 0; ip < p; ip++) {
+        sse_ending_at(&ps, c0, c, p0 + ip, row);
+        for (Py_ssize_t k = 0; k < c; k++)
+            row[k] += approach[k];
+        left[ip] = first_min(row, c, &left_at[ip]);
+    }
+    /* Per release, the best break: decompression + departure. */
+    for (Py_ssize_t ir = 0; ir < r; ir++) {
+        sse_starting_at(&ps, r0 + ir, b0, b, row);
+        for (Py_ssize_t k = 0; k < b; k++)
+            row[k] += departure[k];
+        right[ir] = first_min(row, b, &right_at[ir]);
+    }
+    /* The best total per (peak, release) in row-major order, as total.argmin(): each half at its
+     * best, the dwell between. */
+    double best = INFINITY;
+    Py_ssize_t best_ip = 0, best_ir = 0;
+    for (Py_ssize_t ip = 0; ip < p; ip++) {
+        sse_starting_at(&ps, p0 + ip, r0, r, row);
+        for (Py_ssize_t k = 0; k < r; k++)
+            row[k] = (left[ip] + row[k]) + right[k];
+        Py_ssize_t ir;
+        double value = first_min(row, r, &ir);
+        if (ip == 0 || (!isnan(best) && (value < best || isnan(value)))) {
+            best = value;
+            best_ip = ip;
+            best_ir = ir;
+        }
+    }
+    if (isfinite(best)) {
+        result = Py_BuildValue("nnnn", c0 + left_at[best_ip], p0 + best_ip, r0 + best_ir, b0 + right_at[best_ir]);
+    } else {
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+done:
+    PyMem_Free(scratch);
+    PyBuffer_Release(&buffer);
+    return result;
+}
+
+PyDoc_STRVAR(prefix_sums_doc,
+             "prefix_sums(time_s, force_g, t_ref_s, f_ref_g, sums) -> None\n"
+             "\n"
+             "Fill `sums` (a (6, n + 1) float64 array, C order) with the running sums of 1, t, f, t², t·f, f²\n"
+             "over t = time_s - t_ref_s, f = force_g - f_ref_g, a leading 0 column: as the numpy twin\n"
+             "tapcell.tap.segments.prefix_sums (the same sums in the same order).");
+
+static PyObject *prefix_sums(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer time_buffer, force_buffer, sums_buffer;
+    double t_ref_s, f_ref_g;
+    if (!PyArg_ParseTuple(args, "y*y*ddw*", &time_buffer, &force_buffer, &t_ref_s, &f_ref_g, &sums_buffer))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t n;
+    const double *time_s = doubles_of(&time_buffer, &n, "time_s");
+    const double *force_g = time_s ? doubles_sized(&force_buffer, n, "force_g") : NULL;
+    double *sums = force_g ? doubles_sized(&sums_buffer, SUM_ROWS * (n + 1), "sums") : NULL;
+    if (sums != NULL) {
+        const Py_ssize_t width = n + 1;
+        double running[SUM_ROWS] = {0.0};
+        for (int row = 0; row < SUM_ROWS; row++)
+            sums[row * width] = 0.0;
+        for (Py_ssize_t k = 0; k < n; k++) {
+            double t = time_s[k] - t_ref_s, f = force_g[k] - f_ref_g;
+            running[1] += t;
+            running[2] += f;
+            running[3] += t * t;
+            running[4] += t * f;
+            running[5] += f * f;
+            sums[k + 1] = (double)(k + 1); /* the running count needs no summing */
+            for (int row = 1; row < SUM_ROWS; row++)
+                sums[row * width + k + 1] = running[row];
+        }
+        Py_INCREF(Py_None);
+        result = Py_None;
+    }
+    PyBuffer_Release(&time_buffer);
+    PyBuffer_Release(&force_buffer);
+    PyBuffer_Release(&sums_buffer);
+    return result;
+}
+
 static PyMethodDef methods[] = {
+    {"best_five_segments", best_five_segments, METH_VARARGS, best_five_segments_doc},
+    {"prefix_sums", prefix_sums, METH_VARARGS, prefix_sums_doc},
     {NULL, NULL, 0, NULL},
 };
 
