@@ -24,8 +24,7 @@ import numpy as np
 from tapcell.tap import validate
 from tapcell.tap.angles import line_angles_deg
 from tapcell.tap.classifiers import get_classifier, run_classifier
-from tapcell.tap.contact import (ContactFit, fit_contact, fit_contact_at, search_contact, window_edges,
-                                 window_mean_and_slope)
+from tapcell.tap.contact import ContactFit, fit_contact, fit_fixed_onset, window_edges, window_mean_and_slope
 from tapcell.tap.context import AnalysisContext, SensorTiming, recompute_points
 from tapcell.tap.hum import MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum, fit_hum, resolvable_hz, spline_knots
 from tapcell.tap.model import (
@@ -52,8 +51,6 @@ UNKNOWN_DELAY_ALLOWANCE_S = 0.02
 # An onset is modelled only when it lowers the residual by this many noise variances (~5 sigma).
 ONSET_MIN_CHI2 = 25.0
 ONSET_GRID_UM = (0.0, 2.0, 4.0, 6.0, 9.0, 12.0)
-# The global contact search spans this many samples either side of the line estimate.
-SEARCH_SAMPLES = 4
 # A lead screw of 8 mm per turn, 200 full steps, 16 microsteps: the commonest Z resolution.
 DEFAULT_Z_STEP_UM = 2.5
 # The misfit looks at samples up to this many pullback steps past break contact.
@@ -292,26 +289,6 @@ def near_contact_sigma_g(residual_g: np.ndarray, x_min_um: np.ndarray, fit: Cont
     return math.sqrt(float(near @ near) / (len(near) - 3))
 
 
-def _fit_fixed_onset(y, x_min, span, contact0_um: float, spacing_um: float, onset_um: float
-                     ) -> tuple[ContactFit, np.ndarray] | None:
-    """Global search of the contact height within SEARCH_SAMPLES samples of the estimate.
-
-    A minimum on the edge of the range means the estimate was off: the range moves there
-    (at most twice) so the answer is an interior minimum of the residual.
-    """
-    reach_um = SEARCH_SAMPLES * spacing_um
-    centre_um = contact0_um
-    for _ in range(3):
-        low, high = centre_um - reach_um, centre_um + reach_um
-        contact_um = search_contact(y, x_min, span, low, high, onset_um, spacing_um)
-        if contact_um is None:
-            return None
-        if low + 1e-3 * spacing_um < contact_um < high - 1e-3 * spacing_um:
-            break
-        centre_um = contact_um
-    return fit_contact_at(y, x_min, span, contact_um, onset_um)
-
-
 def _fit_with_onset(y, x_min, span, contact0_um: float, spacing_um: float, options: AnalysisOptions
                     ) -> tuple[ContactFit, np.ndarray] | None:
     """The contact model around the line estimate, with the onset calibrated, absent or fitted.
@@ -323,11 +300,11 @@ def _fit_with_onset(y, x_min, span, contact0_um: float, spacing_um: float, optio
     """
     fixed_onset = options.contact_onset_um or 0.0
     # A line fit reads a soft contact onset/2 low.
-    sharp = _fit_fixed_onset(y, x_min, span, contact0_um + 0.5 * fixed_onset, spacing_um, fixed_onset)
+    sharp = fit_fixed_onset(y, x_min, span, contact0_um + 0.5 * fixed_onset, spacing_um, fixed_onset)
     if not (options.fit_contact_onset and options.contact_onset_um is None):
         return sharp
     # Best onset on a grid (each with its own global contact search), then all four parameters refined.
-    trials = [_fit_fixed_onset(y, x_min, span, contact0_um + 0.5 * onset, spacing_um, onset)
+    trials = [fit_fixed_onset(y, x_min, span, contact0_um + 0.5 * onset, spacing_um, onset)
               for onset in ONSET_GRID_UM[1:]]
     trials = [trial for trial in trials if trial is not None]
     if not trials:
@@ -426,8 +403,8 @@ def fit_compression(window: ModelWindow, motion: Motion, timing: SensorTiming, d
         return None
     spacing_um = max(motion.approach_speed_mm_s * 1000.0 * timing.sample_period_s, 0.05)
     # fit_contact_at only answers with at least 2 samples in contact.
-    found = _fit_fixed_onset(window.force_g[:last], window.x_min_um[:last], window.span_um[:last],
-                             window.contact_line_um + 0.5 * onset_um, spacing_um, onset_um)
+    found = fit_fixed_onset(window.force_g[:last], window.x_min_um[:last], window.span_um[:last],
+                            window.contact_line_um + 0.5 * onset_um, spacing_um, onset_um)
     return found[0] if found else None
 
 

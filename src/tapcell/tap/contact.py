@@ -17,6 +17,10 @@ model averages h over the heights the nozzle passed during that window: with G t
 antiderivative of h, mean h over [x_lo, x_hi] = (G(c - x_lo) - G(c - x_hi)) / (x_hi - x_lo).
 A line fit ignores both effects; the model fit removes their biases (onset/2 low,
 half a sample period of lag high).
+
+`fit_fixed_onset` runs in C when the kernel tapcell.tap._c_contact is built (the same search and
+formulas; sums in another order, so equal to rounding); the numpy functions it is made of here are
+the reference and the fallback.
 """
 
 from __future__ import annotations
@@ -25,6 +29,10 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from tapcell.tap import native
+
+_C = native.load("contact")
 
 _TINY_UM = 1e-9
 
@@ -250,6 +258,8 @@ def profile_rss(force_g: np.ndarray, x_min_um: np.ndarray, span_um: np.ndarray, 
     return (float(force_g @ force_g) - sum_y * sum_y / count) - explained
 
 
+# The global contact search spans this many samples either side of the line estimate.
+SEARCH_SAMPLES = 4
 # Candidate contact heights per sample spacing: fine enough that each interval between the
 # model's kinks (where the residual has its local minima) holds several candidates.
 CANDIDATES_PER_SAMPLE = 32
@@ -329,3 +339,32 @@ def fit_contact_at(force_g: np.ndarray, x_min_um: np.ndarray, span_um: np.ndarra
     return ContactFit(contact_um=float(contact_um), stiffness_g_um=float(stiffness), baseline_g=float(baseline),
                       onset_um=float(onset_um), contact_sigma_um=math.sqrt(residual_var / information),
                       residual_sigma_g=math.sqrt(residual_var), rss_g2=rss), residual
+
+
+def fit_fixed_onset(force_g: np.ndarray, x_min_um: np.ndarray, span_um: np.ndarray, contact0_um: float,
+                    spacing_um: float, onset_um: float) -> tuple[ContactFit, np.ndarray] | None:
+    """Global search of the contact height within SEARCH_SAMPLES samples of the estimate, and the
+    model there (`fit_contact_at`): the fit and its residuals, or None.
+
+    A minimum on the edge of the range means the estimate was off: the range moves there
+    (at most twice) so the answer is an interior minimum of the residual.
+    """
+    if _C is not None:
+        residual = np.empty(len(force_g))
+        found = _C.fit_fixed_onset(force_g, x_min_um, span_um, contact0_um, spacing_um, onset_um, SEARCH_SAMPLES,
+                                   residual)
+        if found is None:
+            return None
+        contact, stiffness, baseline, contact_sigma, residual_sigma, rss = found
+        return ContactFit(contact, stiffness, baseline, float(onset_um), contact_sigma, residual_sigma, rss), residual
+    reach_um = SEARCH_SAMPLES * spacing_um
+    centre_um = contact0_um
+    for _ in range(3):
+        low, high = centre_um - reach_um, centre_um + reach_um
+        contact_um = search_contact(force_g, x_min_um, span_um, low, high, onset_um, spacing_um)
+        if contact_um is None:
+            return None
+        if low + 1e-3 * spacing_um < contact_um < high - 1e-3 * spacing_um:
+            break
+        centre_um = contact_um
+    return fit_contact_at(force_g, x_min_um, span_um, contact_um, onset_um)
