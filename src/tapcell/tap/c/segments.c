@@ -111,14 +111,16 @@ static PyObject *best_five_segments(PyObject *self, PyObject *args)
         goto done;
     }
     /* One scratch block per call: the approach per contact, the departure per break, one row of
-     * the compression or decompression, the best half per peak and per release, and their argmins. */
-    scratch = PyMem_Malloc(sizeof(double) * (size_t)(c + b + (c > b ? c : b) + 2 * (p + r)));
+     * the compression, decompression or dwell, the best half per peak and per release, and their argmins. */
+    Py_ssize_t longest_row = c > b ? c : b;
+    longest_row = longest_row > r ? longest_row : r;
+    scratch = PyMem_Malloc(sizeof(double) * (size_t)(c + b + longest_row + 2 * (p + r)));
     if (scratch == NULL) {
         PyErr_NoMemory();
         goto done;
     }
     double *approach = scratch, *departure = approach + c, *row = departure + b;
-    double *left = row + (c > b ? c : b), *right = left + p;
+    double *left = row + longest_row, *right = left + p;
     Py_ssize_t *left_at = (Py_ssize_t *)(right + r), *right_at = left_at + p; /* doubles and indices are 8 bytes */
     sse_starting_at(&ps, start, c0, c, approach);
     sse_ending_at(&ps, b0, b, stop, departure);

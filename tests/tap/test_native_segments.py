@@ -1,0 +1,108 @@
+"""The compiled segments kernel (tapcell.tap._c_segments) against its numpy twin in segments.py.
+
+The kernel repeats the twin's arithmetic per segment, so prefix sums and boundaries must be equal
+bit for bit, exact ties included (the first minimum wins in both), and so must whole analyses.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import example, given, settings, strategies as st
+from pytest import MonkeyPatch
+
+from native_kernel_inputs import OPTIONS, generated_taps, recorded_calls
+from tapcell.tap import analysis, analyze_tap, segments
+
+
+def twin(monkeypatch, function, *args):
+    with monkeypatch.context() as patch:
+        patch.setattr(segments, "_C", None)
+        return function(*args)
+
+
+def test_the_kernel_is_built_and_used(monkeypatch):
+    assert segments._C is not None, "tapcell.tap._c_segments is not built (make native)"
+    used = []
+
+    class Spy:
+        def __getattr__(self, name):
+            used.append(name)
+            return getattr(kernel, name)
+
+    kernel = segments._C
+    monkeypatch.setattr(segments, "_C", Spy())
+    analyze_tap(generated_taps()[0], OPTIONS["sharp"])
+    assert used == ["prefix_sums", "best_five_segments"]
+
+
+def test_prefix_sums_equal_the_twin_on_generated_taps(monkeypatch):
+    calls = recorded_calls(monkeypatch, analysis, "prefix_sums", [OPTIONS["default"]])
+    assert len(calls) >= len(generated_taps())
+    for time_s, force_g in calls:
+        ours, theirs = segments.prefix_sums(time_s, force_g), twin(monkeypatch, segments.prefix_sums, time_s, force_g)
+        assert (ours.t_ref_s, ours.f_ref_g) == (theirs.t_ref_s, theirs.f_ref_g)
+        assert np.array_equal(ours.sums, theirs.sums)
+
+
+def test_five_segments_equal_the_twin_on_generated_taps(monkeypatch):
+    calls = recorded_calls(monkeypatch, analysis, "best_five_segments", [OPTIONS["default"]])
+    assert len(calls) >= len(generated_taps())
+    found = [segments.best_five_segments(*args) for args in calls]
+    assert found == [twin(monkeypatch, segments.best_five_segments, *args) for args in calls]
+    assert sum(bounds is not None for bounds in found) >= len(calls) - 2
+
+
+@st.composite
+def split_problems(draw):
+    """Prefix sums and candidate ranges. Forces of few small integers on a grid of whole times
+    make many segments' residuals exactly equal (ties), and ranges may overlap or cross (segments
+    too short or reversed: inf, or no split at all)."""
+    n = draw(st.integers(4, 40))
+    time_s = np.arange(n, dtype=float) * draw(st.sampled_from([1.0, 0.5, 0.003]))
+    levels = draw(st.sampled_from([[0.0], [0.0, 1.0], [0.0, 1.0, 2.0, 5.0]]))
+    force_g = np.array(draw(st.lists(st.sampled_from(levels), min_size=n, max_size=n)))
+    if draw(st.booleans()):
+        force_g = force_g + np.arange(n) * draw(st.sampled_from([0.25, 3.0]))  # lines, exactly
+    ps = segments.prefix_sums(time_s, force_g)
+    start = draw(st.integers(0, n // 4))
+    stop = draw(st.integers(3 * n // 4, n))
+    ranges = []
+    for _ in range(4):
+        first = draw(st.integers(0, n))
+        ranges.append(range(first, draw(st.integers(first + 1, n + 1))))
+    return (ps, start, stop, *ranges)
+
+
+def _problem(force_g, start, stop, *ranges):
+    force_g = np.asarray(force_g, dtype=float)
+    return (segments.prefix_sums(np.arange(len(force_g), dtype=float), force_g), start, stop,
+            *(range(first, end) for first, end in ranges))
+
+
+@settings(max_examples=150, deadline=None)
+@given(split_problems())
+# Every segment residual 0: the first arrangement giving every line two samples wins.
+@example(_problem([0.0] * 12, 0, 12, (2, 9), (4, 8), (4, 9), (6, 11)))
+# No arrangement gives the approach two samples: no split.
+@example(_problem([0.0, 1.0, 2.0, 3.0, 3.0, 3.0, 2.0, 1.0, 0.0, 0.0], 0, 10, (0, 2), (3, 5), (5, 7), (7, 9)))
+def test_five_segments_equal_the_twin_on_ties_and_crossed_ranges(problem):
+    with MonkeyPatch.context() as patch:
+        ours = segments.best_five_segments(*problem)
+        patch.setattr(segments, "_C", None)
+        assert ours == segments.best_five_segments(*problem)
+
+
+def _results(name: str) -> list[dict]:
+    """The analyses of the generated taps as JSON, without their (always different) run times."""
+    return [{key: value for key, value in analyze_tap(tap, OPTIONS[name]).to_json().items() if key != "elapsed_ms"}
+            for tap in generated_taps()]
+
+
+def test_whole_analyses_equal_the_twin(monkeypatch):
+    for name in ("default", "sharp"):
+        ours = _results(name)
+        monkeypatch.setattr(segments, "_C", None)
+        theirs = _results(name)
+        monkeypatch.undo()
+        assert ours == theirs
+        assert sum(result["valid"] for result in ours) >= len(ours) // 2
