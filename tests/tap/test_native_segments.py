@@ -7,6 +7,7 @@ bit for bit, exact ties included (the first minimum wins in both), and so must w
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import example, given, settings, strategies as st
 from pytest import MonkeyPatch
 
@@ -32,7 +33,7 @@ def test_the_kernel_is_built_and_used(monkeypatch):
     kernel = segments._C
     monkeypatch.setattr(segments, "_C", Spy())
     analyze_tap(generated_taps()[0], OPTIONS["sharp"])
-    assert used == ["prefix_sums", "best_five_segments"]
+    assert used == ["prefix_sums", "best_five_segments", "segment_lines"]
 
 
 def test_prefix_sums_equal_the_twin_on_generated_taps(monkeypatch):
@@ -42,6 +43,19 @@ def test_prefix_sums_equal_the_twin_on_generated_taps(monkeypatch):
         ours, theirs = segments.prefix_sums(time_s, force_g), twin(monkeypatch, segments.prefix_sums, time_s, force_g)
         assert (ours.t_ref_s, ours.f_ref_g) == (theirs.t_ref_s, theirs.f_ref_g)
         assert np.array_equal(ours.sums, theirs.sums)
+
+
+def test_lines_equal_the_twin_on_generated_taps(monkeypatch):
+    calls = recorded_calls(monkeypatch, analysis, "segment_lines", [OPTIONS["default"]])
+    assert len(calls) >= len(generated_taps()) - 2
+    for ps, edges in calls:
+        assert segments.segment_lines(ps, edges) == twin(monkeypatch, segments.segment_lines, ps, edges)
+    ps, edges = calls[0]
+    assert segments.segment_lines(ps, edges[:1]) == twin(monkeypatch, segments.segment_lines, ps, edges[:1]) == []
+    with pytest.raises(ZeroDivisionError):
+        segments.segment_lines(ps, [0, 0])
+    with pytest.raises(ValueError, match="outside the"):
+        segments.segment_lines(ps, [0, ps.sums.shape[1]])
 
 
 def test_five_segments_equal_the_twin_on_generated_taps(monkeypatch):

@@ -4,9 +4,9 @@ Segments are half-open index ranges [i, j). Prefix sums are taken over time and 
 re-centred on the analysed region, so the expanded sums stay small and the
 "sum of squares minus square of sums" differences do not cancel catastrophically.
 
-`prefix_sums` and `best_five_segments` run in C when the kernel tapcell.tap._c_segments is built
-(same arithmetic: the same sums, the same boundaries, ties included); the numpy code below is the
-reference and the fallback.
+`prefix_sums`, `segment_lines` and `best_five_segments` run in C when the kernel
+tapcell.tap._c_segments is built (same arithmetic: the same sums, lines and boundaries, ties
+included); the numpy code below is the reference and the fallback.
 """
 
 from __future__ import annotations
@@ -114,6 +114,8 @@ def segment_line(ps: PrefixSums, i: int, j: int) -> tuple[float, float]:
 
 def segment_lines(ps: PrefixSums, edges: list[int]) -> list[tuple[float, float]]:
     """The lines over consecutive segments [edges[k], edges[k + 1]) (one numpy call for all)."""
+    if _C is not None:
+        return _C.segment_lines(ps.sums, edges, ps.t_ref_s, ps.f_ref_g)
     at_edges = ps.sums.take(edges, axis=1).T.tolist()  # the prefix sums at each edge, as floats
     return [_line_of_sums(ps, [b - a for a, b in zip(first, end)]) for first, end in zip(at_edges, at_edges[1:])]
 

@@ -50,6 +50,18 @@ static inline double window_mean(double contact_um, double onset_um, double x_mi
 {
     double u = contact_um - x_min_um;
     if (onset_um <= 0) {
+        /* Most windows lie wholly below or above the contact: the twin's fraction is then exactly 1
+         * (span / span) or 0, its mean u - span / 2 or 0, without the division. */
+        if (u >= span_um) {
+            if (slope != NULL)
+                *slope = 1.0;
+            return u - 0.5 * span_um;
+        }
+        if (u <= 0.0) {
+            if (slope != NULL)
+                *slope = 0.0;
+            return 0.0;
+        }
         double below = clamp(u, 0.0, span_um);
         double fraction = below / span_um;
         if (slope != NULL)

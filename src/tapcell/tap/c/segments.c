@@ -210,9 +210,71 @@ static PyObject *prefix_sums(PyObject *self, PyObject *args)
     return result;
 }
 
+PyDoc_STRVAR(segment_lines_doc,
+             "segment_lines(sums, edges, t_ref_s, f_ref_g) -> [(slope, intercept), ...]\n"
+             "\n"
+             "The least-squares lines over consecutive segments [edges[k], edges[k + 1]) from the (6, n + 1)\n"
+             "prefix sums, moved back to the original origins: as tapcell.tap.segments.segment_lines (the same\n"
+             "arithmetic in the same order).");
+
+static PyObject *segment_lines(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer buffer;
+    PyObject *edge_list;
+    double t_ref_s, f_ref_g;
+    if (!PyArg_ParseTuple(args, "y*Odd", &buffer, &edge_list, &t_ref_s, &f_ref_g))
+        return NULL;
+    PyObject *lines = NULL, *edges = PySequence_Fast(edge_list, "edges must be a sequence of indices");
+    Py_ssize_t count;
+    const double *rows = edges ? doubles_of(&buffer, &count, "sums") : NULL;
+    if (rows == NULL)
+        goto done;
+    const Py_ssize_t width = count / SUM_ROWS, segments = PySequence_Fast_GET_SIZE(edges) - 1;
+    lines = PyList_New(segments > 0 ? segments : 0);
+    Py_ssize_t first = segments >= 0 ? PyLong_AsSsize_t(PySequence_Fast_GET_ITEM(edges, 0)) : 0;
+    if (PyErr_Occurred())
+        Py_CLEAR(lines);
+    for (Py_ssize_t k = 0; lines != NULL && k < segments; k++) {
+        Py_ssize_t end = PyLong_AsSsize_t(PySequence_Fast_GET_ITEM(edges, k + 1));
+        if (PyErr_Occurred() || first < 0 || end < 0 || first >= width || end >= width) {
+            if (!PyErr_Occurred())
+                PyErr_Format(PyExc_ValueError, "edge %zd or %zd outside the %zd prefix-sum columns", first, end, width);
+            Py_CLEAR(lines);
+            break;
+        }
+        double sum[SUM_ROWS];
+        for (int row = 0; row < SUM_ROWS; row++)
+            sum[row] = rows[row * width + end] - rows[row * width + first];
+        double n = sum[0], st = sum[1], sf = sum[2], stt = sum[3], stf = sum[4];
+        if (n == 0.0) { /* as the twin's Python float division */
+            PyErr_SetString(PyExc_ZeroDivisionError, "float division by zero");
+            Py_CLEAR(lines);
+            break;
+        }
+        double sxx = stt - st * st / n;
+        double sxy = stf - st * sf / n;
+        double slope = sxx > 0 ? sxy / sxx : 0.0;
+        /* Line through the segment's centroid, then moved back to the original origins. */
+        double intercept_centred = sf / n - slope * st / n;
+        PyObject *line = Py_BuildValue("(dd)", slope, intercept_centred + f_ref_g - slope * t_ref_s);
+        if (line == NULL) {
+            Py_CLEAR(lines);
+            break;
+        }
+        PyList_SET_ITEM(lines, k, line);
+        first = end;
+    }
+done:
+    Py_XDECREF(edges);
+    PyBuffer_Release(&buffer);
+    return lines;
+}
+
 static PyMethodDef methods[] = {
     {"best_five_segments", best_five_segments, METH_VARARGS, best_five_segments_doc},
     {"prefix_sums", prefix_sums, METH_VARARGS, prefix_sums_doc},
+    {"segment_lines", segment_lines, METH_VARARGS, segment_lines_doc},
     {NULL, NULL, 0, NULL},
 };
 
