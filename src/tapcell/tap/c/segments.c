@@ -32,27 +32,34 @@ static inline double sse_of_sums(double n, double st, double sf, double stt, dou
     return n < MIN_SEGMENT_SAMPLES ? INFINITY : sse;
 }
 
-/* The column `j` of row `k` of the prefix sums. */
-#define AT(ps, k, j) ((ps)->rows[(k) * (ps)->columns + (j)])
-
 /* sse[k] of the segments [first + k, end) for k < count: one end fixed, the start moving. */
-static void sse_ending_at(const PrefixSums *ps, Py_ssize_t first, Py_ssize_t count, Py_ssize_t end, double *sse)
+static void sse_ending_at(const PrefixSums *ps, Py_ssize_t first, Py_ssize_t count, Py_ssize_t end,
+                          double *restrict sse)
 {
+    const double *restrict row = ps->rows;
+    const Py_ssize_t w = ps->columns;
+    /* The fixed end's sums, read once (sse cannot alias them: restrict). */
+    const double n = row[end], st = row[w + end], sf = row[2 * w + end], stt = row[3 * w + end],
+                 stf = row[4 * w + end], sff = row[5 * w + end];
     for (Py_ssize_t k = 0; k < count; k++) {
         Py_ssize_t i = first + k;
-        sse[k] = sse_of_sums(AT(ps, 0, end) - AT(ps, 0, i), AT(ps, 1, end) - AT(ps, 1, i), AT(ps, 2, end) - AT(ps, 2, i),
-                             AT(ps, 3, end) - AT(ps, 3, i), AT(ps, 4, end) - AT(ps, 4, i), AT(ps, 5, end) - AT(ps, 5, i));
+        sse[k] = sse_of_sums(n - row[i], st - row[w + i], sf - row[2 * w + i], stt - row[3 * w + i],
+                             stf - row[4 * w + i], sff - row[5 * w + i]);
     }
 }
 
 /* sse[k] of the segments [begin, first + k) for k < count: one start fixed, the end moving. */
-static void sse_starting_at(const PrefixSums *ps, Py_ssize_t begin, Py_ssize_t first, Py_ssize_t count, double *sse)
+static void sse_starting_at(const PrefixSums *ps, Py_ssize_t begin, Py_ssize_t first, Py_ssize_t count,
+                            double *restrict sse)
 {
+    const double *restrict row = ps->rows;
+    const Py_ssize_t w = ps->columns;
+    const double n = row[begin], st = row[w + begin], sf = row[2 * w + begin], stt = row[3 * w + begin],
+                 stf = row[4 * w + begin], sff = row[5 * w + begin];
     for (Py_ssize_t k = 0; k < count; k++) {
         Py_ssize_t j = first + k;
-        sse[k] = sse_of_sums(AT(ps, 0, j) - AT(ps, 0, begin), AT(ps, 1, j) - AT(ps, 1, begin),
-                             AT(ps, 2, j) - AT(ps, 2, begin), AT(ps, 3, j) - AT(ps, 3, begin),
-                             AT(ps, 4, j) - AT(ps, 4, begin), AT(ps, 5, j) - AT(ps, 5, begin));
+        sse[k] = sse_of_sums(row[j] - n, row[w + j] - st, row[2 * w + j] - sf, row[3 * w + j] - stt,
+                             row[4 * w + j] - stf, row[5 * w + j] - sff);
     }
 }
 
