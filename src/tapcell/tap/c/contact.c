@@ -245,18 +245,24 @@ PyDoc_STRVAR(fit_fixed_onset_doc,
 static PyObject *fit_fixed_onset(PyObject *self, PyObject *args)
 {
     (void)self;
-    Py_buffer force_buffer, x_min_buffer, span_buffer, residual_buffer;
+    PyObject *arrays[3];
+    Py_buffer inputs[3], residual_buffer; /* force, x_min, span */
     double contact0_um, spacing_um, onset_um;
     Py_ssize_t search_samples;
-    if (!PyArg_ParseTuple(args, "y*y*y*dddnw*", &force_buffer, &x_min_buffer, &span_buffer, &contact0_um, &spacing_um,
+    if (!PyArg_ParseTuple(args, "OOOdddnw*", &arrays[0], &arrays[1], &arrays[2], &contact0_um, &spacing_um,
                           &onset_um, &search_samples, &residual_buffer))
         return NULL;
     PyObject *result = NULL;
     double *memory = NULL;
+    int taken = 0; /* the input buffers held */
+    while (taken < 3 && float64_buffer(arrays[taken], &inputs[taken]))
+        taken++;
+    if (taken < 3)
+        goto done;
     Samples s;
-    s.force_g = doubles_of(&force_buffer, &s.count, "force_g");
-    s.x_min_um = s.force_g ? doubles_sized(&x_min_buffer, s.count, "x_min_um") : NULL;
-    s.span_um = s.x_min_um ? doubles_sized(&span_buffer, s.count, "span_um") : NULL;
+    s.force_g = doubles_of(&inputs[0], &s.count, "force_g");
+    s.x_min_um = s.force_g ? doubles_sized(&inputs[1], s.count, "x_min_um") : NULL;
+    s.span_um = s.x_min_um ? doubles_sized(&inputs[2], s.count, "span_um") : NULL;
     double *residual_g = s.span_um ? doubles_sized(&residual_buffer, s.count, "residual_g") : NULL;
     if (residual_g == NULL)
         goto done;
@@ -314,9 +320,8 @@ static PyObject *fit_fixed_onset(PyObject *self, PyObject *args)
     }
 done:
     PyMem_Free(memory);
-    PyBuffer_Release(&force_buffer);
-    PyBuffer_Release(&x_min_buffer);
-    PyBuffer_Release(&span_buffer);
+    while (taken > 0)
+        PyBuffer_Release(&inputs[--taken]);
     PyBuffer_Release(&residual_buffer);
     return result;
 }

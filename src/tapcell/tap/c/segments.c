@@ -89,9 +89,12 @@ PyDoc_STRVAR(best_five_segments_doc,
 static PyObject *best_five_segments(PyObject *self, PyObject *args)
 {
     (void)self;
+    PyObject *sums;
     Py_buffer buffer;
     Py_ssize_t start, stop, c0, c1, p0, p1, r0, r1, b0, b1;
-    if (!PyArg_ParseTuple(args, "y*nnnnnnnnnn", &buffer, &start, &stop, &c0, &c1, &p0, &p1, &r0, &r1, &b0, &b1))
+    /* The array is taken after the other arguments: a failure among them then leaves nothing to release. */
+    if (!PyArg_ParseTuple(args, "Onnnnnnnnnn", &sums, &start, &stop, &c0, &c1, &p0, &p1, &r0, &r1, &b0, &b1) ||
+        !float64_buffer(sums, &buffer))
         return NULL;
     PyObject *result = NULL;
     double *scratch = NULL;
@@ -183,10 +186,20 @@ PyDoc_STRVAR(prefix_sums_doc,
 static PyObject *prefix_sums(PyObject *self, PyObject *args)
 {
     (void)self;
+    PyObject *time_array, *force_array;
     Py_buffer time_buffer, force_buffer, sums_buffer;
     double t_ref_s, f_ref_g;
-    if (!PyArg_ParseTuple(args, "y*y*ddw*", &time_buffer, &force_buffer, &t_ref_s, &f_ref_g, &sums_buffer))
+    if (!PyArg_ParseTuple(args, "OOddw*", &time_array, &force_array, &t_ref_s, &f_ref_g, &sums_buffer))
         return NULL;
+    if (!float64_buffer(time_array, &time_buffer)) {
+        PyBuffer_Release(&sums_buffer);
+        return NULL;
+    }
+    if (!float64_buffer(force_array, &force_buffer)) {
+        PyBuffer_Release(&time_buffer);
+        PyBuffer_Release(&sums_buffer);
+        return NULL;
+    }
     PyObject *result = NULL;
     Py_ssize_t n;
     const double *time_s = doubles_of(&time_buffer, &n, "time_s");
@@ -227,10 +240,10 @@ PyDoc_STRVAR(segment_lines_doc,
 static PyObject *segment_lines(PyObject *self, PyObject *args)
 {
     (void)self;
+    PyObject *sums, *edge_list;
     Py_buffer buffer;
-    PyObject *edge_list;
     double t_ref_s, f_ref_g;
-    if (!PyArg_ParseTuple(args, "y*Odd", &buffer, &edge_list, &t_ref_s, &f_ref_g))
+    if (!PyArg_ParseTuple(args, "OOdd", &sums, &edge_list, &t_ref_s, &f_ref_g) || !float64_buffer(sums, &buffer))
         return NULL;
     PyObject *lines = NULL, *edges = PySequence_Fast(edge_list, "edges must be a sequence of indices");
     Py_ssize_t count;
