@@ -48,3 +48,19 @@ def recorded_calls(monkeypatch, module, name: str, options: list[AnalysisOptions
             for tap in generated_taps():
                 analyze_tap(tap, option)
     return calls
+
+
+def kernel_functions_used(monkeypatch, module, options: AnalysisOptions) -> list[str]:
+    """The names the analysis of one generated tap takes from `module._C` (its kernel), in order."""
+    used = []
+    kernel = module._C
+
+    class Spy:
+        def __getattr__(self, name):
+            used.append(name)
+            return getattr(kernel, name)
+
+    with monkeypatch.context() as patch:
+        patch.setattr(module, "_C", Spy())
+        analyze_tap(generated_taps()[0], options)
+    return used

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from native_kernel_inputs import OPTIONS, generated_taps, recorded_calls
+from native_kernel_inputs import OPTIONS, generated_taps, kernel_functions_used, recorded_calls
 from tapcell.tap import analysis, analyze_tap, contact
 
 # Without a C compiler the kernel is not built and the twin is all there is (`make test` requires it).
@@ -43,16 +43,7 @@ def assert_fits_agree(ours, theirs):
 
 
 def test_the_kernel_is_used(monkeypatch):
-    used = []
-
-    class Spy:
-        def __getattr__(self, name):
-            used.append(name)
-            return getattr(kernel, name)
-
-    kernel = contact._C
-    monkeypatch.setattr(contact, "_C", Spy())
-    analyze_tap(generated_taps()[0], OPTIONS["sharp"])
+    used = kernel_functions_used(monkeypatch, contact, OPTIONS["sharp"])
     assert used and set(used) == {"fit_fixed_onset"}
 
 

@@ -11,7 +11,7 @@ import pytest
 from hypothesis import example, given, settings, strategies as st
 from pytest import MonkeyPatch
 
-from native_kernel_inputs import OPTIONS, generated_taps, recorded_calls
+from native_kernel_inputs import OPTIONS, generated_taps, kernel_functions_used, recorded_calls
 from tapcell.tap import analysis, analyze_tap, segments
 
 # Without a C compiler the kernel is not built and the twin is all there is (`make test` requires it).
@@ -25,16 +25,7 @@ def twin(monkeypatch, function, *args):
 
 
 def test_the_kernel_is_used(monkeypatch):
-    used = []
-
-    class Spy:
-        def __getattr__(self, name):
-            used.append(name)
-            return getattr(kernel, name)
-
-    kernel = segments._C
-    monkeypatch.setattr(segments, "_C", Spy())
-    analyze_tap(generated_taps()[0], OPTIONS["sharp"])
+    used = kernel_functions_used(monkeypatch, segments, OPTIONS["sharp"])
     assert used == ["prefix_sums", "best_five_segments", "segment_lines"]
 
 

@@ -32,34 +32,18 @@ static inline double sse_of_sums(double n, double st, double sf, double stt, dou
     return n < MIN_SEGMENT_SAMPLES ? INFINITY : sse;
 }
 
-/* sse[k] of the segments [first + k, end) for k < count: one end fixed, the start moving. */
-static void sse_ending_at(const PrefixSums *ps, Py_ssize_t first, Py_ssize_t count, Py_ssize_t end,
-                          double *restrict sse)
+/* sse[k] of the segments [i0 + di k, j0 + dj k) for k < count: a row of segments with one end fixed
+ * (di or dj 0) and the other moving along the candidates. */
+static void sse_along(const PrefixSums *ps, Py_ssize_t i0, Py_ssize_t di, Py_ssize_t j0, Py_ssize_t dj, Py_ssize_t count,
+                      double *restrict sse)
 {
     const double *restrict row = ps->rows;
     const Py_ssize_t w = ps->columns;
-    /* The fixed end's sums, read once (sse cannot alias them: restrict). */
-    const double n = row[end], st = row[w + end], sf = row[2 * w + end], stt = row[3 * w + end],
-                 stf = row[4 * w + end], sff = row[5 * w + end];
     for (Py_ssize_t k = 0; k < count; k++) {
-        Py_ssize_t i = first + k;
-        sse[k] = sse_of_sums(n - row[i], st - row[w + i], sf - row[2 * w + i], stt - row[3 * w + i],
-                             stf - row[4 * w + i], sff - row[5 * w + i]);
-    }
-}
-
-/* sse[k] of the segments [begin, first + k) for k < count: one start fixed, the end moving. */
-static void sse_starting_at(const PrefixSums *ps, Py_ssize_t begin, Py_ssize_t first, Py_ssize_t count,
-                            double *restrict sse)
-{
-    const double *restrict row = ps->rows;
-    const Py_ssize_t w = ps->columns;
-    const double n = row[begin], st = row[w + begin], sf = row[2 * w + begin], stt = row[3 * w + begin],
-                 stf = row[4 * w + begin], sff = row[5 * w + begin];
-    for (Py_ssize_t k = 0; k < count; k++) {
-        Py_ssize_t j = first + k;
-        sse[k] = sse_of_sums(row[j] - n, row[w + j] - st, row[2 * w + j] - sf, row[3 * w + j] - stt,
-                             row[4 * w + j] - stf, row[5 * w + j] - sff);
+        Py_ssize_t i = i0 + di * k, j = j0 + dj * k;
+        sse[k] = sse_of_sums(row[j] - row[i], row[w + j] - row[w + i], row[2 * w + j] - row[2 * w + i],
+                             row[3 * w + j] - row[3 * w + i], row[4 * w + j] - row[4 * w + i],
+                             row[5 * w + j] - row[5 * w + i]);
     }
 }
 
@@ -132,18 +116,18 @@ static PyObject *best_five_segments(PyObject *self, PyObject *args)
     double *approach = scratch, *departure = approach + c, *row = departure + b;
     double *left = row + longest_row, *right = left + p;
     Py_ssize_t *left_at = (Py_ssize_t *)(right + r), *right_at = left_at + p; /* doubles and indices are 8 bytes */
-    sse_starting_at(&ps, start, c0, c, approach);
-    sse_ending_at(&ps, b0, b, stop, departure);
+    sse_along(&ps, start, 0, c0, 1, c, approach); /* [start, contact) */
+    sse_along(&ps, b0, 1, stop, 0, b, departure); /* [break, stop) */
     /* Per peak, the best contact: compression + approach (the twin's order of the sum). */
     for (Py_ssize_t ip = 0; ip < p; ip++) {
-        sse_ending_at(&ps, c0, c, p0 + ip, row);
+        sse_along(&ps, c0, 1, p0 + ip, 0, c, row); /* [contact, peak) */
         for (Py_ssize_t k = 0; k < c; k++)
             row[k] += approach[k];
         left[ip] = first_min(row, c, &left_at[ip]);
     }
     /* Per release, the best break: decompression + departure. */
     for (Py_ssize_t ir = 0; ir < r; ir++) {
-        sse_starting_at(&ps, r0 + ir, b0, b, row);
+        sse_along(&ps, r0 + ir, 0, b0, 1, b, row); /* [release, break) */
         for (Py_ssize_t k = 0; k < b; k++)
             row[k] += departure[k];
         right[ir] = first_min(row, b, &right_at[ir]);
@@ -153,7 +137,7 @@ static PyObject *best_five_segments(PyObject *self, PyObject *args)
     double best = INFINITY;
     Py_ssize_t best_ip = 0, best_ir = 0;
     for (Py_ssize_t ip = 0; ip < p; ip++) {
-        sse_starting_at(&ps, p0 + ip, r0, r, row);
+        sse_along(&ps, p0 + ip, 0, r0, 1, r, row); /* [peak, release) */
         for (Py_ssize_t k = 0; k < r; k++)
             row[k] = (left[ip] + row[k]) + right[k];
         Py_ssize_t ir;
