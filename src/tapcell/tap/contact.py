@@ -356,7 +356,8 @@ def fit_fixed_onset(force_g: np.ndarray, x_min_um: np.ndarray, span_um: np.ndarr
         if found is None:
             return None
         contact, stiffness, baseline, contact_sigma, residual_sigma, rss = found
-        return ContactFit(contact, stiffness, baseline, float(onset_um), contact_sigma, residual_sigma, rss), residual
+        return ContactFit(contact_um=contact, stiffness_g_um=stiffness, baseline_g=baseline, onset_um=float(onset_um),
+                          contact_sigma_um=contact_sigma, residual_sigma_g=residual_sigma, rss_g2=rss), residual
     reach_um = SEARCH_SAMPLES * spacing_um
     centre_um = contact0_um
     for _ in range(3):

@@ -1,9 +1,11 @@
 /* The segments kernels of the tap analysis (numpy twins: tapcell/tap/segments.py).
  *
  * best_five_segments: the exhaustive joint search of the four boundaries of the five-line split.
- * The numpy twin costs every candidate segment in one big work array; here each segment is costed
- * where it is needed, with the twin's arithmetic in the twin's order (`_sse_of_sums`), so both
- * see the same residuals bit for bit and pick the same boundaries, exact ties included. */
+ * The numpy twin costs every candidate segment in one big work array; here the segments are costed
+ * one row at a time (O(c·p + p·r + r·b) for c contact, p peak, r release and b break candidates),
+ * with the twin's arithmetic in the twin's order (`_sse_of_sums`), so both see the same residuals
+ * bit for bit and pick the same boundaries, exact ties included.
+ * prefix_sums and segment_lines: the twin's running sums and line formulas, bit for bit too. */
 #include "buffers.h"
 
 #include <math.h>
@@ -28,7 +30,7 @@ static inline double sse_of_sums(double n, double st, double sf, double stt, dou
     double explained = (sxy * sxy) / sxx;
     double sse = (sff - (sf * sf) * inv_n) - explained;
     sse = sse < 0.0 ? 0.0 : sse; /* np.maximum(sse, 0): a NaN stays NaN */
-    /* Selected, not branched on: the loops below stay branch-free (too short is rare, at the ends). */
+    /* Too short: the arithmetic above divided by a count < 2 (maybe 0); its result is replaced. */
     return n < MIN_SEGMENT_SAMPLES ? INFINITY : sse;
 }
 
