@@ -234,7 +234,8 @@ static int fit_contact_at(const Samples *s, double contact_um, double onset_um, 
 }
 
 PyDoc_STRVAR(fit_fixed_onset_doc,
-             "fit_fixed_onset(force_g, x_min_um, span_um, contact0_um, spacing_um, onset_um, search_samples, residual_g)\n"
+             "fit_fixed_onset(force_g, x_min_um, span_um, contact0_um, spacing_um, onset_um, search_samples,\n"
+             "                residual_g)\n"
              "    -> (contact_um, stiffness_g_um, baseline_g, contact_sigma_um, residual_sigma_g, rss_g2) | None\n"
              "\n"
              "The contact model with a fixed onset, as tapcell.tap.contact.fit_fixed_onset: the global search of the\n"

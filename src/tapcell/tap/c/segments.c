@@ -36,8 +36,8 @@ static inline double sse_of_sums(double n, double st, double sf, double stt, dou
 
 /* sse[k] of the segments [i0 + di k, j0 + dj k) for k < count: a row of segments with one end fixed
  * (di or dj 0) and the other moving along the candidates. */
-static void sse_along(const PrefixSums *ps, Py_ssize_t i0, Py_ssize_t di, Py_ssize_t j0, Py_ssize_t dj, Py_ssize_t count,
-                      double *restrict sse)
+static void sse_along(const PrefixSums *ps, Py_ssize_t i0, Py_ssize_t di, Py_ssize_t j0, Py_ssize_t dj,
+                      Py_ssize_t count, double *restrict sse)
 {
     const double *restrict row = ps->rows;
     const Py_ssize_t w = ps->columns;
@@ -66,7 +66,8 @@ static double first_min(const double *values, Py_ssize_t count, Py_ssize_t *at)
 
 PyDoc_STRVAR(best_five_segments_doc,
              "best_five_segments(sums, start, stop, contact_first, contact_end, peak_first, peak_end,\n"
-             "                   release_first, release_end, break_first, break_end) -> (contact, peak, release, break) | None\n"
+             "                   release_first, release_end, break_first, break_end)\n"
+             "    -> (contact, peak, release, break) | None\n"
              "\n"
              "The boundaries of five lines over [start, stop) with the least total residual, each boundary\n"
              "from its half-open candidate range, as tapcell.tap.segments.best_five_segments (same ties).\n"
