@@ -586,6 +586,10 @@ def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: flo
     noise moves the argmin along it), and the sd holds that trade-off: an honest sigma. prior: a
     weight per toe (row), e.g. `WIDTH_PRIOR` for each shape; None: every toe alike.
     """
+    if _C is not None:
+        prior = np.ones(len(rss)) if prior is None else prior
+        mean_sd = _C.marginal_contact(contacts_um, np.ascontiguousarray(rss, dtype=float), noise_var, prior)
+        return (None, COARSE_STEP_UM) if mean_sd is None else mean_sd
     step = float(contacts_um[1] - contacts_um[0])
     count = rss.shape[1]
     heights = contacts_um.tolist()

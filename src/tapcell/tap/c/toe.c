@@ -18,31 +18,34 @@
 /* How far short of its width each shape lifts the linear part: p / (p + 1). */
 static const double LIFT_DEFICIT[SHAPES] = {0.5 / 1.5, 1.0 / 2.0};
 
-/* The toe shape of toe.py's `toe_shapes` at one depth for both shapes, added into sums[]. The
- * operations in numpy's order (scale by w / (p + 1), then add the linear part), so the two agree
- * to the last bit on each value. */
-static void add_toe_shapes(double depth_um, double width_um, double sums[SHAPES])
+/* Both shapes' toe columns at one sample (toe.py's `toe_shapes`): the shape summed over the
+ * heights its conversion window averages (row: `subsamples` heights; the caller scales the sums).
+ * The operations in numpy's order (scale by w / (p + 1), then add the linear part), so each value
+ * agrees to the last bit. Free air (u = 0) and past the toe (u = 1) skip the sqrt and the
+ * division: most heights are one or the other, and the values come out the same. Inline, with
+ * the sums in locals: it runs for every candidate's every in-toe sample. */
+static inline void toe_sums(double contact_um, double width_um, const double *row_um, Py_ssize_t subsamples,
+                            double sums[SHAPES])
 {
-    double pressed_um = depth_um > 0.0 ? depth_um : 0.0;
     double width = width_um > 1e-9 ? width_um : 1e-9;
-    double u = pressed_um / width;
-    if (u > 1.0)
-        u = 1.0;
-    double beyond_um = pressed_um - width;
-    if (beyond_um < 0.0)
-        beyond_um = 0.0;
-    sums[0] += sqrt(u) * u * (width * (1.0 / 1.5)) + beyond_um;
-    sums[1] += u * u * (width * (1.0 / 2.0)) + beyond_um;
-}
-
-/* Both shapes' toe columns at one sample: the shape summed over the heights its conversion window
- * averages (row: `subsamples` heights); the caller scales the sums. */
-static void toe_sums(double contact_um, double width_um, const double *row_um, Py_ssize_t subsamples,
-                     double sums[SHAPES])
-{
-    sums[0] = sums[1] = 0.0;
-    for (Py_ssize_t s = 0; s < subsamples; s++)
-        add_toe_shapes(contact_um - row_um[s], width_um, sums);
+    double lift_hertz = width * (1.0 / 1.5), lift_parabolic = width * (1.0 / 2.0);
+    double hertz = 0.0, parabolic = 0.0;
+    for (Py_ssize_t s = 0; s < subsamples; s++) {
+        double depth_um = contact_um - row_um[s];
+        if (!(depth_um > 0.0))
+            continue; /* free air: both shapes 0 */
+        if (depth_um >= width) { /* u = 1 */
+            double beyond_um = depth_um - width;
+            hertz += lift_hertz + beyond_um;
+            parabolic += lift_parabolic + beyond_um;
+        } else {
+            double u = depth_um / width;
+            hertz += sqrt(u) * u * lift_hertz;
+            parabolic += u * u * lift_parabolic;
+        }
+    }
+    sums[0] = hertz;
+    sums[1] = parabolic;
 }
 
 static int shape_of_power(double power)
@@ -55,27 +58,22 @@ static int shape_of_power(double power)
     return -1;
 }
 
-/* Number of values <= v (sorted ascending): numpy's searchsorted(side="right"). */
-static Py_ssize_t count_at_most(const double *sorted, Py_ssize_t n, double v)
+/* Number of values <= v (at_most) or < v (!at_most) in sorted (ascending): numpy's searchsorted
+ * with side="right" or "left". hint: the answer for the previous candidate. When v has not gone
+ * below it (the grid's contacts ascend) the answer is a step or two on: walking there beats a
+ * binary search, whose branches the processor cannot predict. */
+static Py_ssize_t count_before(const double *sorted, Py_ssize_t n, double v, int at_most, Py_ssize_t hint)
 {
     Py_ssize_t lo = 0, hi = n;
-    while (lo < hi) {
-        Py_ssize_t mid = lo + (hi - lo) / 2;
-        if (sorted[mid] <= v)
-            lo = mid + 1;
-        else
-            hi = mid;
+    if (hint > 0 && hint <= n && (at_most ? sorted[hint - 1] <= v : sorted[hint - 1] < v)) {
+        lo = hint;
+        while (lo < n && (at_most ? sorted[lo] <= v : sorted[lo] < v))
+            lo++;
+        return lo;
     }
-    return lo;
-}
-
-/* Number of values < v (sorted ascending): numpy's searchsorted(side="left"). */
-static Py_ssize_t count_below(const double *sorted, Py_ssize_t n, double v)
-{
-    Py_ssize_t lo = 0, hi = n;
     while (lo < hi) {
         Py_ssize_t mid = lo + (hi - lo) / 2;
-        if (sorted[mid] < v)
+        if (at_most ? sorted[mid] <= v : sorted[mid] < v)
             lo = mid + 1;
         else
             hi = mid;
@@ -124,8 +122,9 @@ fail:
 /* ---- Ordinary least squares (toe.py: _Projected, _rss_over_contacts, _solve, _stiffness_at) ---- */
 
 /* The basis beside the toe, orthonormal: the baseline 1/√n, and with the drift fitted the centred
- * heights over their norm (the span np.linalg.qr gives; only the projection matters). The force
- * with the basis projected out goes to y_free; returns the number of basis columns. */
+ * heights over their norm (the span np.linalg.qr gives; only the projection matters), else zeros
+ * (they add nothing: the loops need not branch on it). The force with the basis projected out goes
+ * to y_free; returns the number of basis columns. */
 static int project_out_basis(const Samples *s, int drift_fitted, double *basis_rows, double *y_free)
 {
     Py_ssize_t n = s->n;
@@ -136,6 +135,7 @@ static int project_out_basis(const Samples *s, int drift_fitted, double *basis_r
     mean_um /= (double)n;
     for (Py_ssize_t i = 0; i < n; i++) {
         basis_rows[i] = base;
+        basis_rows[n + i] = 0.0;
         y_base += base * s->force_g[i];
         if (drift_fitted) {
             double centred_um = s->x_mid_um[i] - mean_um;
@@ -233,23 +233,25 @@ static PyObject *rss_grid(PyObject *self, PyObject *args)
         for (int k = 0; k < columns; k++)
             sums[k * sums_n + i + 1] = sums[k * sums_n + i] + values[k];
     }
+    Py_ssize_t first = 0, last = 0;
+    const double *basis0 = basis_rows, *basis1 = basis_rows + n;
     for (Py_ssize_t j = 0; j < candidates; j++) {
         double c = contacts_um[j], w = widths_um[j];
-        Py_ssize_t first = count_at_most(pressed_to, n, c - w);
-        Py_ssize_t last = count_below(free_from, n, c);
-        /* In-toe sums per shape: h·B (m), h·h, h·y */
-        double h_basis[SHAPES][2] = {{0.0, 0.0}, {0.0, 0.0}}, hh[SHAPES] = {0.0, 0.0}, hy[SHAPES] = {0.0, 0.0};
+        first = count_before(pressed_to, n, c - w, 1, first);
+        last = count_before(free_from, n, c, 0, last);
+        /* In-toe sums per shape (0, 1): h·B (both basis rows), h·h, h·y; scalars, so they stay in
+         * registers. */
+        double hb00 = 0.0, hb01 = 0.0, hb10 = 0.0, hb11 = 0.0, hh0 = 0.0, hh1 = 0.0, hy0 = 0.0, hy1 = 0.0;
         for (Py_ssize_t i = first; i < last; i++) {
             double h[SHAPES];
             toe_sums(c, w, s.window_um + i * sub, sub, h);
-            for (int p = 0; p < SHAPES; p++) {
-                h[p] *= 1.0 / (double)sub;
-                for (int r = 0; r < m; r++)
-                    h_basis[p][r] += h[p] * basis_rows[r * n + i];
-                hh[p] += h[p] * h[p];
-                hy[p] += h[p] * y_free[i];
-            }
+            double h0 = h[0] * (1.0 / (double)sub), h1 = h[1] * (1.0 / (double)sub);
+            hb00 += h0 * basis0[i], hb01 += h0 * basis1[i];
+            hb10 += h1 * basis0[i], hb11 += h1 * basis1[i];
+            hh0 += h0 * h0, hh1 += h1 * h1;
+            hy0 += h0 * y_free[i], hy1 += h1 * y_free[i];
         }
+        double h_basis[SHAPES][2] = {{hb00, hb01}, {hb10, hb11}}, hh[SHAPES] = {hh0, hh1}, hy[SHAPES] = {hy0, hy1};
         const double *at = sums + first;
         for (int p = 0; p < SHAPES; p++) {
             double a = c - w * LIFT_DEFICIT[p]; /* the pressed samples: h = a - x */
@@ -292,21 +294,20 @@ static PyObject *stiffness_at(PyObject *self, PyObject *args)
         return PyErr_NoMemory();
     }
     double *basis_rows = work, *y_free = work + 2 * n;
-    int m = project_out_basis(&s, drift_fitted, basis_rows, y_free);
+    project_out_basis(&s, drift_fitted, basis_rows, y_free);
     double h_basis[2] = {0.0, 0.0}, hh_all = 0.0, hy = 0.0;
     for (Py_ssize_t i = 0; i < n; i++) {
         double h[SHAPES];
         toe_sums(contact_um, width_um, s.window_um + i * sub, sub, h);
         double column = h[shape] * (1.0 / (double)sub);
-        for (int r = 0; r < m; r++)
-            h_basis[r] += basis_rows[r * n + i] * column;
+        h_basis[0] += basis_rows[i] * column;
+        h_basis[1] += basis_rows[n + i] * column;
         hh_all += column * column;
         hy += column * y_free[i];
     }
     free(work);
     release_samples(&s);
-    double basis_part = h_basis[0] * h_basis[0] + h_basis[1] * h_basis[1];
-    double hh = hh_all - basis_part;
+    double hh = hh_all - (h_basis[0] * h_basis[0] + h_basis[1] * h_basis[1]);
     return PyFloat_FromDouble(hh > 1e-9 * (hh_all + 1e-300) ? hy / hh : 0.0);
 }
 
@@ -506,6 +507,86 @@ static PyObject *stiffness_whitened(PyObject *self, PyObject *args)
     return result;
 }
 
+/* ---- The contact with the toe marginalised out (toe.py: marginal_contact_um) ---- */
+
+/* One toe's row of residuals over the contact grid: its parabola through the least residual and
+ * its neighbours (best height, residual there, the Gaussian's variance in c). 0 when the least is
+ * at an end, a neighbour is infinite or the row is not curved upwards there. */
+static int toe_minimum(const double *rss, Py_ssize_t count, const double *heights_um, double step_um,
+                       double noise_var, double *centre_um, double *lowest, double *var_um2)
+{
+    Py_ssize_t k = 0;
+    for (Py_ssize_t i = 1; i < count; i++)
+        if (rss[i] < rss[k]) /* the first of equal least values, as argmin */
+            k = i;
+    if (!(k > 0 && k < count - 1))
+        return 0;
+    double before = rss[k - 1], at = rss[k], after = rss[k + 1];
+    if (!(isfinite(before) && isfinite(after)))
+        return 0;
+    double bend = before - 2.0 * at + after;
+    if (!(bend > 0.0))
+        return 0;
+    double offset = 0.5 * (before - after) / bend;
+    *centre_um = heights_um[k] + offset * step_um;
+    *lowest = at - 0.25 * offset * (before - after);
+    *var_um2 = 2.0 * noise_var * step_um * step_um / bend;
+    return 1;
+}
+
+static PyObject *marginal_contact(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer heights_buffer, rss_buffer, prior_buffer;
+    double noise_var;
+    if (!PyArg_ParseTuple(args, "y*y*dy*", &heights_buffer, &rss_buffer, &noise_var, &prior_buffer))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t count = 0, toes = 0;
+    const double *heights_um = doubles_of(&heights_buffer, &count, "contacts_um");
+    const double *prior = doubles_of(&prior_buffer, &toes, "prior");
+    const double *rss = doubles_sized(&rss_buffer, count * toes, "rss");
+    if (heights_um == NULL || prior == NULL || rss == NULL)
+        goto done;
+    if (count < 2) {
+        PyErr_Format(PyExc_ValueError, "contacts_um: %zd heights, at least 2 expected", count);
+        goto done;
+    }
+    double step_um = heights_um[1] - heights_um[0], centre_um, lowest, var_um2;
+    /* Three passes over the toes (a score of them, recomputed rather than stored): the least
+     * residual; the weights' total and mean; the spread about the mean. */
+    double least = INFINITY, total = 0.0, weighted = 0.0, spread = 0.0;
+    int any = 0;
+    for (Py_ssize_t t = 0; t < toes; t++)
+        if (toe_minimum(rss + t * count, count, heights_um, step_um, noise_var, &centre_um, &lowest, &var_um2)) {
+            least = any && least <= lowest ? least : lowest;
+            any = 1;
+        }
+    if (!any) {
+        result = Py_NewRef(Py_None);
+        goto done;
+    }
+    for (Py_ssize_t t = 0; t < toes; t++)
+        if (toe_minimum(rss + t * count, count, heights_um, step_um, noise_var, &centre_um, &lowest, &var_um2)) {
+            double weight = exp(-(lowest - least) / (2.0 * noise_var)) * sqrt(var_um2) * prior[t];
+            total += weight;
+            weighted += weight * centre_um;
+        }
+    double mean_um = weighted / total;
+    for (Py_ssize_t t = 0; t < toes; t++)
+        if (toe_minimum(rss + t * count, count, heights_um, step_um, noise_var, &centre_um, &lowest, &var_um2)) {
+            double weight = exp(-(lowest - least) / (2.0 * noise_var)) * sqrt(var_um2) * prior[t];
+            spread += weight * (var_um2 + (centre_um - mean_um) * (centre_um - mean_um));
+        }
+    spread /= total;
+    result = Py_BuildValue("dd", mean_um, sqrt(spread > 0.0 ? spread : 0.0));
+done:
+    PyBuffer_Release(&heights_buffer);
+    PyBuffer_Release(&rss_buffer);
+    PyBuffer_Release(&prior_buffer);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"rss_grid", rss_grid, METH_VARARGS,
      "rss_grid(window_um, x_mid_um, force_g, drift_fitted, contacts_um, widths_um, rss_out)\n\n"
@@ -527,6 +608,11 @@ static PyMethodDef methods[] = {
      "stiffness_whitened(window_um, x_mid_um, force_g, white_var_g2, walk_var_g2, lowest_contact_um,\n"
      "                   highest_contact_um, widest_um, contact_um, width_um, power) -> float\n\n"
      "The walk-weighted toe stiffness at one toe; ValueError when rss_grid_whitened would say False."},
+    {"marginal_contact", marginal_contact, METH_VARARGS,
+     "marginal_contact(contacts_um, rss, noise_var, prior) -> (mean_um, sd_um) or None\n\n"
+     "The contact height's mean and sd with the toe marginalised out; rss: toes × contacts residuals\n"
+     "(flat, row-major) on the even grid contacts_um, prior: a weight per toe. None when no toe has a\n"
+     "curved interior minimum (toe.py: marginal_contact_um)."},
     {NULL, NULL, 0, NULL},
 };
 
