@@ -119,6 +119,23 @@ fail:
     return -1;
 }
 
+/* Sample i and all before it are pressed past a toe ending at or above pressed_to[i] (running max
+ * of the windows' tops); from i on all are free of a contact at or below free_from[i] (running min
+ * from the end of the windows' bottoms). Both sorted, so a search bounds each candidate's run in
+ * its toe, whatever the order of the samples. */
+static void running_bounds(const Samples *s, double *pressed_to, double *free_from)
+{
+    Py_ssize_t n = s->n, sub = s->subsamples;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double top_um = s->window_um[i * sub + sub - 1];
+        pressed_to[i] = (i == 0 || top_um > pressed_to[i - 1]) ? top_um : pressed_to[i - 1];
+    }
+    for (Py_ssize_t i = n - 1; i >= 0; i--) {
+        double bottom_um = s->window_um[i * sub];
+        free_from[i] = (i == n - 1 || bottom_um < free_from[i + 1]) ? bottom_um : free_from[i + 1];
+    }
+}
+
 /* ---- Ordinary least squares (toe.py: _Projected, _rss_over_contacts, _solve, _stiffness_at) ---- */
 
 /* The basis beside the toe, orthonormal: the baseline 1/√n, and with the drift fitted the centred
@@ -203,18 +220,7 @@ static PyObject *rss_grid(PyObject *self, PyObject *args)
     double yy = 0.0;
     for (Py_ssize_t i = 0; i < n; i++)
         yy += y_free[i] * y_free[i];
-    /* Sample i and all before it are pressed past a toe ending at or above pressed_to[i] (running
-     * max of the windows' tops); from i on all are free of a contact at or below free_from[i]
-     * (running min from the end of the windows' bottoms): sorted, so a binary search bounds each
-     * candidate's run in its toe. */
-    for (Py_ssize_t i = 0; i < n; i++) {
-        double top_um = s.window_um[i * sub + sub - 1];
-        pressed_to[i] = (i == 0 || top_um > pressed_to[i - 1]) ? top_um : pressed_to[i - 1];
-    }
-    for (Py_ssize_t i = n - 1; i >= 0; i--) {
-        double bottom_um = s.window_um[i * sub];
-        free_from[i] = (i == n - 1 || bottom_um < free_from[i + 1]) ? bottom_um : free_from[i + 1];
-    }
+    running_bounds(&s, pressed_to, free_from);
     /* Prefix sums over samples < i of 1, x, x², y, x y, B (m), x B (m): the pressed run of a
      * candidate has h = a - x, so its sums are these combined. Column k at sums[k * sums_n + i]. */
     int columns = 5 + 2 * m;
@@ -313,11 +319,19 @@ static PyObject *stiffness_at(PyObject *self, PyObject *args)
 
 /* ---- Under white noise + a random walk (toe.py: _Whitened, _whiten, _rss_whitened) ---- */
 
-/* The samples' three runs and the whitening of one walk-weighted fit (`_Whitened`). */
+/* The samples' three runs and the whitening of one walk-weighted fit (`_Whitened`), with what lets
+ * a candidate skip the samples its toe does not reach: before its toe the column is a - x (its
+ * differences do not depend on the candidate: `pressed_*`, the recursion run on them from the
+ * start), after it 0 (the recursion decays geometrically: `tail_*`, its sums from each difference
+ * on per unit of z before it). So a candidate costs a recursion over its toe's samples only. */
 typedef struct {
-    Py_ssize_t first_near, near_count, differences;
-    double *diag, *sub, *y_white; /* per difference (n - 1 each); one malloc at diag */
-    double pressed_z, pressed_zz, pressed_zy, tail_zz, tail_zy, yy;
+    Py_ssize_t first_near, near_count;
+    double yy;
+    /* per difference j (between samples j and j + 1), n - 1 of each; one malloc at diag */
+    double *diag, *inv_diag, *sub, *y_white;
+    double *pressed_z, *pressed_zz, *pressed_zy; /* through difference j, h = a - x up to sample j + 1 */
+    double *tail_zz, *tail_zy;                   /* from difference j on (n of these: none from n - 1) */
+    double *pressed_to, *free_from;              /* per sample, as in rss_grid */
 } Whitened;
 
 /* `_Whitened.prepare`: 1 when prepared, 0 when the samples are not pressed, then in between, then
@@ -354,17 +368,19 @@ static int prepare_whitened(const Samples *s, double white_var_g2, double walk_v
     Py_ssize_t m = n - 1;
     wh->first_near = first;
     wh->near_count = count;
-    wh->differences = m;
-    wh->diag = malloc(sizeof(double) * (size_t)(3 * m));
+    wh->diag = malloc(sizeof(double) * (size_t)(9 * m + 3 * n + 1));
     if (wh->diag == NULL) {
         PyErr_NoMemory();
         return -1;
     }
-    wh->sub = wh->diag + m;
-    wh->y_white = wh->diag + 2 * m;
+    double *diag = wh->diag, *inv_diag = diag + m, *subd = diag + 2 * m, *y_white = diag + 3 * m;
+    double *pressed_z = diag + 4 * m, *pressed_zz = diag + 5 * m, *pressed_zy = diag + 6 * m;
+    double *tail_zz = diag + 7 * m, *tail_zy = tail_zz + n, *pressed_to = tail_zy + n, *free_from = pressed_to + n;
+    wh->inv_diag = inv_diag, wh->sub = subd, wh->y_white = y_white;
+    wh->pressed_z = pressed_z, wh->pressed_zz = pressed_zz, wh->pressed_zy = pressed_zy;
+    wh->tail_zz = tail_zz, wh->tail_zy = tail_zy, wh->pressed_to = pressed_to, wh->free_from = free_from;
     /* The bidiagonal Cholesky factor of the differences' covariance (2σ² + q, -σ² beside), and the
      * force's differences whitened through it. */
-    double *diag = wh->diag, *subd = wh->sub, *y_white = wh->y_white;
     diag[0] = sqrt(2.0 * white_var_g2 + walk_var_g2);
     subd[0] = 0.0;
     for (Py_ssize_t j = 1; j < m; j++) {
@@ -373,55 +389,59 @@ static int prepare_whitened(const Samples *s, double white_var_g2, double walk_v
     }
     double previous = 0.0, yy = 0.0;
     for (Py_ssize_t j = 0; j < m; j++) {
+        inv_diag[j] = 1.0 / diag[j];
         previous = ((s->force_g[j + 1] - s->force_g[j]) - subd[j] * previous) / diag[j];
         y_white[j] = previous;
         yy += previous * previous;
     }
     wh->yy = yy;
-    /* Pressed past every toe: h = a - x, whose differences do not depend on the candidate. */
-    wh->pressed_z = wh->pressed_zz = wh->pressed_zy = 0.0;
-    if (first >= 2) {
-        double z = 0.0, zz = 0.0, zy = 0.0;
-        for (Py_ssize_t j = 0; j < first - 1; j++) {
-            z = (-(s->x_mid_um[j + 1] - s->x_mid_um[j]) - subd[j] * z) / diag[j];
-            zz += z * z;
-            zy += z * y_white[j];
-        }
-        wh->pressed_z = z, wh->pressed_zz = zz, wh->pressed_zy = zy;
+    double z = 0.0, zz = 0.0, zy = 0.0;
+    for (Py_ssize_t j = 0; j < m; j++) {
+        z = (-(s->x_mid_um[j + 1] - s->x_mid_um[j]) - subd[j] * z) * inv_diag[j];
+        zz += z * z;
+        zy += z * y_white[j];
+        pressed_z[j] = z, pressed_zz[j] = zz, pressed_zy[j] = zy;
     }
-    /* Free air after the in-between run: z decays by -sub / diag a step, per unit at its start. */
-    double gain = 1.0, tail_zz = 0.0, tail_zy = 0.0;
-    for (Py_ssize_t j = first + count; j < m; j++) {
-        gain *= -subd[j] / diag[j];
-        tail_zz += gain * gain;
-        tail_zy += gain * y_white[j];
+    tail_zz[m] = tail_zy[m] = 0.0;
+    for (Py_ssize_t j = m - 1; j >= 0; j--) {
+        double gain = -subd[j] * inv_diag[j];
+        tail_zz[j] = gain * gain * (1.0 + tail_zz[j + 1]);
+        tail_zy[j] = gain * (y_white[j] + tail_zy[j + 1]);
     }
-    wh->tail_zz = tail_zz, wh->tail_zy = tail_zy;
+    running_bounds(s, pressed_to, free_from);
     return 1;
 }
 
-/* `_rss_whitened` for one candidate toe, both shapes: the toe column over the in-between run
- * (with the pressed sample before and the free one after, where there are such), differenced and
- * whitened by the recursion; residuals (white-noise units) and stiffnesses per shape. */
+/* `_rss_whitened` for one candidate toe, both shapes: its toe column over the samples from the
+ * last one pressed past its toe to the first one from which all are free, differenced and whitened
+ * by the recursion, the parts before and after from the prepared sums; residuals (white-noise
+ * units) and stiffnesses per shape. hints: where the searches of the previous candidate ended. */
 static void whitened_candidate(const Samples *s, const Whitened *wh, double contact_um, double width_um,
-                               double rss[SHAPES], double stiffness[SHAPES])
+                               Py_ssize_t hints[2], double rss[SHAPES], double stiffness[SHAPES])
 {
-    Py_ssize_t first = wh->first_near, end = first + wh->near_count, sub = s->subsamples;
-    Py_ssize_t j = first > 0 ? first - 1 : 0; /* the difference the recursion starts at */
-    double previous_h[SHAPES], z[SHAPES], zz[SHAPES] = {0.0, 0.0}, zy[SHAPES] = {0.0, 0.0};
-    for (int p = 0; p < SHAPES; p++) {
-        previous_h[p] = first > 0 ? (contact_um - width_um * LIFT_DEFICIT[p]) - s->x_mid_um[first - 1] : 0.0;
-        z[p] = wh->pressed_z;
-    }
-    for (Py_ssize_t i = first; i <= end && i < s->n; i++) {
-        double h[SHAPES] = {0.0, 0.0}; /* past the run: the free sample, h = 0 */
-        if (i < end) {
-            toe_sums(contact_um, width_um, s->window_um + i * sub, sub, h);
-            h[0] /= (double)sub, h[1] /= (double)sub;
+    Py_ssize_t n = s->n, sub = s->subsamples, end = wh->first_near + wh->near_count;
+    hints[0] = count_before(wh->pressed_to, n, contact_um - width_um, 1, hints[0]);
+    hints[1] = count_before(wh->free_from, n, contact_um, 0, hints[1]);
+    /* Samples before `start` are pressed past the toe (h = a - x); from `stop` on all are free (h = 0). */
+    Py_ssize_t start = hints[0] > wh->first_near ? hints[0] : wh->first_near;
+    Py_ssize_t stop = hints[1] > start ? hints[1] : start;
+    stop = stop < end ? stop : end;
+    double previous_h[SHAPES] = {0.0, 0.0}, z[SHAPES] = {0.0, 0.0}, zz[SHAPES] = {0.0, 0.0}, zy[SHAPES] = {0.0, 0.0};
+    Py_ssize_t j = start > 0 ? start - 1 : 0; /* the next difference */
+    if (start > 0) {
+        for (int p = 0; p < SHAPES; p++) {
+            previous_h[p] = (contact_um - width_um * LIFT_DEFICIT[p]) - s->x_mid_um[start - 1];
+            if (start >= 2)
+                z[p] = wh->pressed_z[start - 2], zz[p] = wh->pressed_zz[start - 2], zy[p] = wh->pressed_zy[start - 2];
         }
-        if (i > first || first > 0) { /* a difference: to sample i from the one before */
+    }
+    for (Py_ssize_t i = start; i <= stop && i < n; i++) {
+        double h[SHAPES];
+        toe_sums(contact_um, width_um, s->window_um + i * sub, sub, h);
+        h[0] /= (double)sub, h[1] /= (double)sub;
+        if (i > 0) { /* a difference: to sample i from the one before */
             for (int p = 0; p < SHAPES; p++) {
-                z[p] = ((h[p] - previous_h[p]) - wh->sub[j] * z[p]) / wh->diag[j];
+                z[p] = ((h[p] - previous_h[p]) - wh->sub[j] * z[p]) * wh->inv_diag[j];
                 zz[p] += z[p] * z[p];
                 zy[p] += z[p] * wh->y_white[j];
             }
@@ -430,8 +450,8 @@ static void whitened_candidate(const Samples *s, const Whitened *wh, double cont
         previous_h[0] = h[0], previous_h[1] = h[1];
     }
     for (int p = 0; p < SHAPES; p++) {
-        double hh = wh->pressed_zz + zz[p] + z[p] * z[p] * wh->tail_zz;
-        double hy = wh->pressed_zy + zy[p] + z[p] * wh->tail_zy;
+        double hh = zz[p] + z[p] * z[p] * wh->tail_zz[j];
+        double hy = zy[p] + z[p] * wh->tail_zy[j];
         int usable = hh > 1e-12;
         stiffness[p] = usable ? hy / hh : 0.0;
         rss[p] = usable && stiffness[p] > 0.0 ? wh->yy - stiffness[p] * hy : INFINITY;
@@ -462,9 +482,10 @@ static PyObject *rss_grid_whitened(PyObject *self, PyObject *args)
     if (prepared < 0)
         goto done;
     if (prepared) {
+        Py_ssize_t hints[2] = {0, 0};
         for (Py_ssize_t j = 0; j < candidates; j++) {
             double rss[SHAPES], stiffness[SHAPES];
-            whitened_candidate(&s, &wh, contacts_um[j], widths_um[j], rss, stiffness);
+            whitened_candidate(&s, &wh, contacts_um[j], widths_um[j], hints, rss, stiffness);
             rss_out[j] = rss[0];
             rss_out[candidates + j] = rss[1];
         }
@@ -497,7 +518,8 @@ static PyObject *stiffness_whitened(PyObject *self, PyObject *args)
     PyObject *result = NULL;
     if (prepared > 0) {
         double rss[SHAPES], stiffness[SHAPES];
-        whitened_candidate(&s, &wh, contact_um, width_um, rss, stiffness);
+        Py_ssize_t hints[2] = {0, 0};
+        whitened_candidate(&s, &wh, contact_um, width_um, hints, rss, stiffness);
         result = PyFloat_FromDouble(stiffness[shape]);
     } else if (prepared == 0) {
         PyErr_SetString(PyExc_ValueError, "the samples are not a plain rise: no walk-weighted fit");
