@@ -12,6 +12,7 @@
 #include "buffers.h" /* Python.h first: it sets the feature macros the system headers read */
 
 #include <math.h>
+#include <stdio.h>
 #include <stdlib.h>
 
 #define SHAPES 2
@@ -54,7 +55,9 @@ static int shape_of_power(double power)
         return 0;
     if (power == 1.0)
         return 1;
-    PyErr_Format(PyExc_ValueError, "power: %g, the kernel knows 0.5 and 1.0", power);
+    char message[80]; /* PyErr_Format has no %g */
+    snprintf(message, sizeof message, "power: %g, the kernel knows 0.5 and 1.0", power);
+    PyErr_SetString(PyExc_ValueError, message);
     return -1;
 }
 
