@@ -323,12 +323,15 @@ def free_air_variogram(force_g: np.ndarray) -> FreeAirVariogram:
     lags = [lag for lag in WANDER_LAGS if 3 * lag <= n]  # longer ones: the line takes the walk
     if len(lags) < 3:
         return [], []
+    lags = tuple(lags)
+    if _C is not None:
+        return list(_detrended_variogram(n, lags)), _C.lag_mean_squares(force_g, lags)
     i = np.arange(n, dtype=float) - 0.5 * (n - 1)
     r = force_g - force_g.mean() - i * (i @ force_g) / (i @ i)
     # Every lag's differences in one flat array, averaged per lag by bincount.
-    later, earlier, lag_of, pairs = _lag_pairs(n, tuple(lags))
+    later, earlier, lag_of, pairs = _lag_pairs(n, lags)
     d = r.take(later) - r.take(earlier)
-    return list(_detrended_variogram(n, tuple(lags))), (np.bincount(lag_of, d * d, len(lags)) / pairs).tolist()
+    return list(_detrended_variogram(n, lags)), (np.bincount(lag_of, d * d, len(lags)) / pairs).tolist()
 
 
 def wander_from_variograms(variograms: list[FreeAirVariogram]) -> Wander | None:

@@ -612,6 +612,66 @@ done:
     return result;
 }
 
+/* ---- The baseline's walk from free air (toe.py: free_air_variogram) ---- */
+
+static PyObject *lag_mean_squares(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer force_buffer;
+    PyObject *lags;
+    if (!PyArg_ParseTuple(args, "y*O!", &force_buffer, &PyTuple_Type, &lags))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t n = 0, count = PyTuple_GET_SIZE(lags);
+    const double *force_g = doubles_of(&force_buffer, &n, "force_g");
+    if (force_g == NULL)
+        goto done;
+    if (n < 2) {
+        PyErr_Format(PyExc_ValueError, "force_g: %zd samples, at least 2 expected", n);
+        goto done;
+    }
+    /* The segment's straight line fitted out: r = f - mean - t (t·f) / (t·t), t the centred index.
+     * r is not stored: each lag recomputes it from two running indices (a few hundred samples). */
+    double mean_g = 0.0, tf = 0.0, tt = 0.0;
+    for (Py_ssize_t k = 0; k < n; k++)
+        mean_g += force_g[k];
+    mean_g /= (double)n;
+    for (Py_ssize_t k = 0; k < n; k++) {
+        double t = (double)k - 0.5 * (double)(n - 1);
+        tf += t * force_g[k];
+        tt += t * t;
+    }
+    double slope = tf / tt;
+    result = PyList_New(count);
+    if (result == NULL)
+        goto done;
+    for (Py_ssize_t l = 0; l < count; l++) {
+        Py_ssize_t lag = PyLong_AsSsize_t(PyTuple_GET_ITEM(lags, l));
+        if (lag == -1 && PyErr_Occurred())
+            goto fail;
+        if (lag < 1 || lag >= n) {
+            PyErr_Format(PyExc_ValueError, "lags: %zd for %zd samples, 1..%zd allowed", lag, n, n - 1);
+            goto fail;
+        }
+        double sum = 0.0;
+        for (Py_ssize_t k = 0; k + lag < n; k++) {
+            /* r[k + lag] - r[k]: the mean cancels, the line leaves lag × slope */
+            double d = (force_g[k + lag] - force_g[k]) - (double)lag * slope;
+            sum += d * d;
+        }
+        PyObject *value = PyFloat_FromDouble(sum / (double)(n - lag));
+        if (value == NULL)
+            goto fail;
+        PyList_SET_ITEM(result, l, value);
+    }
+    goto done;
+fail:
+    Py_CLEAR(result);
+done:
+    PyBuffer_Release(&force_buffer);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"rss_grid", rss_grid, METH_VARARGS,
      "rss_grid(window_um, x_mid_um, force_g, drift_fitted, contacts_um, widths_um, rss_out)\n\n"
@@ -638,6 +698,10 @@ static PyMethodDef methods[] = {
      "The contact height's mean and sd with the toe marginalised out; rss: toes × contacts residuals\n"
      "(flat, row-major) on the even grid contacts_um, prior: a weight per toe. None when no toe has a\n"
      "curved interior minimum (toe.py: marginal_contact_um)."},
+    {"lag_mean_squares", lag_mean_squares, METH_VARARGS,
+     "lag_mean_squares(force_g, lags) -> list of float\n\n"
+     "Per lag (a tuple of ints, 1..n-1), the mean of (r[i+lag] - r[i])^2 over i, r the force with its\n"
+     "straight line fitted out (toe.py: free_air_variogram's measured part)."},
     {NULL, NULL, 0, NULL},
 };
 
