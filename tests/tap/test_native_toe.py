@@ -58,14 +58,18 @@ def _grid_inputs(x_lo_um, x_hi_um, force_g, contact0_um, spacing_um, drift_g_um,
     """fit_toe's arguments as its grids take them (the same steps as fit_toe)."""
     keep = (x_lo_um < contact0_um + toe.COARSE_ABOVE_UM + toe.DEPARTURE_REACH_SAMPLES * spacing_um) & (
         x_hi_um > contact0_um - toe.PENETRATION_REACH_UM)
-    x_lo_um, x_hi_um, y = x_lo_um[keep], x_hi_um[keep], force_g[keep]
+    walk = wander if wander is not None and wander.matters(np.count_nonzero(keep)) else None
+    return (x_lo_um[keep], x_hi_um[keep], force_g[keep], drift_g_um, walk, contact0_um + toe._CONTACT_OFFSETS_UM,
+            contact0_um + toe._GRID_OFFSETS_UM)
+
+
+def _whitened_yy(x_lo_um, x_hi_um, force_g, drift_g_um, wander, contacts_um, _):
+    """The whitened force's sum of squares (numpy twin's `_Whitened`)."""
     window_um = x_lo_um[:, None] + (x_hi_um - x_lo_um)[:, None] * toe._SUBSAMPLE_FRACTIONS
     x_mid = 0.5 * (x_lo_um + x_hi_um)
-    if drift_g_um is not None:
-        y = y - drift_g_um * x_mid
-    walk = wander if wander is not None and wander.matters(len(y)) else None
-    return (window_um, x_mid, y, drift_g_um is None, walk, contact0_um + toe._CONTACT_OFFSETS_UM,
-            contact0_um + toe._GRID_OFFSETS_UM)
+    y = force_g if drift_g_um is None else force_g - drift_g_um * x_mid
+    return toe._Whitened.prepare(window_um, x_mid, y, wander, contacts_um[0], contacts_um[-1],
+                                 toe.TOE_WIDTHS_UM[-1]).yy
 
 
 def test_grids_and_stiffness_equal_the_numpy_twin(toe_fits):
@@ -88,9 +92,7 @@ def test_grids_and_stiffness_equal_the_numpy_twin(toe_fits):
         finite = np.isfinite(rss_np)
         assert finite.sum() > 100
         if walk:
-            window_um, x_mid, y, _, wander, contacts_um, _ = inputs
-            scale = toe._Whitened.prepare(window_um, x_mid, y, wander, contacts_um[0], contacts_um[-1],
-                                          toe.TOE_WIDTHS_UM[-1]).yy
+            scale = _whitened_yy(*inputs)
             np.testing.assert_allclose(rss_c[finite], rss_np[finite], rtol=0, atol=2e-10 * scale)
         else:
             scale = np.abs(rss_np[finite]).max()
@@ -152,14 +154,15 @@ def test_marginal_contact_equals_the_numpy_twin(monkeypatch):
 
 
 def test_kernel_rejects_wrong_arrays():
-    window_um, x_mid = np.zeros((20, 2)), np.arange(20.0)
+    x_lo_um = np.arange(20.0)
+    samples = (x_lo_um, x_lo_um + 1.0, x_lo_um, math.nan, 2)
     contacts_um, widths_um = np.arange(5.0), np.zeros(5)
     with pytest.raises(ValueError, match="rss_out: 9 values, 10 expected"):
-        toe._C.rss_grid(window_um, x_mid, x_mid, True, contacts_um, widths_um, np.empty(9))
-    with pytest.raises(ValueError, match="force_g"):
-        toe._C.rss_grid(window_um, x_mid, x_mid[:-1], True, contacts_um, widths_um, np.empty(10))
+        toe._C.rss_grid(*samples, contacts_um, widths_um, np.empty(9))
+    with pytest.raises(ValueError, match="force_g: 19 values, 20 expected"):
+        toe._C.rss_grid(x_lo_um, x_lo_um + 1.0, x_lo_um[:-1], 0.0, 2, contacts_um, widths_um, np.empty(10))
     with pytest.raises(ValueError, match="power: 2"):
-        toe._C.stiffness_at(window_um, x_mid, x_mid, True, 3.0, 1.0, 2.0)
+        toe._C.stiffness_at(*samples, 3.0, 1.0, 2.0)
 
 
 def test_analysis_equals_the_numpy_twin(taps, monkeypatch):

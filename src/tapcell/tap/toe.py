@@ -501,30 +501,28 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
     """
     keep = (x_lo_um < contact0_um + COARSE_ABOVE_UM + DEPARTURE_REACH_SAMPLES * spacing_um) & (
         x_hi_um > contact0_um - PENETRATION_REACH_UM)
-    x_lo_um, x_hi_um, y = x_lo_um[keep], x_hi_um[keep], force_g[keep]
-    if len(y) < 8:
+    x_lo_um, x_hi_um, force_g = x_lo_um[keep], x_hi_um[keep], force_g[keep]
+    samples = len(force_g)
+    if samples < 8:
         return None
-    window_um = x_lo_um[:, None] + (x_hi_um - x_lo_um)[:, None] * _SUBSAMPLE_FRACTIONS
-    x_mid = 0.5 * (x_lo_um + x_hi_um)
-    drift_fitted = drift_g_um is None
-    if not drift_fitted:
-        y = y - drift_g_um * x_mid
     contacts_um = contact0_um + _CONTACT_OFFSETS_UM
     grid_c = contact0_um + _GRID_OFFSETS_UM
-    walk = wander if wander is not None and wander.matters(len(y)) else None
+    walk = wander if wander is not None and wander.matters(samples) else None
     grid = _toe_grid_native if _C is not None and TOE_POWERS == _NATIVE_POWERS else _toe_grid
-    rss_grid, g2_per_unit, stiffness_at = grid(window_um, x_mid, y, drift_fitted, walk, contacts_um, grid_c)
-    rss_grid = rss_grid.reshape(len(TOE_POWERS), len(TOE_WIDTHS_UM), -1)  # (power, width, contact)
-    best = np.unravel_index(int(rss_grid.argmin()), rss_grid.shape)
-    if not math.isfinite(rss_grid[best]):
+    rss_grid, g2_per_unit, stiffness_at = grid(x_lo_um, x_hi_um, force_g, drift_g_um, walk, contacts_um, grid_c)
+    # The least residual's (power, width): flat index arithmetic (np.unravel_index costs more here).
+    best = int(rss_grid.argmin())
+    least = float(rss_grid.flat[best])
+    if not math.isfinite(least):
         return None
-    dof = max(len(y) - 4 - (2 if drift_fitted else 1), 1)  # the toe's c, w, p, k and the basis
-    residual_var = max(float(rss_grid[best]) / dof, 1e-12)
+    power_index, width_index = divmod(best // len(_CONTACT_OFFSETS_UM), len(TOE_WIDTHS_UM))
+    dof = max(samples - 4 - (2 if drift_g_um is None else 1), 1)  # the toe's c, w, p, k and the basis
+    residual_var = max(least / dof, 1e-12)
     contact, sigma = marginal_contact_um(contacts_um, rss_grid.reshape(-1, len(contacts_um)), residual_var,
                                          _TOE_PRIOR)
     if contact is None:
         return None
-    width, power = TOE_WIDTHS_UM[best[1]], TOE_POWERS[best[0]]
+    width, power = TOE_WIDTHS_UM[width_index], TOE_POWERS[power_index]
     stiffness = stiffness_at(contact, width, power)
     return ToeFit(contact_um=contact, sigma_um=sigma, width_um=float(width), power=float(power),
                   stiffness_g_um=stiffness, residual_sigma_g=math.sqrt(residual_var * g2_per_unit))
@@ -533,14 +531,18 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
 ToeGrid = tuple[np.ndarray, float, Callable[[float, float, float], float]]
 
 
-def _toe_grid(window_um: np.ndarray, x_mid: np.ndarray, y: np.ndarray, drift_fitted: bool, wander: Wander | None,
-              contacts_um: np.ndarray, grid_c: np.ndarray) -> ToeGrid:
+def _toe_grid(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, drift_g_um: float | None,
+              wander: Wander | None, contacts_um: np.ndarray, grid_c: np.ndarray) -> ToeGrid:
     """The residual at every candidate toe, (len(TOE_POWERS), candidates); the residual's unit (g²,
     or the white variance once whitened); and the toe stiffness at one (contact, width, power).
 
-    y has any known drift taken out; drift_fitted: the drift is fitted with the baseline. wander:
-    the walk to weigh the samples by, None for white noise. The numpy twin of `_toe_grid_native`.
+    The samples as `fit_toe` keeps them; drift_g_um: the known drift, None to fit it with the
+    baseline. wander: the walk to weigh the samples by, None for white noise. The numpy twin of
+    `_toe_grid_native`.
     """
+    window_um = x_lo_um[:, None] + (x_hi_um - x_lo_um)[:, None] * _SUBSAMPLE_FRACTIONS
+    x_mid = 0.5 * (x_lo_um + x_hi_um)
+    y = force_g if drift_g_um is None else force_g - drift_g_um * x_mid
     whitened = None
     if wander is not None:
         whitened = _Whitened.prepare(window_um, x_mid, y, wander, contacts_um[0], contacts_um[-1], TOE_WIDTHS_UM[-1])
@@ -549,7 +551,7 @@ def _toe_grid(window_um: np.ndarray, x_mid: np.ndarray, y: np.ndarray, drift_fit
             return float(_rss_whitened(np.array([contact_um]), np.array([width_um]), (power,), whitened)[1][0, 0])
 
         return _rss_whitened(grid_c, _GRID_WIDTHS_UM, TOE_POWERS, whitened)[0], wander.white_var_g2, whitened_stiffness
-    if drift_fitted:
+    if drift_g_um is None:
         basis = np.linalg.qr(np.column_stack((np.ones_like(x_mid), x_mid - x_mid.mean())))[0]
     else:
         basis = np.full((len(y), 1), 1.0 / math.sqrt(len(y)))
@@ -557,24 +559,25 @@ def _toe_grid(window_um: np.ndarray, x_mid: np.ndarray, y: np.ndarray, drift_fit
     return _rss_over_contacts(grid_c, _GRID_WIDTHS_UM, data), 1.0, functools.partial(_stiffness_at, data=data)
 
 
-def _toe_grid_native(window_um: np.ndarray, x_mid: np.ndarray, y: np.ndarray, drift_fitted: bool,
+def _toe_grid_native(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, drift_g_um: float | None,
                      wander: Wander | None, contacts_um: np.ndarray, grid_c: np.ndarray) -> ToeGrid:
     """`_toe_grid` by the compiled kernel (TOE_POWERS must be `_NATIVE_POWERS`)."""
-    rss = np.empty(len(TOE_POWERS) * len(grid_c))
+    samples = (x_lo_um, x_hi_um, force_g, math.nan if drift_g_um is None else drift_g_um, SUBSAMPLES)
+    rss = np.empty((len(TOE_POWERS), len(grid_c)))
     if wander is not None:
         walk = (wander.white_var_g2, wander.walk_var_g2, float(contacts_um[0]), float(contacts_um[-1]),
                 TOE_WIDTHS_UM[-1])
-        if _C.rss_grid_whitened(window_um, x_mid, y, *walk, grid_c, _GRID_WIDTHS_UM, rss):
+        if _C.rss_grid_whitened(*samples, *walk, grid_c, _GRID_WIDTHS_UM, rss):
             def whitened_stiffness(contact_um: float, width_um: float, power: float) -> float:
-                return _C.stiffness_whitened(window_um, x_mid, y, *walk, contact_um, width_um, power)
+                return _C.stiffness_whitened(*samples, *walk, contact_um, width_um, power)
 
-            return rss.reshape(len(TOE_POWERS), -1), wander.white_var_g2, whitened_stiffness
+            return rss, wander.white_var_g2, whitened_stiffness
 
     def stiffness(contact_um: float, width_um: float, power: float) -> float:
-        return _C.stiffness_at(window_um, x_mid, y, drift_fitted, contact_um, width_um, power)
+        return _C.stiffness_at(*samples, contact_um, width_um, power)
 
-    _C.rss_grid(window_um, x_mid, y, drift_fitted, grid_c, _GRID_WIDTHS_UM, rss)
-    return rss.reshape(len(TOE_POWERS), -1), 1.0, stiffness
+    _C.rss_grid(*samples, grid_c, _GRID_WIDTHS_UM, rss)
+    return rss, 1.0, stiffness
 
 
 def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: float,

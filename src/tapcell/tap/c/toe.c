@@ -84,12 +84,18 @@ static Py_ssize_t count_before(const double *sorted, Py_ssize_t n, double v, int
     return lo;
 }
 
-/* The pullback samples of one fit: window_um (n × subsamples heights), x_mid_um and force_g (n). */
+/* The pullback samples of one fit, laid out as toe.py's `_toe_grid` does from the conversion
+ * windows [x_lo, x_hi] and the force (n each): window_um (n × subsamples heights, at (k + ½) /
+ * subsamples of each window), x_mid_um, and force_g with a known drift taken out (drift_g_um NaN:
+ * the drift is fitted). Built here, in the same operations: numpy's broadcasting costs more than
+ * the whole grid on arrays this small. */
 typedef struct {
-    Py_buffer buffers[3];
+    Py_buffer buffers[3]; /* x_lo_um, x_hi_um, force_g as parsed */
     int held;
+    double *built; /* window_um, x_mid_um, force_g: one malloc */
     const double *window_um, *x_mid_um, *force_g;
     Py_ssize_t n, subsamples;
+    int drift_fitted;
 } Samples;
 
 static void release_samples(Samples *samples)
@@ -97,25 +103,43 @@ static void release_samples(Samples *samples)
     for (int i = 0; i < samples->held; i++)
         PyBuffer_Release(&samples->buffers[i]);
     samples->held = 0;
+    free(samples->built);
+    samples->built = NULL;
 }
 
-/* Checks the three buffers parsed into samples->buffers; 0, or -1 with ValueError set (released). */
-static int check_samples(Samples *samples)
+/* Checks the three buffers parsed into samples->buffers and builds the layout; 0, or -1 with an
+ * exception set (everything released). */
+static int load_samples(Samples *samples, double drift_g_um, Py_ssize_t subsamples)
 {
     samples->held = 3;
-    Py_ssize_t window_count;
-    samples->x_mid_um = doubles_of(&samples->buffers[1], &samples->n, "x_mid_um");
-    if (samples->x_mid_um == NULL)
+    Py_ssize_t n = 0;
+    const double *x_lo_um = doubles_of(&samples->buffers[0], &n, "x_lo_um"), *x_hi_um = NULL, *force_g = NULL;
+    if (x_lo_um != NULL) {
+        x_hi_um = doubles_sized(&samples->buffers[1], n, "x_hi_um");
+        force_g = doubles_sized(&samples->buffers[2], n, "force_g");
+    }
+    if (x_hi_um == NULL || force_g == NULL)
         goto fail;
-    samples->force_g = doubles_sized(&samples->buffers[2], samples->n, "force_g");
-    samples->window_um = doubles_of(&samples->buffers[0], &window_count, "window_um");
-    if (samples->force_g == NULL || samples->window_um == NULL)
-        goto fail;
-    if (samples->n < 2 || window_count == 0 || window_count % samples->n != 0) {
-        PyErr_Format(PyExc_ValueError, "window_um: %zd heights for %zd samples", window_count, samples->n);
+    if (n < 2 || subsamples < 1 || subsamples > 64) {
+        PyErr_Format(PyExc_ValueError, "%zd samples of %zd subsamples: at least 2 of 1..64 expected", n, subsamples);
         goto fail;
     }
-    samples->subsamples = window_count / samples->n;
+    samples->built = malloc(sizeof(double) * (size_t)((subsamples + 2) * n));
+    if (samples->built == NULL) {
+        PyErr_NoMemory();
+        goto fail;
+    }
+    double *window_um = samples->built, *x_mid_um = window_um + subsamples * n, *y_g = x_mid_um + n;
+    samples->drift_fitted = isnan(drift_g_um);
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double span_um = x_hi_um[i] - x_lo_um[i];
+        for (Py_ssize_t k = 0; k < subsamples; k++)
+            window_um[i * subsamples + k] = x_lo_um[i] + span_um * (((double)k + 0.5) / (double)subsamples);
+        x_mid_um[i] = 0.5 * (x_lo_um[i] + x_hi_um[i]);
+        y_g[i] = samples->drift_fitted ? force_g[i] : force_g[i] - drift_g_um * x_mid_um[i];
+    }
+    samples->window_um = window_um, samples->x_mid_um = x_mid_um, samples->force_g = y_g;
+    samples->n = n, samples->subsamples = subsamples;
     return 0;
 fail:
     release_samples(samples);
@@ -145,8 +169,9 @@ static void running_bounds(const Samples *s, double *pressed_to, double *free_fr
  * heights over their norm (the span np.linalg.qr gives; only the projection matters), else zeros
  * (they add nothing: the loops need not branch on it). The force with the basis projected out goes
  * to y_free; returns the number of basis columns. */
-static int project_out_basis(const Samples *s, int drift_fitted, double *basis_rows, double *y_free)
+static int project_out_basis(const Samples *s, double *basis_rows, double *y_free)
 {
+    int drift_fitted = s->drift_fitted;
     Py_ssize_t n = s->n;
     double base = 1.0 / sqrt((double)n), mean_um = 0.0, norm2 = 0.0, y_base = 0.0, y_drift = 0.0;
     int m = drift_fitted ? 2 : 1;
@@ -196,13 +221,14 @@ static PyObject *rss_grid(PyObject *self, PyObject *args)
     (void)self;
     Samples s = {0};
     Py_buffer contacts_buffer, widths_buffer, out_buffer;
-    int drift_fitted;
-    if (!PyArg_ParseTuple(args, "y*y*y*py*y*w*", &s.buffers[0], &s.buffers[1], &s.buffers[2], &drift_fitted,
-                          &contacts_buffer, &widths_buffer, &out_buffer))
+    double drift_g_um;
+    Py_ssize_t subsamples;
+    if (!PyArg_ParseTuple(args, "y*y*y*dny*y*w*", &s.buffers[0], &s.buffers[1], &s.buffers[2], &drift_g_um,
+                          &subsamples, &contacts_buffer, &widths_buffer, &out_buffer))
         return NULL;
     PyObject *result = NULL;
     double *work = NULL;
-    if (check_samples(&s) < 0)
+    if (load_samples(&s, drift_g_um, subsamples) < 0)
         goto done;
     Py_ssize_t candidates = 0, n = s.n, sub = s.subsamples;
     const double *contacts_um = doubles_of(&contacts_buffer, &candidates, "contacts_um");
@@ -219,7 +245,7 @@ static PyObject *rss_grid(PyObject *self, PyObject *args)
     }
     double *basis_rows = work, *y_free = work + 2 * n, *pressed_to = work + 3 * n, *free_from = work + 4 * n;
     double *sums = work + 5 * n;
-    int m = project_out_basis(&s, drift_fitted, basis_rows, y_free);
+    int m = project_out_basis(&s, basis_rows, y_free);
     double yy = 0.0;
     for (Py_ssize_t i = 0; i < n; i++)
         yy += y_free[i] * y_free[i];
@@ -286,13 +312,13 @@ static PyObject *stiffness_at(PyObject *self, PyObject *args)
 {
     (void)self;
     Samples s = {0};
-    int drift_fitted;
-    double contact_um, width_um, power;
-    if (!PyArg_ParseTuple(args, "y*y*y*pddd", &s.buffers[0], &s.buffers[1], &s.buffers[2], &drift_fitted,
-                          &contact_um, &width_um, &power))
+    double drift_g_um, contact_um, width_um, power;
+    Py_ssize_t subsamples;
+    if (!PyArg_ParseTuple(args, "y*y*y*dnddd", &s.buffers[0], &s.buffers[1], &s.buffers[2], &drift_g_um,
+                          &subsamples, &contact_um, &width_um, &power))
         return NULL;
     int shape = shape_of_power(power);
-    if (shape < 0 || check_samples(&s) < 0) {
+    if (shape < 0 || load_samples(&s, drift_g_um, subsamples) < 0) {
         release_samples(&s);
         return NULL;
     }
@@ -303,7 +329,7 @@ static PyObject *stiffness_at(PyObject *self, PyObject *args)
         return PyErr_NoMemory();
     }
     double *basis_rows = work, *y_free = work + 2 * n;
-    project_out_basis(&s, drift_fitted, basis_rows, y_free);
+    project_out_basis(&s, basis_rows, y_free);
     double h_basis[2] = {0.0, 0.0}, hh_all = 0.0, hy = 0.0;
     for (Py_ssize_t i = 0; i < n; i++) {
         double h[SHAPES];
@@ -466,14 +492,15 @@ static PyObject *rss_grid_whitened(PyObject *self, PyObject *args)
     (void)self;
     Samples s = {0};
     Py_buffer contacts_buffer, widths_buffer, out_buffer;
-    double white_var_g2, walk_var_g2, lowest_um, highest_um, widest_um;
-    if (!PyArg_ParseTuple(args, "y*y*y*dddddy*y*w*", &s.buffers[0], &s.buffers[1], &s.buffers[2], &white_var_g2,
-                          &walk_var_g2, &lowest_um, &highest_um, &widest_um, &contacts_buffer, &widths_buffer,
-                          &out_buffer))
+    double drift_g_um, white_var_g2, walk_var_g2, lowest_um, highest_um, widest_um;
+    Py_ssize_t subsamples;
+    if (!PyArg_ParseTuple(args, "y*y*y*dndddddy*y*w*", &s.buffers[0], &s.buffers[1], &s.buffers[2], &drift_g_um,
+                          &subsamples, &white_var_g2, &walk_var_g2, &lowest_um, &highest_um, &widest_um,
+                          &contacts_buffer, &widths_buffer, &out_buffer))
         return NULL;
     PyObject *result = NULL;
     Whitened wh = {0};
-    if (check_samples(&s) < 0)
+    if (load_samples(&s, drift_g_um, subsamples) < 0)
         goto done;
     Py_ssize_t candidates = 0;
     const double *contacts_um = doubles_of(&contacts_buffer, &candidates, "contacts_um");
@@ -507,12 +534,14 @@ static PyObject *stiffness_whitened(PyObject *self, PyObject *args)
 {
     (void)self;
     Samples s = {0};
-    double white_var_g2, walk_var_g2, lowest_um, highest_um, widest_um, contact_um, width_um, power;
-    if (!PyArg_ParseTuple(args, "y*y*y*dddddddd", &s.buffers[0], &s.buffers[1], &s.buffers[2], &white_var_g2,
-                          &walk_var_g2, &lowest_um, &highest_um, &widest_um, &contact_um, &width_um, &power))
+    double drift_g_um, white_var_g2, walk_var_g2, lowest_um, highest_um, widest_um, contact_um, width_um, power;
+    Py_ssize_t subsamples;
+    if (!PyArg_ParseTuple(args, "y*y*y*dndddddddd", &s.buffers[0], &s.buffers[1], &s.buffers[2], &drift_g_um,
+                          &subsamples, &white_var_g2, &walk_var_g2, &lowest_um, &highest_um, &widest_um, &contact_um,
+                          &width_um, &power))
         return NULL;
     int shape = shape_of_power(power);
-    if (shape < 0 || check_samples(&s) < 0) {
+    if (shape < 0 || load_samples(&s, drift_g_um, subsamples) < 0) {
         release_samples(&s);
         return NULL;
     }
@@ -674,24 +703,26 @@ done:
 
 static PyMethodDef methods[] = {
     {"rss_grid", rss_grid, METH_VARARGS,
-     "rss_grid(window_um, x_mid_um, force_g, drift_fitted, contacts_um, widths_um, rss_out)\n\n"
+     "rss_grid(x_lo_um, x_hi_um, force_g, drift_g_um, subsamples, contacts_um, widths_um, rss_out)\n\n"
      "Least-squares residual of the toe fit at every candidate (contacts_um[j], widths_um[j]) for both\n"
      "shapes (0.5, 1.0), written to rss_out (2 × candidates, shape-major); inf where the toe would pull\n"
-     "or cannot be told from the baseline (and drift when drift_fitted). window_um: n × subsamples\n"
-     "heights each sample averages over; force_g with any known drift taken out (toe.py:\n"
-     "_rss_over_contacts)."},
+     "or cannot be told from the baseline (and the drift). Samples: conversion windows [x_lo, x_hi]\n"
+     "(um above the halt), each averaged over `subsamples` heights; drift_g_um: the known drift, NaN\n"
+     "to fit it (toe.py: _toe_grid, _rss_over_contacts)."},
     {"stiffness_at", stiffness_at, METH_VARARGS,
-     "stiffness_at(window_um, x_mid_um, force_g, drift_fitted, contact_um, width_um, power) -> float\n\n"
+     "stiffness_at(x_lo_um, x_hi_um, force_g, drift_g_um, subsamples, contact_um, width_um, power) -> float\n\n"
      "The toe's linear stiffness (g/um) solved at one toe, 0 when unsolvable (toe.py: _stiffness_at)."},
     {"rss_grid_whitened", rss_grid_whitened, METH_VARARGS,
-     "rss_grid_whitened(window_um, x_mid_um, force_g, white_var_g2, walk_var_g2, lowest_contact_um,\n"
-     "                  highest_contact_um, widest_um, contacts_um, widths_um, rss_out) -> bool\n\n"
+     "rss_grid_whitened(x_lo_um, x_hi_um, force_g, drift_g_um, subsamples, white_var_g2, walk_var_g2,\n"
+     "                  lowest_contact_um, highest_contact_um, widest_um, contacts_um, widths_um, rss_out)\n"
+     "-> bool\n\n"
      "rss_grid under white noise + a random walk of the baseline (residuals in white-noise units).\n"
      "False (rss_out untouched) when the samples are not pressed, then in between, then free\n"
      "(toe.py: _Whitened.prepare, _rss_whitened)."},
     {"stiffness_whitened", stiffness_whitened, METH_VARARGS,
-     "stiffness_whitened(window_um, x_mid_um, force_g, white_var_g2, walk_var_g2, lowest_contact_um,\n"
-     "                   highest_contact_um, widest_um, contact_um, width_um, power) -> float\n\n"
+     "stiffness_whitened(x_lo_um, x_hi_um, force_g, drift_g_um, subsamples, white_var_g2, walk_var_g2,\n"
+     "                   lowest_contact_um, highest_contact_um, widest_um, contact_um, width_um, power)\n"
+     "-> float\n\n"
      "The walk-weighted toe stiffness at one toe; ValueError when rss_grid_whitened would say False."},
     {"marginal_contact", marginal_contact, METH_VARARGS,
      "marginal_contact(contacts_um, rss, noise_var, prior) -> (mean_um, sd_um) or None\n\n"
