@@ -44,6 +44,12 @@ Speed (the grid is 2 shapes × 10 widths × 27 contacts, every candidate solved 
 * the walk estimate's detrended variogram in closed form, cached per segment length.
 On the independent benchmark this took the toe configuration from ~9 ms to ~3 ms a tap (this
 machine, loaded), results equal to ~1e-9 µm.
+
+The compiled kernel (c/toe.c, `_toe_grid_native`; numpy twins here: `_toe_grid`, the marginal
+contact's and the free-air variogram's numpy code) does both grids, the stiffness, the marginal
+contact and the variogram's lags in one pass each; it takes the walk-weighted fit's pressed and
+free runs from sums prepared once, so a candidate costs its toe's samples only. The toe fit went
+from ~0.8 ms to ~0.12 ms a tap (median per-stage time, 25 taps of the independent generator).
 """
 
 from __future__ import annotations
