@@ -22,9 +22,13 @@ def read_limited(path: str | os.PathLike, max_bytes: int) -> bytes:
     OSError (missing file, no permission) passes through.
     """
     with open(path, "rb") as handle:
-        if not stat.S_ISREG(os.fstat(handle.fileno()).st_mode):
+        info = os.fstat(handle.fileno())
+        if not stat.S_ISREG(info.st_mode):
             raise FileRefused("is not a regular file")
-        data = handle.read(max_bytes + 1)  # a file still growing stops here too
+        # Sized by the file, not the limit: read(n) sets n bytes aside first, and most files are small.
+        data = handle.read(min(info.st_size, max_bytes) + 1)
+        if len(data) > info.st_size:  # still growing: read on, the limit stops it
+            data += handle.read(max_bytes + 1 - len(data))
     if len(data) > max_bytes:
         raise FileRefused(f"is larger than {max_bytes:,} bytes")
     return data

@@ -163,3 +163,28 @@ def test_an_in_memory_integer_beyond_a_float_reads_as_infinity():
     document["force"] = [10 ** 400] + document["force"][1:]
     with pytest.raises(TapFileError, match=r"^<memory>: 'force' holds NaN or infinity \(index 0\)$"):
         tap_from_object(document)
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda moves: moves.__setitem__(2, [1, 2]), "moves[2] must be an object"),
+    (lambda moves: moves[3].pop("accel"), "moves[3] lacks accel"),
+    (lambda moves: moves[1].__setitem__("start_v", True), "'moves[1].start_v' must be a finite number, got True"),
+    (lambda moves: moves[4].__setitem__("start_z", "0.1"), "'moves[4].start_z' must be a finite number, got '0.1'"),
+    (lambda moves: moves[0].__setitem__("move_t", float("nan")), "'moves[0].move_t' must be a finite number"),
+    (lambda moves: moves[0].__setitem__("move_t", 10 ** 400), "'moves[0].move_t' must be a finite number"),
+    (lambda moves: moves[2].__setitem__("move_t", -0.1), "moves[2]: start_v and move_t must be >= 0"),
+])
+def test_a_bad_move_is_named(tap, change, message):
+    """Moves are converted all at once; any bad item is then found and named one by one."""
+    document = tap_to_json_dict(tap)
+    change(document["moves"])
+    with pytest.raises(TapFileError, match=message.replace("[", r"\[").replace("]", r"\]").replace(".", r"\.")):
+        tap_from_object(document, "tap.json")
+
+
+def test_integer_moves_read_as_floats(tap):
+    document = tap_to_json_dict(tap)
+    document["moves"][0]["z_r"] = -1
+    moves = tap_from_object(document).moves
+    assert moves[0].z_r == -1.0 and type(moves[0].z_r) is float
+    assert moves[1:] == tap.moves[1:]

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tapcell.tap import validate
+from tapcell.tap import native, validate
 from tapcell.tap.angles import line_angles_deg
 from tapcell.tap.classifiers import get_classifier, run_classifier
 from tapcell.tap.contact import (ContactFit, fit_contact, fit_contact_at, search_contact, window_edges,
@@ -43,6 +43,8 @@ from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import PrefixSums, best_five_segments, prefix_sums, segment_lines
 from tapcell.tap.toe import (THREAD_REACH_UM, ToeFit, Wander, adhesion_dip, fit_toe, free_air_variogram,
                              lag_from_halt_s, thread_pull_g, wander_from_variograms)
+
+_C = native.load("analysis")  # noise_sigma_g and repair_spikes in C (tapcell.tap.native); None: numpy
 
 MIN_SAMPLES = 12
 # Extra samples the force may keep changing after the motion stopped/started (ringing, filters).
@@ -125,6 +127,8 @@ def step_staircase_sigma_um(step_um: float, window_um: float) -> float:
 
 def noise_sigma_g(force_g: np.ndarray) -> float:
     """White-noise sigma from the median absolute second difference (lines and spikes do not inflate it)."""
+    if _C is not None:
+        return _C.noise_sigma(force_g)
     if len(force_g) < 3:
         return 0.0
     return _noise_sigma_of(np.abs(force_g[1:-1] - 0.5 * (force_g[:-2] + force_g[2:])))
@@ -143,6 +147,13 @@ def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarr
     steep ramp has neighbours far apart, so real edges are never touched). The noise sigma
     comes from the median absolute second difference, which spikes cannot inflate.
     """
+    if _C is not None:
+        spikes, repaired_g = _C.spikes(force_g, threshold_sigma)
+        if not spikes:
+            return force_g, 0
+        repaired = force_g.copy()
+        repaired[spikes] = repaired_g
+        return repaired, len(spikes)
     if len(force_g) < 5:
         return force_g, 0
     off_mid = np.abs(force_g[1:-1] - 0.5 * (force_g[:-2] + force_g[2:]))

@@ -19,6 +19,11 @@ from types import ModuleType
 ENV = "TAPCELL_NATIVE"
 
 
+def required() -> bool:
+    """Whether a kernel that is not there is an error (TAPCELL_NATIVE=required)."""
+    return os.environ.get(ENV, "1") == "required"
+
+
 def load(name: str) -> ModuleType | None:
     """The compiled kernel module `tapcell.tap._c_<name>`, or None (not built, or TAPCELL_NATIVE=0)."""
     mode = os.environ.get(ENV, "1")
@@ -27,6 +32,6 @@ def load(name: str) -> ModuleType | None:
     try:
         return importlib.import_module(f"tapcell.tap._c_{name}")
     except ImportError:
-        if mode == "required":
+        if required():
             raise
         return None

@@ -5,6 +5,7 @@ the older workbench capture. Every problem is a `TapFileError` naming the file a
 from __future__ import annotations
 
 import csv
+import itertools
 import json
 import math
 import sys
@@ -131,20 +132,42 @@ def _number(path: str, where: str, name: str, value: Any) -> float:
 def _moves(path: str, where: str, values: Any) -> list[Move]:
     if not isinstance(values, list):
         raise TapFileError(path, f"{where}'moves' must be a list of objects")
-    moves = []
-    for k, item in enumerate(values):
-        if not isinstance(item, dict):
-            raise TapFileError(path, f"{where}moves[{k}] must be an object")
-        missing = [key for key in MOVE_KEYS if key not in item]
-        if missing:
-            raise TapFileError(path, f"{where}moves[{k}] lacks {', '.join(missing)}")
-        move = Move(*(_number(path, where, f"moves[{k}].{key}", item[key]) for key in MOVE_KEYS))
+    moves = _plain_moves(values)
+    if moves is None:  # something is wrong: find it item by item, to name it
+        moves = [_checked_move(path, where, k, item) for k, item in enumerate(values)]
+    for k, move in enumerate(moves):
         if move.start_v < 0 or move.move_t < 0:
             raise TapFileError(path, f"{where}moves[{k}]: start_v and move_t must be >= 0")
-        moves.append(move)
     if any(b.print_time < a.print_time for a, b in zip(moves, moves[1:])):
         raise TapFileError(path, f"{where}moves are not oldest first")
     return moves
+
+
+def _plain_moves(values: list) -> list[Move] | None:
+    """The moves when every item is an object whose tap-format keys hold finite plain numbers (a
+    tap has dozens of moves: one conversion for all of them), else None."""
+    try:
+        rows = [[item[key] for key in MOVE_KEYS] for item in values]
+    except (KeyError, TypeError):  # a missing key, or an item that is not an object
+        return None
+    if not set(map(type, itertools.chain.from_iterable(rows))) <= _PLAIN_NUMBER_TYPES:
+        return None
+    try:
+        table = np.array(rows, dtype=float).reshape(len(rows), len(MOVE_KEYS))
+    except OverflowError:  # an integer beyond the float range
+        return None
+    if not np.isfinite(table).all():
+        return None
+    return [Move(*row) for row in table.tolist()]
+
+
+def _checked_move(path: str, where: str, k: int, item: Any) -> Move:
+    if not isinstance(item, dict):
+        raise TapFileError(path, f"{where}moves[{k}] must be an object")
+    missing = [key for key in MOVE_KEYS if key not in item]
+    if missing:
+        raise TapFileError(path, f"{where}moves[{k}] lacks {', '.join(missing)}")
+    return Move(*(_number(path, where, f"moves[{k}].{key}", item[key]) for key in MOVE_KEYS))
 
 
 def _check_samples(path: str, where: str, time_s: np.ndarray, force_g: np.ndarray, z_mm: np.ndarray | None) -> None:

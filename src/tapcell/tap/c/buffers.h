@@ -1,13 +1,31 @@
 /* Shared by the analysis kernels: float64 arrays in and out through the buffer protocol.
  *
- * Arrays come as numpy float64/int64 arrays (C-contiguous); "y*" / "w*" in PyArg_ParseTuple give
- * a Py_buffer. These checks turn a wrong dtype or length into a ValueError naming the argument
+ * Arrays come as numpy float64 arrays (C-contiguous): "O&" with `float64_buffer` checks the type
+ * ("y*" / "w*" in PyArg_ParseTuple give a Py_buffer of any bytes). These checks turn a wrong dtype or length into a ValueError naming the argument
  * (a programming error in the caller, never data: the Python side has validated the tap). */
 #ifndef TAPCELL_BUFFERS_H
 #define TAPCELL_BUFFERS_H
 
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <string.h>
+
+/* A "O&" converter for PyArg_ParseTuple: `object` as a C-contiguous float64 buffer in the
+ * Py_buffer `view` points to, else a TypeError naming what it is (an int array of the same byte
+ * size would otherwise be read as garbage). Release the view with PyBuffer_Release. */
+static inline int float64_buffer(PyObject *object, void *view)
+{
+    Py_buffer *buffer = view;
+    if (PyObject_GetBuffer(object, buffer, PyBUF_FORMAT | PyBUF_C_CONTIGUOUS) < 0) return 0;
+    const char *format = buffer->format ? buffer->format : "B";
+    if (format[0] == '<' || format[0] == '=' || format[0] == '@') format++;
+    if (buffer->itemsize != (Py_ssize_t)sizeof(double) || strcmp(format, "d") != 0) {
+        PyErr_Format(PyExc_TypeError, "expected a float64 array, got format '%s'", buffer->format);
+        PyBuffer_Release(buffer);
+        return 0;
+    }
+    return 1;
+}
 
 /* The buffer as doubles: its count in *n, NULL (ValueError set) when its size is not whole doubles. */
 static inline const double *doubles_of(const Py_buffer *buffer, Py_ssize_t *n, const char *name)

@@ -1,0 +1,200 @@
+/* The robust statistics of the tap analysis (numpy twins: tapcell/tap/robust.py `median`,
+ * tapcell/tap/analysis.py `noise_sigma_g` and `repair_spikes`).
+ *
+ * Each is a handful of numpy calls on a few hundred samples, run several times a tap: numpy's
+ * per-call cost, not the arithmetic, is what they spend. The arithmetic here is the twins', in
+ * the same order, so the answers are the same to the last bit (a median selects, it does not sum).
+ */
+#include "buffers.h" /* first: Python.h sets the feature macros the C library headers read */
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* The median absolute deviation of normal noise times this is its sigma (robust.MAD_TO_SIGMA). */
+#define MAD_TO_SIGMA 1.4826
+
+static void swap(double *a, double *b)
+{
+    double kept = *a;
+    *a = *b;
+    *b = kept;
+}
+
+/* Put the k-th smallest of values[0..n) at values[k], smaller ones before it and larger after
+ * (Hoare's selection; the pivot is the median of three, so sorted or reversed runs stay linear). */
+static void select_kth(double *values, Py_ssize_t n, Py_ssize_t k)
+{
+    Py_ssize_t low = 0, high = n - 1;
+    while (high > low) {
+        Py_ssize_t middle = low + (high - low) / 2;
+        if (values[middle] < values[low]) swap(&values[middle], &values[low]);
+        if (values[high] < values[low]) swap(&values[high], &values[low]);
+        if (values[high] < values[middle]) swap(&values[high], &values[middle]);
+        double pivot = values[middle];
+        Py_ssize_t i = low, j = high;
+        while (i <= j) {
+            while (values[i] < pivot) i++;
+            while (values[j] > pivot) j--;
+            if (i <= j) {
+                swap(&values[i], &values[j]);
+                i++;
+                j--;
+            }
+        }
+        if (k <= j) high = j;
+        else if (k >= i) low = i;
+        else return; /* between j and i every value equals the pivot */
+    }
+}
+
+/* The median of values[0..n) (n >= 1), reordering them: the middle one, or the mean of the
+ * middle two for an even count (as robust.median computes it: 0.5 * (a + b)); NaN if any is. */
+static double median_in_place(double *values, Py_ssize_t n)
+{
+    for (Py_ssize_t i = 0; i < n; i++)
+        if (isnan(values[i])) return NAN; /* as numpy's: a NaN makes the median NaN */
+    Py_ssize_t half = n / 2;
+    select_kth(values, n, half);
+    if (n % 2) return values[half];
+    double upper = values[half];
+    double lower = values[0]; /* the largest of the lower half */
+    for (Py_ssize_t i = 1; i < half; i++)
+        if (values[i] > lower) lower = values[i];
+    return 0.5 * (lower + upper);
+}
+
+/* |f[i+1] - (f[i] + f[i+2]) / 2| for i in [0, n - 2): how far each inner sample stands off the
+ * midpoint of its neighbours (the twin's expression, term for term). */
+static void off_midpoints(const double *force_g, Py_ssize_t n, double *off_mid)
+{
+    for (Py_ssize_t i = 0; i + 2 < n; i++)
+        off_mid[i] = fabs(force_g[i + 1] - 0.5 * (force_g[i] + force_g[i + 2]));
+}
+
+/* White-noise sigma from off-midpoints: their robust sigma over sqrt(1.5). Reorders them. */
+static double noise_of_off_midpoints(double *off_mid, Py_ssize_t count)
+{
+    return MAD_TO_SIGMA * median_in_place(off_mid, count) / sqrt(1.5);
+}
+
+static PyObject *median(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer buffer;
+    if (!PyArg_ParseTuple(args, "O&", float64_buffer, &buffer)) return NULL;
+    Py_ssize_t n;
+    const double *values = doubles_of(&buffer, &n, "values");
+    PyObject *answer = NULL;
+    if (values != NULL && n == 0) {
+        PyErr_SetString(PyExc_ValueError, "values: the median of no values");
+    } else if (values != NULL) {
+        double *scratch = malloc((size_t)n * sizeof(double));
+        if (scratch == NULL) {
+            PyErr_NoMemory();
+        } else {
+            memcpy(scratch, values, (size_t)n * sizeof(double));
+            answer = PyFloat_FromDouble(median_in_place(scratch, n));
+            free(scratch);
+        }
+    }
+    PyBuffer_Release(&buffer);
+    return answer;
+}
+
+static PyObject *noise_sigma(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer buffer;
+    if (!PyArg_ParseTuple(args, "O&", float64_buffer, &buffer)) return NULL;
+    Py_ssize_t n;
+    const double *force_g = doubles_of(&buffer, &n, "force_g");
+    PyObject *answer = NULL;
+    if (force_g != NULL && n < 3) {
+        answer = PyFloat_FromDouble(0.0);
+    } else if (force_g != NULL) {
+        double *off_mid = malloc((size_t)(n - 2) * sizeof(double));
+        if (off_mid == NULL) {
+            PyErr_NoMemory();
+        } else {
+            off_midpoints(force_g, n, off_mid);
+            answer = PyFloat_FromDouble(noise_of_off_midpoints(off_mid, n - 2));
+            free(off_mid);
+        }
+    }
+    PyBuffer_Release(&buffer);
+    return answer;
+}
+
+/* The spikes' indices and their repaired values as two lists (empty when there is none). */
+static PyObject *found_spikes(const double *force_g, Py_ssize_t n, const double *off_mid, double threshold)
+{
+    PyObject *indices = PyList_New(0), *values = PyList_New(0);
+    if (indices == NULL || values == NULL) goto failed;
+    for (Py_ssize_t k = 1; k + 1 < n; k++) {
+        if (!(off_mid[k - 1] > threshold)) continue;
+        double neighbour_gap = fabs(force_g[k + 1] - force_g[k - 1]);
+        if (!(off_mid[k - 1] > 2.0 * neighbour_gap)) continue;
+        PyObject *index = PyLong_FromSsize_t(k);
+        PyObject *value = PyFloat_FromDouble(0.5 * (force_g[k - 1] + force_g[k + 1]));
+        int failed = index == NULL || value == NULL || PyList_Append(indices, index) || PyList_Append(values, value);
+        Py_XDECREF(index);
+        Py_XDECREF(value);
+        if (failed) goto failed;
+    }
+    return Py_BuildValue("(NN)", indices, values);
+failed:
+    Py_XDECREF(indices);
+    Py_XDECREF(values);
+    return NULL;
+}
+
+static PyObject *spikes(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer buffer;
+    double threshold_sigma;
+    if (!PyArg_ParseTuple(args, "O&d", float64_buffer, &buffer, &threshold_sigma)) return NULL;
+    Py_ssize_t n;
+    const double *force_g = doubles_of(&buffer, &n, "force_g");
+    PyObject *answer = NULL;
+    if (force_g != NULL && n < 5) {
+        answer = Py_BuildValue("([][])");
+    } else if (force_g != NULL) {
+        double *off_mid = malloc(2 * (size_t)(n - 2) * sizeof(double));
+        if (off_mid == NULL) {
+            PyErr_NoMemory();
+        } else {
+            double *scratch = off_mid + (n - 2);
+            off_midpoints(force_g, n, off_mid);
+            memcpy(scratch, off_mid, (size_t)(n - 2) * sizeof(double));
+            double noise_sigma_g = noise_of_off_midpoints(scratch, n - 2);
+            double lowest = force_g[0], highest = force_g[0];
+            for (Py_ssize_t i = 1; i < n; i++) {
+                if (force_g[i] < lowest) lowest = force_g[i];
+                if (force_g[i] > highest) highest = force_g[i];
+            }
+            double threshold = fmax(fmax(threshold_sigma * noise_sigma_g, 1e-6 * (highest - lowest)), 1e-9);
+            answer = found_spikes(force_g, n, off_mid, threshold);
+            free(off_mid);
+        }
+    }
+    PyBuffer_Release(&buffer);
+    return answer;
+}
+
+static PyMethodDef methods[] = {
+    {"median", median, METH_VARARGS,
+     "median(values: float64 array) -> float: the middle value, or the mean of the middle two."},
+    {"noise_sigma", noise_sigma, METH_VARARGS,
+     "noise_sigma(force_g) -> float: white-noise sigma from the median absolute second difference."},
+    {"spikes", spikes, METH_VARARGS,
+     "spikes(force_g, threshold_sigma) -> (indices, values): single corrupted frames and the mean of "
+     "their neighbours that replaces each."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_c_analysis", "The robust statistics of the tap analysis.",
+                                    -1, methods, NULL, NULL, NULL, NULL};
+
+PyMODINIT_FUNC PyInit__c_analysis(void) { return PyModule_Create(&module); }

@@ -1,0 +1,77 @@
+"""The robust-statistics kernel (tapcell.tap._c_analysis) against its numpy twins, to the last bit."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from tapcell.tap import analysis, native, robust
+from tapcell.tap.readers import tap_from_object
+from tapcell.taplab.generate import SCENARIOS, make_tap
+
+KERNEL = native.load("analysis")
+pytestmark = pytest.mark.skipif(KERNEL is None, reason="the analysis kernel is not built")
+
+finite = st.floats(-1e6, 1e6, allow_nan=False, allow_subnormal=False)
+
+
+def _twins(compute):
+    """compute() with the kernel, then with the numpy twins."""
+    fast = compute()
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(analysis, "_C", None)
+        patch.setattr(robust, "_C", None)
+        return fast, compute()
+
+
+@settings(max_examples=100, deadline=None)
+@given(arrays(np.float64, st.integers(1, 60), elements=st.one_of(finite, st.sampled_from([0.0, 1.0, -1.0]))))
+def test_median_is_numpys(values):
+    # Repeated values (the sampled constants) exercise the selection's equal-to-pivot runs.
+    assert KERNEL.median(values) == np.median(values)
+
+
+def test_median_of_nan_is_nan_and_of_nothing_an_error():
+    assert math.isnan(KERNEL.median(np.array([1.0, np.nan, 3.0])))
+    with pytest.raises(ValueError, match="no values"):
+        KERNEL.median(np.array([]))
+
+
+def test_a_wrong_array_type_is_an_error_not_garbage():
+    with pytest.raises(TypeError, match="float64"):
+        KERNEL.median(np.arange(5))  # int64: the same bytes per item, other numbers
+    with pytest.raises(ValueError, match="contiguous"):
+        KERNEL.median(np.arange(10.0)[::2])
+
+
+def test_robust_median_takes_other_arrays_through_numpy():
+    assert robust.median(np.arange(10.0)[::2]) == 4.0
+    assert robust.median(np.array([3, 1, 2])) == 2.0
+
+
+@settings(max_examples=100, deadline=None)
+@given(arrays(np.float64, st.integers(0, 80), elements=finite), st.floats(2.0, 8.0))
+def test_noise_and_spikes_are_the_twins_on_any_series(force_g, threshold_sigma):
+    def compute():
+        repaired, count = analysis.repair_spikes(force_g, threshold_sigma)
+        return analysis.noise_sigma_g(force_g), repaired.tolist(), count
+    fast, reference = _twins(compute)
+    assert fast == reference
+
+
+def test_noise_and_spikes_are_the_twins_on_independent_taps():
+    rng = np.random.default_rng(3)
+    forces = [tap_from_object(make_tap(SCENARIOS[name].draw(rng), rng)[0]).force_g
+              for name in ("corrupt_frames", "clean_hx717", "mains_hum", "cable_drift") for _ in range(3)]
+
+    def compute():
+        return [(analysis.noise_sigma_g(f), analysis.repair_spikes(f, 5.0)[0].tolist(), robust.median(f))
+                for f in forces]
+    fast, reference = _twins(compute)
+    assert fast == reference
+    assert sum(analysis.repair_spikes(f, 5.0)[1] for f in forces[:3]) >= 3  # corrupt frames were repaired
