@@ -146,6 +146,26 @@ fail:
     return -1;
 }
 
+/* The candidate grid's arrays of the two grid kernels, released on every path. */
+static void release_candidates(Py_buffer *contacts, Py_buffer *widths, Py_buffer *out)
+{
+    PyBuffer_Release(contacts);
+    PyBuffer_Release(widths);
+    PyBuffer_Release(out);
+}
+
+/* The stiffness kernels' start: the shape of `power` after the samples are laid out; -1 with an
+ * exception set (the samples released) when either fails. */
+static int load_for_stiffness(Samples *samples, double drift_g_um, Py_ssize_t subsamples, double power)
+{
+    int shape = shape_of_power(power);
+    if (shape < 0 || load_samples(samples, drift_g_um, subsamples) < 0) {
+        release_samples(samples);
+        return -1;
+    }
+    return shape;
+}
+
 /* Sample i and all before it are pressed past a toe ending at or above pressed_to[i] (running max
  * of the windows' tops); from i on all are free of a contact at or below free_from[i] (running min
  * from the end of the windows' bottoms). Both sorted, so a search bounds each candidate's run in
@@ -302,9 +322,7 @@ static PyObject *rss_grid(PyObject *self, PyObject *args)
 done:
     free(work);
     release_samples(&s);
-    PyBuffer_Release(&contacts_buffer);
-    PyBuffer_Release(&widths_buffer);
-    PyBuffer_Release(&out_buffer);
+    release_candidates(&contacts_buffer, &widths_buffer, &out_buffer);
     return result;
 }
 
@@ -317,11 +335,9 @@ static PyObject *stiffness_at(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "y*y*y*dnddd", &s.buffers[0], &s.buffers[1], &s.buffers[2], &drift_g_um,
                           &subsamples, &contact_um, &width_um, &power))
         return NULL;
-    int shape = shape_of_power(power);
-    if (shape < 0 || load_samples(&s, drift_g_um, subsamples) < 0) {
-        release_samples(&s);
+    int shape = load_for_stiffness(&s, drift_g_um, subsamples, power);
+    if (shape < 0)
         return NULL;
-    }
     Py_ssize_t n = s.n, sub = s.subsamples;
     double *work = malloc(sizeof(double) * (size_t)(3 * n));
     if (work == NULL) {
@@ -524,9 +540,7 @@ static PyObject *rss_grid_whitened(PyObject *self, PyObject *args)
 done:
     free(wh.diag);
     release_samples(&s);
-    PyBuffer_Release(&contacts_buffer);
-    PyBuffer_Release(&widths_buffer);
-    PyBuffer_Release(&out_buffer);
+    release_candidates(&contacts_buffer, &widths_buffer, &out_buffer);
     return result;
 }
 
@@ -540,11 +554,9 @@ static PyObject *stiffness_whitened(PyObject *self, PyObject *args)
                           &subsamples, &white_var_g2, &walk_var_g2, &lowest_um, &highest_um, &widest_um, &contact_um,
                           &width_um, &power))
         return NULL;
-    int shape = shape_of_power(power);
-    if (shape < 0 || load_samples(&s, drift_g_um, subsamples) < 0) {
-        release_samples(&s);
+    int shape = load_for_stiffness(&s, drift_g_um, subsamples, power);
+    if (shape < 0)
         return NULL;
-    }
     Whitened wh = {0};
     int prepared = prepare_whitened(&s, white_var_g2, walk_var_g2, lowest_um, highest_um, widest_um, &wh);
     PyObject *result = NULL;
