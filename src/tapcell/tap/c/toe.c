@@ -1,7 +1,750 @@
-/* The toe kernels of the tap analysis (numpy twins: tapcell/tap/toe.py). */
-#include "buffers.h"
+/* The toe kernels of the tap analysis (numpy twins: tapcell/tap/toe.py).
+ *
+ * The toe fit scores a grid of candidate toes (contact height c, toe width w, shape p) over the
+ * pullback; per candidate the linear solve needs three sums of its toe column h (h·h, the basis
+ * part Bᵀh, h·y). numpy gets them from hundreds of small array calls a tap; here each grid is one
+ * pass over the samples and, per candidate, over the few samples in its toe.
+ *
+ * The shapes are the two of TOE_POWERS, (0.5, 1.0): a Hertz toe (u^1.5) and a parabolic one (u^2),
+ * written out rather than through pow(); the Python side runs the numpy twin for any other powers.
+ * Rows of every output are (shape, candidate) in that order, as in toe.py.
+ */
+#include "buffers.h" /* Python.h first: it sets the feature macros the system headers read */
+
+#include <math.h>
+#include <stdio.h>
+#include <stdlib.h>
+
+#define SHAPES 2
+/* How far short of its width each shape lifts the linear part: p / (p + 1). */
+static const double LIFT_DEFICIT[SHAPES] = {0.5 / 1.5, 1.0 / 2.0};
+
+/* Both shapes' toe columns at one sample (toe.py's `toe_shapes`): the shape summed over the
+ * heights its conversion window averages (row: `subsamples` heights; the caller scales the sums).
+ * The operations in numpy's order (scale by w / (p + 1), then add the linear part), so each value
+ * agrees to the last bit. Free air (u = 0) and past the toe (u = 1) skip the sqrt and the
+ * division: most heights are one or the other, and the values come out the same. Inline, with
+ * the sums in locals: it runs for every candidate's every in-toe sample. */
+static inline void toe_sums(double contact_um, double width_um, const double *row_um, Py_ssize_t subsamples,
+                            double sums[SHAPES])
+{
+    double width = width_um > 1e-9 ? width_um : 1e-9;
+    double lift_hertz = width * (1.0 / 1.5), lift_parabolic = width * (1.0 / 2.0);
+    double hertz = 0.0, parabolic = 0.0;
+    for (Py_ssize_t s = 0; s < subsamples; s++) {
+        double depth_um = contact_um - row_um[s];
+        if (!(depth_um > 0.0))
+            continue; /* free air: both shapes 0 */
+        if (depth_um >= width) { /* u = 1 */
+            double beyond_um = depth_um - width;
+            hertz += lift_hertz + beyond_um;
+            parabolic += lift_parabolic + beyond_um;
+        } else {
+            double u = depth_um / width;
+            hertz += sqrt(u) * u * lift_hertz;
+            parabolic += u * u * lift_parabolic;
+        }
+    }
+    sums[0] = hertz;
+    sums[1] = parabolic;
+}
+
+static int shape_of_power(double power)
+{
+    if (power == 0.5)
+        return 0;
+    if (power == 1.0)
+        return 1;
+    char message[80]; /* PyErr_Format has no %g */
+    snprintf(message, sizeof message, "power: %g, the kernel knows 0.5 and 1.0", power);
+    PyErr_SetString(PyExc_ValueError, message);
+    return -1;
+}
+
+/* Number of values <= v (at_most) or < v (!at_most) in sorted (ascending): numpy's searchsorted
+ * with side="right" or "left". hint: the answer for the previous candidate. When v has not gone
+ * below it (the grid's contacts ascend) the answer is a step or two on: walking there beats a
+ * binary search, whose branches the processor cannot predict. */
+static Py_ssize_t count_before(const double *sorted, Py_ssize_t n, double v, int at_most, Py_ssize_t hint)
+{
+    Py_ssize_t lo = 0, hi = n;
+    if (hint > 0 && hint <= n && (at_most ? sorted[hint - 1] <= v : sorted[hint - 1] < v)) {
+        lo = hint;
+        while (lo < n && (at_most ? sorted[lo] <= v : sorted[lo] < v))
+            lo++;
+        return lo;
+    }
+    while (lo < hi) {
+        Py_ssize_t mid = lo + (hi - lo) / 2;
+        if (at_most ? sorted[mid] <= v : sorted[mid] < v)
+            lo = mid + 1;
+        else
+            hi = mid;
+    }
+    return lo;
+}
+
+/* The pullback samples of one fit, laid out as toe.py's `_toe_grid` does from the conversion
+ * windows [x_lo, x_hi] and the force (n each): window_um (n × subsamples heights, at (k + ½) /
+ * subsamples of each window), x_mid_um, and force_g with a known drift taken out (drift_g_um NaN:
+ * the drift is fitted). Built here, in the same operations: numpy's broadcasting costs more than
+ * the whole grid on arrays this small. */
+typedef struct {
+    Py_buffer buffers[3]; /* x_lo_um, x_hi_um, force_g as parsed */
+    int held;
+    double *built; /* window_um, x_mid_um, force_g: one malloc */
+    const double *window_um, *x_mid_um, *force_g;
+    Py_ssize_t n, subsamples;
+    int drift_fitted;
+} Samples;
+
+static void release_samples(Samples *samples)
+{
+    for (int i = 0; i < samples->held; i++)
+        PyBuffer_Release(&samples->buffers[i]);
+    samples->held = 0;
+    free(samples->built);
+    samples->built = NULL;
+}
+
+/* Checks the three buffers parsed into samples->buffers and builds the layout; 0, or -1 with an
+ * exception set (everything released). */
+static int load_samples(Samples *samples, double drift_g_um, Py_ssize_t subsamples)
+{
+    samples->held = 3;
+    Py_ssize_t n = 0;
+    const double *x_lo_um = doubles_of(&samples->buffers[0], &n, "x_lo_um"), *x_hi_um = NULL, *force_g = NULL;
+    if (x_lo_um != NULL) {
+        x_hi_um = doubles_sized(&samples->buffers[1], n, "x_hi_um");
+        force_g = doubles_sized(&samples->buffers[2], n, "force_g");
+    }
+    if (x_hi_um == NULL || force_g == NULL)
+        goto fail;
+    if (n < 2 || subsamples < 1 || subsamples > 64) {
+        PyErr_Format(PyExc_ValueError, "%zd samples of %zd subsamples: at least 2 of 1..64 expected", n, subsamples);
+        goto fail;
+    }
+    samples->built = malloc(sizeof(double) * (size_t)((subsamples + 2) * n));
+    if (samples->built == NULL) {
+        PyErr_NoMemory();
+        goto fail;
+    }
+    double *window_um = samples->built, *x_mid_um = window_um + subsamples * n, *y_g = x_mid_um + n;
+    samples->drift_fitted = isnan(drift_g_um);
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double span_um = x_hi_um[i] - x_lo_um[i];
+        for (Py_ssize_t k = 0; k < subsamples; k++)
+            window_um[i * subsamples + k] = x_lo_um[i] + span_um * (((double)k + 0.5) / (double)subsamples);
+        x_mid_um[i] = 0.5 * (x_lo_um[i] + x_hi_um[i]);
+        y_g[i] = samples->drift_fitted ? force_g[i] : force_g[i] - drift_g_um * x_mid_um[i];
+    }
+    samples->window_um = window_um, samples->x_mid_um = x_mid_um, samples->force_g = y_g;
+    samples->n = n, samples->subsamples = subsamples;
+    return 0;
+fail:
+    release_samples(samples);
+    return -1;
+}
+
+/* The candidate grid's arrays of the two grid kernels, released on every path. */
+static void release_candidates(Py_buffer *contacts, Py_buffer *widths, Py_buffer *out)
+{
+    PyBuffer_Release(contacts);
+    PyBuffer_Release(widths);
+    PyBuffer_Release(out);
+}
+
+/* The stiffness kernels' start: the shape of `power` after the samples are laid out; -1 with an
+ * exception set (the samples released) when either fails. */
+static int load_for_stiffness(Samples *samples, double drift_g_um, Py_ssize_t subsamples, double power)
+{
+    int shape = shape_of_power(power);
+    if (shape < 0 || load_samples(samples, drift_g_um, subsamples) < 0) {
+        release_samples(samples);
+        return -1;
+    }
+    return shape;
+}
+
+/* Sample i and all before it are pressed past a toe ending at or above pressed_to[i] (running max
+ * of the windows' tops); from i on all are free of a contact at or below free_from[i] (running min
+ * from the end of the windows' bottoms). Both sorted, so a search bounds each candidate's run in
+ * its toe, whatever the order of the samples. */
+static void running_bounds(const Samples *s, double *pressed_to, double *free_from)
+{
+    Py_ssize_t n = s->n, sub = s->subsamples;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double top_um = s->window_um[i * sub + sub - 1];
+        pressed_to[i] = (i == 0 || top_um > pressed_to[i - 1]) ? top_um : pressed_to[i - 1];
+    }
+    for (Py_ssize_t i = n - 1; i >= 0; i--) {
+        double bottom_um = s->window_um[i * sub];
+        free_from[i] = (i == n - 1 || bottom_um < free_from[i + 1]) ? bottom_um : free_from[i + 1];
+    }
+}
+
+/* ---- Ordinary least squares (toe.py: _Projected, _rss_over_contacts, _solve, _stiffness_at) ---- */
+
+/* The basis beside the toe, orthonormal: the baseline 1/√n, and with the drift fitted the centred
+ * heights over their norm (the span np.linalg.qr gives; only the projection matters), else zeros
+ * (they add nothing: the loops need not branch on it). The force with the basis projected out goes
+ * to y_free; returns the number of basis columns. */
+static int project_out_basis(const Samples *s, double *basis_rows, double *y_free)
+{
+    int drift_fitted = s->drift_fitted;
+    Py_ssize_t n = s->n;
+    double base = 1.0 / sqrt((double)n), mean_um = 0.0, norm2 = 0.0, y_base = 0.0, y_drift = 0.0;
+    int m = drift_fitted ? 2 : 1;
+    for (Py_ssize_t i = 0; i < n; i++)
+        mean_um += s->x_mid_um[i];
+    mean_um /= (double)n;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        basis_rows[i] = base;
+        basis_rows[n + i] = 0.0;
+        y_base += base * s->force_g[i];
+        if (drift_fitted) {
+            double centred_um = s->x_mid_um[i] - mean_um;
+            basis_rows[n + i] = centred_um;
+            norm2 += centred_um * centred_um;
+        }
+    }
+    if (drift_fitted) {
+        double scale = 1.0 / sqrt(norm2);
+        for (Py_ssize_t i = 0; i < n; i++) {
+            basis_rows[n + i] *= scale;
+            y_drift += basis_rows[n + i] * s->force_g[i];
+        }
+    }
+    for (Py_ssize_t i = 0; i < n; i++)
+        y_free[i] = s->force_g[i] - (base * y_base + (drift_fitted ? basis_rows[n + i] * y_drift : 0.0));
+    return m;
+}
+
+/* toe.py's `_solve` for one candidate: the residual, or +inf where the toe would pull or cannot be
+ * told from the basis; the stiffness (0 when unsolvable) in *stiffness. */
+static double solve_rss(double hh_all, const double *h_basis, int m, double hy, double yy, double *stiffness)
+{
+    double basis_part = 0.0;
+    for (int r = 0; r < m; r++)
+        basis_part += h_basis[r] * h_basis[r];
+    double hh = hh_all - basis_part;
+    if (!(hh > 1e-9 * (hh_all + 1e-300))) {
+        *stiffness = 0.0;
+        return INFINITY;
+    }
+    *stiffness = hy / hh;
+    return *stiffness > 0.0 ? yy - *stiffness * hy : INFINITY;
+}
+
+static PyObject *rss_grid(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Samples s = {0};
+    Py_buffer contacts_buffer, widths_buffer, out_buffer;
+    double drift_g_um;
+    Py_ssize_t subsamples;
+    if (!PyArg_ParseTuple(args, "y*y*y*dny*y*w*", &s.buffers[0], &s.buffers[1], &s.buffers[2], &drift_g_um,
+                          &subsamples, &contacts_buffer, &widths_buffer, &out_buffer))
+        return NULL;
+    PyObject *result = NULL;
+    double *work = NULL;
+    if (load_samples(&s, drift_g_um, subsamples) < 0)
+        goto done;
+    Py_ssize_t candidates = 0, n = s.n, sub = s.subsamples;
+    const double *contacts_um = doubles_of(&contacts_buffer, &candidates, "contacts_um");
+    const double *widths_um = doubles_sized(&widths_buffer, candidates, "widths_um");
+    double *rss_out = doubles_sized(&out_buffer, SHAPES * candidates, "rss_out");
+    if (contacts_um == NULL || widths_um == NULL || rss_out == NULL)
+        goto done;
+    /* basis (2n), y_free (n), pressed_to, free_from (n each), prefix sums (9 columns × (n + 1)) */
+    Py_ssize_t sums_n = n + 1;
+    work = malloc(sizeof(double) * (size_t)(5 * n + 9 * sums_n));
+    if (work == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    double *basis_rows = work, *y_free = work + 2 * n, *pressed_to = work + 3 * n, *free_from = work + 4 * n;
+    double *sums = work + 5 * n;
+    int m = project_out_basis(&s, basis_rows, y_free);
+    double yy = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++)
+        yy += y_free[i] * y_free[i];
+    running_bounds(&s, pressed_to, free_from);
+    /* Prefix sums over samples < i of 1, x, x², y, x y, B (m), x B (m): the pressed run of a
+     * candidate has h = a - x, so its sums are these combined. Column k at sums[k * sums_n + i]. */
+    int columns = 5 + 2 * m;
+    for (int k = 0; k < columns; k++)
+        sums[k * sums_n] = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double x = s.x_mid_um[i], y = y_free[i];
+        double values[9] = {1.0, x, x * x, y, x * y, basis_rows[i], 0.0, 0.0, 0.0};
+        if (m == 2) {
+            values[6] = basis_rows[n + i];
+            values[7] = x * basis_rows[i];
+            values[8] = x * basis_rows[n + i];
+        } else {
+            values[6] = x * basis_rows[i];
+        }
+        for (int k = 0; k < columns; k++)
+            sums[k * sums_n + i + 1] = sums[k * sums_n + i] + values[k];
+    }
+    Py_ssize_t first = 0, last = 0;
+    const double *basis0 = basis_rows, *basis1 = basis_rows + n;
+    for (Py_ssize_t j = 0; j < candidates; j++) {
+        double c = contacts_um[j], w = widths_um[j];
+        first = count_before(pressed_to, n, c - w, 1, first);
+        last = count_before(free_from, n, c, 0, last);
+        /* In-toe sums per shape (0, 1): h·B (both basis rows), h·h, h·y; scalars, so they stay in
+         * registers. */
+        double hb00 = 0.0, hb01 = 0.0, hb10 = 0.0, hb11 = 0.0, hh0 = 0.0, hh1 = 0.0, hy0 = 0.0, hy1 = 0.0;
+        for (Py_ssize_t i = first; i < last; i++) {
+            double h[SHAPES];
+            toe_sums(c, w, s.window_um + i * sub, sub, h);
+            double h0 = h[0] * (1.0 / (double)sub), h1 = h[1] * (1.0 / (double)sub);
+            hb00 += h0 * basis0[i], hb01 += h0 * basis1[i];
+            hb10 += h1 * basis0[i], hb11 += h1 * basis1[i];
+            hh0 += h0 * h0, hh1 += h1 * h1;
+            hy0 += h0 * y_free[i], hy1 += h1 * y_free[i];
+        }
+        double h_basis[SHAPES][2] = {{hb00, hb01}, {hb10, hb11}}, hh[SHAPES] = {hh0, hh1}, hy[SHAPES] = {hy0, hy1};
+        const double *at = sums + first;
+        for (int p = 0; p < SHAPES; p++) {
+            double a = c - w * LIFT_DEFICIT[p]; /* the pressed samples: h = a - x */
+            for (int r = 0; r < m; r++)
+                h_basis[p][r] += a * at[(5 + r) * sums_n] - at[(5 + m + r) * sums_n];
+            double hh_all = hh[p] + (a * at[0] - 2.0 * at[sums_n]) * a + at[2 * sums_n];
+            double hy_all = hy[p] + a * at[3 * sums_n] - at[4 * sums_n];
+            double stiffness;
+            rss_out[p * candidates + j] = solve_rss(hh_all, h_basis[p], m, hy_all, yy, &stiffness);
+        }
+    }
+    result = Py_NewRef(Py_None);
+done:
+    free(work);
+    release_samples(&s);
+    release_candidates(&contacts_buffer, &widths_buffer, &out_buffer);
+    return result;
+}
+
+static PyObject *stiffness_at(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Samples s = {0};
+    double drift_g_um, contact_um, width_um, power;
+    Py_ssize_t subsamples;
+    if (!PyArg_ParseTuple(args, "y*y*y*dnddd", &s.buffers[0], &s.buffers[1], &s.buffers[2], &drift_g_um,
+                          &subsamples, &contact_um, &width_um, &power))
+        return NULL;
+    int shape = load_for_stiffness(&s, drift_g_um, subsamples, power);
+    if (shape < 0)
+        return NULL;
+    Py_ssize_t n = s.n, sub = s.subsamples;
+    double *work = malloc(sizeof(double) * (size_t)(3 * n));
+    if (work == NULL) {
+        release_samples(&s);
+        return PyErr_NoMemory();
+    }
+    double *basis_rows = work, *y_free = work + 2 * n;
+    project_out_basis(&s, basis_rows, y_free);
+    double h_basis[2] = {0.0, 0.0}, hh_all = 0.0, hy = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double h[SHAPES];
+        toe_sums(contact_um, width_um, s.window_um + i * sub, sub, h);
+        double column = h[shape] * (1.0 / (double)sub);
+        h_basis[0] += basis_rows[i] * column;
+        h_basis[1] += basis_rows[n + i] * column;
+        hh_all += column * column;
+        hy += column * y_free[i];
+    }
+    free(work);
+    release_samples(&s);
+    double hh = hh_all - (h_basis[0] * h_basis[0] + h_basis[1] * h_basis[1]);
+    return PyFloat_FromDouble(hh > 1e-9 * (hh_all + 1e-300) ? hy / hh : 0.0);
+}
+
+/* ---- Under white noise + a random walk (toe.py: _Whitened, _whiten, _rss_whitened) ---- */
+
+/* The samples' three runs and the whitening of one walk-weighted fit (`_Whitened`), with what lets
+ * a candidate skip the samples its toe does not reach: before its toe the column is a - x (its
+ * differences do not depend on the candidate: `pressed_*`, the recursion run on them from the
+ * start), after it 0 (the recursion decays geometrically: `tail_*`, its sums from each difference
+ * on per unit of z before it). So a candidate costs a recursion over its toe's samples only. */
+typedef struct {
+    Py_ssize_t first_near, near_count;
+    double yy;
+    /* per difference j (between samples j and j + 1), n - 1 of each; one malloc at diag */
+    double *diag, *inv_diag, *sub, *y_white;
+    double *pressed_z, *pressed_zz, *pressed_zy; /* through difference j, h = a - x up to sample j + 1 */
+    double *tail_zz, *tail_zy;                   /* from difference j on (n of these: none from n - 1) */
+    double *pressed_to, *free_from;              /* per sample, as in rss_grid */
+} Whitened;
+
+/* `_Whitened.prepare`: 1 when prepared, 0 when the samples are not pressed, then in between, then
+ * free (the caller fits without the walk), -1 on MemoryError. */
+static int prepare_whitened(const Samples *s, double white_var_g2, double walk_var_g2, double lowest_contact_um,
+                            double highest_contact_um, double widest_um, Whitened *wh)
+{
+    Py_ssize_t n = s->n, sub = s->subsamples, first = 0, count = 0;
+    int order = 0; /* 0: pressed so far, 1: in between, 2: free air (the order the runs must come in) */
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double *row = s->window_um + i * sub;
+        double lowest = row[0], highest = row[0];
+        for (Py_ssize_t k = 1; k < sub; k++) {
+            lowest = row[k] < lowest ? row[k] : lowest;
+            highest = row[k] > highest ? row[k] : highest;
+        }
+        int pressed = highest <= lowest_contact_um - widest_um;
+        int near = !pressed && lowest < highest_contact_um;
+        first += pressed;
+        count += near;
+        if (pressed) {
+            if (order != 0)
+                return 0;
+        } else if (near) {
+            if (order == 2)
+                return 0;
+            order = 1;
+        } else {
+            order = 2;
+        }
+    }
+    if (count < 2)
+        return 0;
+    Py_ssize_t m = n - 1;
+    wh->first_near = first;
+    wh->near_count = count;
+    wh->diag = malloc(sizeof(double) * (size_t)(9 * m + 3 * n + 1));
+    if (wh->diag == NULL) {
+        PyErr_NoMemory();
+        return -1;
+    }
+    double *diag = wh->diag, *inv_diag = diag + m, *subd = diag + 2 * m, *y_white = diag + 3 * m;
+    double *pressed_z = diag + 4 * m, *pressed_zz = diag + 5 * m, *pressed_zy = diag + 6 * m;
+    double *tail_zz = diag + 7 * m, *tail_zy = tail_zz + n, *pressed_to = tail_zy + n, *free_from = pressed_to + n;
+    wh->inv_diag = inv_diag, wh->sub = subd, wh->y_white = y_white;
+    wh->pressed_z = pressed_z, wh->pressed_zz = pressed_zz, wh->pressed_zy = pressed_zy;
+    wh->tail_zz = tail_zz, wh->tail_zy = tail_zy, wh->pressed_to = pressed_to, wh->free_from = free_from;
+    /* The bidiagonal Cholesky factor of the differences' covariance (2σ² + q, -σ² beside), and the
+     * force's differences whitened through it. */
+    diag[0] = sqrt(2.0 * white_var_g2 + walk_var_g2);
+    subd[0] = 0.0;
+    for (Py_ssize_t j = 1; j < m; j++) {
+        subd[j] = -white_var_g2 / diag[j - 1];
+        diag[j] = sqrt(2.0 * white_var_g2 + walk_var_g2 - subd[j] * subd[j]);
+    }
+    double previous = 0.0, yy = 0.0;
+    for (Py_ssize_t j = 0; j < m; j++) {
+        inv_diag[j] = 1.0 / diag[j];
+        previous = ((s->force_g[j + 1] - s->force_g[j]) - subd[j] * previous) / diag[j];
+        y_white[j] = previous;
+        yy += previous * previous;
+    }
+    wh->yy = yy;
+    double z = 0.0, zz = 0.0, zy = 0.0;
+    for (Py_ssize_t j = 0; j < m; j++) {
+        z = (-(s->x_mid_um[j + 1] - s->x_mid_um[j]) - subd[j] * z) * inv_diag[j];
+        zz += z * z;
+        zy += z * y_white[j];
+        pressed_z[j] = z, pressed_zz[j] = zz, pressed_zy[j] = zy;
+    }
+    tail_zz[m] = tail_zy[m] = 0.0;
+    for (Py_ssize_t j = m - 1; j >= 0; j--) {
+        double gain = -subd[j] * inv_diag[j];
+        tail_zz[j] = gain * gain * (1.0 + tail_zz[j + 1]);
+        tail_zy[j] = gain * (y_white[j] + tail_zy[j + 1]);
+    }
+    running_bounds(s, pressed_to, free_from);
+    return 1;
+}
+
+/* `_rss_whitened` for one candidate toe, both shapes: its toe column over the samples from the
+ * last one pressed past its toe to the first one from which all are free, differenced and whitened
+ * by the recursion, the parts before and after from the prepared sums; residuals (white-noise
+ * units) and stiffnesses per shape. hints: where the searches of the previous candidate ended. */
+static void whitened_candidate(const Samples *s, const Whitened *wh, double contact_um, double width_um,
+                               Py_ssize_t hints[2], double rss[SHAPES], double stiffness[SHAPES])
+{
+    Py_ssize_t n = s->n, sub = s->subsamples, end = wh->first_near + wh->near_count;
+    hints[0] = count_before(wh->pressed_to, n, contact_um - width_um, 1, hints[0]);
+    hints[1] = count_before(wh->free_from, n, contact_um, 0, hints[1]);
+    /* Samples before `start` are pressed past the toe (h = a - x); from `stop` on all are free (h = 0). */
+    Py_ssize_t start = hints[0] > wh->first_near ? hints[0] : wh->first_near;
+    Py_ssize_t stop = hints[1] > start ? hints[1] : start;
+    stop = stop < end ? stop : end;
+    double previous_h[SHAPES] = {0.0, 0.0}, z[SHAPES] = {0.0, 0.0}, zz[SHAPES] = {0.0, 0.0}, zy[SHAPES] = {0.0, 0.0};
+    Py_ssize_t j = start > 0 ? start - 1 : 0; /* the next difference */
+    if (start > 0) {
+        for (int p = 0; p < SHAPES; p++) {
+            previous_h[p] = (contact_um - width_um * LIFT_DEFICIT[p]) - s->x_mid_um[start - 1];
+            if (start >= 2)
+                z[p] = wh->pressed_z[start - 2], zz[p] = wh->pressed_zz[start - 2], zy[p] = wh->pressed_zy[start - 2];
+        }
+    }
+    for (Py_ssize_t i = start; i <= stop && i < n; i++) {
+        double h[SHAPES];
+        toe_sums(contact_um, width_um, s->window_um + i * sub, sub, h);
+        h[0] /= (double)sub, h[1] /= (double)sub;
+        if (i > 0) { /* a difference: to sample i from the one before */
+            for (int p = 0; p < SHAPES; p++) {
+                z[p] = ((h[p] - previous_h[p]) - wh->sub[j] * z[p]) * wh->inv_diag[j];
+                zz[p] += z[p] * z[p];
+                zy[p] += z[p] * wh->y_white[j];
+            }
+            j++;
+        }
+        previous_h[0] = h[0], previous_h[1] = h[1];
+    }
+    for (int p = 0; p < SHAPES; p++) {
+        double hh = zz[p] + z[p] * z[p] * wh->tail_zz[j];
+        double hy = zy[p] + z[p] * wh->tail_zy[j];
+        int usable = hh > 1e-12;
+        stiffness[p] = usable ? hy / hh : 0.0;
+        rss[p] = usable && stiffness[p] > 0.0 ? wh->yy - stiffness[p] * hy : INFINITY;
+    }
+}
+
+static PyObject *rss_grid_whitened(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Samples s = {0};
+    Py_buffer contacts_buffer, widths_buffer, out_buffer;
+    double drift_g_um, white_var_g2, walk_var_g2, lowest_um, highest_um, widest_um;
+    Py_ssize_t subsamples;
+    if (!PyArg_ParseTuple(args, "y*y*y*dndddddy*y*w*", &s.buffers[0], &s.buffers[1], &s.buffers[2], &drift_g_um,
+                          &subsamples, &white_var_g2, &walk_var_g2, &lowest_um, &highest_um, &widest_um,
+                          &contacts_buffer, &widths_buffer, &out_buffer))
+        return NULL;
+    PyObject *result = NULL;
+    Whitened wh = {0};
+    if (load_samples(&s, drift_g_um, subsamples) < 0)
+        goto done;
+    Py_ssize_t candidates = 0;
+    const double *contacts_um = doubles_of(&contacts_buffer, &candidates, "contacts_um");
+    const double *widths_um = doubles_sized(&widths_buffer, candidates, "widths_um");
+    double *rss_out = doubles_sized(&out_buffer, SHAPES * candidates, "rss_out");
+    if (contacts_um == NULL || widths_um == NULL || rss_out == NULL)
+        goto done;
+    int prepared = prepare_whitened(&s, white_var_g2, walk_var_g2, lowest_um, highest_um, widest_um, &wh);
+    if (prepared < 0)
+        goto done;
+    if (prepared) {
+        Py_ssize_t hints[2] = {0, 0};
+        for (Py_ssize_t j = 0; j < candidates; j++) {
+            double rss[SHAPES], stiffness[SHAPES];
+            whitened_candidate(&s, &wh, contacts_um[j], widths_um[j], hints, rss, stiffness);
+            rss_out[j] = rss[0];
+            rss_out[candidates + j] = rss[1];
+        }
+    }
+    result = PyBool_FromLong(prepared);
+done:
+    free(wh.diag);
+    release_samples(&s);
+    release_candidates(&contacts_buffer, &widths_buffer, &out_buffer);
+    return result;
+}
+
+static PyObject *stiffness_whitened(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Samples s = {0};
+    double drift_g_um, white_var_g2, walk_var_g2, lowest_um, highest_um, widest_um, contact_um, width_um, power;
+    Py_ssize_t subsamples;
+    if (!PyArg_ParseTuple(args, "y*y*y*dndddddddd", &s.buffers[0], &s.buffers[1], &s.buffers[2], &drift_g_um,
+                          &subsamples, &white_var_g2, &walk_var_g2, &lowest_um, &highest_um, &widest_um, &contact_um,
+                          &width_um, &power))
+        return NULL;
+    int shape = load_for_stiffness(&s, drift_g_um, subsamples, power);
+    if (shape < 0)
+        return NULL;
+    Whitened wh = {0};
+    int prepared = prepare_whitened(&s, white_var_g2, walk_var_g2, lowest_um, highest_um, widest_um, &wh);
+    PyObject *result = NULL;
+    if (prepared > 0) {
+        double rss[SHAPES], stiffness[SHAPES];
+        Py_ssize_t hints[2] = {0, 0};
+        whitened_candidate(&s, &wh, contact_um, width_um, hints, rss, stiffness);
+        result = PyFloat_FromDouble(stiffness[shape]);
+    } else if (prepared == 0) {
+        PyErr_SetString(PyExc_ValueError, "the samples are not a plain rise: no walk-weighted fit");
+    }
+    free(wh.diag);
+    release_samples(&s);
+    return result;
+}
+
+/* ---- The contact with the toe marginalised out (toe.py: marginal_contact_um) ---- */
+
+/* One toe's row of residuals over the contact grid: its parabola through the least residual and
+ * its neighbours (best height, residual there, the Gaussian's variance in c). 0 when the least is
+ * at an end, a neighbour is infinite or the row is not curved upwards there. */
+static int toe_minimum(const double *rss, Py_ssize_t count, const double *heights_um, double step_um,
+                       double noise_var, double *centre_um, double *lowest, double *var_um2)
+{
+    Py_ssize_t k = 0;
+    for (Py_ssize_t i = 1; i < count; i++)
+        if (rss[i] < rss[k]) /* the first of equal least values, as argmin */
+            k = i;
+    if (!(k > 0 && k < count - 1))
+        return 0;
+    double before = rss[k - 1], at = rss[k], after = rss[k + 1];
+    if (!(isfinite(before) && isfinite(after)))
+        return 0;
+    double bend = before - 2.0 * at + after;
+    if (!(bend > 0.0))
+        return 0;
+    double offset = 0.5 * (before - after) / bend;
+    *centre_um = heights_um[k] + offset * step_um;
+    *lowest = at - 0.25 * offset * (before - after);
+    *var_um2 = 2.0 * noise_var * step_um * step_um / bend;
+    return 1;
+}
+
+static PyObject *marginal_contact(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer heights_buffer, rss_buffer, prior_buffer;
+    double noise_var;
+    if (!PyArg_ParseTuple(args, "y*y*dy*", &heights_buffer, &rss_buffer, &noise_var, &prior_buffer))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t count = 0, toes = 0;
+    const double *heights_um = doubles_of(&heights_buffer, &count, "contacts_um");
+    const double *prior = doubles_of(&prior_buffer, &toes, "prior");
+    const double *rss = doubles_sized(&rss_buffer, count * toes, "rss");
+    if (heights_um == NULL || prior == NULL || rss == NULL)
+        goto done;
+    if (count < 2) {
+        PyErr_Format(PyExc_ValueError, "contacts_um: %zd heights, at least 2 expected", count);
+        goto done;
+    }
+    double step_um = heights_um[1] - heights_um[0], centre_um, lowest, var_um2;
+    /* Three passes over the toes (a score of them, recomputed rather than stored): the least
+     * residual; the weights' total and mean; the spread about the mean. */
+    double least = INFINITY, total = 0.0, weighted = 0.0, spread = 0.0;
+    int any = 0;
+    for (Py_ssize_t t = 0; t < toes; t++)
+        if (toe_minimum(rss + t * count, count, heights_um, step_um, noise_var, &centre_um, &lowest, &var_um2)) {
+            least = any && least <= lowest ? least : lowest;
+            any = 1;
+        }
+    if (!any) {
+        result = Py_NewRef(Py_None);
+        goto done;
+    }
+    for (Py_ssize_t t = 0; t < toes; t++)
+        if (toe_minimum(rss + t * count, count, heights_um, step_um, noise_var, &centre_um, &lowest, &var_um2)) {
+            double weight = exp(-(lowest - least) / (2.0 * noise_var)) * sqrt(var_um2) * prior[t];
+            total += weight;
+            weighted += weight * centre_um;
+        }
+    double mean_um = weighted / total;
+    for (Py_ssize_t t = 0; t < toes; t++)
+        if (toe_minimum(rss + t * count, count, heights_um, step_um, noise_var, &centre_um, &lowest, &var_um2)) {
+            double weight = exp(-(lowest - least) / (2.0 * noise_var)) * sqrt(var_um2) * prior[t];
+            spread += weight * (var_um2 + (centre_um - mean_um) * (centre_um - mean_um));
+        }
+    spread /= total;
+    result = Py_BuildValue("dd", mean_um, sqrt(spread > 0.0 ? spread : 0.0));
+done:
+    PyBuffer_Release(&heights_buffer);
+    PyBuffer_Release(&rss_buffer);
+    PyBuffer_Release(&prior_buffer);
+    return result;
+}
+
+/* ---- The baseline's walk from free air (toe.py: free_air_variogram) ---- */
+
+static PyObject *lag_mean_squares(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer force_buffer;
+    PyObject *lags;
+    if (!PyArg_ParseTuple(args, "y*O!", &force_buffer, &PyTuple_Type, &lags))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t n = 0, count = PyTuple_GET_SIZE(lags);
+    const double *force_g = doubles_of(&force_buffer, &n, "force_g");
+    if (force_g == NULL)
+        goto done;
+    if (n < 2) {
+        PyErr_Format(PyExc_ValueError, "force_g: %zd samples, at least 2 expected", n);
+        goto done;
+    }
+    /* The segment's straight line fitted out: r = f - mean - t (t·f) / (t·t), t the centred index.
+     * r is not stored: each lag recomputes it from two running indices (a few hundred samples). */
+    double mean_g = 0.0, tf = 0.0, tt = 0.0;
+    for (Py_ssize_t k = 0; k < n; k++)
+        mean_g += force_g[k];
+    mean_g /= (double)n;
+    for (Py_ssize_t k = 0; k < n; k++) {
+        double t = (double)k - 0.5 * (double)(n - 1);
+        tf += t * force_g[k];
+        tt += t * t;
+    }
+    double slope = tf / tt;
+    result = PyList_New(count);
+    if (result == NULL)
+        goto done;
+    for (Py_ssize_t l = 0; l < count; l++) {
+        Py_ssize_t lag = PyLong_AsSsize_t(PyTuple_GET_ITEM(lags, l));
+        if (lag == -1 && PyErr_Occurred())
+            goto fail;
+        if (lag < 1 || lag >= n) {
+            PyErr_Format(PyExc_ValueError, "lags: %zd for %zd samples, 1..%zd allowed", lag, n, n - 1);
+            goto fail;
+        }
+        double sum = 0.0;
+        for (Py_ssize_t k = 0; k + lag < n; k++) {
+            /* r[k + lag] - r[k]: the mean cancels, the line leaves lag × slope */
+            double d = (force_g[k + lag] - force_g[k]) - (double)lag * slope;
+            sum += d * d;
+        }
+        PyObject *value = PyFloat_FromDouble(sum / (double)(n - lag));
+        if (value == NULL)
+            goto fail;
+        PyList_SET_ITEM(result, l, value);
+    }
+    goto done;
+fail:
+    Py_CLEAR(result);
+done:
+    PyBuffer_Release(&force_buffer);
+    return result;
+}
 
 static PyMethodDef methods[] = {
+    {"rss_grid", rss_grid, METH_VARARGS,
+     "rss_grid(x_lo_um, x_hi_um, force_g, drift_g_um, subsamples, contacts_um, widths_um, rss_out)\n\n"
+     "Least-squares residual of the toe fit at every candidate (contacts_um[j], widths_um[j]) for both\n"
+     "shapes (0.5, 1.0), written to rss_out (2 × candidates, shape-major); inf where the toe would pull\n"
+     "or cannot be told from the baseline (and the drift). Samples: conversion windows [x_lo, x_hi]\n"
+     "(um above the halt), each averaged over `subsamples` heights; drift_g_um: the known drift, NaN\n"
+     "to fit it (toe.py: _toe_grid, _rss_over_contacts)."},
+    {"stiffness_at", stiffness_at, METH_VARARGS,
+     "stiffness_at(x_lo_um, x_hi_um, force_g, drift_g_um, subsamples, contact_um, width_um, power) -> float\n\n"
+     "The toe's linear stiffness (g/um) solved at one toe, 0 when unsolvable (toe.py: _stiffness_at)."},
+    {"rss_grid_whitened", rss_grid_whitened, METH_VARARGS,
+     "rss_grid_whitened(x_lo_um, x_hi_um, force_g, drift_g_um, subsamples, white_var_g2, walk_var_g2,\n"
+     "                  lowest_contact_um, highest_contact_um, widest_um, contacts_um, widths_um, rss_out)\n"
+     "-> bool\n\n"
+     "rss_grid under white noise + a random walk of the baseline (residuals in white-noise units).\n"
+     "False (rss_out untouched) when the samples are not pressed, then in between, then free\n"
+     "(toe.py: _Whitened.prepare, _rss_whitened)."},
+    {"stiffness_whitened", stiffness_whitened, METH_VARARGS,
+     "stiffness_whitened(x_lo_um, x_hi_um, force_g, drift_g_um, subsamples, white_var_g2, walk_var_g2,\n"
+     "                   lowest_contact_um, highest_contact_um, widest_um, contact_um, width_um, power)\n"
+     "-> float\n\n"
+     "The walk-weighted toe stiffness at one toe; ValueError when rss_grid_whitened would say False."},
+    {"marginal_contact", marginal_contact, METH_VARARGS,
+     "marginal_contact(contacts_um, rss, noise_var, prior) -> (mean_um, sd_um) or None\n\n"
+     "The contact height's mean and sd with the toe marginalised out; rss: toes × contacts residuals\n"
+     "(flat, row-major) on the even grid contacts_um, prior: a weight per toe. None when no toe has a\n"
+     "curved interior minimum (toe.py: marginal_contact_um)."},
+    {"lag_mean_squares", lag_mean_squares, METH_VARARGS,
+     "lag_mean_squares(force_g, lags) -> list of float\n\n"
+     "Per lag (a tuple of ints, 1..n-1), the mean of (r[i+lag] - r[i])^2 over i, r the force with its\n"
+     "straight line fitted out (toe.py: free_air_variogram's measured part)."},
     {NULL, NULL, 0, NULL},
 };
 
