@@ -86,7 +86,7 @@ def _problem(force_g, start, stop, *ranges):
             *(range(first, end) for first, end in ranges))
 
 
-@settings(max_examples=150, deadline=None)
+@settings(max_examples=100, deadline=None)
 @given(split_problems())
 # Every segment residual 0: the first arrangement giving every line two samples wins.
 @example(_problem([0.0] * 12, 0, 12, (2, 9), (4, 8), (4, 9), (6, 11)))
