@@ -40,8 +40,8 @@ from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import PrefixSums, best_five_segments, prefix_sums, segment_lines
-from tapcell.tap.toe import (THREAD_REACH_UM, ToeFit, Wander, adhesion_dip, fit_toe, free_air_variogram,
-                             lag_from_halt_s, thread_pull_g, wander_from_variograms)
+from tapcell.tap.toe import (THREAD_REACH_UM, ToeFit, Wander, adhesion_measures, fit_toe, free_air_variogram,
+                             lag_from_halt_s, wander_from_variograms)
 
 _C = native.load("analysis")  # noise_sigma_g and repair_spikes in C (tapcell.tap.native); None: numpy
 
@@ -385,16 +385,15 @@ def check_adhesion(window: ModelWindow, motion: Motion, timing: SensorTiming, de
     ADHESION_MIN_DIP_FRACTION of the compression force (a noise-free tap has no noise to compare with).
     """
     x_lo, x_hi, force_g = pullback_samples(window, motion, timing, delay_s)
-    x_um = 0.5 * (x_lo + x_hi)
     floor_g = ADHESION_MIN_DIP_FRACTION * compression_force_g
-    dip_g = adhesion_dip(x_um, force_g, drift_g_um, contact_um)
+    # The approach line's force where the approach passed the halt's height (its time is the halt).
+    slope_g_s, intercept_g = dec.lines[0]
+    dip_g, pull_g = adhesion_measures(x_lo, x_hi, force_g, drift_g_um, contact_um,
+                                      slope_g_s * motion.home_end_s + intercept_g)
     if dip_g is not None and dip_g > max(ADHESION_MAX_DIP_NOISE * noise_g, floor_g):
         raise TapInvalid(TAP_ADHESION, f"the force dips {dip_g:.1f} g below free air just above break contact "
                                        f"(more than {ADHESION_MAX_DIP_NOISE:g} x the {noise_g:.2f} g noise): "
                                        "ooze or adhesion pulling the nozzle")
-    # The approach line's force where the approach passed the halt's height (its time is the halt).
-    slope_g_s, intercept_g = dec.lines[0]
-    pull_g = thread_pull_g(x_um, force_g, drift_g_um, slope_g_s * motion.home_end_s + intercept_g, contact_um)
     if pull_g is None:
         return
     apart_samples = (motion.pullback_start_s - motion.home_end_s) / timing.sample_period_s + 2 * THREAD_REACH_UM[1]
