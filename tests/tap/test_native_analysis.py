@@ -13,6 +13,7 @@ from hypothesis.extra.numpy import arrays
 from tapcell.tap import analysis, native, robust
 from tapcell.tap.readers import tap_from_object
 from tapcell.taplab.generate import SCENARIOS, make_tap
+from native_kernel_inputs import OPTIONS, recorded_calls
 
 KERNEL = native.load("analysis")
 pytestmark = pytest.mark.skipif(KERNEL is None, reason="the analysis kernel is not built")
@@ -75,3 +76,20 @@ def test_noise_and_spikes_are_the_twins_on_independent_taps():
     fast, reference = _twins(compute)
     assert fast == reference
     assert sum(analysis.repair_spikes(f, 5.0)[1] for f in forces[:3]) >= 3  # corrupt frames were repaired
+
+
+def test_window_heights_are_the_twins_to_the_last_bit(monkeypatch):
+    calls = recorded_calls(monkeypatch, analysis, "model_window", [OPTIONS["default"], OPTIONS["sharp"]])
+    fast = [analysis.model_window(*args) for args in calls]
+    monkeypatch.setattr(analysis, "_C", None)
+    for args, window in zip(calls, fast):
+        twin = analysis.model_window(*args)
+        assert np.array_equal(window.x_min_um, twin.x_min_um) and np.array_equal(window.span_um, twin.span_um)
+        assert (window.contact_line_um, window.break_line_um) == (twin.contact_line_um, twin.break_line_um)
+        assert np.array_equal(window.force_g, twin.force_g) and np.array_equal(window.time_s, twin.time_s)
+    assert len(calls) >= 30
+
+
+def test_window_heights_refuse_a_table_that_is_not_six_rows():
+    with pytest.raises(ValueError, match="not 6 rows"):
+        KERNEL.window_heights(np.zeros(7), np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, np.empty(3), np.empty(3))

@@ -24,7 +24,8 @@ import numpy as np
 from tapcell.tap import native, validate
 from tapcell.tap.angles import line_angles_deg
 from tapcell.tap.classifiers import get_classifier, run_classifier
-from tapcell.tap.contact import ContactFit, fit_contact, fit_fixed_onset, window_edges, window_mean_and_slope
+from tapcell.tap.contact import (MIN_SPAN_UM, ContactFit, fit_contact, fit_fixed_onset, window_edges,
+                                 window_mean_and_slope)
 from tapcell.tap.context import AnalysisContext, SensorTiming, recompute_points
 from tapcell.tap.hum import MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum, fit_hum, resolvable_hz, spline_knots
 from tapcell.tap.model import (
@@ -252,10 +253,15 @@ class ModelWindow:
 def model_window(time_s, force_g, motion: Motion, timing: SensorTiming, delay_s: float,
                  dec: Decomposition) -> ModelWindow:
     t = time_s[dec.start:dec.stop]
-    read_s = t - delay_s
     # A line point is read half a conversion window late, plus the delay.
     lag_s = delay_s + 0.5 * timing.integration_s
     lines_s = (dec.points[1][0] - lag_s, dec.points[4][0] - lag_s)
+    if _C is not None and motion.moves is not None:
+        x_min, span = np.empty(len(t)), np.empty(len(t))
+        contact_um, break_um = _C.window_heights(motion.move_table, t, delay_s, timing.integration_s,
+                                                 motion.z_halt_mm, MIN_SPAN_UM, *lines_s, x_min, span)
+        return ModelWindow(t, force_g[dec.start:dec.stop], x_min, span, contact_um, break_um)
+    read_s = t - delay_s
     heights_um = (motion.z_at(np.concatenate((read_s - timing.integration_s, read_s, lines_s)))
                   - motion.z_halt_mm) * 1000.0
     n = len(t)

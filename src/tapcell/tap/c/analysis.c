@@ -1,5 +1,5 @@
-/* The robust statistics of the tap analysis (numpy twins: tapcell/tap/robust.py `median`,
- * tapcell/tap/analysis.py `noise_sigma_g` and `repair_spikes`).
+/* The robust statistics and the window heights of the tap analysis (numpy twins: tapcell/tap/robust.py
+ * `median`, tapcell/tap/analysis.py `noise_sigma_g`, `repair_spikes` and `model_window`).
  *
  * Each is a handful of numpy calls on a few hundred samples, run several times a tap: numpy's
  * per-call cost, not the arithmetic, is what they spend. The arithmetic here is the twins', in
@@ -135,6 +135,61 @@ static PyObject *spikes(PyObject *self, PyObject *args)
     return answer;
 }
 
+/* Commanded Z (mm) at t_s from the trapezoid moves (motion.py `Motion.z_at`): the last move starting
+ * at or before t_s (the first one before them all), t_s clamped into it. `table`: rows start time,
+ * duration, start speed, acceleration, start Z, direction; `moves` columns. */
+static double z_at_mm(const double *table, Py_ssize_t moves, double t_s)
+{
+    Py_ssize_t low = 0, high = moves; /* the count of moves starting at or before t_s (searchsorted right) */
+    while (low < high) {
+        Py_ssize_t middle = low + (high - low) / 2;
+        if (table[middle] <= t_s) low = middle + 1;
+        else high = middle;
+    }
+    Py_ssize_t index = low > 0 ? low - 1 : 0;
+    const double start_s = table[index], duration_s = table[moves + index], start_v = table[2 * moves + index];
+    const double accel = table[3 * moves + index], start_z = table[4 * moves + index], z_r = table[5 * moves + index];
+    double tau_s = fmin(fmax(t_s - start_s, 0.0), duration_s);
+    return start_z + z_r * (start_v + 0.5 * accel * tau_s) * tau_s;
+}
+
+static PyObject *window_heights(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer table_buffer, time_buffer, x_min_buffer, span_buffer;
+    double delay_s, integration_s, z_halt_mm, min_span_um, contact_line_s, break_line_s;
+    if (!PyArg_ParseTuple(args, "O&O&ddddddw*w*", float64_buffer, &table_buffer, float64_buffer, &time_buffer,
+                          &delay_s, &integration_s, &z_halt_mm, &min_span_um, &contact_line_s, &break_line_s,
+                          &x_min_buffer, &span_buffer))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t cells = 0, n = 0;
+    const double *table = doubles_of(&table_buffer, &cells, "move_table");
+    const double *time_s = table ? doubles_of(&time_buffer, &n, "time_s") : NULL;
+    double *x_min_um = time_s ? doubles_sized(&x_min_buffer, n, "x_min_um") : NULL;
+    double *span_um = x_min_um ? doubles_sized(&span_buffer, n, "span_um") : NULL;
+    if (span_um != NULL && (cells == 0 || cells % 6 != 0)) {
+        PyErr_Format(PyExc_ValueError, "move_table: %zd values, not 6 rows of moves", cells);
+    } else if (span_um != NULL) {
+        Py_ssize_t moves = cells / 6;
+        for (Py_ssize_t i = 0; i < n; i++) {
+            /* the twin's steps: read time, window start, heights above the halt, then the edges */
+            double read_s = time_s[i] - delay_s;
+            double low_um = (z_at_mm(table, moves, read_s - integration_s) - z_halt_mm) * 1000.0;
+            double high_um = (z_at_mm(table, moves, read_s) - z_halt_mm) * 1000.0;
+            x_min_um[i] = fmin(low_um, high_um);
+            span_um[i] = fmax(fmax(low_um, high_um) - x_min_um[i], min_span_um);
+        }
+        result = Py_BuildValue("(dd)", (z_at_mm(table, moves, contact_line_s) - z_halt_mm) * 1000.0,
+                               (z_at_mm(table, moves, break_line_s) - z_halt_mm) * 1000.0);
+    }
+    PyBuffer_Release(&table_buffer);
+    PyBuffer_Release(&time_buffer);
+    PyBuffer_Release(&x_min_buffer);
+    PyBuffer_Release(&span_buffer);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"median", median, METH_VARARGS,
      "median(values: float64 array) -> float: the middle value, or the mean of the middle two."},
@@ -143,10 +198,15 @@ static PyMethodDef methods[] = {
     {"spikes", spikes, METH_VARARGS,
      "spikes(force_g, threshold_sigma) -> (indices, values): single corrupted frames and the mean of "
      "their neighbours that replaces each."},
+    {"window_heights", window_heights, METH_VARARGS,
+     "window_heights(move_table, time_s, delay_s, integration_s, z_halt_mm, min_span_um, contact_line_s,\n"
+     "               break_line_s, x_min_out, span_out) -> (contact_line_um, break_line_um)\n\n"
+     "Each sample's conversion window in heights above the halt (um): its lower edge and width (at least\n"
+     "min_span_um) into the outputs, and the two line points' heights (analysis.py: model_window)."},
     {NULL, NULL, 0, NULL},
 };
 
-static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_c_analysis", "The robust statistics of the tap analysis.",
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_c_analysis", "The robust statistics and window heights of the tap analysis.",
                                     -1, methods, NULL, NULL, NULL, NULL};
 
 PyMODINIT_FUNC PyInit__c_analysis(void) { return PyModule_Create(&module); }
