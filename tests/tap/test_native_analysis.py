@@ -93,3 +93,49 @@ def test_window_heights_are_the_twins_to_the_last_bit(monkeypatch):
 def test_window_heights_refuse_a_table_that_is_not_six_rows():
     with pytest.raises(ValueError, match="not 6 rows"):
         KERNEL.window_heights(np.zeros(7), np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, np.empty(3), np.empty(3))
+
+
+@pytest.mark.parametrize("change, problem", [
+    (lambda t, f: None, 0),
+    (lambda t, f: f.__setitem__(7, np.nan), 1),
+    (lambda t, f: t.__setitem__(3, np.inf), 1),
+    (lambda t, f: t.__setitem__(5, t[4]), 2),
+    (lambda t, f: t.__setitem__(slice(None), t[::-1].copy()), 2),
+])
+def test_sample_checks_name_the_twins_problem(change, problem):
+    time_s, force_g = np.linspace(0.0, 1.0, 20), np.linspace(5.0, 9.0, 20)
+    change(time_s, force_g)
+    assert KERNEL.sample_problem(time_s, force_g) == problem
+    tap = type("Tap", (), {"time_s": time_s, "force_g": force_g})()
+    messages = []
+    for kernel in (KERNEL, None):
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(analysis, "_C", kernel)
+            try:
+                analysis._check_samples(tap)
+                messages.append(None)
+            except analysis.TapInvalid as invalid:
+                messages.append(invalid.message)
+    assert messages[0] == messages[1] and (messages[0] is None) == (problem == 0)
+
+
+@settings(max_examples=100, deadline=None)
+@given(arrays(np.float64, st.integers(1, 60), elements=finite), st.floats(2.0, 6.0), st.floats(0.0, 1e3))
+def test_the_robust_pass_keeps_what_the_twin_keeps(residual_g, outlier_sigma, floor_g):
+    fast, reference = _twins(lambda: analysis._outliers_kept(residual_g, outlier_sigma, floor_g))
+    assert (fast is None) == (reference is None)
+    if reference is not None:
+        assert fast.tolist() == reference.tolist()
+
+
+def test_near_sigma_and_compression_samples_are_the_twins(monkeypatch):
+    near_calls = recorded_calls(monkeypatch, analysis, "near_contact_sigma_g", [OPTIONS["default"]])
+    count_calls = recorded_calls(monkeypatch, analysis, "compression_sample_count", [OPTIONS["default"]])
+    fast = ([analysis.near_contact_sigma_g(*args) for args in near_calls],
+            [analysis.compression_sample_count(*args) for args in count_calls])
+    monkeypatch.setattr(analysis, "_C", None)
+    twin = ([analysis.near_contact_sigma_g(*args) for args in near_calls],
+            [analysis.compression_sample_count(*args) for args in count_calls])
+    assert fast[0] == pytest.approx(twin[0], rel=1e-12)  # a sum in another order than numpy's dot
+    assert fast[1] == twin[1] and max(twin[1]) >= 2
+    assert len(near_calls) >= 15

@@ -284,13 +284,22 @@ def fit_pullback(window: ModelWindow, motion: Motion, timing: SensorTiming, dela
         return None
     fit, residual = found
     # Robust pass: drop samples the first fit cannot explain (ooze blobs, bursts), fit again.
-    keep = np.abs(residual) <= options.outlier_sigma * max(robust_sigma(residual), fit.residual_sigma_g)
-    if not keep.all():
+    keep = _outliers_kept(residual, options.outlier_sigma, fit.residual_sigma_g)
+    if keep is not None:
         refit = _fit_with_onset(y_fit[keep], x_min[keep], span[keep], fit.contact_um, spacing_um, options)
         if refit:
             fit = refit[0]
             residual = _residual(y_fit, x_min, span, fit)  # over every sample, dropped ones too
     return fit, near_contact_sigma_g(residual, x_min, fit, spacing_um)
+
+
+def _outliers_kept(residual_g: np.ndarray, outlier_sigma: float, floor_g: float) -> np.ndarray | None:
+    """The residuals within outlier_sigma × max(their robust sigma, floor_g) (a mask), or None when all are."""
+    if _C is not None:
+        keep = _C.outlier_mask(residual_g, outlier_sigma, floor_g)
+        return None if keep is None else np.frombuffer(keep, dtype=bool)
+    keep = np.abs(residual_g) <= outlier_sigma * max(robust_sigma(residual_g), floor_g)
+    return None if keep.all() else keep
 
 
 def near_contact_sigma_g(residual_g: np.ndarray, x_min_um: np.ndarray, fit: ContactFit, spacing_um: float) -> float:
@@ -300,7 +309,11 @@ def near_contact_sigma_g(residual_g: np.ndarray, x_min_um: np.ndarray, fit: Cont
     Samples further into the departure are left out: a strand pulling on the nozzle after it
     left the bed does not move Z, and the spec's departure component judges it.
     """
-    near = residual_g[x_min_um < fit.contact_um + MISFIT_REACH_SAMPLES * spacing_um]
+    below_um = fit.contact_um + MISFIT_REACH_SAMPLES * spacing_um
+    if _C is not None:
+        sigma_g = _C.near_sigma(residual_g, x_min_um, below_um)
+        return fit.residual_sigma_g if math.isnan(sigma_g) else sigma_g
+    near = residual_g[x_min_um < below_um]
     if len(near) <= 3:
         return fit.residual_sigma_g
     return math.sqrt(float(near @ near) / (len(near) - 3))
@@ -442,6 +455,9 @@ def check_contact_heights(window: ModelWindow, pullback: ContactFit | None, comp
 def compression_sample_count(window: ModelWindow, motion: Motion, delay_s: float, onset_um: float,
                              contact_um: float) -> int:
     """Samples read before the halt whose whole conversion window was at least an onset into contact."""
+    if _C is not None:
+        return _C.compression_samples(window.time_s, window.x_min_um, window.span_um, delay_s, motion.home_end_s,
+                                      contact_um - onset_um)
     before_halt = window.time_s - delay_s <= motion.home_end_s
     pressed = window.x_min_um + window.span_um <= contact_um - onset_um
     return int(np.count_nonzero(before_halt & pressed))
@@ -468,9 +484,13 @@ def _check_samples(tap: TapData) -> tuple[np.ndarray, np.ndarray]:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, f"time and force differ in shape ({t.shape} vs {f.shape})")
     if len(t) < MIN_SAMPLES:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, f"{len(t)} samples, at least {MIN_SAMPLES} needed")
-    if not (np.isfinite(t).all() and np.isfinite(f).all()):
+    if _C is not None and t.flags.c_contiguous and f.flags.c_contiguous:
+        problem = _C.sample_problem(t, f)
+    else:
+        problem = 1 if not (np.isfinite(t).all() and np.isfinite(f).all()) else 2 if (t[1:] <= t[:-1]).any() else 0
+    if problem == 1:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, "time or force holds NaN or infinity")
-    if (t[1:] <= t[:-1]).any():
+    if problem == 2:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, "sample times are not strictly increasing")
     return t, f
 

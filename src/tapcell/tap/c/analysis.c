@@ -1,5 +1,7 @@
-/* The robust statistics and the window heights of the tap analysis (numpy twins: tapcell/tap/robust.py
- * `median`, tapcell/tap/analysis.py `noise_sigma_g`, `repair_spikes` and `model_window`).
+/* The robust statistics, checks and window heights of the tap analysis (numpy twins:
+ * tapcell/tap/robust.py `median`; tapcell/tap/analysis.py `noise_sigma_g`, `repair_spikes`,
+ * `model_window`, `_check_samples`, the robust pass and `near_contact_sigma_g` of `fit_pullback`,
+ * `compression_sample_count`).
  *
  * Each is a handful of numpy calls on a few hundred samples, run several times a tap: numpy's
  * per-call cost, not the arithmetic, is what they spend. The arithmetic here is the twins', in
@@ -190,6 +192,125 @@ static PyObject *window_heights(PyObject *self, PyObject *args)
     return result;
 }
 
+/* What is wrong with a tap's samples for the analysis (analysis.py `_check_samples`): 0 nothing,
+ * 1 a time or force is NaN or infinite, 2 the times do not strictly increase (the first found). */
+static PyObject *sample_problem(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer time_buffer, force_buffer;
+    if (!PyArg_ParseTuple(args, "O&O&", float64_buffer, &time_buffer, float64_buffer, &force_buffer))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t n = 0;
+    const double *time_s = doubles_of(&time_buffer, &n, "time_s");
+    const double *force_g = time_s ? doubles_sized(&force_buffer, n, "force_g") : NULL;
+    if (force_g != NULL) {
+        long problem = 0;
+        for (Py_ssize_t i = 0; i < n && problem == 0; i++)
+            if (!isfinite(time_s[i]) || !isfinite(force_g[i])) problem = 1;
+        for (Py_ssize_t i = 1; i < n && problem == 0; i++)
+            if (!(time_s[i] > time_s[i - 1])) problem = 2;
+        result = PyLong_FromLong(problem);
+    }
+    PyBuffer_Release(&time_buffer);
+    PyBuffer_Release(&force_buffer);
+    return result;
+}
+
+/* The robust pass of the pullback fit (analysis.py `fit_pullback`): None when every residual lies
+ * within outlier_sigma × max(their robust sigma, floor_g), else the keep mask as a bytes object (one
+ * 0/1 per residual; numpy reads it as a bool array without a copy). */
+static PyObject *outlier_mask(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer residual_buffer;
+    double outlier_sigma, floor_g;
+    if (!PyArg_ParseTuple(args, "O&dd", float64_buffer, &residual_buffer, &outlier_sigma, &floor_g))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t n = 0;
+    const double *residual_g = doubles_of(&residual_buffer, &n, "residual_g");
+    double *scratch = residual_g && n > 0 ? malloc((size_t)n * sizeof(double)) : NULL;
+    if (residual_g != NULL && n == 0) {
+        PyErr_SetString(PyExc_ValueError, "residual_g: no residuals");
+    } else if (residual_g != NULL && scratch == NULL) {
+        PyErr_NoMemory();
+    } else if (residual_g != NULL) {
+        for (Py_ssize_t i = 0; i < n; i++)
+            scratch[i] = fabs(residual_g[i]);
+        double limit_g = outlier_sigma * fmax(MAD_TO_SIGMA * median_in_place(scratch, n), floor_g);
+        Py_ssize_t outside = 0;
+        for (Py_ssize_t i = 0; i < n; i++)
+            outside += !(fabs(residual_g[i]) <= limit_g);
+        if (outside == 0) {
+            result = Py_NewRef(Py_None);
+        } else if ((result = PyBytes_FromStringAndSize(NULL, n)) != NULL) {
+            char *keep = PyBytes_AS_STRING(result);
+            for (Py_ssize_t i = 0; i < n; i++)
+                keep[i] = fabs(residual_g[i]) <= limit_g;
+        }
+    }
+    free(scratch);
+    PyBuffer_Release(&residual_buffer);
+    return result;
+}
+
+/* The root mean square, with 3 degrees of freedom taken, of the residuals whose window starts
+ * below below_um (analysis.py `near_contact_sigma_g`); NaN when 3 or fewer are there. */
+static PyObject *near_sigma(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer residual_buffer, x_min_buffer;
+    double below_um;
+    if (!PyArg_ParseTuple(args, "O&O&d", float64_buffer, &residual_buffer, float64_buffer, &x_min_buffer, &below_um))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t n = 0;
+    const double *residual_g = doubles_of(&residual_buffer, &n, "residual_g");
+    const double *x_min_um = residual_g ? doubles_sized(&x_min_buffer, n, "x_min_um") : NULL;
+    if (x_min_um != NULL) {
+        double sum_g2 = 0.0;
+        Py_ssize_t count = 0;
+        for (Py_ssize_t i = 0; i < n; i++) {
+            if (x_min_um[i] < below_um) {
+                sum_g2 += residual_g[i] * residual_g[i];
+                count++;
+            }
+        }
+        result = PyFloat_FromDouble(count <= 3 ? NAN : sqrt(sum_g2 / (double)(count - 3)));
+    }
+    PyBuffer_Release(&residual_buffer);
+    PyBuffer_Release(&x_min_buffer);
+    return result;
+}
+
+/* Samples read before the halt whose whole window lies at least an onset into contact
+ * (analysis.py `compression_sample_count`). */
+static PyObject *compression_samples(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer time_buffer, x_min_buffer, span_buffer;
+    double delay_s, halt_s, deepest_top_um;
+    if (!PyArg_ParseTuple(args, "O&O&O&ddd", float64_buffer, &time_buffer, float64_buffer, &x_min_buffer,
+                          float64_buffer, &span_buffer, &delay_s, &halt_s, &deepest_top_um))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t n = 0;
+    const double *time_s = doubles_of(&time_buffer, &n, "time_s");
+    const double *x_min_um = time_s ? doubles_sized(&x_min_buffer, n, "x_min_um") : NULL;
+    const double *span_um = x_min_um ? doubles_sized(&span_buffer, n, "span_um") : NULL;
+    if (span_um != NULL) {
+        Py_ssize_t count = 0;
+        for (Py_ssize_t i = 0; i < n; i++)
+            count += (time_s[i] - delay_s <= halt_s) && (x_min_um[i] + span_um[i] <= deepest_top_um);
+        result = PyLong_FromSsize_t(count);
+    }
+    PyBuffer_Release(&time_buffer);
+    PyBuffer_Release(&x_min_buffer);
+    PyBuffer_Release(&span_buffer);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"median", median, METH_VARARGS,
      "median(values: float64 array) -> float: the middle value, or the mean of the middle two."},
@@ -203,6 +324,17 @@ static PyMethodDef methods[] = {
      "               break_line_s, x_min_out, span_out) -> (contact_line_um, break_line_um)\n\n"
      "Each sample's conversion window in heights above the halt (um): its lower edge and width (at least\n"
      "min_span_um) into the outputs, and the two line points' heights (analysis.py: model_window)."},
+    {"sample_problem", sample_problem, METH_VARARGS,
+     "sample_problem(time_s, force_g) -> int: 0 fine, 1 NaN or infinity, 2 times not strictly increasing."},
+    {"outlier_mask", outlier_mask, METH_VARARGS,
+     "outlier_mask(residual_g, outlier_sigma, floor_g) -> None or bytes: the residuals to keep (1) when\n"
+     "any lies beyond outlier_sigma x max(their robust sigma, floor_g), else None."},
+    {"near_sigma", near_sigma, METH_VARARGS,
+     "near_sigma(residual_g, x_min_um, below_um) -> float: rms (3 dof taken) of the residuals whose\n"
+     "window starts below below_um; NaN when 3 or fewer."},
+    {"compression_samples", compression_samples, METH_VARARGS,
+     "compression_samples(time_s, x_min_um, span_um, delay_s, halt_s, deepest_top_um) -> int: samples\n"
+     "read by the halt whose window's top is at or below deepest_top_um."},
     {NULL, NULL, 0, NULL},
 };
 
