@@ -139,3 +139,21 @@ def test_near_sigma_and_compression_samples_are_the_twins(monkeypatch):
     assert fast[0] == pytest.approx(twin[0], rel=1e-12)  # a sum in another order than numpy's dot
     assert fast[1] == twin[1] and max(twin[1]) >= 2
     assert len(near_calls) >= 15
+
+
+@settings(max_examples=100, deadline=None)
+@given(arrays(np.float64, st.integers(1, 40), elements=finite, unique=True),
+       st.lists(st.floats(-2e6, 2e6, allow_nan=False), min_size=0, max_size=5))
+def test_sample_indices_are_the_twins(values, times):
+    time_s = np.sort(values)
+    fast, reference = _twins(lambda: analysis._indices(time_s, *times))
+    assert fast == reference
+
+
+def test_a_strided_tap_is_analysed_like_a_plain_one():
+    from tapcell.tap.synth import synth_tap
+    tap = synth_tap(seed=3)
+    doubled_time, doubled_force = np.repeat(tap.time_s, 2), np.repeat(tap.force_g, 2)
+    strided = type(tap)(**{**tap.__dict__, "time_s": doubled_time[::2], "force_g": doubled_force[::2]})
+    assert not strided.time_s.flags.c_contiguous
+    assert analysis.analyze_tap(strided).z_mm == analysis.analyze_tap(tap).z_mm

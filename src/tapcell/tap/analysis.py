@@ -171,6 +171,8 @@ def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarr
 
 def _indices(time_s: np.ndarray, *t: float) -> list[int]:
     """Index of the first sample at or after each time (the last sample for times past the end)."""
+    if _C is not None:
+        return _C.indices(time_s, t)
     return np.minimum(time_s.searchsorted(t), len(time_s) - 1).tolist()
 
 
@@ -478,13 +480,14 @@ def analyze_tap(tap: TapData, options: AnalysisOptions | None = None) -> TapAnal
 
 
 def _check_samples(tap: TapData) -> tuple[np.ndarray, np.ndarray]:
-    t = np.asarray(tap.time_s, dtype=float)
-    f = np.asarray(tap.force_g, dtype=float)
+    # Contiguous (a caller's strided view is copied): the compiled kernels read them as plain arrays.
+    t = np.ascontiguousarray(tap.time_s, dtype=float)
+    f = np.ascontiguousarray(tap.force_g, dtype=float)
     if t.ndim != 1 or f.shape != t.shape:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, f"time and force differ in shape ({t.shape} vs {f.shape})")
     if len(t) < MIN_SAMPLES:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, f"{len(t)} samples, at least {MIN_SAMPLES} needed")
-    if _C is not None and t.flags.c_contiguous and f.flags.c_contiguous:
+    if _C is not None:
         problem = _C.sample_problem(t, f)
     else:
         problem = 1 if not (np.isfinite(t).all() and np.isfinite(f).all()) else 2 if (t[1:] <= t[:-1]).any() else 0

@@ -137,22 +137,38 @@ static PyObject *spikes(PyObject *self, PyObject *args)
     return answer;
 }
 
-/* Commanded Z (mm) at t_s from the trapezoid moves (motion.py `Motion.z_at`): the last move starting
- * at or before t_s (the first one before them all), t_s clamped into it. `table`: rows start time,
- * duration, start speed, acceleration, start Z, direction; `moves` columns. */
-static double z_at_mm(const double *table, Py_ssize_t moves, double t_s)
+/* The move in force at t_s (motion.py `Motion.z_at`): the last one starting at or before t_s, the
+ * first when none does. `*move` is where the previous time was: the samples' times rise, so it
+ * mostly stays or steps on (a time earlier than its move's start searches afresh). */
+static Py_ssize_t move_at(const double *start_s, Py_ssize_t moves, double t_s, Py_ssize_t *move)
 {
-    Py_ssize_t low = 0, high = moves; /* the count of moves starting at or before t_s (searchsorted right) */
-    while (low < high) {
-        Py_ssize_t middle = low + (high - low) / 2;
-        if (table[middle] <= t_s) low = middle + 1;
-        else high = middle;
+    if (*move > 0 && start_s[*move] > t_s) {
+        Py_ssize_t low = 0, high = moves; /* the count of moves starting at or before t_s (searchsorted right) */
+        while (low < high) {
+            Py_ssize_t middle = low + (high - low) / 2;
+            if (start_s[middle] <= t_s) low = middle + 1;
+            else high = middle;
+        }
+        *move = low > 0 ? low - 1 : 0;
     }
-    Py_ssize_t index = low > 0 ? low - 1 : 0;
+    while (*move + 1 < moves && start_s[*move + 1] <= t_s)
+        (*move)++;
+    return *move;
+}
+
+/* Commanded Z (mm) at t_s in the trapezoid move `index` (t_s clamped into it). `table`: rows start
+ * time, duration, start speed, acceleration, start Z, direction; `moves` columns. */
+static double z_in_move_mm(const double *table, Py_ssize_t moves, Py_ssize_t index, double t_s)
+{
     const double start_s = table[index], duration_s = table[moves + index], start_v = table[2 * moves + index];
     const double accel = table[3 * moves + index], start_z = table[4 * moves + index], z_r = table[5 * moves + index];
     double tau_s = fmin(fmax(t_s - start_s, 0.0), duration_s);
     return start_z + z_r * (start_v + 0.5 * accel * tau_s) * tau_s;
+}
+
+static double z_at_mm(const double *table, Py_ssize_t moves, double t_s, Py_ssize_t *move)
+{
+    return z_in_move_mm(table, moves, move_at(table, moves, t_s, move), t_s);
 }
 
 static PyObject *window_heights(PyObject *self, PyObject *args)
@@ -173,17 +189,18 @@ static PyObject *window_heights(PyObject *self, PyObject *args)
     if (span_um != NULL && (cells == 0 || cells % 6 != 0)) {
         PyErr_Format(PyExc_ValueError, "move_table: %zd values, not 6 rows of moves", cells);
     } else if (span_um != NULL) {
-        Py_ssize_t moves = cells / 6;
+        Py_ssize_t moves = cells / 6, low_move = 0, high_move = 0, line_move = 0;
         for (Py_ssize_t i = 0; i < n; i++) {
             /* the twin's steps: read time, window start, heights above the halt, then the edges */
             double read_s = time_s[i] - delay_s;
-            double low_um = (z_at_mm(table, moves, read_s - integration_s) - z_halt_mm) * 1000.0;
-            double high_um = (z_at_mm(table, moves, read_s) - z_halt_mm) * 1000.0;
+            double low_um = (z_at_mm(table, moves, read_s - integration_s, &low_move) - z_halt_mm) * 1000.0;
+            double high_um = (z_at_mm(table, moves, read_s, &high_move) - z_halt_mm) * 1000.0;
             x_min_um[i] = fmin(low_um, high_um);
             span_um[i] = fmax(fmax(low_um, high_um) - x_min_um[i], min_span_um);
         }
-        result = Py_BuildValue("(dd)", (z_at_mm(table, moves, contact_line_s) - z_halt_mm) * 1000.0,
-                               (z_at_mm(table, moves, break_line_s) - z_halt_mm) * 1000.0);
+        double contact_line_um = (z_at_mm(table, moves, contact_line_s, &line_move) - z_halt_mm) * 1000.0;
+        double break_line_um = (z_at_mm(table, moves, break_line_s, &line_move) - z_halt_mm) * 1000.0;
+        result = Py_BuildValue("(dd)", contact_line_um, break_line_um);
     }
     PyBuffer_Release(&table_buffer);
     PyBuffer_Release(&time_buffer);
@@ -311,6 +328,40 @@ static PyObject *compression_samples(PyObject *self, PyObject *args)
     return result;
 }
 
+/* Index of the first sample at or after each time, the last sample for times past the end
+ * (analysis.py `_indices`). */
+static PyObject *indices(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer time_buffer;
+    PyObject *times;
+    if (!PyArg_ParseTuple(args, "O&O!", float64_buffer, &time_buffer, &PyTuple_Type, &times))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t n = 0, count = PyTuple_GET_SIZE(times);
+    const double *time_s = doubles_of(&time_buffer, &n, "time_s");
+    if (time_s != NULL && n == 0) {
+        PyErr_SetString(PyExc_ValueError, "time_s: no samples");
+    } else if (time_s != NULL && (result = PyList_New(count)) != NULL) {
+        for (Py_ssize_t k = 0; k < count; k++) {
+            double t_s = PyFloat_AsDouble(PyTuple_GET_ITEM(times, k));
+            if (t_s == -1.0 && PyErr_Occurred()) {
+                Py_CLEAR(result);
+                break;
+            }
+            Py_ssize_t low = 0, high = n; /* the count of samples before t_s (searchsorted left) */
+            while (low < high) {
+                Py_ssize_t middle = low + (high - low) / 2;
+                if (time_s[middle] < t_s) low = middle + 1;
+                else high = middle;
+            }
+            PyList_SET_ITEM(result, k, PyLong_FromSsize_t(low < n ? low : n - 1));
+        }
+    }
+    PyBuffer_Release(&time_buffer);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"median", median, METH_VARARGS,
      "median(values: float64 array) -> float: the middle value, or the mean of the middle two."},
@@ -335,6 +386,9 @@ static PyMethodDef methods[] = {
     {"compression_samples", compression_samples, METH_VARARGS,
      "compression_samples(time_s, x_min_um, span_um, delay_s, halt_s, deepest_top_um) -> int: samples\n"
      "read by the halt whose window's top is at or below deepest_top_um."},
+    {"indices", indices, METH_VARARGS,
+     "indices(time_s, times) -> list of int: per time (a tuple of floats), the first sample at or after it,\n"
+     "the last sample for times past the end."},
     {NULL, NULL, 0, NULL},
 };
 
