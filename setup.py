@@ -10,7 +10,7 @@ from setuptools import Extension, setup
 KERNELS = ("analysis", "segments", "contact", "toe")
 
 setup(ext_modules=[Extension(f"tapcell.tap._c_{name}", [f"src/tapcell/tap/c/{name}.c"],
-                             depends=["src/tapcell/tap/c/buffers.h"],
-                             extra_compile_args=["-std=c99", "-O2", "-Wall", "-Wextra", "-fno-fast-math"],
+                             depends=["src/tapcell/tap/c/buffers.h", "src/tapcell/tap/c/median.h"],
+                             extra_compile_args=["-std=c99", "-O3", "-Wall", "-Wextra", "-fno-fast-math"],
                              optional=True)
                    for name in KERNELS])

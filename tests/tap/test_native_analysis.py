@@ -13,6 +13,7 @@ from hypothesis.extra.numpy import arrays
 from tapcell.tap import analysis, native, robust
 from tapcell.tap.readers import tap_from_object
 from tapcell.taplab.generate import SCENARIOS, make_tap
+from native_kernel_inputs import OPTIONS, recorded_calls
 
 KERNEL = native.load("analysis")
 pytestmark = pytest.mark.skipif(KERNEL is None, reason="the analysis kernel is not built")
@@ -75,3 +76,66 @@ def test_noise_and_spikes_are_the_twins_on_independent_taps():
     fast, reference = _twins(compute)
     assert fast == reference
     assert sum(analysis.repair_spikes(f, 5.0)[1] for f in forces[:3]) >= 3  # corrupt frames were repaired
+
+
+def test_window_heights_are_the_twins_to_the_last_bit(monkeypatch):
+    calls = recorded_calls(monkeypatch, analysis, "model_window", [OPTIONS["default"], OPTIONS["sharp"]])
+    fast = [analysis.model_window(*args) for args in calls]
+    monkeypatch.setattr(analysis, "_C", None)
+    for args, window in zip(calls, fast):
+        twin = analysis.model_window(*args)
+        assert np.array_equal(window.x_min_um, twin.x_min_um) and np.array_equal(window.span_um, twin.span_um)
+        assert (window.contact_line_um, window.break_line_um) == (twin.contact_line_um, twin.break_line_um)
+        assert np.array_equal(window.force_g, twin.force_g) and np.array_equal(window.time_s, twin.time_s)
+    assert len(calls) >= 30
+
+
+def test_window_heights_refuse_a_table_that_is_not_six_rows():
+    with pytest.raises(ValueError, match="not 6 rows"):
+        KERNEL.window_heights(np.zeros(7), np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, np.empty(3), np.empty(3))
+
+
+@pytest.mark.parametrize("change, problem", [
+    (lambda t, f: None, 0),
+    (lambda t, f: f.__setitem__(7, np.nan), 1),
+    (lambda t, f: t.__setitem__(3, np.inf), 1),
+    (lambda t, f: t.__setitem__(5, t[4]), 2),
+    (lambda t, f: t.__setitem__(slice(None), t[::-1].copy()), 2),
+])
+def test_sample_checks_name_the_twins_problem(change, problem):
+    time_s, force_g = np.linspace(0.0, 1.0, 20), np.linspace(5.0, 9.0, 20)
+    change(time_s, force_g)
+    assert KERNEL.sample_problem(time_s, force_g) == problem
+    tap = type("Tap", (), {"time_s": time_s, "force_g": force_g})()
+    messages = []
+    for kernel in (KERNEL, None):
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(analysis, "_C", kernel)
+            try:
+                analysis._check_samples(tap)
+                messages.append(None)
+            except analysis.TapInvalid as invalid:
+                messages.append(invalid.message)
+    assert messages[0] == messages[1] and (messages[0] is None) == (problem == 0)
+
+
+@settings(max_examples=100, deadline=None)
+@given(arrays(np.float64, st.integers(1, 60), elements=finite), st.floats(2.0, 6.0), st.floats(0.0, 1e3))
+def test_the_robust_pass_keeps_what_the_twin_keeps(residual_g, outlier_sigma, floor_g):
+    fast, reference = _twins(lambda: analysis._outliers_kept(residual_g, outlier_sigma, floor_g))
+    assert (fast is None) == (reference is None)
+    if reference is not None:
+        assert fast.tolist() == reference.tolist()
+
+
+def test_near_sigma_and_compression_samples_are_the_twins(monkeypatch):
+    near_calls = recorded_calls(monkeypatch, analysis, "near_contact_sigma_g", [OPTIONS["default"]])
+    count_calls = recorded_calls(monkeypatch, analysis, "compression_sample_count", [OPTIONS["default"]])
+    fast = ([analysis.near_contact_sigma_g(*args) for args in near_calls],
+            [analysis.compression_sample_count(*args) for args in count_calls])
+    monkeypatch.setattr(analysis, "_C", None)
+    twin = ([analysis.near_contact_sigma_g(*args) for args in near_calls],
+            [analysis.compression_sample_count(*args) for args in count_calls])
+    assert fast[0] == pytest.approx(twin[0], rel=1e-12)  # a sum in another order than numpy's dot
+    assert fast[1] == twin[1] and max(twin[1]) >= 2
+    assert len(near_calls) >= 15

@@ -15,6 +15,7 @@ import pytest
 from tapcell.tap import analysis, analyze_tap, toe
 from tapcell.tap.readers import tap_from_object
 from tapcell.taplab.generate import SCENARIOS, make_tap
+from native_kernel_inputs import OPTIONS, recorded_calls
 
 pytestmark = pytest.mark.skipif(toe._C is None, reason="the toe kernel is not built (TAPCELL_NATIVE=0)")
 
@@ -205,3 +206,19 @@ def test_free_air_variogram_equals_the_numpy_twin(taps, monkeypatch):
         np.testing.assert_allclose(values, twin_values, rtol=1e-13, atol=0)
         measured += len(values) > 0
     assert measured >= 8
+
+
+def test_adhesion_measures_equal_the_numpy_twin(monkeypatch):
+    # The dip's run means are summed in another order than np.convolve's: ~1e-15 relative of forces
+    # of tens of grams; medians select, they do not sum.
+    calls = recorded_calls(monkeypatch, analysis, "adhesion_measures", [OPTIONS["default"]])
+    kernel = [toe.adhesion_measures(*args) for args in calls]
+    monkeypatch.setattr(toe, "_C", None)
+    twins = [toe.adhesion_measures(*args) for args in calls]
+    for measured, twin in zip(kernel, twins):
+        for value, twin_value in zip(measured, twin):
+            assert (value is None) == (twin_value is None)
+            if twin_value is not None:
+                assert value == pytest.approx(twin_value, abs=1e-9)
+    assert sum(dip is not None for dip, _ in twins) >= 10 and sum(pull is not None for _, pull in twins) >= 10
+    assert max(dip for dip, _ in twins if dip is not None) > 3.0  # ooze taps: real dips, not only noise (4.9 g)

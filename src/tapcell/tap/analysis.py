@@ -24,7 +24,8 @@ import numpy as np
 from tapcell.tap import native, validate
 from tapcell.tap.angles import line_angles_deg
 from tapcell.tap.classifiers import get_classifier, run_classifier
-from tapcell.tap.contact import ContactFit, fit_contact, fit_fixed_onset, window_edges, window_mean_and_slope
+from tapcell.tap.contact import (MIN_SPAN_UM, ContactFit, fit_contact, fit_fixed_onset, window_edges,
+                                 window_mean_and_slope)
 from tapcell.tap.context import AnalysisContext, SensorTiming, recompute_points
 from tapcell.tap.hum import MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum, fit_hum, resolvable_hz, spline_knots
 from tapcell.tap.model import (
@@ -40,8 +41,8 @@ from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import PrefixSums, best_five_segments, prefix_sums, segment_lines
-from tapcell.tap.toe import (THREAD_REACH_UM, ToeFit, Wander, adhesion_dip, fit_toe, free_air_variogram,
-                             lag_from_halt_s, thread_pull_g, wander_from_variograms)
+from tapcell.tap.toe import (THREAD_REACH_UM, ToeFit, Wander, adhesion_measures, fit_toe, free_air_variogram,
+                             lag_from_halt_s, wander_from_variograms)
 
 _C = native.load("analysis")  # noise_sigma_g and repair_spikes in C (tapcell.tap.native); None: numpy
 
@@ -252,10 +253,15 @@ class ModelWindow:
 def model_window(time_s, force_g, motion: Motion, timing: SensorTiming, delay_s: float,
                  dec: Decomposition) -> ModelWindow:
     t = time_s[dec.start:dec.stop]
-    read_s = t - delay_s
     # A line point is read half a conversion window late, plus the delay.
     lag_s = delay_s + 0.5 * timing.integration_s
     lines_s = (dec.points[1][0] - lag_s, dec.points[4][0] - lag_s)
+    if _C is not None and motion.moves is not None:
+        x_min, span = np.empty(len(t)), np.empty(len(t))
+        contact_um, break_um = _C.window_heights(motion.move_table, t, delay_s, timing.integration_s,
+                                                 motion.z_halt_mm, MIN_SPAN_UM, *lines_s, x_min, span)
+        return ModelWindow(t, force_g[dec.start:dec.stop], x_min, span, contact_um, break_um)
+    read_s = t - delay_s
     heights_um = (motion.z_at(np.concatenate((read_s - timing.integration_s, read_s, lines_s)))
                   - motion.z_halt_mm) * 1000.0
     n = len(t)
@@ -278,13 +284,22 @@ def fit_pullback(window: ModelWindow, motion: Motion, timing: SensorTiming, dela
         return None
     fit, residual = found
     # Robust pass: drop samples the first fit cannot explain (ooze blobs, bursts), fit again.
-    keep = np.abs(residual) <= options.outlier_sigma * max(robust_sigma(residual), fit.residual_sigma_g)
-    if not keep.all():
+    keep = _outliers_kept(residual, options.outlier_sigma, fit.residual_sigma_g)
+    if keep is not None:
         refit = _fit_with_onset(y_fit[keep], x_min[keep], span[keep], fit.contact_um, spacing_um, options)
         if refit:
             fit = refit[0]
             residual = _residual(y_fit, x_min, span, fit)  # over every sample, dropped ones too
     return fit, near_contact_sigma_g(residual, x_min, fit, spacing_um)
+
+
+def _outliers_kept(residual_g: np.ndarray, outlier_sigma: float, floor_g: float) -> np.ndarray | None:
+    """The residuals within outlier_sigma × max(their robust sigma, floor_g) (a mask), or None when all are."""
+    if _C is not None:
+        keep = _C.outlier_mask(residual_g, outlier_sigma, floor_g)
+        return None if keep is None else np.frombuffer(keep, dtype=bool)
+    keep = np.abs(residual_g) <= outlier_sigma * max(robust_sigma(residual_g), floor_g)
+    return None if keep.all() else keep
 
 
 def near_contact_sigma_g(residual_g: np.ndarray, x_min_um: np.ndarray, fit: ContactFit, spacing_um: float) -> float:
@@ -294,7 +309,11 @@ def near_contact_sigma_g(residual_g: np.ndarray, x_min_um: np.ndarray, fit: Cont
     Samples further into the departure are left out: a strand pulling on the nozzle after it
     left the bed does not move Z, and the spec's departure component judges it.
     """
-    near = residual_g[x_min_um < fit.contact_um + MISFIT_REACH_SAMPLES * spacing_um]
+    below_um = fit.contact_um + MISFIT_REACH_SAMPLES * spacing_um
+    if _C is not None:
+        sigma_g = _C.near_sigma(residual_g, x_min_um, below_um)
+        return fit.residual_sigma_g if math.isnan(sigma_g) else sigma_g
+    near = residual_g[x_min_um < below_um]
     if len(near) <= 3:
         return fit.residual_sigma_g
     return math.sqrt(float(near @ near) / (len(near) - 3))
@@ -385,16 +404,15 @@ def check_adhesion(window: ModelWindow, motion: Motion, timing: SensorTiming, de
     ADHESION_MIN_DIP_FRACTION of the compression force (a noise-free tap has no noise to compare with).
     """
     x_lo, x_hi, force_g = pullback_samples(window, motion, timing, delay_s)
-    x_um = 0.5 * (x_lo + x_hi)
     floor_g = ADHESION_MIN_DIP_FRACTION * compression_force_g
-    dip_g = adhesion_dip(x_um, force_g, drift_g_um, contact_um)
+    # The approach line's force where the approach passed the halt's height (its time is the halt).
+    slope_g_s, intercept_g = dec.lines[0]
+    dip_g, pull_g = adhesion_measures(x_lo, x_hi, force_g, drift_g_um, contact_um,
+                                      slope_g_s * motion.home_end_s + intercept_g)
     if dip_g is not None and dip_g > max(ADHESION_MAX_DIP_NOISE * noise_g, floor_g):
         raise TapInvalid(TAP_ADHESION, f"the force dips {dip_g:.1f} g below free air just above break contact "
                                        f"(more than {ADHESION_MAX_DIP_NOISE:g} x the {noise_g:.2f} g noise): "
                                        "ooze or adhesion pulling the nozzle")
-    # The approach line's force where the approach passed the halt's height (its time is the halt).
-    slope_g_s, intercept_g = dec.lines[0]
-    pull_g = thread_pull_g(x_um, force_g, drift_g_um, slope_g_s * motion.home_end_s + intercept_g, contact_um)
     if pull_g is None:
         return
     apart_samples = (motion.pullback_start_s - motion.home_end_s) / timing.sample_period_s + 2 * THREAD_REACH_UM[1]
@@ -437,6 +455,9 @@ def check_contact_heights(window: ModelWindow, pullback: ContactFit | None, comp
 def compression_sample_count(window: ModelWindow, motion: Motion, delay_s: float, onset_um: float,
                              contact_um: float) -> int:
     """Samples read before the halt whose whole conversion window was at least an onset into contact."""
+    if _C is not None:
+        return _C.compression_samples(window.time_s, window.x_min_um, window.span_um, delay_s, motion.home_end_s,
+                                      contact_um - onset_um)
     before_halt = window.time_s - delay_s <= motion.home_end_s
     pressed = window.x_min_um + window.span_um <= contact_um - onset_um
     return int(np.count_nonzero(before_halt & pressed))
@@ -463,9 +484,13 @@ def _check_samples(tap: TapData) -> tuple[np.ndarray, np.ndarray]:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, f"time and force differ in shape ({t.shape} vs {f.shape})")
     if len(t) < MIN_SAMPLES:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, f"{len(t)} samples, at least {MIN_SAMPLES} needed")
-    if not (np.isfinite(t).all() and np.isfinite(f).all()):
+    if _C is not None and t.flags.c_contiguous and f.flags.c_contiguous:
+        problem = _C.sample_problem(t, f)
+    else:
+        problem = 1 if not (np.isfinite(t).all() and np.isfinite(f).all()) else 2 if (t[1:] <= t[:-1]).any() else 0
+    if problem == 1:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, "time or force holds NaN or infinity")
-    if (t[1:] <= t[:-1]).any():
+    if problem == 2:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, "sample times are not strictly increasing")
     return t, f
 

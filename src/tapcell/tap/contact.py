@@ -185,7 +185,7 @@ def fit_contact(force_g: np.ndarray, x_lo_um: np.ndarray, x_hi_um: np.ndarray, c
 
 # Windows narrower than this (µm) count as this wide: the mean over them equals the point
 # value to far below a nanometre, and no division by a zero width is needed.
-_MIN_SPAN_UM = 1e-6
+MIN_SPAN_UM = 1e-6
 
 
 def window_mean_and_slope(contact_um, onset_um: float, x_min_um: np.ndarray, span_um: np.ndarray,
@@ -193,7 +193,7 @@ def window_mean_and_slope(contact_um, onset_um: float, x_min_um: np.ndarray, spa
     """Mean of h(c - x) over each window [x_min, x_min + span] and its derivative by c (broadcasts).
 
     The lean form of `window_mean_hinge` for the search (few numpy calls); `span_um` must be at
-    least `_MIN_SPAN_UM`. Sharp contact: p = the part of the window below c, mean = p (u - p/2) / span
+    least `MIN_SPAN_UM`. Sharp contact: p = the part of the window below c, mean = p (u - p/2) / span
     with u = c - x_min, slope = p / span. With an onset, through the antiderivative G of h:
     mean = (G(u) - G(u - span)) / span, slope = (h(u) - h(u - span)) / span.
     """
@@ -266,9 +266,9 @@ CANDIDATES_PER_SAMPLE = 32
 
 
 def window_edges(x_lo_um: np.ndarray, x_hi_um: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """(lower edge, width >= _MIN_SPAN_UM) of each sample's height window."""
+    """(lower edge, width >= MIN_SPAN_UM) of each sample's height window."""
     x_min = np.minimum(x_lo_um, x_hi_um)
-    return x_min, np.maximum(np.maximum(x_lo_um, x_hi_um) - x_min, _MIN_SPAN_UM)
+    return x_min, np.maximum(np.maximum(x_lo_um, x_hi_um) - x_min, MIN_SPAN_UM)
 
 
 def search_contact(force_g: np.ndarray, x_min_um: np.ndarray, span_um: np.ndarray, low_um: float, high_um: float,

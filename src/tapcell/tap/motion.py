@@ -46,17 +46,18 @@ class Motion:
         t_s = np.asarray(t_s, dtype=float)
         if self.moves is None:
             return np.interp(t_s, self.trace_time_s, self.trace_z_mm)
-        table = self._move_table
+        table = self.move_table
         index = np.maximum(table[0].searchsorted(t_s, side="right") - 1, 0)
         start, duration, start_v, accel, start_z, z_r = table.take(index, axis=1)
         tau_s = np.minimum(np.maximum(t_s - start, 0.0), duration)
         return start_z + z_r * (start_v + 0.5 * accel * tau_s) * tau_s
 
     @functools.cached_property
-    def _move_table(self) -> np.ndarray:
+    def move_table(self) -> np.ndarray:
         """Rows: start time, duration, start speed, acceleration, start Z, direction; one column per move."""
-        return np.array([(m.print_time, m.move_t, m.start_v, m.accel, m.start_z, m.z_r) for m in self.moves],
-                        dtype=float).T
+        # Row-major (contiguous rows): the compiled window heights read it as six rows.
+        return np.ascontiguousarray(np.array(
+            [(m.print_time, m.move_t, m.start_v, m.accel, m.start_z, m.z_r) for m in self.moves], dtype=float).T)
 
 
 def motion_from_moves(moves: list[Move]) -> Motion:

@@ -92,6 +92,7 @@ SUBSAMPLES = 2  # points per conversion window for its average
 MAX_LAG_PERIODS = 4.0
 # Adhesion (a plastic thread pulling the nozzle after break contact): the force's dip below the
 # free-air level, over the first ADHESION_REACH_UM above contact, against the level further up.
+ADHESION_FROM_UM = 1.0  # the dip is looked for from this high above contact (the toe's own rounding below)
 ADHESION_REACH_UM = 40.0
 ADHESION_LEVEL_UM = 100.0  # the free-air level from samples between the reach and this height
 ADHESION_RUN_SAMPLES = 5  # the dip is the lowest mean of this many consecutive samples
@@ -100,6 +101,9 @@ ADHESION_MIN_LEVEL_SAMPLES = 10
 # the fewest samples there.
 THREAD_REACH_UM = (10.0, 60.0)
 THREAD_MIN_SAMPLES = 5
+# All of them, in the order the compiled `adhesion` kernel takes them.
+ADHESION_LIMITS = (ADHESION_FROM_UM, ADHESION_REACH_UM, ADHESION_LEVEL_UM, ADHESION_RUN_SAMPLES,
+                   ADHESION_MIN_LEVEL_SAMPLES, THREAD_REACH_UM[0], THREAD_REACH_UM[1], THREAD_MIN_SAMPLES)
 # The baseline's random walk is weighed in when over the fit it adds as much variance as the white noise
 # (0.25 and 0.5 gave the same drift sigma and 0.01 um more on clean taps).
 WANDER_SHARE = 1.0
@@ -644,12 +648,21 @@ def adhesion_dip(x_um: np.ndarray, force_g: np.ndarray, drift_g_um: float, conta
     level_force = force_g - drift_g_um * x_um
     above = x_um - contact_um
     level = level_force[(above > ADHESION_REACH_UM) & (above < ADHESION_LEVEL_UM)]
-    near = level_force[(above > 1.0) & (above <= ADHESION_REACH_UM)]
+    near = level_force[(above > ADHESION_FROM_UM) & (above <= ADHESION_REACH_UM)]
     if len(level) < ADHESION_MIN_LEVEL_SAMPLES or len(near) < ADHESION_RUN_SAMPLES:
         return None
     runs = np.convolve(near, _RUN_MEAN_KERNEL, mode="valid")
     return median(level) - float(runs.min())
 
+
+def adhesion_measures(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, drift_g_um: float,
+                      contact_um: float, approach_at_halt_g: float) -> tuple[float | None, float | None]:
+    """(`adhesion_dip`, `thread_pull_g`) over the conversion windows' mid-heights (in C when built)."""
+    if _C is not None:
+        return _C.adhesion(x_lo_um, x_hi_um, force_g, drift_g_um, contact_um, approach_at_halt_g, ADHESION_LIMITS)
+    x_um = 0.5 * (x_lo_um + x_hi_um)
+    return (adhesion_dip(x_um, force_g, drift_g_um, contact_um),
+            thread_pull_g(x_um, force_g, drift_g_um, approach_at_halt_g, contact_um))
 
 
 def thread_pull_g(x_um: np.ndarray, force_g: np.ndarray, drift_g_um: float, approach_at_halt_g: float,

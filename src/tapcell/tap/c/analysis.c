@@ -1,5 +1,7 @@
-/* The robust statistics of the tap analysis (numpy twins: tapcell/tap/robust.py `median`,
- * tapcell/tap/analysis.py `noise_sigma_g` and `repair_spikes`).
+/* The robust statistics, checks and window heights of the tap analysis (numpy twins:
+ * tapcell/tap/robust.py `median`; tapcell/tap/analysis.py `noise_sigma_g`, `repair_spikes`,
+ * `model_window`, `_check_samples`, the robust pass and `near_contact_sigma_g` of `fit_pullback`,
+ * `compression_sample_count`).
  *
  * Each is a handful of numpy calls on a few hundred samples, run several times a tap: numpy's
  * per-call cost, not the arithmetic, is what they spend. The arithmetic here is the twins', in
@@ -11,58 +13,10 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "median.h"
+
 /* The median absolute deviation of normal noise times this is its sigma (robust.MAD_TO_SIGMA). */
 #define MAD_TO_SIGMA 1.4826
-
-static void swap(double *a, double *b)
-{
-    double kept = *a;
-    *a = *b;
-    *b = kept;
-}
-
-/* Put the k-th smallest of values[0..n) at values[k], smaller ones before it and larger after
- * (Hoare's selection; the pivot is the median of three, so sorted or reversed runs stay linear). */
-static void select_kth(double *values, Py_ssize_t n, Py_ssize_t k)
-{
-    Py_ssize_t low = 0, high = n - 1;
-    while (high > low) {
-        Py_ssize_t middle = low + (high - low) / 2;
-        if (values[middle] < values[low]) swap(&values[middle], &values[low]);
-        if (values[high] < values[low]) swap(&values[high], &values[low]);
-        if (values[high] < values[middle]) swap(&values[high], &values[middle]);
-        double pivot = values[middle];
-        Py_ssize_t i = low, j = high;
-        while (i <= j) {
-            while (values[i] < pivot) i++;
-            while (values[j] > pivot) j--;
-            if (i <= j) {
-                swap(&values[i], &values[j]);
-                i++;
-                j--;
-            }
-        }
-        if (k <= j) high = j;
-        else if (k >= i) low = i;
-        else return; /* between j and i every value equals the pivot */
-    }
-}
-
-/* The median of values[0..n) (n >= 1), reordering them: the middle one, or the mean of the
- * middle two for an even count (as robust.median computes it: 0.5 * (a + b)); NaN if any is. */
-static double median_in_place(double *values, Py_ssize_t n)
-{
-    for (Py_ssize_t i = 0; i < n; i++)
-        if (isnan(values[i])) return NAN; /* as numpy's: a NaN makes the median NaN */
-    Py_ssize_t half = n / 2;
-    select_kth(values, n, half);
-    if (n % 2) return values[half];
-    double upper = values[half];
-    double lower = values[0]; /* the largest of the lower half */
-    for (Py_ssize_t i = 1; i < half; i++)
-        if (values[i] > lower) lower = values[i];
-    return 0.5 * (lower + upper);
-}
 
 /* |f[i+1] - (f[i] + f[i+2]) / 2| for i in [0, n - 2): how far each inner sample stands off the
  * midpoint of its neighbours (the twin's expression, term for term). */
@@ -183,6 +137,180 @@ static PyObject *spikes(PyObject *self, PyObject *args)
     return answer;
 }
 
+/* Commanded Z (mm) at t_s from the trapezoid moves (motion.py `Motion.z_at`): the last move starting
+ * at or before t_s (the first one before them all), t_s clamped into it. `table`: rows start time,
+ * duration, start speed, acceleration, start Z, direction; `moves` columns. */
+static double z_at_mm(const double *table, Py_ssize_t moves, double t_s)
+{
+    Py_ssize_t low = 0, high = moves; /* the count of moves starting at or before t_s (searchsorted right) */
+    while (low < high) {
+        Py_ssize_t middle = low + (high - low) / 2;
+        if (table[middle] <= t_s) low = middle + 1;
+        else high = middle;
+    }
+    Py_ssize_t index = low > 0 ? low - 1 : 0;
+    const double start_s = table[index], duration_s = table[moves + index], start_v = table[2 * moves + index];
+    const double accel = table[3 * moves + index], start_z = table[4 * moves + index], z_r = table[5 * moves + index];
+    double tau_s = fmin(fmax(t_s - start_s, 0.0), duration_s);
+    return start_z + z_r * (start_v + 0.5 * accel * tau_s) * tau_s;
+}
+
+static PyObject *window_heights(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer table_buffer, time_buffer, x_min_buffer, span_buffer;
+    double delay_s, integration_s, z_halt_mm, min_span_um, contact_line_s, break_line_s;
+    if (!PyArg_ParseTuple(args, "O&O&ddddddw*w*", float64_buffer, &table_buffer, float64_buffer, &time_buffer,
+                          &delay_s, &integration_s, &z_halt_mm, &min_span_um, &contact_line_s, &break_line_s,
+                          &x_min_buffer, &span_buffer))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t cells = 0, n = 0;
+    const double *table = doubles_of(&table_buffer, &cells, "move_table");
+    const double *time_s = table ? doubles_of(&time_buffer, &n, "time_s") : NULL;
+    double *x_min_um = time_s ? doubles_sized(&x_min_buffer, n, "x_min_um") : NULL;
+    double *span_um = x_min_um ? doubles_sized(&span_buffer, n, "span_um") : NULL;
+    if (span_um != NULL && (cells == 0 || cells % 6 != 0)) {
+        PyErr_Format(PyExc_ValueError, "move_table: %zd values, not 6 rows of moves", cells);
+    } else if (span_um != NULL) {
+        Py_ssize_t moves = cells / 6;
+        for (Py_ssize_t i = 0; i < n; i++) {
+            /* the twin's steps: read time, window start, heights above the halt, then the edges */
+            double read_s = time_s[i] - delay_s;
+            double low_um = (z_at_mm(table, moves, read_s - integration_s) - z_halt_mm) * 1000.0;
+            double high_um = (z_at_mm(table, moves, read_s) - z_halt_mm) * 1000.0;
+            x_min_um[i] = fmin(low_um, high_um);
+            span_um[i] = fmax(fmax(low_um, high_um) - x_min_um[i], min_span_um);
+        }
+        result = Py_BuildValue("(dd)", (z_at_mm(table, moves, contact_line_s) - z_halt_mm) * 1000.0,
+                               (z_at_mm(table, moves, break_line_s) - z_halt_mm) * 1000.0);
+    }
+    PyBuffer_Release(&table_buffer);
+    PyBuffer_Release(&time_buffer);
+    PyBuffer_Release(&x_min_buffer);
+    PyBuffer_Release(&span_buffer);
+    return result;
+}
+
+/* What is wrong with a tap's samples for the analysis (analysis.py `_check_samples`): 0 nothing,
+ * 1 a time or force is NaN or infinite, 2 the times do not strictly increase (the first found). */
+static PyObject *sample_problem(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer time_buffer, force_buffer;
+    if (!PyArg_ParseTuple(args, "O&O&", float64_buffer, &time_buffer, float64_buffer, &force_buffer))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t n = 0;
+    const double *time_s = doubles_of(&time_buffer, &n, "time_s");
+    const double *force_g = time_s ? doubles_sized(&force_buffer, n, "force_g") : NULL;
+    if (force_g != NULL) {
+        long problem = 0;
+        for (Py_ssize_t i = 0; i < n && problem == 0; i++)
+            if (!isfinite(time_s[i]) || !isfinite(force_g[i])) problem = 1;
+        for (Py_ssize_t i = 1; i < n && problem == 0; i++)
+            if (!(time_s[i] > time_s[i - 1])) problem = 2;
+        result = PyLong_FromLong(problem);
+    }
+    PyBuffer_Release(&time_buffer);
+    PyBuffer_Release(&force_buffer);
+    return result;
+}
+
+/* The robust pass of the pullback fit (analysis.py `fit_pullback`): None when every residual lies
+ * within outlier_sigma × max(their robust sigma, floor_g), else the keep mask as a bytes object (one
+ * 0/1 per residual; numpy reads it as a bool array without a copy). */
+static PyObject *outlier_mask(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer residual_buffer;
+    double outlier_sigma, floor_g;
+    if (!PyArg_ParseTuple(args, "O&dd", float64_buffer, &residual_buffer, &outlier_sigma, &floor_g))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t n = 0;
+    const double *residual_g = doubles_of(&residual_buffer, &n, "residual_g");
+    double *scratch = residual_g && n > 0 ? malloc((size_t)n * sizeof(double)) : NULL;
+    if (residual_g != NULL && n == 0) {
+        PyErr_SetString(PyExc_ValueError, "residual_g: no residuals");
+    } else if (residual_g != NULL && scratch == NULL) {
+        PyErr_NoMemory();
+    } else if (residual_g != NULL) {
+        for (Py_ssize_t i = 0; i < n; i++)
+            scratch[i] = fabs(residual_g[i]);
+        double limit_g = outlier_sigma * fmax(MAD_TO_SIGMA * median_in_place(scratch, n), floor_g);
+        Py_ssize_t outside = 0;
+        for (Py_ssize_t i = 0; i < n; i++)
+            outside += !(fabs(residual_g[i]) <= limit_g);
+        if (outside == 0) {
+            result = Py_NewRef(Py_None);
+        } else if ((result = PyBytes_FromStringAndSize(NULL, n)) != NULL) {
+            char *keep = PyBytes_AS_STRING(result);
+            for (Py_ssize_t i = 0; i < n; i++)
+                keep[i] = fabs(residual_g[i]) <= limit_g;
+        }
+    }
+    free(scratch);
+    PyBuffer_Release(&residual_buffer);
+    return result;
+}
+
+/* The root mean square, with 3 degrees of freedom taken, of the residuals whose window starts
+ * below below_um (analysis.py `near_contact_sigma_g`); NaN when 3 or fewer are there. */
+static PyObject *near_sigma(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer residual_buffer, x_min_buffer;
+    double below_um;
+    if (!PyArg_ParseTuple(args, "O&O&d", float64_buffer, &residual_buffer, float64_buffer, &x_min_buffer, &below_um))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t n = 0;
+    const double *residual_g = doubles_of(&residual_buffer, &n, "residual_g");
+    const double *x_min_um = residual_g ? doubles_sized(&x_min_buffer, n, "x_min_um") : NULL;
+    if (x_min_um != NULL) {
+        double sum_g2 = 0.0;
+        Py_ssize_t count = 0;
+        for (Py_ssize_t i = 0; i < n; i++) {
+            if (x_min_um[i] < below_um) {
+                sum_g2 += residual_g[i] * residual_g[i];
+                count++;
+            }
+        }
+        result = PyFloat_FromDouble(count <= 3 ? NAN : sqrt(sum_g2 / (double)(count - 3)));
+    }
+    PyBuffer_Release(&residual_buffer);
+    PyBuffer_Release(&x_min_buffer);
+    return result;
+}
+
+/* Samples read before the halt whose whole window lies at least an onset into contact
+ * (analysis.py `compression_sample_count`). */
+static PyObject *compression_samples(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer time_buffer, x_min_buffer, span_buffer;
+    double delay_s, halt_s, deepest_top_um;
+    if (!PyArg_ParseTuple(args, "O&O&O&ddd", float64_buffer, &time_buffer, float64_buffer, &x_min_buffer,
+                          float64_buffer, &span_buffer, &delay_s, &halt_s, &deepest_top_um))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t n = 0;
+    const double *time_s = doubles_of(&time_buffer, &n, "time_s");
+    const double *x_min_um = time_s ? doubles_sized(&x_min_buffer, n, "x_min_um") : NULL;
+    const double *span_um = x_min_um ? doubles_sized(&span_buffer, n, "span_um") : NULL;
+    if (span_um != NULL) {
+        Py_ssize_t count = 0;
+        for (Py_ssize_t i = 0; i < n; i++)
+            count += (time_s[i] - delay_s <= halt_s) && (x_min_um[i] + span_um[i] <= deepest_top_um);
+        result = PyLong_FromSsize_t(count);
+    }
+    PyBuffer_Release(&time_buffer);
+    PyBuffer_Release(&x_min_buffer);
+    PyBuffer_Release(&span_buffer);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"median", median, METH_VARARGS,
      "median(values: float64 array) -> float: the middle value, or the mean of the middle two."},
@@ -191,10 +319,26 @@ static PyMethodDef methods[] = {
     {"spikes", spikes, METH_VARARGS,
      "spikes(force_g, threshold_sigma) -> (indices, values): single corrupted frames and the mean of "
      "their neighbours that replaces each."},
+    {"window_heights", window_heights, METH_VARARGS,
+     "window_heights(move_table, time_s, delay_s, integration_s, z_halt_mm, min_span_um, contact_line_s,\n"
+     "               break_line_s, x_min_out, span_out) -> (contact_line_um, break_line_um)\n\n"
+     "Each sample's conversion window in heights above the halt (um): its lower edge and width (at least\n"
+     "min_span_um) into the outputs, and the two line points' heights (analysis.py: model_window)."},
+    {"sample_problem", sample_problem, METH_VARARGS,
+     "sample_problem(time_s, force_g) -> int: 0 fine, 1 NaN or infinity, 2 times not strictly increasing."},
+    {"outlier_mask", outlier_mask, METH_VARARGS,
+     "outlier_mask(residual_g, outlier_sigma, floor_g) -> None or bytes: the residuals to keep (1) when\n"
+     "any lies beyond outlier_sigma x max(their robust sigma, floor_g), else None."},
+    {"near_sigma", near_sigma, METH_VARARGS,
+     "near_sigma(residual_g, x_min_um, below_um) -> float: rms (3 dof taken) of the residuals whose\n"
+     "window starts below below_um; NaN when 3 or fewer."},
+    {"compression_samples", compression_samples, METH_VARARGS,
+     "compression_samples(time_s, x_min_um, span_um, delay_s, halt_s, deepest_top_um) -> int: samples\n"
+     "read by the halt whose window's top is at or below deepest_top_um."},
     {NULL, NULL, 0, NULL},
 };
 
-static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_c_analysis", "The robust statistics of the tap analysis.",
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_c_analysis", "The robust statistics and window heights of the tap analysis.",
                                     -1, methods, NULL, NULL, NULL, NULL};
 
 PyMODINIT_FUNC PyInit__c_analysis(void) { return PyModule_Create(&module); }

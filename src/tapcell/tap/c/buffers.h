@@ -12,10 +12,15 @@
 
 /* A "O&" converter for PyArg_ParseTuple: `object` as a C-contiguous float64 buffer in the
  * Py_buffer `view` points to, else a TypeError naming what it is (an int array of the same byte
- * size would otherwise be read as garbage). Release the view with PyBuffer_Release. */
+ * size would otherwise be read as garbage). Release the view with PyBuffer_Release; parsing that fails
+ * on a later argument releases it. */
 static inline int float64_buffer(PyObject *object, void *view)
 {
     Py_buffer *buffer = view;
+    if (object == NULL) { /* a later argument failed: release this one (Py_CLEANUP_SUPPORTED) */
+        PyBuffer_Release(buffer);
+        return 1;
+    }
     if (PyObject_GetBuffer(object, buffer, PyBUF_FORMAT | PyBUF_C_CONTIGUOUS) < 0) return 0;
     const char *format = buffer->format ? buffer->format : "B";
     if (format[0] == '<' || format[0] == '=' || format[0] == '@') format++;
@@ -24,7 +29,7 @@ static inline int float64_buffer(PyObject *object, void *view)
         PyBuffer_Release(buffer);
         return 0;
     }
-    return 1;
+    return Py_CLEANUP_SUPPORTED;
 }
 
 /* The buffer as doubles: its count in *n, NULL (ValueError set) when its size is not whole doubles. */

@@ -15,6 +15,8 @@
 #include <stdio.h>
 #include <stdlib.h>
 
+#include "median.h"
+
 #define SHAPES 2
 /* How far short of its width each shape lifts the linear part: p / (p + 1). */
 static const double LIFT_DEFICIT[SHAPES] = {0.5 / 1.5, 1.0 / 2.0};
@@ -243,8 +245,9 @@ static PyObject *rss_grid(PyObject *self, PyObject *args)
     Py_buffer contacts_buffer, widths_buffer, out_buffer;
     double drift_g_um;
     Py_ssize_t subsamples;
-    if (!PyArg_ParseTuple(args, "y*y*y*dny*y*w*", &s.buffers[0], &s.buffers[1], &s.buffers[2], &drift_g_um,
-                          &subsamples, &contacts_buffer, &widths_buffer, &out_buffer))
+    if (!PyArg_ParseTuple(args, "O&O&O&dnO&O&w*", float64_buffer, &s.buffers[0], float64_buffer, &s.buffers[1],
+                          float64_buffer, &s.buffers[2], &drift_g_um, &subsamples, float64_buffer, &contacts_buffer,
+                          float64_buffer, &widths_buffer, &out_buffer))
         return NULL;
     PyObject *result = NULL;
     double *work = NULL;
@@ -332,8 +335,8 @@ static PyObject *stiffness_at(PyObject *self, PyObject *args)
     Samples s = {0};
     double drift_g_um, contact_um, width_um, power;
     Py_ssize_t subsamples;
-    if (!PyArg_ParseTuple(args, "y*y*y*dnddd", &s.buffers[0], &s.buffers[1], &s.buffers[2], &drift_g_um,
-                          &subsamples, &contact_um, &width_um, &power))
+    if (!PyArg_ParseTuple(args, "O&O&O&dnddd", float64_buffer, &s.buffers[0], float64_buffer, &s.buffers[1],
+                          float64_buffer, &s.buffers[2], &drift_g_um, &subsamples, &contact_um, &width_um, &power))
         return NULL;
     int shape = load_for_stiffness(&s, drift_g_um, subsamples, power);
     if (shape < 0)
@@ -510,9 +513,10 @@ static PyObject *rss_grid_whitened(PyObject *self, PyObject *args)
     Py_buffer contacts_buffer, widths_buffer, out_buffer;
     double drift_g_um, white_var_g2, walk_var_g2, lowest_um, highest_um, widest_um;
     Py_ssize_t subsamples;
-    if (!PyArg_ParseTuple(args, "y*y*y*dndddddy*y*w*", &s.buffers[0], &s.buffers[1], &s.buffers[2], &drift_g_um,
-                          &subsamples, &white_var_g2, &walk_var_g2, &lowest_um, &highest_um, &widest_um,
-                          &contacts_buffer, &widths_buffer, &out_buffer))
+    if (!PyArg_ParseTuple(args, "O&O&O&dndddddO&O&w*", float64_buffer, &s.buffers[0], float64_buffer, &s.buffers[1],
+                          float64_buffer, &s.buffers[2], &drift_g_um, &subsamples, &white_var_g2, &walk_var_g2,
+                          &lowest_um, &highest_um, &widest_um, float64_buffer, &contacts_buffer, float64_buffer,
+                          &widths_buffer, &out_buffer))
         return NULL;
     PyObject *result = NULL;
     Whitened wh = {0};
@@ -550,9 +554,9 @@ static PyObject *stiffness_whitened(PyObject *self, PyObject *args)
     Samples s = {0};
     double drift_g_um, white_var_g2, walk_var_g2, lowest_um, highest_um, widest_um, contact_um, width_um, power;
     Py_ssize_t subsamples;
-    if (!PyArg_ParseTuple(args, "y*y*y*dndddddddd", &s.buffers[0], &s.buffers[1], &s.buffers[2], &drift_g_um,
-                          &subsamples, &white_var_g2, &walk_var_g2, &lowest_um, &highest_um, &widest_um, &contact_um,
-                          &width_um, &power))
+    if (!PyArg_ParseTuple(args, "O&O&O&dndddddddd", float64_buffer, &s.buffers[0], float64_buffer, &s.buffers[1],
+                          float64_buffer, &s.buffers[2], &drift_g_um, &subsamples, &white_var_g2, &walk_var_g2,
+                          &lowest_um, &highest_um, &widest_um, &contact_um, &width_um, &power))
         return NULL;
     int shape = load_for_stiffness(&s, drift_g_um, subsamples, power);
     if (shape < 0)
@@ -605,7 +609,8 @@ static PyObject *marginal_contact(PyObject *self, PyObject *args)
     (void)self;
     Py_buffer heights_buffer, rss_buffer, prior_buffer;
     double noise_var;
-    if (!PyArg_ParseTuple(args, "y*y*dy*", &heights_buffer, &rss_buffer, &noise_var, &prior_buffer))
+    if (!PyArg_ParseTuple(args, "O&O&dO&", float64_buffer, &heights_buffer, float64_buffer, &rss_buffer, &noise_var,
+                          float64_buffer, &prior_buffer))
         return NULL;
     PyObject *result = NULL;
     Py_ssize_t count = 0, toes = 0;
@@ -660,7 +665,7 @@ static PyObject *lag_mean_squares(PyObject *self, PyObject *args)
     (void)self;
     Py_buffer force_buffer;
     PyObject *lags;
-    if (!PyArg_ParseTuple(args, "y*O!", &force_buffer, &PyTuple_Type, &lags))
+    if (!PyArg_ParseTuple(args, "O&O!", float64_buffer, &force_buffer, &PyTuple_Type, &lags))
         return NULL;
     PyObject *result = NULL;
     Py_ssize_t n = 0, count = PyTuple_GET_SIZE(lags);
@@ -713,6 +718,104 @@ done:
     return result;
 }
 
+/* The heights and limits of the two adhesion measures (toe.py: ADHESION_*, THREAD_*). */
+struct adhesion_limits {
+    double dip_from_um, dip_reach_um, level_to_um; /* near: (from, reach], level: (reach, to) above contact */
+    Py_ssize_t run_samples, min_level_samples;
+    double thread_from_um, thread_to_um; /* (from, to) above contact */
+    Py_ssize_t min_thread_samples;
+};
+
+/* adhesion_dip of toe.py over x_um = (x_lo + x_hi) / 2: the free-air level's median less the lowest
+ * mean of run_samples consecutive near samples; NaN when too few samples to know. `scratch` holds n. */
+static double adhesion_dip_g(const double *x_lo, const double *x_hi, const double *force_g, Py_ssize_t n,
+                             double drift_g_um, double contact_um, const struct adhesion_limits *limits,
+                             double *scratch)
+{
+    Py_ssize_t levels = 0, nears = 0;
+    double *level = scratch; /* filled from the front; the near samples from the back, in reverse */
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double x_um = 0.5 * (x_lo[i] + x_hi[i]);
+        double level_force_g = force_g[i] - drift_g_um * x_um;
+        double above_um = x_um - contact_um;
+        if (above_um > limits->dip_reach_um && above_um < limits->level_to_um)
+            level[levels++] = level_force_g;
+        else if (above_um > limits->dip_from_um && above_um <= limits->dip_reach_um)
+            scratch[n - 1 - nears++] = level_force_g;
+    }
+    if (levels < limits->min_level_samples || nears < limits->run_samples)
+        return NAN;
+    const double *near = scratch + n - nears; /* reversed: near[nears - 1] is the first one */
+    double lowest_run_g = INFINITY;
+    for (Py_ssize_t k = 0; k + limits->run_samples <= nears; k++) {
+        double run_g = 0.0;
+        for (Py_ssize_t j = 0; j < limits->run_samples; j++)
+            run_g += near[k + j] * (1.0 / (double)limits->run_samples);
+        if (run_g < lowest_run_g)
+            lowest_run_g = run_g;
+    }
+    return median_in_place(level, levels) - lowest_run_g;
+}
+
+/* thread_pull_g of toe.py over the same heights: the median of how far the departure lies below the
+ * approach's free-air line; NaN when too few samples lie in reach. `scratch` holds n. */
+static double thread_pull_of(const double *x_lo, const double *x_hi, const double *force_g, Py_ssize_t n,
+                             double drift_g_um, double approach_at_halt_g, double contact_um,
+                             const struct adhesion_limits *limits, double *scratch)
+{
+    Py_ssize_t count = 0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double x_um = 0.5 * (x_lo[i] + x_hi[i]);
+        double above_um = x_um - contact_um;
+        if (above_um > limits->thread_from_um && above_um < limits->thread_to_um)
+            scratch[count++] = approach_at_halt_g + drift_g_um * x_um - force_g[i];
+    }
+    return count < limits->min_thread_samples ? NAN : median_in_place(scratch, count);
+}
+
+static PyObject *float_or_none(double value)
+{
+    if (isnan(value))
+        Py_RETURN_NONE;
+    return PyFloat_FromDouble(value);
+}
+
+static PyObject *adhesion(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer buffers[3];
+    double drift_g_um, contact_um, approach_at_halt_g;
+    struct adhesion_limits limits;
+    if (!PyArg_ParseTuple(args, "O&O&O&ddd(dddnnddn)", float64_buffer, &buffers[0], float64_buffer, &buffers[1],
+                          float64_buffer, &buffers[2], &drift_g_um, &contact_um, &approach_at_halt_g,
+                          &limits.dip_from_um, &limits.dip_reach_um, &limits.level_to_um, &limits.run_samples,
+                          &limits.min_level_samples, &limits.thread_from_um, &limits.thread_to_um,
+                          &limits.min_thread_samples))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t n = 0;
+    const double *x_lo = doubles_of(&buffers[0], &n, "x_lo_um");
+    const double *x_hi = x_lo ? doubles_sized(&buffers[1], n, "x_hi_um") : NULL;
+    const double *force_g = x_hi ? doubles_sized(&buffers[2], n, "force_g") : NULL;
+    if (force_g != NULL && limits.run_samples < 1) {
+        PyErr_SetString(PyExc_ValueError, "run_samples: at least 1");
+    } else if (force_g != NULL) {
+        double *scratch = malloc((size_t)(n > 0 ? n : 1) * sizeof(double));
+        if (scratch == NULL) {
+            PyErr_NoMemory();
+        } else {
+            double dip_g = adhesion_dip_g(x_lo, x_hi, force_g, n, drift_g_um, contact_um, &limits, scratch);
+            double pull_g = thread_pull_of(x_lo, x_hi, force_g, n, drift_g_um, approach_at_halt_g, contact_um,
+                                           &limits, scratch);
+            result = Py_BuildValue("(NN)", float_or_none(dip_g), float_or_none(pull_g));
+            free(scratch);
+        }
+    }
+    for (int i = 0; i < 3; i++)
+        PyBuffer_Release(&buffers[i]);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"rss_grid", rss_grid, METH_VARARGS,
      "rss_grid(x_lo_um, x_hi_um, force_g, drift_g_um, subsamples, contacts_um, widths_um, rss_out)\n\n"
@@ -745,6 +848,12 @@ static PyMethodDef methods[] = {
      "lag_mean_squares(force_g, lags) -> list of float\n\n"
      "Per lag (a tuple of ints, 1..n-1), the mean of (r[i+lag] - r[i])^2 over i, r the force with its\n"
      "straight line fitted out (toe.py: free_air_variogram's measured part)."},
+    {"adhesion", adhesion, METH_VARARGS,
+     "adhesion(x_lo_um, x_hi_um, force_g, drift_g_um, contact_um, approach_at_halt_g, limits)\n"
+     "-> (dip_g or None, pull_g or None)\n\n"
+     "toe.py's adhesion_dip and thread_pull_g over the windows' mid-heights, in one pass each; limits:\n"
+     "(dip from, dip reach, level to (um), run samples, least level samples, thread from, thread to (um),\n"
+     "least thread samples) (toe.py: ADHESION_LIMITS)."},
     {NULL, NULL, 0, NULL},
 };
 
