@@ -188,3 +188,49 @@ def test_integer_moves_read_as_floats(tap):
     moves = tap_from_object(document).moves
     assert moves[0].z_r == -1.0 and type(moves[0].z_r) is float
     assert moves[1:] == tap.moves[1:]
+
+
+@pytest.mark.parametrize("name", ["a/b.json", "a//b.json", "./a.json", "a/./b.json", "a.json/", "//a.json", "///a.json",
+                                  "a/.", ".", "..csv", ".csv", "a.", "a/../b.JSONL", "taps.tar.CSV"])
+def test_file_names_and_kinds_are_spelled_as_pathlib_spells_them(name):
+    # Messages name the file as pathlib spells it, and the kind comes from its suffix; the reader
+    # only imports pathlib for names it would respell.
+    from pathlib import Path
+
+    assert readers._file_name(name) == str(Path(name))
+    assert readers._suffix(readers._file_name(name)) == Path(name).suffix.lower()
+
+
+def test_a_respelled_name_is_the_one_in_the_message(tmp_path):
+    with pytest.raises(TapFileError, match=rf"^{tmp_path}/missing.json: cannot read the file"):
+        read_tap_file(f"{tmp_path}//./missing.json")
+
+
+@pytest.mark.parametrize("change, problem", [
+    # All floats (the common path) and floats mixed with other items (the item-by-item path).
+    (lambda force: force.__setitem__(5, float("inf")), "'force' holds NaN or infinity (index 5)"),
+    (lambda force: force.__setitem__(7, 1), None),
+    (lambda force: force.__setitem__(7, True), "'force' must be a list of numbers"),
+    (lambda force: force.__setitem__(7, None), "'force' must be a list of numbers"),
+    (lambda force: force.__setitem__(7, [1.0]), "'force' must be a flat list of numbers"),
+])
+def test_float_arrays_with_one_odd_item(tap, change, problem):
+    document = tap_to_json_dict(tap)
+    change(document["force"])
+    if problem is None:
+        assert np.array_equal(tap_from_object(document).force_g, np.array(document["force"], dtype=float))
+        return
+    with pytest.raises(TapFileError) as caught:
+        tap_from_object(document, "tap.json")
+    assert str(caught.value) == f"tap.json: {problem}"
+
+
+@pytest.mark.parametrize("index, step_s", [(3, 0.0), (300, -1e-9), (300, -1.0)])
+def test_the_first_time_not_after_the_one_before_is_named(tap, index, step_s):
+    document = tap_to_json_dict(tap)
+    time_s = document["time"]
+    time_s[index] = time_s[index - 1] + step_s
+    time_s[index + 5] = time_s[index + 4]  # a later one too: the first is named
+    with pytest.raises(TapFileError) as caught:
+        tap_from_object(document, "tap.json")
+    assert str(caught.value).startswith(f"tap.json: 'time' is not strictly increasing (index {index}: ")

@@ -5,7 +5,6 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-from pathlib import Path
 
 from tapcell.tap.analysis import analyze_tap
 from tapcell.tap.classifiers import UnknownClassifierError, get_classifier
@@ -64,10 +63,14 @@ def main(argv: list[str]) -> int:
             analysis = analyze_tap(tap, options)
             results.append((name, index, len(taps), analysis))
             if args.plot:
+                # Imported here: matplotlib (and pathlib) would slow every run that draws nothing.
+                from pathlib import Path
+
+                from tapcell.tap.plot import plot_tap
+
                 plotted += 1
                 out = Path(args.plot)
                 target = out if plotted == 1 else out.with_name(f"{out.stem}-{plotted}{out.suffix}")
-                from tapcell.tap.plot import plot_tap
 
                 plot_tap(tap, analysis, target, title=f"{name}" + (f" #{index + 1}" if len(taps) > 1 else ""))
     if args.json:

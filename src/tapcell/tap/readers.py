@@ -4,12 +4,10 @@ the older workbench capture. Every problem is a `TapFileError` naming the file a
 
 from __future__ import annotations
 
-import csv
-import itertools
 import json
 import math
+import os
 import sys
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -31,34 +29,54 @@ MAX_INTEGER_DIGITS = 20
 LARGEST_FLOAT_INT = int(sys.float_info.max)
 
 
-def read_tap_file(path: str | Path) -> list[TapData]:
+def read_tap_file(path: str | os.PathLike[str]) -> list[TapData]:
     """All taps in a file (one for .json/.csv, one per line for .jsonl)."""
-    path = Path(path)
+    path = _file_name(path)
     text = _read_text(path)
     if not text.strip():
-        raise TapFileError(str(path), "the file is empty")
-    if path.suffix.lower() == ".csv":
-        return [_tap_from_csv(str(path), text)]
-    if path.suffix.lower() == ".jsonl":
+        raise TapFileError(path, "the file is empty")
+    suffix = _suffix(path)
+    if suffix == ".csv":
+        return [_tap_from_csv(path, text)]
+    if suffix == ".jsonl":
         taps = []
         for number, line in enumerate(text.splitlines(), start=1):
             if line.strip():
-                taps.append(tap_from_object(_load_json(str(path), line, f"line {number}: "), str(path), f"line {number}: "))
+                taps.append(tap_from_object(_load_json(path, line, f"line {number}: "), path, f"line {number}: "))
         return taps
-    document = _load_json(str(path), text, "")
+    document = _load_json(path, text, "")
     if isinstance(document, list):
-        raise TapFileError(str(path), "holds a JSON list; a .json tap file holds one object "
-                                      "(write many taps as .jsonl, one object per line)")
-    return [tap_from_object(document, str(path), "")]
+        raise TapFileError(path, "holds a JSON list; a .json tap file holds one object "
+                                 "(write many taps as .jsonl, one object per line)")
+    return [tap_from_object(document, path, "")]
 
 
-def _read_text(path: Path) -> str:
+def _file_name(path: str | os.PathLike[str]) -> str:
+    """The path as pathlib spells it (no empty or '.' parts, no trailing '/'), which messages name.
+    Most names already are spelled so: only the others import pathlib (~5 ms, a tenth of the
+    start-up beyond numpy's of `tapcell analyze`)."""
+    name = os.fspath(path)
+    if name and "//" not in name and "/./" not in name and not name.startswith("./") and not name.endswith(("/", "/.")):
+        return name
+    from pathlib import Path
+
+    return str(Path(name))
+
+
+def _suffix(name: str) -> str:
+    """The lower-cased extension, as pathlib's `suffix` finds it ('.json'; none for '.json' alone)."""
+    base = name.rpartition("/")[2]
+    dot = base.rfind(".")
+    return base[dot:].lower() if 0 < dot < len(base) - 1 else ""
+
+
+def _read_text(path: str) -> str:
     try:
         return read_limited(path, MAX_FILE_BYTES).decode("utf-8")
     except FileRefused as problem:
-        raise TapFileError(str(path), f"{problem}, not a tap file") from None
+        raise TapFileError(path, f"{problem}, not a tap file") from None
     except (OSError, UnicodeDecodeError) as problem:
-        raise TapFileError(str(path), f"cannot read the file ({problem})") from None
+        raise TapFileError(path, f"cannot read the file ({problem})") from None
 
 
 class _HugeInteger(ValueError):
@@ -109,16 +127,21 @@ def _checked_numbers(path: str, where: str, name: str, values: list) -> np.ndarr
 def _numbers(path: str, where: str, name: str, values: Any) -> np.ndarray:
     if not isinstance(values, list):
         raise TapFileError(path, f"{where}'{name}' must be a list of numbers")
-    try:
-        # The common case at C speed: every item a float or int (a bool's type is bool, so it is not).
-        array = np.array(values, dtype=float) if set(map(type, values)) <= _PLAIN_NUMBER_TYPES else None
-    except OverflowError:  # an integer beyond the float range: the per-item path reads it as infinity
-        array = None
-    if array is None:
-        array = _checked_numbers(path, where, name, values)
-    bad = np.flatnonzero(~np.isfinite(array))
-    if len(bad):
-        raise TapFileError(path, f"{where}'{name}' holds NaN or infinity (index {int(bad[0])})")
+    types = list(map(type, values))
+    # The common case at C speed: every item a float or int (a bool's type is bool, so it is not).
+    # All floats (json's type for a number written with a point), the commonest, cannot overflow.
+    if types.count(float) == len(types):
+        array = np.array(values, dtype=float)
+    else:
+        try:
+            array = np.array(values, dtype=float) if set(types) <= _PLAIN_NUMBER_TYPES else None
+        except OverflowError:  # an integer beyond the float range: the per-item path reads it as infinity
+            array = None
+        if array is None:
+            array = _checked_numbers(path, where, name, values)
+    finite = np.isfinite(array)
+    if not finite.all():
+        raise TapFileError(path, f"{where}'{name}' holds NaN or infinity (index {int(np.flatnonzero(~finite)[0])})")
     return array
 
 
@@ -144,21 +167,23 @@ def _moves(path: str, where: str, values: Any) -> list[Move]:
 
 
 def _plain_moves(values: list) -> list[Move] | None:
-    """The moves when every item is an object whose tap-format keys hold finite plain numbers (a
-    tap has dozens of moves: one conversion for all of them), else None."""
+    """The moves when every item is an object whose tap-format keys hold finite plain numbers, else
+    None. In plain Python: a tap has a handful of moves, too few for numpy's per-call cost to pay."""
     try:
         rows = [[item[key] for key in MOVE_KEYS] for item in values]
     except (KeyError, TypeError):  # a missing key, or an item that is not an object
         return None
-    if not set(map(type, itertools.chain.from_iterable(rows))) <= _PLAIN_NUMBER_TYPES:
+    numbers = [number for row in rows for number in row]
+    if not set(map(type, numbers)) <= _PLAIN_NUMBER_TYPES:
         return None
     try:
-        table = np.array(rows, dtype=float).reshape(len(rows), len(MOVE_KEYS))
+        floats = list(map(float, numbers))
     except OverflowError:  # an integer beyond the float range
         return None
-    if not np.isfinite(table).all():
+    if not all(map(math.isfinite, floats)):
         return None
-    return [Move(*row) for row in table.tolist()]
+    width = len(MOVE_KEYS)
+    return [Move(*floats[start:start + width]) for start in range(0, len(floats), width)]
 
 
 def _checked_move(path: str, where: str, k: int, item: Any) -> Move:
@@ -177,9 +202,11 @@ def _check_samples(path: str, where: str, time_s: np.ndarray, force_g: np.ndarra
         raise TapFileError(path, f"{where}'z' has {len(z_mm)} values but 'time' has {len(time_s)}")
     if len(time_s) < MIN_SAMPLES:
         raise TapFileError(path, f"{where}{len(time_s)} samples, at least {MIN_SAMPLES} needed")
-    steps = np.diff(time_s)
-    if np.any(steps <= 0):
-        k = int(np.flatnonzero(steps <= 0)[0])
+    # time_s[k + 1] <= time_s[k] is np.diff(time_s) <= 0 for finite times (a difference of two
+    # finite floats is 0 only when they are equal), without diff's and np.any's per-call cost.
+    not_after = time_s[1:] <= time_s[:-1]
+    if not_after.any():
+        k = int(np.flatnonzero(not_after)[0])
         raise TapFileError(path, f"{where}'time' is not strictly increasing (index {k + 1}: {time_s[k + 1]!r} after {time_s[k]!r})")
 
 
@@ -237,6 +264,8 @@ def tap_from_object(obj: Any, path: str = "<memory>", where: str = "") -> TapDat
 
 
 def _tap_from_csv(path: str, text: str) -> TapData:
+    import csv  # here, not at the top: most tap files are JSON, and `tapcell analyze` starts faster
+
     try:
         rows = list(csv.reader(text.splitlines()))
     except csv.Error as problem:  # e.g. a NUL byte, or a field beyond the csv module's size limit

@@ -1,0 +1,67 @@
+"""`tapcell analyze` starts lean: a fresh interpreter imports only what the analysis needs, and
+numpy's OpenBLAS runs one thread (its per-core workers only cost CPU on arrays of a tap's size)."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from tapcell.tap import tap_to_json_dict
+from tapcell.tap.synth import synth_tap
+
+RUN = """
+import contextlib, io, json, os, sys
+from tapcell.tools import cli
+with contextlib.redirect_stdout(io.StringIO()):
+    status = cli.main(["analyze", "--json", sys.argv[1]])
+threads = next(int(line.split()[1]) for line in open("/proc/self/status") if line.startswith("Threads:"))
+print(json.dumps({"status": status, "threads": threads, "blas": os.environ.get("OPENBLAS_NUM_THREADS"),
+                  "modules": sorted(sys.modules)}))
+"""
+# The process's threads once numpy is imported, the CLI left out (the control).
+NUMPY_ALONE = """
+import numpy
+print(next(int(line.split()[1]) for line in open("/proc/self/status") if line.startswith("Threads:")))
+"""
+
+
+def _run(script: str, *args: str, blas: str | None = None) -> str:
+    env = {key: value for key, value in os.environ.items() if key != "OPENBLAS_NUM_THREADS"}
+    if blas is not None:
+        env["OPENBLAS_NUM_THREADS"] = blas
+    return subprocess.run([sys.executable, "-c", script, *args], env=env, capture_output=True, text=True,
+                          check=True, timeout=60).stdout
+
+
+@pytest.fixture(scope="module")
+def tap_file(tmp_path_factory):
+    path = tmp_path_factory.mktemp("startup") / "tap.json"
+    path.write_text(json.dumps(tap_to_json_dict(synth_tap(seed=3))))
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def run(tap_file):
+    """What a fresh `tapcell analyze --json` process reports of itself, OPENBLAS_NUM_THREADS unset."""
+    return json.loads(_run(RUN, tap_file))
+
+
+def test_analyze_imports_only_what_the_analysis_needs(run):
+    assert run["status"] == 0
+    modules = set(run["modules"])
+    assert {"numpy", "tapcell.tap.analysis", "tapcell.tap.readers"} <= modules
+    unneeded = {"pathlib", "csv", "matplotlib", "scipy", "tapcell.tap.plot", "tapcell.taplab", "tapcell.sim",
+                "tapcell.host", "tapcell.tools.frontend"}
+    assert sorted(unneeded & modules) == []
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="counts threads in /proc/self/status")
+def test_analyze_runs_blas_on_one_thread_unless_the_user_chose(run, tap_file):
+    assert run["blas"] == "1" and run["threads"] == 1
+    if (os.cpu_count() or 1) > 1:  # the control: numpy alone starts a worker per core
+        assert int(_run(NUMPY_ALONE)) > 1
+    assert json.loads(_run(RUN, tap_file, blas="2"))["blas"] == "2"
