@@ -233,4 +233,5 @@ def test_the_first_time_not_after_the_one_before_is_named(tap, index, step_s):
     time_s[index + 5] = time_s[index + 4]  # a later one too: the first is named
     with pytest.raises(TapFileError) as caught:
         tap_from_object(document, "tap.json")
-    assert str(caught.value).startswith(f"tap.json: 'time' is not strictly increasing (index {index}: ")
+    assert str(caught.value) == (f"tap.json: 'time' is not strictly increasing "
+                                 f"(index {index}: {time_s[index]!r} after {time_s[index - 1]!r})")

@@ -207,7 +207,7 @@ def _check_samples(path: str, where: str, time_s: np.ndarray, force_g: np.ndarra
     not_after = time_s[1:] <= time_s[:-1]
     if not_after.any():
         k = int(np.flatnonzero(not_after)[0])
-        raise TapFileError(path, f"{where}'time' is not strictly increasing (index {k + 1}: {time_s[k + 1]!r} after {time_s[k]!r})")
+        raise TapFileError(path, f"{where}'time' is not strictly increasing (index {k + 1}: {float(time_s[k + 1])!r} after {float(time_s[k])!r})")
 
 
 def _dict(path: str, where: str, name: str, value: Any) -> dict:
