@@ -7,7 +7,7 @@ compiler still gets a working analysis, only slower, so the build of each is opt
 
 from setuptools import Extension, setup
 
-KERNELS = ("analysis", "segments", "contact", "toe")
+KERNELS = ("analysis", "segments", "contact", "toe", "readers")
 
 setup(ext_modules=[Extension(f"tapcell.tap._c_{name}", [f"src/tapcell/tap/c/{name}.c"],
                              depends=["src/tapcell/tap/c/buffers.h", "src/tapcell/tap/c/median.h"],

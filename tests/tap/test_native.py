@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from tapcell.tap import AnalysisOptions, analyze_tap, native
-from tapcell.tap import contact, segments, toe
+from tapcell.tap import contact, readers, segments, toe
 from tapcell.tap.readers import tap_from_object
 from tapcell.taplab.generate import SCENARIOS, make_tap
 
-KERNEL_MODULES = {"segments": segments, "contact": contact, "toe": toe}
+KERNEL_MODULES = {"segments": segments, "contact": contact, "toe": toe, "readers": readers}
 TAPS_PER_SCENARIO = 2
 OPTIONS = (AnalysisOptions(), AnalysisOptions(contact_model="sharp", sensor_delay_s=0.0))
 # Sums taken in another order differ by ~1e-12 relative; a Z a hundred times the float rounding

@@ -1,5 +1,9 @@
 """Tap files: tapcell.tap.v1 (.json / .jsonl), CSV, Klipper-family `dump_taps` events and
 the older workbench capture. Every problem is a `TapFileError` naming the file and what is wrong.
+
+JSON is read through a compiled kernel when it was built (tapcell.tap.native, c/readers.c): it
+parses the long number arrays straight into float64 and json.loads reads only the rest; anything
+unusual in the text makes it give up, and json.loads reads the whole text and names the problem.
 """
 
 from __future__ import annotations
@@ -13,10 +17,15 @@ from typing import Any
 import numpy as np
 
 from tapcell.files import FileRefused, read_limited
+from tapcell.tap import native
 from tapcell.tap.analysis import MIN_SAMPLES  # a file with fewer samples could not be analysed
 from tapcell.tap.model import Move, TapAnalysis, TapData, TapFileError
 
+_C = native.load("readers")
+
 FORMAT = "tapcell.tap.v1"
+# The top-level keys whose values are long arrays of numbers: the reader's kernel parses those.
+NUMBER_ARRAY_KEYS = ("time", "force", "z")
 MOVE_KEYS = ("print_time", "move_t", "start_v", "accel", "start_z", "z_r")
 # A log of a few thousand taps is tens of MB; anything far bigger is not a tap file, and reading
 # it whole (or an endless device such as /dev/zero) would exhaust memory.
@@ -42,9 +51,9 @@ def read_tap_file(path: str | os.PathLike[str]) -> list[TapData]:
         taps = []
         for number, line in enumerate(text.splitlines(), start=1):
             if line.strip():
-                taps.append(tap_from_object(_load_json(path, line, f"line {number}: "), path, f"line {number}: "))
+                taps.append(tap_from_object(_load_tap_json(path, line, f"line {number}: "), path, f"line {number}: "))
         return taps
-    document = _load_json(path, text, "")
+    document = _load_tap_json(path, text, "")
     if isinstance(document, list):
         raise TapFileError(path, "holds a JSON list; a .json tap file holds one object "
                                  "(write many taps as .jsonl, one object per line)")
@@ -102,6 +111,22 @@ def _load_json(path: str, text: str, where: str) -> Any:
         raise TapFileError(path, f"{where}not valid tap data: JSON nested too deeply") from None
 
 
+def _load_tap_json(path: str, text: str, where: str) -> Any:
+    """The decoded JSON of a tap, its number arrays as float64 arrays when the kernel took them."""
+    if _C is not None:
+        split = _C.split_number_arrays(text, NUMBER_ARRAY_KEYS)
+        if split is not None:
+            rest, arrays = split
+            try:
+                document = json.loads(rest, parse_int=_bounded_int)
+            except (json.JSONDecodeError, _HugeInteger, RecursionError):
+                document = None  # _load_json below names the problem, at its place in the whole text
+            if isinstance(document, dict) and all(document.get(key) == [] for key in arrays):
+                document.update((key, np.frombuffer(values)) for key, values in arrays.items())
+                return document
+    return _load_json(path, text, where)
+
+
 def _as_float(value: Any) -> float | None:
     """A decoded JSON number as a float (an integer beyond the float range: infinity), else None."""
     if isinstance(value, bool) or not isinstance(value, int | float):
@@ -125,24 +150,29 @@ def _checked_numbers(path: str, where: str, name: str, values: list) -> np.ndarr
 
 
 def _numbers(path: str, where: str, name: str, values: Any) -> np.ndarray:
+    if isinstance(values, np.ndarray) and values.dtype == np.float64 and values.ndim == 1:
+        array = values  # parsed by the reader's kernel
+    else:
+        array = _list_numbers(path, where, name, values)
+    finite = np.isfinite(array)
+    if not finite.all():
+        raise TapFileError(path, f"{where}'{name}' holds NaN or infinity (index {int(np.flatnonzero(~finite)[0])})")
+    return array
+
+
+def _list_numbers(path: str, where: str, name: str, values: Any) -> np.ndarray:
     if not isinstance(values, list):
         raise TapFileError(path, f"{where}'{name}' must be a list of numbers")
     types = list(map(type, values))
     # The common case at C speed: every item a float or int (a bool's type is bool, so it is not).
     # All floats (json's type for a number written with a point), the commonest, cannot overflow.
     if types.count(float) == len(types):
-        array = np.array(values, dtype=float)
-    else:
-        try:
-            array = np.array(values, dtype=float) if set(types) <= _PLAIN_NUMBER_TYPES else None
-        except OverflowError:  # an integer beyond the float range: the per-item path reads it as infinity
-            array = None
-        if array is None:
-            array = _checked_numbers(path, where, name, values)
-    finite = np.isfinite(array)
-    if not finite.all():
-        raise TapFileError(path, f"{where}'{name}' holds NaN or infinity (index {int(np.flatnonzero(~finite)[0])})")
-    return array
+        return np.array(values, dtype=float)
+    try:
+        array = np.array(values, dtype=float) if set(types) <= _PLAIN_NUMBER_TYPES else None
+    except OverflowError:  # an integer beyond the float range: the per-item path reads it as infinity
+        array = None
+    return array if array is not None else _checked_numbers(path, where, name, values)
 
 
 def _number(path: str, where: str, name: str, value: Any) -> float:
