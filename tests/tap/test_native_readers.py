@@ -135,7 +135,7 @@ _MUTATION_CHARS = '"\\[]{},:-+.eE0 1\n\tnNa\x00\u00e9x'
 @st.composite
 def tap_texts(draw):
     """A tap object written in varied but valid JSON, then perhaps broken."""
-    count = draw(st.integers(0, 20))
+    count = draw(st.sampled_from([0, 5, 12, 15, 20]))  # 12 samples are the fewest a tap may have
     steps = draw(st.lists(st.floats(1e-4, 10.0), min_size=count, max_size=count))
     time_s = list(np.cumsum(steps) + draw(st.floats(-1e3, 1e3)))
     force = draw(st.lists(st.floats(-1e6, 1e6), min_size=count, max_size=count))
@@ -147,17 +147,18 @@ def tap_texts(draw):
         return "[" + space + ("," + space).join(fmt(v) for v in values) + space + "]"
 
     members = [('"time"', numbers(time_s)), ('"force"', numbers(force))]
-    if draw(st.booleans()):
+    motion = draw(st.sampled_from(["z", "moves", "both", "neither"]))
+    if motion in ("z", "both"):
         members.append(('"z"', numbers(z)))
-    if draw(st.booleans()):
+    if motion in ("moves", "both"):
         members.append(('"moves"', json.dumps([dict.fromkeys(readers.MOVE_KEYS, 0.5)])))
     if draw(st.booleans()):
         members.append(('"meta"', json.dumps({"time": [1, 2], "note": '"force": [3]', "x\\y": [None, True]})))
     if draw(st.booleans()):
-        members.append(('"format"', json.dumps(draw(st.sampled_from([readers.FORMAT, "other"])))))
+        members.append(('"format"', json.dumps(draw(st.sampled_from([readers.FORMAT, readers.FORMAT, readers.FORMAT, "other"])))))
     order = draw(st.permutations(members))
     text = "{" + space + ("," + space).join(f"{key}{space}:{space}{value}" for key, value in order) + space + "}"
-    for _ in range(draw(st.integers(0, 3))):
+    for _ in range(draw(st.sampled_from([0, 0, 1, 2, 3]))):
         at = draw(st.integers(0, len(text)))
         kind = draw(st.sampled_from(["truncate", "insert", "delete", "replace"]))
         if kind == "truncate":
