@@ -6,8 +6,8 @@
  * small rest. The kernel is as strict as JSON: anything it does not understand exactly (a number
  * outside JSON's grammar, NaN, a key written with escapes or seen twice, a value that is not a flat
  * array of numbers, text that ends early) makes it give up, and the caller reads the file the plain
- * way, which names the problem. Numbers go through PyOS_string_to_double, the conversion Python's
- * float() and json use, so every value is the same to the last bit.
+ * way, which names the problem. Numbers are converted as Python's float() and json do (an exact
+ * shortcut for short ones, else PyOS_string_to_double), so every value is the same to the last bit.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
@@ -42,43 +42,75 @@ static Py_ssize_t skip_space(const char *text, Py_ssize_t at, Py_ssize_t length)
     return at;
 }
 
+/* 10^0 .. 10^22: every one exact in a double. */
+static const double POWERS_OF_TEN[] = {1e0,  1e1,  1e2,  1e3,  1e4,  1e5,  1e6,  1e7,  1e8,  1e9,  1e10, 1e11,
+                                       1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22};
+#define MAX_EXACT_MANTISSA 9007199254740992ULL /* 2^53: every integer up to it is exact in a double */
+
+/* Counts the digits at text[*k], moving *k past them; each one also goes into *mantissa while
+ * that stays exact (else *inexact is set). */
+static Py_ssize_t take_digits(const char *text, Py_ssize_t *k, Py_ssize_t length, unsigned long long *mantissa,
+                              int *inexact)
+{
+    Py_ssize_t start = *k;
+    for (; *k < length && is_digit(text[*k]); (*k)++) {
+        if (*mantissa > (MAX_EXACT_MANTISSA - 9) / 10)
+            *inexact = 1;
+        else
+            *mantissa = *mantissa * 10 + (unsigned long long)(text[*k] - '0');
+    }
+    return *k - start;
+}
+
 /* One JSON number starting at text[*at] into *value; 0 when it is anything else (or one we leave
  * to the plain path), -1 with a Python error set. */
 static int parse_number(const char *text, Py_ssize_t *at, Py_ssize_t length, double *value)
 {
     Py_ssize_t start = *at, k = *at;
-    if (k < length && text[k] == '-')
-        k++;
-    Py_ssize_t integer_start = k;
-    if (k < length && text[k] == '0')
-        k++;
-    else if (k < length && text[k] >= '1' && text[k] <= '9')
-        while (k < length && is_digit(text[k]))
-            k++;
-    else
-        return 0;
-    Py_ssize_t integer_digits = k - integer_start;
+    int negative = k < length && text[k] == '-';
+    k += negative;
+    if (!(k < length && is_digit(text[k])) || (text[k] == '0' && k + 1 < length && is_digit(text[k + 1])))
+        return 0; /* no digit, or a leading zero */
+    unsigned long long mantissa = 0;
+    int inexact = 0;
+    Py_ssize_t integer_digits = take_digits(text, &k, length, &mantissa, &inexact), fraction_digits = 0;
     int is_integer = 1;
     if (k < length && text[k] == '.') {
         k++;
-        if (!(k < length && is_digit(text[k])))
+        fraction_digits = take_digits(text, &k, length, &mantissa, &inexact);
+        if (fraction_digits == 0)
             return 0;
-        while (k < length && is_digit(text[k]))
-            k++;
         is_integer = 0;
     }
+    long exponent = 0;
     if (k < length && (text[k] == 'e' || text[k] == 'E')) {
         k++;
+        int exponent_negative = 0;
         if (k < length && (text[k] == '+' || text[k] == '-'))
-            k++;
-        if (!(k < length && is_digit(text[k])))
+            exponent_negative = text[k++] == '-';
+        Py_ssize_t exponent_start = k;
+        for (; k < length && is_digit(text[k]); k++)
+            if (exponent < 100000) /* far beyond any double: the slow path below sees the digits */
+                exponent = exponent * 10 + (text[k] - '0');
+        if (k == exponent_start)
             return 0;
-        while (k < length && is_digit(text[k]))
-            k++;
+        exponent = exponent_negative ? -exponent : exponent;
         is_integer = 0;
     }
     if (is_integer && integer_digits > MAX_EXACT_INTEGER_DIGITS)
         return 0;
+    *at = k;
+    /* json reads an integer as a Python int, and float(int("-0")) is +0.0 */
+    int sign_of_zero = is_integer ? 0 : negative;
+    /* Exact mantissa and power of ten: one IEEE multiply or divide rounds it correctly, as
+     * Python's float() does (which takes this same shortcut). */
+    long power = exponent - (long)fraction_digits;
+    if (!inexact && power >= -22 && power <= 22) {
+        double number = (double)mantissa;
+        number = power < 0 ? number / POWERS_OF_TEN[-power] : number * POWERS_OF_TEN[power];
+        *value = (negative && (number != 0.0 || sign_of_zero)) ? -number : number;
+        return 1;
+    }
     Py_ssize_t chars = k - start;
     if (chars >= MAX_NUMBER_CHARS)
         return 0;
@@ -91,9 +123,7 @@ static int parse_number(const char *text, Py_ssize_t *at, Py_ssize_t length, dou
         return -1;
     if (end != digits + chars || !isfinite(number))
         return 0;
-    /* json reads an integer as a Python int, and float(int("-0")) is +0.0 */
     *value = (is_integer && number == 0.0) ? 0.0 : number;
-    *at = k;
     return 1;
 }
 
