@@ -11,6 +11,10 @@ Steps (each a plain function; `analyze_tap` is the shell that runs them):
 6. the sensor delay estimated from the tap: contact on the way down and break contact on the
    way up are shifted in opposite directions by a delay;
 7. the configured classifier (classifiers.py).
+
+The hot loops of every step run in small C kernels when they were built (tapcell.tap.native:
+~5x faster a tap); each has its numpy twin beside its call site, the reference the tests compare
+it with and what runs without a C compiler.
 """
 
 from __future__ import annotations
@@ -44,7 +48,8 @@ from tapcell.tap.segments import PrefixSums, best_five_segments, prefix_sums, se
 from tapcell.tap.toe import (THREAD_REACH_UM, ToeFit, Wander, adhesion_measures, fit_toe, free_air_variogram,
                              lag_from_halt_s, wander_from_variograms)
 
-_C = native.load("analysis")  # noise_sigma_g and repair_spikes in C (tapcell.tap.native); None: numpy
+# The checks, robust statistics and window heights in C (c/analysis.c, tapcell.tap.native); None: numpy.
+_C = native.load("analysis")
 
 MIN_SAMPLES = 12
 # Extra samples the force may keep changing after the motion stopped/started (ringing, filters).
