@@ -7,10 +7,13 @@ compiler still gets a working analysis, only slower, so the build of each is opt
 
 from setuptools import Extension, setup
 
+# No fused multiply-adds: the kernels repeat their numpy twins' arithmetic operation for operation
+# (clang, and gcc outside strict ISO modes, would fuse a * b + c on FMA hardware such as a Pi's).
+COMPILE_ARGS = ["-std=c99", "-O3", "-Wall", "-Wextra", "-fno-fast-math", "-ffp-contract=off"]
 KERNELS = ("analysis", "segments", "contact", "toe", "readers")
 
 setup(ext_modules=[Extension(f"tapcell.tap._c_{name}", [f"src/tapcell/tap/c/{name}.c"],
                              depends=["src/tapcell/tap/c/buffers.h", "src/tapcell/tap/c/median.h"],
-                             extra_compile_args=["-std=c99", "-O3", "-Wall", "-Wextra", "-fno-fast-math"],
+                             extra_compile_args=COMPILE_ARGS,
                              optional=True)
                    for name in KERNELS])
