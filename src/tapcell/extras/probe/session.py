@@ -28,10 +28,11 @@ import numpy as np
 from tapcell.host.gcode import GCodeError
 from tapcell.extras.probe.advice import advised
 from tapcell.extras.probe.options import MAX_SAMPLES, PROBE_OPTION_SPECS, ProbeOptions, check_probe_options, with_overrides
-
-STRATEGY_SPEC = next(spec for spec in PROBE_OPTION_SPECS if spec.field == "bad_probe_strategy")
 from tapcell.extras.probe.patterns import next_clean_spot
 from tapcell.extras.probe.stats import AccuracyStats, accuracy_stats, combine_samples, format_accuracy, spread_mm
+
+# BAD_PROBE_STRATEGY and its aliases (STRATEGY=): a command that names one keeps its own choice.
+STRATEGY_SPEC = next(spec for spec in PROBE_OPTION_SPECS if spec.field == "bad_probe_strategy")
 
 
 class ProbeError(GCodeError):
