@@ -35,7 +35,6 @@ from tapcell.extras.probe.patterns import serpentine_pattern
 from tapcell.extras.probe.session import Probe, ProbeError
 from tapcell.host.toolhead import SPEED_RANGE
 from tapcell.mcu.trigger import TriggerError
-from tapcell.scale import counts_to_grams
 from tapcell.tap.motion import tap_motion
 
 HAND_RELEASE_S = 2.0  # a tap by hand is released within this; longer, it is checked as it is
@@ -260,7 +259,7 @@ class LoadCellProbeCommands:
         device.load_cell.collect(HAND_SETTLE_S)
         now_s = device.backend.now_s
         t_s, counts, errors = device.history.between(armed_s, now_s)
-        force_g = counts_to_grams(counts, tare_counts, device.load_cell.counts_per_gram, device.cell_options.inverted)
+        force_g = device.grams(counts, tare_counts)
         settled = force_g[t_s >= now_s - HAND_SETTLE_S]
         after_g = float(np.median(settled)) if len(settled) else float("nan")
         return check_hand_tap(force_g, after_g, options.trigger_force_g, options.max_baseline_force_delta, errors)

@@ -524,10 +524,14 @@ class LoadCellProbe:
                              "check that [stepper_z] position_min is negative (e.g. -2) and the nozzle reaches the bed")
         return result, tare_counts, t_start_s, speed_mm_s
 
+    def grams(self, counts, tare_counts: float):
+        """Raw counts as force in grams against `tare_counts` (the cell's scale and its 'inverted')."""
+        return counts_to_grams(counts, tare_counts, self.load_cell.counts_per_gram, self.cell_options.inverted)
+
     def _force_between(self, t0_s: float, t1_s: float, tare_counts: float) -> tuple[np.ndarray, np.ndarray]:
         """(sample times, force in grams against `tare_counts`) of the kept samples from t0_s to t1_s."""
         t_s, counts, _ = self.history.between(t0_s, t1_s)
-        return t_s, counts_to_grams(counts, tare_counts, self.load_cell.counts_per_gram, self.cell_options.inverted)
+        return t_s, self.grams(counts, tare_counts)
 
     def _stopped_by_a_corrupt_frame(self, options: TapOptions, tare_counts: float, t_start_s: float) -> bool:
         """Whether the force_safety_limit stop was one corrupted sample in the air (then says so)."""

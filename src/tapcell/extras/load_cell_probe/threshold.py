@@ -18,7 +18,6 @@ from tapcell.extras.load_cell_probe.options import ERROR_PREFIX
 from tapcell.mcu.trigger import FirmwareTrigger, TriggerError
 from tapcell.mesh.prusa import TARE_SAMPLE_COUNT, TARE_SETTLE_S
 from tapcell.extras.probe.session import ProbeError
-from tapcell.scale import counts_to_grams
 from tapcell.tap.model import Move
 
 
@@ -69,8 +68,7 @@ class ThresholdProber:
         if len(batch.counts) == 0:
             raise ProbeError(ERROR_PREFIX + "timed out waiting for sensor data")
         counts = float(np.mean(batch.counts[-sample_count:]))
-        force_g = counts_to_grams(counts, self.load_cell.reference_tare_counts, self.load_cell.counts_per_gram,
-                                  self.device.cell_options.inverted)
+        force_g = self.device.grams(counts, self.load_cell.reference_tare_counts)
         record = TareRecord(purpose, counts, float(force_g), self.backend.now_s)
         self.load_cell.set_tare(counts)
         self.tares.append(record)
