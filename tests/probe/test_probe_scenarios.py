@@ -121,8 +121,8 @@ def test_slow_adc_first_tap_too_fast_estimates_the_bed_from_the_jump(tmp_path):
     why = re.search(r"\(probing too fast for this sensor: .*\)$", str(error.value))[0]
     stiffness = float(re.search(r"about (\d+\.\d) g/um", why)[1])
     # A low estimate (true 3.26 g/um): the triggering sample was only partly in contact, by how
-    # much depends on where in the sample the nozzle met the bed.
-    assert 0.0 < stiffness <= 3.3
+    # much depends on where in the sample the nozzle met the bed. Measured 2.4-2.5 on seeds 1-10.
+    assert 2.2 <= stiffness <= 2.8
     assert "at 8 mm/s and 80 samples/s the nozzle moves 100.0 um per sample" in why
     assert true_peak_force_g(printer) < 2000.0
 
