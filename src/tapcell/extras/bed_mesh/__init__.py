@@ -141,8 +141,8 @@ class BedMesh:
         self.set_mesh(None)
         total = len(plan.points_mm)
         substituted = plan.substituted
-        faulty = (f"; {len(substituted)} in faulty regions, probed at {len(places) - total + len(substituted)} "
-                  "places around them" if substituted else "")
+        faulty = (f"; {len(substituted)} in faulty regions, probed at "
+                  f"{sum(len(around) for around in substituted.values())} places around them" if substituted else "")
         gcmd.respond_info(f"Probing {total} points ({options.grid.x_count} x {options.grid.y_count}, "
                           f"method {options.method}{faulty})")
         start_s = self.printer.get_time()
