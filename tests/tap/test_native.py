@@ -13,7 +13,7 @@ import pytest
 from tapcell.tap import AnalysisOptions, analyze_tap, native
 from tapcell.tap import contact, readers, segments, toe
 from tapcell.tap.readers import tap_from_object
-from tapcell.taplab.generate import SCENARIOS, make_tap
+from native_kernel_inputs import generated_tap_objects
 
 KERNEL_MODULES = {"segments": segments, "contact": contact, "toe": toe, "readers": readers}
 TAPS_PER_SCENARIO = 2
@@ -24,9 +24,7 @@ Z_TOLERANCE_UM = 1e-6
 
 
 def _taps():
-    rng = np.random.default_rng(12)
-    return [(name, tap_from_object(make_tap(scenario.draw(rng), rng)[0]))
-            for name, scenario in SCENARIOS.items() for _ in range(TAPS_PER_SCENARIO)]
+    return [(name, tap_from_object(tap)) for name, tap in generated_tap_objects(TAPS_PER_SCENARIO)]
 
 
 def test_tapcell_native_0_turns_the_kernels_off(monkeypatch):

@@ -79,7 +79,7 @@ def test_noise_and_spikes_are_the_twins_on_independent_taps():
 
 
 def test_window_heights_are_the_twins_to_the_last_bit(monkeypatch):
-    calls = recorded_calls(monkeypatch, analysis, "model_window", [OPTIONS["default"], OPTIONS["sharp"]])
+    calls = recorded_calls(analysis, "model_window", [OPTIONS["default"], OPTIONS["sharp"]])
     fast = [analysis.model_window(*args) for args in calls]
     monkeypatch.setattr(analysis, "_C", None)
     for args, window in zip(calls, fast):
@@ -129,8 +129,8 @@ def test_the_robust_pass_keeps_what_the_twin_keeps(residual_g, outlier_sigma, fl
 
 
 def test_near_sigma_and_compression_samples_are_the_twins(monkeypatch):
-    near_calls = recorded_calls(monkeypatch, analysis, "near_contact_sigma_g", [OPTIONS["default"]])
-    count_calls = recorded_calls(monkeypatch, analysis, "compression_sample_count", [OPTIONS["default"]])
+    near_calls = recorded_calls(analysis, "near_contact_sigma_g", [OPTIONS["default"]])
+    count_calls = recorded_calls(analysis, "compression_sample_count", [OPTIONS["default"]])
     fast = ([analysis.near_contact_sigma_g(*args) for args in near_calls],
             [analysis.compression_sample_count(*args) for args in count_calls])
     monkeypatch.setattr(analysis, "_C", None)

@@ -43,14 +43,14 @@ def assert_fits_agree(ours, theirs):
 
 
 def test_the_kernel_is_used(monkeypatch):
-    used = kernel_functions_used(monkeypatch, contact, OPTIONS["sharp"])
+    used = kernel_functions_used(contact, OPTIONS["sharp"])
     assert used and set(used) == {"fit_fixed_onset"}
 
 
 @pytest.mark.parametrize("name", list(OPTIONS))
 def test_fits_agree_with_the_twin_on_generated_taps(monkeypatch, name):
     # Every onset path: none (default, sharp), fitted per tap (a grid of onsets), calibrated.
-    calls = recorded_calls(monkeypatch, analysis, "fit_fixed_onset", [OPTIONS[name]])
+    calls = recorded_calls(analysis, "fit_fixed_onset", [OPTIONS[name]])
     assert len(calls) >= len(generated_taps())  # pullback and compression of most taps, robust refits
     onsets = {args[-1] for args in calls}
     if name == "fitted_onset":  # the grid, and the compression at the pullback's fitted onset

@@ -14,7 +14,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tapcell.tap import TapFileError, read_tap_file, readers
-from tapcell.taplab.generate import SCENARIOS, make_tap
+from native_kernel_inputs import generated_tap_objects
 
 pytestmark = pytest.mark.skipif(readers._C is None, reason="reader kernel not built")
 REAL_TAPS = sorted((Path(readers.__file__).parent.parent / "taplab" / "real").glob("*.json"))
@@ -50,10 +50,8 @@ def _both_ways(text):
     return fast, reference
 
 
-def _generated_taps(count=12):
-    rng = np.random.default_rng(7)
-    names = list(SCENARIOS)
-    return [make_tap(SCENARIOS[names[k % len(names)]].draw(rng), rng)[0] for k in range(count)]
+def _generated_taps():
+    return [tap for _, tap in generated_tap_objects(1, 7)]  # one of each scenario
 
 
 def test_generated_and_real_tap_files_read_the_same_to_the_bit(tmp_path, monkeypatch):

@@ -25,12 +25,12 @@ def twin(monkeypatch, function, *args):
 
 
 def test_the_kernel_is_used(monkeypatch):
-    used = kernel_functions_used(monkeypatch, segments, OPTIONS["sharp"])
+    used = kernel_functions_used(segments, OPTIONS["sharp"])
     assert used == ["prefix_sums", "best_five_segments", "segment_lines"]
 
 
 def test_prefix_sums_equal_the_twin_on_generated_taps(monkeypatch):
-    calls = recorded_calls(monkeypatch, analysis, "prefix_sums", [OPTIONS["default"]])
+    calls = recorded_calls(analysis, "prefix_sums", [OPTIONS["default"]])
     assert len(calls) >= len(generated_taps())
     for time_s, force_g in calls:
         ours, theirs = segments.prefix_sums(time_s, force_g), twin(monkeypatch, segments.prefix_sums, time_s, force_g)
@@ -39,7 +39,7 @@ def test_prefix_sums_equal_the_twin_on_generated_taps(monkeypatch):
 
 
 def test_lines_equal_the_twin_on_generated_taps(monkeypatch):
-    calls = recorded_calls(monkeypatch, analysis, "segment_lines", [OPTIONS["default"]])
+    calls = recorded_calls(analysis, "segment_lines", [OPTIONS["default"]])
     assert len(calls) >= len(generated_taps()) - 2
     for ps, edges in calls:
         assert segments.segment_lines(ps, edges) == twin(monkeypatch, segments.segment_lines, ps, edges)
@@ -52,7 +52,7 @@ def test_lines_equal_the_twin_on_generated_taps(monkeypatch):
 
 
 def test_five_segments_equal_the_twin_on_generated_taps(monkeypatch):
-    calls = recorded_calls(monkeypatch, analysis, "best_five_segments", [OPTIONS["default"]])
+    calls = recorded_calls(analysis, "best_five_segments", [OPTIONS["default"]])
     assert len(calls) >= len(generated_taps())
     found = [segments.best_five_segments(*args) for args in calls]
     assert found == [twin(monkeypatch, segments.best_five_segments, *args) for args in calls]

@@ -13,9 +13,7 @@ import numpy as np
 import pytest
 
 from tapcell.tap import analysis, analyze_tap, toe
-from tapcell.tap.readers import tap_from_object
-from tapcell.taplab.generate import SCENARIOS, make_tap
-from native_kernel_inputs import OPTIONS, recorded_calls
+from native_kernel_inputs import OPTIONS, generated_taps, recorded_calls
 
 pytestmark = pytest.mark.skipif(toe._C is None, reason="the toe kernel is not built (TAPCELL_NATIVE=0)")
 
@@ -27,32 +25,13 @@ TAPS_EACH = 3
 
 @pytest.fixture(scope="module")
 def taps():
-    names = list(SCENARIOS)
-    made = []
-    for name in SCENARIO_NAMES:
-        for k in range(TAPS_EACH):
-            rng = np.random.default_rng([7, names.index(name) + 1, k])
-            made.append(tap_from_object(make_tap(SCENARIOS[name].draw(rng), rng)[0]))
-    return made
+    return generated_taps(TAPS_EACH, 7, SCENARIO_NAMES)
 
 
 @pytest.fixture(scope="module")
 def toe_fits(taps):
     """The arguments of every fit_toe call the analysis of the taps makes."""
-    calls = []
-    fit = analysis.fit_toe
-
-    def recording(*args):
-        calls.append(args)
-        return fit(*args)
-
-    analysis.fit_toe = recording
-    try:
-        for tap in taps:
-            analyze_tap(tap)
-    finally:
-        analysis.fit_toe = fit
-    return calls
+    return recorded_calls(analysis, "fit_toe", [OPTIONS["default"]], taps)
 
 
 def _grid_inputs(x_lo_um, x_hi_um, force_g, contact0_um, spacing_um, drift_g_um, wander):
@@ -186,17 +165,8 @@ def test_analysis_equals_the_numpy_twin(taps, monkeypatch):
 def test_free_air_variogram_equals_the_numpy_twin(taps, monkeypatch):
     # Measured on these taps and seed 8: 1e-15 relative (the kernel takes the line out of each
     # difference, numpy out of each sample first).
-    segments = []
-    variogram = analysis.free_air_variogram
-
-    def recording(force_g):
-        segments.append(force_g)
-        return variogram(force_g)
-
-    monkeypatch.setattr(analysis, "free_air_variogram", recording)
-    for tap in taps[:6]:
-        analyze_tap(tap)
-    monkeypatch.undo()
+    segments = [force_g for (force_g,) in recorded_calls(analysis, "free_air_variogram", [OPTIONS["default"]],
+                                                          taps[:6])]
     kernel = [toe.free_air_variogram(force_g) for force_g in segments]
     monkeypatch.setattr(toe, "_C", None)
     measured = 0
@@ -211,7 +181,7 @@ def test_free_air_variogram_equals_the_numpy_twin(taps, monkeypatch):
 def test_adhesion_measures_equal_the_numpy_twin(monkeypatch):
     # The dip's run means are summed in another order than np.convolve's: ~1e-15 relative of forces
     # of tens of grams; medians select, they do not sum.
-    calls = recorded_calls(monkeypatch, analysis, "adhesion_measures", [OPTIONS["default"]])
+    calls = recorded_calls(analysis, "adhesion_measures", [OPTIONS["default"]])
     kernel = [toe.adhesion_measures(*args) for args in calls]
     monkeypatch.setattr(toe, "_C", None)
     twins = [toe.adhesion_measures(*args) for args in calls]

@@ -280,7 +280,7 @@ def fit_pullback(window: ModelWindow, motion: Motion, timing: SensorTiming, dela
                  options: AnalysisOptions) -> tuple[ContactFit, float] | None:
     """The contact model over the pullback (samples whose window starts after the nozzle began
     rising), and its residual sigma near contact (`near_contact_sigma_g`)."""
-    first = int(window.time_s.searchsorted(motion.pullback_start_s + delay_s + timing.integration_s, side="right"))
+    first = pullback_first(window, motion, timing, delay_s)
     y_fit, x_min, span = window.force_g[first:], window.x_min_um[first:], window.span_um[first:]
     contact0 = window.break_line_um
     if not math.isfinite(contact0) or len(y_fit) < 2:
@@ -371,10 +371,17 @@ def free_air_slope_g_um(dec: Decomposition, motion: Motion) -> float:
     return -dec.lines[0][0] / (motion.approach_speed_mm_s * 1000.0)
 
 
-def pullback_samples(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+PullbackSamples = tuple[np.ndarray, np.ndarray, np.ndarray]  # window low edge µm, high edge µm, force g
+
+
+def pullback_first(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float) -> int:
+    """The first sample whose conversion window starts after the nozzle began rising."""
+    return int(window.time_s.searchsorted(motion.pullback_start_s + delay_s + timing.integration_s, side="right"))
+
+
+def pullback_samples(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float) -> PullbackSamples:
     """(window low edge µm, high edge µm, force g) of the samples read after the pullback began."""
-    first = int(window.time_s.searchsorted(motion.pullback_start_s + delay_s + timing.integration_s, side="right"))
+    first = pullback_first(window, motion, timing, delay_s)
     x_lo = window.x_min_um[first:]
     return x_lo, x_lo + window.span_um[first:], window.force_g[first:]
 
@@ -389,16 +396,16 @@ def free_air_wanders(force_g: np.ndarray, dec: Decomposition) -> tuple[Wander | 
     return wander_from_variograms([approach, departure]), wander_from_variograms([approach])
 
 
-def fit_pullback_toe(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float,
-                     contact0_um: float, drift_g_um: float | None, wander: Wander | None = None) -> ToeFit | None:
-    """The toe model (tapcell.tap.toe) over the pullback."""
+def fit_pullback_toe(samples: PullbackSamples, motion: Motion, timing: SensorTiming, contact0_um: float,
+                     drift_g_um: float | None, wander: Wander | None = None) -> ToeFit | None:
+    """The toe model (tapcell.tap.toe) over the pullback's samples (`pullback_samples`)."""
     if not math.isfinite(contact0_um):
         return None
     spacing_um = max(motion.pullback_speed_mm_s * 1000.0 * timing.sample_period_s, 0.05)
-    return fit_toe(*pullback_samples(window, motion, timing, delay_s), contact0_um, spacing_um, drift_g_um, wander)
+    return fit_toe(*samples, contact0_um, spacing_um, drift_g_um, wander)
 
 
-def check_adhesion(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float, dec: Decomposition,
+def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTiming, dec: Decomposition,
                    drift_g_um: float, contact_um: float, noise_g: float, approach_wander: Wander | None,
                    compression_force_g: float) -> None:
     """TAP_ADHESION when ooze or adhesion pulls the nozzle after break contact, seen either way:
@@ -410,12 +417,10 @@ def check_adhesion(window: ModelWindow, motion: Motion, timing: SensorTiming, de
     own: a thread pulling over the departure would pass for a walk there. Either must also exceed
     ADHESION_MIN_DIP_FRACTION of the compression force (a noise-free tap has no noise to compare with).
     """
-    x_lo, x_hi, force_g = pullback_samples(window, motion, timing, delay_s)
     floor_g = ADHESION_MIN_DIP_FRACTION * compression_force_g
     # The approach line's force where the approach passed the halt's height (its time is the halt).
     slope_g_s, intercept_g = dec.lines[0]
-    dip_g, pull_g = adhesion_measures(x_lo, x_hi, force_g, drift_g_um, contact_um,
-                                      slope_g_s * motion.home_end_s + intercept_g)
+    dip_g, pull_g = adhesion_measures(*samples, drift_g_um, contact_um, slope_g_s * motion.home_end_s + intercept_g)
     if dip_g is not None and dip_g > max(ADHESION_MAX_DIP_NOISE * noise_g, floor_g):
         raise TapInvalid(TAP_ADHESION, f"the force dips {dip_g:.1f} g below free air just above break contact "
                                        f"(more than {ADHESION_MAX_DIP_NOISE:g} x the {noise_g:.2f} g noise): "
@@ -484,6 +489,12 @@ def analyze_tap(tap: TapData, options: AnalysisOptions | None = None) -> TapAnal
     return result
 
 
+# What the sample check finds (the kernel's `sample_problem` answers with these numbers, 0: nothing).
+SAMPLES_NOT_FINITE, SAMPLES_NOT_INCREASING = 1, 2
+_SAMPLE_PROBLEMS = {SAMPLES_NOT_FINITE: "time or force holds NaN or infinity",
+                    SAMPLES_NOT_INCREASING: "sample times are not strictly increasing"}
+
+
 def _check_samples(tap: TapData) -> tuple[np.ndarray, np.ndarray]:
     # Contiguous (a caller's strided view is copied): the compiled kernels read them as plain arrays.
     t = np.ascontiguousarray(tap.time_s, dtype=float)
@@ -493,13 +504,15 @@ def _check_samples(tap: TapData) -> tuple[np.ndarray, np.ndarray]:
     if len(t) < MIN_SAMPLES:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, f"{len(t)} samples, at least {MIN_SAMPLES} needed")
     if _C is not None:
-        problem = _C.sample_problem(t, f)
+        problem = _SAMPLE_PROBLEMS.get(_C.sample_problem(t, f))
+    elif not (np.isfinite(t).all() and np.isfinite(f).all()):
+        problem = _SAMPLE_PROBLEMS[SAMPLES_NOT_FINITE]
+    elif (t[1:] <= t[:-1]).any():
+        problem = _SAMPLE_PROBLEMS[SAMPLES_NOT_INCREASING]
     else:
-        problem = 1 if not (np.isfinite(t).all() and np.isfinite(f).all()) else 2 if (t[1:] <= t[:-1]).any() else 0
-    if problem == 1:
-        raise TapInvalid(TAP_DATA_INSUFFICIENT, "time or force holds NaN or infinity")
-    if problem == 2:
-        raise TapInvalid(TAP_DATA_INSUFFICIENT, "sample times are not strictly increasing")
+        problem = None
+    if problem:
+        raise TapInvalid(TAP_DATA_INSUFFICIENT, problem)
     return t, f
 
 
@@ -605,7 +618,8 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         start = pullback.contact_um + lag_shift_um if pullback else window.break_line_um
         drift_g_um = free_air_slope_g_um(dec, motion)
         wander, approach_wander = free_air_wanders(force, dec)
-        toe = fit_pullback_toe(window, motion, timing, window_delay_s, start, drift_g_um, wander)
+        samples = pullback_samples(window, motion, timing, window_delay_s)  # for the toe fit and the adhesion check
+        toe = fit_pullback_toe(samples, motion, timing, start, drift_g_um, wander)
         if toe:
             result.z_mm = motion.z_halt_mm + (toe.contact_um - lag_shift_um) / 1000.0
             result.z_sigma_um = toe.sigma_um
@@ -613,8 +627,8 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
             result.contact_onset_um = toe.width_um
             result.stiffness_decompression_g_um = toe.stiffness_g_um
             try:
-                check_adhesion(window, motion, timing, window_delay_s, dec, drift_g_um, toe.contact_um, noise_g,
-                               approach_wander, result.compression_force_g)
+                check_adhesion(samples, motion, timing, dec, drift_g_um, toe.contact_um, noise_g, approach_wander,
+                               result.compression_force_g)
             except TapInvalid as invalid:
                 result.valid, result.error, result.message = False, invalid.code, invalid.message
                 return result, context

@@ -2,8 +2,9 @@
 
 Each kernel does one hot loop of the analysis in C and has a numpy twin next to its call site:
 the twin is the reference (tests/tap/test_native.py runs both on the same data) and what runs
-when the kernel was not built, so the analysis installs and runs with numpy alone. They agree to
-rounding (sums taken in another order), not bit for bit.
+when the kernel was not built, so the analysis installs and runs with numpy alone. They agree bit
+for bit where the kernel repeats the twin's arithmetic, and to rounding where it sums in another
+order (docs/tap-analysis.md, "Compiled kernels").
 
 TAPCELL_NATIVE: unset or 1, use the kernels that were built; 0, never (the numpy twins run);
 required, a kernel that is not there is an ImportError (`make test`: a failed build must not pass
@@ -26,8 +27,7 @@ def required() -> bool:
 
 def load(name: str) -> ModuleType | None:
     """The compiled kernel module `tapcell.tap._c_<name>`, or None (not built, or TAPCELL_NATIVE=0)."""
-    mode = os.environ.get(ENV, "1")
-    if mode == "0":
+    if os.environ.get(ENV, "1") == "0":
         return None
     try:
         return importlib.import_module(f"tapcell.tap._c_{name}")

@@ -7,6 +7,7 @@ import numpy as np
 from tapcell.tap import native
 
 _C = native.load("analysis")  # the same statistics in C (tapcell.tap.native); None: numpy
+
 # The median absolute deviation of normal noise times this is its sigma (1 / Phi^-1(3/4)).
 MAD_TO_SIGMA = 1.4826
 

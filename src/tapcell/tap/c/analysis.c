@@ -209,8 +209,10 @@ static PyObject *window_heights(PyObject *self, PyObject *args)
     return result;
 }
 
-/* What is wrong with a tap's samples for the analysis (analysis.py `_check_samples`): 0 nothing,
- * 1 a time or force is NaN or infinite, 2 the times do not strictly increase (the first found). */
+/* What is wrong with a tap's samples for the analysis (analysis.py `_check_samples`, whose
+ * SAMPLES_* numbers these are), the first found. */
+enum sample_problem { SAMPLES_FINE = 0, SAMPLES_NOT_FINITE = 1, SAMPLES_NOT_INCREASING = 2 };
+
 static PyObject *sample_problem(PyObject *self, PyObject *args)
 {
     (void)self;
@@ -222,11 +224,11 @@ static PyObject *sample_problem(PyObject *self, PyObject *args)
     const double *time_s = doubles_of(&time_buffer, &n, "time_s");
     const double *force_g = time_s ? doubles_sized(&force_buffer, n, "force_g") : NULL;
     if (force_g != NULL) {
-        long problem = 0;
-        for (Py_ssize_t i = 0; i < n && problem == 0; i++)
-            if (!isfinite(time_s[i]) || !isfinite(force_g[i])) problem = 1;
-        for (Py_ssize_t i = 1; i < n && problem == 0; i++)
-            if (!(time_s[i] > time_s[i - 1])) problem = 2;
+        enum sample_problem problem = SAMPLES_FINE;
+        for (Py_ssize_t i = 0; i < n && problem == SAMPLES_FINE; i++)
+            if (!isfinite(time_s[i]) || !isfinite(force_g[i])) problem = SAMPLES_NOT_FINITE;
+        for (Py_ssize_t i = 1; i < n && problem == SAMPLES_FINE; i++)
+            if (!(time_s[i] > time_s[i - 1])) problem = SAMPLES_NOT_INCREASING;
         result = PyLong_FromLong(problem);
     }
     PyBuffer_Release(&time_buffer);
