@@ -59,3 +59,16 @@ def test_with_scenario_edits_only_the_virtual_printer_section():
     assert with_scenario("[printer]\n", "oozy") == "[virtual_printer]\nscenario: oozy\n\n[printer]\n"
     with pytest.raises(ScenarioError, match=r"unknown scenario 'lava'; one of: clean, "):
         with_scenario("", "lava")
+
+
+def test_scenario_through_a_symlinked_config_rewrites_its_target(tmp_path, monkeypatch, capsys):
+    """A printer.cfg linked to one kept elsewhere stays a link (the config's own atomic write)."""
+    target = tmp_path / "kept" / "printer.cfg"
+    target.parent.mkdir()
+    target.write_text("[virtual_printer]\nscenario: clean\nseed: 3\n")
+    link = tmp_path / "printer.cfg"
+    link.symlink_to(target)
+    status, _ = console(monkeypatch, capsys, [], "--config", link, "--scenario", "oozy")
+    assert status == 0 and link.is_symlink()
+    assert target.read_text() == "[virtual_printer]\nscenario: oozy\nseed: 3\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["kept", "printer.cfg"]  # no temp file left

@@ -11,6 +11,7 @@ import pytest
 from tapcell.host.config import ConfigError
 
 from machines import gcode_error
+from test_bed_mesh import MESH as MESH_3X3, TILTED as TILTED_PROFILE
 from test_bed_mesh_calibrate import MESH
 
 TILTED = "\n[virtual_printer]\nbed_shape: tilted\nbed_tilt_x_mm: 0.6\nbed_tilt_y_mm: 0.3\n"
@@ -109,3 +110,22 @@ def test_faulty_region_config_errors(make_printer):
         make_printer(MESH + "faulty_region_100_min: 0, 0\nfaulty_region_100_max: 5, 5\n")
     with pytest.raises(ConfigError, match=r"mesh point 0 \(20, 20\) lies inside faulty_region_1"):
         make_printer(MESH + "faulty_region_1_min: 0, 0\nfaulty_region_1_max: 300, 300\n")
+
+
+def test_generated_points_of_a_loaded_mesh_a_faulty_region_swallows_is_an_error(make_printer):
+    # A profile probed before the region was configured (100..140 mm): every point lies inside
+    # faulty_region_1 and none of its edges is within that mesh, so PGP=1 has no points to list.
+    small = TILTED_PROFILE.replace("tilted", "small")
+    for option, value in (("min_x", 100.0), ("max_x", 140.0), ("min_y", 100.0), ("max_y", 140.0)):
+        small = re.sub(rf"{option} = .*", f"{option} = {value}", small)
+    printer = make_printer(MESH_3X3 + "faulty_region_1_min: 90, 90\nfaulty_region_1_max: 150, 150\n" + small,
+                           probe=True)
+    printer.gcode.run_script("BED_MESH_PROFILE LOAD=small")
+    swallowed = ("[bed_mesh] faulty_region_1_min: mesh point 0 (100, 100) lies inside faulty_region_1 (90, 90) .. "
+                 "(150, 150) and no edge of the region around it is within the mesh to probe instead; make the "
+                 "region smaller or the mesh larger")
+    assert gcode_error(printer, "BED_MESH_OUTPUT PGP=1") == f"BED_MESH_OUTPUT: {swallowed}"
+    # The same mesh asked of BED_MESH_CALIBRATE is refused before any probing.
+    home(printer)
+    assert gcode_error(printer, "BED_MESH_CALIBRATE MESH_MIN=100,100 MESH_MAX=140,140") == (
+        f"BED_MESH_CALIBRATE: {swallowed}")

@@ -142,15 +142,28 @@ def _samples(spec: TapSpec, motion: RecordedMotion) -> np.ndarray:
 
 def sensitivities(spec: TapSpec, motion: RecordedMotion, step_scale: float = 1.0) -> np.ndarray:
     """G: d(sample)/d(parameter) for every name in NAMES (samples × parameters, g per unit)."""
+    return np.column_stack([parameter_sensitivities(spec, motion, PARAMETERS, step_scale),
+                            hum_sensitivities(spec, motion)])
+
+
+def parameter_sensitivities(spec: TapSpec, motion: RecordedMotion, parameters: Iterable[Parameter],
+                            step_scale: float = 1.0) -> np.ndarray:
+    """d(sample)/d(parameter) for `parameters` (samples × parameters), by central differences."""
     columns = []
-    for parameter in PARAMETERS:
+    for parameter in parameters:
         h = parameter.step * step_scale
         up = _samples(parameter.shift(spec, h), motion)
         down = _samples(parameter.shift(spec, -h), motion)
         columns.append((up - down) / (2.0 * h))
+    return np.column_stack(columns)
+
+
+def hum_sensitivities(spec: TapSpec, motion: RecordedMotion) -> np.ndarray:
+    """d(sample)/d(hum component) for HUM (samples × 6): exact, the samples are linear in them."""
     # Mains harmonics: unknown amplitude and phase each; a quarter cycle later turns the sine to a cosine.
     silent = replace(spec, hum_g=(0.0, 0.0, 0.0))
     base = _samples(silent, motion)
+    columns = []
     for k in range(3):
         unit = tuple(1.0 if j == k else 0.0 for j in range(3))
         quarter_s = 0.25 / ((k + 1) * spec.mains_hz)
@@ -357,7 +370,7 @@ def nearest_twin(spec: TapSpec, motion: RecordedMotion, shift_um: float, ranges:
     target = _samples(spec, motion)
     white = whitener(spec, len(target), coloured)
     shifted = PARAMETERS[0].shift(spec, shift_um)
-    hum = white @ sensitivities(shifted, motion)[:, len(PARAMETERS):]
+    hum = white @ hum_sensitivities(shifted, motion)
     keep_out_hum = (np.eye(len(target)) - hum @ np.linalg.pinv(hum)) @ white
 
     def residual(values: np.ndarray) -> np.ndarray:
@@ -368,7 +381,8 @@ def nearest_twin(spec: TapSpec, motion: RecordedMotion, shift_um: float, ranges:
     cost = float(r @ r)
     damping = 1e-2
     for _ in range(iterations):
-        G = keep_out_hum @ sensitivities(_with_values(shifted, values), motion)[:, 1:len(PARAMETERS)]
+        # Only the twin's free parameters (z is held at the shift; the hum is projected out).
+        G = keep_out_hum @ parameter_sensitivities(_with_values(shifted, values), motion, PARAMETERS[1:])
         normal, gradient = G.T @ G, G.T @ r
         for _ in range(8):
             trial = np.clip(values - np.linalg.solve(normal + damping * np.diag(np.diag(normal)), gradient), low, high)

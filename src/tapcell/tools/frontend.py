@@ -176,6 +176,9 @@ def _main_console(argv: list[str]) -> int:
         except ScenarioError as exc:
             print(f"tapcell console: --scenario: {exc}", file=sys.stderr)
             return 2
+        except ConfigError as exc:  # the file could not be rewritten (left as it was)
+            print(f"tapcell console: --scenario: {exc}", file=sys.stderr)
+            return 1
         where += f"; scenario {args.scenario}"
     print(f"// {where}", flush=True)
     printer = _build_printer(str(config_path), "tapcell console")

@@ -18,6 +18,7 @@ import shutil
 import subprocess
 from pathlib import Path
 
+from tapcell.host.config import write_atomically
 from tapcell.sim.scenarios import SCENARIOS
 
 GIT_TIMEOUT_S = 10.0
@@ -82,9 +83,6 @@ def with_scenario(text: str, scenario: str) -> str:
 
 
 def set_scenario(path: Path, scenario: str) -> None:
-    """Write `scenario` into the config file at `path` (atomically)."""
-    path = Path(path)
-    text = with_scenario(path.read_text(encoding="utf-8"), scenario)
-    temporary = path.with_name(path.name + ".tmp")
-    temporary.write_text(text, encoding="utf-8")
-    os.replace(temporary, path)
+    """Write `scenario` into the config file at `path` (atomically: `write_atomically`, ConfigError when
+    it cannot, the file left as it was)."""
+    write_atomically(str(path), with_scenario(Path(path).read_text(encoding="utf-8"), scenario))

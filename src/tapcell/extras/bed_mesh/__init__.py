@@ -135,14 +135,14 @@ class BedMesh:
         for note in (options.adaptive_note, options.interpolation_note):
             if note:
                 gcmd.respond_info(note)
-        plan = self._probing_plan(options, gcmd)
+        plan = self._probing_plan(options.grid, gcmd)
         places = plan.flat_places_mm()
         # Probe without the old mesh: results are bed heights in the toolhead frame.
         self.set_mesh(None)
         total = len(plan.points_mm)
         substituted = plan.substituted
-        faulty = (f"; {len(substituted)} in faulty regions, probed at {len(places) - total + len(substituted)} "
-                  "places around them" if substituted else "")
+        faulty = (f"; {len(substituted)} in faulty regions, probed at "
+                  f"{sum(len(around) for around in substituted.values())} places around them" if substituted else "")
         gcmd.respond_info(f"Probing {total} points ({options.grid.x_count} x {options.grid.y_count}, "
                           f"method {options.method}{faulty})")
         start_s = self.printer.get_time()
@@ -177,12 +177,12 @@ class BedMesh:
             return None
         return list(exclude_object.get_status(self.printer.get_time()).get("objects") or [])
 
-    @staticmethod
-    def _probing_plan(options: BedMeshOptions, gcmd: GCodeCommand):
+    def _probing_plan(self, grid, gcmd: GCodeCommand):
+        """Where `grid`'s points are probed around the configured faulty regions."""
         try:
-            return probing_plan(options.grid, options.faulty_regions)
-        except MeshOptionError as exc:  # a MESH_MIN/MAX or ADAPTIVE=1 mesh with no way around a region
-            raise gcmd.error(f"BED_MESH_CALIBRATE: [{SECTION}] {exc.option}: {exc.allowed}") from None
+            return probing_plan(grid, self.options.faulty_regions)
+        except MeshOptionError as exc:  # a MESH_MIN/MAX, ADAPTIVE=1 or loaded mesh with no way around a region
+            raise gcmd.error(f"{gcmd.command}: [{SECTION}] {exc.option}: {exc.allowed}") from None
 
     def _probe_offsets_mm(self) -> tuple[float, float]:
         probe = self.printer.lookup_object("probe", None)
@@ -192,7 +192,7 @@ class BedMesh:
         """Klipper's output: the probed matrix (as `//` info) then the mesh (raw lines)."""
         if gcmd.get_int("PGP", 0, minval=0, maxval=1):
             grid = self.options.grid if self.mesh is None else self.mesh.grid
-            gcmd.respond_info(render_generated_points(probing_plan(grid, self.options.faulty_regions),
+            gcmd.respond_info(render_generated_points(self._probing_plan(grid, gcmd),
                                                       self._probe_offsets_mm(), self.options.zero_reference_xy_mm))
             return
         if self.mesh is None:
