@@ -160,7 +160,7 @@ def test_include_diamond_stops_at_the_file_count_limit(tmp_path):
 
 
 @pytest.mark.parametrize("include, problem", [
-    ("/dev/zero", "printer.cfg:1: include file /dev/zero: is not a regular file, not a config file"),
+    ("/dev/zero", "printer.cfg:1: include file /dev/zero: is a character device, not a config file"),
     ("big.cfg", "printer.cfg:1: include file {tmp}/big.cfg: is larger than 1,024 bytes, not a config file"),
 ])
 def test_include_of_a_device_or_a_huge_file_is_refused(tmp_path, monkeypatch, include, problem):

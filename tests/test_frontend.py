@@ -64,7 +64,7 @@ def test_run_reports_bad_files_without_traceback(capsys, files, tmp_path):
     status, out, err = run(capsys, tmp_path / "missing.gcode", "--config", config)
     assert (status, out, err) == (2, [], f"tapcell run: script '{tmp_path / 'missing.gcode'}' does not exist\n")
     status, out, err = run(capsys, "/dev/zero", "--config", config)   # exists, but is no file to read
-    assert (status, err.splitlines()[-1]) == (2, "tapcell run: cannot read script '/dev/zero': is not a regular file")
+    assert (status, err.splitlines()[-1]) == (2, "tapcell run: cannot read script '/dev/zero': is a character device")
     script.write_text("HELLO\n")
     status, out, err = run(capsys, script, "--config", tmp_path / "nope.cfg")
     assert (status, err) == (1, f"tapcell run: config file '{tmp_path / 'nope.cfg'}' does not exist\n")
@@ -78,7 +78,7 @@ def test_run_reports_bad_files_without_traceback(capsys, files, tmp_path):
     assert status == 2 and err.startswith(f"tapcell run: script '{script}' is not UTF-8 text:")
     printer = Printer.from_config(str(config), responses=[])
     assert frontend.run_script_file(printer, "/dev/zero", keep_going=False, echo=False) == 2
-    assert capsys.readouterr().err == "tapcell run: cannot read script '/dev/zero': is not a regular file\n"
+    assert capsys.readouterr().err == "tapcell run: cannot read script '/dev/zero': is a character device\n"
 
 
 def test_console_loop_runs_lines_until_eof(capsys, files):

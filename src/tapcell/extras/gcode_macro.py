@@ -17,7 +17,9 @@ While rendering they see:
 
 An undefined name is an error (not an empty string), so a typo or a status
 field that is not available yet (e.g. force_g before calibration) stops the
-macro with a message instead of sending half a command.
+macro with a message instead of sending half a command. An unknown command inside a
+macro is skipped with a warning, as in Klipper (`// Unknown command:"Z_TILT_ADJUST" in macro
+PRINT_START, skipped`), and the next line runs.
 """
 
 from __future__ import annotations
@@ -82,7 +84,7 @@ class GCodeMacro:
 
     def cmd_macro(self, gcmd: GCodeCommand) -> None:
         # A macro calling itself (directly or through others) is refused by the dispatcher.
-        self.printer.gcode.run_script(self.render(gcmd))
+        self.printer.gcode.run_macro_script(self.render(gcmd), self.command)
 
     def cmd_set_variable(self, gcmd: GCodeCommand) -> None:
         name = gcmd.get("VARIABLE").lower()

@@ -33,6 +33,7 @@ import platform
 import queue
 import signal
 import socket
+import stat
 import sys
 import threading
 import time
@@ -59,6 +60,62 @@ STREAM_PERIOD_S = 0.1  # dump_force pushes (Klipper batches about this often)
 RESTART_COMMANDS = {"gcode/restart": "RESTART", "gcode/firmware_restart": "FIRMWARE_RESTART"}
 PAUSE_RESUME_COMMANDS = {"pause_resume/pause": "PAUSE", "pause_resume/resume": "RESUME",
                          "pause_resume/cancel": "CANCEL_PRINT"}
+
+
+class SocketPathTaken(Exception):
+    """`--socket` names something serve must not replace (the message says what is there)."""
+
+
+def claim_socket_path(path: str) -> None:
+    """Make `path` free for a new Unix socket: remove only a stale socket (no server answers on
+    it). A regular file (perhaps printer.cfg), a directory, a symlink, a device or a socket a
+    live server answers on is left as it is: SocketPathTaken names what is there."""
+    try:
+        info = os.lstat(path)
+    except FileNotFoundError:
+        return
+    if stat.S_ISLNK(info.st_mode):
+        raise SocketPathTaken(f"'{path}' is a symbolic link, not a socket: not replaced; "
+                              f"give the path of the socket itself")
+    if not stat.S_ISSOCK(info.st_mode):
+        kind = "a regular file" if stat.S_ISREG(info.st_mode) else _file_kind(info.st_mode)
+        raise SocketPathTaken(f"'{path}' is {kind}, not a socket: not replaced; choose another --socket path")
+    probe = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        probe.settimeout(1.0)
+        probe.connect(path)
+    except (ConnectionRefusedError, FileNotFoundError):
+        pass  # nobody listens: a socket left by a server that ended without removing it
+    except OSError as exc:
+        raise SocketPathTaken(f"'{path}' is a socket that cannot be checked ({exc.strerror or exc}): "
+                              f"not replaced") from None
+    else:
+        raise SocketPathTaken(f"'{path}' is the socket of a running server (it accepts connections): "
+                              f"stop that server first or choose another --socket path")
+    finally:
+        probe.close()
+    try:
+        os.unlink(path)
+    except FileNotFoundError:
+        pass
+
+
+def _file_kind(mode: int) -> str:
+    for test, name in ((stat.S_ISDIR, "a directory"), (stat.S_ISFIFO, "a FIFO (named pipe)"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device")):
+        if test(mode):
+            return name
+    return "not a socket"
+
+
+def _release_socket_path(path: str, bound: os.stat_result | None) -> None:
+    """Remove our socket at exit, unless the path now holds something else."""
+    try:
+        now = os.lstat(path)
+    except FileNotFoundError:
+        return
+    if bound is not None and (now.st_dev, now.st_ino) == (bound.st_dev, bound.st_ino):
+        os.unlink(path)
 
 
 class RequestError(Exception):
@@ -444,9 +501,9 @@ class ApiServer:
         stop = asyncio.Event()
         for sig in (signal.SIGINT, signal.SIGTERM):
             self.loop.add_signal_handler(sig, stop.set)
-        if os.path.exists(self.socket_path):
-            os.unlink(self.socket_path)  # a socket left by an earlier run
+        claim_socket_path(self.socket_path)  # SocketPathTaken: nothing was started or removed
         server = await asyncio.start_unix_server(self._accept, path=self.socket_path, limit=MAX_MESSAGE_BYTES)
+        bound = os.lstat(self.socket_path)
         self.printer_thread.start()
         periodic = [asyncio.ensure_future(self._every(SUBSCRIPTION_PERIOD_S, self._push_subscriptions)),
                     asyncio.ensure_future(self._every(STREAM_PERIOD_S, self._push_force))]
@@ -461,8 +518,7 @@ class ApiServer:
             for connection in list(self.connections):
                 connection.close()
             self.printer_thread.stop()
-            if os.path.exists(self.socket_path):
-                os.unlink(self.socket_path)
+            _release_socket_path(self.socket_path, bound)
 
     async def _accept(self, reader, writer) -> None:
         connection = Connection(self, reader, writer)
@@ -687,6 +743,13 @@ def main(argv: list[str]) -> int:
     except ConfigError as exc:
         print(f"tapcell serve: config error (serving the error state): {exc}", file=sys.stderr)
     server = ApiServer(printer, args.socket, log_file=args.log_file, gcodes_dir=args.gcodes_dir)
-    asyncio.run(server.serve_forever(
-        ready=lambda: print(f"tapcell serve: {printer.state_message}; listening on {args.socket}", flush=True)))
+    try:
+        asyncio.run(server.serve_forever(
+            ready=lambda: print(f"tapcell serve: {printer.state_message}; listening on {args.socket}", flush=True)))
+    except SocketPathTaken as exc:
+        print(f"tapcell serve: --socket {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # bind: a missing folder, no permission, a path too long for a socket
+        print(f"tapcell serve: cannot listen on '{args.socket}': {exc.strerror or exc}", file=sys.stderr)
+        return 2
     return 0

@@ -37,7 +37,7 @@ class GCodeError(Exception):
 
 class UnknownCommandError(GCodeError):
     """No handler for the command. Klipper answers `// Unknown command:"M205"` and goes on with a
-    print file; the console and scripts stop on it (a typo must not pass for success)."""
+    print file or a macro; the console and scripts stop on it (a typo must not pass for success)."""
 
     def __init__(self, command: str):
         super().__init__(f'Unknown command:"{command}"')
@@ -328,6 +328,8 @@ class GCodeDispatch:
         self._running: list[str] = []  # the commands running now, outermost first
         # Told when the machine fails under a command; each returns what the user must know more.
         self._device_error_listeners: list[Callable[[DeviceError], str]] = []
+        # Unknown commands a macro skipped ("PRINT_START: Z_TILT_ADJUST"), for `tapcell run`'s summary.
+        self.skipped_in_macros: list[str] = []
         self._register_builtins()
 
     # -- responses -----------------------------------------------------------
@@ -471,6 +473,21 @@ class GCodeDispatch:
         finally:
             if caller is not None:
                 self._running.pop()
+
+    def run_macro_script(self, text: str, macro: str) -> None:
+        """Run a macro's rendered lines as Klipper does: an unknown command is answered with
+        `// Unknown command:"X" in macro NAME, skipped` and the next line runs (the rest of a
+        PRINT_START must not vanish over one command the printer lacks); it is remembered in
+        `skipped_in_macros`. Any other failure raises GCodeError as in run_script."""
+        for line in text.split("\n"):
+            try:
+                self.run_line(line)
+            except UnknownCommandError as exc:
+                parsed = parse_line(line)
+                if parsed is None or parsed.command != exc.command:  # raised further in (a probe template)
+                    raise
+                self.skipped_in_macros.append(f"{macro}: {exc.command}")
+                self.respond_info(f"{exc} in macro {macro}, skipped")
 
     def run_line(self, line: str) -> None:
         """Run one line.  A user error raises GCodeError; any other exception is a bug and propagates."""

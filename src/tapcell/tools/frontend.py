@@ -50,22 +50,28 @@ def _build_printer(config_path: str, program: str, notices_to=None) -> Printer |
     return printer
 
 
+EXIT_OK, EXIT_FAILED, EXIT_UNREADABLE, EXIT_SKIPPED_IN_MACROS = 0, 1, 2, 3
+
+
 def run_script_file(printer: Printer, script_path: str, *, keep_going: bool, echo: bool,
                     progress: bool | None = False) -> int:
-    """Run a G-code file line by line like a print: 0 if every line succeeded, else 1 (2: the file
-    cannot be read). `progress`: a progress bar on stderr (None: when stderr is a terminal).
+    """Run a G-code file line by line like a print. The exit status: 0 if every line succeeded,
+    1 if a line failed, 2 if the file cannot be read, 3 if it ran to the end but a macro skipped
+    an unknown command (a PRINT_START that left out its mesh is not a success).
+    `progress`: a progress bar on stderr (None: when stderr is a terminal).
 
     An unknown command is answered as Klipper answers it in a print (`// Unknown command:"M205"`)
-    and the file goes on; any other error stops it (unless keep_going).
+    and the file goes on; inside a macro too (see GCodeDispatch.run_macro_script); any other
+    error stops it (unless keep_going).
     """
     try:
         lines = read_limited(script_path, MAX_SCRIPT_BYTES).decode("utf-8").splitlines()
     except (OSError, FileRefused) as exc:
         print(f"tapcell run: cannot read script '{script_path}': {exc}", file=sys.stderr)
-        return 2
+        return EXIT_UNREADABLE
     except UnicodeDecodeError as exc:
         print(f"tapcell run: script '{script_path}' is not UTF-8 text: {exc}", file=sys.stderr)
-        return 2
+        return EXIT_UNREADABLE
     bar = ProgressBar(len(lines), enabled=progress)
     gcode = printer.gcode
 
@@ -90,14 +96,21 @@ def run_script_file(printer: Printer, script_path: str, *, keep_going: bool, ech
                     bar.clear()
                     print(f"tapcell run: {script_path}:{line_number}: stopped at the first error "
                           f"(use --keep-going to run the rest)", file=sys.stderr)
-                    return 1
+                    return EXIT_FAILED
             bar.update(line_number, printer.get_time())
     finally:
         bar.clear()
         gcode.set_response_sink(_print_line)
     if bar.enabled:
         print(bar.summary(len(lines), printer.get_time()), file=sys.stderr)
-    return 1 if failed else 0
+    skipped = gcode.skipped_in_macros
+    if skipped:
+        shown = ", ".join(dict.fromkeys(skipped))  # each macro/command once, in order
+        print(f"tapcell run: warning: {len(skipped)} unknown command(s) skipped inside macros ({shown})"
+              f"{'' if failed else f'; exit status {EXIT_SKIPPED_IN_MACROS}'}", file=sys.stderr)
+    if failed:
+        return EXIT_FAILED
+    return EXIT_SKIPPED_IN_MACROS if skipped else EXIT_OK
 
 
 def _main_run(argv: list[str]) -> int:

@@ -1,0 +1,243 @@
+"""Issue 20: hostile files, templates and macros: a one-line error or a warning, never a hang,
+a traceback or gigabytes."""
+
+from __future__ import annotations
+
+import os
+import json
+import resource
+import subprocess
+import sys
+import threading
+from pathlib import Path
+
+import pytest
+
+from tapcell.files import FileRefused, check_appendable, open_append, read_limited
+from tapcell.host import templates
+from tapcell.host.config import ConfigError, ConfigFile
+from tapcell.host.gcode import GCodeError
+from tapcell.host.printer import Printer
+from tapcell.tap import TapFileError, read_tap_file, tap_to_json_dict
+from tapcell.tap.synth import synth_tap
+from tapcell.tools import cli
+
+READ_DEADLINE_S = 20.0  # a refusal takes microseconds; a hang is caught, then freed, after this
+
+
+def finishes(function, fifo: Path | None = None):
+    """function()'s result or exception; a call still blocked after READ_DEADLINE_S fails the test
+    (after opening the FIFO's other end so that the thread can end)."""
+    outcome: dict = {}
+
+    def call():
+        try:
+            outcome["value"] = function()
+        except BaseException as exc:  # handed to the test
+            outcome["error"] = exc
+
+    thread = threading.Thread(target=call, daemon=True)
+    thread.start()
+    thread.join(READ_DEADLINE_S)
+    if thread.is_alive():
+        if fifo is not None:
+            os.close(os.open(fifo, os.O_RDWR))  # a writer for a reader stuck in open()
+        pytest.fail(f"{function} was still blocked after {READ_DEADLINE_S} s")
+    if "error" in outcome:
+        raise outcome["error"]
+    return outcome.get("value")
+
+
+@pytest.fixture
+def fifo(tmp_path) -> Path:
+    path = tmp_path / "pipe.json"
+    os.mkfifo(path)
+    return path
+
+
+def test_a_fifo_is_refused_at_once_by_every_reader_naming_it(tmp_path, fifo):
+    with pytest.raises(FileRefused, match=r"^is a FIFO \(named pipe\)$"):
+        finishes(lambda: read_limited(fifo, 1000), fifo)
+    with pytest.raises(TapFileError, match=rf"^{fifo}: is a FIFO \(named pipe\), not a tap file$"):
+        finishes(lambda: read_tap_file(str(fifo)), fifo)
+    with pytest.raises(ConfigError, match=rf"^{fifo}: is a FIFO \(named pipe\), not a config file$"):
+        finishes(lambda: ConfigFile.read(fifo), fifo)
+    main = tmp_path / "printer.cfg"
+    main.write_text(f"[include {fifo.name}]\n")
+    with pytest.raises(ConfigError, match=rf"printer.cfg:1: include file {fifo}: is a FIFO \(named pipe\), "
+                                          r"not a config file$"):
+        finishes(lambda: ConfigFile.read(main), fifo)
+
+
+def test_a_directory_and_a_socket_are_named_as_what_they_are(tmp_path):
+    import socket
+    with pytest.raises(FileRefused, match=r"^is a directory$"):
+        read_limited(tmp_path, 1000)
+    path = tmp_path / "s.sock"
+    listener = socket.socket(socket.AF_UNIX)
+    listener.bind(str(path))
+    try:
+        with pytest.raises(FileRefused, match=r"^is a socket$"):
+            read_limited(path, 1000)
+    finally:
+        listener.close()
+
+
+def test_a_log_target_is_checked_without_blocking(tmp_path, fifo):
+    # A FIFO nobody reads would block open() for writing; a directory cannot take lines.
+    assert finishes(lambda: check_appendable(fifo), fifo) == "is a FIFO (named pipe)"
+    assert check_appendable(tmp_path) == "is a directory"
+    assert check_appendable(tmp_path / "missing" / "log.jsonl").startswith("cannot be written (No such file")
+    log = tmp_path / "log.jsonl"
+    assert check_appendable(log) is None
+    with open_append(log) as out:
+        out.write("one\n")
+    with open_append(log) as out:
+        out.write("two\n")
+    assert log.read_text() == "one\ntwo\n"
+    assert oct(log.stat().st_mode & 0o777) == oct(0o666 & ~_umask())
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+def test_tapcell_run_refuses_a_fifo_script(tmp_path, fifo, capsys):
+    config = tmp_path / "printer.cfg"
+    config.write_text("[gcode_macro HELLO]\ngcode:\n  {action_respond_info('hi')}\n")
+    status = finishes(lambda: cli.main(["run", "--config", str(config), str(fifo)]), fifo)
+    assert status == 2
+    assert capsys.readouterr().err.splitlines()[-1] == \
+        f"tapcell run: cannot read script '{fifo}': is a FIFO (named pipe)"
+
+
+# -- templates --------------------------------------------------------------------------------
+
+MACROS = """\
+[gcode_macro HUGE_CONSTANT]
+gcode:
+  {"a" * 10**9}
+[gcode_macro HUGE_OUTPUT]
+gcode:
+  {% for i in range(50000) %}RESPOND MSG={"x" * 30}
+  {% endfor %}
+[gcode_macro HUGE_POWER]
+gcode:
+  {10 ** 100000000}
+[gcode_macro HUGE_LOOP]
+gcode:
+  {% for i in range(10**9) %}{% endfor %}
+[gcode_macro FINE]
+gcode:
+  {action_respond_info("ok " ~ ("ab" * 3) ~ " " ~ (2 ** 10))}
+[respond]
+"""
+
+
+def _peak_rss_mb() -> float:
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def test_templates_that_would_build_gigabytes_are_refused_at_render(tmp_path):
+    config = tmp_path / "printer.cfg"
+    config.write_text(MACROS)
+    before_mb = _peak_rss_mb()
+    responses: list[str] = []
+    printer = Printer.from_config(str(config), responses=responses)  # Jinja2 folded "a"*10**9 here: 3 GB
+    printer.gcode.run_script("FINE")
+    assert responses == ["// ok ababab 1024"]
+    expected = {
+        "HUGE_CONSTANT": "Error in macro HUGE_CONSTANT: repeating 1 items 1,000,000,000 times builds more "
+                         "than 1,000,000 (the limit)",
+        "HUGE_OUTPUT": "Error in macro HUGE_OUTPUT: the G-code it renders is over 1,000,000 characters (the limit)",
+        "HUGE_POWER": "Error in macro HUGE_POWER: 10**100000000 has more than 4096 bits (the limit)",
+    }
+    for macro, message in expected.items():
+        with pytest.raises(GCodeError) as caught:
+            printer.gcode.run_script(macro)
+        assert str(caught.value) == message
+    with pytest.raises(GCodeError, match=r"^Error in macro HUGE_LOOP: OverflowError: Range too big"):
+        printer.gcode.run_script("HUGE_LOOP")
+    # Nothing above built more than a few MB (the limits are 1 M characters).
+    assert _peak_rss_mb() - before_mb < 100
+
+
+def test_the_render_limit_is_the_documented_one():
+    assert templates.MAX_RENDERED_CHARS == 1_000_000
+    assert "1,000,000 characters" in (Path(__file__).parents[1] / "docs" / "limits.md").read_text()
+
+
+# -- unknown commands inside macros --------------------------------------------------------------
+
+PRINT_START = """\
+[gcode_macro PRINT_START]
+gcode:
+  RESPOND MSG=heating
+  Z_TILT_ADJUST
+  RESPOND MSG=meshing
+  NOT_A_COMMAND X=1
+  RESPOND MSG=purging
+[gcode_macro OUTER]
+gcode:
+  PRINT_START
+  RESPOND MSG=outer-done
+[respond]
+"""
+
+
+def test_an_unknown_command_in_a_macro_warns_and_the_macro_goes_on(tmp_path):
+    config = tmp_path / "printer.cfg"
+    config.write_text(PRINT_START)
+    responses: list[str] = []
+    printer = Printer.from_config(str(config), responses=responses)
+    printer.gcode.run_script("OUTER")
+    assert responses == [
+        "echo: heating",
+        '// Unknown command:"Z_TILT_ADJUST" in macro PRINT_START, skipped',
+        "echo: meshing",
+        '// Unknown command:"NOT_A_COMMAND" in macro PRINT_START, skipped',
+        "echo: purging",
+        "echo: outer-done",
+    ]
+    assert printer.gcode.skipped_in_macros == ["PRINT_START: Z_TILT_ADJUST", "PRINT_START: NOT_A_COMMAND"]
+    # At the top level (the console, a script) an unknown command is still an error.
+    with pytest.raises(GCodeError, match='^Unknown command:"Z_TILT_ADJUST"$'):
+        printer.gcode.run_script("Z_TILT_ADJUST")
+
+
+def test_tapcell_run_reports_skipped_commands_in_its_summary_and_exit_status(tmp_path, capsys):
+    config = tmp_path / "printer.cfg"
+    config.write_text(PRINT_START)
+    script = tmp_path / "print.gcode"
+    script.write_text("PRINT_START\nM205 X8\n")
+    status = cli.main(["run", "--config", str(config), str(script)])
+    out, err = capsys.readouterr()
+    assert status == 3
+    assert out.splitlines()[-1] == '// Unknown command:"M205"'  # a slicer's code at the top: as in Klipper
+    assert err.splitlines()[-1] == ("tapcell run: warning: 2 unknown command(s) skipped inside macros "
+                                    "(PRINT_START: Z_TILT_ADJUST, PRINT_START: NOT_A_COMMAND); exit status 3")
+    script.write_text("M205 X8\nRESPOND MSG=done\n")  # unknown at the top level only: 0, as before
+    assert cli.main(["run", "--config", str(config), str(script)]) == 0
+
+
+# -- the command line's own exits ----------------------------------------------------------------
+
+def test_analyze_into_a_closed_pipe_ends_quietly(tmp_path):
+    taps = _write_taps(tmp_path, 3)
+    # `tapcell analyze … | head -0`: the reader is gone before the first line is written.
+    process = subprocess.Popen([sys.executable, "-m", "tapcell", "analyze", *map(str, taps)],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    process.stdout.close()
+    _, err = process.communicate(timeout=120)
+    assert b"Traceback" not in err and b"BrokenPipe" not in err, err.decode()[-800:]
+    assert process.returncode == cli.EXIT_BROKEN_PIPE
+
+
+def _write_taps(folder: Path, count: int) -> list[Path]:
+    text = json.dumps(tap_to_json_dict(synth_tap()))
+    paths = [folder / f"tap{k:03d}.json" for k in range(count)]
+    for path in paths:
+        path.write_text(text)
+    return paths
