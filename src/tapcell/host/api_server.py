@@ -523,7 +523,12 @@ class ApiServer:
     async def _accept(self, reader, writer) -> None:
         connection = Connection(self, reader, writer)
         self.connections.add(connection)
-        await connection.serve()
+        try:
+            await connection.serve()
+        except asyncio.CancelledError:
+            # The loop ends (SIGTERM) while the client is connected: asyncio's stream callback
+            # would print the cancellation as a traceback. The connection is closed already.
+            pass
 
     async def _every(self, period_s: float, step: Callable[[], None]) -> None:
         while True:
