@@ -392,25 +392,12 @@ def test_save_merges_with_existing_block_and_removes_sections(tmp_path):
     assert ConfigFile.read(path).getsection("load_cell").get("counts_per_gram") == "10"
 
 
-class _HalfWritingFile:
-    """A file whose write() stores half the data, then fails like a full disk."""
-
-    def __init__(self, real):
-        self._real = real
-
-    def write(self, data):
-        self._real.write(data[: len(data) // 2])
-        self._real.flush()
+def _half_writing(real_write):
+    """os.write that stores half the data, then fails like a full disk."""
+    def write(fd, data):
+        real_write(fd, bytes(data[: len(data) // 2]))
         raise OSError(28, "No space left on device")
-
-    def __getattr__(self, name):
-        return getattr(self._real, name)
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return self._real.__exit__(*exc)
+    return write
 
 
 def _no_space(*args, **kwargs):
@@ -432,8 +419,7 @@ def test_failure_mid_save_leaves_old_file_and_backup_intact(tmp_path, monkeypatc
     cfg = ConfigFile.read(path)
     cfg.set("load_cell", "counts_per_gram", "1.0")
     if failing == "write":
-        real_fdopen = config_module.os.fdopen
-        monkeypatch.setattr(config_module.os, "fdopen", lambda *a, **k: _HalfWritingFile(real_fdopen(*a, **k)))
+        monkeypatch.setattr(config_module.os, "write", _half_writing(config_module.os.write))
     elif failing == "backup":
         monkeypatch.setattr(config_module, "_replace_file", _fail_on_the_backup(config_module._replace_file))
     else:

@@ -7,6 +7,11 @@ comment at the start of a line or after whitespace.  `[include pattern]` pulls
 in other files (globs, relative to the including file).  The trailing `#*#`
 block is what SAVE_CONFIG wrote; its values override the ones above it.
 
+Saving is serialised by a lock on the config file, merges into the file as it is on disk
+then (another program's edits are kept), and refuses to overwrite a SAVE_CONFIG value that
+another process changed since this one loaded the file. Section names are checked before
+they are queued: a name the syntax cannot hold (`bed_mesh a]b`) would make the file unloadable.
+
 Modules read their options through `ConfigSection` getters.  Every read is
 remembered, so that after loading `ConfigFile.check_unused_options()` can
 reject options that nothing understood (usually a typo).
@@ -18,12 +23,16 @@ option, the value and what is allowed, e.g.
 
 from __future__ import annotations
 
+import errno
+import fcntl
 import glob
 import math
 import os
 import re
+import secrets
 import stat
 import tempfile
+import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
@@ -62,6 +71,11 @@ MAX_INCLUDE_DEPTH = 20
 MAX_CONFIG_FILES = 1000
 # A printer.cfg with every macro and a few mesh profiles is well under 1 MB.
 MAX_CONFIG_FILE_BYTES = 16 * 1024 * 1024
+# A section name SAVE_CONFIG may write ('bed_mesh NAME'): real ones are a few words.
+MAX_SECTION_NAME_CHARS = 200
+# How long a save waits for another process's save of the same file (each takes milliseconds).
+SAVE_LOCK_WAIT_S = 10.0
+SAVE_LOCK_POLL_S = 0.01
 
 _TRUE_WORDS = ("true", "yes", "on", "1")
 _FALSE_WORDS = ("false", "no", "off", "0")
@@ -289,6 +303,34 @@ def split_autosave(text: str, path: str) -> tuple[list[str], list[str], int]:
 # Reading values
 
 
+def section_name_problem(name: str) -> str | None:
+    """Why `[name]` cannot be written to a config file and read back as the same name, or None."""
+    if not name:
+        return "is empty"
+    if len(name) > MAX_SECTION_NAME_CHARS:
+        return f"is {len(name):,} characters long (at most {MAX_SECTION_NAME_CHARS})"
+    if any(ord(char) < 32 or ord(char) == 127 for char in name):
+        return "contains a control character (a tab, a line break)"
+    for char in "[]":
+        if char in name:
+            return f"contains '{char}', which ends a section header"
+    for char in "#;":
+        if char in name:
+            return f"contains '{char}', which starts a comment"
+    if " ".join(name.split()) != name:
+        return "has spaces at its ends or two spaces in a row (they would not be read back)"
+    return None
+
+
+def check_section_name(name: str) -> None:
+    """ConfigError unless SAVE_CONFIG can write `[name]` and read it back (see section_name_problem)."""
+    problem = section_name_problem(name)
+    if problem is not None:
+        shown = name if len(name) <= 40 else name[:40] + "..."
+        raise ConfigError(f"section name {shown!r} {problem}: it cannot be saved to the config file",
+                          section=name)
+
+
 class ConfigSection:
     """One section, as handed to a module's `load_config(section, printer)`."""
 
@@ -485,6 +527,9 @@ class ConfigFile:
         self._read: set[tuple[str, str]] = set()
         self._pending_set: dict[str, dict[str, str]] = {}
         self._pending_remove: set[str] = set()
+        # The SAVE_CONFIG block as this process last knew the file (at load, then as it saved it):
+        # a value that differs on disk at save time was changed by another process.
+        self._known_block = _block_texts(autosave)
 
     @classmethod
     def read(cls, path: str | os.PathLike) -> ConfigFile:
@@ -565,7 +610,10 @@ class ConfigFile:
     # -- SAVE_CONFIG ---------------------------------------------------------
 
     def set(self, section: str, option: str, value: Any) -> None:
-        """Queue `option = value` in the SAVE_CONFIG block (written by save())."""
+        """Queue `option = value` in the SAVE_CONFIG block (written by save()).
+
+        ConfigError for a section name the file cannot hold (check_section_name)."""
+        check_section_name(section)
         self._pending_remove.discard(section)
         self._pending_set.setdefault(section, {})[option.lower()] = str(value)
 
@@ -586,23 +634,144 @@ class ConfigFile:
     def save(self) -> None:
         """Rewrite the main file's SAVE_CONFIG block with the pending changes, atomically.
 
-        The text above the block is kept byte for byte; the old file is kept
-        as `<name>.bak` (see write_atomically: symlinks, mode and owner).  On any
-        failure the old file is left untouched.
+        Serialised with other savers of the file by a lock on it (see _locked_config). The
+        file is read again under the lock: the text above the block is kept byte for byte
+        (edits made by others since the load included) and so are block values this save does
+        not change. A value this save would change that another process has changed since this
+        one loaded (or last saved) the file is not overwritten: ConfigError says which, nothing
+        is written and the changes stay pending. The old file is kept as `<name>.bak` (see
+        write_atomically: symlinks, mode and owner). On any failure the old file is untouched.
         """
-        text = read_config_text(self.path)
-        body_lines, block_lines, block_start = split_autosave(text, self.path)
-        parser = _Parser()
-        parser._parse_lines(block_lines, self.path, block_start, (), parser.autosave_sections, allow_include=False)
-        block = {name: {o: v.text for o, v in s.options.items()} for name, s in parser.autosave_sections.items()}
-        for name in self._pending_remove:
-            block.pop(name, None)
-        for name, options in self._pending_set.items():
-            block.setdefault(name, {}).update(options)
-        new_text = render_with_autosave("\n".join(body_lines), block)
-        write_atomically(self.path, new_text, keep_backup=True)
+        with _locked_config(self.path):
+            text = read_config_text(self.path)
+            body_lines, block_lines, block_start = split_autosave(text, self.path)
+            parser = _Parser()
+            parser._parse_lines(block_lines, self.path, block_start, (), parser.autosave_sections,
+                                allow_include=False)
+            block = _block_texts(parser.autosave_sections)
+            self._refuse_overwriting_others(block)
+            for name in self._pending_remove:
+                block.pop(name, None)
+            for name, options in self._pending_set.items():
+                block.setdefault(name, {}).update(options)
+            new_text = render_with_autosave("\n".join(body_lines), block)
+            write_atomically(self.path, new_text, keep_backup=True)
+        self._known_block = {name: dict(options) for name, options in block.items()}
         self._pending_set.clear()
         self._pending_remove.clear()
+
+    def _refuse_overwriting_others(self, on_disk: dict[str, dict[str, str]]) -> None:
+        """ConfigError if a pending change would overwrite what another process saved since."""
+        for name in sorted({*self._pending_set, *self._pending_remove}):
+            known, now = self._known_block.get(name, {}), on_disk.get(name, {})
+            options = self._pending_set.get(name) or {*known, *now}
+            for option in options:
+                if known.get(option) != now.get(option):
+                    raise ConfigError(
+                        f"{self.path}: SAVE_CONFIG refused: [{name}] {option} was changed by another program "
+                        f"since this printer loaded the file ({_shown(known.get(option))} -> "
+                        f"{_shown(now.get(option))}); nothing was written. RESTART to load the file as it "
+                        f"is now, then repeat the command that changed it", file=self.path, section=name,
+                        option=option)
+
+
+def _block_texts(sections: Mapping[str, _Section]) -> dict[str, dict[str, str]]:
+    return {name: {option: value.text for option, value in section.options.items()}
+            for name, section in sections.items()}
+
+
+def _shown(value: str | None) -> str:
+    if value is None:
+        return "absent"
+    first = value.split("\n")[0]
+    return repr(first if len(first) <= 40 else first[:40] + "...")
+
+
+class _locked_config:
+    """An exclusive lock (flock) on the config file for one save; other savers wait for it.
+
+    The lock is on the file itself, so it needs no extra file. A save replaces the file (a
+    rename), so a saver that got the lock on a file since replaced opens the new one and
+    locks again. A lock held longer than SAVE_LOCK_WAIT_S (a process stuck while saving) is a
+    ConfigError, not a hang. A file that does not exist yet is saved without a lock.
+    """
+
+    def __init__(self, path: str):
+        self.path = os.path.realpath(path)
+        self.fd: int | None = None
+
+    def __enter__(self) -> None:
+        deadline = time.monotonic() + SAVE_LOCK_WAIT_S
+        while True:
+            try:
+                fd = os.open(self.path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+            except FileNotFoundError:
+                return
+            except OSError:
+                return  # not openable (a FIFO opened elsewhere, no permission): the write reports it
+            if self._lock(fd, deadline) and _same_file(fd, self.path):
+                self.fd = fd
+                _remove_stale_temps(self.path)
+                return
+            os.close(fd)
+
+    def _lock(self, fd: int, deadline: float) -> bool:
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                return True
+            except BlockingIOError:
+                if time.monotonic() > deadline:
+                    os.close(fd)
+                    raise ConfigError(f"{self.path}: unable to save: another process has held the config "
+                                      f"file locked for over {SAVE_LOCK_WAIT_S:g} s; nothing was written",
+                                      file=self.path) from None
+                time.sleep(SAVE_LOCK_POLL_S)
+            except OSError as exc:
+                if exc.errno in (errno.ENOLCK, errno.EOPNOTSUPP, errno.EINVAL):
+                    return True  # a file system without locks: save as before
+                raise
+
+    def __exit__(self, *exc_info) -> None:
+        if self.fd is not None:
+            os.close(self.fd)  # releases the lock
+            self.fd = None
+
+
+def _same_file(fd: int, path: str) -> bool:
+    """Whether `path` still names the file open as `fd` (not replaced by another save meanwhile)."""
+    try:
+        now = os.stat(path)
+    except FileNotFoundError:
+        return False
+    held = os.fstat(fd)
+    return (held.st_dev, held.st_ino) == (now.st_dev, now.st_ino)
+
+
+def _is_temp_of(name: str, path: str) -> bool:
+    """Whether `name` (in the file's folder) is a temp file write_atomically makes for `path` or
+    its `.bak`: `.printer.cfg.1a2b3c4d.tmp` (not another config's, such as `printer.cfg.old`'s)."""
+    base = re.escape(os.path.basename(path))
+    return re.fullmatch(rf"\.{base}(\.bak)?\.[A-Za-z0-9_]{{8}}\.tmp", name) is not None
+
+
+def _remove_stale_temps(path: str) -> None:
+    """Temp files of a save that was killed (SIGKILL, a power cut) before it could remove them.
+
+    Called with the file's lock held: every save makes its temp files only while holding the
+    lock, so any found now belong to a save that is no longer running."""
+    directory = os.path.dirname(path)
+    try:
+        names = os.listdir(directory)
+    except OSError:
+        return
+    for name in names:
+        if not _is_temp_of(name, path):
+            continue
+        try:
+            os.unlink(os.path.join(directory, name))
+        except OSError:
+            pass  # removed meanwhile, or not ours to remove: the save goes on
 
 
 def render_with_autosave(body: str, block: Mapping[str, Mapping[str, str]]) -> str:
@@ -655,23 +824,77 @@ def _read_existing(path: str) -> tuple[bytes, os.stat_result] | None:
 
 
 def _replace_file(path: str, data: bytes, like: os.stat_result | None) -> None:
-    """Atomically put `data` at `path` (temp file + fsync + rename), with the mode and owner of `like`."""
+    """Atomically put `data` at `path` (temp file + fsync + rename), with the mode and owner of `like`.
+
+    The temp file is made without a name (O_TMPFILE) and named only just before the rename, so
+    a save killed while writing leaves nothing behind; a name left by a kill in the microseconds
+    between the two is removed by the next save (_remove_stale_temps)."""
+    temp_path = None
+    try:
+        temp_path = _write_unnamed(path, data, like) or _write_named(path, data, like)
+        os.replace(temp_path, path)
+    except BaseException:
+        if temp_path is not None:
+            try:
+                os.unlink(temp_path)
+            except FileNotFoundError:
+                pass
+        raise
+
+
+def _finish_temp(fd: int, data: bytes, like: os.stat_result | None) -> None:
+    """Write, give the mode and owner of `like`, and make durable."""
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view):]
+    if like is not None:
+        os.fchmod(fd, stat.S_IMODE(like.st_mode))
+        created = os.fstat(fd)
+        if (like.st_uid, like.st_gid) != (created.st_uid, created.st_gid):
+            os.fchown(fd, like.st_uid, like.st_gid)
+    os.fsync(fd)
+
+
+def _temp_name(path: str) -> str:
+    return os.path.join(os.path.dirname(path), f".{os.path.basename(path)}.{secrets.token_hex(4)}.tmp")
+
+
+def _write_unnamed(path: str, data: bytes, like: os.stat_result | None) -> str | None:
+    """The complete temp file, named; None where the system cannot make unnamed files."""
+    try:
+        fd = os.open(os.path.dirname(path) or ".", os.O_TMPFILE | os.O_WRONLY | os.O_CLOEXEC, 0o600)
+    except (AttributeError, OSError) as exc:
+        if isinstance(exc, OSError) and exc.errno not in (errno.EOPNOTSUPP, errno.EISDIR, errno.EINVAL):
+            raise
+        return None  # no O_TMPFILE here (another OS, an old kernel, a file system without it)
+    try:
+        _finish_temp(fd, data, like)
+        while True:
+            name = _temp_name(path)
+            try:
+                os.link(f"/proc/self/fd/{fd}", name, follow_symlinks=True)
+                return name
+            except FileExistsError:
+                continue
+            except OSError as exc:
+                if exc.errno in (errno.ENOENT, errno.EPERM, errno.EXDEV):
+                    return None  # no /proc to name it through: write a named one
+                raise
+    finally:
+        os.close(fd)
+
+
+def _write_named(path: str, data: bytes, like: os.stat_result | None) -> str:
     fd, temp_path = tempfile.mkstemp(dir=os.path.dirname(path), prefix=f".{os.path.basename(path)}.",
                                      suffix=".tmp")
     try:
-        with os.fdopen(fd, "wb") as handle:
-            handle.write(data)
-            handle.flush()
-            if like is not None:
-                os.fchmod(handle.fileno(), stat.S_IMODE(like.st_mode))
-                created = os.fstat(handle.fileno())
-                if (like.st_uid, like.st_gid) != (created.st_uid, created.st_gid):
-                    os.fchown(handle.fileno(), like.st_uid, like.st_gid)
-            os.fsync(handle.fileno())
-        os.replace(temp_path, path)
+        _finish_temp(fd, data, like)
     except BaseException:
+        os.close(fd)
         os.unlink(temp_path)
         raise
+    os.close(fd)
+    return temp_path
 
 
 def _fsync_directory(directory: str) -> None:

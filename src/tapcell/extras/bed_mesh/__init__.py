@@ -30,7 +30,7 @@ from dataclasses import replace
 
 from tapcell.extras.bed_mesh.methods import METHODS
 from tapcell.extras.bed_mesh.options import SECTION, command_options, read_bed_mesh_options
-from tapcell.host.config import ConfigSection
+from tapcell.host.config import ConfigSection, section_name_problem
 from tapcell.host.gcode import GCodeCommand, GCodeError
 from tapcell.mesh.errors import MeshError, MeshOptionError
 from tapcell.mesh.grid import matrix_from_probes
@@ -215,6 +215,11 @@ class BedMesh:
         name = gcmd.get(action).strip()
         if not name or " " in name:
             raise gcmd.param_error(f"{action} needs a one-word profile name")
+        if action == "SAVE":
+            problem = section_name_problem(profile_section_name(name))
+            if problem is not None:  # SAVE_CONFIG would write a file that no longer loads
+                raise gcmd.param_error(f"profile name '{name[:40]}': [bed_mesh {name[:40]}] {problem}, "
+                                       f"so it cannot be saved in the config file; choose another name")
         if action != "SAVE" and name not in self.profiles:
             raise gcmd.param_error(f"no bed mesh profile '{name}' "
                                    f"(known: {', '.join(sorted(self.profiles)) or 'none'})")
