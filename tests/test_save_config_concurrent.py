@@ -131,7 +131,7 @@ config = config_module.ConfigFile.read({path!r})
 config.set("load_cell", "counts_per_gram", "123")
 def killed(fd):  # the power goes, or SIGKILL, after the data and before the rename
     os.kill(os.getpid(), signal.SIGKILL)
-config_module.os.fsync = killed
+os.fsync = killed
 config.save()
 """
 
@@ -140,7 +140,8 @@ config.save()
 def test_a_save_killed_mid_write_leaves_the_file_and_no_temp_file(path, unnamed):
     code = KILLED_WHILE_WRITING.format(src=str(SRC), path=str(path))
     if not unnamed:  # a system without O_TMPFILE: the named temp file stays until the next save
-        code = code.replace("config.save()", "config_module._write_unnamed = lambda *a: None\nconfig.save()")
+        code = code.replace("config.save()", "import tapcell.files\n"
+                            "tapcell.files._write_unnamed = lambda *a: None\nconfig.save()")
     process = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
     assert process.returncode == -9, process.stderr
     assert path.read_text() == BODY

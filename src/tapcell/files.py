@@ -6,6 +6,9 @@ end. Every file is therefore opened with O_NONBLOCK and checked with fstat befor
 read or written. Every reader of user files (config, includes, tap files, G-code files, the
 virtual bed's CSV) goes through `read_limited`, every appending writer (logs) through
 `open_append`; each turns `FileRefused` and `OSError` into its own error that names the file.
+
+Files tapcell writes whole (the config at SAVE_CONFIG, the Kalico plug-in) go through
+`replace_atomically`: never torn, and no temp file left behind even by SIGKILL.
 """
 
 from __future__ import annotations
@@ -13,7 +16,9 @@ from __future__ import annotations
 import errno
 import fcntl
 import os
+import secrets
 import stat
+import tempfile
 from typing import TextIO
 
 
@@ -87,3 +92,107 @@ def check_appendable(path: str | os.PathLike) -> str | None:
     except OSError as problem:
         return f"cannot be written ({problem.strerror or problem})"
     return None
+
+
+def replace_atomically(path: str, data: bytes, *, mode: int | None = None,
+                       owner: tuple[int, int] | None = None) -> None:
+    """Put `data` at `path` by a rename, so readers see the old file or the new one, never part.
+
+    The temp file is made without a name (O_TMPFILE), written, given `mode` and `owner`
+    (uid, gid) and fsynced, then named `.<name>.<8 characters>.tmp` and renamed over `path`
+    at once: a process killed while writing leaves nothing, and one killed in the microseconds
+    between the two leaves a name `is_temp_of(name, path)` recognises. Where the system has no
+    O_TMPFILE a named temp file is written instead. Without `mode` it is 0600 (mkstemp's).
+    On an error the temp file is removed and `path` is untouched; OSError passes through.
+    """
+    temp_path = None
+    try:
+        temp_path = _write_unnamed(path, data, mode, owner) or _write_named(path, data, mode, owner)
+        os.replace(temp_path, path)
+    except BaseException:
+        if temp_path is not None:
+            try:
+                os.unlink(temp_path)
+            except FileNotFoundError:
+                pass
+        raise
+
+
+def is_temp_of(name: str, path: str) -> bool:
+    """Whether `name` (in the folder of `path`) is a temp file replace_atomically makes for `path`
+    or its `.bak`: `.printer.cfg.1a2b3c4d.tmp`, not another file's (`printer.cfg.old`'s)."""
+    prefix = f".{os.path.basename(path)}."
+    if not (name.startswith(prefix) and name.endswith(".tmp")):
+        return False
+    middle = name[len(prefix):-len(".tmp")].removeprefix("bak.")
+    return len(middle) == 8 and all(char.isascii() and (char.isalnum() or char == "_") for char in middle)
+
+
+def _finish_temp(fd: int, data: bytes, mode: int | None, owner: tuple[int, int] | None) -> None:
+    """Write, give mode and owner, and make durable."""
+    view = memoryview(data)
+    while view:
+        view = view[os.write(fd, view):]
+    if mode is not None:
+        os.fchmod(fd, mode)
+    if owner is not None:
+        created = os.fstat(fd)
+        if owner != (created.st_uid, created.st_gid):
+            os.fchown(fd, *owner)
+    os.fsync(fd)
+
+
+def _write_unnamed(path: str, data: bytes, mode: int | None, owner: tuple[int, int] | None) -> str | None:
+    """The complete temp file, named; None where the system cannot make unnamed files."""
+    try:
+        fd = os.open(os.path.dirname(path) or ".", os.O_TMPFILE | os.O_WRONLY | os.O_CLOEXEC, 0o600)
+    except (AttributeError, OSError) as exc:
+        if isinstance(exc, OSError) and exc.errno not in (errno.EOPNOTSUPP, errno.EISDIR, errno.EINVAL):
+            raise
+        return None  # no O_TMPFILE here (another OS, an old kernel, a file system without it)
+    try:
+        _finish_temp(fd, data, mode, owner)
+        while True:
+            name = os.path.join(os.path.dirname(path), f".{os.path.basename(path)}.{secrets.token_hex(4)}.tmp")
+            try:
+                os.link(f"/proc/self/fd/{fd}", name, follow_symlinks=True)
+                return name
+            except FileExistsError:
+                continue
+            except OSError as exc:
+                if exc.errno in (errno.ENOENT, errno.EPERM, errno.EXDEV):
+                    return None  # no /proc to name it through: write a named one
+                raise
+    finally:
+        os.close(fd)
+
+
+def _write_named(path: str, data: bytes, mode: int | None, owner: tuple[int, int] | None) -> str:
+    fd, temp_path = tempfile.mkstemp(dir=os.path.dirname(path) or ".", prefix=f".{os.path.basename(path)}.",
+                                     suffix=".tmp")
+    try:
+        _finish_temp(fd, data, mode, owner)
+    except BaseException:
+        os.close(fd)
+        os.unlink(temp_path)
+        raise
+    os.close(fd)
+    return temp_path
+
+
+def remove_stale_temps(path: str) -> None:
+    """Remove temp files replace_atomically left for `path` when its process was killed.
+
+    Call it only while holding a lock every writer of `path` holds while writing: then any
+    temp file found belongs to a writer that is no longer running."""
+    directory = os.path.dirname(path) or "."
+    try:
+        names = os.listdir(directory)
+    except OSError:
+        return
+    for name in names:
+        if is_temp_of(name, path):
+            try:
+                os.unlink(os.path.join(directory, name))
+            except OSError:
+                pass  # removed meanwhile, or not ours to remove: the write goes on

@@ -29,14 +29,12 @@ import glob
 import math
 import os
 import re
-import secrets
 import stat
-import tempfile
 import time
 from dataclasses import dataclass, field
 from typing import Any, Callable, Mapping, Sequence
 
-from tapcell.files import FileRefused, read_limited
+from tapcell.files import FileRefused, read_limited, remove_stale_temps, replace_atomically
 
 
 class ConfigError(Exception):
@@ -711,7 +709,7 @@ class _locked_config:
                 return  # not openable (a FIFO opened elsewhere, no permission): the write reports it
             if self._lock(fd, deadline) and _same_file(fd, self.path):
                 self.fd = fd
-                _remove_stale_temps(self.path)
+                remove_stale_temps(self.path)  # of saves killed earlier: none runs now
                 return
             os.close(fd)
 
@@ -746,32 +744,6 @@ def _same_file(fd: int, path: str) -> bool:
         return False
     held = os.fstat(fd)
     return (held.st_dev, held.st_ino) == (now.st_dev, now.st_ino)
-
-
-def _is_temp_of(name: str, path: str) -> bool:
-    """Whether `name` (in the file's folder) is a temp file write_atomically makes for `path` or
-    its `.bak`: `.printer.cfg.1a2b3c4d.tmp` (not another config's, such as `printer.cfg.old`'s)."""
-    base = re.escape(os.path.basename(path))
-    return re.fullmatch(rf"\.{base}(\.bak)?\.[A-Za-z0-9_]{{8}}\.tmp", name) is not None
-
-
-def _remove_stale_temps(path: str) -> None:
-    """Temp files of a save that was killed (SIGKILL, a power cut) before it could remove them.
-
-    Called with the file's lock held: every save makes its temp files only while holding the
-    lock, so any found now belong to a save that is no longer running."""
-    directory = os.path.dirname(path)
-    try:
-        names = os.listdir(directory)
-    except OSError:
-        return
-    for name in names:
-        if not _is_temp_of(name, path):
-            continue
-        try:
-            os.unlink(os.path.join(directory, name))
-        except OSError:
-            pass  # removed meanwhile, or not ours to remove: the save goes on
 
 
 def render_with_autosave(body: str, block: Mapping[str, Mapping[str, str]]) -> str:
@@ -824,77 +796,10 @@ def _read_existing(path: str) -> tuple[bytes, os.stat_result] | None:
 
 
 def _replace_file(path: str, data: bytes, like: os.stat_result | None) -> None:
-    """Atomically put `data` at `path` (temp file + fsync + rename), with the mode and owner of `like`.
-
-    The temp file is made without a name (O_TMPFILE) and named only just before the rename, so
-    a save killed while writing leaves nothing behind; a name left by a kill in the microseconds
-    between the two is removed by the next save (_remove_stale_temps)."""
-    temp_path = None
-    try:
-        temp_path = _write_unnamed(path, data, like) or _write_named(path, data, like)
-        os.replace(temp_path, path)
-    except BaseException:
-        if temp_path is not None:
-            try:
-                os.unlink(temp_path)
-            except FileNotFoundError:
-                pass
-        raise
-
-
-def _finish_temp(fd: int, data: bytes, like: os.stat_result | None) -> None:
-    """Write, give the mode and owner of `like`, and make durable."""
-    view = memoryview(data)
-    while view:
-        view = view[os.write(fd, view):]
-    if like is not None:
-        os.fchmod(fd, stat.S_IMODE(like.st_mode))
-        created = os.fstat(fd)
-        if (like.st_uid, like.st_gid) != (created.st_uid, created.st_gid):
-            os.fchown(fd, like.st_uid, like.st_gid)
-    os.fsync(fd)
-
-
-def _temp_name(path: str) -> str:
-    return os.path.join(os.path.dirname(path), f".{os.path.basename(path)}.{secrets.token_hex(4)}.tmp")
-
-
-def _write_unnamed(path: str, data: bytes, like: os.stat_result | None) -> str | None:
-    """The complete temp file, named; None where the system cannot make unnamed files."""
-    try:
-        fd = os.open(os.path.dirname(path) or ".", os.O_TMPFILE | os.O_WRONLY | os.O_CLOEXEC, 0o600)
-    except (AttributeError, OSError) as exc:
-        if isinstance(exc, OSError) and exc.errno not in (errno.EOPNOTSUPP, errno.EISDIR, errno.EINVAL):
-            raise
-        return None  # no O_TMPFILE here (another OS, an old kernel, a file system without it)
-    try:
-        _finish_temp(fd, data, like)
-        while True:
-            name = _temp_name(path)
-            try:
-                os.link(f"/proc/self/fd/{fd}", name, follow_symlinks=True)
-                return name
-            except FileExistsError:
-                continue
-            except OSError as exc:
-                if exc.errno in (errno.ENOENT, errno.EPERM, errno.EXDEV):
-                    return None  # no /proc to name it through: write a named one
-                raise
-    finally:
-        os.close(fd)
-
-
-def _write_named(path: str, data: bytes, like: os.stat_result | None) -> str:
-    fd, temp_path = tempfile.mkstemp(dir=os.path.dirname(path), prefix=f".{os.path.basename(path)}.",
-                                     suffix=".tmp")
-    try:
-        _finish_temp(fd, data, like)
-    except BaseException:
-        os.close(fd)
-        os.unlink(temp_path)
-        raise
-    os.close(fd)
-    return temp_path
+    """Atomically put `data` at `path` (files.replace_atomically: no temp file survives a kill),
+    with the mode and owner of `like`."""
+    replace_atomically(path, data, mode=None if like is None else stat.S_IMODE(like.st_mode),
+                       owner=None if like is None else (like.st_uid, like.st_gid))
 
 
 def _fsync_directory(directory: str) -> None:
