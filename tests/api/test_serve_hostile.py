@@ -11,7 +11,9 @@ import pytest
 
 from conftest import STOP_TIMEOUT_S, printer_config, start_serve
 from klippy_client import KlippyClient
-from tapcell.host.api_server import SocketPathTaken, claim_socket_path
+from tapcell.host import api_server
+from tapcell.host.api_server import (RequestError, SocketPathTaken, _objects_param, claim_socket_path, strict_json,
+                                     strict_text, with_encoded_params)
 
 SERVE_TIMEOUT_S = 120.0  # a refusal comes right after the printer is built (seconds on a busy machine)
 
@@ -84,3 +86,72 @@ def test_serve_refuses_its_own_config_as_socket_and_a_second_server(tmp_path):
     assert first.returncode == 0
     assert "Traceback" not in (tmp_path / "first.log").read_text()
     assert not socket_path.exists()
+
+
+# -- memory and work bounded as a whole --------------------------------------------------------
+
+MIB = 1024 * 1024
+
+
+class FakeConnection:
+    def __init__(self, unsent_mib: float):
+        self.unsent = int(unsent_mib * MIB)
+        self.closed = False
+        self.reason = None
+
+    def unsent_bytes(self) -> int:
+        return 0 if self.closed else self.unsent
+
+    def drop(self, reason: str) -> None:
+        self.closed, self.reason = True, reason
+        FakeServer.current.connections.discard(self)
+
+
+class FakeServer:
+    current = None
+
+    def __init__(self, *sizes_mib):
+        self.connections = {FakeConnection(size) for size in sizes_mib}
+        FakeServer.current = self
+
+
+def bound(*sizes_mib) -> dict[float, str | None]:
+    """{unsent MiB: why dropped or None} after the server's check for the connection of the first size."""
+    server = FakeServer(*sizes_mib)
+    everyone = list(server.connections)
+    checked = next(c for c in everyone if c.unsent == int(sizes_mib[0] * MIB))
+    api_server.ApiServer.bound_unsent(server, checked)
+    return {c.unsent / MIB: c.reason for c in everyone}
+
+
+def test_the_clients_holding_the_most_unsent_bytes_are_dropped_first():
+    assert api_server.MAX_TOTAL_UNSENT_BYTES == 128 * MIB and api_server.MAX_UNSENT_BYTES == 64 * MIB
+    # 2 + 50 + 40 + 45 = 137 MiB together: the 50 MiB client goes, the rest stay (87 MiB).
+    result = bound(2, 50, 40, 45)
+    assert [size for size, reason in result.items() if reason] == [50]
+    assert result[50] == ("a client stopped reading: clients hold 143,654,912 bytes unsent (at most 134,217,728 "
+                          "together) and this one the most (52,428,800)")
+    # Under the total nobody goes; one client over its own limit goes alone.
+    assert not any(bound(2, 50, 40, 30).values())
+    result = bound(65, 1, 2)
+    assert result[65].startswith("a client stopped reading (68,157,440 bytes unsent, at most 67,108,864)")
+    assert result[1] is None and result[2] is None
+
+
+def test_a_subscription_too_large_to_be_real_is_refused():
+    objects = {f"made_up_{k}": None for k in range(api_server.MAX_SUBSCRIBED_OBJECTS + 1)}
+    with pytest.raises(RequestError, match=r"^Invalid Argument \[objects\]: 1,001 objects requested \(at most 1,000\)$"):
+        _objects_param({"objects": objects})
+    fields = [f"f{k}" for k in range(api_server.MAX_FIELDS_PER_OBJECT + 1)]
+    with pytest.raises(RequestError, match=r"^Invalid Argument \[objects\]: 1,001 fields requested of 'toolhead' "
+                                           r"\(at most 1,000\)$"):
+        _objects_param({"objects": {"toolhead": fields}})
+    assert _objects_param({"objects": {"toolhead": ["position"], "webhooks": None}}) == \
+        {"toolhead": ["position"], "webhooks": None}
+
+
+@pytest.mark.parametrize("template", [{}, {"method": "f"}, {"method": "f", "params": {"old": 1}},
+                                      {"id": 7, "nested": {"a": [1, 2]}}])
+def test_a_push_encoded_once_is_the_message_encoded_per_client(template):
+    params = {"data": [[1.5, float("nan"), 3], [2.0, 1e-9, None]], "errors": 0, "overflows": 0}
+    assert with_encoded_params(template, strict_text(params)) == strict_json({**template, "params": params})

@@ -52,6 +52,13 @@ from tapcell.host.webhooks import ApiObjects
 
 MAX_MESSAGE_BYTES = 8 * 1024 * 1024  # a request longer than this closes its connection
 MAX_UNSENT_BYTES = 64 * 1024 * 1024  # a client that stops reading is dropped past this
+# All clients together: past this the clients holding the most unsent bytes are dropped first,
+# so twenty clients that never read cost this much at most, not twenty times the limit above.
+MAX_TOTAL_UNSENT_BYTES = 128 * 1024 * 1024
+UNSENT_CHECK_BYTES = 1024 * 1024  # a client with less unsent is reading: no budget check
+MAX_PENDING_REQUESTS = 100  # unanswered requests of one client before its next one is read
+MAX_SUBSCRIBED_OBJECTS = 1000  # a Klipper printer has under 100 status objects
+MAX_FIELDS_PER_OBJECT = 1000
 IDLE_TICK_S = 0.1  # the printer thread's clock step while no script runs
 MAX_TICK_S = 0.5  # at most this much virtual time per tick (after a stall)
 SNAPSHOT_DURING_SCRIPT_S = 0.25  # a running script refreshes the status at most this often
@@ -124,11 +131,22 @@ class RequestError(Exception):
 
 def strict_json(message: dict) -> bytes:
     """The message as strict JSON plus the 0x03 terminator (NaN and infinity become null)."""
+    return strict_text(message).encode("utf-8") + b"\x03"
+
+
+def strict_text(value: Any) -> str:
+    """Strict JSON text of a value (NaN and infinity become null)."""
     try:
-        text = json.dumps(message, allow_nan=False, separators=(",", ":"), default=_numpy_value)
+        return json.dumps(value, allow_nan=False, separators=(",", ":"), default=_numpy_value)
     except ValueError:
-        text = json.dumps(_finite(message), allow_nan=False, separators=(",", ":"), default=_numpy_value)
-    return text.encode("utf-8") + b"\x03"
+        return json.dumps(_finite(value), allow_nan=False, separators=(",", ":"), default=_numpy_value)
+
+
+def with_encoded_params(template: dict, params_text: str) -> bytes:
+    """`{**template, "params": <params_text>}` as a message, with params already JSON text: a push
+    many clients get (the 2,000 sps force stream) is encoded once, not once per client."""
+    head = strict_text({key: value for key, value in template.items() if key != "params"})
+    return f'{head[:-1]}{"," if len(head) > 2 else ""}"params":{params_text}}}'.encode("utf-8") + b"\x03"
 
 
 def _numpy_value(value: Any) -> Any:
@@ -185,7 +203,20 @@ def _objects_param(params: dict) -> dict[str, list[str] | None]:
     for name, fields in objects.items():
         if fields is not None and not (isinstance(fields, list) and all(isinstance(f, str) for f in fields)):
             raise RequestError(f"Invalid Argument Type [objects]: '{name}' must map to null or a list of field names")
+    _check_objects_size(objects)
     return objects
+
+
+def _check_objects_size(objects: dict[str, list[str] | None]) -> None:
+    """Refuse a query or subscription too large to be real: each push walks every name in it
+    (200,000 made-up names cost a CPU core and 70 MB a client)."""
+    if len(objects) > MAX_SUBSCRIBED_OBJECTS:
+        raise RequestError(f"Invalid Argument [objects]: {len(objects):,} objects requested "
+                           f"(at most {MAX_SUBSCRIBED_OBJECTS:,})")
+    for name, fields in objects.items():
+        if fields is not None and len(fields) > MAX_FIELDS_PER_OBJECT:
+            raise RequestError(f"Invalid Argument [objects]: {len(fields):,} fields requested of "
+                               f"'{name[:40]}' (at most {MAX_FIELDS_PER_OBJECT:,})")
 
 
 def _template(params: dict) -> dict:
@@ -367,17 +398,37 @@ class Connection:
     def send(self, message: dict) -> None:
         if self.closed:
             return
-        self.writer.write(strict_json(message))
-        if self.writer.transport.get_write_buffer_size() > MAX_UNSENT_BYTES:
-            print(f"tapcell serve: a client stopped reading ({MAX_UNSENT_BYTES} bytes unsent): closing it",
-                  file=sys.stderr)
-            self.close()
+        self.send_bytes(strict_json(message))
+
+    def send_bytes(self, data: bytes) -> None:
+        """Send an encoded message (see strict_json, with_encoded_params)."""
+        if self.closed:
+            return
+        self.writer.write(data)
+        if self.unsent_bytes() > UNSENT_CHECK_BYTES:
+            self.server.bound_unsent(self)
+
+    def unsent_bytes(self) -> int:
+        return 0 if self.closed else self.writer.transport.get_write_buffer_size()
+
+    def drop(self, reason: str) -> None:
+        """Close now, throwing away what it has not read (close() would keep it until sent)."""
+        if self.closed:
+            return
+        print(f"tapcell serve: {reason}: closing it", file=sys.stderr)
+        self.closed = True
+        self.server.forget(self)
+        self.writer.transport.abort()
 
     def push(self, template: dict, params: dict) -> None:
         self.send({**template, "params": params})
 
     def close(self) -> None:
         if self.closed:
+            return
+        if self.unsent_bytes() > UNSENT_CHECK_BYTES:  # a client gone without reading: free it now
+            self.drop("a client left with unread messages")
+            _return_freed_memory()
             return
         self.closed = True
         self.server.forget(self)
@@ -394,8 +445,24 @@ class Connection:
                 except (asyncio.IncompleteReadError, ConnectionError):
                     break
                 self._handle(data[:-1])
+                await self._wait_for_the_client()
         finally:
             self.close()
+
+    async def _wait_for_the_client(self) -> None:
+        """Backpressure: read no further request from a client that leaves its replies unread or
+        has MAX_PENDING_REQUESTS unanswered, so one client cannot queue unbounded work and memory
+        (its own writes then block); the other clients are served meanwhile."""
+        while not self.closed:
+            if self.unsent_bytes() > UNSENT_CHECK_BYTES:
+                try:
+                    await self.writer.drain()
+                except ConnectionError:
+                    return
+            elif len(self.tasks) >= MAX_PENDING_REQUESTS:
+                await asyncio.wait(set(self.tasks), return_when=asyncio.FIRST_COMPLETED)
+            else:
+                return
 
     def _handle(self, data: bytes) -> None:
         try:
@@ -428,28 +495,31 @@ class Connection:
 
 
 class ForceStream:
-    """One connection's dump_force stream: its template and the rows not pushed yet."""
+    """One connection's dump_force stream: its template and the rows not pushed yet, each row
+    already JSON text (encoded once for every connection streaming the cell)."""
 
     def __init__(self, template: dict):
         self.template = template
-        self.rows: list[list] = []
+        self.rows: list[str] = []
         self.errors = 0
         self.overflows = 0
 
-    def add(self, rows: list[list], errors: int, overflows: int) -> None:
+    def add(self, rows: list[str], errors: int, overflows: int) -> None:
         self.rows.extend(rows)
         self.errors += errors
         self.overflows += overflows
 
-    def pushes(self) -> list[dict]:
-        """The unsent rows as push params of at most MAX_ROWS_PER_PUSH rows each."""
+    def pushes(self) -> list[bytes]:
+        """The unsent rows as messages of at most MAX_ROWS_PER_PUSH rows each."""
         limit = load_cell_streams.MAX_ROWS_PER_PUSH
-        params = [{"data": self.rows[k:k + limit], "errors": 0, "overflows": 0}
-                  for k in range(0, len(self.rows), limit)]
-        if params:
-            params[0].update(errors=self.errors, overflows=self.overflows)
+        messages = []
+        for k in range(0, len(self.rows), limit):
+            errors, overflows = (self.errors, self.overflows) if k == 0 else (0, 0)
+            params = f'{{"data":[{",".join(self.rows[k:k + limit])}],"errors":{errors},"overflows":{overflows}}}'
+            messages.append(with_encoded_params(self.template, params))
+        if messages:
             self.rows, self.errors, self.overflows = [], 0, 0
-        return params
+        return messages
 
 
 def _error(message: str) -> dict:
@@ -547,6 +617,26 @@ class ApiServer:
         for name in connection.force_streams:
             self._release_force_client(name)
 
+    def bound_unsent(self, connection: Connection) -> None:
+        """Keep what clients have not read within MAX_UNSENT_BYTES each and MAX_TOTAL_UNSENT_BYTES
+        together: past the total, the clients holding the most are dropped first."""
+        unsent = connection.unsent_bytes()
+        if unsent > MAX_UNSENT_BYTES:
+            connection.drop(f"a client stopped reading ({unsent:,} bytes unsent, at most {MAX_UNSENT_BYTES:,})")
+            _return_freed_memory()
+            return
+        holders = sorted(((c.unsent_bytes(), id(c), c) for c in self.connections), reverse=True)
+        total = sum(size for size, _, _ in holders)
+        if total <= MAX_TOTAL_UNSENT_BYTES:
+            return
+        for size, _, holder in holders:
+            if total <= MAX_TOTAL_UNSENT_BYTES:
+                break
+            holder.drop(f"a client stopped reading: clients hold {total:,} bytes unsent (at most "
+                        f"{MAX_TOTAL_UNSENT_BYTES:,} together) and this one the most ({size:,})")
+            total -= size
+        _return_freed_memory()
+
     async def call(self, connection: Connection, method: str, params: dict) -> Any:
         endpoint = self._endpoints.get(method)
         if endpoint is None:
@@ -598,8 +688,8 @@ class ApiServer:
     def _push_force(self) -> None:
         for connection in list(self.connections):
             for stream in connection.force_streams.values():
-                for params in stream.pushes():
-                    connection.push(stream.template, params)
+                for message in stream.pushes():
+                    connection.send_bytes(message)
 
     # -- endpoints ------------------------------------------------------------------------
 
@@ -694,10 +784,10 @@ class ApiServer:
             self._queue_force_rows, name, load_cell_streams.force_rows(cell, batch), batch.errors, batch.overflows))
 
     def _queue_force_rows(self, name: str, rows: list, errors: int, overflows: int) -> None:
-        for connection in self.connections:
-            stream = connection.force_streams.get(name)
-            if stream is not None:
-                stream.add(rows, errors, overflows)
+        streams = [c.force_streams[name] for c in self.connections if name in c.force_streams]
+        encoded = [strict_text(row) for row in rows] if streams else []
+        for stream in streams:
+            stream.add(encoded, errors, overflows)
 
     def _release_force_client(self, name: str) -> None:
         """When no connection streams the cell any more, its sample client goes."""
@@ -717,6 +807,17 @@ class ApiServer:
                                f"(one of: {', '.join(probes) or 'none configured'})")
         connection.tap_templates[name] = template
         return {"header": list(load_cell_streams.TAP_HEADER)}
+
+
+def _return_freed_memory() -> None:
+    """Give the heap freed by dropped clients back to the system (glibc keeps freed blocks
+    under 32 MB for reuse, so without this the RSS stays at its peak after they go)."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None).malloc_trim(0)
+    except (OSError, AttributeError):
+        pass  # not glibc: nothing to trim
 
 
 def _software_root() -> Path:
