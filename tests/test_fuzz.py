@@ -11,9 +11,11 @@ from __future__ import annotations
 
 import copy
 import json
+import os
 import random
 import re
 import signal
+import socket
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -32,6 +34,7 @@ from tapcell.tap.synth import synth_tap
 
 CASES = 150  # tap files and config files each; they take milliseconds
 GCODE_CASES = 100  # a G-code line may probe (0.1-0.2 s per tap)
+MONITOR_CASES = 60  # each analyses up to two taps (0.1 s each)
 CASE_LIMIT_S = 20  # a case that runs longer is a hang (a refusal takes milliseconds, a mesh seconds)
 
 
@@ -134,12 +137,28 @@ def tap_case(rng: random.Random, tmp_path: Path, index: int, document: dict) -> 
     return path, path.read_text()[:120]
 
 
+def special_files(folder: Path) -> list[Path]:
+    """Things at a path that are not files to read: a FIFO (opening it blocks until a writer
+    comes), a socket, a directory, a device (issue 20)."""
+    fifo, sock, directory = folder / "fifo.json", folder / "sock.json", folder / "dir.json"
+    os.mkfifo(fifo)
+    listener = socket.socket(socket.AF_UNIX)
+    listener.bind(str(sock))
+    listener.close()  # the socket file stays
+    directory.mkdir()
+    return [fifo, sock, directory, Path("/dev/zero")]
+
+
 def test_mutated_tap_files_read_or_give_a_tap_file_error(tmp_path):
     rng = random.Random(10)
     document = tap_to_json_dict(synth_tap(seed=2))
     failures, errors, accepted = [], 0, 0
+    specials = special_files(tmp_path)
     for index in range(CASES):
         path, shown = tap_case(rng, tmp_path, index, document)
+        if index % 10 == 0:
+            path = specials[index // 10 % len(specials)]
+            shown = str(path)
         try:
             with time_limit(shown):
                 for tap in read_tap_file(path):
@@ -200,6 +219,15 @@ gcode:
 [gcode_macro SHOW]
 gcode:
   {action_respond_info("x=%s" % (params.X|default(1)))}
+
+[gcode_macro HUGE_LINE]
+gcode:
+  {"G4 P0\\n" * 10**9}
+
+[gcode_macro HUGE_OUTPUT]
+gcode:
+  {% for i in range(99999) %}{"G4 P" ~ "0" * 30}
+  {% endfor %}
 """
 PROBE_EXTRA = "nozzle_scrubber_gcode: PARK\nscrubbing_frequency: 2"
 SIM_EXTRA = "pin_diameter_mm: 6\npin_x_mm: 225\npin_y_mm: 225"
@@ -224,6 +252,8 @@ def mutate_config(rng: random.Random, text: str, tmp_path: Path) -> str:
         elif action == 5:
             lines.insert(rng.randrange(len(lines) + 1),
                          rng.choice(["[include missing.cfg]", "[include /dev/zero]", "[include self.cfg]",
+                                     "[include fifo.json]", "[include sock.json]", "[include dir.json]",
+                                     "[gcode_macro HUGE]\ngcode: {'a' * 10**9}",
                                      "[include *.cfg]", "[bogus]", "[printer", "  indented: 1", "novalue",
                                      "[gcode_macro BAD]\ngcode: {% if %}", "[gcode_macro X]\ngcode: X",
                                      "[bed_mesh extra]\nversion: 1\npoints: 1,2"]))
@@ -243,6 +273,7 @@ def test_mutated_config_files_load_or_give_a_config_error(tmp_path):
     path = tmp_path / "printer.cfg"
     path.write_text(base)
     Printer.from_config(str(path))  # the unmutated file is valid
+    special_files(tmp_path)
     failures, errors = [], 0
     for _ in range(CASES):
         text = mutate_config(rng, base, tmp_path)
@@ -401,3 +432,76 @@ def test_random_gcode_on_the_virtual_printer_works_or_gives_a_gcode_error(tmp_pa
     problems = range_problems(config_ranges, config_doc, "config option")
     problems += range_problems(recorder.gcode_ranges, {**probe_override_ranges(config_doc), **gcode_doc}, "parameter")
     assert not problems, "\n".join(problems)
+
+
+# -- what a server sends to `tapcell monitor` (issue 20) -----------------------------------------
+
+class _Exhausted(Exception):
+    """The fake server has sent everything."""
+
+
+class _ScriptedSocket:
+    def __init__(self, texts: list[str]):
+        self.texts = list(texts)
+
+    def recv(self, timeout: float):
+        if not self.texts:
+            raise _Exhausted
+        return self.texts.pop(0)
+
+
+class _Lines:
+    def __init__(self):
+        self.said: list[str] = []
+        self.rows: list = []
+
+    def say(self, message: str) -> None:
+        self.said.append(message)
+
+    def add(self, row) -> None:
+        self.rows.append(row)
+
+
+def test_hostile_server_messages_are_skipped_or_analysed_by_the_monitor(tmp_path):
+    from tapcell.tools import monitor as monitor_module
+
+    rng = random.Random(20)
+    tap = tap_to_json_dict(synth_tap(seed=3))
+    tap.update(tap_pos=[100.0, 100.0, 0.01], is_valid=True, error=None)
+    event = {"tap": tap}
+    log = tmp_path / "taps.jsonl"
+    args = type("Args", (), {"log": str(log), "plot_dir": None, "count": 0, "force": True,
+                             "moonraker": "http://printer:7125"})()
+    options = monitor_module.analysis_options({}, [])
+    failures, skipped = [], 0
+    for index in range(MONITOR_CASES):
+        kind = rng.randrange(4)
+        if kind == 0:  # the tap itself mutated, the printer's result included
+            text = json.dumps({"params": mutate_document(rng, copy.deepcopy(event))}, allow_nan=True)
+        elif kind == 1:  # the message's shape
+            text = json.dumps(rng.choice([{"params": json_value(rng)}, json_value(rng), {"params": {"tap": json_value(rng)}},
+                                          {"params": {"data": json_value(rng)}}]), allow_nan=True)
+        elif kind == 2:  # not JSON, or too deep for it
+            text = rng.choice(["", "{", "nul", '{"params":' + "[" * 5000, "[" * 100000 + "]" * 100000,
+                               json.dumps(event)[: rng.randrange(1, 200)]])
+        else:
+            text = mutate_text(rng, json.dumps({"params": event}))
+        display = _Lines()
+        bridge = monitor_module.Bridge(_ScriptedSocket([text, json.dumps({"params": event})]))
+        lines_before = len(log.read_text().splitlines()) if log.exists() else 0
+        try:
+            with time_limit(text[:120]):
+                monitor_module._follow(bridge, args, options, display, monitor_module.TapCount())
+        except _Exhausted:
+            pass
+        except Exception as exc:  # anything else is a bug a server can reach
+            failures.append(failure("monitor", text[:120], exc))
+            continue
+        skipped += any("skipped" in line for line in display.said)
+        logged = log.read_text().splitlines()[lines_before:]
+        if not logged or any(json.loads(line)["analysis"] is None for line in logged):
+            failures.append(f"{text[:120]!r}: the valid tap after it was not logged: {display.said[-3:]}")
+        if len([line for line in display.said if "skipped" in line]) > 1:
+            failures.append(f"{text[:120]!r}: more than one line for one bad message: {display.said}")
+    assert not failures, "\n".join(failures)
+    assert MONITOR_CASES / 4 < skipped < MONITOR_CASES  # the mutations reach both outcomes
