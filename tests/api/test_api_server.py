@@ -68,25 +68,35 @@ def test_subscription_pushes_only_changed_fields_with_eventtime(served, client):
     assert push["params"]["status"]["toolhead"]["position"][:3] == pytest.approx([42.0, 17.0, 5.0])
 
 
-def test_api_answers_while_a_script_runs(served, client):
+def test_api_answers_while_a_script_runs(served):
+    # Ordered by events on one connection, not by the clock (a sleep-based version failed on a
+    # faster machine): the query is sent once the script has printed its first probe, and its
+    # reply must come before the script's, with more of the script's output after it.
     worker = KlippyClient(served)
     try:
+        worker.send({"id": "out", "method": "gcode/subscribe_output",
+                     "params": {"response_template": {"method": "output"}}})
+        assert "result" in worker.reply_to("out")
         worker.send({"id": "mesh", "method": "gcode/script",
-                     # ~60 taps: over a second of work even on a quiet machine (20 taps ran 0.28 s there,
-                     # under the 0.3 s wait below, and the test failed for want of a script still running)
-                     "params": {"script": "G28\nPROBE_ACCURACY SAMPLES=20\nPROBE_ACCURACY SAMPLES=20\n"
-                                          "PROBE_ACCURACY SAMPLES=20"}})
-        time.sleep(0.3)
-        started = time.monotonic()
-        assert client.call("objects/query", objects={"webhooks": None})["result"]["status"]["webhooks"]["state"] == "ready"
-        query_s = time.monotonic() - started
-        reply = worker.reply_to("mesh", timeout_s=120.0)
-        script_s = time.monotonic() - started
+                     "params": {"script": "G28\nPROBE_ACCURACY SAMPLES=20\nPROBE_ACCURACY SAMPLES=20"}})
+        while not any("probe at" in push["params"]["response"] for push in worker.pushes):
+            message = worker.receive()
+            assert message is not None and message.get("id") != "mesh", message
+            worker.pushes.append(message)
+        worker.send({"id": "query", "method": "objects/query", "params": {"objects": {"webhooks": None}}})
+        order = []
+        while "mesh" not in order:
+            message = worker.receive(timeout_s=120.0)
+            assert message is not None
+            order.append(message.get("id") or "output")
+            if message.get("id") == "query":
+                assert message["result"]["status"]["webhooks"]["state"] == "ready"
+            if message.get("id") == "mesh":
+                assert message["result"] == {}
     finally:
         worker.close()
-    assert reply["result"] == {}
-    # The query came back at once; the script ran on for a while after it.
-    assert query_s < 0.5 < script_s
+    # The query was answered while the script ran: its reply, then more output, then the script's reply.
+    assert order.index("query") < len(order) - 1 and "output" in order[order.index("query") + 1:-1]
 
 
 def test_gcode_errors_reply_and_echo_like_klipper(client):
