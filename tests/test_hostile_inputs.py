@@ -241,3 +241,14 @@ def _write_taps(folder: Path, count: int) -> list[Path]:
     for path in paths:
         path.write_text(text)
     return paths
+
+
+@pytest.mark.parametrize("text", ["", "  \n\t\n", "# only a comment\n; and another\n"])
+def test_an_empty_config_is_refused_not_run_silently(tmp_path, capsys, text):
+    config = tmp_path / "printer.cfg"
+    config.write_text(text)
+    script = tmp_path / "s.gcode"
+    script.write_text("STATUS\n")
+    assert cli.main(["run", "--config", str(config), str(script)]) == 1
+    assert capsys.readouterr().err == (f"tapcell run: config error: {config}: the config file has no sections (it is "
+                                       f"empty or only comments): a printer needs at least [printer] and its steppers\n")

@@ -212,6 +212,9 @@ class Printer:
         self.send_event("printer:ready")
 
     def _check_section_names(self) -> None:
+        if not self.config.sections():  # Klipper refuses an empty printer.cfg too
+            raise ConfigError(f"{self.config_path}: the config file has no sections (it is empty or only "
+                              f"comments): a printer needs at least [printer] and its steppers", file=self.config_path)
         for name in self.config.sections():
             kind = name.split()[0]
             if (kind != BACKEND_SECTION and kind not in READ_BY and kind not in accepted_sections()
