@@ -155,3 +155,14 @@ def test_a_subscription_too_large_to_be_real_is_refused():
 def test_a_push_encoded_once_is_the_message_encoded_per_client(template):
     params = {"data": [[1.5, float("nan"), 3], [2.0, 1e-9, None]], "errors": 0, "overflows": 0}
     assert with_encoded_params(template, strict_text(params)) == strict_json({**template, "params": params})
+
+
+def test_json_nested_too_deep_gets_an_error_reply_not_a_traceback():
+    sent = []
+    connection = api_server.Connection.__new__(api_server.Connection)
+    connection.send = sent.append
+    for data in (b'{"id":1,"method":"info","params":' + b'{"a":' * 100000 + b"1" + b"}" * 100001,
+                 b"[" * 200000 + b"]" * 200000):
+        connection._handle(data)
+    assert sent == [{"id": None, "error": {"error": "WebRequestError", "message": "Malformed request: nested "
+                                                                                  "deeper than the JSON reader allows"}}] * 2

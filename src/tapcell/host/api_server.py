@@ -56,6 +56,7 @@ MAX_UNSENT_BYTES = 64 * 1024 * 1024  # a client that stops reading is dropped pa
 # so twenty clients that never read cost this much at most, not twenty times the limit above.
 MAX_TOTAL_UNSENT_BYTES = 128 * 1024 * 1024
 UNSENT_CHECK_BYTES = 1024 * 1024  # a client with less unsent is reading: no budget check
+MEMORY_TRIM_DELAY_S = 1.0  # freed memory goes back to the system this long after clients leave
 MAX_PENDING_REQUESTS = 100  # unanswered requests of one client before its next one is read
 MAX_SUBSCRIBED_OBJECTS = 1000  # a Klipper printer has under 100 status objects
 MAX_FIELDS_PER_OBJECT = 1000
@@ -470,6 +471,9 @@ class Connection:
         except (ValueError, UnicodeDecodeError) as exc:
             self.send({"id": None, "error": _error(f"Malformed request: not JSON ({exc})")})
             return
+        except RecursionError:
+            self.send({"id": None, "error": _error("Malformed request: nested deeper than the JSON reader allows")})
+            return
         if not isinstance(request, dict):
             self.send({"id": None, "error": _error("Malformed request: expected a JSON object")})
             return
@@ -548,6 +552,7 @@ class ApiServer:
         # One sample client per streamed cell, shared by the connections: cell name -> the
         # future of its ClientHandle (added on the printer thread).
         self._force_clients: dict[str, asyncio.Future] = {}
+        self._trim_scheduled = False
         self._endpoints: dict[str, Callable] = {
             "info": self._info,
             "list_endpoints": self._list_endpoints,
@@ -612,10 +617,24 @@ class ApiServer:
 
     def forget(self, connection: Connection) -> None:
         self.connections.discard(connection)
+        self._schedule_memory_trim()
         for task in connection.tasks:
             task.cancel()
         for name in connection.force_streams:
             self._release_force_client(name)
+
+    def _schedule_memory_trim(self) -> None:
+        """After clients go, hand their freed buffers (up to 8 MiB of a request each) back to the
+        system, at most once a second however many leave."""
+        if self.loop is None or self._trim_scheduled:
+            return
+        self._trim_scheduled = True
+
+        def trim() -> None:
+            self._trim_scheduled = False
+            _return_freed_memory()
+
+        self.loop.call_later(MEMORY_TRIM_DELAY_S, trim)
 
     def bound_unsent(self, connection: Connection) -> None:
         """Keep what clients have not read within MAX_UNSENT_BYTES each and MAX_TOTAL_UNSENT_BYTES
