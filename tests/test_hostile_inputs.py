@@ -252,3 +252,13 @@ def test_an_empty_config_is_refused_not_run_silently(tmp_path, capsys, text):
     assert cli.main(["run", "--config", str(config), str(script)]) == 1
     assert capsys.readouterr().err == (f"tapcell run: config error: {config}: the config file has no sections (it is "
                                        f"empty or only comments): a printer needs at least [printer] and its steppers\n")
+
+
+def test_a_symlink_loop_is_named_as_such_not_as_missing(tmp_path, capsys):
+    (tmp_path / "a.cfg").symlink_to(tmp_path / "b.cfg")
+    (tmp_path / "b.cfg").symlink_to(tmp_path / "a.cfg")
+    script = tmp_path / "s.gcode"
+    script.write_text("STATUS\n")
+    assert cli.main(["run", "--config", str(tmp_path / "a.cfg"), str(script)]) == 1
+    assert capsys.readouterr().err == (f"tapcell run: config file '{tmp_path / 'a.cfg'}' is a symbolic link that "
+                                       f"leads nowhere (a loop, or its target is missing)\n")

@@ -58,6 +58,13 @@ def _open_regular(path: str | os.PathLike, flags: int) -> int:
     return fd
 
 
+def why_missing(path: str | os.PathLike) -> str:
+    """Why `path` names no file: 'does not exist', or a symbolic link that leads nowhere."""
+    if os.path.lexists(path):
+        return "is a symbolic link that leads nowhere (a loop, or its target is missing)"
+    return "does not exist"
+
+
 def read_limited(path: str | os.PathLike, max_bytes: int) -> bytes:
     """The file's bytes; FileRefused for a device, FIFO, socket or directory or beyond `max_bytes`.
 

@@ -44,6 +44,7 @@ from typing import Any, Callable
 import numpy as np
 
 from tapcell import __version__
+from tapcell.files import why_missing
 from tapcell.host.config import ConfigError
 from tapcell.host.gcode import GCodeError, parse_line
 from tapcell.host import load_cell_streams
@@ -860,7 +861,7 @@ def main(argv: list[str]) -> int:
                         help="the folder Moonraker serves G-code files from (configfile virtual_sdcard.path)")
     args = parser.parse_args(argv)
     if not os.path.isfile(args.config):
-        print(f"tapcell serve: config file '{args.config}' does not exist", file=sys.stderr)
+        print(f"tapcell serve: config file '{args.config}' {why_missing(args.config)}", file=sys.stderr)
         return 2
     printer = Printer(args.config)
     try:

@@ -12,7 +12,7 @@ import os
 import sys
 from pathlib import Path
 
-from tapcell.files import FileRefused, read_limited
+from tapcell.files import FileRefused, read_limited, why_missing
 from tapcell.host.config import ConfigError
 from tapcell.host.gcode import GCodeError, UnknownCommandError
 from tapcell.host.printer import Printer
@@ -35,7 +35,7 @@ def _print_line(line: str) -> None:
 def _build_printer(config_path: str, program: str, notices_to=None) -> Printer | None:
     """The printer of `config_path`; the start-up notices go to `notices_to` (stdout by default)."""
     if not os.path.exists(config_path):
-        print(f"{program}: config file '{config_path}' does not exist", file=sys.stderr)
+        print(f"{program}: config file '{config_path}' {why_missing(config_path)}", file=sys.stderr)
         return None
     try:
         printer = Printer.from_config(config_path, responses=_print_line)
@@ -125,7 +125,7 @@ def _main_run(argv: list[str]) -> int:
                         help="progress bar on stderr (auto: when stderr is a terminal)")
     args = parser.parse_args(argv)
     if not os.path.exists(args.script):
-        print(f"tapcell run: script '{args.script}' does not exist", file=sys.stderr)
+        print(f"tapcell run: script '{args.script}' {why_missing(args.script)}", file=sys.stderr)
         return 2
     # In a run the notices are about the session, not responses to the file: they go to stderr.
     printer = _build_printer(args.config, "tapcell run", notices_to=sys.stderr)
@@ -180,7 +180,7 @@ def _main_console(argv: list[str]) -> int:
     parser.add_argument("--fresh", action="store_true", help="start your copy again from the tracked config")
     args = parser.parse_args(argv)
     if not os.path.exists(args.config):
-        print(f"tapcell console: config file '{args.config}' does not exist", file=sys.stderr)
+        print(f"tapcell console: config file '{args.config}' {why_missing(args.config)}", file=sys.stderr)
         return 1
     config_path, where = working_config(Path(args.config), fresh=args.fresh)
     if args.scenario:
