@@ -169,7 +169,23 @@ def test_a_large_tap_up_to_the_servers_limit_is_taken(tmp_path):
     assert connections[0]["max_size"] == monitor_module.MAX_MESSAGE_BYTES == 64 * 1024 * 1024
 
 
-def test_a_host_that_does_not_resolve_gives_up_after_a_few_tries(tmp_path, monkeypatch):
+def _name_not_resolved():
+    return socket.gaierror(socket.EAI_NONAME, "Name or service not known")
+
+
+def _message_too_big():
+    from websockets.exceptions import ConnectionClosedError
+    from websockets.frames import Close
+
+    return ConnectionClosedError(None, Close(1009, "message too big"))  # we closed the link: too big
+
+
+@pytest.mark.parametrize("failure, problem, last_words", [
+    (_name_not_resolved, "the host of ws://printr.lcoal:7125/klippysocket does not resolve (Name or service not known)",
+     "check the name in --moonraker"),
+    (_message_too_big, "the server sent a message over 67,108,864 bytes (the limit)", "giving up"),
+])
+def test_a_link_that_keeps_failing_the_same_way_gives_up_after_3_tries(monkeypatch, failure, problem, last_words):
     monkeypatch.setattr(monitor_module, "RECONNECT_S", 0.0)
     args = argparse.Namespace(moonraker="http://printr.lcoal:7125", probe="load_cell_probe", log=None,
                               plot_dir=None, count=1, force=False, set=[])
@@ -177,13 +193,13 @@ def test_a_host_that_does_not_resolve_gives_up_after_a_few_tries(tmp_path, monke
 
     def connect(url, **kwargs):
         tries.append(url)
-        raise socket.gaierror(socket.EAI_NONAME, "Name or service not known")
+        raise failure()
 
     said = Said()
     assert monitor(args, said, connect) == 2
-    assert len(tries) == monitor_module.NAME_RETRIES == 3
-    assert said.lines[-1] == ("tapcell monitor: the host of ws://printr.lcoal:7125/klippysocket does not resolve "
-                              "(Name or service not known; tried 3 times): check the name in --moonraker")
+    assert len(tries) == monitor_module.NAME_RETRIES == monitor_module.OVERSIZE_RETRIES == 3
+    assert said.lines == [f"tapcell monitor: {problem}; trying again in 0 s"] * 2 + [
+        f"tapcell monitor: {problem}, 3 times in a row: {last_words}"]
 
 
 def test_outputs_that_cannot_be_written_are_refused_before_connecting(tmp_path, capsys):

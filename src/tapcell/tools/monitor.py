@@ -313,26 +313,29 @@ def monitor(args, display: Display, connect: Callable) -> int:
             display.say(f"tapcell monitor: {exc}")
             return 2
         except socket.gaierror as exc:
-            failures["name"] += 1
-            if failures["name"] >= NAME_RETRIES:
-                display.say(f"tapcell monitor: the host of {url} does not resolve ({exc.strerror}; tried "
-                            f"{NAME_RETRIES} times): check the name in --moonraker")
+            if _gives_up(failures, "name", NAME_RETRIES, f"the host of {url} does not resolve ({exc.strerror})",
+                         "check the name in --moonraker", display):
                 return 2
-            display.say(f"tapcell monitor: the host of {url} does not resolve ({exc.strerror}); "
-                        f"trying again in {RECONNECT_S:g} s")
         except (OSError, TimeoutError, EOFError, _websocket_errors()) as exc:
             if _message_too_big(exc):
-                failures["oversize"] += 1
-                if failures["oversize"] >= OVERSIZE_RETRIES:
-                    display.say(f"tapcell monitor: the server sent a message over {MAX_MESSAGE_BYTES:,} bytes "
-                                f"{OVERSIZE_RETRIES} times in a row: giving up")
+                if _gives_up(failures, "oversize", OVERSIZE_RETRIES, f"the server sent a message over "
+                             f"{MAX_MESSAGE_BYTES:,} bytes (the limit)", "giving up", display):
                     return 2
-                display.say(f"tapcell monitor: the server sent a message over {MAX_MESSAGE_BYTES:,} bytes "
-                            f"(the limit): skipped by reconnecting")
             else:
+                failures["oversize"] = 0
                 display.say(f"tapcell monitor: connection to {url} lost or refused ({type(exc).__name__}: "
                             f"{exc}); reconnecting in {RECONNECT_S:g} s")
         time.sleep(RECONNECT_S)
+
+
+def _gives_up(failures: dict[str, int], kind: str, limit: int, problem: str, last_words: str, display) -> bool:
+    """Count one more failure of `kind` in a row: say so, and whether it is the last try."""
+    failures[kind] += 1
+    if failures[kind] >= limit:
+        display.say(f"tapcell monitor: {problem}, {limit} times in a row: {last_words}")
+        return True
+    display.say(f"tapcell monitor: {problem}; trying again in {RECONNECT_S:g} s")
+    return False
 
 
 def _handshake(bridge: Bridge, args, display: Display) -> AnalysisOptions:
