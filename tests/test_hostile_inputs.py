@@ -262,3 +262,17 @@ def test_a_symlink_loop_is_named_as_such_not_as_missing(tmp_path, capsys):
     assert cli.main(["run", "--config", str(tmp_path / "a.cfg"), str(script)]) == 1
     assert capsys.readouterr().err == (f"tapcell run: config file '{tmp_path / 'a.cfg'}' is a symbolic link that "
                                        f"leads nowhere (a loop, or its target is missing)\n")
+
+
+def test_a_trigger_force_past_the_safety_limit_is_named_as_the_cause(tmp_path):
+    # With a drift filter as well, the refusal used to blame the filter ("0.8 Hz hides a tap").
+    example = (Path(__file__).parents[1] / "examples" / "virtual-printer.cfg").read_text()
+    config = tmp_path / "printer.cfg"
+    config.write_text(example.replace("force_safety_limit: 2000", "force_safety_limit: 100")
+                      .replace("trigger_force: 75", "trigger_force: 150")
+                      .replace("\nspeed: 5\n", "\nspeed: 5\ndrift_filter_cutoff_frequency: 0.8\n"))
+    with pytest.raises(ConfigError) as refused:
+        Printer.from_config(str(config), responses=[])
+    assert str(refused.value) == (f"{config}: [load_cell_probe] trigger_force = 150: must be below force_safety_limit "
+                                  f"(100g): the raw force would pass the limit and stop every probe before the "
+                                  f"trigger fires; allowed: below 100")

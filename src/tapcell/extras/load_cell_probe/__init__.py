@@ -34,6 +34,7 @@ def load_config(section, printer) -> LoadCellProbe:
     probe = Probe("load_cell_probe", read_probe_options(section, templates), device, device.motion,
                   printer.gcode, _template_runner(printer))
     device.probe = probe
+    device.refuse_a_trigger_past_the_safety_limit(section)
     device.refuse_a_hiding_drift_filter(section, probe.options)
     probe.register_commands()
     register_probe_calibrate(printer, probe)

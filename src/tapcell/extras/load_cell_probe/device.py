@@ -437,6 +437,16 @@ class LoadCellProbe:
             return up_to_mm_s
         return safety.safe_speed_mm_s(params, self.stop_timing, up_to_mm_s, stiffness_g_um)
 
+    def refuse_a_trigger_past_the_safety_limit(self, section) -> None:
+        """Config load: a trigger_force at or above force_safety_limit can never fire first (the
+        raw force passes the limit on the way), so every probe would end in the safety error; said
+        here, where the cause is, before the drift-filter check blames the filter for it."""
+        limit_g, trigger_g = self.options.force_safety_limit_g, self.options.trigger_force_g
+        if limit_g > 0 and trigger_g >= limit_g:
+            raise section.error("trigger_force", f"must be below force_safety_limit ({limit_g:g}g): the raw force "
+                                                 f"would pass the limit and stop every probe before the trigger "
+                                                 f"fires; allowed: below {limit_g:g}")
+
     def refuse_a_hiding_drift_filter(self, section, probe_options) -> None:
         """Config load: a drift filter that hides a tap at the configured speeds (the filtered force
         never reaches trigger_force on a soft bed) is refused unless a safety limit stops the
