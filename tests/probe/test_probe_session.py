@@ -102,12 +102,17 @@ def test_retry_strategy_taps_in_place_and_gives_up():
     result = probe.probe_point(50, 60)
     assert result.z_mm == pytest.approx(0.01) and result.attempts == 2
     assert probe.tapper.tapped_at == [(50, 60, 5.0), (50, 60, 2.0)]
-    assert "// Bad probe detected: TAP_SHAPE_INVALID - bad. Retrying (1/6)..." in responses
+    # The first failure carries the likely cause and the fix (issue 20: only the last one did).
+    assert ("// Bad probe detected: TAP_SHAPE_INVALID - bad. Retrying (1/6)... Likely cause: plastic on the nozzle "
+            "(ooze) distorts the tap so much that it no longer looks like a tap. Fix: clean the nozzle") in \
+        "\n".join(responses)
     # retracted sample_retract_dist above the bad tap's contact between the two taps
     assert (None, None, pytest.approx(2.3), 5.0) in motion.moves
-    probe, *_ = make_probe([(0.3, False, "LOW_TAP_QUALITY")] * 3, bad_probe_retries=2)
+    probe, _, _, responses = make_probe([(0.3, False, "LOW_TAP_QUALITY")] * 3, bad_probe_retries=2)
     with pytest.raises(ProbeError, match=r"Probing failed after 3 bad probes \(last: LOW_TAP_QUALITY - bad\)"):
         probe.probe_point(50, 60)
+    retries = [line for line in responses if line.startswith("// Bad probe detected")]
+    assert [("Likely cause" in line) for line in retries] == [True, False]  # once per code, not every retry
 
 
 def test_fail_and_ignore_strategies():

@@ -216,13 +216,24 @@ class ProbeSession:
             bad_here.append(outcome)
             if len(bad_here) > opts.bad_probe_retries:
                 raise ProbeError(advised(f"Probing failed after {len(bad_here)} bad probes (last: {reason})", bad_here))
-            self.probe.respond_info(f"Bad probe detected: {reason}. Retrying "
-                                    f"({len(bad_here)}/{opts.bad_probe_retries})...")
+            self.probe.respond_info(self._retry_message(reason, bad_here, opts.bad_probe_retries))
             self._retract(outcome.z_mm)
             if opts.scrubbing_frequency and len(bad_here) % opts.scrubbing_frequency == 0:
                 self.probe.run_template("nozzle_scrubber_gcode",
                                         {"ATTEMPT": len(bad_here), "RETRIES": opts.bad_probe_retries})
             speed = opts.effective_retry_speed_mm_s
+
+    @staticmethod
+    def _retry_message(reason: str, bad_here: list[TapOutcome], retries: int) -> str:
+        """The line after a bad tap that is retried. The first tap failing with a code carries the
+        likely cause and the fix (the user reads the first failure, which may be the only one)."""
+        line = f"Bad probe detected: {reason}. Retrying ({len(bad_here)}/{retries})..."
+        latest = bad_here[-1]
+        if [tap.error_code for tap in bad_here].count(latest.error_code) == 1:
+            advice = advised("", [latest]).strip(" .")
+            if advice:
+                line += f" {advice}."
+        return line
 
     def _tap_position(self, x_mm: float, y_mm: float) -> tuple[float, float]:
         if self.options.bad_probe_strategy != "circle":
