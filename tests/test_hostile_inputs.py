@@ -276,3 +276,20 @@ def test_a_trigger_force_past_the_safety_limit_is_named_as_the_cause(tmp_path):
     assert str(refused.value) == (f"{config}: [load_cell_probe] trigger_force = 150: must be below force_safety_limit "
                                   f"(100g): the raw force would pass the limit and stop every probe before the "
                                   f"trigger fires; allowed: below 100")
+
+
+@pytest.mark.parametrize("kind", ["fifo", "directory"])
+def test_a_tap_log_that_cannot_take_taps_is_refused_at_load(tmp_path, kind):
+    log = tmp_path / "taps.jsonl"
+    if kind == "fifo":
+        os.mkfifo(log)
+    else:
+        log.mkdir()
+    example = (Path(__file__).parents[1] / "examples" / "virtual-printer.cfg").read_text()
+    config = tmp_path / "printer.cfg"
+    config.write_text(example.replace("\nspeed: 5\n", f"\nspeed: 5\ntap_log: {log}\n"))
+    with pytest.raises(ConfigError) as refused:
+        finishes(lambda: Printer.from_config(str(config), responses=[]), log if kind == "fifo" else None)
+    what = "a FIFO (named pipe)" if kind == "fifo" else "a directory"
+    assert str(refused.value) == (f"{config}: [load_cell_probe] tap_log = {log}: is {what}: a tap log must be a file "
+                                  f"taps can be appended to")

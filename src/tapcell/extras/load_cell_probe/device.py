@@ -32,6 +32,7 @@ from typing import Any
 
 import numpy as np
 
+from tapcell.files import check_appendable, open_append
 from tapcell.host.backend import Backend
 from tapcell.host.config import pin_mcu
 from tapcell.filters import FilterDesignError, FilterOptions, design_firmware_filter
@@ -194,6 +195,10 @@ class LoadCellProbe:
         self.sample_rate_sps = float(self.cell_options.sample_rate_sps)
         self.options = read_tap_options(section)
         self.tap_log_path = section.get("tap_log", None)
+        if self.tap_log_path:  # a FIFO would hang the first tap, a directory fail it: said at load
+            problem = check_appendable(self.tap_log_path)
+            if problem is not None:
+                raise section.error("tap_log", f"{problem}: a tap log must be a file taps can be appended to")
         self._check_classifier(self.options.tap_classifier,
                                lambda msg: section.error(classifier_option(section), msg))
         check_stuck_sensor_samples(self.options.stuck_sensor_samples,
@@ -740,7 +745,7 @@ class LoadCellProbe:
         recorded = RecordedTap(tap, analysis, z_mm, valid)
         self.last_taps.append(recorded)
         if self.tap_log_path:
-            with open(self.tap_log_path, "a", encoding="utf-8") as log:
+            with open_append(self.tap_log_path) as log:
                 log.write(json.dumps(tap_to_json_dict(tap, analysis)) + "\n")
         for callback in self._tap_clients:
             callback(recorded)
