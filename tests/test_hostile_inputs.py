@@ -293,3 +293,17 @@ def test_a_tap_log_that_cannot_take_taps_is_refused_at_load(tmp_path, kind):
     what = "a FIFO (named pipe)" if kind == "fifo" else "a directory"
     assert str(refused.value) == (f"{config}: [load_cell_probe] tap_log = {log}: is {what}: a tap log must be a file "
                                   f"taps can be appended to")
+
+
+def test_settings_the_firmware_trigger_refuses_are_a_probe_error_not_a_traceback(tmp_path):
+    example = (Path(__file__).parents[1] / "examples" / "virtual-printer.cfg").read_text()
+    config = tmp_path / "printer.cfg"
+    config.write_text(example.replace("samples: 1\n", "samples: 1\ncounts_per_gram: 8388607\n"
+                                                      "reference_tare_counts: -38000\n", 1))
+    printer = Printer.from_config(str(config), responses=[])
+    with pytest.raises(GCodeError) as refused:
+        printer.gcode.run_script("G28")
+    assert str(refused.value) == (
+        "Load Cell Probe Error: the firmware trigger cannot take these settings (force_safety_limit_g: 2000.0 is "
+        "not allowed; allowed: at most 256 g at this counts_per_gram, with counts_per_gram 8.38861e+06): "
+        "nothing was moved")

@@ -182,6 +182,11 @@ def _limit_counts(name: str, limit_g: float, counts_per_gram: float) -> int:
     return counts
 
 
+def check_params(p: TriggerParams) -> None:
+    """TriggerConfigError (naming the value and what is allowed) when the firmware would refuse `p`."""
+    _config_values(p)
+
+
 def _config_values(p: TriggerParams) -> dict:
     _check("counts_per_gram", p.counts_per_gram, _finite(p.counts_per_gram) and 1e-4 < p.counts_per_gram < 1e9,
            "a positive number of counts per gram (1e-4 .. 1e9)")

@@ -38,7 +38,8 @@ from tapcell.host.config import pin_mcu
 from tapcell.filters import FilterDesignError, FilterOptions, design_firmware_filter
 from tapcell.extras.load_cell import LoadCell, read_load_cell_options
 from tapcell.mcu import sensors
-from tapcell.mcu.trigger import MAX_STUCK_SAMPLES, FirmwareTrigger, TriggerError, TriggerParams
+from tapcell.mcu.trigger import (MAX_STUCK_SAMPLES, FirmwareTrigger, TriggerConfigError, TriggerError,
+                                 TriggerParams, check_params)
 from tapcell.extras.probe.approach import NO_CONTACT_DEPTH_MM, BedHeightMemory, approach_height_mm, no_contact_message
 from tapcell.extras.probe.session import ProbeError, TapOutcome
 from tapcell.extras.probe.options import with_overrides
@@ -349,7 +350,13 @@ class LoadCellProbe:
         and, for fast passes, its own drift limit (0 disables it)."""
         options = settings.options
         force_g = options.trigger_force_g if trigger_force_g is None else trigger_force_g
-        return self.trigger_params(options, settings.sos, force_g, release_force_g, drift_safety_limit_g)
+        params = self.trigger_params(options, settings.sos, force_g, release_force_g, drift_safety_limit_g)
+        try:  # e.g. force_safety_limit times a huge counts_per_gram past the firmware's 32-bit window
+            check_params(params)
+        except TriggerConfigError as exc:
+            raise ProbeError(f"{ERROR_PREFIX}the firmware trigger cannot take these settings ({exc}, with "
+                             f"counts_per_gram {params.counts_per_gram:g}): nothing was moved") from None
+        return params
 
     def arm(self, settings: TapSettings, tare_counts: float, **trigger) -> FirmwareTrigger:
         """The firmware trigger armed on `tare_counts` for one probing move (ProbeError if it refuses);
