@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import os
 import json
+import re
 import resource
 import subprocess
 import sys
@@ -307,3 +308,32 @@ def test_settings_the_firmware_trigger_refuses_are_a_probe_error_not_a_traceback
         "Load Cell Probe Error: the firmware trigger cannot take these settings (force_safety_limit_g: 2000.0 is "
         "not allowed; allowed: at most 256 g at this counts_per_gram, with counts_per_gram 8.38861e+06): "
         "nothing was moved")
+
+
+def _calibrated_example(tmp_path, replace: dict[str, str] | None = None) -> Path:
+    text = (Path(__file__).parents[1] / "examples" / "virtual-printer.cfg").read_text()
+    text = text.replace("samples: 1\n", "samples: 1\ncounts_per_gram: 110\nreference_tare_counts: -38000\n", 1)
+    for old, new in (replace or {}).items():
+        assert old in text
+        text = text.replace(old, new)
+    config = tmp_path / "printer.cfg"
+    config.write_text(text)
+    return config
+
+
+@pytest.mark.parametrize("case", ["stuck sensor", "short pullback"])
+def test_a_sensor_stuck_in_the_pullback_is_named_not_the_pullback(tmp_path, case):
+    replace = {"pullback_distance: 0.15": "pullback_distance: 0.01"} if case == "short pullback" else {}
+    printer = Printer.from_config(str(_calibrated_example(tmp_path, replace)), responses=[])
+    fault = "SIM_FAULT NAME=stuck WHEN=trigger\n" if case == "stuck sensor" else ""
+    printer.gcode.run_script("G28\nG1 X110 Y110 F6000\nG1 Z3 F600")
+    with pytest.raises(GCodeError) as failed:
+        printer.gcode.run_script(fault + "PROBE BAD_PROBE_STRATEGY=fail")
+    message = str(failed.value)
+    assert message.startswith("Probe failed because it was deemed bad quality: TAP_PULLBACK_TOO_SHORT - ")
+    if case == "stuck sensor":
+        assert re.search(r"the load cell's readings stopped changing during the pullback \(\d+ identical samples at "
+                         r"\d+g\): a stuck sensor, not a short pullback; check the sensor's wiring", message)
+        assert "lengthen pullback_distance" not in message
+    else:  # the control: a pullback that is really too short is still told so
+        assert "stuck" not in message and "Fix: lengthen pullback_distance" in message

@@ -652,8 +652,11 @@ class LoadCellProbe:
             self._tare_from_s = min(clear_s, pullback_end_s)
         z_mm = float(analysis.z_mm) if valid else float(result.halt_z_mm) + self._z_frame_offset_mm()
         message = analysis.message
-        why = None if valid else self._explain_bad_tap(tap, analysis.error, options, speed_mm_s)
-        if why is not None:
+        stuck = None if valid else self._stuck_in_pullback(tap, options)
+        why = None if valid or stuck else self._explain_bad_tap(tap, analysis.error, options, speed_mm_s)
+        if stuck is not None:
+            message, why = stuck, stuck  # the sensor, not the tap: the analysis's advice would mislead
+        elif why is not None:
             message = f"{message} ({why})"
         # Kept after the stiffness guess above: a bad tap's stiffness must not explain itself.
         self._record(tap, analysis, z_mm, valid)
@@ -688,6 +691,21 @@ class LoadCellProbe:
         stiffness = [t.analysis.stiffness_decompression_g_um for t in self.last_taps
                      if t.valid and t.analysis.stiffness_decompression_g_um]
         return max(stiffness) if stiffness else None
+
+    def _stuck_in_pullback(self, tap: TapData, options: TapOptions) -> str | None:
+        """The real cause when the sensor stopped changing after the halt: the firmware's stuck
+        rule (that many identical samples, which a live sensor never gives) over the samples
+        from the pullback's start; the analysis would read the flat force as a nozzle still on
+        the bed and advise a longer pullback."""
+        run = self.trigger_params(options, None, options.trigger_force_g).effective_stuck_samples
+        pulled = tap.force_g[tap.time_s >= tap.events.get("pullback_start_time", np.inf)]
+        if not run or len(pulled) < run or not np.all(pulled[-run:] == pulled[-1]):
+            return None
+        different = np.flatnonzero(pulled != pulled[-1])
+        same = len(pulled) - (int(different[-1]) + 1 if len(different) else 0)
+        return (f"the load cell's readings stopped changing during the pullback ({same} identical samples at "
+                f"{pulled[-1]:.0f}g): a stuck sensor, not a short pullback; check the sensor's wiring and "
+                f"connector, then LOAD_CELL_DIAGNOSTIC")
 
     def _explain_bad_tap(self, tap: TapData, error_code: str | None, options: TapOptions,
                          speed_mm_s: float) -> str | None:
