@@ -337,3 +337,17 @@ def test_a_sensor_stuck_in_the_pullback_is_named_not_the_pullback(tmp_path, case
         assert "lengthen pullback_distance" not in message
     else:  # the control: a pullback that is really too short is still told so
         assert "stuck" not in message and "Fix: lengthen pullback_distance" in message
+
+
+def test_the_coasting_fix_fits_the_printers_position_min():
+    from tapcell.extras.probe.advice import bad_tap_advice
+
+    already = bad_tap_advice("COASTING_MOVE_ACCELERATION", position_min_mm=-2.0)
+    assert already.endswith("Fix: start the probe higher ([stepper_z] position_min is -2 already); if it triggers "
+                            "in the air, free the bowden tube or cable chain that pulls on the toolhead.")
+    assert "-5" not in already
+    at_zero = bad_tap_advice("COASTING_MOVE_ACCELERATION", position_min_mm=0.0)
+    assert at_zero.endswith("Fix: give [stepper_z] a negative position_min (it is 0; e.g. -5), so the probing move "
+                            "can pass Z=0, and start the probe higher.")
+    # The cause covers both ways a move is not at its steady speed (the code is raised for both).
+    assert "still speeding up" in at_zero and "already slowing down" in at_zero

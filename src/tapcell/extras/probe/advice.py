@@ -27,8 +27,10 @@ ADVICE: dict[str, tuple[str, str]] = {
                                    "drift_filter_cutoff_frequency or the probing speed"),
     "TAP_PULLBACK_TOO_SHORT": ("the pullback ended before the nozzle left the bed",
                                f"lengthen pullback_distance; {CALIBRATE_PULLBACK}"),
-    "COASTING_MOVE_ACCELERATION": ("the probing move was still speeding up when it met the bed: Z cannot go below "
-                                   "0, or the probe started too close to the bed",
+    "COASTING_MOVE_ACCELERATION": ("the probing move was not at its steady speed when the probe triggered: still "
+                                   "speeding up (the probe started too close to the bed, or a tug on the toolhead "
+                                   "from the bowden tube or cable chain triggered it in the air) or already slowing "
+                                   "down at its end, [stepper_z] position_min",
                                    "give [stepper_z] a negative position_min (e.g. -5) and start the probe higher"),
     "TOO_FEW_PROBING_MOVES": ("the probing move was cut short (uncommon)",
                               "check that position_min leaves room below the bed; report it if it persists"),
@@ -69,8 +71,20 @@ QUALITY_DEFAULT = (FOULED + ": the tap's features are there but distorted",
                    CLEAN_AND_COOL + "; if clean taps are refused, min_tap_quality may be set too strict")
 
 
-def bad_tap_advice(code: str | None, quality_components: Mapping[str, float] | None = None) -> str:
-    """'Likely cause: ... Fix: ...' for a bad tap's code ('' for no code)."""
+def coasting_fix(position_min_mm: float) -> str:
+    """The COASTING fix for a printer whose [stepper_z] position_min is known: room below Z=0
+    exists already when it is negative, so what is left is the start height or a tug."""
+    if position_min_mm >= 0:
+        return (f"give [stepper_z] a negative position_min (it is {position_min_mm:g}; e.g. -5), so the probing "
+                f"move can pass Z=0, and start the probe higher")
+    return (f"start the probe higher ([stepper_z] position_min is {position_min_mm:g} already); if it triggers in "
+            f"the air, free the bowden tube or cable chain that pulls on the toolhead")
+
+
+def bad_tap_advice(code: str | None, quality_components: Mapping[str, float] | None = None,
+                   position_min_mm: float | None = None) -> str:
+    """'Likely cause: ... Fix: ...' for a bad tap's code ('' for no code); `position_min_mm`
+    ([stepper_z] position_min, when known) makes the COASTING fix fit the printer."""
     if not code:
         return ""
     if code == "LOW_TAP_QUALITY":
@@ -78,16 +92,19 @@ def bad_tap_advice(code: str | None, quality_components: Mapping[str, float] | N
         cause, fix = QUALITY_ADVICE.get(worst, QUALITY_DEFAULT)
     else:
         cause, fix = ADVICE.get(code, (FOULED, CLEAN_AND_COOL))
+    if code == "COASTING_MOVE_ACCELERATION" and position_min_mm is not None:
+        fix = coasting_fix(position_min_mm)
     return f"Likely cause: {cause}. Fix: {fix}."
 
 
-def with_advice(message: str, code: str | None, quality_components: Mapping[str, float] | None = None) -> str:
+def with_advice(message: str, code: str | None, quality_components: Mapping[str, float] | None = None,
+                position_min_mm: float | None = None) -> str:
     """`message` ending with the advice for `code`."""
-    advice = bad_tap_advice(code, quality_components)
+    advice = bad_tap_advice(code, quality_components, position_min_mm)
     return f"{message.rstrip('. ')}. {advice}" if advice else message
 
 
-def advised(message: str, bad_taps) -> str:
+def advised(message: str, bad_taps, position_min_mm: float | None = None) -> str:
     """`message` ending with the likely cause and fix of the most common code among `bad_taps`
     (TapOutcome-like: error_code, analysis, explained); unchanged when the tap's own message
     already explains it (e.g. probing too fast for the sensor)."""
@@ -98,4 +115,4 @@ def advised(message: str, bad_taps) -> str:
     last = next(tap for tap in reversed(bad_taps) if tap.error_code == code)
     if last.explained:
         return message
-    return with_advice(message, code, getattr(last.analysis, "quality_components", None))
+    return with_advice(message, code, getattr(last.analysis, "quality_components", None), position_min_mm)

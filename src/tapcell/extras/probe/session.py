@@ -211,12 +211,15 @@ class ProbeSession:
                 self.probe.respond_info(f"Bad probe ignored (bad_probe_strategy=ignore): {reason}")
                 return outcome, where, taps
             if opts.bad_probe_strategy == "fail":
-                raise ProbeError(advised(f"Probe failed because it was deemed bad quality: {reason}", [outcome]))
+                raise ProbeError(advised(f"Probe failed because it was deemed bad quality: {reason}", [outcome],
+                                         motion.z_position_min()))
             self.fouled_xy_mm.append(where)
             bad_here.append(outcome)
             if len(bad_here) > opts.bad_probe_retries:
-                raise ProbeError(advised(f"Probing failed after {len(bad_here)} bad probes (last: {reason})", bad_here))
-            self.probe.respond_info(self._retry_message(reason, bad_here, opts.bad_probe_retries))
+                raise ProbeError(advised(f"Probing failed after {len(bad_here)} bad probes (last: {reason})", bad_here,
+                                         motion.z_position_min()))
+            self.probe.respond_info(self._retry_message(reason, bad_here, opts.bad_probe_retries,
+                                                        motion.z_position_min()))
             self._retract(outcome.z_mm)
             if opts.scrubbing_frequency and len(bad_here) % opts.scrubbing_frequency == 0:
                 self.probe.run_template("nozzle_scrubber_gcode",
@@ -224,13 +227,13 @@ class ProbeSession:
             speed = opts.effective_retry_speed_mm_s
 
     @staticmethod
-    def _retry_message(reason: str, bad_here: list[TapOutcome], retries: int) -> str:
+    def _retry_message(reason: str, bad_here: list[TapOutcome], retries: int, position_min_mm: float) -> str:
         """The line after a bad tap that is retried. The first tap failing with a code carries the
         likely cause and the fix (the user reads the first failure, which may be the only one)."""
         line = f"Bad probe detected: {reason}. Retrying ({len(bad_here)}/{retries})..."
         latest = bad_here[-1]
         if [tap.error_code for tap in bad_here].count(latest.error_code) == 1:
-            advice = advised("", [latest]).strip(" .")
+            advice = advised("", [latest], position_min_mm).strip(" .")
             if advice:
                 line += f" {advice}."
         return line
