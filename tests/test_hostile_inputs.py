@@ -351,3 +351,17 @@ def test_the_coasting_fix_fits_the_printers_position_min():
                             "can pass Z=0, and start the probe higher.")
     # The cause covers both ways a move is not at its steady speed (the code is raised for both).
     assert "still speeding up" in at_zero and "already slowing down" in at_zero
+
+
+@pytest.mark.parametrize("spelling", ["0", "1e-400", "-0"])
+def test_a_command_that_turns_a_safety_limit_off_says_so(tmp_path, spelling):
+    responses: list[str] = []
+    printer = Printer.from_config(str(_calibrated_example(tmp_path)), responses=responses)
+    printer.gcode.run_script("G28\nG1 X110 Y110 F6000\nG1 Z3 F600")
+    del responses[:]
+    printer.gcode.run_script(f"PROBE FORCE_SAFETY_LIMIT={spelling}")
+    assert responses[0] == (f"// PROBE: FORCE_SAFETY_LIMIT={spelling} turns the force_safety_limit off for this "
+                            f"command (the config's is 2000g)")
+    del responses[:]
+    printer.gcode.run_script("PROBE FORCE_SAFETY_LIMIT=1500")  # a lower limit is nothing to warn about
+    assert not any("turns" in line for line in responses)

@@ -254,6 +254,7 @@ class LoadCellProbe:
         options = with_overrides(self.options, TAP_OPTION_SPECS, gcmd)
         if options is self.options:
             return self.config_settings
+        self._say_limits_turned_off(options, gcmd)
         self._check_classifier(options.tap_classifier, gcmd.error)
         check_stuck_sensor_samples(options.stuck_sensor_samples,
                                    lambda msg: gcmd.param_error(f"STUCK_SENSOR_SAMPLES: {msg}"))
@@ -261,6 +262,14 @@ class LoadCellProbe:
             return self._design(options)
         except FilterDesignError as exc:
             raise gcmd.param_error(f"{exc.option.upper()}: {exc.value!r} is not allowed; allowed: {exc.allowed}") from None
+
+    def _say_limits_turned_off(self, options: TapOptions, gcmd) -> None:
+        """A safety limit the command turns off (0; also written 1e-400 or -0) is said, never silent."""
+        for name, option in (("FORCE_SAFETY_LIMIT", "force_safety_limit_g"),
+                             ("DRIFT_SAFETY_LIMIT", "drift_safety_limit_g")):
+            if getattr(options, option) == 0 and getattr(self.options, option) != 0:
+                gcmd.respond_info(f"{gcmd.command}: {name}={gcmd.get(name)} turns the {name.lower()} off for "
+                                  f"this command (the config's is {getattr(self.options, option):g}g)")
 
     def with_options(self, settings: TapSettings, **changes) -> TapSettings:
         """`settings` with some TapOptions fields changed (a calibration's own taps)."""
