@@ -41,8 +41,9 @@ TABLE_ROWS = 20
 # The largest message taken from the server: `tapcell serve` drops a client with 64 MiB unsent,
 # and a 20 s tap at 2000 sps is ~1.5 MB. Larger is refused by the websocket (the link is reopened).
 MAX_MESSAGE_BYTES = 64 * 1024 * 1024
-# A tap with more samples is skipped with a warning: 100 s at 2000 sps; a real tap is under 5 s.
-MAX_TAP_SAMPLES = 200_000
+# A tap with more samples is skipped with a warning: 10 s at 2000 sps (a real tap is under 5 s). The
+# analysis's time grows faster than the samples (hum fit): 20,000 take ~15 s and 400 MB, 40,000 over a minute.
+MAX_TAP_SAMPLES = 20_000
 NAME_RETRIES = 3  # tries before a host name that does not resolve is reported as a mistake
 OVERSIZE_RETRIES = 3  # links lost in a row to a message over MAX_MESSAGE_BYTES before giving up
 # [load_cell_probe] options of Klipper-family configs -> the analysis options they set.
@@ -174,7 +175,7 @@ def analyse_event(number: int, event: dict, options: AnalysisOptions):
     samples = printed.get("time")
     if isinstance(samples, list) and len(samples) > MAX_TAP_SAMPLES:
         raise TapFileError("<dump_taps>", f"{len(samples):,} samples, more than {MAX_TAP_SAMPLES:,} "
-                                          f"(100 s at 2000 sps): not analysed")
+                                          f"(10 s at 2000 sps): not analysed")
     tap = tap_from_object(event, "<dump_taps>")
     analysis = analyze_tap(tap, options)
     position, printer_valid, error, warnings = printer_result(printed)
