@@ -133,7 +133,7 @@ def x86_instructions(case: Case, workdir: Path) -> tuple[float, float]:
     """(tc_trigger_sample, tc_sos_filter_apply) inclusive instructions per sample."""
     exe = workdir / "harness_x86"
     if not exe.exists():
-        _run(["gcc", "-std=c99", "-O2", "-g", f"-I{FIRMWARE / 'include'}", *map(str, CORE_SOURCES),
+        _run(["gcc", "-std=c99", "-O2", "-g", "-DTC_SINGLE_THREADED", f"-I{FIRMWARE / 'include'}", *map(str, CORE_SOURCES),
               str(HARNESS / "harness.c"), str(HARNESS / "main_x86.c"), "-o", str(exe)])
     data = workdir / f"input_{case.n_sections}.bin"
     words = [case.n_sections, case.frac_bits, case.counts.size, case.tare_counts]
@@ -218,6 +218,12 @@ def _thumb_cycles(code: bytes, offset: int, size: int, taken: bool) -> int:
 
 def m0_cycles(case: Case, opt: str, build) -> float:
     """Cycles per sample of tc_trigger_sample() in unicorn, outputs checked against the reference."""
+    return m0_counts(case, opt, build)[1]
+
+
+def m0_counts(case: Case, opt: str, build) -> tuple[float, float]:
+    """(instructions, cycles) per sample of tc_trigger_sample() in unicorn, outputs checked against the
+    reference. firmware/port/emu.py compares its emulators' counts with these."""
     from unicorn import UC_ARCH_ARM, UC_HOOK_CODE, UC_MODE_MCLASS, UC_MODE_THUMB, Uc
     from unicorn.arm_const import UC_ARM_REG_LR, UC_ARM_REG_SP, UC_CPU_ARM_CORTEX_M0
 
@@ -246,7 +252,7 @@ def m0_cycles(case: Case, opt: str, build) -> float:
 
     call("bench_setup")
     run_start, run_size = symbols["bench_run"]
-    state = {"cycles": 0, "prev": None}
+    state = {"cycles": 0, "instructions": 0, "prev": None}
 
     def on_instruction(_uc, address, size, _data):
         prev = state["prev"]
@@ -254,6 +260,7 @@ def m0_cycles(case: Case, opt: str, build) -> float:
             prev_address, prev_size = prev
             taken = address != prev_address + prev_size
             state["cycles"] += _thumb_cycles(image, prev_address - RAM_BASE, prev_size, taken)
+            state["instructions"] += 1
         # the caller's loop (bench_run) is not part of the per-sample path
         state["prev"] = None if run_start <= address < run_start + run_size else (address, size)
 
@@ -262,7 +269,7 @@ def m0_cycles(case: Case, opt: str, build) -> float:
     outputs = np.frombuffer(uc.mem_read(symbols["bench_filtered"][0], 4 * case.counts.size), dtype="<i4")
     if not np.array_equal(outputs, case.expected_q):
         raise RuntimeError(f"M0+ output differs from the reference at {case.n_sections} sections ({opt})")
-    return state["cycles"] / case.counts.size
+    return state["instructions"] / case.counts.size, state["cycles"] / case.counts.size
 
 
 # --------------------------------------------------------------------------- report
