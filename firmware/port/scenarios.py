@@ -27,6 +27,7 @@ from tapcell.mcu.sensors import (   # noqa: E402
     HX71X_DATA_BITS, HX71X_ERR_DESYNC, SensorFrameError, decode_hx71x_frames, hx71x_pulses,
 )
 from tapcell.mcu.trigger import FirmwareTrigger, TriggerError, TriggerParams   # noqa: E402
+from tapcell.mcu.trigger_model import TriggerModel   # noqa: E402
 
 CHIP, CHIP_CODE, GAIN, GAIN_CODE = "hx717", 1, "A-128", 0
 SPS = 320
@@ -72,46 +73,64 @@ def _params(ticks_per_s: int, **overrides) -> TriggerParams:
     return TriggerParams(**base)
 
 
-def _expect(name: str, params: TriggerParams, tare: int, counts: np.ndarray, ticks_per_s: int,
-            desync_at: int | None = None, silent_after: int | None = None) -> Scenario:
-    """Run the host library over the samples the image will see and record what it did."""
-    trigger = FirmwareTrigger(params)
+def _run_endstop(endstop, name: str, params: TriggerParams, tare: int, frames: np.ndarray) -> tuple:
+    """Feed the frames the image will see; (end, event, fed, filtered_q, state, error, glitches)."""
     period_s = 1.0 / SPS
-    if trigger.arm(tare, 0.0) != TriggerError.NONE:
-        raise RuntimeError(f"{name}: the host library refused to arm")
-    frames = frame_of(counts)
-    if desync_at is not None:
-        frames[desync_at] &= ~np.uint32(1)                  # the trailing bit reads 0
-    data = frames if silent_after is None else frames[:silent_after]
-    good = len(data)
+    if endstop.arm(tare, 0.0) != TriggerError.NONE:
+        raise RuntimeError(f"{name}: the host refused to arm")
+    good = len(frames)
     try:
-        decoded = decode_hx71x_frames(data, PULSES)
+        decoded = decode_hx71x_frames(frames, PULSES)
     except SensorFrameError as problem:                      # the host decoder sees the desync too
         good = problem.index
-        decoded = decode_hx71x_frames(data[:good], PULSES)
-    t_s = np.arange(1, good + 1) * period_s
-    result = trigger.feed(t_s, decoded, want_filtered=True)
+        decoded = decode_hx71x_frames(frames[:good], PULSES)
+    result = endstop.feed(np.arange(1, good + 1) * period_s, decoded, want_filtered=True)
     filtered = np.round(result.filtered_g * Q1615_ONE_G).astype(np.int32)
     fed = result.consumed
     if result.trigger_index is not None:
         end, event = END_SAMPLE, EVENT_TRIGGER
     elif result.error_index is not None:
         end, event = END_SAMPLE, EVENT_ERROR
-    elif good < len(data):
-        trigger.abort(HX71X_ERR_DESYNC, (good + 1) * period_s)
+    elif good < len(frames):
+        endstop.abort(HX71X_ERR_DESYNC, (good + 1) * period_s)
         end, event = END_ABORT, EVENT_ERROR
     else:
         deadline_s = (fed + params.watchdog_periods) * period_s
-        if trigger.check_watchdog(deadline_s + 2.0 / params.clock_hz) != TriggerError.WATCHDOG_TIMEOUT:
-            raise RuntimeError(f"{name}: the host library's watchdog did not fire")
+        if endstop.check_watchdog(deadline_s + 2.0 / params.clock_hz) != TriggerError.WATCHDOG_TIMEOUT:
+            raise RuntimeError(f"{name}: the host's watchdog did not fire")
         end, event = END_WATCHDOG, EVENT_ERROR
-    settle = frame_of(np.full(SETTLING_FRAMES, tare))
+    return (end, event, fed, filtered[:fed], STATE_CODES[endstop.state], endstop.field("error"), endstop.glitches)
+
+
+def _expect(name: str, params: TriggerParams, tare: int, counts: np.ndarray, ticks_per_s: int,
+            outcome: tuple[int, int, range], desync_at: int | None = None, silent_after: int | None = None) -> Scenario:
+    """What the host library does with the samples the image will see.
+
+    The C library (cffi) gives the expected values; the Python model of the trigger
+    (tapcell.mcu.trigger_model, written from the rules, no C) must agree with it, and both
+    must give `outcome` = (end, error code, samples fed in this range) as the scenario was built: a bug
+    planted in the shared C source changes the host library too, and is caught here."""
+    frames = frame_of(counts)
+    if desync_at is not None:
+        frames[desync_at] &= ~np.uint32(1)                  # the trailing bit reads 0
     delivered = frames if silent_after is None else frames[:silent_after]
-    period_ticks = trigger.config["sample_period_ticks"]
+    library = _run_endstop(FirmwareTrigger(params), name, params, tare, delivered)
+    model = _run_endstop(TriggerModel(params), name, params, tare, delivered)
+    if not (library[:3] == model[:3] and np.array_equal(library[3], model[3]) and library[4:] == model[4:]):
+        raise RuntimeError(f"{name}: the host library (C) and the trigger model (Python) disagree: "
+                           f"end/event/fed/state/error/glitches {library[:3] + library[4:]} vs {model[:3] + model[4:]}")
+    end, event, fed, filtered, state, error, glitches = library
+    if (end, error) != outcome[:2] or fed not in outcome[2]:
+        raise RuntimeError(f"{name}: expected end/error/samples {outcome}, the host library gives {(end, error, fed)}")
+    period_ticks = FirmwareTrigger(params).config["sample_period_ticks"]
     check_ticks = period_ticks // 4
-    return Scenario(name, params, tare, np.concatenate([settle, delivered]), end, event,
-                    STATE_CODES[trigger.state], trigger.field("error"), trigger.glitches, filtered[:fed],
-                    check_ticks, check_ticks + max(2, check_ticks // 8))
+    settle = frame_of(np.full(SETTLING_FRAMES, tare))
+    return Scenario(name, params, tare, np.concatenate([settle, delivered]), end, event, state, error, glitches,
+                    filtered, check_ticks, check_ticks + max(2, check_ticks // 8))
+
+
+def _exactly(samples: int) -> range:
+    return range(samples, samples + 1)
 
 
 def scenarios(ticks_per_s: int) -> list[Scenario]:
@@ -120,30 +139,39 @@ def scenarios(ticks_per_s: int) -> list[Scenario]:
     noise = lambda n: rng.normal(0, 20, n)   # noqa: E731  (counts RMS; a live HX717 at gain 128)
     out = []
 
-    # A tap: 60 samples in the air, then the nozzle presses 12 g more per sample until the trigger fires.
+    # A tap: 60 samples in the air, then the nozzle presses 12 g more per sample until the trigger
+    # (75 g) fires: after contact, and before the press is 60 samples old.
     grams = np.concatenate([np.zeros(60), np.arange(1, 60) * 12.0])
     counts = np.round(tare + grams * COUNTS_PER_GRAM + noise(grams.size)).astype(np.int64)
-    out.append(_expect("tap", _params(ticks_per_s), tare, counts, ticks_per_s))
+    out.append(_expect("tap", _params(ticks_per_s), tare, counts, ticks_per_s, (END_SAMPLE, 0, range(61, 120))))
 
     # The chip stops converting after 40 samples: the watchdog interrupt ends the move.
     counts = np.round(tare + noise(60)).astype(np.int64)
-    out.append(_expect("watchdog", _params(ticks_per_s), tare, counts, ticks_per_s, silent_after=40))
+    out.append(_expect("watchdog", _params(ticks_per_s), tare, counts, ticks_per_s,
+                       (END_WATCHDOG, TriggerError.WATCHDOG_TIMEOUT, _exactly(40)), silent_after=40))
 
     # A trailing bit reads 0 at sample 30 (HX71x desync): the driver's code aborts the move.
     counts = np.round(tare + noise(60)).astype(np.int64)
-    out.append(_expect("hx71x_desync", _params(ticks_per_s), tare, counts, ticks_per_s, desync_at=30))
+    out.append(_expect("hx71x_desync", _params(ticks_per_s), tare, counts, ticks_per_s,
+                       (END_ABORT, HX71X_ERR_DESYNC, _exactly(30)), desync_at=30))
 
-    # The chip repeats one value from sample 25 on: STUCK_SENSOR after the configured run.
+    # The chip repeats one value from sample 25 on: STUCK_SENSOR on the stuck_samples-th equal one.
     counts = np.round(tare + noise(80)).astype(np.int64)
     counts[25:] = counts[25]
-    out.append(_expect("stuck_sensor", _params(ticks_per_s), tare, counts, ticks_per_s))
+    params = _params(ticks_per_s)
+    out.append(_expect("stuck_sensor", params, tare, counts, ticks_per_s,
+                       (END_SAMPLE, TriggerError.STUCK_SENSOR, _exactly(25 + params.effective_stuck_samples))))
 
     # A slow press (0.4 g per sample, 128 g/s) with the drift limit off: the drift high-pass holds the
-    # filtered force under the trigger, the raw force window (300 g) stops it on the sample past it.
+    # filtered force under the trigger, the raw force window (300 g around the reference and the
+    # tare) stops it on the first sample past it.
     grams = np.arange(1, 900) * 0.4
     counts = np.round(tare + grams * COUNTS_PER_GRAM + noise(grams.size)).astype(np.int64)
     params = _params(ticks_per_s, force_safety_limit_g=300.0, drift_safety_limit_g=0.0, trigger_force_g=150.0)
-    out.append(_expect("force_window_slow_ramp", params, tare, counts, ticks_per_s))
+    limit = FirmwareTrigger(params).config["force_limit_counts"]
+    first_past = int(np.flatnonzero(counts > min(tare, REFERENCE_TARE) + limit)[0])
+    out.append(_expect("force_window_slow_ramp", params, tare, counts, ticks_per_s,
+                       (END_SAMPLE, TriggerError.FORCE_SAFETY, _exactly(first_past + 1))))
 
     # Place for the nozzle watch of the load-cell safety work (its own branch): a scenario
     # here, generated the same way, with the watch's expected verdict from the host library.
