@@ -128,20 +128,24 @@ def _run(cmd: list[str], **kwargs) -> subprocess.CompletedProcess:
 
 # --------------------------------------------------------------------------- x86 / callgrind
 
+def _write_input(case: Case, path: Path) -> Path:
+    """The harness input file: 4 header words, the config, the coefficients, counts, ticks."""
+    with open(path, "wb") as out:
+        out.write(struct.pack("<4i", case.n_sections, case.frac_bits, case.counts.size, case.tare_counts))
+        out.write(struct.pack("<10i", *_config_words(case.config)))
+        out.write(case.coeff.astype("<i4").tobytes())
+        out.write(case.counts.astype("<i4").tobytes())
+        out.write(case.ticks.astype("<u4").tobytes())
+    return path
+
+
 def x86_instructions(case: Case, workdir: Path) -> tuple[float, float]:
     """(tc_trigger_sample, tc_sos_filter_apply) inclusive instructions per sample."""
     exe = workdir / "harness_x86"
     if not exe.exists():
         _run(["gcc", "-std=c99", "-O2", "-g", "-DTC_SINGLE_THREADED", f"-I{FIRMWARE / 'include'}", *map(str, CORE_SOURCES),
               str(HARNESS / "harness.c"), str(HARNESS / "main_x86.c"), "-o", str(exe)])
-    data = workdir / f"input_{case.n_sections}.bin"
-    words = [case.n_sections, case.frac_bits, case.counts.size, case.tare_counts]
-    with open(data, "wb") as out:
-        out.write(struct.pack("<4i", *words))
-        out.write(struct.pack("<10i", *_config_words(case.config)))
-        out.write(case.coeff.astype("<i4").tobytes())
-        out.write(case.counts.astype("<i4").tobytes())
-        out.write(case.ticks.astype("<u4").tobytes())
+    data = _write_input(case, workdir / f"input_{case.n_sections}.bin")
     profile = workdir / f"callgrind_{case.n_sections}.out"
     result = _run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={profile}", str(exe), str(data)])
     outputs = np.array(result.stdout.split(), dtype=np.int64)
@@ -171,33 +175,80 @@ def arm_object_sizes(workdir: Path) -> list[tuple[str, int, int, int]]:
     return rows
 
 
-def klipper_text_os(checkout: Path, workdir: Path) -> int:
-    """.text of Klipper's sos_filter.o + trigger_analog.o at -Os, built from a checkout with our ARM flags
-    (an empty autoconf.h with the two features switched on; board/ = its generic ARM headers)."""
-    src = checkout / "src"
+KLIPPER_DEFINES = ["-DCONFIG_WANT_SOS_FILTER=1", "-DCONFIG_WANT_TRIGGER_ANALOG=1"]
+KLIPPER_HARNESS = ["klipper_harness.c", "klipper_runtime.c"]
+
+
+def _klipper_includes(checkout: Path, workdir: Path) -> list[str]:
+    """Klipper's sources build with an autoconf.h (empty here: the two features are switched on by
+    KLIPPER_DEFINES) and board/ = its generic ARM headers."""
     include = workdir / "klipper_include"
     include.mkdir(exist_ok=True)
     (include / "autoconf.h").write_text("")
     board = include / "board"
     if not board.exists():
-        board.symlink_to(src / "generic")
+        board.symlink_to(checkout / "src" / "generic")
+    return [f"-I{include}", f"-I{checkout / 'src'}"]
+
+
+def _klipper_sources(checkout: Path) -> list[str]:
+    return [str(checkout / "src" / f"{name}.c") for name in KLIPPER_OBJECTS]
+
+
+def klipper_text_os(checkout: Path, workdir: Path) -> int:
+    """.text of Klipper's sos_filter.o + trigger_analog.o at -Os, built with our ARM flags (its own
+    warnings allowed: it is not our code)."""
+    flags = [f for f in ARM_FLAGS if not f.startswith(("-std", "-W"))]
     total = 0
-    for name in KLIPPER_OBJECTS:
-        obj = workdir / f"klipper_{name}.o"
-        _run(["arm-none-eabi-gcc", *[f for f in ARM_FLAGS if not f.startswith(("-std", "-W"))], "-std=gnu99", "-Os",
-              "-DCONFIG_WANT_SOS_FILTER=1", "-DCONFIG_WANT_TRIGGER_ANALOG=1", f"-I{include}", f"-I{src}",
-              "-c", str(src / f"{name}.c"), "-o", str(obj)])
+    for source in _klipper_sources(checkout):
+        obj = workdir / f"klipper_{Path(source).stem}.o"
+        _run(["arm-none-eabi-gcc", *flags, "-std=gnu99", "-Os", *KLIPPER_DEFINES,
+              *_klipper_includes(checkout, workdir), "-c", source, "-o", str(obj)])
         total += int(_run(["arm-none-eabi-size", str(obj)]).stdout.splitlines()[1].split()[0])
     return total
 
 
-def build_arm_harness(workdir: Path, opt: str) -> tuple[bytes, dict[str, tuple[int, int]], list[str]]:
-    elf = workdir / f"harness_m0_{opt}.elf"
-    _run(["arm-none-eabi-gcc", *ARM_FLAGS, f"-{opt}", "-ffreestanding", "-nostdlib", "-nostartfiles",
-          f"-I{FIRMWARE / 'include'}", *map(str, CORE_SOURCES), str(HARNESS / "harness.c"),
-          str(HARNESS / "arm_support.c"), f"-Wl,-Ttext={RAM_BASE:#x}", "-Wl,-e,bench_run", "-Wl,-u,bench_setup", "-Wl,--gc-sections",
-          "-lgcc", "-o", str(elf)])
-    image = workdir / f"harness_m0_{opt}.bin"
+def klipper_x86_instructions(case: Case, checkout: Path, workdir: Path) -> tuple[float, tuple[int, int]]:
+    """(trigger_analog_update inclusive instructions per sample, (filter bytes, trigger bytes))."""
+    exe = workdir / "klipper_x86"
+    if not exe.exists():
+        _run(["gcc", "-std=gnu99", "-O2", "-g", *KLIPPER_DEFINES, *_klipper_includes(checkout, workdir),
+              *_klipper_sources(checkout), *(str(HARNESS / name) for name in KLIPPER_HARNESS),
+              str(HARNESS / "klipper_main_x86.c"), "-o", str(exe)])
+    data = _write_input(case, workdir / f"klipper_input_{case.n_sections}.bin")
+    profile = workdir / f"klipper_callgrind_{case.n_sections}.out"
+    result = _run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={profile}", str(exe), str(data)])
+    words = result.stdout.split()
+    if words[:2] != ["triggers", "0"]:
+        raise RuntimeError(f"Klipper's harness left the full path (trsync triggered): {result.stdout}")
+    annotated = _run(["callgrind_annotate", "--inclusive=yes", "--threshold=100", str(profile)]).stdout
+    match = re.search(r"^\s*([\d,]+).*:trigger_analog_update\b", annotated, re.MULTILINE)
+    if not match:
+        raise RuntimeError("trigger_analog_update not found in callgrind output")
+    return int(match.group(1).replace(",", "")) / case.counts.size, (int(words[3]), int(words[4]))
+
+
+def build_klipper_arm_harness(checkout: Path, workdir: Path, opt: str):
+    return build_arm_harness(workdir, opt, klipper=checkout)
+
+
+def build_arm_harness(workdir: Path, opt: str, klipper: Path | None = None
+                      ) -> tuple[bytes, dict[str, tuple[int, int]], list[str]]:
+    """Our harness (or, with a Klipper checkout, Klipper's) linked at RAM_BASE for unicorn."""
+    name = "klipper_m0" if klipper else "harness_m0"
+    elf = workdir / f"{name}_{opt}.elf"
+    if klipper:
+        flags = [f for f in ARM_FLAGS if not f.startswith(("-std", "-W"))]
+        sources = [*KLIPPER_DEFINES, *_klipper_includes(klipper, workdir), "-std=gnu99", *_klipper_sources(klipper),
+                   *(str(HARNESS / f) for f in KLIPPER_HARNESS), "-Wl,-u,bench_run_idle", "-Wl,-u,bench_idle_setup"]
+    else:
+        flags = ARM_FLAGS
+        sources = [f"-I{FIRMWARE / 'include'}", *map(str, CORE_SOURCES), str(HARNESS / "harness.c"),
+                   "-Wl,-u,bench_run_idle", "-Wl,-u,bench_idle_setup", "-Wl,-u,bench_trigger_bytes"]
+    _run(["arm-none-eabi-gcc", *flags, f"-{opt}", "-ffreestanding", "-nostdlib", "-nostartfiles", *sources,
+          str(HARNESS / "arm_support.c"), f"-Wl,-Ttext={RAM_BASE:#x}", "-Wl,-e,bench_run", "-Wl,-u,bench_setup",
+          "-Wl,--gc-sections", "-lgcc", "-o", str(elf)])
+    image = workdir / f"{name}_{opt}.bin"
     _run(["arm-none-eabi-objcopy", "-O", "binary", "-R", ".bss", str(elf), str(image)])
     symbols = {}
     for line in _run(["arm-none-eabi-nm", "-S", str(elf)]).stdout.splitlines():
@@ -240,10 +291,9 @@ def m0_cycles(case: Case, opt: str, build) -> float:
     return m0_counts(case, opt, build)[1]
 
 
-def m0_counts(case: Case, opt: str, build) -> tuple[float, float]:
-    """(instructions, cycles) per sample of tc_trigger_sample() in unicorn, outputs checked against the
-    reference. firmware/port/emu.py compares its emulators' counts with these."""
-    from unicorn import UC_ARCH_ARM, UC_HOOK_CODE, UC_MODE_MCLASS, UC_MODE_THUMB, Uc
+def _m0_machine(case: Case, build):
+    """A unicorn Cortex-M0 with the harness image and the case's inputs loaded: (uc, call(symbol))."""
+    from unicorn import UC_ARCH_ARM, UC_MODE_MCLASS, UC_MODE_THUMB, Uc
     from unicorn.arm_const import UC_ARM_REG_LR, UC_ARM_REG_SP, UC_CPU_ARM_CORTEX_M0
 
     image, symbols, _ = build
@@ -251,26 +301,49 @@ def m0_counts(case: Case, opt: str, build) -> tuple[float, float]:
     uc.ctl_set_cpu_model(UC_CPU_ARM_CORTEX_M0)
     uc.mem_map(RAM_BASE, RAM_SIZE)
     uc.mem_write(RAM_BASE, image)
-
-    def put(name: str, data: bytes) -> None:
-        uc.mem_write(symbols[name][0], data)
-
-    put("bench_coeff", case.coeff.astype("<i4").tobytes())
-    put("bench_n_sections", struct.pack("<I", case.n_sections))
-    put("bench_frac_bits", struct.pack("<I", case.frac_bits))
-    put("bench_n_samples", struct.pack("<I", case.counts.size))
-    put("bench_tare_counts", struct.pack("<i", case.tare_counts))
-    put("bench_config", struct.pack("<10i", *_config_words(case.config)))
-    put("bench_counts", case.counts.astype("<i4").tobytes())
-    put("bench_ticks", case.ticks.astype("<u4").tobytes())
+    inputs = {
+        "bench_coeff": case.coeff.astype("<i4").tobytes(),
+        "bench_n_sections": struct.pack("<I", case.n_sections),
+        "bench_frac_bits": struct.pack("<I", case.frac_bits),
+        "bench_n_samples": struct.pack("<I", case.counts.size),
+        "bench_tare_counts": struct.pack("<i", case.tare_counts),
+        "bench_config": struct.pack("<10i", *_config_words(case.config)),
+        "bench_counts": case.counts.astype("<i4").tobytes(),
+        "bench_ticks": case.ticks.astype("<u4").tobytes(),   # Klipper's harness reads its own timer
+    }
+    for name, data in inputs.items():
+        if name in symbols:
+            uc.mem_write(symbols[name][0], data)
 
     def call(name: str) -> None:
         uc.reg_write(UC_ARM_REG_SP, STACK_TOP)
         uc.reg_write(UC_ARM_REG_LR, RETURN_MAGIC | 1)
         uc.emu_start(symbols[name][0] | 1, RETURN_MAGIC)
 
+    return uc, call
+
+
+def klipper_m0_object_bytes(case: Case, build) -> tuple[int, int]:
+    """Bytes Klipper's M0+ build allocates per instance: (sos_filter, trigger_analog)."""
+    uc, call = _m0_machine(case, build)
     call("bench_setup")
-    run_start, run_size = symbols["bench_run"]
+    return struct.unpack("<2I", uc.mem_read(build[1]["klipper_object_bytes"][0], 8))
+
+
+def m0_counts(case: Case, opt: str, build, run: str = "bench_run") -> tuple[float, float]:
+    """(instructions, cycles) per sample of the per-sample call in unicorn (tc_trigger_sample(), or
+    trigger_analog_update() in Klipper's harness), from `run` (bench_run, or bench_run_idle: the
+    not-armed path). Our outputs are checked against the reference; Klipper's harness must not have
+    triggered or cancelled (its full path ran). firmware/port/emu.py compares its emulators' counts
+    with these."""
+    from unicorn import UC_HOOK_CODE
+
+    image, symbols, _ = build
+    uc, call = _m0_machine(case, build)
+    call("bench_setup")
+    if run == "bench_run_idle":
+        call("bench_idle_setup")
+    run_start, run_size = symbols[run]
     state = {"cycles": 0, "instructions": 0, "prev": None}
 
     def on_instruction(_uc, address, size, _data):
@@ -284,10 +357,14 @@ def m0_counts(case: Case, opt: str, build) -> tuple[float, float]:
         state["prev"] = None if run_start <= address < run_start + run_size else (address, size)
 
     uc.hook_add(UC_HOOK_CODE, on_instruction)
-    call("bench_run")
-    outputs = np.frombuffer(uc.mem_read(symbols["bench_filtered"][0], 4 * case.counts.size), dtype="<i4")
-    if not np.array_equal(outputs, case.expected_q):
-        raise RuntimeError(f"M0+ output differs from the reference at {case.n_sections} sections ({opt})")
+    call(run)
+    if "klipper_triggers" in symbols:
+        if struct.unpack("<I", uc.mem_read(symbols["klipper_triggers"][0], 4))[0]:
+            raise RuntimeError(f"Klipper's harness left the full path at {case.n_sections} sections ({opt})")
+    elif run == "bench_run":
+        outputs = np.frombuffer(uc.mem_read(symbols["bench_filtered"][0], 4 * case.counts.size), dtype="<i4")
+        if not np.array_equal(outputs, case.expected_q):
+            raise RuntimeError(f"M0+ output differs from the reference at {case.n_sections} sections ({opt})")
     return state["instructions"] / case.counts.size, state["cycles"] / case.counts.size
 
 
@@ -325,14 +402,20 @@ def main(argv: list[str]) -> int:
         x86_cases = {n: make_case(n, 2000) for n in SECTIONS}
         m0_cases = {n: make_case(n, 200) for n in SECTIONS}
 
+        def vs_klipper(ours: float, theirs: float | None) -> list[str]:
+            return ["not measured", "-"] if theirs is None else [f"{theirs:.0f}", _ratio(ours, theirs)]
+
+        goals = []   # (goal, ours, Klipper's, met)
         table = Table(title="x86-64 instructions per sample (gcc -O2, callgrind, inclusive)")
-        for col in ("sections", "trigger path", "filter alone"):
+        for col in ("sections", "trigger path", "Klipper", "ratio", "filter alone"):
             table.add_column(col, justify="right")
         for n in SECTIONS:
             total, filt = x86_instructions(x86_cases[n], workdir)
-            table.add_row(str(n), f"{total:.0f}", f"{filt:.0f}")
+            theirs = klipper_x86_instructions(x86_cases[n], klipper, workdir)[0] if klipper else None
+            table.add_row(str(n), f"{total:.0f}", *vs_klipper(total, theirs), f"{filt:.0f}")
         console.print(table)
-        console.print("Klipper's instructions per sample: not measured in this run (needs its harness)")
+        if klipper:
+            goals.append(("x86 instructions, 4 sections, <= 0.75x", total, theirs, total <= 0.75 * theirs))
 
         sizes = arm_object_sizes(workdir)
         table = Table(title="Cortex-M0+ object sizes, bytes (arm-none-eabi-gcc -Os -mthumb)")
@@ -345,29 +428,54 @@ def main(argv: list[str]) -> int:
                 core_text += text
         table.add_row("trigger + filter", str(core_text), "", "")
         klipper_text = klipper_text_os(klipper, workdir) if klipper else None
-        if klipper_text:
-            table.add_row("Klipper sos_filter.o + trigger_analog.o (this run)", str(klipper_text), "", "")
-            table.add_row("ratio", _ratio(core_text, klipper_text), "", "")
-        else:
-            table.add_row("Klipper sos_filter.o + trigger_analog.o", "not measured", "", "")
+        table.add_row("Klipper sos_filter.o + trigger_analog.o", *vs_klipper(core_text, klipper_text)[:1], "", "")
         console.print(table)
         if klipper_text:
-            goal = GOAL_TEXT_RATIO * klipper_text
-            console.print(f"goal .text <= {GOAL_TEXT_RATIO:.1f} x Klipper's ({goal:.0f} B): "
-                          f"{'met' if core_text <= goal else 'NOT met'} ({core_text})")
+            goals.append((".text at -Os <= 1.0x", core_text, klipper_text, core_text <= klipper_text))
 
-        table = Table(title="Cortex-M0+ per sample (unicorn, ARMv6-M timings; output bit-exact)")
-        for col in ("sections", "cycles -O2", "cycles -Os", "instructions -O2", "instructions -Os"):
+        table = Table(title="Cortex-M0+ per sample (unicorn, ARMv6-M timings; our output bit-exact)")
+        for col in ("sections", "opt", "cycles", "Klipper", "ratio", "instructions", "Klipper instr"):
             table.add_column(col, justify="right")
         builds = {opt: build_arm_harness(workdir, opt) for opt in ("O2", "Os")}
+        theirs_builds = {opt: build_arm_harness(workdir, opt, klipper=klipper) for opt in builds} if klipper else {}
         for n in SECTIONS:
-            counts = {opt: m0_counts(m0_cases[n], opt, builds[opt]) for opt in builds}
-            table.add_row(str(n), f"{counts['O2'][1]:.0f}", f"{counts['Os'][1]:.0f}",
-                          f"{counts['O2'][0]:.0f}", f"{counts['Os'][0]:.0f}")
+            for opt in builds:
+                instructions, cycles = m0_counts(m0_cases[n], opt, builds[opt])
+                theirs = m0_counts(m0_cases[n], opt, theirs_builds[opt]) if klipper else (None, None)
+                table.add_row(str(n), opt, f"{cycles:.0f}", *vs_klipper(cycles, theirs[1]), f"{instructions:.0f}",
+                              "-" if theirs[0] is None else f"{theirs[0]:.0f}")
+                if klipper and n == SECTIONS[-1]:
+                    goals.append((f"M0+ cycles, 4 sections, -{opt}, <= 0.75x", cycles, theirs[1],
+                                  cycles <= 0.75 * theirs[1]))
+        for opt in builds:
+            cycles = m0_counts(m0_cases[4], opt, builds[opt], "bench_run_idle")[1]
+            theirs = m0_counts(m0_cases[4], opt, theirs_builds[opt], "bench_run_idle")[1] if klipper else None
+            table.add_row("not armed", opt, f"{cycles:.0f}", *vs_klipper(cycles, theirs), "", "")
+            if klipper:
+                goals.append((f"not-armed path, -{opt}, <= Klipper's", cycles, theirs, cycles <= theirs))
         console.print(table)
         helpers = sorted(set(builds["O2"][2]) | set(builds["Os"][2]))
-        console.print(f"Klipper's cycles per sample: not measured in this run (needs its harness); "
-                      f"libgcc helpers linked: {', '.join(helpers) or 'none'}")
+        console.print(f"libgcc helpers linked in our harness: {', '.join(helpers) or 'none'}"
+                      + (f"; in Klipper's: {', '.join(sorted(set(theirs_builds['O2'][2]) | set(theirs_builds['Os'][2])))}"
+                         if klipper else ""))
+
+        image, symbols, _ = builds["O2"]
+        address = symbols["bench_trigger_bytes"][0] - RAM_BASE
+        ours_ram = struct.unpack("<I", image[address:address + 4])[0]
+        if klipper:
+            filter_bytes, trigger_bytes = klipper_m0_object_bytes(m0_cases[4], theirs_builds["O2"])
+            theirs_ram = filter_bytes + trigger_bytes
+            goals.append(("RAM per instance (4 sections) <= 1.2x", ours_ram, theirs_ram, ours_ram <= 1.2 * theirs_ram))
+            console.print(f"RAM per instance: struct tc_trigger {ours_ram} B; Klipper's sos_filter {filter_bytes} B + "
+                          f"trigger_analog {trigger_bytes} B = {theirs_ram} B (M0+ build)")
+            table = Table(title="Goals against Klipper's code, measured in this run")
+            for col in ("goal", "ours", "Klipper", "ratio", "met"):
+                table.add_column(col, justify="right")
+            for goal, ours, theirs, met in goals:
+                table.add_row(goal, f"{ours:.0f}", f"{theirs:.0f}", _ratio(ours, theirs), "yes" if met else "NO")
+            console.print(table)
+        else:
+            console.print(f"RAM per instance: struct tc_trigger {ours_ram} B; Klipper's: not measured")
         timing = Table(title="ARMv6-M timing table used (Cortex-M0+ TRM)")
         timing.add_column("instruction")
         timing.add_column("cycles")

@@ -31,3 +31,18 @@ void bench_run(void)
         bench_filtered[i] = bench_trigger.filtered_q;
     }
 }
+
+/* The same calls on a disarmed trigger: the not-armed path. */
+void bench_idle_setup(void)
+{
+    tc_trigger_disarm(&bench_trigger);
+}
+
+void bench_run_idle(void)
+{
+    for (uint32_t i = 0; i < bench_n_samples; i++)
+        bench_events += tc_trigger_sample(&bench_trigger, bench_counts[i], bench_ticks[i]);
+}
+
+/* RAM per instance as this target lays the struct out. */
+const uint32_t bench_trigger_bytes = sizeof(struct tc_trigger);
