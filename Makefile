@@ -17,7 +17,7 @@ STAMP  := $(VENV)/.installed-stamp
 NATIVE_SOURCES := setup.py $(wildcard src/tapcell/tap/c/*.c src/tapcell/tap/c/*.h)
 PYTEST_WORKERS ?= 2
 
-.PHONY: all venv native native-check firmware-host firmware-check firmware-arm firmware-emu emu-tools test demo bench clean moonraker-venv kalico-venv
+.PHONY: all venv native native-check firmware-host firmware-check firmware-arm firmware-emu emu-tools arm-gcc test demo bench clean moonraker-venv kalico-venv
 
 # Other projects the tests start for real, each in its own environment so that its pinned
 # versions stay as its users get them. A failed install leaves no stamp: the tests that need
@@ -54,7 +54,8 @@ firmware-host:
 firmware-check:
 	$(MAKE) -C firmware check
 
-firmware-arm:
+# Debian's cross compiler, with its recommended newlib (firmware-arm and firmware-emu).
+arm-gcc:
 	@command -v arm-none-eabi-gcc >/dev/null 2>&1 || { \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
 	    echo "installing gcc-arm-none-eabi (Debian package)"; \
@@ -62,14 +63,16 @@ firmware-arm:
 	  else \
 	    echo "arm-none-eabi-gcc is missing: run 'sudo apt-get install gcc-arm-none-eabi'"; exit 1; \
 	  fi; }
+
+firmware-arm: arm-gcc
 	$(MAKE) -C firmware arm
 
-# The emulators: Debian's cross compiler, qemu-system-arm and node; rp2040js pinned by
-# firmware/port/rp2040/package-lock.json into its gitignored node_modules.
-EMU_DEBS := gcc-arm-none-eabi:arm-none-eabi-gcc qemu-system-arm:qemu-system-arm nodejs:node npm:npm
+# The emulators: Debian's qemu-system-arm and node (without their recommends: no GUI);
+# rp2040js pinned by firmware/port/rp2040/package-lock.json into its gitignored node_modules.
+EMU_DEBS := qemu-system-arm:qemu-system-arm nodejs:node npm:npm
 RP2040JS := firmware/port/rp2040/node_modules/rp2040js/package.json
 
-emu-tools:
+emu-tools: arm-gcc
 	@missing=""; for pair in $(EMU_DEBS); do \
 	  command -v $${pair#*:} >/dev/null 2>&1 || missing="$$missing $${pair%%:*}"; done; \
 	if [ -n "$$missing" ]; then \

@@ -144,7 +144,7 @@ def x86_instructions(case: Case, workdir: Path) -> tuple[float, float]:
     exe = workdir / "harness_x86"
     if not exe.exists():
         _run(["gcc", "-std=c99", "-O2", "-g", "-DTC_SINGLE_THREADED", f"-I{FIRMWARE / 'include'}", *map(str, CORE_SOURCES),
-              str(HARNESS / "harness.c"), str(HARNESS / "main_x86.c"), "-o", str(exe)])
+              str(HARNESS / "harness.c"), str(HARNESS / "main_x86.c"), str(HARNESS / "report_x86.c"), "-o", str(exe)])
     data = _write_input(case, workdir / f"input_{case.n_sections}.bin")
     profile = workdir / f"callgrind_{case.n_sections}.out"
     result = _run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={profile}", str(exe), str(data)])
@@ -214,7 +214,7 @@ def klipper_x86_instructions(case: Case, checkout: Path, workdir: Path) -> tuple
     if not exe.exists():
         _run(["gcc", "-std=gnu99", "-O2", "-g", *KLIPPER_DEFINES, *_klipper_includes(checkout, workdir),
               *_klipper_sources(checkout), *(str(HARNESS / name) for name in KLIPPER_HARNESS),
-              str(HARNESS / "klipper_main_x86.c"), "-o", str(exe)])
+              str(HARNESS / "main_x86.c"), str(HARNESS / "klipper_report_x86.c"), "-o", str(exe)])
     data = _write_input(case, workdir / f"klipper_input_{case.n_sections}.bin")
     profile = workdir / f"klipper_callgrind_{case.n_sections}.out"
     result = _run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={profile}", str(exe), str(data)])
@@ -246,7 +246,7 @@ def build_arm_harness(workdir: Path, opt: str, klipper: Path | None = None
         sources = [f"-I{FIRMWARE / 'include'}", *map(str, CORE_SOURCES), str(HARNESS / "harness.c"),
                    "-Wl,-u,bench_run_idle", "-Wl,-u,bench_idle_setup", "-Wl,-u,bench_trigger_bytes"]
     _run(["arm-none-eabi-gcc", *flags, f"-{opt}", "-ffreestanding", "-nostdlib", "-nostartfiles", *sources,
-          str(HARNESS / "arm_support.c"), f"-Wl,-Ttext={RAM_BASE:#x}", "-Wl,-e,bench_run", "-Wl,-u,bench_setup",
+          str(FIRMWARE / "port" / "runtime.c"), f"-Wl,-Ttext={RAM_BASE:#x}", "-Wl,-e,bench_run", "-Wl,-u,bench_setup",
           "-Wl,--gc-sections", "-lgcc", "-o", str(elf)])
     image = workdir / f"{name}_{opt}.bin"
     _run(["arm-none-eabi-objcopy", "-O", "binary", "-R", ".bss", str(elf), str(image)])

@@ -59,34 +59,41 @@ uint32_t board_now_ticks(void)
     return timer_now(TIMER0);
 }
 
+/* Compare CC[0] of `timer` at `at_ticks` (its own count), interrupting at `priority`. */
+static void compare_start(uint32_t timer, unsigned irq, unsigned priority, uint32_t at_ticks)
+{
+    REG(timer, CC(0)) = at_ticks;
+    REG(timer, EVENTS_COMPARE(0)) = 0;
+    REG(timer, INTENSET) = INT_COMPARE0;
+    board_nvic_enable(irq, priority);
+}
+
+static void compare_stop(uint32_t timer, unsigned irq)
+{
+    REG(timer, INTENCLR) = INT_COMPARE0;
+    board_nvic_disable(irq);
+}
+
 void board_data_ready_start(uint32_t first_ticks, uint32_t period_ticks)
 {
     data_ready_period = period_ticks;
-    REG(TIMER0, CC(0)) = first_ticks;
-    REG(TIMER0, EVENTS_COMPARE(0)) = 0;
-    REG(TIMER0, INTENSET) = INT_COMPARE0;
-    board_nvic_enable(IRQ_TIMER0, PRIORITY_DATA_READY);
+    compare_start(TIMER0, IRQ_TIMER0, PRIORITY_DATA_READY, first_ticks);
 }
 
 void board_data_ready_stop(void)
 {
-    REG(TIMER0, INTENCLR) = INT_COMPARE0;
-    board_nvic_disable(IRQ_TIMER0);
+    compare_stop(TIMER0, IRQ_TIMER0);
 }
 
 void board_watchdog_start(uint32_t period_ticks)
 {
     watchdog_period = period_ticks;
-    REG(TIMER1, CC(0)) = timer_now(TIMER1) + period_ticks;
-    REG(TIMER1, EVENTS_COMPARE(0)) = 0;
-    REG(TIMER1, INTENSET) = INT_COMPARE0;
-    board_nvic_enable(IRQ_TIMER1, PRIORITY_WATCHDOG);
+    compare_start(TIMER1, IRQ_TIMER1, PRIORITY_WATCHDOG, timer_now(TIMER1) + period_ticks);
 }
 
 void board_watchdog_stop(void)
 {
-    REG(TIMER1, INTENCLR) = INT_COMPARE0;
-    board_nvic_disable(IRQ_TIMER1);
+    compare_stop(TIMER1, IRQ_TIMER1);
 }
 
 void board_sleep(void)

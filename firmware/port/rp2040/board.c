@@ -14,7 +14,7 @@
 #define TIMERAWL 0x28u
 #define INTR 0x34u
 #define INTE 0x38u
-#define IRQ_DATA_READY 0u
+#define IRQ_DATA_READY 0u   /* TIMER_IRQ_n is alarm n */
 #define IRQ_WATCHDOG 1u
 #define PRIORITY_DATA_READY 2u
 #define PRIORITY_WATCHDOG 1u
@@ -35,36 +35,43 @@ uint32_t board_now_ticks(void)
     return REG(TIMERAWL);
 }
 
+/* Alarm n (IRQ n) at `at_ticks`, interrupting at `priority`. */
+static void alarm_start(unsigned n, unsigned priority, uint32_t at_ticks)
+{
+    REG(INTR) = 1u << n;
+    REG(INTE) |= 1u << n;
+    REG(ALARM(n)) = at_ticks;
+    board_nvic_enable(n, priority);
+}
+
+static void alarm_stop(unsigned n)
+{
+    REG(INTE) &= ~(1u << n);
+    board_nvic_disable(n);
+}
+
 void board_data_ready_start(uint32_t first_ticks, uint32_t period_ticks)
 {
     data_ready_period = period_ticks;
     data_ready_next = first_ticks;
-    REG(INTR) = 1u << 0;
-    REG(INTE) |= 1u << 0;
-    REG(ALARM(0)) = first_ticks;
-    board_nvic_enable(IRQ_DATA_READY, PRIORITY_DATA_READY);
+    alarm_start(IRQ_DATA_READY, PRIORITY_DATA_READY, first_ticks);
 }
 
 void board_data_ready_stop(void)
 {
-    REG(INTE) &= ~(1u << 0);
-    board_nvic_disable(IRQ_DATA_READY);
+    alarm_stop(IRQ_DATA_READY);
 }
 
 void board_watchdog_start(uint32_t period_ticks)
 {
     watchdog_period = period_ticks;
     watchdog_next = board_now_ticks() + period_ticks;
-    REG(INTR) = 1u << 1;
-    REG(INTE) |= 1u << 1;
-    REG(ALARM(1)) = watchdog_next;
-    board_nvic_enable(IRQ_WATCHDOG, PRIORITY_WATCHDOG);
+    alarm_start(IRQ_WATCHDOG, PRIORITY_WATCHDOG, watchdog_next);
 }
 
 void board_watchdog_stop(void)
 {
-    REG(INTE) &= ~(1u << 1);
-    board_nvic_disable(IRQ_WATCHDOG);
+    alarm_stop(IRQ_WATCHDOG);
 }
 
 void board_sleep(void)
