@@ -108,6 +108,31 @@ def _parse(run: ImageRun, text: str) -> None:
             run.phases[int(parts[2])] = (int(parts[4]), int(parts[6]), int(parts[8]))
 
 
+@dataclass
+class Cost:
+    instructions: float | None       # per tc_trigger_sample() on the bench's case
+    cycles: float | None             # rp2040js only
+    not_armed: str                   # the not-armed call, with its unit
+    resolution: float                # of `instructions`
+
+
+def cost_of(run: ImageRun) -> Cost:
+    m = run.measures
+    if run.board == "microbit" and "cost.samples" in m:
+        # icount shift=0: one instruction per ns of virtual time; the empty function's body is 2
+        # instructions; each of the 8 timed passes reads the 16 MHz timer to +-1 tick.
+        ns_per_tick = 1e9 / m["board.ticks_per_s"]
+        n = m["cost.samples"]
+        instructions = (m["cost.armed_loop_ticks"] - m["cost.null_loop_ticks"]) * ns_per_tick / n + 2
+        idle = (m["cost.idle_loop_ticks"] - m["cost.null_loop_ticks"]) * ns_per_tick / n + 2
+        return Cost(instructions, None, f"{idle:.1f} in", 8 * ns_per_tick / n)
+    if 1 in run.phases:
+        calls, cycles, instructions = run.phases[1]
+        idle_calls, idle_cycles, _ = run.phases.get(2, (1, 0, 0))
+        return Cost(instructions / calls, cycles / calls, f"{idle_cycles / idle_calls:.1f} cy", 0.0)
+    return Cost(None, None, "-", 0.0)
+
+
 def boot(board: str, opt: str) -> ImageRun:
     run = ImageRun(board, opt)
     elf = BUILD / f"{board}-{opt}.elf"
@@ -175,6 +200,9 @@ def main() -> int:
         helpers = sorted(name for name in _symbols(elf) if FORBIDDEN_HELPER.match(name))
         checks.append(("no divide/64-bit helper", not helpers))
         checks.append(("exit status 0", run.status == 0))
+        cost, bench_instructions = cost_of(run), bench_future[run.opt].result()[0]
+        checks.append(("instructions = bench's", cost.instructions is not None
+                       and abs(cost.instructions - bench_instructions) <= cost.resolution + 1e-9))
         for name, ok in checks:
             passed += ok
             failed += not ok
@@ -194,19 +222,10 @@ def main() -> int:
         hz = m.get("board.ticks_per_s", BOARDS[run.board])
         ns_per_tick = 1e9 / hz
         bench_instr, bench_cycles = bench_future[run.opt].result()
-        if run.board == "microbit" and "cost.samples" in m:
-            # icount shift=0: one instruction per ns; the empty function's body is 2 instructions.
-            n = m["cost.samples"]
-            instr = (m["cost.armed_loop_ticks"] - m["cost.null_loop_ticks"]) * ns_per_tick / n + 2
-            idle = (m["cost.idle_loop_ticks"] - m["cost.null_loop_ticks"]) * ns_per_tick / n + 2
-            instr_s, cycles_s, idle_s = f"{instr:.1f}", "-", f"{idle:.1f} in"
-        elif 1 in run.phases:
-            calls, cycles, instructions = run.phases[1]
-            idle_calls, idle_cycles, _ = run.phases.get(2, (1, 0, 0))
-            instr_s, cycles_s = f"{instructions / calls:.1f}", f"{cycles / calls:.1f}"
-            idle_s = f"{idle_cycles / idle_calls:.1f} cy"
-        else:
-            instr_s = cycles_s = idle_s = "-"
+        cost = cost_of(run)
+        instr_s = "-" if cost.instructions is None else f"{cost.instructions:.1f}"
+        cycles_s = "-" if cost.cycles is None else f"{cost.cycles:.1f}"
+        idle_s = cost.not_armed
         tap = m.get("tap.ready_to_event_ticks")
         late = m.get("watchdog.detect_latency_ticks")
         text, data, bss = _section_sizes(elf)
