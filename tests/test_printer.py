@@ -296,7 +296,7 @@ def test_restart_with_a_broken_config_halts_until_fixed(tmp_path, fake_modules):
 def test_example_config_parses():
     config = ConfigFile.read(DEFAULT_CONFIG)
     assert config.sections() == ["virtual_printer", "printer", "stepper_x", "stepper_y", "stepper_z",
-                                 "load_cell_probe", "bed_mesh"]
+                                 "safe_z_home", "load_cell_probe", "bed_mesh"]
     probe = config.getsection("load_cell_probe")
     assert probe.get("sensor_type") == "hx717" and probe.get("sample_rate") == "320"
     assert not probe.has_option("counts_per_gram")  # shipped uncalibrated

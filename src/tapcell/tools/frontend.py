@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from tapcell.files import FileRefused, read_limited
+from tapcell.package_files import example_config
 from tapcell.host.config import ConfigError
 from tapcell.host.gcode import GCodeError, UnknownCommandError
 from tapcell.host.printer import Printer
@@ -21,7 +22,7 @@ from tapcell.tools.workspace import ScenarioError, set_scenario, working_config
 
 SUBCOMMANDS = ("console", "run")
 
-DEFAULT_CONFIG = Path(__file__).resolve().parents[3] / "examples" / "virtual-printer.cfg"
+DEFAULT_CONFIG = example_config("virtual-printer.cfg")
 HISTORY_FILE = Path("~/.tapcell_history").expanduser()
 HISTORY_LENGTH = 1000
 PROMPT = "tapcell> "
@@ -100,6 +101,17 @@ def run_script_file(printer: Printer, script_path: str, *, keep_going: bool, ech
     return 1 if failed else 0
 
 
+def _config_for_run(config: str) -> str:
+    """The config a run works on: the console's working copy of a file git tracks or tapcell installed
+    (so a calibration saved in the console holds here), said on stderr; the user's own file in place."""
+    if not os.path.exists(config):
+        return config  # _build_printer says so
+    path, where = working_config(Path(config))
+    if path != Path(config):
+        print(f"// {where}", file=sys.stderr, flush=True)
+    return str(path)
+
+
 def _main_run(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="tapcell run", description="Run a G-code script on the virtual printer "
                                      "and print every response.")
@@ -115,7 +127,7 @@ def _main_run(argv: list[str]) -> int:
         print(f"tapcell run: script '{args.script}' does not exist", file=sys.stderr)
         return 2
     # In a run the notices are about the session, not responses to the file: they go to stderr.
-    printer = _build_printer(args.config, "tapcell run", notices_to=sys.stderr)
+    printer = _build_printer(_config_for_run(args.config), "tapcell run", notices_to=sys.stderr)
     if printer is None:
         return 1
     return run_script_file(printer, args.script, keep_going=args.keep_going, echo=args.echo,
