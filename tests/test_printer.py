@@ -152,15 +152,18 @@ def test_status_command(tmp_path, fake_modules):
     printer, responses, _ = build(tmp_path)
     responses.clear()
     printer.gcode.run_script("STATUS OBJECT=load_cell")
-    assert responses == ["// counts_per_gram: 10", "// is_calibrated: True"]
+    # As JSON, as Moonraker's clients read status (no Python reprs: true, null, "text").
+    assert responses == ["// counts_per_gram: 10.0", "// is_calibrated: true"]
     responses.clear()
     printer.gcode.run_script("STATUS")
     assert responses == [
-        "// Printer is ready",
-        "// virtual_printer: time_s=42 scenario=noisy-mains",
-        "// printer: max_velocity=300 steppers=2",
-        "// load_cell: counts_per_gram=10 is_calibrated=True",
-        "// load_cell right: counts_per_gram=None is_calibrated=False",
+        # Ready in Klipper's sense, and what is still to do before probing, with its command.
+        "// Printer is ready; before probing: load_cell right is not calibrated: run LOAD_CELL_CALIBRATE "
+        "LOAD_CELL=right (then SAVE_CONFIG)",
+        '// virtual_printer: time_s=42.0 scenario="noisy-mains"',
+        "// printer: max_velocity=300.0 steppers=2",
+        "// load_cell: counts_per_gram=10.0 is_calibrated=true",
+        "// load_cell right: counts_per_gram=null is_calibrated=false",
     ]
     with pytest.raises(GCodeError) as info:
         printer.gcode.run_script("STATUS OBJECT=bed_mesh")
@@ -253,7 +256,7 @@ def test_save_config_round_trip_and_restart(tmp_path, fake_modules):
         "// toolhead ready",
         "// Printer is ready",
         "// counts_per_gram: 87.9441",
-        "// is_calibrated: True",
+        "// is_calibrated: true",
     ]
     assert printer.lookup_object("load_cell right").counts_per_gram == 87.94408
     assert path.read_text().startswith(CONFIG)

@@ -196,7 +196,7 @@ def _main_console(argv: list[str]) -> int:
     printer = _build_printer(str(config_path), "tapcell console")
     if printer is None:
         return 1
-    print(f"// {printer.state_message}. Type HELP for the commands, exit to quit.", flush=True)
+    print(f"// {printer.state_summary()}. Type HELP for the commands, exit to quit.", flush=True)
     readline = _setup_readline() if sys.stdin.isatty() else None
     try:
         console_loop(printer)
