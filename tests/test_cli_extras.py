@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+from pathlib import Path
 import subprocess
 import sys
 
@@ -15,6 +16,7 @@ from tapcell.tap.synth import synth_tap
 from tapcell.tools import cli, init
 
 
+CHECKOUT = Path(__file__).resolve().parents[1]
 WITHOUT_MODULE = """
 import importlib.abc, sys
 missing = sys.argv[1]
@@ -50,8 +52,9 @@ def test_a_missing_extra_is_named_in_one_line(command, args, missing, extra, inp
                            *(inputs.get(arg, arg) for arg in args)],
                           capture_output=True, text=True, timeout=120, env={**os.environ, "TAPCELL_HOME": inputs["HOME"]})
     assert done.returncode == 1, done.stderr
+    # The pip line names what this tapcell was installed from (here the checkout, editable).
     assert done.stderr == (f"tapcell {command}: needs {missing}, which comes with tapcell's [{extra}] extra: "
-                           f"pip install 'tapcell[{extra}]' (or 'tapcell[all]')\n")
+                           f"pip install '{CHECKOUT}[{extra}]' (or [all])\n")
 
 
 def test_an_unexpected_missing_module_is_not_hidden(monkeypatch):

@@ -109,6 +109,16 @@ def test_demo_console_and_analyze_run_from_any_folder(installed, elsewhere):
     assert analyze.stdout.count("\n") >= 10
 
 
+def test_a_missing_extra_names_the_wheel_to_install_it_from(installed, elsewhere, dist):
+    from test_cli_extras import WITHOUT_MODULE
+
+    done = subprocess.run([str(installed / "python"), "-c", WITHOUT_MODULE, "rich", "demo"], cwd=elsewhere,
+                          capture_output=True, text=True, timeout=RUN_TIMEOUT_S)
+    wheel = next(dist.glob("*.whl"))
+    assert (done.returncode, done.stderr) == (1, "tapcell demo: needs rich, which comes with tapcell's [tools] "
+                                                 f"extra: pip install '{wheel}[tools]' (or [all])\n")
+
+
 def test_init_writes_a_printer_folder_the_console_starts_from(installed, elsewhere):
     init = tapcell(installed, elsewhere, "init", "my-printer")
     assert init.returncode == 0, init.stderr

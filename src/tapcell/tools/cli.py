@@ -44,10 +44,26 @@ def extra_providing(module: str | None) -> str | None:
     return EXTRA_OF_MODULE.get((module or "").partition(".")[0])
 
 
+def install_source() -> str:
+    """What this tapcell was installed from, for a pip line: the checkout or wheel pip recorded
+    (direct_url.json, PEP 610), else the name."""
+    import json
+    import urllib.parse
+    from importlib import metadata
+
+    try:
+        recorded = json.loads(metadata.distribution("tapcell").read_text("direct_url.json") or "null")
+    except (metadata.PackageNotFoundError, ValueError):
+        recorded = None
+    url = recorded.get("url", "") if isinstance(recorded, dict) else ""
+    return urllib.parse.unquote(url.removeprefix("file://")) if url.startswith("file://") else "tapcell"
+
+
 def missing_extra_message(command: str, module: str, extra: str) -> str:
     """One line: what is missing and the pip line that brings it."""
+    source = install_source()
     return (f"tapcell {command}: needs {module.partition('.')[0]}, which comes with tapcell's [{extra}] extra: "
-            f"pip install 'tapcell[{extra}]' (or 'tapcell[all]')")
+            f"pip install '{source}[{extra}]' (or [all])")
 
 
 def _usage() -> str:
