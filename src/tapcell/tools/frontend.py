@@ -23,7 +23,8 @@ from tapcell.tools.workspace import ScenarioError, set_scenario, working_config
 SUBCOMMANDS = ("console", "run")
 
 DEFAULT_CONFIG = example_config("virtual-printer.cfg")
-HISTORY_FILE = Path("~/.tapcell_history").expanduser()
+HISTORY_FILE = Path("~/.tapcell_history").expanduser()  # readline's format
+CONSOLE_HISTORY_FILE = Path("~/.tapcell_console_history").expanduser()  # prompt_toolkit's format
 HISTORY_LENGTH = 1000
 PROMPT = "tapcell> "
 MAX_SCRIPT_BYTES = 256 * 1024 * 1024  # a G-code file for the virtual printer; read whole, so bounded
@@ -197,16 +198,38 @@ def _main_console(argv: list[str]) -> int:
     if printer is None:
         return 1
     print(f"// {printer.state_summary()}. Type HELP for the commands, exit to quit.", flush=True)
-    readline = _setup_readline() if sys.stdin.isatty() else None
+    read_line, finish = _console_reader(printer, interactive=sys.stdin.isatty())
     try:
-        console_loop(printer)
+        console_loop(printer, read_line)
     finally:
+        finish()
+    return 0
+
+
+def _console_reader(printer: Printer, *, interactive: bool):
+    """(read_line, finish) for the console. Every line is checked before it runs (a misspelt
+    parameter holds it back: `tapcell.tools.console_ui`). On a terminal: prompt_toolkit's editing,
+    history and TAB completion, colours and the progress line; readline where prompt_toolkit is
+    not installed (it comes with the [tools] extra)."""
+    from tapcell.tools import console_ui
+
+    if not interactive:
+        return console_ui.LineChecker(printer.gcode, input, _print_line), lambda: None
+    terminal = console_ui.TerminalConsole(printer)
+    try:
+        return terminal.reader(console_ui.prompt_reader(printer.gcode, CONSOLE_HISTORY_FILE)), lambda: None
+    except ImportError:
+        pass
+    readline = _setup_readline()
+
+    def finish() -> None:
         if readline is not None:
             try:
                 readline.write_history_file(HISTORY_FILE)
             except OSError as exc:
                 print(f"tapcell console: could not save history to {HISTORY_FILE}: {exc}", file=sys.stderr)
-    return 0
+
+    return terminal.reader(input), finish
 
 
 def main(argv: list[str]) -> int:
