@@ -23,6 +23,7 @@ import time
 from typing import Callable, Iterable, TextIO
 
 from tapcell.host.gcode import GCodeError, parse_line
+from tapcell.tools.progress import InPlaceLine
 
 PARAMETER_IN_HELP = re.compile(r"\b([A-Z][A-Z0-9_]*)=([A-Za-z0-9_.|]*)")
 # A misspelling is this close to a known name (difflib's ratio): METOD/METHOD 0.91, SAMPLS/SAMPLES 0.92,
@@ -178,13 +179,12 @@ class ProgressLine:
     PROBE_ACCURACY (its response lines) runs."""
 
     def __init__(self, stream: TextIO = sys.stderr, clock: Callable[[], float] = time.monotonic):
-        self.stream = stream
         self.clock = clock
+        self._line = InPlaceLine(stream)
         self._what = ""
         self._started_s = 0.0
         self._total = 0
         self._done = 0
-        self._drawn = False
         self._last_draw_s = -float("inf")
 
     def start(self, what: str, total: int) -> None:
@@ -222,16 +222,11 @@ class ProgressLine:
         if not self._what or (not force and now - self._last_draw_s < REDRAW_EVERY_S):
             return
         self._last_draw_s = now
-        self.stream.write(f"\r\033[K  {progress_text(self._what, self._done, self._total, now - self._started_s)}")
-        self.stream.flush()
-        self._drawn = True
+        self._line.show(f"  {progress_text(self._what, self._done, self._total, now - self._started_s)}")
 
     def clear(self) -> None:
         """Wipe the line (before a response line is printed)."""
-        if self._drawn:
-            self.stream.write("\r\033[K")
-            self.stream.flush()
-            self._drawn = False
+        self._line.wipe()
 
     def redraw(self) -> None:
         """Draw the line again after a response was printed."""
