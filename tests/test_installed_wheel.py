@@ -119,6 +119,17 @@ def test_a_missing_extra_names_the_wheel_to_install_it_from(installed, elsewhere
                                                  f"extra: pip install '{wheel}[tools]' (or [all])\n")
 
 
+def test_every_command_starts_from_any_folder(installed, elsewhere):
+    from tapcell.tools.cli import SUBCOMMANDS
+
+    for command in SUBCOMMANDS:
+        done = tapcell(installed, elsewhere, command, "--help")
+        assert (command, done.returncode, done.stderr) == (command, 0, ""), done.stdout
+        assert done.stdout.startswith(f"usage: tapcell {command}")
+    scenarios = tapcell(installed, elsewhere, "scenarios")
+    assert scenarios.returncode == 0 and "warped-bed" in scenarios.stdout
+
+
 def test_init_writes_a_printer_folder_the_console_starts_from(installed, elsewhere):
     init = tapcell(installed, elsewhere, "init", "my-printer")
     assert init.returncode == 0, init.stderr
