@@ -23,10 +23,12 @@ SUBFOLDERS = ("config", "gcodes", "logs", "comms")
 
 
 def moonraker_conf(data_dir: Path) -> str:
-    """A minimal moonraker.conf for `tapcell serve` on this folder (local clients trusted)."""
+    """A minimal moonraker.conf for `tapcell serve` on this folder: local clients trusted, and no
+    check of a Klipper service or install that a virtual printer does not have."""
     return (f"# Moonraker for tapcell's virtual printer: start 'tapcell serve' first (see printer.cfg's folder).\n"
             f"[server]\nhost: 127.0.0.1\nklippy_uds_address: {data_dir / 'comms' / 'klippy.sock'}\n\n"
-            f"[authorization]\ntrusted_clients:\n  127.0.0.0/8\n\n[machine]\nprovider: none\n")
+            f"[authorization]\ntrusted_clients:\n  127.0.0.0/8\n\n"
+            f"[machine]\nprovider: none\nvalidate_service: False\nvalidate_config: False\n")
 
 
 def next_commands(data_dir: Path) -> list[str]:
