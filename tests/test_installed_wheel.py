@@ -10,6 +10,7 @@ venv's site-packages through a .pth line (which adds the folder to sys.path but 
 
 from __future__ import annotations
 
+import fcntl
 import os
 import selectors
 import signal
@@ -32,12 +33,18 @@ SERVE_START_TIMEOUT_S = 60.0
 
 @pytest.fixture(scope="module")
 def dist(tmp_path_factory) -> Path:
-    """The sdist and the wheel built from it, as `make dist` builds them."""
+    """The sdist and the wheel built from it, as `make dist` builds them: once per test run, the
+    parallel workers (pytest-xdist) sharing it through the run's common temporary folder."""
     pytest.importorskip("build", reason="the dev extra's 'build' (make venv installs it)")
-    out = tmp_path_factory.mktemp("dist")
-    done = subprocess.run([sys.executable, "-m", "build", "--no-isolation", "--outdir", str(out), str(ROOT)],
-                          capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
-    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    base = tmp_path_factory.getbasetemp()
+    shared = base.parent if os.environ.get("PYTEST_XDIST_WORKER") else base  # this run's folder, not older runs'
+    out = shared / "tapcell-dist"
+    with open(shared / "tapcell-dist.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # one worker builds, the other waits for it
+        if not list(out.glob("*.whl")):
+            done = subprocess.run([sys.executable, "-m", "build", "--no-isolation", "--outdir", str(out), str(ROOT)],
+                                  capture_output=True, text=True, timeout=BUILD_TIMEOUT_S)
+            assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     return out
 
 
