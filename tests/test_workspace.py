@@ -130,3 +130,20 @@ def test_an_installed_example_is_never_rewritten(tmp_path, monkeypatch):
     assert path == copy_path(example) and path.read_text() == "[printer]\n"
     assert where == (f"Working on a copy of {example} (it is installed with tapcell, so it is never rewritten): "
                      f"{path}; SAVE_CONFIG writes there")
+
+
+def test_serve_works_on_the_copy_of_a_tracked_config(tmp_path, monkeypatch):
+    """SAVE_CONFIG from Mainsail must not rewrite the tracked example either."""
+    from tapcell.tools.serve import served_argv
+
+    monkeypatch.setenv("TAPCELL_HOME", str(tmp_path / "home"))
+    example = str(frontend.DEFAULT_CONFIG)
+    argv, where = served_argv(["--config", example, "--socket", "k.sock"])
+    assert argv == ["--config", str(copy_path(example)), "--socket", "k.sock"]
+    assert where.startswith(f"Working on a copy of {example} (git tracks it")
+    assert served_argv([f"--config={example}", "--socket", "k.sock"])[0][0] == f"--config={copy_path(example)}"
+    mine = tmp_path / "printer.cfg"
+    mine.write_text("[printer]\n")
+    assert served_argv(["--socket", "k.sock", "--config", str(mine)]) == (["--socket", "k.sock", "--config", str(mine)],
+                                                                          None)
+    assert served_argv(["--help"]) == (["--help"], None)

@@ -19,7 +19,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "console": ("tapcell.tools.frontend", "interactive G-code console on the virtual printer"),
     "run": ("tapcell.tools.frontend", "run a G-code script on the virtual printer"),
     "demo": ("tapcell.tools.demo", "the main job on the virtual printer, explained"),
-    "serve": ("tapcell.host.api_server", "the virtual printer behind Klipper's API (for Moonraker)"),
+    "serve": ("tapcell.tools.serve", "the virtual printer behind Klipper's API (for Moonraker)"),
     "monitor": ("tapcell.tools.monitor", "analyse a real printer's taps live, through Moonraker"),
     "kalico-plugin": ("tapcell.tools.kalico_plugin", "install tapcell as Kalico's tap classifier"),
 }
