@@ -30,8 +30,11 @@ FIRMWARE_ARGS = ["-std=c99", "-O2", "-Wall", "-Wextra", "-ffp-contract=off"]
 def firmware_library() -> Extension:
     sources = sorted(str(p) for p in (*Path("firmware/src").glob("*.c"), *Path("firmware/host").glob("*.c")))
     headers = sorted(str(p) for p in Path("firmware/include").glob("*.h"))
+    # The Python host drives the library from one thread, with no interrupts: hal.h's critical
+    # sections are no-ops there, as in firmware/Makefile's host build.
     return Extension("tapcell.mcu._firmware", sources, include_dirs=["firmware/include"], depends=headers,
-                     extra_compile_args=FIRMWARE_ARGS, optional=True)
+                     define_macros=[("TC_SINGLE_THREADED", None)], extra_compile_args=FIRMWARE_ARGS,
+                     optional=True)
 
 
 class BuildPyWithExamples(build_py):
