@@ -27,7 +27,7 @@ import numpy as np
 
 from tapcell.tap import native, validate
 from tapcell.tap.angles import line_angles_deg
-from tapcell.tap.classifiers import get_classifier, run_classifier
+from tapcell.tap.classifiers import MISFIT_TOLERANCE, get_classifier, run_classifier
 from tapcell.tap.contact import (MIN_SPAN_UM, ContactFit, fit_contact, fit_fixed_onset, window_edges,
                                  window_mean_and_slope)
 from tapcell.tap.context import AnalysisContext, SensorTiming, recompute_points
@@ -45,8 +45,8 @@ from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import PrefixSums, best_five_segments, prefix_sums, segment_lines
-from tapcell.tap.toe import (THREAD_REACH_UM, ToeFit, Wander, adhesion_measures, fit_toe, free_air_variogram,
-                             lag_from_halt_s, wander_from_variograms)
+from tapcell.tap.toe import (THREAD_FAR_REACH_UM, THREAD_REACH_UM, ToeFit, Wander, adhesion_measures, fit_toe,
+                             free_air_variogram, lag_from_halt_s, thread_pull_g, wander_from_variograms)
 
 # The checks, robust statistics and window heights in C (c/analysis.c, tapcell.tap.native); None: numpy.
 _C = native.load("analysis")
@@ -68,6 +68,10 @@ MISFIT_REACH_SAMPLES = 10
 MIN_COMPRESSION_SAMPLES = 2
 # The force at the end of the pullback: the median of this many samples before it (did the nozzle leave the bed?).
 END_SAMPLES = 3
+# Break contact this many samples (and a sixth of the pullback) before the pullback's end, and a
+# departure whose slope is under this share of the decompression's: the nozzle left inside it.
+BREAK_MARGIN_SAMPLES = 3
+DEPARTURE_FLAT_SHARE = 0.1
 # The adhesion dip (toe model) that rejects a tap, in noise sigmas. Clean independent taps reach
 # 3.2 at most (360 taps, seed 1); mild ooze has a median of 4.7 and its deepest dips err most.
 ADHESION_MAX_DIP_NOISE = 4.0
@@ -80,6 +84,19 @@ THREAD_MAX_NOISE = 8.0
 # ... and by more than this fraction of the compression force: a noise-free tap (noise 0) has no
 # dip, only rounding. Below any real sensor's 4 sigmas (75 g x 1 % = 0.75 g; HX717 ~1 g noise).
 ADHESION_MIN_DIP_FRACTION = 0.01
+# A departure that lies below the approach's level by the same amount all the way up (a baseline
+# shift: a cable or bowden pulling differently on the way up) does not move the toe's Z, which
+# fits its own baseline over the departure. It is taken for a thread when it pulls at least
+# THREAD_MIN_SHARE of the compression force, or when its pull changes along the departure (a thread
+# stretches and lets go) by more than THREAD_LEVEL_CHANGE of itself between THREAD_REACH_UM and
+# THREAD_FAR_REACH_UM. Reference taps (issue 21): cable shifts 5-13 % of the compression, far/near
+# 0.84-1.04; heavy-ooze threads that stay 18-38 %; mild ooze lets go (far/near 0-0.5); tap.synth's
+# 10 g strand peaking 40 um up, +1.5..+3.9 um of Z, 0.7.
+THREAD_MIN_SHARE = 0.15
+THREAD_LEVEL_CHANGE = 0.2
+# ... judged only when the pullback rises this far above contact (µm): a departure that ends sooner
+# cannot show a thread letting go (tap.synth's 10 g strand peaking 40 um up, a 0.1 mm pullback).
+THREAD_FAR_MIN_UM = 100.0
 
 
 def sensor_timing(tap: TapData, options: AnalysisOptions, sample_period_s: float) -> SensorTiming:
@@ -361,6 +378,46 @@ def _residual(y, x_min_um, span_um, fit: ContactFit) -> np.ndarray:
     return y - (fit.baseline_g + fit.stiffness_g_um * mean)
 
 
+def force_left_at_end_g(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, dec: Decomposition,
+                        ps: PrefixSums) -> tuple[float, float]:
+    """(force over the last END_SAMPLES of the pullback above the free-air level at that height,
+    the departure line's residual sigma): did the nozzle leave the bed (validate.check_left_the_bed)?
+
+    The free-air level is the approach line at the halt carried up the pullback by the free-air
+    drift (a cable pulling in proportion to Z moves the end's level by drift x pullback distance).
+    """
+    end = _indices(time_s, motion.pullback_end_s)[0]
+    slope_g_s, intercept_g = dec.lines[0]
+    height_um = (float(motion.z_at(motion.pullback_end_s)) - motion.z_halt_mm) * 1000.0
+    free_air_g = slope_g_s * motion.home_end_s + intercept_g + free_air_slope_g_um(dec, motion) * height_um
+    remaining_g = median(force_g[max(end - END_SAMPLES, 0):end + 1]) - free_air_g
+    residual_var, _, _ = _segment_stats(ps, dec.bounds[3], dec.stop - dec.start)
+    return remaining_g, math.sqrt(residual_var)
+
+
+def left_inside_pullback(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, dec: Decomposition,
+                         ps: PrefixSums, period_s: float) -> bool:
+    """The tap shows the nozzle leaving the bed inside the pullback: break contact (P4) at least
+    BREAK_MARGIN_SAMPLES and a sixth of the pullback before its end, a departure as flat as free
+    air (its slope under DEPARTURE_FLAT_SHARE of the decompression's), and the force at the
+    pullback's end on the departure's level (within STILL_PRESSING_SCATTERS of its scatter or the
+    spec's share of the compression). A cable pulling another way on the way up leaves such a
+    departure offset from the approach's level; a nozzle still pressing keeps unloading to the end.
+    """
+    end_s = motion.pullback_end_s - max(motion.pullback_duration_s / 6.0, BREAK_MARGIN_SAMPLES * period_s)
+    if not dec.points[4][0] < end_s:
+        return False
+    decompression_slope, departure_slope = dec.lines[3][0], dec.lines[4][0]
+    if not abs(departure_slope) <= DEPARTURE_FLAT_SHARE * abs(decompression_slope):
+        return False
+    end = _indices(time_s, motion.pullback_end_s)[0]
+    slope_g_s, intercept_g = dec.lines[4]
+    off_g = median(force_g[max(end - END_SAMPLES, 0):end + 1]) - (slope_g_s * motion.pullback_end_s + intercept_g)
+    scatter_g = math.sqrt(_segment_stats(ps, dec.bounds[3], dec.stop - dec.start)[0])
+    pressed_g = dec.points[2][1] - dec.points[1][1]
+    return abs(off_g) <= max(validate.STILL_PRESSING_SCATTERS * scatter_g, validate.STILL_PRESSING_SHARE * pressed_g)
+
+
 def free_air_slope_g_um(dec: Decomposition, motion: Motion) -> float:
     """The force's slope against height in free air (g/µm; cable/bowden drift), from the approach line.
 
@@ -407,7 +464,7 @@ def fit_pullback_toe(samples: PullbackSamples, motion: Motion, timing: SensorTim
 
 def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTiming, dec: Decomposition,
                    drift_g_um: float, contact_um: float, noise_g: float, approach_wander: Wander | None,
-                   compression_force_g: float) -> None:
+                   compression_force_g: float, explained: bool = False) -> None:
     """TAP_ADHESION when ooze or adhesion pulls the nozzle after break contact, seen either way:
     the force dips below the departure's own free-air level just above break contact by more than
     ADHESION_MAX_DIP_NOISE noise sigmas (`adhesion_dip`), or the departure lies below the
@@ -416,6 +473,8 @@ def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTimin
     pulling the whole departure pulls the dip's own reference too). The walk is the approach's
     own: a thread pulling over the departure would pass for a walk there. Either must also exceed
     ADHESION_MIN_DIP_FRACTION of the compression force (a noise-free tap has no noise to compare with).
+    A departure offset from the approach that the tap shows to be a baseline shift is no thread
+    (`_baseline_shift`, only when the contact model `explained` the contact to the noise).
     """
     floor_g = ADHESION_MIN_DIP_FRACTION * compression_force_g
     # The approach line's force where the approach passed the halt's height (its time is the halt).
@@ -430,10 +489,35 @@ def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTimin
     apart_samples = (motion.pullback_start_s - motion.home_end_s) / timing.sample_period_s + 2 * THREAD_REACH_UM[1]
     walk_g = 3.0 * math.sqrt(approach_wander.walk_var_g2 * max(apart_samples, 0.0)) if approach_wander else 0.0
     limit_g = max(THREAD_MAX_NOISE * noise_g + walk_g, floor_g)
-    if pull_g > limit_g:
+    approach_at_halt_g = slope_g_s * motion.home_end_s + intercept_g
+    if pull_g > limit_g and not (explained and _baseline_shift(samples, drift_g_um, contact_um, approach_at_halt_g,
+                                                               pull_g, compression_force_g)):
         raise TapInvalid(TAP_ADHESION, f"the force after break contact lies {pull_g:.1f} g below the approach's "
                                        f"free-air level at the same heights (more than {limit_g:.1f} g): "
                                        "ooze or adhesion pulling the nozzle")
+
+
+def contact_explained(result: TapAnalysis) -> bool:
+    """The contact model explains the samples near contact to the noise and the Z staircase (the
+    quality classifier's misfit would be 0): nothing squeezed or pulled there that the model missed."""
+    if result.fit_residual_sigma_g is None or result.noise_sigma_g is None:
+        return False
+    allowed_g = MISFIT_TOLERANCE * math.hypot(result.noise_sigma_g, result.step_sigma_g or 0.0)
+    return result.fit_residual_sigma_g <= allowed_g
+
+
+def _baseline_shift(samples: PullbackSamples, drift_g_um: float, contact_um: float, approach_at_halt_g: float,
+                    pull_g: float, compression_force_g: float) -> bool:
+    """A departure below the approach's level that is a baseline shift, not a thread: small
+    (under THREAD_MIN_SHARE of the compression) and as deep further up (THREAD_FAR_REACH_UM)
+    within THREAD_LEVEL_CHANGE of itself."""
+    if pull_g >= THREAD_MIN_SHARE * compression_force_g:
+        return False
+    x_um = 0.5 * (samples[0] + samples[1])
+    if x_um.max() - contact_um < THREAD_FAR_MIN_UM:
+        return False  # the departure ends before a thread would have let go: it cannot tell
+    far_g = thread_pull_g(x_um, samples[2], drift_g_um, approach_at_halt_g, contact_um, THREAD_FAR_REACH_UM)
+    return far_g is not None and abs(far_g - pull_g) <= THREAD_LEVEL_CHANGE * pull_g
 
 
 def fit_compression(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float,
@@ -558,9 +642,9 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
     result.break_contact_time_s = t_break
     result.sensor_delay_s = delay_s
     try:
-        end = _indices(time_s, motion.pullback_end_s)[0]
-        remaining_g = median(force[max(end - END_SAMPLES, 0):end + 1]) - dec.points[1][1]
-        validate.check_left_the_bed(dec.points[2][1] - dec.points[1][1], remaining_g)
+        if not left_inside_pullback(time_s, force, motion, dec, ps, period_s):
+            validate.check_left_the_bed(dec.points[2][1] - dec.points[1][1],
+                                        *force_left_at_end_g(time_s, force, motion, dec, ps))
         validate.check_points(dec.points, angles)
         validate.check_break_contact(t_break - delay_s - 0.5 * timing.integration_s, motion, period_s)
     except TapInvalid as invalid:
@@ -628,7 +712,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
             result.stiffness_decompression_g_um = toe.stiffness_g_um
             try:
                 check_adhesion(samples, motion, timing, dec, drift_g_um, toe.contact_um, noise_g, approach_wander,
-                               result.compression_force_g)
+                               result.compression_force_g, contact_explained(result))
             except TapInvalid as invalid:
                 result.valid, result.error, result.message = False, invalid.code, invalid.message
                 return result, context

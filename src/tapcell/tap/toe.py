@@ -110,6 +110,9 @@ ADHESION_MIN_LEVEL_SAMPLES = 10
 # A thread pulling the whole departure (`thread_pull_g`): heights above contact looked at (µm), and
 # the fewest samples there.
 THREAD_REACH_UM = (10.0, 60.0)
+# Further up the departure (µm above contact): where a thread that lets go no longer pulls, while a
+# baseline shift (a cable pulling one way on the way down and another on the way up) still does.
+THREAD_FAR_REACH_UM = (60.0, 150.0)
 THREAD_MIN_SAMPLES = 5
 # All of them, in the order the compiled `adhesion` kernel takes them.
 ADHESION_LIMITS = (ADHESION_FROM_UM, ADHESION_REACH_UM, ADHESION_LEVEL_UM, ADHESION_RUN_SAMPLES,
@@ -676,9 +679,9 @@ def adhesion_measures(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndar
 
 
 def thread_pull_g(x_um: np.ndarray, force_g: np.ndarray, drift_g_um: float, approach_at_halt_g: float,
-                  contact_um: float) -> float | None:
+                  contact_um: float, reach_um: tuple[float, float] = THREAD_REACH_UM) -> float | None:
     """How far (g) the departure lies below the approach's free-air line at the same heights, or
-    None when too few samples lie between THREAD_REACH_UM above contact.
+    None when too few samples lie between `reach_um` (default THREAD_REACH_UM) above contact.
 
     A thread of ooze pulling the nozzle for a long way after break contact pulls the departure's
     whole level down, so `adhesion_dip` (the departure against itself) cannot see it; the approach
@@ -687,7 +690,7 @@ def thread_pull_g(x_um: np.ndarray, force_g: np.ndarray, drift_g_um: float, appr
     heavy-ooze tap of the independent generator read valid 31 µm high that way).
     """
     above = x_um - contact_um
-    near = (above > THREAD_REACH_UM[0]) & (above < THREAD_REACH_UM[1])
+    near = (above > reach_um[0]) & (above < reach_um[1])
     if np.count_nonzero(near) < THREAD_MIN_SAMPLES:
         return None
     return median(approach_at_halt_g + drift_g_um * x_um[near] - force_g[near])
