@@ -684,6 +684,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
     if pullback:
         result.z_mm = motion.z_halt_mm + pullback.contact_um / 1000.0
         result.z_sigma_um = pullback.contact_sigma_um
+        result.z_sharp_mm, result.z_sharp_sigma_um = result.z_mm, result.z_sigma_um
         result.z_method = "contact_model"
         result.contact_onset_um = pullback.onset_um
         result.stiffness_decompression_g_um = pullback.stiffness_g_um
@@ -706,6 +707,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         toe = fit_pullback_toe(samples, motion, timing, start, drift_g_um, wander)
         if toe:
             result.z_mm = motion.z_halt_mm + (toe.contact_um - lag_shift_um) / 1000.0
+            result.toe_grid, result.toe_z_origin_mm = toe.grid, motion.z_halt_mm - lag_shift_um / 1000.0
             result.z_sigma_um = toe.sigma_um
             result.z_method = "toe"
             result.contact_onset_um = toe.width_um

@@ -289,6 +289,14 @@ class TapAnalysis:
     quality_components: dict[str, float] = field(default_factory=dict)
     classifier: str | None = None
     hum: dict[str, Any] | None = None  # the mains hum removed before the analysis (HumFit.to_json)
+    # The toe fit's grid and the Z (mm) of its contact height 0, for pooling taps at one spot
+    # (tapcell.tap.pool); not part of the JSON.
+    toe_grid: Any = field(default=None, repr=False, compare=False)
+    toe_z_origin_mm: float | None = field(default=None, repr=False, compare=False)
+    z_sharp_mm: float | None = field(default=None, repr=False, compare=False)  # the sharp model's Z
+    z_sharp_sigma_um: float | None = field(default=None, repr=False, compare=False)
+    z_pooled_mm: float | None = None  # Z with the toe shared by the taps at one spot (tapcell.tap.pool)
+    z_pooled_sigma_um: float | None = None
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -321,4 +329,6 @@ class TapAnalysis:
             "quality_components": {k: _num(v, 6) for k, v in self.quality_components.items()},
             "classifier": self.classifier,
             "hum": self.hum,
+            **({} if self.z_pooled_mm is None else {"z_pooled": _num(self.z_pooled_mm),
+                                                   "z_pooled_sigma_um": _num(self.z_pooled_sigma_um, 4)}),
         }

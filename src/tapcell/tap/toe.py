@@ -146,6 +146,18 @@ _LIFT_DEFICIT = _lift_deficits(TOE_POWERS)
 
 
 @dataclass
+class ToeGridResult:
+    """What the toe fit's marginal was computed from, kept for pooling taps (tapcell.tap.pool):
+    the contact heights (µm above the halt), the residual per toe (row: shape, width) and height,
+    the residual variance it was scaled by, and the prior per toe."""
+
+    contacts_um: np.ndarray
+    rss: np.ndarray
+    noise_var: float
+    prior: np.ndarray
+
+
+@dataclass
 class ToeFit:
     contact_um: float  # height above the halt where the force reaches the baseline
     sigma_um: float
@@ -153,6 +165,7 @@ class ToeFit:
     power: float
     stiffness_g_um: float
     residual_sigma_g: float
+    grid: ToeGridResult | None = None
 
 
 def toe_shape(depth_um: np.ndarray, width_um, power: float) -> np.ndarray:
@@ -541,14 +554,15 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
     power_index, width_index = divmod(best // len(_CONTACT_OFFSETS_UM), len(TOE_WIDTHS_UM))
     dof = max(samples - 4 - (2 if drift_g_um is None else 1), 1)  # the toe's c, w, p, k and the basis
     residual_var = max(least / dof, 1e-12)
-    contact, sigma = marginal_contact_um(contacts_um, rss_grid.reshape(-1, len(contacts_um)), residual_var,
-                                         _TOE_PRIOR)
+    rss_rows = rss_grid.reshape(-1, len(contacts_um))
+    contact, sigma = marginal_contact_um(contacts_um, rss_rows, residual_var, _TOE_PRIOR)
     if contact is None:
         return None
     width, power = TOE_WIDTHS_UM[width_index], TOE_POWERS[power_index]
     stiffness = stiffness_at(contact, width, power)
     return ToeFit(contact_um=contact, sigma_um=sigma, width_um=float(width), power=float(power),
-                  stiffness_g_um=stiffness, residual_sigma_g=math.sqrt(residual_var * g2_per_unit))
+                  stiffness_g_um=stiffness, residual_sigma_g=math.sqrt(residual_var * g2_per_unit),
+                  grid=ToeGridResult(contacts_um, rss_rows, residual_var, _TOE_PRIOR))
 
 
 ToeGrid = tuple[np.ndarray, float, Callable[[float, float, float], float]]
@@ -619,13 +633,32 @@ def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: flo
         prior = np.ones(len(rss)) if prior is None else prior
         mean_sd = _C.marginal_contact(contacts_um, np.ascontiguousarray(rss, dtype=float), noise_var, prior)
         return (None, COARSE_STEP_UM) if mean_sd is None else mean_sd
+    prior = [1.0] * len(rss) if prior is None else prior.tolist()
+    toes = [(*toe, row_prior) for toe, row_prior in zip(toe_minima(contacts_um, rss, noise_var), prior)
+            if toe is not None]
+    if not toes:
+        return None, COARSE_STEP_UM
+    least = min(toe[1] for toe in toes)
+    weights = [math.exp(-(lowest - least) / (2.0 * noise_var)) * math.sqrt(var) * toe_prior
+               for _, lowest, var, toe_prior in toes]
+    total = sum(weights)
+    mean = sum(weight * centre for weight, (centre, *_) in zip(weights, toes)) / total
+    spread = sum(weight * (var + (centre - mean) ** 2) for weight, (centre, _, var, _) in zip(weights, toes)) / total
+    return mean, math.sqrt(max(spread, 0.0))
+
+
+def toe_minima(contacts_um: np.ndarray, rss: np.ndarray, noise_var: float
+               ) -> list[tuple[float, float, float] | None]:
+    """Per toe (row of rss): (best height, least residual, variance in c) from the parabola through
+    its least residual and the two neighbours (the Laplace approximation), or None when the row
+    has no curved interior minimum."""
     step = float(contacts_um[1] - contacts_um[0])
     count = rss.shape[1]
     heights = contacts_um.tolist()
     # Plain floats: a score of toes is far too few for numpy's per-call cost to pay.
-    toes = []  # (best height, least residual, variance in c, prior) of each toe with a curved interior minimum
-    prior = [1.0] * len(rss) if prior is None else prior.tolist()
-    for row, k, row_prior in zip(rss.tolist(), rss.argmin(axis=1).tolist(), prior):
+    minima: list[tuple[float, float, float] | None] = []
+    for row, k in zip(rss.tolist(), rss.argmin(axis=1).tolist()):
+        minima.append(None)
         if not 0 < k < count - 1:
             continue
         before, at, after = row[k - 1], row[k], row[k + 1]
@@ -636,17 +669,9 @@ def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: flo
             continue
         offset = 0.5 * (before - after) / bend
         # d2 rss / dc2 = bend / step^2; the Gaussian in c has variance 2 noise_var / that.
-        toes.append((heights[k] + offset * step, at - 0.25 * offset * (before - after),
-                     2.0 * noise_var * step * step / bend, row_prior))
-    if not toes:
-        return None, COARSE_STEP_UM
-    least = min(toe[1] for toe in toes)
-    weights = [math.exp(-(lowest - least) / (2.0 * noise_var)) * math.sqrt(var) * toe_prior
-               for _, lowest, var, toe_prior in toes]
-    total = sum(weights)
-    mean = sum(weight * centre for weight, (centre, *_) in zip(weights, toes)) / total
-    spread = sum(weight * (var + (centre - mean) ** 2) for weight, (centre, _, var, _) in zip(weights, toes)) / total
-    return mean, math.sqrt(max(spread, 0.0))
+        minima[-1] = (heights[k] + offset * step, at - 0.25 * offset * (before - after),
+                      2.0 * noise_var * step * step / bend)
+    return minima
 
 
 def adhesion_dip(x_um: np.ndarray, force_g: np.ndarray, drift_g_um: float, contact_um: float) -> float | None:

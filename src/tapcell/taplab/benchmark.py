@@ -52,6 +52,7 @@ REAL_DIR = Path(__file__).with_name("real")
 SRC_DIR = Path(__file__).resolve().parents[2]  # the directory holding the tapcell package
 REPO_DIR = SRC_DIR.parent
 REFERENCE_NAME = "reference-taps.tar.xz"
+REFERENCE_SESSIONS_NAME = "reference-sessions.tar.xz"
 
 
 def _checkouts(repo: Path) -> list[Path]:
@@ -67,9 +68,9 @@ def _checkouts(repo: Path) -> list[Path]:
     return roots
 
 
-def default_reference_archive() -> Path:
-    """../shared/data/reference-taps.tar.xz from the repository root (from the main checkout for a worktree)."""
-    candidates = [root.parent / "shared" / "data" / REFERENCE_NAME for root in _checkouts(REPO_DIR)]
+def default_reference_archive(name: str = REFERENCE_NAME) -> Path:
+    """../shared/data/<name> from the repository root (from the main checkout for a worktree)."""
+    candidates = [root.parent / "shared" / "data" / name for root in _checkouts(REPO_DIR)]
     return next((c for c in candidates if c.exists()), candidates[0])
 
 
@@ -85,6 +86,7 @@ class Label:
     scenario: str
     expect: str  # "accept", "reject" or "either"
     z_contact_mm: float
+    session: str | None = None  # taps at one spot share it (the sessions sets)
 
 
 def read_labels(set_dir: Path) -> list[Label]:
@@ -96,7 +98,7 @@ def read_labels(set_dir: Path) -> list[Label]:
         raw = json.loads(line)
         z = raw.get("z_contact", raw.get("z_contact_mm"))
         expect = raw.get("expect") or EXPECT_OF_LABEL.get(raw.get("label"), "either")
-        labels.append(Label(raw["file"], raw["scenario"], expect, float(z)))
+        labels.append(Label(raw["file"], raw["scenario"], expect, float(z), raw.get("session")))
     return labels
 
 
@@ -325,10 +327,13 @@ def print_real(runs: list[Run], real_files: list[Path]) -> None:
         print(f"{path.stem:<28} {'-' if recorded is None else format(recorded, '.6f'):>14}{cells}")
 
 
-def reference_set(source: Path, scratch: Path) -> TapSet | None:
-    """The reference taps: an unpacked directory, or the archive unpacked into `scratch`."""
+def reference_set(source: Path, scratch: Path, name: str = "reference",
+                  archive: str = REFERENCE_NAME) -> TapSet | None:
+    """A reference set (its labels.jsonl and files): the archive unpacked into `scratch`, or an
+    unpacked directory (holding labels.jsonl, or the archive's directory)."""
     if source.is_dir():
-        directory = source / "reference-taps" if (source / "reference-taps").is_dir() else source
+        inner = source / archive.removesuffix(".tar.xz")
+        directory = source if (source / LABELS_FILE).exists() or not inner.is_dir() else inner
     else:
         with tarfile.open(source) as archive:
             archive.extractall(scratch, filter="data")
@@ -338,7 +343,7 @@ def reference_set(source: Path, scratch: Path) -> TapSet | None:
         directory = found[0]
     if not (directory / LABELS_FILE).exists():
         return None
-    return TapSet("reference", directory, read_labels(directory))
+    return TapSet(name, directory, read_labels(directory))
 
 
 def kalico_python(explicit: str | None) -> Path | None:
