@@ -34,6 +34,7 @@ from tapcell.tap.context import AnalysisContext, SensorTiming, recompute_points
 from tapcell.tap.hum import MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum, fit_hum, resolvable_hz, spline_knots
 from tapcell.tap.model import (
     TAP_ADHESION,
+    PullbackFit,
     TAP_DATA_INSUFFICIENT,
     TAP_MOTION_INVALID,
     TAP_SHAPE_INVALID,
@@ -656,6 +657,11 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
     z_line = motion.z_halt_mm + window.break_line_um / 1000.0  # P4 mapped, delay-corrected
     pullback_found = fit_pullback(window, motion, timing, delay_s, options)
     pullback, near_sigma_g = pullback_found if pullback_found else (None, None)
+    if pullback:
+        # For pooling taps at one spot (tapcell.tap.pool): the samples the sharp fit read, and its answer.
+        x_lo, x_hi, force_up = pullback_samples(window, motion, timing, delay_s)
+        result.pullback_fit = PullbackFit(x_lo, x_hi - x_lo, force_up, pullback.contact_um, pullback.stiffness_g_um,
+                                          pullback.onset_um, motion.pullback_speed_mm_s, delay_s)
     onset_um = pullback.onset_um if pullback else 0.0
     compression = fit_compression(window, motion, timing, delay_s, onset_um)
     try:

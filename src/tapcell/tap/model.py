@@ -257,6 +257,21 @@ def _num(value: float | None, digits: int = 9) -> float | None:
 
 
 @dataclass
+class PullbackFit:
+    """The pullback's samples as the sharp contact model read them (window low edge and span, µm
+    above the halt; force, g) and its contact height, stiffness and onset (tapcell.tap.pool)."""
+
+    x_min_um: np.ndarray
+    span_um: np.ndarray
+    force_g: np.ndarray
+    contact_um: float
+    stiffness_g_um: float
+    onset_um: float
+    pullback_speed_mm_s: float
+    delay_s: float  # the sensor delay the heights were read with
+
+
+@dataclass
 class TapAnalysis:
     """The result of analysing one tap. Times in the tap's own clock, forces in the tap's polarity."""
 
@@ -293,6 +308,7 @@ class TapAnalysis:
     # (tapcell.tap.pool); not part of the JSON.
     toe_grid: Any = field(default=None, repr=False, compare=False)
     toe_z_origin_mm: float | None = field(default=None, repr=False, compare=False)
+    pullback_fit: PullbackFit | None = field(default=None, repr=False, compare=False)
     z_sharp_mm: float | None = field(default=None, repr=False, compare=False)  # the sharp model's Z
     z_sharp_sigma_um: float | None = field(default=None, repr=False, compare=False)
     z_pooled_mm: float | None = None  # Z with the toe shared by the taps at one spot (tapcell.tap.pool)
