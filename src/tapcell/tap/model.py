@@ -116,8 +116,6 @@ ANALYSIS_RANGES: dict[str, Range] = {
     "contact_onset_um": Range(0.0, 100.0),
     "z_step_um": Range(0.0, 100.0),
     "trigger_force_g": Range(0.0, 100000.0),
-    "pullback_distance_mm": Range(0.001, 10.0),
-    "pullback_speed_mm_s": Range(0.001, 100.0),
     "min_tap_quality": Range(0.0, 100.0),
     "decompression_angle": Range(0.0, 90.0, exclusive=True),
     "max_approach_force": Range(0.0, 100.0),
@@ -156,8 +154,6 @@ class AnalysisOptions:
     sensor_delay_s: float | str | None = None
     sensor_integration_s: float | None = None
     trigger_force_g: float | None = None
-    pullback_distance_mm: float | None = None
-    pullback_speed_mm_s: float | None = None
     tap_classifier: str = "tap_quality"
     min_tap_quality: float = 40.0
     decompression_angle: float | None = None
@@ -176,9 +172,8 @@ class AnalysisOptions:
 
     # Options that may be reset to None ("from the tap file / default") with `--set key=none`.
     _OPTIONAL = frozenset(
-        ("sensor_delay_s", "sensor_integration_s", "trigger_force_g", "pullback_distance_mm", "contact_onset_um",
-         "z_step_um",
-         "pullback_speed_mm_s", "decompression_angle", "mains_hz")
+        ("sensor_delay_s", "sensor_integration_s", "trigger_force_g", "contact_onset_um", "z_step_um",
+         "decompression_angle", "mains_hz")
     )
 
     @property
