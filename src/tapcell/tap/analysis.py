@@ -34,11 +34,12 @@ from tapcell.tap.context import AnalysisContext, SensorTiming, recompute_points
 from tapcell.tap.hum import MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum, fit_hum, resolvable_hz, spline_knots
 from tapcell.tap.model import (
     TAP_ADHESION,
-    PullbackFit,
     TAP_DATA_INSUFFICIENT,
     TAP_MOTION_INVALID,
     TAP_SHAPE_INVALID,
+    TAP_TWO_STAGE_CONTACT,
     AnalysisOptions,
+    PullbackFit,
     TapAnalysis,
     TapData,
 )
@@ -46,6 +47,7 @@ from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import PrefixSums, best_five_segments, prefix_sums, segment_lines
+from tapcell.tap.stage import STAGE_FROM_UM, STAGE_REACH_UM, shows_soft_stage, soft_stage
 from tapcell.tap.toe import (THREAD_FAR_REACH_UM, THREAD_REACH_UM, ToeFit, Wander, adhesion_measures, fit_toe,
                              free_air_variogram, lag_from_halt_s, thread_pull_g, wander_from_variograms)
 
@@ -823,6 +825,27 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     result.stiffness_decompression_g_um = toe.stiffness_g_um
     check_adhesion(samples, motion, timing, dec, drift_g_um, toe.contact_um, split.noise_g, approach_wander,
                    result.compression_force_g, contact_explained(result))
+    check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, split.noise_g, approach_wander,
+                     toe.stiffness_g_um)
+
+
+def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, contact_um: float,
+                     lag_shift_um: float, noise_g: float, approach_wander: Wander | None, stiffness_g_um: float) -> None:
+    """TAP_TWO_STAGE_CONTACT when the force keeps a soft stage's ramp above the contact found
+    (tapcell.tap.stage): the stiff stage let go there, the first touch is higher."""
+    x_um = 0.5 * (samples[0] + samples[1])
+    force_g = samples[2] - drift_g_um * x_um
+    departure = np.count_nonzero((x_um > contact_um + STAGE_FROM_UM) & (x_um < contact_um + STAGE_REACH_UM))
+    # White noise and what the baseline's walk adds over the departure (a walk about its mean: n/6).
+    walk_var_g2 = approach_wander.walk_var_g2 if approach_wander else 0.0
+    stage = soft_stage(x_um, force_g, contact_um, noise_g * noise_g + walk_var_g2 * departure / 6.0)
+    if shows_soft_stage(stage, stiffness_g_um):
+        first_touch_mm = motion.z_halt_mm + (stage.top_um - lag_shift_um) / 1000.0
+        raise TapInvalid(TAP_TWO_STAGE_CONTACT,
+                         f"after break contact the force falls along a soft stage ({stage.slope_g_um:.2f} g/um, "
+                         f"{stage.top_um - contact_um:.0f} um up to Z {first_touch_mm:.4f}): a soft layer pressed "
+                         "before the contact, a two-stage mount (a magnetic sheet, a sprung bed) or a film of ooze; "
+                         "its stiff stage would read low")
 
 
 def compression_stiffness(split: SplitTap, window: ModelWindow, fits: ContactFits, delay_s: float,

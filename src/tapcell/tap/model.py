@@ -31,6 +31,7 @@ TAP_DATA_INSUFFICIENT = "TAP_DATA_INSUFFICIENT"  # a phase window holds too few 
 TAP_MOTION_INVALID = "TAP_MOTION_INVALID"  # the motion has no approach/halt/pullback to analyse
 TAP_CONTACT_MISMATCH = "TAP_CONTACT_MISMATCH"  # contact on the way down above break contact on the way up
 TAP_ADHESION = "TAP_ADHESION"  # (toe model) the force dips below free air after break contact (a thread pulling)
+TAP_TWO_STAGE_CONTACT = "TAP_TWO_STAGE_CONTACT"  # (toe model) a soft stage pressed above the contact (sheet, springs)
 
 
 class TapFileError(Exception):

@@ -1,0 +1,62 @@
+"""A two-stage mount: a soft first stage (a magnetic sheet, a sprung bed) under the stiff contact.
+
+The nozzle first presses a soft stage (stiffness k1 over d µm), then the contact proper. On the
+way up the stiff contact lets go first, and the force then falls along the soft stage's line
+until the nozzle leaves it d µm higher: above the contact the toe model finds (the stiff stage's),
+the force keeps a ramp k1 (x_top - x) down to the free-air level. Read as contact, the stiff
+stage is d µm below the first touch: on taplab's two-stage taps (d 8-30 µm, k1 10-30 % of k) the
+toe model read them 1-28 µm low, 4 of 40 accepted beyond 20 µm with a small sigma.
+
+`soft_stage` fits that ramp over the departure (a free level plus k1 clip(top - x, 0) for every
+top on a 1 µm grid) against a flat level; the tap shows a soft stage when the ramp explains more
+than STAGE_MIN_CHI2 noise variances (white noise plus the baseline's walk over the departure)
+and is steeper than STAGE_MIN_SLOPE_SHARE of the contact's stiffness (a walk or a cable's drift
+left over are a few tenths of a per cent of it; a stage's ten per cent and more).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+STAGE_REACH_UM = 60.0  # the departure looked at, above the contact found
+STAGE_FROM_UM = 0.5
+STAGE_TOPS_UM = np.arange(2.0, 45.0, 1.0)  # where the soft stage may end, above the contact found
+STAGE_MIN_SAMPLES = 10
+# Reference taps and taplab's (issue 21): clean scenarios at most 25 (one tap of 1,600), two-stage
+# taps 100-4,700 for stages the toe misses by more than 9 um.
+STAGE_MIN_CHI2 = 36.0
+STAGE_MIN_SLOPE_SHARE = 0.05
+
+
+@dataclass
+class SoftStage:
+    chi2: float  # how much better the ramp explains the departure than a flat level (noise variances)
+    top_um: float  # where the soft stage ends (µm above the halt): the first touch
+    slope_g_um: float  # its stiffness
+
+
+def soft_stage(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, noise_var_g2: float) -> SoftStage | None:
+    """The best soft-stage ramp over the departure (samples at heights x_um, µm above the halt,
+    drift removed), or None when the departure is too short to tell."""
+    above = x_um - contact_um
+    near = (above > STAGE_FROM_UM) & (above < STAGE_REACH_UM)
+    x, f = x_um[near], force_g[near]
+    if len(f) < STAGE_MIN_SAMPLES or noise_var_g2 <= 0:
+        return None
+    f = f - f.mean()
+    ramps = np.clip(contact_um + STAGE_TOPS_UM[:, None] - x[None, :], 0.0, None)
+    ramps -= ramps.mean(axis=1, keepdims=True)
+    srr = np.einsum("ij,ij->i", ramps, ramps)
+    srf = ramps @ f
+    with np.errstate(divide="ignore", invalid="ignore"):
+        slope = np.where(srr > 0, srf / srr, 0.0)
+        gain = np.where(slope > 0, srf * slope, 0.0)  # the residual the ramp removes
+    best = int(gain.argmax())
+    return SoftStage(float(gain[best] / noise_var_g2), float(contact_um + STAGE_TOPS_UM[best]), float(slope[best]))
+
+
+def shows_soft_stage(stage: SoftStage | None, stiffness_g_um: float) -> bool:
+    return (stage is not None and stage.chi2 > STAGE_MIN_CHI2
+            and stage.slope_g_um >= STAGE_MIN_SLOPE_SHARE * abs(stiffness_g_um))
