@@ -45,11 +45,21 @@ def soft_stage(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, noise_v
     x, f = x_um[near], force_g[near]
     if len(f) < STAGE_MIN_SAMPLES or noise_var_g2 <= 0:
         return None
-    f = f - f.mean()
-    ramps = np.clip(contact_um + STAGE_TOPS_UM[:, None] - x[None, :], 0.0, None)
-    ramps -= ramps.mean(axis=1, keepdims=True)
-    srr = np.einsum("ij,ij->i", ramps, ramps)
-    srf = ramps @ f
+    # The ramp clip(top - x, 0) of every top at once from prefix sums over the samples sorted by
+    # height: those below a top contribute (top - x), the others nothing.
+    order = np.argsort(x)
+    x, f = x[order], f[order] - f.mean()
+    n = len(f)
+    tops = contact_um + STAGE_TOPS_UM
+    below = np.searchsorted(x, tops)
+    zero = np.zeros(1)
+    sum_x = np.concatenate((zero, np.cumsum(x)))[below]
+    sum_xx = np.concatenate((zero, np.cumsum(x * x)))[below]
+    sum_f = np.concatenate((zero, np.cumsum(f)))[below]
+    sum_xf = np.concatenate((zero, np.cumsum(x * f)))[below]
+    sum_r = tops * below - sum_x
+    srr = tops * tops * below - 2.0 * tops * sum_x + sum_xx - sum_r * sum_r / n
+    srf = tops * sum_f - sum_xf  # f has mean 0: no centring term
     with np.errstate(divide="ignore", invalid="ignore"):
         slope = np.where(srr > 0, srf / srr, 0.0)
         gain = np.where(slope > 0, srf * slope, 0.0)  # the residual the ramp removes
