@@ -47,7 +47,7 @@ from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import PrefixSums, best_five_segments, prefix_sums, segment_lines
-from tapcell.tap.stage import STAGE_FROM_UM, STAGE_REACH_UM, shows_soft_stage, soft_stage
+from tapcell.tap.stage import departure_near, shows_soft_stage, soft_stage
 from tapcell.tap.toe import (THREAD_FAR_REACH_UM, THREAD_REACH_UM, ToeFit, Wander, adhesion_measures, fit_toe,
                              free_air_variogram, lag_from_halt_s, thread_pull_g, wander_from_variograms)
 
@@ -834,11 +834,12 @@ def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float
     """TAP_TWO_STAGE_CONTACT when the force keeps a soft stage's ramp above the contact found
     (tapcell.tap.stage): the stiff stage let go there, the first touch is higher."""
     x_um = 0.5 * (samples[0] + samples[1])
-    force_g = samples[2] - drift_g_um * x_um
-    departure = np.count_nonzero((x_um > contact_um + STAGE_FROM_UM) & (x_um < contact_um + STAGE_REACH_UM))
+    near = departure_near(x_um, contact_um)
+    x_um = x_um[near]
+    force_g = samples[2][near] - drift_g_um * x_um
     # White noise and what the baseline's walk adds over the departure (a walk about its mean: n/6).
     walk_var_g2 = approach_wander.walk_var_g2 if approach_wander else 0.0
-    stage = soft_stage(x_um, force_g, contact_um, noise_g * noise_g + walk_var_g2 * departure / 6.0)
+    stage = soft_stage(x_um, force_g, contact_um, noise_g * noise_g + walk_var_g2 * len(x_um) / 6.0)
     if shows_soft_stage(stage, stiffness_g_um):
         first_touch_mm = motion.z_halt_mm + (stage.top_um - lag_shift_um) / 1000.0
         raise TapInvalid(TAP_TWO_STAGE_CONTACT,

@@ -28,6 +28,8 @@ STAGE_MIN_SAMPLES = 10
 # taps 100-4,700 for stages the toe misses by more than 9 um.
 STAGE_MIN_CHI2 = 36.0
 STAGE_MIN_SLOPE_SHARE = 0.05
+_TOPS_SQUARED = STAGE_TOPS_UM * STAGE_TOPS_UM
+_TOPS_TWICE = 2.0 * STAGE_TOPS_UM
 
 
 @dataclass
@@ -37,34 +39,37 @@ class SoftStage:
     slope_g_um: float  # its stiffness
 
 
-def soft_stage(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, noise_var_g2: float) -> SoftStage | None:
-    """The best soft-stage ramp over the departure (samples at heights x_um, µm above the halt,
-    drift removed), or None when the departure is too short to tell."""
+def departure_near(x_um: np.ndarray, contact_um: float) -> np.ndarray:
+    """The samples `soft_stage` looks at: STAGE_FROM_UM to STAGE_REACH_UM above the contact found."""
     above = x_um - contact_um
-    near = (above > STAGE_FROM_UM) & (above < STAGE_REACH_UM)
-    x, f = x_um[near], force_g[near]
-    if len(f) < STAGE_MIN_SAMPLES or noise_var_g2 <= 0:
+    return (above > STAGE_FROM_UM) & (above < STAGE_REACH_UM)
+
+
+def soft_stage(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, noise_var_g2: float) -> SoftStage | None:
+    """The best soft-stage ramp over the departure's samples (`departure_near`; heights x_um, µm
+    above the halt, rising; force drift removed), or None when too few to tell."""
+    n = len(force_g)
+    if n < STAGE_MIN_SAMPLES or noise_var_g2 <= 0:
         return None
-    # The ramp clip(top - x, 0) of every top at once from prefix sums over the samples sorted by
-    # height: those below a top contribute (top - x), the others nothing.
-    order = np.argsort(x)
-    x, f = x[order], f[order] - f.mean()
-    n = len(f)
-    tops = contact_um + STAGE_TOPS_UM
-    below = np.searchsorted(x, tops)
-    zero = np.zeros(1)
-    sum_x = np.concatenate((zero, np.cumsum(x)))[below]
-    sum_xx = np.concatenate((zero, np.cumsum(x * x)))[below]
-    sum_f = np.concatenate((zero, np.cumsum(f)))[below]
-    sum_xf = np.concatenate((zero, np.cumsum(x * f)))[below]
-    sum_r = tops * below - sum_x
-    srr = tops * tops * below - 2.0 * tops * sum_x + sum_xx - sum_r * sum_r / n
-    srf = tops * sum_f - sum_xf  # f has mean 0: no centring term
-    with np.errstate(divide="ignore", invalid="ignore"):
-        slope = np.where(srr > 0, srf / srr, 0.0)
-        gain = np.where(slope > 0, srf * slope, 0.0)  # the residual the ramp removes
+    # Heights above the contact found: the tops are then the constant STAGE_TOPS_UM. The ramp
+    # clip(top - x, 0) of every top at once from prefix sums over the samples by height: those
+    # below a top contribute (top - x), the others nothing.
+    order = x_um.argsort(kind="stable")  # rising already but for the pullback's end
+    x = x_um[order] - contact_um
+    f = force_g[order]
+    f = f - f.mean()
+    below = np.searchsorted(x, STAGE_TOPS_UM)
+    sums = np.zeros((4, n + 1))
+    np.cumsum(np.array((x, x * x, f, x * f)), axis=1, out=sums[:, 1:])
+    sum_x, sum_xx, sum_f, sum_xf = sums[:, below]
+    sum_r = STAGE_TOPS_UM * below - sum_x
+    srr = _TOPS_SQUARED * below - _TOPS_TWICE * sum_x + sum_xx - sum_r * sum_r / n
+    srf = STAGE_TOPS_UM * sum_f - sum_xf  # f has mean 0: no centring term
+    gain = srf * srf / np.maximum(srr, 1e-300)  # the residual the ramp removes
+    gain[srf <= 0.0] = 0.0  # a ramp rising with height is no stage
     best = int(gain.argmax())
-    return SoftStage(float(gain[best] / noise_var_g2), float(contact_um + STAGE_TOPS_UM[best]), float(slope[best]))
+    slope = srf[best] / srr[best] if srr[best] > 0 else 0.0
+    return SoftStage(float(gain[best] / noise_var_g2), float(contact_um + STAGE_TOPS_UM[best]), float(slope))
 
 
 def shows_soft_stage(stage: SoftStage | None, stiffness_g_um: float) -> bool:
