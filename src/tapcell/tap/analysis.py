@@ -546,15 +546,21 @@ def _baseline_shift(samples: PullbackSamples, drift_g_um: float, contact_um: flo
 
 
 def fit_compression(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float,
-                    onset_um: float) -> ContactFit | None:
-    """The contact model over the approach up to the halt (onset fixed to the pullback's)."""
+                    onset_um: float, drift_g_um: float = 0.0) -> ContactFit | None:
+    """The contact model over the approach up to the halt (onset fixed to the pullback's), the
+    free-air drift (g per µm of height, from the approach line) taken out first: a cable pulling
+    40 g/mm ramps the approach like a soft contact, and the model has a constant baseline (taplab's
+    cable drift: the down contact read ~190 µm above break contact, TAP_CONTACT_MISMATCH)."""
     last = int(window.time_s.searchsorted(motion.home_end_s + delay_s, side="right"))
     if last < 6 or not math.isfinite(window.contact_line_um):
         return None
     spacing_um = max(motion.approach_speed_mm_s * 1000.0 * timing.sample_period_s, 0.05)
+    x_min, span = window.x_min_um[:last], window.span_um[:last]
+    force_g = window.force_g[:last]
+    if drift_g_um:
+        force_g = force_g - drift_g_um * (x_min + 0.5 * span)
     # fit_contact_at only answers with at least 2 samples in contact.
-    found = fit_fixed_onset(window.force_g[:last], window.x_min_um[:last], window.span_um[:last],
-                            window.contact_line_um + 0.5 * onset_um, spacing_um, onset_um)
+    found = fit_fixed_onset(force_g, x_min, span, window.contact_line_um + 0.5 * onset_um, spacing_um, onset_um)
     return found[0] if found else None
 
 
@@ -753,7 +759,8 @@ def fit_contact_models(split: SplitTap, window: ModelWindow, delay_s: float, opt
         x_lo, x_hi, force_up = pullback_samples(window, motion, timing, delay_s)
         result.pullback_fit = PullbackFit(x_lo, x_hi - x_lo, force_up, pullback.contact_um, pullback.stiffness_g_um,
                                           pullback.onset_um, motion.pullback_speed_mm_s, delay_s)
-    compression = fit_compression(window, motion, timing, delay_s, pullback.onset_um if pullback else 0.0)
+    compression = fit_compression(window, motion, timing, delay_s, pullback.onset_um if pullback else 0.0,
+                                  free_air_slope_g_um(split.dec, motion))
     return ContactFits(pullback, near_sigma_g, compression)
 
 
@@ -840,7 +847,7 @@ def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float
     # White noise and what the baseline's walk adds over the departure (a walk about its mean: n/6).
     walk_var_g2 = approach_wander.walk_var_g2 if approach_wander else 0.0
     stage = soft_stage(x_um, force_g, contact_um, noise_g * noise_g + walk_var_g2 * len(x_um) / 6.0)
-    if shows_soft_stage(stage, stiffness_g_um):
+    if shows_soft_stage(stage, stiffness_g_um, contact_um):
         first_touch_mm = motion.z_halt_mm + (stage.top_um - lag_shift_um) / 1000.0
         raise TapInvalid(TAP_TWO_STAGE_CONTACT,
                          f"after break contact the force falls along a soft stage ({stage.slope_g_um:.2f} g/um, "

@@ -11,7 +11,8 @@ toe model read them 1-28 µm low, 4 of 40 accepted beyond 20 µm with a small si
 top on a 1 µm grid) against a flat level; the tap shows a soft stage when the ramp explains more
 than STAGE_MIN_CHI2 noise variances (white noise plus the baseline's walk over the departure)
 and is steeper than STAGE_MIN_SLOPE_SHARE of the contact's stiffness (a walk or a cable's drift
-left over are a few tenths of a per cent of it; a stage's ten per cent and more).
+left over are a few tenths of a per cent of it, the steepest reference bowden tap's 5 %; a stage's
+ten per cent and more).
 """
 
 from __future__ import annotations
@@ -27,7 +28,7 @@ STAGE_MIN_SAMPLES = 10
 # Reference taps and taplab's (issue 21): clean scenarios at most 25 (one tap of 1,600), two-stage
 # taps 100-4,700 for stages the toe misses by more than 9 um.
 STAGE_MIN_CHI2 = 36.0
-STAGE_MIN_SLOPE_SHARE = 0.05
+STAGE_MIN_SLOPE_SHARE = 0.06
 _TOPS_SQUARED = STAGE_TOPS_UM * STAGE_TOPS_UM
 _TOPS_TWICE = 2.0 * STAGE_TOPS_UM
 
@@ -72,6 +73,7 @@ def soft_stage(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, noise_v
     return SoftStage(float(gain[best] / noise_var_g2), float(contact_um + STAGE_TOPS_UM[best]), float(slope))
 
 
-def shows_soft_stage(stage: SoftStage | None, stiffness_g_um: float) -> bool:
+def shows_soft_stage(stage: SoftStage | None, stiffness_g_um: float, contact_um: float) -> bool:
+    """The ramp is a stage: clearly there and steep enough."""
     return (stage is not None and stage.chi2 > STAGE_MIN_CHI2
             and stage.slope_g_um >= STAGE_MIN_SLOPE_SHARE * abs(stiffness_g_um))
