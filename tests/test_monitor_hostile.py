@@ -157,11 +157,11 @@ def test_a_handshake_reply_that_makes_no_sense_ends_with_a_message(tmp_path, res
 
 def test_settings_the_analysis_refuses_are_left_at_their_defaults(tmp_path):
     result = {"status": {"configfile": {"settings": {"load_cell_probe": {
-        "trigger_force": float("nan"), "pullback_distance": 1e308}}}}}
+        "trigger_force": float("nan"), "min_tap_quality": 1e308}}}}}
     status, said, lines, _ = run(tmp_path, [push(tap_event())], query_result=result)
     assert status == 0 and len(lines) == 1
     assert said.lines[0].startswith("tapcell monitor: the printer's trigger_force = nan is not usable (")
-    assert said.lines[1].startswith("tapcell monitor: the printer's pullback_distance = 1e+308 is not usable (")
+    assert said.lines[1].startswith("tapcell monitor: the printer's min_tap_quality = 1e+308 is not usable (")
 
 
 def test_a_large_tap_up_to_the_servers_limit_is_taken(tmp_path):

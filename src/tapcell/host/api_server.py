@@ -43,7 +43,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from tapcell import __version__
+from tapcell import __version__, package_files
 from tapcell.files import why_missing
 from tapcell.host.config import ConfigError
 from tapcell.host.gcode import GCodeError, parse_line
@@ -842,9 +842,7 @@ def _return_freed_memory() -> None:
 
 def _software_root() -> Path:
     """Where tapcell's files are: the checkout (with docs/ and examples/) or the installed package."""
-    package = Path(__file__).resolve().parents[1]
-    checkout = package.parents[1]
-    return checkout if (checkout / "docs").is_dir() else package
+    return package_files.software_root()
 
 
 # ---------------------------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""`tapcell analyze [--json] [--plot OUT.png] [--set key=value ...] FILE...`"""
+"""`tapcell analyze [--json] [--pool] [--plot OUT.png] [--set key=value ...] FILE...`"""
 
 from __future__ import annotations
 
@@ -19,7 +19,11 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("files", nargs="+", metavar="FILE", help="tap files (.json, .jsonl, .csv)")
     parser.add_argument("--json", action="store_true", help="print one JSON array instead of a table")
     parser.add_argument("--plot", metavar="OUT.png",
-                        help="draw the taps (several taps: OUT-1.png, OUT-2.png, ...)")
+                        help="draw each tap: the first to OUT.png, the next to OUT-2.png, OUT-3.png, ... "
+                             "(the files written are listed after the results)")
+    parser.add_argument("--pool", action="store_true",
+                        help="the taps were made at one spot (PROBE_ACCURACY, SAMPLES=): estimate their shared "
+                             "toe jointly and add each tap's pooled Z (z_pooled, z_pooled_sigma_um)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="analysis option, e.g. sensor_delay_s=0.002 or decompression_angle=80")
     return parser
@@ -51,7 +55,7 @@ def main(argv: list[str]) -> int:
         return 2
     results = []
     unreadable = 0
-    plotted = 0
+    plots = []  # (file written, the tap it shows)
     for name in args.files:
         try:
             taps = read_tap_file(name)
@@ -68,20 +72,30 @@ def main(argv: list[str]) -> int:
 
                 from tapcell.tap.plot import plot_tap
 
-                plotted += 1
                 out = Path(args.plot)
-                target = out if plotted == 1 else out.with_name(f"{out.stem}-{plotted}{out.suffix}")
-
+                target = out if not plots else out.with_name(f"{out.stem}-{len(plots) + 1}{out.suffix}")
+                label = name + (f"#{index + 1}" if len(taps) > 1 else "")
                 plot_tap(tap, analysis, target, title=f"{name}" + (f" #{index + 1}" if len(taps) > 1 else ""))
+                plots.append((target, label))
+    if args.pool:
+        # Imported here: only a pooled run needs it.
+        from tapcell.tap.pool import apply_pool
+
+        apply_pool([analysis for *_, analysis in results])
     if args.json:
         # One tap per line: json's C encoder (indent= falls back to the pure-Python one, ~0.2 ms a tap).
         taps = [json.dumps({"file": name, **analysis.to_json()}) for name, _, _, analysis in results]
         print("[\n" + ",\n".join(taps) + "\n]")
     else:
-        print(f"{'file':<32} {'valid':<6} {'Z (mm)':>11} {'±σ (µm)':>8} {'quality':>8}  code")
+        pooled_header = f" {'pooled Z':>11} {'±σ (µm)':>8}" if args.pool else ""
+        print(f"{'file':<32} {'valid':<6} {'Z (mm)':>11} {'±σ (µm)':>8}{pooled_header} {'quality':>8}  code")
         for name, index, count, a in results:
             label = name if count == 1 else f"{name}#{index + 1}"
             code = a.error or ""
+            pooled = f" {_fmt(a.z_pooled_mm, '11.5f'):>11} {_fmt(a.z_pooled_sigma_um, '8.3f'):>8}" if args.pool else ""
             print(f"{label:<32} {'yes' if a.valid else 'no':<6} {_fmt(a.z_mm, '11.5f'):>11} "
-                  f"{_fmt(a.z_sigma_um, '8.3f'):>8} {_fmt(a.quality, '8.1f'):>8}  {code}")
+                  f"{_fmt(a.z_sigma_um, '8.3f'):>8}{pooled} {_fmt(a.quality, '8.1f'):>8}  {code}")
+    # The plot files written, one a line (on stderr with --json: stdout is the JSON alone).
+    for target, label in plots:
+        print(f"plot {target}: {label}", file=sys.stderr if args.json else sys.stdout)
     return 1 if unreadable else 0

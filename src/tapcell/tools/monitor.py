@@ -49,8 +49,6 @@ OVERSIZE_RETRIES = 3  # links lost in a row to a message over MAX_MESSAGE_BYTES 
 # [load_cell_probe] options of Klipper-family configs -> the analysis options they set.
 SETTINGS_TO_OPTIONS = {
     "trigger_force": "trigger_force_g",
-    "pullback_distance": "pullback_distance_mm",
-    "pullback_speed": "pullback_speed_mm_s",
     "min_tap_quality": "min_tap_quality",
     "decompression_angle": "decompression_angle",
     "max_approach_force": "max_approach_force",
