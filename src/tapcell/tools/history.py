@@ -17,12 +17,24 @@ import sys
 import threading
 import time
 import urllib.parse
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
 MESH_POLL_S = 1.0
 RECONNECT_S = 1.0
 MESH_FIELDS = ["profile_name", "mesh_min", "mesh_max", "probed_matrix"]
+
+
+@dataclass(frozen=True)
+class MonitorParts:
+    """What tools/monitor.py lends (passed in, so that this module does not import it back)."""
+
+    follow: Callable  # follow(args, display, connect) -> exit code: one printer's tap loop
+    log_line: Callable  # log_line(tap, analysis, event, source) -> the tap with both results
+    bridge: type  # Bridge(websocket): a Klipper API connection
+    bridge_url: Callable  # Moonraker URL -> its /klippysocket
+    api_error: type  # what Bridge.request raises when the printer refuses
 
 
 @dataclass
@@ -87,14 +99,14 @@ class PrinterState:
     stop: threading.Event = field(default_factory=threading.Event)
 
 
-def tap_recorder(store, spec: PrinterSpec, state: PrinterState, display):
+def tap_recorder(store, spec: PrinterSpec, state: PrinterState, display, parts: MonitorParts):
     """The monitor's per-tap hook: the tap with both results, into the store."""
-    from tapcell.store import StoreError
-    from tapcell.tools.monitor import log_line
     from sqlalchemy.exc import SQLAlchemyError
 
+    from tapcell.store import StoreError
+
     def record(tap, analysis, event) -> None:
-        document = json.loads(log_line(tap, analysis, event, spec.url))
+        document = json.loads(parts.log_line(tap, analysis, event, spec.url))
         document["meta"]["recorded_s"] = time.time()
         try:
             added = store.add_tap(spec.name, document, settings=state.settings, printer_url=spec.url)
@@ -107,17 +119,18 @@ def tap_recorder(store, spec: PrinterSpec, state: PrinterState, display):
     return record
 
 
-def watch_meshes(store, spec: PrinterSpec, probe: str, state: PrinterState, display, connect) -> None:
+def watch_meshes(store, spec: PrinterSpec, probe: str, state: PrinterState, display, connect,
+                 parts: MonitorParts) -> None:
     """Poll the printer's loaded mesh and probe settings; keep each new mesh. Reconnects."""
-    from tapcell.store import RecordError, StoreError
-    from tapcell.tools.monitor import ApiError, Bridge, bridge_url
     from sqlalchemy.exc import SQLAlchemyError
 
-    url = bridge_url(spec.url)
+    from tapcell.store import RecordError, StoreError
+
+    url = parts.bridge_url(spec.url)
     while not state.stop.is_set():
         try:
             with connect(url, open_timeout=10, close_timeout=2) as websocket:
-                bridge = Bridge(websocket)
+                bridge = parts.bridge(websocket)
                 status = bridge.request("objects/query", {"objects": {"configfile": ["settings"]}})
                 settings = status["status"].get("configfile", {}).get("settings", {}).get(probe)
                 state.settings = settings if isinstance(settings, dict) else None
@@ -131,7 +144,7 @@ def watch_meshes(store, spec: PrinterSpec, probe: str, state: PrinterState, disp
                         except RecordError as exc:
                             display.say(f"bed mesh not kept: {exc}")
                     state.stop.wait(MESH_POLL_S)
-        except (ApiError, StoreError, SQLAlchemyError, KeyError, TypeError) as exc:
+        except (parts.api_error, StoreError, SQLAlchemyError, KeyError, TypeError) as exc:
             display.say(f"bed mesh watch: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
         except Exception as exc:  # the link: OSError, TimeoutError, websockets' errors
             if not _is_link_error(exc):
@@ -145,9 +158,9 @@ def _is_link_error(exc: Exception) -> bool:
     return isinstance(exc, OSError | TimeoutError | EOFError | WebSocketException)
 
 
-def monitor_printers(args, display, connect, follow) -> int:
-    """Run `follow(args, display, connect)` (the monitor's loop) for each printer, in threads,
-    recording taps (and meshes) into args.db when given. Returns the worst exit code."""
+def monitor_printers(args, display, connect, parts: MonitorParts) -> int:
+    """Run the monitor's loop for each printer, in threads, recording taps (and meshes) into
+    args.db when given. Returns the worst exit code."""
     from tapcell.store import Store, StoreError
 
     try:
@@ -166,13 +179,12 @@ def monitor_printers(args, display, connect, follow) -> int:
         states.append(state)
         printer_args = copy.copy(args)
         printer_args.moonraker = spec.url
-        printer_args.log = args.log
-        printer_args.record_tap = tap_recorder(store, spec, state, printer_display) if store else None
+        printer_args.record_tap = tap_recorder(store, spec, state, printer_display, parts) if store else None
         threads.append(threading.Thread(target=lambda a=printer_args, d=printer_display: codes.append(
-            follow(a, d, connect)), name=f"taps {spec.name}", daemon=True))
+            parts.follow(a, d, connect)), name=f"taps {spec.name}", daemon=True))
         if store is not None:
             threads.append(threading.Thread(target=watch_meshes, args=(store, spec, args.probe, state,
-                                                                      printer_display, connect),
+                                                                      printer_display, connect, parts),
                                             name=f"meshes {spec.name}", daemon=True))
     for thread in threads:
         thread.start()

@@ -308,9 +308,9 @@ def main(argv: list[str]) -> int:
     display = Display()
     try:
         if args.db or len(args.moonraker) > 1:
-            from tapcell.tools.history import monitor_printers
+            from tapcell.tools.history import MonitorParts, monitor_printers
 
-            return monitor_printers(args, display, connect, monitor)
+            return monitor_printers(args, display, connect, MonitorParts(monitor, log_line, Bridge, bridge_url, ApiError))
         args.moonraker = args.moonraker[0]
         return monitor(args, display, connect)
     except KeyboardInterrupt:
