@@ -30,6 +30,17 @@ def test_an_unchanged_printer_is_not_flagged_in_most_windows():
     assert flags <= 2  # |t| > 4 under no change: p ≈ 6e-5 per window
 
 
+def test_the_rejected_share_uses_the_pooled_two_proportion_z():
+    # 0 rejects in the latest 50, 16 in the 200 before: Welch's t would be -4.7 (zero variance
+    # on one side); the pooled z is -2.07, no flag.
+    series = [1.0] * 16 + [0.0] * 184 + [0.0] * 50
+    result = health.trend("rejected", series, proportion=True)
+    pooled = 16 / 250
+    assert result.t == pytest.approx(-0.08 / math.sqrt(pooled * (1 - pooled) * (1 / 50 + 1 / 200)), rel=1e-12)
+    assert result.t == pytest.approx(-2.067, abs=1e-3) and not result.flagged
+    assert health.trend("rejected", [0.0] * 200 + [1.0] * 10 + [0.0] * 40, proportion=True).flagged  # 0 % -> 20 %
+
+
 def test_too_few_taps_give_no_verdict():
     result = health.trend("noise", [1.0] * 55)  # 50 recent, 5 before
     assert result.t is None and not result.flagged

@@ -393,7 +393,7 @@ def printer_health(printer: dict, recent: list[dict], tap_count: int) -> dict:
     noise = [row["noise_sigma_g"] for row in recent if row["noise_sigma_g"] is not None]
     trends = [health.trend("noise_sigma_g", [row["noise_sigma_g"] for row in recent]),
               health.trend("stiffness_g_um", [row["stiffness_g_um"] if not is_rejected(row) else None for row in recent]),
-              health.trend("rejected", [1.0 if is_rejected(row) else 0.0 for row in recent])]
+              health.trend("rejected", [1.0 if is_rejected(row) else 0.0 for row in recent], proportion=True)]
     return {
         "name": printer["name"], "id": printer["id"], "url": printer["url"], "taps": tap_count,
         "window": len(recent), "last": last,

@@ -14,8 +14,9 @@ SPOT_MM = 0.5
 RECENT_TAPS = 50
 BASELINE_TAPS = 200
 MIN_TAPS_PER_SIDE = 10
-# |Welch t| above this flags a change: two-sided p ≈ 6e-5 under no change, so a fleet of 50
-# printers × 3 metrics sees a false flag about once in 100 page views of unchanged printers.
+# |t| (or |z|) above this flags a change: two-sided p ≈ 6e-5 under no change (normal
+# approximation), so a fleet of 50 printers × 3 metrics sees a false flag about once in 100
+# page views of unchanged printers.
 TREND_T_THRESHOLD = 4.0
 # Bed spots: rejected taps grouped on this grid; a cell with at least FAULTY_MIN_REJECTS rejects
 # that are at least FAULTY_MIN_SHARE of its taps is suggested as a faulty_region.
@@ -62,14 +63,22 @@ class Trend:
                 "baseline_mean": self.baseline_mean, "recent_n": self.recent_n, "baseline_n": self.baseline_n}
 
 
-def trend(metric: str, values_oldest_first: list) -> Trend:
-    """The change test on one metric's series (None values are left out)."""
+def trend(metric: str, values_oldest_first: list, proportion: bool = False) -> Trend:
+    """The change test on one metric's series (None values are left out).
+
+    A measured metric (noise, stiffness): Welch's t. A share (0/1 per tap, the rejected taps):
+    the two-proportion z with the pooled share, which stays right when a window holds no
+    reject at all (Welch's t then divides by a zero variance and flags nothing real)."""
     values = np.asarray([v for v in values_oldest_first if v is not None], dtype=float)
     recent = values[-RECENT_TAPS:]
     baseline = values[-(RECENT_TAPS + BASELINE_TAPS):-RECENT_TAPS] if len(values) > RECENT_TAPS else values[:0]
     if len(recent) < MIN_TAPS_PER_SIDE or len(baseline) < MIN_TAPS_PER_SIDE:
         return Trend(metric, None, _mean(recent), _mean(baseline), len(recent), len(baseline))
-    spread = recent.var(ddof=1) / len(recent) + baseline.var(ddof=1) / len(baseline)
+    if proportion:
+        pooled = (recent.sum() + baseline.sum()) / (len(recent) + len(baseline))
+        spread = pooled * (1.0 - pooled) * (1.0 / len(recent) + 1.0 / len(baseline))
+    else:
+        spread = recent.var(ddof=1) / len(recent) + baseline.var(ddof=1) / len(baseline)
     difference = recent.mean() - baseline.mean()
     if spread == 0.0:
         t = 0.0 if difference == 0.0 else math.copysign(math.inf, difference)

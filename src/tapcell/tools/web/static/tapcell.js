@@ -36,7 +36,7 @@ const tapcell = (() => {
       context.fillRect(i * width, y, width, height);
       if (columns <= 12) {
         context.fillStyle = "#000";
-        context.fillText(z.toFixed(3), (i + 0.5) * width, y + height / 2);
+        context.fillText(z.toFixed(span < 0.01 ? 4 : 3), (i + 0.5) * width, y + height / 2);
       }
     }));
     canvas.dataset.minZ = mesh.min_z_mm;
