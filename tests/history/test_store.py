@@ -23,6 +23,8 @@ from tapcell.tap import analyze_tap
 from tapcell.tap.readers import tap_to_json_dict
 from tapcell.tap.synth import synth_tap
 
+from store_fixtures import pg_cluster, store_url  # noqa: F401  (the fixtures)
+
 
 def tap_document(seed: int, x_mm: float = 50.0, y_mm: float = 60.0, z_mm: float = 0.1, **printer) -> dict:
     tap = synth_tap(seed=seed, z_contact_mm=z_mm)

@@ -68,6 +68,15 @@ def _choice(request: Request, name: str, allowed: tuple[str, ...]) -> str:
     return value
 
 
+def _tap_filter(request: Request) -> tuple[str, str]:
+    """The tap list's filter from the query string: (status, cause code)."""
+    status = _choice(request, "status", STATUSES)
+    cause = request.query_params.get("cause") or ""
+    if cause and not CAUSE_PATTERN.fullmatch(cause):
+        raise BadRequest(f"cause: {cause[:40]!r} is not an error code (letters, digits and _)")
+    return status, cause
+
+
 class Web:
     """The pages over one store."""
 
@@ -96,10 +105,7 @@ class Web:
 
     def printer(self, request: Request) -> HTMLResponse:
         printer = self._printer(request.path_params["name"])
-        status = _choice(request, "status", STATUSES)
-        cause = request.query_params.get("cause") or ""
-        if cause and not CAUSE_PATTERN.fullmatch(cause):
-            raise BadRequest(f"cause: {cause[:40]!r} is not an error code (letters, digits and _)")
+        status, cause = _tap_filter(request)
         mesh_id, base_id = _int_param(request, "mesh"), _int_param(request, "base")
         taps = self.store.taps(printer["id"], status=status, cause=cause, limit=TAP_PAGE_ROWS)
         meshes = self.store.meshes(printer["id"])
@@ -139,10 +145,7 @@ class Web:
 
     def taps_json(self, request: Request) -> JSONResponse:
         printer = self._printer(request.path_params["name"])
-        status = _choice(request, "status", STATUSES)
-        cause = request.query_params.get("cause") or ""
-        if cause and not CAUSE_PATTERN.fullmatch(cause):
-            raise BadRequest(f"cause: {cause[:40]!r} is not an error code")
+        status, cause = _tap_filter(request)
         after = _int_param(request, "after", minimum=0) or 0
         rows = [row for row in self.store.taps(printer["id"], status=status, cause=cause, limit=TAP_PAGE_ROWS)
                 if row["id"] > after]

@@ -1,4 +1,8 @@
-"""Store fixtures: the same tests on a SQLite file and on a real PostgreSQL (temp cluster)."""
+"""Store fixtures: the same tests on a SQLite file and on a real PostgreSQL (temp cluster).
+
+A plain module imported by the test file, not a conftest.py: tests/api's modules import their
+helpers with `from conftest import ...`, which a second conftest.py loaded after theirs (as
+`pytest tests/api tests/history` does) would shadow."""
 
 from __future__ import annotations
 
