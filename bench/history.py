@@ -256,7 +256,7 @@ def main(argv: list[str]) -> int:
             page.add_row(path + (" (anchor)" if path.startswith("/static") else ""), f"{median * 1000:.1f}",
                          f"{max(times) * 1000:.1f}", f"{median / anchor:.1f}", f"{median / GOAL_PAGE_S:.3f}")
         console.print(page)
-        console.print(f"trend flag (|Welch t| > {health.TREND_T_THRESHOLD:g}, latest {health.RECENT_TAPS} vs "
+        console.print(f"trend flag (|t| or |z| > {health.TREND_T_THRESHOLD:g}, latest {health.RECENT_TAPS} vs "
                       f"{health.BASELINE_TAPS} before): {len(flagged & expected)}/{len(expected)} changed printers "
                       f"flagged, {len(flagged - expected)}/{args.printers - len(expected)} unchanged printers flagged")
     finally:
