@@ -30,7 +30,8 @@ CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-back
 LIVE_DEADLINE_S = 2.0
 HOSTILE = ["/printer/a?status=%3Cscript%3Ealert(1)%3C/script%3E", "/printer/a?cause=x'%20OR%201=1--",
            "/printer/a?mesh=-1", "/printer/a?mesh=99999999999999999999999", "/printer/a?mesh=77",
-           "/printer/%3Cimg%20src=x%3E", "/printer/a/tap/999999", "/printer/a?base=abc",
+           "/printer/%3Cimg%20src=x%3E", "/printer/a/tap/999999", "/printer/a/tap/99999999999999999999999", "/printer/a?base=abc",
+           "/printer/a?mesh=%D9%A3",
            "/api/printer/a/taps?after=%00", "/printer/a?cause=" + "A" * 5000]
 
 

@@ -158,6 +158,15 @@ def _is_link_error(exc: Exception) -> bool:
     return isinstance(exc, OSError | TimeoutError | EOFError | WebSocketException)
 
 
+def _follow_one(parts: MonitorParts, args, display, connect, codes: list[int]) -> None:
+    """One printer's tap loop; an error it did not expect ends this printer only, and says so."""
+    try:
+        codes.append(parts.follow(args, display, connect))
+    except Exception as exc:  # the other printers go on; the exit code tells
+        display.say(f"tapcell monitor: stopped following this printer: {type(exc).__name__}: {exc}")
+        codes.append(1)
+
+
 def monitor_printers(args, display, connect, parts: MonitorParts) -> int:
     """Run the monitor's loop for each printer, in threads, recording taps (and meshes) into
     args.db when given. Returns the worst exit code."""
@@ -180,8 +189,8 @@ def monitor_printers(args, display, connect, parts: MonitorParts) -> int:
         printer_args = copy.copy(args)
         printer_args.moonraker = spec.url
         printer_args.record_tap = tap_recorder(store, spec, state, printer_display, parts) if store else None
-        threads.append(threading.Thread(target=lambda a=printer_args, d=printer_display: codes.append(
-            parts.follow(a, d, connect)), name=f"taps {spec.name}", daemon=True))
+        threads.append(threading.Thread(target=_follow_one, args=(parts, printer_args, printer_display, connect, codes),
+                                        name=f"taps {spec.name}", daemon=True))
         if store is not None:
             threads.append(threading.Thread(target=watch_meshes, args=(store, spec, args.probe, state,
                                                                       printer_display, connect, parts),

@@ -44,6 +44,7 @@ KEEPALIVE_S = 15.0
 TAP_PAGE_ROWS = 200
 STATUSES = ("all", "valid", "rejected")
 CAUSE_PATTERN = re.compile(r"[A-Za-z0-9_]{1,100}")
+MAX_ID = 2**63 - 1  # the databases' largest integer: a larger id in a URL is no tap
 log = logging.getLogger("tapcell.web")
 
 
@@ -56,7 +57,7 @@ def _int_param(request: Request, name: str, minimum: int = 1) -> int | None:
     value = request.query_params.get(name)
     if value is None or value == "":
         return None
-    if not value.isdigit() or len(value) > 18 or int(value) < minimum:
+    if not value.isascii() or not value.isdigit() or len(value) > 18 or int(value) < minimum:
         raise BadRequest(f"{name}: {value[:40]!r} is not a whole number ≥ {minimum}")
     return int(value)
 
@@ -134,7 +135,7 @@ class Web:
     def tap(self, request: Request) -> HTMLResponse:
         printer = self._printer(request.path_params["name"])
         tap_id = request.path_params["tap_id"]
-        row = self.store.tap(printer["id"], tap_id)
+        row = self.store.tap(printer["id"], tap_id) if tap_id <= MAX_ID else None
         if row is None:
             raise HTTPException(404, f"no tap {tap_id} for printer {printer['name']!r}")
         return self.page("tap.html", printer=printer, tap=row, plot=views.tap_plot(row))
@@ -262,7 +263,9 @@ def main(argv: list[str]) -> int:
 
     print(f"tapcell web: {store.shown} on http://{args.host}:{args.port}/", file=sys.stderr, flush=True)
     try:
-        uvicorn.run(create_app(store), host=args.host, port=args.port, log_level="warning")
+        # Open pages keep an event stream: on Ctrl-C, close them after 2 s instead of waiting on them.
+        uvicorn.run(create_app(store), host=args.host, port=args.port, log_level="warning",
+                    timeout_graceful_shutdown=2)
     finally:
         store.close()
     return 0
