@@ -98,7 +98,9 @@ def farm(tmp_path_factory):
     with running_stack(tmp_path_factory) as a, running_stack(tmp_path_factory) as b:
         farm = Farm(folder, a, b)
         try:
-            monitor, said = farm.start_monitor(f"a={a.url}", f"b={b.url}", name="monitor")
+            # A third printer that is off: retried every second without holding up a and b.
+            monitor, said = farm.start_monitor(f"a={a.url}", f"b={b.url}", f"gone=http://127.0.0.1:{free_port()}",
+                                               name="monitor")
             wait_for(lambda: said.read_text().count("waiting for taps") == 2, 60.0, "the monitor to follow both", monitor)
             script(a, "G28\nBED_MESH_CALIBRATE PROBE_COUNT=3,3\nG1 X100 Y100 F6000\nPROBE\nPROBE")
             script(b, "G28\nG1 X60 Y80 F6000\nPROBE\nPROBE\nPROBE")
@@ -132,11 +134,12 @@ def browser_page(farm, tmp_path):
 
     with sync_playwright() as playwright:
         browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_FLAGS)
-        page = browser.new_page(viewport={"width": 1200, "height": 900})
-        page.requests_seen, page.errors_seen = [], []
-        page.on("request", lambda request: page.requests_seen.append(request.url))
-        page.on("console", lambda message: page.errors_seen.append(message.text) if message.type == "error" else None)
-        page.on("pageerror", lambda error: page.errors_seen.append(str(error)))
+        context = browser.new_context(viewport={"width": 1200, "height": 900})
+        page = context.new_page()
+        page.requests_seen, page.errors_seen = [], []  # of every page of the context
+        context.on("request", lambda request: page.requests_seen.append(request.url))
+        context.on("console", lambda message: page.errors_seen.append(message.text) if message.type == "error" else None)
+        context.on("weberror", lambda error: page.errors_seen.append(str(error.error)))
         try:
             yield page
         finally:
@@ -214,8 +217,20 @@ def test_tap_page_plots_the_stored_tap(farm, browser_page, tmp_path):
     assert page.inner_text("#tap-cause") == "kept by the printer and by tapcell"
 
 
+def test_a_printer_that_is_off_is_retried_without_holding_up_the_others(farm):
+    said = (farm.folder / "monitor.stderr").read_text()
+    assert said.count("[gone] tapcell monitor: connection to ws://127.0.0.1:") >= 2  # tried again
+    assert "lost or refused (ConnectionRefusedError" in said
+    assert len(farm.tap_ids("a")) >= 11 and len(farm.tap_ids("b")) >= 3
+    with farm.store() as store:
+        assert store.printer("gone") is None  # no tap, no row
+
+
 def test_a_new_probe_appears_without_reload_and_a_second_monitor_adds_no_duplicate(farm, browser_page):
     page = browser_page
+    fleet = page.context.new_page()  # the fleet page, open beside the printer's
+    fleet.goto(farm.web_url + "/")
+    fleet.wait_for_selector("#live.on")
     page.goto(farm.web_url + "/printer/b")
     page.wait_for_selector("#live.on")
     before = farm.tap_ids("b")
@@ -225,6 +240,10 @@ def test_a_new_probe_appears_without_reload_and_a_second_monitor_adds_no_duplica
     wait_for(lambda: len(farm.tap_ids("b")) > len(before), 60.0, "the new tap in the store")
     new_id = farm.tap_ids("b")[0]
     page.wait_for_selector(f'#taps tr[data-tap="{new_id}"]', timeout=LIVE_DEADLINE_S * 1000)
+    count = len(before) + 1
+    fleet.wait_for_function(f"document.querySelector('tr[data-printer=\"b\"] .taps').textContent === '{count}'",
+                            timeout=LIVE_DEADLINE_S * 1000)
+    assert fleet.evaluate("window.tapcellCharts['fleet-b'].data[0].at(-1)") == new_id
     wait_for(lambda: "already kept" in said.read_text() or "already kept" in
              (farm.folder / "monitor.stderr").read_text(), 30.0, "a monitor to find the tap already kept")
     assert len(farm.tap_ids("b")) == len(before) + 1
