@@ -4,8 +4,9 @@ tapping at once, and the fleet page's latency with 50 printers and 500,000 taps 
     python -m bench history [--printers 50] [--taps-per-printer 10000] [--ingest-taps 20]
 
 Everything runs on a throw-away PostgreSQL (Debian's, bench/_postgres.py) and a temp SQLite
-file. Real taps: synthetic taps (tapcell.tap.synth) analysed by tapcell, stored as the monitor
-stores them. Scale fill: 500,000 rows written with COPY, whose health columns are drawn per
+file. Real taps: synthetic taps (tapcell.tap.synth, 660 samples/s) analysed by tapcell, stored
+as the monitor stores them (samples, moves, both results; no Z per sample, which a printer's
+dump_taps event does not carry). Scale fill: 500,000 rows written with COPY, whose health columns are drawn per
 printer (noise, stiffness, Z at a grid of spots, ~3 % rejected) and whose stored document is a
 short stand-in: PostgreSQL keeps large documents out of line (TOAST), and the fleet page reads
 only the health columns of each printer's latest 250 taps, so the stand-in changes the disk
@@ -65,6 +66,7 @@ def real_documents(count: int) -> tuple[list[dict], float]:
         analysis = analyze_tap(tap)
         spent += time.perf_counter() - started
         document = tap_to_json_dict(tap, analysis)
+        document.pop("z")  # a printer's dump_taps event carries the moves, not Z per sample: as a monitor stores it
         x_mm, y_mm = float(rng.uniform(20, 220)), float(rng.uniform(20, 220))
         z_mm = analysis.z_mm if analysis.z_mm is not None else 0.0
         document["printer"] = {"z": z_mm, "tap_pos": [x_mm, y_mm, z_mm], "is_valid": True, "error": None}
