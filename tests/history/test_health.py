@@ -10,7 +10,7 @@ import pytest
 
 from tapcell.store import health
 from tapcell.tools.history import printer_specs
-from tapcell.tools.web.views import MeshMismatch, mesh_difference
+from tapcell.tools.web.views import MeshMismatch, bed_map, mesh_difference
 
 
 def test_the_change_test_is_welchs_t_on_the_latest_taps():
@@ -83,3 +83,10 @@ def test_printers_are_named_or_take_their_host():
                                                 ("box:7125", "ws://box:7125/klippysocket")]
     with pytest.raises(ValueError, match="printer name 'a' is given twice"):
         printer_specs(["a=http://x:1", "a=http://y:1"])
+
+
+def test_a_retry_is_the_same_spot_right_after_a_rejected_tap():
+    spots = [(10.0, 10.0, True), (10.1, 10.0, False),  # rejected, then retried there
+             (50.0, 50.0, False), (50.0, 50.0, False),  # repeated, nothing rejected: no retry
+             (90.0, 90.0, True), (95.0, 90.0, True)]  # moved on after a reject: no retry
+    assert bed_map(spots)["retried"] == [False, True, False, False, False, False]

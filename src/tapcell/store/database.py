@@ -347,13 +347,14 @@ class Store:
         return [dict(row, matrix=json.loads(row["matrix"])) for row in rows]
 
     def bed_spots(self, printer_id: int, limit: int = 20_000) -> list[tuple[float, float, bool]]:
-        """(x, y, rejected) of a printer's latest taps that have a position."""
+        """(x, y, rejected) of a printer's latest taps that have a position, oldest first."""
         table = schema.taps
         query = (sa.select(table.c.x_mm, table.c.y_mm, rejected_clause().label("rejected"))
                  .where(table.c.printer_id == printer_id, table.c.x_mm.is_not(None), table.c.y_mm.is_not(None))
                  .order_by(table.c.id.desc()).limit(limit))
         with self.engine.connect() as connection:
-            return [(float(x), float(y), bool(rejected)) for x, y, rejected in connection.execute(query)]
+            rows = [(float(x), float(y), bool(rejected)) for x, y, rejected in connection.execute(query)]
+        return rows[::-1]
 
     def latest_ids(self) -> dict[int, tuple[int, int]]:
         """printer id -> (latest tap id, latest mesh id): what the live pages poll."""

@@ -75,11 +75,22 @@ def mesh_difference(mesh: dict, base: dict) -> dict:
     return view
 
 
+def retried(spots_oldest_first: list[tuple[float, float, bool]]) -> list[bool]:
+    """Whether each tap retried the one before it: the same spot, right after a rejected tap."""
+    found = [False] * len(spots_oldest_first)
+    for k in range(1, len(spots_oldest_first)):
+        (x0, y0, rejected0), (x1, y1, _) = spots_oldest_first[k - 1], spots_oldest_first[k]
+        found[k] = rejected0 and abs(x1 - x0) <= health.SPOT_MM / 2 and abs(y1 - y0) <= health.SPOT_MM / 2
+    return found
+
+
 def bed_map(spots: list[tuple[float, float, bool]]) -> dict:
-    """Every tap's XY with whether it was rejected, and the faulty_region lines to suggest."""
+    """Every tap's XY (oldest first) with whether it was rejected or a retry, and the faulty_region
+    lines to suggest."""
     regions = health.faulty_regions(spots)
     lines = [line for number, region in enumerate(regions, 1) for line in region.config_lines(number)]
     return {"x_mm": [s[0] for s in spots], "y_mm": [s[1] for s in spots], "rejected": [s[2] for s in spots],
+            "retried": retried(spots),
             "regions": [{"x_min_mm": r.x_min_mm, "y_min_mm": r.y_min_mm, "x_max_mm": r.x_max_mm,
                          "y_max_mm": r.y_max_mm, "rejected": r.rejected, "taps": r.taps} for r in regions],
             "faulty_region_lines": lines}

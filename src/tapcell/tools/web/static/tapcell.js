@@ -62,6 +62,13 @@ const tapcell = (() => {
       context.beginPath();
       context.arc(px(x), py(bed.y_mm[k]), bed.rejected[k] ? 4 : 3, 0, 2 * Math.PI);
       context.fill();
+      if (bed.retried[k]) {  // a retry after a rejected tap: a ring around the spot
+        context.strokeStyle = "#ef6c00";
+        context.lineWidth = 1.5;
+        context.beginPath();
+        context.arc(px(x), py(bed.y_mm[k]), 7, 0, 2 * Math.PI);
+        context.stroke();
+      }
     });
     charts.bed = bed;
   }
