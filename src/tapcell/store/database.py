@@ -356,17 +356,12 @@ class Store:
             rows = [(float(x), float(y), bool(rejected)) for x, y, rejected in connection.execute(query)]
         return rows[::-1]
 
-    def latest_ids(self) -> dict[int, tuple[int, int]]:
-        """printer id -> (latest tap id, latest mesh id): what the live pages poll."""
-        found: dict[int, tuple[int, int]] = {}
+    def latest_ids(self) -> dict[str, int]:
+        """The newest tap and mesh ids: what the live pages poll (two index lookups, whatever the size)."""
         with self.engine.connect() as connection:
-            for printer_id, tap_id in connection.execute(
-                    sa.select(schema.taps.c.printer_id, sa.func.max(schema.taps.c.id)).group_by(schema.taps.c.printer_id)):
-                found[printer_id] = (int(tap_id), 0)
-            for printer_id, mesh_id in connection.execute(
-                    sa.select(schema.meshes.c.printer_id, sa.func.max(schema.meshes.c.id)).group_by(schema.meshes.c.printer_id)):
-                found[printer_id] = (found.get(printer_id, (0, 0))[0], int(mesh_id))
-        return found
+            tap_id = connection.execute(sa.select(sa.func.max(schema.taps.c.id))).scalar()
+            mesh_id = connection.execute(sa.select(sa.func.max(schema.meshes.c.id))).scalar()
+        return {"tap": int(tap_id or 0), "mesh": int(mesh_id or 0)}
 
     def size_bytes(self) -> int | None:
         """The database's size on disk (SQLite file with its WAL, or pg_database_size)."""

@@ -153,10 +153,10 @@ class Web:
         return JSONResponse([_tap_row_json(row) for row in rows])
 
     async def events(self, request: Request) -> StreamingResponse:
-        """Server-sent events: `change` with {printer_id: [tap id, mesh id]} when the store grows."""
+        """Server-sent events: `change` with the newest {tap, mesh} ids when the store grows."""
         async def stream():
             last = await run_in_threadpool(self.store.latest_ids)
-            yield f"event: hello\ndata: {json.dumps(_ids_json(last))}\n\n"
+            yield f"event: hello\ndata: {json.dumps(last)}\n\n"
             quiet_since = time.monotonic()
             while not await request.is_disconnected():
                 await asyncio.sleep(EVENT_POLL_S)
@@ -170,7 +170,7 @@ class Web:
                 if now != last:
                     last = now
                     quiet_since = time.monotonic()
-                    yield f"event: change\ndata: {json.dumps(_ids_json(now))}\n\n"
+                    yield f"event: change\ndata: {json.dumps(now)}\n\n"
                 elif time.monotonic() - quiet_since > KEEPALIVE_S:
                     quiet_since = time.monotonic()
                     yield ": keep-alive\n\n"
@@ -190,10 +190,6 @@ class Web:
         if isinstance(exc, StoreError):
             message = str(exc)
         return self.page("error.html", status_code=500, code=500, message=message)
-
-
-def _ids_json(ids: dict) -> dict:
-    return {str(printer_id): list(pair) for printer_id, pair in ids.items()}
 
 
 def _tap_row_json(row: dict) -> dict:

@@ -2,6 +2,7 @@
 "use strict";
 const tapcell = (() => {
   const charts = {};
+  const FLEET_REFRESH_MS = 3000;
   const readJson = (id) => JSON.parse(document.getElementById(id).textContent);
   const fmt = (value, digits) => (value === null || value === undefined) ? "–" : Number(value).toFixed(digits);
 
@@ -147,7 +148,18 @@ const tapcell = (() => {
         series: [{}, {label: "noise σ (g)", stroke: "#455a64", width: 1}],
       }, [series.id, series.noise_sigma_g], target);
     });
-    live(async () => {
+    // The fleet's numbers take a query per page view: refresh at once on a change, then at most
+    // every FLEET_REFRESH_MS while taps keep coming (50 printers tapping change it many times a second).
+    let last = 0, pending = null;
+    const refreshSoon = () => {
+      if (pending) return;
+      pending = setTimeout(async () => {
+        last = Date.now();
+        try { await refreshFleet(); } finally { pending = null; }
+      }, Math.max(0, last + FLEET_REFRESH_MS - Date.now()));
+    };
+    live(refreshSoon);
+    async function refreshFleet() {
       const answer = await fetch("/api/fleet");
       if (!answer.ok) return;
       (await answer.json()).forEach((printer) => {
@@ -167,7 +179,7 @@ const tapcell = (() => {
         const chart = charts[`fleet-${printer.name}`];
         if (chart) chart.setData([printer.series.id, printer.series.noise_sigma_g]);
       });
-    });
+    }
   }
 
   // A vertical line at each Z value (printer's, tapcell's) on the force-Z chart.
