@@ -188,6 +188,7 @@ def page_latency(url: str) -> dict[str, list[float]]:
                 time.sleep(0.2)
         timed_gets(base + "/", 2)  # warm the database's cache, as a page viewed twice
         return {"/": timed_gets(base + "/", PAGE_REPEATS), "/api/fleet": timed_gets(base + "/api/fleet", PAGE_REPEATS),
+                "/printer/printer-03": timed_gets(base + "/printer/printer-03", PAGE_REPEATS),
                 "/static/tapcell.css": timed_gets(base + "/static/tapcell.css", PAGE_REPEATS)}
     finally:
         web.terminate()
@@ -249,7 +250,7 @@ def main(argv: list[str]) -> int:
         expected = {f"printer-{n:02d}" for n in CHANGED_PRINTERS if n < args.printers}
         latency = page_latency(url)
         anchor = statistics.median(latency["/static/tapcell.css"])
-        page = Table(title=f"Fleet page: {args.printers} printers, {total:,} taps in PostgreSQL "
+        page = Table(title=f"Pages: {args.printers} printers, {total:,} taps in PostgreSQL "
                            f"(filled in {fill_s:.0f} s; median of {PAGE_REPEATS} requests)")
         for column in ("request", "median ms", "max ms", "× static file", f"× goal ({GOAL_PAGE_S:g} s)"):
             page.add_column(column, justify="right")

@@ -339,11 +339,16 @@ class Store:
                 found["settings"] = None if text is None else json.loads(text)
         return found
 
-    def meshes(self, printer_id: int) -> list[dict]:
+    def meshes(self, printer_id: int, limit: int = 100, ids: tuple[int, ...] = ()) -> list[dict]:
+        """A printer's latest `limit` meshes, newest first, and those of `ids` wherever they are."""
         table = schema.meshes
+        query = sa.select(table).where(table.c.printer_id == printer_id)
+        latest = query.order_by(table.c.id.desc()).limit(limit)
         with self.engine.connect() as connection:
-            rows = connection.execute(sa.select(table).where(table.c.printer_id == printer_id)
-                                      .order_by(table.c.id.desc())).mappings().all()
+            rows = list(connection.execute(latest).mappings().all())
+            missing = [mesh_id for mesh_id in ids if mesh_id not in {row["id"] for row in rows}]
+            if missing:
+                rows += connection.execute(query.where(table.c.id.in_(missing))).mappings().all()
         return [dict(row, matrix=json.loads(row["matrix"])) for row in rows]
 
     def bed_spots(self, printer_id: int, limit: int = 20_000) -> list[tuple[float, float, bool]]:

@@ -109,7 +109,8 @@ class Web:
         status, cause = _tap_filter(request)
         mesh_id, base_id = _int_param(request, "mesh"), _int_param(request, "base")
         taps = self.store.taps(printer["id"], status=status, cause=cause, limit=TAP_PAGE_ROWS)
-        meshes = self.store.meshes(printer["id"])
+        wanted_ids = tuple(wanted for wanted in (mesh_id, base_id) if wanted is not None)
+        meshes = self.store.meshes(printer["id"], ids=wanted_ids)
         by_id = {mesh["id"]: mesh for mesh in meshes}
         for wanted in (mesh_id, base_id):
             if wanted is not None and wanted not in by_id:
