@@ -103,11 +103,13 @@ def farm(tmp_path_factory):
                                                name="monitor")
             wait_for(lambda: said.read_text().count("waiting for taps") == 2, 60.0, "the monitor to follow both", monitor)
             script(a, "G28\nBED_MESH_CALIBRATE PROBE_COUNT=3,3\nG1 X100 Y100 F6000\nPROBE\nPROBE")
-            script(b, "G28\nG1 X60 Y80 F6000\nPROBE\nPROBE\nPROBE")
-            wait_for(lambda: len(farm.tap_ids("a")) >= 11 and len(farm.tap_ids("b")) >= 3, 60.0,
+            script(b, "G28\nBED_MESH_CALIBRATE PROBE_COUNT=3,3\nG1 X60 Y80 F6000\nPROBE\nPROBE\nPROBE")
+            wait_for(lambda: len(farm.tap_ids("a")) >= 11 and len(farm.tap_ids("b")) >= 12, 60.0,
                      "the monitor to store the taps", monitor)
             with farm.store() as store:
-                wait_for(lambda: store.meshes(store.printer("a")["id"]), 30.0, "the monitor to store the mesh", monitor)
+                for name in ("a", "b"):
+                    wait_for(lambda: store.meshes(store.printer(name)["id"]), 30.0, f"the monitor to store {name}'s mesh",
+                             monitor)
             port = free_port()
             web = subprocess.Popen([sys.executable, "-m", "tapcell", "web", "--db", farm.db, "--port", str(port)],
                                    stdout=subprocess.DEVNULL, stderr=(folder / "web.stderr").open("w"))
@@ -179,11 +181,12 @@ def test_fleet_page_shows_both_printers_with_store_numbers(farm, browser_page, t
     assert [span.inner_text() for span in page.locator('tr[data-printer="a"] .t').all()] == ["n/a"] * 3  # < 60 taps
 
 
-def test_printer_page_draws_the_stored_mesh_and_bed_map(farm, browser_page, tmp_path):
+@pytest.mark.parametrize("name", ["a", "b"])
+def test_printer_page_draws_the_stored_mesh_and_bed_map(farm, browser_page, tmp_path, name):
     page = browser_page
-    show(page, farm.web_url + "/printer/a", "window.tapcellCharts.mesh !== undefined", tmp_path / "printer.png")
+    show(page, farm.web_url + f"/printer/{name}", "window.tapcellCharts.mesh !== undefined", tmp_path / "printer.png")
     with farm.store() as store:
-        printer_id = store.printer("a")["id"]
+        printer_id = store.printer(name)["id"]
         mesh = store.meshes(printer_id)[0]
         spots = store.bed_spots(printer_id)
     drawn = page.evaluate("window.tapcellCharts.mesh")
@@ -198,7 +201,7 @@ def test_printer_page_draws_the_stored_mesh_and_bed_map(farm, browser_page, tmp_
     assert colours >= 4  # a heat map, not a blank canvas
     assert page.evaluate("window.tapcellCharts.bed.x_mm.length") == len(spots)
     rows = page.locator("#taps tbody tr")
-    assert rows.count() == len(farm.tap_ids("a"))
+    assert rows.count() == len(farm.tap_ids(name))
 
 
 def test_tap_page_plots_the_stored_tap(farm, browser_page, tmp_path):
@@ -221,7 +224,7 @@ def test_a_printer_that_is_off_is_retried_without_holding_up_the_others(farm):
     said = (farm.folder / "monitor.stderr").read_text()
     assert said.count("[gone] tapcell monitor: connection to ws://127.0.0.1:") >= 2  # tried again
     assert "lost or refused (ConnectionRefusedError" in said
-    assert len(farm.tap_ids("a")) >= 11 and len(farm.tap_ids("b")) >= 3
+    assert len(farm.tap_ids("a")) >= 11 and len(farm.tap_ids("b")) >= 12
     with farm.store() as store:
         assert store.printer("gone") is None  # no tap, no row
 

@@ -121,12 +121,19 @@ def tap_recorder(store, spec: PrinterSpec, state: PrinterState, display, parts: 
 
 def watch_meshes(store, spec: PrinterSpec, probe: str, state: PrinterState, display, connect,
                  parts: MonitorParts) -> None:
-    """Poll the printer's loaded mesh and probe settings; keep each new mesh. Reconnects."""
+    """Poll the printer's loaded mesh and probe settings; keep each new mesh. Reconnects.
+
+    A mesh is written only when it differs from the last one seen, so an idle farm polls its
+    printers, not its database."""
     from sqlalchemy.exc import SQLAlchemyError
+    from websockets.exceptions import WebSocketException
 
     from tapcell.store import RecordError, StoreError
+    from tapcell.store.records import mesh_record
 
+    link_errors = (OSError, TimeoutError, EOFError, WebSocketException)
     url = parts.bridge_url(spec.url)
+    last_key = last_problem = None
     while not state.stop.is_set():
         try:
             with connect(url, open_timeout=10, close_timeout=2) as websocket:
@@ -138,24 +145,21 @@ def watch_meshes(store, spec: PrinterSpec, probe: str, state: PrinterState, disp
                     status = bridge.request("objects/query", {"objects": {"bed_mesh": MESH_FIELDS}})
                     bridge.pending_pushes.clear()  # this connection subscribes to nothing
                     mesh = status["status"].get("bed_mesh")
-                    if isinstance(mesh, dict):
-                        try:
-                            store.add_mesh(spec.name, mesh, printer_url=spec.url)
-                        except RecordError as exc:
+                    try:
+                        record = mesh_record(mesh, time.time()) if isinstance(mesh, dict) else None
+                    except RecordError as exc:  # said once, not every poll
+                        if str(exc) != last_problem:
                             display.say(f"bed mesh not kept: {exc}")
+                        last_problem, record = str(exc), None
+                    if record is not None and record.mesh_key != last_key:
+                        store.add_mesh_record(spec.name, record, printer_url=spec.url)
+                        last_key = record.mesh_key
                     state.stop.wait(MESH_POLL_S)
-        except (parts.api_error, StoreError, SQLAlchemyError, KeyError, TypeError) as exc:
-            display.say(f"bed mesh watch: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
-        except Exception as exc:  # the link: OSError, TimeoutError, websockets' errors
-            if not _is_link_error(exc):
-                raise
+        except link_errors:
+            pass  # the printer is away: the tap loop says so; try again
+        except (parts.api_error, StoreError, SQLAlchemyError, KeyError, TypeError, AttributeError) as exc:
+            display.say(f"bed mesh not kept: {type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
         state.stop.wait(RECONNECT_S)
-
-
-def _is_link_error(exc: Exception) -> bool:
-    from websockets.exceptions import WebSocketException
-
-    return isinstance(exc, OSError | TimeoutError | EOFError | WebSocketException)
 
 
 def _follow_one(parts: MonitorParts, args, display, connect, codes: list[int]) -> None:
