@@ -250,6 +250,15 @@ def test_a_new_probe_appears_without_reload_and_a_second_monitor_adds_no_duplica
     wait_for(lambda: "already kept" in said.read_text() or "already kept" in
              (farm.folder / "monitor.stderr").read_text(), 30.0, "a monitor to find the tap already kept")
     assert len(farm.tap_ids("b")) == len(before) + 1
+    # A new mesh: the printer's page offers it without a reload.
+    with farm.store() as store:
+        printer_id = store.printer("b")["id"]
+        meshes_before = len(store.meshes(printer_id))
+        script(farm.b, "BED_MESH_CALIBRATE PROBE_COUNT=3,3")
+        wait_for(lambda: len(store.meshes(printer_id)) > meshes_before, 60.0, "the new mesh in the store")
+        newest = store.meshes(printer_id)[0]["id"]
+    page.wait_for_selector("#new-mesh:not([hidden])", timeout=LIVE_DEADLINE_S * 1000)
+    assert page.get_attribute("#new-mesh a", "href") == f"?mesh={newest}"
     assert page.evaluate("performance.getEntriesByType('navigation').length") == 1  # no reload
 
 

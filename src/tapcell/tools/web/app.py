@@ -131,7 +131,8 @@ class Web:
         return self.page("printer.html", printer=printer, taps=taps, status=status, cause=cause,
                          statuses=STATUSES, causes=self.store.causes(printer["id"]), meshes=meshes,
                          mesh=mesh, mesh_json=mesh, mesh_problem=mesh_problem, mesh_id=shown["id"] if shown else None,
-                         base_id=base_id, bed=views.bed_map(spots), latest_id=max((t["id"] for t in taps), default=0))
+                         base_id=base_id, bed=views.bed_map(spots), latest_id=max((t["id"] for t in taps), default=0),
+                         latest_mesh_id=max((m["id"] for m in meshes), default=0))
 
     def tap(self, request: Request) -> HTMLResponse:
         printer = self._printer(request.path_params["name"])
@@ -152,6 +153,12 @@ class Web:
         rows = [row for row in self.store.taps(printer["id"], status=status, cause=cause, limit=TAP_PAGE_ROWS)
                 if row["id"] > after]
         return JSONResponse([_tap_row_json(row) for row in rows])
+
+    def meshes_json(self, request: Request) -> JSONResponse:
+        """The printer's latest meshes, newest first: id, profile, time (for the live notice)."""
+        printer = self._printer(request.path_params["name"])
+        return JSONResponse([{key: mesh[key] for key in ("id", "profile", "recorded_s")}
+                             for mesh in self.store.meshes(printer["id"], limit=10)])
 
     async def events(self, request: Request) -> StreamingResponse:
         """Server-sent events: `change` with the newest {tap, mesh} ids when the store grows."""
@@ -229,6 +236,7 @@ def create_app(store: Store) -> Starlette:
         Route("/printer/{name}/tap/{tap_id:int}", web.tap),
         Route("/api/fleet", web.fleet_json),
         Route("/api/printer/{name}/taps", web.taps_json),
+        Route("/api/printer/{name}/meshes", web.meshes_json),
         Route("/events", web.events),
         Mount("/static", app=StaticFiles(directory=STATIC), name="static"),
     ]

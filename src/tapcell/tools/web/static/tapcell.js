@@ -10,7 +10,14 @@ const tapcell = (() => {
     const badge = document.getElementById("live");
     const source = new EventSource("/events");
     source.addEventListener("hello", () => badge.classList.add("on"));
-    source.addEventListener("change", (event) => onChange(JSON.parse(event.data)));
+    source.addEventListener("change", (event) => {
+      badge.classList.add("on");
+      onChange(JSON.parse(event.data));
+    });
+    source.addEventListener("problem", (event) => {  // the server cannot read the store now
+      badge.classList.remove("on");
+      badge.title = JSON.parse(event.data);
+    });
     source.onerror = () => badge.classList.remove("on");
     window.addEventListener("pagehide", () => source.close());
   }
@@ -112,11 +119,21 @@ const tapcell = (() => {
     const table = document.getElementById("taps");
     const printer = table.dataset.printer;
     let latest = Number(table.dataset.latest);
+    const newMesh = document.getElementById("new-mesh");
+    let latestMesh = Number(newMesh.dataset.latest);
     let busy = false;
-    live(async () => {
+    live(async (ids) => {
       if (busy) return;
       busy = true;
       try {
+        if (ids.mesh > latestMesh) {  // some printer has a new mesh: is it this one's?
+          latestMesh = ids.mesh;
+          const meshes = await (await fetch(`/api/printer/${encodeURIComponent(printer)}/meshes`)).json();
+          if (meshes.length && meshes[0].id > Number(newMesh.dataset.latest)) {
+            newMesh.querySelector("a").href = `?mesh=${meshes[0].id}`;
+            newMesh.hidden = false;
+          }
+        }
         const query = new URLSearchParams({status: table.dataset.status, cause: table.dataset.cause, after: latest});
         const answer = await fetch(`/api/printer/${encodeURIComponent(printer)}/taps?${query}`);
         if (!answer.ok) return;
