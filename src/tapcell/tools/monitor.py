@@ -42,7 +42,7 @@ TABLE_ROWS = 20
 # and a 20 s tap at 2000 sps is ~1.5 MB. Larger is refused by the websocket (the link is reopened).
 MAX_MESSAGE_BYTES = 64 * 1024 * 1024
 # A tap with more samples is skipped with a warning: 10 s at 2000 sps (a real tap is under 5 s). The
-# analysis's time grows faster than the samples (hum fit): 20,000 take ~15 s and 400 MB, 40,000 over a minute.
+# analysis's time and memory grow faster than the samples: 20,000 took 10 s and 360 MB, 40,000 24 s and 1.1 GB.
 MAX_TAP_SAMPLES = 20_000
 NAME_RETRIES = 3  # tries before a host name that does not resolve is reported as a mistake
 OVERSIZE_RETRIES = 3  # links lost in a row to a message over MAX_MESSAGE_BYTES before giving up
@@ -410,6 +410,8 @@ def _handle_tap(number: int, event: dict, options: AnalysisOptions, args, displa
     for warning in warnings:
         display.say(f"tapcell monitor: tap {number}: the printer's {warning}")
     display.add(row)
+    if getattr(args, "record_tap", None):  # --db: tools/history.py keeps it in the store
+        args.record_tap(tap, analysis, event)
     try:
         if args.log:
             with open_append(args.log) as log:
@@ -447,7 +449,11 @@ def _websocket_errors():
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="tapcell monitor", description="Analyse a printer's taps live "
                                      "through Moonraker, next to the printer's own result.")
-    parser.add_argument("--moonraker", required=True, metavar="URL", help="Moonraker, e.g. http://printer.local:7125")
+    parser.add_argument("--moonraker", required=True, action="append", metavar="[NAME=]URL",
+                        help="Moonraker, e.g. http://printer.local:7125; repeat it, named, for many printers "
+                        "(voron=http://voron.local:7125)")
+    parser.add_argument("--db", metavar="URL", help="keep every tap and mesh in a store: a path, sqlite:///PATH "
+                        "or postgresql://... (see tapcell web)")
     parser.add_argument("--probe", default="load_cell_probe", help="the probe's section (default: %(default)s)")
     parser.add_argument("--log", metavar="TAPS.jsonl", help="append each tap with both results (tapcell.tap.v1)")
     parser.add_argument("--plot-dir", metavar="DIR", help="write a PNG per tap")
@@ -470,6 +476,11 @@ def main(argv: list[str]) -> int:
 
     display = Display()
     try:
+        if args.db or len(args.moonraker) > 1:
+            from tapcell.tools.history import MonitorParts, monitor_printers
+
+            return monitor_printers(args, display, connect, MonitorParts(monitor, log_line, Bridge, bridge_url, ApiError))
+        args.moonraker = args.moonraker[0]
         return monitor(args, display, connect)
     except KeyboardInterrupt:
         return 130
