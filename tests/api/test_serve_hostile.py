@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -166,3 +167,34 @@ def test_json_nested_too_deep_gets_an_error_reply_not_a_traceback():
         connection._handle(data)
     assert sent == [{"id": None, "error": {"error": "WebRequestError", "message": "Malformed request: nested "
                                                                                   "deeper than the JSON reader allows"}}] * 2
+
+
+def test_a_burst_of_clients_is_queued_while_the_server_is_busy(tmp_path):
+    # The server stopped (SIGSTOP) stands for a busy loop: every connection waits in the listen
+    # backlog. asyncio's default backlog (100) refused the 101st with EAGAIN.
+    socket_path = tmp_path / "klippy.sock"
+    server = start_serve(printer_config(tmp_path), socket_path, tmp_path / "serve.log")
+    clients, refused = [], 0
+    try:
+        os.kill(server.pid, signal.SIGSTOP)
+        try:
+            for _ in range(300):
+                client = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+                client.setblocking(False)
+                try:
+                    client.connect(str(socket_path))
+                    clients.append(client)
+                except BlockingIOError:
+                    refused += 1
+                    client.close()
+        finally:
+            os.kill(server.pid, signal.SIGCONT)
+        assert (len(clients), refused) == (300, 0)
+        answered = KlippyClient(socket_path)
+        assert answered.call("info")["result"]["state"] == "ready"
+        answered.close()
+    finally:
+        for client in clients:
+            client.close()
+        server.send_signal(signal.SIGTERM)
+        server.wait(timeout=STOP_TIMEOUT_S)

@@ -58,6 +58,9 @@ MAX_UNSENT_BYTES = 64 * 1024 * 1024  # a client that stops reading is dropped pa
 MAX_TOTAL_UNSENT_BYTES = 128 * 1024 * 1024
 UNSENT_CHECK_BYTES = 1024 * 1024  # a client with less unsent is reading: no budget check
 MEMORY_TRIM_DELAY_S = 1.0  # freed memory goes back to the system this long after clients leave
+# Connections waiting to be accepted: asyncio's default (100) refuses a burst of clients (a farm
+# dashboard reconnecting everything at once) with EAGAIN while the loop is busy.
+LISTEN_BACKLOG = 1024
 MAX_PENDING_REQUESTS = 100  # unanswered requests of one client before its next one is read
 MAX_SUBSCRIBED_OBJECTS = 1000  # a Klipper printer has under 100 status objects
 MAX_FIELDS_PER_OBJECT = 1000
@@ -578,7 +581,8 @@ class ApiServer:
         for sig in (signal.SIGINT, signal.SIGTERM):
             self.loop.add_signal_handler(sig, stop.set)
         claim_socket_path(self.socket_path)  # SocketPathTaken: nothing was started or removed
-        server = await asyncio.start_unix_server(self._accept, path=self.socket_path, limit=MAX_MESSAGE_BYTES)
+        server = await asyncio.start_unix_server(self._accept, path=self.socket_path, limit=MAX_MESSAGE_BYTES,
+                                                 backlog=LISTEN_BACKLOG)
         bound = os.lstat(self.socket_path)
         self.printer_thread.start()
         periodic = [asyncio.ensure_future(self._every(SUBSCRIPTION_PERIOD_S, self._push_subscriptions)),
