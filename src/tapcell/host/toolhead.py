@@ -227,7 +227,7 @@ class Toolhead:
         axes = asked or list(AXES)
         xy = [axis for axis in axes if axis in "xy"]
         if xy:
-            self.backend.home_xy()
+            self.backend.home_xy("".join(xy))
             machine = self.backend.position
             for axis in xy:
                 index = AXES.index(axis)

@@ -255,11 +255,27 @@ class VirtualPrinter:
             raise MoveError(f"move speed must be above 0 mm/s, got {speed_mm_s}")
         self._plan_and_run(start, target, speed_mm_s, accel_mm_s2)
 
-    def home_xy(self) -> None:
-        """Move to the X/Y endstops at the homing speed (x_endstop_mm, y_endstop_mm)."""
+    def home_xy(self, axes: str = "xy") -> None:
+        """Move the axes named in `axes` ("x", "y" or "xy") to their endstops at the homing speed
+        (x_endstop_mm, y_endstop_mm); an axis not named stays where it is."""
         start = self._motion.end_position
         p = self.params
-        self._plan_and_run(start, (p.x_endstop_mm, p.y_endstop_mm, start[2]), p.homing_speed_mm_s)
+        target = (p.x_endstop_mm if "x" in axes else start[0], p.y_endstop_mm if "y" in axes else start[1], start[2])
+        self._plan_and_run(start, target, p.homing_speed_mm_s)
+
+    def endstop_triggered(self, axis: str) -> bool:
+        """Whether the X or Y endstop switch is pressed: the carriage sits at it (within half a step)."""
+        index = "xy".index(axis)
+        endstop_mm = (self.params.x_endstop_mm, self.params.y_endstop_mm)[index]
+        return abs(self.position[index] - endstop_mm) <= self.step_distance_mm[index] / 2.0
+
+    def position_at(self, t_s: float) -> tuple[float, float, float]:
+        """Where the toolhead was (or will be, for a move already planned) at `t_s`."""
+        return tuple(float(v) for v in self._motion.positions_at(np.array([t_s]))[0])
+
+    def speed_at(self, t_s: float) -> float:
+        """The toolhead's speed along its path at `t_s` (mm/s; 0 at rest)."""
+        return self._motion.speed_at(t_s)
 
     def dwell(self, t_s: float) -> None:
         if t_s < 0.0:

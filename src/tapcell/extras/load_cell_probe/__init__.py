@@ -41,7 +41,6 @@ def load_config(section, printer) -> LoadCellProbe:
     commands = LoadCellProbeCommands(device, probe)
     commands.register(printer.gcode)
     printer.add_object("probe", probe)
-    printer.add_object("query_endstops", commands)
     if not printer.config.has_section("load_cell"):
         # As in Klipper: macros read the probe's cell as printer.load_cell (force_g, tare_counts, ...).
         printer.add_object("load_cell", device.load_cell)

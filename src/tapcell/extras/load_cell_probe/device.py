@@ -76,7 +76,6 @@ RELEASE_CHECK_S = 0.05  # LOAD_CELL_TEST_TAP looks at the force this often while
 TARE_FRESH_MARGIN_SAMPLES = 4  # the tare window may reach back this many periods beyond tare_time
 SAVE_CONFIG_NOTE = ("The SAVE_CONFIG command will update the printer config file with the above and restart "
                     "the printer.")
-ENDSTOP_SWITCH_MM = 1e-6  # the virtual X/Y switches close at machine position 0
 # G28 Z: the taps after the first come from this far above the last halt, at most this fast,
 # and at most this many taps in all look for two that agree.
 HOME_BACKOFF_MM = 0.5
