@@ -207,3 +207,12 @@ def test_gantry_levelling_answers_in_one_line_on_the_single_z_motor(tmp_path, se
     assert printer.get_status()[section] == {"applied": True}
     printer.gcode.run_script("M84")
     assert printer.get_status()[section] == {"applied": False}
+
+
+def test_macros_read_positions_as_klippers_coordinates(tmp_path):
+    printer, responses = build(tmp_path, "\n[gcode_macro WHERE]\ngcode:\n    {action_respond_info('z=%.2f xmax=%g e=%g' "
+                                         "% (printer.toolhead.position.z, printer.toolhead.axis_maximum.x, "
+                                         "printer.gcode_move.gcode_position.e))}\n")
+    printer.gcode.run_script("G28 X Y\nWHERE")
+    assert responses[-1] == f"// z={printer.lookup_object('toolhead').get_position()[2]:.2f} xmax=235 e=0"
+    assert type(printer.get_status()["toolhead"]["position"]) is list  # the status itself stays plain data
