@@ -216,3 +216,18 @@ def test_macros_read_positions_as_klippers_coordinates(tmp_path):
     printer.gcode.run_script("G28 X Y\nWHERE")
     assert responses[-1] == f"// z={printer.lookup_object('toolhead').get_position()[2]:.2f} xmax=235 e=0"
     assert type(printer.get_status()["toolhead"]["position"]) is list  # the status itself stays plain data
+
+
+@pytest.mark.parametrize("config_says, world, fix", [
+    ("sensor_orientation: inverted\n", "", "Set sensor_orientation: normal in [load_cell_probe] (it is inverted)"),
+    ("", "cell_polarity: -1\n", "Set sensor_orientation: inverted in [load_cell_probe] (it is normal)"),
+])
+def test_a_wrong_sensor_orientation_fails_g28_with_the_cause_and_the_fix(tmp_path, config_says, world, fix):
+    text = machine_config().replace("seed: 1\n", "seed: 1\n" + world) + PROBE + config_says
+    (tmp_path / "printer.cfg").write_text(text)
+    responses: list[str] = []
+    printer = Printer.from_config(str(tmp_path / "printer.cfg"), responses=responses.append)
+    message = gcode_error(printer, "G28")
+    assert "the load cell reads the nozzle pressing on the bed as a negative force" in message
+    assert "sensor_orientation is the wrong way round for this cell. " + fix + ", RESTART, then home again" in message
+    assert printer.lookup_object("toolhead").get_position()[2] > 1.0  # lifted clear after the error

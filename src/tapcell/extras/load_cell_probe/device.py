@@ -572,31 +572,51 @@ class LoadCellProbe:
         candidate: tuple[float, float] | None = None  # (trigger Z, speed) of a tap that held
         speed = speed_mm_s
         heights = []
+        reversed_g = []  # the force held after taps that held like a contact the wrong way round
+        threshold_g = settings.options.trigger_force_g
         for _ in range(HOME_TAPS):
             result, tare_counts, _, speed = self._probing_move(settings, z_min_mm, speed)
             z_mm = z_at_time_mm(result.moves, result.trigger_time_s) + self._z_frame_offset_mm()
             heights.append(z_mm)
-            if self.contact_holds_after_halt(tare_counts, settings.options.trigger_force_g):
+            force_g = self._force_after_halt(tare_counts)
+            if safety.contact_holds(force_g, threshold_g):
                 if candidate is not None and abs(z_mm - candidate[0]) <= safety.agreement_tolerance_mm(
                         self.stop_timing, speed, candidate[1]):
                     return float(result.halt_z_mm) + self._z_frame_offset_mm()
                 candidate = (z_mm, speed)
             else:
                 candidate = None
+                if safety.contact_holds(-force_g, threshold_g):
+                    reversed_g.append(float(np.median(force_g)))
             self.backend.move_to(z=float(self.backend.position[2]) + HOME_BACKOFF_MM, speed_mm_s=speed)
             speed = min(speed_mm_s, HOME_CONFIRM_SPEED_MM_S)
         found = ", ".join(f"{z:.3f}" for z in heights)
+        if len(reversed_g) == HOME_TAPS:
+            raise ProbeError(ERROR_PREFIX + self._orientation_hint(reversed_g, found))
         raise ProbeError(ERROR_PREFIX + f"G28 Z: {HOME_TAPS} taps found no bed height twice (triggers at Z={found}): "
                          "something pushes or pulls on the nozzle, or the sensor jumps; check the toolhead and the "
                          "load cell, then home again")
 
-    def contact_holds_after_halt(self, tare_counts: float, threshold_g: float) -> bool:
-        """Rest at the halt for CONTACT_CHECK_SAMPLES samples: whether the force held like a contact."""
+    def _orientation_hint(self, reversed_g: list[float], found: str) -> str:
+        """G28 Z's error when every tap pressed the bed but the cell read it as a pull."""
+        now = "inverted" if self.load_cell.options.inverted else "normal"
+        other = "normal" if self.load_cell.options.inverted else "inverted"
+        held = ", ".join(f"{force:.0f}" for force in reversed_g)
+        return (f"G28 Z: the load cell reads the nozzle pressing on the bed as a negative force ({held} g held after "
+                f"each tap at Z={found}): sensor_orientation is the wrong way round for this cell. Set "
+                f"sensor_orientation: {other} in [{self.name}] (it is {now}), RESTART, then home again")
+
+    def _force_after_halt(self, tare_counts: float) -> np.ndarray:
+        """The force over CONTACT_CHECK_SAMPLES samples of rest at the halt."""
         halt_s = self.backend.now_s
         self.backend.dwell(safety.CONTACT_CHECK_SAMPLES / self.sample_rate_sps)
         self.load_cell.pump()
         _, force_g = self._force_between(halt_s, self.backend.now_s, tare_counts)
-        return safety.contact_holds(force_g, threshold_g)
+        return force_g
+
+    def contact_holds_after_halt(self, tare_counts: float, threshold_g: float) -> bool:
+        """Rest at the halt for CONTACT_CHECK_SAMPLES samples: whether the force held like a contact."""
+        return safety.contact_holds(self._force_after_halt(tare_counts), threshold_g)
 
     def tap(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float) -> TapOutcome:
         """One full tap at the current XY (see the module docstring)."""
