@@ -34,6 +34,7 @@ ACCEPTED_SECTIONS: dict[str, str] = {
     "delayed_gcode": "timed G-code",
     "static_digital_output": "pin", "multi_pin": "pin",
     "servo": "servo",
+    "static_pwm_clock": "clock output (an ADS131M0x's pwm_clock reads its frequency)",
     "bed_tilt": "leveling",
     "bed_screws": "leveling", "screws_tilt_adjust": "leveling", "skew_correction": "leveling",
     "axis_twist_compensation": "leveling",

@@ -37,6 +37,9 @@ from tapcell.sim.pin import pin_from_params
 from tapcell.sim.scenarios import SCENARIOS
 from tapcell.sim.sensor import IndexedNoise, chip_timing, counts_from_force, pink_block_maker, window_average_sine
 
+# Chips whose samples travel in CRC-checked frames (tapcell.sim.ads131m0x_chip).
+ADS131M0X_CHIPS = ("ads131m02", "ads131m04")
+
 TAP_FORMAT = "tapcell.tap.v1"
 CHUNK_S = 0.05            # probing chunk: the trigger is fed this much data per call
 FREE_RUN_CHUNK = 4096     # samples per chunk when nothing listens to them
@@ -178,6 +181,10 @@ class VirtualPrinter:
         self._chunk_samples = max(4, round(CHUNK_S * params.sample_rate_sps))
         self._now_s = 0.0
         self._aux_sensors: list = []
+        self._frame_chip = None
+        if params.chip in ADS131M0X_CHIPS:  # frames with a CRC, read by the firmware's reader
+            from tapcell.sim.ads131m0x_chip import VirtualADS131M0x
+            self._frame_chip = VirtualADS131M0x(params.chip)
         self.truth = Truth(self)
         self.world_notice: str | None = None  # set by from_config: the scenario and what it changes
 
@@ -637,15 +644,20 @@ class VirtualPrinter:
             electrical = electrical + window_average_sine(p.hum_counts, p.hum_hz, window_end, timing.period_s,
                                                           self._hum_phase)
         counts = counts_from_force(force_g, self._counts_per_gram, self._zero_offset_counts, electrical)
+        crc_refused = np.zeros(n, dtype=bool)
         if p.glitch_rate_per_s > 0.0:
             hit = self._glitch_draw.values(k0, k1) < p.glitch_rate_per_s * timing.period_s
             bits = self._glitch_bits.values(k0, k1).astype(np.int64)
-            counts[hit] ^= (np.int64(1) << bits[hit]).astype(np.int32)
+            if self._frame_chip is not None:  # the frame's CRC catches the flipped bit
+                crc_refused = self._frame_chip.corrupted_frames(counts, hit, bits)
+            else:
+                counts[hit] ^= (np.int64(1) << bits[hit]).astype(np.int32)
         delays = self._mcu.read_delays(k0, k1)
         t_read = t_ready + delays
         counts, bad = faultlib.apply_count_faults(self._faults, k0, t_ready, counts, self._mcu.last_counts,
                                                   timing.first_ready_s, timing.period_s,
                                                   self._glitch_bits.values(k0, k1).astype(int))
+        bad = bad | crc_refused
         missing = faultlib.stream_gap_mask(self._faults, t_ready)
         late = delays > timing.period_s
         keep = ~(bad | missing | late)

@@ -48,8 +48,9 @@ MULTI_MCU_STOP_LATENCY_S = 0.025
 # The MCU polls data-ready ten times a period: a sample is read up to a tenth of a period late.
 READ_DELAY_PERIODS = 0.1
 # Extra delay from the end of a conversion window to data-ready, in periods: the ADS1220's
-# sinc3 decimator centres its response about 1.5 periods back (one more than a plain window).
-PIPELINE_PERIODS = {"hx711": 0.0, "hx717": 0.0, "ads1220": 1.0}
+# sinc3 decimator centres its response about 1.5 periods back (one more than a plain window); the
+# ADS131M0x's sinc3 filter is taken alike.
+PIPELINE_PERIODS = {"hx711": 0.0, "hx717": 0.0, "ads1220": 1.0, "ads131m02": 1.0, "ads131m04": 1.0}
 CONTACT_PHASES = (0.0, 0.25, 0.5, 0.75)   # where in a conversion window the nozzle meets the bed
 PRE_CONTACT_SAMPLES = 2
 # The prediction stops here when nothing has stopped the move: a hidden tap.
