@@ -7,21 +7,11 @@ from __future__ import annotations
 
 import pytest
 
-from machines import gcode_error, machine_config
+from machines import PROBE_SECTION, gcode_error, machine_config
 from tapcell.host.print_clock import PrintClock
 from tapcell.host.printer import Printer
 
-PROBE = """
-[load_cell_probe]
-sensor_type: hx717
-sclk_pin: PA5
-dout_pin: PA4
-sample_rate: 320
-counts_per_gram: 110
-reference_tare_counts: -38000
-z_offset: 0
-pullback_distance: 0.15
-"""
+PROBE = PROBE_SECTION.format(counts_per_gram=110, reference_tare_counts=-38000)
 HEATED = """
 [extruder]
 step_pin: PA0
