@@ -82,3 +82,25 @@ def test_tap_classifier_module_takes_a_module_path_or_a_file(tmp_path, monkeypat
         get_classifier("my_taps:Missing")
     with pytest.raises(UnknownClassifierError, match="does not exist"):
         get_classifier(str(tmp_path / "nope.py"))
+
+
+def test_the_config_names_a_classifier_file_and_a_missing_one_is_a_config_error(tmp_path):
+    from machines import PROBE_SECTION, machine_config
+    from tapcell.host.config import ConfigError
+    from tapcell.host.gcode import GCodeError
+    from tapcell.host.printer import Printer
+
+    (tmp_path / "strict.py").write_text(
+        "from tapcell.tap import TapRejected\n\n\nclass TapClassifier:\n    def __init__(self, options):\n"
+        "        pass\n\n    def classify(self, analysis, context):\n"
+        "        raise TapRejected('TOO_STRICT', 'refused by strict.py')\n")
+    probe = PROBE_SECTION.format(counts_per_gram=110, reference_tare_counts=-38000)
+    config = tmp_path / "printer.cfg"
+    config.write_text(machine_config() + probe + f"tap_classifier_module: {tmp_path / 'strict.py'}\n")
+    printer = Printer.from_config(str(config), responses=[])
+    with pytest.raises(GCodeError, match=r"last: TOO_STRICT - refused by strict.py"):
+        printer.gcode.run_script("G28\nPROBE")
+    config.write_text(machine_config() + probe + f"tap_classifier_module: {tmp_path / 'nope.py'}\n")
+    with pytest.raises(ConfigError, match=r"\[load_cell_probe\] tap_classifier_module = .*nope.py: unknown tap "
+                                          r"classifier .*does not exist"):
+        Printer.from_config(str(config), responses=[])
