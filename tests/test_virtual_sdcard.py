@@ -92,6 +92,7 @@ def test_behind_a_live_server_the_file_feeds_as_its_moves_play_and_pauses_resume
         printer.run_background()
     progress = printer.get_status()["virtual_sdcard"]["progress"]
     assert 0.1 < progress < 0.5
+    assert printer.get_status()["display_status"]["progress"] == progress  # no M73 in the file
     printer.gcode.run_script("PAUSE")
     stats = printer.get_status()["print_stats"]
     assert stats["state"] == "paused" and printer.get_status()["pause_resume"]["is_paused"] is True
