@@ -118,3 +118,15 @@ def test_print_stats_info_clears_with_zero_and_caps_the_layer(tmp_path):
     assert printer.get_status()["print_stats"]["info"] == {"total_layer": 10, "current_layer": 10}
     printer.gcode.run_script("SET_PRINT_STATS_INFO TOTAL_LAYER=0")
     assert printer.get_status()["print_stats"]["info"] == {"total_layer": None, "current_layer": None}
+
+
+def test_a_shutdown_stops_the_print_with_an_error(tmp_path):
+    moves = "".join(f"G1 X{10 + 20 * (k % 2)} F1200\n" for k in range(20))
+    printer, _, _ = sdcard_printer(tmp_path, "G28 X Y\n" + moves)
+    printer.print_clock = PrintClock(printer.backend)
+    printer.gcode.run_script("SDCARD_PRINT_FILE FILENAME=sub/part.gcode")
+    printer.run_background()
+    printer.invoke_shutdown("Shutdown due to M112 command")
+    stats = printer.get_status()["print_stats"]
+    assert stats["state"] == "error" and stats["message"] == "Printer shut down"
+    assert not printer.lookup_object("virtual_sdcard").is_active()
