@@ -5,8 +5,11 @@ and the line touchscreens wait for after a mesh."""
 
 from __future__ import annotations
 
+import json
 import time
+import urllib.error
 import urllib.parse
+import urllib.request
 
 import pytest
 from conftest import wait_for
@@ -74,11 +77,25 @@ def test_live_position_moves_during_a_g1_and_the_endstops_button_answers(stack):
     assert status == 200 and body["result"] == {"x": "TRIGGERED", "y": "open", "z": "open"}
 
 
-def test_a_file_in_the_gcodes_folder_prints_to_complete(stack):
-    (stack.data / "gcodes" / "small job.gcode").write_text(PRINT_FILE)
-    status, body = stack.get("/printer/print/start?filename=" + urllib.parse.quote("small job.gcode"),
-                             method="POST")
-    assert status == 200, body
+def upload(stack, name: str, text: str, start: bool) -> tuple[int, dict]:
+    """Mainsail's upload: a multipart POST to /server/files/upload (print=true starts it)."""
+    boundary = "tapcell-test-boundary"
+    parts = [f'--{boundary}\r\nContent-Disposition: form-data; name="print"\r\n\r\n{str(start).lower()}\r\n',
+             f'--{boundary}\r\nContent-Disposition: form-data; name="file"; filename="{name}"\r\n'
+             f"Content-Type: application/octet-stream\r\n\r\n{text}\r\n", f"--{boundary}--\r\n"]
+    request = urllib.request.Request(stack.url + "/server/files/upload", data="".join(parts).encode(), method="POST",
+                                     headers={"Content-Type": f"multipart/form-data; boundary={boundary}"})
+    try:
+        with urllib.request.urlopen(request, timeout=30.0) as answer:
+            return answer.status, json.loads(answer.read())
+    except urllib.error.HTTPError as error:
+        return error.code, json.loads(error.read() or b"{}")
+
+
+def test_a_file_uploaded_as_mainsail_does_prints_to_complete(stack):
+    status, body = upload(stack, "small job.gcode", PRINT_FILE, start=True)
+    assert status in (200, 201), body
+    assert body["print_started"] is True and (stack.data / "gcodes" / "small job.gcode").read_text() == PRINT_FILE
     states = []
 
     def complete():
