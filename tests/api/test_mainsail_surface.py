@@ -42,6 +42,11 @@ def test_objects_mainsail_reads_are_listed(stack):
     names = set(body["result"]["objects"])
     assert {"motion_report", "idle_timeout", "system_stats", "query_endstops", "virtual_sdcard",
             "print_stats"} <= names
+    # Mainsail's and Fluidd's warning banners look for these in the config they are served.
+    settings = query(stack, "configfile")["configfile"]["settings"]
+    assert {"gcode_macro pause", "gcode_macro resume", "gcode_macro cancel_print", "virtual_sdcard",
+            "pause_resume", "display_status"} <= set(settings)
+    assert settings["virtual_sdcard"]["path"] == str(stack.data / "gcodes")
     stats = query(stack, "system_stats", "idle_timeout")
     assert set(stats["system_stats"]) == {"sysload", "cputime", "memavail"} and stats["system_stats"]["memavail"] > 0
     assert stats["idle_timeout"]["state"] in ("Idle", "Ready", "Printing")
