@@ -88,6 +88,8 @@ def test_motion_report_follows_a_g1_as_it_plays(tmp_path):
     assert status["live_position"][0] == pytest.approx(100 / 60 + 100 * (0.5 - 1 / 30), abs=0.01)
     assert status["live_velocity"] == pytest.approx(100.0, abs=1e-6)
     assert printer.get_status()["idle_timeout"]["state"] == "Printing"
+    toolhead = printer.get_status()["toolhead"]  # Klipper's two clocks: queued moves end 0.533 s ahead
+    assert toolhead["print_time"] - toolhead["estimated_print_time"] == pytest.approx(1 + 1 / 30 - 0.5, abs=1e-3)
     clock.advance(0.6)
     printer.run_background()
     status = report.get_status()

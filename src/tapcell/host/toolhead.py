@@ -333,7 +333,7 @@ class Toolhead:
             "position": [*self.get_position(), self.e_position_mm],
             "extruder": "extruder",
             "print_time": now_s,
-            "estimated_print_time": now_s,
+            "estimated_print_time": float(self.printer.estimated_print_time()),
             "stalls": 0,
             "max_velocity": self.max_velocity_mm_s,
             "max_accel": self.max_accel_mm_s2,
