@@ -8,6 +8,7 @@ import pytest
 
 from machines import machine_config
 from tapcell.host.config import ConfigError
+from tapcell.host.gcode import GCodeError
 from tapcell.host.printer import Printer
 from tapcell.mcu import ads131m0x
 from tapcell.mcu.sensors import SensorConfigError
@@ -27,8 +28,9 @@ pullback_distance: 0.15
 """
 
 
-def printer_with(tmp_path, chip="ads131m02", clock="clock_freq: 8192000", extra=""):
-    (tmp_path / "printer.cfg").write_text(machine_config() + CELL.format(chip=chip, clock=clock) + extra)
+def printer_with(tmp_path, chip="ads131m02", clock="clock_freq: 8192000", extra="", world=""):
+    machine = machine_config().replace("seed: 1\n", "seed: 1\n" + world)
+    (tmp_path / "printer.cfg").write_text(machine + CELL.format(chip=chip, clock=clock) + extra)
     responses: list[str] = []
     return Printer.from_config(str(tmp_path / "printer.cfg"), responses=responses.append), responses
 
@@ -123,3 +125,21 @@ def test_probing_on_an_ads131m02(tmp_path):
     assert summary.startswith("// probe accuracy results:")
     spread_mm = float(summary.split("range ")[1].split(",")[0])
     assert spread_mm < 0.002  # 5 taps within 2 um
+
+
+def test_a_crc_failure_or_a_reset_is_named_in_the_error(tmp_path):
+    printer, _ = printer_with(tmp_path)
+    printer.gcode.run_script("LOAD_CELL_TARE")
+    printer.backend.inject_fault("chip_reset", gap_s=0.02)  # a brown-out: the chip restarts with its defaults
+    with pytest.raises(GCodeError) as info:
+        printer.gcode.run_script("LOAD_CELL_TARE")
+    assert "errors while sampling (the ADS131M02 reported a reset (a brown-out on its supply): its settings are " \
+           "gone and its frames are refused until FIRMWARE_RESTART sets it up again)" in str(info.value)
+    printer.backend.dwell(5.0)
+    with pytest.raises(GCodeError, match="reported a reset"):  # sticky: still refused seconds later
+        printer.gcode.run_script("LOAD_CELL_TARE")
+    printer.gcode.run_script("FIRMWARE_RESTART\nLOAD_CELL_TARE")  # a new chip set-up
+    # A bit flipped on the wire: the frame's CRC fails, and the error says so.
+    printer, _ = printer_with(tmp_path, world="glitch_rate_per_s: 50\n")
+    with pytest.raises(GCodeError, match=r"the ADS131M02's frames failed their CRC \(\d+ so far\): check the SPI"):
+        printer.gcode.run_script("LOAD_CELL_TARE")

@@ -212,6 +212,14 @@ DIAGNOSTIC_TIME_S = 10.0
 DIAGNOSTIC_PROGRESS_EVERY_S = 2.0
 
 
+def sensor_error_note(backend) -> str:
+    """' (why)' when the sensor can tell why it refused samples (an ADS131M0x's CRC failures or its
+    reset; the backend's `sensor_error_note`), else ''."""
+    note_of = getattr(backend, "sensor_error_note", None)
+    note = note_of() if note_of is not None else ""
+    return f" ({note})" if note else ""
+
+
 class LoadCellError(GCodeError):
     """A load-cell operation failed (no samples, sensor errors, saturation...)."""
 
@@ -300,13 +308,14 @@ class LoadCell:
     def collect_checked(self, duration_s: float) -> SampleBatch:
         """`collect`, refusing spans with no samples, sensor errors or saturation."""
         batch = self.collect(duration_s)
-        if len(batch.counts) == 0:
+        if len(batch.counts) == 0 and not batch.errors:
             raise LoadCellError(
                 f"No samples returned from sensor! ({self.name}: nothing in {duration_s:g} s;"
                 " check the sensor wiring and its sensor_type / pins)"
             )
-        if batch.errors:
-            raise LoadCellError(f"Sensor reported {batch.errors} errors while sampling")
+        if batch.errors:  # samples that came and were refused (a chip that says why is asked)
+            raise LoadCellError(f"Sensor reported {batch.errors} errors while sampling"
+                                f"{sensor_error_note(self.printer.backend)}")
         if np.any(scale.saturated_mask(batch.counts, self.counts_range)):
             raise LoadCellError("Some samples are saturated (+/-100%)")
         return batch
@@ -420,7 +429,8 @@ class _CalibrationSession:
         if len(batch.counts) == 0:
             raise LoadCellError(f"No samples returned from sensor! ({self.load_cell.name})")
         if batch.errors:
-            raise LoadCellError(f"Sensor reported {batch.errors} errors while sampling")
+            raise LoadCellError(f"Sensor reported {batch.errors} errors while sampling"
+                                f"{sensor_error_note(self.load_cell.printer.backend)}")
         loaded_counts = float(np.mean(batch.counts))
         result = scale.evaluate_calibration(
             self.tare_counts, loaded_counts, grams,

@@ -229,6 +229,11 @@ class VirtualPrinter:
     def now_s(self) -> float:
         return self._now_s
 
+    def sensor_error_note(self) -> str:
+        """Why the sensor's samples were refused, when the chip can tell ('' otherwise): an
+        ADS131M0x's CRC failures or its reset."""
+        return self._frame_chip.error_note() if self._frame_chip is not None else ""
+
     @property
     def sensor_info(self) -> dict:
         p = self.params
@@ -658,6 +663,10 @@ class VirtualPrinter:
                                                   timing.first_ready_s, timing.period_s,
                                                   self._glitch_bits.values(k0, k1).astype(int))
         bad = bad | crc_refused
+        if self._frame_chip is not None:  # a reset chip says so in its next frame, and is refused since
+            resets = [f.start_s + f.params["gap_s"] for f in self._faults
+                      if f.name == "chip_reset" and f.start_s is not None]
+            bad = bad | self._frame_chip.after_reset(counts, t_ready, resets)
         missing = faultlib.stream_gap_mask(self._faults, t_ready)
         late = delays > timing.period_s
         keep = ~(bad | missing | late)

@@ -35,7 +35,7 @@ import numpy as np
 from tapcell.host.backend import Backend
 from tapcell.host.config import pin_mcu
 from tapcell.filters import FilterDesignError, FilterOptions, design_firmware_filter
-from tapcell.extras.load_cell import LoadCell, read_load_cell_options
+from tapcell.extras.load_cell import LoadCell, read_load_cell_options, sensor_error_note
 from tapcell.mcu import sensors
 from tapcell.mcu.trigger import MAX_STUCK_SAMPLES, FirmwareTrigger, TriggerError, TriggerParams
 from tapcell.extras.probe.approach import NO_CONTACT_DEPTH_MM, BedHeightMemory, approach_height_mm, no_contact_message
@@ -292,7 +292,8 @@ class LoadCellProbe:
             oldest_s = max(usable_from_s, now_s - (needed + TARE_FRESH_MARGIN_SAMPLES) * period_s)
             t_s, counts, errors = self.history.between(oldest_s, now_s)
             if errors:
-                raise ProbeError(ERROR_PREFIX + f"sensor reported {errors} errors while taring")
+                raise ProbeError(ERROR_PREFIX + f"sensor reported {errors} errors while taring"
+                                 f"{sensor_error_note(self.backend)}")
             if len(counts) >= needed:
                 break
             if now_s >= deadline_s:

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tapcell.extras.load_cell import sensor_error_note
 from tapcell.extras.load_cell_probe.options import ERROR_PREFIX
 from tapcell.mcu.trigger import FirmwareTrigger, TriggerError
 from tapcell.mesh.prusa import TARE_SAMPLE_COUNT, TARE_SETTLE_S
@@ -64,7 +65,8 @@ class ThresholdProber:
         self.backend.dwell(settle_s)
         batch = self.load_cell.collect(sample_count / self.device.sample_rate_sps)
         if batch.errors:
-            raise ProbeError(ERROR_PREFIX + f"sensor reported {batch.errors} errors while taring")
+            raise ProbeError(ERROR_PREFIX + f"sensor reported {batch.errors} errors while taring"
+                             f"{sensor_error_note(self.device.backend)}")
         if len(batch.counts) == 0:
             raise ProbeError(ERROR_PREFIX + "timed out waiting for sensor data")
         counts = float(np.mean(batch.counts[-sample_count:]))
