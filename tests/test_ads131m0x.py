@@ -143,3 +143,19 @@ def test_a_crc_failure_or_a_reset_is_named_in_the_error(tmp_path):
     printer, _ = printer_with(tmp_path, world="glitch_rate_per_s: 50\n")
     with pytest.raises(GCodeError, match=r"the ADS131M02's frames failed their CRC \(\d+ so far\): check the SPI"):
         printer.gcode.run_script("LOAD_CELL_TARE")
+
+
+def test_a_corrupt_frame_fault_fails_the_crc_instead_of_reaching_the_host():
+    results = {}
+    for chip, rate in (("hx717", 320), ("ads131m02", 500)):
+        vp = VirtualPrinter.from_scenario("clean", seed=3, chip=chip, sample_rate_sps=rate)
+        vp.dwell(1.0)
+        vp.take_samples()
+        vp.inject_fault("corrupt_frame", count=3, spacing_s=0.25)
+        vp.dwell(2.0)
+        batch = vp.take_samples()
+        far_off = int(np.sum(np.abs(batch.counts - np.median(batch.counts)) > 20000))
+        results[chip] = (far_off, batch.errors, vp.sensor_error_note())
+    assert results["hx717"] == (3, 0, "")
+    assert results["ads131m02"] == (0, 3, "the ADS131M02's frames failed their CRC (3 so far): check the SPI "
+                                           "wiring, its grounding and the cable length")

@@ -663,7 +663,16 @@ class VirtualPrinter:
                                                   timing.first_ready_s, timing.period_s,
                                                   self._glitch_bits.values(k0, k1).astype(int))
         bad = bad | crc_refused
-        if self._frame_chip is not None:  # a reset chip says so in its next frame, and is refused since
+        if self._frame_chip is not None:
+            # A corrupt_frame fault's flipped bit fails that frame's CRC; a reset chip says so in its
+            # next frame and is refused from then on.
+            corrupt = np.zeros(n, dtype=bool)
+            for f in self._faults:
+                if f.name == "corrupt_frame" and f.start_s is not None:
+                    for k in faultlib.corrupt_frame_indices(f, timing.first_ready_s, timing.period_s):
+                        if k0 <= k < k1:
+                            corrupt[k - k0] = True
+            bad = bad | self._frame_chip.corrupted_frames(counts, corrupt, self._glitch_bits.values(k0, k1))
             resets = [f.start_s + f.params["gap_s"] for f in self._faults
                       if f.name == "chip_reset" and f.start_s is not None]
             bad = bad | self._frame_chip.after_reset(counts, t_ready, resets)
