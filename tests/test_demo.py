@@ -69,6 +69,17 @@ def test_make_demo_default_runs(tmp_path, capsys, monkeypatch):
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert len(read_tap_file(tmp_path / "last-taps.jsonl")) == demo.ACCURACY_SAMPLES + 1  # + PROBE HOME=Z
     assert out.index("> PROBE_ACCURACY") < out.index("> NOZZLE_CLEANUP") < out.index("> BED_MESH_CALIBRATE")
+    # The explanations quote the printer's own numbers (the dwell was once said to be 4 samples).
+    flat = " ".join(out.split())
+    assert "until the load cell reads 75 g, stop, wait 10 samples (31 ms at 320 samples/s), pull back 0.15 mm" in flat
+    assert "{" not in out
+    # G28 homes Z mid-bed, a trigger's depth into it: the first PROBE reads a few hundredths above 0.
+    first_probe_z = float(re.search(r"> PROBE HOME=Z\n(?:.*\n)*?    // probe at 117\.500,117\.500 is z=(-?\d+\.\d+)", out)[1])
+    assert 0.02 < first_probe_z < 0.05  # measured 0.0338
+    # Two clocks, each labelled: the printer's and this computer's.
+    printer_s = float(re.search(r"49/49 points, printer time (\d+\.\d) s, this computer's \d+:\d\d:\d\d", flat)[1])
+    done_s = float(re.search(r"Mesh 'default' done in (\d+\.\d) s", out)[1])
+    assert 0.0 <= done_s - printer_s <= 0.2  # the command also counts the lift after the last point
     # The mesh against the true bed: each probed point within a few µm (measured 1.75 µm at worst).
     worst_um = float(re.search(r"at the probed points:\s+largest\s+error\s+(\d+\.\d+)\s+um", out)[1])
     assert worst_um < 2.5

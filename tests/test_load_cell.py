@@ -9,6 +9,7 @@ import textwrap
 
 import pytest
 
+from tapcell.extras import load_cell
 from tapcell.tools import frontend
 from tapcell.host.config import ConfigError
 from tapcell.host.gcode import GCodeError
@@ -96,8 +97,7 @@ def test_whole_calibration_session_through_tapcell_run(tmp_path, capsys):
         r"// A 500 g weight now rests on the load cell",
         r"> CALIBRATE GRAMS=500",
         rf"// Calibration value: {NUM}% \({INT}\), Counts/gram: (\d+\.\d{{6}}), Total capacity: \+/- {NUM}Kg",
-        r"// WARNING: Load cell capacity is more than 25kg! Readings will be coarse; consider a higher gain"
-        r" setting or a more sensitive load cell\.",
+        # 34.9 kg of capacity at the HX717's highest gain: no "capacity is more than 25kg" advice to follow.
         r"// Accept calibration with the ACCEPT command\.",
         r"> ACCEPT",
         r"// Load cell calibration settings:",
@@ -124,13 +124,32 @@ def test_whole_calibration_session_through_tapcell_run(tmp_path, capsys):
     assert loaded_counts == pytest.approx(-38000 + 500 * 240, abs=200)
     assert counts_per_gram == pytest.approx(240.0, rel=0.002)
     assert float(found[12][4]) == pytest.approx((0x7FFFFF + tare_counts) / counts_per_gram / 1000, abs=0.01)
-    assert float(found[18][1]) == counts_per_gram
-    assert int(found[19][1]) == tare_counts
+    assert float(found[17][1]) == counts_per_gram
+    assert int(found[18][1]) == tare_counts
     # After calibrating with 500 g, 1000 g reads as 1000 g within 0.5 %.
-    assert float(found[30][1]) == pytest.approx(1000.0, rel=0.005)
+    assert float(found[29][1]) == pytest.approx(1000.0, rel=0.005)
     saved = open(config).read()
     assert f"#*# counts_per_gram = {counts_per_gram:.6f}" in saved
     assert f"#*# reference_tare_counts = {tare_counts}" in saved
+
+
+@pytest.mark.parametrize("sensor_type, gain, higher", [
+    ("hx717", "A-128", None), ("hx717", "A-64", "A-128"), ("hx717", "B-8", "B-64"), ("hx717", "B-64", None),
+    ("hx711", "A-64", "A-128"), ("hx711", "B-32", None), ("ads1220", "64", "128"), ("ads1220", "128", None),
+])
+def test_higher_gain_stays_on_the_channel(sensor_type, gain, higher):
+    assert load_cell.higher_gain(sensor_type, gain) == higher
+
+
+def test_the_capacity_warning_names_the_higher_gain_only_when_there_is_one(tmp_path):
+    """The issue's case: a correct calibration at the HX717's highest gain warned 'capacity is more than 25kg'."""
+    script = "LOAD_CELL_CALIBRATE\nTARE\nSIM_PLACE_WEIGHT GRAMS=1000\nCALIBRATE GRAMS=1000\n"
+    printer, responses = start(tmp_path, SIM_240 + CELL)
+    assert [line for line in run(printer, responses, script) if "WARNING" in line] == []
+    printer, responses = start(tmp_path, SIM_240 + CELL + "gain: A-64\n")
+    warnings = [line for line in run(printer, responses, script) if "WARNING" in line]
+    assert warnings == ["// WARNING: Load cell capacity is more than 25kg! Readings will be coarse; consider a "
+                        "higher gain setting (gain: A-128) or a more sensitive load cell."]
 
 
 def test_restart_keeps_the_calibration_and_a_failed_write_keeps_the_old_file(tmp_path, monkeypatch):

@@ -152,15 +152,18 @@ def test_status_command(tmp_path, fake_modules):
     printer, responses, _ = build(tmp_path)
     responses.clear()
     printer.gcode.run_script("STATUS OBJECT=load_cell")
-    assert responses == ["// counts_per_gram: 10", "// is_calibrated: True"]
+    # As JSON, as Moonraker's clients read status (no Python reprs: true, null, "text").
+    assert responses == ["// counts_per_gram: 10.0", "// is_calibrated: true"]
     responses.clear()
     printer.gcode.run_script("STATUS")
     assert responses == [
-        "// Printer is ready",
-        "// virtual_printer: time_s=42 scenario=noisy-mains",
-        "// printer: max_velocity=300 steppers=2",
-        "// load_cell: counts_per_gram=10 is_calibrated=True",
-        "// load_cell right: counts_per_gram=None is_calibrated=False",
+        # Ready in Klipper's sense, and what is still to do before probing, with its command.
+        "// Printer is ready; before probing: load_cell right is not calibrated: run LOAD_CELL_CALIBRATE "
+        "LOAD_CELL=right (then SAVE_CONFIG)",
+        '// virtual_printer: time_s=42.0 scenario="noisy-mains"',
+        "// printer: max_velocity=300.0 steppers=2",
+        "// load_cell: counts_per_gram=10.0 is_calibrated=true",
+        "// load_cell right: counts_per_gram=null is_calibrated=false",
     ]
     with pytest.raises(GCodeError) as info:
         printer.gcode.run_script("STATUS OBJECT=bed_mesh")
@@ -253,7 +256,7 @@ def test_save_config_round_trip_and_restart(tmp_path, fake_modules):
         "// toolhead ready",
         "// Printer is ready",
         "// counts_per_gram: 87.9441",
-        "// is_calibrated: True",
+        "// is_calibrated: true",
     ]
     assert printer.lookup_object("load_cell right").counts_per_gram == 87.94408
     assert path.read_text().startswith(CONFIG)
@@ -295,8 +298,8 @@ def test_restart_with_a_broken_config_halts_until_fixed(tmp_path, fake_modules):
 
 def test_example_config_parses():
     config = ConfigFile.read(DEFAULT_CONFIG)
-    assert config.sections()[:7] == ["virtual_printer", "printer", "stepper_x", "stepper_y", "stepper_z",
-                                     "load_cell_probe", "bed_mesh"]
+    assert config.sections()[:8] == ["virtual_printer", "printer", "stepper_x", "stepper_y", "stepper_z",
+                                     "safe_z_home", "load_cell_probe", "bed_mesh"]
     # What Mainsail and Fluidd look for to pause, resume and cancel a print.
     assert {"pause_resume", "display_status", "gcode_macro PAUSE", "gcode_macro RESUME",
             "gcode_macro CANCEL_PRINT"} <= set(config.sections())

@@ -64,9 +64,12 @@ def test_calibration_warnings_capacity_and_orientation():
     assert tiny.counts_per_gram == pytest.approx(10_000)
     assert any("less than 1kg" in w for w in tiny.warnings)
     assert tiny.capacity_kg == pytest.approx(0.8388607)
-    huge = scale.evaluate_calibration(0, 100_000, 500, any_saturated=False)
+    huge = scale.evaluate_calibration(0, 100_000, 500, any_saturated=False, higher_gain="A-128")
     assert huge.capacity_kg == pytest.approx(0x7FFFFF / 200 / 1000)
-    assert any("more than 25kg" in w for w in huge.warnings)
+    assert huge.warnings == ("WARNING: Load cell capacity is more than 25kg! Readings will be coarse; consider a "
+                             "higher gain setting (gain: A-128) or a more sensitive load cell.",)
+    # Already at the highest gain: nothing to advise, so no warning.
+    assert scale.evaluate_calibration(0, 100_000, 500, any_saturated=False).warnings == ()
     wrong_way = scale.evaluate_calibration(0, -200_000, 500, any_saturated=False)
     assert wrong_way.error is None
     assert wrong_way.warnings == (

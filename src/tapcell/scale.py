@@ -114,13 +114,15 @@ def evaluate_calibration(
     any_saturated: bool,
     inverted: bool = False,
     counts_range: CountsRange = SENSOR_24BIT,
+    higher_gain: str | None = None,
 ) -> CalibrationResult:
     """Checks a calibration reading and derives counts_per_gram and the capacity.
 
     Refused (error set, no numbers): a saturated reading, a reading identical to the
     tare, or one less than 1 % of the range away from it (too little force or gain
-    for a trustworthy slope). Warnings: capacity outside 1-25 kg, and a reading that
-    moved the opposite way to the configured orientation.
+    for a trustworthy slope). Warnings: capacity under 1 kg; over 25 kg when the sensor has
+    a higher gain to set (`higher_gain`, its name; None: already the highest, so nothing to
+    advise); and a reading that moved the opposite way to the configured orientation.
     """
 
     def refused(message: str) -> CalibrationResult:
@@ -151,10 +153,10 @@ def evaluate_calibration(
             f"WARNING: Load cell capacity is less than {MIN_SENSIBLE_CAPACITY_KG:g}kg! A probing tap or"
             " a heavy object may saturate the sensor; consider a lower gain setting."
         )
-    if capacity > MAX_SENSIBLE_CAPACITY_KG:
+    if capacity > MAX_SENSIBLE_CAPACITY_KG and higher_gain is not None:
         warnings.append(
             f"WARNING: Load cell capacity is more than {MAX_SENSIBLE_CAPACITY_KG:g}kg! Readings will be"
-            " coarse; consider a higher gain setting or a more sensitive load cell."
+            f" coarse; consider a higher gain setting (gain: {higher_gain}) or a more sensitive load cell."
         )
     pressed_positive = loaded_counts > tare_counts
     if pressed_positive == inverted:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -124,8 +125,8 @@ def test_heat_map_png_has_two_panels_with_truth(tmp_path):
     mesh = build_mesh(PROBED, GRID, resolve_interpolation("lagrange", (3, 3))[0])
     single = write_mesh_png(tmp_path / "mesh.png", mesh, samples_per_axis=21)
     double = write_mesh_png(tmp_path / "mesh_and_error.png", mesh, lambda x, y: 0.0003 * x, samples_per_axis=21)
-    assert matplotlib.image.imread(single).shape[:2] == (480, 550)
-    assert matplotlib.image.imread(double).shape[:2] == (480, 1100)
+    assert matplotlib.image.imread(single).shape[:2] == (520, 550)
+    assert matplotlib.image.imread(double).shape[:2] == (520, 1100)
 
 
 def test_heat_map_in_mm_with_the_meshs_one_range():
@@ -142,3 +143,34 @@ def test_heat_map_in_mm_with_the_meshs_one_range():
     assert height.images[0].get_clim() == (low, high)
     assert float(np.max(height.images[0].get_array())) == pytest.approx(high)  # mm, not µm
     assert [t.get_text() for t in height.get_legend().get_texts()] == ["probed points"]
+
+
+def test_heat_map_shows_edge_points_whole_keeps_the_legend_off_the_map_and_marks_the_worst_spot():
+    """The issue's pictures: edge dots cut in half by the frame, the legend over the map, the error
+    map without its worst spot or a word that only a simulator knows the true bed."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    mesh = build_mesh(PROBED, GRID, resolve_interpolation("lagrange", (3, 3))[0])
+
+    def truth(x, y):
+        return 0.0003 * x + 0.00002 * (x - 60.0) ** 2 * (y > 150)
+
+    figure = mesh_figure(mesh, truth, samples_per_axis=21)
+    FigureCanvasAgg(figure).draw()
+    height, _, error, _ = figure.axes
+    probed = GRID.probe_points_mm()
+    for axes in (height, error):
+        (low_x, high_x), (low_y, high_y) = axes.get_xlim(), axes.get_ylim()
+        assert low_x < probed[:, 0].min() and probed[:, 0].max() < high_x
+        assert low_y < probed[:, 1].min() and probed[:, 1].max() < high_y
+        # The legend sits below the map, not on it.
+        assert axes.get_legend().get_window_extent().y1 < axes.get_window_extent().y0
+    assert error.get_title().startswith("Mesh - true bed (simulator only: a real printer\ndoes not know its true bed)")
+    summary = mesh_error(mesh, truth, samples_per_axis=21)
+    (label,) = [t.get_text() for t in error.get_legend().get_texts() if t.get_text().startswith("largest")]
+    x_mm, y_mm = (float(v) for v in re.search(r"at X (\S+) Y (\S+)$", label).groups())
+    worst_um = float(re.search(r"largest error ([+-]\d+\.\d) µm", label).group(1))
+    assert abs(worst_um) == pytest.approx(summary.max_abs_over_area_um, abs=0.05)
+    assert (x_mm, y_mm) == pytest.approx(summary.worst_over_area_xy_mm, abs=0.05)
+    assert abs((mesh.z_at(np.array(x_mm), np.array(y_mm)) - truth(x_mm, y_mm)) * 1000.0) == pytest.approx(
+        abs(worst_um), abs=0.05)

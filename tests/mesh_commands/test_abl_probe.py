@@ -30,10 +30,13 @@ def test_two_pass_weighting_and_topology(abl_printer, make_printer):
     assert len(points) == 9
     for point in points:
         assert point["z_mm"] == pytest.approx(0.4 * point["z_fast_mm"] + 0.6 * point["z_slow_mm"], abs=1e-12)
-    # Serpentine order into the matrix: point 4 (index 3) is the right end of the middle row.
+    # Serpentine order into the matrix: point 4 (index 3) is the right end of the middle row; every
+    # point is raised by the offset one analysed tap found at the middle point (index 4).
+    offset_mm = status["last_calibration"]["tap_offset_mm"]
+    assert status["last_calibration"]["tap_offset_xy_mm"] == [117.5, 117.5]
     probed = np.array(status["probed_matrix"])
-    assert probed[1, 2] == pytest.approx(points[3]["z_mm"], abs=1e-6)
-    assert probed[2, 0] == pytest.approx(points[6]["z_mm"], abs=1e-6)
+    assert probed[1, 2] == pytest.approx(points[3]["z_mm"] + offset_mm, abs=1e-6)
+    assert probed[2, 0] == pytest.approx(points[6]["z_mm"] + offset_mm, abs=1e-6)
     # The bed is tilted 0.4 mm across X (235 mm) and -0.25 mm across Y.
     topology = status["last_calibration"]["topology"]
     assert topology["tilt_x_mm_per_mm"] == pytest.approx(0.4 / 235.0, abs=0.0002)
@@ -47,9 +50,12 @@ def test_two_pass_weighting_and_topology(abl_printer, make_printer):
     toolhead = abl_printer.lookup_object("toolhead")
     xs, ys = np.meshgrid([20.0, 117.5, 215.0], [20.0, 117.5, 215.0])
     truth = abl_printer.backend.truth.contact_z_at(xs, ys) + toolhead.frame_offset_mm["z"]
-    error_um = (probed - truth) * 1000.0
+    error_um = (probed - offset_mm - truth) * 1000.0
     # measured (seeds 1-6): 15-17 um spread (a sample of travel is 25 um at 8 mm/s), mean -48..-52 um
     assert np.ptp(error_um) < 25.0 and -58.0 < error_um.mean() < -42.0
+    # The tap takes that out: what is left is the spread.
+    corrected_um = (probed - truth) * 1000.0
+    assert abs(corrected_um.mean()) < 8.0 and np.abs(corrected_um).max() < 20.0
 
 
 def test_no_contact_before_the_travel_limit_stops(abl_printer):

@@ -119,8 +119,9 @@ def test_preload_beyond_force_safety_limit_refuses_before_moving(prusa_printer):
 def test_mesh_tares_once_per_point_plus_reference(prusa_printer, make_printer):
     gcode = prusa_printer.gcode
     gcode.run_script("G28\nBED_MESH_CALIBRATE METHOD=prusa")
-    assert make_printer.responses[-2] == ("// Prusa-matched mesh: threshold 125 g, 10 tares for 9 points "
+    assert make_printer.responses[-3] == ("// Prusa-matched mesh: threshold 125 g, 10 tares for 9 points "
                                           "(0 re-tares), 9 attempts")
+    assert make_printer.responses[-2].startswith("// METHOD=prusa offset: a tap at 117.5,117.5 found the bed at Z=")
     mesh = prusa_printer.get_status()["bed_mesh"]
     assert mesh["profile_name"] == "default" and np.array(mesh["probed_matrix"]).shape == (3, 3)
 

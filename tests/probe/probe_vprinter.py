@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,10 @@ def printer_text(scenario: str = "clean", probe_options: str = "", virtual_print
     `probe_options`: lines added to [load_cell_probe]; `sections`: whole sections added at the end."""
     # The extra [virtual_printer] lines go after the example's own (scenario, seed): later values win.
     text = EXAMPLE.read_text().replace("scenario: clean\nseed: 1\n", f"scenario: {scenario}\nseed: 1\n{virtual_printer}\n")
+    # These tests measure probing after a plain G28 (Z homed where X and Y homed, no z_hop): the
+    # example's [safe_z_home] (Z homed mid-bed, 5 mm hop) is for users and is tested on its own.
+    text = re.sub(r"(?ms)^\[safe_z_home\]\n.*?(?=^\[)", "", text)
+    assert "[safe_z_home]" not in text
     for old, new in (replace or {}).items():
         assert old in text, old
         text = text.replace(old, new)

@@ -20,7 +20,7 @@ from tapcell.tap import read_tap_file
 
 def test_uncalibrated_probe_refuses(tmp_path):
     printer, _ = make_printer(tmp_path, calibrate=False, home=False)
-    with pytest.raises(GCodeError, match=r"^Load Cell Probe Error: Load Cell not calibrated$"):
+    with pytest.raises(GCodeError, match=r"^Load Cell Probe Error: Load Cell not calibrated: run LOAD_CELL_CALIBRATE \(then SAVE_CONFIG to keep it\)$"):
         printer.gcode.run_script("G28")
 
 

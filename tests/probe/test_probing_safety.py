@@ -213,7 +213,7 @@ def test_an_mcu_reset_lifts_the_nozzle_says_so_and_unhomes(tmp_path):
     assert peak_g < 10.0 and clearance_mm > 1.5 and lifted(responses)   # it stopped as the nozzle met the bed
     assert printer.lookup_object("toolhead").status()["homed_axes"] == ""
     assert gcode_error(printer, "G1 Z5") == "Must home axis first: Z (run G28)"
-    assert gcode_error(printer, "PROBE") == "Must home before probe"
+    assert gcode_error(printer, "PROBE") == "Must home before probe (run G28)"
     responses.clear()
     printer.gcode.run_script("G28\nG1 X110 Y110 F6000\nPROBE")       # homed again, it probes again
     assert any(line.startswith("// Result is z=") for line in responses)

@@ -14,6 +14,7 @@ from hypothesis import strategies as st
 from tapcell.tap import AnalysisOptions, Classification, TapData, analyze_tap, get_classifier, tap_to_json_dict
 from tapcell.tap import classifiers
 from tapcell.tap.classifiers import UnknownClassifierError, quality_components, quality_score
+from tapcell.tap.cli import _parser
 from tapcell.tap.cli import main as analyze_main
 from tapcell.tap.model import Move
 from tapcell.tap.synth import synth_tap
@@ -170,6 +171,18 @@ def test_cli_json_and_exit_codes(tmp_path, capsys):
     captured = capsys.readouterr()
     assert "missing key 'time', 'force'" in captured.err and "yes" in captured.out
     assert (tmp_path / "p.png").stat().st_size > 10_000
+    assert captured.out.splitlines()[-1] == f"plot {tmp_path / 'p.png'}: {good}"
+    # Several taps: p.png, p-2.png, p-3.png, as --help says; each file named with its tap.
+    three = tmp_path / "three.jsonl"
+    three.write_text("\n".join(json.dumps(tap_to_json_dict(synth_tap(seed=s))) for s in (3, 4, 5)) + "\n")
+    assert analyze_main(["--json", str(three), "--plot", str(tmp_path / "t.png")]) == 0
+    captured = capsys.readouterr()
+    assert len(json.loads(captured.out)) == 3
+    assert captured.err.splitlines() == [f"plot {tmp_path / name}: {three}#{n}"
+                                         for n, name in enumerate(("t.png", "t-2.png", "t-3.png"), start=1)]
+    assert all((tmp_path / name).stat().st_size > 10_000 for name in ("t.png", "t-2.png", "t-3.png"))
+    help_text = " ".join(_parser().format_help().split())
+    assert "the first to OUT.png, the next to OUT-2.png, OUT-3.png" in help_text and "OUT-1.png" not in help_text
     assert analyze_main(["--set", "tap_classifier=nope", str(good)]) == 2
     assert "unknown tap_classifier 'nope'" in capsys.readouterr().err
 

@@ -70,6 +70,22 @@ class LoadCellOptions:
         return self.counts_per_gram is not None and self.reference_tare_counts is not None
 
 
+def higher_gain(sensor_type: str, gain: str) -> str | None:
+    """The next higher gain the sensor offers, as written in a config; None at the top (or for a
+    sensor whose gains this does not know). An HX71x stays on its channel: B-64 is not A-128's
+    neighbour, it reads other pins."""
+    if sensor_type in sensors.HX71X_GAINS:
+        channel, _, value = gain.partition("-")
+        on_channel = [int(g.partition("-")[2]) for g in sensors.HX71X_GAINS[sensor_type]
+                      if g.startswith(channel + "-")]
+        higher = sorted(v for v in on_channel if v > int(value))
+        return f"{channel}-{higher[0]}" if higher else None
+    if sensor_type == "ads1220":
+        higher = [g for g in sensors.ADS1220_GAINS if g > int(gain)]
+        return str(higher[0]) if higher else None
+    return None
+
+
 def _read_hx71x_options(section: ConfigSection, chip: str) -> dict:
     rates = sensors.SAMPLE_RATES_SPS[chip]
     return dict(
@@ -436,6 +452,7 @@ class _CalibrationSession:
             self.tare_counts, loaded_counts, grams,
             any_saturated=bool(np.any(scale.saturated_mask(batch.counts, self.load_cell.counts_range))),
             inverted=self.load_cell.options.inverted, counts_range=self.load_cell.counts_range,
+            higher_gain=higher_gain(self.load_cell.options.sensor_type, self.load_cell.options.gain),
         )
         if result.error:
             self.result = None

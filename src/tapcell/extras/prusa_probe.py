@@ -150,7 +150,7 @@ class PrusaProbe:
         prober = self.prober()
         toolhead = prober.toolhead
         if not toolhead.is_z_homed():
-            raise gcmd.error("Must home before probe")
+            raise gcmd.error("Must home before probe (run G28)")
         z_min = toolhead.z_position_min()
         t = self.thresholds
         with prober.device.guarded():

@@ -47,7 +47,7 @@ class SafeZHome:
             return
         toolhead = self.toolhead
         if not {"x", "y"} <= toolhead.homed_axes:
-            raise gcmd.error("Must home X and Y axes first")
+            raise gcmd.error("Must home X and Y axes first (run G28, or G28 X Y)")
         previous_xy = toolhead.get_position()[:2]
         toolhead.move_to(x=self.home_xy[0], y=self.home_xy[1], speed_mm_s=self.speed_mm_s)
         self.home_original(homing_command(self.printer, ["Z"]))

@@ -42,7 +42,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from tapcell import __version__
+from tapcell import __version__, package_files
 from tapcell.host.config import ConfigError
 from tapcell.host.gcode import GCodeError, parse_line
 from tapcell.host import load_cell_streams
@@ -674,9 +674,7 @@ class ApiServer:
 
 def _software_root() -> Path:
     """Where tapcell's files are: the checkout (with docs/ and examples/) or the installed package."""
-    package = Path(__file__).resolve().parents[1]
-    checkout = package.parents[1]
-    return checkout if (checkout / "docs").is_dir() else package
+    return package_files.software_root()
 
 
 # ---------------------------------------------------------------------------------------------

@@ -455,6 +455,11 @@ class GCodeDispatch:
     def get_command_help(self) -> dict[str, str]:
         return dict(self._help)
 
+    def known_parameters(self, command: str) -> set[str]:
+        """The parameters `command` has read so far in this session (what the unknown-parameter
+        warning counts as known)."""
+        return set(self._known_parameters.get(command, ()))
+
     # -- running -------------------------------------------------------------
 
     def run_script(self, text: str, caller: str | None = None) -> None:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import difflib
 import importlib
+import json
 import pkgutil
 import time
 from typing import Any, Callable
@@ -360,11 +361,19 @@ class Printer:
             gcmd.respond_info("\n".join(f"{key}: {_format_status_value(value)}"
                                         for key, value in status[name].items()))
             return
-        lines = [self.state_message]
+        lines = [self.state_summary(status)]
         lines += [f"Warning: {warning}" for warning in self.warnings]
         lines += [f"{obj}: " + " ".join(f"{key}={_format_status_value(value)}" for key, value in fields.items())
                   for obj, fields in status.items()]
         gcmd.respond_info("\n".join(lines))
+
+    def state_summary(self, status: dict | None = None) -> str:
+        """The state message and, when ready, what is still to do before probing, each with the
+        command that does it (a fresh printer is "ready" in Klipper's sense long before it can home)."""
+        if self.state != "ready":
+            return self.state_message
+        steps = setup_steps(self.get_status() if status is None else status)
+        return f"{self.state_message}; before probing: {'; '.join(steps)}" if steps else self.state_message
 
     def _cmd_restart(self, gcmd: GCodeCommand) -> None:
         try:
@@ -382,8 +391,40 @@ class Printer:
         self._cmd_restart(gcmd)
 
 
+def setup_steps(status: dict) -> list[str]:
+    """What a printer's status says is still to do before it can probe: an uncalibrated load cell
+    (each cell once: `load_cell` may name the probe's cell too) and axes not homed."""
+    steps = []
+    uncalibrated = {name: fields for name, fields in status.items()
+                    if (name in ("load_cell", "load_cell_probe") or name.startswith("load_cell "))
+                    and fields.get("is_calibrated") is False}
+    if "load_cell" in uncalibrated and "load_cell_probe" in uncalibrated:
+        del uncalibrated["load_cell"]  # the probe's cell, reported under both names
+    for name in sorted(uncalibrated):
+        command = "LOAD_CELL_CALIBRATE" + (f" LOAD_CELL={name.split(' ', 1)[1]}" if " " in name else "")
+        steps.append(f"{name} is not calibrated: run {command} (then SAVE_CONFIG)")
+    homed = status.get("toolhead", {}).get("homed_axes")
+    if homed is not None and homed != "xyz":
+        steps.append(f"not homed{f' (homed: {homed})' if homed else ''}: run G28")
+    return steps
+
+
 def _format_status_value(value: Any) -> str:
+    """A status value as JSON (what Moonraker clients see), floats to 6 significant digits."""
+    return json.dumps(_rounded(value), default=_plain)
+
+
+def _plain(value: Any) -> Any:
+    """numpy scalars and arrays as their Python values; anything else as text."""
+    return value.tolist() if hasattr(value, "tolist") else str(value)
+
+
+def _rounded(value: Any) -> Any:
     if isinstance(value, float):
-        return f"{value:.6g}"
-    return str(value)
+        return float(f"{value:.6g}")
+    if isinstance(value, dict):
+        return {str(key): _rounded(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_rounded(item) for item in value]
+    return value
 

@@ -1,14 +1,16 @@
 """Locate, build on demand and load the firmware host library (cffi ABI mode).
 
-The library is firmware/build/host/libtapcell_fw.so next to the package's source
-tree, rebuilt with `make -C firmware host` when it is missing or older than any
-firmware source or header. TAPCELL_FW_LIB names a prebuilt library instead (no
-build). Each caller passes its own cdef; one dlopen is kept per cdef.
+In a checkout the library is firmware/build/host/libtapcell_fw.so, rebuilt with
+`make -C firmware host` when it is missing or older than any firmware source or header.
+Installed (no firmware/ folder), it is the copy setup.py built into the package,
+tapcell/mcu/_firmware*.so. TAPCELL_FW_LIB names a prebuilt library instead (no build).
+Each caller passes its own cdef; one dlopen is kept per cdef.
 """
 
 from __future__ import annotations
 
 import fcntl
+import importlib.machinery
 import os
 import subprocess
 import threading
@@ -16,8 +18,10 @@ from pathlib import Path
 
 from cffi import FFI
 
-REPO_DIR = Path(__file__).resolve().parents[3]
-FIRMWARE_DIR = REPO_DIR / "firmware"
+from tapcell.package_files import checkout_dir
+
+REPO_DIR = checkout_dir()
+FIRMWARE_DIR = (REPO_DIR or Path(__file__).resolve().parents[3]) / "firmware"
 DEFAULT_LIB_PATH = FIRMWARE_DIR / "build" / "host" / "libtapcell_fw.so"
 ENV_LIB_PATH = "TAPCELL_FW_LIB"
 
@@ -50,8 +54,8 @@ def library_path() -> Path:
         if not path.exists():
             raise FirmwareBuildError(f"{ENV_LIB_PATH}={override}: no such file")
         return path
-    if not FIRMWARE_DIR.is_dir():
-        raise FirmwareBuildError(f"firmware sources not found at {FIRMWARE_DIR}; set {ENV_LIB_PATH}")
+    if REPO_DIR is None or not FIRMWARE_DIR.is_dir():
+        return installed_library_path()
     if _is_stale(DEFAULT_LIB_PATH):
         DEFAULT_LIB_PATH.parent.mkdir(parents=True, exist_ok=True)
         # Parallel test workers share the build: one builds, the others wait.
@@ -64,6 +68,19 @@ def library_path() -> Path:
                     raise FirmwareBuildError(
                         f"make -C {FIRMWARE_DIR} host failed:\n{result.stdout}{result.stderr}")
     return DEFAULT_LIB_PATH
+
+
+def installed_library_path() -> Path:
+    """The library setup.py built into the installed package (FirmwareBuildError when it did not)."""
+    package_dir = Path(__file__).resolve().parent
+    for suffix in importlib.machinery.EXTENSION_SUFFIXES:
+        candidate = package_dir / f"_firmware{suffix}"
+        if candidate.exists():
+            return candidate
+    raise FirmwareBuildError(
+        f"the firmware library was not built when tapcell was installed (no C compiler then?): "
+        f"install one (Debian: apt-get install gcc) and reinstall tapcell, or set {ENV_LIB_PATH} "
+        f"to a library built with 'make -C firmware host'")
 
 
 def load(cdef: str) -> tuple[FFI, object]:

@@ -170,10 +170,16 @@ def write_mesh_png(path: str | Path, mesh: ZMesh, truth_z_mm: TruthFn | None = N
     return output
 
 
+# Room around the map, as a share of its span, so the probed points on its edges show whole.
+MAP_MARGIN = 0.04
+
+
 def mesh_figure(mesh: ZMesh, truth_z_mm: TruthFn | None = None, samples_per_axis: int = 101):
     """The heat map figure: the mesh in mm, its colour bar labelled and limited to the mesh's
     range (ZMesh.z_range_mm, as BED_MESH_OUTPUT's Mesh Range), min/max/range in the title; with
-    the truth a second panel of mesh - truth in µm, zero the neutral colour."""
+    the truth a second panel of mesh - truth in µm, zero the neutral colour, its worst spot
+    marked, and said to be the simulator's (a real printer does not know its true bed). The
+    probed points show whole (a margin around the map) and the legend sits under the map."""
     from matplotlib.figure import Figure  # imported here: only the heat maps need matplotlib
 
     area_x, area_y = _area_grid(mesh, samples_per_axis)
@@ -182,22 +188,33 @@ def mesh_figure(mesh: ZMesh, truth_z_mm: TruthFn | None = None, samples_per_axis
               f"min {low:.4f} mm, max {high:.4f} mm, range {high - low:.4f} mm",
               mesh.z_at(area_x, area_y), "viridis", "bed height (mm)", (low, high))
     panels = [height]
+    worst = None
     if truth_z_mm is not None:
         error_um = (mesh.z_at(area_x, area_y) - truth_z_mm(area_x, area_y)) * 1000.0
-        limit = max(float(np.max(np.abs(error_um))), 1e-9)  # symmetric: zero error is the neutral colour
-        panels.append((f"Mesh - true bed\nlargest {limit:.1f} µm", error_um, "coolwarm", "mesh - true bed (µm)",
-                       (-limit, limit)))
+        at = np.unravel_index(int(np.argmax(np.abs(error_um))), error_um.shape)
+        limit = max(float(np.abs(error_um[at])), 1e-9)  # symmetric: zero error is the neutral colour
+        worst = (float(area_x[at]), float(area_y[at]), float(error_um[at]))
+        panels.append(("Mesh - true bed (simulator only: a real printer\ndoes not know its true bed), "
+                       f"largest {limit:.1f} µm", error_um, "coolwarm", "mesh - true bed (µm)", (-limit, limit)))
     grid = mesh.grid
     extent = (grid.min_x_mm, grid.max_x_mm, grid.min_y_mm, grid.max_y_mm)
+    pad_x = MAP_MARGIN * (grid.max_x_mm - grid.min_x_mm)
+    pad_y = MAP_MARGIN * (grid.max_y_mm - grid.min_y_mm)
     probed = grid.probe_points_mm()
-    figure = Figure(figsize=(5.5 * len(panels), 4.8), layout="constrained")
+    figure = Figure(figsize=(5.5 * len(panels), 5.2), layout="constrained")
     for number, (title, values, colormap, unit, (vmin, vmax)) in enumerate(panels, start=1):
         axes = figure.add_subplot(1, len(panels), number)
         image = axes.imshow(values, origin="lower", extent=extent, cmap=colormap, vmin=vmin, vmax=vmax)
-        axes.plot(probed[:, 0], probed[:, 1], "k.", markersize=4, label="probed points", clip_on=False)
+        axes.set_xlim(grid.min_x_mm - pad_x, grid.max_x_mm + pad_x)
+        axes.set_ylim(grid.min_y_mm - pad_y, grid.max_y_mm + pad_y)
+        axes.plot(probed[:, 0], probed[:, 1], "k.", markersize=4, label="probed points")
+        if number == 2 and worst is not None:
+            axes.plot([worst[0]], [worst[1]], marker="o", markersize=11, markerfacecolor="none",
+                      markeredgecolor="black", markeredgewidth=1.5, linestyle="none",
+                      label=f"largest error {worst[2]:+.1f} µm at X {worst[0]:.1f} Y {worst[1]:.1f}")
         axes.set_title(title, fontsize=10)
         axes.set_xlabel("X (mm)")
         axes.set_ylabel("Y (mm)")
-        axes.legend(loc="upper right", fontsize=7, framealpha=0.8)
+        axes.legend(loc="upper center", bbox_to_anchor=(0.5, -0.13), fontsize=7, frameon=False, ncol=2)
         figure.colorbar(image, ax=axes, label=unit)
     return figure

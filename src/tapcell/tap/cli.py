@@ -19,7 +19,8 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("files", nargs="+", metavar="FILE", help="tap files (.json, .jsonl, .csv)")
     parser.add_argument("--json", action="store_true", help="print one JSON array instead of a table")
     parser.add_argument("--plot", metavar="OUT.png",
-                        help="draw the taps (several taps: OUT-1.png, OUT-2.png, ...)")
+                        help="draw each tap: the first to OUT.png, the next to OUT-2.png, OUT-3.png, ... "
+                             "(the files written are listed after the results)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="analysis option, e.g. sensor_delay_s=0.002 or decompression_angle=80")
     return parser
@@ -51,7 +52,7 @@ def main(argv: list[str]) -> int:
         return 2
     results = []
     unreadable = 0
-    plotted = 0
+    plots = []  # (file written, the tap it shows)
     for name in args.files:
         try:
             taps = read_tap_file(name)
@@ -68,11 +69,11 @@ def main(argv: list[str]) -> int:
 
                 from tapcell.tap.plot import plot_tap
 
-                plotted += 1
                 out = Path(args.plot)
-                target = out if plotted == 1 else out.with_name(f"{out.stem}-{plotted}{out.suffix}")
-
+                target = out if not plots else out.with_name(f"{out.stem}-{len(plots) + 1}{out.suffix}")
+                label = name + (f"#{index + 1}" if len(taps) > 1 else "")
                 plot_tap(tap, analysis, target, title=f"{name}" + (f" #{index + 1}" if len(taps) > 1 else ""))
+                plots.append((target, label))
     if args.json:
         # One tap per line: json's C encoder (indent= falls back to the pure-Python one, ~0.2 ms a tap).
         taps = [json.dumps({"file": name, **analysis.to_json()}) for name, _, _, analysis in results]
@@ -84,4 +85,7 @@ def main(argv: list[str]) -> int:
             code = a.error or ""
             print(f"{label:<32} {'yes' if a.valid else 'no':<6} {_fmt(a.z_mm, '11.5f'):>11} "
                   f"{_fmt(a.z_sigma_um, '8.3f'):>8} {_fmt(a.quality, '8.1f'):>8}  {code}")
+    # The plot files written, one a line (on stderr with --json: stdout is the JSON alone).
+    for target, label in plots:
+        print(f"plot {target}: {label}", file=sys.stderr if args.json else sys.stdout)
     return 1 if unreadable else 0

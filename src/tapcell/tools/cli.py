@@ -12,13 +12,14 @@ import os
 import sys
 
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "init": ("tapcell.tools.init", "write a starter printer folder (printer.cfg, Moonraker's data folder)"),
     "analyze": ("tapcell.tap.cli", "analyse tap files: Z at break contact, validation, quality"),
     "benchmark": ("tapcell.taplab.benchmark", "score tap analyzers (ours, Kalico's, any) on independent labelled taps"),
     "scenarios": ("tapcell.sim.cli", "list the virtual printer's scenarios and their parameters"),
     "console": ("tapcell.tools.frontend", "interactive G-code console on the virtual printer"),
     "run": ("tapcell.tools.frontend", "run a G-code script on the virtual printer"),
     "demo": ("tapcell.tools.demo", "the main job on the virtual printer, explained"),
-    "serve": ("tapcell.host.api_server", "the virtual printer behind Klipper's API (for Moonraker)"),
+    "serve": ("tapcell.tools.serve", "the virtual printer behind Klipper's API (for Moonraker)"),
     "monitor": ("tapcell.tools.monitor", "analyse a real printer's taps live, through Moonraker"),
     "kalico-plugin": ("tapcell.tools.kalico_plugin", "install tapcell as Kalico's tap classifier"),
 }
@@ -28,6 +29,41 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
 # ~0.13 s of a `tapcell analyze` run on 2 cores (half the CPU of a one-file run). One thread,
 # unless the user chose otherwise; set before the sub-command's module imports numpy.
 SINGLE_THREADED_BLAS = frozenset(("analyze",))
+
+
+# Which extra of pyproject.toml brings each optional import (the top-level module name).
+EXTRA_OF_MODULE = {
+    "scipy": "sim", "cffi": "sim", "jinja2": "sim", "markupsafe": "sim",
+    "matplotlib": "plot",
+    "rich": "tools", "websockets": "tools", "prompt_toolkit": "tools",
+}
+
+
+def extra_providing(module: str | None) -> str | None:
+    """The extra that installs `module` (a dotted name's top level), None for no optional one."""
+    return EXTRA_OF_MODULE.get((module or "").partition(".")[0])
+
+
+def install_source() -> str:
+    """What this tapcell was installed from, for a pip line: the checkout or wheel pip recorded
+    (direct_url.json, PEP 610), else the name."""
+    import json
+    import urllib.parse
+    from importlib import metadata
+
+    try:
+        recorded = json.loads(metadata.distribution("tapcell").read_text("direct_url.json") or "null")
+    except (metadata.PackageNotFoundError, ValueError):
+        recorded = None
+    url = recorded.get("url", "") if isinstance(recorded, dict) else ""
+    return urllib.parse.unquote(url.removeprefix("file://")) if url.startswith("file://") else "tapcell"
+
+
+def missing_extra_message(command: str, module: str, extra: str) -> str:
+    """One line: what is missing and the pip line that brings it."""
+    source = install_source()
+    return (f"tapcell {command}: needs {module.partition('.')[0]}, which comes with tapcell's [{extra}] extra: "
+            f"pip install '{source}[{extra}]' (or [all])")
 
 
 def _usage() -> str:
@@ -55,8 +91,15 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     if name in SINGLE_THREADED_BLAS:
         os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-    module = importlib.import_module(SUBCOMMANDS[name][0])
-    # Modules serving several subcommands take the subcommand name first.
-    if hasattr(module, "SUBCOMMANDS"):
-        return int(module.main([name, *rest]) or 0)
-    return int(module.main(rest) or 0)
+    try:
+        module = importlib.import_module(SUBCOMMANDS[name][0])
+        # Modules serving several subcommands take the subcommand name first.
+        if hasattr(module, "SUBCOMMANDS"):
+            return int(module.main([name, *rest]) or 0)
+        return int(module.main(rest) or 0)
+    except ModuleNotFoundError as exc:
+        extra = extra_providing(exc.name)
+        if extra is None:
+            raise
+        print(missing_extra_message(name, exc.name, extra), file=sys.stderr)
+        return 1

@@ -100,17 +100,21 @@ PROBE_STEPS = (
     ),
     DemoStep(
         "Home, then set Z exactly with one tap",
-        "G28 homes X and Y on their switches and Z by pressing the nozzle on the bed until the load "
-        "cell triggers (fast, a few um deep). PROBE HOME=Z then taps once more in the middle of the "
-        "bed and analyses the tap to find where the nozzle really touched: that point is Z = 0.",
+        "G28 homes X and Y on their switches, then ([safe_z_home]) goes to the middle of the bed and "
+        "homes Z by pressing the nozzle on the bed until the load cell reads {trigger_force_g:g} g. Z = 0 "
+        "is where the nozzle stopped: already pressed a few hundredths of a mm into the bed (the force "
+        "over the bed's stiffness, plus the travel until the halt), so the PROBE below first reads the "
+        "bed that much above 0 (z=0.03 or so). PROBE HOME=Z analyses its tap to find where the nozzle "
+        "really touched (break contact) and makes that point Z = 0.",
         ("G28", f"G1 X{MESH_CENTER_XY_MM[0]:g} Y{MESH_CENTER_XY_MM[1]:g} Z3 F6000", "PROBE HOME=Z"),
     ),
     DemoStep(
         "How repeatable is the probe? PROBE_ACCURACY",
         f"PROBE_ACCURACY taps {ACCURACY_SAMPLES} times at the same place from 0.4 mm above the bed and "
-        "reports the spread. Each tap: press until the load cell reads 75 g, stop, wait 4 samples, pull "
-        "back 0.15 mm at 1 um per sample while watching the force fall, and find in those samples the "
-        "height where the nozzle left the bed. A standard deviation well below 1 um is what a load "
+        "reports the spread. Each tap: press until the load cell reads {trigger_force_g:g} g, stop, wait "
+        "{dwell_samples} samples ({dwell_ms:.0f} ms at {sample_rate_sps:g} samples/s), pull back "
+        "{pullback_mm:g} mm at 1 um per sample while watching the force fall, and find in those samples "
+        "the height where the nozzle left the bed. A standard deviation well below 1 um is what a load "
         "cell can do; every tap must pass its checks, or the command stops and says why.",
         ("G1 Z0.4", f"PROBE_ACCURACY SAMPLES={ACCURACY_SAMPLES} SAMPLE_RETRACT_DIST=0.4"),
     ),
@@ -138,7 +142,9 @@ MESH_STEPS = (
         "BED_MESH_CALIBRATE taps 49 points in a zig-zag (serpentine) order. Between points the nozzle "
         "lifts only 0.4 mm above the last touch (horizontal_z_clearance), so it follows the bed and "
         "travels little. BAD_PROBE_STRATEGY=CIRCLE: a tap spoiled by ooze is retried a little to the "
-        "side instead of in the same fouled spot.",
+        "side instead of in the same fouled spot. Two clocks: the printer's (in what the printer says, "
+        "the time a real printer would take) and this computer's (the virtual printer runs faster than "
+        "real time); the progress line labels both.",
         ("BED_MESH_CALIBRATE BAD_PROBE_STRATEGY=CIRCLE",),
         progress=True,
     ),
@@ -194,9 +200,19 @@ class DemoRunner:
         return self.printer.lookup_object("bed_mesh", None) is not None and \
             self.printer.lookup_object("probe", None) is not None
 
+    def probe_facts(self) -> dict[str, float]:
+        """The probe's numbers the explanations quote, from the printer's own settings."""
+        device = self.printer.lookup_object("load_cell_probe")
+        options = device.options
+        return {"trigger_force_g": options.trigger_force_g, "dwell_samples": device.dwell_samples,
+                "dwell_ms": 1000.0 * device.dwell_samples / device.sample_rate_sps,
+                "sample_rate_sps": device.sample_rate_sps, "pullback_mm": options.pullback_distance_mm}
+
     def run_step(self, number: int, step: DemoStep) -> None:
         self.console.rule(f"[bold]Step {number}: {step.title}")
-        self.console.print(step.explanation, style="dim", markup=False, highlight=False)
+        explanation = step.explanation.format_map(self.probe_facts()) if "{" in step.explanation \
+            else step.explanation
+        self.console.print(explanation, style="dim", markup=False, highlight=False)
         for line in step.gcode:
             self.print_exact(f"> {line}", "bold cyan")
             if step.progress:
@@ -220,13 +236,14 @@ class DemoRunner:
         self.print_exact(f"Tap plot: {png}; the last {count} taps: {taps} (tapcell analyze {taps})")
 
     def _run_with_progress(self, line: str) -> None:
-        columns = (TextColumn("    probing"), BarColumn(), MofNCompleteColumn(), TextColumn("points"),
-                   TimeElapsedColumn())
+        columns = (TextColumn("    probing"), BarColumn(), MofNCompleteColumn(), TextColumn("points,"),
+                   TextColumn("printer time {task.fields[printer_s]:.1f} s, this computer's"), TimeElapsedColumn())
+        start_s = self.printer.get_time()
         with Progress(*columns, console=self.console, transient=False) as progress:
-            task = progress.add_task("mesh", total=None)
+            task = progress.add_task("mesh", total=None, printer_s=0.0)
 
             def advance(done: int, total: int) -> None:
-                progress.update(task, completed=done, total=total)
+                progress.update(task, completed=done, total=total, printer_s=self.printer.get_time() - start_s)
 
             self.printer.register_event_handler(PROGRESS_EVENT, advance)
             self._progress = progress

@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 from tapcell.files import FileRefused, read_limited
+from tapcell.package_files import example_config
 from tapcell.host.config import ConfigError
 from tapcell.host.gcode import GCodeError, UnknownCommandError
 from tapcell.host.printer import Printer
@@ -21,8 +22,9 @@ from tapcell.tools.workspace import ScenarioError, set_scenario, working_config
 
 SUBCOMMANDS = ("console", "run")
 
-DEFAULT_CONFIG = Path(__file__).resolve().parents[3] / "examples" / "virtual-printer.cfg"
-HISTORY_FILE = Path("~/.tapcell_history").expanduser()
+DEFAULT_CONFIG = example_config("virtual-printer.cfg")
+HISTORY_FILE = Path("~/.tapcell_history").expanduser()  # readline's format
+CONSOLE_HISTORY_FILE = Path("~/.tapcell_console_history").expanduser()  # prompt_toolkit's format
 HISTORY_LENGTH = 1000
 PROMPT = "tapcell> "
 MAX_SCRIPT_BYTES = 256 * 1024 * 1024  # a G-code file for the virtual printer; read whole, so bounded
@@ -100,6 +102,17 @@ def run_script_file(printer: Printer, script_path: str, *, keep_going: bool, ech
     return 1 if failed else 0
 
 
+def _config_for_run(config: str) -> str:
+    """The config a run works on: the console's working copy of a file git tracks or tapcell installed
+    (so a calibration saved in the console holds here), said on stderr; the user's own file in place."""
+    if not os.path.exists(config):
+        return config  # _build_printer says so
+    path, where = working_config(Path(config))
+    if path != Path(config):
+        print(f"// {where}", file=sys.stderr, flush=True)
+    return str(path)
+
+
 def _main_run(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="tapcell run", description="Run a G-code script on the virtual printer "
                                      "and print every response.")
@@ -115,7 +128,7 @@ def _main_run(argv: list[str]) -> int:
         print(f"tapcell run: script '{args.script}' does not exist", file=sys.stderr)
         return 2
     # In a run the notices are about the session, not responses to the file: they go to stderr.
-    printer = _build_printer(args.config, "tapcell run", notices_to=sys.stderr)
+    printer = _build_printer(_config_for_run(args.config), "tapcell run", notices_to=sys.stderr)
     if printer is None:
         return 1
     return run_script_file(printer, args.script, keep_going=args.keep_going, echo=args.echo,
@@ -184,17 +197,39 @@ def _main_console(argv: list[str]) -> int:
     printer = _build_printer(str(config_path), "tapcell console")
     if printer is None:
         return 1
-    print(f"// {printer.state_message}. Type HELP for the commands, exit to quit.", flush=True)
-    readline = _setup_readline() if sys.stdin.isatty() else None
+    print(f"// {printer.state_summary()}. Type HELP for the commands, exit to quit.", flush=True)
+    read_line, finish = _console_reader(printer, interactive=sys.stdin.isatty())
     try:
-        console_loop(printer)
+        console_loop(printer, read_line)
     finally:
+        finish()
+    return 0
+
+
+def _console_reader(printer: Printer, *, interactive: bool):
+    """(read_line, finish) for the console. Every line is checked before it runs (a misspelt
+    parameter holds it back: `tapcell.tools.console_ui`). On a terminal: prompt_toolkit's editing,
+    history and TAB completion, colours and the progress line; readline where prompt_toolkit is
+    not installed (it comes with the [tools] extra)."""
+    from tapcell.tools import console_ui
+
+    if not interactive:
+        return console_ui.LineChecker(printer.gcode, input, _print_line), lambda: None
+    terminal = console_ui.TerminalConsole(printer)
+    try:
+        return terminal.reader(console_ui.prompt_reader(printer.gcode, CONSOLE_HISTORY_FILE)), lambda: None
+    except ImportError:
+        pass
+    readline = _setup_readline()
+
+    def finish() -> None:
         if readline is not None:
             try:
                 readline.write_history_file(HISTORY_FILE)
             except OSError as exc:
                 print(f"tapcell console: could not save history to {HISTORY_FILE}: {exc}", file=sys.stderr)
-    return 0
+
+    return terminal.reader(input), finish
 
 
 def main(argv: list[str]) -> int:

@@ -5,8 +5,8 @@ Kalico loads every module in `klippy/plugins/` and lets it register components; 
 `[load_cell_probe] tap_classifier:` option picks a registered classifier by name. This writes
 one small module there, `tapcell_classifier.py` (from kalico_plugin.template next to this
 file), registering `tap_classifier: tapcell`. tapcell itself must be importable by Kalico's
-Python: `pip install tapcell` in Kalico's environment needs numpy alone and changes none of
-Kalico's pinned versions.
+Python: installed there without extras (from a checkout or a wheel), it needs numpy alone and
+changes none of Kalico's pinned versions.
 """
 
 from __future__ import annotations
@@ -18,6 +18,7 @@ import tempfile
 from pathlib import Path
 
 from tapcell import __version__
+from tapcell.tools.cli import install_source
 
 PLUGIN_FILE = "tapcell_classifier.py"
 TEMPLATE = Path(__file__).with_name("kalico_plugin.template")
@@ -80,7 +81,8 @@ def main(argv: list[str]) -> int:
             path = install(Path(args.install))
             print(f"tapcell kalico-plugin: wrote {path}\n"
                   "Set 'tap_classifier: tapcell' in [load_cell_probe] and RESTART Kalico. tapcell must be "
-                  "installed in Kalico's Python environment ('pip install tapcell' there).")
+                  f"installed in Kalico's Python environment ('pip install {install_source()}' there, no "
+                  "extras: numpy alone).")
         else:
             path = uninstall(Path(args.uninstall))
             print(f"tapcell kalico-plugin: removed {path}" if path else

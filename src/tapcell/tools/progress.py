@@ -20,6 +20,29 @@ def format_duration(seconds: float) -> str:
     return f"{hours}:{minutes:02d}:{seconds:02d}"
 
 
+class InPlaceLine:
+    """One line on a terminal stream, redrawn in place (carriage return, erase to the end) and
+    wiped before other output goes to the same terminal."""
+
+    def __init__(self, stream):
+        self.stream = stream
+        self.drawn = False
+
+    def show(self, text: str) -> None:
+        self.stream.write(f"\r\033[K{text}")
+        self.stream.flush()
+        self.drawn = True
+
+    def wipe(self) -> bool:
+        """Erase the line if it is drawn; True if it was."""
+        if not self.drawn:
+            return False
+        self.stream.write("\r\033[K")
+        self.stream.flush()
+        self.drawn = False
+        return True
+
+
 class ProgressBar:
     def __init__(self, total_lines: int, stream=None, enabled: bool | None = None, clock=time.monotonic):
         self.total = max(total_lines, 1)
@@ -28,7 +51,7 @@ class ProgressBar:
         self.clock = clock
         self.started_s = clock()
         self._last_draw_s = -float("inf")
-        self._drawn = False
+        self._line = InPlaceLine(self.stream)
 
     def update(self, done_lines: int, printer_time_s: float) -> None:
         now = self.clock()
@@ -37,17 +60,12 @@ class ProgressBar:
         self._last_draw_s = now
         share = min(done_lines / self.total, 1.0)
         filled = int(round(share * BAR_WIDTH))
-        self.stream.write(f"\r[{'#' * filled}{'.' * (BAR_WIDTH - filled)}] {share:4.0%} line {done_lines}/"
-                          f"{self.total}, printer time {format_duration(printer_time_s)}")
-        self.stream.flush()
-        self._drawn = True
+        self._line.show(f"[{'#' * filled}{'.' * (BAR_WIDTH - filled)}] {share:4.0%} line {done_lines}/"
+                        f"{self.total}, printer time {format_duration(printer_time_s)}")
 
     def clear(self) -> None:
         """Wipe the bar (before a response line goes to the same terminal)."""
-        if self._drawn:
-            self.stream.write("\r\033[K")
-            self.stream.flush()
-            self._drawn = False
+        if self._line.wipe():
             self._last_draw_s = -float("inf")
 
     def summary(self, lines: int, printer_time_s: float) -> str:

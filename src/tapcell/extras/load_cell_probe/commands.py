@@ -274,7 +274,7 @@ class LoadCellProbeCommands:
                                            maxval=MAX_RETRIES)
         motion = self.device.motion
         if not motion.is_z_homed():
-            raise ProbeError("Must home before probe")
+            raise ProbeError("Must home before probe (run G28)")
         x0, y0, _ = motion.get_position()
         settings = self.device.command_settings(gcmd)
         positions = serpentine_pattern(x0, y0, count_x, count_y, stepover_mm)

@@ -44,6 +44,7 @@ from tapcell.extras.probe.options import with_overrides
 from tapcell.extras.load_cell_probe.options import (
     CORRUPT_FRAME_RETRIES,
     ERROR_PREFIX,
+    NOT_CALIBRATED,
     check_stuck_sensor_samples,
     classifier_option,
     lone_sample_past_limit,
@@ -268,7 +269,7 @@ class LoadCellProbe:
     # -- the tap ---------------------------------------------------------------------------
     def require_calibrated(self) -> None:
         if not self.load_cell.is_calibrated:
-            raise ProbeError(ERROR_PREFIX + "Load Cell not calibrated")
+            raise ProbeError(ERROR_PREFIX + NOT_CALIBRATED)
 
     def _on_samples(self, batch) -> None:
         self.history.add(batch, self.backend.now_s)

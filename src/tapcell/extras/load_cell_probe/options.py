@@ -20,6 +20,8 @@ from tapcell.tap.robust import robust_sigma
 
 # Every load-cell probing error starts with this (the spec's wording).
 ERROR_PREFIX = "Load Cell Probe Error: "
+# The spec's "Load Cell not calibrated", and the command that fixes it.
+NOT_CALIBRATED = "Load Cell not calibrated: run LOAD_CELL_CALIBRATE (then SAVE_CONFIG to keep it)"
 
 
 def preload_refusal(beyond_g: float, force_safety_limit_g: float) -> str:

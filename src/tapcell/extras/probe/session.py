@@ -131,7 +131,7 @@ class ProbeSession:
 
     def start(self) -> None:
         if not self.probe.motion.is_z_homed():
-            raise ProbeError("Must home before probe")
+            raise ProbeError("Must home before probe (run G28)")
         self.probe.run_template("activate_gcode", {})
         self._active = True
 
