@@ -34,10 +34,10 @@ ENTRY_POINT_GROUP = "tapcell.tap_classifiers"
 MISFIT_TOLERANCE = 1.25
 # LOW_DECOMPRESSION_FORCE (the guide's figure 2: the sheet or plastic under the nozzle gave way
 # during the dwell, so little force is left to release on the pullback): the force released
-# between the end of the dwell and break contact, over the trigger force. On the outside
-# reference taps (960, ../shared/data) the valid clean taps release at least 0.98 x the trigger
-# force (a fast ADS1220 stops just past it, then the sheet relaxes); 0.9 leaves that worst case
-# an 8 % margin (docs/tap-analysis.md has the table).
+# between the end of the dwell and break contact, over the trigger force. Over taplab and the
+# outside reference archives (../shared/data) the valid clean taps release at least 0.979 x the
+# trigger force (a fast ADS1220 stops just past it, a soft sheet then relaxes); 0.9 leaves that
+# worst case an 8 % margin (`python -m bench decompression_force`, docs/tap-analysis.md).
 MIN_DECOMPRESSION_TO_TRIGGER = 0.9
 
 
