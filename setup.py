@@ -30,10 +30,11 @@ FIRMWARE_ARGS = ["-std=c99", "-O2", "-Wall", "-Wextra", "-ffp-contract=off"]
 def firmware_library() -> Extension:
     sources = sorted(str(p) for p in (*Path("firmware/src").glob("*.c"), *Path("firmware/host").glob("*.c")))
     headers = sorted(str(p) for p in Path("firmware/include").glob("*.h"))
-    # TC_SINGLE_THREADED as firmware/Makefile's host target: hal.h refuses a build that names no
-    # critical section, and the host library runs on one thread.
+    # The Python host drives the library from one thread, with no interrupts: hal.h's critical
+    # sections are no-ops there, as in firmware/Makefile's host build.
     return Extension("tapcell.mcu._firmware", sources, include_dirs=["firmware/include"], depends=headers,
-                     define_macros=[("TC_SINGLE_THREADED", None)], extra_compile_args=FIRMWARE_ARGS, optional=True)
+                     define_macros=[("TC_SINGLE_THREADED", None)], extra_compile_args=FIRMWARE_ARGS,
+                     optional=True)
 
 
 class BuildPyWithExamples(build_py):

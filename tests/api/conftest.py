@@ -6,6 +6,7 @@ hung server fails its test instead of hanging the run.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -139,8 +140,8 @@ class Stack:
                  self.moonraker)
 
 
-@pytest.fixture(scope="module")
-def stack(tmp_path_factory):
+@contextlib.contextmanager
+def running_stack(tmp_path_factory):
     """A calibrated virtual printer served to a real Moonraker on 127.0.0.1 (free port, tmp data)."""
     python = moonraker_python()
     data = tmp_path_factory.mktemp("printer_data")
@@ -160,3 +161,10 @@ def stack(tmp_path_factory):
     finally:
         stop(stack.moonraker)
         stop(stack.serve)
+
+
+@pytest.fixture(scope="module")
+def stack(tmp_path_factory):
+    """A calibrated virtual printer served to a real Moonraker on 127.0.0.1 (free port, tmp data)."""
+    with running_stack(tmp_path_factory) as running:
+        yield running

@@ -64,7 +64,11 @@ def test_clean_taps_score_high_and_ooze_is_rejected():
     pull = analyze_tap(pull_tap, AnalysisOptions(contact_model="sharp"))
     assert not pull.valid and pull.error == "LOW_TAP_QUALITY"
     assert pull.quality_components["departure"] > 0.25
-    film = analyze_tap(synth_tap(seed=1, film_um=20.0, film_stiffness_g_um=2.0))
+    film_tap = synth_tap(seed=1, film_um=20.0, film_stiffness_g_um=2.0)
+    # A 20 um film is a soft layer pressed before the bed: the toe model sees its stage above the
+    # contact (issue 21); the sharp model leaves it to the misfit component.
+    assert analyze_tap(film_tap).error == "TAP_TWO_STAGE_CONTACT"
+    film = analyze_tap(film_tap, AnalysisOptions(contact_model="sharp"))
     assert not film.valid and film.error == "LOW_TAP_QUALITY"  # Z would be 10.9 µm high
     assert film.quality_components["misfit"] > 0.5
     assert clean.quality_components["misfit"] == 0.0

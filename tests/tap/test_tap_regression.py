@@ -79,9 +79,10 @@ CASES = {
                                         lambda: record_sim_tap(SimTapSpec(speed_mm_s=5.0, seed=2,
                                                                           pullback_distance_mm=0.1)),
                                         SHARP, z_error_um=(-1.555, 0.131)),
-    "ooze_film_40um": Case("a 40 um ooze film makes the decompression soft: quality 0 (seed 15; 18 of 20 seeds "
-                           "rejected, the others valid ~6 um high)",
-                           lambda: synth_tap(film_um=40.0, stiffness_g_um=2.0, seed=15), error="LOW_TAP_QUALITY"),
+    "ooze_film_40um": Case("a 40 um ooze film is a soft layer the nozzle presses before the bed: its stage shows "
+                           "above the contact (20 of 20 seeds; before issue 21 quality 0 on 18, the others valid "
+                           "~6 um high)",
+                           lambda: synth_tap(film_um=40.0, stiffness_g_um=2.0, seed=15), error="TAP_TWO_STAGE_CONTACT"),
     "string_pulls_30g": Case("a filament string pulls 30 g on departure: the force dips below free air above "
                              "break contact (20 of 20 seeds)",
                              lambda: synth_tap(pull_force_g=30.0, seed=16), error="TAP_ADHESION"),

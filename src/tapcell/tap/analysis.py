@@ -27,7 +27,7 @@ import numpy as np
 
 from tapcell.tap import native, validate
 from tapcell.tap.angles import line_angles_deg
-from tapcell.tap.classifiers import get_classifier, run_classifier
+from tapcell.tap.classifiers import MISFIT_TOLERANCE, get_classifier, run_classifier
 from tapcell.tap.contact import (MIN_SPAN_UM, ContactFit, fit_contact, fit_fixed_onset, window_edges,
                                  window_mean_and_slope)
 from tapcell.tap.context import AnalysisContext, SensorTiming, recompute_points
@@ -37,7 +37,9 @@ from tapcell.tap.model import (
     TAP_DATA_INSUFFICIENT,
     TAP_MOTION_INVALID,
     TAP_SHAPE_INVALID,
+    TAP_TWO_STAGE_CONTACT,
     AnalysisOptions,
+    PullbackFit,
     TapAnalysis,
     TapData,
 )
@@ -45,8 +47,9 @@ from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import PrefixSums, best_five_segments, prefix_sums, segment_lines
-from tapcell.tap.toe import (THREAD_REACH_UM, ToeFit, Wander, adhesion_measures, fit_toe, free_air_variogram,
-                             lag_from_halt_s, wander_from_variograms)
+from tapcell.tap.stage import departure_near, shows_soft_stage, soft_stage
+from tapcell.tap.toe import (THREAD_FAR_REACH_UM, THREAD_REACH_UM, ToeFit, Wander, adhesion_measures, fit_toe,
+                             free_air_variogram, lag_from_halt_s, thread_pull_g, wander_from_variograms)
 
 # The checks, robust statistics and window heights in C (c/analysis.c, tapcell.tap.native); None: numpy.
 _C = native.load("analysis")
@@ -68,6 +71,10 @@ MISFIT_REACH_SAMPLES = 10
 MIN_COMPRESSION_SAMPLES = 2
 # The force at the end of the pullback: the median of this many samples before it (did the nozzle leave the bed?).
 END_SAMPLES = 3
+# Break contact this many samples (and a sixth of the pullback) before the pullback's end, and a
+# departure whose slope is under this share of the decompression's: the nozzle left inside it.
+BREAK_MARGIN_SAMPLES = 3
+DEPARTURE_FLAT_SHARE = 0.1
 # The adhesion dip (toe model) that rejects a tap, in noise sigmas. Clean independent taps reach
 # 3.2 at most (360 taps, seed 1); mild ooze has a median of 4.7 and its deepest dips err most.
 ADHESION_MAX_DIP_NOISE = 4.0
@@ -80,6 +87,19 @@ THREAD_MAX_NOISE = 8.0
 # ... and by more than this fraction of the compression force: a noise-free tap (noise 0) has no
 # dip, only rounding. Below any real sensor's 4 sigmas (75 g x 1 % = 0.75 g; HX717 ~1 g noise).
 ADHESION_MIN_DIP_FRACTION = 0.01
+# A departure that lies below the approach's level by the same amount all the way up (a baseline
+# shift: a cable or bowden pulling differently on the way up) does not move the toe's Z, which
+# fits its own baseline over the departure. It is taken for a thread when it pulls at least
+# THREAD_MIN_SHARE of the compression force, or when its pull changes along the departure (a thread
+# stretches and lets go) by more than THREAD_LEVEL_CHANGE of itself between THREAD_REACH_UM and
+# THREAD_FAR_REACH_UM. Reference taps (issue 21): cable shifts 5-13 % of the compression, far/near
+# 0.84-1.04; heavy-ooze threads that stay 18-38 %; mild ooze lets go (far/near 0-0.5); tap.synth's
+# 10 g strand peaking 40 um up, +1.5..+3.9 um of Z, 0.7.
+THREAD_MIN_SHARE = 0.15
+THREAD_LEVEL_CHANGE = 0.2
+# ... judged only when the pullback rises this far above contact (µm): a departure that ends sooner
+# cannot show a thread letting go (tap.synth's 10 g strand peaking 40 um up, a 0.1 mm pullback).
+THREAD_FAR_MIN_UM = 100.0
 
 
 def sensor_timing(tap: TapData, options: AnalysisOptions, sample_period_s: float) -> SensorTiming:
@@ -181,13 +201,35 @@ def _indices(time_s: np.ndarray, *t: float) -> list[int]:
     return np.minimum(time_s.searchsorted(t), len(time_s) - 1).tolist()
 
 
+# The five lines of a tap, in order, and the points they meet at (P0 starts the approach line, P5
+# ends the departure line; P1..P4 are the intersections of consecutive lines).
+APPROACH, COMPRESSION, DWELL, DECOMPRESSION, DEPARTURE = range(5)
+P_START, P_CONTACT, P_DWELL_START, P_DWELL_END, P_BREAK, P_END = range(6)
+
+
 @dataclass
 class Decomposition:
     start: int
     stop: int
     bounds: tuple[int, int, int, int]
-    lines: list[tuple[float, float]]  # in positive polarity
-    points: list[tuple[float, float]]
+    lines: list[tuple[float, float]]  # (slope g/s, intercept g) in positive polarity, APPROACH..DEPARTURE
+    points: list[tuple[float, float]]  # (time s, force g), P_START..P_END
+
+    @property
+    def approach_line(self) -> tuple[float, float]:
+        return self.lines[APPROACH]
+
+    @property
+    def compression_line(self) -> tuple[float, float]:
+        return self.lines[COMPRESSION]
+
+    @property
+    def decompression_line(self) -> tuple[float, float]:
+        return self.lines[DECOMPRESSION]
+
+    @property
+    def departure_line(self) -> tuple[float, float]:
+        return self.lines[DEPARTURE]
 
 
 def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_samples: int,
@@ -236,7 +278,7 @@ def break_time_sigma_s(ps: PrefixSums, dec: Decomposition, t_break: float) -> fl
         res_var, t_mean, sxx = _segment_stats(ps, a, b)
         lever = (t_break - ps.t_ref_s) - t_mean
         var += res_var * (1.0 / (b - a) + (lever * lever / sxx if sxx > 0 else 0.0))
-    slope_gap = abs(dec.lines[3][0] - dec.lines[4][0])
+    slope_gap = abs(dec.decompression_line[0] - dec.departure_line[0])
     return math.sqrt(var) / slope_gap if slope_gap > 0 else math.inf
 
 
@@ -262,7 +304,7 @@ def model_window(time_s, force_g, motion: Motion, timing: SensorTiming, delay_s:
     t = time_s[dec.start:dec.stop]
     # A line point is read half a conversion window late, plus the delay.
     lag_s = delay_s + 0.5 * timing.integration_s
-    lines_s = (dec.points[1][0] - lag_s, dec.points[4][0] - lag_s)
+    lines_s = (dec.points[P_CONTACT][0] - lag_s, dec.points[P_BREAK][0] - lag_s)
     if _C is not None and motion.moves is not None:
         x_min, span = np.empty(len(t)), np.empty(len(t))
         contact_um, break_um = _C.window_heights(motion.move_table, t, delay_s, timing.integration_s,
@@ -361,6 +403,46 @@ def _residual(y, x_min_um, span_um, fit: ContactFit) -> np.ndarray:
     return y - (fit.baseline_g + fit.stiffness_g_um * mean)
 
 
+def force_left_at_end_g(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, dec: Decomposition,
+                        ps: PrefixSums) -> tuple[float, float]:
+    """(force over the last END_SAMPLES of the pullback above the free-air level at that height,
+    the departure line's residual sigma): did the nozzle leave the bed (validate.check_left_the_bed)?
+
+    The free-air level is the approach line at the halt carried up the pullback by the free-air
+    drift (a cable pulling in proportion to Z moves the end's level by drift x pullback distance).
+    """
+    end = _indices(time_s, motion.pullback_end_s)[0]
+    slope_g_s, intercept_g = dec.approach_line
+    height_um = (float(motion.z_at(motion.pullback_end_s)) - motion.z_halt_mm) * 1000.0
+    free_air_g = slope_g_s * motion.home_end_s + intercept_g + free_air_slope_g_um(dec, motion) * height_um
+    remaining_g = median(force_g[max(end - END_SAMPLES, 0):end + 1]) - free_air_g
+    residual_var, _, _ = _segment_stats(ps, dec.bounds[3], dec.stop - dec.start)
+    return remaining_g, math.sqrt(residual_var)
+
+
+def left_inside_pullback(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, dec: Decomposition,
+                         ps: PrefixSums, period_s: float) -> bool:
+    """The tap shows the nozzle leaving the bed inside the pullback: break contact (P4) at least
+    BREAK_MARGIN_SAMPLES and a sixth of the pullback before its end, a departure as flat as free
+    air (its slope under DEPARTURE_FLAT_SHARE of the decompression's), and the force at the
+    pullback's end on the departure's level (within STILL_PRESSING_SCATTERS of its scatter or the
+    spec's share of the compression). A cable pulling another way on the way up leaves such a
+    departure offset from the approach's level; a nozzle still pressing keeps unloading to the end.
+    """
+    end_s = motion.pullback_end_s - max(motion.pullback_duration_s / 6.0, BREAK_MARGIN_SAMPLES * period_s)
+    if not dec.points[P_BREAK][0] < end_s:
+        return False
+    decompression_slope, departure_slope = dec.decompression_line[0], dec.departure_line[0]
+    if not abs(departure_slope) <= DEPARTURE_FLAT_SHARE * abs(decompression_slope):
+        return False
+    end = _indices(time_s, motion.pullback_end_s)[0]
+    slope_g_s, intercept_g = dec.departure_line
+    off_g = median(force_g[max(end - END_SAMPLES, 0):end + 1]) - (slope_g_s * motion.pullback_end_s + intercept_g)
+    scatter_g = math.sqrt(_segment_stats(ps, dec.bounds[3], dec.stop - dec.start)[0])
+    pressed_g = dec.points[P_DWELL_START][1] - dec.points[P_CONTACT][1]
+    return abs(off_g) <= max(validate.STILL_PRESSING_SCATTERS * scatter_g, validate.STILL_PRESSING_SHARE * pressed_g)
+
+
 def free_air_slope_g_um(dec: Decomposition, motion: Motion) -> float:
     """The force's slope against height in free air (g/µm; cable/bowden drift), from the approach line.
 
@@ -368,7 +450,7 @@ def free_air_slope_g_um(dec: Decomposition, motion: Motion) -> float:
     better than the few tens of µm of departure after break contact can, and an adhesion thread
     pulling on the nozzle over the departure cannot tilt it (the height falls while the time runs).
     """
-    return -dec.lines[0][0] / (motion.approach_speed_mm_s * 1000.0)
+    return -dec.approach_line[0] / (motion.approach_speed_mm_s * 1000.0)
 
 
 PullbackSamples = tuple[np.ndarray, np.ndarray, np.ndarray]  # window low edge µm, high edge µm, force g
@@ -407,7 +489,7 @@ def fit_pullback_toe(samples: PullbackSamples, motion: Motion, timing: SensorTim
 
 def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTiming, dec: Decomposition,
                    drift_g_um: float, contact_um: float, noise_g: float, approach_wander: Wander | None,
-                   compression_force_g: float) -> None:
+                   compression_force_g: float, explained: bool = False) -> None:
     """TAP_ADHESION when ooze or adhesion pulls the nozzle after break contact, seen either way:
     the force dips below the departure's own free-air level just above break contact by more than
     ADHESION_MAX_DIP_NOISE noise sigmas (`adhesion_dip`), or the departure lies below the
@@ -416,10 +498,12 @@ def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTimin
     pulling the whole departure pulls the dip's own reference too). The walk is the approach's
     own: a thread pulling over the departure would pass for a walk there. Either must also exceed
     ADHESION_MIN_DIP_FRACTION of the compression force (a noise-free tap has no noise to compare with).
+    A departure offset from the approach that the tap shows to be a baseline shift is no thread
+    (`_baseline_shift`, only when the contact model `explained` the contact to the noise).
     """
     floor_g = ADHESION_MIN_DIP_FRACTION * compression_force_g
     # The approach line's force where the approach passed the halt's height (its time is the halt).
-    slope_g_s, intercept_g = dec.lines[0]
+    slope_g_s, intercept_g = dec.approach_line
     dip_g, pull_g = adhesion_measures(*samples, drift_g_um, contact_um, slope_g_s * motion.home_end_s + intercept_g)
     if dip_g is not None and dip_g > max(ADHESION_MAX_DIP_NOISE * noise_g, floor_g):
         raise TapInvalid(TAP_ADHESION, f"the force dips {dip_g:.1f} g below free air just above break contact "
@@ -430,22 +514,53 @@ def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTimin
     apart_samples = (motion.pullback_start_s - motion.home_end_s) / timing.sample_period_s + 2 * THREAD_REACH_UM[1]
     walk_g = 3.0 * math.sqrt(approach_wander.walk_var_g2 * max(apart_samples, 0.0)) if approach_wander else 0.0
     limit_g = max(THREAD_MAX_NOISE * noise_g + walk_g, floor_g)
-    if pull_g > limit_g:
+    approach_at_halt_g = slope_g_s * motion.home_end_s + intercept_g
+    if pull_g > limit_g and not (explained and _baseline_shift(samples, drift_g_um, contact_um, approach_at_halt_g,
+                                                               pull_g, compression_force_g)):
         raise TapInvalid(TAP_ADHESION, f"the force after break contact lies {pull_g:.1f} g below the approach's "
                                        f"free-air level at the same heights (more than {limit_g:.1f} g): "
                                        "ooze or adhesion pulling the nozzle")
 
 
+def contact_explained(result: TapAnalysis) -> bool:
+    """The contact model explains the samples near contact to the noise and the Z staircase (the
+    quality classifier's misfit would be 0): nothing squeezed or pulled there that the model missed."""
+    if result.fit_residual_sigma_g is None or result.noise_sigma_g is None:
+        return False
+    allowed_g = MISFIT_TOLERANCE * math.hypot(result.noise_sigma_g, result.step_sigma_g or 0.0)
+    return result.fit_residual_sigma_g <= allowed_g
+
+
+def _baseline_shift(samples: PullbackSamples, drift_g_um: float, contact_um: float, approach_at_halt_g: float,
+                    pull_g: float, compression_force_g: float) -> bool:
+    """A departure below the approach's level that is a baseline shift, not a thread: small
+    (under THREAD_MIN_SHARE of the compression) and as deep further up (THREAD_FAR_REACH_UM)
+    within THREAD_LEVEL_CHANGE of itself."""
+    if pull_g >= THREAD_MIN_SHARE * compression_force_g:
+        return False
+    x_um = 0.5 * (samples[0] + samples[1])
+    if x_um.max() - contact_um < THREAD_FAR_MIN_UM:
+        return False  # the departure ends before a thread would have let go: it cannot tell
+    far_g = thread_pull_g(x_um, samples[2], drift_g_um, approach_at_halt_g, contact_um, THREAD_FAR_REACH_UM)
+    return far_g is not None and abs(far_g - pull_g) <= THREAD_LEVEL_CHANGE * pull_g
+
+
 def fit_compression(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float,
-                    onset_um: float) -> ContactFit | None:
-    """The contact model over the approach up to the halt (onset fixed to the pullback's)."""
+                    onset_um: float, drift_g_um: float = 0.0) -> ContactFit | None:
+    """The contact model over the approach up to the halt (onset fixed to the pullback's), the
+    free-air drift (g per µm of height, from the approach line) taken out first: a cable pulling
+    40 g/mm ramps the approach like a soft contact, and the model has a constant baseline (taplab's
+    cable drift: the down contact read ~190 µm above break contact, TAP_CONTACT_MISMATCH)."""
     last = int(window.time_s.searchsorted(motion.home_end_s + delay_s, side="right"))
     if last < 6 or not math.isfinite(window.contact_line_um):
         return None
     spacing_um = max(motion.approach_speed_mm_s * 1000.0 * timing.sample_period_s, 0.05)
+    x_min, span = window.x_min_um[:last], window.span_um[:last]
+    force_g = window.force_g[:last]
+    if drift_g_um:
+        force_g = force_g - drift_g_um * (x_min + 0.5 * span)
     # fit_contact_at only answers with at least 2 samples in contact.
-    found = fit_fixed_onset(window.force_g[:last], window.x_min_um[:last], window.span_um[:last],
-                            window.contact_line_um + 0.5 * onset_um, spacing_um, onset_um)
+    found = fit_fixed_onset(force_g, x_min, span, window.contact_line_um + 0.5 * onset_um, spacing_um, onset_um)
     return found[0] if found else None
 
 
@@ -516,7 +631,59 @@ def _check_samples(tap: TapData) -> tuple[np.ndarray, np.ndarray]:
     return t, f
 
 
+@dataclass
+class SplitTap:
+    """A tap after its first steps: samples checked, motion and sensor timing read, polarity and
+    corrupted frames and hum handled, the five lines found."""
+
+    time_s: np.ndarray
+    force_g: np.ndarray  # positive polarity, spikes repaired, hum removed
+    motion: Motion
+    timing: SensorTiming
+    dec: Decomposition
+    ps: PrefixSums
+    noise_g: float
+    angles_deg: list[float]
+
+
+@dataclass
+class ContactFits:
+    """The sharp contact model over the pullback (with its near-contact residual sigma) and over the
+    approach; either may be missing."""
+
+    pullback: ContactFit | None
+    near_sigma_g: float | None
+    compression: ContactFit | None
+
+
 def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, AnalysisContext]:
+    split, polarity, outliers, hum = split_tap(tap, options)
+    result = result_of_split(split, polarity, outliers, hum)
+    context = AnalysisContext(tap, split.motion, split.timing)
+    try:
+        delay_s = lag_before_the_fits(split, result)
+        check_split(split, delay_s)
+        window = model_window(split.time_s, split.force_g, split.motion, split.timing, delay_s, split.dec)
+        fits = fit_contact_models(split, window, delay_s, options, result)
+        result.z_line_mm = split.motion.z_halt_mm + window.break_line_um / 1000.0  # P4 mapped, delay-corrected
+        check_contact_heights(window, fits.pullback, fits.compression, split.motion, split.timing)
+        window_delay_s = delay_s  # the delay the window's heights were read with ("auto": 0, estimated now)
+        delay_s = apply_delay_estimate(split, fits, delay_s, result)
+        z_from_sharp_model_or_lines(split, fits, result)
+        if options.uses_toe_model:
+            z_from_toe_model(split, window, fits, delay_s, window_delay_s, result)
+        compression_stiffness(split, window, fits, delay_s, result)
+    except TapInvalid as invalid:
+        # Keep the lines, points and what was measured: they show what went wrong (plots, tap logs).
+        result.valid, result.error, result.message = False, invalid.code, invalid.message
+        return result, context
+    result.message = "ok"
+    return result, context
+
+
+def split_tap(tap: TapData, options: AnalysisOptions) -> tuple[SplitTap, int, int, HumFit | None]:
+    """Steps 1-3: samples and motion checked, sensor timing, polarity, corrupted frames repaired,
+    mains hum removed, the five lines; with the polarity, the frames repaired and the hum."""
     time_s, force_raw = _check_samples(tap)
     validate.check_moves(tap.moves)
     try:
@@ -526,7 +693,6 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
     period_s = 1.0 / tap.sample_rate_sps if tap.sample_rate_sps else median(np.diff(time_s))
     timing = sensor_timing(tap, options, period_s)
     validate.check_motion(motion, time_s)
-
     polarity = _polarity(time_s, force_raw, motion)
     force, outliers = repair_spikes(polarity * force_raw, options.outlier_sigma)
     allowance = UNKNOWN_DELAY_ALLOWANCE_S if timing.estimate_delay or timing.delay_from_halt else timing.delay_s
@@ -536,50 +702,73 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
     # Second differences of the whole analysed window: hundreds of samples even when the
     # approach holds a dozen; the four kinks of a tap cannot move their median.
     noise_g = noise_sigma_g(force[dec.start:dec.stop])
-    angles = line_angles_deg(dec.lines)
-    result = TapAnalysis(
+    return SplitTap(time_s, force, motion, timing, dec, ps, noise_g, line_angles_deg(dec.lines)), polarity, outliers, hum
+
+
+def result_of_split(split: SplitTap, polarity: int, outliers: int, hum: HumFit | None) -> TapAnalysis:
+    """The result as far as the five lines go, in the tap's own polarity."""
+    dec = split.dec
+    return TapAnalysis(
         valid=True,
         polarity=polarity,
         points=[(t, polarity * f) for t, f in dec.points],
-        lines=[(polarity * s, polarity * i) for s, i in dec.lines],
-        angles_deg=[polarity * a for a in angles],
+        lines=[(polarity * slope, polarity * intercept) for slope, intercept in dec.lines],
+        angles_deg=[polarity * a for a in split.angles_deg],
         outliers=outliers,
-        sensor_integration_s=timing.integration_s,
-        noise_sigma_g=noise_g,
+        sensor_integration_s=split.timing.integration_s,
+        noise_sigma_g=split.noise_g,
         hum=hum.to_json() if hum else None,
+        compression_force_g=abs(dec.points[P_DWELL_START][1] - dec.points[P_CONTACT][1]),
+        break_contact_time_s=dec.points[P_BREAK][0],
     )
-    context = AnalysisContext(tap, motion, timing)
-    halt_lag_s = lag_from_halt_s(dec.points[2][0], motion.home_end_s, period_s)
+
+
+def lag_before_the_fits(split: SplitTap, result: TapAnalysis) -> float:
+    """The sensor delay the heights are read with: from the halt (P2 against the motion's halt),
+    the option or meta's, or 0 while it is to be estimated from the fits ("auto")."""
+    timing = split.timing
     if timing.delay_from_halt:
+        halt_lag_s = lag_from_halt_s(split.dec.points[P_DWELL_START][0], split.motion.home_end_s,
+                                     timing.sample_period_s)
         timing.delay_s = max(halt_lag_s - 0.5 * timing.integration_s, 0.0) if halt_lag_s is not None else 0.0
     delay_s = 0.0 if timing.estimate_delay else timing.delay_s
-    t_break = dec.points[4][0]
-    result.compression_force_g = abs(dec.points[2][1] - dec.points[1][1])
-    result.break_contact_time_s = t_break
     result.sensor_delay_s = delay_s
-    try:
-        end = _indices(time_s, motion.pullback_end_s)[0]
-        remaining_g = median(force[max(end - END_SAMPLES, 0):end + 1]) - dec.points[1][1]
-        validate.check_left_the_bed(dec.points[2][1] - dec.points[1][1], remaining_g)
-        validate.check_points(dec.points, angles)
-        validate.check_break_contact(t_break - delay_s - 0.5 * timing.integration_s, motion, period_s)
-    except TapInvalid as invalid:
-        # Keep the lines and points: they show what went wrong (plots, tap logs).
-        result.valid, result.error, result.message = False, invalid.code, invalid.message
-        return result, context
-    window = model_window(time_s, force, motion, timing, delay_s, dec)
-    window_delay_s = delay_s  # the delay the window's heights were read with ("auto": 0, estimated below)
-    z_line = motion.z_halt_mm + window.break_line_um / 1000.0  # P4 mapped, delay-corrected
-    pullback_found = fit_pullback(window, motion, timing, delay_s, options)
-    pullback, near_sigma_g = pullback_found if pullback_found else (None, None)
-    onset_um = pullback.onset_um if pullback else 0.0
-    compression = fit_compression(window, motion, timing, delay_s, onset_um)
-    try:
-        check_contact_heights(window, pullback, compression, motion, timing)
-    except TapInvalid as invalid:
-        result.valid, result.error, result.message = False, invalid.code, invalid.message
-        result.z_line_mm = z_line
-        return result, context
+    return delay_s
+
+
+def check_split(split: SplitTap, delay_s: float) -> None:
+    """The spec's checks on the lines: the nozzle left the bed (unless the tap shows it leaving
+    inside the pullback), the points' order and the lines' shape, break contact's place in the pullback."""
+    dec, motion, timing = split.dec, split.motion, split.timing
+    period_s = timing.sample_period_s
+    if not left_inside_pullback(split.time_s, split.force_g, motion, dec, split.ps, period_s):
+        validate.check_left_the_bed(dec.points[P_DWELL_START][1] - dec.points[P_CONTACT][1],
+                                    *force_left_at_end_g(split.time_s, split.force_g, motion, dec, split.ps))
+    validate.check_points(dec.points, split.angles_deg)
+    validate.check_break_contact(dec.points[P_BREAK][0] - delay_s - 0.5 * timing.integration_s, motion, period_s)
+
+
+def fit_contact_models(split: SplitTap, window: ModelWindow, delay_s: float, options: AnalysisOptions,
+                       result: TapAnalysis) -> ContactFits:
+    """The sharp contact model over the pullback and over the approach (the onset the pullback's)."""
+    motion, timing = split.motion, split.timing
+    found = fit_pullback(window, motion, timing, delay_s, options)
+    pullback, near_sigma_g = found if found else (None, None)
+    if pullback:
+        # For pooling taps at one spot (tapcell.tap.pool): the samples the sharp fit read, and its answer.
+        x_lo, x_hi, force_up = pullback_samples(window, motion, timing, delay_s)
+        result.pullback_fit = PullbackFit(x_lo, x_hi - x_lo, force_up, pullback.contact_um, pullback.stiffness_g_um,
+                                          pullback.onset_um, motion.pullback_speed_mm_s, delay_s)
+    compression = fit_compression(window, motion, timing, delay_s, pullback.onset_um if pullback else 0.0,
+                                  free_air_slope_g_um(split.dec, motion))
+    return ContactFits(pullback, near_sigma_g, compression)
+
+
+def apply_delay_estimate(split: SplitTap, fits: ContactFits, delay_s: float, result: TapAnalysis) -> float:
+    """The delay estimated from the tap (contact down against break contact up), reported; with
+    `sensor_delay_s=auto` applied to the pullback's contact and the line estimate. Returns the delay."""
+    motion, timing = split.motion, split.timing
+    pullback, compression = fits.pullback, fits.compression
     if timing.delay_from_halt:
         result.sensor_delay_estimate_s = delay_s
     elif pullback and compression:
@@ -594,51 +783,89 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
             if compression:
                 pullback.contact_sigma_um = math.hypot(pullback.contact_sigma_um * (1 - share),
                                                        share * compression.contact_sigma_um)
-        z_line = float(motion.z_at(t_break - delay_s - 0.5 * timing.integration_s))
+        result.z_line_mm = float(motion.z_at(split.dec.points[P_BREAK][0] - delay_s - 0.5 * timing.integration_s))
     result.sensor_delay_s = delay_s
-    result.z_line_mm = z_line
+    return delay_s
+
+
+def z_from_sharp_model_or_lines(split: SplitTap, fits: ContactFits, result: TapAnalysis) -> None:
+    """Z from the sharp contact model, or from the line intersection P4 when it could not be fitted."""
+    motion, timing, pullback = split.motion, split.timing, fits.pullback
     if pullback:
         result.z_mm = motion.z_halt_mm + pullback.contact_um / 1000.0
         result.z_sigma_um = pullback.contact_sigma_um
+        result.z_sharp_mm, result.z_sharp_sigma_um = result.z_mm, result.z_sigma_um
         result.z_method = "contact_model"
         result.contact_onset_um = pullback.onset_um
         result.stiffness_decompression_g_um = pullback.stiffness_g_um
-        result.fit_residual_sigma_g = near_sigma_g
+        result.fit_residual_sigma_g = fits.near_sigma_g
         window_um = motion.pullback_speed_mm_s * timing.integration_s * 1000.0
         result.step_sigma_g = pullback.stiffness_g_um * step_staircase_sigma_um(timing.z_step_um, window_um)
     else:
-        result.z_mm = z_line
-        result.z_sigma_um = break_time_sigma_s(ps, dec, t_break) * motion.pullback_speed_mm_s * 1000.0
+        dec = split.dec
+        result.z_mm = result.z_line_mm
+        result.z_sigma_um = break_time_sigma_s(split.ps, dec, dec.points[P_BREAK][0]) * motion.pullback_speed_mm_s * 1000.0
         result.z_method = "lines"
-        result.stiffness_decompression_g_um = abs(dec.lines[3][0]) / (motion.pullback_speed_mm_s * 1000.0)
-    if options.uses_toe_model:
-        # The toe is fitted in the window's heights; a delay estimated since ("auto") moves its
-        # contact down by pullback speed x delay, as it moved the sharp fit's above.
-        lag_shift_um = (delay_s - window_delay_s) * motion.pullback_speed_mm_s * 1000.0
-        start = pullback.contact_um + lag_shift_um if pullback else window.break_line_um
-        drift_g_um = free_air_slope_g_um(dec, motion)
-        wander, approach_wander = free_air_wanders(force, dec)
-        samples = pullback_samples(window, motion, timing, window_delay_s)  # for the toe fit and the adhesion check
-        toe = fit_pullback_toe(samples, motion, timing, start, drift_g_um, wander)
-        if toe:
-            result.z_mm = motion.z_halt_mm + (toe.contact_um - lag_shift_um) / 1000.0
-            result.z_sigma_um = toe.sigma_um
-            result.z_method = "toe"
-            result.contact_onset_um = toe.width_um
-            result.stiffness_decompression_g_um = toe.stiffness_g_um
-            try:
-                check_adhesion(samples, motion, timing, dec, drift_g_um, toe.contact_um, noise_g, approach_wander,
-                               result.compression_force_g)
-            except TapInvalid as invalid:
-                result.valid, result.error, result.message = False, invalid.code, invalid.message
-                return result, context
+        result.stiffness_decompression_g_um = abs(dec.decompression_line[0]) / (motion.pullback_speed_mm_s * 1000.0)
+
+
+def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, delay_s: float, window_delay_s: float,
+                     result: TapAnalysis) -> None:
+    """Z from the toe model (tapcell.tap.toe), started at the sharp model's contact; then the
+    adhesion checks that belong to it (TAP_ADHESION raised)."""
+    motion, timing, dec, pullback = split.motion, split.timing, split.dec, fits.pullback
+    # The toe is fitted in the window's heights; a delay estimated since ("auto") moves its
+    # contact down by pullback speed x delay, as it moved the sharp fit's above.
+    lag_shift_um = (delay_s - window_delay_s) * motion.pullback_speed_mm_s * 1000.0
+    start = pullback.contact_um + lag_shift_um if pullback else window.break_line_um
+    drift_g_um = free_air_slope_g_um(dec, motion)
+    wander, approach_wander = free_air_wanders(split.force_g, dec)
+    samples = pullback_samples(window, motion, timing, window_delay_s)  # for the toe fit and the adhesion check
+    toe = fit_pullback_toe(samples, motion, timing, start, drift_g_um, wander)
+    if not toe:
+        return
+    result.z_mm = motion.z_halt_mm + (toe.contact_um - lag_shift_um) / 1000.0
+    result.toe_grid, result.toe_z_origin_mm = toe.grid, motion.z_halt_mm - lag_shift_um / 1000.0
+    result.z_sigma_um = toe.sigma_um
+    result.z_method = "toe"
+    result.contact_onset_um = toe.width_um
+    result.stiffness_decompression_g_um = toe.stiffness_g_um
+    check_adhesion(samples, motion, timing, dec, drift_g_um, toe.contact_um, split.noise_g, approach_wander,
+                   result.compression_force_g, contact_explained(result))
+    check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, split.noise_g, approach_wander,
+                     toe.stiffness_g_um)
+
+
+def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, contact_um: float,
+                     lag_shift_um: float, noise_g: float, approach_wander: Wander | None, stiffness_g_um: float) -> None:
+    """TAP_TWO_STAGE_CONTACT when the force keeps a soft stage's ramp above the contact found
+    (tapcell.tap.stage): the stiff stage let go there, the first touch is higher."""
+    x_um = 0.5 * (samples[0] + samples[1])
+    near = departure_near(x_um, contact_um)
+    x_um = x_um[near]
+    force_g = samples[2][near] - drift_g_um * x_um
+    # White noise and what the baseline's walk adds over the departure (a walk about its mean: n/6).
+    walk_var_g2 = approach_wander.walk_var_g2 if approach_wander else 0.0
+    stage = soft_stage(x_um, force_g, contact_um, noise_g * noise_g + walk_var_g2 * len(x_um) / 6.0)
+    if shows_soft_stage(stage, stiffness_g_um, contact_um):
+        first_touch_mm = motion.z_halt_mm + (stage.top_um - lag_shift_um) / 1000.0
+        raise TapInvalid(TAP_TWO_STAGE_CONTACT,
+                         f"after break contact the force falls along a soft stage ({stage.slope_g_um:.2f} g/um, "
+                         f"{stage.top_um - contact_um:.0f} um up to Z {first_touch_mm:.4f}): a soft layer pressed "
+                         "before the contact, a two-stage mount (a magnetic sheet, a sprung bed) or a film of ooze; "
+                         "its stiff stage would read low")
+
+
+def compression_stiffness(split: SplitTap, window: ModelWindow, fits: ContactFits, delay_s: float,
+                          result: TapAnalysis) -> None:
+    """The compression stiffness, when enough samples were pressed wholly in contact before the halt."""
+    pullback, motion = fits.pullback, split.motion
+    onset_um = pullback.onset_um if pullback else 0.0
     result.compression_samples = compression_sample_count(window, motion, delay_s, onset_um,
                                                           pullback.contact_um if pullback else window.break_line_um)
     if result.compression_samples >= MIN_COMPRESSION_SAMPLES:
-        result.stiffness_compression_g_um = (compression.stiffness_g_um if compression else
-                                             abs(dec.lines[1][0]) / (motion.approach_speed_mm_s * 1000.0))
-    result.message = "ok"
-    return result, context
+        result.stiffness_compression_g_um = (fits.compression.stiffness_g_um if fits.compression else
+                                             abs(split.dec.compression_line[0]) / (motion.approach_speed_mm_s * 1000.0))
 
 
 def mains_frequencies_hz(tap: TapData, options: AnalysisOptions) -> tuple[float, ...] | str | None:

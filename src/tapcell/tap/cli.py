@@ -1,4 +1,4 @@
-"""`tapcell analyze [--json] [--plot OUT.png] [--set key=value ...] FILE...`"""
+"""`tapcell analyze [--json] [--pool] [--plot OUT.png] [--set key=value ...] FILE...`"""
 
 from __future__ import annotations
 
@@ -21,6 +21,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--plot", metavar="OUT.png",
                         help="draw each tap: the first to OUT.png, the next to OUT-2.png, OUT-3.png, ... "
                              "(the files written are listed after the results)")
+    parser.add_argument("--pool", action="store_true",
+                        help="the taps were made at one spot (PROBE_ACCURACY, SAMPLES=): estimate their shared "
+                             "toe jointly and add each tap's pooled Z (z_pooled, z_pooled_sigma_um)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="analysis option, e.g. sensor_delay_s=0.002 or decompression_angle=80")
     return parser
@@ -74,17 +77,24 @@ def main(argv: list[str]) -> int:
                 label = name + (f"#{index + 1}" if len(taps) > 1 else "")
                 plot_tap(tap, analysis, target, title=f"{name}" + (f" #{index + 1}" if len(taps) > 1 else ""))
                 plots.append((target, label))
+    if args.pool:
+        # Imported here: only a pooled run needs it.
+        from tapcell.tap.pool import apply_pool
+
+        apply_pool([analysis for *_, analysis in results])
     if args.json:
         # One tap per line: json's C encoder (indent= falls back to the pure-Python one, ~0.2 ms a tap).
         taps = [json.dumps({"file": name, **analysis.to_json()}) for name, _, _, analysis in results]
         print("[\n" + ",\n".join(taps) + "\n]")
     else:
-        print(f"{'file':<32} {'valid':<6} {'Z (mm)':>11} {'±σ (µm)':>8} {'quality':>8}  code")
+        pooled_header = f" {'pooled Z':>11} {'±σ (µm)':>8}" if args.pool else ""
+        print(f"{'file':<32} {'valid':<6} {'Z (mm)':>11} {'±σ (µm)':>8}{pooled_header} {'quality':>8}  code")
         for name, index, count, a in results:
             label = name if count == 1 else f"{name}#{index + 1}"
             code = a.error or ""
+            pooled = f" {_fmt(a.z_pooled_mm, '11.5f'):>11} {_fmt(a.z_pooled_sigma_um, '8.3f'):>8}" if args.pool else ""
             print(f"{label:<32} {'yes' if a.valid else 'no':<6} {_fmt(a.z_mm, '11.5f'):>11} "
-                  f"{_fmt(a.z_sigma_um, '8.3f'):>8} {_fmt(a.quality, '8.1f'):>8}  {code}")
+                  f"{_fmt(a.z_sigma_um, '8.3f'):>8}{pooled} {_fmt(a.quality, '8.1f'):>8}  {code}")
     # The plot files written, one a line (on stderr with --json: stdout is the JSON alone).
     for target, label in plots:
         print(f"plot {target}: {label}", file=sys.stderr if args.json else sys.stdout)

@@ -32,6 +32,7 @@ TAP_DATA_INSUFFICIENT = "TAP_DATA_INSUFFICIENT"  # a phase window holds too few 
 TAP_MOTION_INVALID = "TAP_MOTION_INVALID"  # the motion has no approach/halt/pullback to analyse
 TAP_CONTACT_MISMATCH = "TAP_CONTACT_MISMATCH"  # contact on the way down above break contact on the way up
 TAP_ADHESION = "TAP_ADHESION"  # (toe model) the force dips below free air after break contact (a thread pulling)
+TAP_TWO_STAGE_CONTACT = "TAP_TWO_STAGE_CONTACT"  # (toe model) a soft stage pressed above the contact (sheet, springs)
 
 
 class TapFileError(Exception):
@@ -117,8 +118,6 @@ ANALYSIS_RANGES: dict[str, Range] = {
     "contact_onset_um": Range(0.0, 100.0),
     "z_step_um": Range(0.0, 100.0),
     "trigger_force_g": Range(0.0, 100000.0),
-    "pullback_distance_mm": Range(0.001, 10.0),
-    "pullback_speed_mm_s": Range(0.001, 100.0),
     "min_tap_quality": Range(0.0, 100.0),
     "decompression_angle": Range(0.0, 90.0, exclusive=True),
     "max_approach_force": Range(0.0, 100.0),
@@ -157,8 +156,6 @@ class AnalysisOptions:
     sensor_delay_s: float | str | None = None
     sensor_integration_s: float | None = None
     trigger_force_g: float | None = None
-    pullback_distance_mm: float | None = None
-    pullback_speed_mm_s: float | None = None
     tap_classifier: str = "tap_quality"
     min_tap_quality: float = 40.0
     decompression_angle: float | None = None
@@ -177,9 +174,8 @@ class AnalysisOptions:
 
     # Options that may be reset to None ("from the tap file / default") with `--set key=none`.
     _OPTIONAL = frozenset(
-        ("sensor_delay_s", "sensor_integration_s", "trigger_force_g", "pullback_distance_mm", "contact_onset_um",
-         "z_step_um",
-         "pullback_speed_mm_s", "decompression_angle", "mains_hz")
+        ("sensor_delay_s", "sensor_integration_s", "trigger_force_g", "contact_onset_um", "z_step_um",
+         "decompression_angle", "mains_hz")
     )
 
     @property
@@ -258,6 +254,21 @@ def _num(value: float | None, digits: int = 9) -> float | None:
 
 
 @dataclass
+class PullbackFit:
+    """The pullback's samples as the sharp contact model read them (window low edge and span, µm
+    above the halt; force, g) and its contact height, stiffness and onset (tapcell.tap.pool)."""
+
+    x_min_um: np.ndarray
+    span_um: np.ndarray
+    force_g: np.ndarray
+    contact_um: float
+    stiffness_g_um: float
+    onset_um: float
+    pullback_speed_mm_s: float
+    delay_s: float  # the sensor delay the heights were read with
+
+
+@dataclass
 class TapAnalysis:
     """The result of analysing one tap. Times in the tap's own clock, forces in the tap's polarity."""
 
@@ -290,6 +301,15 @@ class TapAnalysis:
     quality_components: dict[str, float] = field(default_factory=dict)
     classifier: str | None = None
     hum: dict[str, Any] | None = None  # the mains hum removed before the analysis (HumFit.to_json)
+    # The toe fit's grid and the Z (mm) of its contact height 0, for pooling taps at one spot
+    # (tapcell.tap.pool); not part of the JSON.
+    toe_grid: Any = field(default=None, repr=False, compare=False)
+    toe_z_origin_mm: float | None = field(default=None, repr=False, compare=False)
+    pullback_fit: PullbackFit | None = field(default=None, repr=False, compare=False)
+    z_sharp_mm: float | None = field(default=None, repr=False, compare=False)  # the sharp model's Z
+    z_sharp_sigma_um: float | None = field(default=None, repr=False, compare=False)
+    z_pooled_mm: float | None = None  # Z with the toe shared by the taps at one spot (tapcell.tap.pool)
+    z_pooled_sigma_um: float | None = None
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -322,4 +342,6 @@ class TapAnalysis:
             "quality_components": {k: _num(v, 6) for k, v in self.quality_components.items()},
             "classifier": self.classifier,
             "hum": self.hum,
+            **({} if self.z_pooled_mm is None else {"z_pooled": _num(self.z_pooled_mm),
+                                                   "z_pooled_sigma_um": _num(self.z_pooled_sigma_um, 4)}),
         }

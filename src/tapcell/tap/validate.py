@@ -39,6 +39,10 @@ CONSISTENCY_SIGMAS = 3.0
 # Share of the compression force still on the bed at the end of the pullback that means the
 # nozzle never left it (a tap that left reads 0 +- 1 %; ooze pulls the other way).
 STILL_PRESSING_SHARE = 0.05
+# ... and it must also stand this many times the departure's own scatter (noise, mains hum) above
+# the free-air level: a single hum swing at the pullback's end is not a nozzle pressing (issue 21:
+# 8 of 80 reference noisy-mains taps broke contact mid-pullback and read TAP_PULLBACK_TOO_SHORT).
+STILL_PRESSING_SCATTERS = 4.0
 
 
 class TapInvalid(Exception):
@@ -86,10 +90,12 @@ def check_motion(motion: Motion, time_s: np.ndarray) -> None:
                          f"({motion.home_end_s:.6f} s) and the pullback start ({motion.pullback_start_s:.6f} s)")
 
 
-def check_left_the_bed(pressed_g: float, remaining_g: float) -> None:
+def check_left_the_bed(pressed_g: float, remaining_g: float, scatter_g: float = 0.0) -> None:
     """The nozzle must have left the bed by the end of the pullback: the force then must be back
-    near the approach baseline. `pressed_g`: the compression force (contact to dwell);
-    `remaining_g`: the force above the baseline over the last samples of the pullback.
+    near the free-air level. `pressed_g`: the compression force (contact to dwell);
+    `remaining_g`: the force above the free-air level at that height (the approach line carried
+    up by the drift) over the last samples of the pullback; `scatter_g`: the departure's own
+    scatter about its line (noise and hum), which the remaining force must also clearly exceed.
 
     A pullback shorter than the sheet's springback leaves the nozzle pressing (a share of the
     compression force that grows as the pullback shrinks: 8 % at 0.03 mm and 2 mm/s, 77 % at
@@ -97,7 +103,7 @@ def check_left_the_bed(pressed_g: float, remaining_g: float) -> None:
     the pressing and the tap reads out of order, misshapen or TOO_EARLY, whose advice (shorten
     pullback_distance) is the opposite of the fix: this check comes first.
     """
-    if pressed_g > 0 and remaining_g > STILL_PRESSING_SHARE * pressed_g:
+    if pressed_g > 0 and remaining_g > max(STILL_PRESSING_SHARE * pressed_g, STILL_PRESSING_SCATTERS * scatter_g):
         raise TapInvalid(TAP_PULLBACK_TOO_SHORT,
                          f"the nozzle still pressed the bed with {remaining_g:.0f}g ({remaining_g / pressed_g:.0%} of "
                          f"the {pressed_g:.0f}g compression) when the pullback ended: it never broke contact; "

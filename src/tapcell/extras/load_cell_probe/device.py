@@ -134,11 +134,9 @@ def filter_options(options: TapOptions, sample_rate_sps: float) -> FilterOptions
     )
 
 
-def analysis_options(options: TapOptions, pullback_speed_mm_s: float) -> AnalysisOptions:
+def analysis_options(options: TapOptions) -> AnalysisOptions:
     return AnalysisOptions(
         trigger_force_g=options.trigger_force_g,
-        pullback_distance_mm=options.pullback_distance_mm,
-        pullback_speed_mm_s=pullback_speed_mm_s,
         tap_classifier=options.tap_classifier,
         min_tap_quality=options.min_tap_quality,
         decompression_angle=options.decompression_angle,
@@ -241,7 +239,7 @@ class LoadCellProbe:
     def _design(self, options: TapOptions) -> TapSettings:
         sos = design_firmware_filter(filter_options(options, self.sample_rate_sps))
         pullback_speed = options.pullback_speed_mm_s or default_pullback_speed_mm_s(self.sample_rate_sps)
-        return TapSettings(options, sos, pullback_speed, analysis_options(options, pullback_speed))
+        return TapSettings(options, sos, pullback_speed, analysis_options(options))
 
     def command_settings(self, gcmd) -> TapSettings:
         """The settings of this command: a new filter design when any option is overridden."""

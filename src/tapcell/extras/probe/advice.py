@@ -45,6 +45,9 @@ ADVICE: dict[str, tuple[str, str]] = {
                              CLEAN_AND_COOL),
     "TAP_ADHESION": ("a thread of plastic held the nozzle as it left the bed (the force dipped below free air)",
                      CLEAN_AND_COOL),
+    "TAP_TWO_STAGE_CONTACT": ("the nozzle pressed a soft layer before the bed (a magnetic sheet lifting, a sprung "
+                              "bed's springs, a film of ooze): its stiff stage would read low",
+                              "seat the sheet flat and clean it, check the bed's springs; " + CLEAN_AND_COOL),
     "TAP_DATA_INSUFFICIENT": ("too few samples in part of the tap: the sensor is slow for this probing speed",
                               "probe slower (PROBE_SPEED=) or use a faster sample_rate"),
     "TAP_MOTION_INVALID": ("the recorded motion does not describe a tap (a move was interrupted)",
