@@ -143,7 +143,7 @@ class NozzleWatch:
         start = self.backend.position
         direction = [0.0 if end is None else end - begin for end, begin in zip(machine_xyz, start)]
         speed_mm_s = min(speed_mm_s, self.speed_cap_mm_s(direction))
-        tare_counts = self._move_tare_counts()
+        tare_counts = self._move_tare_counts(descends=direction[2] < 0.0)
         trigger = self._trigger()
         t_start_s = self.backend.now_s
         firmware = device.arm(trigger.pop("settings"), tare_counts, **trigger)
@@ -175,19 +175,22 @@ class NozzleWatch:
         how close printing comes to nozzle_watch_force)."""
         self.largest_force_g = max(self.largest_force_g, abs(self._force_since(tare_counts, t_start_s)))
 
-    def _move_tare_counts(self) -> float:
-        """The cell clear of the bed, that the move's force is measured from.
+    def _move_tare_counts(self, descends: bool) -> float:
+        """The cell's reading that the move's force is measured from.
 
         A move that starts at or above nozzle_watch_height starts clear: its own samples are the
-        tare, kept as the free-air tare. A move that starts lower may start pressing already (the
-        previous watched move ended on a blob; a run of small steps down; a move cut in pieces by
-        the mesh): it is measured from the newest free-air tare (that one, or the probe's last tap
-        tare), so a press cannot creep up from move to move. Only when neither exists are its own
-        samples used."""
+        tare, kept as the free-air tare. So are those of a lower move that does not go down (travel
+        at layer height): a steady force that is not the bed (a bowden tube pulling, a weight) is
+        tared away, and what the move meets on its way is seen. A lower move that goes down may
+        start pressing already (a run of small steps down; a move the mesh cut in pieces): it is
+        measured from the newest free-air tare (that one, or the probe's last tap tare), so a
+        press cannot creep up step by step. Only when neither exists are its own samples used."""
         device = self.device
         if device.motion.get_position()[2] >= self.options.height_mm:
             self._free_air = (self._tare_counts(), self.backend.now_s)
             return self._free_air[0]
+        if not descends:
+            return self._tare_counts()
         known = [tare for tare in (self._free_air, (device.tare_counts_at_tap, device.tare_time_s))
                  if tare is not None and tare[0] is not None]
         if known:
