@@ -125,7 +125,7 @@ def test_watched_speed_cap_follows_the_assumed_bed(tmp_path):
     assert watch.speed_cap_mm_s((0.0, 0.0, -1.0)) == 30.0
     assert watch.speed_cap_mm_s((1.0, 0.0, -1.0)) == pytest.approx(30.0 / np.sqrt(2.0))
     printer.gcode.run_script("G1 X110 Y110 F6000\nPROBE")
-    stiffness_g_um, measured = device.assumed_stiffness_g_um()
+    stiffness_g_um, measured = device.speed_guard.assumed_stiffness_g_um()
     assert measured and 3.5 < stiffness_g_um < 4.5
     assert watch.speed_cap_mm_s((1.0, 0.0, 0.0)) == 80.0
 

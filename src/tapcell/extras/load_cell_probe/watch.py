@@ -116,14 +116,14 @@ class NozzleWatch:
 
     def trigger_params(self) -> TriggerParams:
         trigger = self._trigger()
-        return self.device.move_params(trigger.pop("settings"), **trigger)
+        return self.device.trigger.move_params(trigger.pop("settings"), **trigger)
 
     def speed_cap_mm_s(self, direction_xyz) -> float:
         """The fastest a watched move in this direction may go: the watch must stop the nozzle
         meeting the stiffest bed assumed (the probe's force guard: measured by taps, with a margin,
         else the worst case) head on, or a WORST_FLANK_SLOPE flank sideways, at or below
         force_safety_limit."""
-        stiffness_g_um, _ = self.device.assumed_stiffness_g_um()
+        stiffness_g_um, _ = self.device.speed_guard.assumed_stiffness_g_um()
         if stiffness_g_um not in self._speed_caps:
             params = self.trigger_params()
             limit_g = params.force_safety_limit_g or CAP_LIMIT_WITHOUT_SAFETY_LIMIT_G
@@ -146,7 +146,7 @@ class NozzleWatch:
         tare_counts = self._move_tare_counts(descends=direction[2] < 0.0)
         trigger = self._trigger()
         t_start_s = self.backend.now_s
-        firmware = device.arm(trigger.pop("settings"), tare_counts, **trigger)
+        firmware = device.trigger.arm(trigger.pop("settings"), tare_counts, **trigger)
         self.watched_moves += 1
         x, y, z = machine_xyz
         history = device.history
@@ -225,7 +225,7 @@ class NozzleWatch:
         self._lift()
         if result.error not in (TriggerError.NONE, TriggerError.FORCE_SAFETY):
             # The sensor itself failed (stuck, gone): say so, not a collision.
-            raise ProbeError(device.error_message(result.error, device.options)
+            raise ProbeError(device.trigger.error_message(result.error, device.options)
                              + f" (the nozzle watch stopped the move at {x_mm:.3f},{y_mm:.3f},{z_mm:.3f}"
                              + (f" during {during}" if during else "") + ")")
         raise ProbeError(collision_message(x_mm, y_mm, z_mm, peak_g, during))
