@@ -85,6 +85,8 @@ ENDSTOP_SWITCH_MM = 1e-6  # the virtual X/Y switches close at machine position 0
 HOME_BACKOFF_MM = 0.5
 HOME_CONFIRM_SPEED_MM_S = 2.0
 HOME_TAPS = 4
+# max_bed_stiffness (g/um): the stiffest bed the force guard assumes until taps measure it.
+MAX_BED_STIFFNESS_RANGE = (1.0, 1000.0)
 
 
 class SampleHistory:
@@ -228,8 +230,13 @@ class LoadCellProbe:
         sensor_pin = self.cell_options.dout_pin or self.cell_options.data_ready_pin
         self.stop_timing = safety.stop_timing(self.cell_options.sensor_type, self.sample_rate_sps,
                                               pin_mcu(sensor_pin), pin_mcu(self.motion.options.axes["z"].step_pin))
+        # The stiffest bed a bad tap's pullback showed (the force guard only raises its assumption by it).
+        self.bad_tap_stiffness_g_um: float | None = None
         self.speed_guard = SpeedGuard(self.stop_timing, lambda: self.motion.options.max_z_velocity_mm_s,
-                                      self._known_stiffness_g_um, printer.gcode.respond_info)
+                                      self._guard_stiffness_g_um, printer.gcode.respond_info,
+                                      section.getfloat("max_bed_stiffness", safety.DEFAULT_STIFFNESS_G_UM,
+                                                       minval=MAX_BED_STIFFNESS_RANGE[0],
+                                                       maxval=MAX_BED_STIFFNESS_RANGE[1]))
         # Inside a probing command (`guarded`): how deep, the speed notes already given, and the
         # machine Z the last probing move started from (clear of the bed at that XY).
         self._guard_depth = 0
@@ -572,6 +579,8 @@ class LoadCellProbe:
             message = f"{message} ({why})"
         # Kept after the stiffness guess above: a bad tap's stiffness must not explain itself.
         self._record(tap, analysis, z_mm, valid)
+        if not valid:
+            self._note_bad_tap_stiffness(tap)
         if valid:
             self.bed_heights.remember(x_mm, y_mm, z_mm)
         if analysis.quality is not None:
@@ -597,12 +606,35 @@ class LoadCellProbe:
     def _known_stiffness_g_um(self) -> float | None:
         """The bed's stiffness measured by the kept valid taps (the stiffest), None before any.
 
-        A bad tap's stiffness is not trusted: neither the force guard (`SpeedGuard.assumed_stiffness_g_um`)
-        nor the explanation of a bad tap uses it.
+        A bad tap's analysis is not trusted: the explanation of a bad tap never uses it, and the force
+        guard only takes a bad tap's own pullback when that shows a stiffer bed (`_guard_stiffness_g_um`).
         """
         stiffness = [t.analysis.stiffness_decompression_g_um for t in self.last_taps
                      if t.valid and t.analysis.stiffness_decompression_g_um]
         return max(stiffness) if stiffness else None
+
+    def _note_bad_tap_stiffness(self, tap: TapData) -> None:
+        """A bad tap (on a bed too stiff for the speed: break contact too early, a shape the analysis
+        cannot read) still shows the bed's stiffness in its pullback. The force guard takes it when
+        it is stiffer than what it assumes, so the next tap at that speed is refused with the safe
+        speed instead of failing the same way again and again."""
+        if not tap.moves:
+            return
+
+        def z_at(t_s: float) -> float:  # the commanded Z: the last move started by then
+            return float(([m for m in tap.moves if m.print_time <= t_s] or tap.moves[:1])[-1].z_at(t_s))
+
+        stiffness = safety.decompression_stiffness_g_um(tap.time_s, tap.force_g, z_at,
+                                                        tap.events["pullback_start_time"],
+                                                        tap.events["pullback_end_time"])
+        if stiffness is not None:
+            self.bad_tap_stiffness_g_um = max(stiffness, self.bad_tap_stiffness_g_um or 0.0)
+
+    def _guard_stiffness_g_um(self) -> float | None:
+        """What the force guard takes as measured: the valid taps' stiffness, raised by a stiffer
+        bed a bad tap showed."""
+        known = [k for k in (self._known_stiffness_g_um(), self.bad_tap_stiffness_g_um) if k]
+        return max(known) if known else None
 
     def _explain_bad_tap(self, tap: TapData, error_code: str | None, options: TapOptions,
                          speed_mm_s: float) -> str | None:

@@ -3,7 +3,7 @@
 Before a probing move (and for the nozzle watch's speed cap) the guard predicts how hard the
 nozzle could press at a speed (`safety.worst_stop`: the firmware trigger itself on ideal contact
 ramps) on the stiffest bed it must assume: the stiffest valid kept tap's stiffness with a margin,
-else the conservative default. A speed past [printer] max_z_velocity is capped (said once per
+else `max_bed_stiffness` (10 g/um by default). A speed past [printer] max_z_velocity is capped (said once per
 command); one that could press past force_safety_limit is refused with the safe speed.
 """
 
@@ -21,8 +21,10 @@ class SpeedGuard:
     """Speed checks against the worst-case stop (see the module docstring)."""
 
     def __init__(self, stop_timing: safety.StopTiming, max_z_velocity_mm_s: Callable[[], float],
-                 known_stiffness_g_um: Callable[[], float | None], respond_info: Callable[[str], None]):
+                 known_stiffness_g_um: Callable[[], float | None], respond_info: Callable[[str], None],
+                 max_bed_stiffness_g_um: float = safety.DEFAULT_STIFFNESS_G_UM):
         self.stop_timing = stop_timing
+        self.max_bed_stiffness_g_um = max_bed_stiffness_g_um  # assumed until taps measure the bed
         self._max_z_velocity_mm_s = max_z_velocity_mm_s
         self._known_stiffness_g_um = known_stiffness_g_um
         self._respond_info = respond_info
@@ -33,11 +35,11 @@ class SpeedGuard:
         self._notes.clear()
 
     def assumed_stiffness_g_um(self) -> tuple[float, bool]:
-        """(stiffness the guard assumes, whether taps measured it): the stiffest valid kept tap
-        with a margin, else the conservative default."""
+        """(stiffness the guard assumes, whether taps measured it): the stiffest bed the taps measured
+        with a margin, else max_bed_stiffness."""
         measured = self._known_stiffness_g_um()
         if measured is None:
-            return safety.DEFAULT_STIFFNESS_G_UM, False
+            return self.max_bed_stiffness_g_um, False
         return measured * safety.MEASURED_STIFFNESS_MARGIN, True
 
     def check(self, params: TriggerParams, speed_mm_s: float) -> float:
