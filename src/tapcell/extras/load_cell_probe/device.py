@@ -75,6 +75,11 @@ TARE_TIMEOUT_S = 1.0  # no sample for this long: the sensor is gone
 # Bad-tap codes a too-fast probing move can cause (the compression between two samples, a
 # deep over-travel). A low quality score is the classifier's verdict, not explained by speed.
 SPEED_SENSITIVE_CODES = ("TAP_CHRONOLOGY", "TAP_SHAPE_INVALID", "TAP_PULLBACK_TOO_SHORT", "TAP_BREAK_CONTACT_TOO_LATE")
+# The bad-tap code a bed too stiff for the speed causes (the compression is a few um: contact breaks
+# as the pullback starts): such a tap tells the force guard the bed's stiffness from its pullback.
+# Other codes (a touch, a tug, ooze) leave pullbacks that do not measure the bed.
+STIFF_BED_CODES = ("TAP_BREAK_CONTACT_TOO_EARLY",)
+BAD_TAP_AGREEMENT = 1.5  # two bad taps' pullback stiffness agree within this factor
 RELEASE_CHECK_S = 0.05  # LOAD_CELL_TEST_TAP looks at the force this often while waiting for a release
 TARE_FRESH_MARGIN_SAMPLES = 4  # the tare window may reach back this many periods beyond tare_time
 SAVE_CONFIG_NOTE = ("The SAVE_CONFIG command will update the printer config file with the above and restart "
@@ -232,6 +237,7 @@ class LoadCellProbe:
                                               pin_mcu(sensor_pin), pin_mcu(self.motion.options.axes["z"].step_pin))
         # The stiffest bed a bad tap's pullback showed (the force guard only raises its assumption by it).
         self.bad_tap_stiffness_g_um: float | None = None
+        self._unconfirmed_stiffness_g_um: float | None = None  # the last such tap's, until the next agrees
         self.speed_guard = SpeedGuard(self.stop_timing, lambda: self.motion.options.max_z_velocity_mm_s,
                                       self._guard_stiffness_g_um, printer.gcode.respond_info,
                                       section.getfloat("max_bed_stiffness", safety.DEFAULT_STIFFNESS_G_UM,
@@ -579,8 +585,10 @@ class LoadCellProbe:
             message = f"{message} ({why})"
         # Kept after the stiffness guess above: a bad tap's stiffness must not explain itself.
         self._record(tap, analysis, z_mm, valid)
-        if not valid:
+        if not valid and analysis.error in STIFF_BED_CODES:
             self._note_bad_tap_stiffness(tap)
+        else:
+            self._unconfirmed_stiffness_g_um = None
         if valid:
             self.bed_heights.remember(x_mm, y_mm, z_mm)
         if analysis.quality is not None:
@@ -614,10 +622,10 @@ class LoadCellProbe:
         return max(stiffness) if stiffness else None
 
     def _note_bad_tap_stiffness(self, tap: TapData) -> None:
-        """A bad tap (on a bed too stiff for the speed: break contact too early, a shape the analysis
-        cannot read) still shows the bed's stiffness in its pullback. The force guard takes it when
-        it is stiffer than what it assumes, so the next tap at that speed is refused with the safe
-        speed instead of failing the same way again and again."""
+        """A bad tap on a bed too stiff for the speed (break contact too early) still shows the bed's
+        stiffness in its pullback. When two such taps in a row agree, the force guard takes it (if
+        stiffer than what it assumes), so the next tap at that speed is refused with the safe speed
+        instead of failing the same way again and again."""
         if not tap.moves:
             return
 
@@ -627,8 +635,11 @@ class LoadCellProbe:
         stiffness = safety.decompression_stiffness_g_um(tap.time_s, tap.force_g, z_at,
                                                         tap.events["pullback_start_time"],
                                                         tap.events["pullback_end_time"])
-        if stiffness is not None:
-            self.bad_tap_stiffness_g_um = max(stiffness, self.bad_tap_stiffness_g_um or 0.0)
+        # Two such taps in a row must agree: one pullback disturbed by a tug or a touch does not count.
+        unconfirmed, self._unconfirmed_stiffness_g_um = self._unconfirmed_stiffness_g_um, stiffness
+        if stiffness is not None and unconfirmed is not None and \
+                max(stiffness, unconfirmed) <= BAD_TAP_AGREEMENT * min(stiffness, unconfirmed):
+            self.bad_tap_stiffness_g_um = max(min(stiffness, unconfirmed), self.bad_tap_stiffness_g_um or 0.0)
 
     def _guard_stiffness_g_um(self) -> float | None:
         """What the force guard takes as measured: the valid taps' stiffness, raised by a stiffer
