@@ -48,6 +48,26 @@ position_max: 250
 """
 
 
+# The calibrated load-cell probe the printer tests tap with (format counts_per_gram= and
+# reference_tare_counts=; the virtual cell's truth is 110 and -38000).
+PROBE_SECTION = """
+[load_cell_probe]
+sensor_type: hx717
+sclk_pin: PA5
+dout_pin: PA4
+sample_rate: 320
+counts_per_gram: {counts_per_gram}
+reference_tare_counts: {reference_tare_counts}
+z_offset: 0
+trigger_force: 75
+speed: 5
+# On this stiff bed (3.26 g/um) break contact comes 30-45 um
+# up, inside the first sixth of the default 0.2 mm pullback (the spec wants the middle two thirds);
+# 0.15 mm puts it at 20-30 % and leaves room for an ooze strand to tear before the pullback ends.
+pullback_distance: 0.15
+"""
+
+
 def machine_config(scenario: str = "clean", seed: int = 1) -> str:
     """Config text of the virtual machine in `scenario` with `seed`."""
     return f"[virtual_printer]\nscenario: {scenario}\nseed: {seed}\n\n{MACHINE_SECTIONS}"

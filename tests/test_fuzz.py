@@ -423,7 +423,10 @@ def test_random_gcode_on_the_virtual_printer_works_or_gives_a_gcode_error(tmp_pa
         except Exception as exc:
             failures.append(failure("G-code", line, exc))
     assert not failures, "\n".join(failures)
-    assert errors > GCODE_CASES / 2
+    # Most random lines are refused. How many depends on the share of commands that take no
+    # parameters (QUERY_ENDSTOPS, TURN_OFF_HEATERS, the example's PAUSE/RESUME/CANCEL_PRINT
+    # macros and their *_BASE): 44-57 of 100 over seeds 1-6 and 10; a third leaves that margin.
+    assert errors > GCODE_CASES / 3
     # Every range the run met is documented as enforced.
     config_doc, gcode_doc = documented_ranges()
     # The simulator's own parameters are listed, with their ranges, by `tapcell scenarios NAME`.

@@ -298,8 +298,11 @@ def test_restart_with_a_broken_config_halts_until_fixed(tmp_path, fake_modules):
 
 def test_example_config_parses():
     config = ConfigFile.read(DEFAULT_CONFIG)
-    assert config.sections() == ["virtual_printer", "printer", "stepper_x", "stepper_y", "stepper_z",
-                                 "safe_z_home", "load_cell_probe", "bed_mesh"]
+    assert config.sections()[:8] == ["virtual_printer", "printer", "stepper_x", "stepper_y", "stepper_z",
+                                     "safe_z_home", "load_cell_probe", "bed_mesh"]
+    # What Mainsail and Fluidd look for to pause, resume and cancel a print.
+    assert {"pause_resume", "display_status", "gcode_macro PAUSE", "gcode_macro RESUME",
+            "gcode_macro CANCEL_PRINT"} <= set(config.sections())
     probe = config.getsection("load_cell_probe")
     assert probe.get("sensor_type") == "hx717" and probe.get("sample_rate") == "320"
     assert not probe.has_option("counts_per_gram")  # shipped uncalibrated

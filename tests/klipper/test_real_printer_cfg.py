@@ -23,12 +23,16 @@ def test_voron_printer_cfg_loads_with_one_notice_of_what_is_simulated(tmp_path):
                                 "(motion); [extruder] (nozzle heater, E axis without filament); [heater_bed] (heater)")
     assert "[load_cell_probe] (load cell under the nozzle, bed contact)" in simulated
     for section in ("[mcu]", "[mcu toolboard]", "[board_pins octopus]", "[tmc2209 stepper_x]", "[stepper_z1]",
-                    "[neopixel sb_leds]", "[adxl345]", "[input_shaper]", "[idle_timeout]", "[virtual_sdcard]",
-                    "[save_variables]", "[force_move]", "[firmware_retraction]", "[z_tilt]"):
+                    "[adxl345]", "[input_shaper]", "[save_variables]", "[firmware_retraction]"):
         assert section in accepted, section
+    for section in ("[neopixel sb_leds] (colour recorded)", "[z_tilt] (one Z motor: nothing to level)",
+                    "[virtual_sdcard] (prints files)", "[force_move] (SET_KINEMATIC_POSITION)"):
+        assert section in simulated and section.split(" (")[0] not in accepted, section
     status = printer.get_status()
     assert {"toolhead", "gcode_move", "extruder", "heater_bed", "fan", "heater_fan hotend_fan", "heaters", "pause_resume",
-            "display_status", "exclude_object", "temperature_sensor chamber", "output_pin caselight"} <= set(status)
+            "display_status", "exclude_object", "temperature_sensor chamber", "output_pin caselight",
+            "idle_timeout", "motion_report", "system_stats", "query_endstops", "print_stats", "virtual_sdcard",
+            "z_tilt", "neopixel sb_leds"} <= set(status)
     assert status["heaters"]["available_heaters"] == ["extruder", "heater_bed"]
     assert status["output_pin caselight"] == {"value": 0.5}
 

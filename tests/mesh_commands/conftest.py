@@ -8,27 +8,9 @@ import pytest
 
 from tapcell.host.printer import Printer
 
-from machines import machine_config
+from machines import PROBE_SECTION as PROBE, machine_config
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "virtual-printer.cfg"
-
-
-PROBE = """
-[load_cell_probe]
-sensor_type: hx717
-sclk_pin: PA5
-dout_pin: PA4
-sample_rate: 320
-counts_per_gram: {counts_per_gram}
-reference_tare_counts: {reference_tare_counts}
-z_offset: 0
-trigger_force: 75
-speed: 5
-# On this stiff bed (3.26 g/um) break contact comes 30-45 um
-# up, inside the first sixth of the default 0.2 mm pullback (the spec wants the middle two thirds);
-# 0.15 mm puts it at 20-30 % and leaves room for an ooze strand to tear before the pullback ends.
-pullback_distance: 0.15
-"""
 
 
 class PrinterFactory:

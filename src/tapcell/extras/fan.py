@@ -48,12 +48,14 @@ class Fan:
 
 
 class PrinterFan(Fan):
+    # P (a fan index: OrcaSlicer writes `M106 P2 S0` for an auxiliary fan) is read and ignored, as
+    # Klipper does: M106/M107 always drive the [fan] section's part fan.
     def cmd_M106(self, gcmd: GCodeCommand) -> None:
-        gcmd.get_int("P", None, minval=0, maxval=0)  # the fan index: the virtual printer has one part fan
+        gcmd.get("P", None)
         self.set_speed(gcmd.get_float("S", 255.0, minval=0.0, maxval=255.0) / 255.0)
 
     def cmd_M107(self, gcmd: GCodeCommand) -> None:
-        gcmd.get_int("P", None, minval=0, maxval=0)
+        gcmd.get("P", None)
         self.set_speed(0.0)
 
 

@@ -23,13 +23,13 @@ import numpy as np
 from tapcell import scale
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeDispatch, GCodeError
-from tapcell.mcu import sensors
+from tapcell.mcu import ads131m0x, sensors
 from tapcell.host.backend import SampleBatch
 
 # ---------------------------------------------------------------------------
 # Options
 
-SENSOR_TYPES = ("hx711", "hx717", "ads1220")
+SENSOR_TYPES = ("hx711", "hx717", "ads1220", "ads131m02", "ads131m04")
 ORIENTATIONS = {"normal": False, "inverted": True}
 
 
@@ -58,6 +58,12 @@ class LoadCellOptions:
     vref: str | None = None
     pga_bypass: bool | None = None  # the effective value (forced on for AVSS inputs)
     ads1220_registers: bytes | None = None
+    # ADS131M02 / ADS131M04 (SPI, external clock)
+    adc_channel: int | None = None
+    clock_freq_hz: float | None = None
+    osr: int | None = None
+    global_chop_delay: int | None = None  # None: global chop off
+    ads131m0x_registers: ads131m0x.RegisterWords | None = None
 
     @property
     def is_calibrated(self) -> bool:
@@ -139,6 +145,56 @@ def _read_ads1220_options(section: ConfigSection) -> dict:
     )
 
 
+def _ads131m0x_clock_hz(section: ConfigSection) -> float:
+    """clock_freq, or the frequency of the [static_pwm_clock NAME] that pwm_clock names."""
+    low, high = ads131m0x.CLOCK_HZ_RANGE
+    pwm_clock = section.get("pwm_clock", None)
+    if pwm_clock is None:
+        return float(section.getint("clock_freq", minval=low, maxval=high))
+    if section.has_option("clock_freq"):
+        raise section.error("clock_freq", "give clock_freq or pwm_clock, not both")
+    clock_section = f"static_pwm_clock {pwm_clock.strip()}"
+    text = section.config.peek(clock_section, "frequency")
+    if text is None:
+        raise section.error("pwm_clock", f"needs a [{clock_section}] section with a frequency")
+    try:
+        frequency = float(text)
+    except ValueError:
+        raise section.error("pwm_clock", f"[{clock_section}] frequency = {text.strip()} is not a number") from None
+    if not low <= frequency <= high:
+        raise section.error("pwm_clock", f"[{clock_section}] frequency = {frequency:g} Hz is outside the chip's "
+                                         f"clock range ({low} to {high} Hz)")
+    return frequency
+
+
+def _read_ads131m0x_options(section: ConfigSection, chip: str) -> dict:
+    channels = ads131m0x.CHANNELS[chip]
+    channel = section.getint("adc_channel", 0, minval=0, maxval=channels - 1)
+    clock_hz = _ads131m0x_clock_hz(section)
+    gain = section.getchoice("gain", list(ads131m0x.GAINS), default=128)
+    chop = section.getboolean("enable_global_chop", False)
+    chop_delay = section.getchoice("global_chop_delay", list(ads131m0x.CHOP_DELAYS), default=16)
+    asked_sps = section.getfloat("sample_rate", ads131m0x.DEFAULT_SAMPLE_RATE_SPS, above=0.0, maxval=clock_hz / 2)
+    try:
+        osr, rate_sps = ads131m0x.choose_osr(clock_hz, asked_sps, chop_delay if chop else None)
+    except sensors.SensorConfigError as exc:
+        raise section.error("sample_rate", f"not possible; allowed: {exc.allowed}") from None
+    spi_speed = section.getint("spi_speed", ads131m0x.DEFAULT_SPI_SPEED_HZ, minval=100_000, maxval=25_000_000)
+    return dict(
+        cs_pin=section.get("cs_pin"),
+        data_ready_pin=section.get("data_ready_pin"),
+        spi_speed_hz=spi_speed,
+        **_read_spi_options(section),
+        gain=str(gain),
+        sample_rate_sps=rate_sps,
+        adc_channel=channel,
+        clock_freq_hz=clock_hz,
+        osr=osr,
+        global_chop_delay=chop_delay if chop else None,
+        ads131m0x_registers=ads131m0x.register_words(chip, channel, osr, gain, chop_delay if chop else None),
+    )
+
+
 def read_load_cell_options(section: ConfigSection) -> LoadCellOptions:
     """Reads and validates every [load_cell] option of `section` (also used by [load_cell_probe]).
 
@@ -147,6 +203,8 @@ def read_load_cell_options(section: ConfigSection) -> LoadCellOptions:
     sensor_type = section.getchoice("sensor_type", list(SENSOR_TYPES))
     if sensor_type == "ads1220":
         sensor_options = _read_ads1220_options(section)
+    elif sensor_type in ads131m0x.CHANNELS:
+        sensor_options = _read_ads131m0x_options(section, sensor_type)
     else:
         sensor_options = _read_hx71x_options(section, sensor_type)
     return LoadCellOptions(
@@ -168,6 +226,14 @@ def read_load_cell_options(section: ConfigSection) -> LoadCellOptions:
 AVERAGE_TIME_S = 1.0
 DIAGNOSTIC_TIME_S = 10.0
 DIAGNOSTIC_PROGRESS_EVERY_S = 2.0
+
+
+def sensor_error_note(backend) -> str:
+    """' (why)' when the sensor can tell why it refused samples (an ADS131M0x's CRC failures or its
+    reset; the backend's `sensor_error_note`), else ''."""
+    note_of = getattr(backend, "sensor_error_note", None)
+    note = note_of() if note_of is not None else ""
+    return f" ({note})" if note else ""
 
 
 class LoadCellError(GCodeError):
@@ -258,13 +324,14 @@ class LoadCell:
     def collect_checked(self, duration_s: float) -> SampleBatch:
         """`collect`, refusing spans with no samples, sensor errors or saturation."""
         batch = self.collect(duration_s)
-        if len(batch.counts) == 0:
+        if len(batch.counts) == 0 and not batch.errors:
             raise LoadCellError(
                 f"No samples returned from sensor! ({self.name}: nothing in {duration_s:g} s;"
                 " check the sensor wiring and its sensor_type / pins)"
             )
-        if batch.errors:
-            raise LoadCellError(f"Sensor reported {batch.errors} errors while sampling")
+        if batch.errors:  # samples that came and were refused (a chip that says why is asked)
+            raise LoadCellError(f"Sensor reported {batch.errors} errors while sampling"
+                                f"{sensor_error_note(self.printer.backend)}")
         if np.any(scale.saturated_mask(batch.counts, self.counts_range)):
             raise LoadCellError("Some samples are saturated (+/-100%)")
         return batch
@@ -378,7 +445,8 @@ class _CalibrationSession:
         if len(batch.counts) == 0:
             raise LoadCellError(f"No samples returned from sensor! ({self.load_cell.name})")
         if batch.errors:
-            raise LoadCellError(f"Sensor reported {batch.errors} errors while sampling")
+            raise LoadCellError(f"Sensor reported {batch.errors} errors while sampling"
+                                f"{sensor_error_note(self.load_cell.printer.backend)}")
         loaded_counts = float(np.mean(batch.counts))
         result = scale.evaluate_calibration(
             self.tare_counts, loaded_counts, grams,

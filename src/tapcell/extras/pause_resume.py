@@ -1,8 +1,9 @@
 """`[pause_resume]`: PAUSE, RESUME, CLEAR_PAUSE and CANCEL_PRINT (status `pause_resume`).
 
 PAUSE keeps the G-code state (SAVE_GCODE_STATE NAME=PAUSE_STATE); RESUME goes back to it at
-recover_velocity (RESTORE_GCODE_STATE ... MOVE=1). There is no print job to hold on the virtual
-printer: a pause is the state a macro (Mainsail's PAUSE, which renames this one) builds on.
+recover_velocity (RESTORE_GCODE_STATE ... MOVE=1). A file printing from [virtual_sdcard] stops,
+goes on and is cancelled with them (the events "pause_resume:pause", ":resume", ":cancel");
+Mainsail's PAUSE/RESUME/CANCEL_PRINT macros rename these and build on them.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ class PauseResume:
             return
         self.printer.gcode.run_script(f"SAVE_GCODE_STATE NAME={PAUSE_STATE}")
         self.is_paused = True
+        self.printer.send_event("pause_resume:pause")  # a file printing stops feeding (virtual_sdcard)
 
     def cmd_RESUME(self, gcmd: GCodeCommand) -> None:
         velocity = gcmd.get_float("VELOCITY", self.recover_velocity_mm_s, **SPEED_RANGE)
@@ -34,12 +36,14 @@ class PauseResume:
             return
         self.printer.gcode.run_script(f"RESTORE_GCODE_STATE NAME={PAUSE_STATE} MOVE=1 MOVE_SPEED={velocity:g}")
         self.is_paused = False
+        self.printer.send_event("pause_resume:resume")
 
     def cmd_CLEAR_PAUSE(self, gcmd: GCodeCommand) -> None:
         self.is_paused = False
 
     def cmd_CANCEL_PRINT(self, gcmd: GCodeCommand) -> None:
         self.is_paused = False
+        self.printer.send_event("pause_resume:cancel")
 
     def get_status(self, eventtime=None) -> dict:
         return {"is_paused": self.is_paused}

@@ -48,6 +48,7 @@ from tapcell.files import why_missing
 from tapcell.host.config import ConfigError
 from tapcell.host.gcode import GCodeError, parse_line
 from tapcell.host import load_cell_streams
+from tapcell.host.print_clock import PrintClock
 from tapcell.host.printer import WHEN_NOT_READY, Printer
 from tapcell.host.webhooks import ApiObjects
 
@@ -304,9 +305,10 @@ class PrinterThread:
         now = time.monotonic()
         elapsed_s, self._last_tick = now - self._last_tick, now
         state, _ = self.objects.state()
-        backend = self.printer.backend
-        if state == "ready" and backend is not None and hasattr(backend, "dwell"):
-            backend.dwell(min(elapsed_s, MAX_TICK_S))
+        clock = self.printer.print_clock
+        if state == "ready" and clock is not None:
+            clock.advance(min(elapsed_s, MAX_TICK_S))  # queued moves play; an idle printer's time passes
+            self.printer.run_background()  # a file printing, the idle timeout
         self._snapshot()
 
     def _after_job(self) -> None:
@@ -331,6 +333,8 @@ class PrinterThread:
         """Hook into a fresh printer build: restart event, API commands, tap clients, help."""
         printer = self.printer
         self.objects = ApiObjects(printer, self.gcodes_dir)
+        backend = printer.backend
+        printer.print_clock = PrintClock(backend) if backend is not None and hasattr(backend, "dwell") else None
         printer.register_event_handler("printer:restart", self._note_restart)
         if printer.state == "ready":
             self.objects.register_commands(printer.gcode)
@@ -355,6 +359,14 @@ class PrinterThread:
             gcode.respond_error(str(exc))
             raise RequestError(str(exc)) from None
         return {}
+
+    def call_endpoint(self, path: str, params: dict) -> dict:
+        """A module's endpoint (query_endstops/status), refused like G-code unless the printer is ready."""
+        state, message = self.objects.state()
+        callback = self.printer.endpoints.get(path)
+        if state != "ready" or callback is None:
+            raise RequestError(message if state != "ready" else f"No registered callback for path '{path}'")
+        return callback(params)
 
     def _check_ready(self, line: str) -> None:
         """Webhooks refuse G-code in every state but ready (startup, error, shutdown) with their state
@@ -663,6 +675,8 @@ class ApiServer:
 
     async def call(self, connection: Connection, method: str, params: dict) -> Any:
         endpoint = self._endpoints.get(method)
+        if endpoint is None and method in self.printer_thread.printer.endpoints:
+            return await self._on_printer(lambda: self.printer_thread.call_endpoint(method, params))
         if endpoint is None:
             raise RequestError(f"No registered callback for path '{method}'")
         result = endpoint(connection, method, params)
@@ -735,7 +749,7 @@ class ApiServer:
         }
 
     def _list_endpoints(self, connection, method, params) -> dict:
-        return {"endpoints": sorted(self._endpoints)}
+        return {"endpoints": sorted([*self._endpoints, *self.printer_thread.printer.endpoints])}
 
     def _objects_list(self, connection, method, params) -> dict:
         return {"objects": list(self.status)}
@@ -866,6 +880,7 @@ def main(argv: list[str]) -> int:
         print(f"tapcell serve: config file '{args.config}' {why_missing(args.config)}", file=sys.stderr)
         return 2
     printer = Printer(args.config)
+    printer.gcodes_dir = args.gcodes_dir
     try:
         printer.restart()  # builds it; a broken config leaves it in the "error" state, served as such
     except ConfigError as exc:

@@ -189,6 +189,13 @@ class PrinterHeaters:
         heater = self._heater_by_short_name(gcmd, "HEATER")
         heater.set_temperature(gcmd.get_float("TARGET", 0.0, **TEMPERATURE_RANGE), gcmd)
 
+    def turn_off_heaters(self) -> None:
+        for heater in self.heaters.values():
+            heater.set_temperature(0.0)
+
+    def cmd_TURN_OFF_HEATERS(self, gcmd: GCodeCommand) -> None:
+        self.turn_off_heaters()
+
     def cmd_TEMPERATURE_WAIT(self, gcmd: GCodeCommand) -> None:
         sensor = self._heater_by_short_name(gcmd, "SENSOR")
         minimum_c = gcmd.get_float("MINIMUM", None, **TEMPERATURE_RANGE)
@@ -223,6 +230,7 @@ def lookup_heaters(printer) -> PrinterHeaters:
                                desc="Set a heater's target: HEATER=name [TARGET=celsius]")
         gcode.register_command("TEMPERATURE_WAIT", heaters.cmd_TEMPERATURE_WAIT,
                                desc="Wait for a sensor: SENSOR=name [MINIMUM=celsius] [MAXIMUM=celsius]")
+        gcode.register_command("TURN_OFF_HEATERS", heaters.cmd_TURN_OFF_HEATERS, desc="Turn off all heaters")
     return heaters
 
 

@@ -55,6 +55,12 @@ WHEN_NOT_READY = ("RESTART", "FIRMWARE_RESTART", "HELP", "STATUS")
 
 # Sections loaded before the others (in this order), because others look them up.
 LOAD_FIRST = (TOOLHEAD_SECTION,)
+# Objects Klipper has whether or not the config names them (UIs read their status; an
+# [idle_timeout] section only changes its options).
+DEFAULT_SECTIONS = ("idle_timeout", "motion_report", "system_stats", "query_endstops")
+# The section a served printer gets when its config has none and `tapcell serve --gcodes-dir`
+# names Moonraker's gcodes folder (a file uploaded in Mainsail prints from there).
+GCODES_SECTION = "virtual_sdcard"
 LOADERS = ("load_config", "load_config_prefix")
 
 _MISSING = object()
@@ -117,6 +123,11 @@ class Printer:
         self._event_handlers: dict[str, list[Callable[..., Any]]] = {}
         self._loading: set[str] = set()
         self._loaded: set[str] = set()  # sections loaded, whether or not they made an object
+        self.gcodes_dir: str | None = None  # tapcell serve --gcodes-dir (see GCODES_SECTION)
+        # Set by a live server (tapcell.host.print_clock): what the machine is doing now.
+        self.print_clock = None
+        self.endpoints: dict[str, Callable[[dict], dict]] = {}  # API endpoints of modules (path -> callback)
+        self._background: list[Callable[[], None]] = []  # work a live server runs between scripts
 
     @classmethod
     def from_config(cls, path: str, *, backend: Backend | None = None,
@@ -154,6 +165,25 @@ class Printer:
         now_s = getattr(self.backend, "now_s", None)
         return float(now_s) if now_s is not None else time.monotonic()
 
+    def estimated_print_time(self) -> float:
+        """Klipper's estimated print time: the machine's "now" while queued moves still play
+        (tapcell serve), else the backend's clock (every move already ran to its end)."""
+        if self.print_clock is not None:
+            return self.print_clock.estimated_s
+        return self.get_time()
+
+    def register_endpoint(self, path: str, callback: Callable[[dict], dict]) -> None:
+        """An API endpoint (`query_endstops/status`) served by a module: callback(params) -> result."""
+        self.endpoints[path] = callback
+
+    def register_background(self, callback: Callable[[], None]) -> None:
+        """Work a live server runs on the printer's thread between scripts (a file being printed)."""
+        self._background.append(callback)
+
+    def run_background(self) -> None:
+        for callback in list(self._background):
+            callback()
+
     def get_status(self, eventtime: float | None = None) -> dict[str, dict]:
         """Every object's status under its section name (plain, JSON-ready data)."""
         eventtime = self.get_time() if eventtime is None else eventtime
@@ -184,6 +214,8 @@ class Printer:
         self.gcode.set_refusal(None)
         self._loaded.clear()
         self._event_handlers.clear()
+        self.endpoints.clear()
+        self._background.clear()
         self.config = None
         self.gcode.clear_commands()
         self._register_builtin_commands()
@@ -195,6 +227,10 @@ class Printer:
             ordered += [n for n in self.config.sections() if n not in ordered]
             for name in ordered:
                 if name != BACKEND_SECTION and name not in self._loaded:
+                    self._load_section(name)
+            implied = [GCODES_SECTION] if self.gcodes_dir is not None else []
+            for name in (*DEFAULT_SECTIONS, *implied):
+                if name not in self._loaded and import_section_module(name) is not None:
                     self._load_section(name)
             self.config.check_unused_options()
             accepted = importlib.import_module(ACCEPTED_MODULE)

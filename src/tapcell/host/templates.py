@@ -61,6 +61,25 @@ ENVIRONMENT = _BoundedEnvironment(
 )
 
 
+# Status fields that Klipper gives as coordinates: macros read them as `position.z`, `axis_maximum.x`.
+COORDINATE_FIELDS = frozenset(("position", "gcode_position", "homing_origin", "axis_minimum", "axis_maximum",
+                               "live_position", "last_probe_position"))
+
+
+class Coord(list):
+    """A position list that also answers `.x`, `.y`, `.z` and `.e` (as Klipper's Coord does in templates)."""
+
+    x = property(lambda self: self[0])
+    y = property(lambda self: self[1])
+    z = property(lambda self: self[2])
+    e = property(lambda self: self[3])
+
+
+def _with_coordinates(status: dict) -> dict:
+    return {key: Coord(value) if key in COORDINATE_FIELDS and isinstance(value, list | tuple) and 3 <= len(value) <= 4
+            else value for key, value in status.items()}
+
+
 class StatusView(Mapping):
     """`printer` inside a template: each object's status, fetched once per render."""
 
@@ -73,7 +92,7 @@ class StatusView(Mapping):
             obj = self._printer.lookup_object(name, None)
             if obj is None or not hasattr(obj, "get_status"):
                 raise KeyError(name)
-            self._cache[name] = obj.get_status(self._printer.get_time())
+            self._cache[name] = _with_coordinates(obj.get_status(self._printer.get_time()))
         return self._cache[name]
 
     def __iter__(self) -> Iterator[str]:

@@ -109,6 +109,7 @@ class ApiObjects:
         self.is_paused = True
         if self.print_state == "printing":
             self.print_state = "paused"
+        self.printer.send_event("pause_resume:pause")
 
     def cmd_RESUME(self, gcmd) -> None:
         if not self.is_paused:
@@ -117,11 +118,13 @@ class ApiObjects:
         self.is_paused = False
         if self.print_state == "paused":
             self.print_state = "printing"
+        self.printer.send_event("pause_resume:resume")
 
     def cmd_CANCEL_PRINT(self, gcmd) -> None:
         self.is_paused = False
         if self.print_state in ("printing", "paused"):
             self.print_state = "cancelled"
+        self.printer.send_event("pause_resume:cancel")
 
     def cmd_M117(self, gcmd) -> None:
         self.display_message = gcmd.rawparams or None
@@ -152,11 +155,12 @@ class ApiObjects:
             toolhead = status["toolhead"]
             toolhead.setdefault("estimated_print_time", toolhead.get("print_time", 0.0))
             status.setdefault("gcode_move", self._gcode_move(toolhead))
-        status["print_stats"] = {"filename": "", "total_duration": 0.0, "print_duration": 0.0,
-                                 "filament_used": 0.0, "state": self.print_state, "message": "",
-                                 "info": {"total_layer": None, "current_layer": None}}
-        status["virtual_sdcard"] = {"file_path": None, "progress": 0.0, "is_active": False,
-                                    "file_position": 0, "file_size": 0}
+        # Stand-ins for a printer without [virtual_sdcard] (which makes the real ones).
+        status.setdefault("print_stats", {"filename": "", "total_duration": 0.0, "print_duration": 0.0,
+                                          "filament_used": 0.0, "state": self.print_state, "message": "",
+                                          "info": {"total_layer": None, "current_layer": None}})
+        status.setdefault("virtual_sdcard", {"file_path": None, "progress": 0.0, "is_active": False,
+                                             "file_position": 0, "file_size": 0})
         status.setdefault("display_status", {"progress": 0.0, "message": self.display_message})
         status.setdefault("pause_resume", {"is_paused": self.is_paused})
         return status

@@ -76,6 +76,9 @@ HX71X_DATA_BITS = 24
 #     counts RMS whatever the gain, rate or reference.
 # Real boards (lower AVDD, the bridge's own noise) are noisier, which only makes a false
 # stop rarer.
+#   ADS131M02/M04: taken as the ADS1220 (16 counts RMS at most 20 effective bits); its datasheet
+#     noise at gain 128 is above that at every OSR, so the run length errs long, never short.
+ADS1220_LIKE_FLOOR = ("ads1220", "ads131m02", "ads131m04")
 HX71X_INPUT_NOISE_V = {"slow": 50e-9, "fast": 90e-9}   # fast: 80 sps and above
 HX71X_AVDD_MAX_V = 5.5
 ADS1220_MAX_EFFECTIVE_BITS = 20
@@ -307,9 +310,9 @@ def noise_floor_counts(sensor_type: str, gain: str | int, sample_rate_sps: float
             raise SensorConfigError("gain", gain, _join(HX71X_GAINS[sensor_type]))
         volts_per_count = HX71X_AVDD_MAX_V / int(str(gain).split("-")[1]) / 2.0 ** ADC_BITS
         return HX71X_INPUT_NOISE_V["fast" if sample_rate_sps >= 80 else "slow"] / volts_per_count
-    if sensor_type == "ads1220":
+    if sensor_type in ADS1220_LIKE_FLOOR:
         return GENERIC_NOISE_FLOOR_COUNTS
-    raise SensorConfigError("sensor_type", sensor_type, _join((*HX71X_CHIPS, "ads1220")))
+    raise SensorConfigError("sensor_type", sensor_type, _join((*HX71X_CHIPS, *ADS1220_LIKE_FLOOR)))
 
 
 def identical_run_probability(noise_counts: float, samples: int) -> float:

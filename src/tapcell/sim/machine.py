@@ -15,6 +15,8 @@ from __future__ import annotations
 import math
 
 from tapcell.host.config import pin_mcu
+from tapcell.mcu import ads131m0x
+from tapcell.mcu.sensors import SensorConfigError
 
 # Trigger on the sensor's MCU -> host -> stepper MCU: about two USB/CAN message latencies.
 MULTI_MCU_STOP_DELAY_S = 0.004
@@ -99,6 +101,24 @@ def machine_params(config) -> dict[str, tuple[object, str]]:
     return found
 
 
+def _ads131m0x_rate_sps(config, cell: str, asked_sps: float | None) -> float:
+    """The rate an ADS131M0x really runs at: the OSR closest to the asked rate at its clock (0
+    when the config does not say enough; [load_cell_probe] then reports what is wrong)."""
+    clock = _number(config, cell, "clock_freq")
+    pwm_clock = config.peek(cell, "pwm_clock")
+    if clock is None and pwm_clock is not None:
+        clock = _number(config, f"static_pwm_clock {pwm_clock.strip()}", "frequency")
+    chop = (config.peek(cell, "enable_global_chop") or "").strip().lower() in ("true", "1", "yes")
+    delay = _number(config, cell, "global_chop_delay") or 16
+    if clock is None or clock <= 0:
+        return 0.0
+    try:
+        return ads131m0x.choose_osr(clock, asked_sps or ads131m0x.DEFAULT_SAMPLE_RATE_SPS,
+                                    int(delay) if chop else None)[1]
+    except SensorConfigError:
+        return 0.0
+
+
 def _sensor_params(config, cell: str, found: dict) -> None:
     chip = (config.peek(cell, "sensor_type") or "").strip().lower()
     if not chip:
@@ -107,6 +127,8 @@ def _sensor_params(config, cell: str, found: dict) -> None:
     rate = _number(config, cell, "sample_rate")
     # No sample_rate: the chip's default (0 asks the virtual printer for it).
     found["sample_rate_sps"] = (rate or 0.0, f"[{cell}] sample_rate")
+    if chip in ads131m0x.CHANNELS:
+        found["sample_rate_sps"] = (_ads131m0x_rate_sps(config, cell, rate), f"[{cell}] sample_rate and its clock")
     gain = config.peek(cell, "gain")
     if gain is not None:
         try:

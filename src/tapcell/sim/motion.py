@@ -160,6 +160,17 @@ class MotionHistory:
             out[sel] = np.asarray(seg.start) + np.outer(d, seg.direction)
         return out
 
+    def speed_at(self, t_s: float) -> float:
+        """The speed along the path at t_s (0 between and after segments)."""
+        index = int(np.searchsorted(self._starts, t_s, side="right")) - 1
+        if index < 0:
+            return 0.0
+        seg = self.segments[index]
+        tau = t_s - seg.print_time
+        if tau >= seg.move_t or not any(seg.direction):
+            return 0.0
+        return float(seg.start_v + seg.accel * tau)
+
     def segments_between(self, t0_s: float, t1_s: float) -> list[Segment]:
         """Segments that end at or after t0 and start at or before t1."""
         first = int(np.searchsorted(self._ends, t0_s, side="left"))

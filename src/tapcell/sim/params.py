@@ -16,12 +16,17 @@ CHIP_RATES_SPS: dict[str, tuple[float, ...]] = {
     # ADS1220 normal-mode rates, then turbo-mode rates (90 appears in both lists).
     "ads1220": (20, 45, 90, 175, 330, 600, 1000, 40, 180, 350, 660, 1200, 2000),
 }
-CHIP_DEFAULT_RATE_SPS = {"hx711": 80, "hx717": 320, "ads1220": 660}
-CHIP_GAINS = {"hx711": (128, 64, 32), "hx717": (128, 64, 8), "ads1220": (1, 2, 4, 8, 16, 32, 64, 128)}
+# ADS131M02/M04 at their usual 8.192 MHz clock: fclk / (2 OSR) for OSR 128 .. 16384, then 64 (turbo).
+# Another clock gives other rates: the printer's config decides (tapcell.sim.machine).
+ADS131M0X_RATES_SPS = (250, 500, 1000, 2000, 4000, 8000, 16000, 32000, 64000)
+CHIP_RATES_SPS["ads131m02"] = CHIP_RATES_SPS["ads131m04"] = ADS131M0X_RATES_SPS
+CHIP_DEFAULT_RATE_SPS = {"hx711": 80, "hx717": 320, "ads1220": 660, "ads131m02": 500, "ads131m04": 500}
+CHIP_GAINS = {"hx711": (128, 64, 32), "hx717": (128, 64, 8), "ads1220": (1, 2, 4, 8, 16, 32, 64, 128),
+              "ads131m02": (1, 2, 4, 8, 16, 32, 64, 128), "ads131m04": (1, 2, 4, 8, 16, 32, 64, 128)}
 # Extra delay between the end of a conversion window and data-ready, in conversion periods.
 # HX71x: the result is ready as the window closes. ADS1220: its sinc3 decimator puts the
 # centre of the response ~1.5 periods back, modelled as one window plus one period of pipeline.
-CHIP_PIPELINE_PERIODS = {"hx711": 0.0, "hx717": 0.0, "ads1220": 1.0}
+CHIP_PIPELINE_PERIODS = {"hx711": 0.0, "hx717": 0.0, "ads1220": 1.0, "ads131m02": 1.0, "ads131m04": 1.0}
 
 SHEETS: dict[str, dict[str, float]] = {
     # stiffness of the sheet + magnet + bed plate under a 0.4 mm nozzle, and how long (µm)
@@ -193,7 +198,8 @@ def check_params(params: SimParams) -> SimParams:
         if meta["maxval"] is not None and value > meta["maxval"]:
             raise SimParamError(f"virtual printer parameter '{name}' = {value!r} is above the maximum {meta['maxval']}", name)
     rate = params.sample_rate_sps or CHIP_DEFAULT_RATE_SPS[params.chip]
-    if rate not in CHIP_RATES_SPS[params.chip]:
+    # An ADS131M0x's rates follow its clock (any clock_freq): the printer's config computed it.
+    if rate not in CHIP_RATES_SPS[params.chip] and CHIP_RATES_SPS[params.chip] is not ADS131M0X_RATES_SPS:
         allowed = ", ".join(f"{r:g}" for r in sorted(set(CHIP_RATES_SPS[params.chip])))
         raise SimParamError(f"virtual printer parameter 'sample_rate_sps' = {rate:g} is not a {params.chip} rate; "
                             f"allowed: {allowed}", "sample_rate_sps")

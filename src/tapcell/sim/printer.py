@@ -37,6 +37,9 @@ from tapcell.sim.pin import pin_from_params
 from tapcell.sim.scenarios import SCENARIOS
 from tapcell.sim.sensor import IndexedNoise, chip_timing, counts_from_force, pink_block_maker, window_average_sine
 
+# Chips whose samples travel in CRC-checked frames (tapcell.sim.ads131m0x_chip).
+ADS131M0X_CHIPS = ("ads131m02", "ads131m04")
+
 TAP_FORMAT = "tapcell.tap.v1"
 CHUNK_S = 0.05            # probing chunk: the trigger is fed this much data per call
 FREE_RUN_CHUNK = 4096     # samples per chunk when nothing listens to them
@@ -178,6 +181,10 @@ class VirtualPrinter:
         self._chunk_samples = max(4, round(CHUNK_S * params.sample_rate_sps))
         self._now_s = 0.0
         self._aux_sensors: list = []
+        self._frame_chip = None
+        if params.chip in ADS131M0X_CHIPS:  # frames with a CRC, read by the firmware's reader
+            from tapcell.sim.ads131m0x_chip import VirtualADS131M0x
+            self._frame_chip = VirtualADS131M0x(params.chip)
         self.truth = Truth(self)
         self.world_notice: str | None = None  # set by from_config: the scenario and what it changes
 
@@ -222,6 +229,11 @@ class VirtualPrinter:
     def now_s(self) -> float:
         return self._now_s
 
+    def sensor_error_note(self) -> str:
+        """Why the sensor's samples were refused, when the chip can tell ('' otherwise): an
+        ADS131M0x's CRC failures or its reset."""
+        return self._frame_chip.error_note() if self._frame_chip is not None else ""
+
     @property
     def sensor_info(self) -> dict:
         p = self.params
@@ -255,11 +267,27 @@ class VirtualPrinter:
             raise MoveError(f"move speed must be above 0 mm/s, got {speed_mm_s}")
         self._plan_and_run(start, target, speed_mm_s, accel_mm_s2)
 
-    def home_xy(self) -> None:
-        """Move to the X/Y endstops at the homing speed (x_endstop_mm, y_endstop_mm)."""
+    def home_xy(self, axes: str = "xy") -> None:
+        """Move the axes named in `axes` ("x", "y" or "xy") to their endstops at the homing speed
+        (x_endstop_mm, y_endstop_mm); an axis not named stays where it is."""
         start = self._motion.end_position
         p = self.params
-        self._plan_and_run(start, (p.x_endstop_mm, p.y_endstop_mm, start[2]), p.homing_speed_mm_s)
+        target = (p.x_endstop_mm if "x" in axes else start[0], p.y_endstop_mm if "y" in axes else start[1], start[2])
+        self._plan_and_run(start, target, p.homing_speed_mm_s)
+
+    def endstop_triggered(self, axis: str) -> bool:
+        """Whether the X or Y endstop switch is pressed: the carriage sits at it (within half a step)."""
+        index = "xy".index(axis)
+        endstop_mm = (self.params.x_endstop_mm, self.params.y_endstop_mm)[index]
+        return abs(self.position[index] - endstop_mm) <= self.step_distance_mm[index] / 2.0
+
+    def position_at(self, t_s: float) -> tuple[float, float, float]:
+        """Where the toolhead was (or will be, for a move already planned) at `t_s`."""
+        return tuple(float(v) for v in self._motion.positions_at(np.array([t_s]))[0])
+
+    def speed_at(self, t_s: float) -> float:
+        """The toolhead's speed along its path at `t_s` (mm/s; 0 at rest)."""
+        return self._motion.speed_at(t_s)
 
     def dwell(self, t_s: float) -> None:
         if t_s < 0.0:
@@ -361,17 +389,31 @@ class VirtualPrinter:
         self._check_target(target)
         return self._probing_move_to(target, speed_mm_s, trigger)
 
-    def _probing_move_to(self, target, speed_mm_s: float, trigger) -> ProbingMoveResult:
+    def watched_move(self, x: float | None, y: float | None, z: float | None, speed_mm_s: float,
+                     accel_mm_s2: float | None, trigger) -> ProbingMoveResult:
+        """An ordinary move (any direction, like move_to) with the armed firmware trigger seeing
+        every sample: it halts like a probing move when the trigger fires or reports an error
+        (the host's nozzle watch). Not a probe: no probing_move/contact fault conditions fire."""
+        start = self._motion.end_position
+        target = tuple(float(v) if v is not None else s for v, s in zip((x, y, z), start))
+        self._check_target(target)
+        if speed_mm_s <= 0.0:
+            raise MoveError(f"move speed must be above 0 mm/s, got {speed_mm_s}")
+        return self._probing_move_to(target, speed_mm_s, trigger, accel_mm_s2, probe=False)
+
+    def _probing_move_to(self, target, speed_mm_s: float, trigger, accel_mm_s2: float | None = None,
+                         probe: bool = True) -> ProbingMoveResult:
         start = self._motion.end_position
         self._advance_to(self._now_s)
-        self._tap_xy_mm = (float(start[0]), float(start[1]))
-        self._meet_residue(start[0], start[1])
+        if probe:
+            self._tap_xy_mm = (float(start[0]), float(start[1]))
+            self._meet_residue(start[0], start[1])
+            self._fire_condition("probing_move", self._now_s)
         film_at_start_um = self._state.contact.film_um
-        self._fire_condition("probing_move", self._now_s)
-        segments = self._plan(start, target, speed_mm_s)
+        segments = self._plan(start, target, speed_mm_s, accel_mm_s2)
         t_start = self._now_s
         contact_t = self._crossing_time(segments, float(self.truth.contact_z_at(start[0], start[1])))
-        if contact_t is not None:
+        if contact_t is not None and probe:
             self._fire_condition("contact", contact_t)
         self._motion.append(segments)
         end_s = segments[-1].end_time if segments else t_start
@@ -410,7 +452,8 @@ class VirtualPrinter:
             self._fire_condition("trigger", event.time_s)
         probe_moves = [s.as_tap_move() for s in self._motion.segments_between(t_start, halt_s)
                        if s.print_time >= t_start]
-        self._probes.append(_ProbeRecord(t_start, halt_s, start[0], start[1], film_at_start_um))
+        if probe:
+            self._probes.append(_ProbeRecord(t_start, halt_s, start[0], start[1], film_at_start_um))
         if len(self._probes) > FORGET_BATCH and self._probes[0].halt_time_s < halt_s - HISTORY_KEEP_S:
             self._probes = [r for r in self._probes if r.halt_time_s >= halt_s - HISTORY_KEEP_S]
         halt_z = float(self._motion.end_position[2])
@@ -621,15 +664,33 @@ class VirtualPrinter:
             electrical = electrical + window_average_sine(p.hum_counts, p.hum_hz, window_end, timing.period_s,
                                                           self._hum_phase)
         counts = counts_from_force(force_g, self._counts_per_gram, self._zero_offset_counts, electrical)
+        crc_refused = np.zeros(n, dtype=bool)
         if p.glitch_rate_per_s > 0.0:
             hit = self._glitch_draw.values(k0, k1) < p.glitch_rate_per_s * timing.period_s
             bits = self._glitch_bits.values(k0, k1).astype(np.int64)
-            counts[hit] ^= (np.int64(1) << bits[hit]).astype(np.int32)
+            if self._frame_chip is not None:  # the frame's CRC catches the flipped bit
+                crc_refused = self._frame_chip.corrupted_frames(counts, hit, bits)
+            else:
+                counts[hit] ^= (np.int64(1) << bits[hit]).astype(np.int32)
         delays = self._mcu.read_delays(k0, k1)
         t_read = t_ready + delays
         counts, bad = faultlib.apply_count_faults(self._faults, k0, t_ready, counts, self._mcu.last_counts,
                                                   timing.first_ready_s, timing.period_s,
                                                   self._glitch_bits.values(k0, k1).astype(int))
+        bad = bad | crc_refused
+        if self._frame_chip is not None:
+            # A corrupt_frame fault's flipped bit fails that frame's CRC; a reset chip says so in its
+            # next frame and is refused from then on.
+            corrupt = np.zeros(n, dtype=bool)
+            for f in self._faults:
+                if f.name == "corrupt_frame" and f.start_s is not None:
+                    for k in faultlib.corrupt_frame_indices(f, timing.first_ready_s, timing.period_s):
+                        if k0 <= k < k1:
+                            corrupt[k - k0] = True
+            bad = bad | self._frame_chip.corrupted_frames(counts, corrupt, self._glitch_bits.values(k0, k1))
+            resets = [f.start_s + f.params["gap_s"] for f in self._faults
+                      if f.name == "chip_reset" and f.start_s is not None]
+            bad = bad | self._frame_chip.after_reset(counts, t_ready, resets)
         missing = faultlib.stream_gap_mask(self._faults, t_ready)
         late = delays > timing.period_s
         keep = ~(bad | missing | late)

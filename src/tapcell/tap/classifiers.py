@@ -5,7 +5,9 @@ A classifier is made by a factory called with the `AnalysisOptions`; its
 - return a `Classification` with a quality score and/or replacement lines (in the tap's
   polarity; points and Z are then recomputed from them and validated again),
 - raise `TapRejected(code, message)` to mark the tap invalid.
-Plugins register factories under the Python entry-point group `tapcell.tap_classifiers`.
+Plugins register factories under the Python entry-point group `tapcell.tap_classifiers`, or are
+named by module path (`my_printer.taps`, `my_printer.taps:Factory`, or a file `/path/taps.py`),
+whose `TapClassifier` is the factory.
 """
 
 from __future__ import annotations
@@ -19,6 +21,7 @@ from tapcell.tap.angles import line_angles_deg, slope_angle_deg
 from tapcell.tap.context import AnalysisContext, recompute_points
 from tapcell.tap.model import (
     LOW_COMPRESSION_FORCE,
+    LOW_DECOMPRESSION_FORCE,
     LOW_TAP_QUALITY,
     AnalysisOptions,
     TapAnalysis,
@@ -29,6 +32,13 @@ ENTRY_POINT_GROUP = "tapcell.tap_classifiers"
 # A clean tap's residual scatters around the noise sigma by ~±15 % (both are estimates):
 # residuals up to 1.25 × the noise cost nothing.
 MISFIT_TOLERANCE = 1.25
+# LOW_DECOMPRESSION_FORCE (the guide's figure 2: the sheet or plastic under the nozzle gave way
+# during the dwell, so little force is left to release on the pullback): the force released
+# between the end of the dwell and break contact, over the trigger force. Over taplab and the
+# outside reference archives (../shared/data) the valid clean taps release at least 0.979 x the
+# trigger force (a fast ADS1220 stops just past it, a soft sheet then relaxes); 0.9 leaves that
+# worst case an 8 % margin (`python -m bench decompression_force`, docs/tap-analysis.md).
+MIN_DECOMPRESSION_TO_TRIGGER = 0.9
 
 
 class TapRejected(Exception):
@@ -93,6 +103,15 @@ def quality_components(points: list[tuple[float, float]], decompression_slope_g_
     return components
 
 
+def limiting_component(components: dict[str, float], cutoffs_percent: dict[str, float]) -> str:
+    """The component that sank the score: the one furthest over its cutoff (any over it makes the
+    score 0), else the largest ratio."""
+    over = {name: ratio / (cutoffs_percent[name] / 100.0) for name, ratio in components.items()
+            if cutoffs_percent.get(name) is not None and ratio > cutoffs_percent[name] / 100.0}
+    pool = over or components
+    return max(pool, key=pool.get)
+
+
 def quality_score(components: dict[str, float], cutoffs_percent: dict[str, float]) -> float:
     """100 × Π(1 - ratio); a ratio over its cutoff makes the score 0. Clamped to 0..100."""
     score = 100.0
@@ -102,6 +121,21 @@ def quality_score(components: dict[str, float], cutoffs_percent: dict[str, float
             return 0.0
         score *= 1.0 - ratio
     return min(100.0, max(0.0, score))
+
+
+def quality_cutoffs(options: AnalysisOptions) -> dict[str, float]:
+    """Each quality component's cutoff in percent (the max_* options)."""
+    return {
+        "approach": options.max_approach_force,
+        "departure": options.max_departure_force,
+        "baseline": options.max_baseline_force_delta,
+        "dwell_drop": options.max_dwell_force_drop,
+        "stiffness": options.max_stiffness_mismatch,
+        "misfit": options.max_model_misfit,
+    }
+
+
+DEFAULT_QUALITY_CUTOFFS = quality_cutoffs(AnalysisOptions())
 
 
 class TapQualityClassifier:
@@ -119,14 +153,7 @@ class TapQualityClassifier:
 
     def __init__(self, options: AnalysisOptions):
         self.options = options
-        self.cutoffs = {
-            "approach": options.max_approach_force,
-            "departure": options.max_departure_force,
-            "baseline": options.max_baseline_force_delta,
-            "dwell_drop": options.max_dwell_force_drop,
-            "stiffness": options.max_stiffness_mismatch,
-            "misfit": options.max_model_misfit,
-        }
+        self.cutoffs = quality_cutoffs(options)
 
     def classify(self, analysis: TapAnalysis, context: AnalysisContext) -> Classification:
         compression = analysis.compression_force_g or 0.0
@@ -138,6 +165,13 @@ class TapQualityClassifier:
                               f"compression force {compression:.1f} g is below the trigger force {trigger:.1f} g")
         if compression <= 0:
             raise TapRejected(LOW_COMPRESSION_FORCE, "no compression force")
+        if trigger is not None and len(analysis.points) == 6:
+            decompression = abs(analysis.points[3][1] - analysis.points[4][1])
+            if decompression < MIN_DECOMPRESSION_TO_TRIGGER * trigger:
+                raise TapRejected(LOW_DECOMPRESSION_FORCE,
+                                  f"decompression force {decompression:.1f} g is below "
+                                  f"{MIN_DECOMPRESSION_TO_TRIGGER:g} x the trigger force {trigger:.1f} g: the "
+                                  f"force fell away during the dwell")
         ratio = None
         if analysis.stiffness_compression_g_um and analysis.stiffness_decompression_g_um:
             ratio = analysis.stiffness_decompression_g_um / analysis.stiffness_compression_g_um
@@ -149,11 +183,15 @@ class TapQualityClassifier:
                                         self.options.decompression_angle, noise_to_residual)
         quality = quality_score(components, self.cutoffs)
         if quality < self.options.min_tap_quality:
-            worst = max(components, key=components.get)
+            worst = limiting_component(components, self.cutoffs)
+            cutoff = self.cutoffs.get(worst)
+            if cutoff is not None and components[worst] > cutoff / 100.0:
+                why = f"{worst} {100 * components[worst]:.1f}% is over its cutoff {cutoff:g}%"
+            else:
+                why = f"largest component: {worst} {100 * components[worst]:.1f}%"
             raise TapRejected(LOW_TAP_QUALITY,
                               f"tap quality {quality:.1f}% is below min_tap_quality {self.options.min_tap_quality:g}% "
-                              f"(largest component: {worst} {100 * components[worst]:.1f}%)",
-                              quality, components)
+                              f"({why})", quality, components)
         return Classification(quality=quality, components=components)
 
 
@@ -183,15 +221,58 @@ def available_classifiers() -> dict[str, ClassifierFactory | Any]:
     return found
 
 
+# A classifier given as a module (`tap_classifier_module: my_printer.taps`, or a file
+# `/home/pi/taps.py`) provides its factory under this name; `module:Name` names another one.
+MODULE_FACTORY = "TapClassifier"
+
+
+def is_module_reference(name: str) -> bool:
+    """A module path or a .py file rather than a registered name (names have no '.', '/' or ':')."""
+    return any(mark in name for mark in ".:/")
+
+
+def _module_factory(reference: str) -> ClassifierFactory:
+    import importlib
+    import importlib.util
+    import os
+
+    location, _, attribute = reference.partition(":") if not reference.endswith(".py") else (reference, "", "")
+    attribute = attribute or MODULE_FACTORY
+    try:
+        if location.endswith(".py"):
+            path = os.path.expanduser(location)
+            if not os.path.isfile(path):
+                raise UnknownClassifierError(f"tap classifier file '{location}' does not exist")
+            spec = importlib.util.spec_from_file_location(f"tapcell_classifier_{abs(hash(path))}", path)
+            module = importlib.util.module_from_spec(spec)
+            spec.loader.exec_module(module)
+        else:
+            module = importlib.import_module(location)
+    except ModuleNotFoundError as exc:
+        raise UnknownClassifierError(f"tap classifier module '{location}' is not importable ({exc})") from None
+    factory = getattr(module, attribute, None)
+    if not callable(factory):
+        raise UnknownClassifierError(f"tap classifier module '{location}' has no {attribute} (a factory called "
+                                     f"with the AnalysisOptions, returning an object with classify())")
+    return factory
+
+
 @lru_cache(maxsize=64)
 def _classifier_factory(name: str) -> ClassifierFactory:
-    """Built-ins without touching the (slow) package metadata; plugins loaded once."""
+    """Built-ins without touching the (slow) package metadata; a module path imported; plugins
+    loaded once."""
     if name in BUILTIN_CLASSIFIERS:
         return BUILTIN_CLASSIFIERS[name]
+    if is_module_reference(name):
+        return _module_factory(name)
     known = available_classifiers()
-    if name not in known:
-        raise UnknownClassifierError(f"unknown tap_classifier '{name}'; available: {', '.join(sorted(known))}")
-    return known[name].load()
+    if name in known:
+        return known[name].load()
+    try:  # a top-level module of that name
+        return _module_factory(name)
+    except UnknownClassifierError as exc:
+        raise UnknownClassifierError(f"unknown tap_classifier '{name}'; available: {', '.join(sorted(known))}, or a "
+                                     f"module path ({exc})") from None
 
 
 def get_classifier(name: str, options: AnalysisOptions | None = None) -> TapClassifier:

@@ -13,6 +13,7 @@ Commands:
 * `BED_MESH_PROFILE SAVE=name | LOAD=name | REMOVE=name`: profiles live in `[bed_mesh name]`
   sections written by SAVE_CONFIG; `default` is loaded at start-up.
 * `BED_MESH_CLEAR`: moves stop following the mesh.
+* `BED_MESH_OFFSET [X=] [Y=]`: read the mesh that far from the nozzle (a second tool's offset).
 
 The bed mesh is a move transform of the toolhead (`Toolhead.set_move_transform`): a G1 is
 split every `move_check_distance` where the mesh changes by `split_delta_z` (see
@@ -32,12 +33,14 @@ from tapcell.extras.bed_mesh.methods import METHODS
 from tapcell.extras.bed_mesh.options import SECTION, command_options, read_bed_mesh_options
 from tapcell.host.config import ConfigSection, section_name_problem
 from tapcell.host.gcode import GCodeCommand, GCodeError
+from tapcell.host.limits import COORDINATE_RANGE
 from tapcell.mesh.errors import MeshError, MeshOptionError
 from tapcell.mesh.grid import matrix_from_probes
 from tapcell.mesh.profiles import mesh_from_profile_options, profile_options, profile_section_name
 from tapcell.mesh.faulty_regions import probing_plan
 from tapcell.mesh.report import render_generated_points, render_mesh, render_mesh_map, render_probed_matrix
 from tapcell.mesh.split import split_move
+from tapcell.mesh.zero_reference import zero_reference_warning
 from tapcell.mesh.zmesh import ZMesh, build_mesh, empty_mesh_status, fade_target_mm, gcode_z_mm
 
 DEFAULT_PROFILE = "default"
@@ -56,10 +59,14 @@ class BedMesh:
         self.mesh: ZMesh | None = None
         self.profiles: dict[str, ZMesh] = {}
         self.last_calibration: dict | None = None
+        self.lookup_offset_mm = (0.0, 0.0)  # BED_MESH_OFFSET X, Y
         self.toolhead = printer.lookup_object("toolhead")
         # G-code moves come to us first, we pass the adjusted moves on.
         self.next_target = self.toolhead.set_move_transform(self)
         printer.register_event_handler("printer:ready", self._load_default_profile)
+        # Where Z was homed (the toolhead X/Y at G28 Z): the datum a zero reference must agree with.
+        self.z_datum_xy_mm: tuple[float, float] | None = None
+        printer.register_event_handler("toolhead:z_homed", self._note_z_datum)
         gcode = printer.gcode
         gcode.register_command("BED_MESH_CALIBRATE", self.cmd_BED_MESH_CALIBRATE,
                                desc="Probe the bed and build a mesh: [PROFILE=] [METHOD=tap|two_pass|prusa] "
@@ -71,6 +78,8 @@ class BedMesh:
         gcode.register_command("BED_MESH_PROFILE", self.cmd_BED_MESH_PROFILE,
                                desc="Mesh profiles: SAVE=name | LOAD=name | REMOVE=name")
         gcode.register_command("BED_MESH_CLEAR", self.cmd_BED_MESH_CLEAR, desc="Stop following the mesh")
+        gcode.register_command("BED_MESH_OFFSET", self.cmd_BED_MESH_OFFSET,
+                               desc="Read the mesh offset from the nozzle: [X=mm] [Y=mm] [ZFADE=]")
 
     # -- profiles -------------------------------------------------------------------------------
     def add_profile_section(self, section: ConfigSection) -> None:
@@ -84,6 +93,15 @@ class BedMesh:
     def _load_default_profile(self) -> None:
         if DEFAULT_PROFILE in self.profiles:
             self.set_mesh(self.profiles[DEFAULT_PROFILE])
+
+    def _note_z_datum(self) -> None:
+        x_mm, y_mm, _ = self.toolhead.get_position()
+        self.z_datum_xy_mm = (x_mm, y_mm)
+
+    def _warn_zero_reference(self, gcmd: GCodeCommand) -> None:
+        warning = zero_reference_warning(self.mesh, self.options.zero_reference_xy_mm, self.z_datum_xy_mm)
+        if warning:
+            gcmd.respond_info(f"Warning: {warning}")
 
     def set_mesh(self, mesh: ZMesh | None) -> None:
         """Make `mesh` the one moves follow (None: no mesh)."""
@@ -111,17 +129,30 @@ class BedMesh:
         x, y, z = self.next_target.get_position()
         if self.mesh is None:
             return (x, y, z)
-        return (x, y, gcode_z_mm(self.mesh, self.options.fade, x, y, z))
+        dx, dy = self.lookup_offset_mm
+        return (x, y, gcode_z_mm(self.mesh, self.options.fade, x + dx, y + dy, z))
 
     def move(self, position_xyz: Sequence[float], speed_mm_s: float) -> None:
-        """Carry a G-code move over the mesh: split where the mesh changes, Z adjusted."""
+        """Carry a G-code move over the mesh: split where the mesh changes, Z adjusted. The mesh is
+        read BED_MESH_OFFSET's X/Y away from the nozzle (another tool's nozzle over the mesh)."""
         if self.mesh is None:
             self.next_target.move(tuple(position_xyz), speed_mm_s)
             return
-        start = (*self.get_position(), 0.0)
-        end = (*position_xyz, 0.0)
+        dx, dy = self.lookup_offset_mm
+        x0, y0, z0 = self.get_position()
+        start = (x0 + dx, y0 + dy, z0, 0.0)
+        end = (position_xyz[0] + dx, position_xyz[1] + dy, position_xyz[2], 0.0)
         for x, y, z, _ in split_move(start, end, self.mesh, self.options.fade, self.options.split):
-            self.next_target.move((float(x), float(y), float(z)), speed_mm_s)
+            self.next_target.move((float(x) - dx, float(y) - dy, float(z)), speed_mm_s)
+
+    def cmd_BED_MESH_OFFSET(self, gcmd: GCodeCommand) -> None:
+        """X/Y: where the mesh is read relative to the nozzle (Klipper's tool offsets). ZFADE is
+        accepted and has no effect here (the fade follows the G-code Z)."""
+        dx = gcmd.get_float("X", self.lookup_offset_mm[0], **COORDINATE_RANGE)
+        dy = gcmd.get_float("Y", self.lookup_offset_mm[1], **COORDINATE_RANGE)
+        if gcmd.get_float("ZFADE", None, **COORDINATE_RANGE):
+            gcmd.respond_info("BED_MESH_OFFSET: ZFADE has no effect in tapcell (the fade follows the G-code Z)")
+        self.lookup_offset_mm = (dx, dy)
 
     # -- commands -------------------------------------------------------------------------------
     def cmd_BED_MESH_CALIBRATE(self, gcmd: GCodeCommand) -> None:
@@ -162,6 +193,8 @@ class BedMesh:
             raise gcmd.error(f"BED_MESH_CALIBRATE: {exc}") from None
         self.set_mesh(mesh)
         self.save_profile(profile)
+        self._warn_zero_reference(gcmd)
+        gcmd.respond_info("Mesh Bed Leveling Complete")  # the line touchscreens and progress parsers wait for
         low, high = mesh.z_range_mm()
         self.last_calibration = {"profile": profile, "points": total, "time_s": elapsed_s,
                                  "method": options.method, **(run.details or {})}
@@ -229,6 +262,7 @@ class BedMesh:
         elif action == "LOAD":
             self.set_mesh(self.profiles[name])
             gcmd.respond_info(f"Bed mesh profile '{name}' loaded: moves follow it")
+            self._warn_zero_reference(gcmd)
         else:
             del self.profiles[name]
             self.printer.config.remove_section(profile_section_name(name))

@@ -1,4 +1,4 @@
-"""The `[load_cell_probe]` commands: LOAD_CELL_TEST_TAP, NOZZLE_CLEANUP, QUERY_ENDSTOPS and
+"""The `[load_cell_probe]` commands: LOAD_CELL_TEST_TAP, NOZZLE_CLEANUP and
 LOAD_CELL_PROBE_CALIBRATE (CONTACT_ONSET, PULLBACK_DISTANCE, DECOMPRESSION_ANGLE)."""
 
 from __future__ import annotations
@@ -20,7 +20,6 @@ from tapcell.extras.load_cell_probe.calibration import (
     propose_pullback_distance,
 )
 from tapcell.extras.load_cell_probe.device import (
-    ENDSTOP_SWITCH_MM,
     RELEASE_CHECK_S,
     SAVE_CONFIG_NOTE,
     LoadCellProbe,
@@ -45,19 +44,17 @@ MAX_PATTERN_STEPOVER_MM = 20.0
 
 
 class LoadCellProbeCommands:
-    """LOAD_CELL_TEST_TAP, NOZZLE_CLEANUP, QUERY_ENDSTOPS (the probe commands live in tapcell.extras.probe.session)."""
+    """LOAD_CELL_TEST_TAP, NOZZLE_CLEANUP (QUERY_ENDSTOPS: tapcell.extras.query_endstops; the probe commands live in tapcell.extras.probe.session)."""
 
     def __init__(self, device: LoadCellProbe, probe: Probe):
         self.device = device
         self.probe = probe
-        self.last_query: dict[str, bool] = {}
 
     def register(self, gcode) -> None:
         gcode.register_command("LOAD_CELL_TEST_TAP", self.cmd_LOAD_CELL_TEST_TAP,
                                desc="Detect taps on the load cell without moving: [COUNT=3] [TIMEOUT=30]")
         gcode.register_command("NOZZLE_CLEANUP", self.cmd_NOZZLE_CLEANUP,
                                desc="Tap a serpentine pattern until SAMPLES good taps in a row")
-        gcode.register_command("QUERY_ENDSTOPS", self.cmd_QUERY_ENDSTOPS, desc="Report the endstop states")
         gcode.register_command("LOAD_CELL_PROBE_CALIBRATE", self.cmd_LOAD_CELL_PROBE_CALIBRATE,
                                desc="Calibrate the probe: CALIBRATION=CONTACT_ONSET|PULLBACK_DISTANCE|DECOMPRESSION_ANGLE [SAMPLES=10]")
 
@@ -207,19 +204,6 @@ class LoadCellProbeCommands:
         raise ProbeError(f"LOAD_CELL_PROBE_CALIBRATE CALIBRATION={calibration}: only {len(usable)} of {samples} "
                          f"taps were good enough ({found}), at least {needed} are needed; {advice}")
 
-    def cmd_QUERY_ENDSTOPS(self, gcmd) -> None:
-        """x/y: the virtual printer's switches at machine 0; z (probe:z_virtual_endstop) is always open.
-
-        A load cell senses only while armed for a probing move, so the guide says it always
-        reports not triggered; LOAD_CELL_TEST_TAP is the way to check it.
-        """
-        x_mm, y_mm, _ = self.device.backend.position
-        self.last_query = {"x": bool(x_mm <= ENDSTOP_SWITCH_MM), "y": bool(y_mm <= ENDSTOP_SWITCH_MM), "z": False}
-        gcmd.respond_info(" ".join(f"{axis}:{'TRIGGERED' if hit else 'open'}" for axis, hit in self.last_query.items()))
-
-    def get_status(self, eventtime=None) -> dict:
-        return {"last_query": dict(self.last_query)}
-
     def cmd_LOAD_CELL_TEST_TAP(self, gcmd) -> None:
         count = gcmd.get_int("COUNT", 3, minval=1, maxval=10)
         timeout_s = gcmd.get_float("TIMEOUT", 30.0, minval=1.0, maxval=120.0)
@@ -235,13 +219,13 @@ class LoadCellProbeCommands:
             armed_s = device.backend.now_s
             device.history.keep_from_s = armed_s  # the tap's samples stay until checked
             try:
-                trigger = device.arm(settings, tare_counts)
+                trigger = device.trigger.arm(settings, tare_counts)
                 # A hand is on the nozzle now: the next tare must wait for new samples.
                 device.expect_contact()
                 result = device.backend.wait_for_trigger(trigger, max(deadline_s - device.backend.now_s, 0.0))
                 device.load_cell.pump()
                 if result.error != TriggerError.NONE:
-                    raise ProbeError(device.error_message(result.error, settings.options))
+                    raise ProbeError(device.trigger.error_message(result.error, settings.options))
                 if not result.triggered:
                     raise ProbeError(f"LOAD_CELL_TEST_TAP: no tap detected within {timeout_s:g}s "
                                      f"({index} of {count} taps detected)")

@@ -36,10 +36,9 @@ from tapcell.files import check_appendable, open_append
 from tapcell.host.backend import Backend
 from tapcell.host.config import pin_mcu
 from tapcell.filters import FilterDesignError, FilterOptions, design_firmware_filter
-from tapcell.extras.load_cell import LoadCell, read_load_cell_options
+from tapcell.extras.load_cell import LoadCell, read_load_cell_options, sensor_error_note
 from tapcell.mcu import sensors
-from tapcell.mcu.trigger import (MAX_STUCK_SAMPLES, FirmwareTrigger, TriggerConfigError, TriggerError,
-                                 TriggerParams, check_params)
+from tapcell.mcu.trigger import MAX_STUCK_SAMPLES, TriggerError
 from tapcell.extras.probe.approach import NO_CONTACT_DEPTH_MM, BedHeightMemory, approach_height_mm, no_contact_message
 from tapcell.extras.probe.session import ProbeError, TapOutcome
 from tapcell.extras.probe.options import with_overrides
@@ -52,7 +51,6 @@ from tapcell.extras.load_cell_probe.options import (
     lone_sample_past_limit,
     preload_refusal,
     read_tap_options,
-    trigger_error_message,
     TAP_OPTION_SPECS,
     TapOptions,
     default_pullback_speed_mm_s,
@@ -64,6 +62,10 @@ from tapcell.extras.load_cell_probe.options import (
     too_fast_for_analysis,
 )
 from tapcell.extras.load_cell_probe import safety
+from tapcell.extras.load_cell_probe.speed_guard import SpeedGuard
+from tapcell.extras.load_cell_probe.trigger_session import TriggerSession
+from tapcell.extras.load_cell_probe.overrides import disabled_protections, refuse_loosening, \
+    refuse_misspelled_safety_parameters, refuse_unknown_parameters
 from tapcell.extras.load_cell_probe.threshold import z_at_time_mm
 from tapcell.scale import counts_to_grams
 from tapcell.tap import AnalysisOptions, Move, TapData, analyze_tap, get_classifier, tap_to_json_dict
@@ -75,16 +77,22 @@ TARE_TIMEOUT_S = 1.0  # no sample for this long: the sensor is gone
 # Bad-tap codes a too-fast probing move can cause (the compression between two samples, a
 # deep over-travel). A low quality score is the classifier's verdict, not explained by speed.
 SPEED_SENSITIVE_CODES = ("TAP_CHRONOLOGY", "TAP_SHAPE_INVALID", "TAP_PULLBACK_TOO_SHORT", "TAP_BREAK_CONTACT_TOO_LATE")
+# The bad-tap code a bed too stiff for the speed causes (the compression is a few um: contact breaks
+# as the pullback starts): such a tap tells the force guard the bed's stiffness from its pullback.
+# Other codes (a touch, a tug, ooze) leave pullbacks that do not measure the bed.
+STIFF_BED_CODES = ("TAP_BREAK_CONTACT_TOO_EARLY",)
+BAD_TAP_AGREEMENT = 1.5  # two bad taps' pullback stiffness agree within this factor
 RELEASE_CHECK_S = 0.05  # LOAD_CELL_TEST_TAP looks at the force this often while waiting for a release
 TARE_FRESH_MARGIN_SAMPLES = 4  # the tare window may reach back this many periods beyond tare_time
 SAVE_CONFIG_NOTE = ("The SAVE_CONFIG command will update the printer config file with the above and restart "
                     "the printer.")
-ENDSTOP_SWITCH_MM = 1e-6  # the virtual X/Y switches close at machine position 0
 # G28 Z: the taps after the first come from this far above the last halt, at most this fast,
 # and at most this many taps in all look for two that agree.
 HOME_BACKOFF_MM = 0.5
 HOME_CONFIRM_SPEED_MM_S = 2.0
 HOME_TAPS = 4
+# max_bed_stiffness (g/um): the stiffest bed the force guard assumes until taps measure it.
+MAX_BED_STIFFNESS_RANGE = (1.0, 1000.0)
 
 
 class SampleHistory:
@@ -212,6 +220,8 @@ class LoadCellProbe:
         except FilterDesignError as exc:
             raise section.error(exc.option, f"{exc.value!r} is not allowed; allowed: {exc.allowed}") from None
         self.load_cell = LoadCell(self.name, self.cell_options, printer)
+        self.trigger = TriggerSession(self.load_cell, self.cell_options.inverted, self.sample_rate_sps,
+                                      self.default_stuck_samples, self.backend)
         # The toolhead implements the probe's Motion protocol (toolhead Z = virtual printer Z + frame offset).
         self.motion = printer.lookup_object("toolhead")
         self.last_taps: collections.deque[RecordedTap] = collections.deque(maxlen=KEEP_LAST_TAPS)
@@ -224,15 +234,24 @@ class LoadCellProbe:
         self._tap_clients: list = []  # called with every RecordedTap (the API's dump_taps)
         self.last_trigger_time_s: float | None = None
         self.tare_counts_at_tap: float | None = None
+        self.tare_time_s: float | None = None  # when tare_counts_at_tap was taken (the nozzle clear of the bed)
         sensor_pin = self.cell_options.dout_pin or self.cell_options.data_ready_pin
         self.stop_timing = safety.stop_timing(self.cell_options.sensor_type, self.sample_rate_sps,
                                               pin_mcu(sensor_pin), pin_mcu(self.motion.options.axes["z"].step_pin))
+        # The stiffest bed a bad tap's pullback showed (the force guard only raises its assumption by it).
+        self.bad_tap_stiffness_g_um: float | None = None
+        self._unconfirmed_stiffness_g_um: float | None = None  # the last such tap's, until the next agrees
+        self.speed_guard = SpeedGuard(self.stop_timing, lambda: self.motion.options.max_z_velocity_mm_s,
+                                      self._guard_stiffness_g_um, printer.gcode.respond_info,
+                                      section.getfloat("max_bed_stiffness", safety.DEFAULT_STIFFNESS_G_UM,
+                                                       minval=MAX_BED_STIFFNESS_RANGE[0],
+                                                       maxval=MAX_BED_STIFFNESS_RANGE[1]))
         # Inside a probing command (`guarded`): how deep, the speed notes already given, and the
         # machine Z the last probing move started from (clear of the bed at that XY).
         self._guard_depth = 0
-        self._speed_notes: set[tuple[float, float]] = set()
         self._clear_machine_z_mm: float | None = None
         self.bed_heights = BedHeightMemory(self._mesh_height_mm)
+        self.nozzle_watch = None  # watch.NozzleWatch, set by load_config (it guards the toolhead's low moves)
         printer.register_event_handler("toolhead:z_homed", self.bed_heights.forget)
 
     # -- settings per command -----------------------------------------------------------
@@ -250,10 +269,11 @@ class LoadCellProbe:
 
     def command_settings(self, gcmd) -> TapSettings:
         """The settings of this command: a new filter design when any option is overridden."""
+        refuse_misspelled_safety_parameters(gcmd)
         options = with_overrides(self.options, TAP_OPTION_SPECS, gcmd)
         if options is self.options:
             return self.config_settings
-        self._say_limits_turned_off(options, gcmd)
+        refuse_loosening(gcmd, self.options, options, self.trigger.stuck_samples(self.options))
         self._check_classifier(options.tap_classifier, gcmd.error)
         check_stuck_sensor_samples(options.stuck_sensor_samples,
                                    lambda msg: gcmd.param_error(f"STUCK_SENSOR_SAMPLES: {msg}"))
@@ -261,14 +281,6 @@ class LoadCellProbe:
             return self._design(options)
         except FilterDesignError as exc:
             raise gcmd.param_error(f"{exc.option.upper()}: {exc.value!r} is not allowed; allowed: {exc.allowed}") from None
-
-    def _say_limits_turned_off(self, options: TapOptions, gcmd) -> None:
-        """A safety limit the command turns off (0; also written 1e-400 or -0) is said, never silent."""
-        for name, option in (("FORCE_SAFETY_LIMIT", "force_safety_limit_g"),
-                             ("DRIFT_SAFETY_LIMIT", "drift_safety_limit_g")):
-            if getattr(options, option) == 0 and getattr(self.options, option) != 0:
-                gcmd.respond_info(f"{gcmd.command}: {name}={gcmd.get(name)} turns the {name.lower()} off for "
-                                  f"this command (the config's is {getattr(self.options, option):g}g)")
 
     def with_options(self, settings: TapSettings, **changes) -> TapSettings:
         """`settings` with some TapOptions fields changed (a calibration's own taps)."""
@@ -307,7 +319,8 @@ class LoadCellProbe:
             oldest_s = max(usable_from_s, now_s - (needed + TARE_FRESH_MARGIN_SAMPLES) * period_s)
             t_s, counts, errors = self.history.between(oldest_s, now_s)
             if errors:
-                raise ProbeError(ERROR_PREFIX + f"sensor reported {errors} errors while taring")
+                raise ProbeError(ERROR_PREFIX + f"sensor reported {errors} errors while taring"
+                                 f"{sensor_error_note(self.backend)}")
             if len(counts) >= needed:
                 break
             if now_s >= deadline_s:
@@ -318,6 +331,7 @@ class LoadCellProbe:
         self.refuse_preload(tare_counts, options)
         self.load_cell.set_tare(tare_counts)
         self.tare_counts_at_tap = tare_counts
+        self.tare_time_s = self.backend.now_s
         return tare_counts
 
     def refuse_preload(self, tare_counts: float, options: TapOptions) -> None:
@@ -326,54 +340,6 @@ class LoadCellProbe:
                                              self.load_cell.counts_per_gram, options.force_safety_limit_g)
         if beyond is not None:
             raise ProbeError(preload_refusal(beyond, options.force_safety_limit_g))
-
-    def stuck_samples(self, options: TapOptions) -> int:
-        """The firmware's stuck-sensor run: the option, else the sensor's default (0: off)."""
-        return self.default_stuck_samples if options.stuck_sensor_samples is None else options.stuck_sensor_samples
-
-    def trigger_params(self, options: TapOptions, sos, trigger_force_g: float, release_force_g: float = 0.0,
-                       drift_safety_limit_g: float | None = None) -> TriggerParams:
-        """The firmware endstop's parameters for one probing move (every probing mode builds them here)."""
-        return TriggerParams(
-            counts_per_gram=self.load_cell.counts_per_gram,
-            reference_tare_counts=self.load_cell.reference_tare_counts,
-            trigger_force_g=trigger_force_g,
-            release_force_g=release_force_g,
-            sample_rate_sps=self.sample_rate_sps,
-            force_safety_limit_g=options.force_safety_limit_g,
-            drift_safety_limit_g=options.drift_safety_limit_g if drift_safety_limit_g is None else drift_safety_limit_g,
-            inverted=self.cell_options.inverted,
-            sos=sos,
-            stuck_samples=self.stuck_samples(options),
-        )
-
-    def error_message(self, error: TriggerError, options: TapOptions) -> str:
-        """What the user reads when the firmware endstop stopped a move with `error`."""
-        return trigger_error_message(error, options.force_safety_limit_g, self.stuck_samples(options))
-
-    def move_params(self, settings: TapSettings, *, trigger_force_g: float | None = None, release_force_g: float = 0.0,
-                    drift_safety_limit_g: float | None = None) -> TriggerParams:
-        """The trigger of one probing move: a tap uses the command's options; threshold probing
-        (`threshold.ThresholdProber`) gives its own trigger force, the hysteresis release force
-        and, for fast passes, its own drift limit (0 disables it)."""
-        options = settings.options
-        force_g = options.trigger_force_g if trigger_force_g is None else trigger_force_g
-        params = self.trigger_params(options, settings.sos, force_g, release_force_g, drift_safety_limit_g)
-        try:  # e.g. force_safety_limit times a huge counts_per_gram past the firmware's 32-bit window
-            check_params(params)
-        except TriggerConfigError as exc:
-            raise ProbeError(f"{ERROR_PREFIX}the firmware trigger cannot take these settings ({exc}, with "
-                             f"counts_per_gram {params.counts_per_gram:g}): nothing was moved") from None
-        return params
-
-    def arm(self, settings: TapSettings, tare_counts: float, **trigger) -> FirmwareTrigger:
-        """The firmware trigger armed on `tare_counts` for one probing move (ProbeError if it refuses);
-        the one place a trigger is armed. `trigger`: the keywords of `move_params`."""
-        firmware = FirmwareTrigger(self.move_params(settings, **trigger))
-        error = firmware.arm(int(round(tare_counts)), self.backend.now_s)
-        if error != TriggerError.NONE:
-            raise ProbeError(self.error_message(error, settings.options))
-        return firmware
 
     def expect_contact(self) -> None:
         """The nozzle may touch the bed (or a hand the nozzle) from now on: the next tare waits for new samples."""
@@ -393,19 +359,19 @@ class LoadCellProbe:
         Returns (move result, the speed used, when the last attempt started); result.triggered is
         False when the move reached z_min_mm without a trigger.
         """
-        speed_mm_s = self.check_probing_speed(self.move_params(settings, **trigger), speed_mm_s)
+        speed_mm_s = self.speed_guard.check(self.trigger.move_params(settings, **trigger), speed_mm_s)
         result, t_start_s = self._move_at_checked_speed(settings, tare_counts, z_min_mm, speed_mm_s, **trigger)
         return result, speed_mm_s, t_start_s
 
     def _move_at_checked_speed(self, settings: TapSettings, tare_counts: float, z_min_mm: float, speed_mm_s: float,
                                **trigger):
         """`probing_move` after its speed check: the caller has passed `speed_mm_s` through
-        `check_probing_speed` with these settings and trigger. Returns (move result, when the
+        `SpeedGuard.check` with these settings and trigger. Returns (move result, when the
         last attempt started)."""
         options = settings.options
         self._clear_machine_z_mm = float(self.backend.position[2])
         for attempt in range(CORRUPT_FRAME_RETRIES + 1):
-            firmware = self.arm(settings, tare_counts, **trigger)
+            firmware = self.trigger.arm(settings, tare_counts, **trigger)
             t_start_s = self.backend.now_s
             # Unhomed (G28 Z), z_min is a full axis length below: the machine stops at its own end of travel.
             machine_z_min_mm = max(z_min_mm - self._z_frame_offset_mm(), self.backend.limits["z"][0])
@@ -422,40 +388,13 @@ class LoadCellProbe:
                 and (result.error != TriggerError.NONE or not result.triggered)):
             raise ProbeError(ERROR_PREFIX + safety.sensor_fault_message(fault, counts, z_min_mm))
         if result.error != TriggerError.NONE:
-            message = self.error_message(result.error, options)
+            message = self.trigger.error_message(result.error, options)
             if result.error == TriggerError.DRIFT_SAFETY:
                 message += self._explain_drift(options, tare_counts, t_start_s, speed_mm_s)
             raise ProbeError(message)
         if result.triggered:
             self.last_trigger_time_s = result.trigger_time_s
         return result, t_start_s
-
-    def check_probing_speed(self, params: TriggerParams, speed_mm_s: float) -> float:
-        """The probing speed capped by max_z_velocity; ProbeError (why, and the safe speed) when it
-        could press harder than force_safety_limit."""
-        max_z_mm_s = self.motion.options.max_z_velocity_mm_s
-        if speed_mm_s > max_z_mm_s:
-            if (speed_mm_s, max_z_mm_s) not in self._speed_notes:
-                self._speed_notes.add((speed_mm_s, max_z_mm_s))
-                self.printer.gcode.respond_info(
-                    f"Probing speed {speed_mm_s:g} mm/s is above [printer] max_z_velocity ({max_z_mm_s:g} mm/s): "
-                    f"probing at {max_z_mm_s:g} mm/s")
-            speed_mm_s = max_z_mm_s
-        stiffness_g_um, measured = self.assumed_stiffness_g_um()
-        prediction = safety.worst_stop(params, self.stop_timing, speed_mm_s, stiffness_g_um)
-        if safety.exceeds_limit(prediction, params.force_safety_limit_g):
-            slower = safety.safe_speed_mm_s(params, self.stop_timing, speed_mm_s, stiffness_g_um)
-            raise ProbeError(ERROR_PREFIX + safety.speed_refusal(params, self.stop_timing, speed_mm_s, prediction,
-                                                                 stiffness_g_um, measured, slower))
-        return speed_mm_s
-
-    def fastest_safe_speed_mm_s(self, params: TriggerParams, up_to_mm_s: float) -> float | None:
-        """`up_to_mm_s` when the force guard passes it, else the fastest safe speed below (None: none)."""
-        stiffness_g_um, _ = self.assumed_stiffness_g_um()
-        prediction = safety.worst_stop(params, self.stop_timing, up_to_mm_s, stiffness_g_um)
-        if not safety.exceeds_limit(prediction, params.force_safety_limit_g):
-            return up_to_mm_s
-        return safety.safe_speed_mm_s(params, self.stop_timing, up_to_mm_s, stiffness_g_um)
 
     def refuse_a_trigger_past_the_safety_limit(self, section) -> None:
         """Config load: a trigger_force at or above force_safety_limit can never fire first (the
@@ -480,7 +419,7 @@ class LoadCellProbe:
 
         def hiding(opts: TapOptions) -> list[float]:
             sos = design_firmware_filter(filter_options(opts, self.sample_rate_sps))
-            params = dataclasses.replace(self.trigger_params(opts, sos, opts.trigger_force_g),
+            params = dataclasses.replace(self.trigger.params(opts, sos, opts.trigger_force_g),
                                          counts_per_gram=safety.NOMINAL_COUNTS_PER_GRAM, reference_tare_counts=0)
             return safety.unprotected_hiding_speeds(params, self.stop_timing, speeds)
 
@@ -494,22 +433,17 @@ class LoadCellProbe:
         raise section.error("drift_filter_cutoff_frequency", safety.hiding_filter_refusal(
             options.drift_filter_cutoff_frequency, hidden[0], options, cutoff_hz))
 
-    def assumed_stiffness_g_um(self) -> tuple[float, bool]:
-        """(stiffness the force guard assumes, whether taps measured it): the stiffest valid kept tap
-        with a margin, else the conservative default."""
-        measured = self._known_stiffness_g_um()
-        if measured is None:
-            return safety.DEFAULT_STIFFNESS_G_UM, False
-        return measured * safety.MEASURED_STIFFNESS_MARGIN, True
-
     @contextlib.contextmanager
     def guarded(self):
         """Around every probing command: after any error the nozzle is lifted clear of the bed
         (to where the last probing move started, at least sample_retract_dist above where it
         stopped) before the error goes on to the user. Nests (the outermost resets the state)."""
         if self._guard_depth == 0:
-            self._speed_notes.clear()
+            self.speed_guard.new_command()
             self._clear_machine_z_mm = None
+            refuse_unknown_parameters(self.printer.gcode.innermost_command())
+            for warning in disabled_protections(self.options):
+                self.printer.gcode.respond_info(f"Warning: {warning}")
         self._guard_depth += 1
         try:
             yield
@@ -540,7 +474,7 @@ class LoadCellProbe:
         """
         self.require_calibrated()
         # The force guard of `probing_move`, run once here: an unsafe speed is refused before the lift.
-        speed_mm_s = self.check_probing_speed(self.move_params(settings), speed_mm_s)
+        speed_mm_s = self.speed_guard.check(self.trigger.move_params(settings), speed_mm_s)
         if expected_z_mm is not None:
             self._make_room_to_reach_speed(expected_z_mm, speed_mm_s)
         tare_counts = self.tare(settings.options)
@@ -603,31 +537,51 @@ class LoadCellProbe:
         candidate: tuple[float, float] | None = None  # (trigger Z, speed) of a tap that held
         speed = speed_mm_s
         heights = []
+        reversed_g = []  # the force held after taps that held like a contact the wrong way round
+        threshold_g = settings.options.trigger_force_g
         for _ in range(HOME_TAPS):
             result, tare_counts, _, speed = self._probing_move(settings, z_min_mm, speed)
             z_mm = z_at_time_mm(result.moves, result.trigger_time_s) + self._z_frame_offset_mm()
             heights.append(z_mm)
-            if self.contact_holds_after_halt(tare_counts, settings.options.trigger_force_g):
+            force_g = self._force_after_halt(tare_counts)
+            if safety.contact_holds(force_g, threshold_g):
                 if candidate is not None and abs(z_mm - candidate[0]) <= safety.agreement_tolerance_mm(
                         self.stop_timing, speed, candidate[1]):
                     return float(result.halt_z_mm) + self._z_frame_offset_mm()
                 candidate = (z_mm, speed)
             else:
                 candidate = None
+                if safety.contact_holds(-force_g, threshold_g):
+                    reversed_g.append(float(np.median(force_g)))
             self.backend.move_to(z=float(self.backend.position[2]) + HOME_BACKOFF_MM, speed_mm_s=speed)
             speed = min(speed_mm_s, HOME_CONFIRM_SPEED_MM_S)
         found = ", ".join(f"{z:.3f}" for z in heights)
+        if len(reversed_g) == HOME_TAPS:
+            raise ProbeError(ERROR_PREFIX + self._orientation_hint(reversed_g, found))
         raise ProbeError(ERROR_PREFIX + f"G28 Z: {HOME_TAPS} taps found no bed height twice (triggers at Z={found}): "
                          "something pushes or pulls on the nozzle, or the sensor jumps; check the toolhead and the "
                          "load cell, then home again")
 
-    def contact_holds_after_halt(self, tare_counts: float, threshold_g: float) -> bool:
-        """Rest at the halt for CONTACT_CHECK_SAMPLES samples: whether the force held like a contact."""
+    def _orientation_hint(self, reversed_g: list[float], found: str) -> str:
+        """G28 Z's error when every tap pressed the bed but the cell read it as a pull."""
+        now = "inverted" if self.load_cell.options.inverted else "normal"
+        other = "normal" if self.load_cell.options.inverted else "inverted"
+        held = ", ".join(f"{force:.0f}" for force in reversed_g)
+        return (f"G28 Z: the load cell reads the nozzle pressing on the bed as a negative force ({held} g held after "
+                f"each tap at Z={found}): sensor_orientation is the wrong way round for this cell. Set "
+                f"sensor_orientation: {other} in [{self.name}] (it is {now}), RESTART, then home again")
+
+    def _force_after_halt(self, tare_counts: float) -> np.ndarray:
+        """The force over CONTACT_CHECK_SAMPLES samples of rest at the halt."""
         halt_s = self.backend.now_s
         self.backend.dwell(safety.CONTACT_CHECK_SAMPLES / self.sample_rate_sps)
         self.load_cell.pump()
         _, force_g = self._force_between(halt_s, self.backend.now_s, tare_counts)
-        return safety.contact_holds(force_g, threshold_g)
+        return force_g
+
+    def contact_holds_after_halt(self, tare_counts: float, threshold_g: float) -> bool:
+        """Rest at the halt for CONTACT_CHECK_SAMPLES samples: whether the force held like a contact."""
+        return safety.contact_holds(self._force_after_halt(tare_counts), threshold_g)
 
     def tap(self, settings: TapSettings, z_min_mm: float, speed_mm_s: float) -> TapOutcome:
         """One full tap at the current XY (see the module docstring)."""
@@ -668,6 +622,10 @@ class LoadCellProbe:
             message = f"{message} ({why})"
         # Kept after the stiffness guess above: a bad tap's stiffness must not explain itself.
         self._record(tap, analysis, z_mm, valid)
+        if not valid and analysis.error in STIFF_BED_CODES:
+            self._note_bad_tap_stiffness(tap)
+        else:
+            self._unconfirmed_stiffness_g_um = None
         if valid:
             self.bed_heights.remember(x_mm, y_mm, z_mm)
         if analysis.quality is not None:
@@ -693,19 +651,45 @@ class LoadCellProbe:
     def _known_stiffness_g_um(self) -> float | None:
         """The bed's stiffness measured by the kept valid taps (the stiffest), None before any.
 
-        A bad tap's stiffness is not trusted: neither the force guard (`assumed_stiffness_g_um`)
-        nor the explanation of a bad tap uses it.
+        A bad tap's analysis is not trusted: the explanation of a bad tap never uses it, and the force
+        guard only takes a bad tap's own pullback when that shows a stiffer bed (`_guard_stiffness_g_um`).
         """
         stiffness = [t.analysis.stiffness_decompression_g_um for t in self.last_taps
                      if t.valid and t.analysis.stiffness_decompression_g_um]
         return max(stiffness) if stiffness else None
+
+    def _note_bad_tap_stiffness(self, tap: TapData) -> None:
+        """A bad tap on a bed too stiff for the speed (break contact too early) still shows the bed's
+        stiffness in its pullback. When two such taps in a row agree, the force guard takes it (if
+        stiffer than what it assumes), so the next tap at that speed is refused with the safe speed
+        instead of failing the same way again and again."""
+        if not tap.moves:
+            return
+
+        def z_at(t_s: float) -> float:  # the commanded Z: the last move started by then
+            return float(([m for m in tap.moves if m.print_time <= t_s] or tap.moves[:1])[-1].z_at(t_s))
+
+        stiffness = safety.decompression_stiffness_g_um(tap.time_s, tap.force_g, z_at,
+                                                        tap.events["pullback_start_time"],
+                                                        tap.events["pullback_end_time"])
+        # Two such taps in a row must agree: one pullback disturbed by a tug or a touch does not count.
+        unconfirmed, self._unconfirmed_stiffness_g_um = self._unconfirmed_stiffness_g_um, stiffness
+        if stiffness is not None and unconfirmed is not None and \
+                max(stiffness, unconfirmed) <= BAD_TAP_AGREEMENT * min(stiffness, unconfirmed):
+            self.bad_tap_stiffness_g_um = max(min(stiffness, unconfirmed), self.bad_tap_stiffness_g_um or 0.0)
+
+    def _guard_stiffness_g_um(self) -> float | None:
+        """What the force guard takes as measured: the valid taps' stiffness, raised by a stiffer
+        bed a bad tap showed."""
+        known = [k for k in (self._known_stiffness_g_um(), self.bad_tap_stiffness_g_um) if k]
+        return max(known) if known else None
 
     def _stuck_in_pullback(self, tap: TapData, options: TapOptions) -> str | None:
         """The real cause when the sensor stopped changing after the halt: the firmware's stuck
         rule (that many identical samples, which a live sensor never gives) over the samples
         from the pullback's start; the analysis would read the flat force as a nozzle still on
         the bed and advise a longer pullback."""
-        run = self.trigger_params(options, None, options.trigger_force_g).effective_stuck_samples
+        run = self.trigger.stuck_samples(options)
         pulled = tap.force_g[tap.time_s >= tap.events.get("pullback_start_time", np.inf)]
         if not run or len(pulled) < run or not np.all(pulled[-run:] == pulled[-1]):
             return None
@@ -797,6 +781,8 @@ class LoadCellProbe:
             "taps_recorded": len(self.last_taps),
             "trigger_force": self.options.trigger_force_g,
         })
+        if self.nozzle_watch is not None:
+            status["nozzle_watch"] = self.nozzle_watch.get_status()
         return status
 
     def write_last_taps(self, path: str | Path) -> int:

@@ -48,8 +48,9 @@ MULTI_MCU_STOP_LATENCY_S = 0.025
 # The MCU polls data-ready ten times a period: a sample is read up to a tenth of a period late.
 READ_DELAY_PERIODS = 0.1
 # Extra delay from the end of a conversion window to data-ready, in periods: the ADS1220's
-# sinc3 decimator centres its response about 1.5 periods back (one more than a plain window).
-PIPELINE_PERIODS = {"hx711": 0.0, "hx717": 0.0, "ads1220": 1.0}
+# sinc3 decimator centres its response about 1.5 periods back (one more than a plain window); the
+# ADS131M0x's sinc3 filter is taken alike.
+PIPELINE_PERIODS = {"hx711": 0.0, "hx717": 0.0, "ads1220": 1.0, "ads131m02": 1.0, "ads131m04": 1.0}
 CONTACT_PHASES = (0.0, 0.25, 0.5, 0.75)   # where in a conversion window the nozzle meets the bed
 PRE_CONTACT_SAMPLES = 2
 # The prediction stops here when nothing has stopped the move: a hidden tap.
@@ -157,6 +158,42 @@ def worst_stop(params: TriggerParams, timing: StopTiming, speed_mm_s: float, sti
     return max((case for case in cases if case is not None), key=lambda p: p.peak_force_g)
 
 
+# The pullback samples that measure a bad tap's stiffness: the force between these shares of its peak
+# (clear of the contact's toe and of the halt's relaxation).
+DECOMPRESSION_BAND = (0.2, 0.8)
+MIN_DECOMPRESSION_SAMPLES = 3
+
+
+def decompression_stiffness_g_um(time_s: np.ndarray, force_g: np.ndarray, z_at, pullback_start_s: float,
+                                 pullback_end_s: float) -> float | None:
+    """The bed's stiffness from a tap's pullback, whatever its analysis said: the force falling with
+    the commanded Z (`z_at(t)`, mm) while between DECOMPRESSION_BAND of its peak, as the median of
+    the slopes between all pairs of those samples (one corrupted frame cannot move it). None with
+    fewer than MIN_DECOMPRESSION_SAMPLES such samples (a tap too fast or too stiff to read: the
+    halt force alone says nothing reliable). The force guard only ever raises its assumption by it."""
+    time_s = np.asarray(time_s, dtype=float)
+    force_g = np.asarray(force_g, dtype=float)
+    pullback = (time_s >= pullback_start_s) & (time_s <= pullback_end_s)
+    t, f = time_s[pullback], force_g[pullback]
+    if t.size < MIN_DECOMPRESSION_SAMPLES:
+        return None
+    peak_g = float(np.median(np.sort(f)[-3:]))  # the largest but one of the three: a flipped bit is not the peak
+    if peak_g <= 0.0:
+        return None
+    low, high = (share * peak_g for share in DECOMPRESSION_BAND)
+    band = (f >= low) & (f <= high)
+    if np.count_nonzero(band) < MIN_DECOMPRESSION_SAMPLES:
+        return None
+    z_um = np.array([z_at(float(ti)) for ti in t[band]]) * 1000.0
+    f = f[band]
+    i, j = np.triu_indices(len(f), k=1)
+    dz = z_um[j] - z_um[i]
+    moved = np.abs(dz) > 1e-9
+    if not np.any(moved):
+        return None
+    return float(abs(np.median((f[j] - f[i])[moved] / dz[moved])))
+
+
 def exceeds_limit(prediction: StopPrediction, force_safety_limit_g: float) -> bool:
     """Unsafe: nothing stops the move, or it stops past force_safety_limit (when that is on)."""
     return prediction.stopped_by is None or (force_safety_limit_g > 0
@@ -170,6 +207,23 @@ def safe_speed_mm_s(params: TriggerParams, timing: StopTiming, below_mm_s: float
                                                     params.force_safety_limit_g):
             return speed
     return None
+
+
+# Speeds tried for a watched move (the nozzle watch), fastest first.
+WATCH_SPEED_STEPS_MM_S = (500.0, 400.0, 300.0, 250.0, 200.0, 150.0, 120.0, 100.0, 80.0, 60.0) + SPEED_STEPS_MM_S[1:]
+
+
+def fastest_watched_speed_mm_s(params: TriggerParams, timing: StopTiming, stiffness_g_um: float,
+                               limit_g: float) -> float:
+    """The fastest of WATCH_SPEED_STEPS_MM_S at which the trigger stops the nozzle meeting a bed of
+    `stiffness_g_um` head on at or below `limit_g` (the slowest step when none does).
+
+    A sideways move meeting a blob's 45-degree flank loads the nozzle as fast as a Z move at the
+    same speed meets the bed; the caller scales by the move's direction."""
+    for speed in WATCH_SPEED_STEPS_MM_S:
+        if predict_stop(params, timing, speed, stiffness_g_um).peak_force_g <= limit_g:
+            return speed
+    return WATCH_SPEED_STEPS_MM_S[-1]
 
 
 # The config-load check needs no calibration: forces are in grams, any scale will do.

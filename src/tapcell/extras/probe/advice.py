@@ -3,12 +3,14 @@
 The load-cell guide lists, for every tap validation and quality code, its common causes
 ("Tap Validation Error Codes", "Tap Quality Error Codes", the drift-filter tuning notes).
 Every probing error that ends in a bad tap closes with this: `Likely cause: ... Fix: ...`.
-A low quality score is explained by the component that pulled it down the most.
+A low quality score is explained by the component that sank it (over its cutoff, else the largest).
 """
 
 from __future__ import annotations
 
 from collections.abc import Mapping
+
+from tapcell.tap.classifiers import DEFAULT_QUALITY_CUTOFFS, limiting_component
 
 FOULED = "plastic on the nozzle (ooze) distorts the tap"
 CLEAN_AND_COOL = ("clean the nozzle (NOZZLE_CLEANUP), probe below the ooze point (about 140 C, M109 S140) "
@@ -38,6 +40,9 @@ ADVICE: dict[str, tuple[str, str]] = {
                                "report it with the tap file (tap_log)"),
     "LOW_COMPRESSION_FORCE": ("hot plastic on the nozzle made the force rise slowly, or the probe pressed "
                               "something soft", CLEAN_AND_COOL + "; check that the sheet lies flat"),
+    "LOW_DECOMPRESSION_FORCE": ("the force fell away while the nozzle pressed: the sheet does not lie firmly on the "
+                                "bed (debris under it), or soft plastic flowed out from under the nozzle",
+                                CLEAN_AND_COOL + "; lift the sheet and clean under it"),
     "TAP_CONTACT_MISMATCH": ("the nozzle pressed something away before it met the bed (an ooze film, debris)",
                              CLEAN_AND_COOL),
     "TAP_ADHESION": ("a thread of plastic held the nozzle as it left the bed (the force dipped below free air)",
@@ -52,7 +57,8 @@ ADVICE: dict[str, tuple[str, str]] = {
     "CLASSIFIER_FAILED": ("the tap_classifier plug-in failed", "check the plug-in, or use tap_classifier: tap_quality"),
 }
 
-# LOW_TAP_QUALITY, by the quality component that pulled the score down the most.
+# LOW_TAP_QUALITY, by the component that sank the score (over its cutoff, else the largest;
+# tapcell.tap.classifiers.limiting_component with the default cutoffs).
 QUALITY_ADVICE: dict[str, tuple[str, str]] = {
     "approach": ("the force rose before the nozzle reached the bed: molten plastic under the nozzle, or "
                  "drift from the bowden tube or cable chain", CLEAN_AND_COOL + "; against drift set "
@@ -91,7 +97,7 @@ def bad_tap_advice(code: str | None, quality_components: Mapping[str, float] | N
     if not code:
         return ""
     if code == "LOW_TAP_QUALITY":
-        worst = max(quality_components, key=quality_components.get) if quality_components else None
+        worst = limiting_component(dict(quality_components), DEFAULT_QUALITY_CUTOFFS) if quality_components else None
         cause, fix = QUALITY_ADVICE.get(worst, QUALITY_DEFAULT)
     else:
         cause, fix = ADVICE.get(code, (FOULED, CLEAN_AND_COOL))

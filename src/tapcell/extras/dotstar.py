@@ -1,0 +1,5 @@
+"""`[dotstar NAME]`: LEDs kept as colours, see tapcell.extras.led."""
+
+from tapcell.extras.led import load_config_prefix
+
+__all__ = ["load_config_prefix"]
