@@ -10,13 +10,14 @@ from __future__ import annotations
 import copy
 import json
 import math
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from scipy.signal import lfilter
 
-from tapcell.host.backend import MoveError, ProbingMoveResult, SampleBatch
+from tapcell.host.backend import EmergencyStopError, MoveError, ProbingMoveResult, SampleBatch
 from tapcell.sim import faults as faultlib
 from tapcell.sim.bed import BedError, bed_from_params
 from tapcell.sim.contact import ContactModel, ContactState, contact_forces, elastic_force_g
@@ -40,6 +41,9 @@ from tapcell.sim.sensor import IndexedNoise, chip_timing, counts_from_force, pin
 TAP_FORMAT = "tapcell.tap.v1"
 CHUNK_S = 0.05            # probing chunk: the trigger is fed this much data per call
 FREE_RUN_CHUNK = 4096     # samples per chunk when nothing listens to them
+# Samples produced between two looks at the emergency stop while time runs under a command: the
+# stop lands at the next sample either way; this bounds how long (wall time) it waits to be seen.
+HALT_CHECK_SAMPLES = 256
 NOISE_STREAMS = ("bed", "white", "pink", "poll", "jitter", "glitch_bit", "glitch_when", "hum")
 
 
@@ -178,6 +182,9 @@ class VirtualPrinter:
         self._chunk_samples = max(4, round(CHUNK_S * params.sample_rate_sps))
         self._now_s = 0.0
         self._aux_sensors: list = []
+        # Set from any thread (an API connection, a console's Ctrl-C); read where motion is produced.
+        self._halt = threading.Event()
+        self.halted_at_s: float | None = None   # when an emergency stop stopped the steppers
         self.truth = Truth(self)
         self.world_notice: str | None = None  # set by from_config: the scenario and what it changes
 
@@ -336,6 +343,16 @@ class VirtualPrinter:
         fault.first_index = self._next_k
         self._faults.append(fault)
 
+    def emergency_stop(self) -> None:
+        """From any thread: the steppers stop at the next sample the machine produces (inside a move,
+        a probing move, a dwell or a wait), and every command that lets time run from then on raises
+        EmergencyStopError at once. Sampling goes on (take_samples), nothing moves."""
+        self._halt.set()
+
+    def release_emergency_stop(self) -> None:
+        """A restart that keeps this machine: motion works again."""
+        self._halt.clear()
+
     def add_sensor(self, name: str, chip: str, sample_rate_sps: float):
         """An extra scale (no contact physics) sharing this printer's clock, e.g. a spool scale."""
         from tapcell.sim.scale_sensor import ScaleSensor
@@ -386,6 +403,8 @@ class VirtualPrinter:
         undelivered_state = None       # physics state before a chunk that was fed but not delivered
         while event is None:
             k0 = self._next_k
+            if self._halt.is_set():
+                self._advance_to(end_s)   # stops the steppers at the next sample and raises
             if k0 >= k_move_end:
                 event = feeder.feed(np.zeros(0), np.zeros(0, dtype=np.int32), end_s)   # watchdog to the end
                 break
@@ -529,19 +548,27 @@ class VirtualPrinter:
 
     def _advance_to(self, t_s: float) -> None:
         """Produce the samples up to t_s. An MCU reset due by then stops the steppers where they
-        are, time runs on until the host link is back, and McuResetError is raised."""
+        are, time runs on until the host link is back, and McuResetError is raised. An emergency
+        stop asked for while time runs here stops the steppers at the next sample not yet produced,
+        time ends there, and EmergencyStopError is raised."""
         reset = faultlib.due_reset(self._faults, t_s)
         if reset is not None:
             reset.start_s = max(reset.start_s, self._now_s)   # a condition already past: now
             reset.done = True
-            moving = sum(1 for segment in self._motion.segments if segment.end_time > reset.start_s)
-            if moving:
-                self._truncate_probing_move(moving, reset.start_s)
+            self._stop_steppers_at(reset.start_s)
             t_s = reset.end_s                                    # the command ends there
+        entry_s = self._now_s
+        halt_s = None
+        if self._halt.is_set() and t_s > entry_s:
+            halt_s = t_s = self._halt_steppers(entry_s)
         self._now_s = max(self._now_s, t_s)
         k_end = self._last_index_closed_by(self._now_s)
         while self._next_k < k_end:
-            k1 = min(k_end, self._next_k + FREE_RUN_CHUNK)
+            if halt_s is None and self._halt.is_set():
+                halt_s = self._now_s = self._halt_steppers(entry_s)
+                k_end = self._last_index_closed_by(halt_s)
+                continue
+            k1 = min(k_end, self._next_k + (HALT_CHECK_SAMPLES if self._now_s > entry_s else FREE_RUN_CHUNK))
             self._mcu.deliver(self._compute(self._next_k, k1))
             self._next_k = k1
         timing = self._timing
@@ -554,6 +581,21 @@ class VirtualPrinter:
             sensor.advance_to(self._now_s)
         if reset is not None:
             raise faultlib.McuResetError(reset.start_s, reset.end_s)
+        if halt_s is not None:
+            self.halted_at_s = halt_s
+            raise EmergencyStopError(halt_s)
+
+    def _halt_steppers(self, entry_s: float) -> float:
+        """An emergency stop: the steppers stop where the next sample to be produced starts (the
+        samples made so far saw the motion before it; time never goes back), returns that time."""
+        return self._stop_steppers_at(max(entry_s, self._timing.window_start_s(self._next_k)))
+
+    def _stop_steppers_at(self, t_s: float) -> float:
+        """Cut whatever moves after t_s there (no deceleration: a reset or an emergency stop)."""
+        moving = sum(1 for segment in self._motion.segments if segment.end_time > t_s)
+        if moving:
+            self._truncate_probing_move(moving, t_s)
+        return t_s
 
     def _fire_condition(self, condition: str, t_s: float) -> None:
         for f in self._faults:
