@@ -331,6 +331,7 @@ class GCodeDispatch:
         # Parameters each command has asked for so far, to suggest a spelling for an unknown one.
         self._known_parameters: dict[str, set[str]] = {}
         self._running: list[str] = []  # the commands running now, outermost first
+        self._running_lines: list[str] = []  # their command lines (callers that are not commands left out)
         # Told when the machine fails under a command; each returns what the user must know more.
         self._device_error_listeners: list[Callable[[DeviceError], str]] = []
         self._register_builtins()
@@ -493,6 +494,7 @@ class GCodeDispatch:
         self._check_nesting(parsed.command)
         gcmd = GCodeCommand(self, parsed)
         self._running.append(parsed.command)
+        self._running_lines.append(parsed.commandline)
         try:
             handler(gcmd)
         except ConfigError as exc:  # e.g. SAVE_CONFIG unable to write the file
@@ -504,7 +506,16 @@ class GCodeDispatch:
             raise GCodeError(f"MCU error on '{parsed.commandline}': {exc}{more}") from exc
         finally:
             self._running.pop()
+            self._running_lines.pop()
             self._warn_unknown_parameters(gcmd)
+
+    def running_command(self) -> str | None:
+        """The command running now, quoted: the innermost line, and the outermost when they
+        differ (`'G1 Z-1.5' in 'PROBE'`), for errors that name the command that did it."""
+        if not self._running_lines:
+            return None
+        inner, outer = self._running_lines[-1], self._running_lines[0]
+        return f"'{inner}'" if inner == outer else f"'{inner}' in '{outer}'"
 
     def _warn_unknown_parameters(self, gcmd: GCodeCommand) -> None:
         """One line per parameter the handler never asked for (a misspelt SAMPLE= silently did nothing)."""

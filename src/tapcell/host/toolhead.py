@@ -162,6 +162,9 @@ class Toolhead:
         # Where G-code moves go: the toolhead itself, or a transform wrapping it (bed mesh,
         # thermal adjust). A transform has move(position_xyz, speed_mm_s) and get_position().
         self.move_target = self
+        # The nozzle watch of a load-cell probe (extras/load_cell_probe/watch.py), None without:
+        # wants(start, target) says whether a move runs watched, move(machine_xyz, speed, accel) runs it.
+        self.nozzle_watch = None
 
     def set_move_transform(self, transform):
         """Route G-code moves (G0/G1, M114) through `transform`; returns the previous target,
@@ -192,8 +195,12 @@ class Toolhead:
                               for i, axis in enumerate(AXES)}, moved)
         machine = {axis: None if value is None else value - self.frame_offset_mm[axis]
                    for axis, value in target.items()}
+        end = tuple(current[i] if target[axis] is None else target[axis] for i, axis in enumerate(AXES))
         try:
-            self.backend.move_to(**machine, speed_mm_s=speed_mm_s, accel_mm_s2=self.max_accel_mm_s2)
+            if self.nozzle_watch is not None and self.nozzle_watch.wants(current, end):
+                self.nozzle_watch.move((machine["x"], machine["y"], machine["z"]), speed_mm_s, self.max_accel_mm_s2)
+            else:
+                self.backend.move_to(**machine, speed_mm_s=speed_mm_s, accel_mm_s2=self.max_accel_mm_s2)
         except MoveError as exc:  # the virtual machine is smaller than the config says
             raise GCodeError(f"Move refused by the virtual printer: {exc}") from None
 

@@ -378,17 +378,31 @@ class VirtualPrinter:
         self._check_target(target)
         return self._probing_move_to(target, speed_mm_s, trigger)
 
-    def _probing_move_to(self, target, speed_mm_s: float, trigger) -> ProbingMoveResult:
+    def watched_move(self, x: float | None, y: float | None, z: float | None, speed_mm_s: float,
+                     accel_mm_s2: float | None, trigger) -> ProbingMoveResult:
+        """An ordinary move (any direction, like move_to) with the armed firmware trigger seeing
+        every sample: it halts like a probing move when the trigger fires or reports an error
+        (the host's nozzle watch). Not a probe: no probing_move/contact fault conditions fire."""
+        start = self._motion.end_position
+        target = tuple(float(v) if v is not None else s for v, s in zip((x, y, z), start))
+        self._check_target(target)
+        if speed_mm_s <= 0.0:
+            raise MoveError(f"move speed must be above 0 mm/s, got {speed_mm_s}")
+        return self._probing_move_to(target, speed_mm_s, trigger, accel_mm_s2, probe=False)
+
+    def _probing_move_to(self, target, speed_mm_s: float, trigger, accel_mm_s2: float | None = None,
+                         probe: bool = True) -> ProbingMoveResult:
         start = self._motion.end_position
         self._advance_to(self._now_s)
-        self._tap_xy_mm = (float(start[0]), float(start[1]))
-        self._meet_residue(start[0], start[1])
+        if probe:
+            self._tap_xy_mm = (float(start[0]), float(start[1]))
+            self._meet_residue(start[0], start[1])
+            self._fire_condition("probing_move", self._now_s)
         film_at_start_um = self._state.contact.film_um
-        self._fire_condition("probing_move", self._now_s)
-        segments = self._plan(start, target, speed_mm_s)
+        segments = self._plan(start, target, speed_mm_s, accel_mm_s2)
         t_start = self._now_s
         contact_t = self._crossing_time(segments, float(self.truth.contact_z_at(start[0], start[1])))
-        if contact_t is not None:
+        if contact_t is not None and probe:
             self._fire_condition("contact", contact_t)
         self._motion.append(segments)
         end_s = segments[-1].end_time if segments else t_start
@@ -429,7 +443,8 @@ class VirtualPrinter:
             self._fire_condition("trigger", event.time_s)
         probe_moves = [s.as_tap_move() for s in self._motion.segments_between(t_start, halt_s)
                        if s.print_time >= t_start]
-        self._probes.append(_ProbeRecord(t_start, halt_s, start[0], start[1], film_at_start_um))
+        if probe:
+            self._probes.append(_ProbeRecord(t_start, halt_s, start[0], start[1], film_at_start_um))
         if len(self._probes) > FORGET_BATCH and self._probes[0].halt_time_s < halt_s - HISTORY_KEEP_S:
             self._probes = [r for r in self._probes if r.halt_time_s >= halt_s - HISTORY_KEEP_S]
         halt_z = float(self._motion.end_position[2])

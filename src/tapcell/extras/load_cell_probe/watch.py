@@ -1,0 +1,175 @@
+"""The nozzle watch: the load cell guards every move that can touch the bed, not only probes.
+
+A probing move is not the only move that can press the nozzle into the bed: travel between mesh
+points over a blob, `G1 Z0.1` after `SET_GCODE_OFFSET Z=-1.9`, a `deactivate_gcode` that
+moves Z down, a macro. So every toolhead move that ends below `nozzle_watch_height`, or passes
+below it, runs with the firmware trigger armed, exactly as a probing move does: tared on the
+samples just before the move, triggering on `nozzle_watch_force` over that tare, and with the
+raw force window (`force_safety_limit` around the calibration zero, clamped inside the ADC's
+range) and the stuck-sensor run on every sample. The first sample past a limit halts the move;
+the nozzle is lifted straight up (up cannot press harder) and the command ends with
+`Load Cell Probe Error: nozzle collision at X,Y,Z (N g)` naming the command that moved.
+
+Not watched: moves that only rise (the same X/Y, Z up), moves while Z is not homed (the bed is
+not known), and every move before the cell is calibrated (there is no force to watch). The
+trigger adds nothing to the firmware's per-sample path: it is the probing trigger, armed for
+one more kind of move (docs/safety.md).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from tapcell.extras.load_cell_probe.options import ERROR_PREFIX, robust_tare_counts, tare_sample_count
+from tapcell.extras.probe.session import ProbeError
+from tapcell.mcu.trigger import FirmwareTrigger, TriggerError, TriggerParams
+
+# Watched below this much above horizontal_z_clearance (when [bed_mesh] has one), and at least
+# DEFAULT_HEIGHT_MM: a first layer, a z_offset gone wrong and the mesh travel all lie below it.
+DEFAULT_HEIGHT_MM = 2.0
+HEIGHT_ABOVE_CLEARANCE_MM = 1.0
+MAX_HEIGHT_MM = 50.0
+# The force over the move's tare that stops a watched move. A print puts 0-30 g on the nozzle
+# in the virtual printer (bench/print_run.py prints the largest); a collision at travel speed
+# ramps past this within a sample or two, well below force_safety_limit (docs/safety.md).
+DEFAULT_FORCE_G = 250.0
+FORCE_RANGE_G = (50.0, 5000.0)
+# Samples older than this many periods beyond the tare length are not the state before the move.
+FRESH_MARGIN_SAMPLES = 4
+SENSOR_TIMEOUT_S = 1.0
+
+
+@dataclass(frozen=True)
+class WatchOptions:
+    height_mm: float   # toolhead Z below which moves are watched; 0: the watch is off
+    force_g: float     # force over the move's tare that stops it
+
+
+def read_watch_options(section) -> WatchOptions:
+    """`nozzle_watch_height` and `nozzle_watch_force` of [load_cell_probe]."""
+    default_height = DEFAULT_HEIGHT_MM
+    config = section.config
+    if config.has_section("bed_mesh"):
+        clearance = config.getsection("bed_mesh").getfloat("horizontal_z_clearance", None, above=0.0,
+                                                           maxval=MAX_HEIGHT_MM)
+        if clearance is not None:
+            default_height = max(default_height, clearance + HEIGHT_ABOVE_CLEARANCE_MM)
+    height = section.getfloat("nozzle_watch_height", default_height, minval=0.0, maxval=MAX_HEIGHT_MM)
+    force = section.getfloat("nozzle_watch_force", DEFAULT_FORCE_G, minval=FORCE_RANGE_G[0],
+                             maxval=FORCE_RANGE_G[1])
+    return WatchOptions(height, force)
+
+
+def is_watched(start_xyz, target_xyz, height_mm: float) -> bool:
+    """Whether a straight move from start to target (toolhead frame) needs the watch: it ends or
+    starts below `height_mm` (a straight line is lowest at an end) and does not only rise."""
+    if height_mm <= 0.0 or min(start_xyz[2], target_xyz[2]) >= height_mm:
+        return False
+    rises_only = (start_xyz[0] == target_xyz[0] and start_xyz[1] == target_xyz[1]
+                  and target_xyz[2] >= start_xyz[2])
+    return not rises_only
+
+
+def collision_message(x_mm: float, y_mm: float, z_mm: float, force_g: float, command: str | None) -> str:
+    where = f" during {command}" if command else ""
+    return (ERROR_PREFIX + f"nozzle collision at {x_mm:.3f},{y_mm:.3f},{z_mm:.3f} ({force_g:.0f} g){where}: "
+            "the move was stopped and the nozzle lifted; check the bed for a blob or a part that came loose, "
+            "and the Z offset")
+
+
+class NozzleWatch:
+    """Runs the toolhead's low moves with the probe's firmware trigger armed (see the module doc)."""
+
+    def __init__(self, device, options: WatchOptions):
+        self.device = device
+        self.options = options
+        self.printer = device.printer
+        self.backend = device.backend
+        self.collisions = 0      # watched moves stopped (status)
+        self.watched_moves = 0   # moves run with the watch armed (status)
+
+    def wants(self, start_xyz, target_xyz) -> bool:
+        """Whether this toolhead move runs watched."""
+        toolhead = self.device.motion
+        return (self.device.load_cell.is_calibrated and toolhead.is_z_homed()
+                and is_watched(start_xyz, target_xyz, self.options.height_mm))
+
+    def trigger_params(self) -> TriggerParams:
+        """The probe's trigger for the config's options: no filter, nozzle_watch_force, no drift window."""
+        device = self.device
+        options = device.options
+        params = device.trigger_params(options, None, self.options.force_g, drift_safety_limit_g=0.0)
+        return params
+
+    def move(self, machine_xyz, speed_mm_s: float, accel_mm_s2: float | None) -> None:
+        """Run one move (machine coordinates, None: the axis stays) with the trigger armed."""
+        device = self.device
+        tare_counts = self._tare_counts()
+        firmware = FirmwareTrigger(self.trigger_params())
+        t_start_s = self.backend.now_s
+        error = firmware.arm(int(round(tare_counts)), t_start_s)
+        if error != TriggerError.NONE:
+            raise ProbeError(device.error_message(error, device.options) + self._during())
+        self.watched_moves += 1
+        x, y, z = machine_xyz
+        result = self.backend.watched_move(x, y, z, speed_mm_s, accel_mm_s2, firmware)
+        if result.triggered or result.error != TriggerError.NONE:
+            self._stopped(result, tare_counts, t_start_s)
+
+    def _tare_counts(self) -> float:
+        """The cell at rest before the move: the mean of the newest tare_time of samples."""
+        device = self.device
+        rate = device.sample_rate_sps
+        needed = tare_sample_count(device.options.tare_time_s, rate)
+        deadline_s = self.backend.now_s + SENSOR_TIMEOUT_S
+        while True:
+            device.load_cell.pump()
+            now_s = self.backend.now_s
+            _, counts, _ = device.history.between(now_s - (needed + FRESH_MARGIN_SAMPLES) / rate, now_s)
+            if len(counts) >= needed:
+                return robust_tare_counts(counts[-needed:])
+            if now_s >= deadline_s:
+                raise ProbeError(ERROR_PREFIX + "timed out waiting for sensor data before a watched move"
+                                 + self._during())
+            self.backend.dwell((needed - len(counts)) / rate)
+
+    def _stopped(self, result, tare_counts: float, t_start_s: float) -> None:
+        """The trigger halted the move: measure, lift, and end the command with the collision."""
+        device = self.device
+        self.collisions += 1
+        device._wait_for_samples_to(self.backend.now_s)
+        t_s, counts, _ = device.history.between(t_start_s, self.backend.now_s)
+        force_g = device.grams(counts, tare_counts) if len(counts) else np.zeros(1)
+        peak_g = float(force_g[np.argmax(np.abs(force_g))])
+        x_mm, y_mm, z_mm = device.motion.get_position()
+        during = self._during_command()
+        self._lift()
+        if result.error not in (TriggerError.NONE, TriggerError.FORCE_SAFETY):
+            # The sensor itself failed (stuck, gone): say so, not a collision.
+            raise ProbeError(device.error_message(result.error, device.options)
+                             + f" (the nozzle watch stopped the move at {x_mm:.3f},{y_mm:.3f},{z_mm:.3f}"
+                             + (f" during {during}" if during else "") + ")")
+        raise ProbeError(collision_message(x_mm, y_mm, z_mm, peak_g, during))
+
+    def _lift(self) -> None:
+        """Straight up to nozzle_watch_height, at least sample_retract_dist above the halt."""
+        probe_options = self.device.probe.options
+        z_now = float(self.backend.position[2])
+        frame_z = self.device.motion.frame_offset_mm["z"]
+        target = max(self.options.height_mm - frame_z, z_now + probe_options.sample_retract_dist_mm)
+        target = min(target, self.backend.limits["z"][1])
+        if target > z_now:
+            self.backend.move_to(z=target, speed_mm_s=probe_options.effective_lift_speed_mm_s)
+
+    def _during_command(self) -> str | None:
+        return self.printer.gcode.running_command()
+
+    def _during(self) -> str:
+        command = self._during_command()
+        return f" (before {command})" if command else ""
+
+    def get_status(self) -> dict:
+        return {"nozzle_watch_height": self.options.height_mm, "nozzle_watch_force": self.options.force_g,
+                "watched_moves": self.watched_moves, "collisions": self.collisions}

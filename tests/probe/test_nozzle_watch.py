@@ -1,0 +1,147 @@
+"""The nozzle watch (issue 19): every move that can touch the bed runs with the trigger armed.
+
+Each reproducer runs twice on the calibrated example printer: with the watch off
+(`nozzle_watch_height: 0`, today's main) the true peak force (SIM_TRUTH) is far past
+force_safety_limit (2000 g) and the nozzle ends pressed into the bed; with the default watch the
+move stops at the first sample over nozzle_watch_force, the nozzle is lifted and the command ends
+with the collision error naming the command that moved.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from probe_vprinter import make_printer
+from tapcell.extras.load_cell_probe.watch import DEFAULT_FORCE_G, is_watched, read_watch_options
+from tapcell.host.gcode import GCodeError
+
+FORCE_SAFETY_LIMIT_G = 2000.0
+WATCH_OFF = "nozzle_watch_height: 0"
+COLLISION = "Load Cell Probe Error: nozzle collision at "
+
+
+def bump_csv(path, x_mm: float, y_mm: float, height_mm: float, radius_mm: float, gaussian: bool = False) -> str:
+    """A bed CSV (1 mm grid over the 235 mm bed), flat but for a blob (cone) or a local warp
+    (a smooth Gaussian bulge of that radius) at x, y."""
+    xs = np.arange(0.0, 236.0)
+    grid_x, grid_y = np.meshgrid(xs, xs)
+    r = np.hypot(grid_x - x_mm, grid_y - y_mm)
+    z = height_mm * (np.exp(-0.5 * (r / radius_mm) ** 2) if gaussian else np.clip(1.0 - r / radius_mm, 0.0, 1.0))
+    np.savetxt(path, z, delimiter=",", fmt="%.4f")
+    return f"bed_shape: csv\nbed_csv: {path}\n"
+
+
+def printer_in(folder, **options):
+    folder.mkdir()
+    printer, _ = make_printer(folder, **options)
+    return printer
+
+
+def run(printer, script: str) -> tuple[str | None, float, float]:
+    """(error or None, true peak force in g, nozzle clearance in mm after it) of `script`."""
+    truth = printer.backend.truth
+    truth.take_peak_force_g()
+    try:
+        printer.gcode.run_script(script)
+        error = None
+    except GCodeError as exc:
+        error = str(exc)
+    return error, truth.take_peak_force_g(), truth.nozzle_clearance_mm
+
+
+def assert_stopped(error, peak_g, clearance_mm, command: str):
+    assert error is not None and error.startswith(COLLISION), error
+    assert f"during {command}" in error
+    assert peak_g < FORCE_SAFETY_LIMIT_G
+    assert clearance_mm > 0.0
+
+
+def test_offset_below_the_bed_is_stopped(tmp_path):
+    """SET_GCODE_OFFSET Z=-1.9 then G1 Z0.1: 6,085 g and 1.83 mm into the bed without the watch."""
+    script = "SET_GCODE_OFFSET Z=-1.9\nG1 Z0.1 F600"
+    off = printer_in(tmp_path / "off", probe_options=WATCH_OFF)
+    error, peak_g, clearance_mm = run(off, script)
+    assert error is None and peak_g > 3 * FORCE_SAFETY_LIMIT_G and clearance_mm < -1.8
+    on = printer_in(tmp_path / "on")
+    error, peak_g, clearance_mm = run(on, script)
+    assert_stopped(error, peak_g, clearance_mm, "'G1 Z0.1 F600'")
+    # Measured 366 g: the first sample past 250 g (the trigger), plus one sample of travel at 10 mm/s.
+    assert peak_g < 2 * DEFAULT_FORCE_G
+    x, y, z = (float(v) for v in error[len(COLLISION):].split(" ")[0].split(","))
+    assert (x, y) == (110.0, 110.0) and -0.2 < z < 0.0  # where it stopped: just below the bed at Z 0
+    assert on.lookup_object("toolhead").nozzle_watch.collisions == 1
+
+
+def test_deactivate_gcode_below_the_bed_is_stopped(tmp_path):
+    """`deactivate_gcode: G1 Z-1.5`: about 5 kg after every G28 without the watch."""
+    options = "deactivate_gcode: G1 Z-1.5 F600"
+    off = printer_in(tmp_path / "off", probe_options=f"{options}\n{WATCH_OFF}", home=False)
+    error, peak_g, clearance_mm = run(off, "G28")
+    assert error is None and peak_g > 2 * FORCE_SAFETY_LIMIT_G and clearance_mm < -1.4
+    on = printer_in(tmp_path / "on", probe_options=options, home=False)
+    error, peak_g, clearance_mm = run(on, "G28")
+    assert_stopped(error, peak_g, clearance_mm, "'G1 Z-1.5 F600' in 'G28'")
+
+
+@pytest.mark.parametrize("height_mm", [1.0, 1.5])
+def test_blob_between_mesh_points_is_stopped(tmp_path, height_mm):
+    """A blob between the 2nd and 3rd mesh points, travel 0.4 mm above the bed (horizontal_z_clearance):
+    1,984 g (1.0 mm) and 3,649 g (1.5 mm) and a mesh reported done without the watch."""
+    bed = bump_csv(tmp_path / "blob.csv", 66.0, 15.0, height_mm, 3.0)
+    off = printer_in(tmp_path / "off", probe_options=WATCH_OFF, virtual_printer=bed)
+    error, peak_g, _ = run(off, "BED_MESH_CALIBRATE")
+    assert error is None and peak_g > 0.95 * FORCE_SAFETY_LIMIT_G
+    on = printer_in(tmp_path / "on", virtual_printer=bed)
+    error, peak_g, clearance_mm = run(on, "BED_MESH_CALIBRATE")
+    assert_stopped(error, peak_g, clearance_mm, "'BED_MESH_CALIBRATE'")
+    assert on.lookup_object("bed_mesh").mesh is None  # no mesh from the stopped command
+    x = float(error[len(COLLISION):].split(",")[0])
+    assert 60.0 < x < 66.0  # stopped on the blob's near flank
+
+
+def test_local_warp_under_mesh_travel_is_stopped(tmp_path):
+    """A bed bulging 1.3 mm between mesh points (a local warp the travel height cannot predict)."""
+    bed = bump_csv(tmp_path / "warp.csv", 66.0, 15.0, 1.3, 6.0, gaussian=True)
+    off = printer_in(tmp_path / "off", probe_options=WATCH_OFF, virtual_printer=bed)
+    error, peak_g, _ = run(off, "BED_MESH_CALIBRATE")
+    assert error is None and peak_g > FORCE_SAFETY_LIMIT_G
+    on = printer_in(tmp_path / "on", virtual_printer=bed)
+    error, peak_g, clearance_mm = run(on, "BED_MESH_CALIBRATE")
+    assert_stopped(error, peak_g, clearance_mm, "'BED_MESH_CALIBRATE'")
+
+
+def test_moves_above_the_watch_height_and_rising_moves_are_not_watched(tmp_path):
+    printer, _ = make_printer(tmp_path)
+    watch = printer.lookup_object("toolhead").nozzle_watch
+    before = watch.watched_moves
+    printer.gcode.run_script("G1 Z5 F600\nG1 X100 Y100 F6000\nG1 Z2.5")
+    assert watch.watched_moves == before
+    printer.gcode.run_script("G1 Z1 F600\nG1 Z3\nG1 X110 Z1.5")  # down below 2 mm: watched; up only: not
+    assert watch.watched_moves == before + 2
+
+
+@pytest.mark.parametrize("start, target, watched", [
+    ((0, 0, 5.0), (10, 0, 5.0), False),   # travel above the height
+    ((0, 0, 5.0), (0, 0, 1.0), True),     # ends below
+    ((0, 0, 1.0), (10, 0, 5.0), True),    # starts below, moves sideways
+    ((0, 0, 1.0), (0, 0, 5.0), False),    # only rises
+    ((0, 0, 0.2), (50, 0, 0.2), True),    # a first-layer line
+])
+def test_which_moves_are_watched(start, target, watched):
+    assert is_watched(start, target, 2.0) is watched
+    assert is_watched(start, target, 0.0) is False  # nozzle_watch_height: 0 turns the watch off
+
+
+@pytest.mark.parametrize("clearance, expected_mm", [(None, 2.0), ("0.4", 2.0), ("3", 4.0)])
+def test_watch_height_default_follows_horizontal_z_clearance(make_section, tmp_path, clearance, expected_mm):
+    from tapcell.host.config import ConfigFile
+
+    text = "[load_cell_probe]\nsensor_type: hx711\n"
+    if clearance is not None:
+        text += f"[bed_mesh]\nhorizontal_z_clearance: {clearance}\n"
+    path = tmp_path / "p.cfg"
+    path.write_text(text)
+    options = read_watch_options(ConfigFile.read(path).getsection("load_cell_probe"))
+    assert options.height_mm == expected_mm
+    assert options.force_g == DEFAULT_FORCE_G
