@@ -12,8 +12,9 @@ the virtual printer these commands do it:
     SIM_TRUTH                                     what the simulator knows and the host must not
 
 SIM_TRUTH prints simulator truth (the cell's real counts_per_gram, its zero offset,
-the bed height under the nozzle, the largest nozzle-bed force since the previous SIM_TRUTH
-as `peak_force_g: N`, and the gap between nozzle tip and bed now as `nozzle_clearance_mm: N`,
+the bed height under the nozzle, the largest force the nozzle put on the bed or, sideways, on
+the calibration pin since the previous SIM_TRUTH as `peak_force_g: N` (each alone as
+`peak_bed_force_g` and `peak_pin_force_g`), and the gap between nozzle tip and bed now as `nozzle_clearance_mm: N`,
 negative when the nozzle is pressed into the bed): it is there to check calibration and
 probing by eye and in tests, and no tapcell algorithm ever reads it.
 """
@@ -130,6 +131,7 @@ class SimCommands:
     def cmd_truth(self, gcmd: GCodeCommand) -> None:
         truth = self.vp.truth
         x, y, _ = self.vp.position
+        peak_bed_g, peak_pin_g = truth.take_peak_forces_g()
         lines = [
             "Simulator truth (for checking by eye; no tapcell algorithm reads it):",
             f"cell counts_per_gram: {truth.counts_per_gram:.3f}",
@@ -137,7 +139,9 @@ class SimCommands:
             f"bed surface under the nozzle (X{x:.1f} Y{y:.1f}): Z={float(truth.surface_z(x, y)):.4f} mm"
             " in machine coordinates",
             f"simulated time: {self.vp.now_s:.3f} s",
-            f"peak_force_g: {truth.take_peak_force_g():.1f}",
+            f"peak_force_g: {max(peak_bed_g, peak_pin_g):.1f}",
+            f"peak_bed_force_g: {peak_bed_g:.1f}",
+            f"peak_pin_force_g: {peak_pin_g:.1f}",
             f"nozzle_clearance_mm: {truth.nozzle_clearance_mm:.4f}",
         ]
         gcmd.respond_info("\n".join(lines))

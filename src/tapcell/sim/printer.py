@@ -61,7 +61,8 @@ class _PhysicsState:
     contact: ContactState
     cell_warm_c: float = 0.0      # the load cell's temperature rise (low-passed nozzle heat)
     residue: list[ResidueSpot] = field(default_factory=list)   # ooze film left on the bed
-    peak_contact_g: float = 0.0   # largest nozzle-bed force since Truth.take_peak_force_g last read it
+    peak_contact_g: float = 0.0   # largest nozzle-bed force since Truth.take_peak_forces_g last read it
+    peak_pin_g: float = 0.0       # largest sideways nozzle-pin force since then
 
 
 @dataclass
@@ -120,19 +121,27 @@ class Truth:
         vp = self._vp
         return float(vp._gap_um_now() / 1000.0)
 
-    def take_peak_force_g(self) -> float:
-        """The largest nozzle-bed force (bed + ooze film, g) since the last call, and start again.
+    def take_peak_forces_g(self) -> tuple[float, float]:
+        """The largest nozzle-bed force (bed + ooze film, g) and the largest sideways nozzle-pin
+        force (g, XY probing) since the last call, and start again.
 
         Forces are known for every conversion window produced so far; the nozzle's present
-        press (the loading curve at today's gap) covers the window still open."""
+        press (the loading curve at today's gap, the pin's side at today's position) covers the
+        window still open."""
         vp = self._vp
         vp._advance_to(vp.now_s)
         state = vp._state
         model = vp._contact_model
-        now_g = float(elastic_force_g(-vp._gap_um_now(), model.stiffness_g_um, model.onset_um))
-        peak_g = max(state.peak_contact_g, now_g)
-        state.peak_contact_g = 0.0
-        return peak_g
+        gap_um, pin_now_g = vp._gap_and_pin_force_now()
+        bed_now_g = float(elastic_force_g(-gap_um, model.stiffness_g_um, model.onset_um))
+        peaks = (max(state.peak_contact_g, bed_now_g), max(state.peak_pin_g, pin_now_g))
+        state.peak_contact_g = state.peak_pin_g = 0.0
+        return peaks
+
+    def take_peak_force_g(self) -> float:
+        """The largest force the nozzle put on the bed or the pin since the last call (either
+        reading starts both again): what must stay within force_safety_limit."""
+        return max(self.take_peak_forces_g())
 
 
 class VirtualPrinter:
@@ -656,13 +665,15 @@ class VirtualPrinter:
         grid_t = timing.grid_times(k0, k1)
         pos = quantize_to_steps(self._motion.positions_at(grid_t), self.step_distance_mm)
         temps = self._thermal.temps_at(grid_t)
-        gap_um, pin_g = self._gaps_um(pos, temps)
+        gap_um, pin_side_g = self._gaps_um(pos, temps)
+        pin_g = 0.0 if self._pin is None else self._pin.side_coupling * pin_side_g  # what the cell reads
         growth_um = p.ooze_growth_um_per_s_per_c * np.maximum(temps - p.ooze_temp_c, 0.0) * timing.grid_dt_s
         bed_g, film_g = contact_forces(gap_um, timing.grid_dt_s, growth_um, self._contact_model,
                                        self._state.contact)
         contact_g = bed_g + film_g   # the true nozzle-bed force (SIM_TRUTH's peak_force_g)
         if n:
             self._state.peak_contact_g = max(self._state.peak_contact_g, float(np.max(contact_g)))
+            self._state.peak_pin_g = max(self._state.peak_pin_g, float(np.max(pin_side_g)))
         self._place_residue()
         centre = (p.bed_x_mm / 2.0, p.bed_y_mm / 2.0)
         drag_g = (p.bowden_g_per_mm_x * (pos[:, 0] - centre[0]) + p.bowden_g_per_mm_y * (pos[:, 1] - centre[1])
@@ -695,7 +706,7 @@ class VirtualPrinter:
 
     def _gaps_um(self, pos: np.ndarray, temps) -> tuple[np.ndarray, np.ndarray | float]:
         """Per (n, 3) position: how far the commanded nozzle tip is above its first touch of the bed
-        or the pin (µm, negative = pressed in), and the pin's side force (g)."""
+        or the pin (µm, negative = pressed in), and the sideways nozzle-pin force (g)."""
         bed_z = self._bed.surface_z(pos[:, 0], pos[:, 1])
         extension_mm = self._thermal.extension_mm(temps)
         pin_g = 0.0
@@ -706,9 +717,12 @@ class VirtualPrinter:
         return (pos[:, 2] - (bed_z + extension_mm)) * 1000.0, pin_g
 
     def _gap_um_now(self) -> float:
+        return self._gap_and_pin_force_now()[0]
+
+    def _gap_and_pin_force_now(self) -> tuple[float, float]:
         pos = quantize_to_steps(self._motion.positions_at(np.array([self._now_s])), self.step_distance_mm)
-        gap_um, _ = self._gaps_um(pos, self._thermal.temps_at(np.array([self._now_s])))
-        return float(gap_um[0])
+        gap_um, pin_g = self._gaps_um(pos, self._thermal.temps_at(np.array([self._now_s])))
+        return float(gap_um[0]), float(np.max(pin_g))
 
     def _hand_force(self, t_s: np.ndarray) -> np.ndarray:
         force = np.zeros(t_s.shape)
