@@ -269,6 +269,7 @@ class VirtualPrinter:
         self._check_target(target)
         if speed_mm_s <= 0.0:
             raise MoveError(f"move speed must be above 0 mm/s, got {speed_mm_s}")
+        self._fire_move_conditions(start, target)
         self._plan_and_run(start, target, speed_mm_s, accel_mm_s2)
 
     def home_xy(self) -> None:
@@ -346,9 +347,11 @@ class VirtualPrinter:
             raise MoveError(f"tap delay must not be negative, got {delay_s}")
         self._hand_taps.append((self._now_s + float(delay_s), float(duration_s), float(peak_force_g)))
 
-    def inject_fault(self, name: str, at_s: float | None = None, when: str | None = None, **params) -> None:
-        """Start a fault now, at `at_s`, or when a condition happens ('probing_move', 'contact', 'trigger')."""
-        fault = faultlib.make_fault(name, at_s, when, self._now_s, params)
+    def inject_fault(self, name: str, at_s: float | None = None, when: str | None = None, nth: int = 1,
+                     **params) -> None:
+        """Start a fault now, at `at_s`, or when a condition happens (faults.CONDITIONS), on its
+        `nth` occurrence."""
+        fault = faultlib.make_fault(name, at_s, when, self._now_s, params, nth)
         fault.first_index = self._next_k
         self._faults.append(fault)
 
@@ -397,6 +400,7 @@ class VirtualPrinter:
         self._check_target(target)
         if speed_mm_s <= 0.0:
             raise MoveError(f"move speed must be above 0 mm/s, got {speed_mm_s}")
+        self._fire_move_conditions(start, target)
         return self._probing_move_to(target, speed_mm_s, trigger, accel_mm_s2, probe=False)
 
     def _probing_move_to(self, target, speed_mm_s: float, trigger, accel_mm_s2: float | None = None,
@@ -450,6 +454,8 @@ class VirtualPrinter:
         self._advance_to(halt_s)
         if event is not None and event.triggered:
             self._fire_condition("trigger", event.time_s)
+        if probe:
+            self._fire_condition("halt", halt_s)
         probe_moves = [s.as_tap_move() for s in self._motion.segments_between(t_start, halt_s)
                        if s.print_time >= t_start]
         if probe:
@@ -624,8 +630,17 @@ class VirtualPrinter:
     def _fire_condition(self, condition: str, t_s: float) -> None:
         for f in self._faults:
             if f.when == condition and f.start_s is None:
-                f.start_s = t_s
-                f.first_index = self._next_k
+                f.waits_for -= 1
+                if f.waits_for <= 0:
+                    f.start_s = t_s
+                    f.first_index = self._next_k
+
+    def _fire_move_conditions(self, start, target) -> None:
+        """A move that is not a probe: 'travel' when it moves in X/Y, else 'lift' when it goes up."""
+        travel = math.hypot(target[0] - start[0], target[1] - start[1]) > 0.0
+        if travel or target[2] > start[2]:
+            self._advance_to(self._now_s)
+            self._fire_condition("travel" if travel else "lift", self._now_s)
 
     def _film_at_start(self, t0_s: float, t1_s: float) -> float:
         """Ooze film when the tap in [t0, t1] started (now, if no probing move is in the span)."""
