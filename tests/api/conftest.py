@@ -6,6 +6,7 @@ hung server fails its test instead of hanging the run.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -73,16 +74,22 @@ def free_port() -> int:
         return probe.getsockname()[1]
 
 
-@pytest.fixture(scope="module")
-def served(tmp_path_factory):
-    """`tapcell serve` on a calibrated virtual printer; yields the socket path."""
-    folder = tmp_path_factory.mktemp("served")
+@contextlib.contextmanager
+def serving(folder: Path):
+    """`tapcell serve` on a calibrated virtual printer in `folder`; yields the socket path."""
     socket_path = folder / "klippy.sock"
     process = start_serve(printer_config(folder), socket_path, folder / "serve.log")
     try:
         yield socket_path
     finally:
         stop(process)
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    """`tapcell serve` on a calibrated virtual printer; yields the socket path."""
+    with serving(tmp_path_factory.mktemp("served")) as socket_path:
+        yield socket_path
 
 
 MOONRAKER_CONF = """\

@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from conftest import printer_config, start_serve, stop
+from conftest import printer_config, serving, start_serve, stop
 from klippy_client import KlippyClient
 
 
@@ -188,12 +188,8 @@ def test_emergency_stop_shuts_down_and_firmware_restart_closes_connections(tmp_p
 @pytest.fixture
 def own_server(tmp_path):
     """A server of its own (an emergency stop shuts it down); yields the socket path."""
-    socket_path = tmp_path / "klippy.sock"
-    process = start_serve(printer_config(tmp_path), socket_path, tmp_path / "serve.log")
-    try:
+    with serving(tmp_path) as socket_path:
         yield socket_path
-    finally:
-        stop(process)
 
 
 def homed_worker(socket_path) -> KlippyClient:

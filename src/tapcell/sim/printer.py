@@ -264,12 +264,7 @@ class VirtualPrinter:
                 speed_mm_s: float = 50.0, accel_mm_s2: float | None = None) -> None:
         """Trapezoidal move (rest to rest) within the axis limits; time advances to its end.
         `accel_mm_s2` (the host's current limit) is capped by the machine's own."""
-        start = self._motion.end_position
-        target = tuple(float(v) if v is not None else s for v, s in zip((x, y, z), start))
-        self._check_target(target)
-        if speed_mm_s <= 0.0:
-            raise MoveError(f"move speed must be above 0 mm/s, got {speed_mm_s}")
-        self._fire_move_conditions(start, target)
+        start, target = self._begin_move(x, y, z, speed_mm_s)
         self._plan_and_run(start, target, speed_mm_s, accel_mm_s2)
 
     def home_xy(self) -> None:
@@ -395,12 +390,7 @@ class VirtualPrinter:
         """An ordinary move (any direction, like move_to) with the armed firmware trigger seeing
         every sample: it halts like a probing move when the trigger fires or reports an error
         (the host's nozzle watch). Not a probe: no probing_move/contact fault conditions fire."""
-        start = self._motion.end_position
-        target = tuple(float(v) if v is not None else s for v, s in zip((x, y, z), start))
-        self._check_target(target)
-        if speed_mm_s <= 0.0:
-            raise MoveError(f"move speed must be above 0 mm/s, got {speed_mm_s}")
-        self._fire_move_conditions(start, target)
+        _, target = self._begin_move(x, y, z, speed_mm_s)
         return self._probing_move_to(target, speed_mm_s, trigger, accel_mm_s2, probe=False)
 
     def _probing_move_to(self, target, speed_mm_s: float, trigger, accel_mm_s2: float | None = None,
@@ -634,6 +624,17 @@ class VirtualPrinter:
                 if f.waits_for <= 0:
                     f.start_s = t_s
                     f.first_index = self._next_k
+
+    def _begin_move(self, x, y, z, speed_mm_s: float):
+        """A move that is not a probe, checked (limits, speed) and announced to the faults waiting
+        for it: (start, target)."""
+        start = self._motion.end_position
+        target = tuple(float(v) if v is not None else s for v, s in zip((x, y, z), start))
+        self._check_target(target)
+        if speed_mm_s <= 0.0:
+            raise MoveError(f"move speed must be above 0 mm/s, got {speed_mm_s}")
+        self._fire_move_conditions(start, target)
+        return start, target
 
     def _fire_move_conditions(self, start, target) -> None:
         """A move that is not a probe: 'travel' when it moves in X/Y, else 'lift' when it goes up."""
