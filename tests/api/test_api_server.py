@@ -263,8 +263,10 @@ def test_emergency_stop_during_a_long_move_stops_the_toolhead(own_server):
     where = [other.call("objects/query", objects={"toolhead": ["position"]})["result"]["status"]["toolhead"]["position"]]
     assert other.call("gcode/script", script="STATUS")["result"] == {}  # a job on the printer's thread
     where.append(other.call("objects/query", objects={"toolhead": ["position"]})["result"]["status"]["toolhead"]["position"])
-    # Stopped inside the move (today's main ended it at X220, refusing only the next line).
-    assert where[0] == where[1] and 20.0 < where[0][0] < 219.0
+    # Stopped before X220 (today's main ended the move there, refusing only the next line). The
+    # stop may land as the move begins (the client answers the output faster than the printer's
+    # thread gets to the move): tests/probe/test_emergency_stop.py stops one under way.
+    assert where[0] == where[1] and 20.0 <= where[0][0] < 219.0
 
 
 def test_scripts_queued_by_a_client_that_vanishes_never_run(own_server):

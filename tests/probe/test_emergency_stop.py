@@ -98,21 +98,37 @@ def test_emergency_stop_during_probe_accuracy_reports_no_result(tmp_path):
     assert probe.get_status(0.0)["last_z_result"] == before
 
 
+def moving_after(printer, after_s: float) -> threading.Event:
+    """An event the virtual printer sets as it makes the samples `after_s` of print time from now
+    (so the move is under way when the other thread sees it)."""
+    vp = printer.backend
+    at_s, moving = vp.now_s + after_s, threading.Event()
+    compute = vp._compute
+
+    def compute_and_tell(k0: int, k1: int):
+        if vp._timing.window_start_s(k0) > at_s:
+            moving.set()
+        return compute(k0, k1)
+
+    vp._compute = compute_and_tell
+    return moving
+
+
 def test_emergency_stop_during_a_long_move_stops_the_steppers(tmp_path):
     printer, responses = make_printer(tmp_path)
-    moving = threading.Event()
-    printer.gcode.register_command("MOVING", lambda gcmd: moving.set())
-    # 20 moves of 200 mm at 1 mm/s: 4000 s of print time, seconds of wall time here.
-    moves = "\n".join(f"G1 X{20 if k % 2 else 220} F60" for k in range(20))
-    running = ScriptInThread(printer, f"G1 X20 Y20 Z10 F6000\nMOVING\n{moves}")
-    assert moving.wait(WAIT_S), running.error
+    printer.gcode.run_script("G1 X20 Y20 Z10 F6000")
+    # 200 mm at 0.1 mm/s: 2000 s of print time, seconds of wall time here; under way after 10 s.
     started_s = printer.backend.now_s
+    moving = moving_after(printer, 10.0)
+    running = ScriptInThread(printer, "G1 X220 F6\nG1 X100 F6000")
+    assert moving.wait(WAIT_S), running.error
     printer.request_emergency_stop(REASON)
     error = running.join()
     assert isinstance(error, ShutdownError)
     vp = printer.backend
-    assert vp.halted_at_s - started_s < 3800.0
+    assert 10.0 < vp.halted_at_s - started_s < 1990.0
     x_mm = vp.position[0]
+    assert x_mm == pytest.approx(20.0 + 0.1 * (vp.halted_at_s - started_s), abs=0.05)
     with pytest.raises(GCodeError):
         printer.gcode.run_script("G1 X100")
     assert vp.position[0] == x_mm
