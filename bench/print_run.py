@@ -10,11 +10,18 @@ Measured (2 cores, 2000 moves, 2692 s of printer time): 330 sps 8.0 / 8.1 s per 
 first 1.01), 167x real time; 2000 sps 24.6 / 24.8 s (1.01), 55x. Most of it is the contact model:
 at layer height the hot, oozing nozzle's film reaches the bed, and that path runs per simulated
 sample.
+
+`--slicers` runs the slicer-style files of the tests (PrusaSlicer, OrcaSlicer and Cura start
+G-code, a cube's layers with extrusion, end G-code) to the end with the nozzle watch on and
+prints, per file, the moves the watch guarded, the moves it stopped (a false stop: must be 0),
+the largest force the cell read in a watched move against nozzle_watch_force, and the largest
+true nozzle-bed force (SIM_TRUTH's peak_force_g).
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import tempfile
 import time
 from pathlib import Path
@@ -22,6 +29,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
+from tapcell.host.gcode import GCodeError, UnknownCommandError
 from tapcell.host.printer import Printer
 
 VORON = Path(__file__).resolve().parents[1] / "examples" / "voron-load-cell.cfg"
@@ -65,12 +73,80 @@ def run_print(sample_rate: int, moves: int, folder: Path) -> tuple[float, float,
     return block_wall_s[0], block_wall_s[-1], time.perf_counter() - start, printer.get_time() - printer_start_s
 
 
+SLICER_FILES = Path(__file__).resolve().parents[1] / "tests" / "klipper" / "slicer_files.py"
+SLICERS = ("prusaslicer", "orcaslicer", "cura")
+LAYERS_BEGIN = ";LAYER_CHANGE"
+# As the slicer tests run them: the example's 5x5 mesh made 3x3 and its sensor read at 330 sps.
+SHORTER = {"probe_count: 5, 5": "probe_count: 3, 3", "sample_rate: 2000": "sample_rate: 330",
+           "\nspeed: 5\nsamples: 1": "\nspeed: 3\nsamples: 1"}
+
+
+def slicer_file(slicer: str, layers: int) -> str:
+    """The slicer-style file the tests print (tests/klipper/slicer_files.py), loaded from its path."""
+    spec = importlib.util.spec_from_file_location("slicer_files", SLICER_FILES)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.slicer_file(slicer, layers=layers)[0]
+
+
+def print_watched(slicer: str, layers: int, folder: Path) -> dict:
+    """Print one slicer file with the nozzle watch on; what the watch and the truth saw."""
+    path = folder / f"voron-{slicer}.cfg"
+    text = VORON.read_text()
+    for old, new in SHORTER.items():
+        text = text.replace(old, new)
+    path.write_text(text)
+    printer = Printer.from_config(str(path), responses=[])
+    printer.gcode.run_script(CALIBRATE)
+    truth = printer.backend.truth
+    lines = slicer_file(slicer, layers).splitlines()
+    error = None
+    seen: set[str] = set()
+    for line in lines:
+        if line == LAYERS_BEGIN and line not in seen:
+            truth.take_peak_force_g()  # the layers' own peak: not the taps of G28 and the mesh before them
+            seen.add(line)
+        try:
+            printer.gcode.run_line(line)
+        except UnknownCommandError:
+            continue  # M201/M203/M205: Klipper says "Unknown command" and goes on
+        except GCodeError as exc:
+            error = str(exc)
+            break
+    watch = printer.lookup_object("toolhead").nozzle_watch
+    return {"lines": len(lines), "watched": watch.watched_moves, "stops": watch.collisions,
+            "largest_g": watch.largest_force_g, "limit_g": watch.options.force_g,
+            "height_mm": watch.options.height_mm, "truth_peak_g": truth.take_peak_force_g(), "error": error}
+
+
+def slicer_table(layers: int, console: Console) -> Table:
+    table = Table(title=f"slicer files, {layers} layers, nozzle watch on: the largest force a print put on the "
+                        "nozzle against the watch's limit (nozzle_watch_force)")
+    for column in ("file", "lines", "watched moves", "stopped", "largest g", "limit g", "largest / limit",
+                   "true peak g (layers)", "ended"):
+        table.add_column(column, justify="right")
+    with tempfile.TemporaryDirectory() as folder:
+        for slicer in SLICERS:
+            console.print(f"bench print_run: {slicer} ...")
+            row = print_watched(slicer, layers, Path(folder))
+            table.add_row(slicer, str(row["lines"]), str(row["watched"]), str(row["stops"]), f"{row['largest_g']:.1f}",
+                          f"{row['limit_g']:.0f}", f"{row['largest_g'] / row['limit_g']:.3f}",
+                          f"{row['truth_peak_g']:.1f}", "to the end" if row["error"] is None else row["error"])
+    return table
+
+
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="bench/print_run.py", description=__doc__)
     parser.add_argument("--moves", type=int, default=2000)
     # 2000 sps (the example's own rate) costs 3x the wall time: `--rates 330 2000` for both.
     parser.add_argument("--rates", type=int, nargs="*", default=[330])
+    parser.add_argument("--slicers", action="store_true", help="print the slicer files with the nozzle watch on")
+    parser.add_argument("--layers", type=int, default=8, help="layers of the cube in each slicer file")
     args = parser.parse_args(argv)
+    if args.slicers:
+        console = Console(width=160)
+        console.print(slicer_table(args.layers, console))
+        return 0
     table = Table(title=f"a print of {args.moves} extrusion moves (anchor: its own first {BLOCK} moves)")
     for column in ("sample rate", "first 1000 s", "last 1000 s", "last / first", "wall s", "printer s",
                    "x real time"):

@@ -77,7 +77,9 @@ def test_mesh_matches_the_warped_bed(make_printer):
     predicted = np.delete(np.arange(24), unpredicted)
     above_bed_mm = heights[predicted] - np.maximum(contacts[predicted], contacts[predicted + 1])
     assert above_bed_mm.min() > 0.15 and above_bed_mm.max() < 0.7
-    assert printer.get_status()["bed_mesh"]["last_calibration"]["time_s"] < 35.0  # 25 points
+    # 25 points: 33.0 s with the nozzle watch off; its speed cap (travel under nozzle_watch_height at
+    # 80 mm/s, not 150, on this measured bed: docs/safety.md) makes it 40.7 s.
+    assert printer.get_status()["bed_mesh"]["last_calibration"]["time_s"] < 42.0
 
 
 def test_oozy_mesh_completes_with_circle(make_printer):

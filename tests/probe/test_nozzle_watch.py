@@ -100,6 +100,36 @@ def test_blob_between_mesh_points_is_stopped(tmp_path, height_mm):
     assert 60.0 < x < 66.0  # stopped on the blob's near flank
 
 
+@pytest.mark.parametrize("scenario", ["clean", "slow-adc"])
+def test_steep_blob_is_stopped_below_the_limit_at_any_sample_rate(tmp_path, scenario):
+    """A 1.5 mm blob with 45-degree flanks met at the mesh's 150 mm/s: the watch alone (at the
+    travel speed asked) stopped it at 2,475 g (320 sps) and 3,651 g (80 sps); capped to the speed
+    at which the trigger stops a 45-degree flank in time: 627 g and 1,298 g."""
+    bed = bump_csv(tmp_path / "blob.csv", 66.0, 15.0, 1.5, 1.5)
+    on = printer_in(tmp_path / "on", scenario=scenario, virtual_printer=bed)
+    error, peak_g, clearance_mm = run(on, "BED_MESH_CALIBRATE")
+    assert_stopped(error, peak_g, clearance_mm, "'BED_MESH_CALIBRATE'")
+    assert peak_g < 0.7 * FORCE_SAFETY_LIMIT_G
+
+
+def test_watched_speed_cap_follows_the_assumed_bed(tmp_path):
+    """At 320 sps on an unmeasured bed (10 g/um assumed) the trigger stops a head-on contact within
+    2000 g up to 30 mm/s; once taps measured 3.26 g/um (x1.25) up to 80 mm/s. A diagonal move meets
+    a 45-degree flank and the bed at once: 1/sqrt(2) of that."""
+    printer = printer_in(tmp_path / "p", home=False)
+    printer.gcode.run_script("G28")
+    watch = printer.lookup_object("toolhead").nozzle_watch
+    device = printer.lookup_object("load_cell_probe")
+    device.last_taps.clear()
+    assert watch.speed_cap_mm_s((1.0, 0.0, 0.0)) == 30.0
+    assert watch.speed_cap_mm_s((0.0, 0.0, -1.0)) == 30.0
+    assert watch.speed_cap_mm_s((1.0, 0.0, -1.0)) == pytest.approx(30.0 / np.sqrt(2.0))
+    printer.gcode.run_script("G1 X110 Y110 F6000\nPROBE")
+    stiffness_g_um, measured = device.assumed_stiffness_g_um()
+    assert measured and 3.5 < stiffness_g_um < 4.5
+    assert watch.speed_cap_mm_s((1.0, 0.0, 0.0)) == 80.0
+
+
 def test_local_warp_under_mesh_travel_is_stopped(tmp_path):
     """A bed bulging 1.3 mm between mesh points (a local warp the travel height cannot predict)."""
     bed = bump_csv(tmp_path / "warp.csv", 66.0, 15.0, 1.3, 6.0, gaussian=True)
@@ -145,3 +175,13 @@ def test_watch_height_default_follows_horizontal_z_clearance(make_section, tmp_p
     options = read_watch_options(ConfigFile.read(path).getsection("load_cell_probe"))
     assert options.height_mm == expected_mm
     assert options.force_g == DEFAULT_FORCE_G
+
+
+def test_a_press_cannot_creep_up_in_small_steps(tmp_path):
+    """50 moves of 0.05 mm down from Z 2, each after a rest (163 g each on this bed, below
+    nozzle_watch_force): each is measured from the tare taken clear of the bed, not from the press
+    the previous one left (tared on it, the steps would go on to the 2,000 g force window)."""
+    printer = printer_in(tmp_path / "p")
+    error, peak_g, clearance_mm = run(printer, "G91\n" + "G1 Z-0.05 F60\nG4 P200\n" * 50)
+    assert_stopped(error, peak_g, clearance_mm, "'G1 Z-0.05 F60'")
+    assert peak_g < 2 * DEFAULT_FORCE_G  # one step past 250 g at most

@@ -70,15 +70,16 @@ def test_slow_adc_probes_at_2mm_s(tmp_path):
 
 
 def test_slow_adc_explains_what_goes_wrong_too_fast(tmp_path):
-    printer, _ = make_printer(tmp_path, scenario="slow-adc", probe_options=NO_SCORE)
+    # force_safety_limit 4000 in the config: a sensor stuck at contact would press 2.9 kg at 8 mm/s on this
+    # sensor (an override may not raise the limit past the config).
+    printer, _ = make_printer(tmp_path, scenario="slow-adc", probe_options=NO_SCORE + "\nforce_safety_limit: 4000")
     # A good tap at 2 mm/s first: from it the probe knows the bed (3.26 g/um).
     printer.gcode.run_script("PROBE HOME=Z PROBE_SPEED=2\nG1 Z0.4")
     # At 8 mm/s the HX711 sees the nozzle every 100 um, while the force reaches the 75 g trigger
     # 23 um after contact: the compression falls between two samples (the tap cannot be
     # analysed) and the halt comes ~170 um past contact, beyond 3/4 of the 0.15 mm pullback.
-    # force_safety_limit 4000: a sensor stuck at contact would press 2.9 kg at 8 mm/s on this sensor.
     with pytest.raises(GCodeError) as error:
-        printer.gcode.run_script("PROBE PROBE_SPEED=8 BAD_PROBE_STRATEGY=fail FORCE_SAFETY_LIMIT=4000")
+        printer.gcode.run_script("PROBE PROBE_SPEED=8 BAD_PROBE_STRATEGY=fail")
     message = str(error.value)
     # The nozzle stopped deeper than the pullback lifts: it never leaves the bed (or the tap is unreadable).
     assert re.match(r"^Probe failed because it was deemed bad quality: TAP_(CHRONOLOGY|SHAPE_INVALID|PULLBACK_TOO_SHORT)"
@@ -93,14 +94,15 @@ def test_slow_adc_explains_what_goes_wrong_too_fast(tmp_path):
         r"slower \(or use a faster sensor\)\)", why)
     peak_g = float(re.search(r"pressing (\d+)g", why)[1])
     assert peak_g == pytest.approx(true_peak_force_g(printer), rel=0.1)
-    # Below force_safety_limit on this bed; the default limit makes the probe refuse before moving:
+    # Below force_safety_limit on this bed; the default limit (2000 g, an override may tighten to it)
+    # makes the probe refuse before moving:
     # the guard's worst case (the measured 3.2 g/um with a 25 % margin) is a sensor that sticks as
     # the nozzle meets the bed, stopped only after 7 samples (87.5 ms), far above this tap's peak.
     assert true_peak_force_g(printer) < 2000.0
     printer.gcode.run_script("G1 Z0.4")
     z_before = printer.backend.position[2]
     with pytest.raises(GCodeError) as refusal:
-        printer.gcode.run_script("PROBE PROBE_SPEED=8")
+        printer.gcode.run_script("PROBE PROBE_SPEED=8 FORCE_SAFETY_LIMIT=2000")
     match = re.fullmatch(r"Load Cell Probe Error: probing at 8 mm/s refused: it could press the bed with up to "
                          r"(\d+)g, more than force_safety_limit \(2000g\): at 80 samples/s the nozzle moves 100\.0 um "
                          r"per sample into a bed of up to 4\.0 g/um \(measured by the taps, with a margin\), and 1 ms "
@@ -114,10 +116,10 @@ def test_slow_adc_explains_what_goes_wrong_too_fast(tmp_path):
 
 def test_slow_adc_first_tap_too_fast_estimates_the_bed_from_the_jump(tmp_path):
     # No tap yet: the stiffness comes from the one-sample force jump (a low estimate).
-    printer, _ = make_printer(tmp_path, scenario="slow-adc", probe_options=NO_SCORE)
+    printer, _ = make_printer(tmp_path, scenario="slow-adc", probe_options=NO_SCORE + "\nforce_safety_limit: 10000")
     # Before any tap the guard assumes a 10 g/um bed: only a high limit lets 8 mm/s through.
     with pytest.raises(GCodeError) as error:
-        printer.gcode.run_script("PROBE PROBE_SPEED=8 BAD_PROBE_STRATEGY=fail FORCE_SAFETY_LIMIT=10000")
+        printer.gcode.run_script("PROBE PROBE_SPEED=8 BAD_PROBE_STRATEGY=fail")
     why = re.search(r"\(probing too fast for this sensor: .*\)$", str(error.value))[0]
     stiffness = float(re.search(r"about (\d+\.\d) g/um", why)[1])
     # A low estimate (true 3.26 g/um): the triggering sample was only partly in contact, by how

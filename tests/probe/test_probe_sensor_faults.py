@@ -71,10 +71,17 @@ def test_stuck_sensor_samples_option(tmp_path):
     with pytest.raises(GCodeError, match=r"^Error on 'PROBE STUCK_SENSOR_SAMPLES=-2': STUCK_SENSOR_SAMPLES must "
                                          r"have minimum of 0 \(allowed: 0 to 65535\)$"):
         printer.gcode.run_script("PROBE STUCK_SENSOR_SAMPLES=-2")
+    # An override may shorten the run (tighten), never lengthen it past the sensor's 7 (loosen).
+    with pytest.raises(GCodeError, match=r"STUCK_SENSOR_SAMPLES=30 would loosen the stuck-sensor check"):
+        printer.gcode.run_script("PROBE STUCK_SENSOR_SAMPLES=30 PROBE_SPEED=1")
+    (tmp_path / "long").mkdir()
+    # (probing at 1 mm/s, homing included: 30 samples of travel at 5 mm/s are refused by the force guard)
+    printer, _ = make_printer(tmp_path / "long", probe_options="stuck_sensor_samples: 30",
+                              replace={"\nspeed: 5\n": "\nspeed: 1\n"})
     printer.gcode.run_script("G1 Z2")
     with pytest.raises(GCodeError, match=STUCK.format(n=30)):
         # 30 samples of travel: slow enough that the force guard allows it on an unmeasured bed
-        printer.gcode.run_script("SIM_FAULT NAME=stuck WHEN=contact\nPROBE STUCK_SENSOR_SAMPLES=30 PROBE_SPEED=1")
+        printer.gcode.run_script("SIM_FAULT NAME=stuck WHEN=contact\nPROBE PROBE_SPEED=1")
 
 
 def test_only_a_lone_sample_between_quiet_neighbours_counts_as_a_corrupted_frame():

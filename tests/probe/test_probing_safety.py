@@ -97,13 +97,15 @@ def test_a_drift_filter_that_hides_the_tap_is_refused_unless_a_safety_limit_stop
                      r"the nozzle at or below force_safety_limit \(2000g; drift_safety_limit is 0g\); allowed: a "
                      r"cutoff of at most 4\.2 Hz, or a drift_safety_limit that stops the move \(e\.g\. 1000\)$",
                      str(refused.value))
-    # The same through G-code overrides: refused before moving.
-    printer, _ = ready(tmp_path)
-    z_before = printer.backend.position[2]
-    message = gcode_error(printer, "PROBE PROBE_SPEED=1 DRIFT_FILTER_CUTOFF_FREQUENCY=20 DRIFT_SAFETY_LIMIT=0")
+    # The same with the filter given as a G-code override (drift_safety_limit: 0 in the config: an
+    # override may not turn it off): refused before moving.
+    unprotected, _ = ready(tmp_path / "unprotected", probe_options="drift_safety_limit: 0")
+    z_before = unprotected.backend.position[2]
+    message = gcode_error(unprotected, "PROBE PROBE_SPEED=1 DRIFT_FILTER_CUTOFF_FREQUENCY=20")
     assert message.startswith("Load Cell Probe Error: probing at 1 mm/s refused: ")
     assert "(the drift filter hides the tap: only a safety limit stops the move)" in message
-    assert printer.backend.position[2] == z_before and sim_truth(printer)[0] == 0.0
+    assert unprotected.backend.position[2] == z_before and sim_truth(unprotected)[0] == 0.0
+    printer, _ = ready(tmp_path)
     # With the drift limit on (1000 g) the hidden tap ends at that limit (1017 g measured), and lifted.
     assert gcode_error(printer, "PROBE PROBE_SPEED=1 DRIFT_FILTER_CUTOFF_FREQUENCY=20") == \
         "Load Cell Probe Error: force exceeded drift_safety_limit before triggering!"

@@ -455,10 +455,22 @@ def _parse_int(text: str) -> int:
     return int(text.strip())
 
 
+def underflow_problem(text: str, value: float) -> str | None:
+    """Why a number written as non-zero but read as 0 (`1e-400` underflows) is refused, else None:
+    a limit given that way must not silently become 0, which turns a protection off."""
+    mantissa = re.split(r"[eE]", text.strip(), maxsplit=1)[0]
+    if value == 0.0 and re.search(r"[1-9]", mantissa):
+        return f"'{text.strip()}' is too small to tell from 0 (it would be read as 0); write 0 to mean 0"
+    return None
+
+
 def _parse_float(text: str) -> float:
     value = float(text.strip())
     if not math.isfinite(value):
         raise _ValueProblem("must be a finite number")
+    problem = underflow_problem(text, value)
+    if problem:
+        raise _ValueProblem(problem)
     return value
 
 

@@ -28,7 +28,7 @@ from collections.abc import Sequence
 from typing import Any, Callable
 
 from tapcell.host.backend import DeviceError, EmergencyStopError
-from tapcell.host.config import GCODE_WORDS, ConfigError, check_range, require_range
+from tapcell.host.config import GCODE_WORDS, ConfigError, check_range, require_range, underflow_problem
 
 
 class GCodeError(Exception):
@@ -257,6 +257,8 @@ class GCodeCommand:
     def _parse_checked(self, name, text, parse, unparsable, limits):
         try:
             value = parse(text)
+        except _Underflow as exc:
+            raise self.param_error(f"{name} {exc}") from None
         except ValueError:
             raise self.param_error(unparsable) from None
         problem = check_range(value, *limits, words=GCODE_WORDS)
@@ -301,10 +303,17 @@ def _with_our_spellings(parsed: ParsedLine) -> dict[str, str]:
     return params
 
 
+class _Underflow(ValueError):
+    """A number written as non-zero that reads as 0 (its text says why)."""
+
+
 def _finite_float(text: str) -> float:
     value = float(text)
     if not math.isfinite(value):
         raise ValueError(text)
+    problem = underflow_problem(text, value)
+    if problem:
+        raise _Underflow(problem)
     return value
 
 

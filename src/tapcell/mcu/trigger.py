@@ -120,6 +120,10 @@ class TriggerParams:
     # run a sensor with 16 counts RMS of noise never shows (sensors.stuck_sample_count); the
     # probe passes its own sensor's value (sensors.noise_floor_counts).
     stuck_samples: int | None = None
+    # The sensor's raw range (lowest, highest count). Given, the force window never reaches past
+    # it: a window wider than the ADC (force_safety_limit 0, or a limit the scale puts beyond the
+    # range) becomes the widest window inside it, so a saturated sample always stops the move.
+    counts_range: tuple[int, int] | None = None
 
     @property
     def effective_stuck_samples(self) -> int:
@@ -182,6 +186,22 @@ def _limit_counts(name: str, limit_g: float, counts_per_gram: float) -> int:
     return counts
 
 
+def _limits_inside_range(p: TriggerParams) -> tuple[int, int]:
+    """(force, drift) window half widths in counts when the sensor's range is known: the force
+    window at most the widest one around reference_tare_counts that stays off both rails (also
+    when force_safety_limit is 0: the last line that nothing turns off), the drift window at most
+    the whole range (a wider one can never be left)."""
+    low, high = (int(v) for v in p.counts_range)
+    _check("force_safety_limit_g", p.force_safety_limit_g, _finite(p.force_safety_limit_g) and p.force_safety_limit_g >= 0,
+           "0 (disabled) or a positive force in grams")
+    _check("drift_safety_limit_g", p.drift_safety_limit_g, _finite(p.drift_safety_limit_g) and p.drift_safety_limit_g >= 0,
+           "0 (disabled) or a positive force in grams")
+    inside_rails = max(1, min(high - 1 - p.reference_tare_counts, p.reference_tare_counts - 1 - low))
+    force = max(1, round(p.force_safety_limit_g * p.counts_per_gram)) if p.force_safety_limit_g else inside_rails
+    drift = max(1, round(p.drift_safety_limit_g * p.counts_per_gram)) if p.drift_safety_limit_g else 0
+    return min(force, inside_rails), min(drift, high - low)
+
+
 def _config_values(p: TriggerParams) -> dict:
     _check("counts_per_gram", p.counts_per_gram, _finite(p.counts_per_gram) and 1e-4 < p.counts_per_gram < 1e9,
            "a positive number of counts per gram (1e-4 .. 1e9)")
@@ -207,7 +227,11 @@ def _config_values(p: TriggerParams) -> dict:
            isinstance(stuck, (int, np.integer)) and (stuck == 0 or 2 <= stuck <= MAX_STUCK_SAMPLES),
            f"0 (disabled) or an integer 2 .. {MAX_STUCK_SAMPLES}")
     scale, scale_frac_bits = quantize_scale(p.counts_per_gram, bool(p.inverted))
-    force_limit_counts = _limit_counts("force_safety_limit_g", p.force_safety_limit_g, p.counts_per_gram)
+    if p.counts_range is None:
+        force_limit_counts = _limit_counts("force_safety_limit_g", p.force_safety_limit_g, p.counts_per_gram)
+        drift_limit_counts = _limit_counts("drift_safety_limit_g", p.drift_safety_limit_g, p.counts_per_gram)
+    else:
+        force_limit_counts, drift_limit_counts = _limits_inside_range(p)
     _check("force_safety_limit_g", p.force_safety_limit_g,
            INT32_MIN <= p.reference_tare_counts - force_limit_counts
            and p.reference_tare_counts + force_limit_counts <= INT32_MAX,
@@ -215,7 +239,7 @@ def _config_values(p: TriggerParams) -> dict:
     return {
         "reference_tare_counts": int(p.reference_tare_counts),
         "force_limit_counts": force_limit_counts,
-        "drift_limit_counts": _limit_counts("drift_safety_limit_g", p.drift_safety_limit_g, p.counts_per_gram),
+        "drift_limit_counts": drift_limit_counts,
         "scale": scale,
         "scale_frac_bits": scale_frac_bits,
         "trigger_q": max(1, round(p.trigger_force_g * Q1615_ONE_G)),

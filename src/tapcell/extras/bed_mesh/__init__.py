@@ -38,6 +38,7 @@ from tapcell.mesh.profiles import mesh_from_profile_options, profile_options, pr
 from tapcell.mesh.faulty_regions import probing_plan
 from tapcell.mesh.report import render_generated_points, render_mesh, render_mesh_map, render_probed_matrix
 from tapcell.mesh.split import split_move
+from tapcell.mesh.zero_reference import zero_reference_warning
 from tapcell.mesh.zmesh import ZMesh, build_mesh, empty_mesh_status, fade_target_mm, gcode_z_mm
 
 DEFAULT_PROFILE = "default"
@@ -60,6 +61,9 @@ class BedMesh:
         # G-code moves come to us first, we pass the adjusted moves on.
         self.next_target = self.toolhead.set_move_transform(self)
         printer.register_event_handler("printer:ready", self._load_default_profile)
+        # Where Z was homed (the toolhead X/Y at G28 Z): the datum a zero reference must agree with.
+        self.z_datum_xy_mm: tuple[float, float] | None = None
+        printer.register_event_handler("toolhead:z_homed", self._note_z_datum)
         gcode = printer.gcode
         gcode.register_command("BED_MESH_CALIBRATE", self.cmd_BED_MESH_CALIBRATE,
                                desc="Probe the bed and build a mesh: [PROFILE=] [METHOD=tap|two_pass|prusa] "
@@ -84,6 +88,15 @@ class BedMesh:
     def _load_default_profile(self) -> None:
         if DEFAULT_PROFILE in self.profiles:
             self.set_mesh(self.profiles[DEFAULT_PROFILE])
+
+    def _note_z_datum(self) -> None:
+        x_mm, y_mm, _ = self.toolhead.get_position()
+        self.z_datum_xy_mm = (x_mm, y_mm)
+
+    def _warn_zero_reference(self, gcmd: GCodeCommand) -> None:
+        warning = zero_reference_warning(self.mesh, self.options.zero_reference_xy_mm, self.z_datum_xy_mm)
+        if warning:
+            gcmd.respond_info(f"Warning: {warning}")
 
     def set_mesh(self, mesh: ZMesh | None) -> None:
         """Make `mesh` the one moves follow (None: no mesh)."""
@@ -162,6 +175,7 @@ class BedMesh:
             raise gcmd.error(f"BED_MESH_CALIBRATE: {exc}") from None
         self.set_mesh(mesh)
         self.save_profile(profile)
+        self._warn_zero_reference(gcmd)
         low, high = mesh.z_range_mm()
         self.last_calibration = {"profile": profile, "points": total, "time_s": elapsed_s,
                                  "method": options.method, **(run.details or {})}
@@ -224,6 +238,7 @@ class BedMesh:
         elif action == "LOAD":
             self.set_mesh(self.profiles[name])
             gcmd.respond_info(f"Bed mesh profile '{name}' loaded: moves follow it")
+            self._warn_zero_reference(gcmd)
         else:
             del self.profiles[name]
             self.printer.config.remove_section(profile_section_name(name))

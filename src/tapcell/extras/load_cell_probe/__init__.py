@@ -10,6 +10,7 @@ from __future__ import annotations
 from tapcell.extras.load_cell import register_load_cell_commands
 from tapcell.extras.load_cell_probe.commands import LoadCellProbeCommands
 from tapcell.extras.load_cell_probe.device import LoadCellProbe
+from tapcell.extras.load_cell_probe.overrides import disabled_protections
 from tapcell.extras.load_cell_probe.watch import NozzleWatch, read_watch_options
 from tapcell.extras.probe.calibrate import register_probe_calibrate
 from tapcell.extras.probe.options import PROBE_TEMPLATE_OPTIONS, read_probe_options
@@ -35,7 +36,8 @@ def load_config(section, printer) -> LoadCellProbe:
     probe = Probe("load_cell_probe", read_probe_options(section, templates), device, device.motion,
                   printer.gcode, _template_runner(printer))
     device.probe = probe
-    device.motion.nozzle_watch = NozzleWatch(device, read_watch_options(section))
+    printer.warnings.extend(disabled_protections(device.options))
+    device.nozzle_watch = device.motion.nozzle_watch = NozzleWatch(device, read_watch_options(section))
     device.refuse_a_hiding_drift_filter(section, probe.options)
     probe.register_commands()
     register_probe_calibrate(printer, probe)

@@ -37,7 +37,7 @@ from tapcell.host.config import pin_mcu
 from tapcell.filters import FilterDesignError, FilterOptions, design_firmware_filter
 from tapcell.extras.load_cell import LoadCell, read_load_cell_options
 from tapcell.mcu import sensors
-from tapcell.mcu.trigger import MAX_STUCK_SAMPLES, FirmwareTrigger, TriggerError, TriggerParams
+from tapcell.mcu.trigger import MAX_STUCK_SAMPLES, FirmwareTrigger, TriggerConfigError, TriggerError, TriggerParams
 from tapcell.extras.probe.approach import NO_CONTACT_DEPTH_MM, BedHeightMemory, approach_height_mm, no_contact_message
 from tapcell.extras.probe.session import ProbeError, TapOutcome
 from tapcell.extras.probe.options import with_overrides
@@ -61,6 +61,8 @@ from tapcell.extras.load_cell_probe.options import (
     too_fast_for_analysis,
 )
 from tapcell.extras.load_cell_probe import safety
+from tapcell.extras.load_cell_probe.overrides import disabled_protections, refuse_loosening, \
+    refuse_misspelled_safety_parameters
 from tapcell.extras.load_cell_probe.threshold import z_at_time_mm
 from tapcell.scale import counts_to_grams
 from tapcell.tap import AnalysisOptions, Move, TapData, analyze_tap, get_classifier, tap_to_json_dict
@@ -219,6 +221,7 @@ class LoadCellProbe:
         self._tap_clients: list = []  # called with every RecordedTap (the API's dump_taps)
         self.last_trigger_time_s: float | None = None
         self.tare_counts_at_tap: float | None = None
+        self.tare_time_s: float | None = None  # when tare_counts_at_tap was taken (the nozzle clear of the bed)
         sensor_pin = self.cell_options.dout_pin or self.cell_options.data_ready_pin
         self.stop_timing = safety.stop_timing(self.cell_options.sensor_type, self.sample_rate_sps,
                                               pin_mcu(sensor_pin), pin_mcu(self.motion.options.axes["z"].step_pin))
@@ -228,6 +231,7 @@ class LoadCellProbe:
         self._speed_notes: set[tuple[float, float]] = set()
         self._clear_machine_z_mm: float | None = None
         self.bed_heights = BedHeightMemory(self._mesh_height_mm)
+        self.nozzle_watch = None  # watch.NozzleWatch, set by load_config (it guards the toolhead's low moves)
         printer.register_event_handler("toolhead:z_homed", self.bed_heights.forget)
 
     # -- settings per command -----------------------------------------------------------
@@ -245,9 +249,11 @@ class LoadCellProbe:
 
     def command_settings(self, gcmd) -> TapSettings:
         """The settings of this command: a new filter design when any option is overridden."""
+        refuse_misspelled_safety_parameters(gcmd)
         options = with_overrides(self.options, TAP_OPTION_SPECS, gcmd)
         if options is self.options:
             return self.config_settings
+        refuse_loosening(gcmd, self.options, options, self.stuck_samples(self.options))
         self._check_classifier(options.tap_classifier, gcmd.error)
         check_stuck_sensor_samples(options.stuck_sensor_samples,
                                    lambda msg: gcmd.param_error(f"STUCK_SENSOR_SAMPLES: {msg}"))
@@ -304,6 +310,7 @@ class LoadCellProbe:
         self.refuse_preload(tare_counts, options)
         self.load_cell.set_tare(tare_counts)
         self.tare_counts_at_tap = tare_counts
+        self.tare_time_s = self.backend.now_s
         return tare_counts
 
     def refuse_preload(self, tare_counts: float, options: TapOptions) -> None:
@@ -331,6 +338,7 @@ class LoadCellProbe:
             inverted=self.cell_options.inverted,
             sos=sos,
             stuck_samples=self.stuck_samples(options),
+            counts_range=(self.load_cell.counts_range.min_counts, self.load_cell.counts_range.max_counts),
         )
 
     def error_message(self, error: TriggerError, options: TapOptions) -> str:
@@ -349,11 +357,27 @@ class LoadCellProbe:
     def arm(self, settings: TapSettings, tare_counts: float, **trigger) -> FirmwareTrigger:
         """The firmware trigger armed on `tare_counts` for one probing move (ProbeError if it refuses);
         the one place a trigger is armed. `trigger`: the keywords of `move_params`."""
-        firmware = FirmwareTrigger(self.move_params(settings, **trigger))
+        params = self.move_params(settings, **trigger)
+        self.refuse_an_unreadable_trigger(params)
+        try:
+            firmware = FirmwareTrigger(params)
+        except TriggerConfigError as exc:  # a calibration or option the firmware cannot represent
+            raise ProbeError(ERROR_PREFIX + f"the probe's trigger cannot be set up: {exc}") from None
         error = firmware.arm(int(round(tare_counts)), self.backend.now_s)
         if error != TriggerError.NONE:
             raise ProbeError(self.error_message(error, settings.options))
         return firmware
+
+    def refuse_an_unreadable_trigger(self, params: TriggerParams) -> None:
+        """ProbeError when the trigger force lies beyond what the ADC can read from the calibration
+        zero at this counts_per_gram (the move could never trigger: only the rails would stop it)."""
+        low, high = params.counts_range
+        readable_g = min(high - params.reference_tare_counts, params.reference_tare_counts - low) / params.counts_per_gram
+        if params.trigger_force_g >= readable_g:
+            raise ProbeError(ERROR_PREFIX + f"the trigger force ({params.trigger_force_g:g}g) is beyond what the load cell "
+                             f"can read: at counts_per_gram {params.counts_per_gram:g} the ADC's range ends "
+                             f"{max(readable_g, 0.0):.3g}g from the calibration zero; check counts_per_gram "
+                             "(LOAD_CELL_CALIBRATE) and the sensor's gain")
 
     def expect_contact(self) -> None:
         """The nozzle may touch the bed (or a hand the nozzle) from now on: the next tare waits for new samples."""
@@ -480,6 +504,8 @@ class LoadCellProbe:
         if self._guard_depth == 0:
             self._speed_notes.clear()
             self._clear_machine_z_mm = None
+            for warning in disabled_protections(self.options):
+                self.printer.gcode.respond_info(f"Warning: {warning}")
         self._guard_depth += 1
         try:
             yield
@@ -749,6 +775,8 @@ class LoadCellProbe:
             "taps_recorded": len(self.last_taps),
             "trigger_force": self.options.trigger_force_g,
         })
+        if self.nozzle_watch is not None:
+            status["nozzle_watch"] = self.nozzle_watch.get_status()
         return status
 
     def write_last_taps(self, path: str | Path) -> int:

@@ -172,6 +172,23 @@ def safe_speed_mm_s(params: TriggerParams, timing: StopTiming, below_mm_s: float
     return None
 
 
+# Speeds tried for a watched move (the nozzle watch), fastest first.
+WATCH_SPEED_STEPS_MM_S = (500.0, 400.0, 300.0, 250.0, 200.0, 150.0, 120.0, 100.0, 80.0, 60.0) + SPEED_STEPS_MM_S[1:]
+
+
+def fastest_watched_speed_mm_s(params: TriggerParams, timing: StopTiming, stiffness_g_um: float,
+                               limit_g: float) -> float:
+    """The fastest of WATCH_SPEED_STEPS_MM_S at which the trigger stops the nozzle meeting a bed of
+    `stiffness_g_um` head on at or below `limit_g` (the slowest step when none does).
+
+    A sideways move meeting a blob's 45-degree flank loads the nozzle as fast as a Z move at the
+    same speed meets the bed; the caller scales by the move's direction."""
+    for speed in WATCH_SPEED_STEPS_MM_S:
+        if predict_stop(params, timing, speed, stiffness_g_um).peak_force_g <= limit_g:
+            return speed
+    return WATCH_SPEED_STEPS_MM_S[-1]
+
+
 # The config-load check needs no calibration: forces are in grams, any scale will do.
 NOMINAL_COUNTS_PER_GRAM = 100.0
 # The highest cutoff that no longer hides the tap is looked for in steps of this factor, down to this.

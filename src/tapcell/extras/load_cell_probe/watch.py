@@ -18,13 +18,16 @@ one more kind of move (docs/safety.md).
 
 from __future__ import annotations
 
+import dataclasses
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from tapcell.extras.load_cell_probe import safety
 from tapcell.extras.load_cell_probe.options import ERROR_PREFIX, robust_tare_counts, tare_sample_count
 from tapcell.extras.probe.session import ProbeError
-from tapcell.mcu.trigger import FirmwareTrigger, TriggerError, TriggerParams
+from tapcell.mcu.trigger import TriggerError, TriggerParams
 
 # Watched below this much above horizontal_z_clearance (when [bed_mesh] has one), and at least
 # DEFAULT_HEIGHT_MM: a first layer, a z_offset gone wrong and the mesh travel all lie below it.
@@ -36,6 +39,11 @@ MAX_HEIGHT_MM = 50.0
 # ramps past this within a sample or two, well below force_safety_limit (docs/safety.md).
 DEFAULT_FORCE_G = 250.0
 FORCE_RANGE_G = (50.0, 5000.0)
+# The steepest flank assumed for what the nozzle may meet sideways (a blob, a warp, a curled edge):
+# rising 1 mm per mm of travel, a watched move loads the nozzle as fast as a Z move would.
+WORST_FLANK_SLOPE = 1.0
+# Used to cap a watched move's speed when force_safety_limit is 0 (off): the option's default.
+CAP_LIMIT_WITHOUT_SAFETY_LIMIT_G = 2000.0
 # Samples older than this many periods beyond the tare length are not the state before the move.
 FRESH_MARGIN_SAMPLES = 4
 SENSOR_TIMEOUT_S = 1.0
@@ -89,6 +97,9 @@ class NozzleWatch:
         self.backend = device.backend
         self.collisions = 0      # watched moves stopped (status)
         self.watched_moves = 0   # moves run with the watch armed (status)
+        self._free_air: tuple[float, float] | None = None  # (tare counts, when) of the last move that started clear
+        self._speed_caps: dict[float, float] = {}  # assumed bed stiffness -> speed_cap for a head-on move
+        self.largest_force_g = 0.0  # the largest force a watched move that ran to its end saw (status)
 
     def wants(self, start_xyz, target_xyz) -> bool:
         """Whether this toolhead move runs watched."""
@@ -96,27 +107,92 @@ class NozzleWatch:
         return (self.device.load_cell.is_calibrated and toolhead.is_z_homed()
                 and is_watched(start_xyz, target_xyz, self.options.height_mm))
 
+    def _trigger(self) -> dict:
+        """What a watched move's trigger differs in from a tap's: the config's options (no G-code
+        override is running), no filter (the force over the move's tare, as read), trigger at
+        nozzle_watch_force, no drift window (the raw force window stays)."""
+        settings = dataclasses.replace(self.device.config_settings, sos=None)
+        return {"settings": settings, "trigger_force_g": self.options.force_g, "drift_safety_limit_g": 0.0}
+
     def trigger_params(self) -> TriggerParams:
-        """The probe's trigger for the config's options: no filter, nozzle_watch_force, no drift window."""
-        device = self.device
-        options = device.options
-        params = device.trigger_params(options, None, self.options.force_g, drift_safety_limit_g=0.0)
-        return params
+        trigger = self._trigger()
+        return self.device.move_params(trigger.pop("settings"), **trigger)
+
+    def speed_cap_mm_s(self, direction_xyz) -> float:
+        """The fastest a watched move in this direction may go: the watch must stop the nozzle
+        meeting the stiffest bed assumed (the probe's force guard: measured by taps, with a margin,
+        else the worst case) head on, or a WORST_FLANK_SLOPE flank sideways, at or below
+        force_safety_limit."""
+        stiffness_g_um, _ = self.device.assumed_stiffness_g_um()
+        if stiffness_g_um not in self._speed_caps:
+            params = self.trigger_params()
+            limit_g = params.force_safety_limit_g or CAP_LIMIT_WITHOUT_SAFETY_LIMIT_G
+            self._speed_caps[stiffness_g_um] = safety.fastest_watched_speed_mm_s(
+                params, self.device.stop_timing, stiffness_g_um, limit_g)
+        dx, dy, dz = direction_xyz
+        length = math.sqrt(dx * dx + dy * dy + dz * dz)
+        if length == 0.0:
+            return self._speed_caps[stiffness_g_um]
+        loading = (WORST_FLANK_SLOPE * math.hypot(dx, dy) + abs(dz)) / length  # bed approach per mm moved
+        return self._speed_caps[stiffness_g_um] / max(loading, 1e-9)
 
     def move(self, machine_xyz, speed_mm_s: float, accel_mm_s2: float | None) -> None:
-        """Run one move (machine coordinates, None: the axis stays) with the trigger armed."""
+        """Run one move (machine coordinates, None: the axis stays) with the trigger armed, no
+        faster than `speed_cap_mm_s` allows."""
         device = self.device
-        tare_counts = self._tare_counts()
-        firmware = FirmwareTrigger(self.trigger_params())
+        start = self.backend.position
+        direction = [0.0 if end is None else end - begin for end, begin in zip(machine_xyz, start)]
+        speed_mm_s = min(speed_mm_s, self.speed_cap_mm_s(direction))
+        tare_counts = self._move_tare_counts()
+        trigger = self._trigger()
         t_start_s = self.backend.now_s
-        error = firmware.arm(int(round(tare_counts)), t_start_s)
-        if error != TriggerError.NONE:
-            raise ProbeError(device.error_message(error, device.options) + self._during())
+        firmware = device.arm(trigger.pop("settings"), tare_counts, **trigger)
         self.watched_moves += 1
         x, y, z = machine_xyz
-        result = self.backend.watched_move(x, y, z, speed_mm_s, accel_mm_s2, firmware)
-        if result.triggered or result.error != TriggerError.NONE:
-            self._stopped(result, tare_counts, t_start_s)
+        history = device.history
+        kept_from_s = history.keep_from_s
+        history.keep_from_s = t_start_s if kept_from_s is None else min(kept_from_s, t_start_s)
+        try:
+            result = self.backend.watched_move(x, y, z, speed_mm_s, accel_mm_s2, firmware)
+            if result.triggered or result.error != TriggerError.NONE:
+                self._stopped(result, tare_counts, t_start_s)
+            self._note_largest_force(tare_counts, t_start_s)
+        finally:
+            history.keep_from_s = kept_from_s
+
+    def _force_since(self, tare_counts: float, t_start_s: float) -> float:
+        """The force of largest size the cell read since t_start_s, against the move's tare (g)."""
+        device = self.device
+        device.load_cell.pump()
+        _, counts, _ = device.history.between(t_start_s, self.backend.now_s)
+        if not len(counts):
+            return 0.0
+        force_g = device.grams(counts, tare_counts)
+        return float(force_g[np.argmax(np.abs(force_g))])
+
+    def _note_largest_force(self, tare_counts: float, t_start_s: float) -> None:
+        """Keep the largest force a watched move that ran to its end put on the nozzle (status:
+        how close printing comes to nozzle_watch_force)."""
+        self.largest_force_g = max(self.largest_force_g, abs(self._force_since(tare_counts, t_start_s)))
+
+    def _move_tare_counts(self) -> float:
+        """The cell clear of the bed, that the move's force is measured from.
+
+        A move that starts at or above nozzle_watch_height starts clear: its own samples are the
+        tare, kept as the free-air tare. A move that starts lower may start pressing already (the
+        previous watched move ended on a blob; a run of small steps down; a move cut in pieces by
+        the mesh): it is measured from the newest free-air tare (that one, or the probe's last tap
+        tare), so a press cannot creep up from move to move. Only when neither exists are its own
+        samples used."""
+        device = self.device
+        if device.motion.get_position()[2] >= self.options.height_mm:
+            self._free_air = (self._tare_counts(), self.backend.now_s)
+            return self._free_air[0]
+        known = [tare for tare in (self._free_air, (device.tare_counts_at_tap, device.tare_time_s))
+                 if tare is not None and tare[0] is not None]
+        if known:
+            return max(known, key=lambda tare: tare[1])[0]
+        return self._tare_counts()
 
     def _tare_counts(self) -> float:
         """The cell at rest before the move: the mean of the newest tare_time of samples."""
@@ -140,9 +216,7 @@ class NozzleWatch:
         device = self.device
         self.collisions += 1
         device._wait_for_samples_to(self.backend.now_s)
-        t_s, counts, _ = device.history.between(t_start_s, self.backend.now_s)
-        force_g = device.grams(counts, tare_counts) if len(counts) else np.zeros(1)
-        peak_g = float(force_g[np.argmax(np.abs(force_g))])
+        peak_g = self._force_since(tare_counts, t_start_s)
         x_mm, y_mm, z_mm = device.motion.get_position()
         during = self._during_command()
         self._lift()
@@ -172,4 +246,5 @@ class NozzleWatch:
 
     def get_status(self) -> dict:
         return {"nozzle_watch_height": self.options.height_mm, "nozzle_watch_force": self.options.force_g,
-                "watched_moves": self.watched_moves, "collisions": self.collisions}
+                "watched_moves": self.watched_moves, "collisions": self.collisions,
+                "largest_watched_force": self.largest_force_g}
