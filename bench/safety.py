@@ -443,6 +443,9 @@ def main(argv: list[str]) -> int:
                 console.print(f"  {index}/{len(chosen)} rows, {time.perf_counter() - started:.0f} s", highlight=False)
     elapsed_s = time.perf_counter() - started
     console.print(group_table(outcomes, lambda o: (o.row.family,), "per family", ("family",)))
+    console.print(group_table(outcomes, lambda o: ("example" if o.row.stiffness_g_um is None
+                                                   else f"{o.row.stiffness_g_um:5g}",),
+                              "per stiffness (g/um: the bed's; xy: the toolhead's sideways)", ("stiffness",)))
     if args.pairs:
         console.print(group_table(outcomes, lambda o: (o.row.family, o.row.case, o.row.command),
                                   f"per case and command: worst row (force_safety_limit {FORCE_SAFETY_LIMIT_G:g} g)",
