@@ -9,27 +9,22 @@ with the collision error naming the command that moved.
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
 from probe_vprinter import make_printer
-from tapcell.extras.load_cell_probe.watch import DEFAULT_FORCE_G, is_watched, read_watch_options
-from tapcell.host.gcode import GCodeError
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the bench package beside tests/
+from bench.nozzle_watch import bump_csv  # noqa: E402  (after the path)
+from tapcell.extras.load_cell_probe.watch import DEFAULT_FORCE_G, is_watched, read_watch_options  # noqa: E402
+from tapcell.host.gcode import GCodeError  # noqa: E402
 
 FORCE_SAFETY_LIMIT_G = 2000.0
 WATCH_OFF = "nozzle_watch_height: 0"
 COLLISION = "Load Cell Probe Error: nozzle collision at "
-
-
-def bump_csv(path, x_mm: float, y_mm: float, height_mm: float, radius_mm: float, gaussian: bool = False) -> str:
-    """A bed CSV (1 mm grid over the 235 mm bed), flat but for a blob (cone) or a local warp
-    (a smooth Gaussian bulge of that radius) at x, y."""
-    xs = np.arange(0.0, 236.0)
-    grid_x, grid_y = np.meshgrid(xs, xs)
-    r = np.hypot(grid_x - x_mm, grid_y - y_mm)
-    z = height_mm * (np.exp(-0.5 * (r / radius_mm) ** 2) if gaussian else np.clip(1.0 - r / radius_mm, 0.0, 1.0))
-    np.savetxt(path, z, delimiter=",", fmt="%.4f")
-    return f"bed_shape: csv\nbed_csv: {path}\n"
 
 
 def printer_in(folder, **options):
@@ -125,7 +120,7 @@ def test_watched_speed_cap_follows_the_assumed_bed(tmp_path):
     assert watch.speed_cap_mm_s((0.0, 0.0, -1.0)) == 30.0
     assert watch.speed_cap_mm_s((1.0, 0.0, -1.0)) == pytest.approx(30.0 / np.sqrt(2.0))
     printer.gcode.run_script("G1 X110 Y110 F6000\nPROBE")
-    stiffness_g_um, measured = device.assumed_stiffness_g_um()
+    stiffness_g_um, measured = device.speed_guard.assumed_stiffness_g_um()
     assert measured and 3.5 < stiffness_g_um < 4.5
     assert watch.speed_cap_mm_s((1.0, 0.0, 0.0)) == 80.0
 

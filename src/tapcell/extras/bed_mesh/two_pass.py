@@ -50,10 +50,10 @@ def two_pass_settings(device, toolhead, travel_speed_mm_s: float) -> tuple[TwoPa
     max_z_speed = toolhead.options.max_z_velocity_mm_s
     params = two_pass_trigger_params(device)
     fastest = min(paper.fast_speed_mm_s, max_z_speed)
-    fast = device.fastest_safe_speed_mm_s(params, fastest)
+    fast = device.speed_guard.fastest_safe_mm_s(params, fastest)
     slow = min(paper.slow_speed_mm_s, max_z_speed)
     if fast is None:
-        device.check_probing_speed(params, fastest)  # no speed is safe: raises and says why
+        device.speed_guard.check(params, fastest)  # no speed is safe: raises and says why
     settings = TwoPassSettings(travel_limit_z_mm=toolhead.z_position_min(), fast_speed_mm_s=fast,
                                slow_speed_mm_s=min(slow, fast), travel_speed_mm_s=travel_speed_mm_s)
     note = None
@@ -66,7 +66,7 @@ def two_pass_settings(device, toolhead, travel_speed_mm_s: float) -> tuple[TwoPa
 
 def two_pass_trigger_params(device):
     """The paper has no drift check: the fast pass jumps more than drift_safety_limit per sample."""
-    return device.move_params(device.config_settings, drift_safety_limit_g=0.0)
+    return device.trigger.move_params(device.config_settings, drift_safety_limit_g=0.0)
 
 
 class TwoPassMover:

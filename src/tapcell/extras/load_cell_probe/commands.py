@@ -235,13 +235,13 @@ class LoadCellProbeCommands:
             armed_s = device.backend.now_s
             device.history.keep_from_s = armed_s  # the tap's samples stay until checked
             try:
-                trigger = device.arm(settings, tare_counts)
+                trigger = device.trigger.arm(settings, tare_counts)
                 # A hand is on the nozzle now: the next tare must wait for new samples.
                 device.expect_contact()
                 result = device.backend.wait_for_trigger(trigger, max(deadline_s - device.backend.now_s, 0.0))
                 device.load_cell.pump()
                 if result.error != TriggerError.NONE:
-                    raise ProbeError(device.error_message(result.error, settings.options))
+                    raise ProbeError(device.trigger.error_message(result.error, settings.options))
                 if not result.triggered:
                     raise ProbeError(f"LOAD_CELL_TEST_TAP: no tap detected within {timeout_s:g}s "
                                      f"({index} of {count} taps detected)")

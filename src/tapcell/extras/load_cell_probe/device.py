@@ -37,7 +37,7 @@ from tapcell.host.config import pin_mcu
 from tapcell.filters import FilterDesignError, FilterOptions, design_firmware_filter
 from tapcell.extras.load_cell import LoadCell, read_load_cell_options
 from tapcell.mcu import sensors
-from tapcell.mcu.trigger import MAX_STUCK_SAMPLES, FirmwareTrigger, TriggerConfigError, TriggerError, TriggerParams
+from tapcell.mcu.trigger import MAX_STUCK_SAMPLES, TriggerError
 from tapcell.extras.probe.approach import NO_CONTACT_DEPTH_MM, BedHeightMemory, approach_height_mm, no_contact_message
 from tapcell.extras.probe.session import ProbeError, TapOutcome
 from tapcell.extras.probe.options import with_overrides
@@ -49,7 +49,6 @@ from tapcell.extras.load_cell_probe.options import (
     lone_sample_past_limit,
     preload_refusal,
     read_tap_options,
-    trigger_error_message,
     TAP_OPTION_SPECS,
     TapOptions,
     default_pullback_speed_mm_s,
@@ -61,6 +60,8 @@ from tapcell.extras.load_cell_probe.options import (
     too_fast_for_analysis,
 )
 from tapcell.extras.load_cell_probe import safety
+from tapcell.extras.load_cell_probe.speed_guard import SpeedGuard
+from tapcell.extras.load_cell_probe.trigger_session import TriggerSession
 from tapcell.extras.load_cell_probe.overrides import disabled_protections, refuse_loosening, \
     refuse_misspelled_safety_parameters
 from tapcell.extras.load_cell_probe.threshold import z_at_time_mm
@@ -209,6 +210,8 @@ class LoadCellProbe:
         except FilterDesignError as exc:
             raise section.error(exc.option, f"{exc.value!r} is not allowed; allowed: {exc.allowed}") from None
         self.load_cell = LoadCell(self.name, self.cell_options, printer)
+        self.trigger = TriggerSession(self.load_cell, self.cell_options.inverted, self.sample_rate_sps,
+                                      self.default_stuck_samples, self.backend)
         # The toolhead implements the probe's Motion protocol (toolhead Z = virtual printer Z + frame offset).
         self.motion = printer.lookup_object("toolhead")
         self.last_taps: collections.deque[RecordedTap] = collections.deque(maxlen=KEEP_LAST_TAPS)
@@ -225,10 +228,11 @@ class LoadCellProbe:
         sensor_pin = self.cell_options.dout_pin or self.cell_options.data_ready_pin
         self.stop_timing = safety.stop_timing(self.cell_options.sensor_type, self.sample_rate_sps,
                                               pin_mcu(sensor_pin), pin_mcu(self.motion.options.axes["z"].step_pin))
+        self.speed_guard = SpeedGuard(self.stop_timing, lambda: self.motion.options.max_z_velocity_mm_s,
+                                      self._known_stiffness_g_um, printer.gcode.respond_info)
         # Inside a probing command (`guarded`): how deep, the speed notes already given, and the
         # machine Z the last probing move started from (clear of the bed at that XY).
         self._guard_depth = 0
-        self._speed_notes: set[tuple[float, float]] = set()
         self._clear_machine_z_mm: float | None = None
         self.bed_heights = BedHeightMemory(self._mesh_height_mm)
         self.nozzle_watch = None  # watch.NozzleWatch, set by load_config (it guards the toolhead's low moves)
@@ -253,7 +257,7 @@ class LoadCellProbe:
         options = with_overrides(self.options, TAP_OPTION_SPECS, gcmd)
         if options is self.options:
             return self.config_settings
-        refuse_loosening(gcmd, self.options, options, self.stuck_samples(self.options))
+        refuse_loosening(gcmd, self.options, options, self.trigger.stuck_samples(self.options))
         self._check_classifier(options.tap_classifier, gcmd.error)
         check_stuck_sensor_samples(options.stuck_sensor_samples,
                                    lambda msg: gcmd.param_error(f"STUCK_SENSOR_SAMPLES: {msg}"))
@@ -320,65 +324,6 @@ class LoadCellProbe:
         if beyond is not None:
             raise ProbeError(preload_refusal(beyond, options.force_safety_limit_g))
 
-    def stuck_samples(self, options: TapOptions) -> int:
-        """The firmware's stuck-sensor run: the option, else the sensor's default (0: off)."""
-        return self.default_stuck_samples if options.stuck_sensor_samples is None else options.stuck_sensor_samples
-
-    def trigger_params(self, options: TapOptions, sos, trigger_force_g: float, release_force_g: float = 0.0,
-                       drift_safety_limit_g: float | None = None) -> TriggerParams:
-        """The firmware endstop's parameters for one probing move (every probing mode builds them here)."""
-        return TriggerParams(
-            counts_per_gram=self.load_cell.counts_per_gram,
-            reference_tare_counts=self.load_cell.reference_tare_counts,
-            trigger_force_g=trigger_force_g,
-            release_force_g=release_force_g,
-            sample_rate_sps=self.sample_rate_sps,
-            force_safety_limit_g=options.force_safety_limit_g,
-            drift_safety_limit_g=options.drift_safety_limit_g if drift_safety_limit_g is None else drift_safety_limit_g,
-            inverted=self.cell_options.inverted,
-            sos=sos,
-            stuck_samples=self.stuck_samples(options),
-            counts_range=(self.load_cell.counts_range.min_counts, self.load_cell.counts_range.max_counts),
-        )
-
-    def error_message(self, error: TriggerError, options: TapOptions) -> str:
-        """What the user reads when the firmware endstop stopped a move with `error`."""
-        return trigger_error_message(error, options.force_safety_limit_g, self.stuck_samples(options))
-
-    def move_params(self, settings: TapSettings, *, trigger_force_g: float | None = None, release_force_g: float = 0.0,
-                    drift_safety_limit_g: float | None = None) -> TriggerParams:
-        """The trigger of one probing move: a tap uses the command's options; threshold probing
-        (`threshold.ThresholdProber`) gives its own trigger force, the hysteresis release force
-        and, for fast passes, its own drift limit (0 disables it)."""
-        options = settings.options
-        force_g = options.trigger_force_g if trigger_force_g is None else trigger_force_g
-        return self.trigger_params(options, settings.sos, force_g, release_force_g, drift_safety_limit_g)
-
-    def arm(self, settings: TapSettings, tare_counts: float, **trigger) -> FirmwareTrigger:
-        """The firmware trigger armed on `tare_counts` for one probing move (ProbeError if it refuses);
-        the one place a trigger is armed. `trigger`: the keywords of `move_params`."""
-        params = self.move_params(settings, **trigger)
-        self.refuse_an_unreadable_trigger(params)
-        try:
-            firmware = FirmwareTrigger(params)
-        except TriggerConfigError as exc:  # a calibration or option the firmware cannot represent
-            raise ProbeError(ERROR_PREFIX + f"the probe's trigger cannot be set up: {exc}") from None
-        error = firmware.arm(int(round(tare_counts)), self.backend.now_s)
-        if error != TriggerError.NONE:
-            raise ProbeError(self.error_message(error, settings.options))
-        return firmware
-
-    def refuse_an_unreadable_trigger(self, params: TriggerParams) -> None:
-        """ProbeError when the trigger force lies beyond what the ADC can read from the calibration
-        zero at this counts_per_gram (the move could never trigger: only the rails would stop it)."""
-        low, high = params.counts_range
-        readable_g = min(high - params.reference_tare_counts, params.reference_tare_counts - low) / params.counts_per_gram
-        if params.trigger_force_g >= readable_g:
-            raise ProbeError(ERROR_PREFIX + f"the trigger force ({params.trigger_force_g:g}g) is beyond what the load cell "
-                             f"can read: at counts_per_gram {params.counts_per_gram:g} the ADC's range ends "
-                             f"{max(readable_g, 0.0):.3g}g from the calibration zero; check counts_per_gram "
-                             "(LOAD_CELL_CALIBRATE) and the sensor's gain")
-
     def expect_contact(self) -> None:
         """The nozzle may touch the bed (or a hand the nozzle) from now on: the next tare waits for new samples."""
         self._tare_from_s = None
@@ -397,19 +342,19 @@ class LoadCellProbe:
         Returns (move result, the speed used, when the last attempt started); result.triggered is
         False when the move reached z_min_mm without a trigger.
         """
-        speed_mm_s = self.check_probing_speed(self.move_params(settings, **trigger), speed_mm_s)
+        speed_mm_s = self.speed_guard.check(self.trigger.move_params(settings, **trigger), speed_mm_s)
         result, t_start_s = self._move_at_checked_speed(settings, tare_counts, z_min_mm, speed_mm_s, **trigger)
         return result, speed_mm_s, t_start_s
 
     def _move_at_checked_speed(self, settings: TapSettings, tare_counts: float, z_min_mm: float, speed_mm_s: float,
                                **trigger):
         """`probing_move` after its speed check: the caller has passed `speed_mm_s` through
-        `check_probing_speed` with these settings and trigger. Returns (move result, when the
+        `SpeedGuard.check` with these settings and trigger. Returns (move result, when the
         last attempt started)."""
         options = settings.options
         self._clear_machine_z_mm = float(self.backend.position[2])
         for attempt in range(CORRUPT_FRAME_RETRIES + 1):
-            firmware = self.arm(settings, tare_counts, **trigger)
+            firmware = self.trigger.arm(settings, tare_counts, **trigger)
             t_start_s = self.backend.now_s
             # Unhomed (G28 Z), z_min is a full axis length below: the machine stops at its own end of travel.
             machine_z_min_mm = max(z_min_mm - self._z_frame_offset_mm(), self.backend.limits["z"][0])
@@ -426,40 +371,13 @@ class LoadCellProbe:
                 and (result.error != TriggerError.NONE or not result.triggered)):
             raise ProbeError(ERROR_PREFIX + safety.sensor_fault_message(fault, counts, z_min_mm))
         if result.error != TriggerError.NONE:
-            message = self.error_message(result.error, options)
+            message = self.trigger.error_message(result.error, options)
             if result.error == TriggerError.DRIFT_SAFETY:
                 message += self._explain_drift(options, tare_counts, t_start_s, speed_mm_s)
             raise ProbeError(message)
         if result.triggered:
             self.last_trigger_time_s = result.trigger_time_s
         return result, t_start_s
-
-    def check_probing_speed(self, params: TriggerParams, speed_mm_s: float) -> float:
-        """The probing speed capped by max_z_velocity; ProbeError (why, and the safe speed) when it
-        could press harder than force_safety_limit."""
-        max_z_mm_s = self.motion.options.max_z_velocity_mm_s
-        if speed_mm_s > max_z_mm_s:
-            if (speed_mm_s, max_z_mm_s) not in self._speed_notes:
-                self._speed_notes.add((speed_mm_s, max_z_mm_s))
-                self.printer.gcode.respond_info(
-                    f"Probing speed {speed_mm_s:g} mm/s is above [printer] max_z_velocity ({max_z_mm_s:g} mm/s): "
-                    f"probing at {max_z_mm_s:g} mm/s")
-            speed_mm_s = max_z_mm_s
-        stiffness_g_um, measured = self.assumed_stiffness_g_um()
-        prediction = safety.worst_stop(params, self.stop_timing, speed_mm_s, stiffness_g_um)
-        if safety.exceeds_limit(prediction, params.force_safety_limit_g):
-            slower = safety.safe_speed_mm_s(params, self.stop_timing, speed_mm_s, stiffness_g_um)
-            raise ProbeError(ERROR_PREFIX + safety.speed_refusal(params, self.stop_timing, speed_mm_s, prediction,
-                                                                 stiffness_g_um, measured, slower))
-        return speed_mm_s
-
-    def fastest_safe_speed_mm_s(self, params: TriggerParams, up_to_mm_s: float) -> float | None:
-        """`up_to_mm_s` when the force guard passes it, else the fastest safe speed below (None: none)."""
-        stiffness_g_um, _ = self.assumed_stiffness_g_um()
-        prediction = safety.worst_stop(params, self.stop_timing, up_to_mm_s, stiffness_g_um)
-        if not safety.exceeds_limit(prediction, params.force_safety_limit_g):
-            return up_to_mm_s
-        return safety.safe_speed_mm_s(params, self.stop_timing, up_to_mm_s, stiffness_g_um)
 
     def refuse_a_hiding_drift_filter(self, section, probe_options) -> None:
         """Config load: a drift filter that hides a tap at the configured speeds (the filtered force
@@ -474,7 +392,7 @@ class LoadCellProbe:
 
         def hiding(opts: TapOptions) -> list[float]:
             sos = design_firmware_filter(filter_options(opts, self.sample_rate_sps))
-            params = dataclasses.replace(self.trigger_params(opts, sos, opts.trigger_force_g),
+            params = dataclasses.replace(self.trigger.params(opts, sos, opts.trigger_force_g),
                                          counts_per_gram=safety.NOMINAL_COUNTS_PER_GRAM, reference_tare_counts=0)
             return safety.unprotected_hiding_speeds(params, self.stop_timing, speeds)
 
@@ -488,21 +406,13 @@ class LoadCellProbe:
         raise section.error("drift_filter_cutoff_frequency", safety.hiding_filter_refusal(
             options.drift_filter_cutoff_frequency, hidden[0], options, cutoff_hz))
 
-    def assumed_stiffness_g_um(self) -> tuple[float, bool]:
-        """(stiffness the force guard assumes, whether taps measured it): the stiffest valid kept tap
-        with a margin, else the conservative default."""
-        measured = self._known_stiffness_g_um()
-        if measured is None:
-            return safety.DEFAULT_STIFFNESS_G_UM, False
-        return measured * safety.MEASURED_STIFFNESS_MARGIN, True
-
     @contextlib.contextmanager
     def guarded(self):
         """Around every probing command: after any error the nozzle is lifted clear of the bed
         (to where the last probing move started, at least sample_retract_dist above where it
         stopped) before the error goes on to the user. Nests (the outermost resets the state)."""
         if self._guard_depth == 0:
-            self._speed_notes.clear()
+            self.speed_guard.new_command()
             self._clear_machine_z_mm = None
             for warning in disabled_protections(self.options):
                 self.printer.gcode.respond_info(f"Warning: {warning}")
@@ -536,7 +446,7 @@ class LoadCellProbe:
         """
         self.require_calibrated()
         # The force guard of `probing_move`, run once here: an unsafe speed is refused before the lift.
-        speed_mm_s = self.check_probing_speed(self.move_params(settings), speed_mm_s)
+        speed_mm_s = self.speed_guard.check(self.trigger.move_params(settings), speed_mm_s)
         if expected_z_mm is not None:
             self._make_room_to_reach_speed(expected_z_mm, speed_mm_s)
         tare_counts = self.tare(settings.options)
@@ -686,7 +596,7 @@ class LoadCellProbe:
     def _known_stiffness_g_um(self) -> float | None:
         """The bed's stiffness measured by the kept valid taps (the stiffest), None before any.
 
-        A bad tap's stiffness is not trusted: neither the force guard (`assumed_stiffness_g_um`)
+        A bad tap's stiffness is not trusted: neither the force guard (`SpeedGuard.assumed_stiffness_g_um`)
         nor the explanation of a bad tap uses it.
         """
         stiffness = [t.analysis.stiffness_decompression_g_um for t in self.last_taps

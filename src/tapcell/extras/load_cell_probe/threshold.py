@@ -79,7 +79,7 @@ class ThresholdProber:
         device = self.device
         # Refused before the move, with the force (the firmware would only say "too much").
         device.refuse_preload(tare.counts, device.options)
-        return device.arm(device.config_settings, tare.counts, trigger_force_g=threshold_g,
+        return device.trigger.arm(device.config_settings, tare.counts, trigger_force_g=threshold_g,
                           release_force_g=release_g, drift_safety_limit_g=drift_safety_limit_g)
 
     def _frame_mm(self) -> np.ndarray:
@@ -121,7 +121,7 @@ class ThresholdProber:
             self.backend.move_to(x=float(start[0]), y=float(start[1]), speed_mm_s=speed_mm_s)
             self.device.printer.gcode.respond_info(
                 f"Backed the nozzle off {travelled_mm:.3f} mm to where the XY probing move started, after the error")
-            raise ProbeError(self.device.error_message(result.error, self.device.options))
+            raise ProbeError(self.device.trigger.error_message(result.error, self.device.options))
         halt = np.array(self.backend.position)
         trigger_position = None
         if result.triggered:

@@ -116,14 +116,14 @@ class NozzleWatch:
 
     def trigger_params(self) -> TriggerParams:
         trigger = self._trigger()
-        return self.device.move_params(trigger.pop("settings"), **trigger)
+        return self.device.trigger.move_params(trigger.pop("settings"), **trigger)
 
     def speed_cap_mm_s(self, direction_xyz) -> float:
         """The fastest a watched move in this direction may go: the watch must stop the nozzle
         meeting the stiffest bed assumed (the probe's force guard: measured by taps, with a margin,
         else the worst case) head on, or a WORST_FLANK_SLOPE flank sideways, at or below
         force_safety_limit."""
-        stiffness_g_um, _ = self.device.assumed_stiffness_g_um()
+        stiffness_g_um, _ = self.device.speed_guard.assumed_stiffness_g_um()
         if stiffness_g_um not in self._speed_caps:
             params = self.trigger_params()
             limit_g = params.force_safety_limit_g or CAP_LIMIT_WITHOUT_SAFETY_LIMIT_G
@@ -143,10 +143,10 @@ class NozzleWatch:
         start = self.backend.position
         direction = [0.0 if end is None else end - begin for end, begin in zip(machine_xyz, start)]
         speed_mm_s = min(speed_mm_s, self.speed_cap_mm_s(direction))
-        tare_counts = self._move_tare_counts()
+        tare_counts = self._move_tare_counts(descends=direction[2] < 0.0)
         trigger = self._trigger()
         t_start_s = self.backend.now_s
-        firmware = device.arm(trigger.pop("settings"), tare_counts, **trigger)
+        firmware = device.trigger.arm(trigger.pop("settings"), tare_counts, **trigger)
         self.watched_moves += 1
         x, y, z = machine_xyz
         history = device.history
@@ -175,19 +175,22 @@ class NozzleWatch:
         how close printing comes to nozzle_watch_force)."""
         self.largest_force_g = max(self.largest_force_g, abs(self._force_since(tare_counts, t_start_s)))
 
-    def _move_tare_counts(self) -> float:
-        """The cell clear of the bed, that the move's force is measured from.
+    def _move_tare_counts(self, descends: bool) -> float:
+        """The cell's reading that the move's force is measured from.
 
         A move that starts at or above nozzle_watch_height starts clear: its own samples are the
-        tare, kept as the free-air tare. A move that starts lower may start pressing already (the
-        previous watched move ended on a blob; a run of small steps down; a move cut in pieces by
-        the mesh): it is measured from the newest free-air tare (that one, or the probe's last tap
-        tare), so a press cannot creep up from move to move. Only when neither exists are its own
-        samples used."""
+        tare, kept as the free-air tare. So are those of a lower move that does not go down (travel
+        at layer height): a steady force that is not the bed (a bowden tube pulling, a weight) is
+        tared away, and what the move meets on its way is seen. A lower move that goes down may
+        start pressing already (a run of small steps down; a move the mesh cut in pieces): it is
+        measured from the newest free-air tare (that one, or the probe's last tap tare), so a
+        press cannot creep up step by step. Only when neither exists are its own samples used."""
         device = self.device
         if device.motion.get_position()[2] >= self.options.height_mm:
             self._free_air = (self._tare_counts(), self.backend.now_s)
             return self._free_air[0]
+        if not descends:
+            return self._tare_counts()
         known = [tare for tare in (self._free_air, (device.tare_counts_at_tap, device.tare_time_s))
                  if tare is not None and tare[0] is not None]
         if known:
@@ -222,7 +225,7 @@ class NozzleWatch:
         self._lift()
         if result.error not in (TriggerError.NONE, TriggerError.FORCE_SAFETY):
             # The sensor itself failed (stuck, gone): say so, not a collision.
-            raise ProbeError(device.error_message(result.error, device.options)
+            raise ProbeError(device.trigger.error_message(result.error, device.options)
                              + f" (the nozzle watch stopped the move at {x_mm:.3f},{y_mm:.3f},{z_mm:.3f}"
                              + (f" during {during}" if during else "") + ")")
         raise ProbeError(collision_message(x_mm, y_mm, z_mm, peak_g, during))
