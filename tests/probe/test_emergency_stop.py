@@ -150,3 +150,15 @@ def test_ctrl_c_in_the_console_is_an_emergency_stop(tmp_path, capsys):
     assert out[2] == f"!! {frontend.CONSOLE_STOP_REASON}"  # G1 X100 is refused with the same message
     assert printer.backend.halted_at_s is not None and printer.backend.position[0] < 111.0
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_ctrl_c_during_tapcell_run_stops_the_file(tmp_path, capsys):
+    printer, _ = make_printer(tmp_path)
+    printer.gcode.register_command("CTRL_C", lambda gcmd: signal.raise_signal(signal.SIGINT))
+    script = tmp_path / "print.gcode"
+    script.write_text("G1 X20 Y20 Z10 F6000\nCTRL_C\nG1 X220 F60\nG1 X100 F6000\n")
+    assert frontend.run_script_file(printer, str(script), keep_going=False, echo=False) == 1
+    captured = capsys.readouterr()
+    assert captured.out.splitlines()[0] == f"!! {frontend.CONSOLE_STOP_REASON}"
+    assert "print.gcode:3: stopped at the first error" in captured.err
+    assert printer.backend.position[0] == pytest.approx(20.0) and printer.state == "shutdown"

@@ -78,6 +78,15 @@ def run_script_file(printer: Printer, script_path: str, *, keep_going: bool, ech
         print(line, flush=True)
 
     gcode.set_response_sink(show)
+    # Ctrl-C is an emergency stop, as in the console: the line running fails with the shutdown
+    # message and so does every later one (the file stops there unless --keep-going).
+    with ctrl_c_stops(printer):
+        return _run_lines(printer, lines, bar, show, script_path, keep_going=keep_going, echo=echo)
+
+
+def _run_lines(printer: Printer, lines: list[str], bar: ProgressBar, show, script_path: str, *,
+               keep_going: bool, echo: bool) -> int:
+    gcode = printer.gcode
     failed = False
     try:
         for line_number, line in enumerate(lines, start=1):
