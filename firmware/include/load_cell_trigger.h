@@ -150,9 +150,12 @@ int tc_trigger_configure(struct tc_trigger *t, const struct tc_trigger_config *c
 
 /* Start a probing move with the host's tare taken just before it. Resets the
  * filter, the glitch count, the stuck-sensor run and any sticky error, and
- * sets the force and drift windows. Returns TC_OK (armed) or
+ * sets the force and drift windows. Returns TC_OK (armed),
  * TC_ERR_FORCE_SAFETY (state ERROR) when the tare is outside
- * reference_tare_counts +- force_limit_counts. */
+ * reference_tare_counts +- force_limit_counts, or TC_ERR_BAD_CONFIG (state
+ * unchanged, so samples stay ignored) when the trigger was never configured.
+ * A trigger starts zeroed (static storage, or memset) before its first
+ * configure: that is how a never-configured one is recognised. */
 int tc_trigger_arm(struct tc_trigger *t, int32_t tare_counts, uint32_t arm_ticks);
 
 /* One sensor sample; returns enum tc_trigger_event. */

@@ -63,6 +63,21 @@ enum hx71x_status hx71x_decode_frames(const uint32_t *frames, size_t count,
     return HX71X_OK;
 }
 
+/* n / d by shift and subtract: ARMv6-M has no divide instruction, and this keeps
+ * the libgcc helper (__aeabi_uidiv) out of the image. Runs once, at init. */
+static uint32_t divide_u32(uint32_t n, uint32_t d)
+{
+    uint32_t quotient = 0, remainder = 0;
+    for (int bit = 31; bit >= 0; bit--) {
+        remainder = (remainder << 1) | ((n >> bit) & 1u);
+        if (remainder >= d) {
+            remainder -= d;
+            quotient |= 1u << bit;
+        }
+    }
+    return quotient;
+}
+
 enum hx71x_status hx71x_init(struct hx71x *dev, const struct tc_hal *hal,
                              const struct hx71x_config *config)
 {
@@ -73,7 +88,7 @@ enum hx71x_status hx71x_init(struct hx71x *dev, const struct tc_hal *hal,
     uint8_t frame_pulses = hx71x_frame_pulses(config->chip, config->gain);
     if (frame_pulses == 0)
         return HX71X_ERR_BAD_GAIN;
-    uint32_t period_ticks = config->ticks_per_s / config->sample_rate_sps;
+    uint32_t period_ticks = divide_u32(config->ticks_per_s, config->sample_rate_sps);
     if (period_ticks == 0)
         return HX71X_ERR_BAD_TICK_RATE;
 

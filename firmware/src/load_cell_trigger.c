@@ -67,6 +67,10 @@ static void set_window(uint32_t *low, uint32_t *span, int32_t larger, int32_t sm
 
 int tc_trigger_arm(struct tc_trigger *t, int32_t tare_counts, uint32_t arm_ticks)
 {
+    /* configure() guarantees trigger_q > 0; a zeroed, never-configured trigger
+     * would otherwise arm with a scale shift of 0 (a 32-bit shift on M0+). */
+    if (t->cfg.trigger_q <= 0)
+        return TC_ERR_BAD_CONFIG;
     const int32_t reference = t->cfg.reference_tare_counts, limit = t->cfg.force_limit_counts;
     const int32_t drift = t->cfg.drift_limit_counts;
     int status = TC_OK;
@@ -100,12 +104,12 @@ int tc_trigger_arm(struct tc_trigger *t, int32_t tare_counts, uint32_t arm_ticks
     return status;
 }
 
-int tc_trigger_sample(struct tc_trigger *t, int32_t counts, uint32_t sample_ticks)
+/* The per-sample path of a listening trigger (tc_trigger_sample below). Kept out
+ * of line so the not-armed return happens before any register is saved. */
+__attribute__((noinline)) static int sample_listening(struct tc_trigger *t, uint8_t state, int32_t counts,
+                                                      uint32_t sample_ticks)
 {
-    const uint8_t state = t->state;
     int error;
-    if (!listening(t, state))
-        return TC_EVENT_NONE;
     /* Unsigned: a sample older than the base (negative difference) is huge too,
      * so one compare passes every sample in time; the rare others sort here. */
     uint32_t since_last = sample_ticks - t->last_sample_ticks;
@@ -180,6 +184,14 @@ int tc_trigger_sample(struct tc_trigger *t, int32_t counts, uint32_t sample_tick
 
 failed:
     return fail(t, state, error, sample_ticks);
+}
+
+int tc_trigger_sample(struct tc_trigger *t, int32_t counts, uint32_t sample_ticks)
+{
+    const uint8_t state = t->state;
+    if (!listening(t, state))
+        return TC_EVENT_NONE;
+    return sample_listening(t, state, counts, sample_ticks);
 }
 
 int tc_trigger_check_watchdog(struct tc_trigger *t, uint32_t now_ticks)

@@ -291,3 +291,22 @@ TEST(hx71x_read_stretched_by_interrupts_is_late)
     CHECK_EQ_INT(rig_sample(&rig, 5, &counts), HX71X_ERR_LATE_READ);
     CHECK_EQ_INT(counts, 0);
 }
+
+TEST(hx71x_sample_period_is_the_exact_quotient)
+{
+    /* hx71x_init divides without the divide helper: check it against C's division. */
+    static const uint32_t rates[] = {10, 20, 80, 320};
+    static const uint32_t clocks[] = {320, 1000000, 12000000, 16000000, 125000000, 4294967295u};
+    struct rig rig;
+    sim_hx71x_init(&rig.sim, &rig.hal, SCLK_PIN, DOUT_PIN, 0);
+    for (unsigned r = 0; r < sizeof rates / sizeof rates[0]; r++) {
+        for (unsigned c = 0; c < sizeof clocks / sizeof clocks[0]; c++) {
+            struct hx71x_config config = {
+                .chip = HX71X_CHIP_HX717, .gain = HX71X_GAIN_A_128, .sample_rate_sps = (uint16_t)rates[r],
+                .ticks_per_s = clocks[c], .sclk_pin = SCLK_PIN, .dout_pin = DOUT_PIN,
+            };
+            CHECK_EQ_INT(hx71x_init(&rig.dev, &rig.hal, &config), HX71X_OK);
+            CHECK_EQ_INT(rig.dev.sample_period_ticks, clocks[c] / rates[r]);
+        }
+    }
+}

@@ -569,3 +569,13 @@ TEST(trigger_feed_stops_at_first_event)
     CHECK_EQ_INT(tc_trigger_feed(&t, counts, ticks, 2, NULL, &event), 2);
     CHECK_EQ_INT(event, TC_EVENT_NONE);
 }
+
+TEST(trigger_never_configured_refuses_to_arm)
+{
+    static struct tc_trigger fresh;   /* zeroed, as static storage starts */
+    CHECK_EQ_INT(tc_trigger_arm(&fresh, 1000, 0), TC_ERR_BAD_CONFIG);
+    CHECK_EQ_INT(fresh.state, TC_TRIGGER_IDLE);
+    CHECK_EQ_INT(tc_trigger_sample(&fresh, 1000, 10), TC_EVENT_NONE);
+    CHECK_EQ_INT(tc_trigger_check_watchdog(&fresh, 1u << 30), TC_OK);
+    CHECK_EQ_INT(fresh.state, TC_TRIGGER_IDLE);
+}

@@ -168,13 +168,18 @@ def test_unknown_parameter_gets_a_warning_naming_it(slinger):
     assert run(printer, responses, "M118 A=1 B=2") == ["echo: A=1 B=2"]
 
 
-def test_probe_commands_warn_and_take_kalicos_spellings(tmp_path):
+def test_probe_commands_refuse_unknown_parameters_and_take_kalicos_spellings(tmp_path):
     path = calibrated_voron(tmp_path, {"probe_count: 5, 5": "probe_count: 3, 3"})
     printer, responses = start(tmp_path, path.read_text(), "again.cfg")
     run(printer, responses, "G28")
-    out = run(printer, responses, "PROBE_ACCURACY SAMPLE=2")
-    assert out[-1] == "// PROBE_ACCURACY: unknown parameter SAMPLE ignored (did you mean SAMPLES?)"
-    assert "(samples=10 " in out[0]  # the default ran: the warning says why
+    # A probing command refuses a parameter it does not know before anything moves (issue 19): a
+    # misspelled option must not let the probe run with the default instead.
+    z_before = printer.backend.position[2]
+    assert gcode_error(printer, "PROBE_ACCURACY SAMPLE=2") == (
+        "Error on 'PROBE_ACCURACY SAMPLE=2': unknown parameter SAMPLE (did you mean SAMPLES?) for PROBE_ACCURACY; "
+        "nothing was moved")
+    assert printer.backend.position[2] >= z_before
+    assert not [line for line in responses if "unknown parameter SAMPLE ignored" in line]
     # Kalico's TAPS= is tapcell's COUNT=.
     out = run(printer, responses, "SIM_TAP FORCE=300 DELAY=0.3\nLOAD_CELL_TEST_TAP TAPS=1 TIMEOUT=5")
     assert out[-3].endswith("Tap the load cell 1 times:") and out[-2].startswith("// Tap Detected!")

@@ -115,3 +115,17 @@ def test_a_config_that_turns_a_check_off_is_warned_at_load_and_at_each_probing_c
         del responses[:]
         printer.gcode.run_script(command)
         assert sum(f"// Warning: {warning}" in line for line in responses) == 1
+
+
+@pytest.mark.parametrize("command, known", [
+    ("PROBE SAMPLE=3", "SAMPLES"),
+    ("PROBE_ACCURACY SAMPLE=3", "SAMPLES"),
+    ("BED_MESH_CALIBRATE PROBE_CONT=3,3", "PROBE_COUNT"),
+    ("NOZZLE_CLEANUP PATERN_X=2", "PATTERN_X"),
+])
+def test_an_unknown_parameter_of_a_probing_command_is_refused_before_anything_moves(tmp_path, command, known):
+    printer, responses = printer_in(tmp_path / "p")
+    error = refused_before_moving(printer, command)
+    name = command.split()[1].split("=")[0]
+    assert f"unknown parameter {name} (did you mean {known}?) for {command.split()[0]}; nothing was moved" in error
+    assert not [line for line in responses if f"unknown parameter {name} ignored" in line]

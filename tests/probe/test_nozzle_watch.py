@@ -180,3 +180,13 @@ def test_a_press_cannot_creep_up_in_small_steps(tmp_path):
     error, peak_g, clearance_mm = run(printer, "G91\n" + "G1 Z-0.05 F60\nG4 P200\n" * 50)
     assert_stopped(error, peak_g, clearance_mm, "'G1 Z-0.05 F60'")
     assert peak_g < 2 * DEFAULT_FORCE_G  # one step past 250 g at most
+
+
+def test_a_saturated_sensor_in_a_watched_move_is_named_not_a_collision(tmp_path):
+    printer = printer_in(tmp_path / "p")
+    at_s = printer.backend.now_s + 0.3
+    printer.gcode.run_script(f"SIM_FAULT NAME=saturation AT={at_s:.3f}")
+    error, peak_g, clearance_mm = run(printer, "G1 Z1 F60")
+    assert error.startswith("Load Cell Probe Error: the load cell reading is at the end of the ADC's range (")
+    assert error.endswith("during 'G1 Z1 F60')") and "nozzle watch stopped the move at 110.000,110.000,1." in error
+    assert peak_g == 0.0 and clearance_mm > 1.0

@@ -193,6 +193,10 @@ class GCodeCommand:
         self._read.add(name.upper())
         return name.upper() in self._params
 
+    def read_parameters(self) -> list[str]:
+        """Parameters the handler asked for so far (given or not): the ones it knows."""
+        return sorted(self._read)
+
     def unread_parameters(self) -> list[str]:
         """Parameters given but never asked for: the command does not know them."""
         return [name for name in self._params if name not in self._read]
@@ -340,7 +344,7 @@ class GCodeDispatch:
         # Parameters each command has asked for so far, to suggest a spelling for an unknown one.
         self._known_parameters: dict[str, set[str]] = {}
         self._running: list[str] = []  # the commands running now, outermost first
-        self._running_lines: list[str] = []  # their command lines (callers that are not commands left out)
+        self._running_commands: list[GCodeCommand] = []  # the same, as commands (callers that are not commands left out)
         # Told when the machine fails under a command; each returns what the user must know more.
         self._device_error_listeners: list[Callable[[DeviceError], str]] = []
         self._register_builtins()
@@ -503,7 +507,7 @@ class GCodeDispatch:
         self._check_nesting(parsed.command)
         gcmd = GCodeCommand(self, parsed)
         self._running.append(parsed.command)
-        self._running_lines.append(parsed.commandline)
+        self._running_commands.append(gcmd)
         try:
             handler(gcmd)
         except ConfigError as exc:  # e.g. SAVE_CONFIG unable to write the file
@@ -515,16 +519,20 @@ class GCodeDispatch:
             raise GCodeError(f"MCU error on '{parsed.commandline}': {exc}{more}") from exc
         finally:
             self._running.pop()
-            self._running_lines.pop()
+            self._running_commands.pop()
             self._warn_unknown_parameters(gcmd)
 
     def running_command(self) -> str | None:
         """The command running now, quoted: the innermost line, and the outermost when they
         differ (`'G1 Z-1.5' in 'PROBE'`), for errors that name the command that did it."""
-        if not self._running_lines:
+        if not self._running_commands:
             return None
-        inner, outer = self._running_lines[-1], self._running_lines[0]
+        inner, outer = self._running_commands[-1].commandline, self._running_commands[0].commandline
         return f"'{inner}'" if inner == outer else f"'{inner}' in '{outer}'"
+
+    def innermost_command(self) -> GCodeCommand | None:
+        """The command whose handler runs now (None outside any command)."""
+        return self._running_commands[-1] if self._running_commands else None
 
     def _warn_unknown_parameters(self, gcmd: GCodeCommand) -> None:
         """One line per parameter the handler never asked for (a misspelt SAMPLE= silently did nothing)."""

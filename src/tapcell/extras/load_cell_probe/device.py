@@ -63,7 +63,7 @@ from tapcell.extras.load_cell_probe import safety
 from tapcell.extras.load_cell_probe.speed_guard import SpeedGuard
 from tapcell.extras.load_cell_probe.trigger_session import TriggerSession
 from tapcell.extras.load_cell_probe.overrides import disabled_protections, refuse_loosening, \
-    refuse_misspelled_safety_parameters
+    refuse_misspelled_safety_parameters, refuse_unknown_parameters
 from tapcell.extras.load_cell_probe.threshold import z_at_time_mm
 from tapcell.scale import counts_to_grams
 from tapcell.tap import AnalysisOptions, Move, TapData, analyze_tap, get_classifier, tap_to_json_dict
@@ -414,6 +414,7 @@ class LoadCellProbe:
         if self._guard_depth == 0:
             self.speed_guard.new_command()
             self._clear_machine_z_mm = None
+            refuse_unknown_parameters(self.printer.gcode.innermost_command())
             for warning in disabled_protections(self.options):
                 self.printer.gcode.respond_info(f"Warning: {warning}")
         self._guard_depth += 1

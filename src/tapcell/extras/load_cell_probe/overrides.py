@@ -6,7 +6,8 @@ may make a limit stricter; one that would loosen it past the config (a higher li
 stuck run, or 0, which turns a check off) is refused before anything moves. So is a parameter
 spelled almost like one of these (a misspelled limit would otherwise be ignored and the move run
 with the config's). The config itself may still turn a check off (the spec: 0 disables), and then
-is warned about at load and at every probing command (`disabled_protections`).
+is warned about at load and at every probing command (`disabled_protections`). Any other
+parameter the command did not read before its first move is refused too (`refuse_unknown_parameters`).
 """
 
 from __future__ import annotations
@@ -33,6 +34,24 @@ def refuse_misspelled_safety_parameters(gcmd) -> None:
         close = difflib.get_close_matches(name, SAFETY_PARAMETERS, n=1, cutoff=MISSPELLING_CUTOFF)
         if close:
             raise gcmd.param_error(f"unknown parameter {name} (did you mean {close[0]}?); nothing was moved")
+
+
+def refuse_unknown_parameters(gcmd) -> None:
+    """Before a probing command first moves: every parameter it was given must have been read by
+    then (its handler reads its parameters first); one it never asked for is unknown to it and
+    is refused, so a misspelled option never lets the move run with the config's value."""
+    if gcmd is None:
+        return
+    unknown = gcmd.unread_parameters()
+    if not unknown:
+        return
+    known = gcmd.read_parameters()
+    problems = []
+    for name in unknown:
+        gcmd.has(name)  # refused here: not "ignored" again after the command
+        close = difflib.get_close_matches(name, known, n=1)
+        problems.append(name + (f" (did you mean {close[0]}?)" if close else ""))
+    raise gcmd.param_error(f"unknown parameter {', '.join(problems)} for {gcmd.command}; nothing was moved")
 
 
 def refuse_loosening(gcmd, config: TapOptions, command: TapOptions, config_stuck_samples: int) -> None:

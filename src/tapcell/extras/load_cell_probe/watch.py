@@ -222,12 +222,18 @@ class NozzleWatch:
         peak_g = self._force_since(tare_counts, t_start_s)
         x_mm, y_mm, z_mm = device.motion.get_position()
         during = self._during_command()
+        _, counts, _ = device.history.between(t_start_s, self.backend.now_s)
+        saturated = safety.sensor_fault(counts, device.load_cell.counts_range, 0) == "saturated"
         self._lift()
+        where = f" (the nozzle watch stopped the move at {x_mm:.3f},{y_mm:.3f},{z_mm:.3f}" + (
+            f" during {during})" if during else ")")
+        if saturated:
+            raise ProbeError(ERROR_PREFIX + f"the load cell reading is at the end of the ADC's range ({int(counts[-1])} "
+                             "counts, saturated): no force can be measured; check the sensor wiring, its gain and "
+                             "the cell" + where)
         if result.error not in (TriggerError.NONE, TriggerError.FORCE_SAFETY):
             # The sensor itself failed (stuck, gone): say so, not a collision.
-            raise ProbeError(device.trigger.error_message(result.error, device.options)
-                             + f" (the nozzle watch stopped the move at {x_mm:.3f},{y_mm:.3f},{z_mm:.3f}"
-                             + (f" during {during}" if during else "") + ")")
+            raise ProbeError(device.trigger.error_message(result.error, device.options) + where)
         raise ProbeError(collision_message(x_mm, y_mm, z_mm, peak_g, during))
 
     def _lift(self) -> None:

@@ -1,4 +1,5 @@
-/* Freestanding M0+ build of the harness: the compiler may emit calls to these. */
+/* runtime.c - the two C library calls the compiler may emit for struct copies
+ * and clears in a -nostdlib image. */
 #include <stddef.h>
 
 void *memset(void *dst, int value, size_t n)
