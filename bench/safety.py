@@ -188,7 +188,7 @@ def rows(full: bool) -> list[Row]:
         for pair, (fault, command) in enumerate(itertools.product(FAULTS, COMMANDS)):
             for i, speed in enumerate(SPEEDS_MM_S):
                 chosen.append(Row("probing", fault, command, speed, sensors[(pair + i) % 3],
-                                  bool((pair + i // 2) % 2), STIFFNESSES_G_UM[(pair + 3 * i) % 4]))
+                                  bool((pair + i // 2) % 2), STIFFNESSES_G_UM[(pair + i) % 4]))
     chosen += [Row("world", w, c, 5.0, "HX717", False, k)
                for w, c, k in itertools.product(WORLDS, MESH_COMMANDS, STIFFNESSES_G_UM)]
     chosen += [Row("z-move", m, m, v, "HX717", False, k)
