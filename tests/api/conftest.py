@@ -64,8 +64,19 @@ def start_serve(config: Path, socket_path: Path, log: Path) -> subprocess.Popen:
         [sys.executable, "-m", "tapcell", "serve", "--config", str(config), "--socket", str(socket_path),
          "--gcodes-dir", str(config.parent.parent / "gcodes")],
         stdout=log.open("w"), stderr=subprocess.STDOUT)
-    wait_for(socket_path.exists, START_TIMEOUT_S, "tapcell serve to listen", process)
+    # The socket file appears at bind(), a moment before listen(): wait for a connection to succeed.
+    wait_for(lambda: accepts(socket_path), START_TIMEOUT_S, "tapcell serve to listen", process)
     return process
+
+
+def accepts(socket_path: Path) -> bool:
+    """Whether a server listens on the Unix socket (a connection is made and closed at once)."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as probe:
+        try:
+            probe.connect(str(socket_path))
+        except (FileNotFoundError, ConnectionRefusedError):
+            return False
+    return True
 
 
 def free_port() -> int:
@@ -74,16 +85,22 @@ def free_port() -> int:
         return probe.getsockname()[1]
 
 
-@pytest.fixture(scope="module")
-def served(tmp_path_factory):
-    """`tapcell serve` on a calibrated virtual printer; yields the socket path."""
-    folder = tmp_path_factory.mktemp("served")
+@contextlib.contextmanager
+def serving(folder: Path):
+    """`tapcell serve` on a calibrated virtual printer in `folder`; yields the socket path."""
     socket_path = folder / "klippy.sock"
     process = start_serve(printer_config(folder), socket_path, folder / "serve.log")
     try:
         yield socket_path
     finally:
         stop(process)
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory):
+    """`tapcell serve` on a calibrated virtual printer; yields the socket path."""
+    with serving(tmp_path_factory.mktemp("served")) as socket_path:
+        yield socket_path
 
 
 MOONRAKER_CONF = """\

@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from conftest import printer_config, start_serve, stop
+from conftest import printer_config, serving, start_serve, stop
 from klippy_client import KlippyClient
 
 
@@ -66,6 +66,10 @@ def test_subscription_pushes_only_changed_fields_with_eventtime(served, client):
     assert set(push["params"]) == {"eventtime", "status"}
     assert set(push["params"]["status"]) == {"toolhead"}  # webhooks did not change
     assert push["params"]["status"]["toolhead"]["position"][:3] == pytest.approx([42.0, 17.0, 5.0])
+
+
+def is_tap(message: dict) -> bool:
+    return message.get("method") == "tap"
 
 
 def test_api_answers_while_a_script_runs(served):
@@ -188,3 +192,95 @@ def test_emergency_stop_shuts_down_and_firmware_restart_closes_connections(tmp_p
         again.close()
     finally:
         stop(process)
+
+
+# -- emergency stop from a second connection (issue 19) ------------------------------------------
+
+
+@pytest.fixture
+def own_server(tmp_path):
+    """A server of its own (an emergency stop shuts it down); yields the socket path."""
+    with serving(tmp_path) as socket_path:
+        yield socket_path
+
+
+def homed_worker(socket_path) -> KlippyClient:
+    worker = KlippyClient(socket_path, timeout_s=120.0)
+    assert worker.call("gcode/script", script="G28\nG1 X110 Y110 Z3 F6000", timeout_s=120.0)["result"] == {}
+    return worker
+
+
+def taps_watcher(socket_path) -> KlippyClient:
+    watcher = KlippyClient(socket_path)
+    watcher.call("load_cell_probe/dump_taps", load_cell_probe="load_cell_probe", response_template={"method": "tap"})
+    return watcher
+
+
+def taps_after_the_stop(watcher: KlippyClient, method: str, **params) -> int:
+    """Stop on the watcher's connection; the taps pushed after its reply. A STATUS (allowed after a
+    shutdown) queues behind whatever still runs: every tap comes before its reply."""
+    assert watcher.call(method, **params)["result"] == {}
+    watcher.pushes.clear()
+    assert watcher.call("gcode/script", script="STATUS")["result"] == {}
+    return sum(is_tap(m) for m in watcher.pushes)
+
+
+def test_emergency_stop_during_a_mesh_stops_it_and_the_mesh_request_fails(own_server):
+    worker, watcher = homed_worker(own_server), taps_watcher(own_server)
+    observer = KlippyClient(own_server)
+    worker.send({"id": "mesh", "method": "gcode/script", "params": {"script": "BED_MESH_CALIBRATE\nG1 Z40 F600"}})
+    for _ in range(3):
+        watcher.push(is_tap, timeout_s=120.0)
+    # Before: 76-211 more taps, the mesh applied and {"result": {}}.
+    assert taps_after_the_stop(watcher, "emergency_stop") <= 1
+    reply = worker.reply_to("mesh", timeout_s=120.0)
+    assert reply["error"]["message"].startswith("Shutdown due to webhooks request\nOnce the underlying issue")
+    status = observer.call("objects/query", objects={"bed_mesh": ["profile_name", "probed_matrix"],
+                                                   "toolhead": ["position"], "webhooks": ["state"]})["result"]["status"]
+    assert status["bed_mesh"] == {"profile_name": "", "probed_matrix": [[]]}
+    assert status["webhooks"]["state"] == "shutdown" and status["toolhead"]["position"][2] < 39.0
+
+
+def test_m112_from_a_second_connection_stops_probe_accuracy_at_once(own_server):
+    worker, watcher = homed_worker(own_server), taps_watcher(own_server)
+    worker.send({"id": "accuracy", "method": "gcode/script", "params": {"script": "PROBE_ACCURACY SAMPLES=60"}})
+    for _ in range(5):
+        watcher.push(is_tap, timeout_s=120.0)
+    # M112 is acted on as it arrives, not queued behind the 60 taps.
+    assert taps_after_the_stop(watcher, "gcode/script", script="M112") <= 1
+    reply = worker.reply_to("accuracy", timeout_s=120.0)
+    assert reply["error"]["message"].startswith("Shutdown due to M112 command")
+
+
+def test_emergency_stop_during_a_long_move_stops_the_toolhead(own_server):
+    worker = homed_worker(own_server)
+    worker.call("gcode/subscribe_output", response_template={"method": "out"})
+    # 200 mm at 0.1 mm/s: 2000 s of print time, seconds of wall time here.
+    worker.send({"id": "moves", "method": "gcode/script",
+                 "params": {"script": "G1 X20 F6000\nSTATUS OBJECT=toolhead\nG1 X220 F6\nG1 X100 F6000"}})
+    worker.push(lambda m: m.get("method") == "out" and m["params"]["response"].startswith("// position:"),
+                timeout_s=120.0)
+    other = KlippyClient(own_server)
+    assert other.call("emergency_stop")["result"] == {}
+    reply = worker.reply_to("moves", timeout_s=120.0)
+    assert reply["error"]["message"].startswith("Shutdown due to webhooks request")
+    where = [other.call("objects/query", objects={"toolhead": ["position"]})["result"]["status"]["toolhead"]["position"]]
+    assert other.call("gcode/script", script="STATUS")["result"] == {}  # a job on the printer's thread
+    where.append(other.call("objects/query", objects={"toolhead": ["position"]})["result"]["status"]["toolhead"]["position"])
+    # Stopped before X220 (today's main ended the move there, refusing only the next line). The
+    # stop may land as the move begins (the client answers the output faster than the printer's
+    # thread gets to the move): tests/probe/test_emergency_stop.py stops one under way.
+    assert where[0] == where[1] and 20.0 <= where[0][0] < 219.0
+
+
+def test_scripts_queued_by_a_client_that_vanishes_never_run(own_server):
+    worker, watcher = homed_worker(own_server), taps_watcher(own_server)
+    for _ in range(30):
+        worker.send({"id": None, "method": "gcode/script", "params": {"script": "PROBE_ACCURACY SAMPLES=3"}})
+    watcher.push(is_tap, timeout_s=120.0)  # the first script runs
+    worker.close()
+    watcher.pushes.clear()
+    assert watcher.call("gcode/script", script="STATUS", timeout_s=300.0)["result"] == {}  # queued behind them
+    # The script in progress finishes (3 taps at most); before, all 30 ran (90 taps).
+    assert sum(is_tap(m) for m in watcher.pushes) <= 3
+

@@ -172,3 +172,32 @@ def test_monitor_says_so_and_reconnects_when_the_printer_restarts(stack, tmp_pat
             monitor.wait(timeout=10)
     assert "lost or refused" in said.read_text() and "reconnecting" in said.read_text()
     assert [json.loads(line)["analysis"]["valid"] for line in log.read_text().splitlines()] == [True, True]
+
+
+def test_m112_from_mainsail_through_moonraker_stops_a_running_mesh(stack):
+    """Mainsail's console sends M112 over Moonraker's websocket (printer.gcode.script) while
+    BED_MESH_CALIBRATE runs (issue 19: it used to wait behind the mesh, which was then applied
+    and answered "ok")."""
+    def rpc(request_id: int, method: str, **params) -> None:
+        websocket.send(json.dumps({"jsonrpc": "2.0", "id": request_id, "method": method, "params": params}))
+
+    with connect(f"ws://127.0.0.1:{stack.port}/websocket", open_timeout=10) as websocket:
+        rpc(1, "server.connection.identify", client_name="tapcell-test", version="0", type="web",
+            url="http://localhost")
+        ws_messages(websocket, lambda m: m.get("id") == 1)
+        rpc(2, "printer.gcode.script", script="G28\nBED_MESH_CALIBRATE")
+        probed = []
+        ws_messages(websocket, lambda m: m.get("method") == "notify_gcode_response"
+                    and m["params"][0].startswith("// probe at") and probed.append(m) is None and len(probed) == 3,
+                    timeout_s=120.0)
+        rpc(3, "printer.gcode.script", script="M112")
+        replies = {}
+        ws_messages(websocket, lambda m: m.get("id") in (2, 3) and replies.update({m["id"]: m}) is None
+                    and len(replies) == 2, timeout_s=120.0)
+    assert replies[3]["result"] == "ok"
+    assert replies[2]["error"]["message"].startswith("Shutdown due to M112 command")
+    _, query = stack.get("/printer/objects/query?bed_mesh=profile_name")
+    assert query["result"]["status"]["bed_mesh"]["profile_name"] == ""
+    wait_for(lambda: stack.klippy_state() == "shutdown", 30.0, "Moonraker to see the shutdown", stack.moonraker)
+    assert stack.get("/printer/firmware_restart", method="POST")[0] == 200
+    stack.wait_ready()

@@ -239,6 +239,30 @@ def test_fault_on_contact_starts_when_the_nozzle_reaches_the_bed():
     assert contact_time - t0 == pytest.approx(0.3 / 3.0 + 3.0 / 200.0 / 2, abs=0.003)
 
 
+def test_faults_at_the_phases_of_a_tap_wait_for_their_nth_occurrence():
+    """halt (the dwell), lift (pullback, between taps) and travel (mesh travel, wipes), each on
+    the occurrence asked for: the bench's faults at every phase start where they say."""
+    vp = VirtualPrinter.from_scenario("clean", seed=1)
+    contact = vp.truth.contact_z_at(*vp.position[:2])
+    vp.move_to(z=contact + 0.3, speed_mm_s=10.0)
+    vp.inject_fault("stuck", when="halt")
+    vp.inject_fault("stuck", when="lift", nth=2)
+    vp.inject_fault("stuck", when="travel")
+    halt, lift, travel = vp._faults[-3:]
+    result = vp.probing_move(contact - 0.5, 3.0, armed_trigger(vp))
+    assert halt.start_s == result.halt_time_s and lift.start_s is None and travel.start_s is None
+    vp.move_to(z=contact + 0.3, speed_mm_s=10.0)   # the first lift: not yet
+    assert lift.start_s is None and lift.waits_for == 1
+    second_lift_s = vp.now_s
+    vp.move_to(z=contact + 1.0, speed_mm_s=10.0)
+    assert lift.start_s == second_lift_s and travel.start_s is None
+    travel_s = vp.now_s
+    vp.move_to(x=vp.position[0] + 5.0, speed_mm_s=50.0)
+    assert travel.start_s == travel_s
+    with pytest.raises(FaultError, match="nth must be a whole number from 1, and only with a condition"):
+        vp.inject_fault("stuck", nth=2)
+
+
 def _fault_session(vp):
     """Faults one after another (one begun in the past, one waiting for a condition) and the
     samples they give."""
@@ -303,7 +327,7 @@ def test_fault_and_parameter_errors_name_what_is_allowed():
         vp.inject_fault("melted")
     with pytest.raises(FaultError, match="fault 'weight' has no parameter 'kg'; allowed: grams, duration_s"):
         vp.inject_fault("weight", kg=1)
-    with pytest.raises(FaultError, match="unknown fault condition 'later'; allowed: probing_move, contact, trigger"):
+    with pytest.raises(FaultError, match="unknown fault condition 'later'; allowed: probing_move, contact, trigger, halt, lift, travel"):
         vp.inject_fault("stuck", when="later")
     with pytest.raises(SimParamError, match="'sample_rate_sps' = 640 is not a hx717 rate; allowed: 10, 20, 80, 320"):
         VirtualPrinter.from_scenario("clean", sample_rate_sps=640)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from tapcell.extras.load_cell_probe import safety
 from tapcell.extras.load_cell_probe.threshold import ThresholdProber
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeError
@@ -31,6 +32,14 @@ DIRECTIONS = {"+X": (1.0, 0.0), "-X": (-1.0, 0.0), "+Y": (0.0, 1.0), "-Y": (0.0,
 XY_PROBE_SPEED_MM_S = (0.5, 20.0)
 MAX_TRAVEL_MM = 50.0
 MAX_SIZE_MM = 100.0  # pin and nozzle tip diameters, clearance
+# The stiffest toolhead the speed guard assumes against the pin, sideways, unless the config says
+# less (`max_side_stiffness`): the worst case, as the Z guard's bed (a belt-driven toolhead is far
+# softer: the virtual printer's is 4 g/um).
+DEFAULT_MAX_SIDE_STIFFNESS_G_UM = 100.0
+# The load cell, built for vertical force, reads at least this share of a sideways one (the
+# virtual toolhead: 0.5): the force on the pin when the XY threshold is read is at most
+# threshold / this.
+MIN_SIDE_COUPLING = 0.25
 
 
 @dataclass(frozen=True)
@@ -45,6 +54,28 @@ class XYProbeOptions:
     speed_mm_s: float
     travel_speed_mm_s: float
     max_travel_mm: float
+    max_side_stiffness_g_um: float
+
+
+@dataclass(frozen=True)
+class SideGuard:
+    """How hard a sideways touch can press the pin: the force read at the threshold, one step of
+    the motor past it, and the travel between the triggering sample and the halt, all on the
+    stiffest toolhead the config allows."""
+
+    stiffness_g_um: float
+    step_um: float
+    lag_s_per_mm_s: float   # seconds of travel after contact before the halt (safety.trigger_lag_mm)
+    force_safety_limit_g: float
+
+    def peak_force_g(self, threshold_g: float, speed_mm_s: float) -> float:
+        travel_um = self.step_um + 1000.0 * speed_mm_s * self.lag_s_per_mm_s
+        return threshold_g / MIN_SIDE_COUPLING + self.stiffness_g_um * travel_um
+
+    def safe_speed_mm_s(self, threshold_g: float) -> float:
+        """The fastest speed whose worst press stays within force_safety_limit (<= 0: none)."""
+        budget_g = self.force_safety_limit_g - self.peak_force_g(threshold_g, 0.0)
+        return budget_g / (self.stiffness_g_um * 1000.0 * self.lag_s_per_mm_s)
 
 
 def read_xy_probe_options(section: ConfigSection) -> XYProbeOptions:
@@ -60,6 +91,8 @@ def read_xy_probe_options(section: ConfigSection) -> XYProbeOptions:
         speed_mm_s=section.getfloat("speed", 2.0, minval=XY_PROBE_SPEED_MM_S[0], maxval=XY_PROBE_SPEED_MM_S[1]),
         travel_speed_mm_s=section.getfloat("travel_speed", 50.0, **SPEED_RANGE),
         max_travel_mm=section.getfloat("max_travel", 10.0, above=0.0, maxval=MAX_TRAVEL_MM),
+        max_side_stiffness_g_um=section.getfloat("max_side_stiffness", DEFAULT_MAX_SIDE_STIFFNESS_G_UM,
+                                                 above=0.0, maxval=10000.0),
     )
 
 
@@ -87,6 +120,37 @@ class XYProbe:
             raise GCodeError("XY probing: home all axes first (G28)")
         return prober
 
+    def _guard(self, prober: ThresholdProber) -> SideGuard:
+        device = prober.device
+        step_um = 1000.0 * max(float(d) for d in list(prober.backend.step_distance_mm)[:2])
+        return SideGuard(self.options.max_side_stiffness_g_um, step_um,
+                         safety.trigger_lag_mm(device.stop_timing, 1.0), device.options.force_safety_limit_g)
+
+    def guarded_speed_mm_s(self, gcmd: GCodeCommand, prober: ThresholdProber, speed_mm_s: float, force_g: float,
+                           asked: bool) -> float:
+        """The speed of a sideways touch whose worst press stays within force_safety_limit: a
+        configured speed above it is lowered (with a note), an asked one (SPEED=) refused; no
+        speed at all (a slow sensor, a stiff toolhead) is refused. force_safety_limit 0: as given."""
+        guard = self._guard(prober)
+        if guard.force_safety_limit_g <= 0.0:
+            return speed_mm_s
+        safe_mm_s = guard.safe_speed_mm_s(force_g)
+        if speed_mm_s <= safe_mm_s:
+            return speed_mm_s
+        why = (f"on a toolhead of up to {guard.stiffness_g_um:g} g/um sideways ([xy_probe] max_side_stiffness) "
+               f"it could press the pin with up to {guard.peak_force_g(force_g, speed_mm_s):.0f}g, more than "
+               f"force_safety_limit ({guard.force_safety_limit_g:g}g)")
+        slowest = XY_PROBE_SPEED_MM_S[0]
+        if safe_mm_s < slowest:
+            raise gcmd.error(f"XY probing refused: even at {slowest:g} mm/s {why}; set max_side_stiffness "
+                             f"to your toolhead's sideways stiffness if it is softer")
+        safe_mm_s = max(slowest, float(int(safe_mm_s * 100.0)) / 100.0)
+        if asked:
+            raise gcmd.error(f"XY probing at {speed_mm_s:g} mm/s refused: {why}; probe at {safe_mm_s:g} mm/s "
+                             f"or slower")
+        gcmd.respond_info(f"XY probing at {safe_mm_s:g} mm/s, not {speed_mm_s:g}: {why}")
+        return safe_mm_s
+
     def touch(self, prober: ThresholdProber, direction: tuple[float, float], distance_mm: float,
               speed_mm_s: float, force_g: float) -> tuple[float, float]:
         """Tare, then move `distance_mm` along `direction` until the force passes force_g; returns
@@ -106,6 +170,7 @@ class XYProbe:
                                maxval=XY_PROBE_SPEED_MM_S[1])
         force = gcmd.get_float("FORCE", self._threshold().value_g(XY), above=0.0, maxval=1000.0)
         prober = self._prober()
+        speed = self.guarded_speed_mm_s(gcmd, prober, speed, force, asked=gcmd.has("SPEED"))
         x_start, y_start, _ = prober.toolhead.get_position()
         x_mm, y_mm = self.touch(prober, DIRECTIONS[name], distance, speed, force)
         # Back off to where the move started, so the nozzle does not keep pressing.
@@ -122,6 +187,7 @@ class XYProbe:
         z_mm = gcmd.get_float("Z", opts.probe_z_mm, **COORDINATE_RANGE)
         force = self._threshold().value_g(XY)
         prober = self._prober()
+        speed = self.guarded_speed_mm_s(gcmd, prober, opts.speed_mm_s, force, asked=False)
         toolhead = prober.toolhead
         reach_mm = (opts.pin_diameter_mm + opts.nozzle_tip_diameter_mm) / 2.0 + opts.clearance_mm
         contacts = {}
@@ -131,8 +197,8 @@ class XYProbe:
             toolhead.move_to(x=start[0], y=start[1], speed_mm_s=opts.travel_speed_mm_s)
             toolhead.move_to(z=z_mm, speed_mm_s=opts.travel_speed_mm_s)
             # Never further than the nominal centre: missing the pin by then means it is not there.
-            contacts[name] = self.touch(prober, (dx, dy), reach_mm, opts.speed_mm_s, force)
-            toolhead.move_to(x=start[0], y=start[1], speed_mm_s=opts.speed_mm_s)
+            contacts[name] = self.touch(prober, (dx, dy), reach_mm, speed, force)
+            toolhead.move_to(x=start[0], y=start[1], speed_mm_s=speed)
         toolhead.move_to(z=opts.safe_z_mm, speed_mm_s=opts.travel_speed_mm_s)
         x_center = (contacts["+X"][0] + contacts["-X"][0]) / 2.0
         y_center = (contacts["+Y"][1] + contacts["-Y"][1]) / 2.0

@@ -281,6 +281,8 @@ class PrinterThread:
             self._run_job(function, future)
 
     def _run_job(self, function, future) -> None:
+        if not future.set_running_or_notify_cancel():
+            return  # its client went away before it ran (a vanished client's queued scripts never run)
         try:
             result = function()
         except RequestError as exc:
@@ -304,6 +306,7 @@ class PrinterThread:
     def _tick(self) -> None:
         now = time.monotonic()
         elapsed_s, self._last_tick = now - self._last_tick, now
+        self.printer.finish_shutdown()
         state, _ = self.objects.state()
         clock = self.printer.print_clock
         if state == "ready" and clock is not None:
@@ -312,6 +315,7 @@ class PrinterThread:
         self._snapshot()
 
     def _after_job(self) -> None:
+        self.printer.finish_shutdown()  # an emergency stop from another connection: heaters off now
         if self._restarted:
             self._restarted = False
             self._attach()
@@ -380,6 +384,18 @@ class PrinterThread:
         parsed = parse_line(line)
         if parsed is not None and parsed.command not in WHEN_NOT_READY:
             raise GCodeError(message)
+
+
+def _asks_emergency_stop(script: str) -> bool:
+    """Whether a line of the script is M112 (a line that does not parse is left to the printer)."""
+    for line in script.split("\n"):
+        try:
+            parsed = parse_line(line)
+        except GCodeError:
+            continue
+        if parsed is not None and parsed.command == "M112":
+            return True
+    return False
 
 
 def _resolve(future: concurrent.futures.Future, outcome: tuple[str, Any]) -> None:
@@ -767,6 +783,11 @@ class ApiServer:
 
     async def _gcode_script(self, connection, method, params) -> dict:
         script = _param(params, "script", str)
+        if _asks_emergency_stop(script):
+            # Not queued behind the running script (a mesh would finish first): M112 acts at once,
+            # as Klipper acts on an M112 it reads from its serial input before the queued lines.
+            self._shut_down("Shutdown due to M112 command")
+            return {}
         return await self._run_gcode(script)
 
     async def _gcode_command(self, connection, method, params) -> dict:
@@ -791,12 +812,16 @@ class ApiServer:
         return {}
 
     def _emergency_stop(self, connection, method, params) -> dict:
-        # At once, on this thread: a running script stops at its next line.
-        self.printer_thread.objects.shutdown("Shutdown due to webhooks request")
-        self._on_output("!! Shutdown due to webhooks request")
+        self._shut_down("Shutdown due to webhooks request")
+        return {}
+
+    def _shut_down(self, reason: str) -> None:
+        """At once, on this thread: the steppers stop at the next sample, the running script fails
+        with the shutdown message (its command and the rest of it), queued scripts are refused."""
+        self.printer_thread.objects.shutdown(reason)
+        self._on_output(f"!! {reason}")
         self.status = {**self.status, "webhooks": dict(zip(("state", "state_message"),
                                                           self.printer_thread.objects.state()))}
-        return {}
 
     async def _dump_force(self, connection, method, params) -> dict:
         name = _param(params, "load_cell", str)

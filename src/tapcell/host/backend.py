@@ -26,6 +26,15 @@ class DeviceError(RuntimeError):
     positions_lost = False  # True: the steppers' positions are no longer known (home again)
 
 
+class EmergencyStopError(DeviceError):
+    """An emergency stop halted the machine: its steppers stopped at `halt_s` (print time), at the
+    next sample it produced after the stop was asked for, and every motion fails until a restart."""
+
+    def __init__(self, halt_s: float):
+        super().__init__(f"emergency stop: the steppers stopped at {halt_s:.3f} s (print time)")
+        self.halt_s = halt_s
+
+
 @dataclass
 class SampleBatch:
     """Samples since the last take: read times (s), raw counts, and the counters since then."""
@@ -112,3 +121,10 @@ class Backend(SampleSource, Protocol):
     def wait_for_trigger(self, trigger, timeout_s: float) -> ProbingMoveResult: ...
 
     def recorded_moves(self, t0_s: float, t1_s: float) -> list[dict]: ...
+
+    def emergency_stop(self) -> None:
+        """From any thread: stop the steppers at the next sample; every motion after it raises
+        EmergencyStopError (the command that moved fails) until release_emergency_stop."""
+
+    def release_emergency_stop(self) -> None:
+        """A restart: motion works again."""

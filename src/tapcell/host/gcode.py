@@ -27,7 +27,7 @@ from dataclasses import dataclass, field
 from collections.abc import Sequence
 from typing import Any, Callable
 
-from tapcell.host.backend import DeviceError
+from tapcell.host.backend import DeviceError, EmergencyStopError
 from tapcell.host.config import GCODE_WORDS, ConfigError, check_range, require_range, underflow_problem
 
 
@@ -42,6 +42,11 @@ class UnknownCommandError(GCodeError):
     def __init__(self, command: str):
         super().__init__(f'Unknown command:"{command}"')
         self.command = command
+
+
+class ShutdownError(GCodeError):
+    """The printer was shut down (an emergency stop) while the command ran: it and the rest of its
+    script end with the shutdown message, as Klipper's do."""
 
 
 class _Required:
@@ -529,6 +534,8 @@ class GCodeDispatch:
             handler(gcmd)
         except ConfigError as exc:  # e.g. SAVE_CONFIG unable to write the file
             raise GCodeError(str(exc)) from exc
+        except EmergencyStopError as exc:  # the machine halted under the command: say why, as Klipper does
+            raise ShutdownError(self._refusal[1] if self._refusal is not None else str(exc)) from exc
         except DeviceError as exc:  # the machine failed under the command: the user's to know, not a bug
             more = "".join(listener(exc) for listener in self._device_error_listeners)
             raise GCodeError(f"MCU error on '{parsed.commandline}': {exc}{more}") from exc

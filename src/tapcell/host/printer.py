@@ -120,6 +120,7 @@ class Printer:
         self._accepted: list[str] = []  # sections taken as written, not modelled
         self.state = "starting"  # "ready", "error" or "shutdown"
         self.state_message = ""
+        self._shutdown_reason: str | None = None  # an emergency stop whose heaters-off is still to do
         self._event_handlers: dict[str, list[Callable[..., Any]]] = {}
         self._loading: set[str] = set()
         self._loaded: set[str] = set()  # sections loaded, whether or not they made an object
@@ -212,6 +213,7 @@ class Printer:
         self.notices.clear()
         self._accepted.clear()
         self.gcode.set_refusal(None)
+        self._shutdown_reason = None
         self._loaded.clear()
         self._event_handlers.clear()
         self.endpoints.clear()
@@ -270,6 +272,8 @@ class Printer:
     def _build_backend(self) -> None:
         if self._given_backend is not None:
             self.backend = self._given_backend
+            if hasattr(self.backend, "release_emergency_stop"):  # a restart resets the machine
+                self.backend.release_emergency_stop()
             self.config.mark_section_read(BACKEND_SECTION)
         else:
             sim = importlib.import_module(BACKEND_MODULE)
@@ -341,14 +345,35 @@ class Printer:
                                     desc="Write pending config changes (e.g. a calibration) and restart")
         self.gcode.register_command("M112", self._cmd_M112, desc="Emergency stop: heaters off, printer halted")
 
-    def invoke_shutdown(self, reason: str) -> None:
-        """Halt like Klipper's shutdown: heaters and fans off, only HELP/STATUS/RESTART work."""
-        self.state, self.state_message = "shutdown", f"{reason}\nOnce the underlying issue is corrected, use RESTART"
+    def request_emergency_stop(self, reason: str, message: str | None = None) -> None:
+        """From any thread (a second API connection, the console's Ctrl-C): the steppers stop at the
+        next sample the machine produces, the running command and the rest of its script fail with
+        the shutdown message (`message`, else the reason and RESTART advice), and every command but
+        HELP/STATUS/RESTART is refused. Only flags are set here; the thread that runs G-code turns
+        the heaters and fans off next (finish_shutdown)."""
+        if self.state == "shutdown":
+            return
+        self._shutdown_reason = reason
+        self.state_message = message or f"{reason}\nOnce the underlying issue is corrected, use RESTART"
+        self.state = "shutdown"
+        self.gcode.set_refusal(WHEN_NOT_READY, self.state_message)
+        if self.backend is not None and hasattr(self.backend, "emergency_stop"):
+            self.backend.emergency_stop()
+
+    def finish_shutdown(self) -> None:
+        """On the G-code thread, after an emergency stop asked for elsewhere: heaters and fans off."""
+        reason, self._shutdown_reason = self._shutdown_reason, None
+        if reason is None:
+            return
         heaters = self.lookup_object("heaters", None)
         for heater in (heaters.heaters.values() if heaters else ()):
             heater.set_temperature(0.0)
         self.send_event("printer:shutdown")
-        self.gcode.set_refusal(WHEN_NOT_READY, self.state_message)
+
+    def invoke_shutdown(self, reason: str, message: str | None = None) -> None:
+        """Halt like Klipper's shutdown: motion stops, heaters and fans off, only HELP/STATUS/RESTART work."""
+        self.request_emergency_stop(reason, message)
+        self.finish_shutdown()
 
     def _cmd_M112(self, gcmd: GCodeCommand) -> None:
         self.invoke_shutdown("Shutdown due to M112 command")

@@ -82,10 +82,12 @@ class ApiObjects:
         return state, message
 
     def shutdown(self, reason: str) -> None:
-        """Halt like Klipper's shutdown: only RESTART, FIRMWARE_RESTART, HELP and STATUS work after it."""
+        """Halt like Klipper's shutdown: only RESTART, FIRMWARE_RESTART, HELP and STATUS work after it.
+        Safe from any thread (an emergency stop from a second connection while a script runs): it
+        sets the printer's stop flags; the printer's thread turns the heaters off (finish_shutdown)."""
         if self.shutdown_message is None:
             self.shutdown_message = f"{reason}\n{SHUTDOWN_ADVICE}"
-            self.printer.invoke_shutdown(reason)
+            self.printer.request_emergency_stop(reason, self.shutdown_message)
             if self.print_state in ("printing", "paused"):
                 self.print_state = "error"
 

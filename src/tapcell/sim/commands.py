@@ -8,12 +8,13 @@ the virtual printer these commands do it:
                                                   the one there; ADD=1 puts it on top)
     SIM_REMOVE_WEIGHT [LOAD_CELL=name]            take it off again
     SIM_TAP [FORCE=300] [DURATION=0.2] [DELAY=0]  a hand tap on the nozzle (no motion), DELAY s from now
-    SIM_FAULT NAME=<fault> [AT=s] [WHEN=cond] [DURATION=s] [<PARAM>=value ...]
+    SIM_FAULT NAME=<fault> [AT=s] [WHEN=cond [NTH=n]] [DURATION=s] [<PARAM>=value ...]
     SIM_TRUTH                                     what the simulator knows and the host must not
 
 SIM_TRUTH prints simulator truth (the cell's real counts_per_gram, its zero offset,
-the bed height under the nozzle, the largest nozzle-bed force since the previous SIM_TRUTH
-as `peak_force_g: N`, and the gap between nozzle tip and bed now as `nozzle_clearance_mm: N`,
+the bed height under the nozzle, the largest force the nozzle put on the bed or, sideways, on
+the calibration pin since the previous SIM_TRUTH as `peak_force_g: N` (each alone as
+`peak_bed_force_g` and `peak_pin_force_g`), and the gap between nozzle tip and bed now as `nozzle_clearance_mm: N`,
 negative when the nozzle is pressed into the bed): it is there to check calibration and
 probing by eye and in tests, and no tapcell algorithm ever reads it.
 """
@@ -31,7 +32,7 @@ MAX_TAP_DELAY_S = 600.0
 # command then reads a settled cell, as it would on a real printer.
 WEIGHT_HANDLING_TIME_S = 0.5
 # Parameters of SIM_FAULT itself; every other parameter is passed to the fault.
-SIM_FAULT_OWN_PARAMETERS = ("NAME", "AT", "WHEN", "DURATION")
+SIM_FAULT_OWN_PARAMETERS = ("NAME", "AT", "WHEN", "NTH", "DURATION")
 MAX_FAULT_TIME_S = 86_400.0  # AT and DURATION: a fault a day away is as good as never
 # The range of every numeric fault parameter (tapcell.sim.faults.FAULT_DEFAULTS), by name.
 FAULT_PARAMETER_RANGES: dict[str, tuple[float, float]] = {
@@ -106,6 +107,7 @@ class SimCommands:
         name = gcmd.get_choice("NAME", list(FAULT_DEFAULTS))
         at_s = gcmd.get_float("AT", None, minval=0.0, maxval=MAX_FAULT_TIME_S)
         when = gcmd.get_choice("WHEN", CONDITIONS, None)
+        nth = gcmd.get_int("NTH", 1, minval=1, maxval=100_000)
         params = {}
         duration_s = gcmd.get_float("DURATION", None, above=0.0, maxval=MAX_FAULT_TIME_S)
         if duration_s is not None:
@@ -118,10 +120,10 @@ class SimCommands:
             if option not in defaults:
                 allowed = ", ".join(k.upper() for k in defaults) or "none"
                 raise gcmd.param_error(f"fault '{name}' has no parameter {key}"
-                                       f" (its parameters: {allowed}; and AT, WHEN, DURATION)")
+                                       f" (its parameters: {allowed}; and AT, WHEN, NTH, DURATION)")
             params[option] = _parse_fault_value(gcmd, key, text, defaults[option])
         try:
-            self.vp.inject_fault(name, at_s=at_s, when=when, **params)
+            self.vp.inject_fault(name, at_s=at_s, when=when, nth=nth, **params)
         except FaultError as exc:
             raise gcmd.param_error(str(exc)) from None
         start = f"at {at_s:g} s" if at_s is not None else (f"on {when}" if when else "now")
@@ -130,6 +132,7 @@ class SimCommands:
     def cmd_truth(self, gcmd: GCodeCommand) -> None:
         truth = self.vp.truth
         x, y, _ = self.vp.position
+        peak_bed_g, peak_pin_g = truth.take_peak_forces_g()
         lines = [
             "Simulator truth (for checking by eye; no tapcell algorithm reads it):",
             f"cell counts_per_gram: {truth.counts_per_gram:.3f}",
@@ -137,7 +140,9 @@ class SimCommands:
             f"bed surface under the nozzle (X{x:.1f} Y{y:.1f}): Z={float(truth.surface_z(x, y)):.4f} mm"
             " in machine coordinates",
             f"simulated time: {self.vp.now_s:.3f} s",
-            f"peak_force_g: {truth.take_peak_force_g():.1f}",
+            f"peak_force_g: {max(peak_bed_g, peak_pin_g):.1f}",
+            f"peak_bed_force_g: {peak_bed_g:.1f}",
+            f"peak_pin_force_g: {peak_pin_g:.1f}",
             f"nozzle_clearance_mm: {truth.nozzle_clearance_mm:.4f}",
         ]
         gcmd.respond_info("\n".join(lines))
@@ -157,7 +162,7 @@ def register_sim_commands(printer) -> None:
     gcode.register_command("SIM_TAP", commands.cmd_tap,
                            desc="Virtual printer: tap the nozzle by hand, [FORCE=g] [DURATION=s] [DELAY=s]")
     gcode.register_command("SIM_FAULT", commands.cmd_fault,
-                           desc="Virtual printer: inject a fault, NAME= [AT=] [WHEN=] [DURATION=] [params]")
+                           desc="Virtual printer: inject a fault, NAME= [AT=] [WHEN= [NTH=]] [DURATION=] [params]")
     gcode.register_command("SIM_TRUTH", commands.cmd_truth,
                            desc="Virtual printer: show simulator truth (calibration, bed height, peak force, "
                                 "nozzle clearance)")

@@ -29,7 +29,10 @@ FAULT_DEFAULTS: dict[str, dict[str, float | str | bool]] = {
     "mcu_reset": {},
 }
 FAULT_DEFAULT_DURATION_S = {"corrupt_frame": math.inf, "bowden_tug": 0.3, "mcu_reset": 0.5}
-CONDITIONS = ("probing_move", "contact", "trigger")
+# When a fault may begin: a probing move starts, the nozzle meets the bed, the trigger fires, a
+# probing move halts (the dwell), a move goes straight up (pullback, the lift between taps), a move
+# travels in X/Y (mesh travel, nozzle wipes). With nth, on that occurrence of the condition.
+CONDITIONS = ("probing_move", "contact", "trigger", "halt", "lift", "travel")
 
 
 class FaultError(ValueError):
@@ -59,6 +62,7 @@ class Fault:
     stuck_counts: int | None = None
     first_index: int = 0             # first conversion not yet produced when the fault began
     done: bool = False               # an mcu_reset that has happened (each resets once)
+    waits_for: int = 1               # occurrences of its condition still to come before it begins
 
     @property
     def end_s(self) -> float:
@@ -70,7 +74,7 @@ class Fault:
         return (t_s >= self.start_s) & (t_s < self.end_s)
 
 
-def make_fault(name: str, at_s: float | None, when: str | None, now_s: float, params: dict) -> Fault:
+def make_fault(name: str, at_s: float | None, when: str | None, now_s: float, params: dict, nth: int = 1) -> Fault:
     if name not in FAULT_DEFAULTS:
         raise FaultError(f"unknown fault '{name}'; allowed: {', '.join(FAULT_DEFAULTS)}")
     if when is not None and when not in CONDITIONS:
@@ -87,8 +91,10 @@ def make_fault(name: str, at_s: float | None, when: str | None, now_s: float, pa
     duration = float(params.get("duration_s", FAULT_DEFAULT_DURATION_S.get(name, math.inf)))
     if duration <= 0.0:
         raise FaultError(f"fault '{name}': duration_s must be above 0, got {duration}")
+    if nth < 1 or nth != int(nth) or (nth > 1 and when is None):
+        raise FaultError(f"fault '{name}': nth must be a whole number from 1, and only with a condition")
     start = None if when is not None else (now_s if at_s is None else float(at_s))
-    return Fault(name, start, when, duration, merged)
+    return Fault(name, start, when, duration, merged, waits_for=int(nth))
 
 
 def external_force_g(faults: list[Fault], t_s: np.ndarray) -> np.ndarray:

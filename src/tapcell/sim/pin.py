@@ -40,13 +40,14 @@ class CalibrationPin:
         return np.where(on_top, np.maximum(bed_z_mm, bed_at_pin_mm + self.height_mm), bed_z_mm)
 
     def side_force_g(self, x_mm: np.ndarray, y_mm: np.ndarray, tip_z_mm: np.ndarray, bed_at_pin_mm: float) -> np.ndarray:
-        """Force on the load cell from the nozzle pressing into the pin's side (0 when clear)."""
+        """The sideways force between the nozzle and the pin's side (0 when clear): what presses on
+        the pin and the toolhead (the load cell reads `side_coupling` of it)."""
         distance_mm = self._distance_mm(x_mm, y_mm)
         interference_um = ((self.diameter_mm + self.nozzle_tip_diameter_mm) / 2.0 - distance_mm) * 1000.0
         beside = np.asarray(tip_z_mm, dtype=float) < bed_at_pin_mm + self.height_mm
         # With its centre inside the pin's radius the nozzle is on top of it (surface_z), not beside it.
         pressing = beside & (interference_um > 0.0) & (distance_mm > self.diameter_mm / 2.0)
-        return np.where(pressing, self.side_coupling * self.side_stiffness_g_um * interference_um, 0.0)
+        return np.where(pressing, self.side_stiffness_g_um * interference_um, 0.0)
 
 
 def pin_from_params(params) -> CalibrationPin | None:

@@ -10,13 +10,14 @@ from __future__ import annotations
 import copy
 import json
 import math
+import threading
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 from scipy.signal import lfilter
 
-from tapcell.host.backend import MoveError, ProbingMoveResult, SampleBatch
+from tapcell.host.backend import EmergencyStopError, MoveError, ProbingMoveResult, SampleBatch
 from tapcell.sim import faults as faultlib
 from tapcell.sim.bed import BedError, bed_from_params
 from tapcell.sim.contact import ContactModel, ContactState, contact_forces, elastic_force_g
@@ -43,6 +44,9 @@ ADS131M0X_CHIPS = ("ads131m02", "ads131m04")
 TAP_FORMAT = "tapcell.tap.v1"
 CHUNK_S = 0.05            # probing chunk: the trigger is fed this much data per call
 FREE_RUN_CHUNK = 4096     # samples per chunk when nothing listens to them
+# Samples produced between two looks at the emergency stop while time runs under a command: the
+# stop lands at the next sample either way; this bounds how long (wall time) it waits to be seen.
+HALT_CHECK_SAMPLES = 256
 NOISE_STREAMS = ("bed", "white", "pink", "poll", "jitter", "glitch_bit", "glitch_when", "hum")
 
 
@@ -60,7 +64,8 @@ class _PhysicsState:
     contact: ContactState
     cell_warm_c: float = 0.0      # the load cell's temperature rise (low-passed nozzle heat)
     residue: list[ResidueSpot] = field(default_factory=list)   # ooze film left on the bed
-    peak_contact_g: float = 0.0   # largest nozzle-bed force since Truth.take_peak_force_g last read it
+    peak_contact_g: float = 0.0   # largest nozzle-bed force since Truth.take_peak_forces_g last read it
+    peak_pin_g: float = 0.0       # largest sideways nozzle-pin force since then
 
 
 @dataclass
@@ -119,19 +124,27 @@ class Truth:
         vp = self._vp
         return float(vp._gap_um_now() / 1000.0)
 
-    def take_peak_force_g(self) -> float:
-        """The largest nozzle-bed force (bed + ooze film, g) since the last call, and start again.
+    def take_peak_forces_g(self) -> tuple[float, float]:
+        """The largest nozzle-bed force (bed + ooze film, g) and the largest sideways nozzle-pin
+        force (g, XY probing) since the last call, and start again.
 
         Forces are known for every conversion window produced so far; the nozzle's present
-        press (the loading curve at today's gap) covers the window still open."""
+        press (the loading curve at today's gap, the pin's side at today's position) covers the
+        window still open."""
         vp = self._vp
         vp._advance_to(vp.now_s)
         state = vp._state
         model = vp._contact_model
-        now_g = float(elastic_force_g(-vp._gap_um_now(), model.stiffness_g_um, model.onset_um))
-        peak_g = max(state.peak_contact_g, now_g)
-        state.peak_contact_g = 0.0
-        return peak_g
+        gap_um, pin_now_g = vp._gap_and_pin_force_now()
+        bed_now_g = float(elastic_force_g(-gap_um, model.stiffness_g_um, model.onset_um))
+        peaks = (max(state.peak_contact_g, bed_now_g), max(state.peak_pin_g, pin_now_g))
+        state.peak_contact_g = state.peak_pin_g = 0.0
+        return peaks
+
+    def take_peak_force_g(self) -> float:
+        """The largest force the nozzle put on the bed or the pin since the last call (either
+        reading starts both again): what must stay within force_safety_limit."""
+        return max(self.take_peak_forces_g())
 
 
 class VirtualPrinter:
@@ -185,6 +198,9 @@ class VirtualPrinter:
         if params.chip in ADS131M0X_CHIPS:  # frames with a CRC, read by the firmware's reader
             from tapcell.sim.ads131m0x_chip import VirtualADS131M0x
             self._frame_chip = VirtualADS131M0x(params.chip)
+        # Set from any thread (an API connection, a console's Ctrl-C); read where motion is produced.
+        self._halt = threading.Event()
+        self.halted_at_s: float | None = None   # when an emergency stop stopped the steppers
         self.truth = Truth(self)
         self.world_notice: str | None = None  # set by from_config: the scenario and what it changes
 
@@ -260,11 +276,7 @@ class VirtualPrinter:
                 speed_mm_s: float = 50.0, accel_mm_s2: float | None = None) -> None:
         """Trapezoidal move (rest to rest) within the axis limits; time advances to its end.
         `accel_mm_s2` (the host's current limit) is capped by the machine's own."""
-        start = self._motion.end_position
-        target = tuple(float(v) if v is not None else s for v, s in zip((x, y, z), start))
-        self._check_target(target)
-        if speed_mm_s <= 0.0:
-            raise MoveError(f"move speed must be above 0 mm/s, got {speed_mm_s}")
+        start, target = self._begin_move(x, y, z, speed_mm_s)
         self._plan_and_run(start, target, speed_mm_s, accel_mm_s2)
 
     def home_xy(self, axes: str = "xy") -> None:
@@ -358,11 +370,23 @@ class VirtualPrinter:
             raise MoveError(f"tap delay must not be negative, got {delay_s}")
         self._hand_taps.append((self._now_s + float(delay_s), float(duration_s), float(peak_force_g)))
 
-    def inject_fault(self, name: str, at_s: float | None = None, when: str | None = None, **params) -> None:
-        """Start a fault now, at `at_s`, or when a condition happens ('probing_move', 'contact', 'trigger')."""
-        fault = faultlib.make_fault(name, at_s, when, self._now_s, params)
+    def inject_fault(self, name: str, at_s: float | None = None, when: str | None = None, nth: int = 1,
+                     **params) -> None:
+        """Start a fault now, at `at_s`, or when a condition happens (faults.CONDITIONS), on its
+        `nth` occurrence."""
+        fault = faultlib.make_fault(name, at_s, when, self._now_s, params, nth)
         fault.first_index = self._next_k
         self._faults.append(fault)
+
+    def emergency_stop(self) -> None:
+        """From any thread: the steppers stop at the next sample the machine produces (inside a move,
+        a probing move, a dwell or a wait), and every command that lets time run from then on raises
+        EmergencyStopError at once. Sampling goes on (take_samples), nothing moves."""
+        self._halt.set()
+
+    def release_emergency_stop(self) -> None:
+        """A restart that keeps this machine: motion works again."""
+        self._halt.clear()
 
     def add_sensor(self, name: str, chip: str, sample_rate_sps: float):
         """An extra scale (no contact physics) sharing this printer's clock, e.g. a spool scale."""
@@ -394,11 +418,7 @@ class VirtualPrinter:
         """An ordinary move (any direction, like move_to) with the armed firmware trigger seeing
         every sample: it halts like a probing move when the trigger fires or reports an error
         (the host's nozzle watch). Not a probe: no probing_move/contact fault conditions fire."""
-        start = self._motion.end_position
-        target = tuple(float(v) if v is not None else s for v, s in zip((x, y, z), start))
-        self._check_target(target)
-        if speed_mm_s <= 0.0:
-            raise MoveError(f"move speed must be above 0 mm/s, got {speed_mm_s}")
+        _, target = self._begin_move(x, y, z, speed_mm_s)
         return self._probing_move_to(target, speed_mm_s, trigger, accel_mm_s2, probe=False)
 
     def _probing_move_to(self, target, speed_mm_s: float, trigger, accel_mm_s2: float | None = None,
@@ -428,6 +448,8 @@ class VirtualPrinter:
         undelivered_state = None       # physics state before a chunk that was fed but not delivered
         while event is None:
             k0 = self._next_k
+            if self._halt.is_set():
+                self._advance_to(end_s)   # stops the steppers at the next sample and raises
             if k0 >= k_move_end:
                 event = feeder.feed(np.zeros(0), np.zeros(0, dtype=np.int32), end_s)   # watchdog to the end
                 break
@@ -450,6 +472,8 @@ class VirtualPrinter:
         self._advance_to(halt_s)
         if event is not None and event.triggered:
             self._fire_condition("trigger", event.time_s)
+        if probe:
+            self._fire_condition("halt", halt_s)
         probe_moves = [s.as_tap_move() for s in self._motion.segments_between(t_start, halt_s)
                        if s.print_time >= t_start]
         if probe:
@@ -572,19 +596,27 @@ class VirtualPrinter:
 
     def _advance_to(self, t_s: float) -> None:
         """Produce the samples up to t_s. An MCU reset due by then stops the steppers where they
-        are, time runs on until the host link is back, and McuResetError is raised."""
+        are, time runs on until the host link is back, and McuResetError is raised. An emergency
+        stop asked for while time runs here stops the steppers at the next sample not yet produced,
+        time ends there, and EmergencyStopError is raised."""
         reset = faultlib.due_reset(self._faults, t_s)
         if reset is not None:
             reset.start_s = max(reset.start_s, self._now_s)   # a condition already past: now
             reset.done = True
-            moving = sum(1 for segment in self._motion.segments if segment.end_time > reset.start_s)
-            if moving:
-                self._truncate_probing_move(moving, reset.start_s)
+            self._stop_steppers_at(reset.start_s)
             t_s = reset.end_s                                    # the command ends there
+        entry_s = self._now_s
+        halt_s = None
+        if self._halt.is_set() and t_s > entry_s:
+            halt_s = t_s = self._halt_steppers(entry_s)
         self._now_s = max(self._now_s, t_s)
         k_end = self._last_index_closed_by(self._now_s)
         while self._next_k < k_end:
-            k1 = min(k_end, self._next_k + FREE_RUN_CHUNK)
+            if halt_s is None and self._halt.is_set():
+                halt_s = self._now_s = self._halt_steppers(entry_s)
+                k_end = self._last_index_closed_by(halt_s)
+                continue
+            k1 = min(k_end, self._next_k + (HALT_CHECK_SAMPLES if self._now_s > entry_s else FREE_RUN_CHUNK))
             self._mcu.deliver(self._compute(self._next_k, k1))
             self._next_k = k1
         timing = self._timing
@@ -597,12 +629,47 @@ class VirtualPrinter:
             sensor.advance_to(self._now_s)
         if reset is not None:
             raise faultlib.McuResetError(reset.start_s, reset.end_s)
+        if halt_s is not None:
+            self.halted_at_s = halt_s
+            raise EmergencyStopError(halt_s)
+
+    def _halt_steppers(self, entry_s: float) -> float:
+        """An emergency stop: the steppers stop where the next sample to be produced starts (the
+        samples made so far saw the motion before it; time never goes back), returns that time."""
+        return self._stop_steppers_at(max(entry_s, self._timing.window_start_s(self._next_k)))
+
+    def _stop_steppers_at(self, t_s: float) -> float:
+        """Cut whatever moves after t_s there (no deceleration: a reset or an emergency stop)."""
+        moving = sum(1 for segment in self._motion.segments if segment.end_time > t_s)
+        if moving:
+            self._truncate_probing_move(moving, t_s)
+        return t_s
 
     def _fire_condition(self, condition: str, t_s: float) -> None:
         for f in self._faults:
             if f.when == condition and f.start_s is None:
-                f.start_s = t_s
-                f.first_index = self._next_k
+                f.waits_for -= 1
+                if f.waits_for <= 0:
+                    f.start_s = t_s
+                    f.first_index = self._next_k
+
+    def _begin_move(self, x, y, z, speed_mm_s: float):
+        """A move that is not a probe, checked (limits, speed) and announced to the faults waiting
+        for it: (start, target)."""
+        start = self._motion.end_position
+        target = tuple(float(v) if v is not None else s for v, s in zip((x, y, z), start))
+        self._check_target(target)
+        if speed_mm_s <= 0.0:
+            raise MoveError(f"move speed must be above 0 mm/s, got {speed_mm_s}")
+        self._fire_move_conditions(start, target)
+        return start, target
+
+    def _fire_move_conditions(self, start, target) -> None:
+        """A move that is not a probe: 'travel' when it moves in X/Y, else 'lift' when it goes up."""
+        travel = math.hypot(target[0] - start[0], target[1] - start[1]) > 0.0
+        if travel or target[2] > start[2]:
+            self._advance_to(self._now_s)
+            self._fire_condition("travel" if travel else "lift", self._now_s)
 
     def _film_at_start(self, t0_s: float, t1_s: float) -> float:
         """Ooze film when the tap in [t0, t1] started (now, if no probing move is in the span)."""
@@ -642,13 +709,15 @@ class VirtualPrinter:
         grid_t = timing.grid_times(k0, k1)
         pos = quantize_to_steps(self._motion.positions_at(grid_t), self.step_distance_mm)
         temps = self._thermal.temps_at(grid_t)
-        gap_um, pin_g = self._gaps_um(pos, temps)
+        gap_um, pin_side_g = self._gaps_um(pos, temps)
+        pin_g = 0.0 if self._pin is None else self._pin.side_coupling * pin_side_g  # what the cell reads
         growth_um = p.ooze_growth_um_per_s_per_c * np.maximum(temps - p.ooze_temp_c, 0.0) * timing.grid_dt_s
         bed_g, film_g = contact_forces(gap_um, timing.grid_dt_s, growth_um, self._contact_model,
                                        self._state.contact)
         contact_g = bed_g + film_g   # the true nozzle-bed force (SIM_TRUTH's peak_force_g)
         if n:
             self._state.peak_contact_g = max(self._state.peak_contact_g, float(np.max(contact_g)))
+            self._state.peak_pin_g = max(self._state.peak_pin_g, float(np.max(pin_side_g)))
         self._place_residue()
         centre = (p.bed_x_mm / 2.0, p.bed_y_mm / 2.0)
         drag_g = (p.bowden_g_per_mm_x * (pos[:, 0] - centre[0]) + p.bowden_g_per_mm_y * (pos[:, 1] - centre[1])
@@ -699,7 +768,7 @@ class VirtualPrinter:
 
     def _gaps_um(self, pos: np.ndarray, temps) -> tuple[np.ndarray, np.ndarray | float]:
         """Per (n, 3) position: how far the commanded nozzle tip is above its first touch of the bed
-        or the pin (µm, negative = pressed in), and the pin's side force (g)."""
+        or the pin (µm, negative = pressed in), and the sideways nozzle-pin force (g)."""
         bed_z = self._bed.surface_z(pos[:, 0], pos[:, 1])
         extension_mm = self._thermal.extension_mm(temps)
         pin_g = 0.0
@@ -710,9 +779,12 @@ class VirtualPrinter:
         return (pos[:, 2] - (bed_z + extension_mm)) * 1000.0, pin_g
 
     def _gap_um_now(self) -> float:
+        return self._gap_and_pin_force_now()[0]
+
+    def _gap_and_pin_force_now(self) -> tuple[float, float]:
         pos = quantize_to_steps(self._motion.positions_at(np.array([self._now_s])), self.step_distance_mm)
-        gap_um, _ = self._gaps_um(pos, self._thermal.temps_at(np.array([self._now_s])))
-        return float(gap_um[0])
+        gap_um, pin_g = self._gaps_um(pos, self._thermal.temps_at(np.array([self._now_s])))
+        return float(gap_um[0]), float(np.max(pin_g))
 
     def _hand_force(self, t_s: np.ndarray) -> np.ndarray:
         force = np.zeros(t_s.shape)

@@ -8,8 +8,11 @@ file git tracks: it works on a copy in the user's folder (`tapcell.tools.workspa
 from __future__ import annotations
 
 import argparse
+import contextlib
 import os
+import signal
 import sys
+import threading
 from pathlib import Path
 
 from tapcell.files import FileRefused, read_limited, why_missing
@@ -27,6 +30,7 @@ HISTORY_FILE = Path("~/.tapcell_history").expanduser()  # readline's format
 CONSOLE_HISTORY_FILE = Path("~/.tapcell_console_history").expanduser()  # prompt_toolkit's format
 HISTORY_LENGTH = 1000
 PROMPT = "tapcell> "
+CONSOLE_STOP_REASON = "Shutdown due to console stop (Ctrl-C)"
 MAX_SCRIPT_BYTES = 256 * 1024 * 1024  # a G-code file for the virtual printer; read whole, so bounded
 
 
@@ -82,6 +86,15 @@ def run_script_file(printer: Printer, script_path: str, *, keep_going: bool, ech
         print(line, flush=True)
 
     gcode.set_response_sink(show)
+    # Ctrl-C is an emergency stop, as in the console: the line running fails with the shutdown
+    # message and so does every later one (the file stops there unless --keep-going).
+    with ctrl_c_stops(printer):
+        return _run_lines(printer, lines, bar, show, script_path, keep_going=keep_going, echo=echo)
+
+
+def _run_lines(printer: Printer, lines: list[str], bar: ProgressBar, show, script_path: str, *,
+               keep_going: bool, echo: bool) -> int:
+    gcode = printer.gcode
     failed = False
     try:
         for line_number, line in enumerate(lines, start=1):
@@ -162,6 +175,28 @@ def _setup_readline():
     return readline
 
 
+@contextlib.contextmanager
+def ctrl_c_stops(printer: Printer):
+    """While a command runs, Ctrl-C is the console's emergency stop: the steppers stop at the next
+    sample, the command and the rest of the line fail with the shutdown message, the printer is
+    shut down until RESTART. A second Ctrl-C interrupts what is not motion (a long template)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield  # signals reach only the main thread
+        return
+
+    def stop(signum, frame):
+        if printer.state == "shutdown":
+            raise KeyboardInterrupt
+        printer.request_emergency_stop(CONSOLE_STOP_REASON)
+
+    previous = signal.signal(signal.SIGINT, stop)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        printer.finish_shutdown()
+
+
 def console_loop(printer: Printer, read_line=input) -> None:
     """Read commands until EOF or 'exit'/'quit'; every response is printed by the printer's sink."""
     while True:
@@ -176,7 +211,8 @@ def console_loop(printer: Printer, read_line=input) -> None:
         if line.strip().lower() in ("exit", "quit"):
             return
         try:
-            printer.gcode.run_script_reporting_errors(line)
+            with ctrl_c_stops(printer):
+                printer.gcode.run_script_reporting_errors(line)
         except KeyboardInterrupt:
             # Ctrl-C stops a long command (e.g. a 10 s diagnostic), not the console.
             print("!! Interrupted", flush=True)
