@@ -236,7 +236,7 @@ class LoadCellProbe:
         # The stiffest bed a bad tap's pullback showed (the force guard only raises its assumption by it).
         self.bad_tap_stiffness_g_um: float | None = None
         self._unconfirmed_stiffness_g_um: float | None = None  # the last such tap's, until the next agrees
-        self.home_stiffness_g_um: float | None = None  # the stiffest bed the last G28 Z's backoffs showed
+        self.home_stiffness_g_um: float | None = None  # the stiffest bed the last G28 Z that read its backoffs showed
         self.speed_guard = SpeedGuard(self.stop_timing, lambda: self.motion.options.max_z_velocity_mm_s,
                                       self._guard_stiffness_g_um, printer.gcode.respond_info,
                                       section.getfloat("max_bed_stiffness", safety.DEFAULT_STIFFNESS_G_UM,
@@ -521,7 +521,7 @@ class LoadCellProbe:
         halted, as a single G28 Z tap did (a whole number of steps: moves land on round Z).
         """
         candidate: tuple[float, float] | None = None  # (trigger Z, speed) of a tap that held
-        self.home_stiffness_g_um = None  # measured again by this homing's backoffs
+        measured_g_um: list[float] = []  # this homing's backoffs; until one reads, the last homing's value stands
         speed = speed_mm_s
         heights = []
         reversed_g = []  # the force held after taps that held like a contact the wrong way round
@@ -543,7 +543,10 @@ class LoadCellProbe:
             backoff_start_s = self.backend.now_s
             self.backend.move_to(z=float(self.backend.position[2]) + HOME_BACKOFF_MM, speed_mm_s=speed)
             if candidate is not None:  # a real contact: its backoff measures the bed for the force guard
-                self._note_home_stiffness(tare_counts, backoff_start_s)
+                stiffness = self._backoff_stiffness_g_um(tare_counts, backoff_start_s)
+                if stiffness is not None:
+                    measured_g_um.append(stiffness)
+                    self.home_stiffness_g_um = max(measured_g_um)
             speed = min(speed_mm_s, HOME_CONFIRM_SPEED_MM_S)
         found = ", ".join(f"{z:.3f}" for z in heights)
         if len(reversed_g) == HOME_TAPS:
@@ -552,25 +555,23 @@ class LoadCellProbe:
                          "something pushes or pulls on the nozzle, or the sensor jumps; check the toolhead and the "
                          "load cell, then home again")
 
-    def _note_home_stiffness(self, tare_counts: float, backoff_start_s: float) -> None:
+    def _backoff_stiffness_g_um(self, tare_counts: float, backoff_start_s: float) -> float | None:
         """G28 Z: a tap that held like a contact backs off through its decompression, which shows the
-        bed's stiffness (`safety.decompression_stiffness_g_um`, as a bad tap's pullback does). The
-        force guard takes the stiffest such measurement of this homing, so the homing's first, slow
-        tap (max_bed_stiffness assumed) is the only one that must be slow."""
+        bed's stiffness (`safety.decompression_stiffness_g_um`, as a bad tap's pullback does; None when
+        too few samples show it). The force guard takes the stiffest such measurement of the last
+        homing, so only the first tap of the first homing (max_bed_stiffness assumed) must be slow."""
         end_s = self.backend.now_s
         self._wait_for_samples_to(end_s)
         t_s, force_g = self._force_between(backoff_start_s, end_s, tare_counts)
         moves = [Move.from_record(m) for m in self.backend.recorded_moves(backoff_start_s, end_s)
                  if m["print_time"] >= backoff_start_s - 1e-9]
         if not moves:
-            return
+            return None
 
         def z_at(t_s: float) -> float:  # the commanded Z: the last move started by then
             return float(([m for m in moves if m.print_time <= t_s] or moves[:1])[-1].z_at(t_s))
 
-        stiffness = safety.decompression_stiffness_g_um(t_s, force_g, z_at, backoff_start_s, end_s)
-        if stiffness is not None:
-            self.home_stiffness_g_um = max(stiffness, self.home_stiffness_g_um or 0.0)
+        return safety.decompression_stiffness_g_um(t_s, force_g, z_at, backoff_start_s, end_s)
 
     def _orientation_hint(self, reversed_g: list[float], found: str) -> str:
         """G28 Z's error when every tap pressed the bed but the cell read it as a pull."""
