@@ -687,10 +687,17 @@ class LoadCellProbe:
             self.bad_tap_stiffness_g_um = max(min(stiffness, unconfirmed), self.bad_tap_stiffness_g_um or 0.0)
 
     def _guard_stiffness_g_um(self) -> float | None:
-        """What the force guard takes as measured: the valid taps' stiffness, raised by a stiffer
-        bed a bad tap showed."""
-        known = [k for k in (self._known_stiffness_g_um(), self.bad_tap_stiffness_g_um, self.home_stiffness_g_um) if k]
-        return max(known) if known else None
+        """What the force guard takes as measured: the valid taps' and G28 Z's backoffs' stiffness,
+        raised by a stiffer bed a bad tap showed. A bad tap's pullback reads a stiff bed low (75 g/um
+        read 36-48 on the virtual printer: the decompression falls between samples), so it only ever
+        raises the assumption: alone it counts only when stiffer than max_bed_stiffness."""
+        measured = [k for k in (self._known_stiffness_g_um(), self.home_stiffness_g_um) if k]
+        bad = self.bad_tap_stiffness_g_um
+        if measured:
+            return max(measured + [bad or 0.0])
+        if bad and bad * safety.MEASURED_STIFFNESS_MARGIN > self.speed_guard.max_bed_stiffness_g_um:
+            return bad
+        return None
 
     def _explain_bad_tap(self, tap: TapData, error_code: str | None, options: TapOptions,
                          speed_mm_s: float) -> str | None:
