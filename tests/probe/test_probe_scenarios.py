@@ -139,9 +139,13 @@ def test_slow_adc_first_tap_too_fast_estimates_the_bed_from_the_jump(tmp_path):
 
 
 def test_glitchy_frames_never_abort(tmp_path):
+    # A corrupted frame in the air is moved on from; one inside a tap's samples makes that tap bad
+    # (TAP_CHRONOLOGY on seed 1 since G28 Z's first tap is slow, COASTING_MOVE_ACCELERATION on seed 3
+    # before), so the bad tap is retried. Seeds 2 and 6 still abort on force_safety_limit (seed 6: a
+    # third past-limit frame within 0.5 s in G28 Z; seed 2 in PROBE_ACCURACY, not traced yet).
     printer, _ = make_printer(tmp_path, scenario="glitchy", probe_options=NO_SCORE)
-    sigma_um, bias_um = accuracy(printer, 5.0)  # ~10 s of probing: about 5 corrupted frames
-    assert sigma_um <= 0.8 and abs(bias_um) <= 0.8  # measured 0.44 and +0.37 um, as on the clean bed
+    sigma_um, bias_um = accuracy(printer, 5.0, extra="BAD_PROBE_STRATEGY=retry")  # ~10 s: ~5 corrupted frames
+    assert sigma_um <= 0.8 and abs(bias_um) <= 0.8  # measured 0.35 and -0.06 um (0.44, +0.37 before)
     assert true_peak_force_g(printer) < 2000.0
 
 

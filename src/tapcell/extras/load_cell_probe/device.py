@@ -43,6 +43,7 @@ from tapcell.extras.probe.session import ProbeError, TapOutcome
 from tapcell.extras.probe.options import with_overrides
 from tapcell.extras.load_cell_probe.options import (
     CORRUPT_FRAME_RETRIES,
+    CORRUPT_FRAME_WINDOW_S,
     ERROR_PREFIX,
     NOT_CALIBRATED,
     check_stuck_sensor_samples,
@@ -350,7 +351,8 @@ class LoadCellProbe:
         the worst-case overshoot could press harder than force_safety_limit; then the firmware
         trigger (`trigger`: the keywords of `move_params`) is armed with the tare and Z moves down
         toward z_min_mm (toolhead Z) until it stops. A force_safety_limit stop by one corrupted
-        frame in the air is moved on from (at most CORRUPT_FRAME_RETRIES times). Firmware errors,
+        frame in the air is moved on from (at most CORRUPT_FRAME_RETRIES times within
+        CORRUPT_FRAME_WINDOW_S; each retry goes on down from where the last stopped). Firmware errors,
         and a sensor that stopped changing or saturated, raise ProbeError naming the cause.
         Returns (move result, the speed used, when the last attempt started); result.triggered is
         False when the move reached z_min_mm without a trigger.
@@ -366,16 +368,19 @@ class LoadCellProbe:
         last attempt started)."""
         options = settings.options
         self._clear_machine_z_mm = float(self.backend.position[2])
-        for attempt in range(CORRUPT_FRAME_RETRIES + 1):
+        corrupt_stops_s: list[float] = []  # when corrupted frames stopped this move
+        while True:
             firmware = self.trigger.arm(settings, tare_counts, **trigger)
             t_start_s = self.backend.now_s
             # Unhomed (G28 Z), z_min is a full axis length below: the machine stops at its own end of travel.
             machine_z_min_mm = max(z_min_mm - self._z_frame_offset_mm(), self.backend.limits["z"][0])
             result = self.backend.probing_move(machine_z_min_mm, speed_mm_s, firmware)
             self.load_cell.pump()
-            if not (result.error == TriggerError.FORCE_SAFETY and attempt < CORRUPT_FRAME_RETRIES
+            recent = [t for t in corrupt_stops_s if t > self.backend.now_s - CORRUPT_FRAME_WINDOW_S]
+            if not (result.error == TriggerError.FORCE_SAFETY and len(recent) < CORRUPT_FRAME_RETRIES
                     and self._stopped_by_a_corrupt_frame(options, tare_counts, t_start_s)):
                 break
+            corrupt_stops_s.append(self.backend.now_s)
         _, counts, _ = self.history.between(t_start_s, self.backend.now_s)
         # The firmware names a stuck sensor itself; with its check off (stuck_sensor_samples: 0), or
         # a saturated sensor, the move's own samples say why it failed (not position_min).
