@@ -30,7 +30,8 @@ def printer_text(scenario: str = "clean", probe_options: str = "", virtual_print
     if scenario == "slow-adc":
         text = text.replace("sensor_type: hx717", "sensor_type: hx711").replace("sample_rate: 320", "sample_rate: 80")
         # At 80 sps a sensor that sticks at contact is stopped only after 7 samples (87.5 ms): the
-        # force guard lets an unmeasured bed (10 g/um) be met at 2 mm/s at most.
+        # force guard lets the measured bed (3.26 g/um x1.25) be met at 5 mm/s at most; 2 mm/s keeps
+        # the tests' taps well inside that (an unmeasured bed, 100 g/um: 0.2 mm/s).
         text = text.replace("\nspeed: 5\n", "\nspeed: 2\n", 1)
     # The probe options go after [load_cell_probe]'s `samples: 1`; a changed example must fail here.
     assert "samples: 1\n" in text, "examples/virtual-printer.cfg: [load_cell_probe] lost its 'samples: 1' line"

@@ -60,10 +60,11 @@ def test_calibrate_contact_onset_on_a_soft_sheet(tmp_path):
     after_um, sigma_um = accuracy_bias_um(printer)
     # Uncalibrated, the toe model (widths up to 16 µm) reads the 25 µm onset -6.8 µm low (a sharp
     # contact: about half the onset, -12 µm); calibrated (the sharp model with that onset), within
-    # ~2.5 µm.
+    # ~2.5 µm: measured (seeds 1-4) -2.0 to -3.4 µm (onsets 21.7-24.6 µm) since G28 Z's first tap
+    # runs at 0.8 mm/s, -2.6 to -2.7 µm (23.2-23.7 µm) when it ran at 5 mm/s.
     assert -9.0 < before_um < -4.5
     assert device.config_settings.analysis.uses_toe_model is False
-    assert -3.0 < after_um < -1.0
+    assert -3.8 < after_um < -1.0
     assert sigma_um < 0.5
 
 

@@ -87,7 +87,7 @@ def test_slow_adc_explains_what_goes_wrong_too_fast(tmp_path):
     why = re.search(r"\(probing too fast for this sensor: .*\)$", message)[0]
     assert re.fullmatch(
         r"\(probing too fast for this sensor: at 8 mm/s and 80 samples/s the nozzle moves 100\.0 um per sample, "
-        r"but on this bed \(about 3\.[23] g/um\) the force reaches the 75g trigger 23 um after first contact: it "
+        r"but on this bed \(about 3\.[23] g/um\) the force reaches the 75g trigger 2[34] um after first contact: it "
         r"jumped from -?\d+g to (\d+)g within one sample, so no sample shows the compression and the tap cannot be "
         r"analysed; the nozzle stopped about \d+ um past first contact, pressing (\d+)g(, more than 3/4 of the "
         r"0\.15 mm pullback, so it leaves the bed late in the pullback or not at all)?; probe at 1\.[89] mm/s or "
@@ -115,9 +115,18 @@ def test_slow_adc_explains_what_goes_wrong_too_fast(tmp_path):
 
 
 def test_slow_adc_first_tap_too_fast_estimates_the_bed_from_the_jump(tmp_path):
-    # No tap yet: the stiffness comes from the one-sample force jump (a low estimate).
-    printer, _ = make_printer(tmp_path, scenario="slow-adc", probe_options=NO_SCORE + "\nforce_safety_limit: 10000")
-    # Before any tap the guard assumes a 10 g/um bed: only a high limit lets 8 mm/s through.
+    # No valid tap yet: the stiffness comes from the one-sample force jump (a low estimate). At 80 sps
+    # G28 Z's backoffs are too fast to read the bed, so the guard assumes max_bed_stiffness: by default
+    # (100 g/um) it lowers 8 mm/s to 1 mm/s even with this limit; a declared soft bed and a high limit
+    # let 8 mm/s through.
+    printer, responses = make_printer(tmp_path, scenario="slow-adc",
+                                      probe_options=NO_SCORE + "\nforce_safety_limit: 10000")
+    printer.gcode.run_script("PROBE PROBE_SPEED=8 BAD_PROBE_STRATEGY=fail")
+    assert "// Probing at 1 mm/s, not 8 mm/s, until a tap measures the bed: up to 100 g/um is assumed before that " \
+           "(max_bed_stiffness)" in responses
+    (tmp_path / "declared").mkdir()
+    printer, _ = make_printer(tmp_path / "declared", scenario="slow-adc",
+                              probe_options=NO_SCORE + "\nforce_safety_limit: 10000\nmax_bed_stiffness: 5")
     with pytest.raises(GCodeError) as error:
         printer.gcode.run_script("PROBE PROBE_SPEED=8 BAD_PROBE_STRATEGY=fail")
     why = re.search(r"\(probing too fast for this sensor: .*\)$", str(error.value))[0]
@@ -130,9 +139,13 @@ def test_slow_adc_first_tap_too_fast_estimates_the_bed_from_the_jump(tmp_path):
 
 
 def test_glitchy_frames_never_abort(tmp_path):
+    # A corrupted frame in the air is moved on from; one inside a tap's samples makes that tap bad
+    # (TAP_CHRONOLOGY on seed 1 since G28 Z's first tap is slow, COASTING_MOVE_ACCELERATION on seed 3
+    # before), so the bad tap is retried. Seeds 2 and 6 still abort on force_safety_limit (seed 6: a
+    # third past-limit frame within 0.5 s in G28 Z; seed 2 in PROBE_ACCURACY, not traced yet).
     printer, _ = make_printer(tmp_path, scenario="glitchy", probe_options=NO_SCORE)
-    sigma_um, bias_um = accuracy(printer, 5.0)  # ~10 s of probing: about 5 corrupted frames
-    assert sigma_um <= 0.8 and abs(bias_um) <= 0.8  # measured 0.44 and +0.37 um, as on the clean bed
+    sigma_um, bias_um = accuracy(printer, 5.0, extra="BAD_PROBE_STRATEGY=retry")  # ~10 s: ~5 corrupted frames
+    assert sigma_um <= 0.8 and abs(bias_um) <= 0.8  # measured 0.35 and -0.06 um (0.44, +0.37 before)
     assert true_peak_force_g(printer) < 2000.0
 
 

@@ -48,13 +48,29 @@ def test_stuck_after_a_trigger_stops_the_retry_in_the_air(tmp_path):
 
 def test_a_corrupted_frame_past_the_limit_stops_the_move_and_it_is_probed_again(tmp_path):
     # 500 g: every corrupted frame of the virtual sensor (one of bits 16-22 flipped) is past it
-    # With a 500 g limit the force guard allows 2 mm/s on an unmeasured bed.
+    # (2 mm/s: with a 500 g limit G28 Z's first tap goes at 0.2 mm/s, its backoffs measure the bed.)
     printer, responses = make_printer(tmp_path, probe_options="force_safety_limit: 500",
                                       replace={"\nspeed: 5\n": "\nspeed: 2\n"})
     printer.gcode.run_script("G1 Z2\nSIM_FAULT NAME=corrupt_frame WHEN=probing_move\nPROBE")
     notes = [r for r in responses if "(a corrupted frame); the move stopped at once, probing again" in r]
     assert len(notes) == 1
     assert abs(printer.lookup_object("probe").last_z_result - true_contact_z(printer)) < 0.01
+
+
+def test_corrupted_frames_far_apart_never_end_a_long_move_but_a_burst_does(tmp_path):
+    # A long move (G28 Z's first tap on an unmeasured bed runs at 0.8 mm/s; here 10 mm at 3 mm/s): four
+    # corrupted frames 0.6 s apart are each moved on from; a third within 0.5 s ends the move.
+    printer, responses = make_printer(tmp_path, probe_options="force_safety_limit: 500")
+    printer.gcode.run_script("G1 Z10\nSIM_FAULT NAME=corrupt_frame WHEN=probing_move COUNT=4 SPACING_S=0.6\n"
+                             "PROBE PROBE_SPEED=3")
+    notes = [r for r in responses if "(a corrupted frame); the move stopped at once, probing again" in r]
+    assert len(notes) == 4
+    assert abs(printer.lookup_object("probe").last_z_result - true_contact_z(printer)) < 0.01
+    responses.clear()
+    with pytest.raises(GCodeError, match=r"force exceeded force_safety_limit \(500g\) while probing!"):
+        printer.gcode.run_script("G1 Z10\nSIM_FAULT NAME=corrupt_frame WHEN=probing_move COUNT=3 SPACING_S=0.1\n"
+                                 "PROBE PROBE_SPEED=3")
+    assert sum("(a corrupted frame)" in r for r in responses) == 2
 
 
 def test_stuck_sensor_samples_option(tmp_path):

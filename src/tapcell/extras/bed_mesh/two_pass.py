@@ -41,15 +41,22 @@ from tapcell.mesh.run import MeshProbeRun
 # a point whose two passes disagree is probed this many times at most.
 FALSE_TRIGGER_TRIES = 3
 POINT_TRIES = 3
+# The fast pass moves at most this far per sample: where in a sample the trigger falls is up to one
+# sample of travel, and 0.4 of the fast pass goes into each point. On the virtual printer (320 sps)
+# that is the 8 mm/s the force guard allowed before G28 Z measured the bed: at max_z_velocity's
+# 15 mm/s (47 um per sample) the tilted bed's trigger depth averaged -62 um, not -48..-52
+# (tests/mesh_commands/test_abl_probe.py), and the first layer came up to 16.9 um low.
+FAST_PASS_MAX_UM_PER_SAMPLE = 25.0
 
 
 def two_pass_settings(device, toolhead, travel_speed_mm_s: float) -> tuple[TwoPassSettings, str | None]:
     """The paper's settings on this printer: travel limit = position_min, fast pass clamped to
-    max_z_velocity and to the fastest speed the force guard passes."""
+    max_z_velocity, to FAST_PASS_MAX_UM_PER_SAMPLE and to the fastest speed the force guard passes."""
     paper = TwoPassSettings()
     max_z_speed = toolhead.options.max_z_velocity_mm_s
+    per_sample_speed = FAST_PASS_MAX_UM_PER_SAMPLE * device.sample_rate_sps / 1000.0
     params = two_pass_trigger_params(device)
-    fastest = min(paper.fast_speed_mm_s, max_z_speed)
+    fastest = min(paper.fast_speed_mm_s, max_z_speed, per_sample_speed)
     fast = device.speed_guard.fastest_safe_mm_s(params, fastest)
     slow = min(paper.slow_speed_mm_s, max_z_speed)
     if fast is None:
@@ -58,7 +65,12 @@ def two_pass_settings(device, toolhead, travel_speed_mm_s: float) -> tuple[TwoPa
                                slow_speed_mm_s=min(slow, fast), travel_speed_mm_s=travel_speed_mm_s)
     note = None
     if settings.fast_speed_mm_s < paper.fast_speed_mm_s:
-        limit = "max_z_velocity" if fast == max_z_speed else "the force guard's limit for this sensor"
+        if fast == max_z_speed:
+            limit = "max_z_velocity"
+        elif fast == per_sample_speed:
+            limit = f"{FAST_PASS_MAX_UM_PER_SAMPLE:g} um per sample at {device.sample_rate_sps:g} samples/s"
+        else:
+            limit = "the force guard's limit for this sensor"
         note = (f"fast pass at {settings.fast_speed_mm_s:g} mm/s ({limit}; the paper moved its bed at "
                 f"{paper.fast_speed_mm_s:g} mm/s)")
     return settings, note

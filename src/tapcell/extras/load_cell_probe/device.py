@@ -44,6 +44,7 @@ from tapcell.extras.probe.session import ProbeError, TapOutcome
 from tapcell.extras.probe.options import with_overrides
 from tapcell.extras.load_cell_probe.options import (
     CORRUPT_FRAME_RETRIES,
+    CORRUPT_FRAME_WINDOW_S,
     ERROR_PREFIX,
     NOT_CALIBRATED,
     check_stuck_sensor_samples,
@@ -241,6 +242,7 @@ class LoadCellProbe:
         # The stiffest bed a bad tap's pullback showed (the force guard only raises its assumption by it).
         self.bad_tap_stiffness_g_um: float | None = None
         self._unconfirmed_stiffness_g_um: float | None = None  # the last such tap's, until the next agrees
+        self.home_stiffness_g_um: float | None = None  # the stiffest bed the last G28 Z that read its backoffs showed
         self.speed_guard = SpeedGuard(self.stop_timing, lambda: self.motion.options.max_z_velocity_mm_s,
                                       self._guard_stiffness_g_um, printer.gcode.respond_info,
                                       section.getfloat("max_bed_stiffness", safety.DEFAULT_STIFFNESS_G_UM,
@@ -354,7 +356,8 @@ class LoadCellProbe:
         the worst-case overshoot could press harder than force_safety_limit; then the firmware
         trigger (`trigger`: the keywords of `move_params`) is armed with the tare and Z moves down
         toward z_min_mm (toolhead Z) until it stops. A force_safety_limit stop by one corrupted
-        frame in the air is moved on from (at most CORRUPT_FRAME_RETRIES times). Firmware errors,
+        frame in the air is moved on from (at most CORRUPT_FRAME_RETRIES times within
+        CORRUPT_FRAME_WINDOW_S; each retry goes on down from where the last stopped). Firmware errors,
         and a sensor that stopped changing or saturated, raise ProbeError naming the cause.
         Returns (move result, the speed used, when the last attempt started); result.triggered is
         False when the move reached z_min_mm without a trigger.
@@ -370,16 +373,19 @@ class LoadCellProbe:
         last attempt started)."""
         options = settings.options
         self._clear_machine_z_mm = float(self.backend.position[2])
-        for attempt in range(CORRUPT_FRAME_RETRIES + 1):
+        corrupt_stops_s: list[float] = []  # when corrupted frames stopped this move
+        while True:
             firmware = self.trigger.arm(settings, tare_counts, **trigger)
             t_start_s = self.backend.now_s
             # Unhomed (G28 Z), z_min is a full axis length below: the machine stops at its own end of travel.
             machine_z_min_mm = max(z_min_mm - self._z_frame_offset_mm(), self.backend.limits["z"][0])
             result = self.backend.probing_move(machine_z_min_mm, speed_mm_s, firmware)
             self.load_cell.pump()
-            if not (result.error == TriggerError.FORCE_SAFETY and attempt < CORRUPT_FRAME_RETRIES
+            recent = [t for t in corrupt_stops_s if t > self.backend.now_s - CORRUPT_FRAME_WINDOW_S]
+            if not (result.error == TriggerError.FORCE_SAFETY and len(recent) < CORRUPT_FRAME_RETRIES
                     and self._stopped_by_a_corrupt_frame(options, tare_counts, t_start_s)):
                 break
+            corrupt_stops_s.append(self.backend.now_s)
         _, counts, _ = self.history.between(t_start_s, self.backend.now_s)
         # The firmware names a stuck sensor itself; with its check off (stuck_sensor_samples: 0), or
         # a saturated sensor, the move's own samples say why it failed (not position_min).
@@ -535,6 +541,7 @@ class LoadCellProbe:
         halted, as a single G28 Z tap did (a whole number of steps: moves land on round Z).
         """
         candidate: tuple[float, float] | None = None  # (trigger Z, speed) of a tap that held
+        measured_g_um: list[float] = []  # this homing's backoffs; until one reads, the last homing's value stands
         speed = speed_mm_s
         heights = []
         reversed_g = []  # the force held after taps that held like a contact the wrong way round
@@ -553,7 +560,13 @@ class LoadCellProbe:
                 candidate = None
                 if safety.contact_holds(-force_g, threshold_g):
                     reversed_g.append(float(np.median(force_g)))
+            backoff_start_s = self.backend.now_s
             self.backend.move_to(z=float(self.backend.position[2]) + HOME_BACKOFF_MM, speed_mm_s=speed)
+            if candidate is not None:  # a real contact: its backoff measures the bed for the force guard
+                stiffness = self._backoff_stiffness_g_um(tare_counts, backoff_start_s)
+                if stiffness is not None:
+                    measured_g_um.append(stiffness)
+                    self.home_stiffness_g_um = max(measured_g_um)
             speed = min(speed_mm_s, HOME_CONFIRM_SPEED_MM_S)
         found = ", ".join(f"{z:.3f}" for z in heights)
         if len(reversed_g) == HOME_TAPS:
@@ -561,6 +574,24 @@ class LoadCellProbe:
         raise ProbeError(ERROR_PREFIX + f"G28 Z: {HOME_TAPS} taps found no bed height twice (triggers at Z={found}): "
                          "something pushes or pulls on the nozzle, or the sensor jumps; check the toolhead and the "
                          "load cell, then home again")
+
+    def _backoff_stiffness_g_um(self, tare_counts: float, backoff_start_s: float) -> float | None:
+        """G28 Z: a tap that held like a contact backs off through its decompression, which shows the
+        bed's stiffness (`safety.decompression_stiffness_g_um`, as a bad tap's pullback does; None when
+        too few samples show it). The force guard takes the stiffest such measurement of the last
+        homing, so only the first tap of the first homing (max_bed_stiffness assumed) must be slow."""
+        end_s = self.backend.now_s
+        self._wait_for_samples_to(end_s)
+        t_s, force_g = self._force_between(backoff_start_s, end_s, tare_counts)
+        moves = [Move.from_record(m) for m in self.backend.recorded_moves(backoff_start_s, end_s)
+                 if m["print_time"] >= backoff_start_s - 1e-9]
+        if not moves:
+            return None
+
+        def z_at(t_s: float) -> float:  # the commanded Z: the last move started by then
+            return float(([m for m in moves if m.print_time <= t_s] or moves[:1])[-1].z_at(t_s))
+
+        return safety.decompression_stiffness_g_um(t_s, force_g, z_at, backoff_start_s, end_s)
 
     def _orientation_hint(self, reversed_g: list[float], found: str) -> str:
         """G28 Z's error when every tap pressed the bed but the cell read it as a pull."""
@@ -679,10 +710,17 @@ class LoadCellProbe:
             self.bad_tap_stiffness_g_um = max(min(stiffness, unconfirmed), self.bad_tap_stiffness_g_um or 0.0)
 
     def _guard_stiffness_g_um(self) -> float | None:
-        """What the force guard takes as measured: the valid taps' stiffness, raised by a stiffer
-        bed a bad tap showed."""
-        known = [k for k in (self._known_stiffness_g_um(), self.bad_tap_stiffness_g_um) if k]
-        return max(known) if known else None
+        """What the force guard takes as measured: the valid taps' and G28 Z's backoffs' stiffness,
+        raised by a stiffer bed a bad tap showed. A bad tap's pullback reads a stiff bed low (75 g/um
+        read 36-48 on the virtual printer: the decompression falls between samples), so it only ever
+        raises the assumption: alone it counts only when stiffer than max_bed_stiffness."""
+        measured = [k for k in (self._known_stiffness_g_um(), self.home_stiffness_g_um) if k]
+        bad = self.bad_tap_stiffness_g_um
+        if measured:
+            return max(measured + [bad or 0.0])
+        if bad and bad * safety.MEASURED_STIFFNESS_MARGIN > self.speed_guard.max_bed_stiffness_g_um:
+            return bad
+        return None
 
     def _stuck_in_pullback(self, tap: TapData, options: TapOptions) -> str | None:
         """The real cause when the sensor stopped changing after the halt: the firmware's stuck

@@ -188,8 +188,11 @@ def tare_sample_count(tare_time_s: float, sample_rate_sps: float) -> int:
 # The firmware stops a move on the first raw sample past force_safety_limit, with no quarantine,
 # so a single corrupted frame stops it too. A stop by one sample whose neighbours both read
 # less than the trigger force is such a frame (a real force cannot come and go within two
-# samples): the move is tried again, at most this many times.
+# samples): the move is tried again, at most this many times within CORRUPT_FRAME_WINDOW_S (a slow
+# move is long: G28 Z's first tap on an unmeasured bed runs at 0.8 mm/s, and an occasional
+# corrupted frame must not end it; a sensor that corrupts frames often still does).
 CORRUPT_FRAME_RETRIES = 2
+CORRUPT_FRAME_WINDOW_S = 0.5
 
 
 def lone_sample_past_limit(force_g: np.ndarray, limit_g: float, trigger_force_g: float) -> int | None:

@@ -31,10 +31,12 @@ import numpy as np
 from tapcell import scale
 from tapcell.mcu.trigger import FirmwareTrigger, TriggerError, TriggerParams
 
-# The bed's stiffness (frame, load cell and sheet in series) assumed until taps measure it:
-# stiffer than the toolheads we know (Prusa ~1.5 g/um, the Kalico example ~4.6, the virtual
-# printer 3.26), so the first tap of a stiff machine is still guarded.
-DEFAULT_STIFFNESS_G_UM = 10.0
+# The bed's stiffness (frame, load cell and sheet in series) assumed until taps measure it: a
+# stiff frame with a stiff cell (toolheads we know measure Prusa ~1.5 g/um, the Kalico example
+# ~4.6, the virtual printer 3.26, but a sensor stuck at contact on a 150 g/um bed pressed 7 kg
+# under the old 10 g/um assumption). Until a tap measures the bed, moves toward it go at the
+# speed that is safe on this bed (`SpeedGuard.check`), so the assumption costs one slow approach.
+DEFAULT_STIFFNESS_G_UM = 100.0
 # A measured stiffness is raised by this much: another spot of the bed may be stiffer.
 MEASURED_STIFFNESS_MARGIN = 1.25
 # The softest bed assumed when asking whether a filter can hide a slow tap (a slower force

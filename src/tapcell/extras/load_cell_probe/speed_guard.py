@@ -3,8 +3,11 @@
 Before a probing move (and for the nozzle watch's speed cap) the guard predicts how hard the
 nozzle could press at a speed (`safety.worst_stop`: the firmware trigger itself on ideal contact
 ramps) on the stiffest bed it must assume: the stiffest valid kept tap's stiffness with a margin,
-else `max_bed_stiffness` (10 g/um by default). A speed past [printer] max_z_velocity is capped (said once per
-command); one that could press past force_safety_limit is refused with the safe speed.
+else `max_bed_stiffness` (100 g/um by default). A speed past [printer] max_z_velocity is capped (said once
+per command). A speed that could press past force_safety_limit is refused with the safe speed once taps
+have measured the bed; before that, the move goes at the speed that is safe on the stiffest bed the config
+allows (said once per command), so the first tap of a fresh printer measures its bed slowly instead of
+being refused.
 """
 
 from __future__ import annotations
@@ -28,7 +31,7 @@ class SpeedGuard:
         self._max_z_velocity_mm_s = max_z_velocity_mm_s
         self._known_stiffness_g_um = known_stiffness_g_um
         self._respond_info = respond_info
-        self._notes: set[tuple[float, float]] = set()  # max_z_velocity notes given in this command
+        self._notes: set[tuple] = set()  # the speed notes given in this command
 
     def new_command(self) -> None:
         """A probing command starts: its speed notes are given once again."""
@@ -42,20 +45,28 @@ class SpeedGuard:
             return self.max_bed_stiffness_g_um, False
         return measured * safety.MEASURED_STIFFNESS_MARGIN, True
 
+    def _note_once(self, key: tuple, message: str) -> None:
+        if key not in self._notes:
+            self._notes.add(key)
+            self._respond_info(message)
+
     def check(self, params: TriggerParams, speed_mm_s: float) -> float:
         """The probing speed capped by max_z_velocity; ProbeError (why, and the safe speed) when it
         could press harder than force_safety_limit."""
         max_z_mm_s = self._max_z_velocity_mm_s()
         if speed_mm_s > max_z_mm_s:
-            if (speed_mm_s, max_z_mm_s) not in self._notes:
-                self._notes.add((speed_mm_s, max_z_mm_s))
-                self._respond_info(f"Probing speed {speed_mm_s:g} mm/s is above [printer] max_z_velocity "
-                                   f"({max_z_mm_s:g} mm/s): probing at {max_z_mm_s:g} mm/s")
+            self._note_once((speed_mm_s, max_z_mm_s), f"Probing speed {speed_mm_s:g} mm/s is above [printer] "
+                                                      f"max_z_velocity ({max_z_mm_s:g} mm/s): probing at {max_z_mm_s:g} mm/s")
             speed_mm_s = max_z_mm_s
         stiffness_g_um, measured = self.assumed_stiffness_g_um()
         prediction = safety.worst_stop(params, self.stop_timing, speed_mm_s, stiffness_g_um)
         if safety.exceeds_limit(prediction, params.force_safety_limit_g):
             slower = safety.safe_speed_mm_s(params, self.stop_timing, speed_mm_s, stiffness_g_um)
+            if not measured and slower is not None:
+                self._note_once(("unmeasured", speed_mm_s, slower),
+                                f"Probing at {slower:g} mm/s, not {speed_mm_s:g} mm/s, until a tap measures the bed: "
+                                f"up to {stiffness_g_um:g} g/um is assumed before that (max_bed_stiffness)")
+                return slower
             raise ProbeError(ERROR_PREFIX + safety.speed_refusal(params, self.stop_timing, speed_mm_s, prediction,
                                                                  stiffness_g_um, measured, slower))
         return speed_mm_s
