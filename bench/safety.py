@@ -50,6 +50,8 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
+from tapcell.extras.load_cell_probe.safety import DEFAULT_STIFFNESS_G_UM
+
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "virtual-printer.cfg"
 SPEEDS_MM_S = (1.0, 5.0, 20.0, 50.0)
 # sensor -> ([load_cell_probe] lines, [virtual_printer] lines); the virtual printer takes the chip,
@@ -61,7 +63,8 @@ SENSORS = {
                 "white_noise_counts: 60\n"),
 }
 # The bed's stiffness under the nozzle (frame, cell and sheet in series), g/um: from a soft sheet
-# to the stiffest frame the issue met. None: the example's own (3.26 g/um).
+# to the stiffest frame the issue met. None: the example's own (3.26 g/um). A bed stiffer than
+# max_bed_stiffness's default (100) is declared in its row's config.
 STIFFNESSES_G_UM = (2.0, 10.0, 40.0, 150.0)
 # A drift filter that hides a slow tap on a soft bed: the drift window must stop it.
 DRIFT_FILTER_HZ = 10.0
@@ -242,6 +245,10 @@ def config_text(row: Row, folder: Path) -> str:
     text = text.replace("\nspeed: 5\n", f"\nspeed: {speed:g}\n", 1)
     # Calibrated as LOAD_CELL_CALIBRATE would find it (the virtual cell: 110 counts/g, -38000 at zero).
     extra = "counts_per_gram: 110\nreference_tare_counts: -38000\n"
+    if row.family != "xy" and row.stiffness_g_um is not None and row.stiffness_g_um > DEFAULT_STIFFNESS_G_UM:
+        # A machine stiffer than the guard's default assumption declares it, as its owner must:
+        # the guard holds up to the stiffest bed the config declares (docs/safety.md).
+        extra += f"max_bed_stiffness: {row.stiffness_g_um:g}\n"
     if row.drift_filter:
         extra += f"drift_filter_cutoff_frequency: {DRIFT_FILTER_HZ:g}\n"
     if row.family == "z-move":
