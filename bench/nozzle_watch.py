@@ -68,7 +68,8 @@ CASES = (
     Case("1.3 mm local warp under mesh travel", "BED_MESH_CALIBRATE", bump=(66.0, 15.0, 1.3, 6.0, True)),
     Case("zero reference 1.18 mm above the datum, G1 Z0.2", "BED_MESH_CALIBRATE\nG1 X117.5 Y117.5 Z0.2 F600",
          world="bed_shape: tilted\nbed_tilt_x_mm: 1.0\nbed_tilt_y_mm: 0.5\n", replace=tuple(ZERO_REFERENCE.items())),
-    Case("50 steps of 0.05 mm down", "G91\n" + "G1 Z-0.05 F60\nG4 P200\n" * 50),
+    # From Z 1 (G28 ends at Z 5, too high for 2.5 mm of steps to reach the bed): the last 30 steps press.
+    Case("50 steps of 0.05 mm down from Z 1", "G1 Z1 F600\nG91\n" + "G1 Z-0.05 F60\nG4 P200\n" * 50),
 )
 
 
