@@ -17,14 +17,20 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 
 
+def unavailable(why: str) -> None:
+    """A real component a test needs is missing: a failure under make test (TAPCELL_REAL_PACKAGES=required,
+    where make installs it), else a skip that says why."""
+    if os.environ.get("TAPCELL_REAL_PACKAGES") == "required":
+        pytest.fail(why)
+    pytest.skip(why)
+
+
 def _venv_python(venv: str, package: str) -> Path:
     home = ROOT / venv
     if not list(home.glob(".installed-*")):
         why = (f"{package} is not installed in {venv}: 'make {venv.strip('.').replace('venv-', '')}-venv' "
                "failed or was not run (make test runs it)")
-        if os.environ.get("TAPCELL_REAL_PACKAGES") == "required":
-            pytest.fail(why)
-        pytest.skip(why)
+        unavailable(why)
     return home / "bin" / "python"
 
 

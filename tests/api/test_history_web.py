@@ -11,7 +11,6 @@ is kept in the test's temp folder.
 
 from __future__ import annotations
 
-import os
 import subprocess
 import sys
 import time
@@ -23,6 +22,7 @@ from pathlib import Path
 import pytest
 
 from conftest import free_port, running_stack, stop, wait_for
+from real_packages import unavailable
 
 CHROMIUM = Path("/usr/bin/chromium")
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-background-networking",
@@ -33,12 +33,6 @@ HOSTILE = ["/printer/a?status=%3Cscript%3Ealert(1)%3C/script%3E", "/printer/a?ca
            "/printer/%3Cimg%20src=x%3E", "/printer/a/tap/999999", "/printer/a/tap/99999999999999999999999", "/printer/a?base=abc",
            "/printer/a?mesh=%D9%A3",
            "/api/printer/a/taps?after=%00", "/printer/a?cause=" + "A" * 5000]
-
-
-def _unavailable(why: str):
-    if os.environ.get("TAPCELL_REAL_PACKAGES") == "required":
-        pytest.fail(why)
-    pytest.skip(why)
 
 
 def script(stack, text: str) -> None:
@@ -85,15 +79,15 @@ class Farm:
 @pytest.fixture(scope="module")
 def farm(tmp_path_factory):
     if not CHROMIUM.exists():
-        _unavailable(f"{CHROMIUM} is missing: 'make browser' installs Debian's chromium")
+        unavailable(f"{CHROMIUM} is missing: 'make browser' installs Debian's chromium")
     try:
         import playwright  # noqa: F401
     except ImportError:
-        _unavailable("playwright is not installed: 'make browser' installs it from PyPI")
+        unavailable("playwright is not installed: 'make browser' installs it from PyPI")
     from tapcell.tools.web.app import missing_assets
 
     if missing_assets():
-        _unavailable("uPlot is missing: 'make web-assets' fetches it from the npm registry")
+        unavailable("uPlot is missing: 'make web-assets' fetches it from the npm registry")
     folder = tmp_path_factory.mktemp("farm")
     with running_stack(tmp_path_factory) as a, running_stack(tmp_path_factory) as b:
         farm = Farm(folder, a, b)

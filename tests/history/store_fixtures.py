@@ -7,7 +7,6 @@ helpers with `from conftest import ...`, which a second conftest.py loaded after
 from __future__ import annotations
 
 import itertools
-import os
 import sys
 from pathlib import Path
 
@@ -15,6 +14,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the bench package beside tests/
 from bench._postgres import Cluster, ClusterUnavailable  # noqa: E402  (after the path)
+from api.real_packages import unavailable  # noqa: E402
 
 _names = itertools.count()
 
@@ -25,9 +25,7 @@ def pg_cluster():
         cluster = Cluster()
         cluster.start()
     except ClusterUnavailable as exc:
-        if os.environ.get("TAPCELL_REAL_PACKAGES") == "required":
-            pytest.fail(str(exc))
-        pytest.skip(str(exc))
+        unavailable(str(exc))
     try:
         yield cluster
     finally:
