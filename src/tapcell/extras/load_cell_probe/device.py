@@ -25,6 +25,7 @@ from __future__ import annotations
 import collections
 import contextlib
 import dataclasses
+import functools
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -67,7 +68,7 @@ from tapcell.extras.load_cell_probe.speed_guard import SpeedGuard
 from tapcell.extras.load_cell_probe.trigger_session import TriggerSession
 from tapcell.extras.load_cell_probe.overrides import disabled_protections, refuse_loosening, \
     refuse_misspelled_safety_parameters, refuse_unknown_parameters
-from tapcell.extras.load_cell_probe.threshold import z_at_time_mm
+from tapcell.extras.load_cell_probe.threshold import commanded_z_mm, z_at_time_mm
 from tapcell.scale import counts_to_grams
 from tapcell.tap import AnalysisOptions, Move, TapData, analyze_tap, get_classifier, tap_to_json_dict
 
@@ -587,11 +588,8 @@ class LoadCellProbe:
                  if m["print_time"] >= backoff_start_s - 1e-9]
         if not moves:
             return None
-
-        def z_at(t_s: float) -> float:  # the commanded Z: the last move started by then
-            return float(([m for m in moves if m.print_time <= t_s] or moves[:1])[-1].z_at(t_s))
-
-        return safety.decompression_stiffness_g_um(t_s, force_g, z_at, backoff_start_s, end_s)
+        return safety.decompression_stiffness_g_um(t_s, force_g, functools.partial(commanded_z_mm, moves),
+                                                   backoff_start_s, end_s)
 
     def _orientation_hint(self, reversed_g: list[float], found: str) -> str:
         """G28 Z's error when every tap pressed the bed but the cell read it as a pull."""
@@ -696,11 +694,8 @@ class LoadCellProbe:
         instead of failing the same way again and again."""
         if not tap.moves:
             return
-
-        def z_at(t_s: float) -> float:  # the commanded Z: the last move started by then
-            return float(([m for m in tap.moves if m.print_time <= t_s] or tap.moves[:1])[-1].z_at(t_s))
-
-        stiffness = safety.decompression_stiffness_g_um(tap.time_s, tap.force_g, z_at,
+        stiffness = safety.decompression_stiffness_g_um(tap.time_s, tap.force_g,
+                                                        functools.partial(commanded_z_mm, tap.moves),
                                                         tap.events["pullback_start_time"],
                                                         tap.events["pullback_end_time"])
         # Two such taps in a row must agree: one pullback disturbed by a tug or a touch does not count.

@@ -42,11 +42,15 @@ class ThresholdHit:
     contact: bool = True  # Z moves: the force held after the halt like a nozzle pressing on the bed
 
 
-def z_at_time_mm(move_records: list[dict], t_s: float) -> float:
-    """Commanded Z at t_s: the last move started by then (the simulator's move records)."""
-    moves = [Move.from_record(record) for record in move_records]
+def commanded_z_mm(moves: list[Move], t_s: float) -> float:
+    """Commanded Z at t_s: the last of `moves` started by then (the first, before any)."""
     started = [move for move in moves if move.print_time <= t_s] or moves[:1]
     return float(started[-1].z_at(t_s))
+
+
+def z_at_time_mm(move_records: list[dict], t_s: float) -> float:
+    """Commanded Z at t_s from the simulator's move records."""
+    return commanded_z_mm([Move.from_record(record) for record in move_records], t_s)
 
 
 class ThresholdProber:
