@@ -9,10 +9,13 @@ codes. Taps from tapcell.tap.synth (its own contact physics).
 """
 
 import dataclasses
+import json
+import tarfile
 
 import pytest
 
-from tapcell.tap import analyze_tap
+from tapcell.tap import analyze_tap, read_tap_file
+from tapcell.taplab.benchmark import default_reference_archive
 from tapcell.tap.synth import synth_tap
 from tapcell.tap.validate import STILL_PRESSING_SCATTERS, TapInvalid, check_left_the_bed
 
@@ -42,18 +45,50 @@ def test_a_cable_pulling_another_way_on_the_way_up_is_measured(seed, share):
 
 @pytest.mark.parametrize("seed", [0, 1, 2])
 def test_a_strand_pulling_the_nozzle_is_still_adhesion(seed):
-    # 20 g peaking 40 um above contact: the toe would read it as contact, +8.6..+9.8 um.
+    # 20 g peaking 40 um above contact: the toe would read it as contact, +8.6..+9.8 um. A 0.2 mm
+    # pullback rises far enough above contact to show the force dipping below its own free-air
+    # level (6.0-6.3 g, over 4 x the 0.7 g noise).
     analysis = analyze_tap(synth_tap(seed=seed, noise_g=0.7, sample_rate_sps=320, pull_force_g=20.0,
-                                     pull_length_um=40.0))
+                                     pull_length_um=40.0, pullback_distance_mm=0.2))
     assert analysis.error == "TAP_ADHESION"
+    assert "dips" in analysis.message
+    # A 0.1 mm pullback ends ~45 um above contact, before the strand lets go: no dip to see, and a
+    # departure offset alone is no thread (a bowden's shift looks the same). What the tap shows is
+    # the force falling along a ramp above the contact found: still rejected, as a soft layer.
+    short = analyze_tap(synth_tap(seed=seed, noise_g=0.7, sample_rate_sps=320, pull_force_g=20.0,
+                                  pull_length_um=40.0))
+    assert short.error == "TAP_TWO_STAGE_CONTACT"
+    assert "a film of ooze" in short.message
 
 
-def test_a_shift_the_pullback_is_too_short_to_judge_stays_adhesion():
-    # A 0.1 mm pullback ends ~70 um above contact: a strand that peaks 40 um up has not let go
-    # there, so a constant departure offset cannot be told from it (seed 4: 7.5 g down).
+def test_a_shift_the_pullback_is_too_short_to_judge_is_measured():
+    # A 0.1 mm pullback ends ~45 um above contact. A constant departure offset (seed 4: 7.5 g down,
+    # 5 % of the compression) with no force lost in the dwell shows no thread: before, it read
+    # TAP_ADHESION, as a reference bowden tap did (18.5 g, 7 %, Z within 0.04 um of the truth).
     tap = synth_tap(seed=4, noise_g=0.7, sample_rate_sps=320, pullback_distance_mm=0.1)
-    assert analyze_tap(tap).valid
-    assert analyze_tap(_shifted_on_the_way_up(tap, -0.1 * TRIGGER_G)).error == "TAP_ADHESION"
+    plain = analyze_tap(tap)
+    shifted = analyze_tap(_shifted_on_the_way_up(tap, -0.1 * TRIGGER_G))
+    assert plain.valid and shifted.valid, shifted.message
+    assert shifted.z_mm == pytest.approx(plain.z_mm, abs=1e-5 / 1000)  # measured: 2e-12 um apart
+
+
+def _relaxing_in_the_dwell(share: float, seed: int = 4):
+    """A 0.1 mm pullback tap whose contact force relaxes by `share` during the dwell (plastic
+    flowing out from under the nozzle, in tap.synth's relaxation term)."""
+    return synth_tap(seed=seed, noise_g=0.7, sample_rate_sps=320, pullback_distance_mm=0.1,
+                     relaxation_fraction=share, relaxation_time_s=0.05)
+
+
+@pytest.mark.parametrize("seed", [4, 5])
+def test_plastic_under_the_nozzle_that_holds_it_is_adhesion(seed):
+    # A dwell losing 20 % of the compression and a departure 6 % below the approach's level: a
+    # film of plastic (reference mild ooze: such taps read +4..+25 um, two beyond 20 um valid).
+    film = analyze_tap(_shifted_on_the_way_up(_relaxing_in_the_dwell(0.2, seed), -0.06 * 150.0))
+    assert film.error == "TAP_ADHESION"
+    assert "during the dwell" in film.message and "plastic flowed from under the nozzle" in film.message
+    # Either alone is no cause: the dwell drop without the pull, the pull without the dwell drop.
+    assert analyze_tap(_relaxing_in_the_dwell(0.2, seed)).valid
+    assert analyze_tap(_shifted_on_the_way_up(_relaxing_in_the_dwell(0.03, seed), -0.06 * 150.0)).valid
 
 
 def test_still_pressing_must_stand_clear_of_the_departures_scatter():
@@ -64,3 +99,38 @@ def test_still_pressing_must_stand_clear_of_the_departures_scatter():
     # ... and a swing of the hum on a departure scattering 4 g (12 g < 4 x 4 g): not a cause.
     check_left_the_bed(pressed_g=150.0, remaining_g=12.0, scatter_g=4.0)
     assert STILL_PRESSING_SCATTERS == 4.0
+
+
+# Reference taps (../shared/data/reference-taps.tar.xz, another generator's physics) that were
+# rejected for a cause they do not show, or accepted with a cause they do (issue 21), with the truth.
+REFERENCE_CASES = {
+    # A bowden shift of 18.5 g (7 % of the compression) on a 43 um departure: was TAP_ADHESION.
+    "bowden_drift_0043.json": None,
+    # Soft sheets whose toe the sharp model misfits 3.7 x and 2.9 x the noise (the toe: 1.2 x at
+    # most): was LOW_TAP_QUALITY for misfit.
+    "soft_sheet_0032.json": None,
+    "soft_sheet_0052.json": None,
+    # Mild ooze read +20.6 and +24.9 um valid (z_sigma_um 2.3 and 1.5): a dwell drop of 21 and 32 %
+    # and a departure 12 % below the approach's level.
+    "ooze_mild_0013.json": "TAP_ADHESION",
+    "ooze_mild_0057.json": "TAP_ADHESION",
+}
+
+
+def test_reference_taps_are_rejected_only_for_a_cause_they_show(tmp_path):
+    archive = default_reference_archive()
+    if not archive.exists():
+        pytest.skip(f"reference taps not found at {archive} (../shared/data from the repository root)")
+    with tarfile.open(archive) as packed:
+        members = [m for m in packed.getmembers() if m.name.rsplit("/", 1)[-1] in {*REFERENCE_CASES, "labels.jsonl"}]
+        packed.extractall(tmp_path, members=members, filter="data")
+    paths = {p.name: p for p in tmp_path.rglob("*.json")}
+    truth = {}
+    for line in next(tmp_path.rglob("labels.jsonl")).read_text().splitlines():
+        row = json.loads(line)
+        truth[row["file"]] = row["z_contact_mm"]
+    for name, code in REFERENCE_CASES.items():
+        analysis = analyze_tap(read_tap_file(str(paths[name]))[0])
+        assert analysis.error == code, (name, analysis.message)
+        if code is None:  # measured: within 0.7 um of the truth
+            assert abs(analysis.z_mm - truth[name]) * 1000.0 < 2.0, name
