@@ -247,11 +247,13 @@ class Decomposition:
 
 
 def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_samples: int,
-              period: float) -> tuple[Decomposition, PrefixSums]:
-    """Five lines and six points of a positive-polarity tap (`period`: the sample period, s)."""
+              period: float, from_s: float | None = None) -> tuple[Decomposition, PrefixSums]:
+    """Five lines and six points of a positive-polarity tap (`period`: the sample period, s), over
+    the samples from `from_s` (default: a pullback's duration, at least 8 samples, before the halt)."""
     n = len(time_s)
     duration = motion.pullback_duration_s
-    start, last = _indices(time_s, motion.home_end_s - max(duration, 8 * period), motion.pullback_end_s + duration)
+    window_start_s = motion.home_end_s - max(duration, 8 * period) if from_s is None else from_s
+    start, last = _indices(time_s, window_start_s, motion.pullback_end_s + duration)
     stop = min(n, last + 1)
     t = time_s[start:stop]
     ps = prefix_sums(t, force_g[start:stop])
@@ -272,6 +274,29 @@ def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_sampl
     lines = segment_lines(ps, [0, *bounds, m])
     points = recompute_points(lines, float(t[0]), float(t[-1]))
     return Decomposition(start, stop, bounds, lines, points), ps
+
+
+def decompose_from_the_approach(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_samples: int,
+                                period: float, first: tuple[Decomposition, PrefixSums]
+                                ) -> tuple[Decomposition, PrefixSums]:
+    """The five lines again over the samples from the approach move's start on, when the first
+    split's points were out of time order and its window began before the approach moved; else
+    (or when that is out of order too) the first split.
+
+    Free air before the approach is flat in time, and a bowden or cable pulling in proportion to Z
+    ramps during it: two lines, not one. When the compression lasts a sample or two (8.4 mm/s at
+    320 sps), the best split then takes the ramp for the compression and its points fall out of
+    order (reference bowden drift: one clean tap of 80 was TAP_CHRONOLOGY). Taps whose points are
+    in order are never split again, so their Z stays what it was.
+    """
+    if not motion.moves:
+        return first
+    approach_start_s = motion.moves[-5].print_time
+    dec = first[0]
+    if not time_s[dec.start] < approach_start_s < motion.home_end_s - 8 * period:
+        return first
+    again = decompose(time_s, force_g, motion, lag_samples, period, approach_start_s)
+    return again if validate.in_time_order(again[0].points) else first
 
 
 def _segment_stats(ps: PrefixSums, i: int, j: int) -> tuple[float, float, float]:
@@ -720,6 +745,8 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> tuple[SplitTap, int, in
     lag_samples = math.ceil((allowance + timing.integration_s) / period_s) + LAG_MARGIN_SAMPLES
     force, hum = remove_mains_hum(tap, options, time_s, force, motion, timing, lag_samples, period_s)
     dec, ps = decompose(time_s, force, motion, lag_samples, period_s)
+    if not validate.in_time_order(dec.points):
+        dec, ps = decompose_from_the_approach(time_s, force, motion, lag_samples, period_s, (dec, ps))
     # Second differences of the whole analysed window: hundreds of samples even when the
     # approach holds a dozen; the four kinks of a tap cannot move their median.
     noise_g = noise_sigma_g(force[dec.start:dec.stop])

@@ -130,11 +130,16 @@ def check_left_the_bed(pressed_g: float, remaining_g: float, scatter_g: float = 
                          "lengthen pullback_distance (LOAD_CELL_PROBE_CALIBRATE CALIBRATION=PULLBACK_DISTANCE finds it)")
 
 
+def in_time_order(points: list[tuple[float, float]]) -> bool:
+    """The points' times are finite and strictly increasing (the spec's chronology)."""
+    times = [t for t, _ in points]
+    return all(math.isfinite(t) for t in times) and all(a < b for a, b in zip(times, times[1:]))
+
+
 def check_points(points: list[tuple[float, float]], angles_deg: list[float]) -> None:
     """Chronology of the six points, then the shape (signs of the angles), positive polarity."""
     times = [t for t, _ in points]
-    ordered = all(math.isfinite(t) for t in times) and all(a < b for a, b in zip(times, times[1:]))
-    if not ordered:
+    if not in_time_order(points):
         listed = ", ".join(f"P{k}={t:.4f}" for k, t in enumerate(times))
         raise TapInvalid(TAP_CHRONOLOGY, f"tap points out of time order ({listed} s)")
     signs = tuple((a > 0) - (a < 0) for a in angles_deg)  # np.sign without a numpy call per angle
