@@ -12,6 +12,7 @@ import dataclasses
 import json
 import tarfile
 
+import numpy as np
 import pytest
 
 from tapcell.tap import analyze_tap, read_tap_file
@@ -89,6 +90,47 @@ def test_plastic_under_the_nozzle_that_holds_it_is_adhesion(seed):
     # Either alone is no cause: the dwell drop without the pull, the pull without the dwell drop.
     assert analyze_tap(_relaxing_in_the_dwell(0.2, seed)).valid
     assert analyze_tap(_shifted_on_the_way_up(_relaxing_in_the_dwell(0.03, seed), -0.06 * 150.0)).valid
+
+
+def _contact_sign(tap) -> float:
+    middle = np.median(tap.force_g)
+    return float(np.sign(tap.force_g[np.argmax(np.abs(tap.force_g - middle))] - middle))
+
+
+def _walking_up_from_the_pullback(tap, rise_g: float):
+    """The baseline walking `rise_g` up (in the contact's direction) over the pullback, then level."""
+    start_s, end_s = tap.moves[-3].print_time, tap.moves[-1].print_time + tap.moves[-1].move_t
+    ramp = np.clip((tap.time_s - start_s) / (end_s - start_s), 0.0, 1.0)
+    return dataclasses.replace(tap, force_g=tap.force_g + _contact_sign(tap) * rise_g * ramp)
+
+
+def _stepping_after_the_pullback(tap, step_g: float):
+    """The baseline stepping `step_g` up once the pullback has ended (a walk while the nozzle stands)."""
+    end_s = tap.moves[-1].print_time + tap.moves[-1].move_t
+    force = tap.force_g.copy()
+    force[tap.time_s > end_s + 0.003] += _contact_sign(tap) * step_g
+    return dataclasses.replace(tap, force_g=force)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_baseline_walking_up_over_the_departure_is_not_adhesion(seed):
+    # 10 g over the 0.2 mm pullback: the departure's level further up stands above the approach's
+    # free air, and the "dip" below it near contact lies no lower than that free air. Was
+    # TAP_ADHESION (taplab seed 2 cable drift: 3 to 5 g in 0.3 s, 3 of 100 clean taps).
+    tap = synth_tap(seed=seed, noise_g=0.7, sample_rate_sps=320, pullback_distance_mm=0.2)
+    walked = analyze_tap(_walking_up_from_the_pullback(tap, 10.0))
+    assert walked.valid, walked.message
+    assert abs(walked.z_mm - analyze_tap(tap).z_mm) * 1000.0 < 1.0  # measured -0.24..-0.34 um
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_samples_read_after_the_pullback_are_no_free_air_level(seed):
+    # A 0.12 mm pullback and 0.3 s of samples after it, all at its top height: 6 g of walk while the
+    # nozzle stood there made the adhesion check's level and a 6 g "dip" (was TAP_ADHESION).
+    tap = synth_tap(seed=seed, noise_g=0.7, sample_rate_sps=320, pullback_distance_mm=0.12, tail_s=0.3)
+    stepped = analyze_tap(_stepping_after_the_pullback(tap, 6.0))
+    assert stepped.valid, stepped.message
+    assert stepped.z_mm == pytest.approx(analyze_tap(tap).z_mm, abs=0.2e-3)  # measured within 0.02 um
 
 
 def test_still_pressing_must_stand_clear_of_the_departures_scatter():
