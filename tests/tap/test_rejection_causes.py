@@ -17,6 +17,7 @@ import pytest
 
 from tapcell.tap import analyze_tap, read_tap_file
 from tapcell.taplab.benchmark import default_reference_archive
+from tapcell.tap.motion import tap_motion
 from tapcell.tap.synth import synth_tap
 from tapcell.tap.validate import STILL_PRESSING_SCATTERS, TapInvalid, check_left_the_bed
 
@@ -131,6 +132,32 @@ def test_samples_read_after_the_pullback_are_no_free_air_level(seed):
     stepped = analyze_tap(_stepping_after_the_pullback(tap, 6.0))
     assert stepped.valid, stepped.message
     assert stepped.z_mm == pytest.approx(analyze_tap(tap).z_mm, abs=0.2e-3)  # measured within 0.02 um
+
+
+def _with_a_cable(tap, g_per_mm: float, approach_only: bool = False):
+    """A cable pulling `g_per_mm` per mm the nozzle descends, in the contact's direction (synth taps
+    rise with contact); `approach_only`: a force that tilts the approach alone and then stays."""
+    z_mm = tap_motion(tap).z_at(tap.time_s)
+    pull_g = g_per_mm * (z_mm[0] - z_mm)
+    if approach_only:
+        halt = int(np.searchsorted(tap.time_s, tap.moves[-4].print_time))
+        pull_g[halt:] = pull_g[halt]
+    return dataclasses.replace(tap, force_g=tap.force_g + pull_g)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_cables_drift_is_not_force_on_the_approach(seed):
+    # 40 g/mm over the 2 mm approach: the spec's approach component reads 52 % (over its 50 % cutoff,
+    # LOW_TAP_QUALITY as taplab's 37 g/mm cable was), but the departure shows the same drift per um.
+    tap = synth_tap(seed=seed, noise_g=0.7, sample_rate_sps=320, pullback_distance_mm=0.2)
+    cable = analyze_tap(_with_a_cable(tap, 40.0))
+    assert cable.valid, cable.message
+    assert cable.quality_components["approach"] < 0.03  # measured 0.000-0.024
+    assert abs(cable.z_mm - analyze_tap(tap).z_mm) * 1000.0 < 0.1  # measured within 0.02 um
+    # The same tilt on the approach alone (something met before the bed) keeps its component.
+    tilted = analyze_tap(_with_a_cable(tap, 40.0, approach_only=True))
+    assert tilted.error == "LOW_TAP_QUALITY"
+    assert tilted.quality_components["approach"] == pytest.approx(0.519, abs=0.01)
 
 
 def test_still_pressing_must_stand_clear_of_the_departures_scatter():

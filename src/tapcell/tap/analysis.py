@@ -103,6 +103,13 @@ ADHESION_MIN_DIP_FRACTION = 0.01
 # tap.synth's 10 g strand peaking 40 um up, +1.5..+3.9 um of Z, 0.7. A departure too short to show
 # a change (under THREAD_FAR_MIN_UM above contact) with no plastic in the dwell shows no thread: a
 # bowden shift of 7 % on a 43 um departure read Z within 0.04 um and was rejected as TAP_ADHESION.
+# The departure confirms the approach's free-air drift (`departure_drift_share`) from this high above
+# contact on (past the toe and most of a thread), over at least this many samples, within this
+# share of it: a walk of 1-4 g/sqrt(s) over a 0.2 mm departure moves its slope by 47-58 % of taplab's
+# 10-40 g/mm cables (median; 36 % on the one tap the approach component rejected).
+DRIFT_FROM_UM = 10.0
+DRIFT_MIN_SAMPLES = 10
+DRIFT_AGREEMENT = 0.6
 THREAD_MIN_SHARE = 0.15
 THREAD_LEVEL_CHANGE = 0.2
 THREAD_FAR_MIN_UM = 100.0
@@ -603,6 +610,26 @@ def dip_below_both_references_g(samples: PullbackSamples, drift_g_um: float, con
     return dip_g + min(level_pull_g, 0.0) if level_pull_g is not None else dip_g
 
 
+def departure_drift_share(samples: PullbackSamples, contact_um: float, drift_g_um: float) -> float:
+    """How much of the approach's free-air drift (g per µm of height, from its line) the departure
+    shows too: min(k_departure / k_approach, 1) when the departure's own slope against height, from
+    DRIFT_FROM_UM above contact on, has the approach's sign and lies within DRIFT_AGREEMENT of it;
+    else 0 (molten plastic met before the bed tilts the approach alone).
+
+    A cable or bowden pulling in proportion to Z tilts both; the spec's approach component, meant
+    for plastic under the nozzle, read taplab's 37 g/mm cable as 60 % (LOW_TAP_QUALITY).
+    """
+    x_um = 0.5 * (samples[0] + samples[1]) - contact_um
+    free = x_um > DRIFT_FROM_UM
+    if np.count_nonzero(free) < DRIFT_MIN_SAMPLES or drift_g_um == 0.0:
+        return 0.0
+    x_um = x_um[free] - x_um[free].mean()
+    departure_g_um = float(x_um @ samples[2][free]) / float(x_um @ x_um)
+    if departure_g_um / drift_g_um <= 0.0 or abs(departure_g_um - drift_g_um) > DRIFT_AGREEMENT * abs(drift_g_um):
+        return 0.0
+    return min(departure_g_um / drift_g_um, 1.0)
+
+
 def _plastic_film(pull_g: float, dwell_drop_share: float, compression_force_g: float, noise_g: float) -> bool:
     """A film of plastic under the nozzle: the dwell drops PLASTIC_DWELL_DROP_SHARE of the compression
     and the departure lies PLASTIC_PULL_SHARE of it (and PLASTIC_PULL_NOISE noise sigmas) below the
@@ -913,10 +940,12 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     result.z_method = "toe"
     result.contact_onset_um = toe.width_um
     result.stiffness_decompression_g_um = toe.stiffness_g_um
-    check_adhesion(read_while_rising(samples, window, motion, window_delay_s), motion, timing, dec, drift_g_um,
-                   toe.contact_um, split.noise_g, approach_wander, result.compression_force_g)
+    rising = read_while_rising(samples, window, motion, window_delay_s)
+    check_adhesion(rising, motion, timing, dec, drift_g_um, toe.contact_um, split.noise_g, approach_wander,
+                   result.compression_force_g)
     check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, split.noise_g, approach_wander,
                      toe.stiffness_g_um)
+    result.approach_drift_share = departure_drift_share(rising, toe.contact_um, drift_g_um)
     # The quality classifier's misfit judges the model that set Z: a soft sheet's toe misfits the
     # sharp model by up to 3.7 x the noise (reference soft sheet, 2 of 80 taps LOW_TAP_QUALITY),
     # while the toe explains it to 1.2 x at most (tapcell.tap.classifiers.MISFIT_TOLERANCE 1.25).

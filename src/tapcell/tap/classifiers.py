@@ -103,12 +103,14 @@ class EmptyClassifier:
 
 def quality_components(points: list[tuple[float, float]], decompression_slope_g_s: float,
                        stiffness_ratio: float | None, decompression_angle: float | None,
-                       noise_to_residual: float | None = None) -> dict[str, float]:
-    """The ratios of the quality score (fractions, not percent). Needs a nonzero compression force."""
+                       noise_to_residual: float | None = None, approach_drift_share: float = 0.0) -> dict[str, float]:
+    """The ratios of the quality score (fractions, not percent). Needs a nonzero compression force.
+    `approach_drift_share`: the share of the approach's force change the departure shows to be a
+    cable's drift (TapAnalysis.approach_drift_share), left out of the approach component."""
     f = [force for _, force in points]
     compression = abs(f[2] - f[1])
     components = {
-        "approach": abs(f[1] - f[0]) / compression,
+        "approach": (1.0 - approach_drift_share) * abs(f[1] - f[0]) / compression,
         "departure": abs(f[5] - f[4]) / compression,
         "baseline": abs(f[1] - f[4]) / compression,
         "dwell_drop": abs(f[2] - f[3]) / compression,
@@ -204,7 +206,8 @@ class TapQualityClassifier:
             explained_g = math.hypot(analysis.noise_sigma_g or 0.0, analysis.step_sigma_g or 0.0)
             noise_to_residual = explained_g / analysis.fit_residual_sigma_g
         components = quality_components(analysis.points, analysis.lines[3][0], ratio,
-                                        self.options.decompression_angle, noise_to_residual)
+                                        self.options.decompression_angle, noise_to_residual,
+                                        analysis.approach_drift_share)
         quality = quality_score(components, self.cutoffs)
         if quality < self.options.min_tap_quality:
             worst = limiting_component(components, self.cutoffs)

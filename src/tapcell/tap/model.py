@@ -310,6 +310,9 @@ class TapAnalysis:
     z_sharp_sigma_um: float | None = field(default=None, repr=False, compare=False)
     z_pooled_mm: float | None = None  # Z with the toe shared by the taps at one spot (tapcell.tap.pool)
     z_pooled_sigma_um: float | None = None
+    # The share of the approach's force change that the departure shows to be a drift in proportion
+    # to Z (a cable, a bowden): the quality classifier's approach component leaves it out.
+    approach_drift_share: float = field(default=0.0, repr=False, compare=False)
 
     def to_json(self) -> dict[str, Any]:
         return {
