@@ -186,6 +186,12 @@ REFERENCE_CASES = {
     # under 106 g), or a hum swing (8 g noise; compression 60.1 g under 65 g): LOW_COMPRESSION_FORCE.
     "bowden_drift_0050.json": None,
     "noisy_mains_0077.json": None,
+    # A compression of 2 samples under a 20 g hum: the split took the approach for the compression
+    # (TAP_CHRONOLOGY), then the models' stiffnesses parted by 70 % where the lines' agree.
+    "noisy_mains_0034.json": None,
+    # The toe's stiffness near contact (1.90 g/um) against the compression fit's (1.22): 55 %, the
+    # lines 1.27 against 1.30 (was LOW_TAP_QUALITY for stiffness).
+    "noisy_mains_0049.json": None,
     # Mild ooze read +20.6 and +24.9 um valid (z_sigma_um 2.3 and 1.5): a dwell drop of 21 and 32 %
     # and a departure 12 % below the approach's level.
     "ooze_mild_0013.json": "TAP_ADHESION",
@@ -208,7 +214,7 @@ def test_reference_taps_are_rejected_only_for_a_cause_they_show(tmp_path):
     for name, code in REFERENCE_CASES.items():
         analysis = analyze_tap(read_tap_file(str(paths[name]))[0])
         assert analysis.error == code, (name, analysis.message)
-        if code is None:  # measured: +0.04, -0.69, -1.53, -0.78, +2.89, +1.40 um (within 1.9 z_sigma_um)
+        if code is None:  # measured: +0.04, -0.69, -1.53, -0.78, +2.89, +1.40, +1.59, -0.08 um (< 1.9 z_sigma_um)
             assert abs(analysis.z_mm - truth[name]) * 1000.0 < 4.0, name
 
 

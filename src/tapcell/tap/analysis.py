@@ -259,9 +259,11 @@ class Decomposition:
 
 
 def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_samples: int,
-              period: float, from_s: float | None = None) -> tuple[Decomposition, PrefixSums]:
+              period: float, from_s: float | None = None, approach_share: float = 0.0
+              ) -> tuple[Decomposition, PrefixSums]:
     """Five lines and six points of a positive-polarity tap (`period`: the sample period, s), over
-    the samples from `from_s` (default: a pullback's duration, at least 8 samples, before the halt)."""
+    the samples from `from_s` (default: a pullback's duration, at least 8 samples, before the halt);
+    the approach line holds at least `approach_share` of the samples before the halt."""
     n = len(time_s)
     duration = motion.pullback_duration_s
     window_start_s = motion.home_end_s - max(duration, 8 * period) if from_s is None else from_s
@@ -276,7 +278,7 @@ def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_sampl
     release = range(max(pull_start - 1, 0), min(m - 2, max(pull_start, pull_cruise) + lag_samples) + 1)
     if len(peak) == 0 or len(release) == 0:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, "no samples between the halt and the pullback")
-    contact = range(2, peak[-1] - 1)
+    contact = range(max(2, int(approach_share * home_end)), peak[-1] - 1)
     breaking = range(release[0] + 2, m - 1)
     if len(contact) == 0 or len(breaking) == 0:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, f"too few samples around the tap ({m} in the analysis window)")
@@ -288,27 +290,35 @@ def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_sampl
     return Decomposition(start, stop, bounds, lines, points), ps
 
 
-def decompose_from_the_approach(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_samples: int,
-                                period: float, first: tuple[Decomposition, PrefixSums]
-                                ) -> tuple[Decomposition, PrefixSums]:
-    """The five lines again over the samples from the approach move's start on, when the first
-    split's points were out of time order and its window began before the approach moved; else
-    (or when that is out of order too) the first split.
+# A retried split's approach holds at least this share of the samples before the halt: the approach
+# crosses hundreds of um of free air, the compression tens (a contact found in the approach's first
+# half would make the compression longer than the approach itself).
+RETRY_APPROACH_SHARE = 0.5
+
+
+def decompose_again(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_samples: int, period: float,
+                    first: tuple[Decomposition, PrefixSums]) -> tuple[Decomposition, PrefixSums]:
+    """The five lines again when the first split's points were out of time order: over the samples
+    from the approach move's start on, when its window began before the approach moved, then with
+    the approach line holding at least RETRY_APPROACH_SHARE of the samples before the halt; the
+    first that is in order, else the first split.
 
     Free air before the approach is flat in time, and a bowden or cable pulling in proportion to Z
     ramps during it: two lines, not one. When the compression lasts a sample or two (8.4 mm/s at
     320 sps), the best split then takes the ramp for the compression and its points fall out of
-    order (reference bowden drift: one clean tap of 80 was TAP_CHRONOLOGY). Taps whose points are
-    in order are never split again, so their Z stays what it was.
+    order (reference bowden drift: one clean tap of 80 was TAP_CHRONOLOGY). A compression of three
+    samples under a 20 g mains hum let the best split take the whole approach for the compression
+    and leave 3 samples to the approach (reference noisy mains: one clean tap of 80). Taps whose
+    points are in order are never split again, so their Z stays what it was.
     """
-    if not motion.moves:
-        return first
-    approach_start_s = motion.moves[-5].print_time
-    dec = first[0]
-    if not time_s[dec.start] < approach_start_s < motion.home_end_s - 8 * period:
-        return first
-    again = decompose(time_s, force_g, motion, lag_samples, period, approach_start_s)
-    return again if validate.in_time_order(again[0].points) else first
+    retries: list[dict] = [{"approach_share": RETRY_APPROACH_SHARE}]
+    if motion.moves and time_s[first[0].start] < motion.moves[-5].print_time < motion.home_end_s - 8 * period:
+        retries.insert(0, {"from_s": motion.moves[-5].print_time})
+    for retry in retries:
+        again = decompose(time_s, force_g, motion, lag_samples, period, **retry)
+        if validate.in_time_order(again[0].points):
+            return again
+    return first
 
 
 def _segment_stats(ps: PrefixSums, i: int, j: int) -> tuple[float, float, float]:
@@ -808,7 +818,7 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> tuple[SplitTap, int, in
     force, hum = remove_mains_hum(tap, options, time_s, force, motion, timing, lag_samples, period_s)
     dec, ps = decompose(time_s, force, motion, lag_samples, period_s)
     if not validate.in_time_order(dec.points):
-        dec, ps = decompose_from_the_approach(time_s, force, motion, lag_samples, period_s, (dec, ps))
+        dec, ps = decompose_again(time_s, force, motion, lag_samples, period_s, (dec, ps))
     # Second differences of the whole analysed window: hundreds of samples even when the
     # approach holds a dozen; the four kinks of a tap cannot move their median.
     noise_g = noise_sigma_g(force[dec.start:dec.stop])
@@ -982,6 +992,22 @@ def compression_stiffness(split: SplitTap, window: ModelWindow, fits: ContactFit
     if result.compression_samples >= MIN_COMPRESSION_SAMPLES:
         result.stiffness_compression_g_um = (fits.compression.stiffness_g_um if fits.compression else
                                              abs(split.dec.compression_line[0]) / (motion.approach_speed_mm_s * 1000.0))
+        result.line_stiffness_ratio = line_stiffness_ratio(split.dec, motion)
+
+
+def line_stiffness_ratio(dec: Decomposition, motion: Motion) -> float | None:
+    """The decompression line's stiffness over the compression line's (each slope over its speed, g/um).
+
+    The quality classifier's stiffness component compares the two sides with one estimator: the
+    models' stiffnesses come from different spans (the compression fit over the whole over-travel,
+    the toe within 30 um of contact) and parted by 55-70 % on clean taps under a mains hum the
+    analysis was not told of, where the lines agreed within 45 % (reference noisy mains: 2 of 80
+    clean taps LOW_TAP_QUALITY for stiffness). Over both sets the lines part by 20 % at most on
+    other clean taps; ooze that halves the decompression's stiffness shows in both.
+    """
+    compression_g_um = abs(dec.compression_line[0]) / motion.approach_speed_mm_s
+    decompression_g_um = abs(dec.decompression_line[0]) / motion.pullback_speed_mm_s
+    return decompression_g_um / compression_g_um if compression_g_um > 0 else None
 
 
 def mains_frequencies_hz(tap: TapData, options: AnalysisOptions) -> tuple[float, ...] | str | None:

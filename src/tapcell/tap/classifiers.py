@@ -166,7 +166,8 @@ class TapQualityClassifier:
     Components are ratios to the compression force (approach, departure, baseline, dwell
     drop), the normalized decompression angle when `decompression_angle` is calibrated,
     and `stiffness`: |1 - k_decompression / k_compression| with both stiffnesses in g/µm
-    (force slope over speed). Unlike the angle it does not saturate near 90°: ooze or a
+    (the lines' force slope over speed, `TapAnalysis.line_stiffness_ratio`; the models' when a
+    caller gives no line ratio). Unlike the angle it does not saturate near 90°: ooze or a
     loose sheet that halves the decompression stiffness costs 50 %, whatever the speeds.
     And `misfit`: 1 - 1.25 × noise sigma / contact-model residual sigma over the pullback. A clean
     decompression is explained to the noise (misfit ≈ 0); a film of ooze or a string pulling
@@ -198,8 +199,8 @@ class TapQualityClassifier:
                                   f"decompression force {decompression:.1f} g is below "
                                   f"{MIN_DECOMPRESSION_TO_TRIGGER:g} x the trigger force {trigger:.1f} g: the "
                                   f"force fell away during the dwell")
-        ratio = None
-        if analysis.stiffness_compression_g_um and analysis.stiffness_decompression_g_um:
+        ratio = analysis.line_stiffness_ratio  # one estimator on both sides (analysis.line_stiffness_ratio)
+        if ratio is None and analysis.stiffness_compression_g_um and analysis.stiffness_decompression_g_um:
             ratio = analysis.stiffness_decompression_g_um / analysis.stiffness_compression_g_um
         noise_to_residual = None
         if analysis.fit_residual_sigma_g:

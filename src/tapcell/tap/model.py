@@ -313,6 +313,9 @@ class TapAnalysis:
     # The share of the approach's force change that the departure shows to be a drift in proportion
     # to Z (a cable, a bowden): the quality classifier's approach component leaves it out.
     approach_drift_share: float = field(default=0.0, repr=False, compare=False)
+    # The decompression line's stiffness over the compression line's, when the compression stiffness
+    # is measured (the quality classifier's stiffness component).
+    line_stiffness_ratio: float | None = field(default=None, repr=False, compare=False)
 
     def to_json(self) -> dict[str, Any]:
         return {
