@@ -108,6 +108,7 @@ ADHESION_MIN_DIP_FRACTION = 0.01
 # share of it: a walk of 1-4 g/sqrt(s) over a 0.2 mm departure moves its slope by 47-58 % of taplab's
 # 10-40 g/mm cables (median; 36 % on the one tap the approach component rejected).
 DRIFT_FROM_UM = 10.0
+DRIFT_MATERIAL_SHARE = 0.05  # looked for only when the approach changes by this share of the compression
 DRIFT_MIN_SAMPLES = 10
 DRIFT_AGREEMENT = 0.6
 THREAD_MIN_SHARE = 0.15
@@ -579,9 +580,10 @@ def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTimin
     slope_g_s, intercept_g = dec.approach_line
     approach_at_halt_g = slope_g_s * motion.home_end_s + intercept_g
     dip_g, pull_g = adhesion_measures(*samples, drift_g_um, contact_um, approach_at_halt_g)
-    if dip_g is not None:
+    dip_limit_g = max(ADHESION_MAX_DIP_NOISE * noise_g, floor_g)
+    if dip_g is not None and dip_g > dip_limit_g:  # the second reference only when the first would reject
         dip_g = dip_below_both_references_g(samples, drift_g_um, contact_um, approach_at_halt_g, dip_g)
-    if dip_g is not None and dip_g > max(ADHESION_MAX_DIP_NOISE * noise_g, floor_g):
+    if dip_g is not None and dip_g > dip_limit_g:
         raise TapInvalid(TAP_ADHESION, f"the force dips {dip_g:.1f} g below free air just above break contact "
                                        f"(more than {ADHESION_MAX_DIP_NOISE:g} x the {noise_g:.2f} g noise): "
                                        "ooze or adhesion pulling the nozzle")
@@ -629,12 +631,13 @@ def departure_drift_share(samples: PullbackSamples, contact_um: float, drift_g_u
     A cable or bowden pulling in proportion to Z tilts both; the spec's approach component, meant
     for plastic under the nozzle, read taplab's 37 g/mm cable as 60 % (LOW_TAP_QUALITY).
     """
-    x_um = 0.5 * (samples[0] + samples[1]) - contact_um
-    free = x_um > DRIFT_FROM_UM
-    if np.count_nonzero(free) < DRIFT_MIN_SAMPLES or drift_g_um == 0.0:
+    x_lo_um, x_hi_um, force_g = samples
+    first = int(x_lo_um.searchsorted(contact_um + DRIFT_FROM_UM))  # rising while the pullback moves
+    if len(force_g) - first < DRIFT_MIN_SAMPLES or drift_g_um == 0.0:
         return 0.0
-    x_um = x_um[free] - x_um[free].mean()
-    departure_g_um = float(x_um @ samples[2][free]) / float(x_um @ x_um)
+    x_um = x_lo_um[first:] + x_hi_um[first:]
+    x_um -= x_um.mean()
+    departure_g_um = 2.0 * float(x_um @ force_g[first:]) / float(x_um @ x_um)
     if departure_g_um / drift_g_um <= 0.0 or abs(departure_g_um - drift_g_um) > DRIFT_AGREEMENT * abs(drift_g_um):
         return 0.0
     return min(departure_g_um / drift_g_um, 1.0)
@@ -955,7 +958,9 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
                    result.compression_force_g)
     check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, split.noise_g, approach_wander,
                      toe.stiffness_g_um)
-    result.approach_drift_share = departure_drift_share(rising, toe.contact_um, drift_g_um)
+    approach_change_g = abs(dec.points[P_CONTACT][1] - dec.points[P_START][1])
+    if approach_change_g > DRIFT_MATERIAL_SHARE * result.compression_force_g:  # else it costs the score little
+        result.approach_drift_share = departure_drift_share(rising, toe.contact_um, drift_g_um)
     # The quality classifier's misfit judges the model that set Z: a soft sheet's toe misfits the
     # sharp model by up to 3.7 x the noise (reference soft sheet, 2 of 80 taps LOW_TAP_QUALITY),
     # while the toe explains it to 1.2 x at most (tapcell.tap.classifiers.MISFIT_TOLERANCE 1.25).
