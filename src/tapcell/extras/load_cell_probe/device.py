@@ -72,6 +72,7 @@ from tapcell.extras.load_cell_probe.overrides import disabled_protections, refus
 from tapcell.extras.load_cell_probe.threshold import commanded_z_mm, z_at_time_mm
 from tapcell.scale import counts_to_grams
 from tapcell.tap import AnalysisOptions, Move, TapData, analyze_tap, get_classifier, tap_to_json_dict
+from tapcell.tap.pool import apply_pool
 
 BREAK_CLEAR_SAMPLES = 4  # after break contact: one conversion window plus margin before free-air samples
 KEEP_LAST_TAPS = 16
@@ -640,6 +641,18 @@ class LoadCellProbe:
             self.printer.gcode.respond_info(f"Tap Quality: {analysis.quality:.1f}%")
         return TapOutcome(z_mm=z_mm, valid=valid, error_code=analysis.error, message=message, analysis=analysis,
                           explained=why is not None)
+
+    def pooled_z_shifts_mm(self, analyses: list) -> list[float] | None:
+        """Taps at one spot (their analyses): each tap's pooled Z minus its own (tapcell.tap.pool: the toe,
+        stiffness and lag the taps share, estimated jointly), written into the analyses (`z_pooled_mm`).
+        None unless every tap is valid and was read by the toe model (a calibrated onset or the sharp
+        model has no shared toe to estimate)."""
+        if not all(a is not None and a.valid and a.z_mm is not None for a in analyses):
+            return None
+        apply_pool(analyses)
+        if any(a.z_pooled_mm is None for a in analyses):
+            return None
+        return [a.z_pooled_mm - a.z_mm for a in analyses]
 
     def _make_room_to_reach_speed(self, expected_z_mm: float, speed_mm_s: float) -> None:
         """Lift first when the nozzle is too close to the bed for the probing move to reach its
