@@ -178,3 +178,20 @@ def test_tapcell_analyze_refuses_the_pullback_with_the_allowed_list(capsys, sett
     names = allowed[1].split(", ")
     assert {"min_tap_quality", "contact_model", "contact_onset_um", "max_dwell_force_drop"} <= set(names)
     assert not any(name.startswith("pullback") for name in names)
+
+
+def test_analysis_options_on_a_probing_command(tmp_path):
+    from probe_vprinter import make_printer
+
+    printer, responses = make_printer(tmp_path)
+    with pytest.raises(GCodeError, match=r"unknown parameter MIN_TAP_QUALTY \(did you mean MIN_TAP_QUALITY\?\) for "
+                                         r"PROBE; nothing was moved"):
+        printer.gcode.run_script("PROBE MIN_TAP_QUALTY=50")
+    with pytest.raises(GCodeError, match=r"CONTACT_ONSET_UM must have maximum of 100 \(allowed: 0 to 100\)"):
+        printer.gcode.run_script("PROBE CONTACT_ONSET_UM=200")
+    # No tap scores 100: the command's option refuses it (and the config's 40 accepts the same bed).
+    with pytest.raises(GCodeError, match=r"deemed bad quality: LOW_TAP_QUALITY - tap quality \d+\.\d% is below "
+                                         r"min_tap_quality 100%"):
+        printer.gcode.run_script("PROBE MIN_TAP_QUALITY=100 BAD_PROBE_STRATEGY=fail")
+    printer.gcode.run_script("G1 Z0.4\nPROBE")
+    assert printer.lookup_object("load_cell_probe").last_taps[-1].valid
