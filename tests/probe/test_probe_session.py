@@ -234,6 +234,12 @@ def test_samples_at_two_spots_are_not_pooled():
     result = probe.probe_point(50.0, 60.0)
     assert not result.pooled and result.samples_z_mm == (0.010, 0.012) and probe.tapper.pooled == []
     assert result.z_mm == pytest.approx(0.011)
+    outcomes = [(0.010, True, None), (0.3, False, "TAP_SHAPE_INVALID"), (0.012, True, None), (0.014, True, None)]
+    probe, motion, gcode, responses = make_pooling_probe(outcomes)
+    gcode.run_script("PROBE_ACCURACY SAMPLES=3 SAMPLE_RETRACT_DIST=0.4 BAD_PROBE_STRATEGY=circle")
+    assert not probe.last_accuracy_pooled and probe.tapper.pooled == []
+    assert responses[-1].startswith("// probe accuracy results: maximum 0.014000, minimum 0.010000,")
+    assert not any(line.startswith("// single-tap") for line in responses)
 
 
 def test_query_probe_always_open():

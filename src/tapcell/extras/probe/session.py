@@ -159,7 +159,7 @@ class ProbeSession:
         while True:
             samples: list[float] = []
             analyses: list[Any] = []
-            spots: set[tuple[float, float]] = set()
+            spots: list[tuple[float, float]] = []
             outcome = None
             tapped = (x_mm, y_mm)
             valid = True
@@ -169,7 +169,7 @@ class ProbeSession:
                 valid = valid and outcome.valid
                 samples.append(outcome.z_mm)
                 analyses.append(outcome.analysis)
-                spots.add(tapped)
+                spots.append(tapped)
                 if spread_mm(np.array(samples)) > opts.samples_tolerance_mm:
                     break
                 if len(samples) < opts.samples:
@@ -181,7 +181,7 @@ class ProbeSession:
             tolerance_retries += 1
             self.probe.respond_info("Probe samples exceed tolerance. Retrying...")
             self._retract(outcome.z_mm)
-        pooled = self._pooled(samples, analyses) if len(spots) == 1 else None
+        pooled = self._pooled(samples, analyses, spots)
         combined = samples if pooled is None else pooled
         z_mm = combine_samples(np.array(combined), opts.samples_result) - opts.z_offset_mm
         result = ProbeResult(
@@ -192,19 +192,19 @@ class ProbeSession:
         self.probe.last_result = result
         return result
 
-    def _pooled(self, z_mm: list[float], analyses: list[Any]) -> list[float] | None:
-        """The taps' pooled Zs (taps at one spot, in order), or None: one tap, or the device does not pool them."""
-        if len(z_mm) < 2:
+    def _pooled(self, z_mm: list[float], analyses: list[Any], spots: list[tuple[float, float]]) -> list[float] | None:
+        """The taps' pooled Zs (in order), or None: one tap, taps at more than one spot (CIRCLE moved
+        away from a fouled one), or the device does not pool them."""
+        if len(z_mm) < 2 or len(set(spots)) != 1:
             return None
         shifts = self.probe.tapper.pooled_z_shifts_mm(analyses)
         return None if shifts is None else [z + shift for z, shift in zip(z_mm, shifts)]
 
     def pooled_results(self, results: list[ProbeResult]) -> list[float] | None:
-        """The pooled Zs (bed heights, as ProbeResult.z_mm) of single-sample results tapped at one spot
-        (PROBE_ACCURACY's), or None when they are not pooled."""
-        if len({(r.tapped_x_mm, r.tapped_y_mm) for r in results}) != 1:
-            return None
-        return self._pooled([r.z_mm for r in results], [r.tap_analysis for r in results])
+        """The pooled Zs (bed heights, as ProbeResult.z_mm) of single-sample results (PROBE_ACCURACY's),
+        or None when they are not pooled."""
+        return self._pooled([r.z_mm for r in results], [r.tap_analysis for r in results],
+                            [(r.tapped_x_mm, r.tapped_y_mm) for r in results])
 
     def probe_repeatedly(self, x_mm: float, y_mm: float, count: int) -> Iterator[ProbeResult]:
         """Probe one point `count` times, one sample each, lifting sample_retract_dist in between.
