@@ -4,8 +4,8 @@ For each scenario and seed: calibrate, G28, PROBE HOME=Z, then PROBE_ACCURACY SA
 clearance, as a user runs it. The printer reports Klipper's line over the pooled Zs and the single-tap line
 beside it (docs/probing.md, "Pooling"); this reads both from the probe (`last_accuracy`,
 `last_accuracy_single`). Columns: the standard deviation of the single taps' Zs and of the pooled Zs (µm,
-rms over the seeds), their ratio (the worst seed's too), the average's offset pooled − single (µm, mean
-over the seeds), and the cost: the process time of pooling the 10 taps (tapcell.tap.pool.apply_pool on
+rms over the seeds), their ratio (the worst seed's too), the bias of each average against the simulator's
+true contact (µm, mean over the seeds), and the cost: the process time of pooling the 10 taps (tapcell.tap.pool.apply_pool on
 copies of the printer's analyses, median of 5) against analysing the same 10 taps again in the same run.
 """
 
@@ -62,6 +62,10 @@ def run_session(scenario: str, seed: int, workdir: Path) -> dict:
     device = printer.lookup_object("load_cell_probe")
     recorded = list(device.last_taps)[-TAPS:]
     settings = device.config_settings.analysis
+    vp = printer.backend
+    x_mm, y_mm, _ = vp.position
+    # The bed's true contact under the nozzle in the toolhead's frame (the simulator's truth, never the analysis's).
+    truth_mm = float(vp.truth.contact_z_at(x_mm, y_mm)) + device.motion.frame_offset_mm["z"] - probe.options.z_offset_mm
 
     def pool_copies():
         apply_pool([copy.copy(r.analysis) for r in recorded])
@@ -69,7 +73,8 @@ def run_session(scenario: str, seed: int, workdir: Path) -> dict:
     return {"pooled": probe.last_accuracy_pooled, "lines": responses[-2:],
             "single_um": probe.last_accuracy_single.standard_deviation_mm * 1000.0,
             "pooled_um": probe.last_accuracy.standard_deviation_mm * 1000.0,
-            "offset_um": (probe.last_accuracy.average_mm - probe.last_accuracy_single.average_mm) * 1000.0,
+            "bias_single_um": (probe.last_accuracy_single.average_mm - truth_mm) * 1000.0,
+            "bias_pooled_um": (probe.last_accuracy.average_mm - truth_mm) * 1000.0,
             "pool_ms": _median_s(pool_copies) * 1000.0,
             "analysis_ms": _median_s(lambda: [analyze_tap(r.tap, settings) for r in recorded]) * 1000.0}
 
@@ -81,8 +86,8 @@ def _rms(values) -> float:
 def main(argv: list[str]) -> int:
     table = Table(title=f"PROBE_ACCURACY SAMPLES={TAPS} on the virtual printer, seeds {SEEDS[0]}-{SEEDS[-1]}: "
                         "standard deviation (µm) of the single taps and of the pooled Zs")
-    for column in ("scenario", "pooled", "single σ", "pooled σ", "pooled/single", "worst seed", "offset µm",
-                   "pool ms", "10 analyses ms", "pool/analyses"):
+    for column in ("scenario", "pooled", "single σ", "pooled σ", "pooled/single", "worst seed", "bias single",
+                   "bias pooled", "pool ms", "10 analyses ms", "pool/analyses"):
         table.add_column(column, justify="left" if column == "scenario" else "right")
     first_lines: list[str] = []
     with tempfile.TemporaryDirectory() as tmp:
@@ -94,7 +99,8 @@ def main(argv: list[str]) -> int:
             analysis_ms = statistics.median(r["analysis_ms"] for r in rows)
             table.add_row(scenario, f"{sum(r['pooled'] for r in rows)}/{len(rows)}", f"{single:.3f}", f"{pooled:.3f}",
                           f"{pooled / single:.2f}", f"{max(r['pooled_um'] / r['single_um'] for r in rows):.2f}",
-                          f"{np.mean([r['offset_um'] for r in rows]):+.2f}", f"{pool_ms:.2f}", f"{analysis_ms:.1f}",
+                          f"{np.mean([r['bias_single_um'] for r in rows]):+.2f}",
+                          f"{np.mean([r['bias_pooled_um'] for r in rows]):+.2f}", f"{pool_ms:.2f}", f"{analysis_ms:.1f}",
                           f"{pool_ms / analysis_ms:.3f}")
     Console(width=200).print(table)
     print(f"The printer's last two lines, {SCENARIOS[0]} seed {SEEDS[0]}:")
