@@ -23,6 +23,8 @@ from tapcell.tap.readers import tap_from_object
 from tapcell.tools.kalico_plugin import PLUGIN_FILE
 
 RUN_TIMEOUT_S = 180.0
+# This checkout's tapcell, ahead of whichever checkout last installed itself into the shared venv.
+REPO_SRC = Path(__file__).resolve().parents[2] / "src"
 KALICO_CONFIG = """\
 [load_cell_probe]
 tap_classifier: tapcell
@@ -91,7 +93,7 @@ def test_kalico_runs_tapcell_on_our_taps(kalico, tmp_path, extra, changes):
     config = tmp_path / "kalico.cfg"
     config.write_text(KALICO_CONFIG + extra)
     done = run([str(python), str(Path(__file__).with_name("kalico_run.py")), str(config), str(taps)],
-               cwd=root, env={"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin"})
+               cwd=root, env={"PYTHONPATH": f"{REPO_SRC}:{root}", "PATH": "/usr/bin:/bin"})
     assert done.returncode == 0, done.stderr
     report = json.loads(done.stdout)
     assert {"tapcell", "tap_quality", "empty"} <= set(report["classifiers"])
