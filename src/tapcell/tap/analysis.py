@@ -103,17 +103,22 @@ ADHESION_MIN_DIP_FRACTION = 0.01
 # tap.synth's 10 g strand peaking 40 um up, +1.5..+3.9 um of Z, 0.7. A departure too short to show
 # a change (under THREAD_FAR_MIN_UM above contact) with no plastic in the dwell shows no thread: a
 # bowden shift of 7 % on a 43 um departure read Z within 0.04 um and was rejected as TAP_ADHESION.
+THREAD_MIN_SHARE = 0.15
+THREAD_LEVEL_CHANGE = 0.2
+THREAD_FAR_MIN_UM = 100.0
+# The departure's drift (g/µm) is fitted in the toe model instead of the approach's when the two
+# lines' slopes differ by more than this many standard errors (`toe_drift_g_um`). On the reference
+# taps' bowden drift (80 taps) 5 takes sigma from 0.84 to 0.76 um (8: 0.77) and leaves every other
+# scenario of both sets within 0.02 um; 3 moves clean ones by up to 0.03 (hx711 slow 0.58 -> 0.60).
+DRIFT_AGREEMENT_SIGMAS = 5.0
 # The departure confirms the approach's free-air drift (`departure_drift_share`) from this high above
 # contact on (past the toe and most of a thread), over at least this many samples, within this
 # share of it: a walk of 1-4 g/sqrt(s) over a 0.2 mm departure moves its slope by 47-58 % of taplab's
 # 10-40 g/mm cables (median; 36 % on the one tap the approach component rejected).
-DRIFT_FROM_UM = 10.0
-DRIFT_MATERIAL_SHARE = 0.05  # looked for only when the approach changes by this share of the compression
-DRIFT_MIN_SAMPLES = 10
-DRIFT_AGREEMENT = 0.6
-THREAD_MIN_SHARE = 0.15
-THREAD_LEVEL_CHANGE = 0.2
-THREAD_FAR_MIN_UM = 100.0
+APPROACH_DRIFT_FROM_UM = 10.0
+APPROACH_DRIFT_MATERIAL_SHARE = 0.05  # looked for only when the approach changes by this share of the compression
+APPROACH_DRIFT_MIN_SAMPLES = 10
+APPROACH_DRIFT_AGREEMENT = 0.6
 # A film of plastic between nozzle and bed: the force falls during the dwell (the plastic flows out
 # from under the nozzle; the spec's dwell drop) and after break contact the departure lies below
 # the approach's free-air level (the film holds the nozzle): the contact the pullback finds is the
@@ -515,6 +520,37 @@ def free_air_slope_g_um(dec: Decomposition, motion: Motion) -> float:
     return -dec.approach_line[0] / (motion.approach_speed_mm_s * 1000.0)
 
 
+def toe_drift_g_um(dec: Decomposition, ps: PrefixSums, motion: Motion, period_s: float,
+                   walk_var_g2: float = 0.0) -> float | None:
+    """The free-air drift the toe fit takes as known: the approach's (`free_air_slope_g_um`), unless
+    the departure line's own slope disagrees with it by more than DRIFT_AGREEMENT_SIGMAS standard
+    errors; then None, and the toe fit finds the drift over the departure with the rest. Each
+    line's error: its residual scatter, plus the baseline's random walk (walk_var_g2 per sample,
+    `free_air_wanders`), which tilts a line over n samples by 6 q / (5 n) per sample² in variance.
+
+    A bowden tube or cable can pull differently on the way up than on the way down: the approach's
+    drift then tilts the departure's baseline under the toe, and a wrong tilt moves the contact by
+    tilt x reach / stiffness. Where the two agree, the approach's many hundred µm pin the drift far
+    better than the departure's few tens (and an adhesion thread cannot tilt it).
+    """
+    approach_speed_um_s = motion.approach_speed_mm_s * 1000.0
+    pullback_speed_um_s = motion.pullback_speed_mm_s * 1000.0
+    approach_g_um = free_air_slope_g_um(dec, motion)
+    departure_g_um = dec.departure_line[0] / pullback_speed_um_s
+    variance = 0.0
+    for (first, end), speed_um_s in (((0, dec.bounds[0]), approach_speed_um_s),
+                                     ((dec.bounds[3], dec.stop - dec.start), pullback_speed_um_s)):
+        residual_var, _, sxx = _segment_stats(ps, first, end)
+        samples = end - first
+        if not (sxx > 0 and samples > 0):
+            return approach_g_um
+        step_um = speed_um_s * period_s
+        variance += (residual_var / sxx / (speed_um_s * speed_um_s)
+                     + 1.2 * walk_var_g2 / samples / (step_um * step_um))
+    agrees = abs(departure_g_um - approach_g_um) <= DRIFT_AGREEMENT_SIGMAS * math.sqrt(variance)
+    return approach_g_um if agrees else None
+
+
 PullbackSamples = tuple[np.ndarray, np.ndarray, np.ndarray]  # window low edge µm, high edge µm, force g
 
 
@@ -625,20 +661,20 @@ def dip_below_both_references_g(samples: PullbackSamples, drift_g_um: float, con
 def departure_drift_share(samples: PullbackSamples, contact_um: float, drift_g_um: float) -> float:
     """How much of the approach's free-air drift (g per µm of height, from its line) the departure
     shows too: min(k_departure / k_approach, 1) when the departure's own slope against height, from
-    DRIFT_FROM_UM above contact on, has the approach's sign and lies within DRIFT_AGREEMENT of it;
+    APPROACH_DRIFT_FROM_UM above contact on, has the approach's sign and lies within APPROACH_DRIFT_AGREEMENT of it;
     else 0 (molten plastic met before the bed tilts the approach alone).
 
     A cable or bowden pulling in proportion to Z tilts both; the spec's approach component, meant
     for plastic under the nozzle, read taplab's 37 g/mm cable as 60 % (LOW_TAP_QUALITY).
     """
     x_lo_um, x_hi_um, force_g = samples
-    first = int(x_lo_um.searchsorted(contact_um + DRIFT_FROM_UM))  # rising while the pullback moves
-    if len(force_g) - first < DRIFT_MIN_SAMPLES or drift_g_um == 0.0:
+    first = int(x_lo_um.searchsorted(contact_um + APPROACH_DRIFT_FROM_UM))  # rising while the pullback moves
+    if len(force_g) - first < APPROACH_DRIFT_MIN_SAMPLES or drift_g_um == 0.0:
         return 0.0
     x_um = x_lo_um[first:] + x_hi_um[first:]
     x_um -= x_um.mean()
     departure_g_um = 2.0 * float(x_um @ force_g[first:]) / float(x_um @ x_um)
-    if departure_g_um / drift_g_um <= 0.0 or abs(departure_g_um - drift_g_um) > DRIFT_AGREEMENT * abs(drift_g_um):
+    if departure_g_um / drift_g_um <= 0.0 or abs(departure_g_um - drift_g_um) > APPROACH_DRIFT_AGREEMENT * abs(drift_g_um):
         return 0.0
     return min(departure_g_um / drift_g_um, 1.0)
 
@@ -944,7 +980,9 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     drift_g_um = free_air_slope_g_um(dec, motion)
     wander, approach_wander = free_air_wanders(split.force_g, dec)
     samples = pullback_samples(window, motion, timing, window_delay_s)  # for the toe fit and the adhesion check
-    toe = fit_pullback_toe(samples, motion, timing, start, drift_g_um, wander)
+    fit_drift_g_um = toe_drift_g_um(dec, split.ps, motion, timing.sample_period_s,
+                                    wander.walk_var_g2 if wander else 0.0)
+    toe = fit_pullback_toe(samples, motion, timing, start, fit_drift_g_um, wander)
     if not toe:
         return
     result.z_mm = motion.z_halt_mm + (toe.contact_um - lag_shift_um) / 1000.0
@@ -959,7 +997,7 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, split.noise_g, approach_wander,
                      toe.stiffness_g_um)
     approach_change_g = abs(dec.points[P_CONTACT][1] - dec.points[P_START][1])
-    if approach_change_g > DRIFT_MATERIAL_SHARE * result.compression_force_g:  # else it costs the score little
+    if approach_change_g > APPROACH_DRIFT_MATERIAL_SHARE * result.compression_force_g:  # else it costs the score little
         result.approach_drift_share = departure_drift_share(rising, toe.contact_um, drift_g_um)
     # The quality classifier's misfit judges the model that set Z: a soft sheet's toe misfits the
     # sharp model by up to 3.7 x the noise (reference soft sheet, 2 of 80 taps LOW_TAP_QUALITY),
