@@ -265,11 +265,12 @@ class Decomposition:
 
 
 def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_samples: int,
-              period: float, from_s: float | None = None, approach_share: float = 0.0
-              ) -> tuple[Decomposition, PrefixSums]:
+              period: float, from_s: float | None = None, approach_share: float = 0.0,
+              release_lag_samples: int | None = None) -> tuple[Decomposition, PrefixSums]:
     """Five lines and six points of a positive-polarity tap (`period`: the sample period, s), over
     the samples from `from_s` (default: a pullback's duration, at least 8 samples, before the halt);
-    the approach line holds at least `approach_share` of the samples before the halt."""
+    the approach line holds at least `approach_share` of the samples before the halt; the dwell
+    ends at most `release_lag_samples` (default `lag_samples`) after the pullback reached its speed."""
     n = len(time_s)
     duration = motion.pullback_duration_s
     window_start_s = motion.home_end_s - max(duration, 8 * period) if from_s is None else from_s
@@ -281,7 +282,8 @@ def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_sampl
     home_end, pull_start, pull_cruise = _indices(t, motion.home_end_s, motion.pullback_start_s,
                                                  motion.pullback_cruise_s)
     peak = range(max(2, home_end - 1), min(pull_start, home_end + lag_samples) + 1)
-    release = range(max(pull_start - 1, 0), min(m - 2, max(pull_start, pull_cruise) + lag_samples) + 1)
+    release_lag = lag_samples if release_lag_samples is None else release_lag_samples
+    release = range(max(pull_start - 1, 0), min(m - 2, max(pull_start, pull_cruise) + release_lag) + 1)
     if len(peak) == 0 or len(release) == 0:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, "no samples between the halt and the pullback")
     contact = range(max(2, int(approach_share * home_end)), peak[-1] - 1)
@@ -306,18 +308,22 @@ def decompose_again(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag
                     first: tuple[Decomposition, PrefixSums]) -> tuple[Decomposition, PrefixSums]:
     """The five lines again when the first split's points were out of time order: over the samples
     from the approach move's start on, when its window began before the approach moved, then with
-    the approach line holding at least RETRY_APPROACH_SHARE of the samples before the halt; the
-    first that is in order, else the first split.
+    the approach line holding at least RETRY_APPROACH_SHARE of the samples before the halt, then
+    with the dwell ending within LAG_MARGIN_SAMPLES of the pullback's cruise; the first that is in
+    order, else the first split.
 
     Free air before the approach is flat in time, and a bowden or cable pulling in proportion to Z
     ramps during it: two lines, not one. When the compression lasts a sample or two (8.4 mm/s at
     320 sps), the best split then takes the ramp for the compression and its points fall out of
     order (reference bowden drift: one clean tap of 80 was TAP_CHRONOLOGY). A compression of three
     samples under a 20 g mains hum let the best split take the whole approach for the compression
-    and leave 3 samples to the approach (reference noisy mains: one clean tap of 80). Taps whose
-    points are in order are never split again, so their Z stays what it was.
+    and leave 3 samples to the approach (reference noisy mains: one clean tap of 80). A sheet
+    relaxing in the dwell as fast as a 0.08 mm/s pullback unloads let the dwell run 7 samples into
+    the pullback and its line cross the decompression's before the compression's (reference sessions,
+    HX711 80 sps: one clean tap of 200). Taps whose points are in order are never split again, so
+    their Z stays what it was.
     """
-    retries: list[dict] = [{"approach_share": RETRY_APPROACH_SHARE}]
+    retries: list[dict] = [{"approach_share": RETRY_APPROACH_SHARE}, {"release_lag_samples": LAG_MARGIN_SAMPLES}]
     if motion.moves and time_s[first[0].start] < motion.moves[-5].print_time < motion.home_end_s - 8 * period:
         retries.insert(0, {"from_s": motion.moves[-5].print_time})
     for retry in retries:
