@@ -241,3 +241,22 @@ def test_the_force_at_the_trigger_counts_the_approachs_drift_and_the_noise():
     # An approach drifting away from the contact adds nothing.
     away = TapAnalysis(valid=True, polarity=1, points=points, compression_force_g=100.0, noise_sigma_g=0.5)
     assert force_at_trigger_g(away) == pytest.approx(101.5)
+
+
+def test_the_stiffness_mismatch_must_show_in_both_estimators():
+    from tapcell.tap.classifiers import stiffness_ratio
+    from tapcell.tap.model import TapAnalysis
+
+    # Reference noisy mains 0049: the toe's 1.90 g/um against the compression fit's 1.22 (55 %), the
+    # lines 0.98; a virtual bowden tap with hum the other way round (lines 1.39, models 2.71 / 3.15).
+    hum_on_models = TapAnalysis(valid=True, stiffness_compression_g_um=1.22, stiffness_decompression_g_um=1.90,
+                                line_stiffness_ratio=0.982)
+    assert stiffness_ratio(hum_on_models) == pytest.approx(0.982)
+    hum_on_lines = TapAnalysis(valid=True, stiffness_compression_g_um=3.154, stiffness_decompression_g_um=2.714,
+                               line_stiffness_ratio=1.389)
+    assert stiffness_ratio(hum_on_lines) == pytest.approx(2.714 / 3.154)
+    # A film that halves the decompression's stiffness shows in both: the smaller mismatch is still 45 %.
+    film = TapAnalysis(valid=True, stiffness_compression_g_um=4.0, stiffness_decompression_g_um=1.9,
+                       line_stiffness_ratio=0.55)
+    assert abs(1.0 - stiffness_ratio(film)) == pytest.approx(0.45)
+    assert stiffness_ratio(TapAnalysis(valid=True)) is None
