@@ -48,6 +48,7 @@ import numpy as np
 from tapcell.taplab.generate import LABELS_FILE, SCENARIOS, generate_set
 
 SILENT_UM = 20.0  # a valid tap this far off is a silent failure
+PER_TAP = "median CPU ms per tap (in process)"
 REAL_DIR = Path(__file__).with_name("real")
 SRC_DIR = Path(__file__).resolve().parents[2]  # the directory holding the tapcell package
 REPO_DIR = SRC_DIR.parent
@@ -133,7 +134,8 @@ class Score:
     rejected_errors_um: list[float] = field(default_factory=list)  # z reported but rejected
     sigmas_um: dict[str, float | None] = field(default_factory=dict)  # per valid tap, by file
     codes: collections.Counter = field(default_factory=collections.Counter)
-    elapsed_ms: list[float] = field(default_factory=list)
+    tap_ms: list[float] = field(default_factory=list)  # per tap in process: CPU (`cpu_ms`), else wall (`elapsed_ms`)
+    wall_clock_taps: int = 0  # taps whose analyzer gave only `elapsed_ms` (wall time)
 
     @property
     def errors(self) -> np.ndarray:
@@ -162,8 +164,15 @@ class Score:
         return float(np.sqrt(np.mean(np.square(ratios)))) if ratios else None
 
 
+def blas_threads() -> str:
+    """OpenBLAS's threads for every analyzer: the caller's OPENBLAS_NUM_THREADS, else 1, as `tapcell
+    analyze` pins it (its per-core workers only cost CPU on arrays of a tap's size, whoever runs them)."""
+    return os.environ.get("OPENBLAS_NUM_THREADS", "1")
+
+
 def run_analyzer(name: str, command: list[str], files: list[Path], env: dict | None = None) -> Run:
     """Run the command on the files; its CPU is the children's user + system time."""
+    env = {**(os.environ if env is None else env), "OPENBLAS_NUM_THREADS": blas_threads()}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     started = time.perf_counter()
     completed = subprocess.run([*command, *map(str, files)], capture_output=True, text=True, env=env, check=False)
@@ -188,8 +197,11 @@ def score(run: Run, labels: list[Label]) -> dict[str, Score]:
         if answer is None:
             s.codes["NO_ANSWER"] += 1
             continue
-        if answer.get("elapsed_ms") is not None:
-            s.elapsed_ms.append(float(answer["elapsed_ms"]))
+        if answer.get("cpu_ms") is not None:
+            s.tap_ms.append(float(answer["cpu_ms"]))
+        elif answer.get("elapsed_ms") is not None:
+            s.tap_ms.append(float(answer["elapsed_ms"]))
+            s.wall_clock_taps += 1
         z = answer.get("z")
         error_um = None if z is None else (float(z) - label.z_contact_mm) * 1000.0
         if answer.get("valid") and error_um is not None:
@@ -268,7 +280,7 @@ def targets(scored: dict[str, Score], anchor: dict[str, Score] | None = None) ->
     rms = [s.sigma_rms for s in scored.values() if s.sigma_rms is not None]
     ratios = [r for n, s in clean.items() if anchor and n in anchor
               for r in [common_sigma_ratio(s, anchor[n])] if r is not None]
-    times = [t for s in scored.values() for t in s.elapsed_ms]
+    times = [t for s in scored.values() for t in s.tap_ms]
     soft = [abs(s.bias_um) for n, s in accept.items() if "soft" in n and s.bias_um is not None]
     return {
         "worst clean |bias| µm": max((abs(b) for s in clean.values() for b in [s.bias_um] if b is not None),
@@ -281,7 +293,7 @@ def targets(scored: dict[str, Score], anchor: dict[str, Score] | None = None) ->
         "no-break taps accepted": float(sum(s.valid for s in reject)) if reject else None,
         "silent failures": float(sum(s.silent for s in scored.values())),
         "rms(e/σ) range": f"{min(rms):.2f}..{max(rms):.2f}" if rms else None,
-        "median ms per tap (in process)": float(np.median(times)) if times else None,
+        PER_TAP: float(np.median(times)) if times else None,
     }
 
 
@@ -299,12 +311,31 @@ def print_targets(runs: list[Run], scored: dict[str, dict[str, Score]]) -> None:
         print(f"{key:<34}{cells}")
     cpu = "".join(f" {run.cpu_s:>13.2f}s" for run in runs)
     print(f"{'CPU of the whole run':<34}{cpu}")
-    base = runs[0]
-    for other in runs[1:]:
-        per_tap = (rows[other.name]["median ms per tap (in process)"] or 0) / max(
-            rows[base.name]["median ms per tap (in process)"] or 1e-9, 1e-9)
-        print(f"{base.name} against {other.name}: {per_tap:.1f}× less time per tap in process, "
-              f"{other.cpu_s / max(base.cpu_s, 1e-9):.1f}× less CPU for the whole run")
+    print_speed(runs, scored, {run.name: rows[run.name][PER_TAP] for run in runs})
+
+
+def print_speed(runs: list[Run], scored: dict[str, dict[str, Score]], per_tap_ms: dict[str, float | None]) -> None:
+    """Each analyzer's speed against the anchor (Kalico when it ran, else the first other one):
+    per tap in process and the whole run, both in CPU time, with how each was measured."""
+    anchor = next((run for run in runs if run.name == "kalico"), runs[1] if len(runs) > 1 else None)
+    if anchor is None:
+        return
+    wall = [run.name for run in runs if any(s.wall_clock_taps for s in scored[run.name].values())]
+    per_tap_how = ("the median over the taps of the process's CPU time (time.process_time) around one tap's "
+                   "analysis in the analyzer's own process (tapcell: analyze_tap; kalico: its TapAnalysis and "
+                   "TapQualityClassifier on the samples its collector keeps)")
+    if wall:
+        per_tap_how += f"; {', '.join(wall)}: wall time (no cpu_ms in its answers)"
+    print(f"speed, measured in this run. Per tap: {per_tap_how}. Whole run: each command's user + system CPU "
+          f"(getrusage of the child: start-up, reading and output included). Every analyzer runs with "
+          f"OPENBLAS_NUM_THREADS={blas_threads()}.")
+    for run in runs:
+        if run is anchor:
+            continue
+        ours, theirs = per_tap_ms.get(run.name), per_tap_ms.get(anchor.name)
+        per_tap = f"{theirs / ours:.1f}×" if ours and theirs else "-"
+        print(f"{run.name} against {anchor.name}: {per_tap} less CPU per tap, "
+              f"{anchor.cpu_s / max(run.cpu_s, 1e-9):.1f}× less CPU for the whole run")
 
 
 def print_real(runs: list[Run], real_files: list[Path]) -> None:
