@@ -93,6 +93,19 @@ def test_numbers_convert_as_pythons_float_does(value):
         assert split[1]["time"] == bytearray(struct.pack("=d", float(json.loads(text)))), text
 
 
+@pytest.mark.parametrize("text", [
+    "9007199254740992e-22", "9007199254740993e-22", "-9007199254740993.0", "900719925474099.3e7",
+    "1844674407370955161.6", "18446744073709551616e-25", "99999999999999999999e-19", "1234567890123456789.0",
+    "0.0000000000000000000001", "-0.000", "123456.789e22", "4.9e-324", "1.7976931348623157e308",
+    "0.30000000000000004", "-1e-23", "7e22", "7e23"])
+def test_numbers_at_the_exact_shortcut_s_edges(text):
+    """Around 2^53, at 19 and 20 digits (where the mantissa would wrap) and powers of ten of 22
+    and 23: the same double as json reads, whichever way the kernel converts it."""
+    split = _split(f'{{"time": [{text}]}}')
+    assert split is not None, text
+    assert split[1]["time"] == bytearray(struct.pack("=d", float(json.loads(text)))), text
+
+
 def test_integers_read_as_json_reads_them():
     rest, arrays = _split('{"time": [0, -0, 7, -123456789012345], "force": [-0.0]}')
     assert rest == '{"time": [], "force": []}'
