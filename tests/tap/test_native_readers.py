@@ -32,7 +32,8 @@ def _bits(array):
 def _outcome(text, path="tap.json"):
     """What reading the text gives: the tap's every field (arrays as bytes), or the error message."""
     try:
-        tap = readers.tap_from_object(readers._load_tap_json(path, text, ""), path, "")
+        document, parsed = readers._load_tap_json(path, text, "")
+        tap = readers.tap_from_object(document, path, "", finite_arrays=parsed)
     except TapFileError as problem:
         return str(problem)
     return (_bits(tap.time_s), _bits(tap.force_g), _bits(tap.z_mm), tap.moves, tap.sample_rate_sps,
