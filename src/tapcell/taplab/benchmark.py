@@ -123,6 +123,7 @@ class Run:
     cpu_s: float
     wall_s: float
     failure: str = ""
+    command: str = ""  # how it was called, the files left out
 
 
 @dataclass
@@ -184,7 +185,8 @@ def run_analyzer(name: str, command: list[str], files: list[Path], env: dict | N
     except json.JSONDecodeError:
         tail = (completed.stderr or completed.stdout).strip().splitlines()[-3:]
         return Run(name, {}, cpu_s, wall_s, failure=f"exit {completed.returncode}, no JSON: {' | '.join(tail)}")
-    return Run(name, {Path(a["file"]).name: a for a in answers}, cpu_s, wall_s)
+    called = " ".join((["TAPCELL_NATIVE=0"] if env.get("TAPCELL_NATIVE") == "0" else []) + [Path(command[0]).name, *command[1:]])
+    return Run(name, {Path(a["file"]).name: a for a in answers}, cpu_s, wall_s, command=called + " FILE...")
 
 
 def score(run: Run, labels: list[Label]) -> dict[str, Score]:
@@ -328,7 +330,8 @@ def print_speed(runs: list[Run], scored: dict[str, dict[str, Score]], per_tap_ms
         per_tap_how += f"; {', '.join(wall)}: wall time (no cpu_ms in its answers)"
     print(f"speed, measured in this run. Per tap: {per_tap_how}. Whole run: each command's user + system CPU "
           f"(getrusage of the child: start-up, reading and output included). Every analyzer runs with "
-          f"OPENBLAS_NUM_THREADS={blas_threads()}.")
+          f"OPENBLAS_NUM_THREADS={blas_threads()}. Called as: "
+          + "; ".join(f"{run.name}: `{run.command}`" for run in runs) + ".")
     for run in runs:
         if run is anchor:
             continue
@@ -464,8 +467,15 @@ def _tap_sets(args, scratch: Path) -> list[TapSet] | str:
     return sets
 
 
+def tapcell_command() -> list[str]:
+    """`tapcell` as a user runs it: the console script beside this interpreter (`python -m
+    tapcell` when there is none; runpy's start-up costs ~5-10 ms a run more)."""
+    script = Path(sys.executable).with_name("tapcell")
+    return [str(script)] if script.is_file() and os.access(script, os.X_OK) else [sys.executable, "-m", "tapcell"]
+
+
 def _analyzers(args) -> list[tuple[str, list[str], dict | None]] | str:
-    ours = [sys.executable, "-m", "tapcell", "analyze", "--json"]
+    ours = [*tapcell_command(), "analyze", "--json"]
     analyzers: list[tuple[str, list[str], dict | None]] = [("tapcell", ours, None)]
     for item in args.analyzer:
         name, sep, command = item.partition("=")
