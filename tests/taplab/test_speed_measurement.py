@@ -64,3 +64,11 @@ def test_every_analyzer_runs_numpy_on_one_openblas_thread(monkeypatch, tmp_path)
     run = benchmark.run_analyzer("env", reports, [tmp_path / "a.json"], env={"PATH": "/usr/bin"})
     assert run.results["a.json"]["blas"] == "2"
     assert run.command.endswith("FILE...")
+
+
+def test_ours_is_compared_with_kalico_or_another_analyzer_never_with_our_own_numpy_twins():
+    ours, twins, kalico, other = (Run(name, {}, 1.0, 1.0) for name in ("tapcell", "tapcell-numpy", "kalico", "mine"))
+    assert benchmark.anchor_run([ours, kalico, twins]) is kalico
+    assert benchmark.anchor_run([ours, twins, other, kalico]) is kalico
+    assert benchmark.anchor_run([ours, twins, other]) is other
+    assert benchmark.anchor_run([ours, twins]) is None

