@@ -1,32 +1,34 @@
-"""Taps at one spot share their toe: each tap's Z with the toe estimated jointly (issue 21).
+"""Taps at one spot share their physics: each tap's Z with everything shared estimated jointly (issue 21).
 
 PROBE_ACCURACY, `SAMPLES=` and a retried mesh point tap one spot of one bed with one sensor: the
-contact's toe (its width and shape) is the same in every tap, while each tap has its own noise,
-baseline, stiffness reading and halt. One tap alone cannot tell a wider toe from a higher contact
-(the toe and the contact height trade off along a flat valley of the residual), so its marginal
-over the toes wanders with the noise from tap to tap: on the reference sessions that was most of
-the spread a user sees in PROBE_ACCURACY.
+bed's stiffness, the contact's onset (its toe), the sensor's lag are the same in every tap, while
+each tap has its own noise, baseline and halt. One tap alone must estimate them all, and they trade
+off against its contact height (a stiffer line or a wider toe moves the contact), so its Z wanders
+with its noise. Pooled, they are estimated once from all the taps, and each tap's Z is read with
+only its own contact height and baseline free: the spread a user sees in PROBE_ACCURACY is then
+its noise's alone.
 
-1. **The shared toe.** For every toe of the grid (tapcell.tap.toe: shape x width) each tap has its
-   best contact height, least residual and curvature (`toe_minima`, the Laplace approximation).
-   The pooled weight of a toe is its prior times the product over the taps of
-   exp(-(rss - least) / 2 noise var) x the width of its Gaussian in c: the toe is pinned by all
-   the taps. Each tap's contact at the shared toe is the weighted mean of its heights.
-2. **The stiffness, shared.** The sharp model's contact height and stiffness trade off within a tap
-   (the contact is where the unloading line meets the baseline); the bed's stiffness is the
-   same in every tap, so each tap's contact is searched again with the taps' median stiffness
-   (over the samples within the toe fit's PENETRATION_REACH_UM of contact, as the toe reads them).
-3. **The toe's correction, shared.** What the toe adds to a tap is the shared toe's, so it is the
-   mean over the taps of (contact at the shared toe - the sharp model's contact), and each tap's
-   pooled Z is its shared-stiffness sharp Z plus that correction: the sharp model's small spread
-   (it assumes no toe; the toe moves every tap alike) with the toe model's level.
+1. **The shared physics.** The sensor delay, the stiffness and the onset width are the medians over
+   the taps of their own sharp fits (a median: one bad tap in a pool does not move them).
+2. **Each tap's contact.** Each tap's pullback is searched again for its contact height with the
+   shared stiffness, onset and delay (its baseline solved in closed form), over the samples near
+   contact: those the shared stiffness puts within POOL_REACH_G below contact (a force, not a
+   depth: a soft sheet's contact shows over more micrometres), and those up to POOL_ABOVE_UM above
+   it in free air (further up the baseline's slow wander costs more than its samples bring).
+3. **One level.** The search fixes where the taps sit against each other, not the level (the sharp
+   model assumes a shape the bed may not have). The level is the toe model's, with the toe shared
+   by the taps (`shared_toe_contacts`: every toe of the grid weighted by its likelihood over all
+   the taps): each pooled Z is its contact from step 2 plus the taps' mean difference between
+   their shared-toe Z and that contact (outliers of that difference left out).
+4. **A tap that does not fit.** A valid tap whose residual at the shared physics is several times
+   the pool's (a retried mesh point that hit a blob, a tap the others do not resemble) is left out
+   of the shared estimates and of the level, and keeps its own Z and sigma.
 
-`sigma_um` of a pooled Z: its sharp fit's sigma and, common to every tap, the toe's: the mean of
-the taps' own (unpooled) toe sigmas squared. Pooling pins the toe *within* the model's family of
-toes, which is what the taps' spread shows; whether that family holds the bed's toe no number of
-taps of the same toe can tell (at the shared weights the sigma understated the error 1.4-2.8x on
-taplab's sessions). So the spread of the pooled Zs is the repeatability, and their sigma the
-absolute uncertainty of any one of them.
+`sigma_um` of a pooled Z: the level's uncertainty (the rms of the taps' sigmas at the shared toe:
+the toe's error is the same in every tap and does not average out) and, in quadrature, the
+spread of the pooled Zs about their mean (the sample sd: what is left of each tap's own noise).
+
+Measured by `python -m bench tap_pool` (both session sets, beside Kalico; docs/tap-analysis.md).
 """
 
 from __future__ import annotations
@@ -38,12 +40,25 @@ import numpy as np
 
 from tapcell.tap.contact import window_mean_and_slope
 from tapcell.tap.model import PullbackFit, TapAnalysis
-from tapcell.tap.toe import PENETRATION_REACH_UM, toe_minima
+from tapcell.tap.toe import toe_minima
 
-# The contact searched again at the shared stiffness: this far either side of the tap's own (µm), on
+# The contact searched again at the shared physics: this far either side of the tap's own (µm), on
 # this many heights, then the parabola through the least three.
 SHARED_STIFFNESS_SEARCH_UM = 3.0
 SHARED_STIFFNESS_HEIGHTS = 121
+# The samples each tap's contact is read from: in contact, those the shared stiffness puts within
+# this force of contact; in free air, those this far above it. Chosen by the worst scenario of
+# taplab's and the reference sessions (pooled within-session sigma over Kalico's: 60 g / 60 µm
+# 0.82, 80 / 80 0.87, 60 / 100 0.90, 140 / 80 1.01; a fixed 30 µm of depth and the whole
+# departure, as the single tap reads it, 1.01).
+POOL_REACH_G = 60.0
+POOL_ABOVE_UM = 60.0
+# A tap whose residual variance at the shared physics is this many times that at its own stiffness
+# and onset is pooled alone (step 4). The clean sessions of both sets reach at most 1.09 (taplab)
+# and 1.27 (reference); a soft-sheet or an HX711 tap among HX717 taps is not even placed.
+MISFIT_EXCESS = 1.5
+# Taps whose shared-toe correction is this many robust sigmas from the median are left out of the level.
+LEVEL_OUTLIER_SIGMAS = 3.0
 
 
 @dataclass
@@ -84,43 +99,140 @@ def shared_toe_contacts(analyses: list[TapAnalysis]) -> dict[int, PooledZ]:
     return pooled
 
 
+@dataclass
+class SharedPhysics:
+    """What the taps at one spot share, as the pool reads each tap's contact with it."""
+
+    delay_s: float
+    stiffness_g_um: float
+    onset_um: float
+
+
+@dataclass
+class SharedContact:
+    """One tap's contact at the shared physics: its Z (mm, at the shared delay) and the residual
+    variance of its samples there (g²); None where the search found no interior minimum."""
+
+    z_mm: float
+    residual_var_g2: float
+    excess: float  # residual variance at the shared physics over that at the tap's own stiffness and onset
+
+
+def shared_physics(fits: list[PullbackFit]) -> SharedPhysics:
+    """Step 1: the medians of the taps' own sharp fits."""
+    return SharedPhysics(delay_s=float(np.median([fit.delay_s for fit in fits])),
+                         stiffness_g_um=float(np.median([fit.stiffness_g_um for fit in fits])),
+                         onset_um=float(np.median([fit.onset_um for fit in fits])))
+
+
+def contact_at_shared(analysis: TapAnalysis, shared: SharedPhysics) -> SharedContact | None:
+    """Step 2 for one tap: its contact with the shared stiffness, onset and delay (None: not found)."""
+    fit = analysis.pullback_fit
+    found = contact_at_stiffness_um(fit, shared.stiffness_g_um, shared.onset_um)
+    if found is None:
+        return None
+    contact_um, residual_var_g2 = found
+    own = contact_at_stiffness_um(fit, fit.stiffness_g_um, fit.onset_um)
+    # How much worse the shared physics fits this tap than its own (1: as well).
+    excess = residual_var_g2 / own[1] if own is not None and own[1] > 0 else 1.0
+    # The sharp Z is the halt plus the contact, read with the tap's own delay; a longer delay put
+    # every height lower by pullback speed x delay.
+    z_mm = (analysis.z_sharp_mm + (contact_um - fit.contact_um) / 1000.0
+            + fit.pullback_speed_mm_s * (fit.delay_s - shared.delay_s))
+    return SharedContact(z_mm, residual_var_g2, excess)
+
+
+def _fitting(analysis: TapAnalysis) -> bool:
+    return analysis.valid and analysis.pullback_fit is not None and analysis.z_sharp_mm is not None
+
+
+def _misfits(members: list[int], contacts: dict[int, SharedContact]) -> set[int]:
+    """Step 4: the taps the shared physics does not place, or fits MISFIT_EXCESS times worse than
+    their own; none of two taps (which of them would it be?)."""
+    if len(members) < 3:
+        return set()
+    return {i for i in members if i not in contacts or contacts[i].excess > MISFIT_EXCESS}
+
+
+def _level_correction_mm(corrections_mm: list[float]) -> float:
+    """The taps' mean shared-toe correction, those LEVEL_OUTLIER_SIGMAS robust sigmas from the median left out."""
+    values = np.array(corrections_mm)
+    centre = float(np.median(values))
+    spread = 1.4826 * float(np.median(np.abs(values - centre)))
+    kept = values[np.abs(values - centre) <= LEVEL_OUTLIER_SIGMAS * spread] if spread > 0 else values
+    return float(kept.mean()) if len(kept) else centre
+
+
 def pool_taps(analyses: list[TapAnalysis]) -> list[PooledZ | None]:
-    """Each tap's pooled Z (None for taps that are invalid or were not read by the toe model)."""
-    at_shared_toe = shared_toe_contacts(analyses)
+    """Each tap's pooled Z (None for taps that are invalid or were not read by the contact model).
+    A valid tap the shared physics does not fit (step 4) keeps its own Z and sigma."""
     out: list[PooledZ | None] = [None] * len(analyses)
-    sharp = [i for i in at_shared_toe if analyses[i].z_sharp_mm is not None]
-    if not sharp:
+    members = [i for i, a in enumerate(analyses) if _fitting(a)]
+    if not members:
         return out
-    correction_mm = sum(at_shared_toe[i].z_mm - analyses[i].z_sharp_mm for i in sharp) / len(sharp)
-    toe_var_um2 = sum((analyses[i].z_sigma_um or 0.0) ** 2 for i in sharp) / len(sharp)
-    fits = [analyses[i].pullback_fit for i in sharp if analyses[i].pullback_fit is not None]
-    stiffness_g_um = float(np.median([fit.stiffness_g_um for fit in fits])) if fits else None
-    delay_s = float(np.median([fit.delay_s for fit in fits])) if fits else None
-    for i in sharp:
-        z_sharp_mm = analyses[i].z_sharp_mm
-        fit = analyses[i].pullback_fit
-        if stiffness_g_um is not None and fit is not None:
-            moved_um = contact_at_stiffness_um(fit, stiffness_g_um)
-            if moved_um is not None:
-                z_sharp_mm += (moved_um - fit.contact_um) / 1000.0
-            # Read with the shared delay: a longer delay put every height lower by speed x delay.
-            z_sharp_mm += fit.pullback_speed_mm_s * (fit.delay_s - delay_s)
-        sigma_um = math.sqrt((analyses[i].z_sharp_sigma_um or 0.0) ** 2 + toe_var_um2)
-        out[i] = PooledZ(z_sharp_mm + correction_mm, sigma_um)
+    shared = shared_physics([analyses[i].pullback_fit for i in members])
+    contacts = {i: found for i in members if (found := contact_at_shared(analyses[i], shared)) is not None}
+    misfits = _misfits(members, contacts)
+    if misfits:
+        # Again without them: the shared physics from the taps that show it.
+        good = [i for i in members if i not in misfits]
+        shared = shared_physics([analyses[i].pullback_fit for i in good])
+        contacts = {i: found for i in good if (found := contact_at_shared(analyses[i], shared)) is not None}
+    # A tap whose contact the search could not place at the shared physics keeps its sharp Z.
+    pooled_mm = {i: contacts[i].z_mm if i in contacts else analyses[i].z_sharp_mm
+                 for i in members if i not in misfits}
+    at_shared_toe = shared_toe_contacts([a if i in pooled_mm else _left_out(a) for i, a in enumerate(analyses)])
+    levelled = [i for i in pooled_mm if i in at_shared_toe]
+    if levelled:
+        correction_mm = _level_correction_mm([at_shared_toe[i].z_mm - pooled_mm[i] for i in levelled])
+    else:  # no toe model: the level of the taps' own Zs
+        correction_mm = float(np.mean([analyses[i].z_mm - pooled_mm[i] for i in pooled_mm]))
+    zs_mm = {i: z + correction_mm for i, z in pooled_mm.items()}
+    sigma_um = math.hypot(level_sigma_um([analyses[i] for i in zs_mm]), _sample_sd_um(list(zs_mm.values())))
+    for i, z in zs_mm.items():
+        out[i] = PooledZ(z, sigma_um)
+    for i in misfits:
+        out[i] = PooledZ(analyses[i].z_mm, analyses[i].z_sigma_um or 0.0)
     return out
 
 
-def contact_at_stiffness_um(fit: PullbackFit, stiffness_g_um: float) -> float | None:
-    """The sharp contact height of a tap's pullback with the stiffness fixed (the baseline free),
-    near its own: a search over SHARED_STIFFNESS_HEIGHTS heights, then a parabola. None when the
-    least residual lies on the search's edge."""
+def level_sigma_um(analyses: list[TapAnalysis]) -> float:
+    """The uncertainty of the pool's level: of the taps' own variance (their z_sigma_um squared, mean),
+    the part their spread does not show (an error every tap shares: the toe model's), and the
+    uncertainty of the mean of the part it shows (their sample variance over the taps)."""
+    own_var_um2 = sum((a.z_sigma_um or 0.0) ** 2 for a in analyses) / len(analyses)
+    if len(analyses) < 2:
+        return math.sqrt(own_var_um2)
+    spread_var_um2 = _sample_sd_um([a.z_mm for a in analyses]) ** 2
+    return math.sqrt(max(own_var_um2 - spread_var_um2, 0.0) + spread_var_um2 / len(analyses))
+
+
+def _sample_sd_um(zs_mm: list[float]) -> float:
+    return float(np.std(zs_mm, ddof=1)) * 1000.0 if len(zs_mm) > 1 else 0.0
+
+
+def _left_out(analysis: TapAnalysis) -> TapAnalysis:
+    """A stand-in that `shared_toe_contacts` skips (it pools the valid taps only)."""
+    return TapAnalysis(valid=False)
+
+
+def contact_at_stiffness_um(fit: PullbackFit, stiffness_g_um: float, onset_um: float | None = None,
+                            reach_g: float = POOL_REACH_G, above_um: float = POOL_ABOVE_UM
+                            ) -> tuple[float, float] | None:
+    """The sharp contact height of a tap's pullback with the stiffness and onset fixed (the baseline
+    free), near its own, and the residual variance there (g²): a search over SHARED_STIFFNESS_HEIGHTS
+    heights, then a parabola. Samples within reach_g / stiffness below the tap's own contact and
+    above_um above it. None when the least residual lies on the search's edge or too few samples
+    are near. onset_um None: the tap's own."""
+    onset_um = fit.onset_um if onset_um is None else onset_um
     heights_um = fit.contact_um + np.linspace(-SHARED_STIFFNESS_SEARCH_UM, SHARED_STIFFNESS_SEARCH_UM,
                                               SHARED_STIFFNESS_HEIGHTS)
-    near = fit.x_min_um + fit.span_um > fit.contact_um - PENETRATION_REACH_UM
+    near = ((fit.x_min_um + fit.span_um > fit.contact_um - reach_g / stiffness_g_um)
+            & (fit.x_min_um < fit.contact_um + above_um))
     x_min, span, force = fit.x_min_um[near], fit.span_um[near], fit.force_g[near]
     if len(force) < 4:
         return None
-    mean, _ = window_mean_and_slope(heights_um[:, None], fit.onset_um, x_min[None, :], span[None, :], slope=False)
+    mean, _ = window_mean_and_slope(heights_um[:, None], onset_um, x_min[None, :], span[None, :], slope=False)
     residual = force[None, :] - stiffness_g_um * mean
     rss = np.sum(np.square(residual - residual.mean(axis=1, keepdims=True)), axis=1)
     k = int(rss.argmin())
@@ -129,7 +241,7 @@ def contact_at_stiffness_um(fit: PullbackFit, stiffness_g_um: float) -> float | 
     before, at, after = rss[k - 1], rss[k], rss[k + 1]
     bend = before - 2.0 * at + after
     offset = 0.5 * (before - after) / bend if bend > 0 else 0.0
-    return float(heights_um[k] + offset * (heights_um[1] - heights_um[0]))
+    return float(heights_um[k] + offset * (heights_um[1] - heights_um[0])), float(at) / (len(force) - 1)
 
 
 def apply_pool(analyses: list[TapAnalysis]) -> None:
