@@ -19,7 +19,7 @@ its noise's alone.
    model assumes a shape the bed may not have). The level is the toe model's, with the toe shared
    by the taps (`shared_toe_contacts`: every toe of the grid weighted by its likelihood over all
    the taps): each pooled Z is its contact from step 2 plus the taps' mean difference between
-   their shared-toe Z and that contact (outliers of that difference left out).
+   their shared-toe Z and that contact.
 4. **A tap that does not fit.** A valid tap whose residual at the shared physics is several times
    the pool's (a retried mesh point that hit a blob, a tap the others do not resemble) is left out
    of the shared estimates and of the level, and keeps its own Z and sigma.
@@ -57,8 +57,6 @@ POOL_ABOVE_UM = 60.0
 # and onset is pooled alone (step 4). The clean sessions of both sets reach at most 1.09 (taplab)
 # and 1.27 (reference); a soft-sheet or an HX711 tap among HX717 taps is not even placed.
 MISFIT_EXCESS = 1.5
-# Taps whose shared-toe correction is this many robust sigmas from the median are left out of the level.
-LEVEL_OUTLIER_SIGMAS = 3.0
 
 
 @dataclass
@@ -154,15 +152,6 @@ def _misfits(members: list[int], contacts: dict[int, SharedContact]) -> set[int]
     return {i for i in members if i not in contacts or contacts[i].excess > MISFIT_EXCESS}
 
 
-def _level_correction_mm(corrections_mm: list[float]) -> float:
-    """The taps' mean shared-toe correction, those LEVEL_OUTLIER_SIGMAS robust sigmas from the median left out."""
-    values = np.array(corrections_mm)
-    centre = float(np.median(values))
-    spread = 1.4826 * float(np.median(np.abs(values - centre)))
-    kept = values[np.abs(values - centre) <= LEVEL_OUTLIER_SIGMAS * spread] if spread > 0 else values
-    return float(kept.mean()) if len(kept) else centre
-
-
 def pool_taps(analyses: list[TapAnalysis]) -> list[PooledZ | None]:
     """Each tap's pooled Z (None for taps that are invalid or were not read by the contact model).
     A valid tap the shared physics does not fit (step 4) keeps its own Z and sigma."""
@@ -184,7 +173,7 @@ def pool_taps(analyses: list[TapAnalysis]) -> list[PooledZ | None]:
     at_shared_toe = shared_toe_contacts([a if i in pooled_mm else _left_out(a) for i, a in enumerate(analyses)])
     levelled = [i for i in pooled_mm if i in at_shared_toe]
     if levelled:
-        correction_mm = _level_correction_mm([at_shared_toe[i].z_mm - pooled_mm[i] for i in levelled])
+        correction_mm = float(np.mean([at_shared_toe[i].z_mm - pooled_mm[i] for i in levelled]))
     else:  # no toe model: the level of the taps' own Zs
         correction_mm = float(np.mean([analyses[i].z_mm - pooled_mm[i] for i in pooled_mm]))
     zs_mm = {i: z + correction_mm for i, z in pooled_mm.items()}
