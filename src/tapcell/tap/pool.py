@@ -42,10 +42,12 @@ from tapcell.tap.contact import window_mean_and_slope
 from tapcell.tap.model import PullbackFit, TapAnalysis
 from tapcell.tap.toe import toe_minima
 
-# The contact searched again at the shared physics: this far either side of the tap's own (µm), on
-# this many heights, then the parabola through the least three.
+# The contact searched again at the shared physics: this far either side of the tap's own (µm), in
+# coarse steps, then in fine steps one coarse step either side of the least, then the parabola
+# through the least three (34 heights where an even 0.05 µm grid took 121: a 10-tap pool 2.5 -> 1.4 ms).
 SHARED_STIFFNESS_SEARCH_UM = 3.0
-SHARED_STIFFNESS_HEIGHTS = 121
+SEARCH_COARSE_STEP_UM = 0.5
+SEARCH_FINE_STEP_UM = 0.05
 # The samples each tap's contact is read from: in contact, those the shared stiffness puts within
 # this force of contact; in free air, those this far above it. Chosen by the worst scenario of
 # taplab's and the reference sessions (pooled within-session sigma over Kalico's: 60 g / 60 µm
@@ -129,15 +131,17 @@ def contact_at_shared(analysis: TapAnalysis, shared: SharedPhysics) -> SharedCon
     found = contact_at_stiffness_um(fit, shared.stiffness_g_um, shared.onset_um)
     if found is None:
         return None
-    contact_um, residual_var_g2 = found
-    own = contact_at_stiffness_um(fit, fit.stiffness_g_um, fit.onset_um)
-    # How much worse the shared physics fits this tap than its own (1: as well).
-    excess = residual_var_g2 / own[1] if own is not None and own[1] > 0 else 1.0
+    contact_um, found_var_g2 = found
+    # How much worse the shared physics fits this tap than its own sharp fit does on the samples
+    # the shared stiffness picks (about 1: as well).
+    own_var_g2 = residual_var_g2(fit, fit.stiffness_g_um, fit.onset_um, fit.contact_um,
+                                 POOL_REACH_G / shared.stiffness_g_um)
+    excess = found_var_g2 / own_var_g2 if own_var_g2 else 1.0
     # The sharp Z is the halt plus the contact, read with the tap's own delay; a longer delay put
     # every height lower by pullback speed x delay.
     z_mm = (analysis.z_sharp_mm + (contact_um - fit.contact_um) / 1000.0
             + fit.pullback_speed_mm_s * (fit.delay_s - shared.delay_s))
-    return SharedContact(z_mm, residual_var_g2, excess)
+    return SharedContact(z_mm, found_var_g2, excess)
 
 
 def _fitting(analysis: TapAnalysis) -> bool:
@@ -209,28 +213,52 @@ def contact_at_stiffness_um(fit: PullbackFit, stiffness_g_um: float, onset_um: f
                             reach_g: float = POOL_REACH_G, above_um: float = POOL_ABOVE_UM
                             ) -> tuple[float, float] | None:
     """The sharp contact height of a tap's pullback with the stiffness and onset fixed (the baseline
-    free), near its own, and the residual variance there (g²): a search over SHARED_STIFFNESS_HEIGHTS
-    heights, then a parabola. Samples within reach_g / stiffness below the tap's own contact and
-    above_um above it. None when the least residual lies on the search's edge or too few samples
-    are near. onset_um None: the tap's own."""
+    free), near its own, and the residual variance there (g²): a coarse then a fine search, then a
+    parabola. Samples within reach_g / stiffness below the tap's own contact and above_um above it.
+    None when the least residual lies on the search's edge or too few samples are near. onset_um
+    None: the tap's own."""
     onset_um = fit.onset_um if onset_um is None else onset_um
-    heights_um = fit.contact_um + np.linspace(-SHARED_STIFFNESS_SEARCH_UM, SHARED_STIFFNESS_SEARCH_UM,
-                                              SHARED_STIFFNESS_HEIGHTS)
-    near = ((fit.x_min_um + fit.span_um > fit.contact_um - reach_g / stiffness_g_um)
-            & (fit.x_min_um < fit.contact_um + above_um))
-    x_min, span, force = fit.x_min_um[near], fit.span_um[near], fit.force_g[near]
-    if len(force) < 4:
+    samples = _near_samples(fit, reach_g / stiffness_g_um, above_um)
+    if samples is None:
         return None
-    mean, _ = window_mean_and_slope(heights_um[:, None], onset_um, x_min[None, :], span[None, :], slope=False)
-    residual = force[None, :] - stiffness_g_um * mean
-    rss = np.sum(np.square(residual - residual.mean(axis=1, keepdims=True)), axis=1)
+    coarse_um = fit.contact_um + np.arange(-SHARED_STIFFNESS_SEARCH_UM, SHARED_STIFFNESS_SEARCH_UM + 1e-9,
+                                           SEARCH_COARSE_STEP_UM)
+    rss = _rss_at(coarse_um, stiffness_g_um, onset_um, samples)
     k = int(rss.argmin())
     if not 0 < k < len(rss) - 1:
         return None
+    fine_um = coarse_um[k] + np.arange(-SEARCH_COARSE_STEP_UM, SEARCH_COARSE_STEP_UM + 1e-9, SEARCH_FINE_STEP_UM)
+    rss = _rss_at(fine_um, stiffness_g_um, onset_um, samples)
+    k = min(max(int(rss.argmin()), 1), len(rss) - 2)  # the least is inside: the coarse search bracketed it
     before, at, after = rss[k - 1], rss[k], rss[k + 1]
     bend = before - 2.0 * at + after
     offset = 0.5 * (before - after) / bend if bend > 0 else 0.0
-    return float(heights_um[k] + offset * (heights_um[1] - heights_um[0])), float(at) / (len(force) - 1)
+    return float(fine_um[k] + offset * SEARCH_FINE_STEP_UM), float(at) / (len(samples[2]) - 1)
+
+
+def residual_var_g2(fit: PullbackFit, stiffness_g_um: float, onset_um: float, contact_um: float,
+                    below_um: float, above_um: float = POOL_ABOVE_UM) -> float | None:
+    """The residual variance (g², baseline free) of the sharp model at one contact height over a tap's
+    samples from below_um below its own contact to above_um above it."""
+    samples = _near_samples(fit, below_um, above_um)
+    if samples is None:
+        return None
+    return float(_rss_at(np.array([contact_um]), stiffness_g_um, onset_um, samples)[0]) / (len(samples[2]) - 1)
+
+
+def _near_samples(fit: PullbackFit, below_um: float, above_um: float):
+    near = (fit.x_min_um + fit.span_um > fit.contact_um - below_um) & (fit.x_min_um < fit.contact_um + above_um)
+    if np.count_nonzero(near) < 4:
+        return None
+    return fit.x_min_um[near], fit.span_um[near], fit.force_g[near]
+
+
+def _rss_at(heights_um: np.ndarray, stiffness_g_um: float, onset_um: float, samples) -> np.ndarray:
+    """Residual sum of squares of the sharp model (stiffness and onset fixed, baseline free) at each height."""
+    x_min, span, force = samples
+    mean, _ = window_mean_and_slope(heights_um[:, None], onset_um, x_min[None, :], span[None, :], slope=False)
+    residual = force[None, :] - stiffness_g_um * mean
+    return np.sum(np.square(residual - residual.mean(axis=1, keepdims=True)), axis=1)
 
 
 def apply_pool(analyses: list[TapAnalysis]) -> None:
