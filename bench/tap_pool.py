@@ -9,9 +9,12 @@ PROBE_ACCURACY computes it, then the rms over the sessions, µm; Kalico's over t
 accepts of the same files), the bias against the truth, rms(error / sigma), pooled / Kalico, and
 the median time one pool takes (`pool_taps` over the session's analyses, ms). Then the same for
 pools of the first 3 taps of each session (a retried point, `SAMPLES=3`), and the worst
-pooled / Kalico of each set.
+pooled / Kalico of each set. With --floor N: on the first N taplab sessions of each scenario, the
+Cramér-Rao floor of a tap's Z with everything its session shares known and only its contact height
+and baseline unknown (`tapcell.taplab.bound`, white noise alone and white + 1/f + walk): what no
+pooling can beat on taplab's taps.
 
-Run: .venv/bin/python -m bench tap_pool [--sessions N] [--seed N] [--no-kalico]
+Run: .venv/bin/python -m bench tap_pool [--sessions N] [--seed N] [--no-kalico] [--floor N]
 """
 
 from __future__ import annotations
@@ -29,7 +32,8 @@ from tapcell.tap import analyze_tap, read_tap_file
 from tapcell.tap.pool import pool_taps
 from tapcell.taplab.benchmark import (REFERENCE_SESSIONS_NAME, TapSet, default_reference_archive, kalico_command,
                                       kalico_python, read_labels, reference_set, run_analyzer)
-from tapcell.taplab.generate import generate_sessions
+from tapcell.taplab import bound
+from tapcell.taplab.generate import SESSION_SCENARIOS, RecordedMotion, generate_sessions, make_tap, session_tap_specs
 
 
 def _rms(values) -> float:
@@ -114,6 +118,24 @@ def kalico_answers(tap_set: TapSet) -> dict[str, dict] | None:
     return run.results if run is not None and not run.failure else None
 
 
+def print_floor(seed: int, sessions: int) -> None:
+    """The Cramér-Rao floor of each tap's Z with only its contact and baseline unknown, rms over the taps."""
+    print(f"== floor: taplab sessions (seed {seed}, first {sessions} per scenario), only each tap's contact "
+          "and baseline unknown (Cramér-Rao, µm)")
+    print(f"{'scenario':<20} {'white':>7} {'white + 1/f + walk':>19}")
+    for name in SESSION_SCENARIOS:
+        floors = {"white": [], "coloured": []}
+        for session in range(sessions):
+            for spec, rng in session_tap_specs(name, seed, session, 10):
+                tap, _ = make_tap(spec, rng)
+                sensitivity = bound.sensitivities(spec, RecordedMotion.of_tap(tap))
+                for noise in floors:
+                    fisher = bound.fisher(sensitivity, spec, coloured=noise == "coloured")
+                    floors[noise].append(bound.crb(fisher, ("z_contact_um", "offset_g")).sigma_um)
+        print(f"{name:<20} {_rms(floors['white']):>7.3f} {_rms(floors['coloured']):>19.3f}")
+    print()
+
+
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench tap_pool", description=__doc__.split("\n\n")[0])
     parser.add_argument("--sessions", type=int, default=20, help="taplab sessions per scenario (default 20)")
@@ -121,6 +143,8 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--reference", help="the reference sessions (archive or directory); default "
                                             "../shared/data/reference-sessions.tar.xz from the repository root")
     parser.add_argument("--no-kalico", action="store_true")
+    parser.add_argument("--floor", type=int, default=0, metavar="N",
+                        help="also the Cramér-Rao floor on the first N taplab sessions per scenario")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="tap-pool-") as scratch:
         taplab_dir = Path(scratch, "taplab-sessions")
@@ -143,6 +167,9 @@ def main(argv: list[str]) -> int:
             for pool_size in (None, SMALL_POOL_TAPS):
                 worst = max(worst, score_set(tap_set, pool_size, analyses, answers))
         print(f"worst pooled/Kalico over both sets and pool sizes: {worst:.2f} (target <= 0.5)")
+    if args.floor:
+        print()
+        print_floor(args.seed, args.floor)
     return 0
 
 
