@@ -12,7 +12,7 @@ import pytest
 from tapcell.tap import analyze_tap, read_tap_file
 from tapcell.tap import pool as pool_module
 from tapcell.tap.cli import main as analyze_main
-from tapcell.tap.model import TapAnalysis
+from tapcell.tap.model import AnalysisOptions, TapAnalysis
 from tapcell.tap.pool import apply_pool, pool_taps
 from tapcell.taplab.generate import generate_sessions
 
@@ -123,6 +123,15 @@ def test_the_misfit_rule_leaves_every_clean_tap_in(sessions):
         # Measured here 1.00-1.10 (both benchmark sets: at most 1.33 taplab, 1.47 reference). Never
         # below 1: the tap's own stiffness fits its samples at least as well as any other.
         assert 1.0 - 1e-9 <= min(excess) and max(excess) < 1.2 < pool_module.MISFIT_EXCESS
+
+
+def test_taps_not_read_by_the_toe_model_are_not_pooled(sessions):
+    """The sharp model (or a calibrated onset) has no toe grid for the level: no pooled Z, as the
+    probe's PROBE_ACCURACY expects (tests/probe/test_probe_pooling.py)."""
+    sharp = AnalysisOptions(contact_model="sharp")
+    analyses = [analyze_tap(read_tap_file(str(path))[0], sharp) for path, *_ in _clean(sessions)[0][:4]]
+    assert all(a.valid for a in analyses)
+    assert pool_taps(analyses) == [None] * 4
 
 
 def test_one_tap_alone_reads_its_own_toe(sessions):

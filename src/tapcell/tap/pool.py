@@ -150,7 +150,10 @@ def contact_at_shared(analysis: TapAnalysis, shared: SharedPhysics) -> SharedCon
 
 
 def _fitting(analysis: TapAnalysis) -> bool:
-    return analysis.valid and analysis.pullback_fit is not None and analysis.z_sharp_mm is not None
+    """A tap the pool reads: valid, with the sharp fit (step 2) and the toe grid (the level, step 3).
+    The sharp model alone, or a calibrated onset, is not pooled: measured on neither set."""
+    return (analysis.valid and analysis.pullback_fit is not None and analysis.z_sharp_mm is not None
+            and analysis.toe_grid is not None and analysis.toe_z_origin_mm is not None)
 
 
 def _misfits(members: list[int], contacts: dict[int, SharedContact]) -> set[int]:
@@ -162,7 +165,7 @@ def _misfits(members: list[int], contacts: dict[int, SharedContact]) -> set[int]
 
 
 def pool_taps(analyses: list[TapAnalysis]) -> list[PooledZ | None]:
-    """Each tap's pooled Z (None for taps that are invalid or were not read by the contact model).
+    """Each tap's pooled Z (None for taps that are invalid or were not read by the toe model).
     A valid tap the shared physics does not fit (step 4) keeps its own Z and sigma."""
     out: list[PooledZ | None] = [None] * len(analyses)
     members = [i for i, a in enumerate(analyses) if _fitting(a)]
@@ -183,7 +186,7 @@ def pool_taps(analyses: list[TapAnalysis]) -> list[PooledZ | None]:
     levelled = [i for i in pooled_mm if i in at_shared_toe]
     if levelled:
         correction_mm = float(np.mean([at_shared_toe[i].z_mm - pooled_mm[i] for i in levelled]))
-    else:  # no toe model: the level of the taps' own Zs
+    else:  # no toe every tap can place: the level of the taps' own Zs
         correction_mm = float(np.mean([analyses[i].z_mm - pooled_mm[i] for i in pooled_mm]))
     zs_mm = {i: z + correction_mm for i, z in pooled_mm.items()}
     sigma_um = math.hypot(level_sigma_um([analyses[i] for i in zs_mm]), _sample_sd_um(list(zs_mm.values())))
