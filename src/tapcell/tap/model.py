@@ -295,7 +295,8 @@ class TapAnalysis:
     points: list[tuple[float, float]] = field(default_factory=list)  # 6 × (time_s, force_g)
     lines: list[tuple[float, float]] = field(default_factory=list)  # 5 × (slope g/s, intercept g)
     angles_deg: list[float] = field(default_factory=list)  # 4 angles between consecutive lines
-    elapsed_ms: float = 0.0
+    elapsed_ms: float = 0.0  # wall time of analyze_tap (Klipper's `elapsed`)
+    cpu_ms: float = 0.0  # the process's CPU time over the same call (what speed targets compare)
     polarity: int = 0  # +1: contact drives force up, -1: down, 0: unknown
     compression_force_g: float | None = None
     break_contact_time_s: float | None = None
@@ -343,6 +344,7 @@ class TapAnalysis:
             "lines": [{"slope": _num(s, 4), "intercept": _num(i, 4)} for s, i in self.lines],
             "angles": [_num(a, 3) for a in self.angles_deg],
             "elapsed_ms": round(self.elapsed_ms, 4),
+            "cpu_ms": round(self.cpu_ms, 4),
             "polarity": self.polarity,
             "compression_force": _num(self.compression_force_g, 4),
             "break_contact_time": _num(self.break_contact_time_s),
