@@ -47,7 +47,8 @@ from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import PrefixSums, best_five_segments, prefix_sums, segment_lines
-from tapcell.tap.stage import departure_near, shows_soft_stage, soft_stage
+from tapcell.tap.stage import (departure_near, shows_soft_stage, shows_two_stage, soft_stage,
+                               two_stage_departure)
 from tapcell.tap.toe import (ADHESION_LEVEL_UM, ADHESION_REACH_UM, THREAD_FAR_REACH_UM, THREAD_REACH_UM, ToeFit,
                              Wander, adhesion_measures, fit_toe, free_air_variogram, lag_from_halt_s, thread_pull_g,
                              wander_from_variograms)
@@ -1005,6 +1006,7 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
                    result.compression_force_g)
     check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, split.noise_g, approach_wander,
                      toe.stiffness_g_um)
+    check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, split.noise_g, approach_wander)
     approach_change_g = abs(dec.points[P_CONTACT][1] - dec.points[P_START][1])
     if approach_change_g > APPROACH_DRIFT_MATERIAL_SHARE * result.compression_force_g:  # else it costs the score little
         result.approach_drift_share = departure_drift_share(rising, toe.contact_um, drift_g_um)
@@ -1033,6 +1035,22 @@ def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float
                          f"{stage.top_um - contact_um:.0f} um up to Z {first_touch_mm:.4f}): a soft layer pressed "
                          "before the contact, a two-stage mount (a magnetic sheet, a sprung bed) or a film of ooze; "
                          "its stiff stage would read low")
+
+
+def check_two_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, toe: ToeFit, lag_shift_um: float,
+                    noise_g: float, approach_wander: Wander | None) -> None:
+    """TAP_TWO_STAGE_CONTACT when the departure is two stages rather than the wide toe fitted
+    (tapcell.tap.stage.two_stage_departure): the toe absorbed a soft first stage and reads low."""
+    walk_var_g2 = approach_wander.walk_var_g2 if approach_wander else 0.0
+    fit = two_stage_departure(*samples, drift_g_um, toe.contact_um, toe.width_um, noise_g, walk_var_g2)
+    if shows_two_stage(fit, toe.contact_um):
+        first_touch_mm = motion.z_halt_mm + (fit.top_um - lag_shift_um) / 1000.0
+        raise TapInvalid(TAP_TWO_STAGE_CONTACT,
+                         f"the departure is two stages, not one contact: a stiff stage, then a soft one "
+                         f"({100.0 * fit.soft_share:.0f} % of its stiffness) over {fit.span_um:.0f} um up to "
+                         f"Z {first_touch_mm:.4f}, {fit.evidence_chi2:.0f} noise variances better than any "
+                         f"one-stage toe: a two-stage mount (a magnetic sheet, a sprung bed) or a film of "
+                         f"ooze; the contact found would read {fit.top_um - toe.contact_um:.1f} um low")
 
 
 def compression_stiffness(split: SplitTap, window: ModelWindow, fits: ContactFits, delay_s: float,
