@@ -47,13 +47,14 @@ def test_toe_and_halt_lag_remove_the_onset_bias_and_sigma_is_honest(tmp_path):
 
 
 def test_toe_rejects_taps_an_adhesion_thread_pulls(tmp_path):
-    # Seeds 11-14, 8 mild-ooze taps each: 4, 5, 4, 3 rejected, every one TAP_ADHESION (the clean,
-    # soft and drift taps above: none).
+    # Seeds 11-14, 8 mild-ooze taps each: 4, 5, 4, 3 rejected as TAP_ADHESION (the clean, soft and
+    # drift taps above: none). Seed 11 also has two taps whose film the toe took for its toe (valid
+    # 3.0 and 3.8 um high before the two-stage fit): TAP_TWO_STAGE_CONTACT, whose message names ooze.
     labels = generate_set(tmp_path, seed=11, taps_per_scenario=8, scenarios=["mild_ooze"])
     codes = [analyze_tap(read_tap_file(tmp_path / label["file"])[0], TOE).error for label in labels]
     rejected = [code for code in codes if code]
     assert 2 <= len(rejected) <= 7
-    assert set(rejected) == {"TAP_ADHESION"}
+    assert "TAP_ADHESION" in rejected and set(rejected) <= {"TAP_ADHESION", "TAP_TWO_STAGE_CONTACT"}
 
 
 def test_a_thread_pulling_the_whole_departure_is_rejected_against_the_approach():
