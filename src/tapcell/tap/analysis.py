@@ -19,13 +19,14 @@ it with and what runs without a C compiler.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
-from tapcell.tap import native, validate
+from tapcell.tap import native, uncertainty, validate
 from tapcell.tap.angles import line_angles_deg
 from tapcell.tap.classifiers import MISFIT_TOLERANCE, get_classifier, run_classifier
 from tapcell.tap.contact import (MIN_SPAN_UM, ContactFit, fit_contact, fit_fixed_onset, window_edges,
@@ -272,13 +273,18 @@ def _segment_stats(ps: PrefixSums, i: int, j: int) -> tuple[float, float, float]
 
 def break_time_sigma_s(ps: PrefixSums, dec: Decomposition, t_break: float) -> float:
     """1 sigma of the decompression ∩ departure time from the two line fits."""
-    i, j, k = dec.bounds[2], dec.bounds[3], dec.stop - dec.start
+    return corner_time_sigma_s(ps, dec, DECOMPRESSION, t_break)
+
+
+def corner_time_sigma_s(ps: PrefixSums, dec: Decomposition, line: int, t_corner: float) -> float:
+    """1 sigma of the time where line `line` meets the next (APPROACH..DWELL + 1) from the two line fits."""
+    edges = [0, *dec.bounds, dec.stop - dec.start]
     var = 0.0
-    for a, b in ((i, j), (j, k)):
+    for a, b in ((edges[line], edges[line + 1]), (edges[line + 1], edges[line + 2])):
         res_var, t_mean, sxx = _segment_stats(ps, a, b)
-        lever = (t_break - ps.t_ref_s) - t_mean
+        lever = (t_corner - ps.t_ref_s) - t_mean
         var += res_var * (1.0 / (b - a) + (lever * lever / sxx if sxx > 0 else 0.0))
-    slope_gap = abs(dec.decompression_line[0] - dec.departure_line[0])
+    slope_gap = abs(dec.lines[line][0] - dec.lines[line + 1][0])
     return math.sqrt(var) / slope_gap if slope_gap > 0 else math.inf
 
 
@@ -672,6 +678,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         z_from_sharp_model_or_lines(split, fits, result)
         if options.uses_toe_model:
             z_from_toe_model(split, window, fits, delay_s, window_delay_s, result)
+        z_uncertainty(split, window, delay_s, window_delay_s, result)
         compression_stiffness(split, window, fits, delay_s, result)
     except TapInvalid as invalid:
         # Keep the lines, points and what was measured: they show what went wrong (plots, tap logs).
@@ -834,6 +841,49 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
                    result.compression_force_g, contact_explained(result))
     check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, split.noise_g, approach_wander,
                      toe.stiffness_g_um)
+
+
+def z_uncertainty(split: SplitTap, window: ModelWindow, delay_s: float, window_delay_s: float,
+                  result: TapAnalysis) -> None:
+    """`z_sigma_um` from the parts the tap shows (tapcell.tap.uncertainty): the toe fit's noise,
+    trade-off and shape (when the toe set Z; else the sharp fit's or the lines' sigma as the noise),
+    a departure thread letting go, the misfit near contact, the Z staircase, the halt's delay."""
+    motion, timing, dec = split.motion, split.timing, split.dec
+    if result.z_mm is None or result.z_sigma_um is None:
+        return
+    stiffness = result.stiffness_decompression_g_um or 0.0
+    speed_um_s = motion.pullback_speed_mm_s * 1000.0
+    # Break contact in the window's heights (a delay estimated since moved Z down by speed x delay).
+    contact_um = (result.z_mm - motion.z_halt_mm) * 1000.0 + (delay_s - window_delay_s) * speed_um_s
+    x_lo, x_hi, force_g = pullback_samples(window, motion, timing, window_delay_s)
+    x_um = 0.5 * (x_lo + x_hi)
+    slope_g_s, intercept_g = dec.approach_line
+    pull = functools.partial(thread_pull_g, x_um, force_g, free_air_slope_g_um(dec, motion),
+                             slope_g_s * motion.home_end_s + intercept_g, contact_um)
+    reaches_far = len(x_um) > 0 and float(x_um.max()) - contact_um >= THREAD_FAR_MIN_UM
+    # The walk between the near and far reaches' middles, in samples of the pullback.
+    _, approach_wander = free_air_wanders(split.force_g, dec)
+    apart_samples = (sum(THREAD_FAR_REACH_UM) - sum(THREAD_REACH_UM)) / 2.0 / max(
+        speed_um_s * timing.sample_period_s, 1e-9)
+    walk_var_g2 = approach_wander.walk_var_g2 * apart_samples if approach_wander else 0.0
+    # The scatter away from contact: the departure line's residual, or the white noise when larger.
+    departure_g = math.sqrt(_segment_stats(split.ps, dec.bounds[3], dec.stop - dec.start)[0])
+    window_um = speed_um_s * timing.integration_s
+    halt_sigma_s = (corner_time_sigma_s(split.ps, dec, COMPRESSION, dec.points[P_DWELL_START][0])
+                    if timing.delay_from_halt else 0.0)
+    others = dict(
+        thread_um=uncertainty.thread_um(pull(), pull(THREAD_FAR_REACH_UM) if reaches_far else None, walk_var_g2,
+                                        stiffness),
+        misfit_um=uncertainty.misfit_um(result.fit_residual_sigma_g, max(split.noise_g, departure_g),
+                                        result.step_sigma_g, stiffness),
+        staircase_um=uncertainty.staircase_um(step_staircase_sigma_um(timing.z_step_um, window_um), timing.z_step_um),
+        delay_um=speed_um_s * halt_sigma_s if math.isfinite(halt_sigma_s) else 0.0)
+    if result.z_method == "toe" and result.toe_grid is not None:
+        parts = uncertainty.toe_parts(result.toe_grid, **others)
+    else:
+        parts = uncertainty.ZSigmaParts(noise_um=result.z_sigma_um, **others)
+    result.z_sigma_parts = parts
+    result.z_sigma_um = uncertainty.z_sigma_um(parts)
 
 
 def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, contact_um: float,

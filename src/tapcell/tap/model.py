@@ -308,6 +308,8 @@ class TapAnalysis:
     pullback_fit: PullbackFit | None = field(default=None, repr=False, compare=False)
     z_sharp_mm: float | None = field(default=None, repr=False, compare=False)  # the sharp model's Z
     z_sharp_sigma_um: float | None = field(default=None, repr=False, compare=False)
+    # What z_sigma_um was made of (tapcell.tap.uncertainty.ZSigmaParts; `python -m bench tap_sigma`).
+    z_sigma_parts: Any = field(default=None, repr=False, compare=False)
     z_pooled_mm: float | None = None  # Z with the toe shared by the taps at one spot (tapcell.tap.pool)
     z_pooled_sigma_um: float | None = None
 

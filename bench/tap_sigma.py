@@ -1,0 +1,134 @@
+"""Is `z_sigma_um` honest? rms(error / z_sigma_um) per scenario on taplab and the reference taps,
+the parts it is made of (tapcell.tap.uncertainty), and the weights the worst scenario would choose.
+
+Per set and scenario, over the taps the analysis accepts: the rms error (µm, bias included: a
+sigma must cover it), the rms of each part of the sigma, rms(error / sigma) with the weights in
+tapcell.tap.uncertainty, and with the weights this run chooses: on a grid, the weights whose
+worst scenario over both sets (every scenario with at least MIN_TAPS accepted taps, fouled ones
+included) has rms(error / sigma) closest to 1 (the least max |log ratio|). A scenario whose taps
+are all rejected has no ratio. Re-run after any change to the Z estimator and carry the chosen
+weights into tapcell.tap.uncertainty if they differ.
+
+Run: .venv/bin/python -m bench tap_sigma [--seed N] [--per-scenario N] [--reference PATH]
+     (the reference taps default to ../shared/data/reference-taps.tar.xz from the repository root)
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import dataclasses
+import itertools
+import math
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from tapcell.tap import analyze_tap, read_tap_file
+from tapcell.tap.uncertainty import SigmaWeights, ZSigmaParts, z_sigma_um
+from tapcell.taplab.benchmark import TapSet, default_reference_archive, read_labels, reference_set
+from tapcell.taplab.generate import generate_set
+
+MIN_TAPS = 5  # fewer accepted taps in a scenario: its rms says little (and it is not used to choose)
+# The weights tried (tapcell.tap.uncertainty.SigmaWeights' fields).
+GRID = {"noise": np.arange(0.5, 1.51, 0.125), "toe": np.arange(0.0, 1.51, 0.125), "shape": np.arange(0.0, 3.01, 0.25), "misfit": np.arange(0.0, 2.01, 0.5),
+        "thread": np.arange(0.0, 2.01, 0.25)}
+TYPICAL_SHARE = 0.25  # the mean |log ratio|'s share in the choice, beside the worst scenario's
+PART_NAMES = [f.name for f in dataclasses.fields(ZSigmaParts)]
+
+
+@dataclasses.dataclass
+class Scenario:
+    errors_um: list[float] = dataclasses.field(default_factory=list)
+    parts: list[ZSigmaParts] = dataclasses.field(default_factory=list)
+    taps: int = 0
+
+
+def collect(tap_set: TapSet) -> dict[str, Scenario]:
+    """Every tap analysed in process: the accepted taps' errors and sigma parts, per scenario."""
+    scenarios: dict[str, Scenario] = collections.defaultdict(Scenario)
+    for label in tap_set.labels:
+        scenario = scenarios[label.scenario]
+        scenario.taps += 1
+        analysis = analyze_tap(read_tap_file(str(tap_set.directory / label.file))[0])
+        if analysis.valid and analysis.z_mm is not None and analysis.z_sigma_parts is not None:
+            scenario.errors_um.append((analysis.z_mm - label.z_contact_mm) * 1000.0)
+            scenario.parts.append(analysis.z_sigma_parts)
+    return scenarios
+
+
+def ratio_rms(scenario: Scenario, weights: SigmaWeights) -> float | None:
+    if not scenario.errors_um:
+        return None
+    sigmas = np.array([z_sigma_um(p, weights) for p in scenario.parts])
+    return float(np.sqrt(np.mean(np.square(np.array(scenario.errors_um) / sigmas))))
+
+
+def choose_weights(sets: dict[str, dict[str, Scenario]]) -> tuple[SigmaWeights, float]:
+    """The grid's weights whose worst scenario (over every set) is closest to 1, and that worst ratio."""
+    judged = [s for scenarios in sets.values() for s in scenarios.values() if len(s.errors_um) >= MIN_TAPS]
+    # Per scenario: errors and the squared parts, so every weight combination is one matrix product.
+    errors = [np.array(s.errors_um) for s in judged]
+    fixed = [np.array([p.staircase_um ** 2 + p.delay_um ** 2 for p in s.parts]) for s in judged]
+    weighed = [np.array([[getattr(p, name + "_um") ** 2 for name in GRID] for p in s.parts]) for s in judged]
+    combos = np.array(list(itertools.product(*GRID.values())))
+    worst, total = np.zeros(len(combos)), np.zeros(len(combos))
+    for e, f, w in zip(errors, fixed, weighed):
+        sigma2 = f[:, None] + w @ (combos ** 2).T  # (taps, combos)
+        off = np.abs(np.log(np.sqrt(np.mean(e[:, None] ** 2 / sigma2, axis=0))))
+        worst, total = np.maximum(worst, off), total + off
+    # The worst scenario first; among weights nearly as good there, the one best on the others
+    # (a fouled scenario nothing in the tap explains would otherwise leave the rest arbitrary).
+    best = int((worst + TYPICAL_SHARE * total / len(judged)).argmin())
+    return SigmaWeights(**{name: float(w) for name, w in zip(GRID, combos[best])}), math.exp(float(worst[best]))
+
+
+def _rms(values) -> float:
+    return float(np.sqrt(np.mean(np.square(values)))) if len(values) else math.nan
+
+
+def print_set(name: str, scenarios: dict[str, Scenario], current: SigmaWeights, chosen: SigmaWeights) -> None:
+    print(f"== {name}")
+    header = (f"{'scenario':<22} {'taps':>4} {'acc':>4} {'rms e':>6} | " + " ".join(f"{n[:-3]:>9}" for n in PART_NAMES)
+              + f" | {'e/σ now':>7} {'chosen':>7}")
+    print(header)
+    print("-" * len(header))
+    for scenario_name, s in sorted(scenarios.items()):
+        parts = " ".join(f"{_rms([getattr(p, n) for p in s.parts]):>9.2f}" for n in PART_NAMES)
+        now, then = ratio_rms(s, current), ratio_rms(s, chosen)
+        mark = "" if len(s.errors_um) >= MIN_TAPS else "  (too few to judge)"
+        print(f"{scenario_name[:22]:<22} {s.taps:>4} {len(s.errors_um):>4} {_rms(s.errors_um):>6.2f} | {parts} | "
+              f"{'-' if now is None else format(now, '.2f'):>7} {'-' if then is None else format(then, '.2f'):>7}{mark}")
+    judged = [s for s in scenarios.values() if len(s.errors_um) >= MIN_TAPS]
+    for label, weights in (("now", current), ("chosen", chosen)):
+        ratios = [ratio_rms(s, weights) for s in judged]
+        if ratios:
+            print(f"rms(e/σ) range {label}: {min(ratios):.2f}..{max(ratios):.2f}")
+    print()
+
+
+def main(argv: list[str]) -> int:
+    parser = argparse.ArgumentParser(prog="python -m bench tap_sigma", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--seed", type=int, default=1, help="taplab seed (default 1)")
+    parser.add_argument("--per-scenario", type=int, default=40, help="taplab taps per scenario (default 40)")
+    parser.add_argument("--reference", metavar="PATH", help="the reference taps (archive or unpacked directory)")
+    args = parser.parse_args(argv)
+    with tempfile.TemporaryDirectory(prefix="tap-sigma-") as scratch:
+        generate_set(Path(scratch) / "taplab", args.seed, args.per_scenario)
+        sets = {f"taplab (seed {args.seed})": collect(TapSet("taplab", Path(scratch) / "taplab",
+                                                             read_labels(Path(scratch) / "taplab")))}
+        source = Path(args.reference) if args.reference else default_reference_archive()
+        reference = reference_set(source, Path(scratch) / "reference") if source.exists() else None
+        if reference is None:
+            print(f"reference taps: {source} not found; left out (choose weights on both sets, not one)")
+        else:
+            sets[f"reference ({reference.directory})"] = collect(reference)
+    current = SigmaWeights()
+    chosen, worst = choose_weights(sets)
+    for name, scenarios in sets.items():
+        print_set(name, scenarios, current, chosen)
+    print("weights now:    " + ", ".join(f"{name} {getattr(current, name):g}" for name in GRID))
+    print("weights chosen: " + ", ".join(f"{name} {getattr(chosen, name):g}" for name in GRID)
+          + f" (the worst scenario's rms(e/σ) is off 1 by a factor {worst:.2f})")
+    return 0
