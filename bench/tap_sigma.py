@@ -3,7 +3,8 @@ the parts it is made of (tapcell.tap.uncertainty), and the weights the worst sce
 
 Per set and scenario, over the taps the analysis accepts: the rms error (µm, bias included: a
 sigma must cover it), the rms of each part of the sigma, rms(error / sigma) with the weights in
-tapcell.tap.uncertainty, and with the weights this run chooses: on a grid, the weights whose
+tapcell.tap.uncertainty ("now"), with the scenario's mean error taken out ("no bias": what the
+sigma would score were Z unbiased there), and with the weights this run chooses: on a grid, the weights whose
 worst scenario over both sets (every scenario with at least MIN_TAPS accepted taps, fouled ones
 included) has rms(error / sigma) closest to 1 (the least max |log ratio|). A scenario whose taps
 are all rejected has no ratio. Re-run after any change to the Z estimator and carry the chosen
@@ -58,11 +59,16 @@ def collect(tap_set: TapSet) -> dict[str, Scenario]:
     return scenarios
 
 
-def ratio_rms(scenario: Scenario, weights: SigmaWeights) -> float | None:
+def ratio_rms(scenario: Scenario, weights: SigmaWeights, unbiased: bool = False) -> float | None:
+    """rms(error / sigma) over the accepted taps (`unbiased`: the scenario's mean error taken out
+    first, what the sigma would score were Z unbiased there)."""
     if not scenario.errors_um:
         return None
     sigmas = np.array([z_sigma_um(p, weights) for p in scenario.parts])
-    return float(np.sqrt(np.mean(np.square(np.array(scenario.errors_um) / sigmas))))
+    errors = np.array(scenario.errors_um)
+    if unbiased:
+        errors = errors - errors.mean()
+    return float(np.sqrt(np.mean(np.square(errors / sigmas))))
 
 
 def choose_weights(sets: dict[str, dict[str, Scenario]]) -> tuple[SigmaWeights, float]:
@@ -76,12 +82,17 @@ def choose_weights(sets: dict[str, dict[str, Scenario]]) -> tuple[SigmaWeights, 
     worst, total = np.zeros(len(combos)), np.zeros(len(combos))
     for e, f, w in zip(errors, fixed, weighed):
         sigma2 = f[:, None] + w @ (combos ** 2).T  # (taps, combos)
-        off = np.abs(np.log(np.sqrt(np.mean(e[:, None] ** 2 / sigma2, axis=0))))
+        with np.errstate(divide="ignore"):  # a combination that leaves a tap no sigma: infinitely off
+            off = np.abs(np.log(np.sqrt(np.mean(e[:, None] ** 2 / sigma2, axis=0))))
         worst, total = np.maximum(worst, off), total + off
     # The worst scenario first; among weights nearly as good there, the one best on the others
     # (a fouled scenario nothing in the tap explains would otherwise leave the rest arbitrary).
     best = int((worst + TYPICAL_SHARE * total / len(judged)).argmin())
     return SigmaWeights(**{name: float(w) for name, w in zip(GRID, combos[best])}), math.exp(float(worst[best]))
+
+
+def _fmt(value: float | None) -> str:
+    return "-" if value is None else format(value, ".2f")
 
 
 def _rms(values) -> float:
@@ -91,15 +102,16 @@ def _rms(values) -> float:
 def print_set(name: str, scenarios: dict[str, Scenario], current: SigmaWeights, chosen: SigmaWeights) -> None:
     print(f"== {name}")
     header = (f"{'scenario':<22} {'taps':>4} {'acc':>4} {'rms e':>6} | " + " ".join(f"{n[:-3]:>9}" for n in PART_NAMES)
-              + f" | {'e/σ now':>7} {'chosen':>7}")
+              + f" | {'e/σ now':>7} {'chosen':>7} {'no bias':>7}")
     print(header)
     print("-" * len(header))
     for scenario_name, s in sorted(scenarios.items()):
         parts = " ".join(f"{_rms([getattr(p, n) for p in s.parts]):>9.2f}" for n in PART_NAMES)
-        now, then = ratio_rms(s, current), ratio_rms(s, chosen)
+        ratios = " ".join(f"{_fmt(r):>7}" for r in (ratio_rms(s, current), ratio_rms(s, chosen),
+                                                     ratio_rms(s, current, unbiased=True)))
         mark = "" if len(s.errors_um) >= MIN_TAPS else "  (too few to judge)"
         print(f"{scenario_name[:22]:<22} {s.taps:>4} {len(s.errors_um):>4} {_rms(s.errors_um):>6.2f} | {parts} | "
-              f"{'-' if now is None else format(now, '.2f'):>7} {'-' if then is None else format(then, '.2f'):>7}{mark}")
+              f"{ratios}{mark}")
     judged = [s for s in scenarios.values() if len(s.errors_um) >= MIN_TAPS]
     for label, weights in (("now", current), ("chosen", chosen)):
         ratios = [ratio_rms(s, weights) for s in judged]
