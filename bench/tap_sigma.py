@@ -6,11 +6,13 @@ sigma must cover it), the rms of each part of the sigma, rms(error / sigma) with
 tapcell.tap.uncertainty ("now"), with the scenario's mean error taken out ("no bias": what the
 sigma would score were Z unbiased there), and with the weights this run chooses: on a grid, the weights whose
 worst scenario over both sets (every scenario with at least MIN_TAPS accepted taps, fouled ones
-included) has rms(error / sigma) closest to 1 (the least max |log ratio|). A scenario whose taps
+included) has rms(error / sigma) closest to 1 (the least max |log ratio|, then the mean one), by
+coordinate descent from the weights in the code. A scenario whose taps
 are all rejected has no ratio. Re-run after any change to the Z estimator and carry the chosen
 weights into tapcell.tap.uncertainty if they differ.
 
-Run: .venv/bin/python -m bench tap_sigma [--seed N] [--per-scenario N] [--reference PATH]
+Run: .venv/bin/python -m bench tap_sigma [--seed N ...] [--check-seed N ...] [--per-scenario N] [--reference PATH]
+     (weights chosen on taplab seed 1 and the reference taps; seeds 2 and 3 scored, not used)
      (the reference taps default to ../shared/data/reference-taps.tar.xz from the repository root)
 """
 
@@ -19,7 +21,6 @@ from __future__ import annotations
 import argparse
 import collections
 import dataclasses
-import itertools
 import math
 import tempfile
 from pathlib import Path
@@ -33,8 +34,8 @@ from tapcell.taplab.generate import generate_set
 
 MIN_TAPS = 5  # fewer accepted taps in a scenario: its rms says little (and it is not used to choose)
 # The weights tried (tapcell.tap.uncertainty.SigmaWeights' fields).
-GRID = {"noise": np.arange(0.5, 1.51, 0.125), "toe": np.arange(0.0, 1.51, 0.125), "shape": np.arange(0.0, 3.01, 0.25), "misfit": np.arange(0.0, 2.01, 0.5),
-        "thread": np.arange(0.0, 2.01, 0.25)}
+GRID = {"noise": np.arange(0.5, 1.51, 0.125), "toe": np.arange(0.0, 1.51, 0.125), "shape": np.arange(0.0, 3.01, 0.25),
+        "misfit": np.arange(0.0, 2.01, 0.5), "thread": np.arange(0.0, 2.01, 0.25), "squeeze": np.arange(0.0, 1.51, 0.25)}
 TYPICAL_SHARE = 0.25  # the mean |log ratio|'s share in the choice, beside the worst scenario's
 PART_NAMES = [f.name for f in dataclasses.fields(ZSigmaParts)]
 
@@ -71,24 +72,44 @@ def ratio_rms(scenario: Scenario, weights: SigmaWeights, unbiased: bool = False)
     return float(np.sqrt(np.mean(np.square(errors / sigmas))))
 
 
-def choose_weights(sets: dict[str, dict[str, Scenario]]) -> tuple[SigmaWeights, float]:
-    """The grid's weights whose worst scenario (over every set) is closest to 1, and that worst ratio."""
+def choose_weights(sets: dict[str, dict[str, Scenario]], start: SigmaWeights | None = None,
+                   rounds: int = 20) -> tuple[SigmaWeights, float]:
+    """The weights on GRID whose worst scenario (over every set) is closest to 1, and that worst
+    ratio: coordinate descent from `start` (default: the weights in the code), one weight over its
+    whole grid at a time with the others held, until no weight moves."""
     judged = [s for scenarios in sets.values() for s in scenarios.values() if len(s.errors_um) >= MIN_TAPS]
-    # Per scenario: errors and the squared parts, so every weight combination is one matrix product.
-    errors = [np.array(s.errors_um) for s in judged]
+    errors2 = [np.square(s.errors_um) for s in judged]
     fixed = [np.array([p.staircase_um ** 2 + p.delay_um ** 2 for p in s.parts]) for s in judged]
     weighed = [np.array([[getattr(p, name + "_um") ** 2 for name in GRID] for p in s.parts]) for s in judged]
-    combos = np.array(list(itertools.product(*GRID.values())))
-    worst, total = np.zeros(len(combos)), np.zeros(len(combos))
-    for e, f, w in zip(errors, fixed, weighed):
-        sigma2 = f[:, None] + w @ (combos ** 2).T  # (taps, combos)
-        with np.errstate(divide="ignore"):  # a combination that leaves a tap no sigma: infinitely off
-            off = np.abs(np.log(np.sqrt(np.mean(e[:, None] ** 2 / sigma2, axis=0))))
-        worst, total = np.maximum(worst, off), total + off
-    # The worst scenario first; among weights nearly as good there, the one best on the others
-    # (a fouled scenario nothing in the tap explains would otherwise leave the rest arbitrary).
-    best = int((worst + TYPICAL_SHARE * total / len(judged)).argmin())
-    return SigmaWeights(**{name: float(w) for name, w in zip(GRID, combos[best])}), math.exp(float(worst[best]))
+    start = start or SigmaWeights()
+    current = np.array([getattr(start, name) for name in GRID], dtype=float)
+
+    def scores(candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(score, worst |log ratio|) per candidate row of weights."""
+        worst, total = np.zeros(len(candidates)), np.zeros(len(candidates))
+        for e2, f, w in zip(errors2, fixed, weighed):
+            sigma2 = f[:, None] + w @ (candidates ** 2).T  # (taps, candidates)
+            with np.errstate(divide="ignore"):  # weights that leave a tap no sigma: infinitely off
+                off = np.abs(0.5 * np.log(np.mean(e2[:, None] / sigma2, axis=0)))
+            worst, total = np.maximum(worst, off), total + off
+        # The worst scenario first; among weights nearly as good there, the one best on the others
+        # (a fouled scenario nothing in the tap explains would otherwise leave the rest arbitrary).
+        return worst + TYPICAL_SHARE * total / len(judged), worst
+
+    best_score = scores(current[None, :])[0][0]
+    for _ in range(rounds):
+        moved = False
+        for k, values in enumerate(GRID.values()):
+            candidates = np.repeat(current[None, :], len(values), axis=0)
+            candidates[:, k] = values
+            score = scores(candidates)[0]
+            i = int(score.argmin())
+            if score[i] < best_score - 1e-12:
+                current, best_score, moved = candidates[i], score[i], True
+        if not moved:
+            break
+    worst = scores(current[None, :])[1][0]
+    return SigmaWeights(**{name: float(w) for name, w in zip(GRID, current)}), math.exp(float(worst))
 
 
 def _fmt(value: float | None) -> str:
@@ -122,14 +143,21 @@ def print_set(name: str, scenarios: dict[str, Scenario], current: SigmaWeights, 
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench tap_sigma", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--seed", type=int, default=1, help="taplab seed (default 1)")
+    parser.add_argument("--seed", type=int, action="append", help="taplab seed the weights are chosen on, repeatable (default 1)")
+    parser.add_argument("--check-seed", type=int, action="append", default=None,
+                        help="taplab seed scored but not used to choose, repeatable (default 2 3)")
     parser.add_argument("--per-scenario", type=int, default=40, help="taplab taps per scenario (default 40)")
     parser.add_argument("--reference", metavar="PATH", help="the reference taps (archive or unpacked directory)")
     args = parser.parse_args(argv)
+    seeds, check_seeds = args.seed or [1], args.check_seed if args.check_seed is not None else [2, 3]
+    sets, checks = {}, {}
     with tempfile.TemporaryDirectory(prefix="tap-sigma-") as scratch:
-        generate_set(Path(scratch) / "taplab", args.seed, args.per_scenario)
-        sets = {f"taplab (seed {args.seed})": collect(TapSet("taplab", Path(scratch) / "taplab",
-                                                             read_labels(Path(scratch) / "taplab")))}
+        for seed in [*seeds, *check_seeds]:
+            directory = Path(scratch) / f"taplab-{seed}"
+            generate_set(directory, seed, args.per_scenario)
+            target = sets if seed in seeds else checks
+            target[f"taplab (seed {seed})" + ("" if seed in seeds else ", not used to choose")] = collect(
+                TapSet("taplab", directory, read_labels(directory)))
         source = Path(args.reference) if args.reference else default_reference_archive()
         reference = reference_set(source, Path(scratch) / "reference") if source.exists() else None
         if reference is None:
@@ -138,9 +166,9 @@ def main(argv: list[str]) -> int:
             sets[f"reference ({reference.directory})"] = collect(reference)
     current = SigmaWeights()
     chosen, worst = choose_weights(sets)
-    for name, scenarios in sets.items():
+    for name, scenarios in {**sets, **checks}.items():
         print_set(name, scenarios, current, chosen)
     print("weights now:    " + ", ".join(f"{name} {getattr(current, name):g}" for name in GRID))
     print("weights chosen: " + ", ".join(f"{name} {getattr(chosen, name):g}" for name in GRID)
-          + f" (the worst scenario's rms(e/σ) is off 1 by a factor {worst:.2f})")
+          + f" (on {', '.join(sets)}: the worst scenario's rms(e/σ) is off 1 by a factor {worst:.2f})")
     return 0

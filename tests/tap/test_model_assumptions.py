@@ -19,11 +19,14 @@ def test_the_real_capture_reports_what_the_toe_shape_moves():
     analysis = analyze_tap(read_tap_file(str(REAL_TAP))[0])
     assert analysis.valid
     # A Hertzian toe fits it best (0.11 um alone), a parabolic toe reads it 2.8 um higher: half that
-    # range (1.42 um) is the shape part, and weighed (SHAPE_WEIGHT) it is most of the sigma (3.9 um).
+    # range (1.42 um) is the shape part; contact on the way down lies 2.3 um above break contact on
+    # the way up beyond the fits' noise (the squeeze part). Weighed, they are the sigma (3.95 um).
     parts = analysis.z_sigma_parts
     assert parts.noise_um < 0.2 and parts.shape_um == pytest.approx(1.42, abs=0.05)
+    assert parts.squeeze_um == pytest.approx(2.3, abs=0.1)
     assert analysis.z_sigma_um == pytest.approx(z_sigma_um(parts), rel=1e-12)
-    assert SHAPE_WEIGHT * parts.shape_um < analysis.z_sigma_um < SHAPE_WEIGHT * parts.shape_um + 0.5
+    assert math.hypot(SHAPE_WEIGHT * parts.shape_um, parts.squeeze_um) < analysis.z_sigma_um
+    assert analysis.z_sigma_um < math.hypot(SHAPE_WEIGHT * parts.shape_um, parts.squeeze_um) + 0.3
     # The capture's own analysis (0.041963 mm) and the sharp model, which assumes no toe at all and
     # reads it 2.7 um below the capture, both lie within the sigma.
     recorded_mm = 0.04196257319307305

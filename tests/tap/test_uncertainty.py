@@ -4,6 +4,8 @@ Numbers measured on tapcell.tap.synth taps, seeds 0-11 (660 sps, 4.6 g/µm, a sh
 noise 0.5 g: noise part median 0.052 µm, sigma 0.23; noise 3 g: 0.302 µm, sigma 0.56. A 2 g strand
 pulling over the first 30 µm of the departure (0.15 mm pullback): thread part 0.20-0.30 µm, sigma
 median 0.68 against 0.23 for the same taps without it; a 1 g strand 0.00-0.17 µm, sigma 0.44.
+taplab (seed 11, 10 taps a scenario): the accepted mild-ooze taps' squeeze part 1.44-5.68 µm (their
+errors +2.7..+5.0 µm, sigma median 4.05), clean HX717's 0 on 8 of 10 taps, at most 0.99.
 """
 
 import math
@@ -11,10 +13,11 @@ import math
 import numpy as np
 import pytest
 
-from tapcell.tap import analyze_tap
+from tapcell.tap import analyze_tap, read_tap_file
 from tapcell.tap.synth import synth_tap
+from tapcell.taplab.generate import generate_set
 from tapcell.tap.toe import marginal_contact_um
-from tapcell.tap.uncertainty import (SigmaWeights, ZSigmaParts, misfit_um, staircase_um, thread_um,
+from tapcell.tap.uncertainty import (SigmaWeights, ZSigmaParts, misfit_um, squeeze_um, staircase_um, thread_um,
                                      toe_noise_and_spread_um, z_sigma_um)
 
 SEEDS = range(8)
@@ -27,10 +30,10 @@ def _analyses(**changes):
 
 
 def test_the_parts_add_in_quadrature_each_weighed():
-    parts = ZSigmaParts(noise_um=0.3, toe_um=0.8, shape_um=0.4, thread_um=2.0, misfit_um=0.5, staircase_um=0.12,
-                        delay_um=0.05)
-    weights = SigmaWeights(noise=0.5, toe=0.125, shape=2.75, misfit=0.0, thread=1.75)
-    expected = math.sqrt(0.15 ** 2 + 0.1 ** 2 + 1.1 ** 2 + 3.5 ** 2 + 0.12 ** 2 + 0.05 ** 2)
+    parts = ZSigmaParts(noise_um=0.3, toe_um=0.8, shape_um=0.4, thread_um=2.0, misfit_um=0.5, squeeze_um=1.5,
+                        staircase_um=0.12, delay_um=0.05)
+    weights = SigmaWeights(noise=0.5, toe=0.125, shape=2.75, misfit=0.0, thread=1.75, squeeze=2.0)
+    expected = math.sqrt(0.15 ** 2 + 0.1 ** 2 + 1.1 ** 2 + 3.5 ** 2 + 3.0 ** 2 + 0.12 ** 2 + 0.05 ** 2)
     assert z_sigma_um(parts, weights) == pytest.approx(expected, rel=1e-12)
     # The analysis reports exactly the weighed sum of its own parts.
     analysis = analyze_tap(synth_tap(seed=1))
@@ -84,3 +87,21 @@ def test_the_staircase_averages_over_the_steps_in_reach():
     # 2.5 µm steps: 30 µm of reach holds 12 of them.
     assert staircase_um(0.43, 2.5) == pytest.approx(0.43 / math.sqrt(12.0))
     assert staircase_um(0.43, 0.0) == 0.43
+
+
+def test_squeeze_is_the_contact_mismatch_beyond_its_allowance():
+    # Down 7 µm above the halt, up 3: 4 µm apart, 1.5 allowed.
+    assert squeeze_um(7.0, 3.0, 1.5) == pytest.approx(2.5)
+    assert squeeze_um(3.0, 7.0, 1.5) == 0.0  # down below up: a delay, not a film
+    assert squeeze_um(None, 3.0, 1.5) == 0.0
+
+
+def test_a_film_squeezed_on_taplab_mild_ooze_makes_the_sigma_larger(tmp_path):
+    labels = generate_set(tmp_path, seed=11, taps_per_scenario=10, scenarios=["clean_hx717", "mild_ooze"])
+    parts = {"clean_hx717": [], "mild_ooze": []}
+    for label in labels:
+        analysis = analyze_tap(read_tap_file(tmp_path / label["file"])[0])
+        if analysis.valid:
+            parts[label["scenario"]].append(analysis.z_sigma_parts.squeeze_um)
+    assert len(parts["mild_ooze"]) >= 4 and min(parts["mild_ooze"]) > 1.0
+    assert max(parts["clean_hx717"]) < 1.2 and np.median(parts["clean_hx717"]) == 0.0

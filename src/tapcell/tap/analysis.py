@@ -678,7 +678,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         z_from_sharp_model_or_lines(split, fits, result)
         if options.uses_toe_model:
             z_from_toe_model(split, window, fits, delay_s, window_delay_s, result)
-        z_uncertainty(split, window, delay_s, window_delay_s, result)
+        z_uncertainty(split, window, fits, delay_s, window_delay_s, result)
         compression_stiffness(split, window, fits, delay_s, result)
     except TapInvalid as invalid:
         # Keep the lines, points and what was measured: they show what went wrong (plots, tap logs).
@@ -843,7 +843,7 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
                      toe.stiffness_g_um)
 
 
-def z_uncertainty(split: SplitTap, window: ModelWindow, delay_s: float, window_delay_s: float,
+def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay_s: float, window_delay_s: float,
                   result: TapAnalysis) -> None:
     """`z_sigma_um` from the parts the tap shows (tapcell.tap.uncertainty): the toe fit's noise,
     trade-off and shape (when the toe set Z; else the sharp fit's or the lines' sigma as the noise),
@@ -876,6 +876,7 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, delay_s: float, window_d
                                         stiffness),
         misfit_um=uncertainty.misfit_um(result.fit_residual_sigma_g, max(split.noise_g, departure_g),
                                         result.step_sigma_g, stiffness),
+        squeeze_um=uncertainty.squeeze_um(*_contact_down_and_up(fits)),
         staircase_um=uncertainty.staircase_um(step_staircase_sigma_um(timing.z_step_um, window_um), timing.z_step_um),
         delay_um=speed_um_s * halt_sigma_s if math.isfinite(halt_sigma_s) else 0.0)
     if result.z_method == "toe" and result.toe_grid is not None:
@@ -884,6 +885,18 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, delay_s: float, window_d
         parts = uncertainty.ZSigmaParts(noise_um=result.z_sigma_um, **others)
     result.z_sigma_parts = parts
     result.z_sigma_um = uncertainty.z_sigma_um(parts)
+
+
+def _contact_down_and_up(fits: ContactFits) -> tuple[float | None, float | None, float]:
+    """(contact on the way down, break contact on the way up, µm, from the sharp fits at the same
+    delay; None where a fit is missing) and what their noise allows between them: TAP_CONTACT_MISMATCH's
+    CONSISTENCY_SIGMAS of the two fits, without its hysteresis and sample-of-travel allowances (on
+    taplab's mild ooze those hide every film the pullback reads high by)."""
+    down, up = fits.compression, fits.pullback
+    if down is None or up is None:
+        return None, None, 0.0
+    return down.contact_um, up.contact_um, validate.CONSISTENCY_SIGMAS * math.hypot(down.contact_sigma_um,
+                                                                                 up.contact_sigma_um)
 
 
 def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, contact_um: float,
