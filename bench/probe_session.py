@@ -96,7 +96,7 @@ def run_case(scenario: str, speed_mm_s: float, extra: str, workdir: Path) -> dic
         if calibrate_onset:
             printer.gcode.run_script("LOAD_CELL_PROBE_CALIBRATE CALIBRATION=CONTACT_ONSET SAMPLES=10 "
                                      "SAMPLE_RETRACT_DIST=0.4\nG1 Z0.4")
-            row["onset_um"] = device.options.contact_onset_um
+            row["onset_um"] = device.options.analysis.contact_onset_um
         if calibrate_pullback:
             printer.gcode.run_script("LOAD_CELL_PROBE_CALIBRATE CALIBRATION=PULLBACK_DISTANCE SAMPLES=10 "
                                      f"PROBE_SPEED={PULLBACK_CALIBRATION_SPEED_MM_S:g} SAMPLE_RETRACT_DIST=0.4\nG1 Z0.4")

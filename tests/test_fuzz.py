@@ -23,7 +23,7 @@ from pathlib import Path
 import pytest
 from probe.probe_vprinter import make_printer, printer_text
 
-from tapcell.extras.load_cell_probe.options import TAP_OPTION_SPECS
+from tapcell.extras.load_cell_probe.options import ANALYSIS_OPTION_SPECS, TAP_OPTION_SPECS
 from tapcell.extras.probe.options import PROBE_OPTION_SPECS
 from tapcell.host.config import ConfigError, ConfigSection, describe_range
 from tapcell.host.gcode import GCodeCommand, GCodeError
@@ -307,7 +307,8 @@ QUICK_START = {"PROBE_ACCURACY": "SAMPLES=2", "Z_THERMAL_CALIBRATE": "SAMPLES=2 
                "BED_MESH_CALIBRATE": "PROBE_COUNT=3"}
 # A 3 x 3 mesh keeps BED_MESH_CALIBRATE quick.
 SMALL_MESH = {"probe_count: 7, 7": "probe_count: 3, 3", "algorithm: bicubic": "algorithm: lagrange"}
-SPEC_PARAMETERS = sorted({name for spec in (*PROBE_OPTION_SPECS, *TAP_OPTION_SPECS) for name in spec.gcode_names})
+OVERRIDE_SPECS = (*PROBE_OPTION_SPECS, *TAP_OPTION_SPECS, *ANALYSIS_OPTION_SPECS)
+SPEC_PARAMETERS = sorted({name for spec in OVERRIDE_SPECS for name in spec.gcode_names})
 
 
 class ParameterRecorder:
@@ -385,7 +386,7 @@ def range_problems(recorded: dict, documented: dict, what: str) -> list[str]:
 def probe_override_ranges(config_doc: dict) -> dict[tuple[str, str], str]:
     """A probing command's override of a [load_cell_probe] option (TRIGGER_FORCE=...) has the option's range."""
     return {(command, name): config_doc[("load_cell_probe", spec.option)]
-            for command in PROBE_OVERRIDE_COMMANDS for spec in (*PROBE_OPTION_SPECS, *TAP_OPTION_SPECS)
+            for command in PROBE_OVERRIDE_COMMANDS for spec in OVERRIDE_SPECS
             for name in spec.gcode_names if ("load_cell_probe", spec.option) in config_doc}
 
 

@@ -23,6 +23,8 @@ from tapcell.tap.readers import tap_from_object
 from tapcell.tools.kalico_plugin import PLUGIN_FILE
 
 RUN_TIMEOUT_S = 180.0
+# This checkout's tapcell, ahead of whichever checkout last installed itself into the shared venv.
+REPO_SRC = Path(__file__).resolve().parents[2] / "src"
 KALICO_CONFIG = """\
 [load_cell_probe]
 tap_classifier: tapcell
@@ -75,21 +77,28 @@ def test_the_tap_analysis_imports_with_numpy_alone():
     assert missing.returncode != 0  # so the line above proves something
 
 
-def test_kalico_runs_tapcell_on_our_taps(kalico, tmp_path):
+# ([load_cell_probe] lines beyond KALICO_CONFIG, the analysis options they set): the plug-in reads tapcell's
+# own analysis options (tapcell.tap.model.CONFIG_OPTIONS) from Kalico's section.
+PLUGIN_OPTIONS = [("", {}), ("contact_model: sharp\nmax_dwell_force_drop: 60\n",
+                             {"contact_model": "sharp", "max_dwell_force_drop": 60.0})]
+
+
+@pytest.mark.parametrize("extra, changes", PLUGIN_OPTIONS)
+def test_kalico_runs_tapcell_on_our_taps(kalico, tmp_path, extra, changes):
     python, root = kalico
     clean = printer_taps(tmp_path / "clean", "clean", 2)
     fouled = printer_taps(tmp_path / "oozy", "oozy", 1)
     taps = tmp_path / "taps.json"
     taps.write_text(json.dumps(clean + fouled))
     config = tmp_path / "kalico.cfg"
-    config.write_text(KALICO_CONFIG)
+    config.write_text(KALICO_CONFIG + extra)
     done = run([str(python), str(Path(__file__).with_name("kalico_run.py")), str(config), str(taps)],
-               cwd=root, env={"PYTHONPATH": str(root), "PATH": "/usr/bin:/bin"})
+               cwd=root, env={"PYTHONPATH": f"{REPO_SRC}:{root}", "PATH": "/usr/bin:/bin"})
     assert done.returncode == 0, done.stderr
     report = json.loads(done.stdout)
     assert {"tapcell", "tap_quality", "empty"} <= set(report["classifiers"])
     assert report["chosen"] == "TapcellClassifier"
-    options = AnalysisOptions(trigger_force_g=75.0, min_tap_quality=40.0)
+    options = AnalysisOptions(trigger_force_g=75.0, min_tap_quality=40.0, **changes)
     for event, result in zip(clean + fouled, report["results"]):
         # What tapcell finds on what Kalico handed its classifier: samples, moves, Kalico's event times.
         handed = {"time": event["time"], "force": event["force"], "moves": event["moves"], "events": result["events"]}
@@ -101,9 +110,11 @@ def test_kalico_runs_tapcell_on_our_taps(kalico, tmp_path):
             assert result["is_valid"] is False
             assert result["error_code"] == ours.error
     assert [r["is_valid"] for r in report["results"]] == [True, True, False]
-    # Kalico's Z is tapcell's, which (same samples, same moves) is the printer's own Z to a few nm: the
-    # lag read off the halt takes the halt from Kalico's event times (measured 3 nm apart).
-    assert np.allclose([r["tap_pos"][2] for r in report["results"][:2]], [e["tap_pos"][2] for e in clean], atol=1e-5)
+    # Kalico's Z is tapcell's, which (same samples, same moves, same options) is the printer's own Z to a few
+    # nm: the lag read off the halt takes the halt from Kalico's event times (measured 3 nm apart). With the
+    # sharp model it is not the printer's (toe model) Z: the option reached the analysis.
+    same = np.allclose([r["tap_pos"][2] for r in report["results"][:2]], [e["tap_pos"][2] for e in clean], atol=1e-5)
+    assert same == (not changes)
 
 
 def test_uninstall_removes_only_our_plugin(tmp_path):

@@ -188,7 +188,7 @@ def test_decompression_angle_calibration_is_stable_and_scores_taps(tmp_path):
         responses.clear()
         printer.gcode.run_script("LOAD_CELL_PROBE_CALIBRATE CALIBRATION=DECOMPRESSION_ANGLE SAMPLES=5 "
                                  "SAMPLE_RETRACT_DIST=0.4\nG1 Z0.4")
-        angles.append(device.options.decompression_angle)
+        angles.append(device.options.analysis.decompression_angle)
     assert 76.2 < angles[0] < 76.7 and abs(angles[1] - angles[0]) < 0.15
     text = "\n".join(responses)
     assert f"decompression_angle: {angles[1]:.2f}" in text
@@ -217,14 +217,14 @@ def test_save_config_round_trip_of_both_options(tmp_path):
                              "G1 Z0.4\n"
                              "LOAD_CELL_PROBE_CALIBRATE CALIBRATION=DECOMPRESSION_ANGLE SAMPLES=3 SAMPLE_RETRACT_DIST=0.4")
     device = printer.lookup_object("load_cell_probe")
-    pullback_mm, angle = device.options.pullback_distance_mm, device.options.decompression_angle
+    pullback_mm, angle = device.options.pullback_distance_mm, device.options.analysis.decompression_angle
     printer.gcode.run_script("SAVE_CONFIG")
     section = ConfigFile.read(tmp_path / "clean.cfg").getsection("load_cell_probe")
     assert float(section.get("pullback_distance")) == pullback_mm
     assert float(section.get("decompression_angle")) == angle
     restarted, _ = make_printer_from(tmp_path / "clean.cfg")
     options = restarted.lookup_object("load_cell_probe").options
-    assert (options.pullback_distance_mm, options.decompression_angle) == (pullback_mm, angle)
+    assert (options.pullback_distance_mm, options.analysis.decompression_angle) == (pullback_mm, angle)
     assert restarted.lookup_object("load_cell_probe").config_settings.analysis.decompression_angle == angle
 
 

@@ -51,7 +51,7 @@ def test_calibrate_contact_onset_on_a_soft_sheet(tmp_path):
     responses.clear()
     printer.gcode.run_script("LOAD_CELL_PROBE_CALIBRATE CALIBRATION=CONTACT_ONSET SAMPLES=5 SAMPLE_RETRACT_DIST=0.4")
     device = printer.lookup_object("load_cell_probe")
-    onset_um = device.options.contact_onset_um
+    onset_um = device.options.analysis.contact_onset_um
     assert 21.0 < onset_um < 26.0
     assert printer.config.pending_changes()["load_cell_probe"]["contact_onset_um"] == f"{onset_um:.2f}"
     assert f"contact_onset_um: {onset_um:.2f}" in "\n".join(responses)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import contextlib
 
+import numpy as np
 import pytest
 
 from tapcell.host.gcode import GCodeDispatch
@@ -38,6 +39,9 @@ class ScriptedTapper:
 
     def guarded(self):
         return contextlib.nullcontext()  # the lift after an error is the load cell probe's (test_probing_safety)
+
+    def pooled_z_shifts_mm(self, analyses):
+        return None  # a probe without tap analysis: each tap's own Z
 
 
 class Motion:
@@ -171,6 +175,71 @@ def test_probe_accuracy_command():
     probe, motion, gcode, responses = make_probe([(0.0, True, None), (0.3, False, "TAP_SHAPE_INVALID")])
     with pytest.raises(ProbeError, match="deemed bad quality: TAP_SHAPE_INVALID"):
         gcode.run_script("PROBE_ACCURACY SAMPLES=3")
+
+
+class PoolingTapper(ScriptedTapper):
+    """Pools its taps by moving each to the taps' mean (a stand-in for tapcell.tap.pool)."""
+
+    def __init__(self, motion, outcomes):
+        super().__init__(motion, outcomes)
+        self.pooled = []
+
+    def tap(self, settings, z_min_mm, speed_mm_s):
+        outcome = super().tap(settings, z_min_mm, speed_mm_s)
+        outcome.analysis = outcome.z_mm  # the tap's own Z stands for its analysis
+        return outcome
+
+    def pooled_z_shifts_mm(self, analyses):
+        self.pooled.append(list(analyses))
+        return [0.5 * (np.mean(analyses) - z) for z in analyses]  # half-way to the mean
+
+
+def make_pooling_probe(outcomes, **options):
+    probe, motion, gcode, responses = make_probe([], **options)
+    probe.tapper = PoolingTapper(motion, outcomes)
+    return probe, motion, gcode, responses
+
+
+def test_probe_accuracy_prints_the_pooled_zs_in_klippers_line_and_the_single_taps_before_it():
+    outcomes = [(0.010, True, None), (0.012, True, None), (0.008, True, None), (0.014, True, None)]
+    probe, motion, gcode, responses = make_pooling_probe(outcomes)
+    gcode.run_script("PROBE_ACCURACY SAMPLES=4 SAMPLE_RETRACT_DIST=0.4")
+    assert probe.tapper.pooled == [[0.010, 0.012, 0.008, 0.014]]
+    # Pooled: 0.0105, 0.0115, 0.0095, 0.0125 (half-way to the mean 0.011).
+    assert responses[-2:] == [
+        "// single-tap results (each tap analysed alone; the results below pool the 4 taps): maximum 0.014000, "
+        "minimum 0.008000, range 0.006000, average 0.011000, median 0.011000, standard deviation 0.002236, "
+        "average delta 0.004000",
+        "// probe accuracy results: maximum 0.012500, minimum 0.009500, range 0.003000, "
+        "average 0.011000, median 0.011000, standard deviation 0.001118, average delta 0.002000"]
+    assert probe.last_accuracy_pooled and probe.get_status()["last_z_result"] == pytest.approx(0.011)
+
+
+def test_samples_combine_the_pooled_zs_of_taps_at_one_spot():
+    probe, *_ = make_pooling_probe([(0.010, True, None), (0.012, True, None), (0.020, True, None)], samples=3,
+                                   samples_result="median", z_offset_mm=0.002)
+    result = probe.probe_point(50.0, 60.0)
+    assert result.pooled and result.single_z_mm == (0.010, 0.012, 0.020)
+    assert result.samples_z_mm == pytest.approx((0.012, 0.013, 0.017))  # half-way to the mean 0.014
+    assert result.z_mm == pytest.approx(0.013 - 0.002)
+    # One sample: nothing to pool.
+    probe, *_ = make_pooling_probe([(0.010, True, None)])
+    assert not probe.probe_point(50.0, 60.0).pooled and probe.tapper.pooled == []
+
+
+def test_samples_at_two_spots_are_not_pooled():
+    # CIRCLE moved the second sample away from the fouled spot: the taps do not share one spot.
+    outcomes = [(0.010, True, None), (0.3, False, "TAP_SHAPE_INVALID"), (0.012, True, None)]
+    probe, *_ = make_pooling_probe(outcomes, samples=2, bad_probe_strategy="circle")
+    result = probe.probe_point(50.0, 60.0)
+    assert not result.pooled and result.samples_z_mm == (0.010, 0.012) and probe.tapper.pooled == []
+    assert result.z_mm == pytest.approx(0.011)
+    outcomes = [(0.010, True, None), (0.3, False, "TAP_SHAPE_INVALID"), (0.012, True, None), (0.014, True, None)]
+    probe, motion, gcode, responses = make_pooling_probe(outcomes)
+    gcode.run_script("PROBE_ACCURACY SAMPLES=3 SAMPLE_RETRACT_DIST=0.4 BAD_PROBE_STRATEGY=circle")
+    assert not probe.last_accuracy_pooled and probe.tapper.pooled == []
+    assert responses[-1].startswith("// probe accuracy results: maximum 0.014000, minimum 0.010000,")
+    assert not any(line.startswith("// single-tap") for line in responses)
 
 
 def test_query_probe_always_open():

@@ -98,6 +98,11 @@ ADHESION_MIN_DIP_FRACTION = 0.01
 # 10 g strand peaking 40 um up, +1.5..+3.9 um of Z, 0.7.
 THREAD_MIN_SHARE = 0.15
 THREAD_LEVEL_CHANGE = 0.2
+# The departure's drift (g/µm) is fitted in the toe model instead of the approach's when the two
+# lines' slopes differ by more than this many standard errors (`toe_drift_g_um`). On the reference
+# taps' bowden drift (80 taps) 5 takes sigma from 0.84 to 0.76 um (8: 0.77) and leaves every other
+# scenario of both sets within 0.02 um; 3 moves clean ones by up to 0.03 (hx711 slow 0.58 -> 0.60).
+DRIFT_AGREEMENT_SIGMAS = 5.0
 # ... judged only when the pullback rises this far above contact (µm): a departure that ends sooner
 # cannot show a thread letting go (tap.synth's 10 g strand peaking 40 um up, a 0.1 mm pullback).
 THREAD_FAR_MIN_UM = 100.0
@@ -457,6 +462,37 @@ def free_air_slope_g_um(dec: Decomposition, motion: Motion) -> float:
     pulling on the nozzle over the departure cannot tilt it (the height falls while the time runs).
     """
     return -dec.approach_line[0] / (motion.approach_speed_mm_s * 1000.0)
+
+
+def toe_drift_g_um(dec: Decomposition, ps: PrefixSums, motion: Motion, period_s: float,
+                   walk_var_g2: float = 0.0) -> float | None:
+    """The free-air drift the toe fit takes as known: the approach's (`free_air_slope_g_um`), unless
+    the departure line's own slope disagrees with it by more than DRIFT_AGREEMENT_SIGMAS standard
+    errors; then None, and the toe fit finds the drift over the departure with the rest. Each
+    line's error: its residual scatter, plus the baseline's random walk (walk_var_g2 per sample,
+    `free_air_wanders`), which tilts a line over n samples by 6 q / (5 n) per sample² in variance.
+
+    A bowden tube or cable can pull differently on the way up than on the way down: the approach's
+    drift then tilts the departure's baseline under the toe, and a wrong tilt moves the contact by
+    tilt x reach / stiffness. Where the two agree, the approach's many hundred µm pin the drift far
+    better than the departure's few tens (and an adhesion thread cannot tilt it).
+    """
+    approach_speed_um_s = motion.approach_speed_mm_s * 1000.0
+    pullback_speed_um_s = motion.pullback_speed_mm_s * 1000.0
+    approach_g_um = free_air_slope_g_um(dec, motion)
+    departure_g_um = dec.departure_line[0] / pullback_speed_um_s
+    variance = 0.0
+    for (first, end), speed_um_s in (((0, dec.bounds[0]), approach_speed_um_s),
+                                     ((dec.bounds[3], dec.stop - dec.start), pullback_speed_um_s)):
+        residual_var, _, sxx = _segment_stats(ps, first, end)
+        samples = end - first
+        if not (sxx > 0 and samples > 0):
+            return approach_g_um
+        step_um = speed_um_s * period_s
+        variance += (residual_var / sxx / (speed_um_s * speed_um_s)
+                     + 1.2 * walk_var_g2 / samples / (step_um * step_um))
+    agrees = abs(departure_g_um - approach_g_um) <= DRIFT_AGREEMENT_SIGMAS * math.sqrt(variance)
+    return approach_g_um if agrees else None
 
 
 PullbackSamples = tuple[np.ndarray, np.ndarray, np.ndarray]  # window low edge µm, high edge µm, force g
@@ -828,7 +864,9 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     drift_g_um = free_air_slope_g_um(dec, motion)
     wander, approach_wander = free_air_wanders(split.force_g, dec)
     samples = pullback_samples(window, motion, timing, window_delay_s)  # for the toe fit and the adhesion check
-    toe = fit_pullback_toe(samples, motion, timing, start, drift_g_um, wander)
+    fit_drift_g_um = toe_drift_g_um(dec, split.ps, motion, timing.sample_period_s,
+                                    wander.walk_var_g2 if wander else 0.0)
+    toe = fit_pullback_toe(samples, motion, timing, start, fit_drift_g_um, wander)
     if not toe:
         return
     result.z_mm = motion.z_halt_mm + (toe.contact_um - lag_shift_um) / 1000.0

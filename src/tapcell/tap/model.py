@@ -109,6 +109,10 @@ class Range:
     def describe(self) -> str:
         return f"between {self.low:g} and {self.high:g}" + (" (exclusive)" if self.exclusive else "")
 
+    def limits(self) -> dict[str, float]:
+        """The range as the keywords of a Klipper-family config or G-code getter (getfloat, get_float)."""
+        return {"above": self.low, "below": self.high} if self.exclusive else {"minval": self.low, "maxval": self.high}
+
 
 # The one table of tap-analysis ranges; the defaults are AnalysisOptions' own. `tapcell analyze
 # --set` checks against it, and `[load_cell_probe]` takes its classifier options from both.
@@ -128,6 +132,14 @@ ANALYSIS_RANGES: dict[str, Range] = {
     "max_model_misfit": Range(0.0, 100.0),
     "outlier_sigma": Range(2.0, 1000.0),
 }
+
+# The analysis options a printer's config takes ([load_cell_probe]; Kalico's with `tap_classifier: tapcell`)
+# and a probing command overrides by the upper-case name: the spec's names, which are the analysis's own,
+# with AnalysisOptions' defaults and ANALYSIS_RANGES' ranges. The printer sets trigger_force_g (from its
+# trigger_force) and mains_hz (from its notch filter) itself. contact_onset_um unset: not calibrated.
+CONFIG_OPTIONS = ("tap_classifier", "min_tap_quality", "decompression_angle", "max_approach_force",
+                  "max_departure_force", "max_baseline_force_delta", "max_dwell_force_drop", "contact_model",
+                  "contact_onset_um")
 
 
 @dataclass

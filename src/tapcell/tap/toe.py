@@ -533,7 +533,8 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
 
     drift_g_um: the force's slope against height in free air when known (the approach shows it);
     None: fitted over the departure with the rest. wander: the baseline's random walk when the
-    tap shows one (`Wander.matters`); the fit then weighs the samples by its covariance.
+    tap shows one (`Wander.matters`); the fit then weighs the samples by its covariance (with a
+    known drift only: the walk-weighted fit has no drift column).
     """
     keep = (x_lo_um < contact0_um + COARSE_ABOVE_UM + DEPARTURE_REACH_SAMPLES * spacing_um) & (
         x_hi_um > contact0_um - PENETRATION_REACH_UM)
@@ -543,7 +544,9 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
         return None
     contacts_um = contact0_um + _CONTACT_OFFSETS_UM
     grid_c = contact0_um + _GRID_OFFSETS_UM
-    walk = wander if wander is not None and wander.matters(samples) else None
+    # The walk-weighted fit differences the samples (the baseline drops out) and has no drift column:
+    # a drift to be fitted (None) runs the plain fit, which has one.
+    walk = wander if wander is not None and drift_g_um is not None and wander.matters(samples) else None
     grid = _toe_grid_native if _C is not None and TOE_POWERS == _NATIVE_POWERS else _toe_grid
     rss_grid, g2_per_unit, stiffness_at = grid(x_lo_um, x_hi_um, force_g, drift_g_um, walk, contacts_um, grid_c)
     # The least residual's (power, width): flat index arithmetic (np.unravel_index costs more here).

@@ -32,6 +32,7 @@ from typing import Any, Callable
 from tapcell.files import FileRefused, check_appendable, open_append
 from tapcell.tap import AnalysisOptions, TapFileError, analyze_tap, tap_to_json_dict
 from tapcell.tap.cli import options_from_settings
+from tapcell.tap.model import CONFIG_OPTIONS
 from tapcell.tap.readers import tap_from_object
 
 RECONNECT_S = 1.0
@@ -46,16 +47,9 @@ MAX_MESSAGE_BYTES = 64 * 1024 * 1024
 MAX_TAP_SAMPLES = 20_000
 NAME_RETRIES = 3  # tries before a host name that does not resolve is reported as a mistake
 OVERSIZE_RETRIES = 3  # links lost in a row to a message over MAX_MESSAGE_BYTES before giving up
-# [load_cell_probe] options of Klipper-family configs -> the analysis options they set.
-SETTINGS_TO_OPTIONS = {
-    "trigger_force": "trigger_force_g",
-    "min_tap_quality": "min_tap_quality",
-    "decompression_angle": "decompression_angle",
-    "max_approach_force": "max_approach_force",
-    "max_departure_force": "max_departure_force",
-    "max_baseline_force_delta": "max_baseline_force_delta",
-    "max_dwell_force_drop": "max_dwell_force_drop",
-}
+# [load_cell_probe] options of Klipper-family configs -> the analysis options they set: the printer's
+# trigger force and the analysis options the config takes (under the analysis's own names).
+SETTINGS_TO_OPTIONS = {"trigger_force": "trigger_force_g", **{name: name for name in CONFIG_OPTIONS}}
 COLUMNS = ("#", "X", "Y", "printer Z", "tapcell Z", "diff um", "valid (printer/tapcell)", "quality", "cause")
 
 

@@ -246,7 +246,8 @@ class LoadCellProbeCommands:
         force_g = device.grams(counts, tare_counts)
         settled = force_g[t_s >= now_s - HAND_SETTLE_S]
         after_g = float(np.median(settled)) if len(settled) else float("nan")
-        return check_hand_tap(force_g, after_g, options.trigger_force_g, options.max_baseline_force_delta, errors)
+        return check_hand_tap(force_g, after_g, options.trigger_force_g, options.analysis.max_baseline_force_delta,
+                              errors)
 
     def _wait_for_release(self, options: TapOptions, deadline_s: float) -> None:
         """Do not tare under a hand still pressing: wait until the force is back near the tare."""

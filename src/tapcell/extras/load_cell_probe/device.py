@@ -42,7 +42,6 @@ from tapcell.mcu import sensors
 from tapcell.mcu.trigger import MAX_STUCK_SAMPLES, TriggerError
 from tapcell.extras.probe.approach import NO_CONTACT_DEPTH_MM, BedHeightMemory, approach_height_mm, no_contact_message
 from tapcell.extras.probe.session import ProbeError, TapOutcome
-from tapcell.extras.probe.options import with_overrides
 from tapcell.extras.load_cell_probe.options import (
     CORRUPT_FRAME_RETRIES,
     CORRUPT_FRAME_WINDOW_S,
@@ -53,7 +52,9 @@ from tapcell.extras.load_cell_probe.options import (
     lone_sample_past_limit,
     preload_refusal,
     read_tap_options,
-    TAP_OPTION_SPECS,
+    replace_tap_options,
+    tap_analysis_options,
+    tap_options_with_overrides,
     TapOptions,
     default_pullback_speed_mm_s,
     dwell_sample_count,
@@ -71,6 +72,7 @@ from tapcell.extras.load_cell_probe.overrides import disabled_protections, refus
 from tapcell.extras.load_cell_probe.threshold import commanded_z_mm, z_at_time_mm
 from tapcell.scale import counts_to_grams
 from tapcell.tap import AnalysisOptions, Move, TapData, analyze_tap, get_classifier, tap_to_json_dict
+from tapcell.tap.pool import apply_pool
 
 BREAK_CLEAR_SAMPLES = 4  # after break contact: one conversion window plus margin before free-air samples
 KEEP_LAST_TAPS = 16
@@ -147,31 +149,9 @@ def filter_options(options: TapOptions, sample_rate_sps: float) -> FilterOptions
     )
 
 
-def analysis_options(options: TapOptions) -> AnalysisOptions:
-    return AnalysisOptions(
-        trigger_force_g=options.trigger_force_g,
-        tap_classifier=options.tap_classifier,
-        min_tap_quality=options.min_tap_quality,
-        decompression_angle=options.decompression_angle,
-        max_approach_force=options.max_approach_force,
-        max_departure_force=options.max_departure_force,
-        max_baseline_force_delta=options.max_baseline_force_delta,
-        max_dwell_force_drop=options.max_dwell_force_drop,
-        contact_model=options.contact_model,
-        contact_onset_um=options.contact_onset_um,
-        mains_hz=mains_lines_hz(options),
-    )
-
-
 def mains_meta(mains_hz: tuple[float, ...] | str | None) -> list[float] | str | None:
     """AnalysisOptions.mains_hz as tap-file meta (JSON: a list, "auto" or null)."""
     return list(mains_hz) if isinstance(mains_hz, tuple) else mains_hz
-
-
-def mains_lines_hz(options: TapOptions) -> tuple[float, ...] | str:
-    """The hum the analysis removes: the notch filter's frequencies when configured (the user
-    named the hum), else "auto" (50 or 60 Hz when the tap clearly holds it)."""
-    return tuple(options.notch_filter_frequencies) if options.notch_filter_frequencies else "auto"
 
 
 @dataclass
@@ -209,7 +189,7 @@ class LoadCellProbe:
             problem = check_appendable(self.tap_log_path)
             if problem is not None:
                 raise section.error("tap_log", f"{problem}: a tap log must be a file taps can be appended to")
-        self._check_classifier(self.options.tap_classifier,
+        self._check_classifier(self.options.analysis.tap_classifier,
                                lambda msg: section.error(classifier_option(section), msg))
         check_stuck_sensor_samples(self.options.stuck_sensor_samples,
                                    lambda msg: section.error("stuck_sensor_samples", msg))
@@ -268,16 +248,16 @@ class LoadCellProbe:
     def _design(self, options: TapOptions) -> TapSettings:
         sos = design_firmware_filter(filter_options(options, self.sample_rate_sps))
         pullback_speed = options.pullback_speed_mm_s or default_pullback_speed_mm_s(self.sample_rate_sps)
-        return TapSettings(options, sos, pullback_speed, analysis_options(options))
+        return TapSettings(options, sos, pullback_speed, tap_analysis_options(options))
 
     def command_settings(self, gcmd) -> TapSettings:
         """The settings of this command: a new filter design when any option is overridden."""
         refuse_misspelled_safety_parameters(gcmd)
-        options = with_overrides(self.options, TAP_OPTION_SPECS, gcmd)
+        options = tap_options_with_overrides(self.options, gcmd)
         if options is self.options:
             return self.config_settings
         refuse_loosening(gcmd, self.options, options, self.trigger.stuck_samples(self.options))
-        self._check_classifier(options.tap_classifier, gcmd.error)
+        self._check_classifier(options.analysis.tap_classifier, gcmd.error)
         check_stuck_sensor_samples(options.stuck_sensor_samples,
                                    lambda msg: gcmd.param_error(f"STUCK_SENSOR_SAMPLES: {msg}"))
         try:
@@ -286,12 +266,12 @@ class LoadCellProbe:
             raise gcmd.param_error(f"{exc.option.upper()}: {exc.value!r} is not allowed; allowed: {exc.allowed}") from None
 
     def with_options(self, settings: TapSettings, **changes) -> TapSettings:
-        """`settings` with some TapOptions fields changed (a calibration's own taps)."""
-        return self._design(dataclasses.replace(settings.options, **changes))
+        """`settings` with some TapOptions (or analysis) fields changed (a calibration's own taps)."""
+        return self._design(replace_tap_options(settings.options, **changes))
 
     def set_calibrated(self, option: str, text: str, **changes) -> None:
-        """Use calibrated TapOptions fields from now on and queue `option: text` for SAVE_CONFIG."""
-        self.options = dataclasses.replace(self.options, **changes)
+        """Use calibrated TapOptions (or analysis) fields from now on and queue `option: text` for SAVE_CONFIG."""
+        self.options = replace_tap_options(self.options, **changes)
         self.config_settings = self._design(self.options)
         self.printer.config.set(self.name, option, text)
 
@@ -661,6 +641,18 @@ class LoadCellProbe:
             self.printer.gcode.respond_info(f"Tap Quality: {analysis.quality:.1f}%")
         return TapOutcome(z_mm=z_mm, valid=valid, error_code=analysis.error, message=message, analysis=analysis,
                           explained=why is not None)
+
+    def pooled_z_shifts_mm(self, analyses: list) -> list[float] | None:
+        """Taps at one spot (their analyses): each tap's pooled Z minus its own (tapcell.tap.pool: the toe,
+        stiffness and lag the taps share, estimated jointly), written into the analyses (`z_pooled_mm`).
+        None unless every tap is valid and was read by the toe model (a calibrated onset or the sharp
+        model has no shared toe to estimate)."""
+        if not all(a is not None and a.valid and a.z_mm is not None for a in analyses):
+            return None
+        apply_pool(analyses)
+        if any(a.z_pooled_mm is None for a in analyses):
+            return None
+        return [a.z_pooled_mm - a.z_mm for a in analyses]
 
     def _make_room_to_reach_speed(self, expected_z_mm: float, speed_mm_s: float) -> None:
         """Lift first when the nozzle is too close to the bed for the probing move to reach its

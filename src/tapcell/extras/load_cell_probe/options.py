@@ -6,16 +6,17 @@ Kept apart from the device (`tapcell.extras.load_cell_probe.device`) so the opti
 
 from __future__ import annotations
 
+import dataclasses
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from tapcell.filters import (DRIFT_CUTOFF_MAX_HZ, DRIFT_CUTOFF_MIN_HZ, FILTER_ORDERS, NOTCH_QUALITY_MAX,
                              NOTCH_QUALITY_MIN)
 from tapcell.mcu.trigger import MAX_STUCK_SAMPLES, TriggerError
-from tapcell.extras.probe.options import OptionSpec, read_section_values
-from tapcell.tap.model import ANALYSIS_RANGES, CONTACT_MODELS, AnalysisOptions
+from tapcell.extras.probe.options import OptionSpec, read_section_values, with_overrides
+from tapcell.tap.model import ANALYSIS_RANGES, CONFIG_OPTIONS, CONTACT_MODELS, AnalysisOptions
 from tapcell.tap.robust import robust_sigma
 
 # Every load-cell probing error starts with this (the spec's wording).
@@ -44,13 +45,10 @@ def trigger_error_message(error: TriggerError, force_safety_limit_g: float, stuc
     return ERROR_PREFIX + f"trigger error {error.name}"
 
 
-# Defaults of the tap-analysis (classifier) options: the analysis's own.
-ANALYSIS_DEFAULTS = AnalysisOptions()
-
-
 @dataclass(frozen=True)
 class TapOptions:
-    """The load-cell-specific probing options (None = disabled / computed default)."""
+    """The load-cell-specific probing options (None = disabled / computed default), the tap
+    analysis's in `analysis`."""
 
     trigger_force_g: float = 75.0
     force_safety_limit_g: float = 2000.0
@@ -64,31 +62,22 @@ class TapOptions:
     notch_filter_quality: float = 2.0
     pullback_distance_mm: float = 0.2
     pullback_speed_mm_s: float | None = None
-    tap_classifier: str = ANALYSIS_DEFAULTS.tap_classifier
-    min_tap_quality: float = ANALYSIS_DEFAULTS.min_tap_quality
-    decompression_angle: float | None = ANALYSIS_DEFAULTS.decompression_angle
-    max_approach_force: float = ANALYSIS_DEFAULTS.max_approach_force
-    max_departure_force: float = ANALYSIS_DEFAULTS.max_departure_force
-    max_baseline_force_delta: float = ANALYSIS_DEFAULTS.max_baseline_force_delta
-    max_dwell_force_drop: float = ANALYSIS_DEFAULTS.max_dwell_force_drop
-    contact_model: str = ANALYSIS_DEFAULTS.contact_model
-    # None: not calibrated (the contact model decides); a number, LOAD_CELL_PROBE_CALIBRATE
-    # CALIBRATION=CONTACT_ONSET's result, selects the sharp model with that onset.
-    contact_onset_um: float | None = None
     stuck_sensor_samples: int | None = None  # None: from the sensor's noise floor; 0: off
+    # The tap-analysis options of the config (tapcell.tap.model.CONFIG_OPTIONS); the printer sets the
+    # rest per command (`tap_analysis_options`: the trigger force, the mains hum).
+    analysis: AnalysisOptions = field(default_factory=AnalysisOptions)
 
 
-def analysis_option_spec(name: str, default=None) -> OptionSpec:
-    """An option of the tap analysis: its range (and unless given, its default) from the analysis's table."""
-    default = getattr(ANALYSIS_DEFAULTS, name) if default is None else default
+def analysis_option_spec(name: str) -> OptionSpec:
+    """An option of the tap analysis: its default and range from the analysis's own table."""
+    default = getattr(AnalysisOptions(), name)
     if name == "contact_model":
         return OptionSpec(name, name, "choice", default, choices=CONTACT_MODELS)
     if name not in ANALYSIS_RANGES:
+        if not isinstance(default, str):  # a config option of another kind needs its reader here
+            raise TypeError(f"analysis option {name}: no config reader for {type(default).__name__} values")
         return OptionSpec(name, name, "str", default)
-    allowed = ANALYSIS_RANGES[name]
-    limits = ({"above": allowed.low, "below": allowed.high} if allowed.exclusive
-              else {"minval": allowed.low, "maxval": allowed.high})
-    return OptionSpec(name, name, "optfloat" if default is None else "float", default, **limits)
+    return OptionSpec(name, name, "optfloat" if default is None else "float", default, **ANALYSIS_RANGES[name].limits())
 
 
 PULLBACK_LIMITS_MM = (0.01, 2.0)  # pullback_distance's range (also the calibration's PULLBACK_DISTANCE)
@@ -117,18 +106,12 @@ TAP_OPTION_SPECS: tuple[OptionSpec, ...] = (
     OptionSpec("pullback_distance", "pullback_distance_mm", "float", 0.2,
                minval=PULLBACK_LIMITS_MM[0], maxval=PULLBACK_LIMITS_MM[1]),
     OptionSpec("pullback_speed", "pullback_speed_mm_s", "float", None, minval=0.01, maxval=2.0),
-    analysis_option_spec("tap_classifier"),
-    analysis_option_spec("min_tap_quality"),
-    analysis_option_spec("decompression_angle"),
-    analysis_option_spec("max_approach_force"),
-    analysis_option_spec("max_departure_force"),
-    analysis_option_spec("max_baseline_force_delta"),
-    analysis_option_spec("max_dwell_force_drop"),
-    analysis_option_spec("contact_model"),
-    analysis_option_spec("contact_onset_um"),
     # 1 is refused too (check_stuck_sensor_samples): a run of one sample is every sample.
     OptionSpec("stuck_sensor_samples", "stuck_sensor_samples", "int", None, minval=0, maxval=MAX_STUCK_SAMPLES),
 )
+# TapOptions.analysis's fields: read from the config and overridden by G-code like the rest, with the
+# analysis's defaults and ranges (what `tapcell analyze --set` checks).
+ANALYSIS_OPTION_SPECS: tuple[OptionSpec, ...] = tuple(analysis_option_spec(name) for name in CONFIG_OPTIONS)
 # The load-cell guide names the classifier option `tap_classifier_module`; Kalico reads
 # `tap_classifier`. A config may use either name, not both.
 GUIDE_CLASSIFIER_OPTION = "tap_classifier_module"
@@ -140,14 +123,46 @@ def classifier_option(section) -> str:
 
 
 def read_tap_options(section) -> TapOptions:
-    """`[load_cell_probe]`'s tap options (TAP_OPTION_SPECS), the guide's classifier name included."""
-    values = read_section_values(section, TAP_OPTION_SPECS)
+    """`[load_cell_probe]`'s tap options (TAP_OPTION_SPECS, ANALYSIS_OPTION_SPECS), the guide's classifier
+    name included."""
+    own = read_section_values(section, TAP_OPTION_SPECS)
+    analysis = read_section_values(section, ANALYSIS_OPTION_SPECS)
     if classifier_option(section) == GUIDE_CLASSIFIER_OPTION:
         if section.has_option("tap_classifier"):
             raise section.error(GUIDE_CLASSIFIER_OPTION,
                                 "the same option as tap_classifier (the guide's name for it): give one of them")
-        values["tap_classifier"] = section.get(GUIDE_CLASSIFIER_OPTION).strip()
-    return TapOptions(**values)
+        analysis["tap_classifier"] = section.get(GUIDE_CLASSIFIER_OPTION).strip()
+    return TapOptions(**own, analysis=AnalysisOptions(**analysis))
+
+
+def tap_options_with_overrides(options: TapOptions, gcmd) -> TapOptions:
+    """A probing command's options: `options` with its G-code overrides (the same object when none)."""
+    changed = with_overrides(options, TAP_OPTION_SPECS, gcmd)
+    analysis = with_overrides(options.analysis, ANALYSIS_OPTION_SPECS, gcmd)
+    return changed if analysis is options.analysis else dataclasses.replace(changed, analysis=analysis)
+
+
+def replace_tap_options(options: TapOptions, **changes) -> TapOptions:
+    """`options` with fields changed by name, a TapOptions field's or else its analysis's
+    (`contact_onset_um=...`, `pullback_distance_mm=...`)."""
+    own = {f.name for f in dataclasses.fields(TapOptions)}
+    analysis = {k: v for k, v in changes.items() if k not in own}
+    if analysis:
+        changes = {k: v for k, v in changes.items() if k in own}
+        changes["analysis"] = dataclasses.replace(options.analysis, **analysis)
+    return dataclasses.replace(options, **changes)
+
+
+def tap_analysis_options(options: TapOptions) -> AnalysisOptions:
+    """What a tap is analysed with: the config's analysis options, the trigger force and the mains hum."""
+    return dataclasses.replace(options.analysis, trigger_force_g=options.trigger_force_g,
+                               mains_hz=mains_lines_hz(options))
+
+
+def mains_lines_hz(options: TapOptions) -> tuple[float, ...] | str:
+    """The hum the analysis removes: the notch filter's frequencies when configured (the user
+    named the hum), else "auto" (50 or 60 Hz when the tap clearly holds it)."""
+    return tuple(options.notch_filter_frequencies) if options.notch_filter_frequencies else "auto"
 
 
 STUCK_SENSOR_SAMPLES_ALLOWED = f"0 (disabled) or 2 .. {MAX_STUCK_SAMPLES}"

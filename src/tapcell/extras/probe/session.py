@@ -5,6 +5,9 @@ where the bed is and whether it trusts that answer. The load-cell probe is one
 (`tapcell.extras.load_cell_probe.device`). This module adds what every probe needs around a tap:
 
 * several samples per point with `samples_result` and `samples_tolerance` (+ retries);
+* taps at one spot pooled (`Tapper.pooled_z_shifts_mm`): PROBE_ACCURACY and `SAMPLES=` report each
+  tap's Z with what the taps share (the load cell's contact toe, stiffness and lag) estimated
+  jointly, when the device can; a device that cannot leaves each tap's own Z;
 * bad taps handled by `bad_probe_strategy`: `fail`, `ignore`, `retry` in place, or
   `circle` to the nearest spot of a hexagonal pattern that keeps clear of every place
   where a bad tap happened during the same command (a fouled spot stays avoided);
@@ -29,7 +32,8 @@ from tapcell.host.gcode import GCodeError
 from tapcell.extras.probe.advice import advised
 from tapcell.extras.probe.options import MAX_SAMPLES, PROBE_OPTION_SPECS, ProbeOptions, check_probe_options, with_overrides
 from tapcell.extras.probe.patterns import next_clean_spot
-from tapcell.extras.probe.stats import AccuracyStats, accuracy_stats, combine_samples, format_accuracy, spread_mm
+from tapcell.extras.probe.stats import (AccuracyStats, accuracy_stats, combine_samples, format_accuracy,
+                                       format_single_tap_accuracy, spread_mm)
 
 # BAD_PROBE_STRATEGY and its aliases (STRATEGY=): a command that names one keeps its own choice.
 STRATEGY_SPEC = next(spec for spec in PROBE_OPTION_SPECS if spec.field == "bad_probe_strategy")
@@ -61,9 +65,11 @@ class ProbeResult:
     x_mm: float  # the point asked for (probe coordinates)
     y_mm: float
     attempts: int  # taps made, good and bad
-    samples_z_mm: tuple[float, ...] = ()
+    samples_z_mm: tuple[float, ...] = ()  # the samples combined into z_mm (pooled when `pooled`)
     tapped_x_mm: float = 0.0  # where the nozzle tapped last (differs from x_mm under CIRCLE)
     tapped_y_mm: float = 0.0
+    pooled: bool = False  # samples_z_mm are the taps' pooled Zs (Tapper.pooled_z_shifts_mm)
+    single_z_mm: tuple[float, ...] = ()  # each sample's own Z (the same as samples_z_mm when not pooled)
 
     def to_json(self) -> dict:
         out = dataclasses.asdict(self)
@@ -81,6 +87,10 @@ class Tapper(Protocol):
     def home_tap(self, settings, z_min_mm: float, speed_mm_s: float) -> float: ...
 
     def guarded(self) -> contextlib.AbstractContextManager: ...  # around a probing command: lift after an error
+
+    # Taps made at one spot (their TapOutcome.analysis): what to add to each tap's Z for its pooled Z (the
+    # part the taps share estimated jointly), or None when this device does not pool these taps.
+    def pooled_z_shifts_mm(self, analyses: list[Any]) -> list[float] | None: ...
 
 
 class Motion(Protocol):
@@ -148,6 +158,8 @@ class ProbeSession:
         attempts = 0
         while True:
             samples: list[float] = []
+            analyses: list[Any] = []
+            spots: list[tuple[float, float]] = []
             outcome = None
             tapped = (x_mm, y_mm)
             valid = True
@@ -156,6 +168,8 @@ class ProbeSession:
                 attempts += taps
                 valid = valid and outcome.valid
                 samples.append(outcome.z_mm)
+                analyses.append(outcome.analysis)
+                spots.append(tapped)
                 if spread_mm(np.array(samples)) > opts.samples_tolerance_mm:
                     break
                 if len(samples) < opts.samples:
@@ -167,13 +181,30 @@ class ProbeSession:
             tolerance_retries += 1
             self.probe.respond_info("Probe samples exceed tolerance. Retrying...")
             self._retract(outcome.z_mm)
-        z_mm = combine_samples(np.array(samples), opts.samples_result) - opts.z_offset_mm
+        pooled = self._pooled(samples, analyses, spots)
+        combined = samples if pooled is None else pooled
+        z_mm = combine_samples(np.array(combined), opts.samples_result) - opts.z_offset_mm
         result = ProbeResult(
             z_mm=z_mm, valid=valid, tap_analysis=outcome.analysis, x_mm=x_mm, y_mm=y_mm,
-            attempts=attempts, samples_z_mm=tuple(samples), tapped_x_mm=tapped[0], tapped_y_mm=tapped[1],
+            attempts=attempts, samples_z_mm=tuple(combined), tapped_x_mm=tapped[0], tapped_y_mm=tapped[1],
+            pooled=pooled is not None, single_z_mm=tuple(samples),
         )
         self.probe.last_result = result
         return result
+
+    def _pooled(self, z_mm: list[float], analyses: list[Any], spots: list[tuple[float, float]]) -> list[float] | None:
+        """The taps' pooled Zs (in order), or None: one tap, taps at more than one spot (CIRCLE moved
+        away from a fouled one), or the device does not pool them."""
+        if len(z_mm) < 2 or len(set(spots)) != 1:
+            return None
+        shifts = self.probe.tapper.pooled_z_shifts_mm(analyses)
+        return None if shifts is None else [z + shift for z, shift in zip(z_mm, shifts)]
+
+    def pooled_results(self, results: list[ProbeResult]) -> list[float] | None:
+        """The pooled Zs (bed heights, as ProbeResult.z_mm) of single-sample results (PROBE_ACCURACY's),
+        or None when they are not pooled."""
+        return self._pooled([r.z_mm for r in results], [r.tap_analysis for r in results],
+                            [(r.tapped_x_mm, r.tapped_y_mm) for r in results])
 
     def probe_repeatedly(self, x_mm: float, y_mm: float, count: int) -> Iterator[ProbeResult]:
         """Probe one point `count` times, one sample each, lifting sample_retract_dist in between.
@@ -267,7 +298,9 @@ class Probe:
         self.gcode = gcode
         self.template_runner = template_runner  # callable(option_name, template, params) or None
         self.last_result: ProbeResult | None = None
-        self.last_accuracy: AccuracyStats | None = None  # of the last PROBE_ACCURACY
+        self.last_accuracy: AccuracyStats | None = None  # of the last PROBE_ACCURACY (pooled Zs when pooled)
+        self.last_accuracy_single: AccuracyStats | None = None  # of its taps' own Zs
+        self.last_accuracy_pooled = False
         self.last_z_result = 0.0
         self.last_query = False
 
@@ -325,9 +358,16 @@ class Probe:
                 f"PROBE_ACCURACY at X:{x:.3f} Y:{y:.3f} Z:{z_start:.3f} (samples={samples} "
                 f"retract={opts.sample_retract_dist_mm:.3f} speed={opts.speed_mm_s:.1f} "
                 f"lift_speed={opts.effective_lift_speed_mm_s:.1f})")
-            z_values = [result.z_mm for result in session.probe_repeatedly(x, y, samples)]
-        stats = accuracy_stats(np.array(z_values))
+            results = list(session.probe_repeatedly(x, y, samples))
+            pooled = session.pooled_results(results)
+        single = accuracy_stats(np.array([result.z_mm for result in results]))
+        self.last_accuracy_single = single
+        if pooled is not None:
+            # Klipper's line (last, where macros and users read it) shows the pooled Zs; the taps' own beside it.
+            self.respond_info(format_single_tap_accuracy(single))
+        stats = single if pooled is None else accuracy_stats(np.array(pooled))
         self.last_accuracy = stats
+        self.last_accuracy_pooled = pooled is not None
         self.last_z_result = stats.average_mm
         self.respond_info(format_accuracy(stats))
 

@@ -57,8 +57,18 @@ def accuracy_stats(z_mm: np.ndarray) -> AccuracyStats:
 
 def format_accuracy(stats: AccuracyStats) -> str:
     """The PROBE_ACCURACY result line."""
+    return "probe accuracy results: " + _figures(stats)
+
+
+def format_single_tap_accuracy(stats: AccuracyStats) -> str:
+    """The line before a pooled PROBE_ACCURACY result line: the same figures over each tap's own Z."""
+    return (f"single-tap results (each tap analysed alone; the results below pool the {stats.count} taps): "
+            + _figures(stats))
+
+
+def _figures(stats: AccuracyStats) -> str:
     return (
-        "probe accuracy results: maximum %.6f, minimum %.6f, range %.6f, average %.6f, "
+        "maximum %.6f, minimum %.6f, range %.6f, average %.6f, "
         "median %.6f, standard deviation %.6f, average delta %.6f"
         % (
             stats.maximum_mm,
