@@ -6,8 +6,8 @@ sigma must cover it), the rms of each part of the sigma, rms(error / sigma) with
 tapcell.tap.uncertainty ("now"), with the scenario's mean error taken out ("no bias": what the
 sigma would score were Z unbiased there), and with the weights this run chooses: on a grid, the weights whose
 worst scenario over both sets (every scenario with at least MIN_TAPS accepted taps, fouled ones
-included) has rms(error / sigma) closest to 1 (the least max |log ratio|, then the mean one), by
-coordinate descent from the weights in the code. A scenario whose taps
+included) has rms(error / sigma) closest to 1 (the least max |log ratio|, then the mean one),
+over every combination of the grid. A scenario whose taps
 are all rejected has no ratio. Re-run after any change to the Z estimator and carry the chosen
 weights into tapcell.tap.uncertainty if they differ.
 
@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import collections
 import dataclasses
+import itertools
 import math
 import tempfile
 from pathlib import Path
@@ -34,8 +35,9 @@ from tapcell.taplab.generate import generate_set
 
 MIN_TAPS = 5  # fewer accepted taps in a scenario: its rms says little (and it is not used to choose)
 # The weights tried (tapcell.tap.uncertainty.SigmaWeights' fields).
-GRID = {"noise": np.arange(0.5, 1.51, 0.125), "toe": np.arange(0.0, 1.51, 0.125), "shape": np.arange(0.0, 3.01, 0.25),
+GRID = {"noise": np.arange(0.5, 3.01, 0.125), "shape": np.arange(0.0, 3.01, 0.25),
         "misfit": np.arange(0.0, 2.01, 0.5), "thread": np.arange(0.0, 2.01, 0.25), "squeeze": np.arange(0.0, 1.51, 0.25)}
+CHUNK = 4096  # weight combinations scored at once
 TYPICAL_SHARE = 0.25  # the mean |log ratio|'s share in the choice, beside the worst scenario's
 PART_NAMES = [f.name for f in dataclasses.fields(ZSigmaParts)]
 
@@ -72,44 +74,27 @@ def ratio_rms(scenario: Scenario, weights: SigmaWeights, unbiased: bool = False)
     return float(np.sqrt(np.mean(np.square(errors / sigmas))))
 
 
-def choose_weights(sets: dict[str, dict[str, Scenario]], start: SigmaWeights | None = None,
-                   rounds: int = 20) -> tuple[SigmaWeights, float]:
-    """The weights on GRID whose worst scenario (over every set) is closest to 1, and that worst
-    ratio: coordinate descent from `start` (default: the weights in the code), one weight over its
-    whole grid at a time with the others held, until no weight moves."""
+def choose_weights(sets: dict[str, dict[str, Scenario]]) -> tuple[SigmaWeights, float]:
+    """The weights on GRID (every combination) whose worst scenario, over every set, is closest to
+    1, then the best mean over the scenarios; and that worst ratio."""
     judged = [s for scenarios in sets.values() for s in scenarios.values() if len(s.errors_um) >= MIN_TAPS]
     errors2 = [np.square(s.errors_um) for s in judged]
     fixed = [np.array([p.staircase_um ** 2 + p.delay_um ** 2 for p in s.parts]) for s in judged]
     weighed = [np.array([[getattr(p, name + "_um") ** 2 for name in GRID] for p in s.parts]) for s in judged]
-    start = start or SigmaWeights()
-    current = np.array([getattr(start, name) for name in GRID], dtype=float)
-
-    def scores(candidates: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(score, worst |log ratio|) per candidate row of weights."""
-        worst, total = np.zeros(len(candidates)), np.zeros(len(candidates))
+    combos = np.array(list(itertools.product(*GRID.values())))
+    worst, total = np.zeros(len(combos)), np.zeros(len(combos))
+    for start in range(0, len(combos), CHUNK):  # (taps, combinations) arrays of a bounded size
+        squared = combos[start:start + CHUNK] ** 2
         for e2, f, w in zip(errors2, fixed, weighed):
-            sigma2 = f[:, None] + w @ (candidates ** 2).T  # (taps, candidates)
+            sigma2 = f[:, None] + w @ squared.T
             with np.errstate(divide="ignore"):  # weights that leave a tap no sigma: infinitely off
                 off = np.abs(0.5 * np.log(np.mean(e2[:, None] / sigma2, axis=0)))
-            worst, total = np.maximum(worst, off), total + off
-        # The worst scenario first; among weights nearly as good there, the one best on the others
-        # (a fouled scenario nothing in the tap explains would otherwise leave the rest arbitrary).
-        return worst + TYPICAL_SHARE * total / len(judged), worst
-
-    best_score = scores(current[None, :])[0][0]
-    for _ in range(rounds):
-        moved = False
-        for k, values in enumerate(GRID.values()):
-            candidates = np.repeat(current[None, :], len(values), axis=0)
-            candidates[:, k] = values
-            score = scores(candidates)[0]
-            i = int(score.argmin())
-            if score[i] < best_score - 1e-12:
-                current, best_score, moved = candidates[i], score[i], True
-        if not moved:
-            break
-    worst = scores(current[None, :])[1][0]
-    return SigmaWeights(**{name: float(w) for name, w in zip(GRID, current)}), math.exp(float(worst))
+            worst[start:start + CHUNK] = np.maximum(worst[start:start + CHUNK], off)
+            total[start:start + CHUNK] += off
+    # The worst scenario first; among weights nearly as good there, the one best on the others
+    # (a fouled scenario nothing in the tap explains would otherwise leave the rest arbitrary).
+    best = int((worst + TYPICAL_SHARE * total / len(judged)).argmin())
+    return SigmaWeights(**{name: float(w) for name, w in zip(GRID, combos[best])}), math.exp(float(worst[best]))
 
 
 def _fmt(value: float | None) -> str:

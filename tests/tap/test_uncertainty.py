@@ -16,9 +16,9 @@ import pytest
 from tapcell.tap import analyze_tap, read_tap_file
 from tapcell.tap.synth import synth_tap
 from tapcell.taplab.generate import generate_set
-from tapcell.tap.toe import marginal_contact_um
+from tapcell.tap.toe import TOE_WIDTHS_UM, WIDTH_PRIOR, marginal_contact_um
 from tapcell.tap.uncertainty import (SigmaWeights, ZSigmaParts, misfit_um, squeeze_um, staircase_um, thread_um,
-                                     toe_noise_and_spread_um, z_sigma_um)
+                                     z_sigma_um)
 
 SEEDS = range(8)
 
@@ -30,10 +30,10 @@ def _analyses(**changes):
 
 
 def test_the_parts_add_in_quadrature_each_weighed():
-    parts = ZSigmaParts(noise_um=0.3, toe_um=0.8, shape_um=0.4, thread_um=2.0, misfit_um=0.5, squeeze_um=1.5,
-                        staircase_um=0.12, delay_um=0.05)
-    weights = SigmaWeights(noise=0.5, toe=0.125, shape=2.75, misfit=0.0, thread=1.75, squeeze=2.0)
-    expected = math.sqrt(0.15 ** 2 + 0.1 ** 2 + 1.1 ** 2 + 3.5 ** 2 + 3.0 ** 2 + 0.12 ** 2 + 0.05 ** 2)
+    parts = ZSigmaParts(noise_um=0.3, shape_um=0.4, thread_um=2.0, misfit_um=0.5, squeeze_um=1.5, staircase_um=0.12,
+                        delay_um=0.05)
+    weights = SigmaWeights(noise=0.5, shape=2.75, misfit=0.0, thread=1.75, squeeze=2.0)
+    expected = math.sqrt(0.15 ** 2 + 1.1 ** 2 + 3.5 ** 2 + 3.0 ** 2 + 0.12 ** 2 + 0.05 ** 2)
     assert z_sigma_um(parts, weights) == pytest.approx(expected, rel=1e-12)
     # The analysis reports exactly the weighed sum of its own parts.
     analysis = analyze_tap(synth_tap(seed=1))
@@ -59,12 +59,16 @@ def test_a_strand_letting_go_makes_the_sigma_larger():
     assert np.median([a.z_sigma_um for a in pulled]) > 2.0 * np.median([a.z_sigma_um for a in clean])
 
 
-def test_the_toe_parts_split_the_marginal_sd():
-    grid = analyze_tap(synth_tap(seed=3, contact_onset_um=6.0)).toe_grid
-    noise, spread = toe_noise_and_spread_um(grid)
-    _, sd = marginal_contact_um(grid.contacts_um, grid.rss, grid.noise_var, grid.prior)
-    assert math.hypot(noise, spread) == pytest.approx(sd, rel=1e-6)  # the law of total variance
-    assert noise > 0 and spread > 0
+def test_the_shape_part_is_half_the_range_over_the_toe_shapes():
+    analysis = analyze_tap(synth_tap(seed=3, contact_onset_um=6.0))
+    grid = analysis.toe_grid
+    widths = len(TOE_WIDTHS_UM)
+    hertz, parabola = (marginal_contact_um(grid.contacts_um, grid.rss[k * widths:(k + 1) * widths], grid.noise_var,
+                                           WIDTH_PRIOR)[0] for k in range(2))
+    assert analysis.z_sigma_parts.shape_um == pytest.approx(0.5 * abs(hertz - parabola), rel=1e-12)
+    assert analysis.z_sigma_parts.shape_um > 0.05
+    # The noise part is the sharp fit's sigma over the same pullback.
+    assert analysis.z_sigma_parts.noise_um == analysis.z_sharp_sigma_um
 
 
 def test_thread_is_the_let_go_beyond_the_walk():

@@ -687,6 +687,11 @@ class SplitTap:
     noise_g: float
     angles_deg: list[float]
 
+    @functools.cached_property
+    def wanders(self) -> tuple[Wander | None, Wander | None]:
+        """`free_air_wanders` of the tap, measured once for the toe fit and its uncertainty."""
+        return free_air_wanders(self.force_g, self.dec)
+
 
 @dataclass
 class ContactFits:
@@ -862,7 +867,7 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     lag_shift_um = (delay_s - window_delay_s) * motion.pullback_speed_mm_s * 1000.0
     start = pullback.contact_um + lag_shift_um if pullback else window.break_line_um
     drift_g_um = free_air_slope_g_um(dec, motion)
-    wander, approach_wander = free_air_wanders(split.force_g, dec)
+    wander, approach_wander = split.wanders
     samples = pullback_samples(window, motion, timing, window_delay_s)  # for the toe fit and the adhesion check
     fit_drift_g_um = toe_drift_g_um(dec, split.ps, motion, timing.sample_period_s,
                                     wander.walk_var_g2 if wander else 0.0)
@@ -883,8 +888,8 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
 
 def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay_s: float, window_delay_s: float,
                   result: TapAnalysis) -> None:
-    """`z_sigma_um` from the parts the tap shows (tapcell.tap.uncertainty): the toe fit's noise,
-    trade-off and shape (when the toe set Z; else the sharp fit's or the lines' sigma as the noise),
+    """`z_sigma_um` from the parts the tap shows (tapcell.tap.uncertainty): the sharp fit's noise
+    and the toe's shape spread (when the toe set Z; else the sharp fit's or the lines' sigma),
     a departure thread letting go, the misfit near contact, the Z staircase, the halt's delay."""
     motion, timing, dec = split.motion, split.timing, split.dec
     if result.z_mm is None or result.z_sigma_um is None:
@@ -900,7 +905,7 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
                              slope_g_s * motion.home_end_s + intercept_g, contact_um)
     reaches_far = len(x_um) > 0 and float(x_um.max()) - contact_um >= THREAD_FAR_MIN_UM
     # The walk between the near and far reaches' middles, in samples of the pullback.
-    _, approach_wander = free_air_wanders(split.force_g, dec)
+    _, approach_wander = split.wanders
     apart_samples = (sum(THREAD_FAR_REACH_UM) - sum(THREAD_REACH_UM)) / 2.0 / max(
         speed_um_s * timing.sample_period_s, 1e-9)
     walk_var_g2 = approach_wander.walk_var_g2 * apart_samples if approach_wander else 0.0
@@ -918,7 +923,9 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
         staircase_um=uncertainty.staircase_um(step_staircase_sigma_um(timing.z_step_um, window_um), timing.z_step_um),
         delay_um=speed_um_s * halt_sigma_s if math.isfinite(halt_sigma_s) else 0.0)
     if result.z_method == "toe" and result.toe_grid is not None:
-        parts = uncertainty.toe_parts(result.toe_grid, **others)
+        # The noise: the sharp fit's over the same samples (the toe fit's own when there is none).
+        noise_um = result.z_sharp_sigma_um if result.z_sharp_sigma_um is not None else result.z_sigma_um
+        parts = uncertainty.toe_parts(result.toe_grid, noise_um=noise_um, **others)
     else:
         parts = uncertainty.ZSigmaParts(noise_um=result.z_sigma_um, **others)
     result.z_sigma_parts = parts
