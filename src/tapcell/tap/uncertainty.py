@@ -28,7 +28,7 @@ choose on the analysis as it stands (re-run it when the Z estimator changes).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 from tapcell.tap.toe import PENETRATION_REACH_UM, ToeGridResult, shape_spread_um
 
@@ -72,9 +72,6 @@ class ZSigmaParts:
     staircase_um: float = 0.0
     delay_um: float = 0.0
 
-    def to_json(self) -> dict[str, float]:
-        return {f.name: round(getattr(self, f.name), 4) for f in fields(self)}
-
 
 def z_sigma_um(parts: ZSigmaParts, weights: SigmaWeights = SigmaWeights()) -> float:
     """The parts added in quadrature, each weighed."""
@@ -95,11 +92,11 @@ def misfit_um(residual_g: float | None, noise_g: float | None, step_g: float | N
 
 
 def squeeze_um(down_um: float | None, up_um: float | None, allowance_um: float) -> float:
-    """How far contact on the way down lies above break contact on the way up beyond what a sound
-    tap allows without hysteresis (`allowance_um`: a sample of travel each way and the two fits'
-    noise, as TAP_CONTACT_MISMATCH's tolerance less its hysteresis): a film or soft layer squeezed
-    while pressed moved the surface under the nozzle by about that much between the two, and what
-    is left of it lies under the break contact too."""
+    """How far contact on the way down lies above break contact on the way up beyond what the two
+    fits' noise allows (`allowance_um`): a film or soft layer squeezed while pressed moved the
+    surface under the nozzle by about that much between the two, and what is left of it lies under
+    the break contact too. Below TAP_CONTACT_MISMATCH's limit, which also allows hysteresis and a
+    sample of travel each way (they would hide every film on taplab's mild ooze)."""
     if down_um is None or up_um is None:
         return 0.0
     return max(down_um - up_um - allowance_um, 0.0)
