@@ -4,8 +4,8 @@ Numbers measured on tapcell.tap.synth taps, seeds 0-11 (660 sps, 4.6 g/µm, a sh
 noise 0.5 g: noise part median 0.052 µm, sigma 0.23; noise 3 g: 0.302 µm, sigma 0.56. A 2 g strand
 pulling over the first 30 µm of the departure (0.15 mm pullback): thread part 0.20-0.30 µm, sigma
 median 0.68 against 0.23 for the same taps without it; a 1 g strand 0.00-0.17 µm, sigma 0.44.
-taplab (seed 11, 10 taps a scenario): the accepted mild-ooze taps' squeeze part 1.44-5.68 µm (their
-errors +2.7..+5.0 µm, sigma median 4.05), clean HX717's 0 on 8 of 10 taps, at most 0.99.
+taplab (seed 11, 10 taps a scenario): the accepted mild-ooze taps' squeeze part 0.44-7.19 µm, median
+3.51 (1.44-5.68 on the five that read +2.7..+5.0 µm high), clean HX717's 0 on 8 of 10 taps, at most 0.99.
 """
 
 import math
@@ -103,9 +103,13 @@ def test_squeeze_is_the_contact_mismatch_beyond_its_allowance():
 def test_a_film_squeezed_on_taplab_mild_ooze_makes_the_sigma_larger(tmp_path):
     labels = generate_set(tmp_path, seed=11, taps_per_scenario=10, scenarios=["clean_hx717", "mild_ooze"])
     parts = {"clean_hx717": [], "mild_ooze": []}
+    high = []  # the squeeze part of the accepted taps that read over 2 µm high
     for label in labels:
         analysis = analyze_tap(read_tap_file(tmp_path / label["file"])[0])
         if analysis.valid:
             parts[label["scenario"]].append(analysis.z_sigma_parts.squeeze_um)
-    assert len(parts["mild_ooze"]) >= 4 and min(parts["mild_ooze"]) > 1.0
+            if (analysis.z_mm - label["z_contact"]) * 1000.0 > 2.0:
+                high.append(analysis.z_sigma_parts.squeeze_um)
+    assert len(parts["mild_ooze"]) >= 4 and np.median(parts["mild_ooze"]) > 2.5
+    assert len(high) >= 4 and min(high) > 1.0
     assert max(parts["clean_hx717"]) < 1.2 and np.median(parts["clean_hx717"]) == 0.0
