@@ -12,7 +12,7 @@ are all rejected has no ratio. Re-run after any change to the Z estimator and ca
 weights into tapcell.tap.uncertainty if they differ.
 
 Run: .venv/bin/python -m bench tap_sigma [--seed N ...] [--check-seed N ...] [--per-scenario N] [--reference PATH]
-     (weights chosen on taplab seed 1 and the reference taps; seeds 2 and 3 scored, not used)
+     (weights chosen on taplab seeds 1 and 3 and the reference taps; seed 2 scored, not used)
      (the reference taps default to ../shared/data/reference-taps.tar.xz from the repository root)
 """
 
@@ -34,9 +34,12 @@ from tapcell.taplab.benchmark import TapSet, default_reference_archive, read_lab
 from tapcell.taplab.generate import generate_set
 
 MIN_TAPS = 5  # fewer accepted taps in a scenario: its rms says little (and it is not used to choose)
-# The weights tried (tapcell.tap.uncertainty.SigmaWeights' fields).
-GRID = {"noise": np.arange(0.5, 3.01, 0.125), "shape": np.arange(0.0, 3.01, 0.25),
-        "misfit": np.arange(0.0, 2.01, 0.5), "thread": np.arange(0.0, 2.01, 0.25), "squeeze": np.arange(0.0, 1.51, 0.25)}
+# The weights tried (tapcell.tap.uncertainty.SigmaWeights' fields). The squeeze's stops at 1.5: the
+# film a tap leaves under the nozzle is about what it squeezed out, not several times it (further up
+# the grid's best chases taplab's mild ooze alone: 3 moved the worst scenario from 1.54 to 1.53; 2
+# and 1.75 tie it). The optimum is flat: weights within a step of these score within 0.01.
+GRID = {"noise": np.arange(0.5, 3.01, 0.125), "shape": np.arange(0.0, 4.01, 0.25), "misfit": np.arange(0.0, 2.01, 0.5),
+        "thread": np.arange(0.0, 2.01, 0.25), "squeeze": np.arange(0.0, 1.51, 0.25)}
 CHUNK = 4096  # weight combinations scored at once
 TYPICAL_SHARE = 0.25  # the mean |log ratio|'s share in the choice, beside the worst scenario's
 PART_NAMES = [f.name for f in dataclasses.fields(ZSigmaParts)]
@@ -128,13 +131,14 @@ def print_set(name: str, scenarios: dict[str, Scenario], current: SigmaWeights, 
 
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench tap_sigma", description=__doc__.split("\n\n")[0])
-    parser.add_argument("--seed", type=int, action="append", help="taplab seed the weights are chosen on, repeatable (default 1)")
+    parser.add_argument("--seed", type=int, action="append",
+                        help="taplab seed the weights are chosen on, repeatable (default 1 3)")
     parser.add_argument("--check-seed", type=int, action="append", default=None,
-                        help="taplab seed scored but not used to choose, repeatable (default 2 3)")
+                        help="taplab seed scored but not used to choose, repeatable (default 2)")
     parser.add_argument("--per-scenario", type=int, default=40, help="taplab taps per scenario (default 40)")
     parser.add_argument("--reference", metavar="PATH", help="the reference taps (archive or unpacked directory)")
     args = parser.parse_args(argv)
-    seeds, check_seeds = args.seed or [1], args.check_seed if args.check_seed is not None else [2, 3]
+    seeds, check_seeds = args.seed or [1, 3], args.check_seed if args.check_seed is not None else [2]
     sets, checks = {}, {}
     with tempfile.TemporaryDirectory(prefix="tap-sigma-") as scratch:
         for seed in [*seeds, *check_seeds]:

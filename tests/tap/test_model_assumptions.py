@@ -20,7 +20,7 @@ def test_the_real_capture_reports_what_the_toe_shape_moves():
     assert analysis.valid
     # A Hertzian toe fits it best (0.11 um alone), a parabolic toe reads it 2.8 um higher: half that
     # range (1.42 um) is the shape part; contact on the way down lies 2.3 um above break contact on
-    # the way up beyond the fits' noise (the squeeze part). Weighed, they are the sigma (4.31 um).
+    # the way up beyond the fits' noise (the squeeze part). Weighed, they are the sigma (4.96 um).
     parts = analysis.z_sigma_parts
     assert parts.noise_um < 0.2 and parts.shape_um == pytest.approx(1.42, abs=0.05)
     assert parts.squeeze_um == pytest.approx(2.3, abs=0.1)
