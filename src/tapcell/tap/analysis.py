@@ -31,7 +31,8 @@ from tapcell.tap.classifiers import MISFIT_TOLERANCE, get_classifier, run_classi
 from tapcell.tap.contact import (MIN_SPAN_UM, ContactFit, fit_contact, fit_fixed_onset, window_edges,
                                  window_mean_and_slope)
 from tapcell.tap.context import AnalysisContext, SensorTiming, recompute_points
-from tapcell.tap.hum import MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum, fit_hum, resolvable_hz, spline_knots
+from tapcell.tap.hum import (MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum, fit_hum, lines_worth_fitting,
+                             resolvable_hz, spline_knots)
 from tapcell.tap.model import (
     TAP_ADHESION,
     TAP_DATA_INSUFFICIENT,
@@ -906,15 +907,16 @@ def compression_stiffness(split: SplitTap, window: ModelWindow, fits: ContactFit
                                              abs(split.dec.compression_line[0]) / (motion.approach_speed_mm_s * 1000.0))
 
 
-def mains_frequencies_hz(tap: TapData, options: AnalysisOptions) -> tuple[float, ...] | str | None:
-    """The hum lines to remove: the option, else tap meta `mains_hz` (a number or a list), else none."""
+def mains_frequencies_hz(tap: TapData, options: AnalysisOptions) -> tuple[float, ...] | str:
+    """The hum lines to remove: the option, else tap meta `mains_hz` (a number or a list; an empty
+    list: none), else "auto" (as the printer analyses a tap without a notch filter). () is none."""
     if options.mains_hz is not None:
         return options.mains_hz
     value = tap.meta.get("mains_hz")
     values = value if isinstance(value, list | tuple) else [value]
-    if values and all(isinstance(v, int | float) and not isinstance(v, bool) and 0 < v < 10000 for v in values):
+    if all(isinstance(v, int | float) and not isinstance(v, bool) and 0 < v < 10000 for v in values):
         return tuple(float(v) for v in values)
-    return "auto" if value == "auto" else None
+    return "auto"
 
 
 def remove_mains_hum(tap: TapData, options: AnalysisOptions, time_s: np.ndarray, force_g: np.ndarray,
@@ -929,10 +931,10 @@ def remove_mains_hum(tap: TapData, options: AnalysisOptions, time_s: np.ndarray,
     one window, which a linear spline cannot follow); the hum is subtracted from every sample.
     """
     wanted = mains_frequencies_hz(tap, options)
-    if wanted is None:
-        return force_g, None
     duration_s = float(time_s[-1] - time_s[0])
     candidates = resolvable_hz(MAINS_LINES_HZ if wanted == "auto" else wanted, 1.0 / period_s, duration_s)
+    if wanted == "auto":  # the cheap screen first: a tap without hum pays for no split and no fit
+        candidates = lines_worth_fitting(time_s, force_g, 1.0 / period_s, candidates)
     if not candidates:
         return force_g, None
     # One period of the lowest line as the sensor sees it: the grid cannot follow that line.
