@@ -926,8 +926,11 @@ def remove_mains_hum(tap: TapData, options: AnalysisOptions, time_s: np.ndarray,
 
     The spline under the hum needs knots at the tap's corners. They come from the five-line
     split: first of the force with the hum still in it, then (once) of the cleaned force, and
-    the hum is refitted from the original force with the better corners. Samples whose
-    conversion window holds a corner are left out of the fit (the sensor rounds a corner over
+    the hum is refitted from the original force with the better corners; a hum within 3 noise
+    sigmas skips the second round (measured: no Z on taplab or the reference taps moved). "auto"
+    first screens the lines (`lines_worth_fitting`, one FFT): a tap without hum pays for no split
+    and no fit. Samples whose conversion window holds a corner are left out of the fit (the
+    sensor rounds a corner over
     one window, which a linear spline cannot follow); the hum is subtracted from every sample.
     """
     wanted = mains_frequencies_hz(tap, options)
@@ -956,6 +959,8 @@ def remove_mains_hum(tap: TapData, options: AnalysisOptions, time_s: np.ndarray,
             if hum is None:
                 return force_g, None
         cleaned = force_g - hum.hum_g
+        if sum(hum.amplitudes_g) < 3.0 * hum.residual_sigma_g:
+            break  # a hum within 3 noise sigmas moves the corners no more than the noise: no second split and fit
     return cleaned, hum
 
 
