@@ -930,8 +930,8 @@ def remove_mains_hum(tap: TapData, options: AnalysisOptions, time_s: np.ndarray,
     sigmas skips the second round (measured: no Z on taplab or the reference taps moved). "auto"
     first screens the lines (`lines_worth_fitting`, one FFT): a tap without hum pays for no split
     and no fit. Samples whose conversion window holds a corner are left out of the fit (the
-    sensor rounds a corner over
-    one window, which a linear spline cannot follow); the hum is subtracted from every sample.
+    sensor rounds a corner over one window, which a linear spline cannot follow); the hum is
+    subtracted from every sample.
     """
     wanted = mains_frequencies_hz(tap, options)
     duration_s = float(time_s[-1] - time_s[0])
