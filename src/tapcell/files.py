@@ -16,9 +16,7 @@ from __future__ import annotations
 import errno
 import fcntl
 import os
-import secrets
 import stat
-import tempfile
 from typing import TextIO
 
 
@@ -36,8 +34,9 @@ def _kind(mode: int) -> str:
     return "not a regular file"  # (a door or a whiteout: no Linux file system has one)
 
 
-def _open_regular(path: str | os.PathLike, flags: int) -> int:
-    """A descriptor for `path`, opened without blocking; FileRefused (closing it) if it is not a regular file."""
+def _open_regular(path: str | os.PathLike, flags: int, keep_nonblocking: bool = False) -> int:
+    """A descriptor for `path`, opened without blocking; FileRefused (closing it) if it is not a regular file.
+    `keep_nonblocking`: leave O_NONBLOCK set (reads of a regular file ignore it; a reader spares two calls)."""
     try:
         fd = os.open(path, flags | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0), 0o666)
     except IsADirectoryError:
@@ -53,8 +52,9 @@ def _open_regular(path: str | os.PathLike, flags: int) -> int:
     if not stat.S_ISREG(info.st_mode):
         os.close(fd)
         raise FileRefused(f"is {_kind(info.st_mode)}")
-    # A regular file never blocks; clear the flag so that the file behaves as opened plainly.
-    fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) & ~os.O_NONBLOCK)
+    if not keep_nonblocking:
+        # A regular file never blocks; clear the flag so that the file behaves as opened plainly.
+        fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) & ~os.O_NONBLOCK)
     return fd
 
 
@@ -70,12 +70,23 @@ def read_limited(path: str | os.PathLike, max_bytes: int) -> bytes:
 
     OSError (missing file, no permission) passes through.
     """
-    with os.fdopen(_open_regular(path, os.O_RDONLY), "rb") as handle:
-        info = os.fstat(handle.fileno())
+    # Plain os.read on the descriptor: a file object around it costs more than reading a tap file.
+    fd = _open_regular(path, os.O_RDONLY, keep_nonblocking=True)
+    try:
+        size = os.fstat(fd).st_size
         # Sized by the file, not the limit: read(n) sets n bytes aside first, and most files are small.
-        data = handle.read(min(info.st_size, max_bytes) + 1)
-        if len(data) > info.st_size:  # still growing: read on, the limit stops it
-            data += handle.read(max_bytes + 1 - len(data))
+        wanted = min(size, max_bytes) + 1
+        parts = [os.read(fd, wanted)]
+        total = len(parts[0])
+        # A short read of a regular file is its end; a full one means it is still growing: read
+        # on (a megabyte at a time), the limit stops it.
+        while total == wanted and total <= max_bytes:
+            wanted = total + min(max_bytes + 1 - total, 1 << 20)
+            parts.append(os.read(fd, wanted - total))
+            total += len(parts[-1])
+    finally:
+        os.close(fd)
+    data = parts[0] if len(parts) == 1 else b"".join(parts)
     if len(data) > max_bytes:
         raise FileRefused(f"is larger than {max_bytes:,} bytes")
     return data
@@ -157,6 +168,8 @@ def _write_unnamed(path: str, data: bytes, mode: int | None, owner: tuple[int, i
         if isinstance(exc, OSError) and exc.errno not in (errno.EOPNOTSUPP, errno.EISDIR, errno.EINVAL):
             raise
         return None  # no O_TMPFILE here (another OS, an old kernel, a file system without it)
+    import secrets  # here: readers (`tapcell analyze` above all) start without it
+
     try:
         _finish_temp(fd, data, mode, owner)
         while True:
@@ -175,6 +188,8 @@ def _write_unnamed(path: str, data: bytes, mode: int | None, owner: tuple[int, i
 
 
 def _write_named(path: str, data: bytes, mode: int | None, owner: tuple[int, int] | None) -> str:
+    import tempfile  # here: readers (`tapcell analyze` above all) start without it
+
     fd, temp_path = tempfile.mkstemp(dir=os.path.dirname(path) or ".", prefix=f".{os.path.basename(path)}.",
                                      suffix=".tmp")
     try:

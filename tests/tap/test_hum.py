@@ -104,8 +104,9 @@ def test_synthetic_tap_with_hum_gives_the_hum_free_z():
     assert not kept.valid or abs(kept.z_mm - reference.z_mm) * 1000 > 0.2
 
 
-# Valid taps out of 5 with the hum left in (TAP_CHRONOLOGY, LOW_TAP_QUALITY at 2 mm/s).
-@pytest.mark.parametrize("speed_mm_s, valid_with_hum", [(2.0, 2), (10.0, 5)])
+# Valid taps out of 5 with the hum left in (TAP_CHRONOLOGY twice at 2 mm/s; seed 3 was LOW_TAP_QUALITY
+# for the lines' stiffness mismatch, 32 %, where the models' agree within 8 %: now valid, -1.12 µm).
+@pytest.mark.parametrize("speed_mm_s, valid_with_hum", [(2.0, 3), (10.0, 5)])
 def test_virtual_printer_noisy_mains_taps_are_valid_with_hum_removed(speed_mm_s, valid_with_hum):
     # The sharp model without lag correction (its spread on clean taps, ~0.1 µm, shows what the hum
     # removal leaves; the toe model's is 0.3-0.5 µm), then the default (toe) on the same taps.

@@ -32,7 +32,8 @@ def _bits(array):
 def _outcome(text, path="tap.json"):
     """What reading the text gives: the tap's every field (arrays as bytes), or the error message."""
     try:
-        tap = readers.tap_from_object(readers._load_tap_json(path, text, ""), path, "")
+        document, parsed = readers._load_tap_json(path, text, "")
+        tap = readers.tap_from_object(document, path, "", finite_arrays=parsed)
     except TapFileError as problem:
         return str(problem)
     return (_bits(tap.time_s), _bits(tap.force_g), _bits(tap.z_mm), tap.moves, tap.sample_rate_sps,
@@ -91,6 +92,19 @@ def test_numbers_convert_as_pythons_float_does(value):
             assert (text.lstrip("-").isdigit() and len(text.lstrip("-")) > 15) or math.isinf(float(text)), text
             continue
         assert split[1]["time"] == bytearray(struct.pack("=d", float(json.loads(text)))), text
+
+
+@pytest.mark.parametrize("text", [
+    "9007199254740992e-22", "9007199254740993e-22", "-9007199254740993.0", "900719925474099.3e7",
+    "1844674407370955161.6", "18446744073709551616e-25", "99999999999999999999e-19", "1234567890123456789.0",
+    "0.0000000000000000000001", "-0.000", "123456.789e22", "4.9e-324", "1.7976931348623157e308",
+    "0.30000000000000004", "-1e-23", "7e22", "7e23"])
+def test_numbers_at_the_exact_shortcut_s_edges(text):
+    """Around 2^53, at 19 and 20 digits (where the mantissa would wrap) and powers of ten of 22
+    and 23: the same double as json reads, whichever way the kernel converts it."""
+    split = _split(f'{{"time": [{text}]}}')
+    assert split is not None, text
+    assert split[1]["time"] == bytearray(struct.pack("=d", float(json.loads(text)))), text
 
 
 def test_integers_read_as_json_reads_them():

@@ -22,8 +22,9 @@ def _parser() -> argparse.ArgumentParser:
                         help="draw each tap: the first to OUT.png, the next to OUT-2.png, OUT-3.png, ... "
                              "(the files written are listed after the results)")
     parser.add_argument("--pool", action="store_true",
-                        help="the taps were made at one spot (PROBE_ACCURACY, SAMPLES=): estimate their shared "
-                             "toe jointly and add each tap's pooled Z (z_pooled, z_pooled_sigma_um)")
+                        help="the taps were made at one spot (PROBE_ACCURACY, SAMPLES=): estimate what they share "
+                             "(stiffness, onset, sensor lag, toe) jointly and add each tap's pooled Z "
+                             "(z_pooled, z_pooled_sigma_um)")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="analysis option, e.g. sensor_delay_s=0.002 or decompression_angle=80")
     return parser

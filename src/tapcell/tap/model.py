@@ -298,7 +298,8 @@ class TapAnalysis:
     points: list[tuple[float, float]] = field(default_factory=list)  # 6 × (time_s, force_g)
     lines: list[tuple[float, float]] = field(default_factory=list)  # 5 × (slope g/s, intercept g)
     angles_deg: list[float] = field(default_factory=list)  # 4 angles between consecutive lines
-    elapsed_ms: float = 0.0
+    elapsed_ms: float = 0.0  # wall time of analyze_tap (Klipper's `elapsed`)
+    cpu_ms: float = 0.0  # the process's CPU time over the same call (what speed targets compare)
     polarity: int = 0  # +1: contact drives force up, -1: down, 0: unknown
     compression_force_g: float | None = None
     break_contact_time_s: float | None = None
@@ -325,6 +326,12 @@ class TapAnalysis:
     z_sharp_sigma_um: float | None = field(default=None, repr=False, compare=False)
     z_pooled_mm: float | None = None  # Z with the toe shared by the taps at one spot (tapcell.tap.pool)
     z_pooled_sigma_um: float | None = None
+    # The share of the approach's force change that the departure shows to be a drift in proportion
+    # to Z (a cable, a bowden): the quality classifier's approach component leaves it out.
+    approach_drift_share: float = field(default=0.0, repr=False, compare=False)
+    # The decompression line's stiffness over the compression line's, when the compression stiffness
+    # is measured (the quality classifier's stiffness component).
+    line_stiffness_ratio: float | None = field(default=None, repr=False, compare=False)
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -340,6 +347,7 @@ class TapAnalysis:
             "lines": [{"slope": _num(s, 4), "intercept": _num(i, 4)} for s, i in self.lines],
             "angles": [_num(a, 3) for a in self.angles_deg],
             "elapsed_ms": round(self.elapsed_ms, 4),
+            "cpu_ms": round(self.cpu_ms, 4),
             "polarity": self.polarity,
             "compression_force": _num(self.compression_force_g, 4),
             "break_contact_time": _num(self.break_contact_time_s),

@@ -8,10 +8,13 @@ unusual in the text makes it give up, and json.loads reads the whole text and na
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
+import operator
 import os
 import sys
+from collections.abc import Collection
 from typing import Any
 
 import numpy as np
@@ -51,13 +54,14 @@ def read_tap_file(path: str | os.PathLike[str]) -> list[TapData]:
         taps = []
         for number, line in enumerate(text.splitlines(), start=1):
             if line.strip():
-                taps.append(tap_from_object(_load_tap_json(path, line, f"line {number}: "), path, f"line {number}: "))
+                document, parsed = _load_tap_json(path, line, f"line {number}: ")
+                taps.append(tap_from_object(document, path, f"line {number}: ", finite_arrays=parsed))
         return taps
-    document = _load_tap_json(path, text, "")
+    document, parsed = _load_tap_json(path, text, "")
     if isinstance(document, list):
         raise TapFileError(path, "holds a JSON list; a .json tap file holds one object "
                                  "(write many taps as .jsonl, one object per line)")
-    return [tap_from_object(document, path, "")]
+    return [tap_from_object(document, path, "", finite_arrays=parsed)]
 
 
 def _file_name(path: str | os.PathLike[str]) -> str:
@@ -111,8 +115,9 @@ def _load_json(path: str, text: str, where: str) -> Any:
         raise TapFileError(path, f"{where}not valid tap data: JSON nested too deeply") from None
 
 
-def _load_tap_json(path: str, text: str, where: str) -> Any:
-    """The decoded JSON of a tap, its number arrays as float64 arrays when the kernel took them."""
+def _load_tap_json(path: str, text: str, where: str) -> tuple[Any, tuple[str, ...]]:
+    """The decoded JSON of a tap, and the keys whose number arrays the kernel parsed into float64
+    arrays (finite: it refuses anything else)."""
     if _C is not None:
         split = _C.split_number_arrays(text, NUMBER_ARRAY_KEYS)
         if split is not None:
@@ -123,8 +128,8 @@ def _load_tap_json(path: str, text: str, where: str) -> Any:
                 document = None  # _load_json below names the problem, at its place in the whole text
             if isinstance(document, dict) and all(document.get(key) == [] for key in arrays):
                 document.update((key, np.frombuffer(values)) for key, values in arrays.items())
-                return document
-    return _load_json(path, text, where)
+                return document, tuple(arrays)
+    return _load_json(path, text, where), ()
 
 
 def _as_float(value: Any) -> float | None:
@@ -149,9 +154,11 @@ def _checked_numbers(path: str, where: str, name: str, values: list) -> np.ndarr
     return np.array(floats, dtype=float)
 
 
-def _numbers(path: str, where: str, name: str, values: Any) -> np.ndarray:
+def _numbers(path: str, where: str, name: str, values: Any, known_finite: bool = False) -> np.ndarray:
     if isinstance(values, np.ndarray) and values.dtype == np.float64 and values.ndim == 1:
         array = values  # parsed by the reader's kernel
+        if known_finite:
+            return array
     else:
         array = _list_numbers(path, where, name, values)
     finite = np.isfinite(array)
@@ -196,24 +203,31 @@ def _moves(path: str, where: str, values: Any) -> list[Move]:
     return moves
 
 
+_MOVE_FIELDS = operator.itemgetter(*MOVE_KEYS)
+
+
 def _plain_moves(values: list) -> list[Move] | None:
     """The moves when every item is an object whose tap-format keys hold finite plain numbers, else
     None. In plain Python: a tap has a handful of moves, too few for numpy's per-call cost to pay."""
     try:
-        rows = [[item[key] for key in MOVE_KEYS] for item in values]
+        rows = list(map(_MOVE_FIELDS, values))
     except (KeyError, TypeError):  # a missing key, or an item that is not an object
         return None
-    numbers = [number for row in rows for number in row]
-    if not set(map(type, numbers)) <= _PLAIN_NUMBER_TYPES:
+    numbers = list(itertools.chain.from_iterable(rows))
+    types = set(map(type, numbers))
+    if not types <= _PLAIN_NUMBER_TYPES:
         return None
-    try:
-        floats = list(map(float, numbers))
-    except OverflowError:  # an integer beyond the float range
+    if types != {float}:  # ints among them (json's type for a number written without a point)
+        try:
+            floats = list(map(float, numbers))
+        except OverflowError:  # an integer beyond the float range
+            return None
+        width = len(MOVE_KEYS)
+        rows = [floats[start:start + width] for start in range(0, len(floats), width)]
+        numbers = floats
+    if not all(map(math.isfinite, numbers)):
         return None
-    if not all(map(math.isfinite, floats)):
-        return None
-    width = len(MOVE_KEYS)
-    return [Move(*floats[start:start + width]) for start in range(0, len(floats), width)]
+    return [Move(*row) for row in rows]
 
 
 def _checked_move(path: str, where: str, k: int, item: Any) -> Move:
@@ -248,22 +262,24 @@ def _dict(path: str, where: str, name: str, value: Any) -> dict:
     return dict(value)
 
 
-def tap_from_object(obj: Any, path: str = "<memory>", where: str = "") -> TapData:
-    """A TapData from one decoded JSON object of any accepted flavour."""
+def tap_from_object(obj: Any, path: str = "<memory>", where: str = "", *,
+                    finite_arrays: Collection[str] = ()) -> TapData:
+    """A TapData from one decoded JSON object of any accepted flavour. `finite_arrays`: keys whose
+    float64 arrays are known finite (the reader's kernel parsed them: it refuses anything else)."""
     if not isinstance(obj, dict):
         raise TapFileError(path, f"{where}expected a JSON object with 'time' and 'force'")
     if "tap" in obj and isinstance(obj["tap"], dict):  # Klipper-family dump_taps event
-        obj = obj["tap"]
+        obj, finite_arrays = obj["tap"], ()
     if "format" in obj and obj["format"] != FORMAT:
         raise TapFileError(path, f"{where}unknown format {obj['format']!r}, expected {FORMAT!r}")
     missing = [key for key in ("time", "force") if key not in obj]
     if missing:
         raise TapFileError(path, f"{where}missing key {', '.join(repr(k) for k in missing)}")
-    time_s = _numbers(path, where, "time", obj["time"])
-    force_g = _numbers(path, where, "force", obj["force"])
+    time_s = _numbers(path, where, "time", obj["time"], "time" in finite_arrays)
+    force_g = _numbers(path, where, "force", obj["force"], "force" in finite_arrays)
     z_mm = None
     if "z" in obj:
-        z_mm = _numbers(path, where, "z", obj["z"])
+        z_mm = _numbers(path, where, "z", obj["z"], "z" in finite_arrays)
     elif "position" in obj:  # workbench capture: [x, y, z] per sample
         position = obj["position"]
         if not isinstance(position, list) or not all(isinstance(p, list) and len(p) >= 3 for p in position):

@@ -58,10 +58,10 @@ def soft_stage(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, noise_v
     order = x_um.argsort(kind="stable")  # rising already but for the pullback's end
     x = x_um[order] - contact_um
     f = force_g[order]
-    f = f - f.mean()
-    below = np.searchsorted(x, STAGE_TOPS_UM)
+    f = f - float(f.sum()) / n  # f.mean(), without its Python wrapper (the same sum and division)
+    below = x.searchsorted(STAGE_TOPS_UM)
     sums = np.zeros((4, n + 1))
-    np.cumsum(np.array((x, x * x, f, x * f)), axis=1, out=sums[:, 1:])
+    np.add.accumulate(np.array((x, x * x, f, x * f)), axis=1, out=sums[:, 1:])  # np.cumsum without its wrapper
     sum_x, sum_xx, sum_f, sum_xf = sums[:, below]
     sum_r = STAGE_TOPS_UM * below - sum_x
     srr = _TOPS_SQUARED * below - _TOPS_TWICE * sum_x + sum_xx - sum_r * sum_r / n

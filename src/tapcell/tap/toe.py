@@ -372,17 +372,21 @@ def free_air_variogram(force_g: np.ndarray) -> FreeAirVariogram:
 
 def wander_from_variograms(variograms: list[FreeAirVariogram]) -> Wander | None:
     """The white and walk variances that fit the segments' variograms pooled (`wander_from_free_air`)."""
-    rows = [row for expected, _ in variograms for row in expected]
-    values = [value for _, measured in variograms for value in measured]
-    if not rows:
-        return None
     # Least squares in two unknowns by the normal equations, in plain floats: np.linalg.lstsq
     # costs ~0.05-0.4 ms a call here (LAPACK's set-up, its threads waking on a busy machine).
-    ww = sum(white * white for white, _ in rows)
-    wk = sum(white * walk for white, walk in rows)
-    kk = sum(walk * walk for _, walk in rows)
-    wv = sum(white * value for (white, _), value in zip(rows, values))
-    kv = sum(walk * value for (_, walk), value in zip(rows, values))
+    # One loop sums all five in the rows' order (as five sum() calls would, at a third of the cost).
+    ww = wk = kk = wv = kv = 0.0
+    rows = 0
+    for expected, measured in variograms:
+        rows += len(expected)
+        for (white, walk), value in zip(expected, measured):
+            ww += white * white
+            wk += white * walk
+            kk += walk * walk
+            wv += white * value
+            kv += walk * value
+    if not rows:
+        return None
     determinant = ww * kk - wk * wk
     if not determinant > 0.0:
         return None

