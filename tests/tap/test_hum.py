@@ -264,3 +264,18 @@ def test_screen_cuts_the_taps_own_steps_to_see_a_weak_hum_on_a_quiet_fast_sensor
         at_50, at_60 = screen_mains_hum(tap.time_s, tap.force_g + hum(tap.time_s, 0.1, 60.0, seed), 2000.0, (50.0, 60.0))
         assert at_60 > 100
         assert at_50 < SCREEN_MIN_CHI2
+
+
+def test_auto_fits_the_harmonic_the_screen_sees_with_a_strong_line():
+    errors_auto_um, errors_line_um = [], []
+    for seed in range(12):
+        clean = noisy_synth_tap(seed)
+        force_g = clean.force_g + hum(clean.time_s, 6.0, 50.0, seed) + hum(clean.time_s, 2.0, 100.0, 2 * seed + 1)
+        humming = dataclasses.replace(clean, force_g=force_g)
+        auto, line_only = analyze_tap(humming), analyze_tap(humming, AnalysisOptions(mains_hz=(50.0,)))
+        assert auto.hum["frequencies_hz"] == [50.0, 100.0]
+        assert auto.hum["amplitudes_g"] == pytest.approx([6.0, 2.0], abs=0.15)  # measured ±0.09
+        errors_auto_um.append((auto.z_mm - clean.truth["z_contact"]) * 1000)
+        errors_line_um.append((line_only.z_mm - clean.truth["z_contact"]) * 1000)
+    # Measured rms: 0.47 µm (as without any hum: the harmonic is gone too), 0.74 with the 100 Hz left in.
+    assert np.sqrt(np.mean(np.square(errors_auto_um))) < 0.6 < np.sqrt(np.mean(np.square(errors_line_um)))

@@ -31,8 +31,8 @@ from tapcell.tap.classifiers import get_classifier, run_classifier
 from tapcell.tap.contact import (MIN_SPAN_UM, ContactFit, fit_contact, fit_fixed_onset, window_edges,
                                  window_mean_and_slope)
 from tapcell.tap.context import AnalysisContext, SensorTiming, recompute_points
-from tapcell.tap.hum import (MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum, fit_hum, lines_worth_fitting,
-                             resolvable_hz, spline_knots)
+from tapcell.tap.hum import (MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum, fit_hum, harmonics_worth_fitting,
+                             lines_worth_fitting, resolvable_hz, spline_knots)
 from tapcell.tap.model import (
     TAP_ADHESION,
     TAP_DATA_INSUFFICIENT,
@@ -1100,7 +1100,7 @@ def remove_mains_hum(tap: TapData, options: AnalysisOptions, time_s: np.ndarray,
         return force_g, None
     # One period of the lowest line as the sensor sees it: the grid cannot follow that line.
     spacing_s = max(1.0 / min(alias_hz(f, 1.0 / period_s) for f in candidates), 2.0 * period_s)
-    cleaned, hum = force_g, None
+    cleaned, hum, lines = force_g, None, candidates
     for _ in range(2):
         dec, _ = decompose(time_s, cleaned, motion, lag_samples, period_s)
         corners_s = [p[0] for p in dec.points[1:5]] + [motion.home_end_s, motion.pullback_start_s,
@@ -1111,13 +1111,16 @@ def remove_mains_hum(tap: TapData, options: AnalysisOptions, time_s: np.ndarray,
             hum = detect_mains_hum(time_s, force_g, knots_s, exclude, candidates)
             if hum is None:
                 return force_g, None
+            # Its harmonics too, when the screen sees them (one more FFT): fitted in the second round.
+            lines = hum.frequencies_hz + harmonics_worth_fitting(time_s, force_g, 1.0 / period_s, hum.frequencies_hz[0])
         else:
-            # Refitted with the corners found on the cleaned force (auto: the line it detected).
-            hum = fit_hum(time_s, force_g, hum.frequencies_hz if hum else candidates, knots_s, exclude)
+            # Refitted with the corners found on the cleaned force (auto: the line it detected, and
+            # the harmonics the screen sees).
+            hum = fit_hum(time_s, force_g, lines, knots_s, exclude)
             if hum is None:
                 return force_g, None
         cleaned = force_g - hum.hum_g
-        if sum(hum.amplitudes_g) < 3.0 * hum.residual_sigma_g:
+        if lines == hum.frequencies_hz and sum(hum.amplitudes_g) < 3.0 * hum.residual_sigma_g:
             break  # a hum within 3 noise sigmas moves the corners no more than the noise: no second split and fit
     return cleaned, hum
 

@@ -36,6 +36,8 @@ import numpy as np
 from tapcell.tap.robust import MAD_TO_SIGMA, median, robust_sigma
 
 MAINS_LINES_HZ = (50.0, 60.0)
+# `auto` also fits these multiples of the line it detected, when the screen sees them.
+MAINS_HARMONICS = (2, 3)
 # A line is resolvable when its alias lies this many cycles per tap away from 0 Hz and Nyquist.
 MIN_ALIAS_CYCLES = 3.0
 # `auto` keeps the stronger mains line only when it lowers the residual by this many noise
@@ -372,6 +374,31 @@ def lines_worth_fitting(time_s: np.ndarray, force_g: np.ndarray, sample_rate_sps
     """The candidates whose screen reaches SCREEN_MIN_CHI2: the only ones `auto` fits."""
     clear = screen_mains_hum(time_s, force_g, sample_rate_sps, candidates_hz)
     return tuple(float(f) for f, c in zip(candidates_hz, clear) if c >= SCREEN_MIN_CHI2)
+
+
+def harmonics_worth_fitting(time_s: np.ndarray, force_g: np.ndarray, sample_rate_sps: float,
+                            line_hz: float) -> tuple[float, ...]:
+    """The harmonics of a detected line (MAINS_HARMONICS) that pass the screen too.
+
+    Mains hum is rarely a pure sine (rectifiers, transformer saturation): a strong line carries
+    a second and third harmonic that, left in, can still break a short compression. A harmonic
+    whose alias lies within MIN_ALIAS_CYCLES per tap of 0 Hz, Nyquist, the line's alias or an
+    earlier harmonic's cannot be told apart from them and is left out.
+    """
+    duration_s = float(time_s[-1] - time_s[0])
+    seen = [alias_hz(line_hz, sample_rate_sps)]
+    harmonics = []
+    for multiple in MAINS_HARMONICS:
+        frequency = multiple * line_hz
+        alias = alias_hz(frequency, sample_rate_sps)
+        if resolvable_hz((frequency,), sample_rate_sps, duration_s) and all(
+                abs(alias - other) * duration_s >= MIN_ALIAS_CYCLES for other in seen):
+            harmonics.append(frequency)
+            seen.append(alias)
+    if not harmonics:
+        return ()
+    clear = screen_mains_hum(time_s, force_g, sample_rate_sps, harmonics)
+    return tuple(h for h, c in zip(harmonics, clear) if c >= SCREEN_MIN_CHI2)
 
 
 def notch_zero_phase(force_g: np.ndarray, sample_rate_sps: float, frequencies_hz, quality: float) -> np.ndarray:
