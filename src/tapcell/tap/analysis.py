@@ -32,7 +32,8 @@ from tapcell.tap.classifiers import get_classifier, run_classifier
 from tapcell.tap.contact import (MIN_SPAN_UM, ContactFit, fit_contact, fit_fixed_onset, window_edges,
                                  window_mean_and_slope)
 from tapcell.tap.context import AnalysisContext, SensorTiming, recompute_points
-from tapcell.tap.hum import MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum, fit_hum, resolvable_hz, spline_knots
+from tapcell.tap.hum import (MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum, fit_hum, harmonics_worth_fitting,
+                             lines_worth_fitting, resolvable_hz, spline_knots)
 from tapcell.tap.model import (
     TAP_ADHESION,
     TAP_DATA_INSUFFICIENT,
@@ -1134,15 +1135,16 @@ def line_stiffness_ratio(dec: Decomposition, motion: Motion) -> float | None:
     return decompression_g_um / compression_g_um if compression_g_um > 0 else None
 
 
-def mains_frequencies_hz(tap: TapData, options: AnalysisOptions) -> tuple[float, ...] | str | None:
-    """The hum lines to remove: the option, else tap meta `mains_hz` (a number or a list), else none."""
+def mains_frequencies_hz(tap: TapData, options: AnalysisOptions) -> tuple[float, ...] | str:
+    """The hum lines to remove: the option, else tap meta `mains_hz` (a number or a list; an empty
+    list: none), else "auto" (as the printer analyses a tap without a notch filter). () is none."""
     if options.mains_hz is not None:
         return options.mains_hz
     value = tap.meta.get("mains_hz")
     values = value if isinstance(value, list | tuple) else [value]
-    if values and all(isinstance(v, int | float) and not isinstance(v, bool) and 0 < v < 10000 for v in values):
+    if all(isinstance(v, int | float) and not isinstance(v, bool) and 0 < v < 10000 for v in values):
         return tuple(float(v) for v in values)
-    return "auto" if value == "auto" else None
+    return "auto"
 
 
 def remove_mains_hum(tap: TapData, options: AnalysisOptions, time_s: np.ndarray, force_g: np.ndarray,
@@ -1152,20 +1154,23 @@ def remove_mains_hum(tap: TapData, options: AnalysisOptions, time_s: np.ndarray,
 
     The spline under the hum needs knots at the tap's corners. They come from the five-line
     split: first of the force with the hum still in it, then (once) of the cleaned force, and
-    the hum is refitted from the original force with the better corners. Samples whose
-    conversion window holds a corner are left out of the fit (the sensor rounds a corner over
-    one window, which a linear spline cannot follow); the hum is subtracted from every sample.
+    the hum is refitted from the original force with the better corners; a hum within 3 noise
+    sigmas skips the second round (measured: no Z on taplab or the reference taps moved). "auto"
+    first screens the lines (`lines_worth_fitting`, one FFT): a tap without hum pays for no split
+    and no fit. Samples whose conversion window holds a corner are left out of the fit (the
+    sensor rounds a corner over one window, which a linear spline cannot follow); the hum is
+    subtracted from every sample.
     """
     wanted = mains_frequencies_hz(tap, options)
-    if wanted is None:
-        return force_g, None
     duration_s = float(time_s[-1] - time_s[0])
     candidates = resolvable_hz(MAINS_LINES_HZ if wanted == "auto" else wanted, 1.0 / period_s, duration_s)
+    if wanted == "auto":  # the cheap screen first: a tap without hum pays for no split and no fit
+        candidates = lines_worth_fitting(time_s, force_g, 1.0 / period_s, candidates)
     if not candidates:
         return force_g, None
     # One period of the lowest line as the sensor sees it: the grid cannot follow that line.
     spacing_s = max(1.0 / min(alias_hz(f, 1.0 / period_s) for f in candidates), 2.0 * period_s)
-    cleaned, hum = force_g, None
+    cleaned, hum, lines = force_g, None, candidates
     for _ in range(2):
         dec, _ = decompose(time_s, cleaned, motion, lag_samples, period_s)
         corners_s = [p[0] for p in dec.points[1:5]] + [motion.home_end_s, motion.pullback_start_s,
@@ -1176,12 +1181,17 @@ def remove_mains_hum(tap: TapData, options: AnalysisOptions, time_s: np.ndarray,
             hum = detect_mains_hum(time_s, force_g, knots_s, exclude, candidates)
             if hum is None:
                 return force_g, None
+            # Its harmonics too, when the screen sees them (one more FFT): fitted in the second round.
+            lines = hum.frequencies_hz + harmonics_worth_fitting(time_s, force_g, 1.0 / period_s, hum.frequencies_hz[0])
         else:
-            # Refitted with the corners found on the cleaned force (auto: the line it detected).
-            hum = fit_hum(time_s, force_g, hum.frequencies_hz if hum else candidates, knots_s, exclude)
+            # Refitted with the corners found on the cleaned force (auto: the line it detected, and
+            # the harmonics the screen sees).
+            hum = fit_hum(time_s, force_g, lines, knots_s, exclude)
             if hum is None:
                 return force_g, None
         cleaned = force_g - hum.hum_g
+        if lines == hum.frequencies_hz and sum(hum.amplitudes_g) < 3.0 * hum.residual_sigma_g:
+            break  # a hum within 3 noise sigmas moves the corners no more than the noise: no second split and fit
     return cleaned, hum
 
 
