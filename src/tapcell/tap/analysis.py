@@ -19,19 +19,21 @@ it with and what runs without a C compiler.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass
 
 import numpy as np
 
-from tapcell.tap import native, validate
+from tapcell.tap import native, uncertainty, validate
 from tapcell.tap.angles import line_angles_deg
 from tapcell.tap.classifiers import get_classifier, run_classifier
 from tapcell.tap.contact import (MIN_SPAN_UM, ContactFit, fit_contact, fit_fixed_onset, window_edges,
                                  window_mean_and_slope)
 from tapcell.tap.context import AnalysisContext, SensorTiming, recompute_points
-from tapcell.tap.hum import MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum, fit_hum, resolvable_hz, spline_knots
+from tapcell.tap.hum import (MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum, fit_hum, harmonics_worth_fitting,
+                             lines_worth_fitting, resolvable_hz, spline_knots)
 from tapcell.tap.model import (
     TAP_ADHESION,
     TAP_DATA_INSUFFICIENT,
@@ -346,13 +348,18 @@ def _segment_stats(ps: PrefixSums, i: int, j: int) -> tuple[float, float, float]
 
 def break_time_sigma_s(ps: PrefixSums, dec: Decomposition, t_break: float) -> float:
     """1 sigma of the decompression ∩ departure time from the two line fits."""
-    i, j, k = dec.bounds[2], dec.bounds[3], dec.stop - dec.start
+    return corner_time_sigma_s(ps, dec, DECOMPRESSION, t_break)
+
+
+def corner_time_sigma_s(ps: PrefixSums, dec: Decomposition, line: int, t_corner: float) -> float:
+    """1 sigma of the time where line `line` meets the next (APPROACH..DWELL + 1) from the two line fits."""
+    edges = [0, *dec.bounds, dec.stop - dec.start]
     var = 0.0
-    for a, b in ((i, j), (j, k)):
+    for a, b in ((edges[line], edges[line + 1]), (edges[line + 1], edges[line + 2])):
         res_var, t_mean, sxx = _segment_stats(ps, a, b)
-        lever = (t_break - ps.t_ref_s) - t_mean
+        lever = (t_corner - ps.t_ref_s) - t_mean
         var += res_var * (1.0 / (b - a) + (lever * lever / sxx if sxx > 0 else 0.0))
-    slope_gap = abs(dec.decompression_line[0] - dec.departure_line[0])
+    slope_gap = abs(dec.lines[line][0] - dec.lines[line + 1][0])
     return math.sqrt(var) / slope_gap if slope_gap > 0 else math.inf
 
 
@@ -812,6 +819,11 @@ class SplitTap:
     noise_g: float
     angles_deg: list[float]
 
+    @functools.cached_property
+    def wanders(self) -> tuple[Wander | None, Wander | None]:
+        """`free_air_wanders` of the tap, measured once for the toe fit and its uncertainty."""
+        return free_air_wanders(self.force_g, self.dec)
+
 
 @dataclass
 class ContactFits:
@@ -839,6 +851,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         z_from_sharp_model_or_lines(split, fits, result)
         if options.uses_toe_model:
             z_from_toe_model(split, window, fits, delay_s, window_delay_s, result)
+        z_uncertainty(split, window, fits, delay_s, window_delay_s, result)
         compression_stiffness(split, window, fits, delay_s, result)
     except TapInvalid as invalid:
         # Keep the lines, points and what was measured: they show what went wrong (plots, tap logs).
@@ -988,7 +1001,7 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     lag_shift_um = (delay_s - window_delay_s) * motion.pullback_speed_mm_s * 1000.0
     start = pullback.contact_um + lag_shift_um if pullback else window.break_line_um
     drift_g_um = free_air_slope_g_um(dec, motion)
-    wander, approach_wander = free_air_wanders(split.force_g, dec)
+    wander, approach_wander = split.wanders
     samples = pullback_samples(window, motion, timing, window_delay_s)  # for the toe fit and the adhesion check
     fit_drift_g_um = toe_drift_g_um(dec, split.ps, motion, timing.sample_period_s,
                                     wander.walk_var_g2 if wander else 0.0)
@@ -1015,6 +1028,64 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     # while the toe explains it to 1.2 x at most (tapcell.tap.classifiers.MISFIT_TOLERANCE 1.25);
     # clean taps of both sets 1.74 x at most (a hum nobody removed), where the misfit is 28 % (cutoff 50).
     result.fit_residual_sigma_g = toe.residual_sigma_g
+
+
+def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay_s: float, window_delay_s: float,
+                  result: TapAnalysis) -> None:
+    """`z_sigma_um` from the parts the tap shows (tapcell.tap.uncertainty): the sharp fit's noise
+    and the toe's shape spread (when the toe set Z; else the sharp fit's or the lines' sigma),
+    a departure thread letting go, the misfit near contact, the Z staircase, the halt's delay."""
+    motion, timing, dec = split.motion, split.timing, split.dec
+    if result.z_mm is None or result.z_sigma_um is None:
+        return
+    stiffness = result.stiffness_decompression_g_um or 0.0
+    speed_um_s = motion.pullback_speed_mm_s * 1000.0
+    # Break contact in the window's heights (a delay estimated since moved Z down by speed x delay).
+    contact_um = (result.z_mm - motion.z_halt_mm) * 1000.0 + (delay_s - window_delay_s) * speed_um_s
+    x_lo, x_hi, force_g = pullback_samples(window, motion, timing, window_delay_s)
+    x_um = 0.5 * (x_lo + x_hi)
+    slope_g_s, intercept_g = dec.approach_line
+    pull = functools.partial(thread_pull_g, x_um, force_g, free_air_slope_g_um(dec, motion),
+                             slope_g_s * motion.home_end_s + intercept_g, contact_um)
+    reaches_far = len(x_um) > 0 and float(x_um.max()) - contact_um >= THREAD_FAR_MIN_UM
+    # The walk between the near and far reaches' middles, in samples of the pullback.
+    _, approach_wander = split.wanders
+    apart_samples = (sum(THREAD_FAR_REACH_UM) - sum(THREAD_REACH_UM)) / 2.0 / max(
+        speed_um_s * timing.sample_period_s, 1e-9)
+    walk_var_g2 = approach_wander.walk_var_g2 * apart_samples if approach_wander else 0.0
+    # The scatter away from contact: the departure line's residual, or the white noise when larger.
+    departure_g = math.sqrt(_segment_stats(split.ps, dec.bounds[3], dec.stop - dec.start)[0])
+    window_um = speed_um_s * timing.integration_s
+    halt_sigma_s = (corner_time_sigma_s(split.ps, dec, COMPRESSION, dec.points[P_DWELL_START][0])
+                    if timing.delay_from_halt else 0.0)
+    others = dict(
+        thread_um=uncertainty.thread_um(pull(), pull(THREAD_FAR_REACH_UM) if reaches_far else None, walk_var_g2,
+                                        stiffness),
+        misfit_um=uncertainty.misfit_um(result.fit_residual_sigma_g, max(split.noise_g, departure_g),
+                                        result.step_sigma_g, stiffness),
+        squeeze_um=uncertainty.squeeze_um(*_contact_down_and_up(fits)),
+        staircase_um=uncertainty.staircase_um(step_staircase_sigma_um(timing.z_step_um, window_um), timing.z_step_um),
+        delay_um=speed_um_s * halt_sigma_s if math.isfinite(halt_sigma_s) else 0.0)
+    if result.z_method == "toe" and result.toe_grid is not None:
+        # The noise: the sharp fit's over the same samples (the toe fit's own when there is none).
+        noise_um = result.z_sharp_sigma_um if result.z_sharp_sigma_um is not None else result.z_sigma_um
+        parts = uncertainty.toe_parts(result.toe_grid, noise_um=noise_um, **others)
+    else:
+        parts = uncertainty.ZSigmaParts(noise_um=result.z_sigma_um, **others)
+    result.z_sigma_parts = parts
+    result.z_sigma_um = uncertainty.z_sigma_um(parts)
+
+
+def _contact_down_and_up(fits: ContactFits) -> tuple[float | None, float | None, float]:
+    """(contact on the way down, break contact on the way up, µm, from the sharp fits at the same
+    delay; None where a fit is missing) and what their noise allows between them: TAP_CONTACT_MISMATCH's
+    CONSISTENCY_SIGMAS of the two fits, without its hysteresis and sample-of-travel allowances (on
+    taplab's mild ooze those hide every film the pullback reads high by)."""
+    down, up = fits.compression, fits.pullback
+    if down is None or up is None:
+        return None, None, 0.0
+    return down.contact_um, up.contact_um, validate.CONSISTENCY_SIGMAS * math.hypot(down.contact_sigma_um,
+                                                                                 up.contact_sigma_um)
 
 
 def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, contact_um: float,
@@ -1082,15 +1153,16 @@ def line_stiffness_ratio(dec: Decomposition, motion: Motion) -> float | None:
     return decompression_g_um / compression_g_um if compression_g_um > 0 else None
 
 
-def mains_frequencies_hz(tap: TapData, options: AnalysisOptions) -> tuple[float, ...] | str | None:
-    """The hum lines to remove: the option, else tap meta `mains_hz` (a number or a list), else none."""
+def mains_frequencies_hz(tap: TapData, options: AnalysisOptions) -> tuple[float, ...] | str:
+    """The hum lines to remove: the option, else tap meta `mains_hz` (a number or a list; an empty
+    list: none), else "auto" (as the printer analyses a tap without a notch filter). () is none."""
     if options.mains_hz is not None:
         return options.mains_hz
     value = tap.meta.get("mains_hz")
     values = value if isinstance(value, list | tuple) else [value]
-    if values and all(isinstance(v, int | float) and not isinstance(v, bool) and 0 < v < 10000 for v in values):
+    if all(isinstance(v, int | float) and not isinstance(v, bool) and 0 < v < 10000 for v in values):
         return tuple(float(v) for v in values)
-    return "auto" if value == "auto" else None
+    return "auto"
 
 
 def remove_mains_hum(tap: TapData, options: AnalysisOptions, time_s: np.ndarray, force_g: np.ndarray,
@@ -1100,20 +1172,23 @@ def remove_mains_hum(tap: TapData, options: AnalysisOptions, time_s: np.ndarray,
 
     The spline under the hum needs knots at the tap's corners. They come from the five-line
     split: first of the force with the hum still in it, then (once) of the cleaned force, and
-    the hum is refitted from the original force with the better corners. Samples whose
-    conversion window holds a corner are left out of the fit (the sensor rounds a corner over
-    one window, which a linear spline cannot follow); the hum is subtracted from every sample.
+    the hum is refitted from the original force with the better corners; a hum within 3 noise
+    sigmas skips the second round (measured: no Z on taplab or the reference taps moved). "auto"
+    first screens the lines (`lines_worth_fitting`, one FFT): a tap without hum pays for no split
+    and no fit. Samples whose conversion window holds a corner are left out of the fit (the
+    sensor rounds a corner over one window, which a linear spline cannot follow); the hum is
+    subtracted from every sample.
     """
     wanted = mains_frequencies_hz(tap, options)
-    if wanted is None:
-        return force_g, None
     duration_s = float(time_s[-1] - time_s[0])
     candidates = resolvable_hz(MAINS_LINES_HZ if wanted == "auto" else wanted, 1.0 / period_s, duration_s)
+    if wanted == "auto":  # the cheap screen first: a tap without hum pays for no split and no fit
+        candidates = lines_worth_fitting(time_s, force_g, 1.0 / period_s, candidates)
     if not candidates:
         return force_g, None
     # One period of the lowest line as the sensor sees it: the grid cannot follow that line.
     spacing_s = max(1.0 / min(alias_hz(f, 1.0 / period_s) for f in candidates), 2.0 * period_s)
-    cleaned, hum = force_g, None
+    cleaned, hum, lines = force_g, None, candidates
     for _ in range(2):
         dec, _ = decompose(time_s, cleaned, motion, lag_samples, period_s)
         corners_s = [p[0] for p in dec.points[1:5]] + [motion.home_end_s, motion.pullback_start_s,
@@ -1124,12 +1199,17 @@ def remove_mains_hum(tap: TapData, options: AnalysisOptions, time_s: np.ndarray,
             hum = detect_mains_hum(time_s, force_g, knots_s, exclude, candidates)
             if hum is None:
                 return force_g, None
+            # Its harmonics too, when the screen sees them (one more FFT): fitted in the second round.
+            lines = hum.frequencies_hz + harmonics_worth_fitting(time_s, force_g, 1.0 / period_s, hum.frequencies_hz[0])
         else:
-            # Refitted with the corners found on the cleaned force (auto: the line it detected).
-            hum = fit_hum(time_s, force_g, hum.frequencies_hz if hum else candidates, knots_s, exclude)
+            # Refitted with the corners found on the cleaned force (auto: the line it detected, and
+            # the harmonics the screen sees).
+            hum = fit_hum(time_s, force_g, lines, knots_s, exclude)
             if hum is None:
                 return force_g, None
         cleaned = force_g - hum.hum_g
+        if lines == hum.frequencies_hz and sum(hum.amplitudes_g) < 3.0 * hum.residual_sigma_g:
+            break  # a hum within 3 noise sigmas moves the corners no more than the noise: no second split and fit
     return cleaned, hum
 
 

@@ -565,7 +565,6 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
     contact, sigma = marginal_contact_um(contacts_um, rss_rows, residual_var, _TOE_PRIOR)
     if contact is None:
         return None
-    sigma = math.hypot(sigma, shape_spread_um(contacts_um, rss_rows, residual_var))
     width, power = TOE_WIDTHS_UM[width_index], TOE_POWERS[power_index]
     stiffness = stiffness_at(contact, width, power)
     return ToeFit(contact_um=contact, sigma_um=sigma, width_um=float(width), power=float(power),
@@ -575,12 +574,12 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
 
 def shape_spread_um(contacts_um: np.ndarray, rss_rows: np.ndarray, noise_var: float) -> float:
     """Half the range of the contact over the toe's shape assumptions: the marginal with each
-    shape of TOE_POWERS alone (issue 21: z_sigma_um holds what the model's assumptions move).
+    shape of TOE_POWERS alone (issue 21: z_sigma_um holds what the model's assumptions move; its
+    shape part, tapcell.tap.uncertainty).
 
     The marginal weighs the shapes by their likelihood, and on a tap that fits one shape clearly
     its sd is that shape's alone, however far the other would put the contact (the real Voron
-    capture: 0.11 um, while a parabolic toe reads it 2.8 um higher). On the reference taps this
-    term moves the rms of error / sigma by 0.01-0.05; on taplab's from 1.34 to 1.09 at worst."""
+    capture: 0.11 um, while a parabolic toe reads it 2.8 um higher)."""
     widths = len(TOE_WIDTHS_UM)
     contacts = [marginal_contact_um(contacts_um, rss_rows[k * widths:(k + 1) * widths], noise_var, WIDTH_PRIOR)[0]
                 for k in range(len(TOE_POWERS))]
