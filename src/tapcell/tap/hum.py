@@ -28,6 +28,7 @@ All functions are pure (numpy arrays in, plain data out).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -322,35 +323,39 @@ def screen_mains_hum(time_s: np.ndarray, force_g: np.ndarray, sample_rate_sps: f
     Samples with a gap (a period off the sample rate) are read with one DFT per line instead.
     """
     time_s = np.asarray(time_s, dtype=float)
-    steps = np.diff(np.asarray(force_g, dtype=float))
-    size = np.abs(steps)
-    cut = size > SCREEN_STEP_SIGMAS * max(MAD_TO_SIGMA * median(size), 1e-12)
-    if cut.any():
-        around = np.flatnonzero(cut)[:, None] + np.arange(-SCREEN_STEP_NEIGHBOURS, SCREEN_STEP_NEIGHBOURS + 1)
-        steps[np.clip(around, 0, len(steps) - 1)] = 0.0
+    force_g = np.asarray(force_g, dtype=float)
+    steps = force_g[1:] - force_g[:-1]  # np.diff's wrapper costs more than the subtraction here
+    last = len(steps) - 1
+    limit = SCREEN_STEP_SIGMAS * max(MAD_TO_SIGMA * median(np.abs(steps)), 1e-12)
+    for index in np.flatnonzero(np.abs(steps) > limit).tolist():  # a few ramps: slices beat a fancy index
+        steps[max(index - SCREEN_STEP_NEIGHBOURS, 0):min(index + SCREEN_STEP_NEIGHBOURS, last) + 1] = 0.0
     padded = _fast_length(2 * len(steps))
-    power = np.abs(np.fft.rfft(steps, padded)) ** 2
+    spectrum = np.fft.rfft(steps, padded)
+    power = spectrum.real ** 2 + spectrum.imag ** 2
     # The bins at the samples' own mean rate: a sensor clock a percent off moves a line by bins.
-    mean_rate_sps = len(steps) / (time_s[-1] - time_s[0])
-    evenly = float(np.max(np.diff(time_s))) * mean_rate_sps < 1.5  # else a gap: one DFT per line
+    mean_rate_sps = len(steps) / float(time_s[-1] - time_s[0])
+    evenly = float((time_s[1:] - time_s[:-1]).max()) * mean_rate_sps < 1.5  # else a gap: one DFT per line
     bins_per_hz = padded / mean_rate_sps
     at_bins = [alias_hz(f, mean_rate_sps) * bins_per_hz for f in candidates_hz]
-    # The guard and the band count bins of the unpadded length: twice as many padded ones.
-    floor_power = power.copy()
-    for at_bin in at_bins:
-        floor_power[max(int(at_bin) - 2 * SCREEN_GUARD_BINS, 0):int(at_bin) + 2 * SCREEN_GUARD_BINS + 2] = -1.0
-    floor_power[[0, -1]] = -1.0  # DC and Nyquist
+    # Left out of every floor: the bins around each candidate (the guard counts bins of the unpadded
+    # length: twice as many padded ones), DC and Nyquist.
+    guards = [(max(int(b) - 2 * SCREEN_GUARD_BINS, 0), int(b) + 2 * SCREEN_GUARD_BINS + 2) for b in at_bins]
+    guards += [(0, 1), (len(power) - 1, len(power))]
     clear = []
     for frequency, at_bin in zip(candidates_hz, at_bins):
         half_band = max(SCREEN_BAND * at_bin, 2 * SCREEN_MIN_HALF_BAND_BINS)
-        band = floor_power[max(int(at_bin - half_band), 0):int(at_bin + half_band) + 1]
-        band = band[band >= 0.0]
+        low, high = max(int(at_bin - half_band), 0), min(int(at_bin + half_band) + 1, len(power))
+        keep = np.ones(max(high - low, 0), dtype=bool)
+        for start, stop in guards:
+            if start < high and stop > low:
+                keep[max(start - low, 0):stop - low] = False
+        band = power[low:high][keep]
         if len(band) < 2 * SCREEN_MIN_FLOOR_BINS:
             clear.append(math.inf)
             continue
         mean_floor = median(band) / math.log(2.0)  # the median of exponential powers
         if evenly:
-            line_power = float(max(power[int(at_bin)], power[int(at_bin) + 1]))
+            line_power = float(max(power[int(at_bin)], power[min(int(at_bin) + 1, len(power) - 1)]))
         else:
             angle = 2.0 * np.pi * frequency * (time_s[1:] - time_s[1])
             line_power = float(steps @ np.cos(angle)) ** 2 + float(steps @ np.sin(angle)) ** 2
@@ -363,8 +368,9 @@ _FAST_LENGTHS = np.array(sorted(2 ** a * 3 ** b * 5 ** c for a in range(25) for 
                                 if 2 ** a * 3 ** b * 5 ** c <= 1 << 24))
 
 
+@functools.lru_cache(maxsize=256)
 def _fast_length(at_least: int) -> int:
-    """The smallest FFT-friendly length >= at_least."""
+    """The smallest FFT-friendly length >= at_least (cached: a printer's taps have a few lengths)."""
     index = int(np.searchsorted(_FAST_LENGTHS, at_least))
     return int(_FAST_LENGTHS[index]) if index < len(_FAST_LENGTHS) else at_least
 
