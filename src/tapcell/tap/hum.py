@@ -219,18 +219,20 @@ def _fit_groups(spline: HatSpline, waves: np.ndarray, force_g: np.ndarray, use: 
     gram = spline.gram(weight)
     ridge = 1e-10 * max(float(np.trace(gram)) / spline.count, 1e-300)
     gram[np.diag_indices_from(gram)] += ridge
-    cross = np.column_stack([spline.transpose_dot(weight * column) for column in waves.T])
-    to_spline = spline.transpose_dot(weighted)
-    solved = np.linalg.solve(gram, np.column_stack((to_spline, cross)))
+    waves_used = waves * weight[:, None]
+    per_knot = np.column_stack([spline.transpose_dot(weighted)] + [spline.transpose_dot(column) for column in waves_used.T])
+    to_spline, cross = per_knot[:, 0], per_knot[:, 1:]
+    solved = np.linalg.solve(gram, per_knot)
     spline_alone, per_column = solved[:, 0], solved[:, 1:]
     rss_spline_alone = float(weighted @ force_g - to_spline @ spline_alone)
-    waves_used = waves * weight[:, None]
+    # Every group's Schur complement and right-hand side are blocks of these (two products for all).
+    schur_all = waves_used.T @ waves - cross.T @ per_column
+    rhs_all = waves_used.T @ force_g - cross.T @ spline_alone
     fits = []
     for columns in groups:
-        own = cross[:, columns]
-        schur = waves_used[:, columns].T @ waves[:, columns] - own.T @ per_column[:, columns]
-        rhs = waves_used[:, columns].T @ force_g - own.T @ spline_alone
-        wave_coefficients = np.linalg.solve(schur, rhs)
+        block = np.ix_(columns, columns)
+        rhs = rhs_all[columns]
+        wave_coefficients = np.linalg.solve(schur_all[block], rhs)
         fits.append(_LinesFit(spline_alone - per_column[:, columns] @ wave_coefficients, wave_coefficients,
                               rss_spline_alone, max(rss_spline_alone - float(wave_coefficients @ rhs), 0.0)))
     return fits
