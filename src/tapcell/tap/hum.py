@@ -391,13 +391,19 @@ def lines_worth_fitting(time_s: np.ndarray, force_g: np.ndarray, sample_rate_sps
     """The candidates `auto` fits: the screen reaches SCREEN_MIN_CHI2 (the line is there) and the
     line's amplitude FIT_MIN_HUM_TO_NOISE noise sigmas (it is strong enough to move Z)."""
     clear = screen_mains_hum(time_s, force_g, sample_rate_sps, candidates_hz)
-    bar = max(SCREEN_MIN_CHI2, 0.5 * FIT_MIN_HUM_TO_NOISE ** 2 * (len(force_g) - 1))
+    bar = _fit_bar(len(force_g))
     return tuple(float(f) for f, c in zip(candidates_hz, clear) if c >= bar)
+
+
+def _fit_bar(samples: int) -> float:
+    """The screen's chi2 a line needs to be fitted: there (SCREEN_MIN_CHI2) and strong enough to move Z."""
+    return max(SCREEN_MIN_CHI2, 0.5 * FIT_MIN_HUM_TO_NOISE ** 2 * (samples - 1))
 
 
 def harmonics_worth_fitting(time_s: np.ndarray, force_g: np.ndarray, sample_rate_sps: float,
                             line_hz: float) -> tuple[float, ...]:
-    """The harmonics of a detected line (MAINS_HARMONICS) that pass the screen too.
+    """The harmonics of a detected line (MAINS_HARMONICS) that pass the screen too (as the line: there
+    and strong enough to move Z).
 
     Mains hum is rarely a pure sine (rectifiers, transformer saturation): a strong line carries
     a second and third harmonic that, left in, can still break a short compression. A harmonic
@@ -417,7 +423,8 @@ def harmonics_worth_fitting(time_s: np.ndarray, force_g: np.ndarray, sample_rate
     if not harmonics:
         return ()
     clear = screen_mains_hum(time_s, force_g, sample_rate_sps, harmonics)
-    return tuple(h for h, c in zip(harmonics, clear) if c >= SCREEN_MIN_CHI2)
+    bar = _fit_bar(len(force_g))
+    return tuple(h for h, c in zip(harmonics, clear) if c >= bar)
 
 
 def notch_zero_phase(force_g: np.ndarray, sample_rate_sps: float, frequencies_hz, quality: float) -> np.ndarray:
