@@ -28,6 +28,7 @@ All functions are pure (numpy arrays in, plain data out).
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 
@@ -54,6 +55,16 @@ CLEAR_DETECTION_CHI2 = 4 * DETECTION_MIN_CHI2
 # no scenario's bias or sigma moved by more than 0.01 µm and 54 % of the taps were fitted (67 % at
 # 10; both generators put a weak hum in most taps); at 30 some moved by 0.03 µm.
 SCREEN_MIN_CHI2 = 20.0
+# ... and only a line whose amplitude reaches this many noise sigmas (read from the same spectrum,
+# `_screen`): a long record finds a weak line that cannot move Z. Measured against fitting every line
+# that passes the screen (taplab seed 1 and the reference taps, the gate applied tap by tap): 0.3 /
+# 0.35 / 0.4 / 0.45 / 0.5 moved the worst scenario's bias or sigma by 0.013 / 0.021 / 0.021 / 0.051 /
+# 0.057 µm and fitted 599 / 554 / 496 / 439 / 381 of 1560 taps (628 with the screen alone); 0.35
+# keeps a step below the edge. The screen's chi2 is no measure of amplitude: at 2000 sps the tap's own
+# slow ramps raise its floor, and a 6 g line on 0.5 g noise read chi2 101-116 over 1626 steps. Gating
+# by the samples in the toe fit's reach instead (30 µm of compression: 2 samples at 5 mm/s and 320 sps)
+# moved taplab's bias by 0.5 µm: on a fast tap the hum still moves the lines around the corners.
+FIT_MIN_HUM_TO_NOISE = 0.35
 # Sample-to-sample steps beyond this many robust sigmas are the tap's own corners and ramps
 # (a compression rises tens of grams a sample), not hum or noise: cut, with this many neighbours.
 SCREEN_STEP_SIGMAS = 6.0
@@ -209,18 +220,20 @@ def _fit_groups(spline: HatSpline, waves: np.ndarray, force_g: np.ndarray, use: 
     gram = spline.gram(weight)
     ridge = 1e-10 * max(float(np.trace(gram)) / spline.count, 1e-300)
     gram[np.diag_indices_from(gram)] += ridge
-    cross = np.column_stack([spline.transpose_dot(weight * column) for column in waves.T])
-    to_spline = spline.transpose_dot(weighted)
-    solved = np.linalg.solve(gram, np.column_stack((to_spline, cross)))
+    waves_used = waves * weight[:, None]
+    per_knot = np.column_stack([spline.transpose_dot(weighted)] + [spline.transpose_dot(column) for column in waves_used.T])
+    to_spline, cross = per_knot[:, 0], per_knot[:, 1:]
+    solved = np.linalg.solve(gram, per_knot)
     spline_alone, per_column = solved[:, 0], solved[:, 1:]
     rss_spline_alone = float(weighted @ force_g - to_spline @ spline_alone)
-    waves_used = waves * weight[:, None]
+    # Every group's Schur complement and right-hand side are blocks of these (two products for all).
+    schur_all = waves_used.T @ waves - cross.T @ per_column
+    rhs_all = waves_used.T @ force_g - cross.T @ spline_alone
     fits = []
     for columns in groups:
-        own = cross[:, columns]
-        schur = waves_used[:, columns].T @ waves[:, columns] - own.T @ per_column[:, columns]
-        rhs = waves_used[:, columns].T @ force_g - own.T @ spline_alone
-        wave_coefficients = np.linalg.solve(schur, rhs)
+        block = np.ix_(columns, columns)
+        rhs = rhs_all[columns]
+        wave_coefficients = np.linalg.solve(schur_all[block], rhs)
         fits.append(_LinesFit(spline_alone - per_column[:, columns] @ wave_coefficients, wave_coefficients,
                               rss_spline_alone, max(rss_spline_alone - float(wave_coefficients @ rhs), 0.0)))
     return fits
@@ -312,7 +325,12 @@ def detect_mains_hum(time_s: np.ndarray, force_g: np.ndarray, knots_s: np.ndarra
 def screen_mains_hum(time_s: np.ndarray, force_g: np.ndarray, sample_rate_sps: float,
                      candidates_hz) -> tuple[float, ...]:
     """Per candidate line, how clearly the tap holds it, before any fit: in the units of
-    `fit_hum`'s chi2_improvement (chance alone gives ~2); inf when the floor cannot be measured.
+    `fit_hum`'s chi2_improvement (chance alone gives ~2); inf when the floor cannot be measured."""
+    return _screen(time_s, force_g, candidates_hz)[0]
+
+
+def _screen(time_s: np.ndarray, force_g: np.ndarray, candidates_hz) -> tuple[tuple[float, ...], tuple[float, ...]]:
+    """Per candidate line: the screen's chi2 (`screen_mains_hum`) and the line's amplitude in noise sigmas.
 
     The force's first differences remove its baseline and drift; the steps of the tap itself
     (contact, halt, release: far beyond the noise) are cut out, so what remains is noise and hum.
@@ -320,42 +338,58 @@ def screen_mains_hum(time_s: np.ndarray, force_g: np.ndarray, sample_rate_sps: f
     the noise floor at that frequency, whatever the sensor's noise colour. One FFT, zero-padded
     to twice the length (a line between two bins loses at most 19 % of its power), no fit.
     Samples with a gap (a period off the sample rate) are read with one DFT per line instead.
+
+    The amplitude comes from the same power: a sinusoid of amplitude A steps by A·2·sin(π·f/rate)
+    between samples, and n such steps give a power of (n·step/2)². The noise sigma is the steps'
+    robust sigma over √2. A hum far above the noise sets that sigma itself, and still reads at
+    least 0.67 sigmas (the steps of a sinusoid have a robust sigma of ~1.05 times their amplitude).
     """
     time_s = np.asarray(time_s, dtype=float)
-    steps = np.diff(np.asarray(force_g, dtype=float))
-    size = np.abs(steps)
-    cut = size > SCREEN_STEP_SIGMAS * max(MAD_TO_SIGMA * median(size), 1e-12)
-    if cut.any():
-        around = np.flatnonzero(cut)[:, None] + np.arange(-SCREEN_STEP_NEIGHBOURS, SCREEN_STEP_NEIGHBOURS + 1)
-        steps[np.clip(around, 0, len(steps) - 1)] = 0.0
+    force_g = np.asarray(force_g, dtype=float)
+    steps = force_g[1:] - force_g[:-1]  # np.diff's wrapper costs more than the subtraction here
+    last = len(steps) - 1
+    step_sigma_g = MAD_TO_SIGMA * median(np.abs(steps))
+    limit = SCREEN_STEP_SIGMAS * max(step_sigma_g, 1e-12)
+    for index in np.flatnonzero(np.abs(steps) > limit).tolist():  # a few ramps: slices beat a fancy index
+        steps[max(index - SCREEN_STEP_NEIGHBOURS, 0):min(index + SCREEN_STEP_NEIGHBOURS, last) + 1] = 0.0
+    kept = max(int(np.count_nonzero(steps)), 1)
     padded = _fast_length(2 * len(steps))
-    power = np.abs(np.fft.rfft(steps, padded)) ** 2
+    spectrum = np.fft.rfft(steps, padded)
+    power = spectrum.real ** 2 + spectrum.imag ** 2
     # The bins at the samples' own mean rate: a sensor clock a percent off moves a line by bins.
-    mean_rate_sps = len(steps) / (time_s[-1] - time_s[0])
-    evenly = float(np.max(np.diff(time_s))) * mean_rate_sps < 1.5  # else a gap: one DFT per line
+    mean_rate_sps = len(steps) / float(time_s[-1] - time_s[0])
+    evenly = float((time_s[1:] - time_s[:-1]).max()) * mean_rate_sps < 1.5  # else a gap: one DFT per line
     bins_per_hz = padded / mean_rate_sps
     at_bins = [alias_hz(f, mean_rate_sps) * bins_per_hz for f in candidates_hz]
-    # The guard and the band count bins of the unpadded length: twice as many padded ones.
-    floor_power = power.copy()
-    for at_bin in at_bins:
-        floor_power[max(int(at_bin) - 2 * SCREEN_GUARD_BINS, 0):int(at_bin) + 2 * SCREEN_GUARD_BINS + 2] = -1.0
-    floor_power[[0, -1]] = -1.0  # DC and Nyquist
-    clear = []
+    # Left out of every floor: the bins around each candidate (the guard counts bins of the unpadded
+    # length: twice as many padded ones), DC and Nyquist.
+    guards = [(max(int(b) - 2 * SCREEN_GUARD_BINS, 0), int(b) + 2 * SCREEN_GUARD_BINS + 2) for b in at_bins]
+    guards += [(0, 1), (len(power) - 1, len(power))]
+    clear, hum_to_noise = [], []
     for frequency, at_bin in zip(candidates_hz, at_bins):
         half_band = max(SCREEN_BAND * at_bin, 2 * SCREEN_MIN_HALF_BAND_BINS)
-        band = floor_power[max(int(at_bin - half_band), 0):int(at_bin + half_band) + 1]
-        band = band[band >= 0.0]
+        low, high = max(int(at_bin - half_band), 0), min(int(at_bin + half_band) + 1, len(power))
+        keep = np.ones(max(high - low, 0), dtype=bool)
+        for start, stop in guards:
+            if start < high and stop > low:
+                keep[max(start - low, 0):stop - low] = False
+        band = power[low:high][keep]
         if len(band) < 2 * SCREEN_MIN_FLOOR_BINS:
             clear.append(math.inf)
+            hum_to_noise.append(math.inf)
             continue
         mean_floor = median(band) / math.log(2.0)  # the median of exponential powers
         if evenly:
-            line_power = float(max(power[int(at_bin)], power[int(at_bin) + 1]))
+            line_power = float(max(power[int(at_bin)], power[min(int(at_bin) + 1, len(power) - 1)]))
         else:
             angle = 2.0 * np.pi * frequency * (time_s[1:] - time_s[1])
             line_power = float(steps @ np.cos(angle)) ** 2 + float(steps @ np.sin(angle)) ** 2
         clear.append(2.0 * line_power / mean_floor if mean_floor > 0 else math.inf)
-    return tuple(clear)
+        step_gain = 2.0 * math.sin(math.pi * at_bin / padded)  # the sinusoid's step per unit amplitude
+        amplitude_g = 2.0 * math.sqrt(line_power) / kept / max(step_gain, 1e-12)
+        noise_g = step_sigma_g / math.sqrt(2.0)
+        hum_to_noise.append(amplitude_g / noise_g if noise_g > 0 else math.inf)
+    return tuple(clear), tuple(hum_to_noise)
 
 
 # Lengths 2^a·3^b·5^c up to 2^24 samples: numpy's FFT is fast on these, slow on large primes.
@@ -363,17 +397,25 @@ _FAST_LENGTHS = np.array(sorted(2 ** a * 3 ** b * 5 ** c for a in range(25) for 
                                 if 2 ** a * 3 ** b * 5 ** c <= 1 << 24))
 
 
+@functools.lru_cache(maxsize=256)
 def _fast_length(at_least: int) -> int:
-    """The smallest FFT-friendly length >= at_least."""
+    """The smallest FFT-friendly length >= at_least (cached: a printer's taps have a few lengths)."""
     index = int(np.searchsorted(_FAST_LENGTHS, at_least))
     return int(_FAST_LENGTHS[index]) if index < len(_FAST_LENGTHS) else at_least
 
 
 def lines_worth_fitting(time_s: np.ndarray, force_g: np.ndarray, sample_rate_sps: float,
                         candidates_hz) -> tuple[float, ...]:
-    """The candidates whose screen reaches SCREEN_MIN_CHI2: the only ones `auto` fits."""
-    clear = screen_mains_hum(time_s, force_g, sample_rate_sps, candidates_hz)
-    return tuple(float(f) for f, c in zip(candidates_hz, clear) if c >= SCREEN_MIN_CHI2)
+    """The candidates `auto` fits: the screen reaches SCREEN_MIN_CHI2 (the line is there) and the
+    line's amplitude FIT_MIN_HUM_TO_NOISE noise sigmas (it is strong enough to move Z)."""
+    return _worth_fitting(time_s, force_g, candidates_hz)
+
+
+def _worth_fitting(time_s: np.ndarray, force_g: np.ndarray, candidates_hz) -> tuple[float, ...]:
+    """The candidates the screen sees (SCREEN_MIN_CHI2) with an amplitude that can move Z (FIT_MIN_HUM_TO_NOISE)."""
+    clear, hum_to_noise = _screen(time_s, force_g, candidates_hz)
+    return tuple(float(f) for f, c, r in zip(candidates_hz, clear, hum_to_noise)
+                 if c >= SCREEN_MIN_CHI2 and r >= FIT_MIN_HUM_TO_NOISE)
 
 
 def harmonics_worth_fitting(time_s: np.ndarray, force_g: np.ndarray, sample_rate_sps: float,
@@ -397,6 +439,8 @@ def harmonics_worth_fitting(time_s: np.ndarray, force_g: np.ndarray, sample_rate
             seen.append(alias)
     if not harmonics:
         return ()
+    # The screen's chi2 alone: under a strong line the steps' sigma is the line's, which would read
+    # a harmonic low against the noise (taplab mains hum: bias -0.27 -> -0.31 µm with the amplitude bar).
     clear = screen_mains_hum(time_s, force_g, sample_rate_sps, harmonics)
     return tuple(h for h, c in zip(harmonics, clear) if c >= SCREEN_MIN_CHI2)
 
