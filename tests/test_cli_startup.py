@@ -1,5 +1,6 @@
 """`tapcell analyze` starts lean: a fresh interpreter imports only what the analysis needs, and
-numpy's OpenBLAS runs one thread (its per-core workers only cost CPU on arrays of a tap's size)."""
+numpy's OpenBLAS runs one thread in every sub-command (its per-core workers only cost CPU on arrays
+of a tap's size, and the printer analyses its taps in-process)."""
 
 from __future__ import annotations
 
@@ -65,3 +66,22 @@ def test_analyze_runs_blas_on_one_thread_unless_the_user_chose(run, tap_file):
     if (os.cpu_count() or 1) > 1:  # the control: numpy alone starts a worker per core
         assert int(_run(NUMPY_ALONE)) > 1
     assert json.loads(_run(RUN, tap_file, blas="2"))["blas"] == "2"
+
+
+# A sub-command that stops at once (its usage error) after the CLI chose the BLAS threads.
+SUBCOMMAND_ENV = """
+import contextlib, io, json, os, sys
+from tapcell.tools import cli
+with contextlib.redirect_stderr(io.StringIO()), contextlib.redirect_stdout(io.StringIO()):
+    try:
+        cli.main([sys.argv[1], "--no-such-option"])
+    except SystemExit:
+        pass
+print(json.dumps(os.environ.get("OPENBLAS_NUM_THREADS")))
+"""
+
+
+@pytest.mark.parametrize("subcommand", ["serve", "run", "console", "monitor", "demo"])
+def test_the_printer_sub_commands_run_blas_on_one_thread_too(subcommand):
+    assert json.loads(_run(SUBCOMMAND_ENV, subcommand)) == "1"
+    assert json.loads(_run(SUBCOMMAND_ENV, subcommand, blas="4")) == "4"

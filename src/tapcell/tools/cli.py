@@ -26,11 +26,11 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "kalico-plugin": ("tapcell.tools.kalico_plugin", "install tapcell as Kalico's tap classifier"),
 }
 
-# Sub-commands whose numpy work is many small arrays (a tap is a few hundred samples). numpy's
-# OpenBLAS starts a worker thread per core when numpy is imported, which there only costs CPU:
-# ~0.13 s of a `tapcell analyze` run on 2 cores (half the CPU of a one-file run). One thread,
-# unless the user chose otherwise; set before the sub-command's module imports numpy.
-SINGLE_THREADED_BLAS = frozenset(("analyze",))
+# Every sub-command's numpy work is many small arrays (a tap is a few hundred samples; the printer
+# analyses each tap in-process). numpy's OpenBLAS starts a worker thread per core when numpy is
+# imported, which there only costs CPU: ~0.13 s of a `tapcell analyze` run on 2 cores (half the CPU
+# of a one-file run), and on a loaded host one small solve took 15 ms instead of 0.36 (the hum fit,
+# issue 21). One thread, unless the user chose otherwise; set before any module imports numpy.
 
 
 # Which extra of pyproject.toml brings each optional import (the top-level module name).
@@ -106,8 +106,7 @@ def _dispatch(argv: list[str] | None) -> int:
     if name not in SUBCOMMANDS:
         print(f"tapcell: unknown command '{name}'\n\n{_usage()}", file=sys.stderr)
         return 2
-    if name in SINGLE_THREADED_BLAS:
-        os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     try:
         module = importlib.import_module(SUBCOMMANDS[name][0])
         # Modules serving several subcommands take the subcommand name first.
