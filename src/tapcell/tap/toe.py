@@ -562,15 +562,29 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
     dof = max(samples - 4 - (2 if drift_g_um is None else 1), 1)  # the toe's c, w, p, k and the basis
     residual_var = max(least / dof, 1e-12)
     rss_rows = rss_grid.reshape(-1, len(contacts_um))
-    contact, sigma = marginal_contact_um(contacts_um, rss_rows, residual_var, _TOE_PRIOR)
-    if contact is None:
+    found = marginal_contact_and_spread_um(contacts_um, rss_rows, residual_var)
+    if found is None:
         return None
-    sigma = math.hypot(sigma, shape_spread_um(contacts_um, rss_rows, residual_var))
+    contact, sigma, spread = found
+    sigma = math.hypot(sigma, spread)
     width, power = TOE_WIDTHS_UM[width_index], TOE_POWERS[power_index]
     stiffness = stiffness_at(contact, width, power)
     return ToeFit(contact_um=contact, sigma_um=sigma, width_um=float(width), power=float(power),
                   stiffness_g_um=stiffness, residual_sigma_g=math.sqrt(residual_var * g2_per_unit),
                   grid=ToeGridResult(contacts_um, rss_rows, residual_var, _TOE_PRIOR))
+
+
+def marginal_contact_and_spread_um(contacts_um: np.ndarray, rss_rows: np.ndarray, noise_var: float
+                                   ) -> tuple[float, float, float] | None:
+    """`marginal_contact_um` over every toe (the `_TOE_PRIOR`) and `shape_spread_um`: (contact, sd,
+    spread), or None when no toe has a curved interior minimum. One kernel call when built (the
+    three marginals' glue cost more than their arithmetic); the two functions are its numpy twin."""
+    if _C is not None and len(TOE_POWERS) * len(TOE_WIDTHS_UM) == len(rss_rows):
+        return _C.marginal_contact_and_spread(contacts_um, rss_rows, noise_var, _TOE_PRIOR, len(TOE_POWERS))
+    contact, sigma = marginal_contact_um(contacts_um, rss_rows, noise_var, _TOE_PRIOR)
+    if contact is None:
+        return None
+    return contact, sigma, shape_spread_um(contacts_um, rss_rows, noise_var)
 
 
 def shape_spread_um(contacts_um: np.ndarray, rss_rows: np.ndarray, noise_var: float) -> float:
