@@ -49,7 +49,7 @@ from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_FIVE, PrefixSums, five_lines
 from tapcell.tap.stage import departure_near, shows_soft_stage, soft_stage
 from tapcell.tap.toe import (THREAD_FAR_REACH_UM, THREAD_REACH_UM, ToeFit, Wander, adhesion_measures, fit_toe,
-                             free_air_variogram, lag_from_halt_s, thread_pull_g, wander_from_variograms)
+                             free_air_variogram, lag_from_halt_s, thread_pull_g, wanders_from_variograms)
 
 # The checks, robust statistics and window heights in C (c/analysis.c, tapcell.tap.native); None: numpy.
 _C = native.load("analysis")
@@ -503,7 +503,8 @@ def free_air_wanders(force_g: np.ndarray, dec: Decomposition) -> tuple[Wander | 
     first, *_, last = dec.bounds
     approach = free_air_variogram(force_g[dec.start:dec.start + first])
     departure = free_air_variogram(force_g[dec.start + last:dec.stop])
-    return wander_from_variograms([approach, departure]), wander_from_variograms([approach])
+    approach_wander, both_wander = wanders_from_variograms([approach, departure])  # the approach's rows summed once
+    return both_wander, approach_wander
 
 
 def fit_pullback_toe(samples: PullbackSamples, motion: Motion, timing: SensorTiming, contact0_um: float,
