@@ -604,34 +604,58 @@ static int toe_minimum(const double *rss, Py_ssize_t count, const double *height
     return 1;
 }
 
-/* The mean and sd of the contact over `toes` rows of residuals (`marginal_contact`'s arithmetic);
- * 0 when no toe has a curved interior minimum. */
-static int marginal_of(const double *heights_um, Py_ssize_t count, const double *rss, Py_ssize_t toes,
-                       const double *prior, double noise_var, double *mean_out_um, double *sd_out_um)
+/* One toe's `toe_minimum`, kept for the passes of `marginal_of` (and the shapes' own marginals). */
+typedef struct {
+    double centre_um, lowest, var_um2;
+    int found;
+} ToeMinimum;
+
+/* `toe_minimum` of each of `toes` rows, once (PyMem; NULL with MemoryError set). */
+static ToeMinimum *toe_minima(const double *heights_um, Py_ssize_t count, const double *rss, Py_ssize_t toes,
+                              double noise_var)
 {
-    double step_um = heights_um[1] - heights_um[0], centre_um, lowest, var_um2;
-    /* Three passes over the toes (a score of them, recomputed rather than stored): the least
-     * residual; the weights' total and mean; the spread about the mean. */
+    ToeMinimum *minima = PyMem_Malloc(sizeof(ToeMinimum) * (size_t)(toes > 0 ? toes : 1));
+    if (minima == NULL) {
+        PyErr_NoMemory();
+        return NULL;
+    }
+    double step_um = heights_um[1] - heights_um[0];
+    for (Py_ssize_t t = 0; t < toes; t++) {
+        ToeMinimum *toe = &minima[t];
+        toe->found = toe_minimum(rss + t * count, count, heights_um, step_um, noise_var, &toe->centre_um, &toe->lowest,
+                                 &toe->var_um2);
+    }
+    return minima;
+}
+
+/* The mean and sd of the contact over `toes` toes' minima (toe.py `marginal_contact_um`'s arithmetic);
+ * 0 when no toe has a curved interior minimum. */
+static int marginal_of(const ToeMinimum *minima, Py_ssize_t toes, const double *prior, double noise_var,
+                       double *mean_out_um, double *sd_out_um)
+{
+    /* Three passes over the toes (a score of them): the least residual; the weights' total and
+     * mean; the spread about the mean. */
     double least = INFINITY, total = 0.0, weighted = 0.0, spread = 0.0;
     int any = 0;
     for (Py_ssize_t t = 0; t < toes; t++)
-        if (toe_minimum(rss + t * count, count, heights_um, step_um, noise_var, &centre_um, &lowest, &var_um2)) {
-            least = any && least <= lowest ? least : lowest;
+        if (minima[t].found) {
+            least = any && least <= minima[t].lowest ? least : minima[t].lowest;
             any = 1;
         }
     if (!any)
         return 0;
     for (Py_ssize_t t = 0; t < toes; t++)
-        if (toe_minimum(rss + t * count, count, heights_um, step_um, noise_var, &centre_um, &lowest, &var_um2)) {
-            double weight = exp(-(lowest - least) / (2.0 * noise_var)) * sqrt(var_um2) * prior[t];
+        if (minima[t].found) {
+            double weight = exp(-(minima[t].lowest - least) / (2.0 * noise_var)) * sqrt(minima[t].var_um2) * prior[t];
             total += weight;
-            weighted += weight * centre_um;
+            weighted += weight * minima[t].centre_um;
         }
     double mean_um = weighted / total;
     for (Py_ssize_t t = 0; t < toes; t++)
-        if (toe_minimum(rss + t * count, count, heights_um, step_um, noise_var, &centre_um, &lowest, &var_um2)) {
-            double weight = exp(-(lowest - least) / (2.0 * noise_var)) * sqrt(var_um2) * prior[t];
-            spread += weight * (var_um2 + (centre_um - mean_um) * (centre_um - mean_um));
+        if (minima[t].found) {
+            const ToeMinimum *toe = &minima[t];
+            double weight = exp(-(toe->lowest - least) / (2.0 * noise_var)) * sqrt(toe->var_um2) * prior[t];
+            spread += weight * (toe->var_um2 + (toe->centre_um - mean_um) * (toe->centre_um - mean_um));
         }
     spread /= total;
     *mean_out_um = mean_um;
@@ -668,9 +692,12 @@ static PyObject *marginal_contact(PyObject *self, PyObject *args)
     Py_ssize_t count = 0, toes = 0;
     const double *heights_um, *rss, *prior;
     double mean_um, sd_um;
-    if (load_marginal(&heights_buffer, &rss_buffer, &prior_buffer, &heights_um, &count, &rss, &prior, &toes))
-        result = marginal_of(heights_um, count, rss, toes, prior, noise_var, &mean_um, &sd_um)
-                     ? Py_BuildValue("dd", mean_um, sd_um) : Py_NewRef(Py_None);
+    ToeMinimum *minima = NULL;
+    if (load_marginal(&heights_buffer, &rss_buffer, &prior_buffer, &heights_um, &count, &rss, &prior, &toes) &&
+        (minima = toe_minima(heights_um, count, rss, toes, noise_var)) != NULL)
+        result = marginal_of(minima, toes, prior, noise_var, &mean_um, &sd_um) ? Py_BuildValue("dd", mean_um, sd_um)
+                                                                               : Py_NewRef(Py_None);
+    PyMem_Free(minima);
     PyBuffer_Release(&heights_buffer);
     PyBuffer_Release(&rss_buffer);
     PyBuffer_Release(&prior_buffer);
@@ -693,13 +720,17 @@ static PyObject *marginal_contact_and_spread(PyObject *self, PyObject *args)
     Py_ssize_t count = 0, toes = 0;
     const double *heights_um, *rss, *prior;
     double mean_um, sd_um;
+    ToeMinimum *minima = NULL;
     if (!load_marginal(&heights_buffer, &rss_buffer, &prior_buffer, &heights_um, &count, &rss, &prior, &toes))
         goto done;
     if (shapes < 1 || toes % shapes != 0) {
         PyErr_Format(PyExc_ValueError, "shapes: %zd does not divide the %zd toes", shapes, toes);
         goto done;
     }
-    if (!marginal_of(heights_um, count, rss, toes, prior, noise_var, &mean_um, &sd_um)) {
+    minima = toe_minima(heights_um, count, rss, toes, noise_var);
+    if (minima == NULL)
+        goto done;
+    if (!marginal_of(minima, toes, prior, noise_var, &mean_um, &sd_um)) {
         result = Py_NewRef(Py_None);
         goto done;
     }
@@ -708,14 +739,14 @@ static PyObject *marginal_contact_and_spread(PyObject *self, PyObject *args)
     double highest_um = -INFINITY, lowest_um = INFINITY, shape_mean_um, shape_sd_um;
     int known = 0;
     for (Py_ssize_t k = 0; k < shapes; k++)
-        if (marginal_of(heights_um, count, rss + k * widths * count, widths, prior + k * widths, noise_var,
-                        &shape_mean_um, &shape_sd_um)) {
+        if (marginal_of(minima + k * widths, widths, prior + k * widths, noise_var, &shape_mean_um, &shape_sd_um)) {
             highest_um = known && highest_um >= shape_mean_um ? highest_um : shape_mean_um;
             lowest_um = known && lowest_um <= shape_mean_um ? lowest_um : shape_mean_um;
             known++;
         }
     result = Py_BuildValue("ddd", mean_um, sd_um, known > 1 ? 0.5 * (highest_um - lowest_um) : 0.0);
 done:
+    PyMem_Free(minima);
     PyBuffer_Release(&heights_buffer);
     PyBuffer_Release(&rss_buffer);
     PyBuffer_Release(&prior_buffer);
