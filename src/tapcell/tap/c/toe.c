@@ -680,41 +680,16 @@ static int load_marginal(Py_buffer *heights_buffer, Py_buffer *rss_buffer, Py_bu
     return 1;
 }
 
-static PyObject *marginal_contact(PyObject *self, PyObject *args)
+/* marginal_contact (with_spread 0: (mean, sd)) and marginal_contact_and_spread (1: also half the
+ * range of each shape's own marginal, `shape_spread_um`: rss and prior in `shapes` equal blocks of
+ * rows, each shape's widths), each toe's minimum found once for all of them. */
+static PyObject *marginal(PyObject *args, int with_spread)
 {
-    (void)self;
     Py_buffer heights_buffer, rss_buffer, prior_buffer;
     double noise_var;
-    if (!PyArg_ParseTuple(args, "O&O&dO&", float64_buffer, &heights_buffer, float64_buffer, &rss_buffer, &noise_var,
-                          float64_buffer, &prior_buffer))
-        return NULL;
-    PyObject *result = NULL;
-    Py_ssize_t count = 0, toes = 0;
-    const double *heights_um, *rss, *prior;
-    double mean_um, sd_um;
-    ToeMinimum *minima = NULL;
-    if (load_marginal(&heights_buffer, &rss_buffer, &prior_buffer, &heights_um, &count, &rss, &prior, &toes) &&
-        (minima = toe_minima(heights_um, count, rss, toes, noise_var)) != NULL)
-        result = marginal_of(minima, toes, prior, noise_var, &mean_um, &sd_um) ? Py_BuildValue("dd", mean_um, sd_um)
-                                                                               : Py_NewRef(Py_None);
-    PyMem_Free(minima);
-    PyBuffer_Release(&heights_buffer);
-    PyBuffer_Release(&rss_buffer);
-    PyBuffer_Release(&prior_buffer);
-    return result;
-}
-
-/* toe.py's `fit_toe` after its grid: the marginal over every toe, and half the range of the
- * marginals of each shape alone (`shape_spread_um`: the rows in `shapes` equal blocks, each
- * weighed by its block of the prior), in one call instead of 1 + shapes. */
-static PyObject *marginal_contact_and_spread(PyObject *self, PyObject *args)
-{
-    (void)self;
-    Py_buffer heights_buffer, rss_buffer, prior_buffer;
-    double noise_var;
-    Py_ssize_t shapes;
-    if (!PyArg_ParseTuple(args, "O&O&dO&n", float64_buffer, &heights_buffer, float64_buffer, &rss_buffer, &noise_var,
-                          float64_buffer, &prior_buffer, &shapes))
+    Py_ssize_t shapes = 1;
+    if (!PyArg_ParseTuple(args, with_spread ? "O&O&dO&n" : "O&O&dO&", float64_buffer, &heights_buffer, float64_buffer,
+                          &rss_buffer, &noise_var, float64_buffer, &prior_buffer, &shapes))
         return NULL;
     PyObject *result = NULL;
     Py_ssize_t count = 0, toes = 0;
@@ -734,6 +709,10 @@ static PyObject *marginal_contact_and_spread(PyObject *self, PyObject *args)
         result = Py_NewRef(Py_None);
         goto done;
     }
+    if (!with_spread) {
+        result = Py_BuildValue("dd", mean_um, sd_um);
+        goto done;
+    }
     /* The shapes' own marginals: the highest and lowest of those that exist (the twin's max - min). */
     Py_ssize_t widths = toes / shapes;
     double highest_um = -INFINITY, lowest_um = INFINITY, shape_mean_um, shape_sd_um;
@@ -751,6 +730,19 @@ done:
     PyBuffer_Release(&rss_buffer);
     PyBuffer_Release(&prior_buffer);
     return result;
+}
+
+static PyObject *marginal_contact(PyObject *self, PyObject *args)
+{
+    (void)self;
+    return marginal(args, 0);
+}
+
+/* toe.py's `fit_toe` after its grid: the marginal over every toe and each shape's spread in one call. */
+static PyObject *marginal_contact_and_spread(PyObject *self, PyObject *args)
+{
+    (void)self;
+    return marginal(args, 1);
 }
 
 /* ---- The baseline's walk from free air (toe.py: free_air_variogram) ---- */
