@@ -181,8 +181,8 @@ def analyze_method(tap, method: str):
     if method.startswith("zero-phase notch"):
         quality = float(method.rsplit("=", 1)[1])
         filtered = notch_zero_phase(tap.force_g, tap.sample_rate_sps, (50.0,), quality)
-        return analyze_tap(dataclasses.replace(tap, force_g=filtered))
-    return analyze_tap(tap, AnalysisOptions(mains_hz="auto" if method == "fitted (auto)" else None))
+        return analyze_tap(dataclasses.replace(tap, force_g=filtered), AnalysisOptions(mains_hz=()))
+    return analyze_tap(tap, AnalysisOptions(mains_hz="auto" if method == "fitted (auto)" else ()))  # (): left in
 
 
 if __name__ == "__main__":

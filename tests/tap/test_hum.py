@@ -83,7 +83,7 @@ def test_mains_hz_option_parsing():
     options = AnalysisOptions()
     assert options.with_overrides({"mains_hz": "auto"}).mains_hz == "auto"
     assert options.with_overrides({"mains_hz": "50,100"}).mains_hz == (50.0, 100.0)
-    assert options.with_overrides({"mains_hz": "none"}).mains_hz is None
+    assert options.with_overrides({"mains_hz": "none"}).mains_hz == ()
     with pytest.raises(ValueError, match="option 'mains_hz' = 'fifty': expected auto, none or frequencies"):
         options.with_overrides({"mains_hz": "fifty"})
     with pytest.raises(ValueError, match="each frequency must be between 1 and 10000 Hz"):
@@ -95,7 +95,7 @@ def test_synthetic_tap_with_hum_gives_the_hum_free_z():
     humming = dataclasses.replace(clean, force_g=clean.force_g + hum(clean.time_s, 13.6, 50.0, 2.0))
     reference = analyze_tap(clean)
     removed = analyze_tap(humming, AnalysisOptions(mains_hz=(50.0,)))
-    kept = analyze_tap(humming)
+    kept = analyze_tap(humming, AnalysisOptions(mains_hz=()))
     assert reference.valid and removed.valid
     assert removed.hum["amplitudes_g"][0] == pytest.approx(13.6, abs=0.1)
     assert (removed.z_mm - reference.z_mm) * 1000 == pytest.approx(0.0, abs=0.05)
@@ -104,8 +104,9 @@ def test_synthetic_tap_with_hum_gives_the_hum_free_z():
     assert not kept.valid or abs(kept.z_mm - reference.z_mm) * 1000 > 0.2
 
 
-# Valid taps out of 5 with the hum left in (TAP_CHRONOLOGY, LOW_TAP_QUALITY at 2 mm/s).
-@pytest.mark.parametrize("speed_mm_s, valid_with_hum", [(2.0, 2), (10.0, 5)])
+# Valid taps out of 5 with the hum left in (TAP_CHRONOLOGY twice at 2 mm/s; seed 3 was LOW_TAP_QUALITY
+# for the lines' stiffness mismatch, 32 %, where the models' agree within 8 %: now valid, -1.12 µm).
+@pytest.mark.parametrize("speed_mm_s, valid_with_hum", [(2.0, 3), (10.0, 5)])
 def test_virtual_printer_noisy_mains_taps_are_valid_with_hum_removed(speed_mm_s, valid_with_hum):
     # The sharp model without lag correction (its spread on clean taps, ~0.1 µm, shows what the hum
     # removal leaves; the toe model's is 0.3-0.5 µm), then the default (toe) on the same taps.
@@ -119,7 +120,7 @@ def test_virtual_printer_noisy_mains_taps_are_valid_with_hum_removed(speed_mm_s,
         assert result.hum["frequencies_hz"] == [50.0]
         assert result.hum["amplitudes_g"][0] == pytest.approx(13.1, abs=0.5)
         errors_um.append((result.z_mm - tap.truth["z_contact"]) * 1000)
-        valid_without += analyze_tap(tap, sharp).valid
+        valid_without += analyze_tap(tap, dataclasses.replace(sharp, mains_hz=())).valid
         toe = analyze_tap(tap, AnalysisOptions(mains_hz="auto"))
         assert toe.valid, toe.message
         toe_errors_um.append((toe.z_mm - tap.truth["z_contact"]) * 1000)
@@ -136,3 +137,145 @@ def test_clean_virtual_printer_tap_detects_no_hum():
     auto = analyze_tap(tap, AnalysisOptions(mains_hz="auto"))
     assert auto.hum is None
     assert auto.z_mm == analyze_tap(tap).z_mm
+
+
+# --- `auto` (the default since issue 21): the screen, the cost, the answer -------------------------------
+
+def noisy_synth_tap(seed: int):
+    """A hum-free synthetic tap with 0.5 g white noise at 320 sps, 2 mm/s."""
+    return synth_tap(noise_g=0.5, sample_rate_sps=RATE_SPS, approach_speed_mm_s=2.0, seed=seed)
+
+
+def test_default_auto_detects_50hz_hum_and_halves_the_z_error():
+    errors_auto_um, errors_off_um = [], []
+    for seed in range(12):
+        clean = noisy_synth_tap(seed)
+        humming = dataclasses.replace(clean, force_g=clean.force_g + hum(clean.time_s, 3.0, 50.0, seed))
+        auto, off = analyze_tap(humming), analyze_tap(humming, AnalysisOptions(mains_hz=()))
+        assert auto.valid and off.valid
+        assert auto.hum["frequencies_hz"] == [50.0]
+        assert auto.hum["amplitudes_g"][0] == pytest.approx(3.0, abs=0.15)  # measured 2.92-3.09
+        errors_auto_um.append((auto.z_mm - clean.truth["z_contact"]) * 1000)
+        errors_off_um.append((off.z_mm - clean.truth["z_contact"]) * 1000)
+    rms_auto, rms_off = np.sqrt(np.mean(np.square(errors_auto_um))), np.sqrt(np.mean(np.square(errors_off_um)))
+    # Measured: 0.47 µm with the hum removed, 0.96 left in.
+    assert rms_auto < 0.65
+    assert rms_auto < 0.65 * rms_off
+
+
+def test_hum_free_taps_are_not_detected_and_screen_like_chance():
+    from tapcell.tap.hum import SCREEN_MIN_CHI2, screen_mains_hum
+
+    screens = []
+    for seed in range(12):
+        tap = noisy_synth_tap(seed)
+        assert analyze_tap(tap).hum is None
+        screens += screen_mains_hum(tap.time_s, tap.force_g, RATE_SPS, (50.0, 60.0))
+    for seed in range(1, 11):
+        tap = record_sim_tap(SimTapSpec("clean", 5.0, seed, pullback_distance_mm=0.15, dwell_samples=8))
+        assert analyze_tap(tap).hum is None
+        screens += screen_mains_hum(tap.time_s, tap.force_g, tap.sample_rate_sps, (50.0, 60.0))
+    # Chance gives chi2 with 2 degrees of freedom (mean 2); measured mean 1.9, largest 10.3 of 44 lines.
+    assert 1.0 < np.mean(screens) < 3.0
+    assert max(screens) < SCREEN_MIN_CHI2
+
+
+def test_auto_costs_a_hum_free_tap_no_split_and_no_fit(monkeypatch):
+    import tapcell.tap.analysis as analysis
+    import tapcell.tap.hum as hum_module
+
+    counts = {"decompose": 0, "fit": 0}
+
+    def counting(name, real):
+        def wrapper(*args, **kwargs):
+            counts[name] += 1
+            return real(*args, **kwargs)
+        return wrapper
+
+    monkeypatch.setattr(analysis, "decompose", counting("decompose", analysis.decompose))
+    monkeypatch.setattr(hum_module, "_fit_groups", counting("fit", hum_module._fit_groups))
+    clean = noisy_synth_tap(1)
+    analyze_tap(clean, AnalysisOptions(mains_hz=()))
+    without = dict(counts)
+    counts.update(decompose=0, fit=0)
+    analyze_tap(clean)  # auto
+    assert counts == without == {"decompose": 1, "fit": 0}
+    counts.update(decompose=0, fit=0)
+    humming = dataclasses.replace(clean, force_g=clean.force_g + hum(clean.time_s, 3.0, 50.0, 0.4))
+    assert analyze_tap(humming).hum is not None
+    # Detection: one spline solve (only 50 Hz passed the screen; beyond doubt: no outlier refit);
+    # 3 g on 0.5 g noise is above 3 sigmas: a second split and fit (no outliers: no refit).
+    assert counts == {"decompose": 3, "fit": 2}
+
+
+def test_screen_reads_the_line_through_a_gap_and_a_sensor_clock_off_by_a_percent():
+    from tapcell.tap.hum import screen_mains_hum
+
+    rng = np.random.default_rng(5)
+    nominal = np.arange(640) / RATE_SPS
+    for time_s in (nominal * 1.013, np.delete(nominal, np.arange(300, 303))):  # clock 1.3 % slow; 3 samples lost
+        force_g = rng.normal(0.0, 0.5, len(time_s)) + hum(time_s, 0.3, 50.0, 1.0)
+        at_50, at_60 = screen_mains_hum(time_s, force_g, RATE_SPS, (50.0, 60.0))
+        # 0.3 g on 0.5 g noise over 640 samples: a fit reads ~640·0.09/(2·0.25) = 115.
+        assert at_50 > 40
+        assert at_60 < 15
+
+
+def test_sparse_normal_equations_match_a_dense_least_squares():
+    from tapcell.tap.hum import sinusoid_basis
+
+    rng = np.random.default_rng(2)
+    time_s = 7.0 + np.sort(rng.uniform(0.0, 1.0, 400))  # uneven times
+    force_g, corners_s = piecewise_tap(time_s - 7.0)
+    force_g = force_g + rng.normal(0.0, 1.0, len(time_s)) + hum(time_s, 2.0, 50.0, 0.3) + hum(time_s, 0.7, 100.0, 1.0)
+    knots_s = spline_knots(time_s[0], time_s[-1], 1 / 50, [7.0 + c for c in corners_s])
+    exclude = np.zeros(len(time_s), dtype=bool)
+    exclude[::17] = True
+    fit = fit_hum(time_s, force_g, (50.0, 100.0), knots_s, exclude)
+    design = np.hstack((hat_basis(time_s, knots_s), sinusoid_basis(time_s, (50.0, 100.0))))
+    use = ~exclude
+    coefficients = np.linalg.lstsq(design[use], force_g[use], rcond=None)[0]
+    residual = force_g - design @ coefficients
+    if np.any(np.abs(residual[use]) > 5.0 * 1.4826 * np.median(np.abs(residual[use]))):
+        pytest.skip("this draw has an outlier: the refit would differ")
+    dense_hum = design[:, -4:] @ coefficients[-4:]
+    assert np.max(np.abs(fit.hum_g - dense_hum)) < 1e-8
+    assert fit.amplitudes_g == pytest.approx((2.0, 0.7), abs=0.25)
+
+
+def test_mains_hz_unset_follows_the_tap_meta_else_auto():
+    from tapcell.tap.analysis import mains_frequencies_hz
+
+    tap = noisy_synth_tap(0)
+    unset = AnalysisOptions()
+    assert mains_frequencies_hz(tap, unset) == "auto"
+    for meta, wanted in ((50, (50.0,)), ([50, 100], (50.0, 100.0)), ([], ()), ("auto", "auto"), ("fifty", "auto")):
+        assert mains_frequencies_hz(dataclasses.replace(tap, meta={"mains_hz": meta}), unset) == wanted
+    assert mains_frequencies_hz(dataclasses.replace(tap, meta={"mains_hz": 60}), AnalysisOptions(mains_hz=())) == ()
+
+
+def test_screen_cuts_the_taps_own_steps_to_see_a_weak_hum_on_a_quiet_fast_sensor():
+    from tapcell.tap.hum import SCREEN_MIN_CHI2, screen_mains_hum
+
+    # 2000 sps, 0.1 g noise: the tap's ramps leak far more power to 60 Hz than the noise has; with
+    # them cut, a 0.1 g hum reads 430-650 (measured; ~3 with the ramps left in), the absent line 2-13.
+    for seed in range(6):
+        tap = synth_tap(noise_g=0.1, sample_rate_sps=2000.0, approach_speed_mm_s=5.0, seed=seed)
+        at_50, at_60 = screen_mains_hum(tap.time_s, tap.force_g + hum(tap.time_s, 0.1, 60.0, seed), 2000.0, (50.0, 60.0))
+        assert at_60 > 100
+        assert at_50 < SCREEN_MIN_CHI2
+
+
+def test_auto_fits_the_harmonic_the_screen_sees_with_a_strong_line():
+    errors_auto_um, errors_line_um = [], []
+    for seed in range(12):
+        clean = noisy_synth_tap(seed)
+        force_g = clean.force_g + hum(clean.time_s, 6.0, 50.0, seed) + hum(clean.time_s, 2.0, 100.0, 2 * seed + 1)
+        humming = dataclasses.replace(clean, force_g=force_g)
+        auto, line_only = analyze_tap(humming), analyze_tap(humming, AnalysisOptions(mains_hz=(50.0,)))
+        assert auto.hum["frequencies_hz"] == [50.0, 100.0]
+        assert auto.hum["amplitudes_g"] == pytest.approx([6.0, 2.0], abs=0.15)  # measured ±0.09
+        errors_auto_um.append((auto.z_mm - clean.truth["z_contact"]) * 1000)
+        errors_line_um.append((line_only.z_mm - clean.truth["z_contact"]) * 1000)
+    # Measured rms: 0.47 µm (as without any hum: the harmonic is gone too), 0.74 with the 100 Hz left in.
+    assert np.sqrt(np.mean(np.square(errors_auto_um))) < 0.6 < np.sqrt(np.mean(np.square(errors_line_um)))

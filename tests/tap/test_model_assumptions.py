@@ -10,6 +10,7 @@ import tapcell.taplab
 from tapcell.tap import AnalysisOptions, analyze_tap, read_tap_file
 from tapcell.tap.cli import options_from_settings
 from tapcell.tap.toe import TOE_WIDTHS_UM, WIDTH_PRIOR, _width_prior
+from tapcell.tap.uncertainty import SHAPE_WEIGHT, SQUEEZE_WEIGHT, z_sigma_um
 
 REAL_TAP = Path(tapcell.taplab.__file__).with_name("real") / "voron24_workbench.json"
 
@@ -18,13 +19,21 @@ def test_the_real_capture_reports_what_the_toe_shape_moves():
     analysis = analyze_tap(read_tap_file(str(REAL_TAP))[0])
     assert analysis.valid
     # A Hertzian toe fits it best (0.11 um alone), a parabolic toe reads it 2.8 um higher: half that
-    # range is in the sigma (1.42 um), and the capture's own analysis (0.041963 mm) lies 1.0 sigma off.
-    assert 1.2 < analysis.z_sigma_um < 1.7
+    # range (1.42 um) is the shape part; contact on the way down lies 2.3 um above break contact on
+    # the way up beyond the fits' noise (the squeeze part). Weighed, they are the sigma (4.96 um).
+    parts = analysis.z_sigma_parts
+    assert parts.noise_um < 0.2 and parts.shape_um == pytest.approx(1.42, abs=0.05)
+    assert parts.squeeze_um == pytest.approx(2.3, abs=0.1)
+    assert analysis.z_sigma_um == pytest.approx(z_sigma_um(parts), rel=1e-12)
+    weighed_um = math.hypot(SHAPE_WEIGHT * parts.shape_um, SQUEEZE_WEIGHT * parts.squeeze_um)
+    assert weighed_um < analysis.z_sigma_um < weighed_um + 0.3
+    # The capture's own analysis (0.041963 mm) and the sharp model, which assumes no toe at all and
+    # reads it 2.7 um below the capture, both lie within the sigma.
     recorded_mm = 0.04196257319307305
-    assert abs(analysis.z_mm - recorded_mm) * 1000.0 < 1.5 * analysis.z_sigma_um
-    # The sharp model, which assumes no toe at all, reads it 2.7 um below the capture.
+    assert abs(analysis.z_mm - recorded_mm) * 1000.0 < analysis.z_sigma_um
     sharp = analyze_tap(read_tap_file(str(REAL_TAP))[0], AnalysisOptions(contact_model="sharp"))
     assert (sharp.z_mm - recorded_mm) * 1000.0 == pytest.approx(-2.66, abs=0.1)
+    assert abs(sharp.z_mm - recorded_mm) * 1000.0 < analysis.z_sigma_um
 
 
 def test_the_width_prior_falls_off_with_the_width():

@@ -54,6 +54,8 @@ def test_the_analysis_answers_the_same_with_and_without_the_kernels(monkeypatch,
         assert (fast.z_mm is None) == (reference.z_mm is None), scenario
         if fast.z_mm is not None:
             assert abs(fast.z_mm - reference.z_mm) * 1000.0 < Z_TOLERANCE_UM, scenario
-            assert fast.z_sigma_um == pytest.approx(reference.z_sigma_um, rel=1e-9), scenario
+            # rel 1e-7: the sigma's noise part is each toe's residual curvature (a second difference
+            # of the two grids' sums, which agree to ~1e-12 relative).
+            assert fast.z_sigma_um == pytest.approx(reference.z_sigma_um, rel=1e-7), scenario
         valid += fast.valid
     assert valid >= len(taps) // 2  # the comparison covers analysed taps, not only rejections

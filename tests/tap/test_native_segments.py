@@ -47,7 +47,7 @@ def test_five_lines_equal_the_twin_on_generated_taps(monkeypatch):
 def test_prefix_sums_lines_and_search_equal_the_twin_on_generated_taps(monkeypatch):
     # The parts five_lines' twin is made of, each against its own kernel (the ties test below has the search).
     calls = recorded_calls(analysis, "five_lines", [OPTIONS["default"]])
-    for time_s, force_g, _, _ in calls:
+    for time_s, force_g, *_ in calls:
         ours, theirs = segments.prefix_sums(time_s, force_g), twin(monkeypatch, segments.prefix_sums, time_s, force_g)
         assert (ours.t_ref_s, ours.f_ref_g) == (theirs.t_ref_s, theirs.f_ref_g)
         assert np.array_equal(ours.sums, theirs.sums)
@@ -74,7 +74,9 @@ def test_five_lines_equal_the_twin_on_every_problem(monkeypatch):
         phases_s = tuple(float(v) for v in np.sort(rng.uniform(-0.05, 0.01 * n + 0.05, 3)))
         if rng.random() < 0.2:
             phases_s = phases_s[::-1]
-        args = (time_s, force_g, phases_s, int(rng.integers(1, 6)))
+        lag = int(rng.integers(1, 6))
+        args = (time_s, force_g, phases_s, lag, lag if rng.random() < 0.5 else int(rng.integers(0, 6)),
+                0.0 if rng.random() < 0.5 else float(rng.choice([0.3, 0.5, 0.9])))
         ours = segments.five_lines(*args)
         assert _five_lines_equal(ours, twin(monkeypatch, segments.five_lines, *args))
         problems.add(ours[1])

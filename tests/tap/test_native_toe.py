@@ -133,9 +133,9 @@ def test_marginal_contact_equals_the_numpy_twin(monkeypatch):
         assert mean == pytest.approx(twin_mean, abs=1e-12) and sd == pytest.approx(twin_sd, rel=1e-12)
 
 
-def test_marginal_contact_and_spread_equal_the_numpy_twin(monkeypatch):
-    # fit_toe's one call for the marginal over every toe and each shape's alone, on residual
-    # grids with ties, unsolvable toes and a shape with no curved minimum at all.
+def test_shape_spread_equals_the_numpy_twin(monkeypatch):
+    # shape_spread_um's one kernel call (each toe's minimum found once for both shapes) against its
+    # two marginal calls, on residual grids with ties, unsolvable toes and a shape with no curved minimum.
     rng = np.random.default_rng(4)
     contacts_um = 40.0 + toe._CONTACT_OFFSETS_UM
     toes, count = len(toe._TOE_PRIOR), len(contacts_um)
@@ -146,15 +146,16 @@ def test_marginal_contact_and_spread_equal_the_numpy_twin(monkeypatch):
     one_shape = rss.copy()
     one_shape[len(toe.TOE_WIDTHS_UM):] = 70.0  # the second shape flat: only the first has a minimum
     cases = [(rss, 0.3), (rss, 5.0), (rss[:, ::-1].copy(), 0.05), (one_shape, 0.3), (np.full((toes, count), np.inf), 1.0)]
-    kernel = [toe.marginal_contact_and_spread_um(contacts_um, *case) for case in cases]
+    kernel = [toe.shape_spread_um(contacts_um, *case) for case in cases]
     compiled = toe._C
     monkeypatch.setattr(toe, "_C", None)
-    twins = [toe.marginal_contact_and_spread_um(contacts_um, *case) for case in cases]
-    assert kernel[-1] is None and twins[-1] is None
-    assert kernel[3][2] == twins[3][2] == 0.0  # one shape known: no spread
-    for found, twin in zip(kernel[:-1], twins[:-1]):
-        assert found == pytest.approx(twin, rel=1e-12, abs=1e-12)
-    assert min(found[2] for found in kernel[:3]) > 0.0
+    twins = [toe.shape_spread_um(contacts_um, *case) for case in cases]
+    assert kernel[3:] == twins[3:] == [0.0, 0.0]  # one shape known, or none: no spread
+    assert kernel[:3] == pytest.approx(twins[:3], rel=1e-12, abs=1e-12)
+    assert min(kernel[:3]) > 0.0
+    mean, sd, spread = compiled.marginal_contact_and_spread(contacts_um, rss, 0.3, toe._TOE_PRIOR, 2)
+    assert (mean, sd) == pytest.approx(toe.marginal_contact_um(contacts_um, rss, 0.3, toe._TOE_PRIOR), rel=1e-12)
+    assert spread == kernel[0]
     with pytest.raises(ValueError, match="shapes: 3 does not divide"):
         compiled.marginal_contact_and_spread(contacts_um, rss, 1.0, toe._TOE_PRIOR, 3)
 

@@ -162,6 +162,31 @@ def test_coasting_move_acceleration():
     assert _code(tap) == "COASTING_MOVE_ACCELERATION"
 
 
+def _slowing_into(tap, end_z_mm: float):
+    """The tap with its probing move slowing down at 500 mm/s² from 5 mm/s to stop at `end_z_mm`
+    (it starts 5²/(2·500) = 25 µm above that end)."""
+    slowing = dataclasses.replace(tap.moves[-5], start_v=5.0, accel=-500.0, start_z=end_z_mm + 0.025)
+    return dataclasses.replace(tap, moves=[*tap.moves[:-5], slowing, *tap.moves[-4:]])
+
+
+def test_coasting_message_fits_the_printers_position_min():
+    """Issue 20's leftover: the advice follows where the probing move ended (its [stepper_z]
+    position_min): at Z=0 it asks for a negative position_min; at -2 it does not ask for -5 again."""
+    at_zero = analyze_tap(_slowing_into(synth_tap(), 0.0))
+    assert at_zero.error == "COASTING_MOVE_ACCELERATION"
+    assert "about to stop at its end, Z 0.000 (the lowest Z a probe may reach: [stepper_z] position_min)" in at_zero.message
+    assert "give [stepper_z] a negative position_min (the guide's example: position_min: -5)" in at_zero.message
+    already = analyze_tap(_slowing_into(synth_tap(), -2.0))
+    assert already.error == "COASTING_MOVE_ACCELERATION"
+    assert "Z -2.000" in already.message and "2.000 mm below Z=0 already" in already.message
+    assert "home Z again (G28 Z)" in already.message and "-5" not in already.message
+    speeding = synth_tap()
+    speeding.moves[-5] = dataclasses.replace(speeding.moves[-5], accel=200.0)
+    message = analyze_tap(speeding).message
+    assert "accelerating (200 mm/s²)" in message and "2.050 mm below where it started" in message  # 2.025 down to -0.025
+    assert "position_min" not in message and "sample_retract_dist" in message
+
+
 def test_pullback_too_short_and_break_contact_too_late():
     # Break contact ~25 µm above the halt: a 20 µm pullback never breaks contact, in a 28 µm one
     # it falls in the last sixth (after 23.3 µm), in a 30 µm one just inside (before 25 µm).

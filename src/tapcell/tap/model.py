@@ -162,7 +162,8 @@ class AnalysisOptions:
         None: a sharp contact, or fitted per tap when fit_contact_onset.
     mains_hz: mains hum to fit and subtract before the analysis (tapcell.tap.hum): a tuple of
         frequencies (Hz), "auto" (50 or 60 Hz, whichever the tap clearly holds, else none),
-        or None: tap meta `mains_hz`, else no hum removal.
+        () for none (`--set mains_hz=none`), or None: tap meta `mains_hz`, else "auto" (what
+        the printer does without a notch filter, so a tap gives one answer wherever analysed).
     """
 
     sensor_delay_s: float | str | None = None
@@ -187,7 +188,7 @@ class AnalysisOptions:
     # Options that may be reset to None ("from the tap file / default") with `--set key=none`.
     _OPTIONAL = frozenset(
         ("sensor_delay_s", "sensor_integration_s", "trigger_force_g", "contact_onset_um", "z_step_um",
-         "decompression_angle", "mains_hz")
+         "decompression_angle")
     )
 
     @property
@@ -242,9 +243,11 @@ CONTACT_MODELS = ("sharp", "toe")
 
 
 def _parse_mains_hz(text: str) -> tuple[float, ...] | str:
-    """'auto' or comma-separated frequencies in Hz ('50', '50,100')."""
+    """'auto', 'none' (no hum removal: an empty tuple) or comma-separated frequencies in Hz ('50', '50,100')."""
     if text.strip().lower() == "auto":
         return "auto"
+    if text.strip().lower() in ("none", "off"):
+        return ()
     low, high = MAINS_HZ_RANGE
     frequencies = []
     for part in text.split(","):
@@ -321,8 +324,16 @@ class TapAnalysis:
     pullback_fit: PullbackFit | None = field(default=None, repr=False, compare=False)
     z_sharp_mm: float | None = field(default=None, repr=False, compare=False)  # the sharp model's Z
     z_sharp_sigma_um: float | None = field(default=None, repr=False, compare=False)
+    # What z_sigma_um was made of (tapcell.tap.uncertainty.ZSigmaParts; `python -m bench tap_sigma`).
+    z_sigma_parts: Any = field(default=None, repr=False, compare=False)
     z_pooled_mm: float | None = None  # Z with the toe shared by the taps at one spot (tapcell.tap.pool)
     z_pooled_sigma_um: float | None = None
+    # The share of the approach's force change that the departure shows to be a drift in proportion
+    # to Z (a cable, a bowden): the quality classifier's approach component leaves it out.
+    approach_drift_share: float = field(default=0.0, repr=False, compare=False)
+    # The decompression line's stiffness over the compression line's, when the compression stiffness
+    # is measured (the quality classifier's stiffness component).
+    line_stiffness_ratio: float | None = field(default=None, repr=False, compare=False)
 
     def to_json(self) -> dict[str, Any]:
         return {

@@ -575,11 +575,9 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
     dof = max(samples - 4 - (2 if drift_g_um is None else 1), 1)  # the toe's c, w, p, k and the basis
     residual_var = max(least / dof, 1e-12)
     rss_rows = rss_grid.reshape(-1, len(contacts_um))
-    found = marginal_contact_and_spread_um(contacts_um, rss_rows, residual_var)
-    if found is None:
+    contact, sigma = marginal_contact_um(contacts_um, rss_rows, residual_var, _TOE_PRIOR)
+    if contact is None:
         return None
-    contact, sigma, spread = found
-    sigma = math.hypot(sigma, spread)
     width, power = TOE_WIDTHS_UM[width_index], TOE_POWERS[power_index]
     stiffness = stiffness_at(contact, width, power)
     return ToeFit(contact_um=contact, sigma_um=sigma, width_um=float(width), power=float(power),
@@ -587,28 +585,23 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
                   grid=ToeGridResult(contacts_um, rss_rows, residual_var, _TOE_PRIOR))
 
 
-def marginal_contact_and_spread_um(contacts_um: np.ndarray, rss_rows: np.ndarray, noise_var: float
-                                   ) -> tuple[float, float, float] | None:
-    """`marginal_contact_um` over every toe (the `_TOE_PRIOR`) and `shape_spread_um`: (contact, sd,
-    spread), or None when no toe has a curved interior minimum. One kernel call when built (the
-    three marginals' glue cost more than their arithmetic); the two functions are its numpy twin."""
-    if _C is not None and len(TOE_POWERS) * len(TOE_WIDTHS_UM) == len(rss_rows):
-        return _C.marginal_contact_and_spread(contacts_um, rss_rows, noise_var, _TOE_PRIOR, len(TOE_POWERS))
-    contact, sigma = marginal_contact_um(contacts_um, rss_rows, noise_var, _TOE_PRIOR)
-    if contact is None:
-        return None
-    return contact, sigma, shape_spread_um(contacts_um, rss_rows, noise_var)
-
-
 def shape_spread_um(contacts_um: np.ndarray, rss_rows: np.ndarray, noise_var: float) -> float:
     """Half the range of the contact over the toe's shape assumptions: the marginal with each
-    shape of TOE_POWERS alone (issue 21: z_sigma_um holds what the model's assumptions move).
+    shape of TOE_POWERS alone (issue 21: z_sigma_um holds what the model's assumptions move; its
+    shape part, tapcell.tap.uncertainty).
 
     The marginal weighs the shapes by their likelihood, and on a tap that fits one shape clearly
     its sd is that shape's alone, however far the other would put the contact (the real Voron
-    capture: 0.11 um, while a parabolic toe reads it 2.8 um higher). On the reference taps this
-    term moves the rms of error / sigma by 0.01-0.05; on taplab's from 1.34 to 1.09 at worst."""
+    capture: 0.11 um, while a parabolic toe reads it 2.8 um higher).
+
+    One kernel call when built (`marginal_contact_and_spread`: each toe's minimum found once for
+    both shapes, where the twin below makes two marginal calls); the code below is its numpy twin."""
     widths = len(TOE_WIDTHS_UM)
+    if _C is not None and len(TOE_POWERS) * widths == len(rss_rows):
+        # The kernel's third number; None: no toe has a minimum, so neither shape has one.
+        found = _C.marginal_contact_and_spread(contacts_um, np.ascontiguousarray(rss_rows, dtype=float), noise_var,
+                                               _TOE_PRIOR, len(TOE_POWERS))
+        return 0.0 if found is None else found[2]
     contacts = [marginal_contact_um(contacts_um, rss_rows[k * widths:(k + 1) * widths], noise_var, WIDTH_PRIOR)[0]
                 for k in range(len(TOE_POWERS))]
     known = [c for c in contacts if c is not None]

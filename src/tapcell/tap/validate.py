@@ -66,17 +66,37 @@ def check_moves(moves: list[Move]) -> None:
                          f"{len(moves)} moves, a tap needs {MIN_PROBING_MOVES} or {MAX_PROBING_MOVES}")
     cruise = moves[-5]
     if cruise.accel < 0:
-        raise TapInvalid(COASTING_MOVE_ACCELERATION,
-                         "the probing move was slowing down when the probe triggered: it reached its end "
-                         "([stepper_z] position_min) before the nozzle pressed the bed hard enough. Taps need "
-                         "room below Z=0: set a negative position_min, e.g. position_min: -5")
+        raise TapInvalid(COASTING_MOVE_ACCELERATION, coasting_while_slowing_message(probing_move_end_z_mm(cruise)))
     if len(moves) > MAX_PROBING_MOVES:
         raise TapInvalid(TOO_MANY_PROBING_MOVES,
                          f"{len(moves)} moves, a tap needs {MIN_PROBING_MOVES} or {MAX_PROBING_MOVES}")
     if cruise.accel != 0:
         raise TapInvalid(COASTING_MOVE_ACCELERATION,
-                         f"the probing move was accelerating ({cruise.accel:g} mm/s²) when the probe triggered; "
-                         "allow Z below 0 (e.g. position_min: -5) and start higher")
+                         f"the probing move was accelerating ({cruise.accel:g} mm/s²) when the probe triggered, "
+                         f"{abs(moves[-4].start_z - moves[0].start_z):.3f} mm below where it started: it started too "
+                         "close to the bed (start it higher: sample_retract_dist, horizontal_move_z), or a tug from "
+                         "the bowden tube or cable chain triggered it in the air")
+
+
+def probing_move_end_z_mm(slowing: Move) -> float:
+    """Where a probing move that was slowing down would have stopped: the end of its deceleration
+    (v²/2a further on), which is the lowest Z the probe was allowed ([stepper_z] position_min)."""
+    return slowing.start_z + slowing.z_r * slowing.start_v * slowing.start_v / (2.0 * abs(slowing.accel))
+
+
+def coasting_while_slowing_message(end_z_mm: float) -> str:
+    """COASTING_MOVE_ACCELERATION for a probing move that ran into its end (Z `end_z_mm`): the fix
+    in [stepper_z] terms, which depend on whether that end is below Z=0 already (issue 20: the
+    advice said position_min -5 to printers at -2, and contradicted itself at 0)."""
+    end_z_mm = round(end_z_mm, 3) + 0.0  # no "-0.000"
+    found = (f"the probing move was slowing down when the probe triggered: it was about to stop at its end, "
+             f"Z {end_z_mm:.3f} (the lowest Z a probe may reach: [stepper_z] position_min), before the nozzle "
+             "pressed the bed to trigger_force. ")
+    if end_z_mm > -0.5:
+        return found + ("Taps press a little past the bed before they trigger and need room below Z=0: give "
+                        "[stepper_z] a negative position_min (the guide's example: position_min: -5)")
+    return found + (f"That end is {-end_z_mm:.3f} mm below Z=0 already, so the bed is lower than Z=0 says here: "
+                    "home Z again (G28 Z), check z_offset and that the sheet is on the bed, or lower trigger_force")
 
 
 def check_motion(motion: Motion, time_s: np.ndarray) -> None:
@@ -110,11 +130,16 @@ def check_left_the_bed(pressed_g: float, remaining_g: float, scatter_g: float = 
                          "lengthen pullback_distance (LOAD_CELL_PROBE_CALIBRATE CALIBRATION=PULLBACK_DISTANCE finds it)")
 
 
+def in_time_order(points: list[tuple[float, float]]) -> bool:
+    """The points' times are finite and strictly increasing (the spec's chronology)."""
+    times = [t for t, _ in points]
+    return all(math.isfinite(t) for t in times) and all(a < b for a, b in zip(times, times[1:]))
+
+
 def check_points(points: list[tuple[float, float]], angles_deg: list[float]) -> None:
     """Chronology of the six points, then the shape (signs of the angles), positive polarity."""
     times = [t for t, _ in points]
-    ordered = all(math.isfinite(t) for t in times) and all(a < b for a, b in zip(times, times[1:]))
-    if not ordered:
+    if not in_time_order(points):
         listed = ", ".join(f"P{k}={t:.4f}" for k, t in enumerate(times))
         raise TapInvalid(TAP_CHRONOLOGY, f"tap points out of time order ({listed} s)")
     signs = tuple((a > 0) - (a < 0) for a in angles_deg)  # np.sign without a numpy call per angle

@@ -327,7 +327,7 @@ static Py_ssize_t first_at_or_after(const double *time_s, Py_ssize_t n, double t
 
 PyDoc_STRVAR(five_lines_doc,
              "five_lines(time_s, force_g, t_ref_s, f_ref_g, halt_s, pullback_start_s, pullback_cruise_s,\n"
-             "           lag_samples, sums) -> (problem, bounds, lines)\n"
+             "           lag_samples, release_lag_samples, approach_share, sums) -> (problem, bounds, lines)\n"
              "\n"
              "The five-line split of a window of samples in one call (segments.py `five_lines`, whose numpy\n"
              "twin runs prefix_sums, the candidate ranges, best_five_segments and segment_lines): `sums`, a\n"
@@ -338,10 +338,11 @@ static PyObject *five_lines(PyObject *self, PyObject *args)
 {
     (void)self;
     Py_buffer time_buffer, force_buffer, sums_buffer;
-    double t_ref_s, f_ref_g, halt_s, pull_start_s, pull_cruise_s;
-    Py_ssize_t lag;
-    if (!PyArg_ParseTuple(args, "O&O&dddddnw*", float64_buffer, &time_buffer, float64_buffer, &force_buffer,
-                          &t_ref_s, &f_ref_g, &halt_s, &pull_start_s, &pull_cruise_s, &lag, &sums_buffer))
+    double t_ref_s, f_ref_g, halt_s, pull_start_s, pull_cruise_s, approach_share;
+    Py_ssize_t lag, release_lag;
+    if (!PyArg_ParseTuple(args, "O&O&dddddnndw*", float64_buffer, &time_buffer, float64_buffer, &force_buffer,
+                          &t_ref_s, &f_ref_g, &halt_s, &pull_start_s, &pull_cruise_s, &lag, &release_lag,
+                          &approach_share, &sums_buffer))
         return NULL;
     PyObject *result = NULL;
     Py_ssize_t m = 0;
@@ -363,15 +364,18 @@ static PyObject *five_lines(PyObject *self, PyObject *args)
     Py_ssize_t p1 = (pull_start < home_end + lag ? pull_start : home_end + lag) + 1;
     Py_ssize_t r0 = pull_start - 1 > 0 ? pull_start - 1 : 0;
     Py_ssize_t pull_last = pull_start > pull_cruise ? pull_start : pull_cruise;
-    Py_ssize_t r1 = (m - 2 < pull_last + lag ? m - 2 : pull_last + lag) + 1;
+    Py_ssize_t r1 = (m - 2 < pull_last + release_lag ? m - 2 : pull_last + release_lag) + 1;
+    /* The twin's int(approach_share * home_end): the product in double, truncated toward zero. */
+    Py_ssize_t share_first = (Py_ssize_t)(approach_share * (double)home_end);
+    Py_ssize_t c0 = share_first > 2 ? share_first : 2;
     int problem = 0;
     Py_ssize_t found[4];
     if (p1 <= p0 || r1 <= r0) {
         problem = 1; /* NO_DWELL_SAMPLES */
-    } else if (p1 - 2 <= 2 || m - 1 <= r0 + 2) {
-        problem = 2; /* TOO_FEW_AROUND: range(2, peak[-1] - 1) or range(release[0] + 2, m - 1) empty */
+    } else if (p1 - 2 <= c0 || m - 1 <= r0 + 2) {
+        problem = 2; /* TOO_FEW_AROUND: range(c0, peak[-1] - 1) or range(release[0] + 2, m - 1) empty */
     } else {
-        int split = search_five(&ps, 0, m, 2, p1 - 2, p0, p1, r0, r1, r0 + 2, m - 1, found);
+        int split = search_five(&ps, 0, m, c0, p1 - 2, p0, p1, r0, r1, r0 + 2, m - 1, found);
         if (split < 0)
             goto done;
         problem = split ? 0 : 3; /* TOO_FEW_FOR_FIVE */

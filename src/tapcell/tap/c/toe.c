@@ -738,7 +738,7 @@ static PyObject *marginal_contact(PyObject *self, PyObject *args)
     return marginal(args, 0);
 }
 
-/* toe.py's `fit_toe` after its grid: the marginal over every toe and each shape's spread in one call. */
+/* toe.py's `shape_spread_um` (with the marginal over every toe, which comes with it). */
 static PyObject *marginal_contact_and_spread(PyObject *self, PyObject *args)
 {
     (void)self;
@@ -936,7 +936,7 @@ static PyMethodDef methods[] = {
      "or None\n\n"
      "marginal_contact over every toe, and half the range of the marginals of each shape alone (rss and\n"
      "prior in `shapes` equal blocks of rows, each shape's widths); None as marginal_contact (toe.py:\n"
-     "marginal_contact_and_spread_um)."},
+     "shape_spread_um, the spread's twin)."},
     {"lag_mean_squares", lag_mean_squares, METH_VARARGS,
      "lag_mean_squares(force_g, lags) -> list of float\n\n"
      "Per lag (a tuple of ints, 1..n-1), the mean of (r[i+lag] - r[i])^2 over i, r the force with its\n"

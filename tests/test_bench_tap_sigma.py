@@ -1,0 +1,39 @@
+"""bench tap_sigma chooses the weights of z_sigma_um's parts by the worst scenario (issue 21)."""
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the bench package beside tests/
+
+from bench.tap_sigma import GRID, Scenario, choose_weights, ratio_rms  # noqa: E402  (after the path)
+from tapcell.tap.uncertainty import SigmaWeights, ZSigmaParts  # noqa: E402
+
+TRUE = {"noise": 0.75, "shape": 2.0, "misfit": 0.5, "thread": 1.5, "squeeze": 1.25}
+
+
+def _scenario(rng, part: str, taps: int = 400) -> Scenario:
+    """Taps whose only uncertain part is `part` (sizes 0.5-2 µm), their errors drawn with TRUE's weight on it."""
+    sizes = rng.uniform(0.5, 2.0, taps)
+    errors = rng.normal(0.0, TRUE[part] * sizes)
+    return Scenario(errors_um=errors.tolist(), parts=[ZSigmaParts(**{part + "_um": s}) for s in sizes], taps=taps)
+
+
+def test_the_weights_that_make_every_scenario_honest_are_found():
+    rng = np.random.default_rng(7)
+    sets = {"a": {name: _scenario(rng, name) for name in ("noise", "shape")},
+            "b": {name: _scenario(rng, name) for name in ("misfit", "thread", "squeeze")}}
+    chosen, worst = choose_weights(sets)
+    for name, weight in TRUE.items():  # within one step of its grid
+        step = float(GRID[name][1] - GRID[name][0])
+        assert getattr(chosen, name) == pytest.approx(weight, abs=step + 1e-9), name
+    assert worst < 1.1
+    for scenarios in sets.values():
+        for scenario in scenarios.values():
+            assert 0.9 < ratio_rms(scenario, chosen) < 1.1
+
+
+def test_a_scenario_without_accepted_taps_has_no_ratio():
+    assert ratio_rms(Scenario(taps=40), SigmaWeights()) is None
