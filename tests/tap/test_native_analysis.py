@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from tapcell.tap import analysis, native, robust
+from tapcell.tap.motion import tap_motion
 from tapcell.tap.readers import tap_from_object
 from tapcell.taplab.generate import SCENARIOS, make_tap
 from native_kernel_inputs import OPTIONS, recorded_calls
@@ -88,6 +89,15 @@ def test_window_heights_are_the_twins_to_the_last_bit(monkeypatch):
         assert (window.contact_line_um, window.break_line_um) == (twin.contact_line_um, twin.break_line_um)
         assert np.array_equal(window.force_g, twin.force_g) and np.array_equal(window.time_s, twin.time_s)
     assert len(calls) >= 30
+
+
+def test_the_move_table_is_six_contiguous_rows_of_the_moves():
+    # What window_heights and Motion.z_at read: one column per move, rows in this order.
+    tap = tap_from_object(make_tap(SCENARIOS["clean_hx717"].draw(np.random.default_rng(3)), np.random.default_rng(3))[0])
+    table = tap_motion(tap).move_table
+    fields = [[move.print_time, move.move_t, move.start_v, move.accel, move.start_z, move.z_r] for move in tap.moves]
+    assert table.flags.c_contiguous and table.dtype == float and table.shape == (6, len(tap.moves)) and len(fields) >= 5
+    assert table.tolist() == np.transpose(fields).tolist()
 
 
 def test_window_heights_refuse_a_table_that_is_not_six_rows():

@@ -26,24 +26,35 @@ def twin(monkeypatch, function, *args):
 
 def test_the_kernel_is_used(monkeypatch):
     used = kernel_functions_used(segments, OPTIONS["sharp"])
-    assert used == ["prefix_sums", "best_five_segments", "segment_lines"]
+    assert used == ["five_lines"]
 
 
-def test_prefix_sums_equal_the_twin_on_generated_taps(monkeypatch):
-    calls = recorded_calls(analysis, "prefix_sums", [OPTIONS["default"]])
+def _five_lines_equal(ours, theirs) -> bool:
+    (ps, *found), (twin_ps, *twin_found) = ours, theirs
+    return ((ps.t_ref_s, ps.f_ref_g) == (twin_ps.t_ref_s, twin_ps.f_ref_g) and np.array_equal(ps.sums, twin_ps.sums)
+            and found == twin_found)
+
+
+def test_five_lines_equal_the_twin_on_generated_taps(monkeypatch):
+    calls = recorded_calls(analysis, "five_lines", [OPTIONS["default"]])
     assert len(calls) >= len(generated_taps())
-    for time_s, force_g in calls:
+    found = [segments.five_lines(*args) for args in calls]
+    for args, ours in zip(calls, found):
+        assert _five_lines_equal(ours, twin(monkeypatch, segments.five_lines, *args))
+    assert sum(problem == segments.SPLIT_FOUND for _, problem, _, _ in found) >= len(calls) - 2
+
+
+def test_prefix_sums_lines_and_search_equal_the_twin_on_generated_taps(monkeypatch):
+    # The parts five_lines' twin is made of, each against its own kernel (the ties test below has the search).
+    calls = recorded_calls(analysis, "five_lines", [OPTIONS["default"]])
+    for time_s, force_g, *_ in calls:
         ours, theirs = segments.prefix_sums(time_s, force_g), twin(monkeypatch, segments.prefix_sums, time_s, force_g)
         assert (ours.t_ref_s, ours.f_ref_g) == (theirs.t_ref_s, theirs.f_ref_g)
         assert np.array_equal(ours.sums, theirs.sums)
-
-
-def test_lines_equal_the_twin_on_generated_taps(monkeypatch):
-    calls = recorded_calls(analysis, "segment_lines", [OPTIONS["default"]])
-    assert len(calls) >= len(generated_taps()) - 2
-    for ps, edges in calls:
-        assert segments.segment_lines(ps, edges) == twin(monkeypatch, segments.segment_lines, ps, edges)
-    ps, edges = calls[0]
+    ps, problem, bounds, _ = segments.five_lines(*calls[0])
+    assert problem == segments.SPLIT_FOUND
+    edges = [0, *bounds, ps.sums.shape[1] - 1]
+    assert segments.segment_lines(ps, edges) == twin(monkeypatch, segments.segment_lines, ps, edges)
     assert segments.segment_lines(ps, edges[:1]) == twin(monkeypatch, segments.segment_lines, ps, edges[:1]) == []
     with pytest.raises(ZeroDivisionError):
         segments.segment_lines(ps, [0, 0])
@@ -51,12 +62,26 @@ def test_lines_equal_the_twin_on_generated_taps(monkeypatch):
         segments.segment_lines(ps, [0, ps.sums.shape[1]])
 
 
-def test_five_segments_equal_the_twin_on_generated_taps(monkeypatch):
-    calls = recorded_calls(analysis, "best_five_segments", [OPTIONS["default"]])
-    assert len(calls) >= len(generated_taps())
-    found = [segments.best_five_segments(*args) for args in calls]
-    assert found == [twin(monkeypatch, segments.best_five_segments, *args) for args in calls]
-    assert sum(bounds is not None for bounds in found) >= len(calls) - 2
+def test_five_lines_equal_the_twin_on_every_problem(monkeypatch):
+    # Short windows with the halt and the pullback anywhere (before, inside, after the samples, in
+    # either order): every answer, split or none, and why, the same; forces on a coarse grid tie.
+    rng = np.random.default_rng(5)
+    problems = set()
+    for _ in range(600):
+        n = int(rng.integers(4, 30))
+        time_s = np.arange(n) * 0.01
+        force_g = rng.integers(0, 3, n).astype(float) + (np.arange(n) * 0.5 if rng.random() < 0.5 else 0.0)
+        phases_s = tuple(float(v) for v in np.sort(rng.uniform(-0.05, 0.01 * n + 0.05, 3)))
+        if rng.random() < 0.2:
+            phases_s = phases_s[::-1]
+        lag = int(rng.integers(1, 6))
+        args = (time_s, force_g, phases_s, lag, lag if rng.random() < 0.5 else int(rng.integers(0, 6)),
+                0.0 if rng.random() < 0.5 else float(rng.choice([0.3, 0.5, 0.9])))
+        ours = segments.five_lines(*args)
+        assert _five_lines_equal(ours, twin(monkeypatch, segments.five_lines, *args))
+        problems.add(ours[1])
+    assert problems == {segments.SPLIT_FOUND, segments.NO_DWELL_SAMPLES, segments.TOO_FEW_AROUND,
+                        segments.TOO_FEW_FOR_FIVE}
 
 
 @st.composite

@@ -133,6 +133,33 @@ def test_marginal_contact_equals_the_numpy_twin(monkeypatch):
         assert mean == pytest.approx(twin_mean, abs=1e-12) and sd == pytest.approx(twin_sd, rel=1e-12)
 
 
+def test_shape_spread_equals_the_numpy_twin(monkeypatch):
+    # shape_spread_um's one kernel call (each toe's minimum found once for both shapes) against its
+    # two marginal calls, on residual grids with ties, unsolvable toes and a shape with no curved minimum.
+    rng = np.random.default_rng(4)
+    contacts_um = 40.0 + toe._CONTACT_OFFSETS_UM
+    toes, count = len(toe._TOE_PRIOR), len(contacts_um)
+    bowl = (np.arange(count) - rng.uniform(3, count - 3, size=(toes, 1))) ** 2 * rng.uniform(0.5, 3, size=(toes, 1))
+    rss = 50.0 + bowl + rng.normal(size=(toes, count)) * 0.1
+    rss[3, :] = np.inf
+    rss[5, [6, 12]] = 40.0  # exact ties
+    one_shape = rss.copy()
+    one_shape[len(toe.TOE_WIDTHS_UM):] = 70.0  # the second shape flat: only the first has a minimum
+    cases = [(rss, 0.3), (rss, 5.0), (rss[:, ::-1].copy(), 0.05), (one_shape, 0.3), (np.full((toes, count), np.inf), 1.0)]
+    kernel = [toe.shape_spread_um(contacts_um, *case) for case in cases]
+    compiled = toe._C
+    monkeypatch.setattr(toe, "_C", None)
+    twins = [toe.shape_spread_um(contacts_um, *case) for case in cases]
+    assert kernel[3:] == twins[3:] == [0.0, 0.0]  # one shape known, or none: no spread
+    assert kernel[:3] == pytest.approx(twins[:3], rel=1e-12, abs=1e-12)
+    assert min(kernel[:3]) > 0.0
+    mean, sd, spread = compiled.marginal_contact_and_spread(contacts_um, rss, 0.3, toe._TOE_PRIOR, 2)
+    assert (mean, sd) == pytest.approx(toe.marginal_contact_um(contacts_um, rss, 0.3, toe._TOE_PRIOR), rel=1e-12)
+    assert spread == kernel[0]
+    with pytest.raises(ValueError, match="shapes: 3 does not divide"):
+        compiled.marginal_contact_and_spread(contacts_um, rss, 1.0, toe._TOE_PRIOR, 3)
+
+
 def test_kernel_rejects_wrong_arrays():
     x_lo_um = np.arange(20.0)
     samples = (x_lo_um, x_lo_um + 1.0, x_lo_um, math.nan, 2)

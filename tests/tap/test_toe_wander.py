@@ -13,7 +13,8 @@ import numpy as np
 import pytest
 
 from tapcell.tap import AnalysisOptions, analysis, analyze_tap, read_tap_file
-from tapcell.tap.toe import wander_from_free_air
+from tapcell.tap.toe import (free_air_variogram, wander_from_free_air, wander_from_variograms,
+                             wanders_from_variograms)
 from tapcell.taplab.generate import generate_set
 
 TOE = AnalysisOptions(sensor_delay_s="halt", contact_model="toe")
@@ -93,3 +94,19 @@ def test_walk_weighted_residuals_equal_dense_generalised_least_squares():
         k_dense = (h @ y_w) / (h @ h)
         assert k == pytest.approx(k_dense, rel=1e-9)
         assert r == pytest.approx(y_w @ y_w - k_dense * (h @ y_w), rel=1e-9)
+
+
+def test_wanders_of_each_pooling_equal_their_own_estimates():
+    # free_air_wanders takes the approach's walk alone and pooled with the departure's from one
+    # pass (wanders_from_variograms): each the same floats as its own wander_from_variograms.
+    rng = np.random.default_rng(11)
+    estimated = 0
+    for walk_var in (0.0, 0.0, 0.05, 0.05, 0.5):
+        variograms = [free_air_variogram(force_g) for force_g in _free_air(rng, 0.5, walk_var)]
+        first, both = wanders_from_variograms(variograms)
+        assert first == wander_from_variograms(variograms[:1])
+        assert both == wander_from_variograms(variograms)
+        estimated += first is not None and first != both
+    assert estimated >= 3
+    short = free_air_variogram(np.zeros(5))  # too short for a variogram: no rows
+    assert wanders_from_variograms([short, variograms[1]]) == [None, wander_from_variograms(variograms[1:])]

@@ -48,12 +48,12 @@ from tapcell.tap.model import (
 from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
-from tapcell.tap.segments import PrefixSums, best_five_segments, prefix_sums, segment_lines
+from tapcell.tap.segments import NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_FIVE, PrefixSums, five_lines
 from tapcell.tap.stage import (departure_near, shows_soft_stage, shows_two_stage, soft_stage,
                                two_stage_departure)
 from tapcell.tap.toe import (ADHESION_LEVEL_UM, ADHESION_REACH_UM, THREAD_FAR_REACH_UM, THREAD_REACH_UM, ToeFit,
                              Wander, adhesion_measures, fit_toe, free_air_variogram, lag_from_halt_s, thread_pull_g,
-                             wander_from_variograms)
+                             wanders_from_variograms)
 
 # The checks, robust statistics and window heights in C (c/analysis.c, tapcell.tap.native); None: numpy.
 _C = native.load("analysis")
@@ -280,23 +280,16 @@ def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_sampl
     start, last = _indices(time_s, window_start_s, motion.pullback_end_s + duration)
     stop = min(n, last + 1)
     t = time_s[start:stop]
-    ps = prefix_sums(t, force_g[start:stop])
-    m = len(t)
-    home_end, pull_start, pull_cruise = _indices(t, motion.home_end_s, motion.pullback_start_s,
-                                                 motion.pullback_cruise_s)
-    peak = range(max(2, home_end - 1), min(pull_start, home_end + lag_samples) + 1)
+    phases_s = (motion.home_end_s, motion.pullback_start_s, motion.pullback_cruise_s)
     release_lag = lag_samples if release_lag_samples is None else release_lag_samples
-    release = range(max(pull_start - 1, 0), min(m - 2, max(pull_start, pull_cruise) + release_lag) + 1)
-    if len(peak) == 0 or len(release) == 0:
+    ps, problem, bounds, lines = five_lines(t, force_g[start:stop], phases_s, lag_samples, release_lag,
+                                            approach_share)
+    if problem == NO_DWELL_SAMPLES:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, "no samples between the halt and the pullback")
-    contact = range(max(2, int(approach_share * home_end)), peak[-1] - 1)
-    breaking = range(release[0] + 2, m - 1)
-    if len(contact) == 0 or len(breaking) == 0:
-        raise TapInvalid(TAP_DATA_INSUFFICIENT, f"too few samples around the tap ({m} in the analysis window)")
-    bounds = best_five_segments(ps, 0, m, contact, peak, release, breaking)
-    if bounds is None:
+    if problem == TOO_FEW_AROUND:
+        raise TapInvalid(TAP_DATA_INSUFFICIENT, f"too few samples around the tap ({len(t)} in the analysis window)")
+    if problem == TOO_FEW_FOR_FIVE:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, "too few samples to fit five lines (each needs 2)")
-    lines = segment_lines(ps, [0, *bounds, m])
     points = recompute_points(lines, float(t[0]), float(t[-1]))
     return Decomposition(start, stop, bounds, lines, points), ps
 
@@ -598,7 +591,8 @@ def free_air_wanders(force_g: np.ndarray, dec: Decomposition) -> tuple[Wander | 
     first, *_, last = dec.bounds
     approach = free_air_variogram(force_g[dec.start:dec.start + first])
     departure = free_air_variogram(force_g[dec.start + last:dec.stop])
-    return wander_from_variograms([approach, departure]), wander_from_variograms([approach])
+    approach_wander, both_wander = wanders_from_variograms([approach, departure])  # the approach's rows summed once
+    return both_wander, approach_wander
 
 
 def fit_pullback_toe(samples: PullbackSamples, motion: Motion, timing: SensorTiming, contact0_um: float,

@@ -6,7 +6,8 @@ re-centred on the analysed region, so the expanded sums stay small and the
 
 `prefix_sums`, `segment_lines` and `best_five_segments` run in C when the kernel
 tapcell.tap._c_segments is built (same arithmetic: the same sums, lines and boundaries, ties
-included); the numpy code below is the reference and the fallback.
+included); the numpy code below is the reference and the fallback. `five_lines`, the split of a
+tap's window, is one kernel call doing what those three and the candidate ranges do.
 """
 
 from __future__ import annotations
@@ -180,3 +181,43 @@ def best_five_segments(
     if not math.isfinite(total[ip, ir]):
         return None
     return contact[int(left[ip].argmin())], peak[ip], release[ir], breaking[int(right[ir].argmin())]
+
+
+# Why a window has no five-line split (`five_lines` answers with one of these, SPLIT_FOUND: it has one).
+SPLIT_FOUND, NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_FIVE = 0, 1, 2, 3
+
+
+def five_lines(time_s: np.ndarray, force_g: np.ndarray, phases_s: tuple[float, float, float], lag_samples: int,
+               release_lag_samples: int, approach_share: float = 0.0
+               ) -> tuple[PrefixSums, int, tuple[int, int, int, int] | None, list[tuple[float, float]] | None]:
+    """The five-line split of a window of samples: (prefix sums, SPLIT_FOUND or why there is none,
+    the boundaries (contact, peak, release, break), the five lines).
+
+    phases_s: the halt, the pullback's start and its cruise (s). The peak is searched from the
+    sample before the halt up to `lag_samples` after it (not past the pullback's start), the
+    release from the sample before the pullback's start up to `release_lag_samples` after its
+    cruise begins; contact before the peak and at least `approach_share` of the samples before the
+    halt into the window, break after the release, each line at least 2 samples.
+    One kernel call when built (its glue cost as much as its search); the numpy code is its twin.
+    """
+    m = len(time_s)
+    t_ref, f_ref = float(time_s[m // 2]), float(force_g.sum()) / m  # as prefix_sums
+    if _C is not None:
+        ps = PrefixSums(t_ref, f_ref, np.empty((6, m + 1)))
+        problem, bounds, lines = _C.five_lines(time_s, force_g, t_ref, f_ref, *phases_s, lag_samples,
+                                               release_lag_samples, approach_share, ps.sums)
+        return ps, problem, bounds, lines
+    ps = prefix_sums(time_s, force_g)
+    home_end, pull_start, pull_cruise = np.minimum(time_s.searchsorted(phases_s), m - 1).tolist()
+    peak = range(max(2, home_end - 1), min(pull_start, home_end + lag_samples) + 1)
+    release = range(max(pull_start - 1, 0), min(m - 2, max(pull_start, pull_cruise) + release_lag_samples) + 1)
+    if len(peak) == 0 or len(release) == 0:
+        return ps, NO_DWELL_SAMPLES, None, None
+    contact = range(max(2, int(approach_share * home_end)), peak[-1] - 1)
+    breaking = range(release[0] + 2, m - 1)
+    if len(contact) == 0 or len(breaking) == 0:
+        return ps, TOO_FEW_AROUND, None, None
+    bounds = best_five_segments(ps, 0, m, contact, peak, release, breaking)
+    if bounds is None:
+        return ps, TOO_FEW_FOR_FIVE, None, None
+    return ps, SPLIT_FOUND, bounds, segment_lines(ps, [0, *bounds, m])

@@ -372,11 +372,19 @@ def free_air_variogram(force_g: np.ndarray) -> FreeAirVariogram:
 
 def wander_from_variograms(variograms: list[FreeAirVariogram]) -> Wander | None:
     """The white and walk variances that fit the segments' variograms pooled (`wander_from_free_air`)."""
+    return wanders_from_variograms(variograms)[-1]
+
+
+def wanders_from_variograms(variograms: list[FreeAirVariogram]) -> list[Wander | None]:
+    """`wander_from_variograms` of the first variogram alone, of the first two pooled, ..., of all
+    pooled: each sum continues the one before (the same sums in the same order as each pooling on
+    its own, the shared rows summed once)."""
     # Least squares in two unknowns by the normal equations, in plain floats: np.linalg.lstsq
     # costs ~0.05-0.4 ms a call here (LAPACK's set-up, its threads waking on a busy machine).
     # One loop sums all five in the rows' order (as five sum() calls would, at a third of the cost).
     ww = wk = kk = wv = kv = 0.0
     rows = 0
+    wanders = []
     for expected, measured in variograms:
         rows += len(expected)
         for (white, walk), value in zip(expected, measured):
@@ -385,6 +393,11 @@ def wander_from_variograms(variograms: list[FreeAirVariogram]) -> Wander | None:
             kk += walk * walk
             wv += white * value
             kv += walk * value
+        wanders.append(_wander_of_normal_sums(rows, ww, wk, kk, wv, kv))
+    return wanders
+
+
+def _wander_of_normal_sums(rows: int, ww: float, wk: float, kk: float, wv: float, kv: float) -> Wander | None:
     if not rows:
         return None
     determinant = ww * kk - wk * wk
@@ -579,8 +592,16 @@ def shape_spread_um(contacts_um: np.ndarray, rss_rows: np.ndarray, noise_var: fl
 
     The marginal weighs the shapes by their likelihood, and on a tap that fits one shape clearly
     its sd is that shape's alone, however far the other would put the contact (the real Voron
-    capture: 0.11 um, while a parabolic toe reads it 2.8 um higher)."""
+    capture: 0.11 um, while a parabolic toe reads it 2.8 um higher).
+
+    One kernel call when built (`marginal_contact_and_spread`: each toe's minimum found once for
+    both shapes, where the twin below makes two marginal calls); the code below is its numpy twin."""
     widths = len(TOE_WIDTHS_UM)
+    if _C is not None and len(TOE_POWERS) * widths == len(rss_rows):
+        # The kernel's third number; None: no toe has a minimum, so neither shape has one.
+        found = _C.marginal_contact_and_spread(contacts_um, np.ascontiguousarray(rss_rows, dtype=float), noise_var,
+                                               _TOE_PRIOR, len(TOE_POWERS))
+        return 0.0 if found is None else found[2]
     contacts = [marginal_contact_um(contacts_um, rss_rows[k * widths:(k + 1) * widths], noise_var, WIDTH_PRIOR)[0]
                 for k in range(len(TOE_POWERS))]
     known = [c for c in contacts if c is not None]

@@ -73,6 +73,66 @@ PyDoc_STRVAR(best_five_segments_doc,
              "from its half-open candidate range, as tapcell.tap.segments.best_five_segments (same ties).\n"
              "`sums`: the (6, n + 1) float64 prefix sums, C order. None when no split gives every line two samples.");
 
+/* The search of `best_five_segments` over checked ranges (each non-empty, inside the sums): 1 with
+ * the boundaries in found[4], 0 when no split gives every line two samples, -1 (MemoryError set). */
+static int search_five(const PrefixSums *ps, Py_ssize_t start, Py_ssize_t stop, Py_ssize_t c0, Py_ssize_t c1,
+                       Py_ssize_t p0, Py_ssize_t p1, Py_ssize_t r0, Py_ssize_t r1, Py_ssize_t b0, Py_ssize_t b1,
+                       Py_ssize_t found[4])
+{
+    const Py_ssize_t c = c1 - c0, p = p1 - p0, r = r1 - r0, b = b1 - b0;
+    /* One scratch block per call: the approach per contact, the departure per break, one row of
+     * the compression, decompression or dwell, the best half per peak and per release, and their argmins. */
+    Py_ssize_t longest_row = c > b ? c : b;
+    longest_row = longest_row > r ? longest_row : r;
+    double *scratch = PyMem_Malloc(sizeof(double) * (size_t)(c + b + longest_row + 2 * (p + r)));
+    if (scratch == NULL) {
+        PyErr_NoMemory();
+        return -1;
+    }
+    double *approach = scratch, *departure = approach + c, *row = departure + b;
+    double *left = row + longest_row, *right = left + p;
+    Py_ssize_t *left_at = (Py_ssize_t *)(right + r), *right_at = left_at + p; /* doubles and indices are 8 bytes */
+    sse_along(ps, start, 0, c0, 1, c, approach); /* [start, contact) */
+    sse_along(ps, b0, 1, stop, 0, b, departure); /* [break, stop) */
+    /* Per peak, the best contact: compression + approach (the twin's order of the sum). */
+    for (Py_ssize_t ip = 0; ip < p; ip++) {
+        sse_along(ps, c0, 1, p0 + ip, 0, c, row); /* [contact, peak) */
+        for (Py_ssize_t k = 0; k < c; k++)
+            row[k] += approach[k];
+        left[ip] = first_min(row, c, &left_at[ip]);
+    }
+    /* Per release, the best break: decompression + departure. */
+    for (Py_ssize_t ir = 0; ir < r; ir++) {
+        sse_along(ps, r0 + ir, 0, b0, 1, b, row); /* [release, break) */
+        for (Py_ssize_t k = 0; k < b; k++)
+            row[k] += departure[k];
+        right[ir] = first_min(row, b, &right_at[ir]);
+    }
+    /* The best total per (peak, release) in row-major order, as total.argmin(): each half at its
+     * best, the dwell between. */
+    double best = INFINITY;
+    Py_ssize_t best_ip = 0, best_ir = 0;
+    for (Py_ssize_t ip = 0; ip < p; ip++) {
+        sse_along(ps, p0 + ip, 0, r0, 1, r, row); /* [peak, release) */
+        for (Py_ssize_t k = 0; k < r; k++)
+            row[k] = (left[ip] + row[k]) + right[k];
+        Py_ssize_t ir;
+        double value = first_min(row, r, &ir);
+        if (ip == 0 || (!isnan(best) && (value < best || isnan(value)))) {
+            best = value;
+            best_ip = ip;
+            best_ir = ir;
+        }
+    }
+    int split = isfinite(best);
+    if (split) {
+        found[0] = c0 + left_at[best_ip], found[1] = p0 + best_ip;
+        found[2] = r0 + best_ir, found[3] = b0 + right_at[best_ir];
+    }
+    PyMem_Free(scratch);
+    return split;
+}
+
 static PyObject *best_five_segments(PyObject *self, PyObject *args)
 {
     (void)self;
@@ -84,7 +144,6 @@ static PyObject *best_five_segments(PyObject *self, PyObject *args)
         !float64_buffer(sums, &buffer))
         return NULL;
     PyObject *result = NULL;
-    double *scratch = NULL;
     Py_ssize_t count;
     const double *rows = doubles_of(&buffer, &count, "sums");
     if (rows == NULL)
@@ -102,63 +161,17 @@ static PyObject *best_five_segments(PyObject *self, PyObject *args)
             goto done;
         }
     }
-    const Py_ssize_t c = c1 - c0, p = p1 - p0, r = r1 - r0, b = b1 - b0;
-    if (c <= 0 || p <= 0 || r <= 0 || b <= 0) {
+    if (c1 <= c0 || p1 <= p0 || r1 <= r0 || b1 <= b0) {
         PyErr_SetString(PyExc_ValueError, "an empty candidate range");
         goto done;
     }
-    /* One scratch block per call: the approach per contact, the departure per break, one row of
-     * the compression, decompression or dwell, the best half per peak and per release, and their argmins. */
-    Py_ssize_t longest_row = c > b ? c : b;
-    longest_row = longest_row > r ? longest_row : r;
-    scratch = PyMem_Malloc(sizeof(double) * (size_t)(c + b + longest_row + 2 * (p + r)));
-    if (scratch == NULL) {
-        PyErr_NoMemory();
-        goto done;
-    }
-    double *approach = scratch, *departure = approach + c, *row = departure + b;
-    double *left = row + longest_row, *right = left + p;
-    Py_ssize_t *left_at = (Py_ssize_t *)(right + r), *right_at = left_at + p; /* doubles and indices are 8 bytes */
-    sse_along(&ps, start, 0, c0, 1, c, approach); /* [start, contact) */
-    sse_along(&ps, b0, 1, stop, 0, b, departure); /* [break, stop) */
-    /* Per peak, the best contact: compression + approach (the twin's order of the sum). */
-    for (Py_ssize_t ip = 0; ip < p; ip++) {
-        sse_along(&ps, c0, 1, p0 + ip, 0, c, row); /* [contact, peak) */
-        for (Py_ssize_t k = 0; k < c; k++)
-            row[k] += approach[k];
-        left[ip] = first_min(row, c, &left_at[ip]);
-    }
-    /* Per release, the best break: decompression + departure. */
-    for (Py_ssize_t ir = 0; ir < r; ir++) {
-        sse_along(&ps, r0 + ir, 0, b0, 1, b, row); /* [release, break) */
-        for (Py_ssize_t k = 0; k < b; k++)
-            row[k] += departure[k];
-        right[ir] = first_min(row, b, &right_at[ir]);
-    }
-    /* The best total per (peak, release) in row-major order, as total.argmin(): each half at its
-     * best, the dwell between. */
-    double best = INFINITY;
-    Py_ssize_t best_ip = 0, best_ir = 0;
-    for (Py_ssize_t ip = 0; ip < p; ip++) {
-        sse_along(&ps, p0 + ip, 0, r0, 1, r, row); /* [peak, release) */
-        for (Py_ssize_t k = 0; k < r; k++)
-            row[k] = (left[ip] + row[k]) + right[k];
-        Py_ssize_t ir;
-        double value = first_min(row, r, &ir);
-        if (ip == 0 || (!isnan(best) && (value < best || isnan(value)))) {
-            best = value;
-            best_ip = ip;
-            best_ir = ir;
-        }
-    }
-    if (isfinite(best)) {
-        result = Py_BuildValue("nnnn", c0 + left_at[best_ip], p0 + best_ip, r0 + best_ir, b0 + right_at[best_ir]);
-    } else {
-        Py_INCREF(Py_None);
-        result = Py_None;
-    }
+    Py_ssize_t found[4];
+    int split = search_five(&ps, start, stop, c0, c1, p0, p1, r0, r1, b0, b1, found);
+    if (split > 0)
+        result = Py_BuildValue("nnnn", found[0], found[1], found[2], found[3]);
+    else if (split == 0)
+        result = Py_NewRef(Py_None);
 done:
-    PyMem_Free(scratch);
     PyBuffer_Release(&buffer);
     return result;
 }
@@ -169,6 +182,27 @@ PyDoc_STRVAR(prefix_sums_doc,
              "Fill `sums` (a (6, n + 1) float64 array, C order) with the running sums of 1, t, f, t², t·f, f²\n"
              "over t = time_s - t_ref_s, f = force_g - f_ref_g, a leading 0 column: as the numpy twin\n"
              "tapcell.tap.segments.prefix_sums (the same sums in the same order).");
+
+/* The (6, n + 1) running sums of the twin's `prefix_sums` into sums (C order). */
+static void fill_prefix_sums(const double *time_s, const double *force_g, Py_ssize_t n, double t_ref_s,
+                             double f_ref_g, double *sums)
+{
+    const Py_ssize_t width = n + 1;
+    double running[SUM_ROWS] = {0.0};
+    for (int row = 0; row < SUM_ROWS; row++)
+        sums[row * width] = 0.0;
+    for (Py_ssize_t k = 0; k < n; k++) {
+        double t = time_s[k] - t_ref_s, f = force_g[k] - f_ref_g;
+        running[1] += t;
+        running[2] += f;
+        running[3] += t * t;
+        running[4] += t * f;
+        running[5] += f * f;
+        sums[k + 1] = (double)(k + 1); /* the running count needs no summing */
+        for (int row = 1; row < SUM_ROWS; row++)
+            sums[row * width + k + 1] = running[row];
+    }
+}
 
 static PyObject *prefix_sums(PyObject *self, PyObject *args)
 {
@@ -193,28 +227,34 @@ static PyObject *prefix_sums(PyObject *self, PyObject *args)
     const double *force_g = time_s ? doubles_sized(&force_buffer, n, "force_g") : NULL;
     double *sums = force_g ? doubles_sized(&sums_buffer, SUM_ROWS * (n + 1), "sums") : NULL;
     if (sums != NULL) {
-        const Py_ssize_t width = n + 1;
-        double running[SUM_ROWS] = {0.0};
-        for (int row = 0; row < SUM_ROWS; row++)
-            sums[row * width] = 0.0;
-        for (Py_ssize_t k = 0; k < n; k++) {
-            double t = time_s[k] - t_ref_s, f = force_g[k] - f_ref_g;
-            running[1] += t;
-            running[2] += f;
-            running[3] += t * t;
-            running[4] += t * f;
-            running[5] += f * f;
-            sums[k + 1] = (double)(k + 1); /* the running count needs no summing */
-            for (int row = 1; row < SUM_ROWS; row++)
-                sums[row * width + k + 1] = running[row];
-        }
-        Py_INCREF(Py_None);
-        result = Py_None;
+        fill_prefix_sums(time_s, force_g, n, t_ref_s, f_ref_g, sums);
+        result = Py_NewRef(Py_None);
     }
     PyBuffer_Release(&time_buffer);
     PyBuffer_Release(&force_buffer);
     PyBuffer_Release(&sums_buffer);
     return result;
+}
+
+/* The line over [first, end) from prefix sums `width` columns wide, as the twin's `_line_of_sums`
+ * (the same arithmetic in the same order): 0 for an empty segment (the twin divides by zero). */
+static int line_of(const double *rows, Py_ssize_t width, Py_ssize_t first, Py_ssize_t end, double t_ref_s,
+                   double f_ref_g, double *slope_out, double *intercept_out)
+{
+    double sum[SUM_ROWS];
+    for (int row = 0; row < SUM_ROWS; row++)
+        sum[row] = rows[row * width + end] - rows[row * width + first];
+    double n = sum[0], st = sum[1], sf = sum[2], stt = sum[3], stf = sum[4];
+    if (n == 0.0)
+        return 0;
+    double sxx = stt - st * st / n;
+    double sxy = stf - st * sf / n;
+    double slope = sxx > 0 ? sxy / sxx : 0.0;
+    /* Line through the segment's centroid, then moved back to the original origins. */
+    double intercept_centred = sf / n - slope * st / n;
+    *slope_out = slope;
+    *intercept_out = intercept_centred + f_ref_g - slope * t_ref_s;
+    return 1;
 }
 
 PyDoc_STRVAR(segment_lines_doc,
@@ -250,21 +290,13 @@ static PyObject *segment_lines(PyObject *self, PyObject *args)
             Py_CLEAR(lines);
             break;
         }
-        double sum[SUM_ROWS];
-        for (int row = 0; row < SUM_ROWS; row++)
-            sum[row] = rows[row * width + end] - rows[row * width + first];
-        double n = sum[0], st = sum[1], sf = sum[2], stt = sum[3], stf = sum[4];
-        if (n == 0.0) { /* as the twin's Python float division */
+        double slope, intercept;
+        if (!line_of(rows, width, first, end, t_ref_s, f_ref_g, &slope, &intercept)) { /* as the twin's Python */
             PyErr_SetString(PyExc_ZeroDivisionError, "float division by zero");
             Py_CLEAR(lines);
             break;
         }
-        double sxx = stt - st * st / n;
-        double sxy = stf - st * sf / n;
-        double slope = sxx > 0 ? sxy / sxx : 0.0;
-        /* Line through the segment's centroid, then moved back to the original origins. */
-        double intercept_centred = sf / n - slope * st / n;
-        PyObject *line = Py_BuildValue("(dd)", slope, intercept_centred + f_ref_g - slope * t_ref_s);
+        PyObject *line = Py_BuildValue("(dd)", slope, intercept);
         if (line == NULL) {
             Py_CLEAR(lines);
             break;
@@ -278,10 +310,99 @@ done:
     return lines;
 }
 
+/* The first sample at or after `time` (numpy's searchsorted, side "left", NaN after every
+ * number), the last for times past the end: analysis.py's `_indices`. */
+static Py_ssize_t first_at_or_after(const double *time_s, Py_ssize_t n, double time)
+{
+    Py_ssize_t lo = 0, hi = n;
+    while (lo < hi) {
+        Py_ssize_t mid = lo + (hi - lo) / 2;
+        if (time_s[mid] < time || (isnan(time) && !isnan(time_s[mid])))
+            lo = mid + 1;
+        else
+            hi = mid;
+    }
+    return lo < n - 1 ? lo : n - 1;
+}
+
+PyDoc_STRVAR(five_lines_doc,
+             "five_lines(time_s, force_g, t_ref_s, f_ref_g, halt_s, pullback_start_s, pullback_cruise_s,\n"
+             "           lag_samples, release_lag_samples, approach_share, sums) -> (problem, bounds, lines)\n"
+             "\n"
+             "The five-line split of a window of samples in one call (segments.py `five_lines`, whose numpy\n"
+             "twin runs prefix_sums, the candidate ranges, best_five_segments and segment_lines): `sums`, a\n"
+             "(6, n + 1) float64 array, gets the prefix sums; problem 0 with the four boundaries and the five\n"
+             "lines, else one of segments.py's NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_FIVE and None, None.");
+
+static PyObject *five_lines(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer time_buffer, force_buffer, sums_buffer;
+    double t_ref_s, f_ref_g, halt_s, pull_start_s, pull_cruise_s, approach_share;
+    Py_ssize_t lag, release_lag;
+    if (!PyArg_ParseTuple(args, "O&O&dddddnndw*", float64_buffer, &time_buffer, float64_buffer, &force_buffer,
+                          &t_ref_s, &f_ref_g, &halt_s, &pull_start_s, &pull_cruise_s, &lag, &release_lag,
+                          &approach_share, &sums_buffer))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t m = 0;
+    const double *time_s = doubles_of(&time_buffer, &m, "time_s");
+    const double *force_g = time_s ? doubles_sized(&force_buffer, m, "force_g") : NULL;
+    double *sums = force_g ? doubles_sized(&sums_buffer, SUM_ROWS * (m + 1), "sums") : NULL;
+    if (sums == NULL)
+        goto done;
+    if (m < 1) {
+        PyErr_SetString(PyExc_ValueError, "time_s: no samples");
+        goto done;
+    }
+    fill_prefix_sums(time_s, force_g, m, t_ref_s, f_ref_g, sums);
+    const PrefixSums ps = {sums, m + 1};
+    /* The candidate ranges, half-open [first, end), as the twin's ranges. */
+    Py_ssize_t home_end = first_at_or_after(time_s, m, halt_s), pull_start = first_at_or_after(time_s, m, pull_start_s);
+    Py_ssize_t pull_cruise = first_at_or_after(time_s, m, pull_cruise_s);
+    Py_ssize_t p0 = home_end - 1 > 2 ? home_end - 1 : 2;
+    Py_ssize_t p1 = (pull_start < home_end + lag ? pull_start : home_end + lag) + 1;
+    Py_ssize_t r0 = pull_start - 1 > 0 ? pull_start - 1 : 0;
+    Py_ssize_t pull_last = pull_start > pull_cruise ? pull_start : pull_cruise;
+    Py_ssize_t r1 = (m - 2 < pull_last + release_lag ? m - 2 : pull_last + release_lag) + 1;
+    /* The twin's int(approach_share * home_end): the product in double, truncated toward zero. */
+    Py_ssize_t share_first = (Py_ssize_t)(approach_share * (double)home_end);
+    Py_ssize_t c0 = share_first > 2 ? share_first : 2;
+    int problem = 0;
+    Py_ssize_t found[4];
+    if (p1 <= p0 || r1 <= r0) {
+        problem = 1; /* NO_DWELL_SAMPLES */
+    } else if (p1 - 2 <= c0 || m - 1 <= r0 + 2) {
+        problem = 2; /* TOO_FEW_AROUND: range(c0, peak[-1] - 1) or range(release[0] + 2, m - 1) empty */
+    } else {
+        int split = search_five(&ps, 0, m, c0, p1 - 2, p0, p1, r0, r1, r0 + 2, m - 1, found);
+        if (split < 0)
+            goto done;
+        problem = split ? 0 : 3; /* TOO_FEW_FOR_FIVE */
+    }
+    if (problem) {
+        result = Py_BuildValue("(iOO)", problem, Py_None, Py_None);
+        goto done;
+    }
+    const Py_ssize_t edges[] = {0, found[0], found[1], found[2], found[3], m};
+    double slope[5], intercept[5];
+    for (int k = 0; k < 5; k++)
+        line_of(sums, m + 1, edges[k], edges[k + 1], t_ref_s, f_ref_g, &slope[k], &intercept[k]);
+    result = Py_BuildValue("(i(nnnn)[(dd)(dd)(dd)(dd)(dd)])", 0, found[0], found[1], found[2], found[3], slope[0],
+                           intercept[0], slope[1], intercept[1], slope[2], intercept[2], slope[3], intercept[3],
+                           slope[4], intercept[4]);
+done:
+    PyBuffer_Release(&time_buffer);
+    PyBuffer_Release(&force_buffer);
+    PyBuffer_Release(&sums_buffer);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"best_five_segments", best_five_segments, METH_VARARGS, best_five_segments_doc},
     {"prefix_sums", prefix_sums, METH_VARARGS, prefix_sums_doc},
     {"segment_lines", segment_lines, METH_VARARGS, segment_lines_doc},
+    {"five_lines", five_lines, METH_VARARGS, five_lines_doc},
     {NULL, NULL, 0, NULL},
 };
 

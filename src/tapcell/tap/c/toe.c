@@ -604,58 +604,145 @@ static int toe_minimum(const double *rss, Py_ssize_t count, const double *height
     return 1;
 }
 
-static PyObject *marginal_contact(PyObject *self, PyObject *args)
+/* One toe's `toe_minimum`, kept for the passes of `marginal_of` (and the shapes' own marginals). */
+typedef struct {
+    double centre_um, lowest, var_um2;
+    int found;
+} ToeMinimum;
+
+/* `toe_minimum` of each of `toes` rows, once (PyMem; NULL with MemoryError set). */
+static ToeMinimum *toe_minima(const double *heights_um, Py_ssize_t count, const double *rss, Py_ssize_t toes,
+                              double noise_var)
 {
-    (void)self;
-    Py_buffer heights_buffer, rss_buffer, prior_buffer;
-    double noise_var;
-    if (!PyArg_ParseTuple(args, "O&O&dO&", float64_buffer, &heights_buffer, float64_buffer, &rss_buffer, &noise_var,
-                          float64_buffer, &prior_buffer))
+    ToeMinimum *minima = PyMem_Malloc(sizeof(ToeMinimum) * (size_t)(toes > 0 ? toes : 1));
+    if (minima == NULL) {
+        PyErr_NoMemory();
         return NULL;
-    PyObject *result = NULL;
-    Py_ssize_t count = 0, toes = 0;
-    const double *heights_um = doubles_of(&heights_buffer, &count, "contacts_um");
-    const double *prior = doubles_of(&prior_buffer, &toes, "prior");
-    const double *rss = doubles_sized(&rss_buffer, count * toes, "rss");
-    if (heights_um == NULL || prior == NULL || rss == NULL)
-        goto done;
-    if (count < 2) {
-        PyErr_Format(PyExc_ValueError, "contacts_um: %zd heights, at least 2 expected", count);
-        goto done;
     }
-    double step_um = heights_um[1] - heights_um[0], centre_um, lowest, var_um2;
-    /* Three passes over the toes (a score of them, recomputed rather than stored): the least
-     * residual; the weights' total and mean; the spread about the mean. */
+    double step_um = heights_um[1] - heights_um[0];
+    for (Py_ssize_t t = 0; t < toes; t++) {
+        ToeMinimum *toe = &minima[t];
+        toe->found = toe_minimum(rss + t * count, count, heights_um, step_um, noise_var, &toe->centre_um, &toe->lowest,
+                                 &toe->var_um2);
+    }
+    return minima;
+}
+
+/* The mean and sd of the contact over `toes` toes' minima (toe.py `marginal_contact_um`'s arithmetic);
+ * 0 when no toe has a curved interior minimum. */
+static int marginal_of(const ToeMinimum *minima, Py_ssize_t toes, const double *prior, double noise_var,
+                       double *mean_out_um, double *sd_out_um)
+{
+    /* Three passes over the toes (a score of them): the least residual; the weights' total and
+     * mean; the spread about the mean. */
     double least = INFINITY, total = 0.0, weighted = 0.0, spread = 0.0;
     int any = 0;
     for (Py_ssize_t t = 0; t < toes; t++)
-        if (toe_minimum(rss + t * count, count, heights_um, step_um, noise_var, &centre_um, &lowest, &var_um2)) {
-            least = any && least <= lowest ? least : lowest;
+        if (minima[t].found) {
+            least = any && least <= minima[t].lowest ? least : minima[t].lowest;
             any = 1;
         }
-    if (!any) {
-        result = Py_NewRef(Py_None);
-        goto done;
-    }
+    if (!any)
+        return 0;
     for (Py_ssize_t t = 0; t < toes; t++)
-        if (toe_minimum(rss + t * count, count, heights_um, step_um, noise_var, &centre_um, &lowest, &var_um2)) {
-            double weight = exp(-(lowest - least) / (2.0 * noise_var)) * sqrt(var_um2) * prior[t];
+        if (minima[t].found) {
+            double weight = exp(-(minima[t].lowest - least) / (2.0 * noise_var)) * sqrt(minima[t].var_um2) * prior[t];
             total += weight;
-            weighted += weight * centre_um;
+            weighted += weight * minima[t].centre_um;
         }
     double mean_um = weighted / total;
     for (Py_ssize_t t = 0; t < toes; t++)
-        if (toe_minimum(rss + t * count, count, heights_um, step_um, noise_var, &centre_um, &lowest, &var_um2)) {
-            double weight = exp(-(lowest - least) / (2.0 * noise_var)) * sqrt(var_um2) * prior[t];
-            spread += weight * (var_um2 + (centre_um - mean_um) * (centre_um - mean_um));
+        if (minima[t].found) {
+            const ToeMinimum *toe = &minima[t];
+            double weight = exp(-(toe->lowest - least) / (2.0 * noise_var)) * sqrt(toe->var_um2) * prior[t];
+            spread += weight * (toe->var_um2 + (toe->centre_um - mean_um) * (toe->centre_um - mean_um));
         }
     spread /= total;
-    result = Py_BuildValue("dd", mean_um, sqrt(spread > 0.0 ? spread : 0.0));
+    *mean_out_um = mean_um;
+    *sd_out_um = sqrt(spread > 0.0 ? spread : 0.0);
+    return 1;
+}
+
+/* The arrays of the marginal kernels, checked: heights (count >= 2), prior (toes), rss (toes × count). */
+static int load_marginal(Py_buffer *heights_buffer, Py_buffer *rss_buffer, Py_buffer *prior_buffer,
+                         const double **heights_um, Py_ssize_t *count, const double **rss, const double **prior,
+                         Py_ssize_t *toes)
+{
+    *heights_um = doubles_of(heights_buffer, count, "contacts_um");
+    *prior = doubles_of(prior_buffer, toes, "prior");
+    *rss = doubles_sized(rss_buffer, *count * *toes, "rss");
+    if (*heights_um == NULL || *prior == NULL || *rss == NULL)
+        return 0;
+    if (*count < 2) {
+        PyErr_Format(PyExc_ValueError, "contacts_um: %zd heights, at least 2 expected", *count);
+        return 0;
+    }
+    return 1;
+}
+
+/* marginal_contact (with_spread 0: (mean, sd)) and marginal_contact_and_spread (1: also half the
+ * range of each shape's own marginal, `shape_spread_um`: rss and prior in `shapes` equal blocks of
+ * rows, each shape's widths), each toe's minimum found once for all of them. */
+static PyObject *marginal(PyObject *args, int with_spread)
+{
+    Py_buffer heights_buffer, rss_buffer, prior_buffer;
+    double noise_var;
+    Py_ssize_t shapes = 1;
+    if (!PyArg_ParseTuple(args, with_spread ? "O&O&dO&n" : "O&O&dO&", float64_buffer, &heights_buffer, float64_buffer,
+                          &rss_buffer, &noise_var, float64_buffer, &prior_buffer, &shapes))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t count = 0, toes = 0;
+    const double *heights_um, *rss, *prior;
+    double mean_um, sd_um;
+    ToeMinimum *minima = NULL;
+    if (!load_marginal(&heights_buffer, &rss_buffer, &prior_buffer, &heights_um, &count, &rss, &prior, &toes))
+        goto done;
+    if (shapes < 1 || toes % shapes != 0) {
+        PyErr_Format(PyExc_ValueError, "shapes: %zd does not divide the %zd toes", shapes, toes);
+        goto done;
+    }
+    minima = toe_minima(heights_um, count, rss, toes, noise_var);
+    if (minima == NULL)
+        goto done;
+    if (!marginal_of(minima, toes, prior, noise_var, &mean_um, &sd_um)) {
+        result = Py_NewRef(Py_None);
+        goto done;
+    }
+    if (!with_spread) {
+        result = Py_BuildValue("dd", mean_um, sd_um);
+        goto done;
+    }
+    /* The shapes' own marginals: the highest and lowest of those that exist (the twin's max - min). */
+    Py_ssize_t widths = toes / shapes;
+    double highest_um = -INFINITY, lowest_um = INFINITY, shape_mean_um, shape_sd_um;
+    int known = 0;
+    for (Py_ssize_t k = 0; k < shapes; k++)
+        if (marginal_of(minima + k * widths, widths, prior + k * widths, noise_var, &shape_mean_um, &shape_sd_um)) {
+            highest_um = known && highest_um >= shape_mean_um ? highest_um : shape_mean_um;
+            lowest_um = known && lowest_um <= shape_mean_um ? lowest_um : shape_mean_um;
+            known++;
+        }
+    result = Py_BuildValue("ddd", mean_um, sd_um, known > 1 ? 0.5 * (highest_um - lowest_um) : 0.0);
 done:
+    PyMem_Free(minima);
     PyBuffer_Release(&heights_buffer);
     PyBuffer_Release(&rss_buffer);
     PyBuffer_Release(&prior_buffer);
     return result;
+}
+
+static PyObject *marginal_contact(PyObject *self, PyObject *args)
+{
+    (void)self;
+    return marginal(args, 0);
+}
+
+/* toe.py's `shape_spread_um` (with the marginal over every toe, which comes with it). */
+static PyObject *marginal_contact_and_spread(PyObject *self, PyObject *args)
+{
+    (void)self;
+    return marginal(args, 1);
 }
 
 /* ---- The baseline's walk from free air (toe.py: free_air_variogram) ---- */
@@ -844,6 +931,12 @@ static PyMethodDef methods[] = {
      "The contact height's mean and sd with the toe marginalised out; rss: toes × contacts residuals\n"
      "(flat, row-major) on the even grid contacts_um, prior: a weight per toe. None when no toe has a\n"
      "curved interior minimum (toe.py: marginal_contact_um)."},
+    {"marginal_contact_and_spread", marginal_contact_and_spread, METH_VARARGS,
+     "marginal_contact_and_spread(contacts_um, rss, noise_var, prior, shapes) -> (mean_um, sd_um, spread_um)\n"
+     "or None\n\n"
+     "marginal_contact over every toe, and half the range of the marginals of each shape alone (rss and\n"
+     "prior in `shapes` equal blocks of rows, each shape's widths); None as marginal_contact (toe.py:\n"
+     "shape_spread_um, the spread's twin)."},
     {"lag_mean_squares", lag_mean_squares, METH_VARARGS,
      "lag_mean_squares(force_g, lags) -> list of float\n\n"
      "Per lag (a tuple of ints, 1..n-1), the mean of (r[i+lag] - r[i])^2 over i, r the force with its\n"
