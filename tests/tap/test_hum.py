@@ -14,6 +14,8 @@ from tapcell.sim.taps import SimTapSpec, record_sim_tap
 from tapcell.tap.synth import synth_tap
 
 RATE_SPS = 320.0
+# Hum removal as the printer asks for it (a tap without meta is analysed with none).
+AUTO = AnalysisOptions(mains_hz="auto")
 
 
 def piecewise_tap(time_s: np.ndarray) -> tuple[np.ndarray, list[float]]:
@@ -139,19 +141,19 @@ def test_clean_virtual_printer_tap_detects_no_hum():
     assert auto.z_mm == analyze_tap(tap).z_mm
 
 
-# --- `auto` (the default since issue 21): the screen, the cost, the answer -------------------------------
+# --- `auto` (the printer's default, recorded in its taps' meta): the screen, the cost, the answer -------------------------------
 
 def noisy_synth_tap(seed: int):
     """A hum-free synthetic tap with 0.5 g white noise at 320 sps, 2 mm/s."""
     return synth_tap(noise_g=0.5, sample_rate_sps=RATE_SPS, approach_speed_mm_s=2.0, seed=seed)
 
 
-def test_default_auto_detects_50hz_hum_and_halves_the_z_error():
+def test_auto_detects_50hz_hum_and_halves_the_z_error():
     errors_auto_um, errors_off_um = [], []
     for seed in range(12):
         clean = noisy_synth_tap(seed)
         humming = dataclasses.replace(clean, force_g=clean.force_g + hum(clean.time_s, 3.0, 50.0, seed))
-        auto, off = analyze_tap(humming), analyze_tap(humming, AnalysisOptions(mains_hz=()))
+        auto, off = analyze_tap(humming, AUTO), analyze_tap(humming, AnalysisOptions(mains_hz=()))
         assert auto.valid and off.valid
         assert auto.hum["frequencies_hz"] == [50.0]
         assert auto.hum["amplitudes_g"][0] == pytest.approx(3.0, abs=0.15)  # measured 2.92-3.09
@@ -169,11 +171,11 @@ def test_hum_free_taps_are_not_detected_and_screen_like_chance():
     screens = []
     for seed in range(12):
         tap = noisy_synth_tap(seed)
-        assert analyze_tap(tap).hum is None
+        assert analyze_tap(tap, AUTO).hum is None
         screens += screen_mains_hum(tap.time_s, tap.force_g, RATE_SPS, (50.0, 60.0))
     for seed in range(1, 11):
         tap = record_sim_tap(SimTapSpec("clean", 5.0, seed, pullback_distance_mm=0.15, dwell_samples=8))
-        assert analyze_tap(tap).hum is None
+        assert analyze_tap(tap, AUTO).hum is None
         screens += screen_mains_hum(tap.time_s, tap.force_g, tap.sample_rate_sps, (50.0, 60.0))
     # Chance gives chi2 with 2 degrees of freedom (mean 2); measured mean 1.9, largest 10.3 of 44 lines.
     assert 1.0 < np.mean(screens) < 3.0
@@ -198,11 +200,11 @@ def test_auto_costs_a_hum_free_tap_no_split_and_no_fit(monkeypatch):
     analyze_tap(clean, AnalysisOptions(mains_hz=()))
     without = dict(counts)
     counts.update(decompose=0, fit=0)
-    analyze_tap(clean)  # auto
+    analyze_tap(clean, AUTO)
     assert counts == without == {"decompose": 1, "fit": 0}
     counts.update(decompose=0, fit=0)
     humming = dataclasses.replace(clean, force_g=clean.force_g + hum(clean.time_s, 3.0, 50.0, 0.4))
-    assert analyze_tap(humming).hum is not None
+    assert analyze_tap(humming, AUTO).hum is not None
     # Detection: one spline solve (only 50 Hz passed the screen; beyond doubt: no outlier refit);
     # 3 g on 0.5 g noise is above 3 sigmas: a second split and fit (no outliers: no refit).
     assert counts == {"decompose": 3, "fit": 2}
@@ -243,13 +245,13 @@ def test_sparse_normal_equations_match_a_dense_least_squares():
     assert fit.amplitudes_g == pytest.approx((2.0, 0.7), abs=0.25)
 
 
-def test_mains_hz_unset_follows_the_tap_meta_else_auto():
+def test_mains_hz_unset_follows_the_tap_meta_else_none():
     from tapcell.tap.analysis import mains_frequencies_hz
 
     tap = noisy_synth_tap(0)
     unset = AnalysisOptions()
-    assert mains_frequencies_hz(tap, unset) == "auto"
-    for meta, wanted in ((50, (50.0,)), ([50, 100], (50.0, 100.0)), ([], ()), ("auto", "auto"), ("fifty", "auto")):
+    assert mains_frequencies_hz(tap, unset) == ()
+    for meta, wanted in ((50, (50.0,)), ([50, 100], (50.0, 100.0)), ([], ()), ("auto", "auto"), ("fifty", ())):
         assert mains_frequencies_hz(dataclasses.replace(tap, meta={"mains_hz": meta}), unset) == wanted
     assert mains_frequencies_hz(dataclasses.replace(tap, meta={"mains_hz": 60}), AnalysisOptions(mains_hz=())) == ()
 
@@ -272,7 +274,7 @@ def test_auto_fits_the_harmonic_the_screen_sees_with_a_strong_line():
         clean = noisy_synth_tap(seed)
         force_g = clean.force_g + hum(clean.time_s, 6.0, 50.0, seed) + hum(clean.time_s, 2.0, 100.0, 2 * seed + 1)
         humming = dataclasses.replace(clean, force_g=force_g)
-        auto, line_only = analyze_tap(humming), analyze_tap(humming, AnalysisOptions(mains_hz=(50.0,)))
+        auto, line_only = analyze_tap(humming, AUTO), analyze_tap(humming, AnalysisOptions(mains_hz=(50.0,)))
         assert auto.hum["frequencies_hz"] == [50.0, 100.0]
         assert auto.hum["amplitudes_g"] == pytest.approx([6.0, 2.0], abs=0.15)  # measured ±0.09
         errors_auto_um.append((auto.z_mm - clean.truth["z_contact"]) * 1000)
@@ -293,7 +295,7 @@ def test_auto_leaves_a_hum_too_weak_to_move_z_and_fits_one_that_is_not():
         tap = synth_tap(noise_g=0.5, sample_rate_sps=2000.0, approach_speed_mm_s=2.0, seed=seed)
         humming = dataclasses.replace(tap, force_g=tap.force_g + hum(tap.time_s, 0.12, 50.0, seed))
         seen += screen_mains_hum(humming.time_s, humming.force_g, 2000.0, (50.0,))[0] >= SCREEN_MIN_CHI2
-        auto = analyze_tap(humming)
+        auto = analyze_tap(humming, AUTO)
         assert auto.hum is None
         assert auto.z_mm == analyze_tap(humming, AnalysisOptions(mains_hz=())).z_mm
         fitted = analyze_tap(humming, AnalysisOptions(mains_hz=(50.0,)))
@@ -304,7 +306,7 @@ def test_auto_leaves_a_hum_too_weak_to_move_z_and_fits_one_that_is_not():
     for seed in range(6):
         tap = synth_tap(noise_g=0.5, sample_rate_sps=660.0, approach_speed_mm_s=2.0, seed=seed)
         humming = dataclasses.replace(tap, force_g=tap.force_g + hum(tap.time_s, 0.3, 50.0, seed))
-        auto = analyze_tap(humming)
+        auto = analyze_tap(humming, AUTO)
         if auto.hum is not None:
             fitted_seeds += 1
             assert auto.hum["amplitudes_g"][0] == pytest.approx(0.3, abs=0.05)
@@ -322,7 +324,7 @@ def test_a_strong_line_on_a_fast_sensor_is_fitted_although_its_screen_chi2_is_mo
         tap = synth_tap(noise_g=0.5, sample_rate_sps=2000.0, approach_speed_mm_s=2.0, seed=seed)
         humming = dataclasses.replace(tap, force_g=tap.force_g + hum(tap.time_s, 6.0, 50.0, seed))
         assert screen_mains_hum(humming.time_s, humming.force_g, 2000.0, (50.0,))[0] < 250
-        auto = analyze_tap(humming)
+        auto = analyze_tap(humming, AUTO)
         assert auto.valid, auto.message
         assert auto.hum["amplitudes_g"][0] == pytest.approx(6.0, abs=0.1)
         assert abs(auto.z_mm - tap.truth["z_contact"]) * 1000 < 1.0

@@ -1148,15 +1148,20 @@ def line_stiffness_ratio(dec: Decomposition, motion: Motion) -> float | None:
 
 
 def mains_frequencies_hz(tap: TapData, options: AnalysisOptions) -> tuple[float, ...] | str:
-    """The hum lines to remove: the option, else tap meta `mains_hz` (a number or a list; an empty
-    list: none), else "auto" (as the printer analyses a tap without a notch filter). () is none."""
+    """The hum lines to remove: the option, else tap meta `mains_hz` (a number, a list, "auto"; an
+    empty list: none), else none. The printer records what it used (its default "auto") in every
+    tap's meta, so its taps get the same answer here; a tap from elsewhere is analysed without hum
+    removal unless asked: `auto` moved no reference scenario by more than 0.04 µm (taplab's strong
+    hum 0.3 µm, our own generator's) and halves the speed (docs/tap-analysis.md, "Mains hum")."""
     if options.mains_hz is not None:
         return options.mains_hz
     value = tap.meta.get("mains_hz")
     values = value if isinstance(value, list | tuple) else [value]
+    if value == "auto":
+        return "auto"
     if all(isinstance(v, int | float) and not isinstance(v, bool) and 0 < v < 10000 for v in values):
         return tuple(float(v) for v in values)
-    return "auto"
+    return ()
 
 
 def remove_mains_hum(tap: TapData, options: AnalysisOptions, time_s: np.ndarray, force_g: np.ndarray,

@@ -162,8 +162,9 @@ class AnalysisOptions:
         None: a sharp contact, or fitted per tap when fit_contact_onset.
     mains_hz: mains hum to fit and subtract before the analysis (tapcell.tap.hum): a tuple of
         frequencies (Hz), "auto" (50 or 60 Hz, whichever the tap clearly holds, else none),
-        () for none (`--set mains_hz=none`), or None: tap meta `mains_hz`, else "auto" (what
-        the printer does without a notch filter, so a tap gives one answer wherever analysed).
+        () for none (`--set mains_hz=none`), or None: tap meta `mains_hz` (the printer records
+        its choice, "auto" without a notch filter, so its taps give one answer wherever analysed),
+        else none.
     """
 
     sensor_delay_s: float | str | None = None
