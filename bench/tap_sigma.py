@@ -2,7 +2,8 @@
 the parts it is made of (tapcell.tap.uncertainty), and the weights the worst scenario would choose.
 
 Per set and scenario, over the taps the analysis accepts: the rms error (µm, bias included: a
-sigma must cover it), the rms of each part of the sigma, rms(error / sigma) with the weights in
+sigma must cover it), the same error times each tap's stiffness at contact ("e·k", g:
+`force_error_g`), the rms of each part of the sigma, rms(error / sigma) with the weights in
 tapcell.tap.uncertainty ("now"), with the scenario's mean error taken out ("no bias": what the
 sigma would score were Z unbiased there), and with the weights this run chooses: on a grid, the weights whose
 worst scenario over both sets (every scenario with at least MIN_TAPS accepted taps, fouled ones
@@ -50,6 +51,7 @@ class Scenario:
     errors_um: list[float] = dataclasses.field(default_factory=list)
     parts: list[ZSigmaParts] = dataclasses.field(default_factory=list)
     taps: int = 0
+    stiffness_g_um: list[float] = dataclasses.field(default_factory=list)  # each accepted tap's, at contact
 
 
 def collect(tap_set: TapSet) -> dict[str, Scenario]:
@@ -62,6 +64,7 @@ def collect(tap_set: TapSet) -> dict[str, Scenario]:
         if analysis.valid and analysis.z_mm is not None and analysis.z_sigma_parts is not None:
             scenario.errors_um.append((analysis.z_mm - label.z_contact_mm) * 1000.0)
             scenario.parts.append(analysis.z_sigma_parts)
+            scenario.stiffness_g_um.append(analysis.stiffness_decompression_g_um or math.nan)
     return scenarios
 
 
@@ -75,6 +78,17 @@ def ratio_rms(scenario: Scenario, weights: SigmaWeights, unbiased: bool = False)
     if unbiased:
         errors = errors - errors.mean()
     return float(np.sqrt(np.mean(np.square(errors / sigmas))))
+
+
+def force_error_g(scenario: Scenario) -> float | None:
+    """rms(error × the tap's stiffness at contact), g: the error as the force the contact model
+    misplaces. On both generators it is nearly the same on clean, slow and soft scenarios where the
+    error in µm is not (a soft sheet's stiffness is a third to a half of a hard bed's), so a part
+    of the sigma that grows as 1 / stiffness is what a soft sheet's error follows."""
+    pairs = [(e, k) for e, k in zip(scenario.errors_um, scenario.stiffness_g_um) if math.isfinite(k)]
+    if not pairs:
+        return None
+    return float(np.sqrt(np.mean([(e * k) ** 2 for e, k in pairs])))
 
 
 def choose_weights(sets: dict[str, dict[str, Scenario]]) -> tuple[SigmaWeights, float]:
@@ -110,7 +124,7 @@ def _rms(values) -> float:
 
 def print_set(name: str, scenarios: dict[str, Scenario], current: SigmaWeights, chosen: SigmaWeights) -> None:
     print(f"== {name}")
-    header = (f"{'scenario':<22} {'taps':>4} {'acc':>4} {'rms e':>6} | " + " ".join(f"{n[:-3]:>9}" for n in PART_NAMES)
+    header = (f"{'scenario':<22} {'taps':>4} {'acc':>4} {'rms e':>6} {'e·k g':>6} | " + " ".join(f"{n[:-3]:>9}" for n in PART_NAMES)
               + f" | {'e/σ now':>7} {'chosen':>7} {'no bias':>7}")
     print(header)
     print("-" * len(header))
@@ -119,7 +133,8 @@ def print_set(name: str, scenarios: dict[str, Scenario], current: SigmaWeights, 
         ratios = " ".join(f"{_fmt(r):>7}" for r in (ratio_rms(s, current), ratio_rms(s, chosen),
                                                      ratio_rms(s, current, unbiased=True)))
         mark = "" if len(s.errors_um) >= MIN_TAPS else "  (too few to judge)"
-        print(f"{scenario_name[:22]:<22} {s.taps:>4} {len(s.errors_um):>4} {_rms(s.errors_um):>6.2f} | {parts} | "
+        print(f"{scenario_name[:22]:<22} {s.taps:>4} {len(s.errors_um):>4} {_rms(s.errors_um):>6.2f} "
+              f"{_fmt(force_error_g(s)):>6} | {parts} | "
               f"{ratios}{mark}")
     judged = [s for s in scenarios.values() if len(s.errors_um) >= MIN_TAPS]
     for label, weights in (("now", current), ("chosen", chosen)):

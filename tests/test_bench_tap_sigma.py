@@ -8,7 +8,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the bench package beside tests/
 
-from bench.tap_sigma import GRID, Scenario, choose_weights, ratio_rms  # noqa: E402  (after the path)
+from bench.tap_sigma import GRID, Scenario, choose_weights, force_error_g, ratio_rms  # noqa: E402  (after the path)
 from tapcell.tap.uncertainty import SigmaWeights, ZSigmaParts  # noqa: E402
 
 TRUE = {"noise": 0.75, "shape": 2.0, "misfit": 0.5, "thread": 1.5, "squeeze": 1.25}
@@ -37,3 +37,14 @@ def test_the_weights_that_make_every_scenario_honest_are_found():
 
 def test_a_scenario_without_accepted_taps_has_no_ratio():
     assert ratio_rms(Scenario(taps=40), SigmaWeights()) is None
+
+
+def test_the_force_error_is_the_error_times_each_taps_stiffness():
+    """A soft tap's 2 µm at 1 g/µm is the same force as a hard tap's 0.5 µm at 4 g/µm; a tap whose
+    stiffness is unknown is left out, not counted as zero."""
+    scenario = Scenario(errors_um=[2.0, -0.5, 7.0], parts=[ZSigmaParts()] * 3, taps=3,
+                        stiffness_g_um=[1.0, 4.0, float("nan")])
+    assert force_error_g(scenario) == pytest.approx(2.0, rel=1e-12)
+    assert force_error_g(Scenario(errors_um=[1.0], parts=[ZSigmaParts()], taps=1,
+                                  stiffness_g_um=[float("nan")])) is None
+    assert force_error_g(Scenario(taps=40)) is None
