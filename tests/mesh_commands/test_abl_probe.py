@@ -47,16 +47,19 @@ def test_two_pass_weighting_and_topology(abl_printer, make_printer):
     # 15 mm/s, but the fast pass moves at most 25 um per sample (its trigger falls anywhere in one).
     assert ("fast pass at 8 mm/s (25 um per sample at 320 samples/s; the paper moved its bed at 120 mm/s)"
             in text)
-    # The surface shape is right; halting positions sit a fixed overshoot below the contact.
+    # The surface shape is right; each height is where the force crossed the 75 g trigger, between
+    # two samples: 75 g / stiffness below the contact, wherever in a conversion the contact fell.
     toolhead = abl_printer.lookup_object("toolhead")
     xs, ys = np.meshgrid([20.0, 117.5, 215.0], [20.0, 117.5, 215.0])
     truth = abl_printer.backend.truth.contact_z_at(xs, ys) + toolhead.frame_offset_mm["z"]
     error_um = (probed - offset_mm - truth) * 1000.0
-    # measured (seeds 1-6): 15-17 um spread (a sample of travel is 25 um at 8 mm/s), mean -48..-52 um
-    assert np.ptp(error_um) < 25.0 and -58.0 < error_um.mean() < -42.0
-    # The tap takes that out: what is left is the spread.
+    depth_um = 75.0 / abl_printer.backend.truth.stiffness_g_um
+    # measured (seeds 1-6): 1.0-2.4 um spread, mean 0.1-0.4 um below the depth (the halt positions
+    # spread 15-17 um: a sample of travel is 25 um at 8 mm/s)
+    assert np.ptp(error_um) < 4.0 and error_um.mean() == pytest.approx(-depth_um, abs=1.5)
+    # The tap takes the depth out: what is left is the spread (measured: |mean| <= 0.61, max 1.86 um).
     corrected_um = (probed - truth) * 1000.0
-    assert abs(corrected_um.mean()) < 8.0 and np.abs(corrected_um).max() < 20.0
+    assert abs(corrected_um.mean()) < 1.5 and np.abs(corrected_um).max() < 3.0
 
 
 def test_no_contact_before_the_travel_limit_stops(abl_printer):

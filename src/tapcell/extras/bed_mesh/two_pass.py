@@ -107,7 +107,7 @@ class TwoPassMover:
             if not hit.triggered:
                 return None
             if hit.contact:
-                return hit.halt_position_mm[2]
+                return hit.crossing_z_mm
             self.false_triggers += 1  # not a contact: descend again from here
         raise ProbeError(f"BED_MESH_CALIBRATE METHOD=two_pass: the {step.pass_name} pass at {step.x_mm:.3f},"
                          f"{step.y_mm:.3f} triggered {FALSE_TRIGGER_TRIES} times without the force of a contact: "
