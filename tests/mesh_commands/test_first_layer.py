@@ -2,10 +2,10 @@
 nozzle and bed everywhere on a tilted bed, as the simulator's truth (SIM_TRUTH) measures it.
 
 The trigger-only methods (two_pass, prusa) read each height where the force crossed their
-threshold, a threshold's depth into the bed: 22.5 and 38.4 um on this bed (their own output says
+threshold, a threshold's depth into the bed: 23.0 and 37.9 um on this bed (their own output says
 by how much), which one analysed tap at the middle point takes out. Measured (seed 1, 0.4 mm tilt
 across X, -0.3 mm across Y, 7 x 7 bicubic): clearance 0.1956-0.2025 mm at the five places below
-for tap, 0.1956-0.2006 two_pass, 0.1981-0.2006 prusa. Before the crossing was found between two
+for tap, 0.1956-0.2006 for two_pass and prusa. Before the crossing was found between two
 samples (heights at the halt / the triggering sample) two_pass left 0.186-0.200 mm, moving with the
 sample phase of its points.
 """
@@ -54,7 +54,7 @@ def test_z_0_2_is_0_2_above_a_tilted_bed(method, tmp_path):
         (line,) = offset_lines
         raised_um = float(re.search(r"every point raised by \+(\d+\.\d) um", line).group(1))
         # The trigger's depth into the bed: its force over the bed's stiffness (75 g and 125 g over
-        # 3.26 g/um: 23.0 and 38.3 um); measured 22.5 (two_pass), 38.4 (prusa).
+        # 3.26 g/um: 23.0 and 38.3 um); measured 23.0 (two_pass), 37.9 (prusa).
         depth_um = {"two_pass": 75.0, "prusa": 125.0}[method] / printer.backend.truth.stiffness_g_um
         assert raised_um == pytest.approx(depth_um, abs=3.0)
     clearances = [clearance_mm(printer, responses, x, y) for x, y in PLACES_XY_MM]
