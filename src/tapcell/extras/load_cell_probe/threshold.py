@@ -5,8 +5,9 @@ Used by `[prusa_probe]`, the two-pass ABL (`BED_MESH_CALIBRATE METHOD=two_pass`)
 `[xy_probe]`. A Z probe reports the toolhead Z at the triggering sample (what a stepper
 position latched by an endstop gives) and where the filtered force crossed the threshold between
 that sample and the one before (`trigger_crossing`; the height that does not move with the sample
-phase), both from the probing move's own trapezoids. A Z probe goes through the load cell probe's guarded probing move (speed cap, force guard, sensor
-faults) and then checks that the force holds after the halt like a contact (`ThresholdHit.contact`).
+phase), both from the probing move's own trapezoids. A Z probe goes through the load cell
+probe's guarded probing move (speed cap, force guard, sensor faults) and then checks that the
+force holds after the halt like a contact (`ThresholdHit.contact`).
 """
 
 from __future__ import annotations
@@ -127,8 +128,8 @@ class ThresholdProber:
                             contact, float(crossing_z_mm))
 
     def _crossing_z_mm(self, result, tare: TareRecord, arm_time_s: float, trigger: dict) -> float:
-        """Machine Z where the filtered force crossed the threshold (`trigger_crossing`); at the
-        trigger's window middle when the samples before it are not there to interpolate."""
+        """Z of the move's trapezoids (machine frame) where the filtered force crossed the threshold
+        (`trigger_crossing`); at the trigger's window middle when the host lacks the samples."""
         device = self.device
         t_s, counts, _ = device.history.between(arm_time_s, result.trigger_time_s)
         params = device.trigger.move_params(device.config_settings, **trigger)
