@@ -9,7 +9,8 @@ between the sample before the trigger and the triggering one (`ThresholdHit.cros
 paper took where the descent halted, which lands on the sample grid: the same spot read up to a
 sample's travel apart with where in a conversion the contact fell. Reaching the travel limit
 without contact stops the mesh with an error naming the point and the pass. After the last point
-the topology report (extremes, range, tilt, flatness) is printed; moves then follow the mesh (bilinear between probed points with `mesh_pps: 0`).
+the topology report (extremes, range, tilt, flatness) is printed; moves then follow the mesh
+(bilinear between probed points with `mesh_pps: 0`).
 
 The paper's fast pass is 120 mm/s; a descent cannot be faster than the printer's
 max_z_velocity, nor than the load cell probe's force guard allows (the fastest speed whose
