@@ -12,8 +12,11 @@ Instead of analysing the shape of a tap, Prusa's firmware trusts a force thresho
   means something pulls on the nozzle, so lift 20 mm and tare again (the new reference);
 * a mesh point that does not give a trigger is retried on rings 2 mm apart, at most 40 times.
 
-The Z of a threshold probe is the toolhead Z at the triggering sample (what a stepper
-position latched by an endstop gives), from the probing move's own trapezoids.
+The Z of a threshold probe is the toolhead Z where the filtered force crossed the threshold,
+between the sample before the trigger and the triggering one (`ThresholdHit.crossing_z_mm`),
+from the probing move's own trapezoids: a stepper position latched by an endstop at the
+triggering sample would move by up to a sample's travel with where in a conversion the contact
+fell.
 
 Commands: PROBE_THRESHOLDS (alias SHOW_THRESHOLDS), SET_Z_FAST_THRESHOLD, SET_Z_SLOW_THRESHOLD,
 SET_MESH_THRESHOLD, SET_XY_THRESHOLD (aliases SET_Z_FAST, SET_Z_SLOW, SET_MESH, SET_XY; all
@@ -163,17 +166,17 @@ class PrusaProbe:
             self._require_contact(slow, "slow", z_min)
             tolerance_mm = agreement_tolerance_mm(prober.device.stop_timing, self.options.z_fast_speed_mm_s,
                                                   self.options.z_slow_speed_mm_s)
-            if abs(slow.trigger_position_mm[2] - fast.trigger_position_mm[2]) > tolerance_mm:
-                raise ProbeError(f"LOADCELL_PROBE: the slow pass found the bed at Z={slow.trigger_position_mm[2]:.3f}, "
-                                 f"the fast pass at Z={fast.trigger_position_mm[2]:.3f} (more than {tolerance_mm:.3f} mm "
+            if abs(slow.crossing_z_mm - fast.crossing_z_mm) > tolerance_mm:
+                raise ProbeError(f"LOADCELL_PROBE: the slow pass found the bed at Z={slow.crossing_z_mm:.3f}, "
+                                 f"the fast pass at Z={fast.crossing_z_mm:.3f} (more than {tolerance_mm:.3f} mm "
                                  "apart): something pushed on the nozzle; run it again")
             toolhead.move_to(z=slow.halt_position_mm[2] + self.options.back_off_mm,
                              speed_mm_s=self.options.z_slow_speed_mm_s)
         z_offset = self.printer.lookup_object("probe").options.z_offset_mm
-        result = slow.trigger_position_mm[2] - z_offset
+        result = slow.crossing_z_mm - z_offset
         self.last_session = {"kind": "z", "tares": len(prober.tares), "z_mm": result,
-                             "fast_z_mm": fast.trigger_position_mm[2] - z_offset}
-        gcmd.respond_info(f"LOADCELL_PROBE: z={result:.6f} (fast pass {fast.trigger_position_mm[2] - z_offset:.6f}, "
+                             "fast_z_mm": fast.crossing_z_mm - z_offset}
+        gcmd.respond_info(f"LOADCELL_PROBE: z={result:.6f} (fast pass {fast.crossing_z_mm - z_offset:.6f}, "
                           f"thresholds {t.z_fast_g:g} / {t.z_slow_g:g} g, {len(prober.tares)} tares)")
 
     @staticmethod
@@ -222,7 +225,7 @@ class PrusaProbe:
                     retares += 1
                 hit = prober.probe_z(tare, t.mesh_g, t.release_g(MESH), z_min, speed)
                 if hit.triggered and hit.contact:
-                    return hit.trigger_position_mm[2] - z_offset
+                    return hit.crossing_z_mm - z_offset
                 why = (f"no contact before Z={z_min:.3f}" if not hit.triggered else
                        f"triggered at Z={hit.trigger_position_mm[2]:.3f} but the force did not hold like a contact")
                 gcmd.respond_info(f"Point {index + 1}: {why} (attempt {attempt} of {len(offsets)})")

@@ -1,8 +1,8 @@
 """The trigger-only methods' known offset, corrected from one analysed tap.
 
-`two_pass` and `prusa` take each height where the descent halted on a force threshold: the
-nozzle is then already pressed into the bed by the threshold's force over the bed's stiffness,
-plus the travel until the halt (on the virtual printer 43-62 um). Left in, the first layer at
+`two_pass` and `prusa` take each height where the force crossed a threshold (between two samples:
+`tapcell.extras.load_cell_probe.trigger_crossing`): the nozzle is then already pressed into the
+bed by the threshold's force over the bed's stiffness (on the virtual printer 23 and 38 um). Left in, the first layer at
 `G1 Z0.2` is printed that much too low. So after the last point the mesh method taps once more
 with `[load_cell_probe]`'s tap analysis (break contact: where the nozzle really touched) at the
 probed point nearest the middle, and raises every point by the difference. The command says

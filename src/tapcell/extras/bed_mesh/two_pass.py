@@ -3,11 +3,14 @@
 At each point (`tapcell.mesh.abl.point_plan`): travel above it, a fast descent toward the
 travel limit (the paper's Z-2: `[stepper_z] position_min`) until the load cell triggers (z1),
 back off 1 mm, a slow descent at 8 mm/s (z2), lift 3 mm. The point's height is the paper's
-weighted value 0.4 z1 + 0.6 z2. z1 and z2 are where the descent halted, as in the paper; the
-trigger is the firmware trigger at the load cell probe's `trigger_force`, tared before each
-pass. Reaching the travel limit without contact stops the mesh with an error naming the point
-and the pass. After the last point the topology report (extremes, range, tilt, flatness) is
-printed; moves then follow the mesh (bilinear between probed points with `mesh_pps: 0`).
+weighted value 0.4 z1 + 0.6 z2. The trigger is the firmware trigger at the load cell probe's
+`trigger_force`, tared before each pass; z1 and z2 are where the filtered force crossed it,
+between the sample before the trigger and the triggering one (`ThresholdHit.crossing_z_mm`). The
+paper took where the descent halted, which lands on the sample grid: the same spot read up to a
+sample's travel apart with where in a conversion the contact fell. Reaching the travel limit
+without contact stops the mesh with an error naming the point and the pass. After the last point
+the topology report (extremes, range, tilt, flatness) is printed; moves then follow the mesh
+(bilinear between probed points with `mesh_pps: 0`).
 
 The paper's fast pass is 120 mm/s; a descent cannot be faster than the printer's
 max_z_velocity, nor than the load cell probe's force guard allows (the fastest speed whose
@@ -41,11 +44,10 @@ from tapcell.mesh.run import MeshProbeRun
 # a point whose two passes disagree is probed this many times at most.
 FALSE_TRIGGER_TRIES = 3
 POINT_TRIES = 3
-# The fast pass moves at most this far per sample: where in a sample the trigger falls is up to one
-# sample of travel, and 0.4 of the fast pass goes into each point. On the virtual printer (320 sps)
-# that is the 8 mm/s the force guard allowed before G28 Z measured the bed: at max_z_velocity's
-# 15 mm/s (47 um per sample) the tilted bed's trigger depth averaged -62 um, not -48..-52
-# (tests/mesh_commands/test_abl_probe.py), and the first layer came up to 16.9 um low.
+# The fast pass moves at most this far per sample. The crossing between two samples is a straight
+# line; faster, the contact falls in the window before the trigger and bends it: on the virtual
+# printer (320 sps) one spot read over sample phases spreads 1.3 um at 8 mm/s (25 um per sample),
+# 5.6 um at max_z_velocity's 15 mm/s (47 um per sample), and 0.4 of the fast pass goes into each point.
 FAST_PASS_MAX_UM_PER_SAMPLE = 25.0
 
 
@@ -107,7 +109,7 @@ class TwoPassMover:
             if not hit.triggered:
                 return None
             if hit.contact:
-                return hit.halt_position_mm[2]
+                return hit.crossing_z_mm
             self.false_triggers += 1  # not a contact: descend again from here
         raise ProbeError(f"BED_MESH_CALIBRATE METHOD=two_pass: the {step.pass_name} pass at {step.x_mm:.3f},"
                          f"{step.y_mm:.3f} triggered {FALSE_TRIGGER_TRIES} times without the force of a contact: "

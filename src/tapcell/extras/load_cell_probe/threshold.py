@@ -2,10 +2,12 @@
 probing moves in Z or XY that stop when the force passes a threshold (no tap analysis).
 
 Used by `[prusa_probe]`, the two-pass ABL (`BED_MESH_CALIBRATE METHOD=two_pass`) and
-`[xy_probe]`. The Z of a threshold probe is the toolhead Z at the triggering sample (what a
-stepper position latched by an endstop gives), from the probing move's own trapezoids. A Z
-probe goes through the load cell probe's guarded probing move (speed cap, force guard, sensor
-faults) and then checks that the force holds after the halt like a contact (`ThresholdHit.contact`).
+`[xy_probe]`. A Z probe reports the toolhead Z at the triggering sample (what a stepper
+position latched by an endstop gives) and where the filtered force crossed the threshold between
+that sample and the one before (`trigger_crossing`; the height that does not move with the sample
+phase), both from the probing move's own trapezoids. A Z probe goes through the load cell
+probe's guarded probing move (speed cap, force guard, sensor faults) and then checks that the
+force holds after the halt like a contact (`ThresholdHit.contact`).
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ import numpy as np
 
 from tapcell.extras.load_cell import sensor_error_note
 from tapcell.extras.load_cell_probe.options import ERROR_PREFIX
+from tapcell.extras.load_cell_probe.trigger_crossing import replay_filtered_g, threshold_crossing, window_middle_times_s
 from tapcell.mcu.trigger import FirmwareTrigger, TriggerError
 from tapcell.mesh.prusa import TARE_SAMPLE_COUNT, TARE_SETTLE_S
 from tapcell.extras.probe.session import ProbeError
@@ -40,6 +43,9 @@ class ThresholdHit:
     trigger_position_mm: tuple[float, float, float] | None  # where the triggering sample was taken
     halt_position_mm: tuple[float, float, float]  # where the steppers stopped (after the latency)
     contact: bool = True  # Z moves: the force held after the halt like a nozzle pressing on the bed
+    # Z moves: the toolhead Z where the filtered force crossed the threshold, between two samples
+    # (`trigger_crossing`): unlike the trigger's and the halt's, independent of the sample phase.
+    crossing_z_mm: float | None = None
 
 
 def commanded_z_mm(moves: list[Move], t_s: float) -> float:
@@ -100,17 +106,39 @@ class ThresholdProber:
         device = self.device
         # Refused before the move, with the force (the firmware would only say "too much").
         device.refuse_preload(tare.counts, device.options)
-        result, _, _ = device.probing_move(device.config_settings, tare.counts, z_min_mm, speed_mm_s,
-                                           trigger_force_g=threshold_g, release_force_g=release_g,
-                                           drift_safety_limit_g=drift_safety_limit_g)
-        frame = self._frame_mm()
-        halt = tuple(np.array(self.backend.position) + frame)
-        if not result.triggered:
-            return ThresholdHit(False, None, result.halt_time_s, None, halt)
-        z_mm = z_at_time_mm(result.moves, result.trigger_time_s) + frame[2]
+        trigger = {"trigger_force_g": threshold_g, "release_force_g": release_g,
+                   "drift_safety_limit_g": drift_safety_limit_g}
+        history = device.history
+        kept_from_s = history.keep_from_s
+        # The move's samples stay until the crossing is found.
+        history.keep_from_s = self.backend.now_s if kept_from_s is None else min(kept_from_s, self.backend.now_s)
+        try:
+            result, _, t_start_s = device.probing_move(device.config_settings, tare.counts, z_min_mm, speed_mm_s,
+                                                       **trigger)
+            frame = self._frame_mm()
+            halt = tuple(np.array(self.backend.position) + frame)
+            if not result.triggered:
+                return ThresholdHit(False, None, result.halt_time_s, None, halt)
+            z_mm = z_at_time_mm(result.moves, result.trigger_time_s) + frame[2]
+            crossing_z_mm = self._crossing_z_mm(result, tare, t_start_s, trigger) + frame[2]
+        finally:
+            history.keep_from_s = kept_from_s
         contact = device.contact_holds_after_halt(tare.counts, threshold_g)
         return ThresholdHit(True, result.trigger_time_s, result.halt_time_s, (halt[0], halt[1], float(z_mm)), halt,
-                            contact)
+                            contact, float(crossing_z_mm))
+
+    def _crossing_z_mm(self, result, tare: TareRecord, arm_time_s: float, trigger: dict) -> float:
+        """Z of the move's trapezoids (machine frame) where the filtered force crossed the threshold
+        (`trigger_crossing`); at the trigger's window middle when the host lacks the samples."""
+        device = self.device
+        t_s, counts, _ = device.history.between(arm_time_s, result.trigger_time_s)
+        params = device.trigger.move_params(device.config_settings, **trigger)
+        replay = replay_filtered_g(params, tare.counts, arm_time_s, t_s, counts, result.trigger_time_s)
+        if replay is None:
+            crossing_s = float(window_middle_times_s(result.trigger_time_s, device.stop_timing))
+        else:
+            crossing_s = threshold_crossing(*replay, params.trigger_force_g, device.stop_timing).time_s
+        return z_at_time_mm(result.moves, crossing_s)
 
     def probe_xy(self, tare: TareRecord, threshold_g: float, release_g: float, x_mm: float, y_mm: float,
                  speed_mm_s: float) -> ThresholdHit:
