@@ -22,6 +22,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tapcell.tap import native
+from tapcell.tap.robust import median
+
+# The two-stage fit's grid in C (c/stage.c, tapcell.tap.native); None: its numpy twin `_two_stage_grid`.
+_C = native.load("stage")
+
 STAGE_REACH_UM = 60.0  # the departure looked at, above the contact found
 STAGE_FROM_UM = 0.5
 STAGE_TOPS_UM = np.arange(2.0, 45.0, 1.0)  # where the soft stage may end, above the contact found
@@ -160,6 +166,29 @@ def two_stage_fit(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, nois
     if int(near.sum()) < 2 * STAGE_MIN_SAMPLES or noise_var_g2 <= 0:
         return None
     x, xc, f, sxx, ff = _sorted_detrended(x_um[near], force_g[near])
+    spacing_um = median(np.diff(x))  # a sample's step in height: 20 µm at 10 sps, 0.2 mm/s
+    shortest_um = max(TWO_STAGE_MIN_SPAN_UM, TWO_STAGE_MIN_SPAN_WINDOWS * max(window_um, spacing_um))
+    grid = (_C.two_stage_grid(x, f, TWO_STAGE_HINGES_UM, TWO_STAGE_SPANS_UM, contact_um, sxx, ff, float(x.mean()),
+                              noise_var_g2, shortest_um, TWO_STAGE_MIN_SOFT_SHARE, TWO_STAGE_MAX_SOFT_SHARE)
+            if _C is not None else _two_stage_grid(x, f, contact_um, sxx, ff, noise_var_g2, shortest_um))
+    if grid is None:
+        return None
+    least, noise_var_g2, top_mean, top_sd, best_span, soft_share, hinge_gain = grid
+    # The one-stage toe's residual is at most a hinge's (a toe of width 0): when even the hinge
+    # leaves too little to explain, the toe grid (most of the cost) is not needed.
+    evidence = (ff - hinge_gain - least) / noise_var_g2
+    if evidence > TWO_STAGE_MIN_EVIDENCE and abs(top_mean - contact_um) > TWO_STAGE_MATTERS_UM:
+        evidence = (_one_stage_rss(x, xc, f, sxx, ff, contact_um) - least) / noise_var_g2
+    return TwoStageFit(float(evidence), top_mean, top_sd, float(TWO_STAGE_SPANS_UM[best_span]), soft_share)
+
+
+def _two_stage_grid(x: np.ndarray, f: np.ndarray, contact_um: float, sxx: float, ff: float, noise_var_g2: float,
+                    shortest_um: float) -> tuple[float, float, float, float, int, float, float] | None:
+    """The numpy twin of the kernel's `two_stage_grid` (c/stage.c): over every hinge and span, the two
+    stages solved from prefix sums over the samples by height (x rising; f with a level and a drift
+    removed); (least residual, the noise variance weighing the fits, the top's mean and sd over
+    them, the best span's index, its soft share, the best hinge's gain alone), or None when no
+    grid point is allowed."""
     n, x_mean = len(f), float(x.mean())
     sums = np.zeros((5, n + 1))
     np.cumsum(np.array((np.ones(n), x, x * x, f, x * f)), axis=1, out=sums[:, 1:])
@@ -183,8 +212,6 @@ def two_stage_fit(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, nois
     k1 = (uu * vf - uv * uf) / det
     gain = k * uf + k1 * vf
     ok &= (k1 >= TWO_STAGE_MIN_SOFT_SHARE * k) & (k1 <= TWO_STAGE_MAX_SOFT_SHARE * k)
-    spacing_um = float(np.median(np.diff(x)))  # a sample's step in height: 20 µm at 10 sps, 0.2 mm/s
-    shortest_um = max(TWO_STAGE_MIN_SPAN_UM, TWO_STAGE_MIN_SPAN_WINDOWS * max(window_um, spacing_um))
     ok &= TWO_STAGE_SPANS_UM[None, :] >= shortest_um
     if not ok.any():
         return None
@@ -199,14 +226,8 @@ def two_stage_fit(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, nois
     total = float(weight.sum())
     top_mean = float((weight * top).sum()) / total
     top_sd = math.sqrt(max(float((weight * (top - top_mean) ** 2).sum()) / total, 0.0))
-    # The one-stage toe's residual is at most a hinge's (a toe of width 0): when even the hinge
-    # leaves too little to explain, the toe grid (most of the cost) is not needed.
     hinge_gain = np.where((uf > 0) & (uu > 0), uf * uf / np.maximum(uu, 1e-300), 0.0)
-    evidence = (ff - float(hinge_gain.max()) - least) / noise_var_g2
-    if evidence > TWO_STAGE_MIN_EVIDENCE and abs(top_mean - contact_um) > TWO_STAGE_MATTERS_UM:
-        evidence = (_one_stage_rss(x, xc, f, sxx, ff, contact_um) - least) / noise_var_g2
-    return TwoStageFit(float(evidence), top_mean, top_sd, float(TWO_STAGE_SPANS_UM[best[1]]),
-                       float(k1[best] / k[best]))
+    return least, noise_var_g2, top_mean, top_sd, int(best[1]), float(k1[best] / k[best]), float(hinge_gain.max())
 
 
 def shows_two_stage(fit: TwoStageFit | None, contact_um: float) -> bool:
