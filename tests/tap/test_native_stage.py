@@ -13,7 +13,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from tapcell.tap import stage
+from tapcell.tap import analysis, stage
 from native_kernel_inputs import OPTIONS, generated_taps, recorded_calls
 
 pytestmark = pytest.mark.skipif(stage._C is None, reason="the stage kernel is not built (TAPCELL_NATIVE=0)")
@@ -31,6 +31,20 @@ def fits():
                            generated_taps(TAPS_EACH, 7, SCENARIO_NAMES))
     assert len(calls) >= 15
     return calls
+
+
+def test_the_soft_stage_ramp_equals_the_numpy_twin_bit_for_bit(monkeypatch):
+    # The kernel sums the force's mean pairwise as numpy does: on taplab, the reference taps and
+    # sessions (2,023 ramps) kernel and twin agree to the last bit.
+    taps = generated_taps(3, 7, (*SCENARIO_NAMES, "clean_hx717", "cable_drift", "mains_hum"))
+    calls = recorded_calls(analysis, "departure_soft_stage", [OPTIONS["default"]], taps)
+    found = [stage.departure_soft_stage(*call) for call in calls]
+    monkeypatch.setattr(stage, "_C", None)
+    twins = [stage.departure_soft_stage(*call) for call in calls]
+    assert [None if fit is None else dataclasses.astuple(fit) for fit in found] == [
+        None if fit is None else dataclasses.astuple(fit) for fit in twins]
+    assert sum(fit is not None for fit in twins) >= 10
+    assert any(stage.shows_soft_stage(fit, 1.0, 0.0) for fit in twins if fit)  # a ramp clearly there, too
 
 
 def _grid_inputs(x_um, force_g, contact_um, noise_var_g2, window_um):

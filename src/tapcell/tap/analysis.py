@@ -49,8 +49,7 @@ from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_FIVE, PrefixSums, five_lines
-from tapcell.tap.stage import (departure_near, shows_soft_stage, shows_two_stage, soft_stage,
-                               two_stage_departure)
+from tapcell.tap.stage import departure_soft_stage, shows_soft_stage, shows_two_stage, two_stage_departure
 from tapcell.tap.toe import (ADHESION_LEVEL_UM, ADHESION_REACH_UM, THREAD_FAR_REACH_UM, THREAD_REACH_UM, ToeFit,
                              Wander, adhesion_measures, fit_toe, free_air_variogram, lag_from_halt_s, thread_pull_g,
                              wanders_from_variograms)
@@ -1086,13 +1085,8 @@ def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float
                      lag_shift_um: float, noise_g: float, approach_wander: Wander | None, stiffness_g_um: float) -> None:
     """TAP_TWO_STAGE_CONTACT when the force keeps a soft stage's ramp above the contact found
     (tapcell.tap.stage): the stiff stage let go there, the first touch is higher."""
-    x_um = 0.5 * (samples[0] + samples[1])
-    near = departure_near(x_um, contact_um)
-    x_um = x_um[near]
-    force_g = samples[2][near] - drift_g_um * x_um
-    # White noise and what the baseline's walk adds over the departure (a walk about its mean: n/6).
     walk_var_g2 = approach_wander.walk_var_g2 if approach_wander else 0.0
-    stage = soft_stage(x_um, force_g, contact_um, noise_g * noise_g + walk_var_g2 * len(x_um) / 6.0)
+    stage = departure_soft_stage(*samples, drift_g_um, contact_um, noise_g * noise_g, walk_var_g2)
     if shows_soft_stage(stage, stiffness_g_um, contact_um):
         first_touch_mm = motion.z_halt_mm + (stage.top_um - lag_shift_um) / 1000.0
         raise TapInvalid(TAP_TWO_STAGE_CONTACT,

@@ -80,6 +80,21 @@ def soft_stage(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, noise_v
     return SoftStage(float(gain[best] / noise_var_g2), float(contact_um + STAGE_TOPS_UM[best]), float(slope))
 
 
+def departure_soft_stage(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, drift_g_um: float,
+                         contact_um: float, white_var_g2: float, walk_var_g2: float) -> SoftStage | None:
+    """`soft_stage` over the pullback's samples (conversion windows [x_lo, x_hi], µm above the halt)
+    near the contact found (`departure_near`), the drift (g/µm) taken out; the noise: white plus what
+    the baseline's walk adds over those samples (a walk about its mean: n/6). In C when built."""
+    if _C is not None:
+        found = _C.soft_stage(x_lo_um, x_hi_um, force_g, drift_g_um, contact_um, white_var_g2, walk_var_g2,
+                              STAGE_TOPS_UM, STAGE_FROM_UM, STAGE_REACH_UM, STAGE_MIN_SAMPLES)
+        return None if found is None else SoftStage(*found)
+    x_um = 0.5 * (x_lo_um + x_hi_um)
+    near = departure_near(x_um, contact_um)
+    x_um = x_um[near]
+    return soft_stage(x_um, force_g[near] - drift_g_um * x_um, contact_um, white_var_g2 + walk_var_g2 * len(x_um) / 6.0)
+
+
 def shows_soft_stage(stage: SoftStage | None, stiffness_g_um: float, contact_um: float) -> bool:
     """The ramp is a stage: clearly there and steep enough."""
     return (stage is not None and stage.chi2 > STAGE_MIN_CHI2

@@ -1,5 +1,11 @@
-/* The two-stage departure fit's grid (tapcell.tap.stage.two_stage_fit) in one pass.
+/* The departure's stage checks (tapcell.tap.stage): the soft-stage ramp above the contact found
+ * (soft_stage) and the two-stage fit's grid (two_stage_grid), each in one pass.
  *
+ * soft_stage: the samples from STAGE_FROM_UM to STAGE_REACH_UM above the contact, drift removed, by
+ * height, and the ramp clip(top - x, 0) of every top from prefix sums, as the twin does with one
+ * numpy call per step; the force's mean as numpy sums it (pairwise), so they agree bit for bit.
+ *
+ * two_stage_grid:
  * Over every (hinge, span) on the grid: a level, a drift, a stiff stage (h - x)+ and a soft stage
  * (t - x)+ solved in closed form from prefix sums over the samples by height, kept where both
  * stiffnesses are positive within the shares allowed and the span is long enough; the least
@@ -31,6 +37,124 @@ static Sums sums_below(const double *prefix, const double *x, Py_ssize_t n, doub
     const double *row = prefix + 5 * i;
     Sums s = {row[0], row[1], row[2], row[3], row[4]};
     return s;
+}
+
+/* numpy's sum of a contiguous float64 array (pairwise: blocks of up to 128 in eight lanes), so the
+ * mean the twin takes out is the same to the last bit. */
+static double pairwise_sum(const double *a, Py_ssize_t n)
+{
+    if (n < 8) {
+        double sum = -0.0;
+        for (Py_ssize_t i = 0; i < n; i++) sum += a[i];
+        return sum;
+    }
+    if (n <= 128) {
+        double lane[8];
+        for (int j = 0; j < 8; j++) lane[j] = a[j];
+        Py_ssize_t i = 8;
+        for (; i < n - (n % 8); i += 8)
+            for (int j = 0; j < 8; j++) lane[j] += a[i + j];
+        double sum = ((lane[0] + lane[1]) + (lane[2] + lane[3])) + ((lane[4] + lane[5]) + (lane[6] + lane[7]));
+        for (; i < n; i++) sum += a[i];
+        return sum;
+    }
+    Py_ssize_t half = n / 2;
+    half -= half % 8;
+    return pairwise_sum(a, half) + pairwise_sum(a + half, n - half);
+}
+
+static PyObject *soft_stage(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer lob = {0}, hib = {0}, fb = {0}, tb = {0};
+    double drift_g_um, contact_um, white_var, walk_var, from_um, reach_um;
+    Py_ssize_t min_samples;
+    if (!PyArg_ParseTuple(args, "O&O&O&ddddO&ddn", float64_buffer, &lob, float64_buffer, &hib, float64_buffer, &fb,
+                          &drift_g_um, &contact_um, &white_var, &walk_var, float64_buffer, &tb, &from_um, &reach_um,
+                          &min_samples))
+        return NULL;
+    PyObject *answer = NULL;
+    double *x = NULL, *f = NULL, *prefix = NULL;
+    Py_ssize_t n_all, n_tops;
+    const double *x_lo = doubles_of(&lob, &n_all, "x_lo_um");
+    const double *x_hi = x_lo ? doubles_sized(&hib, n_all, "x_hi_um") : NULL;
+    const double *force = x_hi ? doubles_sized(&fb, n_all, "force_g") : NULL;
+    const double *tops = force ? doubles_of(&tb, &n_tops, "tops_um") : NULL;
+    if (tops == NULL) goto done;
+    x = malloc(sizeof(double) * (size_t)(n_all > 0 ? n_all : 1));
+    f = malloc(sizeof(double) * (size_t)(n_all > 0 ? n_all : 1));
+    prefix = malloc(sizeof(double) * 4 * (size_t)(n_all + 1));
+    if (x == NULL || f == NULL || prefix == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    /* The samples near the contact, drift removed, in a stable insertion sort by height (they rise
+     * already but for the pullback's end). */
+    Py_ssize_t n = 0;
+    for (Py_ssize_t i = 0; i < n_all; i++) {
+        const double mid = 0.5 * (x_lo[i] + x_hi[i]);
+        const double above = mid - contact_um;
+        if (!(above > from_um && above < reach_um)) continue;
+        const double level = force[i] - drift_g_um * mid;
+        Py_ssize_t j = n++;
+        for (; j > 0 && x[j - 1] > mid; j--) {
+            x[j] = x[j - 1];
+            f[j] = f[j - 1];
+        }
+        x[j] = mid;
+        f[j] = level;
+    }
+    const double noise_var = white_var + walk_var * (double)n / 6.0;
+    if (n < min_samples || !(noise_var > 0.0)) {
+        answer = Py_None;
+        Py_INCREF(answer);
+        goto done;
+    }
+    const double mean = pairwise_sum(f, n) / (double)n;
+    for (int q = 0; q < 4; q++) prefix[q] = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double h = x[i] - contact_um, level = f[i] - mean;
+        const double *below = prefix + 4 * i;
+        double *row = prefix + 4 * (i + 1);
+        x[i] = h;
+        row[0] = below[0] + h;
+        row[1] = below[1] + h * h;
+        row[2] = below[2] + level;
+        row[3] = below[3] + h * level;
+    }
+    double best_gain = 0.0, best_srf = 0.0, best_srr = 0.0;
+    Py_ssize_t best = -1;
+    for (Py_ssize_t k = 0; k < n_tops; k++) {
+        const double top = tops[k];
+        const Py_ssize_t count = count_below(x, n, top);
+        const double *row = prefix + 4 * count;
+        const double below = (double)count;
+        const double sum_r = top * below - row[0];
+        const double srr = (top * top) * below - (2.0 * top) * row[0] + row[1] - sum_r * sum_r / (double)n;
+        const double srf = top * row[2] - row[3];
+        const double gain = srf <= 0.0 ? 0.0 : srf * srf / fmax(srr, 1e-300);
+        if (best < 0 || gain > best_gain) {
+            best = k;
+            best_gain = gain;
+            best_srf = srf;
+            best_srr = srr;
+        }
+    }
+    if (best < 0) {
+        PyErr_SetString(PyExc_ValueError, "soft_stage needs tops");
+        goto done;
+    }
+    const double slope = best_srr > 0.0 ? best_srf / best_srr : 0.0;
+    answer = Py_BuildValue("ddd", best_gain / noise_var, contact_um + tops[best], slope);
+done:
+    free(x);
+    free(f);
+    free(prefix);
+    PyBuffer_Release(&lob);
+    PyBuffer_Release(&hib);
+    PyBuffer_Release(&fb);
+    PyBuffer_Release(&tb);
+    return answer;
 }
 
 static PyObject *two_stage_grid(PyObject *self, PyObject *args)
@@ -144,6 +268,13 @@ done:
 }
 
 static PyMethodDef methods[] = {
+    {"soft_stage", soft_stage, METH_VARARGS,
+     "soft_stage(x_lo_um, x_hi_um, force_g, drift_g_um, contact_um, white_var_g2, walk_var_g2, tops_um, from_um,\n"
+     "           reach_um, min_samples) -> (chi2, top_um, slope_g_um) or None\n\n"
+     "The best soft-stage ramp over the pullback's samples (conversion windows [x_lo, x_hi]) from from_um\n"
+     "to reach_um above contact_um, drift removed, every top contact_um + tops_um; its gain over the\n"
+     "noise variance white + walk x samples / 6. None when fewer than min_samples or no noise (stage.py:\n"
+     "departure_soft_stage, soft_stage)."},
     {"two_stage_grid", two_stage_grid, METH_VARARGS,
      "two_stage_grid(x_um, force_g, hinges_um, spans_um, contact_um, sxx, ff, x_mean, noise_var_g2, shortest_um,\n"
      "               min_soft_share, max_soft_share)\n"
@@ -157,7 +288,7 @@ static PyMethodDef methods[] = {
 };
 
 static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_c_stage",
-                                    "The two-stage departure fit's grid (tapcell.tap.stage).", -1, methods,
+                                    "The departure's stage checks (tapcell.tap.stage).", -1, methods,
                                     NULL, NULL, NULL, NULL};
 
 PyMODINIT_FUNC PyInit__c_stage(void) { return PyModule_Create(&module); }
