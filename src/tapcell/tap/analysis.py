@@ -52,7 +52,7 @@ from tapcell.tap.segments import NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_F
 from tapcell.tap.stage import departure_soft_stage, shows_soft_stage, shows_two_stage, two_stage_departure
 from tapcell.tap.toe import (ADHESION_LEVEL_UM, ADHESION_REACH_UM, THREAD_FAR_REACH_UM, THREAD_REACH_UM, ToeFit,
                              Wander, adhesion_measures, fit_toe, free_air_variogram, lag_from_halt_s, thread_pull_g,
-                             wanders_from_variograms)
+                             thread_pulls_g, wanders_from_variograms)
 
 # The checks, robust statistics and window heights in C (c/analysis.c, tapcell.tap.native); None: numpy.
 _C = native.load("analysis")
@@ -1035,12 +1035,10 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
     speed_um_s = motion.pullback_speed_mm_s * 1000.0
     # Break contact in the window's heights (a delay estimated since moved Z down by speed x delay).
     contact_um = (result.z_mm - motion.z_halt_mm) * 1000.0 + (delay_s - window_delay_s) * speed_um_s
-    x_lo, x_hi, force_g = pullback_samples(window, motion, timing, window_delay_s)
-    x_um = 0.5 * (x_lo + x_hi)
     slope_g_s, intercept_g = dec.approach_line
-    pull = functools.partial(thread_pull_g, x_um, force_g, free_air_slope_g_um(dec, motion),
-                             slope_g_s * motion.home_end_s + intercept_g, contact_um)
-    reaches_far = len(x_um) > 0 and float(x_um.max()) - contact_um >= THREAD_FAR_MIN_UM
+    near_pull_g, far_pull_g = thread_pulls_g(*pullback_samples(window, motion, timing, window_delay_s),
+                                             free_air_slope_g_um(dec, motion), slope_g_s * motion.home_end_s + intercept_g,
+                                             contact_um, THREAD_FAR_MIN_UM)
     # The walk between the near and far reaches' middles, in samples of the pullback.
     _, approach_wander = split.wanders
     apart_samples = (sum(THREAD_FAR_REACH_UM) - sum(THREAD_REACH_UM)) / 2.0 / max(
@@ -1052,8 +1050,7 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
     halt_sigma_s = (corner_time_sigma_s(split.ps, dec, COMPRESSION, dec.points[P_DWELL_START][0])
                     if timing.delay_from_halt else 0.0)
     others = dict(
-        thread_um=uncertainty.thread_um(pull(), pull(THREAD_FAR_REACH_UM) if reaches_far else None, walk_var_g2,
-                                        stiffness),
+        thread_um=uncertainty.thread_um(near_pull_g, far_pull_g, walk_var_g2, stiffness),
         misfit_um=uncertainty.misfit_um(result.fit_residual_sigma_g, max(split.noise_g, departure_g),
                                         result.step_sigma_g, stiffness),
         squeeze_um=uncertainty.squeeze_um(*_contact_down_and_up(fits)),
