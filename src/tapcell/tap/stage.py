@@ -112,6 +112,7 @@ TWO_STAGE_SPANS_UM = np.arange(2.0, 40.0, 1.0)  # the soft stage's travel above 
 ONE_STAGE_CONTACTS_UM = np.arange(-10.0, 35.0, 0.5)  # the one-stage toe's contact, about the contact found
 ONE_STAGE_WIDTHS_UM = (0.0, 1.0, 2.0, 3.0, 4.5, 6.0, 8.0, 10.0, 13.0, 16.0, 20.0, 25.0, 30.0)
 ONE_STAGE_POWERS = (0.5, 1.0)
+_ONE_STAGE_WIDTHS, _ONE_STAGE_POWERS = np.array(ONE_STAGE_WIDTHS_UM), np.array(ONE_STAGE_POWERS)  # the kernel's
 # The soft stage's stiffness over the stiff stage's: at 6 % a drift the approach left and a bed's
 # walk pass for a stage over 40 µm (one reference clean tap of 960 at 87 noise variances); a first
 # stage stiffer than half the contact is the contact's own toe.
@@ -155,7 +156,11 @@ def _sorted_detrended(x_um: np.ndarray, force_g: np.ndarray) -> tuple[np.ndarray
 
 def _one_stage_rss(x: np.ndarray, xc: np.ndarray, f: np.ndarray, sxx: float, ff: float, contact_um: float) -> float:
     """The least residual of a level, a drift and a one-stage toe (tapcell.tap.toe's shapes, widths
-    to 30 µm, no prior: the toe as wide as the data like) over every contact on the grid."""
+    to 30 µm, no prior: the toe as wide as the data like) over every contact on the grid. In C when
+    built (the samples on the toe's linear part from prefix sums; the code below is its numpy twin)."""
+    if _C is not None:
+        return _C.one_stage_rss(x, f, ONE_STAGE_CONTACTS_UM, _ONE_STAGE_WIDTHS, _ONE_STAGE_POWERS, contact_um, sxx, ff,
+                                float(x.mean()))
     from tapcell.tap.toe import toe_shapes  # the shapes only; stage.py stays importable alone
 
     n = len(f)

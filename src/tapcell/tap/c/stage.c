@@ -267,7 +267,102 @@ done:
     return answer;
 }
 
+/* The one-stage toe's least residual (stage.py: _one_stage_rss, its numpy twin) over every shape,
+ * width and contact on the grid. The samples pressed at least a width deep lie on the toe's linear
+ * part, s = B - z (z: height above the contact found, B = contact - width (1 - 1/(power + 1))),
+ * whose sums come from prefix sums over the samples by height; only those inside the toe are
+ * evaluated one by one. The same least squares as the twin's, summed in another order. */
+static PyObject *one_stage_rss(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer xb = {0}, fb = {0}, cb = {0}, wb = {0}, pb = {0};
+    double contact_um, sxx, ff, x_mean;
+    if (!PyArg_ParseTuple(args, "O&O&O&O&O&dddd", float64_buffer, &xb, float64_buffer, &fb, float64_buffer, &cb,
+                          float64_buffer, &wb, float64_buffer, &pb, &contact_um, &sxx, &ff, &x_mean))
+        return NULL;
+    PyObject *answer = NULL;
+    double *prefix = NULL;
+    Py_ssize_t n, contacts, widths, powers;
+    const double *x = doubles_of(&xb, &n, "x_um");
+    const double *f = x ? doubles_sized(&fb, n, "force_g") : NULL;
+    const double *offsets = f ? doubles_of(&cb, &contacts, "contacts_um") : NULL;
+    const double *width_list = offsets ? doubles_of(&wb, &widths, "widths_um") : NULL;
+    const double *power_list = width_list ? doubles_of(&pb, &powers, "powers") : NULL;
+    if (power_list == NULL) goto done;
+    if (n < 1) {
+        PyErr_SetString(PyExc_ValueError, "one_stage_rss needs samples");
+        goto done;
+    }
+    prefix = malloc(sizeof(double) * 5 * (size_t)(n + 1));
+    if (prefix == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    /* Prefix sums over the samples (rising) of 1, z, z^2, f, z f; z about the contact found. */
+    for (int q = 0; q < 5; q++) prefix[q] = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double z = x[i] - contact_um;
+        const double *below = prefix + 5 * i;
+        double *row = prefix + 5 * (i + 1);
+        row[0] = below[0] + 1.0;
+        row[1] = below[1] + z;
+        row[2] = below[2] + z * z;
+        row[3] = below[3] + f[i];
+        row[4] = below[4] + z * f[i];
+    }
+    const double count = (double)n, z_mean = x_mean - contact_um;
+    double best_gain = 0.0;
+    for (Py_ssize_t k = 0; k < powers; k++) {
+        const double power = power_list[k], share = 1.0 / (power + 1.0);
+        for (Py_ssize_t w = 0; w < widths; w++) {
+            const double width = fmax(width_list[w], 1e-9);
+            for (Py_ssize_t c = 0; c < contacts; c++) {
+                const double contact = contact_um + offsets[c];
+                /* [0, linear): pressed a width deep or more; [linear, pressed): inside the toe. */
+                const Py_ssize_t pressed = count_below(x, n, contact);
+                Py_ssize_t linear = count_below(x, pressed, contact - width);
+                while (linear < pressed && contact - x[linear] >= width) linear++;
+                const double *p = prefix + 5 * linear;
+                const double b = offsets[c] - width * (1.0 - share);
+                double s_sum = b * p[0] - p[1];
+                double s_x = b * p[1] - b * p[0] * z_mean - p[2] + z_mean * p[1];
+                double s_ss = b * b * p[0] - 2.0 * b * p[1] + p[2];
+                double s_f = b * p[3] - p[4];
+                for (Py_ssize_t i = linear; i < pressed; i++) {
+                    const double u = (contact - x[i]) / width;
+                    double shape;
+                    if (power == 0.5) shape = sqrt(u) * u;
+                    else if (power == 1.0) shape = u * u;
+                    else shape = pow(u, power + 1.0);
+                    shape *= width * share;
+                    s_sum += shape;
+                    s_x += shape * (x[i] - x_mean);
+                    s_ss += shape * shape;
+                    s_f += shape * f[i];
+                }
+                const double s_var = s_ss - s_sum * s_sum / count - s_x * s_x / sxx;
+                const double gain = (s_f > 0.0 && s_var > 0.0) ? s_f * s_f / fmax(s_var, 1e-300) : 0.0;
+                if (gain > best_gain) best_gain = gain;
+            }
+        }
+    }
+    answer = PyFloat_FromDouble(ff - best_gain);
+done:
+    free(prefix);
+    PyBuffer_Release(&xb);
+    PyBuffer_Release(&fb);
+    PyBuffer_Release(&cb);
+    PyBuffer_Release(&wb);
+    PyBuffer_Release(&pb);
+    return answer;
+}
+
 static PyMethodDef methods[] = {
+    {"one_stage_rss", one_stage_rss, METH_VARARGS,
+     "one_stage_rss(x_um, force_g, contacts_um, widths_um, powers, contact_um, sxx, ff, x_mean) -> float\n\n"
+     "The least residual of a level, a drift and a one-stage toe over every power, width and contact\n"
+     "(contact_um + contacts_um): x_um rising, force_g with the level and drift removed, sxx the centred\n"
+     "heights' sum of squares, ff the force's, x_mean the heights' mean (stage.py: _one_stage_rss)."},
     {"soft_stage", soft_stage, METH_VARARGS,
      "soft_stage(x_lo_um, x_hi_um, force_g, drift_g_um, contact_um, white_var_g2, walk_var_g2, tops_um, from_um,\n"
      "           reach_um, min_samples) -> (chi2, top_um, slope_g_um) or None\n\n"
