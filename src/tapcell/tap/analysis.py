@@ -329,13 +329,16 @@ def decompose_again(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag
 
 
 def _segment_stats(ps: PrefixSums, i: int, j: int) -> tuple[float, float, float]:
-    """(residual variance, mean re-centred time, Sxx) of the line over [i, j)."""
-    n, st, sf, stt, stf, sff = ps.segment_sums(i, j)
-    sxx = stt - st * st / n
-    sxy = stf - st * sf / n
-    syy = sff - sf * sf / n
-    sse = max(syy - (sxy * sxy / sxx if sxx > 0 else 0.0), 0.0)
-    return sse / max(n - 2, 1), st / n, sxx
+    """(residual variance, mean re-centred time, Sxx) of the line over [i, j) (computed once a range)."""
+    found = ps.derived.get((i, j))
+    if found is None:
+        n, st, sf, stt, stf, sff = ps.segment_sums(i, j)
+        sxx = stt - st * st / n
+        sxy = stf - st * sf / n
+        syy = sff - sf * sf / n
+        sse = max(syy - (sxy * sxy / sxx if sxx > 0 else 0.0), 0.0)
+        found = ps.derived[i, j] = (sse / max(n - 2, 1), st / n, sxx)
+    return found
 
 
 def break_time_sigma_s(ps: PrefixSums, dec: Decomposition, t_break: float) -> float:
