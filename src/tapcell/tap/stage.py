@@ -147,9 +147,10 @@ def _sorted_detrended(x_um: np.ndarray, force_g: np.ndarray) -> tuple[np.ndarray
     (a line in height) removed: both models fit those too (what drift the approach left, a walk)."""
     order = x_um.argsort(kind="stable")
     x, f = x_um[order], force_g[order]
-    xc = x - x.mean()
+    n = len(x)
+    xc = x - float(x.sum()) / n  # the means without np.mean's Python wrapper (the same sum and division)
     sxx = float(xc @ xc)
-    f = f - f.mean()
+    f = f - float(f.sum()) / n
     f = f - xc * (float(xc @ f) / sxx)
     return x, xc, f, sxx, float(f @ f)
 
@@ -268,6 +269,6 @@ def two_stage_departure(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.nd
     near = (x_um > contact_um - TWO_STAGE_BELOW_UM) & (x_um < contact_um + TWO_STAGE_ABOVE_UM)
     if not near.any():
         return None
-    x_um, window_um = x_um[near], float(np.median(x_hi_um[near] - x_lo_um[near]))
+    x_um, window_um = x_um[near], median(x_hi_um[near] - x_lo_um[near])
     noise_var_g2 = noise_g * noise_g + walk_var_g2 * len(x_um) / 6.0
     return two_stage_fit(x_um, force_g[near] - drift_g_um * x_um, contact_um, noise_var_g2, window_um)
