@@ -22,7 +22,7 @@ from __future__ import annotations
 import functools
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -373,6 +373,8 @@ class ModelWindow:
     span_um: np.ndarray
     contact_line_um: float  # P1 mapped (approach)
     break_line_um: float  # P4 mapped (pullback)
+    # `pullback_samples` by their first sample: the sharp fit, the toe fit and the Z uncertainty read the same.
+    pullbacks: dict = field(default_factory=dict, repr=False, compare=False)
 
 
 def model_window(time_s, force_g, motion: Motion, timing: SensorTiming, delay_s: float,
@@ -571,8 +573,11 @@ def pullback_first(window: ModelWindow, motion: Motion, timing: SensorTiming, de
 def pullback_samples(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float) -> PullbackSamples:
     """(window low edge µm, high edge µm, force g) of the samples read after the pullback began."""
     first = pullback_first(window, motion, timing, delay_s)
-    x_lo = window.x_min_um[first:]
-    return x_lo, x_lo + window.span_um[first:], window.force_g[first:]
+    found = window.pullbacks.get(first)
+    if found is None:
+        x_lo = window.x_min_um[first:]
+        found = window.pullbacks[first] = (x_lo, x_lo + window.span_um[first:], window.force_g[first:])
+    return found
 
 
 def read_while_rising(samples: PullbackSamples, window: ModelWindow, motion: Motion, delay_s: float
