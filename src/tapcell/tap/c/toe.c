@@ -867,6 +867,16 @@ static PyObject *float_or_none(double value)
     return PyFloat_FromDouble(value);
 }
 
+/* The pullback's samples (conversion windows' low and high edges, force) from three buffers of one
+ * length into *x_lo, *x_hi, *force_g; *force_g is NULL (ValueError set) when they are not. */
+static void pullback_samples_of(const Py_buffer buffers[3], Py_ssize_t *n, const double **x_lo, const double **x_hi,
+                                const double **force_g)
+{
+    *x_lo = doubles_of(&buffers[0], n, "x_lo_um");
+    *x_hi = *x_lo ? doubles_sized(&buffers[1], *n, "x_hi_um") : NULL;
+    *force_g = *x_hi ? doubles_sized(&buffers[2], *n, "force_g") : NULL;
+}
+
 static PyObject *adhesion(PyObject *self, PyObject *args)
 {
     (void)self;
@@ -881,9 +891,8 @@ static PyObject *adhesion(PyObject *self, PyObject *args)
         return NULL;
     PyObject *result = NULL;
     Py_ssize_t n = 0;
-    const double *x_lo = doubles_of(&buffers[0], &n, "x_lo_um");
-    const double *x_hi = x_lo ? doubles_sized(&buffers[1], n, "x_hi_um") : NULL;
-    const double *force_g = x_hi ? doubles_sized(&buffers[2], n, "force_g") : NULL;
+    const double *x_lo, *x_hi, *force_g;
+    pullback_samples_of(buffers, &n, &x_lo, &x_hi, &force_g);
     if (force_g != NULL && limits.run_samples < 1) {
         PyErr_SetString(PyExc_ValueError, "run_samples: at least 1");
     } else if (force_g != NULL) {
@@ -917,9 +926,8 @@ static PyObject *thread_pulls(PyObject *self, PyObject *args)
         return NULL;
     PyObject *result = NULL;
     Py_ssize_t n = 0;
-    const double *x_lo = doubles_of(&buffers[0], &n, "x_lo_um");
-    const double *x_hi = x_lo ? doubles_sized(&buffers[1], n, "x_hi_um") : NULL;
-    const double *force_g = x_hi ? doubles_sized(&buffers[2], n, "force_g") : NULL;
+    const double *x_lo, *x_hi, *force_g;
+    pullback_samples_of(buffers, &n, &x_lo, &x_hi, &force_g);
     if (force_g != NULL) {
         double *scratch = malloc((size_t)(n > 0 ? n : 1) * sizeof(double));
         if (scratch == NULL) {
