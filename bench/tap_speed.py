@@ -30,7 +30,7 @@ import numpy as np
 from rich.console import Console
 from rich.table import Table
 
-from tapcell.tap import AnalysisOptions, analysis, analyze_tap, contact, robust, segments, toe
+from tapcell.tap import AnalysisOptions, analysis, analyze_tap, contact, robust, segments, stage, toe
 from tapcell.tap.synth import synth_tap
 from tapcell.taplab import benchmark
 from tapcell.taplab.generate import generate_set
@@ -41,7 +41,7 @@ TARGET_PER_TAP, TARGET_WHOLE_RUN = 10.0, 5.0  # issue 21: times less CPU than Ka
 SIZES = ((300, 320.0), (600, 660.0), (2000, 2000.0), (15000, 330.0))
 SHARP_LAG_0 = AnalysisOptions(contact_model="sharp", sensor_delay_s=0.0)
 # The modules that call a compiled kernel through their module-level `_C`.
-KERNEL_CALLERS = (robust, analysis, segments, contact, toe)
+KERNEL_CALLERS = (robust, analysis, segments, contact, toe, stage)
 
 
 @contextlib.contextmanager

@@ -219,3 +219,14 @@ def test_adhesion_measures_equal_the_numpy_twin(monkeypatch):
                 assert value == pytest.approx(twin_value, abs=1e-9)
     assert sum(dip is not None for dip, _ in twins) >= 10 and sum(pull is not None for _, pull in twins) >= 10
     assert max(dip for dip, _ in twins if dip is not None) > 3.0  # ooze taps: real dips, not only noise (4.9 g)
+
+
+def test_thread_pulls_equal_the_numpy_twin_bit_for_bit(monkeypatch):
+    # Both take the same mid-heights and differences and select their medians: no sum in another order.
+    calls = recorded_calls(analysis, "thread_pulls_g", [OPTIONS["default"]])
+    kernel = [toe.thread_pulls_g(*args) for args in calls]
+    monkeypatch.setattr(toe, "_C", None)
+    twins = [toe.thread_pulls_g(*args) for args in calls]
+    assert kernel == twins
+    assert sum(near is not None for near, _ in twins) >= 10 and sum(far is not None for _, far in twins) >= 5
+    assert any(far is None and near is not None for near, far in twins)  # a pullback too short to reach far

@@ -22,7 +22,7 @@ from __future__ import annotations
 import functools
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -49,11 +49,10 @@ from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_FIVE, PrefixSums, five_lines
-from tapcell.tap.stage import (departure_near, shows_soft_stage, shows_two_stage, soft_stage,
-                               two_stage_departure)
+from tapcell.tap.stage import departure_soft_stage, shows_soft_stage, shows_two_stage, two_stage_departure
 from tapcell.tap.toe import (ADHESION_LEVEL_UM, ADHESION_REACH_UM, THREAD_FAR_REACH_UM, THREAD_REACH_UM, ToeFit,
                              Wander, adhesion_measures, fit_toe, free_air_variogram, lag_from_halt_s, thread_pull_g,
-                             wanders_from_variograms)
+                             thread_pulls_g, wanders_from_variograms)
 
 # The checks, robust statistics and window heights in C (c/analysis.c, tapcell.tap.native); None: numpy.
 _C = native.load("analysis")
@@ -330,13 +329,16 @@ def decompose_again(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag
 
 
 def _segment_stats(ps: PrefixSums, i: int, j: int) -> tuple[float, float, float]:
-    """(residual variance, mean re-centred time, Sxx) of the line over [i, j)."""
-    n, st, sf, stt, stf, sff = ps.segment_sums(i, j)
-    sxx = stt - st * st / n
-    sxy = stf - st * sf / n
-    syy = sff - sf * sf / n
-    sse = max(syy - (sxy * sxy / sxx if sxx > 0 else 0.0), 0.0)
-    return sse / max(n - 2, 1), st / n, sxx
+    """(residual variance, mean re-centred time, Sxx) of the line over [i, j) (computed once a range)."""
+    found = ps.derived.get((i, j))
+    if found is None:
+        n, st, sf, stt, stf, sff = ps.segment_sums(i, j)
+        sxx = stt - st * st / n
+        sxy = stf - st * sf / n
+        syy = sff - sf * sf / n
+        sse = max(syy - (sxy * sxy / sxx if sxx > 0 else 0.0), 0.0)
+        found = ps.derived[i, j] = (sse / max(n - 2, 1), st / n, sxx)
+    return found
 
 
 def break_time_sigma_s(ps: PrefixSums, dec: Decomposition, t_break: float) -> float:
@@ -371,6 +373,8 @@ class ModelWindow:
     span_um: np.ndarray
     contact_line_um: float  # P1 mapped (approach)
     break_line_um: float  # P4 mapped (pullback)
+    # `pullback_samples` by their first sample: the sharp fit, the toe fit and the Z uncertainty read the same.
+    pullbacks: dict = field(default_factory=dict, repr=False, compare=False)
 
 
 def model_window(time_s, force_g, motion: Motion, timing: SensorTiming, delay_s: float,
@@ -569,8 +573,11 @@ def pullback_first(window: ModelWindow, motion: Motion, timing: SensorTiming, de
 def pullback_samples(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float) -> PullbackSamples:
     """(window low edge µm, high edge µm, force g) of the samples read after the pullback began."""
     first = pullback_first(window, motion, timing, delay_s)
-    x_lo = window.x_min_um[first:]
-    return x_lo, x_lo + window.span_um[first:], window.force_g[first:]
+    found = window.pullbacks.get(first)
+    if found is None:
+        x_lo = window.x_min_um[first:]
+        found = window.pullbacks[first] = (x_lo, x_lo + window.span_um[first:], window.force_g[first:])
+    return found
 
 
 def read_while_rising(samples: PullbackSamples, window: ModelWindow, motion: Motion, delay_s: float
@@ -1036,12 +1043,10 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
     speed_um_s = motion.pullback_speed_mm_s * 1000.0
     # Break contact in the window's heights (a delay estimated since moved Z down by speed x delay).
     contact_um = (result.z_mm - motion.z_halt_mm) * 1000.0 + (delay_s - window_delay_s) * speed_um_s
-    x_lo, x_hi, force_g = pullback_samples(window, motion, timing, window_delay_s)
-    x_um = 0.5 * (x_lo + x_hi)
     slope_g_s, intercept_g = dec.approach_line
-    pull = functools.partial(thread_pull_g, x_um, force_g, free_air_slope_g_um(dec, motion),
-                             slope_g_s * motion.home_end_s + intercept_g, contact_um)
-    reaches_far = len(x_um) > 0 and float(x_um.max()) - contact_um >= THREAD_FAR_MIN_UM
+    near_pull_g, far_pull_g = thread_pulls_g(*pullback_samples(window, motion, timing, window_delay_s),
+                                             free_air_slope_g_um(dec, motion), slope_g_s * motion.home_end_s + intercept_g,
+                                             contact_um, THREAD_FAR_MIN_UM)
     # The walk between the near and far reaches' middles, in samples of the pullback.
     _, approach_wander = split.wanders
     apart_samples = (sum(THREAD_FAR_REACH_UM) - sum(THREAD_REACH_UM)) / 2.0 / max(
@@ -1053,8 +1058,7 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
     halt_sigma_s = (corner_time_sigma_s(split.ps, dec, COMPRESSION, dec.points[P_DWELL_START][0])
                     if timing.delay_from_halt else 0.0)
     others = dict(
-        thread_um=uncertainty.thread_um(pull(), pull(THREAD_FAR_REACH_UM) if reaches_far else None, walk_var_g2,
-                                        stiffness),
+        thread_um=uncertainty.thread_um(near_pull_g, far_pull_g, walk_var_g2, stiffness),
         misfit_um=uncertainty.misfit_um(result.fit_residual_sigma_g, max(split.noise_g, departure_g),
                                         result.step_sigma_g, stiffness),
         squeeze_um=uncertainty.squeeze_um(*_contact_down_and_up(fits)),
@@ -1086,13 +1090,8 @@ def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float
                      lag_shift_um: float, noise_g: float, approach_wander: Wander | None, stiffness_g_um: float) -> None:
     """TAP_TWO_STAGE_CONTACT when the force keeps a soft stage's ramp above the contact found
     (tapcell.tap.stage): the stiff stage let go there, the first touch is higher."""
-    x_um = 0.5 * (samples[0] + samples[1])
-    near = departure_near(x_um, contact_um)
-    x_um = x_um[near]
-    force_g = samples[2][near] - drift_g_um * x_um
-    # White noise and what the baseline's walk adds over the departure (a walk about its mean: n/6).
     walk_var_g2 = approach_wander.walk_var_g2 if approach_wander else 0.0
-    stage = soft_stage(x_um, force_g, contact_um, noise_g * noise_g + walk_var_g2 * len(x_um) / 6.0)
+    stage = departure_soft_stage(*samples, drift_g_um, contact_um, noise_g * noise_g, walk_var_g2)
     if shows_soft_stage(stage, stiffness_g_um, contact_um):
         first_touch_mm = motion.z_halt_mm + (stage.top_um - lag_shift_um) / 1000.0
         raise TapInvalid(TAP_TWO_STAGE_CONTACT,

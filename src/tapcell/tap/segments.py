@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -36,6 +36,9 @@ class PrefixSums:
     t_ref_s: float
     f_ref_g: float
     sums: np.ndarray  # (6, n + 1)
+    # What the analysis derived from a range's sums, by (i, j): the checks and the Z uncertainty ask
+    # for the same lines' scatter several times a tap (tapcell.tap.analysis._segment_stats).
+    derived: dict = field(default_factory=dict, repr=False, compare=False)
 
     def segment_sums(self, i: int, j: int) -> list[float]:
         """[n, Σt, Σf, Σt², Σt·f, Σf²] over [i, j) as plain floats."""

@@ -22,6 +22,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tapcell.tap import native
+from tapcell.tap.robust import median
+
+# The two-stage fit's grid in C (c/stage.c, tapcell.tap.native); None: its numpy twin `_two_stage_grid`.
+_C = native.load("stage")
+
 STAGE_REACH_UM = 60.0  # the departure looked at, above the contact found
 STAGE_FROM_UM = 0.5
 STAGE_TOPS_UM = np.arange(2.0, 45.0, 1.0)  # where the soft stage may end, above the contact found
@@ -74,6 +80,21 @@ def soft_stage(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, noise_v
     return SoftStage(float(gain[best] / noise_var_g2), float(contact_um + STAGE_TOPS_UM[best]), float(slope))
 
 
+def departure_soft_stage(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, drift_g_um: float,
+                         contact_um: float, white_var_g2: float, walk_var_g2: float) -> SoftStage | None:
+    """`soft_stage` over the pullback's samples (conversion windows [x_lo, x_hi], µm above the halt)
+    near the contact found (`departure_near`), the drift (g/µm) taken out; the noise: white plus what
+    the baseline's walk adds over those samples (a walk about its mean: n/6). In C when built."""
+    if _C is not None:
+        found = _C.soft_stage(x_lo_um, x_hi_um, force_g, drift_g_um, contact_um, white_var_g2, walk_var_g2,
+                              STAGE_TOPS_UM, STAGE_FROM_UM, STAGE_REACH_UM, STAGE_MIN_SAMPLES)
+        return None if found is None else SoftStage(*found)
+    x_um = 0.5 * (x_lo_um + x_hi_um)
+    near = departure_near(x_um, contact_um)
+    x_um = x_um[near]
+    return soft_stage(x_um, force_g[near] - drift_g_um * x_um, contact_um, white_var_g2 + walk_var_g2 * len(x_um) / 6.0)
+
+
 def shows_soft_stage(stage: SoftStage | None, stiffness_g_um: float, contact_um: float) -> bool:
     """The ramp is a stage: clearly there and steep enough."""
     return (stage is not None and stage.chi2 > STAGE_MIN_CHI2
@@ -91,6 +112,7 @@ TWO_STAGE_SPANS_UM = np.arange(2.0, 40.0, 1.0)  # the soft stage's travel above 
 ONE_STAGE_CONTACTS_UM = np.arange(-10.0, 35.0, 0.5)  # the one-stage toe's contact, about the contact found
 ONE_STAGE_WIDTHS_UM = (0.0, 1.0, 2.0, 3.0, 4.5, 6.0, 8.0, 10.0, 13.0, 16.0, 20.0, 25.0, 30.0)
 ONE_STAGE_POWERS = (0.5, 1.0)
+_ONE_STAGE_WIDTHS, _ONE_STAGE_POWERS = np.array(ONE_STAGE_WIDTHS_UM), np.array(ONE_STAGE_POWERS)  # the kernel's
 # The soft stage's stiffness over the stiff stage's: at 6 % a drift the approach left and a bed's
 # walk pass for a stage over 40 µm (one reference clean tap of 960 at 87 noise variances); a first
 # stage stiffer than half the contact is the contact's own toe.
@@ -125,16 +147,21 @@ def _sorted_detrended(x_um: np.ndarray, force_g: np.ndarray) -> tuple[np.ndarray
     (a line in height) removed: both models fit those too (what drift the approach left, a walk)."""
     order = x_um.argsort(kind="stable")
     x, f = x_um[order], force_g[order]
-    xc = x - x.mean()
+    n = len(x)
+    xc = x - float(x.sum()) / n  # the means without np.mean's Python wrapper (the same sum and division)
     sxx = float(xc @ xc)
-    f = f - f.mean()
+    f = f - float(f.sum()) / n
     f = f - xc * (float(xc @ f) / sxx)
     return x, xc, f, sxx, float(f @ f)
 
 
 def _one_stage_rss(x: np.ndarray, xc: np.ndarray, f: np.ndarray, sxx: float, ff: float, contact_um: float) -> float:
     """The least residual of a level, a drift and a one-stage toe (tapcell.tap.toe's shapes, widths
-    to 30 µm, no prior: the toe as wide as the data like) over every contact on the grid."""
+    to 30 µm, no prior: the toe as wide as the data like) over every contact on the grid. In C when
+    built (the samples on the toe's linear part from prefix sums; the code below is its numpy twin)."""
+    if _C is not None:
+        return _C.one_stage_rss(x, f, ONE_STAGE_CONTACTS_UM, _ONE_STAGE_WIDTHS, _ONE_STAGE_POWERS, contact_um, sxx, ff,
+                                float(x.mean()))
     from tapcell.tap.toe import toe_shapes  # the shapes only; stage.py stays importable alone
 
     n = len(f)
@@ -160,6 +187,29 @@ def two_stage_fit(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, nois
     if int(near.sum()) < 2 * STAGE_MIN_SAMPLES or noise_var_g2 <= 0:
         return None
     x, xc, f, sxx, ff = _sorted_detrended(x_um[near], force_g[near])
+    spacing_um = median(np.diff(x))  # a sample's step in height: 20 µm at 10 sps, 0.2 mm/s
+    shortest_um = max(TWO_STAGE_MIN_SPAN_UM, TWO_STAGE_MIN_SPAN_WINDOWS * max(window_um, spacing_um))
+    grid = (_C.two_stage_grid(x, f, TWO_STAGE_HINGES_UM, TWO_STAGE_SPANS_UM, contact_um, sxx, ff, float(x.mean()),
+                              noise_var_g2, shortest_um, TWO_STAGE_MIN_SOFT_SHARE, TWO_STAGE_MAX_SOFT_SHARE)
+            if _C is not None else _two_stage_grid(x, f, contact_um, sxx, ff, noise_var_g2, shortest_um))
+    if grid is None:
+        return None
+    least, noise_var_g2, top_mean, top_sd, best_span, soft_share, hinge_gain = grid
+    # The one-stage toe's residual is at most a hinge's (a toe of width 0): when even the hinge
+    # leaves too little to explain, the toe grid (most of the cost) is not needed.
+    evidence = (ff - hinge_gain - least) / noise_var_g2
+    if evidence > TWO_STAGE_MIN_EVIDENCE and abs(top_mean - contact_um) > TWO_STAGE_MATTERS_UM:
+        evidence = (_one_stage_rss(x, xc, f, sxx, ff, contact_um) - least) / noise_var_g2
+    return TwoStageFit(float(evidence), top_mean, top_sd, float(TWO_STAGE_SPANS_UM[best_span]), soft_share)
+
+
+def _two_stage_grid(x: np.ndarray, f: np.ndarray, contact_um: float, sxx: float, ff: float, noise_var_g2: float,
+                    shortest_um: float) -> tuple[float, float, float, float, int, float, float] | None:
+    """The numpy twin of the kernel's `two_stage_grid` (c/stage.c): over every hinge and span, the two
+    stages solved from prefix sums over the samples by height (x rising; f with a level and a drift
+    removed); (least residual, the noise variance weighing the fits, the top's mean and sd over
+    them, the best span's index, its soft share, the best hinge's gain alone), or None when no
+    grid point is allowed."""
     n, x_mean = len(f), float(x.mean())
     sums = np.zeros((5, n + 1))
     np.cumsum(np.array((np.ones(n), x, x * x, f, x * f)), axis=1, out=sums[:, 1:])
@@ -183,8 +233,6 @@ def two_stage_fit(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, nois
     k1 = (uu * vf - uv * uf) / det
     gain = k * uf + k1 * vf
     ok &= (k1 >= TWO_STAGE_MIN_SOFT_SHARE * k) & (k1 <= TWO_STAGE_MAX_SOFT_SHARE * k)
-    spacing_um = float(np.median(np.diff(x)))  # a sample's step in height: 20 µm at 10 sps, 0.2 mm/s
-    shortest_um = max(TWO_STAGE_MIN_SPAN_UM, TWO_STAGE_MIN_SPAN_WINDOWS * max(window_um, spacing_um))
     ok &= TWO_STAGE_SPANS_UM[None, :] >= shortest_um
     if not ok.any():
         return None
@@ -199,14 +247,8 @@ def two_stage_fit(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, nois
     total = float(weight.sum())
     top_mean = float((weight * top).sum()) / total
     top_sd = math.sqrt(max(float((weight * (top - top_mean) ** 2).sum()) / total, 0.0))
-    # The one-stage toe's residual is at most a hinge's (a toe of width 0): when even the hinge
-    # leaves too little to explain, the toe grid (most of the cost) is not needed.
     hinge_gain = np.where((uf > 0) & (uu > 0), uf * uf / np.maximum(uu, 1e-300), 0.0)
-    evidence = (ff - float(hinge_gain.max()) - least) / noise_var_g2
-    if evidence > TWO_STAGE_MIN_EVIDENCE and abs(top_mean - contact_um) > TWO_STAGE_MATTERS_UM:
-        evidence = (_one_stage_rss(x, xc, f, sxx, ff, contact_um) - least) / noise_var_g2
-    return TwoStageFit(float(evidence), top_mean, top_sd, float(TWO_STAGE_SPANS_UM[best[1]]),
-                       float(k1[best] / k[best]))
+    return least, noise_var_g2, top_mean, top_sd, int(best[1]), float(k1[best] / k[best]), float(hinge_gain.max())
 
 
 def shows_two_stage(fit: TwoStageFit | None, contact_um: float) -> bool:
@@ -227,6 +269,6 @@ def two_stage_departure(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.nd
     near = (x_um > contact_um - TWO_STAGE_BELOW_UM) & (x_um < contact_um + TWO_STAGE_ABOVE_UM)
     if not near.any():
         return None
-    x_um, window_um = x_um[near], float(np.median(x_hi_um[near] - x_lo_um[near]))
+    x_um, window_um = x_um[near], median(x_hi_um[near] - x_lo_um[near])
     noise_var_g2 = noise_g * noise_g + walk_var_g2 * len(x_um) / 6.0
     return two_stage_fit(x_um, force_g[near] - drift_g_um * x_um, contact_um, noise_var_g2, window_um)

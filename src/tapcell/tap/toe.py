@@ -762,3 +762,21 @@ def thread_pull_g(x_um: np.ndarray, force_g: np.ndarray, drift_g_um: float, appr
     if np.count_nonzero(near) < THREAD_MIN_SAMPLES:
         return None
     return median(approach_at_halt_g + drift_g_um * x_um[near] - force_g[near])
+
+
+def thread_pulls_g(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, drift_g_um: float,
+                   approach_at_halt_g: float, contact_um: float, far_from_um: float
+                   ) -> tuple[float | None, float | None]:
+    """`thread_pull_g` over the conversion windows' mid-heights at THREAD_REACH_UM, and at
+    THREAD_FAR_REACH_UM when the samples reach `far_from_um` above contact (else None), in one pass
+    (in C when built)."""
+    if _C is not None:
+        near_g, far_g, highest_um = _C.thread_pulls(x_lo_um, x_hi_um, force_g, drift_g_um, approach_at_halt_g,
+                                                    contact_um, THREAD_REACH_UM, THREAD_FAR_REACH_UM,
+                                                    THREAD_MIN_SAMPLES)
+        return near_g, far_g if highest_um - contact_um >= far_from_um else None
+    x_um = 0.5 * (x_lo_um + x_hi_um)
+    near_g = thread_pull_g(x_um, force_g, drift_g_um, approach_at_halt_g, contact_um)
+    reaches_far = len(x_um) > 0 and float(x_um.max()) - contact_um >= far_from_um
+    return near_g, (thread_pull_g(x_um, force_g, drift_g_um, approach_at_halt_g, contact_um, THREAD_FAR_REACH_UM)
+                    if reaches_far else None)

@@ -867,6 +867,16 @@ static PyObject *float_or_none(double value)
     return PyFloat_FromDouble(value);
 }
 
+/* The pullback's samples (conversion windows' low and high edges, force) from three buffers of one
+ * length into *x_lo, *x_hi, *force_g; *force_g is NULL (ValueError set) when they are not. */
+static void pullback_samples_of(const Py_buffer buffers[3], Py_ssize_t *n, const double **x_lo, const double **x_hi,
+                                const double **force_g)
+{
+    *x_lo = doubles_of(&buffers[0], n, "x_lo_um");
+    *x_hi = *x_lo ? doubles_sized(&buffers[1], *n, "x_hi_um") : NULL;
+    *force_g = *x_hi ? doubles_sized(&buffers[2], *n, "force_g") : NULL;
+}
+
 static PyObject *adhesion(PyObject *self, PyObject *args)
 {
     (void)self;
@@ -881,9 +891,8 @@ static PyObject *adhesion(PyObject *self, PyObject *args)
         return NULL;
     PyObject *result = NULL;
     Py_ssize_t n = 0;
-    const double *x_lo = doubles_of(&buffers[0], &n, "x_lo_um");
-    const double *x_hi = x_lo ? doubles_sized(&buffers[1], n, "x_hi_um") : NULL;
-    const double *force_g = x_hi ? doubles_sized(&buffers[2], n, "force_g") : NULL;
+    const double *x_lo, *x_hi, *force_g;
+    pullback_samples_of(buffers, &n, &x_lo, &x_hi, &force_g);
     if (force_g != NULL && limits.run_samples < 1) {
         PyErr_SetString(PyExc_ValueError, "run_samples: at least 1");
     } else if (force_g != NULL) {
@@ -903,7 +912,57 @@ static PyObject *adhesion(PyObject *self, PyObject *args)
     return result;
 }
 
+/* thread_pull_g of toe.py at two reaches over the same samples, and their highest mid-height: what
+ * the Z uncertainty's thread part reads (analysis.z_uncertainty, toe.thread_pulls_g). */
+static PyObject *thread_pulls(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer buffers[3];
+    double drift_g_um, contact_um, approach_at_halt_g, near_from, near_to, far_from, far_to;
+    Py_ssize_t min_samples;
+    if (!PyArg_ParseTuple(args, "O&O&O&ddd(dd)(dd)n", float64_buffer, &buffers[0], float64_buffer, &buffers[1],
+                          float64_buffer, &buffers[2], &drift_g_um, &approach_at_halt_g, &contact_um, &near_from,
+                          &near_to, &far_from, &far_to, &min_samples))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t n = 0;
+    const double *x_lo, *x_hi, *force_g;
+    pullback_samples_of(buffers, &n, &x_lo, &x_hi, &force_g);
+    if (force_g != NULL) {
+        double *scratch = malloc((size_t)(n > 0 ? n : 1) * sizeof(double));
+        if (scratch == NULL) {
+            PyErr_NoMemory();
+        } else {
+            struct adhesion_limits limits = {0};
+            limits.min_thread_samples = min_samples;
+            limits.thread_from_um = near_from;
+            limits.thread_to_um = near_to;
+            double near_g = thread_pull_of(x_lo, x_hi, force_g, n, drift_g_um, approach_at_halt_g, contact_um,
+                                           &limits, scratch);
+            limits.thread_from_um = far_from;
+            limits.thread_to_um = far_to;
+            double far_g = thread_pull_of(x_lo, x_hi, force_g, n, drift_g_um, approach_at_halt_g, contact_um,
+                                          &limits, scratch);
+            double highest_um = -INFINITY;
+            for (Py_ssize_t i = 0; i < n; i++) {
+                double x_um = 0.5 * (x_lo[i] + x_hi[i]);
+                if (x_um > highest_um || isnan(x_um)) highest_um = x_um;
+            }
+            result = Py_BuildValue("(NNd)", float_or_none(near_g), float_or_none(far_g), highest_um);
+            free(scratch);
+        }
+    }
+    for (int i = 0; i < 3; i++)
+        PyBuffer_Release(&buffers[i]);
+    return result;
+}
+
 static PyMethodDef methods[] = {
+    {"thread_pulls", thread_pulls, METH_VARARGS,
+     "thread_pulls(x_lo_um, x_hi_um, force_g, drift_g_um, approach_at_halt_g, contact_um, near_reach_um,\n"
+     "             far_reach_um, min_samples) -> (near_pull_g or None, far_pull_g or None, highest_um)\n\n"
+     "thread_pull_g at both reaches (each a (from, to) pair of um above contact) over the conversion\n"
+     "windows' mid-heights, and the highest of those (-inf with no samples) (toe.py: thread_pulls_g)."},
     {"rss_grid", rss_grid, METH_VARARGS,
      "rss_grid(x_lo_um, x_hi_um, force_g, drift_g_um, subsamples, contacts_um, widths_um, rss_out)\n\n"
      "Least-squares residual of the toe fit at every candidate (contacts_um[j], widths_um[j]) for both\n"

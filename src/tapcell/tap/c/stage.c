@@ -1,0 +1,389 @@
+/* The departure's stage checks (tapcell.tap.stage): the soft-stage ramp above the contact found
+ * (soft_stage) and the two-stage fit's grid (two_stage_grid), each in one pass.
+ *
+ * soft_stage: the samples from STAGE_FROM_UM to STAGE_REACH_UM above the contact, drift removed, by
+ * height, and the ramp clip(top - x, 0) of every top from prefix sums, as the twin does with one
+ * numpy call per step; the force's mean as numpy sums it (pairwise), so they agree bit for bit.
+ *
+ * two_stage_grid:
+ * Over every (hinge, span) on the grid: a level, a drift, a stiff stage (h - x)+ and a soft stage
+ * (t - x)+ solved in closed form from prefix sums over the samples by height, kept where both
+ * stiffnesses are positive within the shares allowed and the span is long enough; the least
+ * residual, the top marginalised over the fits (their likelihoods) and the best hinge alone. The
+ * numpy twin builds the same (hinges x spans) arrays with one numpy call per operation; this
+ * repeats its arithmetic element for element (only the weights' sums run in another order). */
+#include "buffers.h"
+#include <math.h>
+#include <stdlib.h>
+
+/* Samples below `value` in the rising array x (numpy's searchsorted, side left). */
+static Py_ssize_t count_below(const double *x, Py_ssize_t n, double value)
+{
+    Py_ssize_t lo = 0, hi = n;
+    while (lo < hi) {
+        Py_ssize_t mid = lo + (hi - lo) / 2;
+        if (x[mid] < value) lo = mid + 1;
+        else hi = mid;
+    }
+    return lo;
+}
+
+/* The five prefix sums (count, x, x^2, f, x f) below `value`. */
+typedef struct { double s0, s1, s2, sf, sxf; } Sums;
+
+static Sums sums_below(const double *prefix, const double *x, Py_ssize_t n, double value)
+{
+    Py_ssize_t i = count_below(x, n, value);
+    const double *row = prefix + 5 * i;
+    Sums s = {row[0], row[1], row[2], row[3], row[4]};
+    return s;
+}
+
+/* numpy's sum of a contiguous float64 array (pairwise: blocks of up to 128 in eight lanes), so the
+ * mean the twin takes out is the same to the last bit. */
+static double pairwise_sum(const double *a, Py_ssize_t n)
+{
+    if (n < 8) {
+        double sum = -0.0;
+        for (Py_ssize_t i = 0; i < n; i++) sum += a[i];
+        return sum;
+    }
+    if (n <= 128) {
+        double lane[8];
+        for (int j = 0; j < 8; j++) lane[j] = a[j];
+        Py_ssize_t i = 8;
+        for (; i < n - (n % 8); i += 8)
+            for (int j = 0; j < 8; j++) lane[j] += a[i + j];
+        double sum = ((lane[0] + lane[1]) + (lane[2] + lane[3])) + ((lane[4] + lane[5]) + (lane[6] + lane[7]));
+        for (; i < n; i++) sum += a[i];
+        return sum;
+    }
+    Py_ssize_t half = n / 2;
+    half -= half % 8;
+    return pairwise_sum(a, half) + pairwise_sum(a + half, n - half);
+}
+
+static PyObject *soft_stage(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer lob = {0}, hib = {0}, fb = {0}, tb = {0};
+    double drift_g_um, contact_um, white_var, walk_var, from_um, reach_um;
+    Py_ssize_t min_samples;
+    if (!PyArg_ParseTuple(args, "O&O&O&ddddO&ddn", float64_buffer, &lob, float64_buffer, &hib, float64_buffer, &fb,
+                          &drift_g_um, &contact_um, &white_var, &walk_var, float64_buffer, &tb, &from_um, &reach_um,
+                          &min_samples))
+        return NULL;
+    PyObject *answer = NULL;
+    double *x = NULL, *f = NULL, *prefix = NULL;
+    Py_ssize_t n_all, n_tops;
+    const double *x_lo = doubles_of(&lob, &n_all, "x_lo_um");
+    const double *x_hi = x_lo ? doubles_sized(&hib, n_all, "x_hi_um") : NULL;
+    const double *force = x_hi ? doubles_sized(&fb, n_all, "force_g") : NULL;
+    const double *tops = force ? doubles_of(&tb, &n_tops, "tops_um") : NULL;
+    if (tops == NULL) goto done;
+    x = malloc(sizeof(double) * (size_t)(n_all > 0 ? n_all : 1));
+    f = malloc(sizeof(double) * (size_t)(n_all > 0 ? n_all : 1));
+    prefix = malloc(sizeof(double) * 4 * (size_t)(n_all + 1));
+    if (x == NULL || f == NULL || prefix == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    /* The samples near the contact, drift removed, in a stable insertion sort by height (they rise
+     * already but for the pullback's end). */
+    Py_ssize_t n = 0;
+    for (Py_ssize_t i = 0; i < n_all; i++) {
+        const double mid = 0.5 * (x_lo[i] + x_hi[i]);
+        const double above = mid - contact_um;
+        if (!(above > from_um && above < reach_um)) continue;
+        const double level = force[i] - drift_g_um * mid;
+        Py_ssize_t j = n++;
+        for (; j > 0 && x[j - 1] > mid; j--) {
+            x[j] = x[j - 1];
+            f[j] = f[j - 1];
+        }
+        x[j] = mid;
+        f[j] = level;
+    }
+    const double noise_var = white_var + walk_var * (double)n / 6.0;
+    if (n < min_samples || !(noise_var > 0.0)) {
+        answer = Py_None;
+        Py_INCREF(answer);
+        goto done;
+    }
+    const double mean = pairwise_sum(f, n) / (double)n;
+    for (int q = 0; q < 4; q++) prefix[q] = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double h = x[i] - contact_um, level = f[i] - mean;
+        const double *below = prefix + 4 * i;
+        double *row = prefix + 4 * (i + 1);
+        x[i] = h;
+        row[0] = below[0] + h;
+        row[1] = below[1] + h * h;
+        row[2] = below[2] + level;
+        row[3] = below[3] + h * level;
+    }
+    double best_gain = 0.0, best_srf = 0.0, best_srr = 0.0;
+    Py_ssize_t best = -1;
+    for (Py_ssize_t k = 0; k < n_tops; k++) {
+        const double top = tops[k];
+        const Py_ssize_t count = count_below(x, n, top);
+        const double *row = prefix + 4 * count;
+        const double below = (double)count;
+        const double sum_r = top * below - row[0];
+        const double srr = (top * top) * below - (2.0 * top) * row[0] + row[1] - sum_r * sum_r / (double)n;
+        const double srf = top * row[2] - row[3];
+        const double gain = srf <= 0.0 ? 0.0 : srf * srf / fmax(srr, 1e-300);
+        if (best < 0 || gain > best_gain) {
+            best = k;
+            best_gain = gain;
+            best_srf = srf;
+            best_srr = srr;
+        }
+    }
+    if (best < 0) {
+        PyErr_SetString(PyExc_ValueError, "soft_stage needs tops");
+        goto done;
+    }
+    const double slope = best_srr > 0.0 ? best_srf / best_srr : 0.0;
+    answer = Py_BuildValue("ddd", best_gain / noise_var, contact_um + tops[best], slope);
+done:
+    free(x);
+    free(f);
+    free(prefix);
+    PyBuffer_Release(&lob);
+    PyBuffer_Release(&hib);
+    PyBuffer_Release(&fb);
+    PyBuffer_Release(&tb);
+    return answer;
+}
+
+static PyObject *two_stage_grid(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer xb = {0}, fb = {0}, hb = {0}, sb = {0};
+    double contact_um, sxx, ff, x_mean, noise_var, shortest_um, min_share, max_share;
+    if (!PyArg_ParseTuple(args, "O&O&O&O&dddddddd", float64_buffer, &xb, float64_buffer, &fb, float64_buffer, &hb,
+                          float64_buffer, &sb, &contact_um, &sxx, &ff, &x_mean, &noise_var, &shortest_um,
+                          &min_share, &max_share))
+        return NULL;
+    PyObject *answer = NULL;
+    double *prefix = NULL, *rss = NULL, *tops = NULL;
+    Py_ssize_t n, hinges, spans;
+    const double *x = doubles_of(&xb, &n, "x_um");
+    const double *f = x ? doubles_sized(&fb, n, "force_g") : NULL;
+    const double *hinge_offsets = f ? doubles_of(&hb, &hinges, "hinges_um") : NULL;
+    const double *span_offsets = hinge_offsets ? doubles_of(&sb, &spans, "spans_um") : NULL;
+    if (span_offsets == NULL) goto done;
+    if (n < 1 || hinges < 1 || spans < 1) {
+        PyErr_SetString(PyExc_ValueError, "two_stage_grid needs samples, hinges and spans");
+        goto done;
+    }
+    prefix = malloc(sizeof(double) * 5 * (size_t)(n + 1));
+    rss = malloc(sizeof(double) * (size_t)(hinges * spans));
+    tops = malloc(sizeof(double) * (size_t)(hinges * spans));
+    if (prefix == NULL || rss == NULL || tops == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    for (int q = 0; q < 5; q++) prefix[q] = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double *below = prefix + 5 * i;
+        double *row = prefix + 5 * (i + 1);
+        row[0] = below[0] + 1.0;
+        row[1] = below[1] + x[i];
+        row[2] = below[2] + x[i] * x[i];
+        row[3] = below[3] + f[i];
+        row[4] = below[4] + x[i] * f[i];
+    }
+    const double count = (double)n;
+    double least = INFINITY, best_share = 0.0, best_hinge_gain = 0.0;
+    Py_ssize_t best = -1;
+    for (Py_ssize_t a = 0; a < hinges; a++) {
+        const double hinge = contact_um + hinge_offsets[a];
+        const Sums h = sums_below(prefix, x, n, hinge);
+        const double su = hinge * h.s0 - h.s1;
+        const double ux = hinge * h.s1 - h.s2 - x_mean * su;
+        const double uu = hinge * hinge * h.s0 - 2.0 * hinge * h.s1 + h.s2 - su * su / count - ux * ux / sxx;
+        const double uf = hinge * h.sf - h.sxf;
+        const double hinge_gain = (uf > 0.0 && uu > 0.0) ? uf * uf / fmax(uu, 1e-300) : 0.0;
+        if (a == 0 || hinge_gain > best_hinge_gain) best_hinge_gain = hinge_gain;
+        for (Py_ssize_t b = 0; b < spans; b++) {
+            const Py_ssize_t cell = a * spans + b;
+            const double top = hinge + span_offsets[b];
+            tops[cell] = top;
+            rss[cell] = INFINITY;
+            if (!(span_offsets[b] >= shortest_um)) continue;
+            const Sums t = sums_below(prefix, x, n, top);
+            const double sv = top * t.s0 - t.s1;
+            const double vx = top * t.s1 - t.s2 - x_mean * sv;
+            const double vv = top * top * t.s0 - 2.0 * top * t.s1 + t.s2 - sv * sv / count - vx * vx / sxx;
+            const double uv = hinge * top * h.s0 - (hinge + top) * h.s1 + h.s2 - su * sv / count - ux * vx / sxx;
+            const double vf = top * t.sf - t.sxf;
+            const double det = uu * vv - uv * uv;
+            if (!(det > 1e-9 * fmax(uu * vv, 1e-300))) continue;
+            const double k = (vv * uf - uv * vf) / det;
+            const double k1 = (uu * vf - uv * uf) / det;
+            if (!(k1 >= min_share * k && k1 <= max_share * k)) continue;
+            rss[cell] = ff - (k * uf + k1 * vf);
+            if (rss[cell] < least || best < 0) {
+                least = rss[cell];
+                best = cell;
+                best_share = k1 / k;
+            }
+        }
+    }
+    if (best < 0) {
+        answer = Py_None;
+        Py_INCREF(answer);
+        goto done;
+    }
+    /* What the two stages leave is the noise when they are the tap; more than the noise estimate
+     * on a tap with a hum or a walk nobody modelled (the twin's comment says why). */
+    const double dof = n - 6 > 1 ? (double)(n - 6) : 1.0;
+    if (least / dof > noise_var) noise_var = least / dof;
+    double total = 0.0, top_sum = 0.0;
+    for (Py_ssize_t cell = 0; cell < hinges * spans; cell++) {
+        const double weight = exp(-0.5 * (rss[cell] - least) / noise_var);
+        rss[cell] = weight;
+        total += weight;
+        top_sum += weight * tops[cell];
+    }
+    const double top_mean = top_sum / total;
+    double spread = 0.0;
+    for (Py_ssize_t cell = 0; cell < hinges * spans; cell++) {
+        const double off = tops[cell] - top_mean;
+        spread += rss[cell] * (off * off);
+    }
+    const double top_sd = sqrt(fmax(spread / total, 0.0));
+    answer = Py_BuildValue("ddddndd", least, noise_var, top_mean, top_sd, best % spans, best_share, best_hinge_gain);
+done:
+    free(prefix);
+    free(rss);
+    free(tops);
+    PyBuffer_Release(&xb);
+    PyBuffer_Release(&fb);
+    PyBuffer_Release(&hb);
+    PyBuffer_Release(&sb);
+    return answer;
+}
+
+/* The one-stage toe's least residual (stage.py: _one_stage_rss, its numpy twin) over every shape,
+ * width and contact on the grid. The samples pressed at least a width deep lie on the toe's linear
+ * part, s = B - z (z: height above the contact found, B = contact - width (1 - 1/(power + 1))),
+ * whose sums come from prefix sums over the samples by height; only those inside the toe are
+ * evaluated one by one. The same least squares as the twin's, summed in another order. */
+static PyObject *one_stage_rss(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer xb = {0}, fb = {0}, cb = {0}, wb = {0}, pb = {0};
+    double contact_um, sxx, ff, x_mean;
+    if (!PyArg_ParseTuple(args, "O&O&O&O&O&dddd", float64_buffer, &xb, float64_buffer, &fb, float64_buffer, &cb,
+                          float64_buffer, &wb, float64_buffer, &pb, &contact_um, &sxx, &ff, &x_mean))
+        return NULL;
+    PyObject *answer = NULL;
+    double *prefix = NULL;
+    Py_ssize_t n, contacts, widths, powers;
+    const double *x = doubles_of(&xb, &n, "x_um");
+    const double *f = x ? doubles_sized(&fb, n, "force_g") : NULL;
+    const double *offsets = f ? doubles_of(&cb, &contacts, "contacts_um") : NULL;
+    const double *width_list = offsets ? doubles_of(&wb, &widths, "widths_um") : NULL;
+    const double *power_list = width_list ? doubles_of(&pb, &powers, "powers") : NULL;
+    if (power_list == NULL) goto done;
+    if (n < 1) {
+        PyErr_SetString(PyExc_ValueError, "one_stage_rss needs samples");
+        goto done;
+    }
+    prefix = malloc(sizeof(double) * 5 * (size_t)(n + 1));
+    if (prefix == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    /* Prefix sums over the samples (rising) of 1, z, z^2, f, z f; z about the contact found. */
+    for (int q = 0; q < 5; q++) prefix[q] = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double z = x[i] - contact_um;
+        const double *below = prefix + 5 * i;
+        double *row = prefix + 5 * (i + 1);
+        row[0] = below[0] + 1.0;
+        row[1] = below[1] + z;
+        row[2] = below[2] + z * z;
+        row[3] = below[3] + f[i];
+        row[4] = below[4] + z * f[i];
+    }
+    const double count = (double)n, z_mean = x_mean - contact_um;
+    double best_gain = 0.0;
+    for (Py_ssize_t k = 0; k < powers; k++) {
+        const double power = power_list[k], share = 1.0 / (power + 1.0);
+        for (Py_ssize_t w = 0; w < widths; w++) {
+            const double width = fmax(width_list[w], 1e-9);
+            for (Py_ssize_t c = 0; c < contacts; c++) {
+                const double contact = contact_um + offsets[c];
+                /* [0, linear): pressed a width deep or more; [linear, pressed): inside the toe. */
+                const Py_ssize_t pressed = count_below(x, n, contact);
+                Py_ssize_t linear = count_below(x, pressed, contact - width);
+                while (linear < pressed && contact - x[linear] >= width) linear++;
+                const double *p = prefix + 5 * linear;
+                const double b = offsets[c] - width * (1.0 - share);
+                double s_sum = b * p[0] - p[1];
+                double s_x = b * p[1] - b * p[0] * z_mean - p[2] + z_mean * p[1];
+                double s_ss = b * b * p[0] - 2.0 * b * p[1] + p[2];
+                double s_f = b * p[3] - p[4];
+                for (Py_ssize_t i = linear; i < pressed; i++) {
+                    const double u = (contact - x[i]) / width;
+                    double shape;
+                    if (power == 0.5) shape = sqrt(u) * u;
+                    else if (power == 1.0) shape = u * u;
+                    else shape = pow(u, power + 1.0);
+                    shape *= width * share;
+                    s_sum += shape;
+                    s_x += shape * (x[i] - x_mean);
+                    s_ss += shape * shape;
+                    s_f += shape * f[i];
+                }
+                const double s_var = s_ss - s_sum * s_sum / count - s_x * s_x / sxx;
+                const double gain = (s_f > 0.0 && s_var > 0.0) ? s_f * s_f / fmax(s_var, 1e-300) : 0.0;
+                if (gain > best_gain) best_gain = gain;
+            }
+        }
+    }
+    answer = PyFloat_FromDouble(ff - best_gain);
+done:
+    free(prefix);
+    PyBuffer_Release(&xb);
+    PyBuffer_Release(&fb);
+    PyBuffer_Release(&cb);
+    PyBuffer_Release(&wb);
+    PyBuffer_Release(&pb);
+    return answer;
+}
+
+static PyMethodDef methods[] = {
+    {"one_stage_rss", one_stage_rss, METH_VARARGS,
+     "one_stage_rss(x_um, force_g, contacts_um, widths_um, powers, contact_um, sxx, ff, x_mean) -> float\n\n"
+     "The least residual of a level, a drift and a one-stage toe over every power, width and contact\n"
+     "(contact_um + contacts_um): x_um rising, force_g with the level and drift removed, sxx the centred\n"
+     "heights' sum of squares, ff the force's, x_mean the heights' mean (stage.py: _one_stage_rss)."},
+    {"soft_stage", soft_stage, METH_VARARGS,
+     "soft_stage(x_lo_um, x_hi_um, force_g, drift_g_um, contact_um, white_var_g2, walk_var_g2, tops_um, from_um,\n"
+     "           reach_um, min_samples) -> (chi2, top_um, slope_g_um) or None\n\n"
+     "The best soft-stage ramp over the pullback's samples (conversion windows [x_lo, x_hi]) from from_um\n"
+     "to reach_um above contact_um, drift removed, every top contact_um + tops_um; its gain over the\n"
+     "noise variance white + walk x samples / 6. None when fewer than min_samples or no noise (stage.py:\n"
+     "departure_soft_stage, soft_stage)."},
+    {"two_stage_grid", two_stage_grid, METH_VARARGS,
+     "two_stage_grid(x_um, force_g, hinges_um, spans_um, contact_um, sxx, ff, x_mean, noise_var_g2, shortest_um,\n"
+     "               min_soft_share, max_soft_share)\n"
+     "-> (least_rss, noise_var_g2, top_mean_um, top_sd_um, best_span_index, soft_share, best_hinge_gain)\n"
+     "   or None\n\n"
+     "The two-stage fit over every hinge (contact_um + hinges_um) and span on the grid (stage.py:\n"
+     "two_stage_fit): x_um rising, force_g with a level and a drift removed, sxx the centred heights'\n"
+     "sum of squares, ff the force's. None when no grid point has both stiffnesses within the shares\n"
+     "and a span of at least shortest_um."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_c_stage",
+                                    "The departure's stage checks (tapcell.tap.stage).", -1, methods,
+                                    NULL, NULL, NULL, NULL};
+
+PyMODINIT_FUNC PyInit__c_stage(void) { return PyModule_Create(&module); }
