@@ -124,3 +124,27 @@ def test_safe_z_home_hops_before_homing_x_so_the_blob_is_never_met(tmp_path):
     error, peak_g, _, _ = run(printer, "G1 X110 F6000\nG1 Z0.3 F600\nM84\nG28 X")
     assert error is None and peak_g == 0.0 and watch.watched_moves == before + 1   # only G1 Z0.3 watched
     assert printer.lookup_object("toolhead").z_lift_while_unhomed_mm == 5.0
+
+
+def test_homing_after_set_kinematic_position_low_on_an_unmeasured_bed_crawls_and_stops(tmp_path):
+    """SET_KINEMATIC_POSITION Z=0.3 on a fresh printer (nozzle truly 0.3 mm up): Z counts as homed and
+    low, but no G28 Z measured the bed, so G28 X is watched at the speed that is safe on the stiffest
+    bed assumed (3 mm/s at 320 sps), says so, and stops on the blob."""
+    # The virtual printer starts at the bed's middle (117.5, 117.5): the blob in its path to X 0.
+    world = bump_csv(tmp_path / "blob.csv", 60.0, 117.5, 1.5, 1.5) + "start_z_mm: 0.3\n"
+    printer, responses = make_printer(tmp_path, virtual_printer=world, home=False,
+                                      sections="\n[force_move]\nenable_force_move: True\n")
+    printer.gcode.run_script("SET_KINEMATIC_POSITION Z=0.3")
+    error, peak_g, clearance_mm, _ = run(printer, "G28 X")
+    assert "Homing X at 3 mm/s, not 50 mm/s, with the nozzle watch: Z is low" in "\n".join(responses)
+    assert error is not None and error.startswith(COLLISION) and "during 'G28 X'" in error, error
+    assert peak_g < 1.5 * 250.0 and clearance_mm > 1.5   # 255 g measured: the 250 g trigger plus a slow sample
+
+
+def test_a_g28_x_inside_homing_override_is_watched(tmp_path):
+    """[homing_override]'s own G28 X runs the original homing: watched just the same."""
+    override = "\n[homing_override]\ngcode:\n    G28 X\n    G28 Y\n    G28 Z\naxes: x\n"
+    printer = printer_in(tmp_path / "p", virtual_printer=blob_under(tmp_path, "X"), sections=override)
+    error, peak_g, clearance_mm, _ = run(printer, "G1 Z0.3 F600\nG28 X")
+    assert error is not None and error.startswith(COLLISION) and "during 'G28 X'" in error, error
+    assert peak_g < 0.3 * FORCE_SAFETY_LIMIT_G and clearance_mm > 1.5
