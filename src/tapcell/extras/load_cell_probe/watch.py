@@ -11,7 +11,8 @@ the nozzle is lifted straight up (up cannot press harder) and the command ends w
 `Load Cell Probe Error: nozzle collision at X,Y,Z (N g)` naming the command that moved.
 
 G28 X/Y's endstop moves are watched too when the nozzle may be low: Z homed and below
-`nozzle_watch_height`, or Z not homed and not lifted by that much first ([safe_z_home] z_hop).
+`nozzle_watch_height`, or Z not homed, not lifted by that much first ([safe_z_home] z_hop), on a
+bed this session has measured (wants_homing).
 
 Not watched: moves that only rise (the same X/Y, Z up), other moves while Z is not homed (the bed
 is not known), and every move before the cell is calibrated (there is no force to watch). The
