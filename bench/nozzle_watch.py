@@ -32,6 +32,8 @@ WATCH_OFF = "nozzle_watch_height: 0"
 CALIBRATION = "counts_per_gram: 110\nreference_tare_counts: -38000\n"
 SLOW_ADC = {"sensor_type: hx717": "sensor_type: hx711", "sample_rate: 320": "sample_rate: 80",
             "\nspeed: 5\n": "\nspeed: 2\n"}
+# [safe_z_home] without z_hop (Klipper's default): G28 X/Y start wherever Z is.
+NO_Z_HOP = (("z_hop: 5\n", "z_hop: 0\n"),)
 ZERO_REFERENCE = {"horizontal_z_clearance: 0.4\n": "horizontal_z_clearance: 0.4\nzero_reference_position: 200, 200\n"}
 
 
@@ -70,6 +72,18 @@ CASES = (
          world="bed_shape: tilted\nbed_tilt_x_mm: 1.0\nbed_tilt_y_mm: 0.5\n", replace=tuple(ZERO_REFERENCE.items())),
     # From Z 1 (G28 ends at Z 5, too high for 2.5 mm of steps to reach the bed): the last 30 steps press.
     Case("50 steps of 0.05 mm down from Z 1", "G1 Z1 F600\nG91\n" + "G1 Z-0.05 F60\nG4 P200\n" * 50),
+    # G28 X / G28 Y with the nozzle low (after a print, a G28 Z without z_hop) over a 1.5 mm blob with
+    # 45 deg flanks (a clip, a part left on the bed) between the nozzle and the endstop.
+    Case("G28 X at Z 0.3 over a 1.5 mm blob, no z_hop", "G1 Z0.3 F600\nG28 X", bump=(60.0, 110.0, 1.5, 1.5),
+         replace=NO_Z_HOP),
+    Case("G28 Y at Z 0.3 over a 1.5 mm blob, no z_hop", "G1 Z0.3 F600\nG28 Y", bump=(110.0, 60.0, 1.5, 1.5),
+         replace=NO_Z_HOP),
+    Case("G28 X at Z 0.3, bed 1.5 mm higher at X 0, no z_hop", "G1 Z0.3 F600\nG28 X",
+         world="bed_shape: tilted\nbed_tilt_x_mm: -1.5\n", replace=NO_Z_HOP),
+    Case("G28 X at Z 0.3 after M84 (Z not homed), blob, no z_hop", "G1 Z0.3 F600\nM84\nG28 X",
+         bump=(60.0, 110.0, 1.5, 1.5), replace=NO_Z_HOP),
+    Case("G28 X at Z 0.3 over the blob, z_hop: 5 (the example)", "G1 Z0.3 F600\nG28 X",
+         bump=(60.0, 110.0, 1.5, 1.5)),
 )
 
 

@@ -1,8 +1,9 @@
 """`[safe_z_home]`: G28 homes Z with the nozzle at home_xy_position (over the bed).
 
-G28 (any axes): lift z_hop first (Z not homed: by z_hop from where it stands), home X/Y as
-asked, then for Z move to home_xy_position and home Z (through the load cell), lift z_hop
-again, and with move_to_previous go back to the X/Y the toolhead had.
+G28 (any axes): lift z_hop first (Z not homed: by z_hop from where it stands; the toolhead
+keeps how far, so the nozzle watch knows the X/Y homing starts clear), home X/Y as asked, then
+for Z move to home_xy_position and home Z (through the load cell), lift z_hop again, and with
+move_to_previous go back to the X/Y the toolhead had.
 """
 
 from __future__ import annotations

@@ -165,6 +165,14 @@ class Toolhead:
         # The nozzle watch of a load-cell probe (extras/load_cell_probe/watch.py), None without:
         # wants(start, target) says whether a move runs watched, move(machine_xyz, speed, accel) runs it.
         self.nozzle_watch = None
+        # How far Z was lifted (relative) since it lost its homing: [safe_z_home] z_hop on an unhomed
+        # Z. The nozzle watch trusts a lift of nozzle_watch_height to clear the bed for G28 X/Y.
+        self.z_lift_while_unhomed_mm = 0.0
+
+    def forget_homing(self) -> None:
+        """Motors off or positions lost: every axis must be homed again, and no lift is known."""
+        self.homed_axes.clear()
+        self.z_lift_while_unhomed_mm = 0.0
 
     def set_move_transform(self, transform):
         """Route G-code moves (G0/G1, M114) through `transform`; returns the previous target,
@@ -196,6 +204,8 @@ class Toolhead:
         machine = {axis: None if value is None else value - self.frame_offset_mm[axis]
                    for axis, value in target.items()}
         end = tuple(current[i] if target[axis] is None else target[axis] for i, axis in enumerate(AXES))
+        if not self.is_z_homed():
+            self.z_lift_while_unhomed_mm = max(0.0, self.z_lift_while_unhomed_mm + end[2] - current[2])
         try:
             if self.nozzle_watch is not None and self.nozzle_watch.wants(current, end):
                 self.nozzle_watch.move((machine["x"], machine["y"], machine["z"]), speed_mm_s, self.max_accel_mm_s2)
@@ -222,6 +232,7 @@ class Toolhead:
     def set_z_position(self, z_mm: float) -> None:
         self.frame_offset_mm["z"] = z_mm - float(self.backend.position[2])
         self.homed_axes.add("z")
+        self.z_lift_while_unhomed_mm = 0.0
         self.printer.send_event("toolhead:z_homed")
 
     def is_z_homed(self) -> bool:
@@ -234,7 +245,7 @@ class Toolhead:
         axes = asked or list(AXES)
         xy = [axis for axis in axes if axis in "xy"]
         if xy:
-            self.backend.home_xy("".join(xy))
+            self._home_xy("".join(xy))
             machine = self.backend.position
             for axis in xy:
                 index = AXES.index(axis)
@@ -254,6 +265,20 @@ class Toolhead:
             probe.home_z(gcmd)
             self.homed_axes.add("z")
         self.printer.send_event("toolhead:homed", "".join(axes))
+
+    def _home_xy(self, axes: str) -> None:
+        """The endstop move of G28 X/Y: watched by the load cell when the nozzle may be low
+        (extras/load_cell_probe/watch.py). An axis whose homing a collision stopped is not homed."""
+        watch = self.nozzle_watch
+        if watch is None or not watch.wants_homing():
+            self.backend.home_xy(axes)
+            return
+        speed_mm_s = min(self.options.axes[axis].homing_speed_mm_s for axis in axes)
+        try:
+            watch.home_xy(axes, speed_mm_s)
+        except GCodeError:
+            self.homed_axes.difference_update(axes)
+            raise
 
     def move_xyze(self, gcmd: GCodeCommand, current: list[float], target: list[float], speed_mm_s: float) -> None:
         """A G-code move from `current` to `target` (toolhead X, Y, Z, E): homing, limits and the
@@ -296,7 +321,7 @@ class Toolhead:
         As in Klipper every motor goes off; axis letters (Cura's `M84 X Y E`) are taken and ignored."""
         for axis in "XYZE":
             gcmd.has(axis)
-        self.homed_axes.clear()
+        self.forget_homing()
         self.printer.send_event("toolhead:motors_off")
 
     def cmd_M204(self, gcmd: GCodeCommand) -> None:
@@ -358,7 +383,7 @@ def load_config(section: ConfigSection, printer) -> None:
         raise section.error("kinematics", "the toolhead needs the virtual printer ([virtual_printer])")
     toolhead = Toolhead(printer, read_toolhead_options(section))
     # A machine that lost the stepper positions (its MCU reset): every axis must be homed again.
-    printer.register_event_handler("printer:positions_lost", toolhead.homed_axes.clear)
+    printer.register_event_handler("printer:positions_lost", toolhead.forget_homing)
     printer.add_object("toolhead", toolhead)
     z_min_mm = toolhead.options.axes["z"].position_min_mm
     if z_min_mm >= 0.0 and any(section.config.has_section(name) for name in NOZZLE_PROBE_SECTIONS):

@@ -287,6 +287,14 @@ class VirtualPrinter:
         target = (p.x_endstop_mm if "x" in axes else start[0], p.y_endstop_mm if "y" in axes else start[1], start[2])
         self._plan_and_run(start, target, p.homing_speed_mm_s)
 
+    def watched_home_xy(self, axes: str, speed_mm_s: float, trigger) -> ProbingMoveResult:
+        """home_xy with the armed firmware trigger seeing every sample (the host's nozzle watch):
+        at the homing speed, or `speed_mm_s` when slower; it halts like a watched move."""
+        start = self._motion.end_position
+        p = self.params
+        target = (p.x_endstop_mm if "x" in axes else start[0], p.y_endstop_mm if "y" in axes else start[1], start[2])
+        return self._probing_move_to(target, min(speed_mm_s, p.homing_speed_mm_s), trigger, probe=False)
+
     def endstop_triggered(self, axis: str) -> bool:
         """Whether the X or Y endstop switch is pressed: the carriage sits at it (within half a step)."""
         index = "xy".index(axis)

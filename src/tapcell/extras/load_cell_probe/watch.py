@@ -10,8 +10,12 @@ range) and the stuck-sensor run on every sample. The first sample past a limit h
 the nozzle is lifted straight up (up cannot press harder) and the command ends with
 `Load Cell Probe Error: nozzle collision at X,Y,Z (N g)` naming the command that moved.
 
-Not watched: moves that only rise (the same X/Y, Z up), moves while Z is not homed (the bed is
-not known), and every move before the cell is calibrated (there is no force to watch). The
+G28 X/Y's endstop moves are watched too when the nozzle may be low: Z homed and below
+`nozzle_watch_height`, or Z not homed, not lifted by that much first ([safe_z_home] z_hop), on a
+bed this session has measured (wants_homing).
+
+Not watched: moves that only rise (the same X/Y, Z up), other moves while Z is not homed (the bed
+is not known), and every move before the cell is calibrated (there is no force to watch). The
 trigger adds nothing to the firmware's per-sample path: it is the probing trigger, armed for
 one more kind of move (docs/safety.md).
 """
@@ -139,21 +143,55 @@ class NozzleWatch:
     def move(self, machine_xyz, speed_mm_s: float, accel_mm_s2: float | None) -> None:
         """Run one move (machine coordinates, None: the axis stays) with the trigger armed, no
         faster than `speed_cap_mm_s` allows."""
-        device = self.device
         start = self.backend.position
         direction = [0.0 if end is None else end - begin for end, begin in zip(machine_xyz, start)]
         speed_mm_s = min(speed_mm_s, self.speed_cap_mm_s(direction))
         tare_counts = self._move_tare_counts(descends=direction[2] < 0.0)
+        x, y, z = machine_xyz
+        self._run_armed(tare_counts, lambda firmware: self.backend.watched_move(x, y, z, speed_mm_s, accel_mm_s2,
+                                                                                 firmware))
+
+    def wants_homing(self) -> bool:
+        """Whether G28 X/Y's endstop moves run watched: the cell is calibrated and the nozzle may be
+        low. With Z homed: it starts below nozzle_watch_height. With Z not homed (motors off after
+        a print) nobody knows where the bed is: unless the toolhead was lifted (relative, [safe_z_home]
+        z_hop) by at least nozzle_watch_height since, the homing move is watched too, when this
+        session has measured the bed. On a bed never measured (a fresh start) the watch could keep
+        its force bound only by crawling (3 mm/s over the whole axis at 320 sps): there [safe_z_home]
+        z_hop is what keeps the nozzle clear (docs/safety.md)."""
+        toolhead = self.device.motion
+        if self.options.height_mm <= 0.0 or not self.device.load_cell.is_calibrated:
+            return False
+        if toolhead.is_z_homed():
+            return toolhead.get_position()[2] < self.options.height_mm
+        _, measured = self.device.speed_guard.assumed_stiffness_g_um()
+        return measured and toolhead.z_lift_while_unhomed_mm < self.options.height_mm
+
+    def home_xy(self, axes: str, speed_mm_s: float) -> None:
+        """G28's endstop move for `axes` ("x", "y", "xy") with the trigger armed: horizontal, so
+        tared on its own samples and no faster than the cap for sideways travel."""
+        capped_mm_s = min(speed_mm_s, self.speed_cap_mm_s((1.0, 0.0, 0.0)))
+        if capped_mm_s < speed_mm_s:
+            z_state = ("Z is low" if self.device.motion.is_z_homed()
+                       else "Z is not homed and was not lifted first ([safe_z_home] z_hop)")
+            self.printer.gcode.respond_info(
+                f"Homing {axes.upper()} at {capped_mm_s:g} mm/s, not {speed_mm_s:g} mm/s, with the nozzle watch: "
+                f"{z_state}, and the watch stops the nozzle in time only up to that speed on the bed assumed")
+        tare_counts = self._tare_counts()
+        self._run_armed(tare_counts, lambda firmware: self.backend.watched_home_xy(axes, capped_mm_s, firmware))
+
+    def _run_armed(self, tare_counts: float, run) -> None:
+        """`run(firmware)` makes the move with the trigger armed on `tare_counts`; a stop ends the command."""
+        device = self.device
         trigger = self._trigger()
         t_start_s = self.backend.now_s
         firmware = device.trigger.arm(trigger.pop("settings"), tare_counts, **trigger)
         self.watched_moves += 1
-        x, y, z = machine_xyz
         history = device.history
         kept_from_s = history.keep_from_s
         history.keep_from_s = t_start_s if kept_from_s is None else min(kept_from_s, t_start_s)
         try:
-            result = self.backend.watched_move(x, y, z, speed_mm_s, accel_mm_s2, firmware)
+            result = run(firmware)
             if result.triggered or result.error != TriggerError.NONE:
                 self._stopped(result, tare_counts, t_start_s)
             self._note_largest_force(tare_counts, t_start_s)
@@ -237,11 +275,15 @@ class NozzleWatch:
         raise ProbeError(collision_message(x_mm, y_mm, z_mm, peak_g, during))
 
     def _lift(self) -> None:
-        """Straight up to nozzle_watch_height, at least sample_retract_dist above the halt."""
+        """Straight up to nozzle_watch_height, at least sample_retract_dist above the halt (Z not
+        homed: nozzle_watch_height above the halt, which is at what it met)."""
         probe_options = self.device.probe.options
         z_now = float(self.backend.position[2])
-        frame_z = self.device.motion.frame_offset_mm["z"]
-        target = max(self.options.height_mm - frame_z, z_now + probe_options.sample_retract_dist_mm)
+        if self.device.motion.is_z_homed():
+            lowest = self.options.height_mm - self.device.motion.frame_offset_mm["z"]
+        else:
+            lowest = z_now + self.options.height_mm
+        target = max(lowest, z_now + probe_options.sample_retract_dist_mm)
         target = min(target, self.backend.limits["z"][1])
         if target > z_now:
             self.backend.move_to(z=target, speed_mm_s=probe_options.effective_lift_speed_mm_s)
