@@ -64,7 +64,9 @@ def test_homing_at_low_z_over_a_blob_is_stopped_below_the_limit(tmp_path, axis):
     error, peak_g, clearance_mm, _ = run(on, f"G1 Z0.3 F600\nG28 {axis}")
     assert error is not None and error.startswith(COLLISION), error
     assert f"during 'G28 {axis}'" in error
-    assert peak_g < 0.3 * FORCE_SAFETY_LIMIT_G   # 484 g measured (the trigger at 250 g, 50 mm/s)
+    # 761 g measured: a force stops the move on its second sample past 250 g, at the 40 mm/s cap
+    # (484 g when one sample stopped it, at 50 mm/s).
+    assert peak_g < 0.45 * FORCE_SAFETY_LIMIT_G
     assert clearance_mm > 1.5                     # lifted to nozzle_watch_height (2 mm): 1.855 mm
     where = [float(v) for v in error[len(COLLISION):].split(" ")[0].split(",")]
     index = "XY".index(axis)
@@ -76,9 +78,10 @@ def test_homing_at_low_z_over_a_blob_is_stopped_below_the_limit(tmp_path, axis):
     assert toolhead.get_position()[index] == 0.0
 
 
-def test_homing_at_a_safe_height_costs_nothing(tmp_path):
-    """Above nozzle_watch_height nothing is watched; below it on the measured bed (G28 Z read it)
-    the watch's speed cap (80 mm/s) is above the homing speed (50 mm/s): the same printer time."""
+def test_homing_at_a_safe_height_costs_nothing_and_low_runs_at_the_cap(tmp_path):
+    """Above nozzle_watch_height nothing is watched: the same printer time. Below it on the measured
+    bed (G28 Z read it) G28 X runs at the watch's speed cap (40 mm/s, a force confirmed on two
+    samples), not the homing speed (50 mm/s): 0.55 s more over the 110 mm to the endstop."""
     times = {}
     for name, options in (("off", WATCH_OFF), ("on", "")):
         printer = printer_in(tmp_path / name, probe_options=options)
@@ -90,7 +93,7 @@ def test_homing_at_a_safe_height_costs_nothing(tmp_path):
         assert error is None and peak_g == 0.0
         assert watch.watched_moves == before + (0 if name == "off" else 2)   # the Z move down and G28 X
     assert times["on", "high"] == times["off", "high"]
-    assert times["on", "low"] == pytest.approx(times["off", "low"], abs=0.01)
+    assert times["on", "low"] - times["off", "low"] == pytest.approx(110.0 / 40.0 - 110.0 / 50.0, abs=0.02)
 
 
 def test_homing_after_motors_off_with_the_nozzle_low_is_watched(tmp_path):
@@ -99,7 +102,7 @@ def test_homing_after_motors_off_with_the_nozzle_low_is_watched(tmp_path):
     printer = printer_in(tmp_path / "p", virtual_printer=blob_under(tmp_path, "X"))
     error, peak_g, clearance_mm, _ = run(printer, "G1 Z0.3 F600\nM84\nG28 X")
     assert error is not None and error.startswith(COLLISION) and "during 'G28 X'" in error, error
-    assert peak_g < 0.3 * FORCE_SAFETY_LIMIT_G and clearance_mm > 1.5
+    assert peak_g < 0.45 * FORCE_SAFETY_LIMIT_G and clearance_mm > 1.5   # 761 g measured
 
 
 def test_a_fresh_printer_with_z_not_homed_homes_x_unwatched(tmp_path):
@@ -129,14 +132,14 @@ def test_safe_z_home_hops_before_homing_x_so_the_blob_is_never_met(tmp_path):
 def test_homing_after_set_kinematic_position_low_on_an_unmeasured_bed_crawls_and_stops(tmp_path):
     """SET_KINEMATIC_POSITION Z=0.3 on a fresh printer (nozzle truly 0.3 mm up): Z counts as homed and
     low, but no G28 Z measured the bed, so G28 X is watched at the speed that is safe on the stiffest
-    bed assumed (3 mm/s at 320 sps), says so, and stops on the blob."""
+    bed assumed (2 mm/s at 320 sps), says so, and stops on the blob."""
     # The virtual printer starts at the bed's middle (117.5, 117.5): the blob in its path to X 0.
     world = bump_csv(tmp_path / "blob.csv", 60.0, 117.5, 1.5, 1.5) + "start_z_mm: 0.3\n"
     printer, responses = make_printer(tmp_path, virtual_printer=world, home=False,
                                       sections="\n[force_move]\nenable_force_move: True\n")
     printer.gcode.run_script("SET_KINEMATIC_POSITION Z=0.3")
     error, peak_g, clearance_mm, _ = run(printer, "G28 X")
-    assert "Homing X at 3 mm/s, not 50 mm/s, with the nozzle watch: Z is low" in "\n".join(responses)
+    assert "Homing X at 2 mm/s, not 50 mm/s, with the nozzle watch: Z is low" in "\n".join(responses)
     assert error is not None and error.startswith(COLLISION) and "during 'G28 X'" in error, error
     assert peak_g < 1.5 * 250.0 and clearance_mm > 1.5   # 255 g measured: the 250 g trigger plus a slow sample
 
@@ -147,4 +150,4 @@ def test_a_g28_x_inside_homing_override_is_watched(tmp_path):
     printer = printer_in(tmp_path / "p", virtual_printer=blob_under(tmp_path, "X"), sections=override)
     error, peak_g, clearance_mm, _ = run(printer, "G1 Z0.3 F600\nG28 X")
     assert error is not None and error.startswith(COLLISION) and "during 'G28 X'" in error, error
-    assert peak_g < 0.3 * FORCE_SAFETY_LIMIT_G and clearance_mm > 1.5
+    assert peak_g < 0.45 * FORCE_SAFETY_LIMIT_G and clearance_mm > 1.5   # 761 g measured

@@ -6,9 +6,16 @@ moves Z down, a macro. So every toolhead move that ends below `nozzle_watch_heig
 below it, runs with the firmware trigger armed, exactly as a probing move does: tared on the
 samples just before the move, triggering on `nozzle_watch_force` over that tare, and with the
 raw force window (`force_safety_limit` around the calibration zero, clamped inside the ADC's
-range) and the stuck-sensor run on every sample. The first sample past a limit halts the move;
-the nozzle is lifted straight up (up cannot press harder) and the command ends with
-`Load Cell Probe Error: nozzle collision at X,Y,Z (N g)` naming the command that moved.
+range) and the stuck-sensor run on every sample. A force must be there on two samples in a row to
+stop the move, as for a probing move: a single corrupted frame (a flipped bit on a long cable) is not
+a collision. The firmware's quarantine holds a sample past `nozzle_watch_force` until the next one
+(back inside: dropped; past it too: the move halts); a lone sample past the raw force window halts
+the move at once and, when the samples on both sides read under `nozzle_watch_force`, the move goes
+on to its target (at most CORRUPT_FRAME_RETRIES times within CORRUPT_FRAME_WINDOW_S). The
+confirmation costs one sample of travel, which the speed cap accounts for (it runs the firmware
+trigger with the quarantine). After a real stop the nozzle is lifted straight up (up cannot press
+harder) and the command ends with `Load Cell Probe Error: nozzle collision at X,Y,Z (N g)` naming
+the command that moved.
 
 G28 X/Y's endstop moves are watched too when the nozzle may be low: Z homed and below
 `nozzle_watch_height`, or Z not homed, not lifted by that much first ([safe_z_home] z_hop), on a
@@ -29,7 +36,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from tapcell.extras.load_cell_probe import safety
-from tapcell.extras.load_cell_probe.options import ERROR_PREFIX, robust_tare_counts, tare_sample_count
+from tapcell.extras.load_cell_probe.options import (
+    CORRUPT_FRAME_RETRIES,
+    CORRUPT_FRAME_WINDOW_S,
+    ERROR_PREFIX,
+    lone_sample_past_limit,
+    robust_tare_counts,
+    tare_sample_count,
+)
 from tapcell.extras.probe.session import ProbeError
 from tapcell.mcu.trigger import TriggerError, TriggerParams
 
@@ -114,9 +128,12 @@ class NozzleWatch:
     def _trigger(self) -> dict:
         """What a watched move's trigger differs in from a tap's: the config's options (no G-code
         override is running), no filter (the force over the move's tare, as read), trigger at
-        nozzle_watch_force, no drift window (the raw force window stays)."""
+        nozzle_watch_force and the drift window there too: the firmware quarantines a sample past
+        the window until the next, so a force stops the move only when two samples in a row read
+        it (the raw force window stays, on every sample)."""
         settings = dataclasses.replace(self.device.config_settings, sos=None)
-        return {"settings": settings, "trigger_force_g": self.options.force_g, "drift_safety_limit_g": 0.0}
+        return {"settings": settings, "trigger_force_g": self.options.force_g,
+                "drift_safety_limit_g": self.options.force_g}
 
     def trigger_params(self) -> TriggerParams:
         trigger = self._trigger()
@@ -191,21 +208,68 @@ class NozzleWatch:
         kept_from_s = history.keep_from_s
         history.keep_from_s = t_start_s if kept_from_s is None else min(kept_from_s, t_start_s)
         try:
-            result = run(firmware)
+            corrupt_stops_s: list[float] = []  # when a corrupted frame stopped this move
+            while True:
+                result = run(firmware)
+                lone_g = (self._lone_frame_g(tare_counts, result.halt_time_s)
+                          if result.error == TriggerError.FORCE_SAFETY else None)
+                if lone_g is None:
+                    break
+                now_s = self.backend.now_s
+                corrupt_stops_s = [t for t in corrupt_stops_s if t > now_s - CORRUPT_FRAME_WINDOW_S] + [now_s]
+                if len(corrupt_stops_s) > CORRUPT_FRAME_RETRIES:
+                    self._too_many_corrupt_frames(len(corrupt_stops_s), lone_g)
+                self.printer.gcode.respond_info(f"Load cell: one sample read {lone_g:.0f}g between samples near 0g "
+                                                "(a corrupted frame); the nozzle watch stopped the move, moving on")
+                firmware = device.trigger.arm(self._trigger().pop("settings"), tare_counts, **trigger)
             if result.triggered or result.error != TriggerError.NONE:
                 self._stopped(result, tare_counts, t_start_s)
             self._note_largest_force(tare_counts, t_start_s)
         finally:
             history.keep_from_s = kept_from_s
 
+    def _lone_frame_g(self, tare_counts: float, halt_time_s: float) -> float | None:
+        """The force of the sample that made a force_safety_limit stop when it stood alone, both
+        neighbours under nozzle_watch_force (a corrupted frame: a real force cannot come and go
+        within two samples), else None. Looked for around the halt only: a frame dropped earlier in
+        this move is not the one."""
+        device = self.device
+        period_s = 1.0 / device.sample_rate_sps
+        device._wait_for_samples_to(self.backend.now_s + 2.5 * period_s)  # the sample after it
+        _, counts, _ = device.history.between(halt_time_s - 2.0 * period_s, self.backend.now_s)  # and the one before
+        force_g = device.grams(counts, tare_counts)
+        lone = lone_sample_past_limit(force_g, device.options.force_safety_limit_g, self.options.force_g)
+        return None if lone is None else float(force_g[lone])
+
+    def _too_many_corrupt_frames(self, count: int, last_g: float) -> None:
+        """More corrupted frames stopped the move within CORRUPT_FRAME_WINDOW_S than it moves on
+        from: lift and end the command naming the sensor (not a collision)."""
+        where = self._stop_place()
+        self._lift()
+        raise ProbeError(ERROR_PREFIX + f"the load cell sent {count} corrupted frames within "
+                         f"{CORRUPT_FRAME_WINDOW_S:g} s (single samples past force_safety_limit, the last "
+                         f"{last_g:.0f}g): the move was stopped and the nozzle lifted; check the sensor's cable "
+                         "and its shielding" + where)
+
+    def _stop_place(self) -> str:
+        """' (the nozzle watch stopped the move at X,Y,Z during COMMAND)' for an error message."""
+        x_mm, y_mm, z_mm = self.device.motion.get_position()
+        during = self._during_command()
+        return f" (the nozzle watch stopped the move at {x_mm:.3f},{y_mm:.3f},{z_mm:.3f}" + (
+            f" during {during})" if during else ")")
+
     def _force_since(self, tare_counts: float, t_start_s: float) -> float:
-        """The force of largest size the cell read since t_start_s, against the move's tare (g)."""
+        """The force of largest size the cell read since t_start_s, against the move's tare (g), on
+        two samples in a row (the smaller of each pair: a lone corrupted frame is not a force)."""
         device = self.device
         device.load_cell.pump()
         _, counts, _ = device.history.between(t_start_s, self.backend.now_s)
         if not len(counts):
             return 0.0
         force_g = device.grams(counts, tare_counts)
+        if len(force_g) > 1:
+            pairs = np.stack([force_g[:-1], force_g[1:]])
+            force_g = pairs[np.argmin(np.abs(pairs), axis=0), np.arange(pairs.shape[1])]
         return float(force_g[np.argmax(np.abs(force_g))])
 
     def _note_largest_force(self, tare_counts: float, t_start_s: float) -> None:
@@ -262,15 +326,15 @@ class NozzleWatch:
         during = self._during_command()
         _, counts, _ = device.history.between(t_start_s, self.backend.now_s)
         saturated = safety.sensor_fault(counts, device.load_cell.counts_range, 0) == "saturated"
+        where = self._stop_place()
         self._lift()
-        where = f" (the nozzle watch stopped the move at {x_mm:.3f},{y_mm:.3f},{z_mm:.3f}" + (
-            f" during {during})" if during else ")")
         if saturated:
             raise ProbeError(ERROR_PREFIX + f"the load cell reading is at the end of the ADC's range ({int(counts[-1])} "
                              "counts, saturated): no force can be measured; check the sensor wiring, its gain and "
                              "the cell" + where)
-        if result.error not in (TriggerError.NONE, TriggerError.FORCE_SAFETY):
-            # The sensor itself failed (stuck, gone): say so, not a collision.
+        if result.error not in (TriggerError.NONE, TriggerError.FORCE_SAFETY, TriggerError.DRIFT_SAFETY):
+            # The sensor itself failed (stuck, gone): say so, not a collision (a drift stop is a
+            # force past nozzle_watch_force on two samples in a row).
             raise ProbeError(device.trigger.error_message(result.error, device.options) + where)
         raise ProbeError(collision_message(x_mm, y_mm, z_mm, peak_g, during))
 
