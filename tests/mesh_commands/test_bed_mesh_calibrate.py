@@ -78,9 +78,9 @@ def test_mesh_matches_the_warped_bed(make_printer):
     above_bed_mm = heights[predicted] - np.maximum(contacts[predicted], contacts[predicted + 1])
     assert above_bed_mm.min() > 0.15 and above_bed_mm.max() < 0.7
     # 25 points: 33.0 s with the nozzle watch off; its speed cap (travel under nozzle_watch_height at
-    # 80 mm/s, not 150, on this measured bed: docs/safety.md) makes it 40.7 s; 43.1 s since G28 Z's
-    # first tap is slow (the taps' timing shifts: the stiffest tap decides the cap, 60 or 80 mm/s).
-    assert printer.get_status()["bed_mesh"]["last_calibration"]["time_s"] < 44.5
+    # 40 mm/s, not 150, on this measured bed: docs/safety.md) makes it 51.9 s (43.1 s at the 80 mm/s
+    # cap the watch had while one sample stopped it: a corrupted frame stopped it too).
+    assert printer.get_status()["bed_mesh"]["last_calibration"]["time_s"] < 53.5
 
 
 def test_oozy_mesh_completes_with_circle(make_printer):
