@@ -174,7 +174,7 @@ class NozzleWatch:
         a print) nobody knows where the bed is: unless the toolhead was lifted (relative, [safe_z_home]
         z_hop) by at least nozzle_watch_height since, the homing move is watched too, when this
         session has measured the bed. On a bed never measured (a fresh start) the watch could keep
-        its force bound only by crawling (3 mm/s over the whole axis at 320 sps): there [safe_z_home]
+        its force bound only by crawling (2 mm/s over the whole axis at 320 sps): there [safe_z_home]
         z_hop is what keeps the nozzle clear (docs/safety.md)."""
         toolhead = self.device.motion
         if self.options.height_mm <= 0.0 or not self.device.load_cell.is_calibrated:
