@@ -141,7 +141,7 @@ def test_homing_after_set_kinematic_position_low_on_an_unmeasured_bed_crawls_and
     error, peak_g, clearance_mm, _ = run(printer, "G28 X")
     assert "Homing X at 2 mm/s, not 50 mm/s, with the nozzle watch: Z is low" in "\n".join(responses)
     assert error is not None and error.startswith(COLLISION) and "during 'G28 X'" in error, error
-    assert peak_g < 1.5 * 250.0 and clearance_mm > 1.5   # 255 g measured: the 250 g trigger plus a slow sample
+    assert peak_g < 1.5 * 250.0 and clearance_mm > 1.5   # 271 g measured: the 250 g trigger plus two slow samples
 
 
 def test_a_g28_x_inside_homing_override_is_watched(tmp_path):
