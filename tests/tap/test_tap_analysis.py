@@ -103,6 +103,17 @@ def test_noisy_clean_taps_are_unbiased_and_sigma_is_honest(options, bias_um):
     assert 0.5 < np.std(errors) / np.mean(sigmas) < 1.6
 
 
+@pytest.mark.parametrize("nominal_rate_sps", [1e300, 1e-300, 3.2])
+def test_a_nominal_sample_rate_the_times_contradict_is_not_used(nominal_rate_sps):
+    """The file's sample_rate is nominal; the times are what was sampled. One far off them (a file
+    claiming 1e300 sps made every lag and step zero or infinite: a traceback) gives the Z the tap
+    gives without it."""
+    tap = synth_tap(seed=4)
+    honest = analyze_tap(dataclasses.replace(tap, sample_rate_sps=None))
+    lying = analyze_tap(dataclasses.replace(tap, sample_rate_sps=nominal_rate_sps))
+    assert lying.valid and lying.z_mm == honest.z_mm
+
+
 def test_corrupted_frames_are_repaired_and_do_not_move_z():
     clean = analyze_tap(synth_tap(seed=4))
     corrupted = analyze_tap(synth_tap(seed=4, corrupted_frames=4))

@@ -152,6 +152,16 @@ def sensor_timing(tap: TapData, options: AnalysisOptions, sample_period_s: float
                         delay == "auto", from_halt, sample_period_s, float(z_step_um))
 
 
+def sample_period_s(nominal_rate_sps: float | None, time_s: np.ndarray) -> float:
+    """The sample period: the nominal rate's when it agrees with the samples' times within 2x (a
+    sensor clock is off by a few per cent), else the median interval of the times. A file's nominal
+    rate of 1e300 sps would otherwise make every lag and step of the analysis zero or infinite."""
+    mean_interval_s = float(time_s[-1] - time_s[0]) / (len(time_s) - 1)
+    if nominal_rate_sps and 0.5 < 1.0 / (nominal_rate_sps * mean_interval_s) < 2.0:
+        return 1.0 / nominal_rate_sps
+    return median(np.diff(time_s))
+
+
 def _meta_seconds(tap: TapData, key: str, default: float | None) -> float | None:
     """A sensor time from the tap's meta: a number in [0, 1) s, else `default`."""
     value = _meta_number(tap, key, math.inf)
@@ -871,7 +881,7 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> tuple[SplitTap, int, in
         motion = tap_motion(tap)
     except MotionError as problem:
         raise TapInvalid(TAP_MOTION_INVALID, str(problem)) from None
-    period_s = 1.0 / tap.sample_rate_sps if tap.sample_rate_sps else median(np.diff(time_s))
+    period_s = sample_period_s(tap.sample_rate_sps, time_s)
     timing = sensor_timing(tap, options, period_s)
     validate.check_motion(motion, time_s)
     polarity = _polarity(time_s, force_raw, motion)

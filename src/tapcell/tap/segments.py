@@ -204,6 +204,9 @@ def five_lines(time_s: np.ndarray, force_g: np.ndarray, phases_s: tuple[float, f
     One kernel call when built (its glue cost as much as its search); the numpy code is its twin.
     """
     m = len(time_s)
+    # A lag past the window's end reaches no further than its end (every range below stops at m);
+    # capped, a file's absurd sample rate (1e300 sps: a lag of 1e298 samples) fits the kernel's ssize_t.
+    lag_samples, release_lag_samples = min(lag_samples, m), min(release_lag_samples, m)
     t_ref, f_ref = float(time_s[m // 2]), float(force_g.sum()) / m  # as prefix_sums
     if _C is not None:
         ps = PrefixSums(t_ref, f_ref, np.empty((6, m + 1)))
