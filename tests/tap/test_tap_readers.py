@@ -91,6 +91,12 @@ def test_workbench_capture_with_positions(tmp_path, tap):
      "not valid tap data: an integer with 401 digits (at most 20 allowed)"),
     ({"time": list(range(20)), "force": [1.0] * 20, "z": [0.0] * 20, "sample_rate": -(10 ** 400)},
      "not valid tap data: an integer with 401 digits (at most 20 allowed)"),
+    ({"time": list(range(20)), "force": [1.0] * 20, "z": [0.0] * 20, "sample_rate": 0},
+     "'sample_rate' must be positive"),
+    ({"time": [0.01 * i for i in range(20)], "force": [1.0] * 20, "z": [0.0] * 20, "sample_rate": 1e300},
+     "'sample_rate' 1e+300 disagrees with the samples' times (100 sps on average); allowed: within 2x"),
+    ({"time": [0.01 * i for i in range(20)], "force": [1.0] * 20, "z": [0.0] * 20, "sample_rate": 49.9},
+     "'sample_rate' 49.9 disagrees with the samples' times (100 sps on average)"),
 ])
 def test_bad_files_name_the_file_and_problem(tmp_path, document, problem):
     path = tmp_path / "bad.json"

@@ -262,6 +262,18 @@ def _dict(path: str, where: str, name: str, value: Any) -> dict:
     return dict(value)
 
 
+def _check_sample_rate(path: str, where: str, rate_sps: float, time_s: np.ndarray) -> None:
+    """The nominal rate must be positive and agree with the samples' times within 2x (a sensor's
+    clock is off by a few per cent; 1e300 sps beside samples 3 ms apart is a broken file)."""
+    if rate_sps <= 0:
+        raise TapFileError(path, f"{where}'sample_rate' must be positive")
+    if len(time_s) > 1 and time_s[-1] > time_s[0]:
+        times_sps = (len(time_s) - 1) / float(time_s[-1] - time_s[0])
+        if not 0.5 < rate_sps / times_sps < 2.0:
+            raise TapFileError(path, f"{where}'sample_rate' {rate_sps:g} disagrees with the samples' times "
+                                     f"({times_sps:.4g} sps on average); allowed: within 2x of that, or leave it out")
+
+
 def tap_from_object(obj: Any, path: str = "<memory>", where: str = "", *,
                     finite_arrays: Collection[str] = ()) -> TapData:
     """A TapData from one decoded JSON object of any accepted flavour. `finite_arrays`: keys whose
@@ -294,8 +306,8 @@ def tap_from_object(obj: Any, path: str = "<memory>", where: str = "", *,
         if key in obj and key not in events:
             events[key] = obj[key]
     sample_rate = obj.get("sample_rate")
-    if sample_rate is not None and (_number(path, where, "sample_rate", sample_rate) <= 0):
-        raise TapFileError(path, f"{where}'sample_rate' must be positive")
+    if sample_rate is not None:
+        _check_sample_rate(path, where, _number(path, where, "sample_rate", sample_rate), time_s)
     return TapData(
         time_s=time_s,
         force_g=force_g,
