@@ -152,12 +152,27 @@ def sensor_timing(tap: TapData, options: AnalysisOptions, sample_period_s: float
                         delay == "auto", from_halt, sample_period_s, float(z_step_um))
 
 
+# A sensor's clock is off its nominal rate by a few per cent; a file's nominal rate further than this
+# factor from the rate its samples' times show is not a rate (1e300 sps beside samples 3 ms apart).
+NOMINAL_RATE_FACTOR = 2.0
+
+
+def times_rate_sps(time_s: np.ndarray) -> float:
+    """The samples' average rate from their first and last times (at least two, rising)."""
+    return (len(time_s) - 1) / float(time_s[-1] - time_s[0])
+
+
+def nominal_rate_agrees(nominal_rate_sps: float, time_s: np.ndarray) -> bool:
+    """Is a nominal rate within NOMINAL_RATE_FACTOR of what the samples' times show?"""
+    ratio = nominal_rate_sps / times_rate_sps(time_s)
+    return 1.0 / NOMINAL_RATE_FACTOR < ratio < NOMINAL_RATE_FACTOR
+
+
 def sample_period_s(nominal_rate_sps: float | None, time_s: np.ndarray) -> float:
-    """The sample period: the nominal rate's when it agrees with the samples' times within 2x (a
-    sensor clock is off by a few per cent), else the median interval of the times. A file's nominal
+    """The sample period: the nominal rate's when it agrees with the samples' times, else the median
+    interval of the times (the reader refuses such a file; a tap made in memory lands here). A nominal
     rate of 1e300 sps would otherwise make every lag and step of the analysis zero or infinite."""
-    mean_interval_s = float(time_s[-1] - time_s[0]) / (len(time_s) - 1)
-    if nominal_rate_sps and 0.5 < 1.0 / (nominal_rate_sps * mean_interval_s) < 2.0:
+    if nominal_rate_sps and nominal_rate_agrees(nominal_rate_sps, time_s):
         return 1.0 / nominal_rate_sps
     return median(np.diff(time_s))
 

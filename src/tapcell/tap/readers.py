@@ -22,6 +22,7 @@ import numpy as np
 from tapcell.files import FileRefused, read_limited
 from tapcell.tap import native
 from tapcell.tap.analysis import MIN_SAMPLES  # a file with fewer samples could not be analysed
+from tapcell.tap.analysis import NOMINAL_RATE_FACTOR, nominal_rate_agrees, times_rate_sps
 from tapcell.tap.model import Move, TapAnalysis, TapData, TapFileError
 
 _C = native.load("readers")
@@ -263,15 +264,13 @@ def _dict(path: str, where: str, name: str, value: Any) -> dict:
 
 
 def _check_sample_rate(path: str, where: str, rate_sps: float, time_s: np.ndarray) -> None:
-    """The nominal rate must be positive and agree with the samples' times within 2x (a sensor's
-    clock is off by a few per cent; 1e300 sps beside samples 3 ms apart is a broken file)."""
+    """The nominal rate must be positive and agree with the samples' times (analysis.nominal_rate_agrees)."""
     if rate_sps <= 0:
         raise TapFileError(path, f"{where}'sample_rate' must be positive")
-    if len(time_s) > 1 and time_s[-1] > time_s[0]:
-        times_sps = (len(time_s) - 1) / float(time_s[-1] - time_s[0])
-        if not 0.5 < rate_sps / times_sps < 2.0:
-            raise TapFileError(path, f"{where}'sample_rate' {rate_sps:g} disagrees with the samples' times "
-                                     f"({times_sps:.4g} sps on average); allowed: within 2x of that, or leave it out")
+    if len(time_s) > 1 and time_s[-1] > time_s[0] and not nominal_rate_agrees(rate_sps, time_s):
+        raise TapFileError(path, f"{where}'sample_rate' {rate_sps:g} disagrees with the samples' times "
+                                 f"({times_rate_sps(time_s):.4g} sps on average); allowed: within "
+                                 f"{NOMINAL_RATE_FACTOR:g}x of that, or leave it out")
 
 
 def tap_from_object(obj: Any, path: str = "<memory>", where: str = "", *,
