@@ -127,22 +127,21 @@ TWO_STAGE_MIN_SPAN_WINDOWS = 2.0  # a stage shorter than two conversion windows 
 TWO_STAGE_MIN_EVIDENCE = 16.0
 # With the drift held at the free air's (the approach's line, where the departure agrees with it:
 # the toe fit's own baseline, `toe_drift_g_um`), a long soft stage can no longer trade against a
-# drift fitted with it, and a stage shows more: the two-stage taps the fitted drift left valid,
-# 2.3-13.5 um low, reach 11.3-33.4 (14 of 43 over taplab seeds 1-12 pass 12; the rest 5.6-11.3, as
-# clean taps: a 2 g stage under 0.8 g of noise reads -1.4). Clean and soft-sheet taps reach 7.8 on
+# drift fitted with it, and a stage shows more. Of the 43 two-stage taps the fitted drift left valid
+# on taplab seeds 1-12 (2.3-13.5 um low), 14 then reach 12.5-33.4; the rest stay where clean taps
+# are (an 8.5 um stage of 2.2 g under 0.8 g of noise: -1.4). Clean and soft-sheet taps reach 7.8 on
 # taplab seeds 1-3, the reference taps and sessions (3,560 taps), 10.5 on seeds 4-12 (5,400 more,
-# never tuned on: at 10 that one would have been rejected). The noise then: white plus the walk
-# over the longest stage's share of the samples, not the whole reach's (the models differ over a
-# stage's samples; the level takes the rest).
+# never tuned on; at 10, the first choice, that one tap would have been rejected). The noise then:
+# white plus the walk over the longest stage's share of the samples, not the whole reach's (the two
+# models differ over a stage's samples; the level takes the rest).
 TWO_STAGE_HELD_MIN_EVIDENCE = 12.0
-# ... and its first touch shown apart from the toe's contact: by 2 of its own sd (a clean ADS1220
-# tap at 12.1 had its top 1.03 um above the contact, 1.2 sd; the stages it names lie 2.8 sd and more
-# above) ...
+# ... with its first touch shown apart from the toe's contact, by 2 of its own sd: a clean ADS1220
+# tap (seed 5) scored 12.1 for a top 1.03 um up, 1.2 sd; the stages named lie 2.04-10.5 sd up ...
 TWO_STAGE_HELD_TOP_SDS = 2.0
-# ... and where the fitted drift puts it, within 2 sd of the two (a stage is a shape in height):
-# two-stage taps 0.02-0.93, clean ones up to 0.91, but a 10 sps HX711 tap whose baseline walked 2 g
-# over its 9 s departure 20.5 (held: a 19 um stage at 8 %, its top 14.7 um above the contact, evidence
-# 18.6; fitted: 1.05 um above it).
+# ... and within 2 sd (the two tops' sds combined) of where the fitted-drift fit puts it: a stage is a
+# shape in height (two-stage taps 0.02-1.32 apart). A 10 sps HX711 tap (seed 4) whose baseline sank
+# 2 g over its 9 s departure: held, a 19 um stage at 8 %, its top 14.7 um above the contact,
+# evidence 18.6; fitted, 1.05 um above it: 20.5 apart.
 TWO_STAGE_TOPS_AGREE_SDS = 2.0
 TWO_STAGE_MATTERS_UM = 1.0  # a first touch this close to the toe's contact leaves its Z standing
 # The toe absorbs a stage only by growing wide (the two-stage taps it misreads: toes of 10-16 µm);
