@@ -219,7 +219,9 @@ def two_stage_fit(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, nois
     lines: force = b + k (h - x)+ + k1 (t - x)+), against the best one-stage toe, over the samples
     from TWO_STAGE_BELOW_UM below the contact found to TWO_STAGE_ABOVE_UM above it (heights µm above
     the halt, force drift removed). Both models fit a drift too, unless drift_held (the drift
-    removed is the tap's). None when too few samples or no two-stage fit with both stiffnesses positive."""
+    removed is the tap's; the grid still counts six parameters in what the two stages leave, one
+    more than they then have: a noise a little larger). None when too few samples or no two-stage
+    fit with both stiffnesses positive."""
     near = (x_um > contact_um - TWO_STAGE_BELOW_UM) & (x_um < contact_um + TWO_STAGE_ABOVE_UM)
     if int(near.sum()) < 2 * STAGE_MIN_SAMPLES or noise_var_g2 <= 0:
         return None
