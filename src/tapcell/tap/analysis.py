@@ -1045,7 +1045,8 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
                    result.compression_force_g)
     check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, split.noise_g, approach_wander,
                      toe.stiffness_g_um)
-    check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, split.noise_g, approach_wander)
+    check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, split.noise_g, approach_wander,
+                    drift_held=fit_drift_g_um is not None)
     approach_change_g = abs(dec.points[P_CONTACT][1] - dec.points[P_START][1])
     if approach_change_g > APPROACH_DRIFT_MATERIAL_SHARE * result.compression_force_g:  # else it costs the score little
         result.approach_drift_share = departure_drift_share(rising, toe.contact_um, drift_g_um)
@@ -1127,11 +1128,13 @@ def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float
 
 
 def check_two_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, toe: ToeFit, lag_shift_um: float,
-                    noise_g: float, approach_wander: Wander | None) -> None:
+                    noise_g: float, approach_wander: Wander | None, drift_held: bool = False) -> None:
     """TAP_TWO_STAGE_CONTACT when the departure is two stages rather than the wide toe fitted
-    (tapcell.tap.stage.two_stage_departure): the toe absorbed a soft first stage and reads low."""
+    (tapcell.tap.stage.two_stage_departure): the toe absorbed a soft first stage and reads low.
+    drift_held: the toe fit held drift_g_um (the departure agrees with the approach), the stages are
+    weighed on it too."""
     walk_var_g2 = approach_wander.walk_var_g2 if approach_wander else 0.0
-    fit = two_stage_departure(*samples, drift_g_um, toe.contact_um, toe.width_um, noise_g, walk_var_g2)
+    fit = two_stage_departure(*samples, drift_g_um, toe.contact_um, toe.width_um, noise_g, walk_var_g2, drift_held)
     if shows_two_stage(fit, toe.contact_um):
         first_touch_mm = motion.z_halt_mm + (fit.top_um - lag_shift_um) / 1000.0
         raise TapInvalid(TAP_TWO_STAGE_CONTACT,
