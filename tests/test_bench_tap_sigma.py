@@ -11,7 +11,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the bench packag
 from bench.tap_sigma import GRID, Scenario, choose_weights, force_error_g, ratio_rms  # noqa: E402  (after the path)
 from tapcell.tap.uncertainty import SigmaWeights, ZSigmaParts  # noqa: E402
 
-TRUE = {"noise": 0.75, "shape": 2.0, "misfit": 0.5, "thread": 1.5, "squeeze": 1.25}
+TRUE = {"noise": 0.75, "shape": 2.0, "misfit": 0.5, "thread": 1.5, "squeeze": 1.25, "film": 1.0, "floor": 2.5}
 
 
 def _scenario(rng, part: str, taps: int = 400) -> Scenario:
@@ -24,7 +24,7 @@ def _scenario(rng, part: str, taps: int = 400) -> Scenario:
 def test_the_weights_that_make_every_scenario_honest_are_found():
     rng = np.random.default_rng(7)
     sets = {"a": {name: _scenario(rng, name) for name in ("noise", "shape")},
-            "b": {name: _scenario(rng, name) for name in ("misfit", "thread", "squeeze")}}
+            "b": {name: _scenario(rng, name) for name in ("misfit", "thread", "squeeze", "film", "floor")}}
     chosen, worst = choose_weights(sets)
     for name, weight in TRUE.items():  # within one step of its grid
         step = float(GRID[name][1] - GRID[name][0])
