@@ -1083,11 +1083,15 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
     window_um = speed_um_s * timing.integration_s
     halt_sigma_s = (corner_time_sigma_s(split.ps, dec, COMPRESSION, dec.points[P_DWELL_START][0])
                     if timing.delay_from_halt else 0.0)
+    squeeze = uncertainty.squeeze_um(*_contact_down_and_up(fits, motion.approach_speed_mm_s * 1000.0
+                                                          * timing.sample_period_s))
     others = dict(
         thread_um=uncertainty.thread_um(near_pull_g, far_pull_g, walk_var_g2, stiffness),
         misfit_um=uncertainty.misfit_um(result.fit_residual_sigma_g, max(split.noise_g, departure_g),
                                         result.step_sigma_g, stiffness),
-        squeeze_um=uncertainty.squeeze_um(*_contact_down_and_up(fits)),
+        squeeze_um=squeeze,
+        film_um=uncertainty.film_um(squeeze, _toe_lift_um(result)),
+        floor_um=uncertainty.floor_um(stiffness),
         staircase_um=uncertainty.staircase_um(step_staircase_sigma_um(timing.z_step_um, window_um), timing.z_step_um),
         delay_um=speed_um_s * halt_sigma_s if math.isfinite(halt_sigma_s) else 0.0)
     if result.z_method == "toe" and result.toe_grid is not None:
@@ -1100,16 +1104,23 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
     result.z_sigma_um = uncertainty.z_sigma_um(parts)
 
 
-def _contact_down_and_up(fits: ContactFits) -> tuple[float | None, float | None, float]:
+def _contact_down_and_up(fits: ContactFits, approach_travel_um: float) -> tuple[float | None, float | None, float]:
     """(contact on the way down, break contact on the way up, µm, from the sharp fits at the same
-    delay; None where a fit is missing) and what their noise allows between them: TAP_CONTACT_MISMATCH's
-    CONSISTENCY_SIGMAS of the two fits, without its hysteresis and sample-of-travel allowances (on
-    taplab's mild ooze those hide every film the pullback reads high by)."""
+    delay; None where a fit is missing) and what their noise and the approach's sample grid allow
+    between them (`uncertainty.squeeze_allowance_um`; not TAP_CONTACT_MISMATCH's hysteresis and
+    whole sample of travel, which on taplab's mild ooze hide every film the pullback reads high by)."""
     down, up = fits.compression, fits.pullback
     if down is None or up is None:
         return None, None, 0.0
-    return down.contact_um, up.contact_um, validate.CONSISTENCY_SIGMAS * math.hypot(down.contact_sigma_um,
-                                                                                 up.contact_sigma_um)
+    return down.contact_um, up.contact_um, uncertainty.squeeze_allowance_um(down.contact_sigma_um, up.contact_sigma_um,
+                                                                         approach_travel_um)
+
+
+def _toe_lift_um(result: TapAnalysis) -> float:
+    """How far the toe model's Z lies from the sharp model's (µm; 0 when the toe did not set Z)."""
+    if result.z_method != "toe" or result.z_sharp_mm is None or result.z_mm is None:
+        return 0.0
+    return (result.z_mm - result.z_sharp_mm) * 1000.0
 
 
 def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, contact_um: float,
