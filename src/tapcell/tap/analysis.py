@@ -52,7 +52,7 @@ from tapcell.tap.segments import NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_F
 from tapcell.tap.stage import departure_soft_stage, shows_soft_stage, shows_two_stage, two_stage_departure
 from tapcell.tap.toe import (ADHESION_LEVEL_UM, ADHESION_REACH_UM, THREAD_FAR_REACH_UM, THREAD_REACH_UM, ToeFit,
                              Wander, adhesion_measures, fit_toe, free_air_variogram, lag_from_halt_s, thread_pull_g,
-                             thread_pulls_g, wanders_from_variograms)
+                             thread_pulls_g, walk_beside_height_pull, wander_from_variograms)
 
 # The checks, robust statistics and window heights in C (c/analysis.c, tapcell.tap.native); None: numpy.
 _C = native.load("analysis")
@@ -616,15 +616,21 @@ def read_while_rising(samples: PullbackSamples, window: ModelWindow, motion: Mot
     return samples[0][:kept], samples[1][:kept], samples[2][:kept]
 
 
-def free_air_wanders(force_g: np.ndarray, dec: Decomposition) -> tuple[Wander | None, Wander | None]:
-    """The baseline's white noise and random walk from the approach and departure lines' samples
-    (for the toe fit), and from the approach's alone, which no ooze thread after the tap can pull
-    (for the thread check); the approach's variogram is measured once for both."""
+def free_air_wanders(force_g: np.ndarray, dec: Decomposition, steps_um: tuple[float, float],
+                     rising_stop: int) -> tuple[Wander | None, Wander | None]:
+    """The baseline's white noise and random walk in time from the approach line's samples and the
+    departure line's read while the nozzle rose (before `rising_stop`, an index into force_g), with
+    a pull curved in height told apart from the walk (`walk_beside_height_pull`; steps_um: the
+    height crossed per sample on the approach and on the pullback), for the toe fit; and from the
+    approach's alone, which no ooze thread after the tap can pull (for the thread check). The
+    approach's variogram is measured once for both."""
     first, *_, last = dec.bounds
-    approach = free_air_variogram(force_g[dec.start:dec.start + first])
-    departure = free_air_variogram(force_g[dec.start + last:dec.stop])
-    approach_wander, both_wander = wanders_from_variograms([approach, departure])  # the approach's rows summed once
-    return both_wander, approach_wander
+    approach_force = force_g[dec.start:dec.start + first]
+    departure_force = force_g[dec.start + last:min(dec.stop, rising_stop)]
+    approach = free_air_variogram(approach_force)
+    departure = free_air_variogram(departure_force)
+    segments = [(approach, len(approach_force), steps_um[0]), (departure, len(departure_force), steps_um[1])]
+    return walk_beside_height_pull(segments), wander_from_variograms([approach])
 
 
 def fit_pullback_toe(samples: PullbackSamples, motion: Motion, timing: SensorTiming, contact0_um: float,
@@ -848,7 +854,10 @@ class SplitTap:
     @functools.cached_property
     def wanders(self) -> tuple[Wander | None, Wander | None]:
         """`free_air_wanders` of the tap, measured once for the toe fit and its uncertainty."""
-        return free_air_wanders(self.force_g, self.dec)
+        motion, period_s = self.motion, self.timing.sample_period_s
+        steps_um = (motion.approach_speed_mm_s * 1000.0 * period_s, motion.pullback_speed_mm_s * 1000.0 * period_s)
+        rising_stop = int(self.time_s.searchsorted(motion.pullback_end_s + self.timing.delay_s, side="right"))
+        return free_air_wanders(self.force_g, self.dec, steps_um, rising_stop)
 
 
 @dataclass
