@@ -937,7 +937,7 @@ def lag_before_the_fits(split: SplitTap, result: TapAnalysis) -> float:
     timing = split.timing
     if timing.delay_from_halt:
         halt_lag_s = lag_from_halt_s(split.dec.points[P_DWELL_START][0], split.motion.home_end_s,
-                                     timing.sample_period_s)
+                                     timing.sample_period_s, UNKNOWN_DELAY_ALLOWANCE_S)
         timing.delay_s = max(halt_lag_s - 0.5 * timing.integration_s, 0.0) if halt_lag_s is not None else 0.0
     delay_s = 0.0 if timing.estimate_delay else timing.delay_s
     result.sensor_delay_s = delay_s
