@@ -79,3 +79,18 @@ def test_reference_taps_averaged_into_a_slower_sensor(tmp_path):
     assert "truth" not in tap and "meta" not in tap
     answer = analyse_in_process(tap)
     assert answer["valid"] and abs(answer["z"] - z_mm) * 1000.0 < 3.0
+
+
+def test_a_pullback_of_a_few_samples_is_not_called_too_short():
+    """10 mm/s at 320 sps: 31 µm a sample, 7 samples over a pullback 2.2-3.5x the overtravel. The
+    nozzle left the bed, but the rules counting samples from the pullback's end said it never did,
+    "increase pullback_distance" (5 of 20). Now: too few samples, slow pullback_speed. The 15 taps
+    the rules accept are untouched (+1.82 ± 5.60 µm before and after)."""
+    codes, messages = [], []
+    for tap, _ in case_taps(CASE["pull10"], seed=1, count=12, reference_dir=None):
+        answer = analyse_in_process(tap)
+        if not answer["valid"]:
+            codes.append(answer["error"])
+            messages.append(answer["message"])
+    assert codes and set(codes) == {"TAP_DATA_INSUFFICIENT"}, codes
+    assert all("slow pullback_speed" in m and "31.2 µm a sample" in m for m in messages), messages
