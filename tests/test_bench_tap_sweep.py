@@ -94,3 +94,13 @@ def test_a_pullback_of_a_few_samples_is_not_called_too_short():
             messages.append(answer["message"])
     assert codes and set(codes) == {"TAP_DATA_INSUFFICIENT"}, codes
     assert all("slow pullback_speed" in m and "31.2 µm a sample" in m for m in messages), messages
+
+
+def test_a_pullback_starting_at_the_halt_says_there_is_no_dwell():
+    """A dwell of 0 was "phase times out of order: halt X, pullback X..": the times are equal, not
+    out of order. Still TAP_MOTION_INVALID (the five lines need a dwell), now naming it."""
+    (tap, _), = case_taps(CASE["dwell0"], seed=1, count=1, reference_dir=None)
+    answer = analyse_in_process(tap)
+    assert answer["error"] == "TAP_MOTION_INVALID"
+    assert answer["message"].startswith("the pullback starts at the halt (")
+    assert "no dwell" in answer["message"]

@@ -101,6 +101,10 @@ def coasting_while_slowing_message(end_z_mm: float) -> str:
 
 
 def check_motion(motion: Motion, time_s: np.ndarray) -> None:
+    if motion.home_end_s == motion.pullback_start_s < motion.pullback_end_s:
+        raise TapInvalid(TAP_MOTION_INVALID,
+                         f"the pullback starts at the halt ({motion.home_end_s:.6f} s): no dwell, and the "
+                         "five lines need the nozzle to rest between the compression and the decompression")
     if not motion.home_end_s < motion.pullback_start_s < motion.pullback_end_s:
         raise TapInvalid(TAP_MOTION_INVALID,
                          f"phase times out of order: halt {motion.home_end_s:.6f} s, pullback "
