@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import gc
 import json
 import sys
 
@@ -54,6 +55,20 @@ def main(argv: list[str]) -> int:
     except (ValueError, UnknownClassifierError) as problem:
         print(f"tapcell analyze: {problem}", file=sys.stderr)
         return 2
+    # Reading and analysing a tap leaves no reference cycles (measured: none on 600 taplab and
+    # reference taps), so reference counting frees all of it: the cycle collector would only walk
+    # the growing results over and over (~1 % of a run's CPU). Drawing (matplotlib) makes cycles.
+    collecting = gc.isenabled()
+    if not args.plot:
+        gc.disable()
+    try:
+        return _analyze_files(args, options)
+    finally:
+        if collecting:
+            gc.enable()
+
+
+def _analyze_files(args: argparse.Namespace, options: AnalysisOptions) -> int:
     results = []
     unreadable = 0
     plots = []  # (file written, the tap it shows)
