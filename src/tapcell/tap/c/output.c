@@ -1,4 +1,5 @@
-/* The rounding of the analysis's JSON numbers (twin: tapcell/tap/model.py `_num`, Python's round).
+/* The JSON output of `tapcell analyze`: the rounding of its numbers (twin: tapcell/tap/model.py
+ * `_round_num`, Python's round) and each tap's line (twin: json.dumps, below).
  *
  * `tapcell analyze --json` rounds some 45 numbers a tap to a few decimals. Python's round(x, n)
  * finds the decimal by the correctly rounded dtoa (about half a microsecond each, a tenth of what
@@ -273,7 +274,7 @@ static PyMethodDef methods[] = {
     {NULL, NULL, 0, NULL},
 };
 
-static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_c_output", "The rounding of the analysis's JSON numbers.",
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_c_output", "The JSON output of the analysis: its numbers' rounding and each tap's line.",
                                     -1, methods, NULL, NULL, NULL, NULL};
 
 PyMODINIT_FUNC PyInit__c_output(void) { return PyModule_Create(&module); }
