@@ -888,6 +888,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         z_from_sharp_model_or_lines(split, fits, result)
         if options.uses_toe_model:
             z_from_toe_model(split, window, fits, delay_s, window_delay_s, result)
+        check_decompression_samples(split, window, delay_s, window_delay_s, result)
         z_uncertainty(split, window, fits, delay_s, window_delay_s, result)
         compression_stiffness(split, window, fits, delay_s, result)
     except TapInvalid as invalid:
@@ -1075,6 +1076,26 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     result.fit_residual_sigma_g = toe.residual_sigma_g
 
 
+def check_decompression_samples(split: SplitTap, window: ModelWindow, delay_s: float, window_delay_s: float,
+                                result: TapAnalysis) -> None:
+    """TAP_DATA_INSUFFICIENT when the pullback is too fast to leave the decompression line two
+    samples wholly pressed below break contact (`validate.check_decompression_samples`)."""
+    motion, timing = split.motion, split.timing
+    if result.z_mm is None:
+        return
+    contact_um = _break_contact_in_window_um(motion, delay_s, window_delay_s, result.z_mm)
+    _, x_high_um, _ = pullback_samples(window, motion, timing, window_delay_s)
+    pressed = int(np.count_nonzero(x_high_um <= contact_um))
+    validate.check_decompression_samples(pressed, contact_um,
+                                         motion.pullback_speed_mm_s * 1000.0 * timing.sample_period_s)
+
+
+def _break_contact_in_window_um(motion: Motion, delay_s: float, window_delay_s: float, z_mm: float) -> float:
+    """Break contact in the window's heights (µm above the halt): a delay estimated since the window
+    was read moved Z down by pullback speed x the change."""
+    return (z_mm - motion.z_halt_mm) * 1000.0 + (delay_s - window_delay_s) * motion.pullback_speed_mm_s * 1000.0
+
+
 def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay_s: float, window_delay_s: float,
                   result: TapAnalysis) -> None:
     """`z_sigma_um` from the parts the tap shows (tapcell.tap.uncertainty): the sharp fit's noise
@@ -1085,8 +1106,7 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
         return
     stiffness = result.stiffness_decompression_g_um or 0.0
     speed_um_s = motion.pullback_speed_mm_s * 1000.0
-    # Break contact in the window's heights (a delay estimated since moved Z down by speed x delay).
-    contact_um = (result.z_mm - motion.z_halt_mm) * 1000.0 + (delay_s - window_delay_s) * speed_um_s
+    contact_um = _break_contact_in_window_um(motion, delay_s, window_delay_s, result.z_mm)
     slope_g_s, intercept_g = dec.approach_line
     near_pull_g, far_pull_g = thread_pulls_g(*pullback_samples(window, motion, timing, window_delay_s),
                                              free_air_slope_g_um(dec, motion), slope_g_s * motion.home_end_s + intercept_g,

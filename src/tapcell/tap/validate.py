@@ -178,6 +178,30 @@ def check_pullback_samples(motion: Motion, sample_period_s: float) -> None:
                          "pullback_speed (the guide scans 1 µm a sample)")
 
 
+# A line needs two points: the departure's samples wholly pressed (the decompression) that the
+# contact's height is read from. One, and the contact is placed between it and the next sample only
+# by the model's assumed shape (issue 21's sweep, 10 mm/s at 320 sps, 31 µm a sample: the accepted
+# taps' errors 0.3-4.5 µm and one 19.9 µm off, 4.2 of its sigma, its stiffness read 1.2 g/µm for 4.9).
+DECOMPRESSION_MIN_SAMPLES = 2
+# Faster than this many times the guide's 1 µm a sample, a decompression short of samples is the
+# speed's doing (at the guide's speed a stiff bed's few µm of over-travel hold few samples too).
+FAST_PULLBACK_GUIDE_STEPS = 2.0
+
+
+def check_decompression_samples(pressed: int, contact_um: float, step_um: float) -> None:
+    """A pullback too fast for the decompression: fewer than DECOMPRESSION_MIN_SAMPLES samples
+    wholly pressed between the halt and break contact (`pressed`; `contact_um` above the halt,
+    `step_um` the pullback's travel per sample), where the guide's 1 µm a sample would give them and
+    the pullback moves more than FAST_PULLBACK_GUIDE_STEPS of it a sample. Its fix is the speed."""
+    guide_pressed = contact_um / GUIDE_PULLBACK_STEP_UM - 1.0  # less the sample that straddles contact
+    if (pressed < DECOMPRESSION_MIN_SAMPLES <= guide_pressed
+            and step_um > FAST_PULLBACK_GUIDE_STEPS * GUIDE_PULLBACK_STEP_UM):
+        raise TapInvalid(TAP_DATA_INSUFFICIENT,
+                         f"the decompression holds {pressed} sample(s) wholly in contact over {contact_um:.1f} µm "
+                         f"({step_um:.1f} µm a sample), too few to fit the line break contact is read from (at "
+                         f"least {DECOMPRESSION_MIN_SAMPLES}): slow pullback_speed (the guide scans 1 µm a sample)")
+
+
 def check_break_contact(break_time_s: float, motion: Motion, sample_period_s: float) -> None:
     """Break contact must fall in the middle two thirds of the pullback move (the spec's rule).
 
