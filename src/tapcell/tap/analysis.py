@@ -293,7 +293,8 @@ class Decomposition:
 
 def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_samples: int,
               period: float, from_s: float | None = None, approach_share: float = 0.0,
-              release_lag_samples: int | None = None) -> tuple[Decomposition, PrefixSums]:
+              release_lag_samples: int | None = None, dwell_from_halt: bool = False
+              ) -> tuple[Decomposition, PrefixSums]:
     """Five lines and six points of a positive-polarity tap (`period`: the sample period, s), over
     the samples from `from_s` (default: a pullback's duration, at least 8 samples, before the halt);
     the approach line holds at least `approach_share` of the samples before the halt; the dwell
@@ -305,6 +306,8 @@ def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_sampl
     stop = min(n, last + 1)
     t = time_s[start:stop]
     phases_s = (motion.home_end_s, motion.pullback_start_s, motion.pullback_cruise_s)
+    if dwell_from_halt:
+        phases_s = (_halt_read_s(t, motion.home_end_s), *phases_s[1:])
     release_lag = lag_samples if release_lag_samples is None else release_lag_samples
     ps, problem, bounds, lines = five_lines(t, force_g[start:stop], phases_s, lag_samples, release_lag,
                                             approach_share)
@@ -318,19 +321,34 @@ def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_sampl
     return Decomposition(start, stop, bounds, lines, points), ps
 
 
+def _halt_read_s(t: np.ndarray, halt_s: float) -> float:
+    """A halt time at which the five-line search lets the dwell begin no earlier than the first
+    sample read at or after the halt (it searches from the sample before the halt given): the
+    time of the sample after that one."""
+    first = int(t.searchsorted(halt_s))
+    return float(t[min(first + 1, len(t) - 1)])
+
+
 # A retried split's approach holds at least this share of the samples before the halt: the approach
 # crosses hundreds of um of free air, the compression tens (a contact found in the approach's first
 # half would make the compression longer than the approach itself).
 RETRY_APPROACH_SHARE = 0.5
+# The dwell on the samples the motion gives it: from the first read after the halt to at most one
+# after the pullback's cruise began (a dwell of a sample or two: the next sample is the pullback's).
+DWELL_ON_THE_MOTION = {"dwell_from_halt": True, "release_lag_samples": 1}
 
 
 def decompose_again(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_samples: int, period: float,
                     first: tuple[Decomposition, PrefixSums]) -> tuple[Decomposition, PrefixSums]:
-    """The five lines again when the first split's points were out of time order: over the samples
-    from the approach move's start on, when its window began before the approach moved, then with
-    the approach line holding at least RETRY_APPROACH_SHARE of the samples before the halt, then
-    with the dwell ending within LAG_MARGIN_SAMPLES of the pullback's cruise; the first that is in
-    order, else the first split.
+    """The five lines again when the first split fails the spec's checks on it (validate.split_checks_pass).
+
+    Points out of time order: over the samples from the approach move's start on, when its window
+    began before the approach moved, then with the approach line holding at least
+    RETRY_APPROACH_SHARE of the samples before the halt, then with the dwell ending within
+    LAG_MARGIN_SAMPLES of the pullback's cruise, then with the dwell on the samples the motion gives
+    it (DWELL_ON_THE_MOTION); the first in order, else the first split. Points in order but the
+    lines' angles not a tap's: only when the split began the dwell before the first sample read
+    after the halt, the dwell on the motion's samples, kept when it passes both checks.
 
     Free air before the approach is flat in time, and a bowden or cable pulling in proportion to Z
     ramps during it: two lines, not one. When the compression lasts a sample or two (8.4 mm/s at
@@ -340,15 +358,34 @@ def decompose_again(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag
     and leave 3 samples to the approach (reference noisy mains: one clean tap of 80). A sheet
     relaxing in the dwell as fast as a 0.08 mm/s pullback unloads let the dwell run 7 samples into
     the pullback and its line cross the decompression's before the compression's (reference sessions,
-    HX711 80 sps: one clean tap of 200). Taps whose points are in order are never split again, so
-    their Z stays what it was.
+    HX711 80 sps: one clean tap of 200). At 10 sps a 0.1-0.35 s dwell lasts one to three samples and
+    the compression two or three: a line of two samples fits any two exactly, so the best split
+    ended the compression a sample before the halt and gave the dwell two compression samples (two
+    steep lines meeting far off: out of order, or a compression flatter than the dwell:
+    TAP_SHAPE_INVALID), or ran the dwell into the pullback (a dwell line as steep as the
+    decompression's, meeting it far off): 18 of 440 clean 10 sps taps on taplab seeds 2-12. The
+    force rises until the nozzle halts, so the dwell starts no earlier than the first sample read
+    after it, and a dwell of a sample or two ends with the pullback's first sample. Taps whose
+    split passes both checks are never split again, so their Z stays what it was.
     """
-    retries: list[dict] = [{"approach_share": RETRY_APPROACH_SHARE}, {"release_lag_samples": LAG_MARGIN_SAMPLES}]
-    if motion.moves and time_s[first[0].start] < motion.moves[-5].print_time < motion.home_end_s - 8 * period:
-        retries.insert(0, {"from_s": motion.moves[-5].print_time})
+    dec = first[0]
+    if validate.in_time_order(dec.points):
+        if dec.start + dec.bounds[1] >= int(time_s.searchsorted(motion.home_end_s)):
+            return first  # misshapen with the dwell where the motion puts it: the tap's own shape
+        retries, shape_too = [DWELL_ON_THE_MOTION], True
+    else:  # as before this retry existed: the first in order is kept, its shape checked next
+        shape_too = False
+        retries = [{"approach_share": RETRY_APPROACH_SHARE}, {"release_lag_samples": LAG_MARGIN_SAMPLES},
+                   DWELL_ON_THE_MOTION]
+        if motion.moves and time_s[dec.start] < motion.moves[-5].print_time < motion.home_end_s - 8 * period:
+            retries.insert(0, {"from_s": motion.moves[-5].print_time})
     for retry in retries:
-        again = decompose(time_s, force_g, motion, lag_samples, period, **retry)
-        if validate.in_time_order(again[0].points):
+        try:
+            again = decompose(time_s, force_g, motion, lag_samples, period, **retry)
+        except TapInvalid:  # a dwell of under two samples from the halt's to the cruise's: no such split
+            continue
+        points, lines = again[0].points, again[0].lines
+        if validate.split_checks_pass(points, line_angles_deg(lines)) if shape_too else validate.in_time_order(points):
             return again
     return first
 
@@ -905,7 +942,7 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> tuple[SplitTap, int, in
     lag_samples = math.ceil((allowance + timing.integration_s) / period_s) + LAG_MARGIN_SAMPLES
     force, hum = remove_mains_hum(tap, options, time_s, force, motion, timing, lag_samples, period_s)
     dec, ps = decompose(time_s, force, motion, lag_samples, period_s)
-    if not validate.in_time_order(dec.points):
+    if not validate.split_checks_pass(dec.points, line_angles_deg(dec.lines)):
         dec, ps = decompose_again(time_s, force, motion, lag_samples, period_s, (dec, ps))
     # Second differences of the whole analysed window: hundreds of samples even when the
     # approach holds a dozen; the four kinks of a tap cannot move their median.
