@@ -73,3 +73,44 @@ def test_a_misshapen_tap_with_its_dwell_at_the_halt_is_not_split_again():
     tap = record_sim_tap(SimTapSpec(scenario="oozy", speed_mm_s=10.0, pullback_distance_mm=0.1,
                                     overrides={"ooze_film_um": 20.0}))
     assert analyze_tap(tap).error == "TAP_SHAPE_INVALID"
+
+
+def _split(tap):
+    split, *_ = analysis.split_tap(tap, AnalysisOptions())
+    return split
+
+
+# 10 sps: the split's approach line kept the first sample the toe pushed; its tilt, carried up the
+# departure, read as a dip or a pull (TAP_ADHESION). (seed, k, error µm now; true drift g/mm)
+TEN_SPS_ADHESION = [(2, 22, -0.25), (2, 8, 0.02), (7, 39, -0.72), (3, 24, -0.30)]
+
+
+@pytest.mark.parametrize("seed, k, error_um", TEN_SPS_ADHESION)
+def test_a_ten_sps_free_air_leaves_out_the_sample_the_toe_pushed(seed, k, error_um):
+    tap, z_true_mm = seed_tap(seed, "hx711_10", k)
+    result = analyze_tap(tap)
+    assert result.valid, result.message
+    error = (result.z_mm - z_true_mm) * 1000.0
+    assert error == pytest.approx(error_um, abs=0.02)
+    split = _split(tap)
+    approach_um_s = split.motion.approach_speed_mm_s * 1000.0
+    contact_um = (result.z_mm - split.motion.z_halt_mm) * 1000.0
+    free_slope, _ = analysis.free_air_line(split, contact_um, result.sensor_delay_s)
+    split_slope, _ = split.dec.approach_line
+    # The cable's drift is at most 3 g/mm (taplab's clean taps): the free air's slope says so within
+    # its noise (0.25 g over 8 samples), the split's line, tilted by the pushed sample, did not.
+    assert abs(free_slope / approach_um_s) * 1000.0 < 10.0
+    assert abs(split_slope - free_slope) > 1.0  # g/s
+
+
+def test_a_ten_sps_approach_too_short_for_a_walk_takes_the_walk_both_sides_show():
+    # seed 2 hx711_10 k 30 (tap-0522): a 0.46 g/sqrt(s) walk over the 10 s between the approach and
+    # the departure at the same height; 8 approach samples show no walk, the free air on both sides
+    # does. Without it the departure lay 3.4 g "below" the approach's level: TAP_ADHESION.
+    tap, z_true_mm = seed_tap(2, "hx711_10", 30)
+    split = _split(tap)
+    both, approach = split.wanders
+    assert approach is None and both.walk_var_g2 > 0.0
+    result = analyze_tap(tap)
+    assert result.valid, result.message
+    assert (result.z_mm - z_true_mm) * 1000.0 == pytest.approx(-1.23, abs=0.02)

@@ -593,6 +593,36 @@ def free_air_slope_g_um(dec: Decomposition, motion: Motion) -> float:
     return -dec.approach_line[0] / (motion.approach_speed_mm_s * 1000.0)
 
 
+# The approach's free air is fitted for the adhesion checks over at least this many samples read
+# before the contact (fewer: the split's approach line, as before).
+FREE_AIR_MIN_SAMPLES = 3
+
+
+def free_air_line(split: SplitTap, contact_um: float, delay_s: float) -> tuple[float, float]:
+    """The approach's line (slope g/s, intercept g, as `Decomposition.lines`) over the samples read
+    before the nozzle came down to the contact height (`contact_um` above the halt, read `delay_s`
+    late): the free air alone, never a sample the contact's toe already pushed.
+
+    At 10 sps a sample spans 20 µm of the approach: the split's approach line can keep the first
+    sample the toe pushed (6.5 g where the free air reads 0.4: taplab seed 2 hx711_10 k 22), which
+    tilts its eight samples by 6 g/s, a "drift" of -0.03 g/µm where the cable pulls +0.002, and
+    moves its level at the halt. Carried 60 µm up the departure, the adhesion checks read that
+    tilt as a 2-3.5 g dip or pull.
+    """
+    dec, motion = split.dec, split.motion
+    touch_s = motion.home_end_s - contact_um / (motion.approach_speed_mm_s * 1000.0) + delay_s
+    end = min(int(split.time_s.searchsorted(touch_s, side="right")) - dec.start, dec.bounds[0])
+    if end < FREE_AIR_MIN_SAMPLES:
+        return dec.approach_line
+    n, st, sf, stt, stf, _ = split.ps.segment_sums(0, end)
+    sxx = stt - st * st / n
+    if not sxx > 0:
+        return dec.approach_line
+    slope = (stf - st * sf / n) / sxx
+    # The sums are of t - t_ref and f - f_ref (`PrefixSums`).
+    return slope, split.ps.f_ref_g + sf / n - slope * (split.ps.t_ref_s + st / n)
+
+
 def toe_drift_g_um(dec: Decomposition, ps: PrefixSums, motion: Motion, period_s: float,
                    walk_var_g2: float = 0.0) -> float | None:
     """The free-air drift the toe fit takes as known: the approach's (`free_air_slope_g_um`), unless
@@ -674,8 +704,8 @@ def fit_pullback_toe(samples: PullbackSamples, motion: Motion, timing: SensorTim
 
 
 def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTiming, dec: Decomposition,
-                   drift_g_um: float, contact_um: float, noise_g: float, approach_wander: Wander | None,
-                   compression_force_g: float) -> None:
+                   approach_line: tuple[float, float], contact_um: float, noise_g: float,
+                   approach_wander: Wander | None, compression_force_g: float) -> None:
     """TAP_ADHESION when ooze or adhesion pulls the nozzle after break contact, seen either way:
     the force dips below the departure's own free-air level just above break contact by more than
     ADHESION_MAX_DIP_NOISE noise sigmas (`adhesion_dip`), or the departure lies below the
@@ -690,7 +720,8 @@ def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTimin
     """
     floor_g = ADHESION_MIN_DIP_FRACTION * compression_force_g
     # The approach line's force where the approach passed the halt's height (its time is the halt).
-    slope_g_s, intercept_g = dec.approach_line
+    slope_g_s, intercept_g = approach_line
+    drift_g_um = -slope_g_s / (motion.approach_speed_mm_s * 1000.0)  # as free_air_slope_g_um
     approach_at_halt_g = slope_g_s * motion.home_end_s + intercept_g
     dip_g, pull_g = adhesion_measures(*samples, drift_g_um, contact_um, approach_at_halt_g)
     dip_limit_g = max(ADHESION_MAX_DIP_NOISE * noise_g, floor_g)
@@ -1078,8 +1109,10 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     result.contact_onset_um = toe.width_um
     result.stiffness_decompression_g_um = toe.stiffness_g_um
     rising = read_while_rising(samples, window, motion, window_delay_s)
-    check_adhesion(rising, motion, timing, dec, drift_g_um, toe.contact_um, split.noise_g, approach_wander,
-                   result.compression_force_g)
+    # The free air before the contact (`free_air_line`); the walk the approach shows, or where it is
+    # too short to show one (10 sps: 8 samples), the one the free air on both sides shows.
+    check_adhesion(rising, motion, timing, dec, free_air_line(split, toe.contact_um - lag_shift_um, delay_s),
+                   toe.contact_um, split.noise_g, approach_wander or wander, result.compression_force_g)
     check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, split.noise_g, approach_wander,
                      toe.stiffness_g_um)
     check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, split.noise_g, approach_wander,
