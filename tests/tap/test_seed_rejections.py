@@ -114,3 +114,15 @@ def test_a_ten_sps_approach_too_short_for_a_walk_takes_the_walk_both_sides_show(
     result = analyze_tap(tap)
     assert result.valid, result.message
     assert (result.z_mm - z_true_mm) * 1000.0 == pytest.approx(-1.23, abs=0.02)
+
+
+def test_a_cable_walking_under_the_departure_is_no_soft_stage():
+    # seed 4 cable drift k 20 (tap-0265): a 2.4 g/sqrt(s) walk the approach's 60 samples do not show
+    # (walk 0), the free air on both sides does. Weighed with the approach's alone, the departure's
+    # wandering level was a 13 um soft stage at 39.7 noise variances: TAP_TWO_STAGE_CONTACT.
+    tap, z_true_mm = seed_tap(4, "cable_drift", 20)
+    both, approach = _split(tap).wanders
+    assert approach.walk_var_g2 == 0.0 < both.walk_var_g2
+    result = analyze_tap(tap)
+    assert result.valid, result.message
+    assert (result.z_mm - z_true_mm) * 1000.0 == pytest.approx(-1.56, abs=0.02)

@@ -1113,7 +1113,11 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     # too short to show one (10 sps: 8 samples), the one the free air on both sides shows.
     check_adhesion(rising, motion, timing, dec, free_air_line(split, toe.contact_um - lag_shift_um, delay_s),
                    toe.contact_um, split.noise_g, approach_wander or wander, result.compression_force_g)
-    check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, split.noise_g, approach_wander,
+    # The ramp's noise: the walk the free air on both sides shows, as the toe fit weighs it. The
+    # approach's alone (32-96 samples at 320 sps) read no walk under a 2.4 g/sqrt(s) cable (taplab
+    # seed 4 cable drift k 20): its level wandering over the departure's 61 samples scored a
+    # 13 um "stage" at 39.7 noise variances (limit 36), TAP_TWO_STAGE_CONTACT.
+    check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, split.noise_g, wander,
                      toe.stiffness_g_um)
     check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, split.noise_g, approach_wander,
                     drift_held=fit_drift_g_um is not None)
@@ -1183,10 +1187,10 @@ def _contact_down_and_up(fits: ContactFits) -> tuple[float | None, float | None,
 
 
 def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, contact_um: float,
-                     lag_shift_um: float, noise_g: float, approach_wander: Wander | None, stiffness_g_um: float) -> None:
+                     lag_shift_um: float, noise_g: float, wander: Wander | None, stiffness_g_um: float) -> None:
     """TAP_TWO_STAGE_CONTACT when the force keeps a soft stage's ramp above the contact found
     (tapcell.tap.stage): the stiff stage let go there, the first touch is higher."""
-    walk_var_g2 = approach_wander.walk_var_g2 if approach_wander else 0.0
+    walk_var_g2 = wander.walk_var_g2 if wander else 0.0
     stage = departure_soft_stage(*samples, drift_g_um, contact_um, noise_g * noise_g, walk_var_g2)
     if shows_soft_stage(stage, stiffness_g_um, contact_um):
         first_touch_mm = motion.z_halt_mm + (stage.top_um - lag_shift_um) / 1000.0
