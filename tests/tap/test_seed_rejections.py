@@ -34,15 +34,24 @@ def first_split(tap):
 
 # 10 sps, 0.2 mm/s: a compression of two or three samples and a dwell of one to three. The best
 # split gave the dwell two compression samples (a two-sample line fits them exactly) or ran it
-# into the pullback. (seed, k, the code it had, error µm and z_sigma_um now)
-TEN_SPS = [(2, 6, "TAP_CHRONOLOGY", -0.79, 1.32),   # tap-0072 of `tapcell benchmark --seed 2`
-           (3, 39, "TAP_CHRONOLOGY", 0.07, 0.33),   # seed 3 tap-0211: P2 before P1
-           (8, 31, "TAP_CHRONOLOGY", None, None),   # seed 8 tap-0421: the dwell ran into the pullback
-           (4, 34, "TAP_SHAPE_INVALID", 0.65, 0.96)]  # seed 4 tap-0536: a compression flatter than the dwell
+# into the pullback. (seed, k, the code it had)
+TEN_SPS = [(2, 6, "TAP_CHRONOLOGY"),      # tap-0072 of `tapcell benchmark --seed 2`
+           (3, 39, "TAP_CHRONOLOGY"),     # seed 3 tap-0211: P2 before P1
+           (8, 31, "TAP_CHRONOLOGY"),     # seed 8 tap-0421: the dwell ran into the pullback
+           (4, 34, "TAP_SHAPE_INVALID")]  # seed 4 tap-0536: a compression flatter than the dwell
 
 
-@pytest.mark.parametrize("seed, k, code, error_um, sigma_um", TEN_SPS)
-def test_a_ten_sps_dwell_starts_at_the_halt(seed, k, code, error_um, sigma_um):
+def assert_measured(result, z_true_mm: float, limit_um: float = 1.5) -> None:
+    """Valid, and within limit_um of the truth: 3 sd of the scenario's clean errors (10 sps: sd
+    0.40-0.46 um on seeds 1-2, the taps here read -1.3..+0.7; cable drift: sd 0.69, 2.5 um). The Z
+    estimator itself is other work's to tune, so no closer."""
+    assert result.valid, result.message
+    error_um = (result.z_mm - z_true_mm) * 1000.0
+    assert abs(error_um) < limit_um, (error_um, result.z_sigma_um)
+
+
+@pytest.mark.parametrize("seed, k, code", TEN_SPS)
+def test_a_ten_sps_dwell_starts_at_the_halt(seed, k, code):
     tap, z_true_mm = seed_tap(seed, "hx711_10", k)
     split = first_split(tap)
     dec = split.dec
@@ -53,15 +62,7 @@ def test_a_ten_sps_dwell_starts_at_the_halt(seed, k, code, error_um, sigma_um):
     if code == "TAP_SHAPE_INVALID":  # ...with its dwell begun before the first sample read after the halt
         assert dec.start + dec.bounds[1] < halt_sample
     # Now: split again with the dwell where the motion puts it, and measured.
-    result = analyze_tap(tap)
-    assert result.error != code
-    if error_um is None:
-        return  # (seed 8 k 31 is TAP_ADHESION next: tests below)
-    assert result.valid, result.message
-    error = (result.z_mm - z_true_mm) * 1000.0
-    assert error == pytest.approx(error_um, abs=0.02)
-    assert abs(error) < 3.0 * result.z_sigma_um
-    assert result.z_sigma_um == pytest.approx(sigma_um, abs=0.02)
+    assert_measured(analyze_tap(tap), z_true_mm)
 
 
 def test_a_misshapen_tap_with_its_dwell_at_the_halt_is_not_split_again():
@@ -81,17 +82,15 @@ def _split(tap):
 
 
 # 10 sps: the split's approach line kept the first sample the toe pushed; its tilt, carried up the
-# departure, read as a dip or a pull (TAP_ADHESION). (seed, k, error µm now; true drift g/mm)
-TEN_SPS_ADHESION = [(2, 22, -0.25), (2, 8, 0.02), (7, 39, -0.72), (3, 24, -0.30)]
+# departure, read as a dip or a pull (TAP_ADHESION). (seed, k)
+TEN_SPS_ADHESION = [(2, 22), (2, 8), (7, 39), (3, 24)]
 
 
-@pytest.mark.parametrize("seed, k, error_um", TEN_SPS_ADHESION)
-def test_a_ten_sps_free_air_leaves_out_the_sample_the_toe_pushed(seed, k, error_um):
+@pytest.mark.parametrize("seed, k", TEN_SPS_ADHESION)
+def test_a_ten_sps_free_air_leaves_out_the_sample_the_toe_pushed(seed, k):
     tap, z_true_mm = seed_tap(seed, "hx711_10", k)
     result = analyze_tap(tap)
-    assert result.valid, result.message
-    error = (result.z_mm - z_true_mm) * 1000.0
-    assert error == pytest.approx(error_um, abs=0.02)
+    assert_measured(result, z_true_mm)
     split = _split(tap)
     approach_um_s = split.motion.approach_speed_mm_s * 1000.0
     contact_um = (result.z_mm - split.motion.z_halt_mm) * 1000.0
@@ -111,9 +110,7 @@ def test_a_ten_sps_approach_too_short_for_a_walk_takes_the_walk_both_sides_show(
     split = _split(tap)
     both, approach = split.wanders
     assert approach is None and both.walk_var_g2 > 0.0
-    result = analyze_tap(tap)
-    assert result.valid, result.message
-    assert (result.z_mm - z_true_mm) * 1000.0 == pytest.approx(-1.23, abs=0.02)
+    assert_measured(analyze_tap(tap), z_true_mm)
 
 
 def test_a_cable_walking_under_the_departure_is_no_soft_stage():
@@ -123,6 +120,4 @@ def test_a_cable_walking_under_the_departure_is_no_soft_stage():
     tap, z_true_mm = seed_tap(4, "cable_drift", 20)
     both, approach = _split(tap).wanders
     assert approach.walk_var_g2 == 0.0 < both.walk_var_g2
-    result = analyze_tap(tap)
-    assert result.valid, result.message
-    assert (result.z_mm - z_true_mm) * 1000.0 == pytest.approx(-1.56, abs=0.02)
+    assert_measured(analyze_tap(tap), z_true_mm, limit_um=2.5)
