@@ -363,7 +363,7 @@ def decompose_again(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag
     ended the compression a sample before the halt and gave the dwell two compression samples (two
     steep lines meeting far off: out of order, or a compression flatter than the dwell:
     TAP_SHAPE_INVALID), or ran the dwell into the pullback (a dwell line as steep as the
-    decompression's, meeting it far off): 18 of 440 clean 10 sps taps on taplab seeds 2-12. The
+    decompression's, meeting it far off): 21 of 440 clean 10 sps taps on taplab seeds 2-12. The
     force rises until the nozzle halts, so the dwell starts no earlier than the first sample read
     after it, and a dwell of a sample or two ends with the pullback's first sample. Taps whose
     split passes both checks are never split again, so their Z stays what it was.
