@@ -36,8 +36,10 @@ from tapcell.tap.hum import (MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum,
                              lines_worth_fitting, resolvable_hz, spline_knots)
 from tapcell.tap.model import (
     TAP_ADHESION,
+    TAP_BREAK_CONTACT_TOO_LATE,
     TAP_DATA_INSUFFICIENT,
     TAP_MOTION_INVALID,
+    TAP_PULLBACK_TOO_SHORT,
     TAP_SHAPE_INVALID,
     TAP_TWO_STAGE_CONTACT,
     AnalysisOptions,
@@ -1014,7 +1016,7 @@ def lag_before_the_fits(split: SplitTap, result: TapAnalysis) -> float:
     timing = split.timing
     if timing.delay_from_halt:
         halt_lag_s = lag_from_halt_s(split.dec.points[P_DWELL_START][0], split.motion.home_end_s,
-                                     timing.sample_period_s)
+                                     timing.sample_period_s, UNKNOWN_DELAY_ALLOWANCE_S)
         timing.delay_s = max(halt_lag_s - 0.5 * timing.integration_s, 0.0) if halt_lag_s is not None else 0.0
     delay_s = 0.0 if timing.estimate_delay else timing.delay_s
     result.sensor_delay_s = delay_s
@@ -1026,11 +1028,18 @@ def check_split(split: SplitTap, delay_s: float) -> None:
     inside the pullback), the points' order and the lines' shape, break contact's place in the pullback."""
     dec, motion, timing = split.dec, split.motion, split.timing
     period_s = timing.sample_period_s
-    if not left_inside_pullback(split.time_s, split.force_g, motion, dec, split.ps, period_s):
-        validate.check_left_the_bed(dec.points[P_DWELL_START][1] - dec.points[P_CONTACT][1],
-                                    *force_left_at_end_g(split.time_s, split.force_g, motion, dec, split.ps))
-    validate.check_points(dec.points, split.angles_deg)
-    validate.check_break_contact(dec.points[P_BREAK][0] - delay_s - 0.5 * timing.integration_s, motion, period_s)
+    try:
+        if not left_inside_pullback(split.time_s, split.force_g, motion, dec, split.ps, period_s):
+            validate.check_left_the_bed(dec.points[P_DWELL_START][1] - dec.points[P_CONTACT][1],
+                                        *force_left_at_end_g(split.time_s, split.force_g, motion, dec, split.ps))
+        validate.check_points(dec.points, split.angles_deg)
+        validate.check_break_contact(dec.points[P_BREAK][0] - delay_s - 0.5 * timing.integration_s, motion, period_s)
+    except TapInvalid as invalid:
+        # "Lengthen pullback_distance" on a pullback of a few samples: its rules count samples the
+        # pullback does not hold (issue 21's sweep: 10 mm/s at 320 sps); say so instead.
+        if invalid.code in (TAP_PULLBACK_TOO_SHORT, TAP_BREAK_CONTACT_TOO_LATE):
+            validate.check_pullback_samples(motion, period_s)
+        raise
 
 
 def fit_contact_models(split: SplitTap, window: ModelWindow, delay_s: float, options: AnalysisOptions,

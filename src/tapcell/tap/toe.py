@@ -200,10 +200,13 @@ def toe_shapes(depth_um: np.ndarray, width_um, powers) -> np.ndarray:
     return shapes
 
 
-def lag_from_halt_s(compression_end_time_s: float, halt_time_s: float, period_s: float) -> float | None:
-    """The sensor's whole lag (s) from P2 and the halt, or None when it is not plausible."""
+def lag_from_halt_s(compression_end_time_s: float, halt_time_s: float, period_s: float,
+                    pipeline_s: float = 0.0) -> float | None:
+    """The sensor's whole lag (s) from P2 and the halt, or None when it is not plausible: more than
+    MAX_LAG_PERIODS (the conversion window's part) plus `pipeline_s` (a pipeline's delay, a time
+    whatever the rate: 4 periods alone are 1 ms at 4000 sps, less than one sample's transfer)."""
     lag_s = compression_end_time_s - halt_time_s
-    if not math.isfinite(lag_s) or not 0.0 <= lag_s <= MAX_LAG_PERIODS * period_s:
+    if not math.isfinite(lag_s) or not 0.0 <= lag_s <= MAX_LAG_PERIODS * period_s + pipeline_s:
         return None
     return lag_s
 
