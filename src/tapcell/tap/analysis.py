@@ -295,7 +295,8 @@ class Decomposition:
 
 def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_samples: int,
               period: float, from_s: float | None = None, approach_share: float = 0.0,
-              release_lag_samples: int | None = None) -> tuple[Decomposition, PrefixSums]:
+              release_lag_samples: int | None = None, dwell_from_halt: bool = False
+              ) -> tuple[Decomposition, PrefixSums]:
     """Five lines and six points of a positive-polarity tap (`period`: the sample period, s), over
     the samples from `from_s` (default: a pullback's duration, at least 8 samples, before the halt);
     the approach line holds at least `approach_share` of the samples before the halt; the dwell
@@ -307,6 +308,8 @@ def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_sampl
     stop = min(n, last + 1)
     t = time_s[start:stop]
     phases_s = (motion.home_end_s, motion.pullback_start_s, motion.pullback_cruise_s)
+    if dwell_from_halt:
+        phases_s = (_halt_read_s(t, motion.home_end_s), *phases_s[1:])
     release_lag = lag_samples if release_lag_samples is None else release_lag_samples
     ps, problem, bounds, lines = five_lines(t, force_g[start:stop], phases_s, lag_samples, release_lag,
                                             approach_share)
@@ -320,19 +323,34 @@ def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_sampl
     return Decomposition(start, stop, bounds, lines, points), ps
 
 
+def _halt_read_s(t: np.ndarray, halt_s: float) -> float:
+    """A halt time at which the five-line search lets the dwell begin no earlier than the first
+    sample read at or after the halt (it searches from the sample before the halt given): the
+    time of the sample after that one."""
+    first = int(t.searchsorted(halt_s))
+    return float(t[min(first + 1, len(t) - 1)])
+
+
 # A retried split's approach holds at least this share of the samples before the halt: the approach
 # crosses hundreds of um of free air, the compression tens (a contact found in the approach's first
 # half would make the compression longer than the approach itself).
 RETRY_APPROACH_SHARE = 0.5
+# The dwell on the samples the motion gives it: from the first read after the halt to at most one
+# after the pullback's cruise began (a dwell of a sample or two: the next sample is the pullback's).
+DWELL_ON_THE_MOTION = {"dwell_from_halt": True, "release_lag_samples": 1}
 
 
 def decompose_again(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_samples: int, period: float,
                     first: tuple[Decomposition, PrefixSums]) -> tuple[Decomposition, PrefixSums]:
-    """The five lines again when the first split's points were out of time order: over the samples
-    from the approach move's start on, when its window began before the approach moved, then with
-    the approach line holding at least RETRY_APPROACH_SHARE of the samples before the halt, then
-    with the dwell ending within LAG_MARGIN_SAMPLES of the pullback's cruise; the first that is in
-    order, else the first split.
+    """The five lines again when the first split fails the spec's checks on it (validate.split_checks_pass).
+
+    Points out of time order: over the samples from the approach move's start on, when its window
+    began before the approach moved, then with the approach line holding at least
+    RETRY_APPROACH_SHARE of the samples before the halt, then with the dwell ending within
+    LAG_MARGIN_SAMPLES of the pullback's cruise, then with the dwell on the samples the motion gives
+    it (DWELL_ON_THE_MOTION); the first in order, else the first split. Points in order but the
+    lines' angles not a tap's: only when the split began the dwell before the first sample read
+    after the halt, the dwell on the motion's samples, kept when it passes both checks.
 
     Free air before the approach is flat in time, and a bowden or cable pulling in proportion to Z
     ramps during it: two lines, not one. When the compression lasts a sample or two (8.4 mm/s at
@@ -342,15 +360,34 @@ def decompose_again(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag
     and leave 3 samples to the approach (reference noisy mains: one clean tap of 80). A sheet
     relaxing in the dwell as fast as a 0.08 mm/s pullback unloads let the dwell run 7 samples into
     the pullback and its line cross the decompression's before the compression's (reference sessions,
-    HX711 80 sps: one clean tap of 200). Taps whose points are in order are never split again, so
-    their Z stays what it was.
+    HX711 80 sps: one clean tap of 200). At 10 sps a 0.1-0.35 s dwell lasts one to three samples and
+    the compression two or three: a line of two samples fits any two exactly, so the best split
+    ended the compression a sample before the halt and gave the dwell two compression samples (two
+    steep lines meeting far off: out of order, or a compression flatter than the dwell:
+    TAP_SHAPE_INVALID), or ran the dwell into the pullback (a dwell line as steep as the
+    decompression's, meeting it far off): 21 of 440 clean 10 sps taps on taplab seeds 2-12. The
+    force rises until the nozzle halts, so the dwell starts no earlier than the first sample read
+    after it, and a dwell of a sample or two ends with the pullback's first sample. Taps whose
+    split passes both checks are never split again, so their Z stays what it was.
     """
-    retries: list[dict] = [{"approach_share": RETRY_APPROACH_SHARE}, {"release_lag_samples": LAG_MARGIN_SAMPLES}]
-    if motion.moves and time_s[first[0].start] < motion.moves[-5].print_time < motion.home_end_s - 8 * period:
-        retries.insert(0, {"from_s": motion.moves[-5].print_time})
+    dec = first[0]
+    if validate.in_time_order(dec.points):
+        if dec.start + dec.bounds[1] >= int(time_s.searchsorted(motion.home_end_s)):
+            return first  # misshapen with the dwell where the motion puts it: the tap's own shape
+        retries, shape_too = [DWELL_ON_THE_MOTION], True
+    else:  # as before this retry existed: the first in order is kept, its shape checked next
+        shape_too = False
+        retries = [{"approach_share": RETRY_APPROACH_SHARE}, {"release_lag_samples": LAG_MARGIN_SAMPLES},
+                   DWELL_ON_THE_MOTION]
+        if motion.moves and time_s[dec.start] < motion.moves[-5].print_time < motion.home_end_s - 8 * period:
+            retries.insert(0, {"from_s": motion.moves[-5].print_time})
     for retry in retries:
-        again = decompose(time_s, force_g, motion, lag_samples, period, **retry)
-        if validate.in_time_order(again[0].points):
+        try:
+            again = decompose(time_s, force_g, motion, lag_samples, period, **retry)
+        except TapInvalid:  # a dwell of under two samples from the halt's to the cruise's: no such split
+            continue
+        points, lines = again[0].points, again[0].lines
+        if validate.split_checks_pass(points, line_angles_deg(lines)) if shape_too else validate.in_time_order(points):
             return again
     return first
 
@@ -558,6 +595,36 @@ def free_air_slope_g_um(dec: Decomposition, motion: Motion) -> float:
     return -dec.approach_line[0] / (motion.approach_speed_mm_s * 1000.0)
 
 
+# The approach's free air is fitted for the adhesion checks over at least this many samples read
+# before the contact (fewer: the split's approach line, as before).
+FREE_AIR_MIN_SAMPLES = 3
+
+
+def free_air_line(split: SplitTap, contact_um: float, delay_s: float) -> tuple[float, float]:
+    """The approach's line (slope g/s, intercept g, as `Decomposition.lines`) over the samples read
+    before the nozzle came down to the contact height (`contact_um` above the halt, read `delay_s`
+    late): the free air alone, never a sample the contact's toe already pushed.
+
+    At 10 sps a sample spans 20 µm of the approach: the split's approach line can keep the first
+    sample the toe pushed (6.5 g where the free air reads 0.4: taplab seed 2 hx711_10 k 22), which
+    tilts its eight samples by 6 g/s, a "drift" of -0.03 g/µm where the cable pulls +0.002, and
+    moves its level at the halt. Carried 60 µm up the departure, the adhesion checks read that
+    tilt as a 2-3.5 g dip or pull.
+    """
+    dec, motion = split.dec, split.motion
+    touch_s = motion.home_end_s - contact_um / (motion.approach_speed_mm_s * 1000.0) + delay_s
+    end = min(int(split.time_s.searchsorted(touch_s, side="right")) - dec.start, dec.bounds[0])
+    if end < FREE_AIR_MIN_SAMPLES:
+        return dec.approach_line
+    n, st, sf, stt, stf, _ = split.ps.segment_sums(0, end)
+    sxx = stt - st * st / n
+    if not sxx > 0:
+        return dec.approach_line
+    slope = (stf - st * sf / n) / sxx
+    # The sums are of t - t_ref and f - f_ref (`PrefixSums`).
+    return slope, split.ps.f_ref_g + sf / n - slope * (split.ps.t_ref_s + st / n)
+
+
 def toe_drift_g_um(dec: Decomposition, ps: PrefixSums, motion: Motion, period_s: float,
                    walk_var_g2: float = 0.0) -> float | None:
     """The free-air drift the toe fit takes as known: the approach's (`free_air_slope_g_um`), unless
@@ -645,8 +712,8 @@ def fit_pullback_toe(samples: PullbackSamples, motion: Motion, timing: SensorTim
 
 
 def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTiming, dec: Decomposition,
-                   drift_g_um: float, contact_um: float, noise_g: float, approach_wander: Wander | None,
-                   compression_force_g: float) -> None:
+                   approach_line: tuple[float, float], contact_um: float, noise_g: float,
+                   approach_wander: Wander | None, compression_force_g: float) -> None:
     """TAP_ADHESION when ooze or adhesion pulls the nozzle after break contact, seen either way:
     the force dips below the departure's own free-air level just above break contact by more than
     ADHESION_MAX_DIP_NOISE noise sigmas (`adhesion_dip`), or the departure lies below the
@@ -661,7 +728,8 @@ def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTimin
     """
     floor_g = ADHESION_MIN_DIP_FRACTION * compression_force_g
     # The approach line's force where the approach passed the halt's height (its time is the halt).
-    slope_g_s, intercept_g = dec.approach_line
+    slope_g_s, intercept_g = approach_line
+    drift_g_um = -slope_g_s / (motion.approach_speed_mm_s * 1000.0)  # as free_air_slope_g_um
     approach_at_halt_g = slope_g_s * motion.home_end_s + intercept_g
     dip_g, pull_g = adhesion_measures(*samples, drift_g_um, contact_um, approach_at_halt_g)
     dip_limit_g = max(ADHESION_MAX_DIP_NOISE * noise_g, floor_g)
@@ -917,7 +985,7 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> tuple[SplitTap, int, in
     lag_samples = math.ceil((allowance + timing.integration_s) / period_s) + LAG_MARGIN_SAMPLES
     force, hum = remove_mains_hum(tap, options, time_s, force, motion, timing, lag_samples, period_s)
     dec, ps = decompose(time_s, force, motion, lag_samples, period_s)
-    if not validate.in_time_order(dec.points):
+    if not validate.split_checks_pass(dec.points, line_angles_deg(dec.lines)):
         dec, ps = decompose_again(time_s, force, motion, lag_samples, period_s, (dec, ps))
     # Second differences of the whole analysed window: hundreds of samples even when the
     # approach holds a dozen; the four kinks of a tap cannot move their median.
@@ -1060,9 +1128,15 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     result.contact_onset_um = toe.width_um
     result.stiffness_decompression_g_um = toe.stiffness_g_um
     rising = read_while_rising(samples, window, motion, window_delay_s)
-    check_adhesion(rising, motion, timing, dec, drift_g_um, toe.contact_um, split.noise_g, approach_wander,
-                   result.compression_force_g)
-    check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, split.noise_g, approach_wander,
+    # The free air before the contact (`free_air_line`); the walk the approach shows, or where it is
+    # too short to show one (10 sps: 8 samples), the one the free air on both sides shows.
+    check_adhesion(rising, motion, timing, dec, free_air_line(split, toe.contact_um - lag_shift_um, delay_s),
+                   toe.contact_um, split.noise_g, approach_wander or wander, result.compression_force_g)
+    # The ramp's noise: the walk the free air on both sides shows, as the toe fit weighs it. The
+    # approach's alone (32-96 samples at 320 sps) read no walk under a 2.4 g/sqrt(s) cable (taplab
+    # seed 4 cable drift k 20): its level wandering over the departure's 61 samples scored a
+    # 13 um "stage" at 39.7 noise variances (limit 36), TAP_TWO_STAGE_CONTACT.
+    check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, split.noise_g, wander,
                      toe.stiffness_g_um)
     check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, split.noise_g, approach_wander,
                     drift_held=fit_drift_g_um is not None)
@@ -1162,10 +1236,10 @@ def _toe_lift_um(result: TapAnalysis) -> float:
 
 
 def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, contact_um: float,
-                     lag_shift_um: float, noise_g: float, approach_wander: Wander | None, stiffness_g_um: float) -> None:
+                     lag_shift_um: float, noise_g: float, wander: Wander | None, stiffness_g_um: float) -> None:
     """TAP_TWO_STAGE_CONTACT when the force keeps a soft stage's ramp above the contact found
     (tapcell.tap.stage): the stiff stage let go there, the first touch is higher."""
-    walk_var_g2 = approach_wander.walk_var_g2 if approach_wander else 0.0
+    walk_var_g2 = wander.walk_var_g2 if wander else 0.0
     stage = departure_soft_stage(*samples, drift_g_um, contact_um, noise_g * noise_g, walk_var_g2)
     if shows_soft_stage(stage, stiffness_g_um, contact_um):
         first_touch_mm = motion.z_halt_mm + (stage.top_um - lag_shift_um) / 1000.0

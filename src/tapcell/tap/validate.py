@@ -145,6 +145,11 @@ def in_time_order(points: list[tuple[float, float]]) -> bool:
     return True
 
 
+def split_checks_pass(points: list[tuple[float, float]], angles_deg: list[float]) -> bool:
+    """The six points in time order and the four angles' signs a tap's (what check_points asks)."""
+    return in_time_order(points) and tuple((a > 0) - (a < 0) for a in angles_deg) == POSITIVE_SHAPE
+
+
 def check_points(points: list[tuple[float, float]], angles_deg: list[float]) -> None:
     """Chronology of the six points, then the shape (signs of the angles), positive polarity."""
     times = [t for t, _ in points]
