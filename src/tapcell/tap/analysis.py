@@ -51,7 +51,8 @@ from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_FIVE, PrefixSums, five_lines
-from tapcell.tap.stage import departure_soft_stage, shows_soft_stage, shows_two_stage, two_stage_departure
+from tapcell.tap.stage import (Ringing, departure_soft_stage, dwell_ringing, shows_soft_stage, shows_two_stage,
+                               two_stage_departure)
 from tapcell.tap.toe import (ADHESION_LEVEL_UM, ADHESION_REACH_UM, THREAD_FAR_REACH_UM, THREAD_REACH_UM, ToeFit,
                              Wander, adhesion_measures, fit_toe, free_air_variogram, lag_from_halt_s, thread_pull_g,
                              thread_pulls_g, walk_beside_height_pull, wander_from_variograms)
@@ -1062,10 +1063,21 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     rising = read_while_rising(samples, window, motion, window_delay_s)
     check_adhesion(rising, motion, timing, dec, drift_g_um, toe.contact_um, split.noise_g, approach_wander,
                    result.compression_force_g)
-    check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, split.noise_g, approach_wander,
-                     toe.stiffness_g_um)
-    check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, split.noise_g, approach_wander,
-                    drift_held=fit_drift_g_um is not None)
+    try:
+        check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, split.noise_g, approach_wander,
+                         toe.stiffness_g_um)
+        check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, split.noise_g, approach_wander,
+                        drift_held=fit_drift_g_um is not None)
+    except TapInvalid:  # a stage shown: unless the dwell rings, and the stage no longer shows against it
+        _, dwell_start, dwell_end, _ = (split.dec.start + bound for bound in split.dec.bounds)
+        ringing = dwell_ringing(split.time_s[dwell_start:dwell_end], split.force_g[dwell_start:dwell_end],
+                                split.noise_g * split.noise_g)
+        if ringing is None:
+            raise
+        check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, split.noise_g, approach_wander,
+                         toe.stiffness_g_um, ringing)
+        check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, split.noise_g, approach_wander,
+                        drift_held=fit_drift_g_um is not None, ringing=ringing)
     approach_change_g = abs(dec.points[P_CONTACT][1] - dec.points[P_START][1])
     if approach_change_g > APPROACH_DRIFT_MATERIAL_SHARE * result.compression_force_g:  # else it costs the score little
         result.approach_drift_share = departure_drift_share(rising, toe.contact_um, drift_g_um)
@@ -1162,11 +1174,13 @@ def _toe_lift_um(result: TapAnalysis) -> float:
 
 
 def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, contact_um: float,
-                     lag_shift_um: float, noise_g: float, approach_wander: Wander | None, stiffness_g_um: float) -> None:
+                     lag_shift_um: float, noise_g: float, approach_wander: Wander | None, stiffness_g_um: float,
+                     ringing: Ringing | None = None) -> None:
     """TAP_TWO_STAGE_CONTACT when the force keeps a soft stage's ramp above the contact found
-    (tapcell.tap.stage): the stiff stage let go there, the first touch is higher."""
+    (tapcell.tap.stage): the stiff stage let go there, the first touch is higher (weighed against
+    the noise and the ringing the dwell shows)."""
     walk_var_g2 = approach_wander.walk_var_g2 if approach_wander else 0.0
-    stage = departure_soft_stage(*samples, drift_g_um, contact_um, noise_g * noise_g, walk_var_g2)
+    stage = departure_soft_stage(*samples, drift_g_um, contact_um, noise_g * noise_g, walk_var_g2, ringing)
     if shows_soft_stage(stage, stiffness_g_um, contact_um):
         first_touch_mm = motion.z_halt_mm + (stage.top_um - lag_shift_um) / 1000.0
         raise TapInvalid(TAP_TWO_STAGE_CONTACT,
@@ -1177,13 +1191,15 @@ def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float
 
 
 def check_two_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, toe: ToeFit, lag_shift_um: float,
-                    noise_g: float, approach_wander: Wander | None, drift_held: bool = False) -> None:
+                    noise_g: float, approach_wander: Wander | None, drift_held: bool = False,
+                    ringing: Ringing | None = None) -> None:
     """TAP_TWO_STAGE_CONTACT when the departure is two stages rather than the wide toe fitted
     (tapcell.tap.stage.two_stage_departure): the toe absorbed a soft first stage and reads low.
     drift_held: the toe fit held drift_g_um (the departure agrees with the approach), the stages are
     weighed on it too."""
     walk_var_g2 = approach_wander.walk_var_g2 if approach_wander else 0.0
-    fit = two_stage_departure(*samples, drift_g_um, toe.contact_um, toe.width_um, noise_g, walk_var_g2, drift_held)
+    fit = two_stage_departure(*samples, drift_g_um, toe.contact_um, toe.width_um, noise_g, walk_var_g2, drift_held,
+                              ringing)
     if shows_two_stage(fit, toe.contact_um):
         first_touch_mm = motion.z_halt_mm + (fit.top_um - lag_shift_um) / 1000.0
         raise TapInvalid(TAP_TWO_STAGE_CONTACT,
