@@ -1063,21 +1063,7 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     rising = read_while_rising(samples, window, motion, window_delay_s)
     check_adhesion(rising, motion, timing, dec, drift_g_um, toe.contact_um, split.noise_g, approach_wander,
                    result.compression_force_g)
-    try:
-        check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, split.noise_g, approach_wander,
-                         toe.stiffness_g_um)
-        check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, split.noise_g, approach_wander,
-                        drift_held=fit_drift_g_um is not None)
-    except TapInvalid:  # a stage shown: unless the dwell rings, and the stage no longer shows against it
-        _, dwell_start, dwell_end, _ = (split.dec.start + bound for bound in split.dec.bounds)
-        ringing = dwell_ringing(split.time_s[dwell_start:dwell_end], split.force_g[dwell_start:dwell_end],
-                                split.noise_g * split.noise_g)
-        if ringing is None:
-            raise
-        check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, split.noise_g, approach_wander,
-                         toe.stiffness_g_um, ringing)
-        check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, split.noise_g, approach_wander,
-                        drift_held=fit_drift_g_um is not None, ringing=ringing)
+    check_stages(split, samples, drift_g_um, toe, lag_shift_um, drift_held=fit_drift_g_um is not None)
     approach_change_g = abs(dec.points[P_CONTACT][1] - dec.points[P_START][1])
     if approach_change_g > APPROACH_DRIFT_MATERIAL_SHARE * result.compression_force_g:  # else it costs the score little
         result.approach_drift_share = departure_drift_share(rising, toe.contact_um, drift_g_um)
@@ -1171,6 +1157,27 @@ def _toe_lift_um(result: TapAnalysis) -> float:
     if result.z_method != "toe" or result.z_sharp_mm is None or result.z_mm is None:
         return 0.0
     return (result.z_mm - result.z_sharp_mm) * 1000.0
+
+
+def check_stages(split: SplitTap, samples: PullbackSamples, drift_g_um: float, toe: ToeFit, lag_shift_um: float,
+                 drift_held: bool) -> None:
+    """The two-stage checks (TAP_TWO_STAGE_CONTACT raised); where they name a stage and the dwell
+    rings (tapcell.tap.stage.dwell_ringing), again with the ringing in their noise: a gantry's
+    ringing over a fast pullback's departure is no stage (issue 21)."""
+    motion, noise_g, approach_wander = split.motion, split.noise_g, split.wanders[1]
+    try:
+        check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, noise_g, approach_wander,
+                         toe.stiffness_g_um)
+        check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, noise_g, approach_wander, drift_held)
+    except TapInvalid:
+        _, dwell_start, dwell_end, _ = (split.dec.start + bound for bound in split.dec.bounds)
+        ringing = dwell_ringing(split.time_s[dwell_start:dwell_end], split.force_g[dwell_start:dwell_end],
+                                noise_g * noise_g)
+        if ringing is None:
+            raise
+        check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, noise_g, approach_wander,
+                         toe.stiffness_g_um, ringing)
+        check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, noise_g, approach_wander, drift_held, ringing)
 
 
 def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, contact_um: float,
