@@ -111,7 +111,7 @@ def _departure_fits(path) -> tuple:
         result = analyze_tap(read_tap_file(str(path))[0])
     finally:
         analysis_module.two_stage_departure = original
-    x_lo, x_hi, force_g, drift_g_um, contact_um, width_um, noise_g, walk_var_g2, drift_held = calls[-1]
+    x_lo, x_hi, force_g, drift_g_um, contact_um, width_um, noise_g, walk_var_g2, drift_held, *_ = calls[-1]
     x_um = 0.5 * (x_lo + x_hi)
     near = (x_um > contact_um - stage.TWO_STAGE_BELOW_UM) & (x_um < contact_um + stage.TWO_STAGE_ABOVE_UM)
     x_um, window_um = x_um[near], float(np.median(x_hi[near] - x_lo[near]))

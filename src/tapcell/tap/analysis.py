@@ -51,7 +51,8 @@ from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_FIVE, PrefixSums, five_lines
-from tapcell.tap.stage import departure_soft_stage, shows_soft_stage, shows_two_stage, two_stage_departure
+from tapcell.tap.stage import (Ringing, departure_soft_stage, dwell_ringing, shows_soft_stage, shows_two_stage,
+                               two_stage_departure)
 from tapcell.tap.toe import (ADHESION_LEVEL_UM, ADHESION_REACH_UM, THREAD_FAR_REACH_UM, THREAD_REACH_UM, ToeFit,
                              Wander, adhesion_measures, fit_toe, free_air_variogram, lag_from_halt_s, thread_pull_g,
                              thread_pulls_g, walk_beside_height_pull, wander_from_variograms)
@@ -1132,14 +1133,7 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     # too short to show one (10 sps: 8 samples), the one the free air on both sides shows.
     check_adhesion(rising, motion, timing, dec, free_air_line(split, toe.contact_um - lag_shift_um, delay_s),
                    toe.contact_um, split.noise_g, approach_wander or wander, result.compression_force_g)
-    # The ramp's noise: the walk the free air on both sides shows, as the toe fit weighs it. The
-    # approach's alone (32-96 samples at 320 sps) read no walk under a 2.4 g/sqrt(s) cable (taplab
-    # seed 4 cable drift k 20): its level wandering over the departure's 61 samples scored a
-    # 13 um "stage" at 39.7 noise variances (limit 36), TAP_TWO_STAGE_CONTACT.
-    check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, split.noise_g, wander,
-                     toe.stiffness_g_um)
-    check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, split.noise_g, approach_wander,
-                    drift_held=fit_drift_g_um is not None)
+    check_stages(split, samples, drift_g_um, toe, lag_shift_um, drift_held=fit_drift_g_um is not None)
     approach_change_g = abs(dec.points[P_CONTACT][1] - dec.points[P_START][1])
     if approach_change_g > APPROACH_DRIFT_MATERIAL_SHARE * result.compression_force_g:  # else it costs the score little
         result.approach_drift_share = departure_drift_share(rising, toe.contact_um, drift_g_um)
@@ -1235,12 +1229,40 @@ def _toe_lift_um(result: TapAnalysis) -> float:
     return (result.z_mm - result.z_sharp_mm) * 1000.0
 
 
+def check_stages(split: SplitTap, samples: PullbackSamples, drift_g_um: float, toe: ToeFit, lag_shift_um: float,
+                 drift_held: bool) -> None:
+    """The two-stage checks (TAP_TWO_STAGE_CONTACT raised); where they name a stage and the dwell
+    rings (tapcell.tap.stage.dwell_ringing), again with the ringing in their noise: a gantry's
+    ringing over a fast pullback's departure is no stage (issue 21)."""
+    motion, noise_g = split.motion, split.noise_g
+    wander, approach_wander = split.wanders
+    # The ramp's noise: the walk the free air on both sides shows, as the toe fit weighs it. The
+    # approach's alone (32-96 samples at 320 sps) read no walk under a 2.4 g/sqrt(s) cable (taplab
+    # seed 4 cable drift k 20): its level wandering over the departure's 61 samples scored a
+    # 13 um "stage" at 39.7 noise variances (limit 36), TAP_TWO_STAGE_CONTACT.
+    try:
+        check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, noise_g, wander,
+                         toe.stiffness_g_um)
+        check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, noise_g, approach_wander, drift_held)
+    except TapInvalid:
+        _, dwell_start, dwell_end, _ = (split.dec.start + bound for bound in split.dec.bounds)
+        ringing = dwell_ringing(split.time_s[dwell_start:dwell_end], split.force_g[dwell_start:dwell_end],
+                                noise_g * noise_g)
+        if ringing is None:
+            raise
+        check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, noise_g, wander,
+                         toe.stiffness_g_um, ringing)
+        check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, noise_g, approach_wander, drift_held, ringing)
+
+
 def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, contact_um: float,
-                     lag_shift_um: float, noise_g: float, wander: Wander | None, stiffness_g_um: float) -> None:
+                     lag_shift_um: float, noise_g: float, wander: Wander | None, stiffness_g_um: float,
+                     ringing: Ringing | None = None) -> None:
     """TAP_TWO_STAGE_CONTACT when the force keeps a soft stage's ramp above the contact found
-    (tapcell.tap.stage): the stiff stage let go there, the first touch is higher."""
+    (tapcell.tap.stage): the stiff stage let go there, the first touch is higher (weighed against
+    the noise, the walk and the ringing the dwell shows)."""
     walk_var_g2 = wander.walk_var_g2 if wander else 0.0
-    stage = departure_soft_stage(*samples, drift_g_um, contact_um, noise_g * noise_g, walk_var_g2)
+    stage = departure_soft_stage(*samples, drift_g_um, contact_um, noise_g * noise_g, walk_var_g2, ringing)
     if shows_soft_stage(stage, stiffness_g_um, contact_um):
         first_touch_mm = motion.z_halt_mm + (stage.top_um - lag_shift_um) / 1000.0
         raise TapInvalid(TAP_TWO_STAGE_CONTACT,
@@ -1251,13 +1273,15 @@ def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float
 
 
 def check_two_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, toe: ToeFit, lag_shift_um: float,
-                    noise_g: float, approach_wander: Wander | None, drift_held: bool = False) -> None:
+                    noise_g: float, approach_wander: Wander | None, drift_held: bool = False,
+                    ringing: Ringing | None = None) -> None:
     """TAP_TWO_STAGE_CONTACT when the departure is two stages rather than the wide toe fitted
     (tapcell.tap.stage.two_stage_departure): the toe absorbed a soft first stage and reads low.
     drift_held: the toe fit held drift_g_um (the departure agrees with the approach), the stages are
     weighed on it too."""
     walk_var_g2 = approach_wander.walk_var_g2 if approach_wander else 0.0
-    fit = two_stage_departure(*samples, drift_g_um, toe.contact_um, toe.width_um, noise_g, walk_var_g2, drift_held)
+    fit = two_stage_departure(*samples, drift_g_um, toe.contact_um, toe.width_um, noise_g, walk_var_g2, drift_held,
+                              ringing)
     if shows_two_stage(fit, toe.contact_um):
         first_touch_mm = motion.z_halt_mm + (fit.top_um - lag_shift_um) / 1000.0
         raise TapInvalid(TAP_TWO_STAGE_CONTACT,

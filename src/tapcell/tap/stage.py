@@ -80,11 +80,79 @@ def soft_stage(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, noise_v
     return SoftStage(float(gain[best] / noise_var_g2), float(contact_um + STAGE_TOPS_UM[best]), float(slope))
 
 
+# Gantry ringing (issue 21): an oscillation in time that every change of speed excites, the halt
+# and the pullback's start among them. The second-difference noise (tapcell.tap.analysis.noise_sigma_g)
+# does not see an oscillation many samples long (40 Hz at 2000-4000 sps: 50-100 samples a period),
+# while over an 85 µm departure at 2-4 mm/s (one or two periods) a ramp or a second stage takes it
+# for a shape in height. The tap shows its ringing in the dwell, where the force is otherwise smooth
+# in time (a relaxation: a quadratic takes it) and the halt rang the toolhead. A ringing is an
+# oscillation: one frequency, at least RINGING_MIN_PERIODS periods within the dwell, explaining more
+# of the dwell's residual than white noise ever does at its best frequency (RINGING_MIN_CHI2 noise
+# variances; white noise's best of ~2n padded frequencies reaches 2 ln(n/2) + a few, 10-15 at these
+# lengths). What a quadratic leaves of a squeeze or a wander lies at the lowest frequencies: a mild
+# ooze tap's squeezed film (taplab seed 3) peaked at 2.75 periods a dwell; the sweep's 40 Hz ringing
+# at 6-13 (1,000-4,000 sps, dwells of 0.1-0.33 s).
+RINGING_MIN_SAMPLES = 16
+RINGING_MIN_PERIODS = 3.5
+RINGING_MIN_CHI2 = 25.0
+
+
+@dataclass
+class Ringing:
+    var_g2: float  # the variance over the dwell at its one frequency (of a ringing decaying in tau about 2 tau / dwell of it)
+    period_samples: float  # its period, in sample periods
+
+
+def dwell_ringing(time_s: np.ndarray, force_g: np.ndarray, white_var_g2: float) -> Ringing | None:
+    """The oscillation the dwell shows (samples' times s, force g): what a quadratic in time leaves,
+    its strongest frequency from RINGING_MIN_PERIODS per dwell up to the Nyquist rate; None when it
+    explains no more than white noise would (RINGING_MIN_CHI2) or too few samples show it."""
+    n = len(force_g)
+    if n < RINGING_MIN_SAMPLES or white_var_g2 <= 0:
+        return None
+    t = time_s - float(time_s.sum()) / n
+    span_s = float(time_s[-1] - time_s[0])
+    if span_s <= 0:
+        return None
+    basis = np.array((np.ones(n), t / span_s, (t / span_s) ** 2)).T
+    coef, *_ = np.linalg.lstsq(basis, force_g, rcond=None)
+    residual = force_g - basis @ coef
+    period_s = span_s / (n - 1)
+    # The periodogram 2 |sum r e^-iwt|^2 / n (uniform samples: an FFT), padded to a quarter of the
+    # dwell's frequency resolution, from RINGING_MIN_PERIODS periods per dwell up.
+    padded = 4 * n
+    power = 2.0 * np.abs(np.fft.rfft(residual, padded)) ** 2 / n
+    lowest = int(math.ceil(RINGING_MIN_PERIODS * padded * period_s / span_s))
+    if lowest >= len(power):
+        return None
+    best = lowest + int(power[lowest:].argmax())
+    if power[best] < RINGING_MIN_CHI2 * white_var_g2:
+        return None
+    hz = best / (padded * period_s)
+    return Ringing(float(power[best]) / n, 1.0 / (hz * period_s))
+
+
+def ringing_noise_g2(ringing: Ringing | None, samples: int) -> float:
+    """What a ringing adds to the noise a stage is weighed against over `samples` samples: the part
+    of its energy there a smooth shape (a ramp, two hinged lines) can take. All of it when the
+    samples span at most a period; beyond, a kink's spectrum falls with the square of the periods
+    spanned: period^2 / samples variances (40 Hz at 4000 sps over 60 samples: all 60; 50 Hz of hum
+    left at 320 sps: 6.4^2 / 60, under one)."""
+    if ringing is None or samples <= 0:
+        return 0.0
+    return ringing.var_g2 * min(float(samples), ringing.period_samples * ringing.period_samples / samples)
+
+
 def departure_soft_stage(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, drift_g_um: float,
-                         contact_um: float, white_var_g2: float, walk_var_g2: float) -> SoftStage | None:
+                         contact_um: float, white_var_g2: float, walk_var_g2: float,
+                         ringing: Ringing | None = None) -> SoftStage | None:
     """`soft_stage` over the pullback's samples (conversion windows [x_lo, x_hi], µm above the halt)
     near the contact found (`departure_near`), the drift (g/µm) taken out; the noise: white plus what
-    the baseline's walk adds over those samples (a walk about its mean: n/6). In C when built."""
+    the baseline's walk adds over those samples (a walk about its mean: n/6), plus what a ringing the
+    dwell shows adds over them (`ringing_noise_g2`). In C when built."""
+    if ringing is not None:
+        count = int(departure_near(0.5 * (x_lo_um + x_hi_um), contact_um).sum())
+        white_var_g2 = white_var_g2 + ringing_noise_g2(ringing, count)
     if _C is not None:
         found = _C.soft_stage(x_lo_um, x_hi_um, force_g, drift_g_um, contact_um, white_var_g2, walk_var_g2,
                               STAGE_TOPS_UM, STAGE_FROM_UM, STAGE_REACH_UM, STAGE_MIN_SAMPLES)
@@ -314,7 +382,8 @@ _LONGEST_STAGE_SHARE = float(TWO_STAGE_SPANS_UM[-1]) / (TWO_STAGE_BELOW_UM + TWO
 
 def two_stage_departure(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, drift_g_um: float,
                         contact_um: float, toe_width_um: float, noise_g: float,
-                        walk_var_g2: float, drift_held: bool = False) -> TwoStageFit | None:
+                        walk_var_g2: float, drift_held: bool = False, ringing: Ringing | None = None
+                        ) -> TwoStageFit | None:
     """`two_stage_fit` over the pullback's samples (conversion windows [x_lo, x_hi], µm above the
     halt) about the toe's contact, when the toe is wide enough to have absorbed a stage.
 
@@ -322,7 +391,8 @@ def two_stage_departure(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.nd
     that drift: the fit that shows two stages when one does. Else, or when it does not, with a
     drift fitted by both models (a baseline tilted over the departure: an ooze thread, a walk).
     The noise: white plus what the baseline's walk adds, about its mean over the samples (n/6)
-    with a drift fitted, over the longest stage's share of them with the drift held."""
+    with a drift fitted, over the longest stage's share of them with the drift held; plus what a
+    ringing the dwell shows adds over the samples (`ringing_noise_g2`)."""
     if toe_width_um < TWO_STAGE_MIN_TOE_WIDTH_UM:
         return None
     x_um = 0.5 * (x_lo_um + x_hi_um)
@@ -332,9 +402,10 @@ def two_stage_departure(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.nd
     x_um, window_um = x_um[near], median(x_hi_um[near] - x_lo_um[near])
     force_g = force_g[near] - drift_g_um * x_um
     walk_g2 = walk_var_g2 * len(x_um) / 6.0
-    fitted = two_stage_fit(x_um, force_g, contact_um, noise_g * noise_g + walk_g2, window_um)
+    white_g2 = noise_g * noise_g + ringing_noise_g2(ringing, len(x_um))
+    fitted = two_stage_fit(x_um, force_g, contact_um, white_g2 + walk_g2, window_um)
     if drift_held and not shows_two_stage(fitted, contact_um):
-        held = two_stage_fit(x_um, force_g, contact_um, noise_g * noise_g + walk_g2 * _LONGEST_STAGE_SHARE,
+        held = two_stage_fit(x_um, force_g, contact_um, white_g2 + walk_g2 * _LONGEST_STAGE_SHARE,
                              window_um, True)
         if shows_two_stage(held, contact_um) and same_first_touch(held, fitted):
             return held
