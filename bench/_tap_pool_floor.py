@@ -15,9 +15,8 @@ the session itself and its truth (truth side: never the analysis), what the exac
   over the session's pullbacks;
 * **the noise**: its variogram γ(lag) = ½ E[(x(k + lag) − x(k))²] over each tap's free air before
   the contact (its samples more than FREE_ABOVE_UM above it, less their offset, drift with Z and
-  hum: what an analysis can fit), pooled over the session's taps, made non-decreasing (white, 1/f
-  and a walk never fall with the lag) and beyond the longest lag measured extended by a straight
-  line (a walk) through its second half.
+  hum: what an analysis can fit), pooled over the session's taps, as measured (no model), and
+  beyond the longest lag measured extended by a straight line (a walk) through its second half.
 
 The Fisher information of one tap's contact, its baseline free, over the session's shortest
 pullback window (pullback start onwards): J = Δsᵀ C⁻¹ Δs with s = G'(h) per sample, Δs each
@@ -29,8 +28,8 @@ information is in the toe's curvature, which the spline's noise swamps) the tap'
 measured (inf, counted in the table). Floor = J^-1/2.
 
 Checked against taplab's exact floor on the same pullbacks (`python -m bench tap_pool --floor N`):
-it reads 0.86-0.94 of it with white + 1/f + walk (the free air's drift fit takes a little of the
-walk), 0.9-1.1 with white noise alone; and against a hand-worked bound in
+it reads 0.86-0.94 of it with white + 1/f + walk (it errs low, as a floor may: the free air's
+drift fit takes a little of the walk), 0.95-1.21 with white noise alone; and against a hand-worked bound in
 tests/test_bench_tap_pool_floor.py.
 
 It is a floor for an analysis of the pullback (as the pool and the single-tap fits read): the
@@ -140,9 +139,6 @@ def variogram(records: list[PullbackRecord], lags: int) -> np.ndarray:
     for lag in range(1, measured):
         squares = [np.square(r.free_g[lag:] - r.free_g[:-lag]) for r in records if len(r.free_g) > lag]
         gamma[lag] = 0.5 * np.mean(np.concatenate(squares))
-    # White, 1/f and a walk each make a variogram that never falls with the lag: the measured one's
-    # dips are its own noise (a dip would be a direction quieter than the noise), levelled out.
-    gamma[1:measured] = _non_decreasing(gamma[1:measured])
     if measured < 4:  # (almost) no free air to measure: white
         gamma[2:] = gamma[1]
     elif lags > measured:
@@ -150,18 +146,6 @@ def variogram(records: list[PullbackRecord], lags: int) -> np.ndarray:
         slope, intercept = np.polyfit(tail, gamma[tail], 1)
         gamma[measured:] = np.maximum(intercept + max(slope, 0.0) * np.arange(measured, lags), gamma[measured - 1])
     return gamma
-
-
-def _non_decreasing(values: np.ndarray) -> np.ndarray:
-    """The least-squares non-decreasing fit (pool adjacent violators)."""
-    blocks: list[list[float]] = []  # [mean, count]
-    for value in values:
-        blocks.append([float(value), 1.0])
-        while len(blocks) > 1 and blocks[-2][0] > blocks[-1][0]:
-            mean, count = blocks.pop()
-            blocks[-1] = [(blocks[-1][0] * blocks[-1][1] + mean * count) / (blocks[-1][1] + count),
-                          blocks[-1][1] + count]
-    return np.concatenate([np.full(int(count), mean) for mean, count in blocks])
 
 
 def _contrast_precision(gamma: np.ndarray, count: int) -> np.ndarray:

@@ -164,13 +164,15 @@ def _rms_finite(values) -> float:
 
 def print_floor_ratios(tap_set: TapSet, within_by_size: dict) -> float:
     """Per scenario and pool size: the measured floor as PROBE_ACCURACY would show it (a tap's floor,
-    rms over the taps, x sqrt((n - 1) / n): the population sd of n taps), over Kalico, beside
-    pooled / Kalico. Returns the worst floor / Kalico."""
+    rms over the taps, x sqrt((n - 1) / n): the population sd of n taps; the median tap's beside it),
+    over Kalico, beside pooled / Kalico. A floor the pool itself beats was not measured (the pool is
+    a real estimator: no floor lies above it); it is flagged and left out of the worst. Returns the
+    worst floor / Kalico."""
     floors = pool_floor.floors_of_set(tap_set.directory, tap_set.labels)
     print(f"== {tap_set.name}: the floor with everything shared known (bench._tap_pool_floor, pullback, "
           "white + 1/f + walk as measured)")
-    print(f"{'scenario':<20} {'pool':>5} | {'floor µm':>8} {'unmeasured':>10} | {'pooled/K':>8} {'floor/K':>7} "
-          f"{'pooled/floor':>12}")
+    print(f"{'scenario':<20} {'pool':>5} | {'floor µm':>8} {'median':>7} {'unmeasured':>10} | {'pooled/K':>8} "
+          f"{'floor/K':>7} {'pooled/floor':>12}")
     worst = 0.0
     for scenario, coloured in ((s, f["coloured"]) for s, f in floors.items()):
         unmeasured = int(np.sum(~np.isfinite(coloured)))
@@ -178,11 +180,14 @@ def print_floor_ratios(tap_set: TapSet, within_by_size: dict) -> float:
             if scenario not in within_of:
                 continue
             pooled, kalico = within_of[scenario]
-            n = size or 10
-            floor = _rms_finite(coloured) * np.sqrt((n - 1) / n)
-            worst = max(worst, floor / kalico) if np.isfinite(kalico) else worst
-            print(f"{scenario:<20} {n:>5} | {floor:>8.3f} {unmeasured:>10} | {pooled / kalico:>8.2f} "
-                  f"{floor / kalico:>7.2f} {pooled / floor:>12.2f}")
+            shown = np.sqrt((size - 1) / size) if size else np.sqrt(0.9)
+            floor = _rms_finite(coloured) * shown
+            beaten = pooled < floor
+            if np.isfinite(kalico) and not beaten:
+                worst = max(worst, floor / kalico)
+            print(f"{scenario:<20} {size or 10:>5} | {floor:>8.3f} {np.median(coloured) * shown:>7.3f} {unmeasured:>10} | "
+                  f"{pooled / kalico:>8.2f} {floor / kalico:>7.2f} {pooled / floor:>12.2f}"
+                  + ("  the pool beats it: not measured" if beaten else ""))
     print(f"worst floor/Kalico: {worst:.2f} (0.5x Kalico is out of reach where this is >= 0.5)\n")
     return worst
 
