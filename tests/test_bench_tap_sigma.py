@@ -8,10 +8,11 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the bench package beside tests/
 
-from bench.tap_sigma import GRID, Scenario, choose_weights, force_error_g, ratio_rms  # noqa: E402  (after the path)
+from bench.tap_sigma import (GRID, Scenario, choose_weights, force_error_g, pooled, ratio_interval,  # noqa: E402
+                              ratio_rms)
 from tapcell.tap.uncertainty import SigmaWeights, ZSigmaParts  # noqa: E402
 
-TRUE = {"noise": 0.75, "shape": 2.0, "misfit": 0.5, "thread": 1.5, "squeeze": 1.25}
+TRUE = {"noise": 0.75, "shape": 2.0, "misfit": 0.5, "thread": 1.5, "squeeze": 1.25, "film": 1.0, "floor": 2.5}
 
 
 def _scenario(rng, part: str, taps: int = 400) -> Scenario:
@@ -24,7 +25,7 @@ def _scenario(rng, part: str, taps: int = 400) -> Scenario:
 def test_the_weights_that_make_every_scenario_honest_are_found():
     rng = np.random.default_rng(7)
     sets = {"a": {name: _scenario(rng, name) for name in ("noise", "shape")},
-            "b": {name: _scenario(rng, name) for name in ("misfit", "thread", "squeeze")}}
+            "b": {name: _scenario(rng, name) for name in ("misfit", "thread", "squeeze", "film", "floor")}}
     chosen, worst = choose_weights(sets)
     for name, weight in TRUE.items():  # within one step of its grid
         step = float(GRID[name][1] - GRID[name][0])
@@ -48,3 +49,18 @@ def test_the_force_error_is_the_error_times_each_taps_stiffness():
     assert force_error_g(Scenario(errors_um=[1.0], parts=[ZSigmaParts()], taps=1,
                                   stiffness_g_um=[float("nan")])) is None
     assert force_error_g(Scenario(taps=40)) is None
+
+
+def test_seeds_are_judged_together_per_scenario():
+    """Two seeds' draws of a scenario are one scenario of 2 x the taps; the interval narrows with them."""
+    rng = np.random.default_rng(3)
+    one, two = ({"clean": _scenario(rng, "noise", taps=40)} for _ in range(2))
+    together = pooled([one, two])
+    assert together["clean"].taps == 80 and len(together["clean"].errors_um) == 80
+    assert together["clean"].errors_um == one["clean"].errors_um + two["clean"].errors_um
+    weights = SigmaWeights(noise=TRUE["noise"])
+    lo1, hi1 = ratio_interval(one["clean"], weights)
+    lo2, hi2 = ratio_interval(together["clean"], weights)
+    assert lo1 < ratio_rms(one["clean"], weights) < hi1 and lo2 < 1.0 < hi2
+    assert 0.15 < hi1 - lo1 and hi2 - lo2 < 0.85 * (hi1 - lo1)  # ±25-35 % at 40 taps
+    assert ratio_interval(Scenario(taps=40), weights) is None

@@ -8,6 +8,7 @@ import json
 import os
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 
@@ -85,3 +86,44 @@ print(json.dumps(os.environ.get("OPENBLAS_NUM_THREADS")))
 def test_the_printer_sub_commands_run_blas_on_one_thread_too(subcommand):
     assert json.loads(_run(SUBCOMMAND_ENV, subcommand)) == "1"
     assert json.loads(_run(SUBCOMMAND_ENV, subcommand, blas="4")) == "4"
+
+
+def test_analyze_leaves_no_cycles_for_the_collector_it_turns_off(tmp_path, capsys):
+    """`tapcell analyze` runs without the cycle collector (reference counting frees every tap): true
+    only while reading and analysing a tap make no reference cycles. Every taplab scenario and a
+    refused file leave no more cyclic garbage than one tap does (argparse's parser, once a run);
+    the collector is on again afterwards."""
+    import gc
+
+    from native_kernel_inputs import generated_tap_objects
+    from tapcell.tap import cli as analyze_cli
+
+    files = []
+    for k, (_, tap) in enumerate(generated_tap_objects(1)):
+        files.append(str(tmp_path / f"tap-{k}.json"))
+        Path(files[-1]).write_text(json.dumps(tap))
+    (tmp_path / "broken.json").write_text('{"time": [1, 2], "force": ')
+    files.append(str(tmp_path / "broken.json"))
+
+    def cyclic_garbage_of_a_run(names):
+        gc.collect()
+        analyze_cli.main(["--json", *names])
+        assert gc.isenabled()
+        garbage = gc.collect()
+        assert len(json.loads(capsys.readouterr().out)) == len([n for n in names if "broken" not in n])
+        return garbage
+
+    assert cyclic_garbage_of_a_run(files) == cyclic_garbage_of_a_run(files[:1])
+
+
+@pytest.mark.parametrize("missing", [False, True])
+def test_analyze_ends_without_teardown_after_its_whole_output(tmp_path, tap_file, missing):
+    """The console script ends `tapcell analyze` with os._exit (tools.cli.ENDS_WITHOUT_TEARDOWN):
+    every tap's result reaches the pipe first, with the run's exit status (1: a file unreadable)."""
+    names = [tap_file, tap_file, tap_file] + ([str(tmp_path / "missing.json")] if missing else [])
+    env = {key: value for key, value in os.environ.items() if key != "PYTHONUNBUFFERED"}  # output in a buffer
+    run = subprocess.run([sys.executable, "-m", "tapcell", "analyze", "--json", *names], capture_output=True,
+                         text=True, timeout=120, env=env)
+    assert run.returncode == (1 if missing else 0)
+    assert [tap["file"] for tap in json.loads(run.stdout)] == [tap_file] * 3
+    assert ("missing.json" in run.stderr) == missing

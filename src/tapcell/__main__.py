@@ -1,3 +1,3 @@
-from tapcell.tools.cli import main
+from tapcell.tools.cli import run
 
-raise SystemExit(main())
+run()

@@ -70,7 +70,8 @@ def test_the_tap_analysis_imports_with_numpy_alone():
     """Kalico's environment has no scipy, matplotlib or rich: tapcell's core must not need them."""
     probe = ("import sys, tapcell, tapcell.tap; from tapcell.tap import analyze_tap; "
              "print(sorted(m for m in ('scipy', 'matplotlib', 'rich', 'jinja2', 'websockets') if m in sys.modules))")
-    done = run([str(kalico_python()), "-c", probe])
+    # This checkout's tapcell first: the venv's own editable install may point at another checkout.
+    done = run([str(kalico_python()), "-c", probe], env={"PYTHONPATH": str(REPO_SRC), "PATH": "/usr/bin:/bin"})
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "[]"
     missing = run([str(kalico_python()), "-c", "import scipy"])

@@ -26,7 +26,7 @@ def test_voron_printer_cfg_loads_with_one_notice_of_what_is_simulated(tmp_path):
                     "[adxl345]", "[input_shaper]", "[save_variables]", "[firmware_retraction]"):
         assert section in accepted, section
     for section in ("[neopixel sb_leds] (colour recorded)", "[z_tilt] (one Z motor: nothing to level)",
-                    "[virtual_sdcard] (prints files)", "[force_move] (SET_KINEMATIC_POSITION)"):
+                    "[virtual_sdcard] (prints files)", "[force_move] (FORCE_MOVE, STEPPER_BUZZ, SET_KINEMATIC_POSITION)"):
         assert section in simulated and section.split(" (")[0] not in accepted, section
     status = printer.get_status()
     assert {"toolhead", "gcode_move", "extruder", "heater_bed", "fan", "heater_fan hotend_fan", "heaters", "pause_resume",

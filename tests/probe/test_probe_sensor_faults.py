@@ -11,7 +11,7 @@ import pytest
 from probe_vprinter import make_printer, true_contact_z, true_peak_force_g
 from tapcell.host.config import ConfigError
 from tapcell.host.gcode import GCodeError
-from tapcell.extras.load_cell_probe.options import lone_sample_past_limit
+from tapcell.extras.load_cell_probe.options import CORRUPT_FRAME_RETRIES, lone_frame
 
 STUCK = (r"^Load Cell Probe Error: load cell reads a constant value \({n} identical samples in a row while "
          r"probing\): sensor stuck! Check the sensor's wiring and power \(see stuck_sensor_samples\)$")
@@ -58,19 +58,20 @@ def test_a_corrupted_frame_past_the_limit_stops_the_move_and_it_is_probed_again(
 
 
 def test_corrupted_frames_far_apart_never_end_a_long_move_but_a_burst_does(tmp_path):
-    # A long move (G28 Z's first tap on an unmeasured bed runs at 0.8 mm/s; here 10 mm at 3 mm/s): four
-    # corrupted frames 0.6 s apart are each moved on from; a third within 0.5 s ends the move.
+    # A long move (G28 Z's first tap on an unmeasured bed runs at 0.8 mm/s; here 10 mm at 3 mm/s): six
+    # corrupted frames 0.4 s apart are each moved on from; a fifth within 0.5 s ends the move.
+    assert CORRUPT_FRAME_RETRIES == 4
     printer, responses = make_printer(tmp_path, probe_options="force_safety_limit: 500")
-    printer.gcode.run_script("G1 Z10\nSIM_FAULT NAME=corrupt_frame WHEN=probing_move COUNT=4 SPACING_S=0.6\n"
+    printer.gcode.run_script("G1 Z10\nSIM_FAULT NAME=corrupt_frame WHEN=probing_move COUNT=6 SPACING_S=0.4\n"
                              "PROBE PROBE_SPEED=3")
     notes = [r for r in responses if "(a corrupted frame); the move stopped at once, probing again" in r]
-    assert len(notes) == 4
+    assert len(notes) == 6
     assert abs(printer.lookup_object("probe").last_z_result - true_contact_z(printer)) < 0.01
     responses.clear()
     with pytest.raises(GCodeError, match=r"force exceeded force_safety_limit \(500g\) while probing!"):
-        printer.gcode.run_script("G1 Z10\nSIM_FAULT NAME=corrupt_frame WHEN=probing_move COUNT=3 SPACING_S=0.1\n"
+        printer.gcode.run_script("G1 Z10\nSIM_FAULT NAME=corrupt_frame WHEN=probing_move COUNT=5 SPACING_S=0.1\n"
                                  "PROBE PROBE_SPEED=3")
-    assert sum("(a corrupted frame)" in r for r in responses) == 2
+    assert sum("(a corrupted frame)" in r for r in responses) == 4
 
 
 def test_stuck_sensor_samples_option(tmp_path):
@@ -100,10 +101,43 @@ def test_stuck_sensor_samples_option(tmp_path):
         printer.gcode.run_script("SIM_FAULT NAME=stuck WHEN=contact\nPROBE PROBE_SPEED=1")
 
 
+PERIOD_S = 1.0 / 320.0
+
+
+def lone(force_g, armed_at=1, limit_g=2000.0, quiet_g=75.0, stop_at=None):
+    """lone_frame on samples 1/320 s apart, armed at sample `armed_at`, stopped past `limit_g`."""
+    force_g = np.asarray(force_g, dtype=float)
+    t_s = 10.0 + PERIOD_S * np.arange(force_g.size)
+    stop_s = None if stop_at is None else t_s[stop_at]
+    return lone_frame(t_s, force_g, np.abs(force_g) > limit_g, t_s[armed_at], quiet_g, stop_s)
+
+
 def test_only_a_lone_sample_between_quiet_neighbours_counts_as_a_corrupted_frame():
-    assert lone_sample_past_limit(np.array([0.0, 3.0, -2400.0, 5.0]), 2000.0, 75.0) == 2
-    assert lone_sample_past_limit(np.array([0.0, 50.0, 2100.0, 2300.0]), 2000.0, 75.0) is None   # a real press
-    assert lone_sample_past_limit(np.array([0.0, 2100.0, 80.0]), 2000.0, 75.0) is None           # in contact after
-    assert lone_sample_past_limit(np.array([0.0, 3.0, 2100.0]), 2000.0, 75.0) is None            # no sample after
-    assert lone_sample_past_limit(np.array([2100.0, 3.0]), 2000.0, 75.0) is None                 # none before
-    assert lone_sample_past_limit(np.array([0.0, 3.0, 5.0]), 2000.0, 75.0) is None
+    assert lone([0.0, 3.0, -2400.0, 5.0]) == 2
+    assert lone([0.0, 50.0, 2100.0, 2300.0]) is None     # a real press
+    assert lone([0.0, 2100.0, 80.0]) is None             # in contact after
+    assert lone([0.0, 3.0, 2100.0]) is None              # no sample after
+    assert lone([2100.0, 3.0], armed_at=0) is None       # none before
+    assert lone([0.0, 3.0, 5.0]) is None
+
+
+def test_the_stop_judged_is_the_first_the_armed_firmware_saw():
+    # A frame read before the arm (the last attempt's, moved on from; or one the tare dropped) is
+    # not this stop: a real press after it stays a real press ...
+    assert lone([0.0, -4766.0, 1.0, 2.0, 60.0, 2100.0, 2300.0], armed_at=3) is None
+    assert lone([0.0, -4766.0, 1.0, 2100.0, 2300.0], armed_at=2) is None
+    # ... and a second lone frame one quiet sample after it is judged on its own (glitchy seed 9).
+    assert lone([0.0, -16062.0, 1.0, -16062.0, 0.0], armed_at=2) == 3
+    # The first one the firmware saw stopped it: a lone frame after a real press is not looked at.
+    assert lone([0.0, 2100.0, 2300.0, 2200.0, 1.0, -9000.0, 1.0], armed_at=1) is None
+
+
+def test_a_trigger_on_a_lone_frame_is_judged_through_the_triggering_sample():
+    # Trigger force 75 g: samples past it, quiet under half of it (37.5 g).
+    args = {"limit_g": 74.99, "quiet_g": 37.5}
+    assert lone([0.0, 1.0, 595.0, 2.0, 0.0], stop_at=2, **args) == 2           # no filter: the frame itself
+    assert lone([0.0, 1.0, 595.0, 2.0, 0.0, 1.0], stop_at=3, **args) == 2      # a filter triggered a sample later
+    assert lone([0.0, 1.0, 595.0, 2.0, 0.0], stop_at=4, **args) is None        # no sample after the trigger yet
+    assert lone([0.0, 20.0, 80.0, 84.0], stop_at=2, **args) is None            # a contact holds after the halt
+    assert lone([0.0, 20.0, 80.0, 40.0], stop_at=2, **args) is None            # even with a noisy sample after
+    assert lone([0.0, 45.0, 595.0, 2.0], stop_at=2, **args) is None            # force already rising before

@@ -11,11 +11,12 @@ import numpy as np
 import pytest
 
 from tapcell.tap import AnalysisOptions, analyze_tap, native
-from tapcell.tap import contact, readers, segments, stage, toe
+from tapcell.tap import contact, model, readers, segments, stage, toe
 from tapcell.tap.readers import tap_from_object
 from native_kernel_inputs import generated_tap_objects
 
-KERNEL_MODULES = {"segments": segments, "contact": contact, "toe": toe, "stage": stage, "readers": readers}
+KERNEL_MODULES = {"segments": segments, "contact": contact, "toe": toe, "stage": stage, "readers": readers,
+                  "output": model}
 TAPS_PER_SCENARIO = 2
 OPTIONS = (AnalysisOptions(), AnalysisOptions(contact_model="sharp", sensor_delay_s=0.0))
 # Sums taken in another order differ by ~1e-12 relative; a Z a hundred times the float rounding

@@ -60,7 +60,7 @@ SIMULATED_HARDWARE: dict[str, str] = {
     "neopixel": "colour recorded", "led": "colour recorded", "dotstar": "colour recorded",
     "pca9533": "colour recorded", "pca9632": "colour recorded",
     "z_tilt": "one Z motor: nothing to level", "quad_gantry_level": "one Z motor: nothing to level",
-    "virtual_sdcard": "prints files", "force_move": "SET_KINEMATIC_POSITION",
+    "virtual_sdcard": "prints files", "force_move": "FORCE_MOVE, STEPPER_BUZZ, SET_KINEMATIC_POSITION",
 }
 
 

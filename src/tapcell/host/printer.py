@@ -57,7 +57,7 @@ WHEN_NOT_READY = ("RESTART", "FIRMWARE_RESTART", "HELP", "STATUS")
 LOAD_FIRST = (TOOLHEAD_SECTION,)
 # Objects Klipper has whether or not the config names them (UIs read their status; an
 # [idle_timeout] section only changes its options).
-DEFAULT_SECTIONS = ("idle_timeout", "motion_report", "system_stats", "query_endstops")
+DEFAULT_SECTIONS = ("idle_timeout", "motion_report", "system_stats", "query_endstops", "force_move")
 # The section a served printer gets when its config has none and `tapcell serve --gcodes-dir`
 # names Moonraker's gcodes folder (a file uploaded in Mainsail prints from there).
 GCODES_SECTION = "virtual_sdcard"

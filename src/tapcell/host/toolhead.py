@@ -206,11 +206,19 @@ class Toolhead:
         end = tuple(current[i] if target[axis] is None else target[axis] for i, axis in enumerate(AXES))
         if not self.is_z_homed():
             self.z_lift_while_unhomed_mm = max(0.0, self.z_lift_while_unhomed_mm + end[2] - current[2])
+        self.run_machine_move(current, end, (machine["x"], machine["y"], machine["z"]), speed_mm_s,
+                              self.max_accel_mm_s2)
+
+    def run_machine_move(self, start_xyz, end_xyz, machine_xyz, speed_mm_s: float, accel_mm_s2: float) -> None:
+        """Move the machine to `machine_xyz` (None: the axis stays), the nozzle going from `start_xyz`
+        to `end_xyz` in toolhead coordinates: with the nozzle watch armed when that can reach the
+        bed. No range check: move_to checks first; FORCE_MOVE bypasses the kinematics on purpose."""
         try:
-            if self.nozzle_watch is not None and self.nozzle_watch.wants(current, end):
-                self.nozzle_watch.move((machine["x"], machine["y"], machine["z"]), speed_mm_s, self.max_accel_mm_s2)
+            if self.nozzle_watch is not None and self.nozzle_watch.wants(start_xyz, end_xyz):
+                self.nozzle_watch.move(machine_xyz, speed_mm_s, accel_mm_s2)
             else:
-                self.backend.move_to(**machine, speed_mm_s=speed_mm_s, accel_mm_s2=self.max_accel_mm_s2)
+                x, y, z = machine_xyz
+                self.backend.move_to(x=x, y=y, z=z, speed_mm_s=speed_mm_s, accel_mm_s2=accel_mm_s2)
         except MoveError as exc:  # the virtual machine is smaller than the config says
             raise GCodeError(f"Move refused by the virtual printer: {exc}") from None
 

@@ -36,8 +36,10 @@ from tapcell.tap.hum import (MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum,
                              lines_worth_fitting, resolvable_hz, spline_knots)
 from tapcell.tap.model import (
     TAP_ADHESION,
+    TAP_BREAK_CONTACT_TOO_LATE,
     TAP_DATA_INSUFFICIENT,
     TAP_MOTION_INVALID,
+    TAP_PULLBACK_TOO_SHORT,
     TAP_SHAPE_INVALID,
     TAP_TWO_STAGE_CONTACT,
     AnalysisOptions,
@@ -52,7 +54,7 @@ from tapcell.tap.segments import NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_F
 from tapcell.tap.stage import departure_soft_stage, shows_soft_stage, shows_two_stage, two_stage_departure
 from tapcell.tap.toe import (ADHESION_LEVEL_UM, ADHESION_REACH_UM, THREAD_FAR_REACH_UM, THREAD_REACH_UM, ToeFit,
                              Wander, adhesion_measures, fit_toe, free_air_variogram, lag_from_halt_s, thread_pull_g,
-                             thread_pulls_g, wanders_from_variograms)
+                             thread_pulls_g, walk_beside_height_pull, wander_from_variograms)
 
 # The checks, robust statistics and window heights in C (c/analysis.c, tapcell.tap.native); None: numpy.
 _C = native.load("analysis")
@@ -616,15 +618,21 @@ def read_while_rising(samples: PullbackSamples, window: ModelWindow, motion: Mot
     return samples[0][:kept], samples[1][:kept], samples[2][:kept]
 
 
-def free_air_wanders(force_g: np.ndarray, dec: Decomposition) -> tuple[Wander | None, Wander | None]:
-    """The baseline's white noise and random walk from the approach and departure lines' samples
-    (for the toe fit), and from the approach's alone, which no ooze thread after the tap can pull
-    (for the thread check); the approach's variogram is measured once for both."""
+def free_air_wanders(force_g: np.ndarray, dec: Decomposition, steps_um: tuple[float, float],
+                     rising_stop: int) -> tuple[Wander | None, Wander | None]:
+    """The baseline's white noise and random walk in time from the approach line's samples and the
+    departure line's read while the nozzle rose (before `rising_stop`, an index into force_g), with
+    a pull curved in height told apart from the walk (`walk_beside_height_pull`; steps_um: the
+    height crossed per sample on the approach and on the pullback), for the toe fit; and from the
+    approach's alone, which no ooze thread after the tap can pull (for the thread check). The
+    approach's variogram is measured once for both."""
     first, *_, last = dec.bounds
-    approach = free_air_variogram(force_g[dec.start:dec.start + first])
-    departure = free_air_variogram(force_g[dec.start + last:dec.stop])
-    approach_wander, both_wander = wanders_from_variograms([approach, departure])  # the approach's rows summed once
-    return both_wander, approach_wander
+    approach_force = force_g[dec.start:dec.start + first]
+    departure_force = force_g[dec.start + last:min(dec.stop, rising_stop)]
+    approach = free_air_variogram(approach_force)
+    departure = free_air_variogram(departure_force)
+    segments = [(approach, len(approach_force), steps_um[0]), (departure, len(departure_force), steps_um[1])]
+    return walk_beside_height_pull(segments), wander_from_variograms([approach])
 
 
 def fit_pullback_toe(samples: PullbackSamples, motion: Motion, timing: SensorTiming, contact0_um: float,
@@ -848,7 +856,10 @@ class SplitTap:
     @functools.cached_property
     def wanders(self) -> tuple[Wander | None, Wander | None]:
         """`free_air_wanders` of the tap, measured once for the toe fit and its uncertainty."""
-        return free_air_wanders(self.force_g, self.dec)
+        motion, period_s = self.motion, self.timing.sample_period_s
+        steps_um = (motion.approach_speed_mm_s * 1000.0 * period_s, motion.pullback_speed_mm_s * 1000.0 * period_s)
+        rising_stop = int(self.time_s.searchsorted(motion.pullback_end_s + self.timing.delay_s, side="right"))
+        return free_air_wanders(self.force_g, self.dec, steps_um, rising_stop)
 
 
 @dataclass
@@ -937,7 +948,7 @@ def lag_before_the_fits(split: SplitTap, result: TapAnalysis) -> float:
     timing = split.timing
     if timing.delay_from_halt:
         halt_lag_s = lag_from_halt_s(split.dec.points[P_DWELL_START][0], split.motion.home_end_s,
-                                     timing.sample_period_s)
+                                     timing.sample_period_s, UNKNOWN_DELAY_ALLOWANCE_S)
         timing.delay_s = max(halt_lag_s - 0.5 * timing.integration_s, 0.0) if halt_lag_s is not None else 0.0
     delay_s = 0.0 if timing.estimate_delay else timing.delay_s
     result.sensor_delay_s = delay_s
@@ -949,11 +960,18 @@ def check_split(split: SplitTap, delay_s: float) -> None:
     inside the pullback), the points' order and the lines' shape, break contact's place in the pullback."""
     dec, motion, timing = split.dec, split.motion, split.timing
     period_s = timing.sample_period_s
-    if not left_inside_pullback(split.time_s, split.force_g, motion, dec, split.ps, period_s):
-        validate.check_left_the_bed(dec.points[P_DWELL_START][1] - dec.points[P_CONTACT][1],
-                                    *force_left_at_end_g(split.time_s, split.force_g, motion, dec, split.ps))
-    validate.check_points(dec.points, split.angles_deg)
-    validate.check_break_contact(dec.points[P_BREAK][0] - delay_s - 0.5 * timing.integration_s, motion, period_s)
+    try:
+        if not left_inside_pullback(split.time_s, split.force_g, motion, dec, split.ps, period_s):
+            validate.check_left_the_bed(dec.points[P_DWELL_START][1] - dec.points[P_CONTACT][1],
+                                        *force_left_at_end_g(split.time_s, split.force_g, motion, dec, split.ps))
+        validate.check_points(dec.points, split.angles_deg)
+        validate.check_break_contact(dec.points[P_BREAK][0] - delay_s - 0.5 * timing.integration_s, motion, period_s)
+    except TapInvalid as invalid:
+        # "Lengthen pullback_distance" on a pullback of a few samples: its rules count samples the
+        # pullback does not hold (issue 21's sweep: 10 mm/s at 320 sps); say so instead.
+        if invalid.code in (TAP_PULLBACK_TOO_SHORT, TAP_BREAK_CONTACT_TOO_LATE):
+            validate.check_pullback_samples(motion, period_s)
+        raise
 
 
 def fit_contact_models(split: SplitTap, window: ModelWindow, delay_s: float, options: AnalysisOptions,
@@ -1045,7 +1063,8 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
                    result.compression_force_g)
     check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, split.noise_g, approach_wander,
                      toe.stiffness_g_um)
-    check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, split.noise_g, approach_wander)
+    check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, split.noise_g, approach_wander,
+                    drift_held=fit_drift_g_um is not None)
     approach_change_g = abs(dec.points[P_CONTACT][1] - dec.points[P_START][1])
     if approach_change_g > APPROACH_DRIFT_MATERIAL_SHARE * result.compression_force_g:  # else it costs the score little
         result.approach_drift_share = departure_drift_share(rising, toe.contact_um, drift_g_um)
@@ -1082,11 +1101,15 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
     window_um = speed_um_s * timing.integration_s
     halt_sigma_s = (corner_time_sigma_s(split.ps, dec, COMPRESSION, dec.points[P_DWELL_START][0])
                     if timing.delay_from_halt else 0.0)
+    squeeze = uncertainty.squeeze_um(*_contact_down_and_up(fits, motion.approach_speed_mm_s * 1000.0
+                                                          * timing.sample_period_s))
     others = dict(
         thread_um=uncertainty.thread_um(near_pull_g, far_pull_g, walk_var_g2, stiffness),
         misfit_um=uncertainty.misfit_um(result.fit_residual_sigma_g, max(split.noise_g, departure_g),
                                         result.step_sigma_g, stiffness),
-        squeeze_um=uncertainty.squeeze_um(*_contact_down_and_up(fits)),
+        squeeze_um=squeeze,
+        film_um=uncertainty.film_um(squeeze, _toe_lift_um(result)),
+        floor_um=uncertainty.floor_um(stiffness),
         staircase_um=uncertainty.staircase_um(step_staircase_sigma_um(timing.z_step_um, window_um), timing.z_step_um),
         delay_um=speed_um_s * halt_sigma_s if math.isfinite(halt_sigma_s) else 0.0)
     if result.z_method == "toe" and result.toe_grid is not None:
@@ -1099,16 +1122,23 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
     result.z_sigma_um = uncertainty.z_sigma_um(parts)
 
 
-def _contact_down_and_up(fits: ContactFits) -> tuple[float | None, float | None, float]:
+def _contact_down_and_up(fits: ContactFits, approach_travel_um: float) -> tuple[float | None, float | None, float]:
     """(contact on the way down, break contact on the way up, µm, from the sharp fits at the same
-    delay; None where a fit is missing) and what their noise allows between them: TAP_CONTACT_MISMATCH's
-    CONSISTENCY_SIGMAS of the two fits, without its hysteresis and sample-of-travel allowances (on
-    taplab's mild ooze those hide every film the pullback reads high by)."""
+    delay; None where a fit is missing) and what their noise and the approach's sample grid allow
+    between them (`uncertainty.squeeze_allowance_um`; not TAP_CONTACT_MISMATCH's hysteresis and
+    whole sample of travel, which on taplab's mild ooze hide every film the pullback reads high by)."""
     down, up = fits.compression, fits.pullback
     if down is None or up is None:
         return None, None, 0.0
-    return down.contact_um, up.contact_um, validate.CONSISTENCY_SIGMAS * math.hypot(down.contact_sigma_um,
-                                                                                 up.contact_sigma_um)
+    return down.contact_um, up.contact_um, uncertainty.squeeze_allowance_um(down.contact_sigma_um, up.contact_sigma_um,
+                                                                         approach_travel_um)
+
+
+def _toe_lift_um(result: TapAnalysis) -> float:
+    """How far the toe model's Z lies from the sharp model's (µm; 0 when the toe did not set Z)."""
+    if result.z_method != "toe" or result.z_sharp_mm is None or result.z_mm is None:
+        return 0.0
+    return (result.z_mm - result.z_sharp_mm) * 1000.0
 
 
 def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, contact_um: float,
@@ -1127,11 +1157,13 @@ def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float
 
 
 def check_two_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, toe: ToeFit, lag_shift_um: float,
-                    noise_g: float, approach_wander: Wander | None) -> None:
+                    noise_g: float, approach_wander: Wander | None, drift_held: bool = False) -> None:
     """TAP_TWO_STAGE_CONTACT when the departure is two stages rather than the wide toe fitted
-    (tapcell.tap.stage.two_stage_departure): the toe absorbed a soft first stage and reads low."""
+    (tapcell.tap.stage.two_stage_departure): the toe absorbed a soft first stage and reads low.
+    drift_held: the toe fit held drift_g_um (the departure agrees with the approach), the stages are
+    weighed on it too."""
     walk_var_g2 = approach_wander.walk_var_g2 if approach_wander else 0.0
-    fit = two_stage_departure(*samples, drift_g_um, toe.contact_um, toe.width_um, noise_g, walk_var_g2)
+    fit = two_stage_departure(*samples, drift_g_um, toe.contact_um, toe.width_um, noise_g, walk_var_g2, drift_held)
     if shows_two_stage(fit, toe.contact_um):
         first_touch_mm = motion.z_halt_mm + (fit.top_um - lag_shift_um) / 1000.0
         raise TapInvalid(TAP_TWO_STAGE_CONTACT,

@@ -18,9 +18,10 @@ Two estimates the tap itself carries (issue 12):
   fixed columns are projected out once, each toe column costs a few dot products).
 
 The baseline may also wander (a random walk: temperature, a cable settling). When the tap's free
-air shows a walk that matters over the fit (`wander_from_free_air`, `Wander.matters`), the fit
-weighs the samples by white + walk covariance (`_Whitened`: the same grid, the same three parts
-of the toe column, a recursion instead of plain sums).
+air shows a walk that matters over the fit (`walk_beside_height_pull`: told apart from a pull
+curved in height, `Wander.matters`), the fit weighs the samples by white + walk covariance
+(`_Whitened`: the same grid, the same three parts of the toe column, a recursion instead of plain
+sums).
 
 `contact_um` is the mean of c with the toe marginalised out (the widths 0-16 µm weighed by a
 prior falling off as exp(-width / 4 µm), the two shapes alike), and `sigma_um` its sd
@@ -199,10 +200,13 @@ def toe_shapes(depth_um: np.ndarray, width_um, powers) -> np.ndarray:
     return shapes
 
 
-def lag_from_halt_s(compression_end_time_s: float, halt_time_s: float, period_s: float) -> float | None:
-    """The sensor's whole lag (s) from P2 and the halt, or None when it is not plausible."""
+def lag_from_halt_s(compression_end_time_s: float, halt_time_s: float, period_s: float,
+                    pipeline_s: float = 0.0) -> float | None:
+    """The sensor's whole lag (s) from P2 and the halt, or None when it is not plausible: more than
+    MAX_LAG_PERIODS (the conversion window's part) plus `pipeline_s` (a pipeline's delay, a time
+    whatever the rate: 4 periods alone are 1 ms at 4000 sps, less than one sample's transfer)."""
     lag_s = compression_end_time_s - halt_time_s
-    if not math.isfinite(lag_s) or not 0.0 <= lag_s <= MAX_LAG_PERIODS * period_s:
+    if not math.isfinite(lag_s) or not 0.0 <= lag_s <= MAX_LAG_PERIODS * period_s + pipeline_s:
         return None
     return lag_s
 
@@ -407,6 +411,85 @@ def _wander_of_normal_sums(rows: int, ww: float, wk: float, kk: float, wv: float
     if not white > 0.0:
         return None
     return Wander(white_var_g2=float(white), walk_var_g2=max(float(walk), 0.0))
+
+
+def height_pull_variogram(samples: int, step_um: float) -> list[float]:
+    """Per lag of `free_air_variogram` (same samples), what a pull curved in height adds to it per
+    unit of its curvature squared: a pull k x² / 2 over samples `step_um` apart in height, its line
+    removed, differs over L samples by k step² L (2 i + L - n + 1) / 2, whose mean square is
+    k² step⁴ L² ((n - L)² - 1) / 12."""
+    lags = [lag for lag in WANDER_LAGS if 3 * lag <= samples]
+    if len(lags) < 3:
+        return []
+    return [lag * lag * ((samples - lag) ** 2 - 1) / 12.0 * step_um ** 4 for lag in lags]
+
+
+def walk_beside_height_pull(segments: list[tuple[FreeAirVariogram, int, float]]) -> Wander | None:
+    """The white noise and the walk in time of free-air segments, each of its samples crossed
+    `step_um` apart in height ((`free_air_variogram`, samples, step_um) per segment), with a pull
+    curved in height beside them.
+
+    A bowden tube or cable pulls with the height, and not along a straight line in it: over the
+    approach, which crosses 15x the height per sample the pullback does, the curve's departure from
+    the line grows with the lag like a walk's, and pooled with the departure it passed for one (the
+    reference set's bowden taps: a walk 18-36x the departure's own). Its share of each variogram
+    grows as step⁴ (`height_pull_variogram`), a walk's as the lag alone, so segments crossed at
+    different speeds tell them apart: the three are fitted together (least squares, none negative)
+    and the walk alone is the baseline's.
+    """
+    # The sums of products the least squares need, in one loop of plain floats (a score of rows).
+    ww = wk = wp = kk = kp = pp = wy = ky = py = yy = 0.0
+    rows = 0
+    for (expected, measured), samples, step_um in segments:
+        rows += len(expected)
+        for (w, k), p, y in zip(expected, height_pull_variogram(samples, step_um), measured):
+            ww += w * w
+            wk += w * k
+            wp += w * p
+            kk += k * k
+            kp += k * p
+            pp += p * p
+            wy += w * y
+            ky += k * y
+            py += p * y
+            yy += y * y
+    if rows < 2:
+        return None
+    found = _white_walk_pull(ww, wk, wp, kk, kp, pp, wy, ky, py, yy)
+    return None if found is None else Wander(white_var_g2=found[0], walk_var_g2=found[1])
+
+
+def _white_walk_pull(ww: float, wk: float, wp: float, kk: float, kp: float, pp: float,
+                     wy: float, ky: float, py: float, yy: float) -> tuple[float, float] | None:
+    """(white, walk) of the least squares in white, walk and pull with no share negative, from the
+    sums of products (w, k, p: the three columns, y: measured): the fit of all three when none is
+    negative, else, of the fits of the white with the walk, with the pull or alone whose shares are
+    all positive, the one that leaves the least residual. Each column scaled to unit size, the
+    normal equations solved by Cramer's rule in plain floats (numpy's per-call cost would be most of
+    it: this runs on every tap)."""
+    if not (ww > 0.0 and kk > 0.0 and pp > 0.0):
+        return None
+    sw, sk, sp = math.sqrt(ww), math.sqrt(kk), math.sqrt(pp)
+    a, b, c = wk / (sw * sk), wp / (sw * sp), kp / (sk * sp)  # the scaled columns' products
+    u, v, w = wy / sw, ky / sk, py / sp
+    determinant = 1.0 - a * a - b * b - c * c + 2.0 * a * b * c
+    if determinant > 1e-12:
+        white = (u * (1.0 - c * c) - a * (v - c * w) + b * (v * c - w)) / determinant
+        walk = (v - c * w - u * (a - c * b) + b * (a * w - v * b)) / determinant
+        pull = (w - c * v - a * (a * w - v * b) + u * (a * c - b)) / determinant
+        if white > 0.0 and walk >= 0.0 and pull >= 0.0:
+            return white / sw, walk / sk
+    best = None  # (residual, white, walk)
+    for r, q, walk_column in ((a, v, True), (b, w, False)):  # the white with the walk, with the pull
+        if 1.0 - r * r > 1e-12:
+            white, other = (u - r * q) / (1.0 - r * r), (q - r * u) / (1.0 - r * r)
+            if white > 0.0 and other >= 0.0:
+                residual = yy - white * u - other * q
+                if best is None or residual < best[0]:
+                    best = (residual, white / sw, other / sk if walk_column else 0.0)
+    if u > 0.0 and (best is None or yy - u * u < best[0]):  # the white alone
+        best = (yy - u * u, u / sw, 0.0)
+    return None if best is None else best[1:]
 
 
 @functools.lru_cache(maxsize=4096)

@@ -18,6 +18,7 @@ from tapcell.tap.model import (
     TAP_BREAK_CONTACT_TOO_LATE,
     TAP_CHRONOLOGY,
     TAP_CONTACT_MISMATCH,
+    TAP_DATA_INSUFFICIENT,
     TAP_MOTION_INVALID,
     TAP_PULLBACK_TOO_SHORT,
     TAP_SHAPE_INVALID,
@@ -100,6 +101,10 @@ def coasting_while_slowing_message(end_z_mm: float) -> str:
 
 
 def check_motion(motion: Motion, time_s: np.ndarray) -> None:
+    if motion.home_end_s == motion.pullback_start_s < motion.pullback_end_s:
+        raise TapInvalid(TAP_MOTION_INVALID,
+                         f"the pullback starts at the halt ({motion.home_end_s:.6f} s): no dwell, and the "
+                         "five lines need the nozzle to rest between the compression and the decompression")
     if not motion.home_end_s < motion.pullback_start_s < motion.pullback_end_s:
         raise TapInvalid(TAP_MOTION_INVALID,
                          f"phase times out of order: halt {motion.home_end_s:.6f} s, pullback "
@@ -150,6 +155,27 @@ def check_points(points: list[tuple[float, float]], angles_deg: list[float]) -> 
     if signs != POSITIVE_SHAPE:
         listed = ", ".join(f"{a:.1f}" for a in angles_deg)
         raise TapInvalid(TAP_SHAPE_INVALID, f"the lines do not form a tap shape (angles {listed} deg)")
+
+
+# check_break_contact's rules hold together only when a sixth of the pullback spans the two
+# samples its end needs (below that, a break in the middle two thirds reads "never broke contact").
+PULLBACK_MIN_SAMPLES = 6 * 2
+GUIDE_PULLBACK_STEP_UM = 1.0  # the guide's pullback scans 1 µm a sample
+
+
+def check_pullback_samples(motion: Motion, sample_period_s: float) -> None:
+    """A pullback too fast for its samples: fewer than PULLBACK_MIN_SAMPLES, where the guide's 1 µm
+    a sample would give that many over the same distance. Such a pullback (10 mm/s at 320 sps:
+    31 µm a sample) is not one that never left the bed; its fix is the speed, not the distance.
+    A pullback short in distance (a few µm at 1 µm a sample) passes: it is too short."""
+    samples = motion.pullback_duration_s / sample_period_s
+    distance_um = (float(motion.z_at(motion.pullback_end_s)) - motion.z_halt_mm) * 1000.0
+    if samples < PULLBACK_MIN_SAMPLES <= distance_um / GUIDE_PULLBACK_STEP_UM:
+        step_um = motion.pullback_speed_mm_s * sample_period_s * 1000.0
+        raise TapInvalid(TAP_DATA_INSUFFICIENT,
+                         f"the pullback holds {samples:.1f} samples ({step_um:.1f} µm a sample), too few to place "
+                         f"break contact in its middle two thirds (at least {PULLBACK_MIN_SAMPLES}): slow "
+                         "pullback_speed (the guide scans 1 µm a sample)")
 
 
 def check_break_contact(break_time_s: float, motion: Motion, sample_period_s: float) -> None:

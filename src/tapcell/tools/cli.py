@@ -80,6 +80,27 @@ def _usage() -> str:
 EXIT_BROKEN_PIPE = 128 + 13  # what a shell reports for a command ended by SIGPIPE
 
 
+# Sub-commands whose process has nothing left to do at exit but flush its output: the console
+# script ends them without the interpreter's teardown, which frees every module and result object
+# one by one (1.5 % of the CPU of `tapcell analyze` over 600 tap files). A run that drew (`--plot`)
+# keeps it: matplotlib registers exit handlers of its own.
+ENDS_WITHOUT_TEARDOWN = frozenset({"analyze"})
+
+
+def run() -> None:
+    """The `tapcell` console script: `main`, then the exit."""
+    args = sys.argv[1:]
+    status = main(args)
+    if args and args[0] in ENDS_WITHOUT_TEARDOWN and "matplotlib" not in sys.modules:
+        try:
+            sys.stdout.flush()
+        except BrokenPipeError:  # as `main` answers it: the reader left
+            status = EXIT_BROKEN_PIPE
+        sys.stderr.flush()
+        os._exit(status)
+    sys.exit(status)
+
+
 def main(argv: list[str] | None = None) -> int:
     try:
         return _dispatch(argv)

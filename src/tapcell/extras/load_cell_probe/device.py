@@ -43,13 +43,13 @@ from tapcell.mcu.trigger import MAX_STUCK_SAMPLES, TriggerError
 from tapcell.extras.probe.approach import NO_CONTACT_DEPTH_MM, BedHeightMemory, approach_height_mm, no_contact_message
 from tapcell.extras.probe.session import ProbeError, TapOutcome
 from tapcell.extras.load_cell_probe.options import (
-    CORRUPT_FRAME_RETRIES,
-    CORRUPT_FRAME_WINDOW_S,
     ERROR_PREFIX,
     NOT_CALIBRATED,
+    QUIET_PART_OF_TRIGGER,
+    CorruptFrameBudget,
     check_stuck_sensor_samples,
     classifier_option,
-    lone_sample_past_limit,
+    lone_frame,
     preload_refusal,
     read_tap_options,
     replace_tap_options,
@@ -337,8 +337,8 @@ class LoadCellProbe:
         the worst-case overshoot could press harder than force_safety_limit; then the firmware
         trigger (`trigger`: the keywords of `move_params`) is armed with the tare and Z moves down
         toward z_min_mm (toolhead Z) until it stops. A force_safety_limit stop by one corrupted
-        frame in the air is moved on from (at most CORRUPT_FRAME_RETRIES times within
-        CORRUPT_FRAME_WINDOW_S; each retry goes on down from where the last stopped). Firmware errors,
+        frame in the air is moved on from (CorruptFrameBudget; each retry goes on down from where
+        the last stopped). Firmware errors,
         and a sensor that stopped changing or saturated, raise ProbeError naming the cause.
         Returns (move result, the speed used, when the last attempt started); result.triggered is
         False when the move reached z_min_mm without a trigger.
@@ -354,19 +354,20 @@ class LoadCellProbe:
         last attempt started)."""
         options = settings.options
         self._clear_machine_z_mm = float(self.backend.position[2])
-        corrupt_stops_s: list[float] = []  # when corrupted frames stopped this move
+        corrupt_frames = CorruptFrameBudget()
         while True:
             firmware = self.trigger.arm(settings, tare_counts, **trigger)
-            t_start_s = self.backend.now_s
+            t_start_s = self.backend.now_s  # the arm time: the firmware sees the samples read from here on
             # Unhomed (G28 Z), z_min is a full axis length below: the machine stops at its own end of travel.
             machine_z_min_mm = max(z_min_mm - self._z_frame_offset_mm(), self.backend.limits["z"][0])
             result = self.backend.probing_move(machine_z_min_mm, speed_mm_s, firmware)
             self.load_cell.pump()
-            recent = [t for t in corrupt_stops_s if t > self.backend.now_s - CORRUPT_FRAME_WINDOW_S]
-            if not (result.error == TriggerError.FORCE_SAFETY and len(recent) < CORRUPT_FRAME_RETRIES
-                    and self._stopped_by_a_corrupt_frame(options, tare_counts, t_start_s)):
+            lone_g = (self.corrupt_frame_that_stopped(firmware.params, result, tare_counts, t_start_s)
+                      if result.error == TriggerError.FORCE_SAFETY else None)
+            if lone_g is None or not corrupt_frames.allows_another(self.backend.now_s):
                 break
-            corrupt_stops_s.append(self.backend.now_s)
+            self.printer.gcode.respond_info(f"Load cell: one sample read {lone_g:.0f}g between samples near 0g "
+                                            "(a corrupted frame); the move stopped at once, probing again")
         _, counts, _ = self.history.between(t_start_s, self.backend.now_s)
         # The firmware names a stuck sensor itself; with its check off (stuck_sensor_samples: 0), or
         # a saturated sensor, the move's own samples say why it failed (not position_min).
@@ -484,17 +485,32 @@ class LoadCellProbe:
         t_s, counts, _ = self.history.between(t0_s, t1_s)
         return t_s, self.grams(counts, tare_counts)
 
-    def _stopped_by_a_corrupt_frame(self, options: TapOptions, tare_counts: float, t_start_s: float) -> bool:
-        """Whether the force_safety_limit stop was one corrupted sample in the air (then says so)."""
+    def corrupt_frame_that_stopped(self, params, result, tare_counts: float, armed_s: float) -> float | None:
+        """The force of the corrupted frame that stopped a move armed at `armed_s` with the trigger
+        `params`, else None: a force_safety_limit stop on a lone sample past the raw force window
+        (its neighbours under the trigger force; waits for the sample after it), or a trigger on a
+        lone sample past the trigger force (the samples around it, through the one after the
+        triggering sample, under QUIET_PART_OF_TRIGGER of it; the caller has rested after the
+        halt). Judged on the samples from the arm on: a frame an earlier attempt moved on from is
+        not this stop's."""
         period_s = 1.0 / self.sample_rate_sps
-        self._wait_for_samples_to(self.backend.now_s + 2.5 * period_s)     # the sample after it
-        _, force_g = self._force_between(t_start_s - 2.0 * period_s, self.backend.now_s, tare_counts)  # and the one before
-        lone = lone_sample_past_limit(force_g, options.force_safety_limit_g, options.trigger_force_g)
-        if lone is None:
-            return False
-        self.printer.gcode.respond_info(f"Load cell: one sample read {force_g[lone]:.0f}g between samples near 0g "
-                                        "(a corrupted frame); the move stopped at once, probing again")
-        return True
+        if result.error == TriggerError.FORCE_SAFETY:
+            stop_time_s, quiet_g = None, params.trigger_force_g
+            self._wait_for_samples_to(self.backend.now_s + 2.5 * period_s)  # the sample after the stop
+        elif result.triggered and result.error == TriggerError.NONE:
+            stop_time_s, quiet_g = result.trigger_time_s, QUIET_PART_OF_TRIGGER * params.trigger_force_g
+        else:
+            return None
+        t_s, counts, _ = self.history.between(armed_s - 2.0 * period_s, self.backend.now_s)  # and the one before
+        force_g = self.grams(counts, tare_counts)
+        if result.error == TriggerError.FORCE_SAFETY:
+            # The firmware's window: force_safety_limit around the calibration zero and the tare.
+            from_zero_g = self.grams(counts, self.load_cell.reference_tare_counts)
+            past = np.maximum(np.abs(force_g), np.abs(from_zero_g)) > params.force_safety_limit_g
+        else:
+            past = np.abs(force_g) >= params.trigger_force_g
+        lone = lone_frame(t_s, force_g, past, armed_s, quiet_g, stop_time_s)
+        return None if lone is None else float(force_g[lone])
 
     def _explain_drift(self, options: TapOptions, tare_counts: float, t_start_s: float, speed_mm_s: float) -> str:
         """' (why)' when the move's samples show the force jumping past the limit within one sample."""
@@ -514,8 +530,10 @@ class LoadCellProbe:
         """G28 Z: the toolhead Z of the bed from trigger-only taps, once two of them agree.
 
         A trigger-only tap has no tap shape to judge, and a touch, a tug on the bowden tube, a
-        corrupted frame or a jump of the chip's offset in the air triggers like the bed. So a
-        tap counts only when its force holds after the halt like a contact (`contact_holds`),
+        corrupted frame or a jump of the chip's offset in the air triggers like the bed. A trigger
+        on one corrupted frame (`corrupt_frame_that_stopped`) is not a tap: probing goes on down
+        from its halt (CorruptFrameBudget over the homing). A tap counts only when its force
+        holds after the halt like a contact (`contact_holds`),
         and a slower tap from HOME_BACKOFF_MM above the halt, tared afresh, finds the same
         height (`agreement_tolerance_mm`, between the triggering samples); otherwise the newest
         tap is the one to check, up to HOME_TAPS taps. Returns where the confirming (slow) tap
@@ -527,11 +545,14 @@ class LoadCellProbe:
         heights = []
         reversed_g = []  # the force held after taps that held like a contact the wrong way round
         threshold_g = settings.options.trigger_force_g
-        for _ in range(HOME_TAPS):
-            result, tare_counts, _, speed = self._probing_move(settings, z_min_mm, speed)
+        corrupt_frames = CorruptFrameBudget()
+        while len(heights) < HOME_TAPS:
+            result, tare_counts, armed_s, speed = self._probing_move(settings, z_min_mm, speed)
+            force_g = self._force_after_halt(tare_counts)
+            if self._triggered_by_a_corrupt_frame(settings, result, tare_counts, armed_s, corrupt_frames):
+                continue
             z_mm = z_at_time_mm(result.moves, result.trigger_time_s) + self._z_frame_offset_mm()
             heights.append(z_mm)
-            force_g = self._force_after_halt(tare_counts)
             if safety.contact_holds(force_g, threshold_g):
                 if candidate is not None and abs(z_mm - candidate[0]) <= safety.agreement_tolerance_mm(
                         self.stop_timing, speed, candidate[1]):
@@ -555,6 +576,17 @@ class LoadCellProbe:
         raise ProbeError(ERROR_PREFIX + f"G28 Z: {HOME_TAPS} taps found no bed height twice (triggers at Z={found}): "
                          "something pushes or pulls on the nozzle, or the sensor jumps; check the toolhead and the "
                          "load cell, then home again")
+
+    def _triggered_by_a_corrupt_frame(self, settings: TapSettings, result, tare_counts: float, armed_s: float,
+                                      corrupt_frames: CorruptFrameBudget) -> bool:
+        """G28 Z, after the rest at the halt: whether the tap's trigger was one corrupted frame in the
+        air, within the homing's budget (then says so: the tap does not count)."""
+        lone_g = self.corrupt_frame_that_stopped(self.trigger.move_params(settings), result, tare_counts, armed_s)
+        if lone_g is None or not corrupt_frames.allows_another(self.backend.now_s):
+            return False
+        self.printer.gcode.respond_info(f"Load cell: one sample read {lone_g:.0f}g between samples near 0g "
+                                        "(a corrupted frame); the probe triggered on it, probing again")
+        return True
 
     def _backoff_stiffness_g_um(self, tare_counts: float, backoff_start_s: float) -> float | None:
         """G28 Z: a tap that held like a contact backs off through its decompression, which shows the

@@ -11,7 +11,7 @@ stop the move, as for a probing move: a single corrupted frame (a flipped bit on
 a collision. The firmware's quarantine holds a sample past `nozzle_watch_force` until the next one
 (back inside: dropped; past it too: the move halts); a lone sample past the raw force window halts
 the move at once and, when the samples on both sides read under `nozzle_watch_force`, the move goes
-on to its target (at most CORRUPT_FRAME_RETRIES times within CORRUPT_FRAME_WINDOW_S). The
+on to its target (options.CorruptFrameBudget). The
 confirmation costs one sample of travel, which the speed cap accounts for (it runs the firmware
 trigger with the quarantine). After a real stop the nozzle is lifted straight up (up cannot press
 harder) and the command ends with `Load Cell Probe Error: nozzle collision at X,Y,Z (N g)` naming
@@ -37,10 +37,9 @@ import numpy as np
 
 from tapcell.extras.load_cell_probe import safety
 from tapcell.extras.load_cell_probe.options import (
-    CORRUPT_FRAME_RETRIES,
     CORRUPT_FRAME_WINDOW_S,
     ERROR_PREFIX,
-    lone_sample_past_limit,
+    CorruptFrameBudget,
     robust_tare_counts,
     tare_sample_count,
 )
@@ -208,38 +207,26 @@ class NozzleWatch:
         kept_from_s = history.keep_from_s
         history.keep_from_s = t_start_s if kept_from_s is None else min(kept_from_s, t_start_s)
         try:
-            corrupt_stops_s: list[float] = []  # when a corrupted frame stopped this move
+            corrupt_frames = CorruptFrameBudget()
+            armed_s = t_start_s  # this attempt's arm time: its firmware saw the samples read from here on
             while True:
                 result = run(firmware)
-                lone_g = (self._lone_frame_g(tare_counts, result.halt_time_s)
+                # A lone frame past the raw force window; past nozzle_watch_force the quarantine drops it.
+                lone_g = (device.corrupt_frame_that_stopped(firmware.params, result, tare_counts, armed_s)
                           if result.error == TriggerError.FORCE_SAFETY else None)
                 if lone_g is None:
                     break
-                now_s = self.backend.now_s
-                corrupt_stops_s = [t for t in corrupt_stops_s if t > now_s - CORRUPT_FRAME_WINDOW_S] + [now_s]
-                if len(corrupt_stops_s) > CORRUPT_FRAME_RETRIES:
-                    self._too_many_corrupt_frames(len(corrupt_stops_s), lone_g)
+                if not corrupt_frames.allows_another(self.backend.now_s):
+                    self._too_many_corrupt_frames(len(corrupt_frames.stops_s), lone_g)
                 self.printer.gcode.respond_info(f"Load cell: one sample read {lone_g:.0f}g between samples near 0g "
                                                 "(a corrupted frame); the nozzle watch stopped the move, moving on")
+                armed_s = self.backend.now_s
                 firmware = device.trigger.arm(self._trigger().pop("settings"), tare_counts, **trigger)
             if result.triggered or result.error != TriggerError.NONE:
                 self._stopped(result, tare_counts, t_start_s)
             self._note_largest_force(tare_counts, t_start_s)
         finally:
             history.keep_from_s = kept_from_s
-
-    def _lone_frame_g(self, tare_counts: float, halt_time_s: float) -> float | None:
-        """The force of the sample that made a force_safety_limit stop when it stood alone, both
-        neighbours under nozzle_watch_force (a corrupted frame: a real force cannot come and go
-        within two samples), else None. Looked for around the halt only: a frame dropped earlier in
-        this move is not the one."""
-        device = self.device
-        period_s = 1.0 / device.sample_rate_sps
-        device._wait_for_samples_to(self.backend.now_s + 2.5 * period_s)  # the sample after it
-        _, counts, _ = device.history.between(halt_time_s - 2.0 * period_s, self.backend.now_s)  # and the one before
-        force_g = device.grams(counts, tare_counts)
-        lone = lone_sample_past_limit(force_g, device.options.force_safety_limit_g, self.options.force_g)
-        return None if lone is None else float(force_g[lone])
 
     def _too_many_corrupt_frames(self, count: int, last_g: float) -> None:
         """More corrupted frames stopped the move within CORRUPT_FRAME_WINDOW_S than it moves on

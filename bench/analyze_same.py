@@ -1,0 +1,102 @@
+"""Did a speed change change an output? `tapcell analyze --json` on tap sets, with the compiled
+kernels and with their numpy twins (TAPCELL_NATIVE=0), recorded once and compared byte for byte
+afterwards (all but `elapsed_ms` and `cpu_ms`, which are the clock's).
+
+Run: .venv/bin/python -m bench analyze_same record DIR SET...   (before the change: writes DIR)
+     .venv/bin/python -m bench analyze_same check DIR SET...    (after: exit 1 on any difference)
+A SET is a directory of tap files or one tap file. Without arguments: records and checks a small
+taplab set against itself (the script's own smoke test).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+# The two fields a run cannot repeat; every other byte must.
+CLOCK_FIELDS = re.compile(rb'"(elapsed_ms|cpu_ms)": [-0-9.e+]+')
+KERNELS = {"native": {}, "twins": {"TAPCELL_NATIVE": "0"}}
+FILES_PER_RUN = 400  # command lines stay short; each run is one `tapcell analyze` as a user runs it
+
+
+def tap_files(tap_set: str) -> list[str]:
+    path = Path(tap_set)
+    if path.is_file():
+        return [str(path)]
+    return sorted(str(p) for p in path.iterdir() if p.suffix in (".json", ".jsonl", ".csv")
+                  and p.name != "labels.jsonl")
+
+
+def analyze_output(files: list[str], env_changes: dict[str, str]) -> bytes:
+    """The JSON `tapcell analyze --json` prints for these files, the clock's fields blanked."""
+    tapcell = Path(sys.executable).with_name("tapcell")
+    out = []
+    for start in range(0, len(files), FILES_PER_RUN):
+        run = subprocess.run([str(tapcell), "analyze", "--json", *files[start:start + FILES_PER_RUN]],
+                             env={**os.environ, **env_changes}, capture_output=True, check=False)
+        out.append(CLOCK_FIELDS.sub(rb'"\1": -', run.stdout) + b"exit %d\n" % run.returncode)
+    return b"".join(out)
+
+
+def _record_name(tap_set: str, kernels: str) -> str:
+    digest = hashlib.sha1(str(Path(tap_set).resolve()).encode()).hexdigest()[:10]
+    return f"{Path(tap_set).name}-{digest}-{kernels}.json"
+
+
+def record(out_dir: str, tap_sets: list[str]) -> int:
+    Path(out_dir).mkdir(parents=True, exist_ok=True)
+    for tap_set in tap_sets:
+        files = tap_files(tap_set)
+        for kernels, env in KERNELS.items():
+            (Path(out_dir) / _record_name(tap_set, kernels)).write_bytes(analyze_output(files, env))
+            print(f"recorded {tap_set} ({len(files)} files, {kernels})")
+    return 0
+
+
+def check(out_dir: str, tap_sets: list[str]) -> int:
+    differing = 0
+    for tap_set in tap_sets:
+        files = tap_files(tap_set)
+        for kernels, env in KERNELS.items():
+            before = (Path(out_dir) / _record_name(tap_set, kernels)).read_bytes()
+            now = analyze_output(files, env)
+            same = now == before
+            differing += not same
+            detail = "" if same else f": first difference at line {_first_differing_line(before, now)}"
+            print(f"{'same' if same else 'DIFFERENT'} {tap_set} ({len(files)} files, {kernels}){detail}")
+    return 1 if differing else 0
+
+
+def _first_differing_line(before: bytes, now: bytes) -> int:
+    for number, (a, b) in enumerate(zip(before.splitlines(), now.splitlines()), start=1):
+        if a != b:
+            return number
+    return min(len(before.splitlines()), len(now.splitlines())) + 1
+
+
+def _smoke() -> int:
+    from tapcell.taplab.generate import generate_set
+
+    with tempfile.TemporaryDirectory() as tmp:
+        generate_set(Path(tmp) / "taps", seed=1, taps_per_scenario=1)
+        tap_set = str(Path(tmp) / "taps")
+        record(str(Path(tmp) / "record"), [tap_set])
+        return check(str(Path(tmp) / "record"), [tap_set])
+
+
+def main(argv: list[str]) -> int:
+    if not argv:
+        return _smoke()
+    if len(argv) < 3 or argv[0] not in ("record", "check"):
+        print(__doc__, file=sys.stderr)
+        return 2
+    return (record if argv[0] == "record" else check)(argv[1], argv[2:])
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))

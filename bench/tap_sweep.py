@@ -1,0 +1,437 @@
+"""Robustness on physics nobody here has seen: taplab's physics swept one parameter at a time far
+outside its scenarios' ranges, each tap with its known truth, our analysis beside Kalico's (issue 21).
+
+Each case is taplab's clean HX717 tap (`taplab.generate.draw_tap`: 320 sps, 5 mm/s, 75 g, 2-6
+g/µm, a 1-8 µm toe) with ONE thing changed: the sample rate (40 / 160 / 1000 / 4000 sps), the
+probing or pullback speed, the bed's stiffness, the trigger force, the noise, the toe's width and
+shape, the unloading stiffness (hysteresis), a thermal ramp in time, the dwell, few samples in
+contact, the ADC's latency, a long conversion window, a pullback ending just after the break. A
+few cases take the reference taps (a generator we did not write) and change what a transform can
+change exactly: averaged in blocks (a slower sensor), a thermal ramp added.
+
+A generator we write is not evidence for an analysis we write: this sweep finds what breaks
+(a traceback, a hang, a silent failure, a clean tap rejected for a cause it does not show, a σ
+far from the error); its numbers are not targets to tune to.
+
+Per case: the taps rejected (%, the codes), the accepted taps' bias ± sd (µm against the truth),
+silent failures (valid and > 20 µm off, `taplab.benchmark.score`), rms(error / z_sigma_um), the
+worst |error| of a valid tap, the slowest tap (CPU ms); Kalico beside it (its TapAnalysis and
+classifier as `taplab.kalico` runs them, its decompression angle calibrated per case, as a printer
+calibrates on its own taps). Crashes and hangs (a tap over HANG_S of CPU) are counted as
+TRACEBACK / HANG rejections and listed.
+
+Run: .venv/bin/python -m bench tap_sweep [--per-case N] [--seed N] [--cases a,b] [--no-kalico]
+     [--reference DIR]  (default 20 taps a case, seed 1, the reference taps beside the repository)
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import json
+import math
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from tapcell.tap import TapFileError, analyze_tap
+from tapcell.tap.readers import tap_from_object
+from tapcell.taplab.benchmark import (SRC_DIR, Label, Run, Score, default_reference_archive, kalico_python,
+                                      read_labels, reference_set, score)
+from tapcell.taplab.generate import TapSpec, draw_contact, draw_tap, make_tap
+from tapcell.taplab.sensor import Adc
+
+HANG_S = 5.0  # one tap's analysis taking longer than this (wall) is a hang
+SILENT_UM = 20.0
+
+
+@dataclass(frozen=True)
+class SweepAdc(Adc):
+    """taplab's ADC with its conversion window set (periods; 0: the kind's own)."""
+
+    window: int = 0
+
+    @property
+    def window_periods(self) -> int:
+        return self.window or super().window_periods
+
+
+@dataclass(frozen=True)
+class SweepSpec(TapSpec):
+    """taplab's tap with the pullback speed set (mm/s; 0: taplab's 1 µm a sample)."""
+
+    pullback_mm_s: float = 0.0
+
+    @property
+    def pullback_speed_mm_s(self) -> float:
+        return self.pullback_mm_s or super().pullback_speed_mm_s
+
+
+def _adc(rng: np.random.Generator, sps: float, white: tuple[float, float], kind: str = "hx717", window: int = 0,
+         latency: tuple[float, float] = (0.0, 0.25)) -> SweepAdc:
+    return SweepAdc(kind=kind, nominal_sps=sps, clock_error=float(rng.uniform(-0.04, 0.04)),
+                    latency_periods=float(rng.uniform(*latency)), jitter_s=float(rng.uniform(5e-6, 30e-6)),
+                    white_g=float(rng.uniform(*white)), pink_g=float(rng.uniform(0.1, 0.5)),
+                    counts_per_gram=float(rng.uniform(200.0, 1000.0)), window=window)
+
+
+def _clean(rng: np.random.Generator, **changes) -> SweepSpec:
+    """taplab's clean HX717 tap (its draws, in its order) with `changes` made after them."""
+    spec = draw_tap(rng)
+    return SweepSpec(**{**{f.name: getattr(spec, f.name) for f in dataclasses.fields(spec)}, **changes})
+
+
+def _contact(**changes) -> Callable[[np.random.Generator], SweepSpec]:
+    def draw(rng):
+        spec = _clean(rng)
+        return replace(spec, contact=replace(spec.contact, **changes))
+    return draw
+
+
+def _noise(factor: float) -> Callable[[np.random.Generator], SweepSpec]:
+    def draw(rng):
+        spec = _clean(rng)
+        return replace(spec, adc=replace(spec.adc, white_g=spec.adc.white_g * factor, pink_g=spec.adc.pink_g * factor))
+    return draw
+
+
+def _rate(sps: float, speed_mm_s: float, white: tuple[float, float], kind: str = "hx717", window: int = 0,
+          approach: tuple[float, float] = (0.5, 1.5)) -> Callable[[np.random.Generator], SweepSpec]:
+    def draw(rng):
+        spec = _clean(rng)
+        return replace(spec, adc=_adc(rng, sps, white, kind, window), approach_speed_mm_s=speed_mm_s,
+                       approach_mm=float(rng.uniform(*approach)))
+    return draw
+
+
+def _latency(periods: float) -> Callable[[np.random.Generator], SweepSpec]:
+    def draw(rng):
+        spec = _clean(rng)
+        return replace(spec, adc=replace(spec.adc, latency_periods=periods))
+    return draw
+
+
+def _set(**changes) -> Callable[[np.random.Generator], SweepSpec]:
+    return lambda rng: _clean(rng, **changes)
+
+
+@dataclass(frozen=True)
+class Case:
+    name: str
+    title: str
+    expect: str  # "accept": clean physics a good analysis measures; "either": rejecting is honest too
+    draw: Callable[[np.random.Generator], SweepSpec] | None = None
+    thermal_g_per_s: float = 0.0  # a ramp in time added to the force (heating, either sign per tap)
+    reference: tuple[str, int] | None = None  # (reference scenario, samples averaged per block)
+
+
+# Noise at the other rates: the HX717's 0.5-1 g at 320 sps scaled as the square root of the rate.
+CASES = [Case(*row[:3], **(row[3] if len(row) > 3 else {})) for row in (
+    ("base", "taplab clean HX717 320 sps (anchor)", "accept", {"draw": _set()}),
+    ("sps40", "40 sps, 1 mm/s", "accept", {"draw": _rate(40, 1.0, (0.18, 0.35), approach=(0.3, 0.6))}),
+    ("sps160", "160 sps, 5 mm/s", "accept", {"draw": _rate(160, 5.0, (0.35, 0.7))}),
+    ("sps1000", "1000 sps sinc3, 5 mm/s", "accept", {"draw": _rate(1000, 5.0, (0.9, 1.8), kind="ads1220")}),
+    ("sps4000", "4000 sps sinc3, 5 mm/s", "accept", {"draw": _rate(4000, 5.0, (1.8, 3.5), kind="ads1220")}),
+    ("probe0.5", "probing 0.5 mm/s", "accept", {"draw": _set(approach_speed_mm_s=0.5, approach_mm=0.2)}),
+    ("probe10", "probing 10 mm/s", "accept", {"draw": _set(approach_speed_mm_s=10.0)}),
+    ("pull0.5", "pullback 0.5 mm/s (1.6 µm/sample)", "accept", {"draw": _set(pullback_mm_s=0.5)}),
+    ("pull2", "pullback 2 mm/s (6 µm/sample)", "accept", {"draw": _set(pullback_mm_s=2.0)}),
+    ("pull10", "pullback 10 mm/s (31 µm/sample)", "either",
+     {"draw": _set(pullback_mm_s=10.0, pullback_accel_mm_s2=5000.0)}),
+    ("k0.3", "bed 0.3 g/µm, pullback 2.5x overtravel", "accept",
+     {"draw": lambda rng: replace(_contact(stiffness_g_um=0.3)(rng), pullback_over_travel=2.5)}),
+    ("k1", "bed 1 g/µm", "accept", {"draw": _contact(stiffness_g_um=1.0)}),
+    ("k20", "bed 20 g/µm", "accept", {"draw": _contact(stiffness_g_um=20.0)}),
+    ("k200", "bed 200 g/µm", "accept", {"draw": _contact(stiffness_g_um=200.0)}),
+    ("trig30", "trigger 30 g", "accept", {"draw": _set(trigger_g=30.0)}),
+    ("trig300", "trigger 300 g", "accept", {"draw": _set(trigger_g=300.0)}),
+    ("noise0.3", "noise x0.3", "accept", {"draw": _noise(0.3)}),
+    ("noise5", "noise x5", "accept", {"draw": _noise(5.0)}),
+    ("toe0", "no toe (a hinge)", "accept", {"draw": _contact(onset_um=0.01)}),
+    ("toe15", "toe 15 µm", "accept", {"draw": _contact(onset_um=15.0)}),
+    ("toe30", "toe 30 µm", "accept", {"draw": _contact(onset_um=30.0)}),
+    ("toeHertz", "Hertzian toe 8 µm", "accept", {"draw": _contact(onset_um=8.0, onset_power=0.5, onset_blend=0.0)}),
+    ("toeSmooth", "smoothstep toe 8 µm", "accept", {"draw": _contact(onset_um=8.0, onset_blend=1.0)}),
+    ("unload0.7", "unloading 0.7x loading", "accept", {"draw": _contact(unload_ratio=0.7)}),
+    ("unload1.3", "unloading 1.3x loading", "accept", {"draw": _contact(unload_ratio=1.3)}),
+    ("relax10", "relaxing 10 %", "accept", {"draw": _contact(relax_fraction=(0.10,), relax_tau_s=(0.2,))}),
+    ("ramp0.5", "thermal ramp 0.5 g/s", "accept", {"draw": _set(), "thermal_g_per_s": 0.5}),
+    ("ramp5", "thermal ramp 5 g/s", "accept", {"draw": _set(), "thermal_g_per_s": 5.0}),
+    ("dwell0", "dwell 0 s", "accept", {"draw": _set(dwell_s=0.0)}),
+    ("dwell2", "dwell 2 s", "accept", {"draw": _set(dwell_s=2.0)}),
+    ("fewcontact", "80 sps at 5 mm/s on 10 g/µm", "either",
+     {"draw": lambda rng: replace(_rate(80, 5.0, (0.3, 0.6))(rng), contact=draw_contact(rng, stiffness=(10, 10)))}),
+    ("lat0", "ADC latency 0", "accept", {"draw": _latency(0.0)}),
+    ("lat3", "ADC latency 3 samples", "accept", {"draw": _latency(3.0)}),
+    ("lat4", "ADC latency 4 samples", "accept", {"draw": _latency(4.0)}),
+    ("sinc3_320", "sinc3 window at 320 sps", "accept", {"draw": _rate(320, 5.0, (0.5, 1.0), kind="ads1220")}),
+    ("sinc3_80", "sinc3 window at 80 sps, 2 mm/s", "accept",
+     {"draw": _rate(80, 2.0, (0.3, 0.6), kind="ads1220", approach=(0.3, 0.8))}),
+    ("win6", "6-period window at 320 sps", "accept", {"draw": _rate(320, 5.0, (0.5, 1.0), window=6)}),
+    ("endbreak1.3", "pullback ends at 1.25-1.4x overtravel", "accept",
+     {"draw": lambda rng: _clean(rng, pullback_over_travel=float(rng.uniform(1.25, 1.4)))}),
+    ("endbreak1.1", "pullback ends at 1.08-1.18x overtravel", "either",
+     {"draw": lambda rng: _clean(rng, pullback_over_travel=float(rng.uniform(1.08, 1.18)))}),
+    ("hum40", "strong mains hum at 40 sps (aliased)", "accept",
+     {"draw": lambda rng: replace(_rate(40, 1.0, (0.18, 0.35), approach=(0.3, 0.6))(rng), hum_g=(4.0, 1.0, 1.0))}),
+    ("hum4000", "strong mains hum at 4000 sps", "accept",
+     {"draw": lambda rng: replace(_rate(4000, 5.0, (1.8, 3.5), kind="ads1220")(rng), hum_g=(4.0, 1.0, 1.0))}),
+    ("cable40", "cable drift 30 g/mm at 40 sps", "accept",
+     {"draw": lambda rng: replace(_rate(40, 1.0, (0.18, 0.35), approach=(0.3, 0.6))(rng), drift_g_per_mm=30.0)}),
+    ("ring4000", "gantry ringing at 4000 sps", "accept",
+     {"draw": lambda rng: replace(_rate(4000, 5.0, (1.8, 3.5), kind="ads1220")(rng), ring_g_per_mm_s=1.5)}),
+    ("ring2000", "gantry ringing at 2000 sps", "accept",
+     {"draw": lambda rng: replace(_rate(2000, 5.0, (0.7, 1.4), kind="ads1220")(rng), ring_g_per_mm_s=1.5)}),
+    ("ref_hx717x4", "reference HX717, 4 samples averaged (80 sps)", "accept", {"reference": ("clean_hx717", 4)}),
+    ("ref_2000x8", "reference ADS1220 2000, 8 averaged (250 sps)", "accept",
+     {"reference": ("clean_ads1220_2000", 8)}),
+    ("ref_ramp5", "reference HX717 + thermal ramp 5 g/s", "accept",
+     {"reference": ("clean_hx717", 1), "thermal_g_per_s": 5.0}),
+)]
+
+
+def _with_ramp(tap: dict, g_per_s: float, rng: np.random.Generator) -> dict:
+    """The tap with a thermal ramp in time added to its force (either sign, drawn per tap)."""
+    if not g_per_s:
+        return tap
+    t = np.asarray(tap["time"], dtype=float)
+    ramp = float(rng.choice((-1.0, 1.0))) * g_per_s * (t - t[0])
+    return {**tap, "force": [round(float(f), 5) for f in np.asarray(tap["force"], dtype=float) + ramp]}
+
+
+def _averaged(tap: dict, block: int) -> dict:
+    """The tap as a sensor `block` times slower sees it: each block's mean force, stamped at its last sample."""
+    if block <= 1:
+        return tap
+    n = len(tap["time"]) // block * block
+    t = np.asarray(tap["time"][:n], dtype=float).reshape(-1, block)[:, -1]
+    f = np.asarray(tap["force"][:n], dtype=float).reshape(-1, block).mean(axis=1)
+    out = {**tap, "time": [float(v) for v in t], "force": [round(float(v), 5) for v in f]}
+    if isinstance(tap.get("z"), list):  # the commanded Z where each block is stamped
+        out["z"] = tap["z"][block - 1:n:block]
+    if tap.get("sample_rate"):
+        out["sample_rate"] = float(tap["sample_rate"]) / block
+    return out
+
+
+def case_taps(case: Case, seed: int, count: int, reference_dir: Path | None) -> list[tuple[dict, float]]:
+    """(tap object, true contact Z in mm) for one case; deterministic from the seed."""
+    taps = []
+    if case.reference is not None:
+        if reference_dir is None:
+            return []
+        scenario, block = case.reference
+        labels = [label for label in read_labels(reference_dir) if label.scenario == scenario][:count]
+        rng = np.random.default_rng([seed, 7])
+        for label in labels:
+            tap = json.loads((reference_dir / label.file).read_text(encoding="utf-8"))
+            tap = {key: value for key, value in tap.items() if key not in ("truth", "meta")}
+            taps.append((_with_ramp(_averaged(tap, block), case.thermal_g_per_s, rng), label.z_contact_mm))
+        return taps
+    for k in range(count):
+        rng = np.random.default_rng([seed, 99, k])  # the same draws in every case: one parameter differs
+        spec = case.draw(rng)
+        tap, truth = make_tap(spec, rng)
+        taps.append((_with_ramp(tap, case.thermal_g_per_s, rng), truth["z_contact"]))
+    return taps
+
+
+class _Hang(Exception):
+    pass
+
+
+def _alarm(_signum, _frame):
+    raise _Hang
+
+
+def analyse_in_process(tap: dict) -> dict:
+    """Our analysis on one tap object: its JSON, or a TRACEBACK / HANG answer."""
+    previous = signal.signal(signal.SIGALRM, _alarm)
+    signal.setitimer(signal.ITIMER_REAL, HANG_S)
+    try:
+        return analyze_tap(tap_from_object(tap)).to_json()
+    except TapFileError as problem:  # the reader refusing a tap is an answer, not a crash
+        return {"valid": False, "error": "UNREADABLE", "message": str(problem), "z": None}
+    except _Hang:
+        return {"valid": False, "error": "HANG", "message": f"over {HANG_S} s", "z": None}
+    except Exception as problem:  # noqa: BLE001 -- the sweep's job is to count them
+        where = traceback.extract_tb(problem.__traceback__)[-1]
+        return {"valid": False, "error": "TRACEBACK", "z": None,
+                "message": f"{type(problem).__name__}: {problem} ({Path(where.filename).name}:{where.lineno})"}
+    finally:
+        signal.setitimer(signal.ITIMER_REAL, 0.0)
+        signal.signal(signal.SIGALRM, previous)
+
+
+# Kalico's runner (taplab.kalico's functions, run in Kalico's venv): per group of files, the
+# decompression angle calibrated on the group, then each tap analysed.
+_KALICO_GROUPS = """
+import json, sys
+from tapcell.taplab import kalico
+modules = kalico._load_kalico()
+out = []
+for group in json.load(sys.stdin):
+    taps = [(name, json.load(open(name, encoding="utf-8"))) for name in group]
+    angles = kalico.calibrate_angles([tap for _, tap in taps], modules)
+    for name, tap in taps:
+        result = kalico.analyse(tap, angles.get(kalico._rate_key(tap)), modules)
+        result.pop("angle")
+        out.append({"file": name, **result})
+json.dump(out, sys.stdout)
+"""
+
+
+def run_kalico(python: Path, groups: list[list[Path]]) -> dict[str, dict] | str:
+    """Kalico's answers by file name, or why there are none."""
+    done = subprocess.run([str(python), "-c", _KALICO_GROUPS], input=json.dumps([[str(p) for p in g] for g in groups]),
+                          capture_output=True, text=True, env={"PYTHONPATH": str(SRC_DIR)}, check=False)
+    try:
+        return {Path(a["file"]).name: a for a in json.loads(done.stdout)}
+    except json.JSONDecodeError:
+        return (done.stderr.strip().splitlines() or ["no output"])[-1]
+
+
+@dataclass
+class CaseResult:
+    case: Case
+    ours: Score
+    kalico: Score | None
+    worst_um: float | None  # the worst |error| of a valid tap
+    slowest_ms: float
+    crashes: list[str]
+
+
+def sweep(cases: list[Case], seed: int, count: int, reference_dir: Path | None,
+          kalico: Path | None, scratch: Path) -> list[CaseResult]:
+    labels: list[Label] = []
+    ours: dict[str, dict] = {}
+    groups: list[list[Path]] = []
+    for case in cases:
+        group = []
+        for k, (tap, z_mm) in enumerate(case_taps(case, seed, count, reference_dir)):
+            name = f"{case.name}-{k:03d}.json"
+            labels.append(Label(name, case.name, case.expect, z_mm))
+            ours[name] = analyse_in_process(tap)
+            if kalico is not None:
+                path = scratch / name
+                path.write_text(json.dumps(tap), encoding="utf-8")
+                group.append(path)
+        groups.append(group)
+    scored = score(Run("tapcell", ours, 0.0, 0.0), labels)
+    kalico_scored = None
+    if kalico is not None:
+        answers = run_kalico(kalico, [g for g in groups if g])
+        if isinstance(answers, str):
+            print(f"Kalico: {answers}; left out", file=sys.stderr)
+        else:
+            kalico_scored = score(Run("kalico", answers, 0.0, 0.0), labels)
+    results = []
+    for case in cases:
+        if case.name not in scored:
+            continue
+        s = scored[case.name]
+        mine = [label.file for label in labels if label.scenario == case.name]
+        crashes = [f"{f}: {ours[f]['message']}" for f in mine if ours[f].get("error") in ("TRACEBACK", "HANG")]
+        results.append(CaseResult(case, s, kalico_scored[case.name] if kalico_scored else None,
+                                  float(np.max(np.abs(s.errors))) if s.errors_um else None,
+                                  max(float(ours[f].get("cpu_ms") or 0.0) for f in mine), crashes))
+    return results
+
+
+def _bias(s: Score | None) -> str:
+    if s is None or not s.errors_um:
+        return "-"
+    return f"{s.bias_um:+.2f} ± {s.sigma_um or 0.0:.2f}"
+
+
+def _codes(s: Score) -> str:
+    return ",".join(f"{code.replace('TAP_', '')}:{n}" for code, n in s.codes.most_common(3)) or "-"
+
+
+def print_results(results: list[CaseResult]) -> None:
+    header = (f"{'case':<13} {'physics':<44} {'expect':<6} | {'rej %':>5} {'bias ± sd µm':>14} {'silent':>6} "
+              f"{'e/σ rms':>7} {'worst':>6} {'ms':>5} {'rejected as':<40} | {'Kalico rej %':>12} {'bias ± sd µm':>14} "
+              f"{'silent':>6}")
+    print(header)
+    print("-" * len(header))
+    for r in results:
+        s, k = r.ours, r.kalico
+        rms = "-" if s.sigma_rms is None else f"{s.sigma_rms:.2f}"
+        worst = "-" if r.worst_um is None else f"{r.worst_um:.1f}"
+        kal = f"{k.rejected_percent:>12.0f} {_bias(k):>14} {k.silent:>6}" if k else f"{'-':>12} {'-':>14} {'-':>6}"
+        print(f"{r.case.name:<13} {r.case.title[:44]:<44} {r.case.expect:<6} | {s.rejected_percent:>5.0f} "
+              f"{_bias(s):>14} {s.silent:>6} {rms:>7} {worst:>6} {r.slowest_ms:>5.1f} {_codes(s)[:40]:<40} | {kal}")
+    print()
+    flags = findings(results)
+    print("findings (what the sweep shows, by priority):" if flags else "findings: none")
+    for line in flags:
+        print(f"  {line}")
+
+
+def findings(results: list[CaseResult]) -> list[str]:
+    """What needs a look, most serious first: crashes and hangs, silent failures, clean taps
+    rejected, a σ far from the error on a clean case."""
+    out = []
+    for r in results:
+        out += [f"(1) {r.case.name}: {c}" for c in r.crashes[:3]]
+    for r in results:
+        if r.ours.silent:
+            out.append(f"(2) {r.case.name}: {r.ours.silent} silent failure(s), worst {r.worst_um:.1f} µm")
+    for r in results:
+        if r.case.expect == "accept" and r.ours.rejected_percent > 1.0:
+            out.append(f"(3) {r.case.name}: {r.ours.rejected_percent:.0f} % of clean taps rejected ({_codes(r.ours)})")
+    for r in results:
+        rms = r.ours.sigma_rms
+        if r.case.expect == "accept" and rms is not None and rms > 2.0:
+            out.append(f"(4) {r.case.name}: rms(e/σ) {rms:.2f}")
+    return out
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="python -m bench tap_sweep", description=__doc__.split("\n\n")[0])
+    parser.add_argument("--per-case", type=int, default=20, metavar="N", help="taps per case (default 20)")
+    parser.add_argument("--seed", type=int, default=1)
+    parser.add_argument("--cases", help="comma-separated case names (default: all)")
+    parser.add_argument("--no-kalico", action="store_true", help="leave Kalico out")
+    parser.add_argument("--reference", metavar="DIR", help="the unpacked reference taps (default: the archive "
+                        "beside the repository, unpacked to a temporary directory)")
+    return parser
+
+
+def main(argv: list[str]) -> int:
+    args = _parser().parse_args(argv)
+    cases = CASES
+    if args.cases:
+        wanted = args.cases.split(",")
+        unknown = [n for n in wanted if n not in {c.name for c in CASES}]
+        if unknown:
+            print(f"tap_sweep: unknown case(s) {', '.join(unknown)}; known: {', '.join(c.name for c in CASES)}",
+                  file=sys.stderr)
+            return 2
+        cases = [c for c in CASES if c.name in wanted]
+    kalico = None if args.no_kalico else kalico_python(None)
+    started = time.perf_counter()
+    with tempfile.TemporaryDirectory(prefix="tap-sweep-") as scratch:
+        source = Path(args.reference) if args.reference else default_reference_archive()
+        found = reference_set(source, Path(scratch) / "reference") if source.exists() else None
+        if found is None and any(c.reference for c in cases):
+            print(f"reference taps: {source} not found; the reference cases are left out")
+        taps = Path(scratch) / "taps"
+        taps.mkdir()
+        results = sweep(cases, args.seed, args.per_case, found.directory if found else None, kalico, taps)
+    print(f"tap sweep: {args.per_case} taps a case, seed {args.seed}; Kalico: "
+          f"{kalico if kalico else 'left out'}; {time.perf_counter() - started:.0f} s")
+    print_results(results)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
