@@ -33,7 +33,9 @@ the taps agree on a toe, the narrower it gets (0.08-0.9 µm over taplab's ADS122
 levels err by 0.5 µm rms), while whether the toe family holds the bed's toe no number of taps of
 the same toe can tell. So the pooled sigma follows the taps' own: as honest as theirs.
 
-Measured by `python -m bench tap_pool` (both session sets, beside Kalico; docs/tap-analysis.md).
+Measured by `python -m bench tap_pool` (both session sets, beside Kalico; docs/tap-analysis.md), and
+with `--floor` against the floor of a pool that knew the shared physics exactly: 0.5x Kalico is at
+or below that floor on the HX711 sessions ("The pool's floor" in docs/tap-analysis.md).
 """
 
 from __future__ import annotations
