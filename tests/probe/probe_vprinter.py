@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tapcell.host.gcode import GCodeError
 from tapcell.host.printer import Printer
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "virtual-printer.cfg"
@@ -67,3 +68,15 @@ def true_peak_force_g(printer: Printer, since_s: float | None = None) -> float:
     start_s = printer.homed_at_s if since_s is None else since_s
     _, force_g = printer.backend.truth.force_g(start_s, printer.backend.now_s)
     return float(np.max(np.abs(force_g)))
+
+
+def run_measured(printer: Printer, script: str) -> tuple[str | None, float, float]:
+    """(error or None, true peak force in g, nozzle clearance in mm after it) of `script`."""
+    truth = printer.backend.truth
+    truth.take_peak_force_g()
+    try:
+        printer.gcode.run_script(script)
+        error = None
+    except GCodeError as exc:
+        error = str(exc)
+    return error, truth.take_peak_force_g(), truth.nozzle_clearance_mm

@@ -9,11 +9,10 @@ from pathlib import Path
 
 import pytest
 
-from probe_vprinter import make_printer
+from probe_vprinter import make_printer, run_measured
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # tests/machines.py
 from machines import gcode_error  # noqa: E402
-from tapcell.host.gcode import GCodeError  # noqa: E402
 
 ENABLED = "\n[force_move]\nenable_force_move: True\n"
 FORCE_SAFETY_LIMIT_G = 2000.0
@@ -76,27 +75,15 @@ def test_corexy_steppers_move_both_axes_by_half(tmp_path):
     assert (x1 - x0, y1 - y0) == pytest.approx((5.0, -5.0), abs=1e-6)
 
 
-def run(printer, script: str) -> tuple[str | None, float, float]:
-    """(error or None, true peak force in g, nozzle clearance in mm after it) of `script`."""
-    truth = printer.backend.truth
-    truth.take_peak_force_g()
-    try:
-        printer.gcode.run_script(script)
-        error = None
-    except GCodeError as exc:
-        error = str(exc)
-    return error, truth.take_peak_force_g(), truth.nozzle_clearance_mm
-
-
 def test_a_stepper_moved_into_the_bed_is_stopped_by_the_watch(tmp_path):
     """Without the watch FORCE_MOVE 2.5 mm down from 1 mm presses kilograms into the bed and stays
     there; with it the move stops below force_safety_limit and the nozzle is lifted."""
     script = "G1 Z1 F600\nFORCE_MOVE STEPPER=stepper_z DISTANCE=-2.5 VELOCITY=5"
     off, _ = printer_with(tmp_path, "off", probe_options="nozzle_watch_height: 0")
-    error, peak_g, clearance_mm = run(off, script)
+    error, peak_g, clearance_mm = run_measured(off, script)
     assert error is None and peak_g > FORCE_SAFETY_LIMIT_G and clearance_mm < -1.0
     on, _ = printer_with(tmp_path, "on")
-    error, peak_g, clearance_mm = run(on, script)
+    error, peak_g, clearance_mm = run_measured(on, script)
     assert error is not None and error.startswith(COLLISION), error
     assert "during 'FORCE_MOVE STEPPER=stepper_z DISTANCE=-2.5 VELOCITY=5'" in error
     assert peak_g < FORCE_SAFETY_LIMIT_G and clearance_mm > 0.0
@@ -110,7 +97,7 @@ def test_a_buzz_near_the_bed_runs_watched(tmp_path):
     printer.gcode.run_script("G1 Z0.5 F600")
     watch = printer.lookup_object("toolhead").nozzle_watch
     watched_before = watch.watched_moves
-    error, peak_g, clearance_mm = run(printer, "STEPPER_BUZZ STEPPER=stepper_z")
+    error, peak_g, clearance_mm = run_measured(printer, "STEPPER_BUZZ STEPPER=stepper_z")
     assert error is None and watch.watched_moves - watched_before == 10
     assert clearance_mm == pytest.approx(0.5, abs=0.05) and peak_g < 50.0
     assert "z" in printer.lookup_object("toolhead").homed_axes

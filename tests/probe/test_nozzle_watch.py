@@ -15,12 +15,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from probe_vprinter import make_printer
+from probe_vprinter import make_printer, run_measured
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2]))  # the bench package beside tests/
 from bench.nozzle_watch import bump_csv  # noqa: E402  (after the path)
 from tapcell.extras.load_cell_probe.watch import DEFAULT_FORCE_G, is_watched, read_watch_options  # noqa: E402
-from tapcell.host.gcode import GCodeError  # noqa: E402
 
 FORCE_SAFETY_LIMIT_G = 2000.0
 WATCH_OFF = "nozzle_watch_height: 0"
@@ -31,18 +30,6 @@ def printer_in(folder, **options):
     folder.mkdir()
     printer, _ = make_printer(folder, **options)
     return printer
-
-
-def run(printer, script: str) -> tuple[str | None, float, float]:
-    """(error or None, true peak force in g, nozzle clearance in mm after it) of `script`."""
-    truth = printer.backend.truth
-    truth.take_peak_force_g()
-    try:
-        printer.gcode.run_script(script)
-        error = None
-    except GCodeError as exc:
-        error = str(exc)
-    return error, truth.take_peak_force_g(), truth.nozzle_clearance_mm
 
 
 def assert_stopped(error, peak_g, clearance_mm, command: str):
@@ -56,10 +43,10 @@ def test_offset_below_the_bed_is_stopped(tmp_path):
     """SET_GCODE_OFFSET Z=-1.9 then G1 Z0.1: 6,085 g and 1.83 mm into the bed without the watch."""
     script = "SET_GCODE_OFFSET Z=-1.9\nG1 Z0.1 F600"
     off = printer_in(tmp_path / "off", probe_options=WATCH_OFF)
-    error, peak_g, clearance_mm = run(off, script)
+    error, peak_g, clearance_mm = run_measured(off, script)
     assert error is None and peak_g > 3 * FORCE_SAFETY_LIMIT_G and clearance_mm < -1.8
     on = printer_in(tmp_path / "on")
-    error, peak_g, clearance_mm = run(on, script)
+    error, peak_g, clearance_mm = run_measured(on, script)
     assert_stopped(error, peak_g, clearance_mm, "'G1 Z0.1 F600'")
     # Measured 366 g: the first sample past 250 g (the trigger), plus one sample of travel at 10 mm/s.
     assert peak_g < 2 * DEFAULT_FORCE_G
@@ -72,10 +59,10 @@ def test_deactivate_gcode_below_the_bed_is_stopped(tmp_path):
     """`deactivate_gcode: G1 Z-1.5`: about 5 kg after every G28 without the watch."""
     options = "deactivate_gcode: G1 Z-1.5 F600"
     off = printer_in(tmp_path / "off", probe_options=f"{options}\n{WATCH_OFF}", home=False)
-    error, peak_g, clearance_mm = run(off, "G28")
+    error, peak_g, clearance_mm = run_measured(off, "G28")
     assert error is None and peak_g > 2 * FORCE_SAFETY_LIMIT_G and clearance_mm < -1.4
     on = printer_in(tmp_path / "on", probe_options=options, home=False)
-    error, peak_g, clearance_mm = run(on, "G28")
+    error, peak_g, clearance_mm = run_measured(on, "G28")
     assert_stopped(error, peak_g, clearance_mm, "'G1 Z-1.5 F600' in 'G28'")
 
 
@@ -85,10 +72,10 @@ def test_blob_between_mesh_points_is_stopped(tmp_path, height_mm):
     1,984 g (1.0 mm) and 3,649 g (1.5 mm) and a mesh reported done without the watch."""
     bed = bump_csv(tmp_path / "blob.csv", 66.0, 15.0, height_mm, 3.0)
     off = printer_in(tmp_path / "off", probe_options=WATCH_OFF, virtual_printer=bed)
-    error, peak_g, _ = run(off, "BED_MESH_CALIBRATE")
+    error, peak_g, _ = run_measured(off, "BED_MESH_CALIBRATE")
     assert error is None and peak_g > 0.95 * FORCE_SAFETY_LIMIT_G
     on = printer_in(tmp_path / "on", virtual_printer=bed)
-    error, peak_g, clearance_mm = run(on, "BED_MESH_CALIBRATE")
+    error, peak_g, clearance_mm = run_measured(on, "BED_MESH_CALIBRATE")
     assert_stopped(error, peak_g, clearance_mm, "'BED_MESH_CALIBRATE'")
     assert on.lookup_object("bed_mesh").mesh is None  # no mesh from the stopped command
     x = float(error[len(COLLISION):].split(",")[0])
@@ -102,7 +89,7 @@ def test_steep_blob_is_stopped_below_the_limit_at_any_sample_rate(tmp_path, scen
     at which the trigger stops a 45-degree flank in time: 627 g and 1,298 g."""
     bed = bump_csv(tmp_path / "blob.csv", 66.0, 15.0, 1.5, 1.5)
     on = printer_in(tmp_path / "on", scenario=scenario, virtual_printer=bed)
-    error, peak_g, clearance_mm = run(on, "BED_MESH_CALIBRATE")
+    error, peak_g, clearance_mm = run_measured(on, "BED_MESH_CALIBRATE")
     assert_stopped(error, peak_g, clearance_mm, "'BED_MESH_CALIBRATE'")
     assert peak_g < 0.7 * FORCE_SAFETY_LIMIT_G
 
@@ -136,10 +123,10 @@ def test_local_warp_under_mesh_travel_is_stopped(tmp_path):
     """A bed bulging 1.3 mm between mesh points (a local warp the travel height cannot predict)."""
     bed = bump_csv(tmp_path / "warp.csv", 66.0, 15.0, 1.3, 6.0, gaussian=True)
     off = printer_in(tmp_path / "off", probe_options=WATCH_OFF, virtual_printer=bed)
-    error, peak_g, _ = run(off, "BED_MESH_CALIBRATE")
+    error, peak_g, _ = run_measured(off, "BED_MESH_CALIBRATE")
     assert error is None and peak_g > FORCE_SAFETY_LIMIT_G
     on = printer_in(tmp_path / "on", virtual_printer=bed)
-    error, peak_g, clearance_mm = run(on, "BED_MESH_CALIBRATE")
+    error, peak_g, clearance_mm = run_measured(on, "BED_MESH_CALIBRATE")
     assert_stopped(error, peak_g, clearance_mm, "'BED_MESH_CALIBRATE'")
 
 
@@ -184,7 +171,7 @@ def test_a_press_cannot_creep_up_in_small_steps(tmp_path):
     nozzle_watch_force): each is measured from the tare taken clear of the bed, not from the press
     the previous one left (tared on it, the steps would go on to the 2,000 g force window)."""
     printer = printer_in(tmp_path / "p")
-    error, peak_g, clearance_mm = run(printer, "G91\n" + "G1 Z-0.05 F60\nG4 P200\n" * 50)
+    error, peak_g, clearance_mm = run_measured(printer, "G91\n" + "G1 Z-0.05 F60\nG4 P200\n" * 50)
     assert_stopped(error, peak_g, clearance_mm, "'G1 Z-0.05 F60'")
     assert peak_g < 2 * DEFAULT_FORCE_G  # one step past 250 g at most
 
@@ -193,7 +180,7 @@ def test_a_saturated_sensor_in_a_watched_move_is_named_not_a_collision(tmp_path)
     printer = printer_in(tmp_path / "p")
     at_s = printer.backend.now_s + 0.3
     printer.gcode.run_script(f"SIM_FAULT NAME=saturation AT={at_s:.3f}")
-    error, peak_g, clearance_mm = run(printer, "G1 Z1 F60")
+    error, peak_g, clearance_mm = run_measured(printer, "G1 Z1 F60")
     assert error.startswith("Load Cell Probe Error: the load cell reading is at the end of the ADC's range (")
     assert error.endswith("during 'G1 Z1 F60')") and "nozzle watch stopped the move at 110.000,110.000,1." in error
     assert peak_g == 0.0 and clearance_mm > 1.0
