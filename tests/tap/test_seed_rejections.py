@@ -213,3 +213,18 @@ def test_a_two_sample_compression_is_no_pair_of_frames():
     rng = np.random.default_rng(7)
     ramp = np.concatenate([np.zeros(20), [40.0, 80.0], np.full(20, 120.0)]) + rng.normal(0.0, 0.8, 42)
     assert analysis.repair_spikes(ramp, 8.0)[1] == 0
+
+
+def test_a_real_dwell_ringing_two_samples_deep_is_no_pair_of_frames():
+    # The real Voron capture rings at the halt: samples 668-669 read -205.5 and -200.6 g, 8-13 g off
+    # the lines through the samples on either side (noise 0.7 g, threshold 5.6 g), but the samples
+    # four either side swing to -202 g too: no frame is repaired, as before the pair rule.
+    from pathlib import Path
+
+    import tapcell.taplab
+    from tapcell.tap import read_tap_file
+
+    real = Path(tapcell.taplab.__file__).with_name("real") / "voron24_workbench.json"
+    force = np.asarray(read_tap_file(real)[0].force_g, float)
+    assert force[668:670] == pytest.approx([-205.5, -200.6], abs=0.05)
+    assert analysis.repair_spikes(force, AnalysisOptions().outlier_sigma)[1] == 0

@@ -305,12 +305,18 @@ def _lone_spike_g(f: list[float], k: int, threshold: float) -> float:
     return outside_g if outside_g > threshold else 0.0
 
 
+PAIR_SPAN_SAMPLES = 4  # a pair of frames lies outside the samples this far on either side
+
+
 def _spike_pair_g(f: list[float], k: int, threshold: float) -> float:
     """How far the farther of samples k and k + 1 stands out when both lie outside what the samples
-    on either side reach, else 0."""
+    on either side reach, else 0. Two samples can swing together where one cannot: a real tap's
+    dwell rings (the Voron capture: two samples 8-13 g below their neighbours' lines, with noise
+    0.7 g), so a pair must also lie outside every value the four samples on either side take."""
     before, after = f[k - 1], f[k + 2]
     reach = (before, after, 2.0 * before - f[k - 2], 3.0 * before - 2.0 * f[k - 2],
-             2.0 * after - f[k + 3], 3.0 * after - 2.0 * f[k + 3])
+             2.0 * after - f[k + 3], 3.0 * after - 2.0 * f[k + 3],
+             *f[max(0, k - PAIR_SPAN_SAMPLES):k], *f[k + 2:k + 2 + PAIR_SPAN_SAMPLES])
     first_g, second_g = _outside_g(f[k], reach), _outside_g(f[k + 1], reach)
     if first_g > threshold and second_g > threshold:
         return max(first_g, second_g)

@@ -106,13 +106,19 @@ static double lone_spike_g(const double *f, Py_ssize_t n, Py_ssize_t k, double t
 }
 
 /* How far the farther of samples k and k + 1 stands out when both lie outside what the samples on
- * either side reach, else 0 (`_spike_pair_g`). */
-static double spike_pair_g(const double *f, Py_ssize_t k, double threshold)
+ * either side reach and every value the four samples on either side take, else 0 (`_spike_pair_g`). */
+#define PAIR_SPAN_SAMPLES 4 /* analysis.PAIR_SPAN_SAMPLES */
+
+static double spike_pair_g(const double *f, Py_ssize_t n, Py_ssize_t k, double threshold)
 {
     double before = f[k - 1], after = f[k + 2];
-    double reach[6] = {before, after, 2.0 * before - f[k - 2], 3.0 * before - 2.0 * f[k - 2],
-                       2.0 * after - f[k + 3], 3.0 * after - 2.0 * f[k + 3]};
-    double first_g = outside_g(f[k], reach, 6), second_g = outside_g(f[k + 1], reach, 6);
+    double reach[6 + 2 * PAIR_SPAN_SAMPLES] = {before, after, 2.0 * before - f[k - 2], 3.0 * before - 2.0 * f[k - 2],
+                                              2.0 * after - f[k + 3], 3.0 * after - 2.0 * f[k + 3]};
+    int count = 6;
+    for (Py_ssize_t j = k - PAIR_SPAN_SAMPLES; j < k; j++)
+        if (j >= 0) reach[count++] = f[j];
+    for (Py_ssize_t j = k + 2; j < k + 2 + PAIR_SPAN_SAMPLES && j < n; j++) reach[count++] = f[j];
+    double first_g = outside_g(f[k], reach, count), second_g = outside_g(f[k + 1], reach, count);
     if (first_g > threshold && second_g > threshold) return first_g > second_g ? first_g : second_g;
     return 0.0;
 }
@@ -143,7 +149,7 @@ static PyObject *found_spikes(const double *force_g, double *f, char *spike, Py_
         for (Py_ssize_t k = 2; k <= n - 4; k++) {
             if (!is_step(force_g, k - 1, threshold) || !is_step(force_g, k + 1, threshold)) continue;
             if (spike[k] || spike[k + 1]) continue;
-            double out_g = spike_pair_g(f, k, threshold);
+            double out_g = spike_pair_g(f, n, k, threshold);
             if (out_g > best_g) { best_g = out_g; best_k = k; best_width = 2; }
         }
         if (best_width == 0) break;
