@@ -121,3 +121,110 @@ def test_a_cable_walking_under_the_departure_is_no_soft_stage():
     both, approach = _split(tap).wanders
     assert approach.walk_var_g2 == 0.0 < both.walk_var_g2
     assert_measured(analyze_tap(tap), z_true_mm, limit_um=2.5)
+
+
+def corrupt_tap(seed: int, k: int):
+    """A corrupt-frames tap of a seed, its true contact Z (mm) and the frames the generator corrupted."""
+    rng = np.random.default_rng([seed, list(SCENARIOS).index("corrupt_frames") + 1, k])
+    tap, truth = make_tap(SCENARIOS["corrupt_frames"].draw(rng), rng)
+    return tap_from_object(tap), truth["z_contact"], truth["corrupt_indices"]
+
+
+# A frame corrupted on the ramp into the halt: its neighbours are a compression apart (60-120 g), so
+# they do not agree and the frame stood; the split took it for the compression. (seed, k, the
+# frame; seed 3 tap-0104 was LOW_TAP_QUALITY stiffness 69 %, seed 5 tap-0043 TAP_CHRONOLOGY)
+FRAME_ON_THE_RAMP = [(3, 26, 88), (5, 11, 64)]
+
+
+@pytest.mark.parametrize("seed, k, frame", FRAME_ON_THE_RAMP)
+def test_a_frame_corrupted_on_the_ramp_into_the_halt_is_repaired(seed, k, frame):
+    tap, z_true_mm, corrupted = corrupt_tap(seed, k)
+    force = np.asarray(tap.force_g, float)
+    before, spike, after = force[frame - 1:frame + 2]
+    # What let it stand: it is off its neighbours' midpoint by less than twice their gap...
+    assert abs(spike - 0.5 * (before + after)) < 2.0 * abs(after - before)
+    # ...though it lies 70-100 g beyond both neighbours, which no sample of a smooth curve does.
+    assert min(abs(spike - before), abs(spike - after)) > 60.0
+    repaired, count = analysis.repair_spikes(force, AnalysisOptions().outlier_sigma)
+    # Every frame the generator corrupted, and nothing else, is repaired.
+    assert np.flatnonzero(repaired != force).tolist() == corrupted and count == len(corrupted)
+    assert repaired[frame] == pytest.approx(0.5 * (before + after))
+    assert_measured(analyze_tap(tap), z_true_mm)
+
+
+def test_two_frames_corrupted_in_a_row_are_repaired():
+    # seed 5 corrupt frames k 33: frames 202 and 203 read -599 and -101 g in free air (noise 0.8 g).
+    # Each stood off its neighbours' midpoint by less than twice their gap (the other frame is one
+    # neighbour): 202 was "repaired" to -51 g from 203, 203 stayed; the departure line's misfit was
+    # 73 %: LOW_TAP_QUALITY.
+    tap, z_true_mm, corrupted = corrupt_tap(5, 33)
+    assert corrupted[-2:] == [202, 203]
+    force = np.asarray(tap.force_g, float)
+    repaired, count = analysis.repair_spikes(force, AnalysisOptions().outlier_sigma)
+    assert count == 3 and np.flatnonzero(repaired != force).tolist() == corrupted
+    # The pair is replaced by the line between the samples bracketing it.
+    step = (force[204] - force[201]) / 3.0
+    assert repaired[202:204] == pytest.approx([force[201] + step, force[201] + 2.0 * step])
+    assert_measured(analyze_tap(tap), z_true_mm)
+
+
+# A frame on the ramp whose honest neighbour, judged against the frame, lies outside the lines
+# through the samples either side too (seed 2 k 10: 17.3 g between 1.9 and a frame at -121 g). The
+# frame stands out the most and is repaired first; judged again, the neighbour is not one. Repaired
+# in time order, the neighbour was taken and these three taps were TAP_CHRONOLOGY. (seed, k)
+FRAME_BESIDE_AN_HONEST_RAMP_SAMPLE = [(2, 10), (8, 14), (9, 36)]
+
+
+@pytest.mark.parametrize("seed, k", FRAME_BESIDE_AN_HONEST_RAMP_SAMPLE)
+def test_the_frame_that_stands_out_most_is_repaired_first(seed, k):
+    tap, z_true_mm, corrupted = corrupt_tap(seed, k)
+    force = np.asarray(tap.force_g, float)
+    repaired, count = analysis.repair_spikes(force, AnalysisOptions().outlier_sigma)
+    assert np.flatnonzero(repaired != force).tolist() == corrupted and count == len(corrupted)
+    assert_measured(analyze_tap(tap), z_true_mm)
+
+
+def neighbours_agree_spikes(force: np.ndarray, threshold_sigma: float) -> list[int]:
+    """The repair's first rule alone (all it had before): off the neighbours' midpoint by more than
+    the threshold and by more than twice the neighbours' gap."""
+    off_mid = np.abs(force[1:-1] - 0.5 * (force[:-2] + force[2:]))
+    threshold = threshold_sigma * analysis.noise_sigma_g(force)
+    gap = np.abs(force[2:] - force[:-2])
+    return (np.flatnonzero((off_mid > threshold) & (off_mid > 2.0 * gap)) + 1).tolist()
+
+
+@pytest.mark.parametrize("phase", np.arange(0.0, 0.8, 0.05).round(2).tolist())
+def test_a_smooth_ringing_peak_is_no_frame(phase):
+    # A 40 Hz ring of 40 g decaying over 12 samples at 320 sps (8 samples a cycle) in free air (noise
+    # 0.8 g, threshold 8 sigma, 7 g): at phases 0.55-0.75 its first peak stands 7-11 g beyond both
+    # neighbours, but inside the lines through the two samples on either side carried one step on.
+    # The rules for a frame on a ramp and for a pair add nothing to the neighbours' rule (which
+    # takes a peak at phases 0.6-0.75 as it always did).
+    rng = np.random.default_rng(7)
+    n = np.arange(24)
+    ring = 40.0 * np.exp(-n / 12.0) * np.sin(2.0 * np.pi * n / 8.0 + phase)
+    force = np.concatenate([np.zeros(150), ring, np.zeros(150)]) + rng.normal(0.0, 0.8, 324)
+    repaired, count = analysis.repair_spikes(force, 8.0)
+    assert np.flatnonzero(repaired != force).tolist() == neighbours_agree_spikes(force, 8.0)
+
+
+def test_a_two_sample_compression_is_no_pair_of_frames():
+    # Between a free air and a dwell: each sample lies between its neighbours.
+    rng = np.random.default_rng(7)
+    ramp = np.concatenate([np.zeros(20), [40.0, 80.0], np.full(20, 120.0)]) + rng.normal(0.0, 0.8, 42)
+    assert analysis.repair_spikes(ramp, 8.0)[1] == 0
+
+
+def test_a_real_dwell_ringing_two_samples_deep_is_no_pair_of_frames():
+    # The real Voron capture rings at the halt: samples 668-669 read -205.5 and -200.6 g, 8-13 g off
+    # the lines through the samples on either side (noise 0.7 g, threshold 5.6 g), but the samples
+    # four either side swing to -202 g too: no frame is repaired, as before the pair rule.
+    from pathlib import Path
+
+    import tapcell.taplab
+    from tapcell.tap import read_tap_file
+
+    real = Path(tapcell.taplab.__file__).with_name("real") / "voron24_workbench.json"
+    force = np.asarray(read_tap_file(real)[0].force_g, float)
+    assert force[668:670] == pytest.approx([-205.5, -200.6], abs=0.05)
+    assert analysis.repair_spikes(force, AnalysisOptions().outlier_sigma)[1] == 0

@@ -225,12 +225,18 @@ def _noise_sigma_of(abs_off_mid: np.ndarray) -> float:
 
 
 def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarray, int]:
-    """Replace single corrupted frames by the mean of their neighbours.
+    """Replace corrupted frames, alone or two in a row, by what their neighbours say.
 
     A sample is a spike when it stands off the midpoint of its neighbours by more than
     `threshold_sigma` noise sigmas while the neighbours agree with each other (a step or a
-    steep ramp has neighbours far apart, so real edges are never touched). The noise sigma
-    comes from the median absolute second difference, which spikes cannot inflate.
+    steep ramp has neighbours far apart, so real edges are never touched), or when it stands that
+    far outside everything a smooth curve through the samples around it could reach: both
+    neighbours and the lines through the two samples on either side carried one step on (a frame
+    corrupted on the ramp into the halt, whose neighbours are a compression apart). Two frames in
+    a row are spikes when both stand that far outside the samples bracketing them and those lines
+    carried on. A spike is replaced by the mean of its neighbours, a pair by the line between the
+    samples bracketing it. The noise sigma comes from the median absolute second difference,
+    which spikes cannot inflate.
     """
     if _C is not None:
         spikes, repaired_g = _C.spikes(force_g, threshold_sigma)
@@ -245,15 +251,76 @@ def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarr
     noise_sigma = _noise_sigma_of(off_mid)
     scale = float(force_g.max() - force_g.min())  # only sets a floor far below any real spike
     threshold = max(threshold_sigma * noise_sigma, 1e-6 * scale, 1e-9)
-    # The neighbour test only for the few samples over the threshold (the corners, the spikes).
-    suspects = np.flatnonzero(off_mid > threshold) + 1
-    neighbour_gap = np.abs(force_g[suspects + 1] - force_g[suspects - 1])
-    spikes = suspects[off_mid[suspects - 1] > 2.0 * neighbour_gap]
-    if len(spikes) == 0:
+    # Only the few samples that stand off their neighbours' midpoint (the corners, the spikes) and
+    # the pairs between two steps are looked at. The one that stands out the most is repaired
+    # first, and the rest judged again against it: a frame's garbage must not make its honest
+    # neighbour look like one.
+    suspects = (np.flatnonzero(off_mid > threshold) + 1).tolist()
+    step = np.abs(np.diff(force_g)) > threshold  # step[j]: from sample j to j + 1
+    pairs = [k for k in (np.flatnonzero(step[:-2] & step[2:]) + 1).tolist() if 2 <= k <= len(force_g) - 4]
+    f = force_g.tolist()
+    spikes: list[int] = []
+    while True:
+        best_g, best_k, best_width = 0.0, 0, 0
+        for width, candidates, stands_out in ((1, suspects, _lone_spike_g), (2, pairs, _spike_pair_g)):
+            for k in candidates:
+                if k in spikes or k + width - 1 in spikes:
+                    continue
+                out_g = stands_out(f, k, threshold)
+                if out_g > best_g:
+                    best_g, best_k, best_width = out_g, k, width
+        if best_width == 0:
+            break
+        k = best_k
+        if best_width == 1:
+            f[k] = 0.5 * (f[k - 1] + f[k + 1])
+        else:
+            gap = f[k + 2] - f[k - 1]
+            f[k], f[k + 1] = f[k - 1] + gap / 3.0, f[k - 1] + 2.0 * gap / 3.0
+        spikes += range(k, k + best_width)
+    if not spikes:
         return force_g, 0
+    spikes.sort()
     repaired = force_g.copy()
-    repaired[spikes] = 0.5 * (force_g[spikes - 1] + force_g[spikes + 1])
+    repaired[spikes] = [f[k] for k in spikes]
     return repaired, len(spikes)
+
+
+def _outside_g(value: float, reach: tuple[float, ...]) -> float:
+    """How far value lies outside the span of the reach (negative inside it)."""
+    return max(value - max(reach), min(reach) - value)
+
+
+def _lone_spike_g(f: list[float], k: int, threshold: float) -> float:
+    """How far sample k stands out when it is a lone spike, else 0."""
+    before, after = f[k - 1], f[k + 1]
+    off_mid = abs(f[k] - 0.5 * (before + after))  # again: a neighbour may have been repaired
+    if off_mid <= threshold:
+        return 0.0
+    if off_mid > 2.0 * abs(after - before):
+        return off_mid  # its neighbours agree with each other
+    if k < 2 or k > len(f) - 3:
+        return 0.0
+    outside_g = _outside_g(f[k], (before, after, 2.0 * before - f[k - 2], 2.0 * after - f[k + 2]))
+    return outside_g if outside_g > threshold else 0.0
+
+
+PAIR_SPAN_SAMPLES = 4  # a pair of frames lies outside the samples this far on either side
+
+
+def _spike_pair_g(f: list[float], k: int, threshold: float) -> float:
+    """How far the farther of samples k and k + 1 stands out when both lie outside what the samples
+    on either side reach, else 0. Two samples can swing together where one cannot: a real tap's
+    dwell rings (the Voron capture: two samples 8-13 g below their neighbours' lines, with noise
+    0.7 g), so a pair must also lie outside every value the four samples on either side take."""
+    before, after = f[k - 1], f[k + 2]
+    reach = (before, after, 2.0 * before - f[k - 2], 3.0 * before - 2.0 * f[k - 2],
+             2.0 * after - f[k + 3], 3.0 * after - 2.0 * f[k + 3],
+             *f[max(0, k - PAIR_SPAN_SAMPLES):k], *f[k + 2:k + 2 + PAIR_SPAN_SAMPLES])
+    first_g, second_g = _outside_g(f[k], reach), _outside_g(f[k + 1], reach)
+    if first_g > threshold and second_g > threshold:
+        return max(first_g, second_g)
+    return 0.0
 
 
 def _indices(time_s: np.ndarray, *t: float) -> list[int]:

@@ -80,21 +80,103 @@ static PyObject *noise_sigma(PyObject *self, PyObject *args)
     return answer;
 }
 
-/* The spikes' indices and their repaired values as two lists (empty when there is none). */
-static PyObject *found_spikes(const double *force_g, Py_ssize_t n, const double *off_mid, double threshold)
+/* How far value lies outside the span of reach[0..count) (negative inside it): the twin's `_outside_g`. */
+static double outside_g(double value, const double *reach, int count)
 {
-    PyObject *indices = PyList_New(0), *values = PyList_New(0);
+    double lowest = reach[0], highest = reach[0];
+    for (int i = 1; i < count; i++) {
+        if (reach[i] > highest) highest = reach[i];
+        if (reach[i] < lowest) lowest = reach[i];
+    }
+    double above = value - highest, below = lowest - value;
+    return above > below ? above : below;
+}
+
+/* How far sample k stands out when it is a lone spike, else 0 (`_lone_spike_g`). */
+static double lone_spike_g(const double *f, Py_ssize_t n, Py_ssize_t k, double threshold)
+{
+    double before = f[k - 1], after = f[k + 1];
+    double off_mid = fabs(f[k] - 0.5 * (before + after)); /* again: a neighbour may have been repaired */
+    if (!(off_mid > threshold)) return 0.0;
+    if (off_mid > 2.0 * fabs(after - before)) return off_mid;
+    if (k < 2 || k > n - 3) return 0.0;
+    double reach[4] = {before, after, 2.0 * before - f[k - 2], 2.0 * after - f[k + 2]};
+    double out_g = outside_g(f[k], reach, 4);
+    return out_g > threshold ? out_g : 0.0;
+}
+
+/* How far the farther of samples k and k + 1 stands out when both lie outside what the samples on
+ * either side reach and every value the four samples on either side take, else 0 (`_spike_pair_g`). */
+#define PAIR_SPAN_SAMPLES 4 /* analysis.PAIR_SPAN_SAMPLES */
+
+static double spike_pair_g(const double *f, Py_ssize_t n, Py_ssize_t k, double threshold)
+{
+    double before = f[k - 1], after = f[k + 2];
+    double reach[6 + 2 * PAIR_SPAN_SAMPLES] = {before, after, 2.0 * before - f[k - 2], 3.0 * before - 2.0 * f[k - 2],
+                                              2.0 * after - f[k + 3], 3.0 * after - 2.0 * f[k + 3]};
+    int count = 6;
+    for (Py_ssize_t j = k - PAIR_SPAN_SAMPLES; j < k; j++)
+        if (j >= 0) reach[count++] = f[j];
+    for (Py_ssize_t j = k + 2; j < k + 2 + PAIR_SPAN_SAMPLES && j < n; j++) reach[count++] = f[j];
+    double first_g = outside_g(f[k], reach, count), second_g = outside_g(f[k + 1], reach, count);
+    if (first_g > threshold && second_g > threshold) return first_g > second_g ? first_g : second_g;
+    return 0.0;
+}
+
+static int is_step(const double *force_g, Py_ssize_t i, double threshold)
+{
+    return fabs(force_g[i + 1] - force_g[i]) > threshold;
+}
+
+/* The spikes' indices and their repaired values as two lists (empty when there is none): the
+ * twin's loop. Candidates are the samples off their neighbours' midpoint and the pairs between
+ * two steps; the one that stands out the most is repaired first in f (a copy of force_g), the rest
+ * judged again, until none stands out. spike marks the repaired samples. */
+static PyObject *found_spikes(const double *force_g, double *f, char *spike, Py_ssize_t n,
+                              const double *off_mid, double threshold)
+{
+    memcpy(f, force_g, (size_t)n * sizeof(double));
+    memset(spike, 0, (size_t)n);
+    Py_ssize_t count = 0;
+    for (;;) {
+        double best_g = 0.0;
+        Py_ssize_t best_k = 0, best_width = 0;
+        for (Py_ssize_t k = 1; k + 1 < n; k++) { /* the twin's order: every lone suspect, then every pair */
+            if (!(off_mid[k - 1] > threshold) || spike[k]) continue;
+            double out_g = lone_spike_g(f, n, k, threshold);
+            if (out_g > best_g) { best_g = out_g; best_k = k; best_width = 1; }
+        }
+        for (Py_ssize_t k = 2; k <= n - 4; k++) {
+            if (!is_step(force_g, k - 1, threshold) || !is_step(force_g, k + 1, threshold)) continue;
+            if (spike[k] || spike[k + 1]) continue;
+            double out_g = spike_pair_g(f, n, k, threshold);
+            if (out_g > best_g) { best_g = out_g; best_k = k; best_width = 2; }
+        }
+        if (best_width == 0) break;
+        Py_ssize_t k = best_k;
+        if (best_width == 1) {
+            f[k] = 0.5 * (f[k - 1] + f[k + 1]);
+        } else {
+            double gap = f[k + 2] - f[k - 1];
+            f[k] = f[k - 1] + gap / 3.0;
+            f[k + 1] = f[k - 1] + 2.0 * gap / 3.0;
+        }
+        for (Py_ssize_t j = k; j < k + best_width; j++) spike[j] = 1;
+        count += best_width;
+    }
+    PyObject *indices = PyList_New(count), *values = PyList_New(count);
     if (indices == NULL || values == NULL) goto failed;
-    for (Py_ssize_t k = 1; k + 1 < n; k++) {
-        if (!(off_mid[k - 1] > threshold)) continue;
-        double neighbour_gap = fabs(force_g[k + 1] - force_g[k - 1]);
-        if (!(off_mid[k - 1] > 2.0 * neighbour_gap)) continue;
-        PyObject *index = PyLong_FromSsize_t(k);
-        PyObject *value = PyFloat_FromDouble(0.5 * (force_g[k - 1] + force_g[k + 1]));
-        int failed = index == NULL || value == NULL || PyList_Append(indices, index) || PyList_Append(values, value);
-        Py_XDECREF(index);
-        Py_XDECREF(value);
-        if (failed) goto failed;
+    for (Py_ssize_t k = 0, i = 0; k < n; k++) {
+        if (!spike[k]) continue;
+        PyObject *index = PyLong_FromSsize_t(k), *value = PyFloat_FromDouble(f[k]);
+        if (index == NULL || value == NULL) {
+            Py_XDECREF(index);
+            Py_XDECREF(value);
+            goto failed;
+        }
+        PyList_SET_ITEM(indices, i, index);
+        PyList_SET_ITEM(values, i, value);
+        i++;
     }
     return Py_BuildValue("(NN)", indices, values);
 failed:
@@ -115,11 +197,12 @@ static PyObject *spikes(PyObject *self, PyObject *args)
     if (force_g != NULL && n < 5) {
         answer = Py_BuildValue("([][])");
     } else if (force_g != NULL) {
-        double *off_mid = malloc(2 * (size_t)(n - 2) * sizeof(double));
+        double *off_mid = malloc((2 * (size_t)(n - 2) + (size_t)n) * sizeof(double) + (size_t)n);
         if (off_mid == NULL) {
             PyErr_NoMemory();
         } else {
             double *scratch = off_mid + (n - 2);
+            double *repaired = scratch + (n - 2);
             off_midpoints(force_g, n, off_mid);
             memcpy(scratch, off_mid, (size_t)(n - 2) * sizeof(double));
             double noise_sigma_g = noise_of_off_midpoints(scratch, n - 2);
@@ -129,7 +212,7 @@ static PyObject *spikes(PyObject *self, PyObject *args)
                 if (force_g[i] > highest) highest = force_g[i];
             }
             double threshold = fmax(fmax(threshold_sigma * noise_sigma_g, 1e-6 * (highest - lowest)), 1e-9);
-            answer = found_spikes(force_g, n, off_mid, threshold);
+            answer = found_spikes(force_g, repaired, (char *)(repaired + n), n, off_mid, threshold);
             free(off_mid);
         }
     }
@@ -370,8 +453,8 @@ static PyMethodDef methods[] = {
     {"noise_sigma", noise_sigma, METH_VARARGS,
      "noise_sigma(force_g) -> float: white-noise sigma from the median absolute second difference."},
     {"spikes", spikes, METH_VARARGS,
-     "spikes(force_g, threshold_sigma) -> (indices, values): single corrupted frames and the mean of "
-     "their neighbours that replaces each."},
+     "spikes(force_g, threshold_sigma) -> (indices, values): corrupted frames, alone or two in a row, "
+     "and the values that replace them."},
     {"window_heights", window_heights, METH_VARARGS,
      "window_heights(move_table, time_s, delay_s, integration_s, z_halt_mm, min_span_um, contact_line_s,\n"
      "               break_line_s, x_min_out, span_out) -> (contact_line_um, break_line_um)\n\n"
