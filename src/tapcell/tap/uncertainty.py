@@ -28,8 +28,9 @@ how far Z moves with each assumption, is measured on the tap and added in quadra
 * `delay_um`: the sensor delay read off the halt moves Z by pullback speed × its uncertainty;
 * `ringing_um`: a ringing the dwell shows (a gantry rung by the halt and the pullback's start,
   `stage.dwell_ringing`) over the pullback's samples within the fit's reach of contact: what a smooth
-  contact shape takes of it (`stage.ringing_noise_g2`, a sum of squares over those n samples) is an
-  offset of sqrt(that / n) g where the force crosses zero, over the stiffness (`ringing_um`);
+  contact shape takes of it (`stage.ringing_noise_g2`, a sum of squares over those n samples) is,
+  at the end of the two lines that meet at contact, an offset of 2 sqrt(that / n) g where the force
+  crosses zero, over the stiffness (`ringing_um`);
   weighed by RINGING_WEIGHT.
 
 The weights are chosen by the worst scenario over taplab and the reference taps: `python -m bench
