@@ -36,6 +36,20 @@ def test_the_weights_that_make_every_scenario_honest_are_found():
             assert 0.9 < ratio_rms(scenario, chosen) < 1.1
 
 
+def test_the_ringing_part_is_held_at_its_derived_weight_while_the_others_are_chosen():
+    """Taps whose error is their ringing part at weight 1 (uncertainty.ringing_um) and noise at
+    TRUE's weight: the choice scores the ringing as the analysis counts it, and finds the noise's."""
+    rng = np.random.default_rng(11)
+    sizes, rings = rng.uniform(0.5, 2.0, 400), rng.uniform(0.5, 2.0, 400)
+    errors = rng.normal(0.0, np.hypot(TRUE["noise"] * sizes, rings))
+    scenario = Scenario(errors_um=errors.tolist(), taps=400,
+                        parts=[ZSigmaParts(noise_um=s, ringing_um=r) for s, r in zip(sizes, rings)])
+    chosen, worst = choose_weights({"a": {"ringing": scenario}})
+    assert chosen.ringing == 1.0
+    assert chosen.noise == pytest.approx(TRUE["noise"], abs=2 * float(GRID["noise"][1] - GRID["noise"][0]))
+    assert 0.9 < ratio_rms(scenario, chosen) < 1.1
+
+
 def test_a_scenario_without_accepted_taps_has_no_ratio():
     assert ratio_rms(Scenario(taps=40), SigmaWeights()) is None
 

@@ -1243,7 +1243,8 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
     speed_um_s = motion.pullback_speed_mm_s * 1000.0
     contact_um = _break_contact_in_window_um(motion, delay_s, window_delay_s, result.z_mm)
     slope_g_s, intercept_g = dec.approach_line
-    near_pull_g, far_pull_g = thread_pulls_g(*pullback_samples(window, motion, timing, window_delay_s),
+    samples = pullback_samples(window, motion, timing, window_delay_s)
+    near_pull_g, far_pull_g = thread_pulls_g(*samples,
                                              free_air_slope_g_um(dec, motion), slope_g_s * motion.home_end_s + intercept_g,
                                              contact_um, THREAD_FAR_MIN_UM)
     # The walk between the near and far reaches' middles, in samples of the pullback.
@@ -1266,7 +1267,9 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
         film_um=uncertainty.film_um(squeeze, _toe_lift_um(result)),
         floor_um=uncertainty.floor_um(stiffness),
         staircase_um=uncertainty.staircase_um(step_staircase_sigma_um(timing.z_step_um, window_um), timing.z_step_um),
-        delay_um=speed_um_s * halt_sigma_s if math.isfinite(halt_sigma_s) else 0.0)
+        delay_um=speed_um_s * halt_sigma_s if math.isfinite(halt_sigma_s) else 0.0,
+        ringing_um=uncertainty.ringing_um(ringing_in_dwell(split), uncertainty.samples_in_reach(*samples[:2], contact_um),
+                                          stiffness))
     if result.z_method == "toe" and result.toe_grid is not None:
         # The noise: the sharp fit's over the same samples (the toe fit's own when there is none).
         noise_um = result.z_sharp_sigma_um if result.z_sharp_sigma_um is not None else result.z_sigma_um
@@ -1275,6 +1278,13 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
         parts = uncertainty.ZSigmaParts(noise_um=result.z_sigma_um, **others)
     result.z_sigma_parts = parts
     result.z_sigma_um = uncertainty.z_sigma_um(parts)
+
+
+def ringing_in_dwell(split: SplitTap) -> Ringing | None:
+    """The ringing the dwell shows (tapcell.tap.stage.dwell_ringing), against the white noise."""
+    _, dwell_start, dwell_end, _ = (split.dec.start + bound for bound in split.dec.bounds)
+    return dwell_ringing(split.time_s[dwell_start:dwell_end], split.force_g[dwell_start:dwell_end],
+                         split.noise_g * split.noise_g)
 
 
 def _contact_down_and_up(fits: ContactFits, approach_travel_um: float) -> tuple[float | None, float | None, float]:
@@ -1312,9 +1322,7 @@ def check_stages(split: SplitTap, samples: PullbackSamples, drift_g_um: float, t
                          toe.stiffness_g_um)
         check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, noise_g, approach_wander, drift_held)
     except TapInvalid:
-        _, dwell_start, dwell_end, _ = (split.dec.start + bound for bound in split.dec.bounds)
-        ringing = dwell_ringing(split.time_s[dwell_start:dwell_end], split.force_g[dwell_start:dwell_end],
-                                noise_g * noise_g)
+        ringing = ringing_in_dwell(split)
         if ringing is None:
             raise
         check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, noise_g, wander,

@@ -114,9 +114,12 @@ def dwell_ringing(time_s: np.ndarray, force_g: np.ndarray, white_var_g2: float) 
     span_s = float(time_s[-1] - time_s[0])
     if span_s <= 0:
         return None
-    basis = np.array((np.ones(n), t / span_s, (t / span_s) ** 2)).T
-    coef, *_ = np.linalg.lstsq(basis, force_g, rcond=None)
-    residual = force_g - basis @ coef
+    u = t / span_s
+    basis = np.array((np.ones(n), u, u * u))
+    # The least-squares quadratic by its 3 x 3 normal equations (a third of lstsq's cost; the
+    # basis is centred and scaled, well conditioned): it runs on every tap for z_sigma_um's ringing part.
+    coef = np.linalg.solve(basis @ basis.T, basis @ force_g)
+    residual = force_g - coef @ basis
     period_s = span_s / (n - 1)
     # The periodogram 2 |sum r e^-iwt|^2 / n (uniform samples: an FFT), padded to a quarter of the
     # dwell's frequency resolution, from RINGING_MIN_PERIODS periods per dwell up.

@@ -25,7 +25,13 @@ how far Z moves with each assumption, is measured on the tap and added in quadra
   FLOOR_WEIGHT, which is that force in g;
 * `staircase_um`: the Z steps' sawtooth as the sensor's window sees it, averaged over the steps
   the fit's reach spans;
-* `delay_um`: the sensor delay read off the halt moves Z by pullback speed × its uncertainty.
+* `delay_um`: the sensor delay read off the halt moves Z by pullback speed × its uncertainty;
+* `ringing_um`: a ringing the dwell shows (a gantry rung by the halt and the pullback's start,
+  `stage.dwell_ringing`) over the pullback's samples within the fit's reach of contact: what a smooth
+  contact shape takes of it (`stage.ringing_noise_g2`, a sum of squares over those n samples) is,
+  at the end of the two lines that meet at contact, an offset of 2 sqrt(that / n) g where the force
+  crosses zero, over the stiffness (`ringing_um`);
+  weighed by RINGING_WEIGHT.
 
 The weights are chosen by the worst scenario over taplab and the reference taps: `python -m bench
 tap_sigma` prints rms(error / z_sigma_um) per scenario per set with them and the weights it would
@@ -37,6 +43,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+import numpy as np
+
+from tapcell.tap.stage import Ringing, ringing_noise_g2
 from tapcell.tap.toe import PENETRATION_REACH_UM, ToeGridResult, shape_spread_um
 from tapcell.tap.validate import CONSISTENCY_SIGMAS
 
@@ -60,6 +69,9 @@ THREAD_WEIGHT = 0.5
 SQUEEZE_WEIGHT = 1.5
 FILM_WEIGHT = 2.0
 FLOOR_WEIGHT = 0.5  # g
+# The ringing part is the ringing's own effect on the contact, not a fit: weight 1 (see `ringing_um`;
+# `python -m bench tap_sigma` cannot weigh it: no tap of taplab or the reference set shows one).
+RINGING_WEIGHT = 1.0
 # How far a contact read off the approach scatters for the sample grid alone, as a share of the
 # approach's travel per sample: the down contact rests on the few samples wholly in contact (1-3 on
 # a slow sensor), and its fit's sigma does not see where the contact falls between two of them.
@@ -80,6 +92,7 @@ class SigmaWeights:
     squeeze: float = SQUEEZE_WEIGHT
     film: float = FILM_WEIGHT
     floor: float = FLOOR_WEIGHT
+    ringing: float = RINGING_WEIGHT
 
 
 @dataclass(frozen=True)
@@ -95,13 +108,15 @@ class ZSigmaParts:
     floor_um: float = 0.0
     staircase_um: float = 0.0
     delay_um: float = 0.0
+    ringing_um: float = 0.0
 
 
 def z_sigma_um(parts: ZSigmaParts, weights: SigmaWeights = SigmaWeights()) -> float:
     """The parts added in quadrature, each weighed."""
     weighed = (weights.noise * parts.noise_um, weights.shape * parts.shape_um,
                weights.thread * parts.thread_um, weights.misfit * parts.misfit_um, weights.squeeze * parts.squeeze_um,
-               weights.film * parts.film_um, weights.floor * parts.floor_um, parts.staircase_um, parts.delay_um)
+               weights.film * parts.film_um, weights.floor * parts.floor_um, parts.staircase_um, parts.delay_um,
+               weights.ringing * parts.ringing_um)
     return math.sqrt(sum(part * part for part in weighed))
 
 
@@ -166,6 +181,25 @@ def thread_um(near_pull_g: float | None, far_pull_g: float | None, walk_var_g2: 
         return 0.0
     letting_go_g = near_pull_g if far_pull_g is None else near_pull_g - far_pull_g
     return math.sqrt(max(letting_go_g * letting_go_g - walk_var_g2, 0.0)) / stiffness_g_um
+
+
+def ringing_um(ringing: Ringing | None, samples: int, stiffness_g_um: float) -> float:
+    """What a ringing the dwell shows moves the contact by (µm): over the `samples` pullback samples
+    the contact is read from, a smooth contact shape takes `ringing_noise_g2` of its energy (a sum
+    of squares: all n v of a variance v when they span at most a period, v P^2 / n beyond). The
+    contact is where two fitted lines meet, at the end of each: a line's value at the end of its n
+    samples takes 4 / n of what its fit takes (its leverage there: 1/n + 3/n), an offset of
+    2 sqrt(that / n) g where the force crosses zero, over the stiffness: 2 sqrt(v) / k for a
+    ringing slower than the departure, falling as P / n for a faster one. 0 without a ringing."""
+    if ringing is None or samples <= 0 or not stiffness_g_um > 0:
+        return 0.0
+    return 2.0 * math.sqrt(ringing_noise_g2(ringing, samples) / samples) / stiffness_g_um
+
+
+def samples_in_reach(x_lo_um: np.ndarray, x_hi_um: np.ndarray, contact_um: float) -> int:
+    """How many pullback samples (conversion windows [x_lo, x_hi], µm) lie with their middle within
+    the contact fit's reach (PENETRATION_REACH_UM) of the contact, either side."""
+    return int(np.count_nonzero(np.abs(0.5 * (x_lo_um + x_hi_um) - contact_um) < PENETRATION_REACH_UM))
 
 
 def toe_parts(grid: ToeGridResult, **others: float) -> ZSigmaParts:
