@@ -57,6 +57,7 @@ class Case:
     replace: tuple[tuple[str, str], ...] = ()
     home_first: bool = True              # G28 and the move to the centre before the script
     bump: tuple | None = None            # bump_csv arguments after the path
+    sections: str = ""                   # whole sections added to the config
 
 
 CASES = (
@@ -84,6 +85,9 @@ CASES = (
          bump=(60.0, 110.0, 1.5, 1.5), replace=NO_Z_HOP),
     Case("G28 X at Z 0.3 over the blob, z_hop: 5 (the example)", "G1 Z0.3 F600\nG28 X",
          bump=(60.0, 110.0, 1.5, 1.5)),
+    # A single stepper driven past the kinematics (extras/force_move.py): a macro's FORCE_MOVE down.
+    Case("FORCE_MOVE stepper_z 2.5 mm down from Z 1", "G1 Z1 F600\nFORCE_MOVE STEPPER=stepper_z DISTANCE=-2.5 VELOCITY=5",
+         sections="\n[force_move]\nenable_force_move: True\n"),
 )
 
 
@@ -95,7 +99,7 @@ def config_text(case: Case, folder: Path, watch: bool) -> str:
     for old, new in case.replace:
         text = text.replace(old, new)
     options = CALIBRATION + case.probe_options + ("" if watch else "\n" + WATCH_OFF)
-    return text.replace("samples: 1\n", f"samples: 1\n{options}\n", 1)
+    return text.replace("samples: 1\n", f"samples: 1\n{options}\n", 1) + case.sections
 
 
 def run_case(case: Case, folder: Path, watch: bool) -> tuple[float, float, str]:
