@@ -160,7 +160,7 @@ class ForceMove:
 def load_config(section: ConfigSection, printer) -> None:
     toolhead = printer.lookup_object("toolhead", None)
     if toolhead is None:  # a config without [printer] (macros only): no steppers to move
-        section.getboolean("enable_force_move", False)
+        section.getboolean("enable_force_move", False)  # read, so a [force_move] section is not "unused"
         return None
     force_move = ForceMove(printer, toolhead)
     register = printer.gcode.register_command

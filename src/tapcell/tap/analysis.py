@@ -997,6 +997,14 @@ class SplitTap:
         rising_stop = int(self.time_s.searchsorted(motion.pullback_end_s + self.timing.delay_s, side="right"))
         return free_air_wanders(self.force_g, self.dec, steps_um, rising_stop)
 
+    @functools.cached_property
+    def ringing(self) -> Ringing | None:
+        """The ringing the dwell shows (tapcell.tap.stage.dwell_ringing), against the white noise:
+        measured once for the stage checks and z_sigma_um's ringing part."""
+        _, dwell_start, dwell_end, _ = (self.dec.start + bound for bound in self.dec.bounds)
+        return dwell_ringing(self.time_s[dwell_start:dwell_end], self.force_g[dwell_start:dwell_end],
+                             self.noise_g * self.noise_g)
+
 
 @dataclass
 class ContactFits:
@@ -1268,7 +1276,7 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
         floor_um=uncertainty.floor_um(stiffness),
         staircase_um=uncertainty.staircase_um(step_staircase_sigma_um(timing.z_step_um, window_um), timing.z_step_um),
         delay_um=speed_um_s * halt_sigma_s if math.isfinite(halt_sigma_s) else 0.0,
-        ringing_um=uncertainty.ringing_um(ringing_in_dwell(split), uncertainty.samples_in_reach(*samples[:2], contact_um),
+        ringing_um=uncertainty.ringing_um(split.ringing, uncertainty.samples_in_reach(*samples[:2], contact_um),
                                           stiffness))
     if result.z_method == "toe" and result.toe_grid is not None:
         # The noise: the sharp fit's over the same samples (the toe fit's own when there is none).
@@ -1278,13 +1286,6 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
         parts = uncertainty.ZSigmaParts(noise_um=result.z_sigma_um, **others)
     result.z_sigma_parts = parts
     result.z_sigma_um = uncertainty.z_sigma_um(parts)
-
-
-def ringing_in_dwell(split: SplitTap) -> Ringing | None:
-    """The ringing the dwell shows (tapcell.tap.stage.dwell_ringing), against the white noise."""
-    _, dwell_start, dwell_end, _ = (split.dec.start + bound for bound in split.dec.bounds)
-    return dwell_ringing(split.time_s[dwell_start:dwell_end], split.force_g[dwell_start:dwell_end],
-                         split.noise_g * split.noise_g)
 
 
 def _contact_down_and_up(fits: ContactFits, approach_travel_um: float) -> tuple[float | None, float | None, float]:
@@ -1322,7 +1323,7 @@ def check_stages(split: SplitTap, samples: PullbackSamples, drift_g_um: float, t
                          toe.stiffness_g_um)
         check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, noise_g, approach_wander, drift_held)
     except TapInvalid:
-        ringing = ringing_in_dwell(split)
+        ringing = split.ringing
         if ringing is None:
             raise
         check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, noise_g, wander,
