@@ -18,9 +18,10 @@
  *   (no prime factors to be slow on);
  * - the chirp's e^(i pi s / L) from an eighth of the circle by exact symmetries (a sin/cos call per
  *   n / 2 samples; the indices m^2 mod 2L kept exact in integers).
- * Every bin is the twin's to rounding (about 1e-15 of the largest power): the same bin is the
- * largest unless two bins tie to rounding, which no measured dwell came near (docs/tap-analysis.md,
- * "Compiled kernels"). The period is computed as the twin does, bit for bit, given the bin. */
+ * Every bin is the twin's to rounding (the largest within 1e-13 of the twin's on taplab's and the
+ * reference taps' dwells, 5e-13 on the sweep's): the same bin is the largest unless two bins tie to
+ * rounding, which no measured dwell came near (docs/tap-analysis.md, "Compiled kernels"). The period
+ * is computed as the twin does, bit for bit, given the bin. */
 #include "buffers.h"
 #include <math.h>
 #include <stdlib.h>
@@ -31,7 +32,7 @@ typedef struct {
 
 /* e^(-2 pi i j / twiddle_size), j < twiddle_size / 2: the power-of-two FFTs' twiddles, of the
  * largest size used so far (a smaller FFT takes every (twiddle_size / size)-th). Grown, never shrunk:
- * one table for the process, as the dwells of one printer are of one length or so. */
+ * one table for the process (the interpreter's lock is held throughout a call). */
 static Complex *twiddles;
 static Py_ssize_t twiddle_size;
 
@@ -142,9 +143,9 @@ static void inverse_fft_from_bit_reversed(Complex *x, Py_ssize_t size)
     }
 }
 
-/* e^(i pi s / half_turn) for s in [0, 4 half_turn... ) is circle[s mod (2 half_turn)]: the table
- * of a full turn (2 half_turn entries) from the first eighth by exact symmetries (a quarter turn
- * multiplies by i; within a quarter, s and quarter - s swap cosine and sine). half_turn even. */
+/* circle[s] = e^(i pi s / half_turn) for s in [0, 2 half_turn): a full turn, from its first eighth by
+ * exact symmetries (a quarter turn multiplies by i; within a quarter, s and quarter - s swap cosine
+ * and sine). half_turn even. */
 static void fill_circle(Complex *circle, Py_ssize_t half_turn)
 {
     const Py_ssize_t quarter = half_turn / 2;
@@ -162,8 +163,8 @@ static void fill_circle(Complex *circle, Py_ssize_t half_turn)
     }
 }
 
-/* Solve the 3 x 3 system a x = b (a row-major, destroyed) by Gaussian elimination with partial
- * pivoting; 0 when a is singular. */
+/* Solve the 3 x 3 system a x = b (a: the matrix with b as its fourth column, destroyed) by Gaussian
+ * elimination with partial pivoting; 0 when the matrix is singular. */
 static int solve3(double a[3][4], double x[3])
 {
     for (int col = 0; col < 3; col++) {
