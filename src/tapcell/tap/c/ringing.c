@@ -26,6 +26,10 @@
 #include <math.h>
 #include <stdlib.h>
 
+#ifndef M_PI /* POSIX's, not ISO C's: a strict C99 math.h may leave it out */
+#define M_PI 3.14159265358979323846
+#endif
+
 typedef struct {
     double re, im;
 } Complex;
