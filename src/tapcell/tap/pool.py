@@ -176,6 +176,8 @@ def pool_taps(analyses: list[TapAnalysis]) -> list[PooledZ | None]:
     shared = shared_physics([analyses[i].pullback_fit for i in members])
     contacts = {i: found for i in members if (found := contact_at_shared(analyses[i], shared)) is not None}
     misfits = _misfits(members, contacts)
+    if len(misfits) == len(members):  # no two taps alike: nothing is shared, each keeps its own
+        return [PooledZ(a.z_mm, a.z_sigma_um or 0.0) if i in misfits else None for i, a in enumerate(analyses)]
     if misfits:
         # Again without them: the shared physics from the taps that show it.
         good = [i for i in members if i not in misfits]
