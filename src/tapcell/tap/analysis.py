@@ -51,8 +51,8 @@ from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_FIVE, PrefixSums, five_lines
-from tapcell.tap.stage import (Ringing, TwoStageFit, departure_soft_stage, dwell_ringing, shows_soft_stage,
-                               shows_two_stage, two_stage_departure)
+from tapcell.tap.stage import (Ringing, departure_soft_stage, dwell_ringing, shows_soft_stage, shows_two_stage,
+                               two_stage_departure)
 from tapcell.tap.toe import (ADHESION_LEVEL_UM, ADHESION_REACH_UM, THREAD_FAR_REACH_UM, THREAD_REACH_UM, ToeFit,
                              Wander, adhesion_measures, fit_toe, free_air_variogram, lag_from_halt_s, thread_pull_g,
                              thread_pulls_g, walk_beside_height_pull, wander_from_variograms)
@@ -1208,8 +1208,7 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     # too short to show one (10 sps: 8 samples), the one the free air on both sides shows.
     check_adhesion(rising, motion, timing, dec, free_air_line(split, toe.contact_um - lag_shift_um, delay_s),
                    toe.contact_um, split.noise_g, approach_wander or wander, result.compression_force_g)
-    stages = check_stages(split, samples, drift_g_um, toe, lag_shift_um, drift_held=fit_drift_g_um is not None)
-    result.first_touch_part_um = 0.0 if stages is None else stages.first_touch_part_um(toe.contact_um)
+    check_stages(split, samples, drift_g_um, toe, lag_shift_um, drift_held=fit_drift_g_um is not None)
     approach_change_g = abs(dec.points[P_CONTACT][1] - dec.points[P_START][1])
     if approach_change_g > APPROACH_DRIFT_MATERIAL_SHARE * result.compression_force_g:  # else it costs the score little
         result.approach_drift_share = departure_drift_share(rising, toe.contact_um, drift_g_um)
@@ -1278,8 +1277,7 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
         staircase_um=uncertainty.staircase_um(step_staircase_sigma_um(timing.z_step_um, window_um), timing.z_step_um),
         delay_um=speed_um_s * halt_sigma_s if math.isfinite(halt_sigma_s) else 0.0,
         ringing_um=uncertainty.ringing_um(split.ringing, uncertainty.samples_in_reach(*samples[:2], contact_um),
-                                          stiffness),
-        first_touch_um=result.first_touch_part_um)
+                                          stiffness))
     if result.z_method == "toe" and result.toe_grid is not None:
         # The noise: the sharp fit's over the same samples (the toe fit's own when there is none).
         noise_um = result.z_sharp_sigma_um if result.z_sharp_sigma_um is not None else result.z_sigma_um
@@ -1310,11 +1308,10 @@ def _toe_lift_um(result: TapAnalysis) -> float:
 
 
 def check_stages(split: SplitTap, samples: PullbackSamples, drift_g_um: float, toe: ToeFit, lag_shift_um: float,
-                 drift_held: bool) -> TwoStageFit | None:
+                 drift_held: bool) -> None:
     """The two-stage checks (TAP_TWO_STAGE_CONTACT raised); where they name a stage and the dwell
     rings (tapcell.tap.stage.dwell_ringing), again with the ringing in their noise: a gantry's
-    ringing over a fast pullback's departure is no stage (issue 21). Returns the two-stage fit that
-    named nothing (None where the toe is too narrow for it), for z_sigma_um's first-touch part."""
+    ringing over a fast pullback's departure is no stage (issue 21)."""
     motion, noise_g = split.motion, split.noise_g
     wander, approach_wander = split.wanders
     # The ramp's noise: the walk the free air on both sides shows, as the toe fit weighs it. The
@@ -1324,15 +1321,14 @@ def check_stages(split: SplitTap, samples: PullbackSamples, drift_g_um: float, t
     try:
         check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, noise_g, wander,
                          toe.stiffness_g_um)
-        return check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, noise_g, approach_wander, drift_held)
+        check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, noise_g, approach_wander, drift_held)
     except TapInvalid:
         ringing = split.ringing
         if ringing is None:
             raise
         check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, noise_g, wander,
                          toe.stiffness_g_um, ringing)
-        return check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, noise_g, approach_wander, drift_held,
-                               ringing)
+        check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, noise_g, approach_wander, drift_held, ringing)
 
 
 def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, contact_um: float,
@@ -1354,11 +1350,11 @@ def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float
 
 def check_two_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, toe: ToeFit, lag_shift_um: float,
                     noise_g: float, approach_wander: Wander | None, drift_held: bool = False,
-                    ringing: Ringing | None = None) -> TwoStageFit | None:
+                    ringing: Ringing | None = None) -> None:
     """TAP_TWO_STAGE_CONTACT when the departure is two stages rather than the wide toe fitted
     (tapcell.tap.stage.two_stage_departure): the toe absorbed a soft first stage and reads low.
     drift_held: the toe fit held drift_g_um (the departure agrees with the approach), the stages are
-    weighed on it too. Returns the fit when it names nothing (None: the toe too narrow for it)."""
+    weighed on it too."""
     walk_var_g2 = approach_wander.walk_var_g2 if approach_wander else 0.0
     fit = two_stage_departure(*samples, drift_g_um, toe.contact_um, toe.width_um, noise_g, walk_var_g2, drift_held,
                               ringing)
@@ -1370,7 +1366,6 @@ def check_two_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float,
                          f"Z {first_touch_mm:.4f}, {fit.evidence_chi2:.0f} noise variances better than any "
                          f"one-stage toe: a two-stage mount (a magnetic sheet, a sprung bed) or a film of "
                          f"ooze; the contact found would read {fit.top_um - toe.contact_um:.1f} um low")
-    return fit
 
 
 def compression_stiffness(split: SplitTap, window: ModelWindow, fits: ContactFits, delay_s: float,

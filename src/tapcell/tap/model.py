@@ -336,9 +336,6 @@ class TapAnalysis:
     z_sharp_sigma_um: float | None = field(default=None, repr=False, compare=False)
     # What z_sigma_um was made of (tapcell.tap.uncertainty.ZSigmaParts; `python -m bench tap_sigma`).
     z_sigma_parts: Any = field(default=None, repr=False, compare=False)
-    # The two-stage fit's first touch, as far as its odds carry it from the toe's contact (µm;
-    # tapcell.tap.stage.TwoStageFit.first_touch_part_um): z_sigma_um's first-touch part.
-    first_touch_part_um: float = field(default=0.0, repr=False, compare=False)
     z_pooled_mm: float | None = None  # Z with the toe shared by the taps at one spot (tapcell.tap.pool)
     z_pooled_sigma_um: float | None = None
     # The share of the approach's force change that the departure shows to be a drift in proportion

@@ -219,9 +219,6 @@ TWO_STAGE_MATTERS_UM = 1.0  # a first touch this close to the toe's contact leav
 # under a narrower toe the stage stays above its contact, where the ramp check sees it. The fit
 # then runs on 5-30 % of clean taps (the toe's width prior keeps most narrow), most soft sheets.
 TWO_STAGE_MIN_TOE_WIDTH_UM = 8.0
-# A tap the fit runs on and does not name is still weighed as either (`two_stage_weight`): its
-# first touch may lie at the two stages' top. A first-touch part below this is left at its bound.
-STAGE_PART_NEGLIGIBLE_UM = 0.05
 
 
 @dataclass
@@ -233,15 +230,6 @@ class TwoStageFit:
     span_um: float  # the soft stage's travel (best fit)
     soft_share: float  # its stiffness over the stiff stage's
     drift_held: bool = False  # both models on the free air's drift (else each fitted a drift of its own)
-
-    evidence_exact: bool = False  # the one-stage toe's grid was run (else the evidence is a hinge's bound)
-
-    def first_touch_part_um(self, contact_um: float) -> float:
-        """How far the first touch may lie from the toe's contact for the two stages this tap may
-        be: the distance between them times the square root of the two stages' weight against the
-        one-stage toe (`two_stage_weight`): the sd the reported contact has, as the models weigh
-        the departure, for a stage nobody named (z_sigma_um's stage part; issue 21, i21-stage4)."""
-        return math.sqrt(two_stage_weight(self.evidence_chi2)) * abs(self.top_um - contact_um)
 
     @property
     def min_evidence(self) -> float:
@@ -255,13 +243,6 @@ class TwoStageFit:
         if not self.drift_held:
             return TWO_STAGE_MATTERS_UM
         return max(TWO_STAGE_MATTERS_UM, TWO_STAGE_HELD_TOP_SDS * self.top_sigma_um)
-
-
-def two_stage_weight(evidence_chi2: float) -> float:
-    """The two stages' posterior probability against the one-stage toe, either equally likely
-    beforehand: their likelihood ratio exp(evidence / 2) over one plus it (each model at its best
-    fit; both fit five or six parameters). No threshold: 0.5 at an evidence of 0, 0.12 at -4, 0.98 at 8."""
-    return 0.5 * (1.0 + math.tanh(0.25 * evidence_chi2))  # 1 / (1 + exp(-evidence / 2)), without overflow
 
 
 def _sorted_detrended(x_um: np.ndarray, force_g: np.ndarray,
@@ -326,14 +307,10 @@ def two_stage_fit(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, nois
     least, noise_var_g2, top_mean, top_sd, best_span, soft_share, hinge_gain = grid
     # The one-stage toe's residual is at most a hinge's (a toe of width 0): when even the hinge
     # leaves too little to explain, the toe grid (most of the cost) is not needed.
-    # Its first-touch part (`first_touch_part_um`) from that bound is an upper bound too: below
-    # STAGE_PART_NEGLIGIBLE_UM the toe grid is not run for it either.
     fit = TwoStageFit((ff - hinge_gain - least) / noise_var_g2, top_mean, top_sd,
                       float(TWO_STAGE_SPANS_UM[best_span]), soft_share, drift_held)
-    if ((fit.evidence_chi2 > fit.min_evidence and abs(top_mean - contact_um) > fit.reads_apart_um())
-            or fit.first_touch_part_um(contact_um) > STAGE_PART_NEGLIGIBLE_UM):
+    if fit.evidence_chi2 > fit.min_evidence and abs(top_mean - contact_um) > fit.reads_apart_um():
         fit.evidence_chi2 = (_one_stage_rss(x, xc, f, sxx, ff, contact_um) - least) / noise_var_g2
-        fit.evidence_exact = True
     fit.evidence_chi2 = float(fit.evidence_chi2)
     return fit
 

@@ -31,12 +31,7 @@ how far Z moves with each assumption, is measured on the tap and added in quadra
   contact shape takes of it (`stage.ringing_noise_g2`, a sum of squares over those n samples) is,
   at the end of the two lines that meet at contact, an offset of 2 sqrt(that / n) g where the force
   crosses zero, over the stiffness (`ringing_um`);
-  weighed by RINGING_WEIGHT;
-* `first_touch_um`: where the two-stage departure fit runs (a toe 8 µm wide or more) and names no
-  stage, how far its first touch lies from the toe's contact, times the square root of the two
-  stages' weight against the one-stage toe (`stage.TwoStageFit.first_touch_part_um`): a stage the
-  departure cannot tell from a toe at its noise moves the first touch that far with that odds
-  (taplab's accepted two-stage taps read 2-7 µm low); not weighed (a model average, not a fit).
+  weighed by RINGING_WEIGHT.
 
 The weights are chosen by the worst scenario over taplab and the reference taps: `python -m bench
 tap_sigma` prints rms(error / z_sigma_um) per scenario per set with them and the weights it would
@@ -114,7 +109,6 @@ class ZSigmaParts:
     staircase_um: float = 0.0
     delay_um: float = 0.0
     ringing_um: float = 0.0
-    first_touch_um: float = 0.0
 
 
 def z_sigma_um(parts: ZSigmaParts, weights: SigmaWeights = SigmaWeights()) -> float:
@@ -122,7 +116,7 @@ def z_sigma_um(parts: ZSigmaParts, weights: SigmaWeights = SigmaWeights()) -> fl
     weighed = (weights.noise * parts.noise_um, weights.shape * parts.shape_um,
                weights.thread * parts.thread_um, weights.misfit * parts.misfit_um, weights.squeeze * parts.squeeze_um,
                weights.film * parts.film_um, weights.floor * parts.floor_um, parts.staircase_um, parts.delay_um,
-               weights.ringing * parts.ringing_um, parts.first_touch_um)
+               weights.ringing * parts.ringing_um)
     return math.sqrt(sum(part * part for part in weighed))
 
 
