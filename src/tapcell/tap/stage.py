@@ -398,6 +398,13 @@ def two_stage_departure(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.nd
     ringing the dwell shows adds over the samples (`ringing_noise_g2`)."""
     if toe_width_um < TWO_STAGE_MIN_TOE_WIDTH_UM:
         return None
+    return _departure_fit(x_lo_um, x_hi_um, force_g, drift_g_um, contact_um, noise_g, walk_var_g2, drift_held, ringing)
+
+
+def _departure_fit(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, drift_g_um: float,
+                   contact_um: float, noise_g: float, walk_var_g2: float, drift_held: bool,
+                   ringing: Ringing | None) -> TwoStageFit | None:
+    """`two_stage_departure`'s fits, whatever the toe's width."""
     x_um = 0.5 * (x_lo_um + x_hi_um)
     near = (x_um > contact_um - TWO_STAGE_BELOW_UM) & (x_um < contact_um + TWO_STAGE_ABOVE_UM)
     if not near.any():
@@ -436,23 +443,10 @@ def unnamed_stage_um(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarr
                      ramp: SoftStage | None, drift_held: bool = False, ringing: Ringing | None = None) -> float:
     """Under a toe narrower than TWO_STAGE_MIN_TOE_WIDTH_UM (where `two_stage_departure` does not
     run): how far the two stages' first touch lies from the toe's contact (µm) when the departure
-    shows two stages (`shows_two_stage`, with the drift fitted or, where the toe fit held it, held
-    and the same first touch); else 0 (and where the soft-stage ramp above the contact, `ramp`,
-    shows too little). The noise as `two_stage_departure` weighs it, ringing included."""
+    shows two stages as `two_stage_departure` weighs it (with the drift fitted or, where the toe fit
+    held it and the fitted one shows none, held and the same first touch), ringing included; else 0
+    (and where the soft-stage ramp above the contact, `ramp`, shows too little)."""
     if toe_width_um >= TWO_STAGE_MIN_TOE_WIDTH_UM or ramp is None or ramp.chi2 <= UNNAMED_STAGE_MIN_RAMP_CHI2:
         return 0.0
-    x_um = 0.5 * (x_lo_um + x_hi_um)
-    near = (x_um > contact_um - TWO_STAGE_BELOW_UM) & (x_um < contact_um + TWO_STAGE_ABOVE_UM)
-    if not near.any():
-        return 0.0
-    x_um, window_um = x_um[near], median(x_hi_um[near] - x_lo_um[near])
-    force_g = force_g[near] - drift_g_um * x_um
-    walk_g2 = walk_var_g2 * len(x_um) / 6.0
-    white_g2 = noise_g * noise_g + ringing_noise_g2(ringing, len(x_um))
-    fitted = two_stage_fit(x_um, force_g, contact_um, white_g2 + walk_g2, window_um)
-    found = [fitted]
-    if drift_held:
-        held = two_stage_fit(x_um, force_g, contact_um, white_g2 + walk_g2 * _LONGEST_STAGE_SHARE, window_um, True)
-        if held is not None and same_first_touch(held, fitted):
-            found.append(held)
-    return max((abs(fit.top_um - contact_um) for fit in found if shows_two_stage(fit, contact_um)), default=0.0)
+    fit = _departure_fit(x_lo_um, x_hi_um, force_g, drift_g_um, contact_um, noise_g, walk_var_g2, drift_held, ringing)
+    return abs(fit.top_um - contact_um) if shows_two_stage(fit, contact_um) else 0.0
