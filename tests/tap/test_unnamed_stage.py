@@ -63,7 +63,7 @@ def test_a_two_stage_tap_over_a_narrow_toe_is_honest():
     assert abs(error_um) < 1.25 * result.z_sigma_um
 
 
-# Clean taps of taplab seeds 1-7 whose departure shows two stages under a narrow toe (8 of 3,080
+# Clean taps of taplab seeds 1-7 whose departure shows two stages under a narrow toe (7 of 3,080
 # should-accept taps): not rejected, their sigma widened by the first touch found. (seed, scenario,
 # k, stage part um, measured)
 CLEAN_WITH_A_PART = [(4, "cable_drift", 20, 16.64), (1, "hx711_10", 2, 3.46)]

@@ -426,7 +426,7 @@ def _departure_fit(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray
 # contact with 3-4 g in all under 1 g of noise, too little for the ramp check, and the toe reads the
 # stiff stage (taplab seed 4 k 27: accepted 10.2 um low, z_sigma_um 0.81). Run there, the two-stage
 # fit finds it as often as it finds a drift or a walk passing for a long soft stage: on the 3,080
-# should-accept taps of taplab seeds 1-7 it shows two stages under 8 narrow toes (cable drift, 10
+# should-accept taps of taplab seeds 1-7 it shows two stages under 7 narrow toes (cable drift, 10
 # sps, latency, clean HX717: first touches 3.5-17.4 um up, at 8-14 % of the stiffness), and on seed
 # 4 k 27 (8.5 um up at 14 %). Nothing the fit measures tells them apart at that noise (the soft
 # share, 0.142 +- 0.032 against cable drift seed 4 k 20's 0.107 +- 0.028, with the noise's part of
