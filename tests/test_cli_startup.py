@@ -127,3 +127,23 @@ def test_analyze_ends_without_teardown_after_its_whole_output(tmp_path, tap_file
     assert run.returncode == (1 if missing else 0)
     assert [tap["file"] for tap in json.loads(run.stdout)] == [tap_file] * 3
     assert ("missing.json" in run.stderr) == missing
+
+
+@pytest.mark.parametrize("collecting", [True, False])
+def test_a_sub_command_is_imported_without_the_cycle_collector(tmp_path, monkeypatch, collecting):
+    """The collector is off while the sub-command's module imports, and as it was afterwards."""
+    import gc
+
+    from tapcell.tools import cli
+
+    (tmp_path / "startup_probe_module.py").write_text("import gc\nCOLLECTING = gc.isenabled()\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    was = gc.isenabled()
+    (gc.enable if collecting else gc.disable)()
+    try:
+        module = cli._import_without_collecting("startup_probe_module")
+        assert module.COLLECTING is False
+        assert gc.isenabled() is collecting
+    finally:
+        (gc.enable if was else gc.disable)()
+        sys.modules.pop("startup_probe_module", None)
