@@ -57,7 +57,8 @@ def test_analyze_imports_only_what_the_analysis_needs(run):
     modules = set(run["modules"])
     assert {"numpy", "tapcell.tap.analysis", "tapcell.tap.readers"} <= modules
     unneeded = {"pathlib", "csv", "matplotlib", "scipy", "tapcell.tap.plot", "tapcell.taplab", "tapcell.sim",
-                "tapcell.host", "tapcell.tools.frontend"}
+                "tapcell.host", "tapcell.tools.frontend",
+                "tapcell.tap.hum"}  # this tap asks for no hum removal (no mains_hz in its meta or options)
     assert sorted(unneeded & modules) == []
 
 
