@@ -148,3 +148,32 @@ def test_a_sub_command_is_imported_without_the_cycle_collector(tmp_path, monkeyp
     finally:
         (gc.enable if was else gc.disable)()
         sys.modules.pop("startup_probe_module", None)
+
+
+@pytest.mark.parametrize("pool", [False, True])
+def test_analyze_drops_each_analysis_once_written_unless_pooling(tmp_path, capsys, monkeypatch, pool):
+    """Without --pool a tap's analysis (~34 kB: the toe grid, the pullback's samples) is freed once
+    its line is written, so a run's memory stays flat; --pool keeps every one for the joint fit."""
+    import weakref
+
+    from native_kernel_inputs import generated_tap_objects
+    from tapcell.tap import cli as analyze_cli
+
+    files = []
+    for k, (_, tap) in enumerate(generated_tap_objects(1)[:5]):
+        files.append(str(tmp_path / f"tap-{k}.json"))
+        Path(files[-1]).write_text(json.dumps(tap))
+    analysed = []  # a weak reference to each analysis, in order
+    alive_at_each_call = []  # how many of the analyses before the last were still alive at each call
+    real_analyze_tap = analyze_cli.analyze_tap
+
+    def analyze_tap(tap, options):
+        alive_at_each_call.append(sum(ref() is not None for ref in analysed[:-1]))
+        result = real_analyze_tap(tap, options)
+        analysed.append(weakref.ref(result))
+        return result
+
+    monkeypatch.setattr(analyze_cli, "analyze_tap", analyze_tap)
+    assert analyze_cli.main(["--json", *(["--pool"] if pool else []), *files]) == 0
+    assert len(json.loads(capsys.readouterr().out)) == len(files)
+    assert alive_at_each_call == ([0, 0, 1, 2, 3] if pool else [0] * len(files))
