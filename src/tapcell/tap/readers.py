@@ -46,7 +46,7 @@ def read_tap_file(path: str | os.PathLike[str]) -> list[TapData]:
     """All taps in a file (one for .json/.csv, one per line for .jsonl)."""
     path = _file_name(path)
     text = _read_text(path)
-    if not text.strip():
+    if not text or text.isspace():  # as `not text.strip()`, without copying the whole text
         raise TapFileError(path, "the file is empty")
     suffix = _suffix(path)
     if suffix == ".csv":
