@@ -241,3 +241,14 @@ def test_the_first_time_not_after_the_one_before_is_named(tap, index, step_s):
         tap_from_object(document, "tap.json")
     assert str(caught.value) == (f"tap.json: 'time' is not strictly increasing "
                                  f"(index {index}: {time_s[index]!r} after {time_s[index - 1]!r})")
+
+
+@pytest.mark.parametrize("text, empty", [("", True), (" \n\t\r", True), ("\u3000\u00a0\n", True), (" {} ", False),
+                                         ("\n\n[]", False), ("\x00", False)])
+def test_a_file_of_white_space_alone_is_empty(tmp_path, text, empty):
+    """Empty as str.strip() sees it (Unicode white space too); anything else is read as JSON."""
+    path = tmp_path / "tap.json"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(TapFileError) as problem:
+        read_tap_file(path)
+    assert ("the file is empty" in str(problem.value)) == empty

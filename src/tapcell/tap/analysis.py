@@ -23,6 +23,7 @@ import functools
 import math
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -32,8 +33,6 @@ from tapcell.tap.classifiers import get_classifier, run_classifier
 from tapcell.tap.contact import (MIN_SPAN_UM, ContactFit, fit_contact, fit_fixed_onset, window_edges,
                                  window_mean_and_slope)
 from tapcell.tap.context import AnalysisContext, SensorTiming, recompute_points
-from tapcell.tap.hum import (MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum, fit_hum, harmonics_worth_fitting,
-                             lines_worth_fitting, resolvable_hz, spline_knots)
 from tapcell.tap.model import (
     TAP_ADHESION,
     TAP_BREAK_CONTACT_TOO_LATE,
@@ -56,6 +55,9 @@ from tapcell.tap.stage import (Ringing, SoftStage, departure_soft_stage, dwell_r
 from tapcell.tap.toe import (ADHESION_LEVEL_UM, ADHESION_REACH_UM, THREAD_FAR_REACH_UM, THREAD_REACH_UM, ToeFit,
                              Wander, adhesion_measures, fit_toe, free_air_variogram, lag_from_halt_s, thread_pull_g,
                              thread_pulls_g, walk_beside_height_pull, wander_from_variograms)
+
+if TYPE_CHECKING:  # the hum's module is imported where a tap asks for hum removal (remove_mains_hum)
+    from tapcell.tap.hum import HumFit
 
 # The checks, robust statistics and window heights in C (c/analysis.c, tapcell.tap.native); None: numpy.
 _C = native.load("analysis")
@@ -1061,12 +1063,14 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> tuple[SplitTap, int, in
     lag_samples = math.ceil((allowance + timing.integration_s) / period_s) + LAG_MARGIN_SAMPLES
     force, hum = remove_mains_hum(tap, options, time_s, force, motion, timing, lag_samples, period_s)
     dec, ps = decompose(time_s, force, motion, lag_samples, period_s)
-    if not validate.split_checks_pass(dec.points, line_angles_deg(dec.lines)):
+    angles_deg = line_angles_deg(dec.lines)
+    if not validate.split_checks_pass(dec.points, angles_deg):
         dec, ps = decompose_again(time_s, force, motion, lag_samples, period_s, (dec, ps))
+        angles_deg = line_angles_deg(dec.lines)
     # Second differences of the whole analysed window: hundreds of samples even when the
     # approach holds a dozen; the four kinks of a tap cannot move their median.
     noise_g = noise_sigma_g(force[dec.start:dec.stop])
-    return SplitTap(time_s, force, motion, timing, dec, ps, noise_g, line_angles_deg(dec.lines)), polarity, outliers, hum
+    return SplitTap(time_s, force, motion, timing, dec, ps, noise_g, angles_deg), polarity, outliers, hum
 
 
 def result_of_split(split: SplitTap, polarity: int, outliers: int, hum: HumFit | None) -> TapAnalysis:
@@ -1443,6 +1447,11 @@ def remove_mains_hum(tap: TapData, options: AnalysisOptions, time_s: np.ndarray,
     subtracted from every sample.
     """
     wanted = mains_frequencies_hz(tap, options)
+    if not wanted:  # none asked for: the hum's module is not even imported (a run without it starts faster)
+        return force_g, None
+    from tapcell.tap.hum import (MAINS_LINES_HZ, alias_hz, detect_mains_hum, fit_hum, harmonics_worth_fitting,
+                                 lines_worth_fitting, resolvable_hz, spline_knots)
+
     duration_s = float(time_s[-1] - time_s[0])
     candidates = resolvable_hz(MAINS_LINES_HZ if wanted == "auto" else wanted, 1.0 / period_s, duration_s)
     if wanted == "auto":  # the cheap screen first: a tap without hum pays for no split and no fit

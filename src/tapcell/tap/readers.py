@@ -46,7 +46,7 @@ def read_tap_file(path: str | os.PathLike[str]) -> list[TapData]:
     """All taps in a file (one for .json/.csv, one per line for .jsonl)."""
     path = _file_name(path)
     text = _read_text(path)
-    if not text.strip():
+    if not text or text.isspace():  # as `not text.strip()`, without copying the whole text
         raise TapFileError(path, "the file is empty")
     suffix = _suffix(path)
     if suffix == ".csv":
@@ -122,9 +122,11 @@ def _load_tap_json(path: str, text: str, where: str) -> tuple[Any, tuple[str, ..
     if _C is not None:
         split = _C.split_number_arrays(text, NUMBER_ARRAY_KEYS)
         if split is not None:
-            rest, arrays = split
+            rest, arrays, longest_digit_run = split
+            # json's own int() where no integer can be too long (a hook costs a call per integer)
+            bounded = _bounded_int if longest_digit_run > MAX_INTEGER_DIGITS else None
             try:
-                document = json.loads(rest, parse_int=_bounded_int)
+                document = json.loads(rest, parse_int=bounded)
             except (json.JSONDecodeError, _HugeInteger, RecursionError):
                 document = None  # _load_json below names the problem, at its place in the whole text
             if isinstance(document, dict) and all(document.get(key) == [] for key in arrays):
