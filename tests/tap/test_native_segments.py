@@ -6,6 +6,8 @@ bit for bit, exact ties included (the first minimum wins in both), and so must w
 
 from __future__ import annotations
 
+import collections
+
 import numpy as np
 import pytest
 from hypothesis import example, given, settings, strategies as st
@@ -29,10 +31,20 @@ def test_the_kernel_is_used(monkeypatch):
     assert used == ["five_lines"]
 
 
+def _bits(value):
+    """Nested tuples and lists of floats as their bit patterns: equal means bit for bit (NaN == NaN,
+    -0.0 != 0.0), where == would call a NaN point of parallel lines unequal to itself."""
+    if isinstance(value, (tuple, list)):
+        return type(value)(_bits(v) for v in value)
+    return np.float64(value).tobytes() if isinstance(value, float) else value
+
+
 def _five_lines_equal(ours, theirs) -> bool:
+    """Prefix sums, answer, boundaries, lines, points and the five lines' stats (`derived`) bit for bit."""
     (ps, *found), (twin_ps, *twin_found) = ours, theirs
     return ((ps.t_ref_s, ps.f_ref_g) == (twin_ps.t_ref_s, twin_ps.f_ref_g) and np.array_equal(ps.sums, twin_ps.sums)
-            and found == twin_found)
+            and _bits(found) == _bits(twin_found)
+            and _bits(sorted(ps.derived.items())) == _bits(sorted(twin_ps.derived.items())))
 
 
 def test_five_lines_equal_the_twin_on_generated_taps(monkeypatch):
@@ -41,7 +53,15 @@ def test_five_lines_equal_the_twin_on_generated_taps(monkeypatch):
     found = [segments.five_lines(*args) for args in calls]
     for args, ours in zip(calls, found):
         assert _five_lines_equal(ours, twin(monkeypatch, segments.five_lines, *args))
-    assert sum(problem == segments.SPLIT_FOUND for _, problem, _, _ in found) >= len(calls) - 2
+    assert sum(problem == segments.SPLIT_FOUND for _, problem, *_ in found) >= len(calls) - 2
+    # The split leaves its five lines' stats behind, each as segment_stats computes it from the sums.
+    for ps, problem, bounds, *_ in found:
+        if problem == segments.SPLIT_FOUND:
+            edges = [0, *bounds, ps.sums.shape[1] - 1]
+            assert sorted(ps.derived) == list(zip(edges, edges[1:]))
+            for first, end in zip(edges, edges[1:]):
+                assert ps.derived[first, end] == twin(monkeypatch, segments.segment_stats,
+                                                      segments.PrefixSums(ps.t_ref_s, ps.f_ref_g, ps.sums), first, end)
 
 
 def test_prefix_sums_lines_and_search_equal_the_twin_on_generated_taps(monkeypatch):
@@ -51,7 +71,7 @@ def test_prefix_sums_lines_and_search_equal_the_twin_on_generated_taps(monkeypat
         ours, theirs = segments.prefix_sums(time_s, force_g), twin(monkeypatch, segments.prefix_sums, time_s, force_g)
         assert (ours.t_ref_s, ours.f_ref_g) == (theirs.t_ref_s, theirs.f_ref_g)
         assert np.array_equal(ours.sums, theirs.sums)
-    ps, problem, bounds, _ = segments.five_lines(*calls[0])
+    ps, problem, bounds, *_ = segments.five_lines(*calls[0])
     assert problem == segments.SPLIT_FOUND
     edges = [0, *bounds, ps.sums.shape[1] - 1]
     assert segments.segment_lines(ps, edges) == twin(monkeypatch, segments.segment_lines, ps, edges)
@@ -67,10 +87,13 @@ def test_five_lines_equal_the_twin_on_every_problem(monkeypatch):
     # either order): every answer, split or none, and why, the same; forces on a coarse grid tie.
     rng = np.random.default_rng(5)
     problems = set()
+    edge_cases = collections.Counter()
     for _ in range(600):
         n = int(rng.integers(4, 30))
         time_s = np.arange(n) * 0.01
         force_g = rng.integers(0, 3, n).astype(float) + (np.arange(n) * 0.5 if rng.random() < 0.5 else 0.0)
+        if rng.random() < 0.1:  # a flat force: five parallel lines, no point where two meet
+            force_g = np.full(n, 2.0)
         phases_s = tuple(float(v) for v in np.sort(rng.uniform(-0.05, 0.01 * n + 0.05, 3)))
         if rng.random() < 0.2:
             phases_s = phases_s[::-1]
@@ -80,8 +103,14 @@ def test_five_lines_equal_the_twin_on_every_problem(monkeypatch):
         ours = segments.five_lines(*args)
         assert _five_lines_equal(ours, twin(monkeypatch, segments.five_lines, *args))
         problems.add(ours[1])
+        if ours[1] == segments.SPLIT_FOUND:  # the edge cases the stats and points meet, counted below
+            points, stats = ours[4], list(ours[0].derived.items())
+            edge_cases["parallel lines: NaN point"] += any(np.isnan(t) for t, _ in points)
+            edge_cases["exact line: no residual"] += any(var == 0.0 for _, (var, _, _) in stats)
+            edge_cases["two samples: one degree of freedom"] += any(end - first == 2 for (first, end), _ in stats)
     assert problems == {segments.SPLIT_FOUND, segments.NO_DWELL_SAMPLES, segments.TOO_FEW_AROUND,
                         segments.TOO_FEW_FOR_FIVE}
+    assert len(edge_cases) == 3 and min(edge_cases.values()) >= 5, edge_cases
 
 
 @st.composite

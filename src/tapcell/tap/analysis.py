@@ -32,7 +32,7 @@ from tapcell.tap.angles import line_angles_deg
 from tapcell.tap.classifiers import get_classifier, run_classifier
 from tapcell.tap.contact import (MIN_SPAN_UM, ContactFit, fit_contact, fit_fixed_onset, window_edges,
                                  window_mean_and_slope)
-from tapcell.tap.context import AnalysisContext, SensorTiming, recompute_points
+from tapcell.tap.context import AnalysisContext, SensorTiming
 from tapcell.tap.model import (
     TAP_ADHESION,
     TAP_BREAK_CONTACT_TOO_LATE,
@@ -49,7 +49,8 @@ from tapcell.tap.model import (
 from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
-from tapcell.tap.segments import NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_FIVE, PrefixSums, five_lines
+from tapcell.tap.segments import (NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_FIVE, PrefixSums, five_lines,
+                                  segment_stats)
 from tapcell.tap.stage import (Ringing, SoftStage, departure_soft_stage, dwell_ringing, shows_soft_stage, shows_two_stage,
                                two_stage_departure, unnamed_stage_um)
 from tapcell.tap.toe import (ADHESION_LEVEL_UM, ADHESION_REACH_UM, THREAD_FAR_REACH_UM, THREAD_REACH_UM, ToeFit,
@@ -381,15 +382,14 @@ def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_sampl
     if dwell_from_halt:
         phases_s = (_halt_read_s(t, motion.home_end_s), *phases_s[1:])
     release_lag = lag_samples if release_lag_samples is None else release_lag_samples
-    ps, problem, bounds, lines = five_lines(t, force_g[start:stop], phases_s, lag_samples, release_lag,
-                                            approach_share)
+    ps, problem, bounds, lines, points = five_lines(t, force_g[start:stop], phases_s, lag_samples, release_lag,
+                                                    approach_share)
     if problem == NO_DWELL_SAMPLES:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, "no samples between the halt and the pullback")
     if problem == TOO_FEW_AROUND:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, f"too few samples around the tap ({len(t)} in the analysis window)")
     if problem == TOO_FEW_FOR_FIVE:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, "too few samples to fit five lines (each needs 2)")
-    points = recompute_points(lines, float(t[0]), float(t[-1]))
     return Decomposition(start, stop, bounds, lines, points), ps
 
 
@@ -462,17 +462,8 @@ def decompose_again(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag
     return first
 
 
-def _segment_stats(ps: PrefixSums, i: int, j: int) -> tuple[float, float, float]:
-    """(residual variance, mean re-centred time, Sxx) of the line over [i, j) (computed once a range)."""
-    found = ps.derived.get((i, j))
-    if found is None:
-        n, st, sf, stt, stf, sff = ps.segment_sums(i, j)
-        sxx = stt - st * st / n
-        sxy = stf - st * sf / n
-        syy = sff - sf * sf / n
-        sse = max(syy - (sxy * sxy / sxx if sxx > 0 else 0.0), 0.0)
-        found = ps.derived[i, j] = (sse / max(n - 2, 1), st / n, sxx)
-    return found
+# (residual variance, mean re-centred time, Sxx) of the line over [i, j): the five lines' come with the split.
+_segment_stats = segment_stats
 
 
 def break_time_sigma_s(ps: PrefixSums, dec: Decomposition, t_break: float) -> float:

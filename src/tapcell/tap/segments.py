@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tapcell.tap import native
+from tapcell.tap.context import recompute_points
 
 _C = native.load("segments")
 
@@ -38,11 +39,26 @@ class PrefixSums:
     sums: np.ndarray  # (6, n + 1)
     # What the analysis derived from a range's sums, by (i, j): the checks and the Z uncertainty ask
     # for the same lines' scatter several times a tap (tapcell.tap.analysis._segment_stats).
+    # (`five_lines` fills it for the five lines of its split: the scatter the checks ask for is then there.)
     derived: dict = field(default_factory=dict, repr=False, compare=False)
 
     def segment_sums(self, i: int, j: int) -> list[float]:
         """[n, Σt, Σf, Σt², Σt·f, Σf²] over [i, j) as plain floats."""
         return (self.sums[:, j] - self.sums[:, i]).tolist()
+
+
+def segment_stats(ps: PrefixSums, i: int, j: int) -> tuple[float, float, float]:
+    """(residual variance, mean re-centred time, Sxx) of the line over [i, j), computed once a range
+    (`PrefixSums.derived`; the five-line kernel fills it for its five lines with this arithmetic)."""
+    found = ps.derived.get((i, j))
+    if found is None:
+        n, st, sf, stt, stf, sff = ps.segment_sums(i, j)
+        sxx = stt - st * st / n
+        sxy = stf - st * sf / n
+        syy = sff - sf * sf / n
+        sse = max(syy - (sxy * sxy / sxx if sxx > 0 else 0.0), 0.0)
+        found = ps.derived[i, j] = (sse / max(n - 2, 1), st / n, sxx)
+    return found
 
 
 def prefix_sums(time_s: np.ndarray, force_g: np.ndarray) -> PrefixSums:
@@ -190,11 +206,17 @@ def best_five_segments(
 SPLIT_FOUND, NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_FIVE = 0, 1, 2, 3
 
 
+Point = tuple[float, float]
+
+
 def five_lines(time_s: np.ndarray, force_g: np.ndarray, phases_s: tuple[float, float, float], lag_samples: int,
                release_lag_samples: int, approach_share: float = 0.0
-               ) -> tuple[PrefixSums, int, tuple[int, int, int, int] | None, list[tuple[float, float]] | None]:
+               ) -> tuple[PrefixSums, int, tuple[int, int, int, int] | None, list[tuple[float, float]] | None,
+                          list[Point] | None]:
     """The five-line split of a window of samples: (prefix sums, SPLIT_FOUND or why there is none,
-    the boundaries (contact, peak, release, break), the five lines).
+    the boundaries (contact, peak, release, break), the five lines, their six points as
+    `context.recompute_points` puts them over the window's first and last sample). The five lines'
+    `segment_stats` are in the prefix sums' `derived` (the checks and the Z uncertainty read them).
 
     phases_s: the halt, the pullback's start and its cruise (s). The peak is searched from the
     sample before the halt up to `lag_samples` after it (not past the pullback's start), the
@@ -210,20 +232,24 @@ def five_lines(time_s: np.ndarray, force_g: np.ndarray, phases_s: tuple[float, f
     t_ref, f_ref = float(time_s[m // 2]), float(force_g.sum()) / m  # as prefix_sums
     if _C is not None:
         ps = PrefixSums(t_ref, f_ref, np.empty((6, m + 1)))
-        problem, bounds, lines = _C.five_lines(time_s, force_g, t_ref, f_ref, *phases_s, lag_samples,
-                                               release_lag_samples, approach_share, ps.sums)
-        return ps, problem, bounds, lines
+        problem, bounds, lines, points = _C.five_lines(time_s, force_g, t_ref, f_ref, *phases_s, lag_samples,
+                                                       release_lag_samples, approach_share, ps.sums, ps.derived)
+        return ps, problem, bounds, lines, points
     ps = prefix_sums(time_s, force_g)
     home_end, pull_start, pull_cruise = np.minimum(time_s.searchsorted(phases_s), m - 1).tolist()
     peak = range(max(2, home_end - 1), min(pull_start, home_end + lag_samples) + 1)
     release = range(max(pull_start - 1, 0), min(m - 2, max(pull_start, pull_cruise) + release_lag_samples) + 1)
     if len(peak) == 0 or len(release) == 0:
-        return ps, NO_DWELL_SAMPLES, None, None
+        return ps, NO_DWELL_SAMPLES, None, None, None
     contact = range(max(2, int(approach_share * home_end)), peak[-1] - 1)
     breaking = range(release[0] + 2, m - 1)
     if len(contact) == 0 or len(breaking) == 0:
-        return ps, TOO_FEW_AROUND, None, None
+        return ps, TOO_FEW_AROUND, None, None, None
     bounds = best_five_segments(ps, 0, m, contact, peak, release, breaking)
     if bounds is None:
-        return ps, TOO_FEW_FOR_FIVE, None, None
-    return ps, SPLIT_FOUND, bounds, segment_lines(ps, [0, *bounds, m])
+        return ps, TOO_FEW_FOR_FIVE, None, None, None
+    edges = [0, *bounds, m]
+    for first, end in zip(edges, edges[1:]):
+        segment_stats(ps, first, end)
+    lines = segment_lines(ps, edges)
+    return ps, SPLIT_FOUND, bounds, lines, recompute_points(lines, float(time_s[0]), float(time_s[-1]))

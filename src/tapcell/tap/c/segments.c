@@ -5,7 +5,9 @@
  * one row at a time (O(c·p + p·r + r·b) for c contact, p peak, r release and b break candidates),
  * with the twin's arithmetic in the twin's order (`_sse_of_sums`), so both see the same residuals
  * bit for bit and pick the same boundaries, exact ties included.
- * prefix_sums and segment_lines: the twin's running sums and line formulas, bit for bit too. */
+ * prefix_sums and segment_lines: the twin's running sums and line formulas, bit for bit too.
+ * five_lines: a tap window's whole split in one call, with what the analysis reads off it next (the
+ * lines' scatter, `segment_stats`, and their six points, `context.recompute_points`), bit for bit. */
 #include "buffers.h"
 
 #include <math.h>
@@ -325,14 +327,50 @@ static Py_ssize_t first_at_or_after(const double *time_s, Py_ssize_t n, double t
     return lo < n - 1 ? lo : n - 1;
 }
 
+/* The twin's `segment_stats` of [first, end) (the same arithmetic in the same order; Python's
+ * max(a, b) is b only when b > a): (residual variance, mean re-centred time, Sxx), as a new tuple. */
+static PyObject *segment_stats_of(const double *rows, Py_ssize_t width, Py_ssize_t first, Py_ssize_t end)
+{
+    double sum[SUM_ROWS];
+    for (int row = 0; row < SUM_ROWS; row++)
+        sum[row] = rows[row * width + end] - rows[row * width + first];
+    double n = sum[0], st = sum[1], sf = sum[2], stt = sum[3], stf = sum[4], sff = sum[5];
+    double sxx = stt - st * st / n;
+    double sxy = stf - st * sf / n;
+    double syy = sff - sf * sf / n;
+    double residual = syy - (sxx > 0 ? sxy * sxy / sxx : 0.0);
+    double sse = 0.0 > residual ? 0.0 : residual;
+    double dof = 1.0 > n - 2.0 ? 1.0 : n - 2.0;
+    return Py_BuildValue("(ddd)", sse / dof, st / n, sxx);
+}
+
+/* `context._intersect` of lines (a_slope, a_intercept) and (b_slope, b_intercept) around t_ref
+ * (the same arithmetic): NaN, NaN for parallel lines. */
+static void intersect(double a_slope, double a_intercept, double b_slope, double b_intercept, double t_ref,
+                      double *t_out, double *f_out)
+{
+    double slope_diff = a_slope - b_slope;
+    if (slope_diff == 0) {
+        *t_out = *f_out = NAN;
+        return;
+    }
+    double fa = a_slope * t_ref + a_intercept, fb = b_slope * t_ref + b_intercept;
+    double dt = (fb - fa) / slope_diff;
+    *t_out = t_ref + dt;
+    *f_out = fa + a_slope * dt;
+}
+
 PyDoc_STRVAR(five_lines_doc,
              "five_lines(time_s, force_g, t_ref_s, f_ref_g, halt_s, pullback_start_s, pullback_cruise_s,\n"
-             "           lag_samples, release_lag_samples, approach_share, sums) -> (problem, bounds, lines)\n"
+             "           lag_samples, release_lag_samples, approach_share, sums, derived)\n"
+             "    -> (problem, bounds, lines, points)\n"
              "\n"
              "The five-line split of a window of samples in one call (segments.py `five_lines`, whose numpy\n"
-             "twin runs prefix_sums, the candidate ranges, best_five_segments and segment_lines): `sums`, a\n"
-             "(6, n + 1) float64 array, gets the prefix sums; problem 0 with the four boundaries and the five\n"
-             "lines, else one of segments.py's NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_FIVE and None, None.");
+             "twin runs prefix_sums, the candidate ranges, best_five_segments, segment_stats, segment_lines\n"
+             "and context.recompute_points): `sums`, a (6, n + 1) float64 array, gets the prefix sums; problem 0\n"
+             "with the four boundaries, the five lines and their six points, and each line's segment_stats\n"
+             "in the dict `derived` under (first, end); else one of segments.py's NO_DWELL_SAMPLES,\n"
+             "TOO_FEW_AROUND, TOO_FEW_FOR_FIVE and None, None, None. All bit for bit the twin's arithmetic.");
 
 static PyObject *five_lines(PyObject *self, PyObject *args)
 {
@@ -340,9 +378,10 @@ static PyObject *five_lines(PyObject *self, PyObject *args)
     Py_buffer time_buffer, force_buffer, sums_buffer;
     double t_ref_s, f_ref_g, halt_s, pull_start_s, pull_cruise_s, approach_share;
     Py_ssize_t lag, release_lag;
-    if (!PyArg_ParseTuple(args, "O&O&dddddnndw*", float64_buffer, &time_buffer, float64_buffer, &force_buffer,
+    PyObject *derived;
+    if (!PyArg_ParseTuple(args, "O&O&dddddnndw*O!", float64_buffer, &time_buffer, float64_buffer, &force_buffer,
                           &t_ref_s, &f_ref_g, &halt_s, &pull_start_s, &pull_cruise_s, &lag, &release_lag,
-                          &approach_share, &sums_buffer))
+                          &approach_share, &sums_buffer, &PyDict_Type, &derived))
         return NULL;
     PyObject *result = NULL;
     Py_ssize_t m = 0;
@@ -381,16 +420,35 @@ static PyObject *five_lines(PyObject *self, PyObject *args)
         problem = split ? 0 : 3; /* TOO_FEW_FOR_FIVE */
     }
     if (problem) {
-        result = Py_BuildValue("(iOO)", problem, Py_None, Py_None);
+        result = Py_BuildValue("(iOOO)", problem, Py_None, Py_None, Py_None);
         goto done;
     }
     const Py_ssize_t edges[] = {0, found[0], found[1], found[2], found[3], m};
     double slope[5], intercept[5];
-    for (int k = 0; k < 5; k++)
+    for (int k = 0; k < 5; k++) {
+        /* every line holds at least 2 samples (the search's inf otherwise): no count of zero below */
         line_of(sums, m + 1, edges[k], edges[k + 1], t_ref_s, f_ref_g, &slope[k], &intercept[k]);
-    result = Py_BuildValue("(i(nnnn)[(dd)(dd)(dd)(dd)(dd)])", 0, found[0], found[1], found[2], found[3], slope[0],
-                           intercept[0], slope[1], intercept[1], slope[2], intercept[2], slope[3], intercept[3],
-                           slope[4], intercept[4]);
+        PyObject *key = Py_BuildValue("(nn)", edges[k], edges[k + 1]);
+        PyObject *stats = key ? segment_stats_of(sums, m + 1, edges[k], edges[k + 1]) : NULL;
+        int stored = stats ? PyDict_SetItem(derived, key, stats) : -1;
+        Py_XDECREF(key);
+        Py_XDECREF(stats);
+        if (stored < 0)
+            goto done;
+    }
+    /* recompute_points: P0 and P5 on the end lines at the first and last sample, P1..P4 the
+     * consecutive lines' intersections around the window's middle. */
+    const double t_first = time_s[0], t_last = time_s[m - 1], t_mid = 0.5 * (t_first + t_last);
+    double point_t[6], point_f[6];
+    point_t[0] = t_first, point_f[0] = slope[0] * t_first + intercept[0];
+    for (int k = 0; k < 4; k++)
+        intersect(slope[k], intercept[k], slope[k + 1], intercept[k + 1], t_mid, &point_t[k + 1], &point_f[k + 1]);
+    point_t[5] = t_last, point_f[5] = slope[4] * t_last + intercept[4];
+    result = Py_BuildValue("(i(nnnn)[(dd)(dd)(dd)(dd)(dd)][(dd)(dd)(dd)(dd)(dd)(dd)])", 0, found[0], found[1],
+                           found[2], found[3], slope[0], intercept[0], slope[1], intercept[1], slope[2],
+                           intercept[2], slope[3], intercept[3], slope[4], intercept[4], point_t[0], point_f[0],
+                           point_t[1], point_f[1], point_t[2], point_f[2], point_t[3], point_f[3], point_t[4],
+                           point_f[4], point_t[5], point_f[5]);
 done:
     PyBuffer_Release(&time_buffer);
     PyBuffer_Release(&force_buffer);
