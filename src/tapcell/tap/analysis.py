@@ -500,6 +500,8 @@ class ModelWindow:
     break_line_um: float  # P4 mapped (pullback)
     # `pullback_samples` by their first sample: the sharp fit, the toe fit and the Z uncertainty read the same.
     pullbacks: dict = field(default_factory=dict, repr=False, compare=False)
+    # `pullback_first` by the time it searches for: asked four times a tap, for one or two delays.
+    firsts: dict = field(default_factory=dict, repr=False, compare=False)
 
 
 def model_window(time_s, force_g, motion: Motion, timing: SensorTiming, delay_s: float,
@@ -722,7 +724,11 @@ PullbackSamples = tuple[np.ndarray, np.ndarray, np.ndarray]  # window low edge Â
 
 def pullback_first(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float) -> int:
     """The first sample whose conversion window starts after the nozzle began rising."""
-    return int(window.time_s.searchsorted(motion.pullback_start_s + delay_s + timing.integration_s, side="right"))
+    rising_s = motion.pullback_start_s + delay_s + timing.integration_s
+    first = window.firsts.get(rising_s)
+    if first is None:
+        first = window.firsts[rising_s] = int(window.time_s.searchsorted(rising_s, side="right"))
+    return first
 
 
 def pullback_samples(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float) -> PullbackSamples:
