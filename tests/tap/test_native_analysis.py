@@ -91,6 +91,30 @@ def test_window_heights_are_the_twins_to_the_last_bit(monkeypatch):
     assert len(calls) >= 30
 
 
+def test_window_heights_are_the_twins_at_the_moves_edges():
+    # Windows read before the first move starts and after the last ends (a move's time clamped at
+    # 0 and at its duration), exactly on move boundaries, a delay reading every sample before the
+    # moves, an integration of zero (a window of one height: the MIN_SPAN_UM floor) and line points
+    # outside the samples: the kernel's inlined maximum/minimum give the twin's np.maximum/np.minimum.
+    tap = tap_from_object(make_tap(SCENARIOS["clean_hx717"].draw(np.random.default_rng(3)), np.random.default_rng(3))[0])
+    motion = tap_motion(tap)
+    starts = motion.move_table[0]
+    ends = starts + motion.move_table[1]
+    edges = np.concatenate((starts, ends))
+    time_s = np.unique(np.concatenate((np.linspace(starts[0] - 0.5, ends[-1] + 0.5, 400), edges, edges + 1e-9)))
+    lines = [(0.0, 0.0)] * 5
+    points = [(float(starts[0]) - 1.0, 0.0)] * 2 + [(0.0, 0.0)] * 2 + [(float(ends[-1]) + 1.0, 0.0)] * 2
+    dec = analysis.Decomposition(0, len(time_s), (1, 2, 3, 4), lines, points)
+    clamped = 0
+    for delay_s, integration_s in ((0.0, 0.003), (0.0, 0.0), (0.02, 0.5), (ends[-1] - starts[0] + 1.0, 0.001)):
+        timing = analysis.SensorTiming(delay_s, integration_s, False, False, 0.003, 0.0)
+        fast, twin = _twins(lambda: analysis.model_window(time_s, time_s * 0.0, motion, timing, delay_s, dec))
+        assert np.array_equal(fast.x_min_um, twin.x_min_um) and np.array_equal(fast.span_um, twin.span_um)
+        assert (fast.contact_line_um, fast.break_line_um) == (twin.contact_line_um, twin.break_line_um)
+        clamped += int(np.sum(twin.span_um == analysis.MIN_SPAN_UM))
+    assert clamped >= 400  # the floor was met (zero integration, and windows at rest before and after the moves)
+
+
 def test_the_move_table_is_six_contiguous_rows_of_the_moves():
     # What window_heights and Motion.z_at read: one column per move, rows in this order.
     tap = tap_from_object(make_tap(SCENARIOS["clean_hx717"].draw(np.random.default_rng(3)), np.random.default_rng(3))[0])

@@ -220,6 +220,13 @@ static PyObject *spikes(PyObject *self, PyObject *args)
     return answer;
 }
 
+/* numpy's maximum and minimum of two doubles (a NaN propagates; otherwise the larger, the smaller):
+ * what the twins' np.maximum / np.minimum give, inlined where C's fmax / fmin are calls into libm
+ * (and drop a NaN). The samples' times and heights are finite and their zeros +0.0 (x - x), so
+ * no operand order of signed zeros is met here. */
+static inline double maximum(double a, double b) { return a >= b || isnan(a) ? a : b; }
+static inline double minimum(double a, double b) { return a <= b || isnan(a) ? a : b; }
+
 /* The move in force at t_s (motion.py `Motion.z_at`): the last one starting at or before t_s, the
  * first when none does. `*move` is where the previous time was: the samples' times rise, so it
  * mostly stays or steps on (a time earlier than its move's start searches afresh). */
@@ -245,7 +252,7 @@ static double z_in_move_mm(const double *table, Py_ssize_t moves, Py_ssize_t ind
 {
     const double start_s = table[index], duration_s = table[moves + index], start_v = table[2 * moves + index];
     const double accel = table[3 * moves + index], start_z = table[4 * moves + index], z_r = table[5 * moves + index];
-    double tau_s = fmin(fmax(t_s - start_s, 0.0), duration_s);
+    double tau_s = minimum(maximum(t_s - start_s, 0.0), duration_s);
     return start_z + z_r * (start_v + 0.5 * accel * tau_s) * tau_s;
 }
 
@@ -278,8 +285,8 @@ static PyObject *window_heights(PyObject *self, PyObject *args)
             double read_s = time_s[i] - delay_s;
             double low_um = (z_at_mm(table, moves, read_s - integration_s, &low_move) - z_halt_mm) * 1000.0;
             double high_um = (z_at_mm(table, moves, read_s, &high_move) - z_halt_mm) * 1000.0;
-            x_min_um[i] = fmin(low_um, high_um);
-            span_um[i] = fmax(fmax(low_um, high_um) - x_min_um[i], min_span_um);
+            x_min_um[i] = minimum(low_um, high_um);
+            span_um[i] = maximum(maximum(low_um, high_um) - x_min_um[i], min_span_um);
         }
         double contact_line_um = (z_at_mm(table, moves, contact_line_s, &line_move) - z_halt_mm) * 1000.0;
         double break_line_um = (z_at_mm(table, moves, break_line_s, &line_move) - z_halt_mm) * 1000.0;
