@@ -1,4 +1,5 @@
-"""The compiled contact kernel (tapcell.tap._c_contact) against its numpy twin in contact.py.
+"""The compiled contact kernel (tapcell.tap._c_contact) against its numpy twins in contact.py and
+analysis.py (the pullback's and the compression's whole fits, at the end).
 
 The kernel evaluates the twin's formulas in the twin's order; only its sums over samples run in
 another order (numpy sums pairwise, BLAS dots its own way), so the two agree to rounding. The

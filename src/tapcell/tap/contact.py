@@ -20,7 +20,8 @@ half a sample period of lag high).
 
 `fit_fixed_onset` runs in C when the kernel tapcell.tap._c_contact is built (the same search and
 formulas; sums in another order, so equal to rounding); the numpy functions it is made of here are
-the reference and the fallback.
+the reference and the fallback. The kernel also holds the analysis's whole pullback and compression
+fits around it (analysis.pullback_fit, compression_fit; `fit_of_kernel` reads their answers).
 """
 
 from __future__ import annotations

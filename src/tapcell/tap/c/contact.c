@@ -3,7 +3,12 @@
  * fit_fixed_onset: the whole fit of the contact model with a fixed onset, as the twin
  * `fit_fixed_onset` (search_contact's grid + parabola, at most three rounds, then fit_contact_at),
  * in one call. Each formula is the twin's, in the twin's order; only sums over samples run in
- * another order (numpy sums pairwise, BLAS dots its own way), so results agree to rounding. */
+ * another order (numpy sums pairwise, BLAS dots its own way), so results agree to rounding.
+ *
+ * fit_pullback, fit_compression: analysis.py's pullback and compression fits around it, whole
+ * (twins: analysis.pullback_fit_twin, compression_fit_twin): the robust pass and its refit, the
+ * near-contact sigma; the samples before the halt, the drift taken out. The same to the last bit
+ * as those twins run with the fit_fixed_onset kernel (and _c_analysis's robust pass). */
 #include "buffers.h"
 
 #include <math.h>
