@@ -16,21 +16,56 @@
 
 #include "median.h"
 
+/* Two heights a window go through SSE2 side by side where the compiler has it (x86-64 always);
+ * -DTAPCELL_SCALAR builds the plain loops, which give the same bits (a check of the vector code). */
+#if defined(__SSE2__) && !defined(TAPCELL_SCALAR)
+#define TOE_SSE2 1
+#include <emmintrin.h>
+#endif
+
 #define SHAPES 2
 /* How far short of its width each shape lifts the linear part: p / (p + 1). */
 static const double LIFT_DEFICIT[SHAPES] = {0.5 / 1.5, 1.0 / 2.0};
 
+#ifdef TOE_SSE2
+/* `toe_sums` of a window of two heights as one vector (Hertz, parabolic), the two heights side by
+ * side: no branch, and IEEE division and square root round alike in either form. A free height
+ * adds (0 · 0) · lift + 0 = +0 and a height past the toe (1 · 1) · lift + beyond, the values
+ * `toe_sums` takes by its branches; each shape's two heights summed h0 + h1, as 0 + h0 + h1. */
+static inline __m128d toe_pair(double contact_um, double width_um, const double *row_um)
+{
+    double width = width_um > 1e-9 ? width_um : 1e-9;
+    __m128d zero = _mm_setzero_pd(), w = _mm_set1_pd(width);
+    __m128d pressed = _mm_max_pd(_mm_sub_pd(_mm_set1_pd(contact_um), _mm_loadu_pd(row_um)), zero);
+    __m128d u = _mm_min_pd(_mm_div_pd(pressed, w), _mm_set1_pd(1.0));
+    __m128d beyond = _mm_max_pd(_mm_sub_pd(pressed, w), zero);
+    __m128d hertz = _mm_add_pd(_mm_mul_pd(_mm_mul_pd(_mm_sqrt_pd(u), u), _mm_set1_pd(width * (1.0 / 1.5))), beyond);
+    __m128d parabolic = _mm_add_pd(_mm_mul_pd(_mm_mul_pd(u, u), _mm_set1_pd(width * (1.0 / 2.0))), beyond);
+    return _mm_add_pd(_mm_unpacklo_pd(hertz, parabolic), _mm_unpackhi_pd(hertz, parabolic));
+}
+#endif
+
 /* Both shapes' toe columns at one sample (toe.py's `toe_shapes`): the shape summed over the
  * heights its conversion window averages (row: `subsamples` heights; the caller scales the sums).
- * The operations in numpy's order (scale by w / (p + 1), then add the linear part), so each value
- * agrees to the last bit. Free air (u = 0) and past the toe (u = 1) skip the sqrt and the
- * division: most heights are one or the other, and the values come out the same. Inline, with
- * the sums in locals: it runs for every candidate's every in-toe sample. */
+ * The operations in numpy's order (u = min(max(depth, 0) / w, 1), beyond = max(depth - w, 0),
+ * u^1.5 or u^2 scaled by w / (p + 1), then the linear part added), so each value agrees to the
+ * last bit. Two heights a window (toe.py's SUBSAMPLES) with SSE2: `toe_pair`. Otherwise per
+ * height, free air and past the toe without the sqrt and the division (the values come out the
+ * same). Inline, with the sums in locals: it runs for every candidate's every in-toe sample. */
 static inline void toe_sums(double contact_um, double width_um, const double *row_um, Py_ssize_t subsamples,
                             double sums[SHAPES])
 {
     double width = width_um > 1e-9 ? width_um : 1e-9;
     double lift_hertz = width * (1.0 / 1.5), lift_parabolic = width * (1.0 / 2.0);
+#ifdef TOE_SSE2
+    if (subsamples == 2) {
+        double pair[SHAPES];
+        _mm_storeu_pd(pair, toe_pair(contact_um, width_um, row_um));
+        sums[0] = pair[0];
+        sums[1] = pair[1];
+        return;
+    }
+#endif
     double hertz = 0.0, parabolic = 0.0;
     for (Py_ssize_t s = 0; s < subsamples; s++) {
         double depth_um = contact_um - row_um[s];
@@ -285,6 +320,25 @@ static void projected_grid(const Samples *s, const Projected *p, const double *c
         /* In-toe sums per shape (0, 1): h·B (both basis rows), h·h, h·y; scalars, so they stay in
          * registers. */
         double hb00 = 0.0, hb01 = 0.0, hb10 = 0.0, hb11 = 0.0, hh0 = 0.0, hh1 = 0.0, hy0 = 0.0, hy1 = 0.0;
+#ifdef TOE_SSE2
+        if (sub == 2) { /* both shapes side by side, each lane the scalar loop's sums below */
+            __m128d scale = _mm_set1_pd(1.0 / (double)sub), b0 = _mm_setzero_pd(), b1 = b0, hh_pair = b0, hy_pair = b0;
+            for (Py_ssize_t i = first; i < last; i++) {
+                __m128d h = _mm_mul_pd(toe_pair(c, w, s->window_um + 2 * i), scale);
+                b0 = _mm_add_pd(b0, _mm_mul_pd(h, _mm_set1_pd(basis0[i])));
+                b1 = _mm_add_pd(b1, _mm_mul_pd(h, _mm_set1_pd(basis1[i])));
+                hh_pair = _mm_add_pd(hh_pair, _mm_mul_pd(h, h));
+                hy_pair = _mm_add_pd(hy_pair, _mm_mul_pd(h, _mm_set1_pd(y_free[i])));
+            }
+            double lanes[4][2];
+            _mm_storeu_pd(lanes[0], b0);
+            _mm_storeu_pd(lanes[1], b1);
+            _mm_storeu_pd(lanes[2], hh_pair);
+            _mm_storeu_pd(lanes[3], hy_pair);
+            hb00 = lanes[0][0], hb10 = lanes[0][1], hb01 = lanes[1][0], hb11 = lanes[1][1];
+            hh0 = lanes[2][0], hh1 = lanes[2][1], hy0 = lanes[3][0], hy1 = lanes[3][1];
+        } else
+#endif
         for (Py_ssize_t i = first; i < last; i++) {
             double h[SHAPES];
             toe_sums(c, w, s->window_um + i * sub, sub, h);
@@ -445,6 +499,26 @@ static void whitened_candidate(const Samples *s, const Whitened *wh, double cont
                 z[p] = wh->pressed_z[start - 2], zz[p] = wh->pressed_zz[start - 2], zy[p] = wh->pressed_zy[start - 2];
         }
     }
+#ifdef TOE_SSE2
+    if (sub == 2) { /* both shapes side by side, each lane the scalar loop's recursion below */
+        __m128d divisor = _mm_set1_pd((double)sub), previous = _mm_loadu_pd(previous_h), z_pair = _mm_loadu_pd(z);
+        __m128d zz_pair = _mm_loadu_pd(zz), zy_pair = _mm_loadu_pd(zy);
+        for (Py_ssize_t i = start; i <= stop && i < n; i++) {
+            __m128d h = _mm_div_pd(toe_pair(contact_um, width_um, s->window_um + 2 * i), divisor);
+            if (i > 0) {
+                z_pair = _mm_mul_pd(_mm_sub_pd(_mm_sub_pd(h, previous), _mm_mul_pd(_mm_set1_pd(wh->sub[j]), z_pair)),
+                                    _mm_set1_pd(wh->inv_diag[j]));
+                zz_pair = _mm_add_pd(zz_pair, _mm_mul_pd(z_pair, z_pair));
+                zy_pair = _mm_add_pd(zy_pair, _mm_mul_pd(z_pair, _mm_set1_pd(wh->y_white[j])));
+                j++;
+            }
+            previous = h;
+        }
+        _mm_storeu_pd(z, z_pair);
+        _mm_storeu_pd(zz, zz_pair);
+        _mm_storeu_pd(zy, zy_pair);
+    } else
+#endif
     for (Py_ssize_t i = start; i <= stop && i < n; i++) {
         double h[SHAPES];
         toe_sums(contact_um, width_um, s->window_um + i * sub, sub, h);
