@@ -7,7 +7,12 @@ drift with the baseline or take it from the approach, cable-drift taps weigh the
 
 from __future__ import annotations
 
+import importlib.util
 import math
+import shutil
+import subprocess
+import sysconfig
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -315,3 +320,36 @@ def test_thread_pulls_equal_the_numpy_twin_bit_for_bit(monkeypatch):
     assert kernel == twins
     assert sum(near is not None for near, _ in twins) >= 10 and sum(far is not None for _, far in twins) >= 5
     assert any(far is None and near is not None for near, far in twins)  # a pullback too short to reach far
+
+
+@pytest.fixture(scope="module")
+def scalar_kernel(tmp_path_factory):
+    """c/toe.c built with -DTAPCELL_SCALAR (the plain loops an ARM board runs instead of SSE2),
+    loaded beside the installed kernel."""
+    compiler = shutil.which(sysconfig.get_config_var("CC").split()[0]) if sysconfig.get_config_var("CC") else None
+    if compiler is None:
+        pytest.skip("no C compiler")
+    source = Path(toe.__file__).with_name("c") / "toe.c"
+    library = tmp_path_factory.mktemp("scalar") / ("_c_toe" + sysconfig.get_config_var("EXT_SUFFIX"))
+    subprocess.run([compiler, "-shared", "-fPIC", "-std=c99", "-O3", "-fno-fast-math", "-ffp-contract=off",
+                    "-DTAPCELL_SCALAR", "-I" + sysconfig.get_paths()["include"], str(source), "-o", str(library)],
+                   check=True)
+    spec = importlib.util.spec_from_file_location("_c_toe", library)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_scalar_build_gives_the_kernels_bits(toe_fits, scalar_kernel, monkeypatch):
+    # The SSE2 toe grid (a window's two heights side by side, both shapes in one vector) repeats the
+    # plain loops' operations lane by lane: every fit, the grid's residuals included, bit for bit.
+    vector = [toe.fit_toe(*args) for args in toe_fits]
+    monkeypatch.setattr(toe, "_C", scalar_kernel)
+    walks = 0
+    for args, fit in zip(toe_fits, vector):
+        plain = toe.fit_toe(*args)
+        assert (fit.contact_um, fit.sigma_um, fit.width_um, fit.power, fit.stiffness_g_um, fit.residual_sigma_g) == (
+            plain.contact_um, plain.sigma_um, plain.width_um, plain.power, plain.stiffness_g_um, plain.residual_sigma_g)
+        assert fit.grid.rss.tobytes() == plain.grid.rss.tobytes() and fit.grid.noise_var == plain.grid.noise_var
+        walks += fit.residual_sigma_g != math.sqrt(fit.grid.noise_var)
+    assert walks >= 3  # the walk-weighted grid's vector recursion ran too

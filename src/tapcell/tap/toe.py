@@ -45,11 +45,15 @@ Speed (the grid is 2 shapes × 10 widths × 27 contacts, every candidate solved 
 On the independent benchmark this took the toe configuration from ~9 ms to ~3 ms a tap (this
 machine, loaded), results equal to ~1e-9 µm.
 
-The compiled kernel (c/toe.c, `_toe_grid_native`; numpy twins here: `_toe_grid`, the marginal
-contact's and the free-air variogram's numpy code) does both grids, the stiffness, the marginal
-contact and the variogram's lags in one pass each; it takes the walk-weighted fit's pressed and
-free runs from sums prepared once, so a candidate costs its toe's samples only. The toe fit went
-from ~0.8 ms to ~0.12 ms a tap (median per-stage time, 25 taps of the independent generator).
+The compiled kernel (c/toe.c; numpy twins here: `fit_toe`'s own code with `_toe_grid`, the
+marginal contact's, `free_air_walks`' and the free-air variogram's numpy code) does one tap's whole
+toe fit in one call (`_fit_toe_native`: the samples kept, either grid, the least residual, the
+marginal contact and the stiffness there) and its free-air walks in another (`free_air_walks`);
+it takes the walk-weighted fit's pressed and free runs from sums prepared once, so a candidate
+costs its toe's samples only, and evaluates a window's two heights side by side (SSE2, the same
+bits). The toe fit went from ~0.8 ms to ~0.12 ms a tap (median per-stage time, 25 taps of the
+independent generator), then to ~16 µs a plain fit and ~20 µs a walk-weighted one, and the
+free-air walks from ~14 µs to ~3 (docs/tap-analysis.md, "Speed against Kalico").
 """
 
 from __future__ import annotations
