@@ -13,10 +13,12 @@ are all rejected has no ratio. Re-run after any change to the Z estimator and ca
 weights into tapcell.tap.uncertainty if they differ.
 
 Run: .venv/bin/python -m bench tap_sigma [--seed N ...] [--check-seed N ...] [--per-scenario N] [--reference PATH]
-                                         [--per-seed]
+                                         [--per-seed] [--by-lift]
      (weights chosen on taplab seeds 1 and 3, their taps together per scenario, and the reference
      taps; seed 2 scored, not used; --per-seed judges seeds 1 and 3 apart, as before 2026-11-27)
      (the reference taps default to ../shared/data/reference-taps.tar.xz from the repository root)
+     (--by-lift: also rms(e/σ) over the should-accept taps binned by the toe's lift over the sharp
+     contact, per set, and on taplab the error against the generator's own toe: what the taps hide)
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import argparse
 import collections
 import dataclasses
 import itertools
+import json
 import math
 import tempfile
 from pathlib import Path
@@ -34,7 +37,7 @@ import numpy as np
 from tapcell.tap import analyze_tap, read_tap_file
 from tapcell.tap.uncertainty import RINGING_WEIGHT, SigmaWeights, ZSigmaParts, z_sigma_um
 from tapcell.taplab.benchmark import TapSet, default_reference_archive, read_labels, reference_set
-from tapcell.taplab.generate import generate_set
+from tapcell.taplab.generate import LABELS_FILE, generate_set
 
 MIN_TAPS = 5  # fewer accepted taps in a scenario: its rms says little (and it is not used to choose)
 # The weights tried (tapcell.tap.uncertainty.SigmaWeights' fields). The squeeze's stops at 1.5: the
@@ -57,6 +60,9 @@ CHUNK = 4096  # weight combinations scored at once
 BOOTSTRAP_DRAWS = 400
 TYPICAL_SHARE = 0.25  # the mean |log ratio|'s share in the choice, beside the worst scenario's
 PART_NAMES = [f.name for f in dataclasses.fields(ZSigmaParts)]
+# `--by-lift`'s bins of the toe's lift over the sharp contact (Z - Z_sharp, µm): the upper edges,
+# the last bin open.
+LIFT_EDGES_UM = (0.5, 1.0, 1.5, 2.0, 3.0)
 
 
 @dataclasses.dataclass
@@ -65,19 +71,49 @@ class Scenario:
     parts: list[ZSigmaParts] = dataclasses.field(default_factory=list)
     taps: int = 0
     stiffness_g_um: list[float] = dataclasses.field(default_factory=list)  # each accepted tap's, at contact
+    expect: str = "accept"  # the label's: "accept", "reject" or "either"
+    lifts_um: list[float] = dataclasses.field(default_factory=list)  # each accepted tap's Z - Z_sharp (0: no toe)
+    true_lifts_um: list[float] = dataclasses.field(default_factory=list)  # the generator's toe (nan: not known)
+
+
+def generator_toe_lift_um(contact: dict) -> float:
+    """How far above the contact the linear part of taplab's drawn loading curve meets zero force
+    (µm): the lift a sharp model reads low by. Over the onset of width w the stiffness rises as
+    (1 - blend) u^power + blend smoothstep(u), u = depth / w (tapcell.taplab.physics), so the force
+    the toe lacks is w (1 - the integral of that over 0..1): w ((1 - blend) power / (power + 1) + blend / 2)."""
+    w, power, blend = contact["onset_um"], contact["onset_power"], contact["onset_blend"]
+    return w * ((1.0 - blend) * power / (power + 1.0) + 0.5 * blend)
+
+
+def generator_toe_lifts_um(directory: Path) -> dict[str, float]:
+    """Per file, the toe taplab drew for it (`generator_toe_lift_um`), read from the labels' `spec`;
+    empty for a set whose labels carry none (the reference taps). The bench's truth side only."""
+    lifts = {}
+    for line in (directory / LABELS_FILE).read_text(encoding="utf-8").splitlines():
+        if line.strip():
+            raw = json.loads(line)
+            contact = (raw.get("spec") or {}).get("contact")
+            if contact:
+                lifts[raw["file"]] = generator_toe_lift_um(contact)
+    return lifts
 
 
 def collect(tap_set: TapSet) -> dict[str, Scenario]:
     """Every tap analysed in process: the accepted taps' errors and sigma parts, per scenario."""
     scenarios: dict[str, Scenario] = collections.defaultdict(Scenario)
+    true_lifts = generator_toe_lifts_um(tap_set.directory)
     for label in tap_set.labels:
         scenario = scenarios[label.scenario]
         scenario.taps += 1
+        scenario.expect = label.expect
         analysis = analyze_tap(read_tap_file(str(tap_set.directory / label.file))[0])
         if analysis.valid and analysis.z_mm is not None and analysis.z_sigma_parts is not None:
             scenario.errors_um.append((analysis.z_mm - label.z_contact_mm) * 1000.0)
             scenario.parts.append(analysis.z_sigma_parts)
             scenario.stiffness_g_um.append(analysis.stiffness_decompression_g_um or math.nan)
+            toe = analysis.z_method == "toe" and analysis.z_sharp_mm is not None
+            scenario.lifts_um.append((analysis.z_mm - analysis.z_sharp_mm) * 1000.0 if toe else 0.0)
+            scenario.true_lifts_um.append(true_lifts.get(label.file, math.nan))
     return scenarios
 
 
@@ -115,7 +151,10 @@ def pooled(seed_sets: list[dict[str, Scenario]]) -> dict[str, Scenario]:
             into.errors_um += s.errors_um
             into.parts += s.parts
             into.stiffness_g_um += s.stiffness_g_um
+            into.lifts_um += s.lifts_um
+            into.true_lifts_um += s.true_lifts_um
             into.taps += s.taps
+            into.expect = s.expect
     return dict(together)
 
 
@@ -200,6 +239,61 @@ def print_set(name: str, scenarios: dict[str, Scenario], current: SigmaWeights, 
     print()
 
 
+LiftRow = tuple[str, int, float, float, float, float]
+
+
+def lift_table(scenarios: dict[str, Scenario], weights: SigmaWeights) -> list[LiftRow]:
+    """Over the should-accept scenarios' accepted taps, per bin of the toe's lift over the sharp
+    contact (LIFT_EDGES_UM): (bin, taps, rms(error / sigma), mean error µm, rms sigma µm, mean of the
+    generator's own lift µm, nan where it is not known); bins with no tap left out."""
+    taps = [(lift, error, z_sigma_um(parts, weights), true)
+            for s in scenarios.values() if s.expect == "accept"
+            for lift, error, parts, true in zip(s.lifts_um, s.errors_um, s.parts, s.true_lifts_um)]
+    rows = []
+    edges = (-math.inf, *LIFT_EDGES_UM, math.inf)
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        inside = np.array([(e, sigma, true) for lift, e, sigma, true in taps if lo <= lift < hi]).reshape(-1, 3)
+        if not len(inside):
+            continue
+        name = f"< {hi:g}" if lo == -math.inf else f">= {lo:g}" if hi == math.inf else f"{lo:g}-{hi:g}"
+        known = inside[:, 2][np.isfinite(inside[:, 2])]
+        rows.append((name, len(inside), float(np.sqrt(np.mean(np.square(inside[:, 0] / inside[:, 1])))),
+                     float(inside[:, 0].mean()), _rms(inside[:, 1]), float(known.mean()) if len(known) else math.nan))
+    return rows
+
+
+def hidden_toe(scenarios: dict[str, Scenario]) -> tuple[int, float, float, float] | None:
+    """Over the should-accept taps whose generator's toe is known: (taps, the correlation of the
+    error with that toe's lift, the error's slope on it, the fitted lift's slope on it); None
+    without such taps. A toe model that saw the toe would leave a slope of 0 and a fitted one of 1."""
+    pairs = np.array([(e, lift, true) for s in scenarios.values() if s.expect == "accept"
+                      for e, lift, true in zip(s.errors_um, s.lifts_um, s.true_lifts_um)
+                      if math.isfinite(true)]).reshape(-1, 3)
+    if len(pairs) < MIN_TAPS:
+        return None
+    error, fitted, true = pairs.T
+    centred = true - true.mean()
+
+    def slope(y):
+        return float(centred @ (y - y.mean()) / (centred @ centred))
+
+    return len(pairs), float(np.corrcoef(error, true)[0, 1]), slope(error), slope(fitted)
+
+
+def print_by_lift(name: str, scenarios: dict[str, Scenario], weights: SigmaWeights) -> None:
+    print(f"== {name}: should-accept taps by the toe's lift over the sharp contact (Z - Z_sharp)")
+    print(f"{'lift µm':>8} {'taps':>5} {'e/σ':>5} {'mean e':>7} {'rms σ':>6} {'true lift':>9}")
+    for label, taps, ratio, mean_error, sigma, true in lift_table(scenarios, weights):
+        true_text = _fmt(true) if math.isfinite(true) else "-"
+        print(f"{label:>8} {taps:>5} {ratio:>5.2f} {mean_error:>+7.2f} {sigma:>6.2f} {true_text:>9}")
+    hidden = hidden_toe(scenarios)
+    if hidden:
+        taps, corr, slope, fitted = hidden
+        print(f"against the generator's own toe ({taps} taps): error correlates {corr:+.2f} with its lift, "
+              f"{slope:+.2f} µm per µm; the fitted lift follows it {fitted:.2f} µm per µm")
+    print()
+
+
 def main(argv: list[str]) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench tap_sigma", description=__doc__.split("\n\n")[0])
     parser.add_argument("--seed", type=int, action="append",
@@ -210,6 +304,9 @@ def main(argv: list[str]) -> int:
     parser.add_argument("--reference", metavar="PATH", help="the reference taps (archive or unpacked directory)")
     parser.add_argument("--per-seed", action="store_true",
                         help="judge each taplab seed's scenarios apart (default: the seeds' taps together)")
+    parser.add_argument("--by-lift", action="store_true",
+                        help="also rms(e/σ) by the toe's lift over the sharp contact, and taplab's error "
+                             "against its own toe")
     args = parser.parse_args(argv)
     seeds, check_seeds = args.seed or [1, 3], args.check_seed if args.check_seed is not None else [2]
     sets, checks, judged = {}, {}, {}
@@ -235,6 +332,9 @@ def main(argv: list[str]) -> int:
     chosen, worst = choose_weights(judged)
     for name, scenarios in {**judged, **checks}.items():
         print_set(name, scenarios, current, chosen)
+    if args.by_lift:
+        for name, scenarios in {**judged, **checks}.items():
+            print_by_lift(name, scenarios, current)
     held = f", ringing {RINGING_WEIGHT:g} (held: its derivation)"
     print("weights now:    " + ", ".join(f"{name} {getattr(current, name):g}" for name in GRID) + held)
     print("weights chosen: " + ", ".join(f"{name} {getattr(chosen, name):g}" for name in GRID) + held

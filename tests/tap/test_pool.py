@@ -167,3 +167,15 @@ def test_apply_pool_and_analyze_pool_write_each_taps_pooled_z(sessions, capsys):
     assert all(row["z_pooled_sigma_um"] > 0 for row in rows)
     assert analyze_main(["--json", *paths]) == 0
     assert all("z_pooled" not in row for row in json.loads(capsys.readouterr().out))
+
+
+
+def test_a_pool_where_no_tap_fits_the_others_leaves_each_its_own_z(sessions, monkeypatch):
+    """When every tap is a misfit (none placed at the shared physics, or each fitting its own
+    stiffness better: here forced by a rule no tap passes) nothing is shared: each valid tap keeps
+    its own Z and sigma, the rejected ones get none (before: a ZeroDivisionError)."""
+    monkeypatch.setattr(pool_module, "MISFIT_EXCESS", 0.5)  # every tap's excess is at least 1
+    analyses = [analysis for *_, analysis in _clean(sessions)[0]][:3] + [TapAnalysis(valid=False)]
+    pooled = pool_taps(analyses)
+    assert [(p.z_mm, p.sigma_um) for p in pooled[:3]] == [(a.z_mm, a.z_sigma_um) for a in analyses[:3]]
+    assert pooled[3] is None

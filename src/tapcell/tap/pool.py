@@ -22,7 +22,8 @@ its noise's alone.
 4. **A tap that does not fit.** A valid tap that the shared physics cannot place, or that its own
    stiffness fits MISFIT_EXCESS times better (a retried point that hit a blob, a tap the others do
    not resemble), is left out of the shared estimates and of the level, and keeps its own Z and
-   sigma. Of two taps neither is (which would it be?).
+   sigma. Of two taps neither is (which would it be?); when every tap is one, nothing is shared
+   and each keeps its own.
 
 `sigma_um` of a pooled Z (`level_sigma_um`): the level's uncertainty and, in quadrature, the
 spread of the pooled Zs about their mean (their sample sd: what is left of each tap's own noise).
@@ -176,6 +177,8 @@ def pool_taps(analyses: list[TapAnalysis]) -> list[PooledZ | None]:
     shared = shared_physics([analyses[i].pullback_fit for i in members])
     contacts = {i: found for i in members if (found := contact_at_shared(analyses[i], shared)) is not None}
     misfits = _misfits(members, contacts)
+    if len(misfits) == len(members):  # no two taps alike: nothing is shared, each keeps its own
+        return [PooledZ(a.z_mm, a.z_sigma_um or 0.0) if i in misfits else None for i, a in enumerate(analyses)]
     if misfits:
         # Again without them: the shared physics from the taps that show it.
         good = [i for i in members if i not in misfits]

@@ -27,6 +27,8 @@ from tapcell.tap.robust import median
 
 # The two-stage fit's grid in C (c/stage.c, tapcell.tap.native); None: its numpy twin `_two_stage_grid`.
 _C = native.load("stage")
+# The dwell's ringing in C (c/ringing.c); None: its numpy twin, `dwell_ringing`'s own body.
+_C_RINGING = native.load("ringing")
 
 STAGE_REACH_UM = 60.0  # the departure looked at, above the contact found
 STAGE_FROM_UM = 0.5
@@ -106,7 +108,12 @@ class Ringing:
 def dwell_ringing(time_s: np.ndarray, force_g: np.ndarray, white_var_g2: float) -> Ringing | None:
     """The oscillation the dwell shows (samples' times s, force g): what a quadratic in time leaves,
     its strongest frequency from RINGING_MIN_PERIODS per dwell up to the Nyquist rate; None when it
-    explains no more than white noise would (RINGING_MIN_CHI2) or too few samples show it."""
+    explains no more than white noise would (RINGING_MIN_CHI2) or too few samples show it. In C when
+    built: the same bins to rounding (another FFT), the period bit for bit given the bin."""
+    if _C_RINGING is not None:
+        found = _C_RINGING.dwell_ringing(time_s, force_g, white_var_g2, RINGING_MIN_SAMPLES, RINGING_MIN_PERIODS,
+                                         RINGING_MIN_CHI2)
+        return None if found is None else Ringing(*found)
     n = len(force_g)
     if n < RINGING_MIN_SAMPLES or white_var_g2 <= 0:
         return None

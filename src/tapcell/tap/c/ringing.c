@@ -1,0 +1,376 @@
+/* The dwell's ringing (tapcell.tap.stage.dwell_ringing) in one call.
+ *
+ * The twin: a quadratic in time taken out by its 3 x 3 normal equations (np.linalg.solve), then the
+ * periodogram 2 |X_k|^2 / n of the residual zero-padded to 4n samples (np.fft.rfft), its largest
+ * bin from the first that spans RINGING_MIN_PERIODS periods of the dwell up to the Nyquist rate.
+ * pocketfft is slow when 4n has a large prime factor, and the numpy calls around it cost more than
+ * the arithmetic at these lengths (a dwell is 10-800 samples).
+ *
+ * Here: the same normal equations (sums in one pass, Gaussian elimination with partial pivoting,
+ * as LAPACK's gesv pivots), the same residual, and the same 2n + 1 bins of the length-4n DFT,
+ * computed another way:
+ * - the real residual r of length 4n (zeros past n) packed as z_j = r_2j + i r_2j+1: a complex
+ *   sequence of length L = 2n with only ceil(n / 2) samples that are not zero; its length-L DFT Z
+ *   gives the real one's bins k = 0..L as E_k + e^(-i pi k / L) O_k (E, O: the DFTs of the even
+ *   and odd samples, from Z_k and conj Z_(L-k));
+ * - Z by Bluestein's chirp: jk = (j^2 + k^2 - (k-j)^2) / 2 turns the DFT of any length into a
+ *   convolution with the chirp e^(i pi m^2 / L), done by power-of-two FFTs of M >= L + n / 2
+ *   (no prime factors to be slow on);
+ * - the chirp's e^(i pi s / L) from an eighth of the circle by exact symmetries (a sin/cos call per
+ *   n / 2 samples; the indices m^2 mod 2L kept exact in integers).
+ * Every bin is the twin's to rounding (the largest within 1e-13 of the twin's on taplab's and the
+ * reference taps' dwells, 5e-13 on the sweep's): the same bin is the largest unless two bins tie to
+ * rounding, which no measured dwell came near (docs/tap-analysis.md, "Compiled kernels"). The period
+ * is computed as the twin does, bit for bit, given the bin. */
+#include "buffers.h"
+#include <math.h>
+#include <stdlib.h>
+
+#ifndef M_PI /* POSIX's, not ISO C's: a strict C99 math.h may leave it out */
+#define M_PI 3.14159265358979323846
+#endif
+
+typedef struct {
+    double re, im;
+} Complex;
+
+/* e^(-2 pi i j / twiddle_size), j < twiddle_size / 2: the power-of-two FFTs' twiddles, of the
+ * largest size used so far (a smaller FFT takes every (twiddle_size / size)-th). Grown, never shrunk:
+ * one table for the process (the interpreter's lock is held throughout a call). */
+static Complex *twiddles;
+static Py_ssize_t twiddle_size;
+
+static int ensure_twiddles(Py_ssize_t size)
+{
+    if (size <= twiddle_size) return 0;
+    Complex *table = malloc(sizeof(Complex) * (size_t)(size / 2));
+    if (table == NULL) {
+        PyErr_NoMemory();
+        return -1;
+    }
+    for (Py_ssize_t j = 0; j < size / 2; j++) {
+        const double angle = -2.0 * M_PI * (double)j / (double)size;
+        table[j].re = cos(angle);
+        table[j].im = sin(angle);
+    }
+    free(twiddles);
+    twiddles = table;
+    twiddle_size = size;
+    return 0;
+}
+
+static inline Complex times(Complex a, double wr, double wi)
+{
+    const Complex product = {a.re * wr - a.im * wi, a.re * wi + a.im * wr};
+    return product;
+}
+
+/* The forward DFT of x (size a power of two) in place, its bins in bit-reversed order: radix 2,
+ * decimation in frequency, two stages per pass over the data (the same butterflies, half the passes),
+ * the last alone when their count is odd. */
+static void fft_to_bit_reversed(Complex *x, Py_ssize_t size)
+{
+    Py_ssize_t len = size;
+    for (; len >= 4; len /= 4) {
+        /* the stages of len and len / 2: x0..x3 a quarter of a len block apart; the first stage's
+         * twiddles W_len^k and W_len^(k + len/4) = -i W_len^k, the second's W_(len/2)^k */
+        const Py_ssize_t h = len / 4;
+        for (Py_ssize_t k = 0; k < h; k++) {
+            const Complex w1 = twiddles[k * (twiddle_size / len)], w2 = twiddles[k * (twiddle_size / (len / 2))];
+            const double w3r = w1.im, w3i = -w1.re; /* -i w1 */
+            for (Py_ssize_t start = k; start < size; start += len) {
+                Complex *p = x + start;
+                const Complex x0 = p[0], x1 = p[h], x2 = p[2 * h], x3 = p[3 * h];
+                const Complex a0 = {x0.re + x2.re, x0.im + x2.im}, a1 = {x1.re + x3.re, x1.im + x3.im};
+                const Complex a2 = times((Complex){x0.re - x2.re, x0.im - x2.im}, w1.re, w1.im);
+                const Complex a3 = times((Complex){x1.re - x3.re, x1.im - x3.im}, w3r, w3i);
+                p[0].re = a0.re + a1.re;
+                p[0].im = a0.im + a1.im;
+                p[h] = times((Complex){a0.re - a1.re, a0.im - a1.im}, w2.re, w2.im);
+                p[2 * h].re = a2.re + a3.re;
+                p[2 * h].im = a2.im + a3.im;
+                p[3 * h] = times((Complex){a2.re - a3.re, a2.im - a3.im}, w2.re, w2.im);
+            }
+        }
+    }
+    if (len == 2) /* the last stage alone: W_2^0 = 1 */
+        for (Py_ssize_t start = 0; start < size; start += 2) {
+            const Complex a = x[start], b = x[start + 1];
+            x[start].re = a.re + b.re;
+            x[start].im = a.im + b.im;
+            x[start + 1].re = a.re - b.re;
+            x[start + 1].im = a.im - b.im;
+        }
+}
+
+/* The inverse DFT (e^+i, unscaled) of bins in bit-reversed order, x in natural order after: radix 2,
+ * decimation in time, two stages per pass, the last alone when their count is odd. With
+ * fft_to_bit_reversed, a convolution needs no reordering. */
+static void inverse_fft_from_bit_reversed(Complex *x, Py_ssize_t size)
+{
+    Py_ssize_t len = 2;
+    for (; 2 * len <= size; len *= 4) {
+        /* the stages of len and 2 len: the first's twiddle conj W_len^k, the second's conj W_2len^k
+         * and conj W_2len^(k + len/2) = i conj W_2len^k */
+        const Py_ssize_t h = len / 2;
+        for (Py_ssize_t k = 0; k < h; k++) {
+            const Complex t1 = twiddles[k * (twiddle_size / len)], t2 = twiddles[k * (twiddle_size / (2 * len))];
+            const double w1r = t1.re, w1i = -t1.im, w2r = t2.re, w2i = -t2.im;
+            const double w3r = -w2i, w3i = w2r; /* i w2 */
+            for (Py_ssize_t start = k; start < size; start += 2 * len) {
+                Complex *p = x + start;
+                const Complex b1 = times(p[h], w1r, w1i), b3 = times(p[3 * h], w1r, w1i);
+                const Complex a0 = {p[0].re + b1.re, p[0].im + b1.im}, a1 = {p[0].re - b1.re, p[0].im - b1.im};
+                const Complex a2 = {p[2 * h].re + b3.re, p[2 * h].im + b3.im};
+                const Complex a3 = {p[2 * h].re - b3.re, p[2 * h].im - b3.im};
+                const Complex c2 = times(a2, w2r, w2i), c3 = times(a3, w3r, w3i);
+                p[0].re = a0.re + c2.re;
+                p[0].im = a0.im + c2.im;
+                p[2 * h].re = a0.re - c2.re;
+                p[2 * h].im = a0.im - c2.im;
+                p[h].re = a1.re + c3.re;
+                p[h].im = a1.im + c3.im;
+                p[3 * h].re = a1.re - c3.re;
+                p[3 * h].im = a1.im - c3.im;
+            }
+        }
+    }
+    if (len == size) { /* the last stage alone */
+        const Py_ssize_t half = len / 2, stride = twiddle_size / len;
+        for (Py_ssize_t k = 0; k < half; k++) {
+            const Complex product = times(x[k + half], twiddles[k * stride].re, -twiddles[k * stride].im);
+            x[k + half].re = x[k].re - product.re;
+            x[k + half].im = x[k].im - product.im;
+            x[k].re += product.re;
+            x[k].im += product.im;
+        }
+    }
+}
+
+/* circle[s] = e^(i pi s / half_turn) for s in [0, 2 half_turn): a full turn, from its first eighth by
+ * exact symmetries (a quarter turn multiplies by i; within a quarter, s and quarter - s swap cosine
+ * and sine). half_turn even. */
+static void fill_circle(Complex *circle, Py_ssize_t half_turn)
+{
+    const Py_ssize_t quarter = half_turn / 2;
+    for (Py_ssize_t s = 0; 2 * s <= quarter; s++) {
+        const double angle = M_PI * (double)s / (double)half_turn;
+        const double c = cos(angle), sn = sin(angle);
+        circle[s].re = c;
+        circle[s].im = sn;
+        circle[quarter - s].re = sn;
+        circle[quarter - s].im = c;
+    }
+    for (Py_ssize_t s = quarter; s < 2 * half_turn; s++) { /* i times the value a quarter turn back */
+        circle[s].re = -circle[s - quarter].im;
+        circle[s].im = circle[s - quarter].re;
+    }
+}
+
+/* Solve the 3 x 3 system a x = b (a: the matrix with b as its fourth column, destroyed) by Gaussian
+ * elimination with partial pivoting; 0 when the matrix is singular. */
+static int solve3(double a[3][4], double x[3])
+{
+    for (int col = 0; col < 3; col++) {
+        int pivot = col;
+        for (int row = col + 1; row < 3; row++)
+            if (fabs(a[row][col]) > fabs(a[pivot][col])) pivot = row;
+        if (a[pivot][col] == 0.0) return 0;
+        if (pivot != col)
+            for (int j = 0; j < 4; j++) {
+                const double swap = a[col][j];
+                a[col][j] = a[pivot][j];
+                a[pivot][j] = swap;
+            }
+        for (int row = col + 1; row < 3; row++) {
+            const double factor = a[row][col] / a[col][col];
+            for (int j = col; j < 4; j++) a[row][j] -= factor * a[col][j];
+        }
+    }
+    for (int row = 2; row >= 0; row--) {
+        double value = a[row][3];
+        for (int j = row + 1; j < 3; j++) value -= a[row][j] * x[j];
+        x[row] = value / a[row][row];
+    }
+    return 1;
+}
+
+/* The residual of the least-squares quadratic in time into packed[j] = r_2j + i r_2j+1 (a zero past
+ * n), with the dwell's span; 0 when the span is not positive or the quadratic is undetermined. */
+static int quadratic_residual(const double *time_s, const double *force_g, Py_ssize_t n, Complex *packed,
+                              double *span_s)
+{
+    double time_sum = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) time_sum += time_s[i];
+    const double time_mean = time_sum / (double)n;
+    *span_s = time_s[n - 1] - time_s[0];
+    if (!(*span_s > 0.0)) return 0;
+    double s1 = 0.0, s2 = 0.0, s3 = 0.0, s4 = 0.0, b0 = 0.0, b1 = 0.0, b2 = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double u = (time_s[i] - time_mean) / *span_s, uu = u * u, f = force_g[i];
+        s1 += u;
+        s2 += uu;
+        s3 += u * uu;
+        s4 += uu * uu;
+        b0 += f;
+        b1 += u * f;
+        b2 += uu * f;
+    }
+    double normal[3][4] = {{(double)n, s1, s2, b0}, {s1, s2, s3, b1}, {s2, s3, s4, b2}}, coef[3];
+    if (!solve3(normal, coef)) return 0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double u = (time_s[i] - time_mean) / *span_s;
+        const double r = force_g[i] - (coef[0] + coef[1] * u + coef[2] * (u * u));
+        if (i % 2 == 0) {
+            packed[i / 2].re = r;
+            packed[i / 2].im = 0.0;
+        } else {
+            packed[i / 2].im = r;
+        }
+    }
+    return 1;
+}
+
+static Py_ssize_t pow2_at_least(Py_ssize_t count)
+{
+    Py_ssize_t size = 1;
+    while (size < count) size <<= 1;
+    return size;
+}
+
+/* The largest bin of the periodogram 2 |X_k|^2 / n, k in [lowest, 2n], of the residual packed[0..
+ * ceil(n/2)) zero-padded to 4n real samples; its power in *best_power. -1 (MemoryError set) when out
+ * of memory. */
+static Py_ssize_t largest_bin(Complex *packed, Py_ssize_t n, Py_ssize_t lowest, double *best_power)
+{
+    const Py_ssize_t length = 2 * n, inputs = (n + 1) / 2, chirps = length + inputs - 1;
+    const Py_ssize_t size = pow2_at_least(length + inputs - 1);
+    if (ensure_twiddles(size) < 0) return -1;
+    /* one block: the circle (2 length), the chirp (chirps), the signal and the filter (size each) */
+    Complex *block = malloc(sizeof(Complex) * (size_t)(2 * length + chirps + 2 * size));
+    if (block == NULL) {
+        PyErr_NoMemory();
+        return -1;
+    }
+    Complex *circle = block, *chirp = circle + 2 * length, *signal = chirp + chirps, *filter = signal + size;
+    fill_circle(circle, length);
+    /* chirp[m] = e^(i pi m^2 / length), m^2 mod 2 length exactly (2m + 1 < 3 (2 length): two subtractions at most) */
+    for (Py_ssize_t m = 0, square = 0; m < chirps; m++) {
+        chirp[m] = circle[square];
+        square += 2 * m + 1;
+        while (square >= 2 * length) square -= 2 * length;
+    }
+    /* Z_k = conj(chirp_k) sum_j (z_j conj(chirp_j)) chirp_(k-j): the signal times the conjugate
+     * chirp, the filter the chirp at k - j = d - (inputs - 1), both zero-padded to size */
+    for (Py_ssize_t j = 0; j < inputs; j++) {
+        const Complex z = packed[j], c = chirp[j];
+        signal[j].re = z.re * c.re + z.im * c.im;
+        signal[j].im = z.im * c.re - z.re * c.im;
+    }
+    for (Py_ssize_t j = inputs; j < size; j++) signal[j].re = signal[j].im = 0.0;
+    for (Py_ssize_t d = 0; d < size; d++) {
+        if (d < chirps) {
+            const Py_ssize_t m = d >= inputs - 1 ? d - (inputs - 1) : (inputs - 1) - d;
+            filter[d] = chirp[m];
+        } else {
+            filter[d].re = filter[d].im = 0.0;
+        }
+    }
+    fft_to_bit_reversed(signal, size);
+    fft_to_bit_reversed(filter, size);
+    for (Py_ssize_t i = 0; i < size; i++) {
+        const Complex a = signal[i], b = filter[i];
+        signal[i].re = a.re * b.re - a.im * b.im;
+        signal[i].im = a.re * b.im + a.im * b.re;
+    }
+    inverse_fft_from_bit_reversed(signal, size);
+    /* Z_k into filter[k], k < length (the convolution's index k + inputs - 1, scaled by 1 / size) */
+    Complex *spectrum = filter;
+    for (Py_ssize_t k = 0; k < length; k++) {
+        const Complex y = signal[k + inputs - 1], c = chirp[k];
+        spectrum[k].re = (y.re * c.re + y.im * c.im) / (double)size;
+        spectrum[k].im = (y.im * c.re - y.re * c.im) / (double)size;
+    }
+    Py_ssize_t best = -1;
+    for (Py_ssize_t k = lowest; k <= length; k++) {
+        const Complex zk = spectrum[k % length], zc = spectrum[(length - k) % length];
+        /* E = (Z_k + conj Z_(L-k)) / 2, O = -i (Z_k - conj Z_(L-k)) / 2, X = E + e^(-i pi k / L) O */
+        const double er = 0.5 * (zk.re + zc.re), ei = 0.5 * (zk.im - zc.im);
+        const double o_re = 0.5 * (zk.im + zc.im), o_im = -0.5 * (zk.re - zc.re);
+        const double wr = circle[k].re, wi = -circle[k].im;
+        const double xr = er + (o_re * wr - o_im * wi), xi = ei + (o_re * wi + o_im * wr);
+        const double power = 2.0 * (xr * xr + xi * xi) / (double)n;
+        if (best < 0 || power > *best_power) {
+            best = k;
+            *best_power = power;
+        }
+    }
+    free(block);
+    return best;
+}
+
+static PyObject *dwell_ringing(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer tb = {0}, fb = {0};
+    double white_var, min_periods, min_chi2;
+    Py_ssize_t min_samples;
+    if (!PyArg_ParseTuple(args, "O&O&dndd", float64_buffer, &tb, float64_buffer, &fb, &white_var, &min_samples,
+                          &min_periods, &min_chi2))
+        return NULL;
+    PyObject *answer = NULL;
+    Complex *packed = NULL;
+    Py_ssize_t n;
+    const double *force_g = doubles_of(&fb, &n, "force_g");
+    const double *time_s = force_g ? doubles_sized(&tb, n, "time_s") : NULL;
+    if (time_s == NULL) goto done;
+    if (n < min_samples || n < 2 || white_var <= 0.0) goto none;
+    if (n > PY_SSIZE_T_MAX / (Py_ssize_t)(32 * sizeof(Complex))) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    packed = malloc(sizeof(Complex) * (size_t)((n + 1) / 2));
+    if (packed == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    double span_s;
+    if (!quadratic_residual(time_s, force_g, n, packed, &span_s)) goto none;
+    const Py_ssize_t padded = 4 * n;
+    const double period_s = span_s / (double)(n - 1);
+    /* as the twin: ceil(RINGING_MIN_PERIODS * padded * period_s / span_s), left to right */
+    const double lowest_bin = ceil(min_periods * (double)padded * period_s / span_s);
+    if (!(lowest_bin < (double)(2 * n + 1))) goto none;
+    const Py_ssize_t lowest = lowest_bin > 0.0 ? (Py_ssize_t)lowest_bin : 0;
+    double power = 0.0;
+    const Py_ssize_t best = largest_bin(packed, n, lowest, &power);
+    if (best < 0) goto done;
+    if (power < min_chi2 * white_var) goto none;
+    const double hz = (double)best / ((double)padded * period_s);
+    answer = Py_BuildValue("(dd)", power / (double)n, 1.0 / (hz * period_s));
+    goto done;
+none:
+    answer = Py_NewRef(Py_None);
+done:
+    free(packed);
+    PyBuffer_Release(&tb);
+    PyBuffer_Release(&fb);
+    return answer;
+}
+
+static PyMethodDef methods[] = {
+    {"dwell_ringing", dwell_ringing, METH_VARARGS,
+     "dwell_ringing(time_s, force_g, white_var_g2, min_samples, min_periods, min_chi2)\n"
+     "-> (var_g2, period_samples) or None\n\n"
+     "The dwell's strongest oscillation once a quadratic in time is taken out: the periodogram of the\n"
+     "residual zero-padded to 4n, from min_periods periods per dwell up; None when fewer than\n"
+     "min_samples samples (or 2), no white noise, no time span, or its power is under min_chi2 white\n"
+     "variances (stage.py: dwell_ringing)."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_c_ringing",
+                                    "The dwell's ringing (tapcell.tap.stage.dwell_ringing).", -1, methods,
+                                    NULL, NULL, NULL, NULL};
+
+PyMODINIT_FUNC PyInit__c_ringing(void) { return PyModule_Create(&module); }
