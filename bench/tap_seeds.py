@@ -5,7 +5,8 @@ random streams `tapcell benchmark --seed N` writes to its files) and every clean
 reference taps and reference sessions is analysed with the defaults; each one rejected is listed
 (set, scenario, tap, code, message). Then, per set, what the fouled scenarios did: heavy ooze
 rejected (target >= 99 %), short pullback accepted (0), silent failures (valid and > 20 µm off),
-mild ooze and the two-stage mount rejected and the accepted taps' bias ± sd.
+mild ooze and the two-stage mount rejected and the accepted taps' bias ± sd, and how many accepted
+two-stage taps lie further off than twice their z_sigma_um.
 
 A taplab tap is named as `tapcell benchmark --seed N` names its file (tap-NNNN.json, with the
 default 40 taps per scenario) and by scenario and index k (`make_tap` on the stream [seed, scenario
@@ -48,6 +49,7 @@ class Answer:
     error_um: float | None  # z - truth, when a Z was given
     code: str
     message: str
+    sigma_um: float | None = None  # z_sigma_um, when a Z was given
 
 
 @dataclass
@@ -55,11 +57,17 @@ class Tally:
     taps: int = 0
     rejected: int = 0
     errors_um: list[float] = field(default_factory=list)  # accepted taps
+    sigmas_um: list[float] = field(default_factory=list)  # their z_sigma_um
     codes: collections.Counter = field(default_factory=collections.Counter)
 
     @property
     def silent(self) -> int:
         return sum(1 for e in self.errors_um if abs(e) > SILENT_UM)
+
+    @property
+    def beyond_two_sigma(self) -> int:
+        """Accepted taps further off than twice their z_sigma_um."""
+        return sum(1 for e, s in zip(self.errors_um, self.sigmas_um) if abs(e) > 2.0 * s)
 
 
 def seed_tap(seed: int, scenario: str, k: int) -> tuple[dict, dict]:
@@ -78,7 +86,7 @@ def file_numbers(seed: int, per_scenario: int) -> dict[tuple[str, int], int]:
 def _answer(set_name: str, scenario: str, tap_name: str, expect: str, analysis, truth_mm: float) -> Answer:
     error = None if analysis.z_mm is None else (analysis.z_mm - truth_mm) * 1000.0
     return Answer(set_name, scenario, tap_name, expect, bool(analysis.valid), error,
-                  analysis.error or "", analysis.message or "")
+                  analysis.error or "", analysis.message or "", analysis.z_sigma_um)
 
 
 def taplab_answers(seed: int, per_scenario: int = DEFAULT_PER_SCENARIO,
@@ -113,6 +121,7 @@ def tallies(answers: list[Answer]) -> dict[tuple[str, str], Tally]:
         t.taps += 1
         if a.valid and a.error_um is not None:
             t.errors_um.append(a.error_um)
+            t.sigmas_um.append(a.sigma_um if a.sigma_um is not None else 0.0)
         else:
             t.rejected += 1
             t.codes[a.code or "NO_Z"] += 1
@@ -144,7 +153,7 @@ def print_summary(answers: list[Answer]) -> None:
     by = tallies(answers)
     sets = list(dict.fromkeys(a.set_name for a in answers))
     print(f"\n{'set':<12} {'clean rej':>9} {'worst scenario':<26} {'silent':>6} {'heavy ooze rej':>14} "
-          f"{'short pb acc':>12} {'mild ooze rej, bias':<24} {'two-stage rej, bias':<24}")
+          f"{'short pb acc':>12} {'mild ooze rej, bias':<24} {'two-stage rej, bias':<24} {'acc > 2 sigma':>13}")
     for s in sets:
         rows = {sc: t for (name, sc), t in by.items() if name == s}
         clean = {sc: t for sc, t in rows.items() if any(a.expect == "accept" for a in answers
@@ -165,8 +174,9 @@ def print_summary(answers: list[Answer]) -> None:
         short_text = f"{short.taps - short.rejected}" if short else "-"
         mild_text = f"{mild.rejected}/{mild.taps}, {_bias(mild.errors_um)}" if mild else "-"
         two_text = f"{two.rejected}/{two.taps}, {_bias(two.errors_um)}" if two else "-"
+        beyond = f"{two.beyond_two_sigma}" if two else "-"
         print(f"{s:<12} {rejected:>4}/{sum(t.taps for t in clean.values()):<4} {worst_text:<26} {silent:>6} "
-              f"{heavy_text:>14} {short_text:>12} {mild_text:<24} {two_text:<24}")
+              f"{heavy_text:>14} {short_text:>12} {mild_text:<24} {two_text:<24} {beyond:>13}")
 
 
 def parse_seeds(text: str) -> list[int]:

@@ -176,7 +176,8 @@ def choose_weights(sets: dict[str, dict[str, Scenario]]) -> tuple[SigmaWeights, 
     REFINE_STEPS of GRID's steps around the first pass's best."""
     judged = [s for scenarios in sets.values() for s in scenarios.values() if len(s.errors_um) >= MIN_TAPS]
     errors2 = [np.square(s.errors_um) for s in judged]
-    fixed = [np.array([p.staircase_um ** 2 + p.delay_um ** 2 + (RINGING_WEIGHT * p.ringing_um) ** 2 for p in s.parts])
+    fixed = [np.array([p.staircase_um ** 2 + p.delay_um ** 2 + (RINGING_WEIGHT * p.ringing_um) ** 2
+                       + p.stage_um ** 2 for p in s.parts])
              for s in judged]
     weighed = [np.array([[getattr(p, name + "_um") ** 2 for name in GRID] for p in s.parts]) for s in judged]
     coarse, _ = _best_on(list(itertools.product(*(values[::2] for values in GRID.values()))), errors2, fixed, weighed)

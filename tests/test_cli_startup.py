@@ -57,7 +57,8 @@ def test_analyze_imports_only_what_the_analysis_needs(run):
     modules = set(run["modules"])
     assert {"numpy", "tapcell.tap.analysis", "tapcell.tap.readers"} <= modules
     unneeded = {"pathlib", "csv", "matplotlib", "scipy", "tapcell.tap.plot", "tapcell.taplab", "tapcell.sim",
-                "tapcell.host", "tapcell.tools.frontend"}
+                "tapcell.host", "tapcell.tools.frontend",
+                "tapcell.tap.hum"}  # this tap asks for no hum removal (no mains_hz in its meta or options)
     assert sorted(unneeded & modules) == []
 
 
@@ -127,3 +128,52 @@ def test_analyze_ends_without_teardown_after_its_whole_output(tmp_path, tap_file
     assert run.returncode == (1 if missing else 0)
     assert [tap["file"] for tap in json.loads(run.stdout)] == [tap_file] * 3
     assert ("missing.json" in run.stderr) == missing
+
+
+@pytest.mark.parametrize("collecting", [True, False])
+def test_a_sub_command_is_imported_without_the_cycle_collector(tmp_path, monkeypatch, collecting):
+    """The collector is off while the sub-command's module imports, and as it was afterwards."""
+    import gc
+
+    from tapcell.tools import cli
+
+    (tmp_path / "startup_probe_module.py").write_text("import gc\nCOLLECTING = gc.isenabled()\n")
+    monkeypatch.syspath_prepend(str(tmp_path))
+    was = gc.isenabled()
+    (gc.enable if collecting else gc.disable)()
+    try:
+        module = cli._import_without_collecting("startup_probe_module")
+        assert module.COLLECTING is False
+        assert gc.isenabled() is collecting
+    finally:
+        (gc.enable if was else gc.disable)()
+        sys.modules.pop("startup_probe_module", None)
+
+
+@pytest.mark.parametrize("pool", [False, True])
+def test_analyze_drops_each_analysis_once_written_unless_pooling(tmp_path, capsys, monkeypatch, pool):
+    """Without --pool a tap's analysis (~34 kB: the toe grid, the pullback's samples) is freed once
+    its line is written, so a run's memory stays flat; --pool keeps every one for the joint fit."""
+    import weakref
+
+    from native_kernel_inputs import generated_tap_objects
+    from tapcell.tap import cli as analyze_cli
+
+    files = []
+    for k, (_, tap) in enumerate(generated_tap_objects(1)[:5]):
+        files.append(str(tmp_path / f"tap-{k}.json"))
+        Path(files[-1]).write_text(json.dumps(tap))
+    analysed = []  # a weak reference to each analysis, in order
+    alive_at_each_call = []  # how many of the analyses before the last were still alive at each call
+    real_analyze_tap = analyze_cli.analyze_tap
+
+    def analyze_tap(tap, options):
+        alive_at_each_call.append(sum(ref() is not None for ref in analysed[:-1]))
+        result = real_analyze_tap(tap, options)
+        analysed.append(weakref.ref(result))
+        return result
+
+    monkeypatch.setattr(analyze_cli, "analyze_tap", analyze_tap)
+    assert analyze_cli.main(["--json", *(["--pool"] if pool else []), *files]) == 0
+    assert len(json.loads(capsys.readouterr().out)) == len(files)
+    assert alive_at_each_call == ([0, 0, 1, 2, 3] if pool else [0] * len(files))

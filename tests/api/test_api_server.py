@@ -11,6 +11,8 @@ import pytest
 from conftest import printer_config, serving, start_serve, stop
 from klippy_client import KlippyClient
 
+from tapcell.host.print_clock import FEED_AHEAD_S
+
 
 @pytest.fixture
 def client(served):
@@ -284,3 +286,23 @@ def test_scripts_queued_by_a_client_that_vanishes_never_run(own_server):
     # The script in progress finishes (3 taps at most); before, all 30 ran (90 taps).
     assert sum(is_tap(m) for m in watcher.pushes) <= 3
 
+
+
+def toolhead_lead_s(client: KlippyClient) -> float:
+    """How far the queued moves run ahead of the machine (print time - estimated print time)."""
+    toolhead = client.call("objects/query", objects={"toolhead": ["print_time", "estimated_print_time"]})
+    status = toolhead["result"]["status"]["toolhead"]
+    return status["print_time"] - status["estimated_print_time"]
+
+
+def test_a_script_waits_for_the_machine_and_endpoints_are_answered_meanwhile(own_server):
+    """Klipper's lookahead: a client's next script starts once the queued moves are less than
+    FEED_AHEAD_S ahead of the machine; an endpoint is not queued behind it."""
+    worker = homed_worker(own_server)
+    assert worker.call("gcode/script", script="G1 X50 F1200")["result"] == {}  # 60 mm at 20 mm/s
+    assert toolhead_lead_s(worker) > 2.0  # queued, and the machine is still moving
+    worker.send({"id": "wait", "method": "gcode/script", "params": {"script": "STATUS"}})
+    endstops = worker.call("query_endstops/status")
+    assert endstops["result"] and not any(m.get("id") == "wait" for m in worker.pushes)  # answered first
+    assert worker.reply_to("wait")["result"] == {}
+    assert toolhead_lead_s(worker) < FEED_AHEAD_S + 0.2  # the script waited for the machine (+ a tick)

@@ -328,3 +328,13 @@ def test_a_strong_line_on_a_fast_sensor_is_fitted_although_its_screen_chi2_is_mo
         assert auto.valid, auto.message
         assert auto.hum["amplitudes_g"][0] == pytest.approx(6.0, abs=0.1)
         assert abs(auto.z_mm - tap.truth["z_contact"]) * 1000 < 1.0
+
+
+def test_fft_lengths_are_every_product_of_2_3_5_up_to_the_limit():
+    from tapcell.tap.hum import _smooth_lengths
+
+    every = sorted(2 ** a * 3 ** b * 5 ** c for a in range(12) for b in range(8) for c in range(6)
+                   if 2 ** a * 3 ** b * 5 ** c <= 1000)
+    assert _smooth_lengths(1000).tolist() == every
+    assert _smooth_lengths(1).tolist() == [1]
+    assert len(_smooth_lengths(1 << 24)) == 836 and _smooth_lengths(1 << 24)[-1] == 1 << 24

@@ -98,6 +98,27 @@ def test_json_text_at_the_short_decimals_edges(value):
     assert model._C.json_text([value, -value]) == json.dumps([value, -value])
 
 
+def _around_each_power_of_ten() -> list[float]:
+    """Each power of ten where repr writes a plain decimal, its neighbouring doubles, and the
+    decimals of 15 and 16 significant digits just below and above it: where the kernel counts
+    the digits before the point (a count one off must only send the number to repr)."""
+    import math
+
+    values = []
+    for exponent in range(-5, 17):
+        power = float(f"1e{exponent}")
+        values += [power, math.nextafter(power, 0.0), math.nextafter(power, math.inf),
+                   float(f"9.99999999999999e{exponent - 1}"), float(f"1.00000000000001e{exponent}"),
+                   float(f"9.999999999999999e{exponent - 1}"), float(f"1.000000000000001e{exponent}")]
+    return values
+
+
+def test_json_text_around_each_power_of_ten():
+    values = _around_each_power_of_ten()
+    assert model._C.json_text(values) == json.dumps(values)
+    assert model._C.json_text([-v for v in values]) == json.dumps([-v for v in values])
+
+
 def test_json_text_leaves_to_json_what_it_does_not_take():
     import numpy as np
 

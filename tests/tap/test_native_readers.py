@@ -108,7 +108,7 @@ def test_numbers_at_the_exact_shortcut_s_edges(text):
 
 
 def test_integers_read_as_json_reads_them():
-    rest, arrays = _split('{"time": [0, -0, 7, -123456789012345], "force": [-0.0]}')
+    rest, arrays, _ = _split('{"time": [0, -0, 7, -123456789012345], "force": [-0.0]}')
     assert rest == '{"time": [], "force": []}'
     assert struct.unpack("=4d", arrays["time"]) == (0.0, 0.0, 7.0, -123456789012345.0)
     assert math.copysign(1, struct.unpack("=d", arrays["time"][8:16])[0]) == 1  # json: int("-0") is 0
@@ -117,10 +117,11 @@ def test_integers_read_as_json_reads_them():
 
 def test_only_the_top_level_keys_are_cut():
     text = '{"meta": {"time": [1], "s": "\\"time\\": [2]"}, "a": "\\"time\\": [3]", "time" : [ 4 , 5e1 ]\n}'
-    rest, arrays = _split(text)
+    rest, arrays, longest_digit_run = _split(text)
     assert rest == '{"meta": {"time": [1], "s": "\\"time\\": [2]"}, "a": "\\"time\\": [3]", "time" : []\n}'
     assert struct.unpack("=2d", arrays["time"]) == (4.0, 50.0)
-    assert _split(b'{"z": []}') == ('{"z": []}', {"z": bytearray()})
+    assert longest_digit_run == 1
+    assert _split(b'{"z": []}') == ('{"z": []}', {"z": bytearray()}, 0)
 
 
 @pytest.mark.parametrize("text", [
@@ -189,3 +190,16 @@ def tap_texts(draw):
 def test_fuzzed_tap_texts_read_the_same_either_way(text):
     fast, reference = _both_ways(text)
     assert fast == reference
+
+
+@pytest.mark.parametrize("digits", [19, 20, 21, 22])
+def test_an_integer_in_the_rest_is_bounded_as_the_plain_path_bounds_it(digits):
+    """json reads the rest with its own int() only when no run of digits there is too long for an
+    integer the reader refuses (MAX_INTEGER_DIGITS): at the bound and just past it, the same tap or
+    the same message as json.loads reading the whole text."""
+    document = _generated_taps()[0]
+    document["probe"] = {**document.get("probe", {}), "serial": int("9" * digits)}
+    fast, reference = _both_ways(json.dumps(document))
+    assert fast == reference
+    assert isinstance(fast, str) == (digits > readers.MAX_INTEGER_DIGITS)
+    assert _split(json.dumps(document))[2] >= digits

@@ -241,3 +241,42 @@ def test_the_first_time_not_after_the_one_before_is_named(tap, index, step_s):
         tap_from_object(document, "tap.json")
     assert str(caught.value) == (f"tap.json: 'time' is not strictly increasing "
                                  f"(index {index}: {time_s[index]!r} after {time_s[index - 1]!r})")
+
+
+@pytest.mark.parametrize("text, empty", [("", True), (" \n\t\r", True), ("\u3000\u00a0\n", True), (" {} ", False),
+                                         ("\n\n[]", False), ("\x00", False)])
+def test_a_file_of_white_space_alone_is_empty(tmp_path, text, empty):
+    """Empty as str.strip() sees it (Unicode white space too); anything else is read as JSON."""
+    path = tmp_path / "tap.json"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(TapFileError) as problem:
+        read_tap_file(path)
+    assert ("the file is empty" in str(problem.value)) == empty
+
+
+# cli_hostile's review list: a NaN event time and a 1 MB string for the probe's x were taken.
+@pytest.mark.parametrize("where, key, value, problem", [
+    ("events", "home_end_time", float("nan"), "'events.home_end_time' must be a finite number, got nan"),
+    ("events", "pullback_end_time", "soon", "'events.pullback_end_time' must be a finite number, got 'soon'"),
+    ("probe", "x", "a" * 1_000_000, "'probe.x' must be a finite number, got 'aaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaaa... (1000002 characters)"),
+    ("probe", "trigger_force", True, "'probe.trigger_force' must be a finite number, got True"),
+    ("probe", "speed", [5.0], "'probe.speed' must be a finite number, got [5.0]"),
+])
+def test_a_known_event_or_probe_key_must_hold_a_number(tmp_path, where, key, value, problem):
+    document = _valid_document()
+    document.setdefault(where, {})[key] = value
+    path = tmp_path / "tap.json"
+    path.write_text(json.dumps(document))
+    with pytest.raises(TapFileError) as caught:
+        read_tap_file(path)
+    assert str(caught.value) == f"{path}: {problem}"
+
+
+def test_null_and_unknown_event_and_probe_keys_are_kept():
+    document = _valid_document()
+    document["events"] = {"home_end_time": None, "pullback_start_time": 2, "note": "by hand"}
+    document["probe"] = {"pullback_speed": None, "x": 110, "nozzle": "0.4 mm"}
+    tap = tap_from_object(document, "tap.json", "")
+    assert tap.events == {"home_end_time": None, "pullback_start_time": 2.0, "note": "by hand"}
+    assert tap.probe == {"pullback_speed": None, "x": 110.0, "nozzle": "0.4 mm"}
+    assert isinstance(tap.probe["x"], float)

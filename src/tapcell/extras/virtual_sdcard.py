@@ -25,10 +25,10 @@ import os
 from tapcell.extras import print_stats as print_stats_module
 from tapcell.host.config import ConfigSection
 from tapcell.host.gcode import GCodeCommand, GCodeError, UnknownCommandError
+from tapcell.host.print_clock import FEED_AHEAD_S
 from tapcell.host.templates import GCodeTemplate, StatusView, compile_template
 
 SECTION = "virtual_sdcard"
-FEED_AHEAD_S = 1.0  # queued moves may run this far ahead of the machine before the next line is read
 MAX_LINES_PER_FEED = 500  # then the printer thread serves the API again
 GCODE_EXTENSIONS = (".gcode", ".g", ".gco")
 

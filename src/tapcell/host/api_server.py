@@ -10,8 +10,10 @@ Two threads:
 
 * the printer thread owns the printer. G-code scripts run there one at a time, and while no
   script runs it advances the virtual printer's clock with the wall clock, so the load cell
-  streams and temperatures live. After every script and tick it takes a snapshot of all
-  status objects;
+  streams and temperatures live. A script starts only once the moves already queued are less
+  than FEED_AHEAD_S ahead of the machine (Klipper's lookahead: a client's scripts keep pace
+  with the printer, and the scripts of a client that has gone are still waiting, so they never
+  run). After every script and tick it takes a snapshot of all status objects;
 * the asyncio loop serves the connections. Queries and subscriptions read the latest
   snapshot, so they are answered at once, also while a long script (a bed mesh) runs.
 
@@ -25,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import collections
 import concurrent.futures
 import json
 import math
@@ -48,7 +51,7 @@ from tapcell.files import why_missing
 from tapcell.host.config import ConfigError
 from tapcell.host.gcode import GCodeError, parse_line
 from tapcell.host import load_cell_streams
-from tapcell.host.print_clock import PrintClock
+from tapcell.host.print_clock import FEED_AHEAD_S, PrintClock
 from tapcell.host.printer import WHEN_NOT_READY, Printer
 from tapcell.host.webhooks import ApiObjects
 
@@ -240,7 +243,8 @@ class PrinterThread:
         self.printer = printer
         self.gcodes_dir = gcodes_dir
         self._post = post  # runs a function on the asyncio loop (thread-safe)
-        self._jobs: queue.Queue = queue.Queue()
+        self._jobs: queue.Queue = queue.Queue()  # (function, future, is_script)
+        self._scripts: collections.deque = collections.deque()  # scripts waiting for the machine
         self._stop = threading.Event()
         self._restarted = False
         self._last_tick = time.monotonic()
@@ -264,21 +268,38 @@ class PrinterThread:
         self._stop.set()
         self._thread.join(timeout=5.0)
 
-    def submit(self, function: Callable[[], Any]) -> concurrent.futures.Future:
+    def submit(self, function: Callable[[], Any], is_script: bool = False) -> concurrent.futures.Future:
+        """Run `function` on the printer thread; a script (G-code that moves the printer) waits
+        until the machine has caught up with the moves queued before it."""
         future: concurrent.futures.Future = concurrent.futures.Future()
-        self._jobs.put((function, future))
+        self._jobs.put((function, future, is_script))
         return future
 
     # -- the loop -------------------------------------------------------------------------
 
     def _run(self) -> None:
         while not self._stop.is_set():
+            if self._scripts and self._machine_caught_up():
+                self._run_job(*self._scripts.popleft())
+                continue
             try:
-                function, future = self._jobs.get(timeout=IDLE_TICK_S)
+                function, future, is_script = self._jobs.get(timeout=IDLE_TICK_S)
             except queue.Empty:
                 self._guarded(self._tick)
                 continue
-            self._run_job(function, future)
+            if is_script:
+                self._scripts.append((function, future))
+            else:
+                self._run_job(function, future)
+
+    def _machine_caught_up(self) -> bool:
+        """Whether the next script may start: the queued moves are less than FEED_AHEAD_S ahead of
+        the machine (its clock is ticked here, as it is while idle)."""
+        clock = self.printer.print_clock
+        if clock is None or self.objects.state()[0] != "ready" or clock.lead_s() < FEED_AHEAD_S:
+            return True
+        self._guarded(self._tick)
+        return clock.lead_s() < FEED_AHEAD_S
 
     def _run_job(self, function, future) -> None:
         if not future.set_running_or_notify_cancel():
@@ -700,8 +721,8 @@ class ApiServer:
             result = await result
         return result
 
-    async def _on_printer(self, function: Callable[[], Any]) -> Any:
-        future = self.printer_thread.submit(function)
+    async def _on_printer(self, function: Callable[[], Any], is_script: bool = False) -> Any:
+        future = self.printer_thread.submit(function, is_script)
         return await asyncio.wrap_future(future)
 
     # -- from the printer thread ----------------------------------------------------------
@@ -795,7 +816,7 @@ class ApiServer:
         return await self._run_gcode(command)
 
     async def _run_gcode(self, script: str) -> dict:
-        return await self._on_printer(lambda: self.printer_thread.run_script(script))
+        return await self._on_printer(lambda: self.printer_thread.run_script(script), is_script=True)
 
     def _gcode_help(self, connection, method, params) -> dict:
         return dict(self.printer_thread.help)

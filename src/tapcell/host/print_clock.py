@@ -19,6 +19,9 @@ PrintClock and the estimated time is the print time.
 from __future__ import annotations
 
 MAX_LAG_S = 5.0
+# Klipper's lookahead: the queued moves may run this far ahead of the machine before the next
+# line of a file (virtual_sdcard) or the next client script (`tapcell serve`) is taken.
+FEED_AHEAD_S = 1.0
 BUSY_LEAD_S = 1e-6  # queued moves this far ahead of the machine: it is still moving
 
 

@@ -23,6 +23,7 @@ import functools
 import math
 import time
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -32,8 +33,6 @@ from tapcell.tap.classifiers import get_classifier, run_classifier
 from tapcell.tap.contact import (MIN_SPAN_UM, ContactFit, fit_contact, fit_fixed_onset, window_edges,
                                  window_mean_and_slope)
 from tapcell.tap.context import AnalysisContext, SensorTiming, recompute_points
-from tapcell.tap.hum import (MAINS_LINES_HZ, HumFit, alias_hz, detect_mains_hum, fit_hum, harmonics_worth_fitting,
-                             lines_worth_fitting, resolvable_hz, spline_knots)
 from tapcell.tap.model import (
     TAP_ADHESION,
     TAP_BREAK_CONTACT_TOO_LATE,
@@ -51,11 +50,14 @@ from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_FIVE, PrefixSums, five_lines
-from tapcell.tap.stage import (Ringing, departure_soft_stage, dwell_ringing, shows_soft_stage, shows_two_stage,
-                               two_stage_departure)
+from tapcell.tap.stage import (Ringing, SoftStage, departure_soft_stage, dwell_ringing, shows_soft_stage, shows_two_stage,
+                               two_stage_departure, unnamed_stage_um)
 from tapcell.tap.toe import (ADHESION_LEVEL_UM, ADHESION_REACH_UM, THREAD_FAR_REACH_UM, THREAD_REACH_UM, ToeFit,
                              Wander, adhesion_measures, fit_toe, free_air_walks, lag_from_halt_s, thread_pull_g,
                              thread_pulls_g)
+
+if TYPE_CHECKING:  # the hum's module is imported where a tap asks for hum removal (remove_mains_hum)
+    from tapcell.tap.hum import HumFit
 
 # The checks, robust statistics and window heights in C (c/analysis.c, tapcell.tap.native); None: numpy.
 _C = native.load("analysis")
@@ -1058,12 +1060,14 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> tuple[SplitTap, int, in
     lag_samples = math.ceil((allowance + timing.integration_s) / period_s) + LAG_MARGIN_SAMPLES
     force, hum = remove_mains_hum(tap, options, time_s, force, motion, timing, lag_samples, period_s)
     dec, ps = decompose(time_s, force, motion, lag_samples, period_s)
-    if not validate.split_checks_pass(dec.points, line_angles_deg(dec.lines)):
+    angles_deg = line_angles_deg(dec.lines)
+    if not validate.split_checks_pass(dec.points, angles_deg):
         dec, ps = decompose_again(time_s, force, motion, lag_samples, period_s, (dec, ps))
+        angles_deg = line_angles_deg(dec.lines)
     # Second differences of the whole analysed window: hundreds of samples even when the
     # approach holds a dozen; the four kinks of a tap cannot move their median.
     noise_g = noise_sigma_g(force[dec.start:dec.stop])
-    return SplitTap(time_s, force, motion, timing, dec, ps, noise_g, line_angles_deg(dec.lines)), polarity, outliers, hum
+    return SplitTap(time_s, force, motion, timing, dec, ps, noise_g, angles_deg), polarity, outliers, hum
 
 
 def result_of_split(split: SplitTap, polarity: int, outliers: int, hum: HumFit | None) -> TapAnalysis:
@@ -1205,7 +1209,10 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     # too short to show one (10 sps: 8 samples), the one the free air on both sides shows.
     check_adhesion(rising, motion, timing, dec, free_air_line(split, toe.contact_um - lag_shift_um, delay_s),
                    toe.contact_um, split.noise_g, approach_wander or wander, result.compression_force_g)
-    check_stages(split, samples, drift_g_um, toe, lag_shift_um, drift_held=fit_drift_g_um is not None)
+    ramp = check_stages(split, samples, drift_g_um, toe, lag_shift_um, drift_held=fit_drift_g_um is not None)
+    result.unnamed_stage_um = unnamed_stage_um(*samples, drift_g_um, toe.contact_um, toe.width_um, split.noise_g,
+                                               approach_walk_var_g2(split), ramp, fit_drift_g_um is not None,
+                                               split.ringing)
     approach_change_g = abs(dec.points[P_CONTACT][1] - dec.points[P_START][1])
     if approach_change_g > APPROACH_DRIFT_MATERIAL_SHARE * result.compression_force_g:  # else it costs the score little
         result.approach_drift_share = departure_drift_share(rising, toe.contact_um, drift_g_um)
@@ -1274,7 +1281,8 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
         staircase_um=uncertainty.staircase_um(step_staircase_sigma_um(timing.z_step_um, window_um), timing.z_step_um),
         delay_um=speed_um_s * halt_sigma_s if math.isfinite(halt_sigma_s) else 0.0,
         ringing_um=uncertainty.ringing_um(split.ringing, uncertainty.samples_in_reach(*samples[:2], contact_um),
-                                          stiffness))
+                                          stiffness),
+        stage_um=result.unnamed_stage_um)
     if result.z_method == "toe" and result.toe_grid is not None:
         # The noise: the sharp fit's over the same samples (the toe fit's own when there is none).
         noise_um = result.z_sharp_sigma_um if result.z_sharp_sigma_um is not None else result.z_sigma_um
@@ -1305,10 +1313,11 @@ def _toe_lift_um(result: TapAnalysis) -> float:
 
 
 def check_stages(split: SplitTap, samples: PullbackSamples, drift_g_um: float, toe: ToeFit, lag_shift_um: float,
-                 drift_held: bool) -> None:
+                 drift_held: bool) -> SoftStage | None:
     """The two-stage checks (TAP_TWO_STAGE_CONTACT raised); where they name a stage and the dwell
     rings (tapcell.tap.stage.dwell_ringing), again with the ringing in their noise: a gantry's
-    ringing over a fast pullback's departure is no stage (issue 21)."""
+    ringing over a fast pullback's departure is no stage (issue 21). Returns the soft-stage ramp
+    they weighed (tapcell.tap.stage.unnamed_stage_um looks further where it shows one)."""
     motion, noise_g = split.motion, split.noise_g
     wander, approach_wander = split.wanders
     # The ramp's noise: the walk the free air on both sides shows, as the toe fit weighs it. The
@@ -1316,24 +1325,26 @@ def check_stages(split: SplitTap, samples: PullbackSamples, drift_g_um: float, t
     # seed 4 cable drift k 20): its level wandering over the departure's 61 samples scored a
     # 13 um "stage" at 39.7 noise variances (limit 36), TAP_TWO_STAGE_CONTACT.
     try:
-        check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, noise_g, wander,
-                         toe.stiffness_g_um)
+        ramp = check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, noise_g, wander,
+                                toe.stiffness_g_um)
         check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, noise_g, approach_wander, drift_held)
+        return ramp
     except TapInvalid:
         ringing = split.ringing
         if ringing is None:
             raise
-        check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, noise_g, wander,
-                         toe.stiffness_g_um, ringing)
+        ramp = check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, noise_g, wander,
+                                toe.stiffness_g_um, ringing)
         check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, noise_g, approach_wander, drift_held, ringing)
+        return ramp
 
 
 def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, contact_um: float,
                      lag_shift_um: float, noise_g: float, wander: Wander | None, stiffness_g_um: float,
-                     ringing: Ringing | None = None) -> None:
+                     ringing: Ringing | None = None) -> SoftStage | None:
     """TAP_TWO_STAGE_CONTACT when the force keeps a soft stage's ramp above the contact found
     (tapcell.tap.stage): the stiff stage let go there, the first touch is higher (weighed against
-    the noise, the walk and the ringing the dwell shows)."""
+    the noise, the walk and the ringing the dwell shows). Returns the ramp when it names nothing."""
     walk_var_g2 = wander.walk_var_g2 if wander else 0.0
     stage = departure_soft_stage(*samples, drift_g_um, contact_um, noise_g * noise_g, walk_var_g2, ringing)
     if shows_soft_stage(stage, stiffness_g_um, contact_um):
@@ -1343,6 +1354,13 @@ def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float
                          f"{stage.top_um - contact_um:.0f} um up to Z {first_touch_mm:.4f}): a soft layer pressed "
                          "before the contact, a two-stage mount (a magnetic sheet, a sprung bed) or a film of ooze; "
                          "its stiff stage would read low")
+    return stage
+
+
+def approach_walk_var_g2(split: SplitTap) -> float:
+    """The walk the approach shows (g^2 a sample), 0 where it shows none: the two-stage fit's walk."""
+    _, approach_wander = split.wanders
+    return approach_wander.walk_var_g2 if approach_wander else 0.0
 
 
 def check_two_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, toe: ToeFit, lag_shift_um: float,
@@ -1426,6 +1444,11 @@ def remove_mains_hum(tap: TapData, options: AnalysisOptions, time_s: np.ndarray,
     subtracted from every sample.
     """
     wanted = mains_frequencies_hz(tap, options)
+    if not wanted:  # none asked for: the hum's module is not even imported (a run without it starts faster)
+        return force_g, None
+    from tapcell.tap.hum import (MAINS_LINES_HZ, alias_hz, detect_mains_hum, fit_hum, harmonics_worth_fitting,
+                                 lines_worth_fitting, resolvable_hz, spline_knots)
+
     duration_s = float(time_s[-1] - time_s[0])
     candidates = resolvable_hz(MAINS_LINES_HZ if wanted == "auto" else wanted, 1.0 / period_s, duration_s)
     if wanted == "auto":  # the cheap screen first: a tap without hum pays for no split and no fit

@@ -10,7 +10,7 @@ import sys
 from tapcell.tap import native
 from tapcell.tap.analysis import analyze_tap
 from tapcell.tap.classifiers import UnknownClassifierError, get_classifier
-from tapcell.tap.model import AnalysisOptions, TapFileError
+from tapcell.tap.model import AnalysisOptions, TapAnalysis, TapFileError
 from tapcell.tap.readers import read_tap_file
 
 
@@ -86,7 +86,11 @@ def main(argv: list[str]) -> int:
 
 
 def _analyze_files(args: argparse.Namespace, options: AnalysisOptions) -> int:
-    results = []
+    # Each tap's output is written as soon as it is analysed and its analysis dropped (~34 kB a tap:
+    # the toe grid, the pullback's samples), unless the pool needs them all at the end: a run's
+    # memory stays flat instead of growing by a page fault every few kB.
+    pooled = []  # (name, index, count, analysis) with --pool
+    lines = []  # each tap's output line, in order
     unreadable = 0
     plots = []  # (file written, the tap it shows)
     for name in args.files:
@@ -98,7 +102,6 @@ def _analyze_files(args: argparse.Namespace, options: AnalysisOptions) -> int:
             continue
         for index, tap in enumerate(taps):
             analysis = analyze_tap(tap, options)
-            results.append((name, index, len(taps), analysis))
             if args.plot:
                 # Imported here: matplotlib (and pathlib) would slow every run that draws nothing.
                 from pathlib import Path
@@ -110,25 +113,36 @@ def _analyze_files(args: argparse.Namespace, options: AnalysisOptions) -> int:
                 label = name + (f"#{index + 1}" if len(taps) > 1 else "")
                 plot_tap(tap, analysis, target, title=f"{name}" + (f" #{index + 1}" if len(taps) > 1 else ""))
                 plots.append((target, label))
+            if args.pool:
+                pooled.append((name, index, len(taps), analysis))
+            else:
+                lines.append(_output_line(args, name, index, len(taps), analysis))
     if args.pool:
         # Imported here: only a pooled run needs it.
         from tapcell.tap.pool import apply_pool
 
-        apply_pool([analysis for *_, analysis in results])
+        apply_pool([analysis for *_, analysis in pooled])
+        lines = [_output_line(args, *row) for row in pooled]
     if args.json:
         # One tap per line (indent= would take json's pure-Python encoder, ~0.2 ms a tap).
-        taps = [json_text({"file": name, **analysis.to_json()}) for name, _, _, analysis in results]
-        print("[\n" + ",\n".join(taps) + "\n]")
+        print("[\n" + ",\n".join(lines) + "\n]")
     else:
         pooled_header = f" {'pooled Z':>11} {'±σ (µm)':>8}" if args.pool else ""
         print(f"{'file':<32} {'valid':<6} {'Z (mm)':>11} {'±σ (µm)':>8}{pooled_header} {'quality':>8}  code")
-        for name, index, count, a in results:
-            label = name if count == 1 else f"{name}#{index + 1}"
-            code = a.error or ""
-            pooled = f" {_fmt(a.z_pooled_mm, '11.5f'):>11} {_fmt(a.z_pooled_sigma_um, '8.3f'):>8}" if args.pool else ""
-            print(f"{label:<32} {'yes' if a.valid else 'no':<6} {_fmt(a.z_mm, '11.5f'):>11} "
-                  f"{_fmt(a.z_sigma_um, '8.3f'):>8}{pooled} {_fmt(a.quality, '8.1f'):>8}  {code}")
+        for line in lines:
+            print(line)
     # The plot files written, one a line (on stderr with --json: stdout is the JSON alone).
     for target, label in plots:
         print(f"plot {target}: {label}", file=sys.stderr if args.json else sys.stdout)
     return 1 if unreadable else 0
+
+
+def _output_line(args: argparse.Namespace, name: str, index: int, count: int, a: TapAnalysis) -> str:
+    """A tap's line of the output: its JSON object (--json), else its row of the table."""
+    if args.json:
+        return json_text({"file": name, **a.to_json()})
+    label = name if count == 1 else f"{name}#{index + 1}"
+    code = a.error or ""
+    pooled = f" {_fmt(a.z_pooled_mm, '11.5f'):>11} {_fmt(a.z_pooled_sigma_um, '8.3f'):>8}" if args.pool else ""
+    return (f"{label:<32} {'yes' if a.valid else 'no':<6} {_fmt(a.z_mm, '11.5f'):>11} "
+            f"{_fmt(a.z_sigma_um, '8.3f'):>8}{pooled} {_fmt(a.quality, '8.1f'):>8}  {code}")

@@ -336,6 +336,9 @@ class TapAnalysis:
     z_sharp_sigma_um: float | None = field(default=None, repr=False, compare=False)
     # What z_sigma_um was made of (tapcell.tap.uncertainty.ZSigmaParts; `python -m bench tap_sigma`).
     z_sigma_parts: Any = field(default=None, repr=False, compare=False)
+    # Under a narrow toe, the first touch of two stages the analysis could not name, µm from the
+    # toe's contact (tapcell.tap.stage.unnamed_stage_um): z_sigma_um's stage part.
+    unnamed_stage_um: float = field(default=0.0, repr=False, compare=False)
     z_pooled_mm: float | None = None  # Z with the toe shared by the taps at one spot (tapcell.tap.pool)
     z_pooled_sigma_um: float | None = None
     # The share of the approach's force change that the departure shows to be a drift in proportion

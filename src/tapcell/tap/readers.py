@@ -46,7 +46,7 @@ def read_tap_file(path: str | os.PathLike[str]) -> list[TapData]:
     """All taps in a file (one for .json/.csv, one per line for .jsonl)."""
     path = _file_name(path)
     text = _read_text(path)
-    if not text.strip():
+    if not text or text.isspace():  # as `not text.strip()`, without copying the whole text
         raise TapFileError(path, "the file is empty")
     suffix = _suffix(path)
     if suffix == ".csv":
@@ -122,9 +122,11 @@ def _load_tap_json(path: str, text: str, where: str) -> tuple[Any, tuple[str, ..
     if _C is not None:
         split = _C.split_number_arrays(text, NUMBER_ARRAY_KEYS)
         if split is not None:
-            rest, arrays = split
+            rest, arrays, longest_digit_run = split
+            # json's own int() where no integer can be too long (a hook costs a call per integer)
+            bounded = _bounded_int if longest_digit_run > MAX_INTEGER_DIGITS else None
             try:
-                document = json.loads(rest, parse_int=_bounded_int)
+                document = json.loads(rest, parse_int=bounded)
             except (json.JSONDecodeError, _HugeInteger, RecursionError):
                 document = None  # _load_json below names the problem, at its place in the whole text
             if isinstance(document, dict) and all(document.get(key) == [] for key in arrays):
@@ -186,8 +188,28 @@ def _list_numbers(path: str, where: str, name: str, values: Any) -> np.ndarray:
 def _number(path: str, where: str, name: str, value: Any) -> float:
     number = _as_float(value)
     if number is None or not math.isfinite(number):
-        raise TapFileError(path, f"{where}'{name}' must be a finite number, got {value!r}")
+        raise TapFileError(path, f"{where}'{name}' must be a finite number, got {_shown(value)}")
     return number
+
+
+def _shown(value: Any, limit: int = 40) -> str:
+    """A value as an error message shows it: its repr, cut short (a 1 MB string is not echoed)."""
+    text = repr(value)
+    return text if len(text) <= limit else f"{text[:limit]}... ({len(text)} characters)"
+
+
+# The keys of the optional objects that tap-format.md gives a number (or null: not known).
+EVENT_KEYS = ("home_end_time", "pullback_start_time", "pullback_end_time")
+PROBE_KEYS = ("x", "y", "speed", "pullback_distance", "pullback_speed", "trigger_force")
+
+
+def _known_numbers(path: str, where: str, name: str, values: dict, keys: tuple[str, ...]) -> dict:
+    """`values` with each of `keys` it has checked: null or a finite number (a NaN time or a string
+    where the format puts a number is the file's error, not a value to carry); other keys kept as they are."""
+    for key in keys:
+        if values.get(key) is not None:
+            values[key] = _number(path, where, f"{name}.{key}", values[key])
+    return values
 
 
 def _moves(path: str, where: str, values: Any) -> list[Move]:
@@ -301,9 +323,10 @@ def tap_from_object(obj: Any, path: str = "<memory>", where: str = "", *,
         raise TapFileError(path, f"{where}needs 'z' or 'moves' (the motion of the tap)")
     _check_samples(path, where, time_s, force_g, z_mm)
     events = _dict(path, where, "events", obj.get("events"))
-    for key in ("home_end_time", "pullback_start_time", "pullback_end_time"):  # dump_taps keeps them on top
+    for key in EVENT_KEYS:  # dump_taps keeps them on top
         if key in obj and key not in events:
             events[key] = obj[key]
+    events = _known_numbers(path, where, "events", events, EVENT_KEYS)
     sample_rate = obj.get("sample_rate")
     if sample_rate is not None:
         _check_sample_rate(path, where, _number(path, where, "sample_rate", sample_rate), time_s)
@@ -314,7 +337,7 @@ def tap_from_object(obj: Any, path: str = "<memory>", where: str = "", *,
         moves=moves,
         sample_rate_sps=float(sample_rate) if sample_rate is not None else None,
         events=events,
-        probe=_dict(path, where, "probe", obj.get("probe")),
+        probe=_known_numbers(path, where, "probe", _dict(path, where, "probe", obj.get("probe")), PROBE_KEYS),
         truth=_dict(path, where, "truth", obj.get("truth")),
         meta=_dict(path, where, "meta", obj.get("meta")),
     )

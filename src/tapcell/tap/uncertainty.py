@@ -31,7 +31,11 @@ how far Z moves with each assumption, is measured on the tap and added in quadra
   contact shape takes of it (`stage.ringing_noise_g2`, a sum of squares over those n samples) is,
   at the end of the two lines that meet at contact, an offset of 2 sqrt(that / n) g where the force
   crosses zero, over the stiffness (`ringing_um`);
-  weighed by RINGING_WEIGHT.
+  weighed by RINGING_WEIGHT;
+* `stage_um`: under a narrow toe, where the departure shows two stages the analysis cannot tell
+  from a drift or a walk at its noise (`stage.unnamed_stage_um`), how far their first touch lies
+  from the toe's contact: the tap is not rejected, its Z may be that far low. Not weighed (a
+  distance the tap shows, not a fit's sd).
 
 The weights are chosen by the worst scenario over taplab and the reference taps: `python -m bench
 tap_sigma` prints rms(error / z_sigma_um) per scenario per set with them and the weights it would
@@ -109,6 +113,7 @@ class ZSigmaParts:
     staircase_um: float = 0.0
     delay_um: float = 0.0
     ringing_um: float = 0.0
+    stage_um: float = 0.0
 
 
 def z_sigma_um(parts: ZSigmaParts, weights: SigmaWeights = SigmaWeights()) -> float:
@@ -116,7 +121,7 @@ def z_sigma_um(parts: ZSigmaParts, weights: SigmaWeights = SigmaWeights()) -> fl
     weighed = (weights.noise * parts.noise_um, weights.shape * parts.shape_um,
                weights.thread * parts.thread_um, weights.misfit * parts.misfit_um, weights.squeeze * parts.squeeze_um,
                weights.film * parts.film_um, weights.floor * parts.floor_um, parts.staircase_um, parts.delay_um,
-               weights.ringing * parts.ringing_um)
+               weights.ringing * parts.ringing_um, parts.stage_um)
     return math.sqrt(sum(part * part for part in weighed))
 
 

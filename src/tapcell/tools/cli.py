@@ -7,6 +7,7 @@ and lets each feature grow on its own.
 
 from __future__ import annotations
 
+import gc
 import importlib
 import os
 import sys
@@ -113,6 +114,19 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_BROKEN_PIPE
 
 
+def _import_without_collecting(module_name: str):
+    """The module, imported with the cycle collector paused. An import makes objects that live as
+    long as the process (modules, functions, classes), not garbage, and the collector would walk
+    them again and again while they pile up: ~5 % of the CPU of a one-file `tapcell analyze`."""
+    collecting = gc.isenabled()
+    gc.disable()
+    try:
+        return importlib.import_module(module_name)
+    finally:
+        if collecting:
+            gc.enable()
+
+
 def _dispatch(argv: list[str] | None) -> int:
     args = list(sys.argv[1:] if argv is None else argv)
     if not args or args[0] in ("-h", "--help", "help"):
@@ -129,7 +143,7 @@ def _dispatch(argv: list[str] | None) -> int:
         return 2
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     try:
-        module = importlib.import_module(SUBCOMMANDS[name][0])
+        module = _import_without_collecting(SUBCOMMANDS[name][0])
         # Modules serving several subcommands take the subcommand name first.
         if hasattr(module, "SUBCOMMANDS"):
             return int(module.main([name, *rest]) or 0)

@@ -15,7 +15,6 @@
 #include <Python.h>
 
 #include <math.h>
-#include <stdio.h>
 #include <string.h>
 
 /* The powers of ten a double holds exactly. */
@@ -101,21 +100,37 @@ static int put(Text *out, const char *text, Py_ssize_t length)
     return 0;
 }
 
+/* 1e-4 .. 1e15: where repr writes a plain decimal (no exponent); below each bound a count of
+ * digits before the point. The negative powers are the doubles nearest them: a magnitude next to
+ * one may be counted a digit off, which only makes the scale below one off, and the read-back test
+ * then decides (a wrong count gives no wrong text, only repr's own). */
+static const double DIGIT_BOUNDS[] = {1e-4, 1e-3, 1e-2, 1e-1, 1e0,  1e1,  1e2,  1e3,  1e4,  1e5,
+                                      1e6,  1e7,  1e8,  1e9,  1e10, 1e11, 1e12, 1e13, 1e14, 1e15};
+#define DIGIT_BOUNDS_COUNT ((int)(sizeof DIGIT_BOUNDS / sizeof DIGIT_BOUNDS[0]))
+
 /* The digits of a short decimal equal to x, as repr writes it, into buffer; its length, or 0 when
  * x is not one (repr must write it). */
 static int short_repr(double x, char *buffer)
 {
     double magnitude = fabs(x);
-    if (!(magnitude >= 1e-4 && magnitude < 1e15)) return 0;
-    int integer_digits = (int)floor(log10(magnitude)) + 1; /* may be one off near a power of ten */
-    int scale_digits = 15 - integer_digits;                 /* 0..19: the scale is exact */
-    if (scale_digits < 0 || scale_digits > MAX_FAST_DIGITS) return 0;
+    if (!(magnitude >= DIGIT_BOUNDS[0] && magnitude < DIGIT_BOUNDS[DIGIT_BOUNDS_COUNT - 1])) return 0;
+    int bound = 1; /* magnitude < DIGIT_BOUNDS[bound]: bound - 4 digits before the point (at most 0: none) */
+    while (magnitude >= DIGIT_BOUNDS[bound]) bound++;
+    int integer_digits = bound - 4;
+    int scale_digits = 15 - integer_digits; /* 0..18: the scale is exact */
     double scale = POWERS_OF_TEN[scale_digits];
     double nearest = nearbyint(magnitude * scale);
     if (!(nearest < 1e15) || nearest / scale != magnitude) return 0;
+    /* an integer below 2^53: exact in an unsigned long long; its digits, last first */
+    unsigned long long r = (unsigned long long)nearest;
     char digits[24];
-    int count = snprintf(digits, sizeof digits, "%.0f", nearest); /* an integer below 2^53: exact */
-    if (count <= 0 || count > 15) return 0;
+    int count = 0;
+    char reversed[24];
+    do {
+        reversed[count++] = (char)('0' + r % 10);
+        r /= 10;
+    } while (r > 0);
+    for (int k = 0; k < count; k++) digits[k] = reversed[count - 1 - k];
     int decimal_point = count - scale_digits; /* digits before the point */
     while (count > 1 && digits[count - 1] == '0') count--;
     int length = 0;

@@ -257,9 +257,9 @@ static int scan(const char *text, Py_ssize_t length, NumberArray *arrays, int ke
     return 0; /* the text ends inside the object */
 }
 
-/* The text with the cuts replaced by "[]", as a str. */
+/* The text with the cuts replaced by "[]", as a str, and the most digits it holds in a row. */
 static PyObject *rest_of(const char *text, Py_ssize_t length, const Py_ssize_t *cut_from, const Py_ssize_t *cut_to,
-                         int cuts)
+                         int cuts, Py_ssize_t *longest_digit_run)
 {
     char *rest = malloc((size_t)length + 2 * (size_t)cuts + 1);
     if (rest == NULL)
@@ -274,6 +274,14 @@ static PyObject *rest_of(const char *text, Py_ssize_t length, const Py_ssize_t *
     }
     memcpy(rest + size, text + from, (size_t)(length - from));
     size += length - from;
+    /* without branches: a digit or not is as good as random to a branch predictor */
+    Py_ssize_t run = 0, longest = 0;
+    for (Py_ssize_t k = 0; k < size; k++) {
+        Py_ssize_t digit = (unsigned char)(rest[k] - '0') < 10;
+        run = (run + 1) & -digit;
+        longest = run > longest ? run : longest;
+    }
+    *longest_digit_run = longest;
     /* cut only at ASCII characters, so valid UTF-8 stays valid */
     PyObject *result = PyUnicode_DecodeUTF8(rest, size, "strict");
     free(rest);
@@ -298,12 +306,13 @@ static PyObject *build_result(const char *text, Py_ssize_t length, NumberArray *
         }
         Py_DECREF(bytes);
     }
-    PyObject *rest = rest_of(text, length, cut_from, cut_to, cuts);
+    Py_ssize_t longest_digit_run = 0;
+    PyObject *rest = rest_of(text, length, cut_from, cut_to, cuts, &longest_digit_run);
     if (rest == NULL) {
         Py_DECREF(values);
         return NULL;
     }
-    return Py_BuildValue("(NN)", rest, values);
+    return Py_BuildValue("(NNn)", rest, values, longest_digit_run);
 }
 
 static PyObject *split_number_arrays(PyObject *self, PyObject *args)
@@ -362,10 +371,11 @@ static PyObject *split_number_arrays(PyObject *self, PyObject *args)
 
 static PyMethodDef methods[] = {
     {"split_number_arrays", split_number_arrays, METH_VARARGS,
-     "split_number_arrays(text, keys) -> (rest, {key: bytearray}) or None\n\n"
+     "split_number_arrays(text, keys) -> (rest, {key: bytearray}, longest_digit_run) or None\n\n"
      "Cuts the arrays of numbers that the top-level object of the JSON `text` (str or bytes) holds\n"
      "under `keys` out of it: `rest` is the text with each replaced by [], and each key found maps\n"
-     "to its values as native float64 bytes (np.frombuffer). None when anything is unusual (not an\n"
+     "to its values as native float64 bytes (np.frombuffer); `longest_digit_run`: the most digit\n"
+     "characters `rest` holds in a row (no integer in it is longer). None when anything is unusual (not an\n"
      "object, a key with escapes or seen twice, a value that is not a flat array of finite JSON\n"
      "numbers, an integer of more than 15 digits, a number over 63 characters, text ending early):\n"
      "then json.loads must read the whole text, and name the problem."},
