@@ -53,8 +53,8 @@ from tapcell.tap.segments import NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_F
 from tapcell.tap.stage import (Ringing, SoftStage, departure_soft_stage, dwell_ringing, shows_soft_stage, shows_two_stage,
                                two_stage_departure, unnamed_stage_um)
 from tapcell.tap.toe import (ADHESION_LEVEL_UM, ADHESION_REACH_UM, THREAD_FAR_REACH_UM, THREAD_REACH_UM, ToeFit,
-                             Wander, adhesion_measures, fit_toe, free_air_variogram, lag_from_halt_s, thread_pull_g,
-                             thread_pulls_g, walk_beside_height_pull, wander_from_variograms)
+                             Wander, adhesion_measures, fit_toe, free_air_walks, lag_from_halt_s, thread_pull_g,
+                             thread_pulls_g)
 
 if TYPE_CHECKING:  # the hum's module is imported where a tap asks for hum removal (remove_mains_hum)
     from tapcell.tap.hum import HumFit
@@ -786,15 +786,12 @@ def free_air_wanders(force_g: np.ndarray, dec: Decomposition, steps_um: tuple[fl
     departure line's read while the nozzle rose (before `rising_stop`, an index into force_g), with
     a pull curved in height told apart from the walk (`walk_beside_height_pull`; steps_um: the
     height crossed per sample on the approach and on the pullback), for the toe fit; and from the
-    approach's alone, which no ooze thread after the tap can pull (for the thread check). The
-    approach's variogram is measured once for both."""
+    approach's alone, which no ooze thread after the tap can pull (for the thread check), in one
+    call (`toe.free_air_walks`)."""
     first, *_, last = dec.bounds
     approach_force = force_g[dec.start:dec.start + first]
     departure_force = force_g[dec.start + last:min(dec.stop, rising_stop)]
-    approach = free_air_variogram(approach_force)
-    departure = free_air_variogram(departure_force)
-    segments = [(approach, len(approach_force), steps_um[0]), (departure, len(departure_force), steps_um[1])]
-    return walk_beside_height_pull(segments), wander_from_variograms([approach])
+    return free_air_walks(approach_force, departure_force, steps_um)
 
 
 def fit_pullback_toe(samples: PullbackSamples, motion: Motion, timing: SensorTiming, contact0_um: float,
