@@ -286,6 +286,24 @@ static PyObject *grid_answer(int status, const GridFit *fit)
                          fit->soft_share, fit->hinge_gain);
 }
 
+/* The samples' and the grid's arrays of two_stage_grid and two_stage_fit: 0 with an exception set
+ * when one is not float64 of the size expected, or the grid has no hinge or span. */
+static int grid_arrays(const Py_buffer *xb, const Py_buffer *fb, const Py_buffer *hb, const Py_buffer *sb,
+                       const double **x, const double **f, Py_ssize_t *n, const double **hinge_offsets,
+                       Py_ssize_t *hinges, const double **span_offsets, Py_ssize_t *spans)
+{
+    *x = doubles_of(xb, n, "x_um");
+    *f = *x ? doubles_sized(fb, *n, "force_g") : NULL;
+    *hinge_offsets = *f ? doubles_of(hb, hinges, "hinges_um") : NULL;
+    *span_offsets = *hinge_offsets ? doubles_of(sb, spans, "spans_um") : NULL;
+    if (*span_offsets == NULL) return 0;
+    if (*hinges < 1 || *spans < 1) {
+        PyErr_SetString(PyExc_ValueError, "the two-stage grid needs hinges and spans");
+        return 0;
+    }
+    return 1;
+}
+
 static PyObject *two_stage_grid(PyObject *self, PyObject *args)
 {
     (void)self;
@@ -297,13 +315,10 @@ static PyObject *two_stage_grid(PyObject *self, PyObject *args)
         return NULL;
     PyObject *answer = NULL;
     Py_ssize_t n, hinges, spans;
-    const double *x = doubles_of(&xb, &n, "x_um");
-    const double *f = x ? doubles_sized(&fb, n, "force_g") : NULL;
-    const double *hinge_offsets = f ? doubles_of(&hb, &hinges, "hinges_um") : NULL;
-    const double *span_offsets = hinge_offsets ? doubles_of(&sb, &spans, "spans_um") : NULL;
-    if (span_offsets == NULL) goto done;
-    if (n < 1 || hinges < 1 || spans < 1) {
-        PyErr_SetString(PyExc_ValueError, "two_stage_grid needs samples, hinges and spans");
+    const double *x, *f, *hinge_offsets, *span_offsets;
+    if (!grid_arrays(&xb, &fb, &hb, &sb, &x, &f, &n, &hinge_offsets, &hinges, &span_offsets, &spans)) goto done;
+    if (n < 1) {
+        PyErr_SetString(PyExc_ValueError, "two_stage_grid needs samples");
         goto done;
     }
     GridFit fit;
@@ -375,15 +390,9 @@ static PyObject *two_stage_fit(PyObject *self, PyObject *args)
     double *xs = NULL, *fs = NULL, *xc = NULL, *steps = NULL;
     Py_ssize_t *order = NULL, *picked = NULL, *scratch = NULL;
     Py_ssize_t n_all, hinges, spans;
-    const double *x_all = doubles_of(&xb, &n_all, "x_um");
-    const double *f_all = x_all ? doubles_sized(&fb, n_all, "force_g") : NULL;
-    const double *hinge_offsets = f_all ? doubles_of(&hb, &hinges, "hinges_um") : NULL;
-    const double *span_offsets = hinge_offsets ? doubles_of(&sb, &spans, "spans_um") : NULL;
-    if (span_offsets == NULL) goto done;
-    if (hinges < 1 || spans < 1) {
-        PyErr_SetString(PyExc_ValueError, "two_stage_fit needs hinges and spans");
+    const double *x_all, *f_all, *hinge_offsets, *span_offsets;
+    if (!grid_arrays(&xb, &fb, &hb, &sb, &x_all, &f_all, &n_all, &hinge_offsets, &hinges, &span_offsets, &spans))
         goto done;
-    }
     const double low = contact_um - below_um, high = contact_um + above_um;
     Py_ssize_t n = 0;
     for (Py_ssize_t i = 0; i < n_all; i++) n += x_all[i] > low && x_all[i] < high;
