@@ -7,7 +7,12 @@ drift with the baseline or take it from the approach, cable-drift taps weigh the
 
 from __future__ import annotations
 
+import importlib.util
 import math
+import shutil
+import subprocess
+import sysconfig
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -52,38 +57,43 @@ def _whitened_yy(x_lo_um, x_hi_um, force_g, drift_g_um, wander, contacts_um, _):
                                  toe.TOE_WIDTHS_UM[-1]).yy
 
 
-def test_grids_and_stiffness_equal_the_numpy_twin(toe_fits):
-    # Measured on these taps and seeds 8, 9: the plain grid agrees to 6e-14 of its largest finite
-    # residual, its stiffness to 2e-15. The walk-weighted grid to 1.9e-11 of the whitened force's
-    # sum of squares (`yy`), its stiffness to 7e-12: a walk small against the white noise makes the
-    # whitening recursion's gain near 1, so the whitened toe column grows along the pressed run and
-    # its sums cancel; the kernel takes the pressed and free runs from sums prepared once where
-    # numpy steps through every sample, so the two round differently. Tolerances: 10-20x those.
+def test_fit_kernel_grid_and_stiffness_equal_the_numpy_twin(toe_fits):
+    # The kernel's whole fit (c/toe.c `fit`) against the twin's grid, step by step. Measured on
+    # these taps and seeds 8, 9: the plain grid agrees to 6e-14 of its largest finite residual, its
+    # stiffness to 2e-15. The walk-weighted grid to 1.9e-11 of the whitened force's sum of squares
+    # (`yy`), its stiffness to 7e-12: a walk small against the white noise makes the whitening
+    # recursion's gain near 1, so the whitened toe column grows along the pressed run and its sums
+    # cancel; the kernel takes the pressed and free runs from sums prepared once where numpy steps
+    # through every sample, so the two round differently. Tolerances: 10-20x those.
     paths = {"plain": 0, "walk": 0}
     for args in toe_fits:
         inputs = _grid_inputs(*args)
         rss_np, unit_np, stiffness_np = toe._toe_grid(*inputs)
-        rss_c, unit_c, stiffness_c = toe._toe_grid_native(*inputs)
-        assert unit_c == unit_np
+        fit = toe.fit_toe(*args)
+        assert fit is not None
         walk = unit_np != 1.0
         paths["walk" if walk else "plain"] += 1
-        assert rss_c.shape == rss_np.shape == (len(toe.TOE_POWERS), len(toe._GRID_OFFSETS_UM))
+        # The candidates' heights are the twin's sums, bit for bit; the grid has the twin's layout.
+        assert np.array_equal(fit.grid.contacts_um, inputs[5])
+        assert fit.grid.prior is toe._TOE_PRIOR
+        rss_c = fit.grid.rss.reshape(rss_np.shape)
         assert np.array_equal(np.isinf(rss_c), np.isinf(rss_np))
         finite = np.isfinite(rss_np)
         assert finite.sum() > 100
-        if walk:
-            scale = _whitened_yy(*inputs)
-            np.testing.assert_allclose(rss_c[finite], rss_np[finite], rtol=0, atol=2e-10 * scale)
-        else:
-            scale = np.abs(rss_np[finite]).max()
-            np.testing.assert_allclose(rss_c[finite], rss_np[finite], rtol=0, atol=1e-12 * scale)
-        contact0_um = args[3]
-        for power in toe.TOE_POWERS:
-            for width_um in (0.0, 4.5, 16.0):
-                expected = stiffness_np(contact0_um + 0.75, width_um, power)
-                got = stiffness_c(contact0_um + 0.75, width_um, power)
-                assert got == pytest.approx(expected, rel=1e-10 if walk else 3e-14)
-    assert paths["walk"] >= 3 and paths["plain"] >= 8  # both kernels ran
+        tolerance = 2e-10 * _whitened_yy(*inputs) if walk else 1e-12 * np.abs(rss_np[finite]).max()
+        np.testing.assert_allclose(rss_c[finite], rss_np[finite], rtol=0, atol=tolerance)
+        # The least residual's toe, its variance per degree of freedom and the stiffness at the
+        # marginal contact, as the twin takes them from its grid.
+        best = int(rss_np.argmin())
+        power_index, width_index = divmod(best // len(toe._CONTACT_OFFSETS_UM), len(toe.TOE_WIDTHS_UM))
+        assert (fit.power, fit.width_um) == (toe.TOE_POWERS[power_index], toe.TOE_WIDTHS_UM[width_index])
+        samples = len(inputs[2])
+        dof = samples - 4 - (2 if inputs[3] is None else 1)
+        assert fit.grid.noise_var == pytest.approx(max(rss_np.flat[best] / dof, 1e-12), rel=0, abs=tolerance / dof)
+        assert fit.residual_sigma_g == pytest.approx(math.sqrt(fit.grid.noise_var * unit_np), rel=1e-15)
+        expected = stiffness_np(fit.contact_um, fit.width_um, fit.power)
+        assert fit.stiffness_g_um == pytest.approx(expected, rel=1e-10 if walk else 3e-14)
+    assert paths["walk"] >= 3 and paths["plain"] >= 8  # both grids ran
 
 
 def test_fit_toe_dispatches_to_the_kernel(toe_fits, monkeypatch):
@@ -108,6 +118,9 @@ def test_fits_equal_the_numpy_twin(toe_fits, monkeypatch):
         assert fit.contact_um == pytest.approx(twin.contact_um, abs=1e-8)
         assert fit.sigma_um == pytest.approx(twin.sigma_um, rel=1e-8)
         assert fit.residual_sigma_g == pytest.approx(twin.residual_sigma_g, rel=1e-8)
+        assert (fit.width_um, fit.power) == (twin.width_um, twin.power)
+        assert fit.stiffness_g_um == pytest.approx(twin.stiffness_g_um, rel=1e-8)
+        assert fit.grid.rss.shape == twin.grid.rss.shape and np.array_equal(fit.grid.contacts_um, twin.grid.contacts_um)
 
 
 def test_marginal_contact_equals_the_numpy_twin(monkeypatch):
@@ -160,16 +173,76 @@ def test_shape_spread_equals_the_numpy_twin(monkeypatch):
         compiled.marginal_contact_and_spread(contacts_um, rss, 1.0, toe._TOE_PRIOR, 3)
 
 
+def _fit_args(x_lo_um, force_g, contact0_um=10.0, drift_g_um=math.nan, walk=(math.nan, math.nan), span_um=1.0):
+    return (x_lo_um, x_lo_um + span_um, force_g, contact0_um, 1.0, drift_g_um, *walk, toe._FIT_GRID)
+
+
+def _fit_outputs():
+    return np.empty(len(toe._CONTACT_OFFSETS_UM)), np.empty((len(toe._TOE_PRIOR), len(toe._CONTACT_OFFSETS_UM)))
+
+
 def test_kernel_rejects_wrong_arrays():
     x_lo_um = np.arange(20.0)
-    samples = (x_lo_um, x_lo_um + 1.0, x_lo_um, math.nan, 2)
-    contacts_um, widths_um = np.arange(5.0), np.zeros(5)
-    with pytest.raises(ValueError, match="rss_out: 9 values, 10 expected"):
-        toe._C.rss_grid(*samples, contacts_um, widths_um, np.empty(9))
+    contacts, rss = _fit_outputs()
+    with pytest.raises(ValueError, match="rss_out: 539 values, 540 expected"):
+        toe._C.fit(*_fit_args(x_lo_um, x_lo_um), contacts, np.empty(539))
     with pytest.raises(ValueError, match="force_g: 19 values, 20 expected"):
-        toe._C.rss_grid(x_lo_um, x_lo_um + 1.0, x_lo_um[:-1], 0.0, 2, contacts_um, widths_um, np.empty(10))
-    with pytest.raises(ValueError, match="power: 2"):
-        toe._C.stiffness_at(*samples, 3.0, 1.0, 2.0)
+        toe._C.fit(*_fit_args(x_lo_um, x_lo_um[:-1]), contacts, rss)
+    with pytest.raises(ValueError, match="contacts_out: 26 values, 27 expected"):
+        toe._C.fit(*_fit_args(x_lo_um, x_lo_um), np.empty(26), rss)
+    with pytest.raises(TypeError, match="float64"):
+        toe._C.fit(*_fit_args(x_lo_um, np.arange(20)), contacts, rss)
+    bad_grid = (*toe._FIT_GRID[:4], 0, *toe._FIT_GRID[5:])  # no subsample per window
+    with pytest.raises(ValueError, match="0 subsamples"):
+        toe._C.fit(*_fit_args(x_lo_um, x_lo_um)[:-1], bad_grid, contacts, rss)
+    model = toe._free_air_model(60)
+    with pytest.raises(ValueError, match="not rows of 4"):
+        toe._C.free_air_walks(np.zeros(60), np.zeros(60), model.ravel()[:-1], model, 10.0, 1.0)
+    with pytest.raises(ValueError, match="row 0's lag is not a whole number of 1..59"):
+        toe._C.free_air_walks(np.zeros(60), np.zeros(60), model, model + [0.5, 0, 0, 0], 10.0, 1.0)
+    with pytest.raises(ValueError, match="of 1..19"):  # a model for more samples than the segment has
+        toe._C.free_air_walks(np.zeros(20), np.zeros(60), model, model, 10.0, 1.0)
+
+
+def test_fit_kernel_on_degenerate_pullbacks(monkeypatch):
+    # Each case as the twin answers it: too few samples near the start, every window of zero span,
+    # a force that never leaves the baseline (no toe presses: no finite residual), a walk that
+    # matters but samples that are no plain rise (the plain grid runs), and a clean hinge.
+    x_lo_um = np.arange(-40.0, 80.0, 0.5)
+    hinge_g = 30.0 * np.maximum(9.6 - (x_lo_um + 0.5), 0.0)
+    noise_g = np.random.default_rng(5).normal(0.0, 0.3, len(x_lo_um))
+    cases = {
+        "few samples": (x_lo_um[::40], hinge_g[::40] + noise_g[::40], 10.0, 0.0, None, 1.0),
+        "zero span": (x_lo_um, hinge_g + noise_g, 10.0, None, None, 0.0),
+        "flat": (x_lo_um, np.zeros_like(x_lo_um), 10.0, None, None, 1.0),
+        "walk, not a rise": (x_lo_um[::-1].copy(), (hinge_g + noise_g)[::-1].copy(), 10.0, 0.0,
+                             toe.Wander(0.09, 0.5), 1.0),
+        "walk": (x_lo_um, hinge_g + noise_g, 10.0, 0.0, toe.Wander(0.09, 0.5), 1.0),
+        "hinge": (x_lo_um, hinge_g + noise_g, 10.0, None, None, 1.0),
+    }
+
+    def fit(x_lo, force, contact0, drift, wander, span):
+        return toe.fit_toe(x_lo, x_lo + span, force, contact0, 0.5, drift, wander)
+
+    kernel = {name: fit(*case) for name, case in cases.items()}
+    monkeypatch.setattr(toe, "_C", None)
+    twins = {name: fit(*case) for name, case in cases.items()}
+    assert kernel["few samples"] is None and twins["few samples"] is None
+    assert kernel["flat"] is None and twins["flat"] is None
+    for name in ("zero span", "walk, not a rise", "walk", "hinge"):
+        got, twin = kernel[name], twins[name]
+        assert got is not None and twin is not None, name
+        # As test_fits_equal_the_numpy_twin (the sd comes from second differences of the residual:
+        # the grid's rounding, 1e-12 of its largest value, shows there at ~1e-9).
+        assert got.contact_um == pytest.approx(twin.contact_um, abs=1e-8), name
+        assert got.sigma_um == pytest.approx(twin.sigma_um, rel=1e-8), name
+        assert got.width_um == twin.width_um, name
+        if got.width_um > 0.0:  # a hinge has no shape: both tie but for rounding, and either may win
+            assert got.power == twin.power, name
+        assert got.stiffness_g_um == pytest.approx(twin.stiffness_g_um, rel=1e-8), name
+        assert got.residual_sigma_g == pytest.approx(twin.residual_sigma_g, rel=1e-8), name
+    assert kernel["hinge"].contact_um == pytest.approx(9.6, abs=0.3)  # the hinge's break contact
+    assert kernel["walk"].residual_sigma_g != kernel["hinge"].residual_sigma_g  # the walk-weighted grid ran
 
 
 def test_analysis_equals_the_numpy_twin(taps, monkeypatch):
@@ -189,20 +262,37 @@ def test_analysis_equals_the_numpy_twin(taps, monkeypatch):
     assert toe_used >= 15
 
 
-def test_free_air_variogram_equals_the_numpy_twin(taps, monkeypatch):
-    # Measured on these taps and seed 8: 1e-15 relative (the kernel takes the line out of each
-    # difference, numpy out of each sample first).
-    segments = [force_g for (force_g,) in recorded_calls(analysis, "free_air_variogram", [OPTIONS["default"]],
-                                                          taps[:6])]
-    kernel = [toe.free_air_variogram(force_g) for force_g in segments]
+def test_free_air_walks_equal_the_numpy_twin(taps, monkeypatch):
+    # The kernel's variograms, sums and both least squares against the twin's free_air_variogram,
+    # walk_beside_height_pull and wander_from_variograms. Measured on these taps: 3e-15 relative
+    # (the kernel takes the line out of each difference, numpy out of each sample first; the rest
+    # repeats the twin's operations), so 1e-12.
+    calls = recorded_calls(analysis, "free_air_walks", [OPTIONS["default"]], taps)
+    # Short segments too: no rows from the departure, or from either.
+    approach_g, departure_g, steps_um = calls[0]
+    calls += [(approach_g, departure_g[:20], steps_um), (approach_g[:30], departure_g[:5], steps_um),
+              (approach_g, np.zeros(0), steps_um)]
+    kernel = [toe.free_air_walks(*args) for args in calls]
+    variograms = [toe.free_air_variogram(force_g) for args in calls for force_g in args[:2]]
     monkeypatch.setattr(toe, "_C", None)
-    measured = 0
-    for force_g, (expected, values) in zip(segments, kernel):
+    found = {"beside": 0, "approach": 0}
+    for args, walks in zip(calls, kernel):
+        for name, walk, twin in zip(found, walks, toe.free_air_walks(*args)):
+            assert (walk is None) == (twin is None)
+            if twin is not None:
+                found[name] += 1
+                assert walk.white_var_g2 == pytest.approx(twin.white_var_g2, rel=1e-12)
+                assert walk.walk_var_g2 == pytest.approx(twin.walk_var_g2, rel=1e-12, abs=1e-15 * twin.white_var_g2)
+    assert kernel[-2] == (None, None)  # both too short for a variogram
+    assert kernel[-1][1] == kernel[-3][1] == kernel[0][1]  # the approach's own walk: whatever the departure
+    assert found["beside"] >= 15 and found["approach"] >= 15
+    assert sum(beside is not None and beside.walk_var_g2 > 0.0 for beside, _ in kernel) >= 3  # walks, not only white
+    # free_air_variogram's own kernel (lag_mean_squares) on the same segments.
+    segments = [force_g for args in calls for force_g in args[:2]]
+    for force_g, (expected, values) in zip(segments, variograms):
         twin_expected, twin_values = toe.free_air_variogram(force_g)
         assert expected == twin_expected
         np.testing.assert_allclose(values, twin_values, rtol=1e-13, atol=0)
-        measured += len(values) > 0
-    assert measured >= 8
 
 
 def test_adhesion_measures_equal_the_numpy_twin(monkeypatch):
@@ -230,3 +320,36 @@ def test_thread_pulls_equal_the_numpy_twin_bit_for_bit(monkeypatch):
     assert kernel == twins
     assert sum(near is not None for near, _ in twins) >= 10 and sum(far is not None for _, far in twins) >= 5
     assert any(far is None and near is not None for near, far in twins)  # a pullback too short to reach far
+
+
+@pytest.fixture(scope="module")
+def scalar_kernel(tmp_path_factory):
+    """c/toe.c built with -DTAPCELL_SCALAR (the plain loops an ARM board runs instead of SSE2),
+    loaded beside the installed kernel."""
+    compiler = shutil.which(sysconfig.get_config_var("CC").split()[0]) if sysconfig.get_config_var("CC") else None
+    if compiler is None:
+        pytest.skip("no C compiler")
+    source = Path(toe.__file__).with_name("c") / "toe.c"
+    library = tmp_path_factory.mktemp("scalar") / ("_c_toe" + sysconfig.get_config_var("EXT_SUFFIX"))
+    subprocess.run([compiler, "-shared", "-fPIC", "-std=c99", "-O3", "-fno-fast-math", "-ffp-contract=off",
+                    "-DTAPCELL_SCALAR", "-I" + sysconfig.get_paths()["include"], str(source), "-o", str(library)],
+                   check=True)
+    spec = importlib.util.spec_from_file_location("_c_toe", library)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_scalar_build_gives_the_kernels_bits(toe_fits, scalar_kernel, monkeypatch):
+    # The SSE2 toe grid (a window's two heights side by side, both shapes in one vector) repeats the
+    # plain loops' operations lane by lane: every fit, the grid's residuals included, bit for bit.
+    vector = [toe.fit_toe(*args) for args in toe_fits]
+    monkeypatch.setattr(toe, "_C", scalar_kernel)
+    walks = 0
+    for args, fit in zip(toe_fits, vector):
+        plain = toe.fit_toe(*args)
+        assert (fit.contact_um, fit.sigma_um, fit.width_um, fit.power, fit.stiffness_g_um, fit.residual_sigma_g) == (
+            plain.contact_um, plain.sigma_um, plain.width_um, plain.power, plain.stiffness_g_um, plain.residual_sigma_g)
+        assert fit.grid.rss.tobytes() == plain.grid.rss.tobytes() and fit.grid.noise_var == plain.grid.noise_var
+        walks += fit.residual_sigma_g != math.sqrt(fit.grid.noise_var)
+    assert walks >= 3  # the walk-weighted grid's vector recursion ran too

@@ -27,11 +27,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tapcell.tap import native, uncertainty, validate
+from tapcell.tap import contact, native, uncertainty, validate
 from tapcell.tap.angles import line_angles_deg
 from tapcell.tap.classifiers import get_classifier, run_classifier
-from tapcell.tap.contact import (MIN_SPAN_UM, ContactFit, fit_contact, fit_fixed_onset, window_edges,
-                                 window_mean_and_slope)
+from tapcell.tap.contact import (MIN_SPAN_UM, SEARCH_SAMPLES, ContactFit, fit_contact, fit_fixed_onset,
+                                 fit_of_kernel, window_edges, window_mean_and_slope)
 from tapcell.tap.context import AnalysisContext, SensorTiming, recompute_points
 from tapcell.tap.model import (
     TAP_ADHESION,
@@ -53,8 +53,8 @@ from tapcell.tap.segments import NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_F
 from tapcell.tap.stage import (Ringing, SoftStage, departure_soft_stage, dwell_ringing, shows_soft_stage, shows_two_stage,
                                two_stage_departure, unnamed_stage_um)
 from tapcell.tap.toe import (ADHESION_LEVEL_UM, ADHESION_REACH_UM, THREAD_FAR_REACH_UM, THREAD_REACH_UM, ToeFit,
-                             Wander, adhesion_measures, fit_toe, free_air_variogram, lag_from_halt_s, thread_pull_g,
-                             thread_pulls_g, walk_beside_height_pull, wander_from_variograms)
+                             Wander, adhesion_measures, fit_toe, free_air_walks, lag_from_halt_s, thread_pull_g,
+                             thread_pulls_g)
 
 if TYPE_CHECKING:  # the hum's module is imported where a tap asks for hum removal (remove_mains_hum)
     from tapcell.tap.hum import HumFit
@@ -540,6 +540,26 @@ def fit_pullback(window: ModelWindow, motion: Motion, timing: SensorTiming, dela
     if not math.isfinite(contact0) or len(y_fit) < 2:
         return None
     spacing_um = max(motion.pullback_speed_mm_s * 1000.0 * timing.sample_period_s, 0.05)
+    return pullback_fit(y_fit, x_min, span, contact0, spacing_um, options)
+
+
+def pullback_fit(y_fit: np.ndarray, x_min: np.ndarray, span: np.ndarray, contact0: float, spacing_um: float,
+                 options: AnalysisOptions) -> tuple[ContactFit, float] | None:
+    """`fit_pullback` after its samples are chosen: the kernel _c_contact.fit_pullback when the onset is
+    fixed (the whole of `pullback_fit_twin` in one call, its arithmetic in its order: the same to the
+    last bit as the twin with the kernels it calls), else the twin."""
+    if contact._C is None or _fits_onset(options):
+        return pullback_fit_twin(y_fit, x_min, span, contact0, spacing_um, options)
+    onset_um = options.contact_onset_um or 0.0
+    found = contact._C.fit_pullback(y_fit, x_min, span, contact0, spacing_um, onset_um, SEARCH_SAMPLES,
+                                    options.outlier_sigma, MISFIT_REACH_SAMPLES * spacing_um)
+    return None if found is None else (fit_of_kernel(found, onset_um), found[6])
+
+
+def pullback_fit_twin(y_fit: np.ndarray, x_min: np.ndarray, span: np.ndarray, contact0: float, spacing_um: float,
+                      options: AnalysisOptions) -> tuple[ContactFit, float] | None:
+    """The fit (`_fit_with_onset`), its robust pass and the near-contact sigma: _c_contact.fit_pullback's
+    numpy twin, and the path of a fitted onset."""
     found = _fit_with_onset(y_fit, x_min, span, contact0, spacing_um, options)
     if found is None:
         return None
@@ -592,7 +612,7 @@ def _fit_with_onset(y, x_min, span, contact0_um: float, spacing_um: float, optio
     fixed_onset = options.contact_onset_um or 0.0
     # A line fit reads a soft contact onset/2 low.
     sharp = fit_fixed_onset(y, x_min, span, contact0_um + 0.5 * fixed_onset, spacing_um, fixed_onset)
-    if not (options.fit_contact_onset and options.contact_onset_um is None):
+    if not _fits_onset(options):
         return sharp
     # Best onset on a grid (each with its own global contact search), then all four parameters refined.
     trials = [fit_fixed_onset(y, x_min, span, contact0_um + 0.5 * onset, spacing_um, onset)
@@ -608,6 +628,11 @@ def _fit_with_onset(y, x_min, span, contact0_um: float, spacing_um: float, optio
     # Keep the onset only when it explains the data clearly better (likelihood-ratio test).
     improvement = (sharp[0].rss_g2 - soft.rss_g2) / soft.residual_sigma_g ** 2 if soft.residual_sigma_g > 0 else np.inf
     return (soft, _residual(y, x_min, span, soft)) if improvement > ONSET_MIN_CHI2 else sharp
+
+
+def _fits_onset(options: AnalysisOptions) -> bool:
+    """Whether the onset width is fitted per tap (`fit_contact_onset`, none calibrated), not held fixed."""
+    return options.fit_contact_onset and options.contact_onset_um is None
 
 
 def _residual(y, x_min_um, span_um, fit: ContactFit) -> np.ndarray:
@@ -761,15 +786,12 @@ def free_air_wanders(force_g: np.ndarray, dec: Decomposition, steps_um: tuple[fl
     departure line's read while the nozzle rose (before `rising_stop`, an index into force_g), with
     a pull curved in height told apart from the walk (`walk_beside_height_pull`; steps_um: the
     height crossed per sample on the approach and on the pullback), for the toe fit; and from the
-    approach's alone, which no ooze thread after the tap can pull (for the thread check). The
-    approach's variogram is measured once for both."""
+    approach's alone, which no ooze thread after the tap can pull (for the thread check), in one
+    call (`toe.free_air_walks`)."""
     first, *_, last = dec.bounds
     approach_force = force_g[dec.start:dec.start + first]
     departure_force = force_g[dec.start + last:min(dec.stop, rising_stop)]
-    approach = free_air_variogram(approach_force)
-    departure = free_air_variogram(departure_force)
-    segments = [(approach, len(approach_force), steps_um[0]), (departure, len(departure_force), steps_um[1])]
-    return walk_beside_height_pull(segments), wander_from_variograms([approach])
+    return free_air_walks(approach_force, departure_force, steps_um)
 
 
 def fit_pullback_toe(samples: PullbackSamples, motion: Motion, timing: SensorTiming, contact0_um: float,
@@ -894,10 +916,28 @@ def fit_compression(window: ModelWindow, motion: Motion, timing: SensorTiming, d
     free-air drift (g per µm of height, from the approach line) taken out first: a cable pulling
     40 g/mm ramps the approach like a soft contact, and the model has a constant baseline (taplab's
     cable drift: the down contact read ~190 µm above break contact, TAP_CONTACT_MISMATCH)."""
-    last = int(window.time_s.searchsorted(motion.home_end_s + delay_s, side="right"))
+    spacing_um = max(motion.approach_speed_mm_s * 1000.0 * timing.sample_period_s, 0.05)
+    return compression_fit(window, motion.home_end_s + delay_s, spacing_um, onset_um, drift_g_um)
+
+
+def compression_fit(window: ModelWindow, read_until_s: float, spacing_um: float, onset_um: float,
+                    drift_g_um: float) -> ContactFit | None:
+    """`fit_compression` over the samples read up to `read_until_s`: the kernel _c_contact.fit_compression
+    (the whole of `compression_fit_twin` in one call, its arithmetic in its order: the same to the last
+    bit as the twin with the fit_fixed_onset kernel), or the twin."""
+    if contact._C is None:
+        return compression_fit_twin(window, read_until_s, spacing_um, onset_um, drift_g_um)
+    found = contact._C.fit_compression(window.time_s, window.force_g, window.x_min_um, window.span_um, read_until_s,
+                                       window.contact_line_um, spacing_um, onset_um, drift_g_um, SEARCH_SAMPLES)
+    return None if found is None else fit_of_kernel(found, onset_um)
+
+
+def compression_fit_twin(window: ModelWindow, read_until_s: float, spacing_um: float, onset_um: float,
+                         drift_g_um: float) -> ContactFit | None:
+    """The compression's fit without the kernel: _c_contact.fit_compression's numpy twin."""
+    last = int(window.time_s.searchsorted(read_until_s, side="right"))
     if last < 6 or not math.isfinite(window.contact_line_um):
         return None
-    spacing_um = max(motion.approach_speed_mm_s * 1000.0 * timing.sample_period_s, 0.05)
     x_min, span = window.x_min_um[:last], window.span_um[:last]
     force_g = window.force_g[:last]
     if drift_g_um:

@@ -20,7 +20,8 @@ half a sample period of lag high).
 
 `fit_fixed_onset` runs in C when the kernel tapcell.tap._c_contact is built (the same search and
 formulas; sums in another order, so equal to rounding); the numpy functions it is made of here are
-the reference and the fallback.
+the reference and the fallback. The kernel also holds the analysis's whole pullback and compression
+fits around it (analysis.pullback_fit, compression_fit; `fit_of_kernel` reads their answers).
 """
 
 from __future__ import annotations
@@ -353,11 +354,7 @@ def fit_fixed_onset(force_g: np.ndarray, x_min_um: np.ndarray, span_um: np.ndarr
         residual = np.empty(len(force_g))
         found = _C.fit_fixed_onset(force_g, x_min_um, span_um, contact0_um, spacing_um, onset_um, SEARCH_SAMPLES,
                                    residual)
-        if found is None:
-            return None
-        contact, stiffness, baseline, contact_sigma, residual_sigma, rss = found
-        return ContactFit(contact_um=contact, stiffness_g_um=stiffness, baseline_g=baseline, onset_um=float(onset_um),
-                          contact_sigma_um=contact_sigma, residual_sigma_g=residual_sigma, rss_g2=rss), residual
+        return None if found is None else (fit_of_kernel(found, onset_um), residual)
     reach_um = SEARCH_SAMPLES * spacing_um
     centre_um = contact0_um
     for _ in range(3):
@@ -369,3 +366,10 @@ def fit_fixed_onset(force_g: np.ndarray, x_min_um: np.ndarray, span_um: np.ndarr
             break
         centre_um = contact_um
     return fit_contact_at(force_g, x_min_um, span_um, contact_um, onset_um)
+
+
+def fit_of_kernel(found: tuple[float, ...], onset_um: float) -> ContactFit:
+    """The ContactFit of a kernel's answer (contact, stiffness, baseline, contact sigma, residual sigma, rss;
+    _c_contact's fit_fixed_onset, and the first six numbers of fit_pullback's and fit_compression's)."""
+    return ContactFit(contact_um=found[0], stiffness_g_um=found[1], baseline_g=found[2], onset_um=float(onset_um),
+                      contact_sigma_um=found[3], residual_sigma_g=found[4], rss_g2=found[5])

@@ -45,11 +45,15 @@ Speed (the grid is 2 shapes × 10 widths × 27 contacts, every candidate solved 
 On the independent benchmark this took the toe configuration from ~9 ms to ~3 ms a tap (this
 machine, loaded), results equal to ~1e-9 µm.
 
-The compiled kernel (c/toe.c, `_toe_grid_native`; numpy twins here: `_toe_grid`, the marginal
-contact's and the free-air variogram's numpy code) does both grids, the stiffness, the marginal
-contact and the variogram's lags in one pass each; it takes the walk-weighted fit's pressed and
-free runs from sums prepared once, so a candidate costs its toe's samples only. The toe fit went
-from ~0.8 ms to ~0.12 ms a tap (median per-stage time, 25 taps of the independent generator).
+The compiled kernel (c/toe.c; numpy twins here: `fit_toe`'s own code with `_toe_grid`, the
+marginal contact's, `free_air_walks`' and the free-air variogram's numpy code) does one tap's whole
+toe fit in one call (`_fit_toe_native`: the samples kept, either grid, the least residual, the
+marginal contact and the stiffness there) and its free-air walks in another (`free_air_walks`);
+it takes the walk-weighted fit's pressed and free runs from sums prepared once, so a candidate
+costs its toe's samples only, and evaluates a window's two heights side by side (SSE2, the same
+bits). The toe fit went from ~0.8 ms to ~0.12 ms a tap (median per-stage time, 25 taps of the
+independent generator), then to ~16 µs a plain fit and ~20 µs a walk-weighted one, and the
+free-air walks from ~14 µs to ~3 (docs/tap-analysis.md, "Speed against Kalico").
 """
 
 from __future__ import annotations
@@ -360,10 +364,9 @@ def free_air_variogram(force_g: np.ndarray) -> FreeAirVariogram:
     white noise, for a unit walk) and the measured mean squared difference; empty when too short.
     Kept apart so that estimates pooling different segments share the work."""
     n = len(force_g)
-    lags = [lag for lag in WANDER_LAGS if 3 * lag <= n]  # longer ones: the line takes the walk
-    if len(lags) < 3:
+    lags = _variogram_lags(n)
+    if lags is None:
         return [], []
-    lags = tuple(lags)
     if _C is not None:
         return list(_detrended_variogram(n, lags)), _C.lag_mean_squares(force_g, lags)
     i = np.arange(n, dtype=float) - 0.5 * (n - 1)
@@ -418,10 +421,53 @@ def height_pull_variogram(samples: int, step_um: float) -> list[float]:
     unit of its curvature squared: a pull k x² / 2 over samples `step_um` apart in height, its line
     removed, differs over L samples by k step² L (2 i + L - n + 1) / 2, whose mean square is
     k² step⁴ L² ((n - L)² - 1) / 12."""
-    lags = [lag for lag in WANDER_LAGS if 3 * lag <= samples]
-    if len(lags) < 3:
-        return []
-    return [lag * lag * ((samples - lag) ** 2 - 1) / 12.0 * step_um ** 4 for lag in lags]
+    return [per_step4 * step_um ** 4 for per_step4 in _height_pull_per_step4(samples)]
+
+
+@functools.lru_cache(maxsize=4096)
+def _height_pull_per_step4(samples: int) -> tuple[float, ...]:
+    """`height_pull_variogram` per unit step⁴ (in the same operations: the step⁴ multiplies last).
+    Cached: it depends on the samples alone."""
+    lags = _variogram_lags(samples)
+    return tuple(lag * lag * ((samples - lag) ** 2 - 1) / 12.0 for lag in lags) if lags else ()
+
+
+def _variogram_lags(samples: int) -> tuple[int, ...] | None:
+    """The lags of `free_air_variogram` over this many samples, None when too few."""
+    lags = tuple(lag for lag in WANDER_LAGS if 3 * lag <= samples)  # longer ones: the line takes the walk
+    return lags if len(lags) >= 3 else None
+
+
+@functools.lru_cache(maxsize=4096)
+def _free_air_model(samples: int) -> np.ndarray:
+    """What `free_air_walks`'s kernel takes of a free-air segment of this many samples, per lag of
+    `free_air_variogram`: (lag, its expectation for unit white noise, for a unit walk,
+    `_height_pull_per_step4`); no rows when too short. Cached: it depends on the samples alone."""
+    lags = _variogram_lags(samples)
+    if lags is None:
+        return np.empty((0, 4))
+    expected = _detrended_variogram(samples, lags)
+    return np.array([(lag, white, walk, pull) for lag, (white, walk), pull
+                     in zip(lags, expected, _height_pull_per_step4(samples))])
+
+
+def free_air_walks(approach_g: np.ndarray, departure_g: np.ndarray, steps_um: tuple[float, float]
+                   ) -> tuple[Wander | None, Wander | None]:
+    """The white noise and the walk of the approach's and the departure's free air with a pull
+    curved in height beside them (`walk_beside_height_pull`; steps_um: the height each crosses per
+    sample), and of the approach's alone (`wander_from_variograms`).
+
+    One kernel call when built (c/toe.c `free_air_walks`: the variograms measured, the sums and
+    both least squares in the twin's order, the variograms' expectations from `_free_air_model`);
+    the code below is its numpy twin. They agree to rounding: the kernel measures each lag's
+    differences with the line taken out of each, numpy out of each sample first."""
+    if _C is not None:
+        beside, approach = _C.free_air_walks(approach_g, departure_g, _free_air_model(len(approach_g)),
+                                             _free_air_model(len(departure_g)), *steps_um)
+        return (None if beside is None else Wander(*beside)), (None if approach is None else Wander(*approach))
+    approach_variogram, departure_variogram = free_air_variogram(approach_g), free_air_variogram(departure_g)
+    segments = [(approach_variogram, len(approach_g), steps_um[0]), (departure_variogram, len(departure_g), steps_um[1])]
+    return walk_beside_height_pull(segments), wander_from_variograms([approach_variogram])
 
 
 def walk_beside_height_pull(segments: list[tuple[FreeAirVariogram, int, float]]) -> Wander | None:
@@ -636,6 +682,9 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
     tap shows one (`Wander.matters`); the fit then weighs the samples by its covariance (with a
     known drift only: the walk-weighted fit has no drift column).
     """
+    if _C is not None and TOE_POWERS == _NATIVE_POWERS:
+        return _fit_toe_native(x_lo_um, x_hi_um, force_g, contact0_um, spacing_um, drift_g_um, wander)
+    # The numpy twin of `_fit_toe_native`.
     keep = (x_lo_um < contact0_um + COARSE_ABOVE_UM + DEPARTURE_REACH_SAMPLES * spacing_um) & (
         x_hi_um > contact0_um - PENETRATION_REACH_UM)
     x_lo_um, x_hi_um, force_g = x_lo_um[keep], x_hi_um[keep], force_g[keep]
@@ -647,8 +696,7 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
     # The walk-weighted fit differences the samples (the baseline drops out) and has no drift column:
     # a drift to be fitted (None) runs the plain fit, which has one.
     walk = wander if wander is not None and drift_g_um is not None and wander.matters(samples) else None
-    grid = _toe_grid_native if _C is not None and TOE_POWERS == _NATIVE_POWERS else _toe_grid
-    rss_grid, g2_per_unit, stiffness_at = grid(x_lo_um, x_hi_um, force_g, drift_g_um, walk, contacts_um, grid_c)
+    rss_grid, g2_per_unit, stiffness_at = _toe_grid(x_lo_um, x_hi_um, force_g, drift_g_um, walk, contacts_um, grid_c)
     # The least residual's (power, width): flat index arithmetic (np.unravel_index costs more here).
     best = int(rss_grid.argmin())
     least = float(rss_grid.flat[best])
@@ -666,6 +714,31 @@ def fit_toe(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, conta
     return ToeFit(contact_um=contact, sigma_um=sigma, width_um=float(width), power=float(power),
                   stiffness_g_um=stiffness, residual_sigma_g=math.sqrt(residual_var * g2_per_unit),
                   grid=ToeGridResult(contacts_um, rss_rows, residual_var, _TOE_PRIOR))
+
+
+# fit_toe's grid and limits as the kernel takes them (c/toe.c `fit`).
+_FIT_GRID = (COARSE_ABOVE_UM, DEPARTURE_REACH_SAMPLES, PENETRATION_REACH_UM, WANDER_SHARE, SUBSAMPLES, 8,
+             _CONTACT_OFFSETS_UM, np.array(TOE_WIDTHS_UM), _TOE_PRIOR)
+
+
+def _fit_toe_native(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, contact0_um: float,
+                    spacing_um: float, drift_g_um: float | None, wander: Wander | None) -> ToeFit | None:
+    """`fit_toe` in one kernel call (TOE_POWERS must be `_NATIVE_POWERS`): the samples kept, the
+    grid, the least residual, the marginal contact and its stiffness, where the twin makes a score
+    of numpy calls. The kernel repeats the twin's sums where it keeps them (the keep, the candidates,
+    the marginal) and sums the grid's in another order: the fits agree to rounding
+    (tests/tap/test_native_toe.py)."""
+    contacts_um = np.empty(len(_CONTACT_OFFSETS_UM))
+    rss = np.empty((len(_TOE_PRIOR), len(_CONTACT_OFFSETS_UM)))
+    walk = (math.nan, math.nan) if wander is None else (wander.white_var_g2, wander.walk_var_g2)
+    found = _C.fit(x_lo_um, x_hi_um, force_g, contact0_um, spacing_um, math.nan if drift_g_um is None else drift_g_um,
+                   *walk, _FIT_GRID, contacts_um, rss)
+    if found is None:
+        return None
+    contact, sigma, power_index, width_index, stiffness, residual_var, residual_sigma = found
+    return ToeFit(contact_um=contact, sigma_um=sigma, width_um=float(TOE_WIDTHS_UM[width_index]),
+                  power=float(TOE_POWERS[power_index]), stiffness_g_um=stiffness, residual_sigma_g=residual_sigma,
+                  grid=ToeGridResult(contacts_um, rss, residual_var, _TOE_PRIOR))
 
 
 def shape_spread_um(contacts_um: np.ndarray, rss_rows: np.ndarray, noise_var: float) -> float:
@@ -701,7 +774,7 @@ def _toe_grid(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, dri
 
     The samples as `fit_toe` keeps them; drift_g_um: the known drift, None to fit it with the
     baseline. wander: the walk to weigh the samples by, None for white noise. The numpy twin of
-    `_toe_grid_native`.
+    the kernel's grids (c/toe.c `fit`).
     """
     window_um = x_lo_um[:, None] + (x_hi_um - x_lo_um)[:, None] * _SUBSAMPLE_FRACTIONS
     x_mid = 0.5 * (x_lo_um + x_hi_um)
@@ -720,27 +793,6 @@ def _toe_grid(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, dri
         basis = np.full((len(y), 1), 1.0 / math.sqrt(len(y)))
     data = _Projected.prepare(window_um, x_mid, basis, y)
     return _rss_over_contacts(grid_c, _GRID_WIDTHS_UM, data), 1.0, functools.partial(_stiffness_at, data=data)
-
-
-def _toe_grid_native(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, drift_g_um: float | None,
-                     wander: Wander | None, contacts_um: np.ndarray, grid_c: np.ndarray) -> ToeGrid:
-    """`_toe_grid` by the compiled kernel (TOE_POWERS must be `_NATIVE_POWERS`)."""
-    samples = (x_lo_um, x_hi_um, force_g, math.nan if drift_g_um is None else drift_g_um, SUBSAMPLES)
-    rss = np.empty((len(TOE_POWERS), len(grid_c)))
-    if wander is not None:
-        walk = (wander.white_var_g2, wander.walk_var_g2, float(contacts_um[0]), float(contacts_um[-1]),
-                TOE_WIDTHS_UM[-1])
-        if _C.rss_grid_whitened(*samples, *walk, grid_c, _GRID_WIDTHS_UM, rss):
-            def whitened_stiffness(contact_um: float, width_um: float, power: float) -> float:
-                return _C.stiffness_whitened(*samples, *walk, contact_um, width_um, power)
-
-            return rss, wander.white_var_g2, whitened_stiffness
-
-    def stiffness(contact_um: float, width_um: float, power: float) -> float:
-        return _C.stiffness_at(*samples, contact_um, width_um, power)
-
-    _C.rss_grid(*samples, grid_c, _GRID_WIDTHS_UM, rss)
-    return rss, 1.0, stiffness
 
 
 def marginal_contact_um(contacts_um: np.ndarray, rss: np.ndarray, noise_var: float,

@@ -3,10 +3,17 @@
  * fit_fixed_onset: the whole fit of the contact model with a fixed onset, as the twin
  * `fit_fixed_onset` (search_contact's grid + parabola, at most three rounds, then fit_contact_at),
  * in one call. Each formula is the twin's, in the twin's order; only sums over samples run in
- * another order (numpy sums pairwise, BLAS dots its own way), so results agree to rounding. */
+ * another order (numpy sums pairwise, BLAS dots its own way), so results agree to rounding.
+ *
+ * fit_pullback, fit_compression: analysis.py's pullback and compression fits around it, whole
+ * (twins: analysis.pullback_fit_twin, compression_fit_twin): the robust pass and its refit, the
+ * near-contact sigma; the samples before the halt, the drift taken out. The same to the last bit
+ * as those twins run with the fit_fixed_onset kernel (and _c_analysis's robust pass). */
 #include "buffers.h"
 
 #include <math.h>
+
+#include "median.h"
 
 /* As contact.py: candidates per sample spacing, the hinge's smallest onset, the fit's fewest samples. */
 #define CANDIDATES_PER_SAMPLE 32
@@ -93,21 +100,46 @@ static double parabola_vertex_offset(double before, double at, double after)
     return 0.5 * (before - after) / curvature;
 }
 
-/* Scratch of the searches, allocated once per fit: the samples near the candidates (x, span, force)
- * and the residual per candidate (room for `capacity`, `candidates` in use). */
+/* Scratch of the searches, allocated once per fit: the samples near the candidates (x, span, force),
+ * and per candidate the residual and the three sums over the near samples (room for `capacity`
+ * candidates in each, `candidates` in use). */
 typedef struct {
-    double *near_x_um, *near_span_um, *near_force_g, *rss_g2;
+    double *near_x_um, *near_span_um, *near_force_g, *rss_g2, *sum_m, *sum_my, *sum_mm;
     Py_ssize_t candidates, capacity;
 } Scratch;
+
+/* Point the per-candidate sums into the block that starts at rss_g2 (four rows of `capacity`). */
+static void point_sums(Scratch *scratch)
+{
+    scratch->sum_m = scratch->rss_g2 + scratch->capacity;
+    scratch->sum_my = scratch->rss_g2 + 2 * scratch->capacity;
+    scratch->sum_mm = scratch->rss_g2 + 3 * scratch->capacity;
+}
+
+/* The first candidate j (of `count`, heights low + step × j) above x_um: a window starting at x_um
+ * has no part below the contact, so mean h = 0, for every candidate before it. */
+static Py_ssize_t first_above(double low_um, double step_um, Py_ssize_t count, double x_um)
+{
+    double guess = ceil((x_um - low_um) / step_um);
+    Py_ssize_t j = !(guess > 0) ? 0 : guess >= (double)count ? count : (Py_ssize_t)guess;
+    /* the heights rise with j (each rounding is monotonic): step to the exact edge from the guess */
+    while (j > 0 && (low_um + step_um * (double)(j - 1)) - x_um > 0.0)
+        j--;
+    while (j < count && !((low_um + step_um * (double)j) - x_um > 0.0))
+        j++;
+    return j;
+}
 
 /* profile_rss: the residual sum of squares per candidate contact height (stiffness and baseline in
  * closed form, -inf explained where the stiffness would not be positive), into scratch->rss_g2.
  * The twin's split: samples pressed for every candidate enter through four totals, the ones near
- * the candidates are evaluated per candidate. */
+ * the candidates are evaluated per candidate. Each candidate's sums run over the near samples in
+ * their order, as the twin's; the candidates below a sample's window (mean h = 0, which adds
+ * nothing to a sum) are skipped, so the sums are the same to the last bit. */
 static void profile_rss(const Samples *s, double low_um, double high_um, double onset_um, double step_um,
                         double sum_y, double sum_yy, Scratch *scratch)
 {
-    Py_ssize_t near = 0, pressed = 0;
+    Py_ssize_t near = 0, pressed = 0, candidates = scratch->candidates;
     double pressed_x = 0.0, pressed_xx = 0.0, pressed_y = 0.0, pressed_xy = 0.0;
     for (Py_ssize_t i = 0; i < s->count; i++) {
         double top_um = s->x_min_um[i] + s->span_um[i];
@@ -128,28 +160,34 @@ static void profile_rss(const Samples *s, double low_um, double high_um, double 
             near++;
         }
     }
+    double *sum_m = scratch->sum_m, *sum_my = scratch->sum_my, *sum_mm = scratch->sum_mm;
+    for (Py_ssize_t j = 0; j < candidates; j++)
+        sum_m[j] = sum_my[j] = sum_mm[j] = 0.0;
+    for (Py_ssize_t i = 0; i < near; i++) {
+        double x_um = scratch->near_x_um[i], span_um = scratch->near_span_um[i], force_g = scratch->near_force_g[i];
+        for (Py_ssize_t j = first_above(low_um, step_um, candidates, x_um); j < candidates; j++) {
+            double mean = window_mean(low_um + step_um * (double)j, onset_um, x_um, span_um, NULL);
+            sum_m[j] += mean;
+            sum_my[j] += force_g * mean;
+            sum_mm[j] += mean * mean;
+        }
+    }
     double count = (double)s->count;
     double mean_y = sum_y / count;
     double total_ss = sum_yy - sum_y * sum_y / count;
-    for (Py_ssize_t j = 0; j < scratch->candidates; j++) {
+    for (Py_ssize_t j = 0; j < candidates; j++) {
         double c = low_um + step_um * (double)j;
-        double sum_m = 0.0, sum_my = 0.0, sum_mm = 0.0;
-        for (Py_ssize_t i = 0; i < near; i++) {
-            double mean = window_mean(c, onset_um, scratch->near_x_um[i], scratch->near_span_um[i], NULL);
-            sum_m += mean;
-            sum_my += scratch->near_force_g[i] * mean;
-            sum_mm += mean * mean;
-        }
+        double m = sum_m[j], my = sum_my[j], mm = sum_mm[j];
         if (pressed) {
             double pressed_m = (double)pressed * c - pressed_x; /* the pressed samples' sum of mean h */
-            sum_m += pressed_m;
-            sum_mm += (pressed_m - pressed_x) * c;
-            sum_mm += pressed_xx;
-            sum_my += c * pressed_y;
-            sum_my -= pressed_xy;
+            m += pressed_m;
+            mm += (pressed_m - pressed_x) * c;
+            mm += pressed_xx;
+            my += c * pressed_y;
+            my -= pressed_xy;
         }
-        double s_mm = sum_mm - sum_m * sum_m / count;
-        double s_my = sum_my - sum_m * mean_y;
+        double s_mm = mm - m * m / count;
+        double s_my = my - m * mean_y;
         /* A stiffness <= 0 explains nothing; s_mm is then never divided (it may be 0). */
         double explained = s_my > 0 ? s_my * s_my / s_mm : -INFINITY;
         scratch->rss_g2[j] = total_ss - explained;
@@ -164,11 +202,12 @@ static int search_contact(const Samples *s, double low_um, double high_um, doubl
     /* Python's round() rounds halves to even, as nearbyint does in the default rounding mode. */
     Py_ssize_t count = (Py_ssize_t)nearbyint((high_um - low_um) / spacing_um * CANDIDATES_PER_SAMPLE) + 1;
     if (count > scratch->capacity) { /* never for a range of 2 * search_samples spacings (the first size) */
-        double *larger = PyMem_Realloc(scratch->rss_g2, sizeof(double) * (size_t)count);
+        double *larger = PyMem_Realloc(scratch->rss_g2, 4 * sizeof(double) * (size_t)count);
         if (larger == NULL)
             return -1;
         scratch->rss_g2 = larger;
         scratch->capacity = count;
+        point_sums(scratch);
     }
     scratch->candidates = count;
     double step_um = (high_um - low_um) / (double)(count - 1);
@@ -233,6 +272,85 @@ static int fit_contact_at(const Samples *s, double contact_um, double onset_um, 
     return 1;
 }
 
+/* The whole fixed-onset fit of the twin's `fit_fixed_onset`: the search of the contact height within
+ * search_samples spacings of contact0_um (the range moved at most twice, so the answer is an interior
+ * minimum of the residual), then fit_contact_at there, residuals into residual_g. 1: a fit in *fit;
+ * 0: none; -1: out of memory (MemoryError set). */
+static int fit_fixed(const Samples *s, double contact0_um, double spacing_um, double onset_um, Py_ssize_t search_samples,
+                     double *residual_g, Fit *fit)
+{
+    /* fit_contact_at's least count: fewer samples never give a fit. A line estimate that is not
+     * finite gives no search range (the callers never pass one). */
+    if (s->count < MIN_FIT_SAMPLES || !isfinite(contact0_um))
+        return 0;
+    Scratch scratch = {NULL, NULL, NULL, NULL, NULL, NULL, NULL, 0, 2 * search_samples * CANDIDATES_PER_SAMPLE + 1};
+    double *memory = PyMem_Malloc(sizeof(double) * (size_t)(3 * s->count));
+    scratch.rss_g2 = PyMem_Malloc(4 * sizeof(double) * (size_t)scratch.capacity);
+    if (memory == NULL || scratch.rss_g2 == NULL) {
+        PyMem_Free(memory);
+        PyMem_Free(scratch.rss_g2);
+        PyErr_NoMemory();
+        return -1;
+    }
+    point_sums(&scratch);
+    scratch.near_x_um = memory;
+    scratch.near_span_um = memory + s->count;
+    scratch.near_force_g = memory + 2 * s->count;
+    double sum_y = 0.0, sum_yy = 0.0;
+    for (Py_ssize_t i = 0; i < s->count; i++) {
+        sum_y += s->force_g[i];
+        sum_yy += s->force_g[i] * s->force_g[i];
+    }
+    double reach_um = (double)search_samples * spacing_um, centre_um = contact0_um, contact_um = 0.0;
+    int searched = 0;
+    for (int round = 0; round < 3; round++) {
+        double low_um = centre_um - reach_um, high_um = centre_um + reach_um;
+        searched = search_contact(s, low_um, high_um, onset_um, spacing_um, sum_y, sum_yy, &scratch, &contact_um);
+        if (searched != 1)
+            break;
+        if (low_um + 1e-3 * spacing_um < contact_um && contact_um < high_um - 1e-3 * spacing_um)
+            break;
+        centre_um = contact_um;
+    }
+    PyMem_Free(scratch.rss_g2);
+    PyMem_Free(memory);
+    if (searched < 0) {
+        PyErr_NoMemory();
+        return -1;
+    }
+    return searched && fit_contact_at(s, contact_um, onset_um, residual_g, fit);
+}
+
+/* The six numbers of a fit as a tuple (fit_fixed_onset's answer). */
+static PyObject *fit_tuple(const Fit *fit)
+{
+    return Py_BuildValue("dddddd", fit->contact_um, fit->stiffness_g_um, fit->baseline_g, fit->contact_sigma_um,
+                         fit->residual_sigma_g, fit->rss_g2);
+}
+
+/* The three sample arrays (force, x_min, span) of one length: *taken counts the buffers held. */
+static int sample_buffers(PyObject **arrays, Py_buffer *buffers, int *taken, Samples *s)
+{
+    while (*taken < 3 && float64_buffer(arrays[*taken], &buffers[*taken]))
+        (*taken)++;
+    if (*taken < 3)
+        return 0;
+    s->force_g = doubles_of(&buffers[0], &s->count, "force_g");
+    s->x_min_um = s->force_g ? doubles_sized(&buffers[1], s->count, "x_min_um") : NULL;
+    s->span_um = s->x_min_um ? doubles_sized(&buffers[2], s->count, "span_um") : NULL;
+    return s->span_um != NULL;
+}
+
+/* The search's arguments make sense, else a ValueError. */
+static int check_search(Py_ssize_t search_samples, double spacing_um)
+{
+    if (search_samples < 1 || !(spacing_um > 0 && isfinite(spacing_um))) {
+        PyErr_SetString(PyExc_ValueError, "search_samples and spacing_um must be positive");
+        return 0;
+    }
+    return 1;
+}
+
 PyDoc_STRVAR(fit_fixed_onset_doc,
              "fit_fixed_onset(force_g, x_min_um, span_um, contact0_um, spacing_um, onset_um, search_samples,\n"
              "                residual_g)\n"
@@ -254,81 +372,204 @@ static PyObject *fit_fixed_onset(PyObject *self, PyObject *args)
                           &onset_um, &search_samples, &residual_buffer))
         return NULL;
     PyObject *result = NULL;
-    double *memory = NULL;
     int taken = 0; /* the input buffers held */
-    while (taken < 3 && float64_buffer(arrays[taken], &inputs[taken]))
-        taken++;
-    if (taken < 3)
-        goto done;
     Samples s;
-    s.force_g = doubles_of(&inputs[0], &s.count, "force_g");
-    s.x_min_um = s.force_g ? doubles_sized(&inputs[1], s.count, "x_min_um") : NULL;
-    s.span_um = s.x_min_um ? doubles_sized(&inputs[2], s.count, "span_um") : NULL;
-    double *residual_g = s.span_um ? doubles_sized(&residual_buffer, s.count, "residual_g") : NULL;
-    if (residual_g == NULL)
-        goto done;
-    if (search_samples < 1 || !(spacing_um > 0 && isfinite(spacing_um))) {
-        PyErr_SetString(PyExc_ValueError, "search_samples and spacing_um must be positive");
-        goto done;
+    double *residual_g = NULL;
+    if (sample_buffers(arrays, inputs, &taken, &s))
+        residual_g = doubles_sized(&residual_buffer, s.count, "residual_g");
+    if (residual_g != NULL && check_search(search_samples, spacing_um)) {
+        Fit fit;
+        int found = fit_fixed(&s, contact0_um, spacing_um, onset_um, search_samples, residual_g, &fit);
+        if (found > 0)
+            result = fit_tuple(&fit);
+        else if (found == 0)
+            result = Py_NewRef(Py_None);
     }
-    Fit fit;
-    int found = 0;
-    /* fit_contact_at's least count: fewer samples never give a fit. A line estimate that is not
-     * finite gives no search range (the callers never pass one). */
-    if (s.count >= MIN_FIT_SAMPLES && isfinite(contact0_um)) {
-        Scratch scratch = {NULL, NULL, NULL, NULL, 0, 2 * search_samples * CANDIDATES_PER_SAMPLE + 1};
-        memory = PyMem_Malloc(sizeof(double) * (size_t)(3 * s.count));
-        scratch.rss_g2 = PyMem_Malloc(sizeof(double) * (size_t)scratch.capacity);
-        if (memory == NULL || scratch.rss_g2 == NULL) {
-            PyMem_Free(scratch.rss_g2);
-            PyErr_NoMemory();
-            goto done;
-        }
-        scratch.near_x_um = memory;
-        scratch.near_span_um = memory + s.count;
-        scratch.near_force_g = memory + 2 * s.count;
-        double sum_y = 0.0, sum_yy = 0.0;
-        for (Py_ssize_t i = 0; i < s.count; i++) {
-            sum_y += s.force_g[i];
-            sum_yy += s.force_g[i] * s.force_g[i];
-        }
-        /* A minimum on the edge of the range means the estimate was off: the range moves there
-         * (at most twice) so the answer is an interior minimum of the residual. */
-        double reach_um = (double)search_samples * spacing_um, centre_um = contact0_um, contact_um = 0.0;
-        int searched = 0;
-        for (int round = 0; round < 3; round++) {
-            double low_um = centre_um - reach_um, high_um = centre_um + reach_um;
-            searched = search_contact(&s, low_um, high_um, onset_um, spacing_um, sum_y, sum_yy, &scratch, &contact_um);
-            if (searched != 1)
-                break;
-            if (low_um + 1e-3 * spacing_um < contact_um && contact_um < high_um - 1e-3 * spacing_um)
-                break;
-            centre_um = contact_um;
-        }
-        PyMem_Free(scratch.rss_g2);
-        if (searched < 0) {
-            PyErr_NoMemory();
-            goto done;
-        }
-        found = searched && fit_contact_at(&s, contact_um, onset_um, residual_g, &fit);
-    }
-    if (found) {
-        result = Py_BuildValue("dddddd", fit.contact_um, fit.stiffness_g_um, fit.baseline_g, fit.contact_sigma_um,
-                               fit.residual_sigma_g, fit.rss_g2);
-    } else {
-        Py_INCREF(Py_None);
-        result = Py_None;
-    }
-done:
-    PyMem_Free(memory);
     while (taken > 0)
         PyBuffer_Release(&inputs[--taken]);
     PyBuffer_Release(&residual_buffer);
     return result;
 }
 
+/* The median absolute deviation of normal noise times this is its sigma (robust.MAD_TO_SIGMA). */
+#define MAD_TO_SIGMA 1.4826
+
+/* The pullback's fit after the first (analysis.py `fit_pullback`, fixed onset): the robust pass keeps the
+ * residuals within outlier_sigma × max(their robust sigma, the fit's residual sigma) (`_outliers_kept`,
+ * as _c_analysis.outlier_mask), fits those again from the first fit's contact and, when that fits,
+ * takes it with the residuals over every sample (`_residual`); then the rms (3 dof taken) of the
+ * residuals whose window starts below contact + near_reach_um (`near_contact_sigma_g`, as
+ * _c_analysis.near_sigma; the fit's residual sigma when 3 or fewer are there). 0, or -1 out of memory. */
+static int robust_pass(const Samples *s, double spacing_um, double onset_um, Py_ssize_t search_samples,
+                       double outlier_sigma, double near_reach_um, double *residual_g, Fit *fit, double *near_sigma_g)
+{
+    Py_ssize_t n = s->count;
+    /* The limit is at least outlier_sigma × the residual sigma (each rounding is monotonic): when no
+     * residual lies beyond that, every one is kept and the median is not needed. */
+    double floor_limit_g = outlier_sigma * fit->residual_sigma_g;
+    Py_ssize_t beyond = 0;
+    for (Py_ssize_t i = 0; i < n; i++)
+        beyond += !(fabs(residual_g[i]) <= floor_limit_g);
+    if (beyond) {
+        /* the |residuals| (their median), then the kept samples' force, x_min, span and residuals */
+        double *memory = PyMem_Malloc(sizeof(double) * (size_t)(4 * n));
+        if (memory == NULL) {
+            PyErr_NoMemory();
+            return -1;
+        }
+        for (Py_ssize_t i = 0; i < n; i++)
+            memory[i] = fabs(residual_g[i]);
+        double limit_g = outlier_sigma * fmax(MAD_TO_SIGMA * median_in_place(memory, n), fit->residual_sigma_g);
+        Samples kept = {memory, memory + n, memory + 2 * n, 0};
+        for (Py_ssize_t i = 0; i < n; i++) {
+            if (fabs(residual_g[i]) <= limit_g) {
+                memory[kept.count] = s->force_g[i];
+                memory[n + kept.count] = s->x_min_um[i];
+                memory[2 * n + kept.count] = s->span_um[i];
+                kept.count++;
+            }
+        }
+        Fit refit;
+        int found = kept.count < n ? fit_fixed(&kept, fit->contact_um + 0.5 * onset_um, spacing_um, onset_um,
+                                               search_samples, memory + 3 * n, &refit)
+                                   : 0;
+        if (found < 0) {
+            PyMem_Free(memory);
+            return -1;
+        }
+        if (found) {
+            *fit = refit;
+            for (Py_ssize_t i = 0; i < n; i++) /* over every sample, the dropped ones too */
+                residual_g[i] = s->force_g[i] - (fit->baseline_g + fit->stiffness_g_um
+                                                 * window_mean(fit->contact_um, onset_um, s->x_min_um[i], s->span_um[i], NULL));
+        }
+        PyMem_Free(memory);
+    }
+    double below_um = fit->contact_um + near_reach_um, sum_g2 = 0.0;
+    Py_ssize_t near = 0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        if (s->x_min_um[i] < below_um) {
+            sum_g2 += residual_g[i] * residual_g[i];
+            near++;
+        }
+    }
+    *near_sigma_g = near <= 3 ? fit->residual_sigma_g : sqrt(sum_g2 / (double)(near - 3));
+    return 0;
+}
+
+PyDoc_STRVAR(fit_pullback_doc,
+             "fit_pullback(force_g, x_min_um, span_um, contact0_um, spacing_um, onset_um, search_samples,\n"
+             "             outlier_sigma, near_reach_um)\n"
+             "    -> (contact_um, stiffness_g_um, baseline_g, contact_sigma_um, residual_sigma_g, rss_g2,\n"
+             "        near_sigma_g) | None\n"
+             "\n"
+             "tapcell.tap.analysis.fit_pullback's fit with a fixed onset over the pullback's samples: fit_fixed_onset\n"
+             "from contact0_um + onset / 2, the robust pass (samples beyond outlier_sigma x max(robust sigma, the\n"
+             "residual sigma) dropped, fitted again) and the residual sigma of the samples whose window starts\n"
+             "below the contact + near_reach_um. None when there is no first fit.");
+
+static PyObject *fit_pullback(PyObject *self, PyObject *args)
+{
+    (void)self;
+    PyObject *arrays[3];
+    Py_buffer inputs[3];
+    double contact0_um, spacing_um, onset_um, outlier_sigma, near_reach_um;
+    Py_ssize_t search_samples;
+    if (!PyArg_ParseTuple(args, "OOOdddndd", &arrays[0], &arrays[1], &arrays[2], &contact0_um, &spacing_um,
+                          &onset_um, &search_samples, &outlier_sigma, &near_reach_um))
+        return NULL;
+    PyObject *result = NULL;
+    int taken = 0;
+    Samples s;
+    if (sample_buffers(arrays, inputs, &taken, &s) && check_search(search_samples, spacing_um)) {
+        double *residual_g = PyMem_Malloc(sizeof(double) * (size_t)(s.count > 0 ? s.count : 1));
+        Fit fit;
+        double near_sigma_g;
+        int found = residual_g == NULL ? (PyErr_NoMemory(), -1)
+                    : fit_fixed(&s, contact0_um + 0.5 * onset_um, spacing_um, onset_um, search_samples, residual_g, &fit);
+        if (found > 0 && robust_pass(&s, spacing_um, onset_um, search_samples, outlier_sigma, near_reach_um, residual_g,
+                                     &fit, &near_sigma_g) == 0)
+            result = Py_BuildValue("ddddddd", fit.contact_um, fit.stiffness_g_um, fit.baseline_g, fit.contact_sigma_um,
+                                   fit.residual_sigma_g, fit.rss_g2, near_sigma_g);
+        else if (found == 0)
+            result = Py_NewRef(Py_None);
+        PyMem_Free(residual_g);
+    }
+    while (taken > 0)
+        PyBuffer_Release(&inputs[--taken]);
+    return result;
+}
+
+PyDoc_STRVAR(fit_compression_doc,
+             "fit_compression(time_s, force_g, x_min_um, span_um, read_until_s, contact0_um, spacing_um, onset_um,\n"
+             "                drift_g_um, search_samples)\n"
+             "    -> (contact_um, stiffness_g_um, baseline_g, contact_sigma_um, residual_sigma_g, rss_g2) | None\n"
+             "\n"
+             "tapcell.tap.analysis.fit_compression's fit: over the samples read up to read_until_s (time_s sorted;\n"
+             "None for fewer than 6), the force less drift_g_um x each window's middle height (when the drift is\n"
+             "not 0), fit_fixed_onset from contact0_um + onset / 2. Arrays: float64, C order, one length.");
+
+static PyObject *fit_compression(PyObject *self, PyObject *args)
+{
+    (void)self;
+    PyObject *arrays[3], *time_array;
+    Py_buffer inputs[3], time_buffer;
+    double read_until_s, contact0_um, spacing_um, onset_um, drift_g_um;
+    Py_ssize_t search_samples;
+    if (!PyArg_ParseTuple(args, "OOOOdddddn", &time_array, &arrays[0], &arrays[1], &arrays[2], &read_until_s,
+                          &contact0_um, &spacing_um, &onset_um, &drift_g_um, &search_samples))
+        return NULL;
+    if (!float64_buffer(time_array, &time_buffer))
+        return NULL;
+    PyObject *result = NULL;
+    int taken = 0;
+    Samples s;
+    const double *time_s = NULL;
+    if (sample_buffers(arrays, inputs, &taken, &s))
+        time_s = doubles_sized(&time_buffer, s.count, "time_s");
+    if (time_s != NULL && check_search(search_samples, spacing_um)) {
+        /* numpy's searchsorted(read_until_s, side="right"): the samples read at or before it */
+        Py_ssize_t low = 0, high = s.count;
+        while (low < high) {
+            Py_ssize_t middle = low + (high - low) / 2;
+            if (time_s[middle] <= read_until_s)
+                low = middle + 1;
+            else
+                high = middle;
+        }
+        s.count = low;
+        /* the force less the drift, then the residuals */
+        double *memory = s.count >= 6 ? PyMem_Malloc(sizeof(double) * (size_t)(2 * s.count)) : NULL;
+        int found = 0;
+        if (s.count >= 6 && memory == NULL) {
+            PyErr_NoMemory();
+            found = -1;
+        } else if (s.count >= 6) {
+            if (drift_g_um != 0.0) {
+                for (Py_ssize_t i = 0; i < s.count; i++)
+                    memory[i] = s.force_g[i] - drift_g_um * (s.x_min_um[i] + 0.5 * s.span_um[i]);
+                s.force_g = memory;
+            }
+            Fit fit;
+            found = fit_fixed(&s, contact0_um + 0.5 * onset_um, spacing_um, onset_um, search_samples,
+                              memory + s.count, &fit);
+            if (found > 0)
+                result = fit_tuple(&fit);
+        }
+        if (found == 0)
+            result = Py_NewRef(Py_None);
+        PyMem_Free(memory);
+    }
+    while (taken > 0)
+        PyBuffer_Release(&inputs[--taken]);
+    PyBuffer_Release(&time_buffer);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"fit_fixed_onset", fit_fixed_onset, METH_VARARGS, fit_fixed_onset_doc},
+    {"fit_pullback", fit_pullback, METH_VARARGS, fit_pullback_doc},
+    {"fit_compression", fit_compression, METH_VARARGS, fit_compression_doc},
     {NULL, NULL, 0, NULL},
 };
 

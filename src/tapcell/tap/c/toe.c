@@ -12,26 +12,60 @@
 #include "buffers.h" /* Python.h first: it sets the feature macros the system headers read */
 
 #include <math.h>
-#include <stdio.h>
 #include <stdlib.h>
 
 #include "median.h"
+
+/* Two heights a window go through SSE2 side by side where the compiler has it (x86-64 always);
+ * -DTAPCELL_SCALAR builds the plain loops, which give the same bits (a check of the vector code). */
+#if defined(__SSE2__) && !defined(TAPCELL_SCALAR)
+#define TOE_SSE2 1
+#include <emmintrin.h>
+#endif
 
 #define SHAPES 2
 /* How far short of its width each shape lifts the linear part: p / (p + 1). */
 static const double LIFT_DEFICIT[SHAPES] = {0.5 / 1.5, 1.0 / 2.0};
 
+#ifdef TOE_SSE2
+/* `toe_sums` of a window of two heights as one vector (Hertz, parabolic), the two heights side by
+ * side: no branch, and IEEE division and square root round alike in either form. A free height
+ * adds (0 · 0) · lift + 0 = +0 and a height past the toe (1 · 1) · lift + beyond, the values
+ * `toe_sums` takes by its branches; each shape's two heights summed h0 + h1, as 0 + h0 + h1. */
+static inline __m128d toe_pair(double contact_um, double width_um, const double *row_um)
+{
+    double width = width_um > 1e-9 ? width_um : 1e-9;
+    __m128d zero = _mm_setzero_pd(), w = _mm_set1_pd(width);
+    __m128d pressed = _mm_max_pd(_mm_sub_pd(_mm_set1_pd(contact_um), _mm_loadu_pd(row_um)), zero);
+    __m128d u = _mm_min_pd(_mm_div_pd(pressed, w), _mm_set1_pd(1.0));
+    __m128d beyond = _mm_max_pd(_mm_sub_pd(pressed, w), zero);
+    __m128d hertz = _mm_add_pd(_mm_mul_pd(_mm_mul_pd(_mm_sqrt_pd(u), u), _mm_set1_pd(width * (1.0 / 1.5))), beyond);
+    __m128d parabolic = _mm_add_pd(_mm_mul_pd(_mm_mul_pd(u, u), _mm_set1_pd(width * (1.0 / 2.0))), beyond);
+    return _mm_add_pd(_mm_unpacklo_pd(hertz, parabolic), _mm_unpackhi_pd(hertz, parabolic));
+}
+#endif
+
 /* Both shapes' toe columns at one sample (toe.py's `toe_shapes`): the shape summed over the
  * heights its conversion window averages (row: `subsamples` heights; the caller scales the sums).
- * The operations in numpy's order (scale by w / (p + 1), then add the linear part), so each value
- * agrees to the last bit. Free air (u = 0) and past the toe (u = 1) skip the sqrt and the
- * division: most heights are one or the other, and the values come out the same. Inline, with
- * the sums in locals: it runs for every candidate's every in-toe sample. */
+ * The operations in numpy's order (u = min(max(depth, 0) / w, 1), beyond = max(depth - w, 0),
+ * u^1.5 or u^2 scaled by w / (p + 1), then the linear part added), so each value agrees to the
+ * last bit. Two heights a window (toe.py's SUBSAMPLES) with SSE2: `toe_pair`. Otherwise per
+ * height, free air and past the toe without the sqrt and the division (the values come out the
+ * same). Inline, with the sums in locals: it runs for every candidate's every in-toe sample. */
 static inline void toe_sums(double contact_um, double width_um, const double *row_um, Py_ssize_t subsamples,
                             double sums[SHAPES])
 {
     double width = width_um > 1e-9 ? width_um : 1e-9;
     double lift_hertz = width * (1.0 / 1.5), lift_parabolic = width * (1.0 / 2.0);
+#ifdef TOE_SSE2
+    if (subsamples == 2) {
+        double pair[SHAPES];
+        _mm_storeu_pd(pair, toe_pair(contact_um, width_um, row_um));
+        sums[0] = pair[0];
+        sums[1] = pair[1];
+        return;
+    }
+#endif
     double hertz = 0.0, parabolic = 0.0;
     for (Py_ssize_t s = 0; s < subsamples; s++) {
         double depth_um = contact_um - row_um[s];
@@ -49,18 +83,6 @@ static inline void toe_sums(double contact_um, double width_um, const double *ro
     }
     sums[0] = hertz;
     sums[1] = parabolic;
-}
-
-static int shape_of_power(double power)
-{
-    if (power == 0.5)
-        return 0;
-    if (power == 1.0)
-        return 1;
-    char message[80]; /* PyErr_Format has no %g */
-    snprintf(message, sizeof message, "power: %g, the kernel knows 0.5 and 1.0", power);
-    PyErr_SetString(PyExc_ValueError, message);
-    return -1;
 }
 
 /* Number of values <= v (at_most) or < v (!at_most) in sorted (ascending): numpy's searchsorted
@@ -109,27 +131,15 @@ static void release_samples(Samples *samples)
     samples->built = NULL;
 }
 
-/* Checks the three buffers parsed into samples->buffers and builds the layout; 0, or -1 with an
- * exception set (everything released). */
-static int load_samples(Samples *samples, double drift_g_um, Py_ssize_t subsamples)
+/* Builds the layout from n samples (n >= 2): window_um, x_mid_um, and the force with a known drift
+ * taken out; 0, or -1 with MemoryError set. */
+static int lay_out_samples(Samples *samples, const double *x_lo_um, const double *x_hi_um, const double *force_g,
+                           Py_ssize_t n, double drift_g_um, Py_ssize_t subsamples)
 {
-    samples->held = 3;
-    Py_ssize_t n = 0;
-    const double *x_lo_um = doubles_of(&samples->buffers[0], &n, "x_lo_um"), *x_hi_um = NULL, *force_g = NULL;
-    if (x_lo_um != NULL) {
-        x_hi_um = doubles_sized(&samples->buffers[1], n, "x_hi_um");
-        force_g = doubles_sized(&samples->buffers[2], n, "force_g");
-    }
-    if (x_hi_um == NULL || force_g == NULL)
-        goto fail;
-    if (n < 2 || subsamples < 1 || subsamples > 64) {
-        PyErr_Format(PyExc_ValueError, "%zd samples of %zd subsamples: at least 2 of 1..64 expected", n, subsamples);
-        goto fail;
-    }
     samples->built = malloc(sizeof(double) * (size_t)((subsamples + 2) * n));
     if (samples->built == NULL) {
         PyErr_NoMemory();
-        goto fail;
+        return -1;
     }
     double *window_um = samples->built, *x_mid_um = window_um + subsamples * n, *y_g = x_mid_um + n;
     samples->drift_fitted = isnan(drift_g_um);
@@ -143,29 +153,35 @@ static int load_samples(Samples *samples, double drift_g_um, Py_ssize_t subsampl
     samples->window_um = window_um, samples->x_mid_um = x_mid_um, samples->force_g = y_g;
     samples->n = n, samples->subsamples = subsamples;
     return 0;
-fail:
-    release_samples(samples);
-    return -1;
 }
 
-/* The candidate grid's arrays of the two grid kernels, released on every path. */
-static void release_candidates(Py_buffer *contacts, Py_buffer *widths, Py_buffer *out)
+/* A "O&" converter like `float64_buffer` for a 1-D float64 array of any stride (a slice with a
+ * step): the fit copies the samples it keeps anyway, so it reads them where they are. */
+static int float64_strided(PyObject *object, void *view)
 {
-    PyBuffer_Release(contacts);
-    PyBuffer_Release(widths);
-    PyBuffer_Release(out);
-}
-
-/* The stiffness kernels' start: the shape of `power` after the samples are laid out; -1 with an
- * exception set (the samples released) when either fails. */
-static int load_for_stiffness(Samples *samples, double drift_g_um, Py_ssize_t subsamples, double power)
-{
-    int shape = shape_of_power(power);
-    if (shape < 0 || load_samples(samples, drift_g_um, subsamples) < 0) {
-        release_samples(samples);
-        return -1;
+    Py_buffer *buffer = view;
+    if (object == NULL) { /* a later argument failed: release this one (Py_CLEANUP_SUPPORTED) */
+        PyBuffer_Release(buffer);
+        return 1;
     }
-    return shape;
+    if (PyObject_GetBuffer(object, buffer, PyBUF_FORMAT | PyBUF_STRIDES) < 0)
+        return 0;
+    const char *format = buffer->format ? buffer->format : "B";
+    if (format[0] == '<' || format[0] == '=' || format[0] == '@')
+        format++;
+    if (buffer->itemsize != (Py_ssize_t)sizeof(double) || strcmp(format, "d") != 0 || buffer->ndim != 1) {
+        PyErr_Format(PyExc_TypeError, "expected a 1-D float64 array, got format '%s' in %d dimensions",
+                     buffer->format, buffer->ndim);
+        PyBuffer_Release(buffer);
+        return 0;
+    }
+    return Py_CLEANUP_SUPPORTED;
+}
+
+/* Value i of a buffer from `float64_strided`. */
+static inline double strided_at(const Py_buffer *buffer, Py_ssize_t i)
+{
+    return *(const double *)((const char *)buffer->buf + i * buffer->strides[0]);
 }
 
 /* Sample i and all before it are pressed past a toe ending at or above pressed_to[i] (running max
@@ -238,48 +254,42 @@ static double solve_rss(double hh_all, const double *h_basis, int m, double hy, 
     return *stiffness > 0.0 ? yy - *stiffness * hy : INFINITY;
 }
 
-static PyObject *rss_grid(PyObject *self, PyObject *args)
+/* What every candidate of the plain fit shares (toe.py's `_Projected`): the basis and the force with
+ * it projected out, the runs' bounds, and prefix sums over samples < i of 1, x, x², y, x y, B (m),
+ * x B (m) (the pressed run of a candidate has h = a - x, so its sums are these combined; column k
+ * at sums[k * (n + 1) + i]). One malloc at `work`. */
+typedef struct {
+    double *work;
+    double *basis_rows, *y_free, *pressed_to, *free_from, *sums;
+    int m;
+    double yy;
+} Projected;
+
+/* 0, or -1 with MemoryError set (nothing to release). */
+static int prepare_projected(const Samples *s, Projected *p)
 {
-    (void)self;
-    Samples s = {0};
-    Py_buffer contacts_buffer, widths_buffer, out_buffer;
-    double drift_g_um;
-    Py_ssize_t subsamples;
-    if (!PyArg_ParseTuple(args, "O&O&O&dnO&O&w*", float64_buffer, &s.buffers[0], float64_buffer, &s.buffers[1],
-                          float64_buffer, &s.buffers[2], &drift_g_um, &subsamples, float64_buffer, &contacts_buffer,
-                          float64_buffer, &widths_buffer, &out_buffer))
-        return NULL;
-    PyObject *result = NULL;
-    double *work = NULL;
-    if (load_samples(&s, drift_g_um, subsamples) < 0)
-        goto done;
-    Py_ssize_t candidates = 0, n = s.n, sub = s.subsamples;
-    const double *contacts_um = doubles_of(&contacts_buffer, &candidates, "contacts_um");
-    const double *widths_um = doubles_sized(&widths_buffer, candidates, "widths_um");
-    double *rss_out = doubles_sized(&out_buffer, SHAPES * candidates, "rss_out");
-    if (contacts_um == NULL || widths_um == NULL || rss_out == NULL)
-        goto done;
+    Py_ssize_t n = s->n, sums_n = n + 1;
     /* basis (2n), y_free (n), pressed_to, free_from (n each), prefix sums (9 columns × (n + 1)) */
-    Py_ssize_t sums_n = n + 1;
-    work = malloc(sizeof(double) * (size_t)(5 * n + 9 * sums_n));
-    if (work == NULL) {
+    p->work = malloc(sizeof(double) * (size_t)(5 * n + 9 * sums_n));
+    if (p->work == NULL) {
         PyErr_NoMemory();
-        goto done;
+        return -1;
     }
-    double *basis_rows = work, *y_free = work + 2 * n, *pressed_to = work + 3 * n, *free_from = work + 4 * n;
-    double *sums = work + 5 * n;
-    int m = project_out_basis(&s, basis_rows, y_free);
+    p->basis_rows = p->work, p->y_free = p->work + 2 * n, p->pressed_to = p->work + 3 * n;
+    p->free_from = p->work + 4 * n, p->sums = p->work + 5 * n;
+    int m = p->m = project_out_basis(s, p->basis_rows, p->y_free);
     double yy = 0.0;
     for (Py_ssize_t i = 0; i < n; i++)
-        yy += y_free[i] * y_free[i];
-    running_bounds(&s, pressed_to, free_from);
-    /* Prefix sums over samples < i of 1, x, x², y, x y, B (m), x B (m): the pressed run of a
-     * candidate has h = a - x, so its sums are these combined. Column k at sums[k * sums_n + i]. */
+        yy += p->y_free[i] * p->y_free[i];
+    p->yy = yy;
+    running_bounds(s, p->pressed_to, p->free_from);
     int columns = 5 + 2 * m;
+    double *sums = p->sums;
+    const double *basis_rows = p->basis_rows;
     for (int k = 0; k < columns; k++)
         sums[k * sums_n] = 0.0;
     for (Py_ssize_t i = 0; i < n; i++) {
-        double x = s.x_mid_um[i], y = y_free[i];
+        double x = s->x_mid_um[i], y = p->y_free[i];
         double values[9] = {1.0, x, x * x, y, x * y, basis_rows[i], 0.0, 0.0, 0.0};
         if (m == 2) {
             values[6] = basis_rows[n + i];
@@ -291,18 +301,47 @@ static PyObject *rss_grid(PyObject *self, PyObject *args)
         for (int k = 0; k < columns; k++)
             sums[k * sums_n + i + 1] = sums[k * sums_n + i] + values[k];
     }
+    return 0;
+}
+
+/* toe.py's `_rss_over_contacts`: the residual of every candidate (contacts_um[j], widths_um[j]),
+ * both shapes, into rss_out[shape * candidates + j]. */
+static void projected_grid(const Samples *s, const Projected *p, const double *contacts_um, const double *widths_um,
+                           Py_ssize_t candidates, double *rss_out)
+{
+    Py_ssize_t n = s->n, sub = s->subsamples, sums_n = n + 1;
+    int m = p->m;
     Py_ssize_t first = 0, last = 0;
-    const double *basis0 = basis_rows, *basis1 = basis_rows + n;
+    const double *basis0 = p->basis_rows, *basis1 = p->basis_rows + n, *y_free = p->y_free;
     for (Py_ssize_t j = 0; j < candidates; j++) {
         double c = contacts_um[j], w = widths_um[j];
-        first = count_before(pressed_to, n, c - w, 1, first);
-        last = count_before(free_from, n, c, 0, last);
+        first = count_before(p->pressed_to, n, c - w, 1, first);
+        last = count_before(p->free_from, n, c, 0, last);
         /* In-toe sums per shape (0, 1): h·B (both basis rows), h·h, h·y; scalars, so they stay in
          * registers. */
         double hb00 = 0.0, hb01 = 0.0, hb10 = 0.0, hb11 = 0.0, hh0 = 0.0, hh1 = 0.0, hy0 = 0.0, hy1 = 0.0;
+#ifdef TOE_SSE2
+        if (sub == 2) { /* both shapes side by side, each lane the scalar loop's sums below */
+            __m128d scale = _mm_set1_pd(1.0 / (double)sub), b0 = _mm_setzero_pd(), b1 = b0, hh_pair = b0, hy_pair = b0;
+            for (Py_ssize_t i = first; i < last; i++) {
+                __m128d h = _mm_mul_pd(toe_pair(c, w, s->window_um + 2 * i), scale);
+                b0 = _mm_add_pd(b0, _mm_mul_pd(h, _mm_set1_pd(basis0[i])));
+                b1 = _mm_add_pd(b1, _mm_mul_pd(h, _mm_set1_pd(basis1[i])));
+                hh_pair = _mm_add_pd(hh_pair, _mm_mul_pd(h, h));
+                hy_pair = _mm_add_pd(hy_pair, _mm_mul_pd(h, _mm_set1_pd(y_free[i])));
+            }
+            double lanes[4][2];
+            _mm_storeu_pd(lanes[0], b0);
+            _mm_storeu_pd(lanes[1], b1);
+            _mm_storeu_pd(lanes[2], hh_pair);
+            _mm_storeu_pd(lanes[3], hy_pair);
+            hb00 = lanes[0][0], hb10 = lanes[0][1], hb01 = lanes[1][0], hb11 = lanes[1][1];
+            hh0 = lanes[2][0], hh1 = lanes[2][1], hy0 = lanes[3][0], hy1 = lanes[3][1];
+        } else
+#endif
         for (Py_ssize_t i = first; i < last; i++) {
             double h[SHAPES];
-            toe_sums(c, w, s.window_um + i * sub, sub, h);
+            toe_sums(c, w, s->window_um + i * sub, sub, h);
             double h0 = h[0] * (1.0 / (double)sub), h1 = h[1] * (1.0 / (double)sub);
             hb00 += h0 * basis0[i], hb01 += h0 * basis1[i];
             hb10 += h1 * basis0[i], hb11 += h1 * basis1[i];
@@ -310,59 +349,36 @@ static PyObject *rss_grid(PyObject *self, PyObject *args)
             hy0 += h0 * y_free[i], hy1 += h1 * y_free[i];
         }
         double h_basis[SHAPES][2] = {{hb00, hb01}, {hb10, hb11}}, hh[SHAPES] = {hh0, hh1}, hy[SHAPES] = {hy0, hy1};
-        const double *at = sums + first;
-        for (int p = 0; p < SHAPES; p++) {
-            double a = c - w * LIFT_DEFICIT[p]; /* the pressed samples: h = a - x */
+        const double *at = p->sums + first;
+        for (int q = 0; q < SHAPES; q++) {
+            double a = c - w * LIFT_DEFICIT[q]; /* the pressed samples: h = a - x */
             for (int r = 0; r < m; r++)
-                h_basis[p][r] += a * at[(5 + r) * sums_n] - at[(5 + m + r) * sums_n];
-            double hh_all = hh[p] + (a * at[0] - 2.0 * at[sums_n]) * a + at[2 * sums_n];
-            double hy_all = hy[p] + a * at[3 * sums_n] - at[4 * sums_n];
+                h_basis[q][r] += a * at[(5 + r) * sums_n] - at[(5 + m + r) * sums_n];
+            double hh_all = hh[q] + (a * at[0] - 2.0 * at[sums_n]) * a + at[2 * sums_n];
+            double hy_all = hy[q] + a * at[3 * sums_n] - at[4 * sums_n];
             double stiffness;
-            rss_out[p * candidates + j] = solve_rss(hh_all, h_basis[p], m, hy_all, yy, &stiffness);
+            rss_out[q * candidates + j] = solve_rss(hh_all, h_basis[q], m, hy_all, p->yy, &stiffness);
         }
     }
-    result = Py_NewRef(Py_None);
-done:
-    free(work);
-    release_samples(&s);
-    release_candidates(&contacts_buffer, &widths_buffer, &out_buffer);
-    return result;
 }
 
-static PyObject *stiffness_at(PyObject *self, PyObject *args)
+/* toe.py's `_stiffness_at`: the toe's stiffness at one contact height and toe (shape 0 or 1), its
+ * column evaluated over every sample. */
+static double projected_stiffness(const Samples *s, const Projected *p, double contact_um, double width_um, int shape)
 {
-    (void)self;
-    Samples s = {0};
-    double drift_g_um, contact_um, width_um, power;
-    Py_ssize_t subsamples;
-    if (!PyArg_ParseTuple(args, "O&O&O&dnddd", float64_buffer, &s.buffers[0], float64_buffer, &s.buffers[1],
-                          float64_buffer, &s.buffers[2], &drift_g_um, &subsamples, &contact_um, &width_um, &power))
-        return NULL;
-    int shape = load_for_stiffness(&s, drift_g_um, subsamples, power);
-    if (shape < 0)
-        return NULL;
-    Py_ssize_t n = s.n, sub = s.subsamples;
-    double *work = malloc(sizeof(double) * (size_t)(3 * n));
-    if (work == NULL) {
-        release_samples(&s);
-        return PyErr_NoMemory();
-    }
-    double *basis_rows = work, *y_free = work + 2 * n;
-    project_out_basis(&s, basis_rows, y_free);
+    Py_ssize_t n = s->n, sub = s->subsamples;
     double h_basis[2] = {0.0, 0.0}, hh_all = 0.0, hy = 0.0;
     for (Py_ssize_t i = 0; i < n; i++) {
         double h[SHAPES];
-        toe_sums(contact_um, width_um, s.window_um + i * sub, sub, h);
+        toe_sums(contact_um, width_um, s->window_um + i * sub, sub, h);
         double column = h[shape] * (1.0 / (double)sub);
-        h_basis[0] += basis_rows[i] * column;
-        h_basis[1] += basis_rows[n + i] * column;
+        h_basis[0] += p->basis_rows[i] * column;
+        h_basis[1] += p->basis_rows[n + i] * column;
         hh_all += column * column;
-        hy += column * y_free[i];
+        hy += column * p->y_free[i];
     }
-    free(work);
-    release_samples(&s);
     double hh = hh_all - (h_basis[0] * h_basis[0] + h_basis[1] * h_basis[1]);
-    return PyFloat_FromDouble(hh > 1e-9 * (hh_all + 1e-300) ? hy / hh : 0.0);
+    return hh > 1e-9 * (hh_all + 1e-300) ? hy / hh : 0.0;
 }
 
 /* ---- Under white noise + a random walk (toe.py: _Whitened, _whiten, _rss_whitened) ---- */
@@ -483,6 +499,26 @@ static void whitened_candidate(const Samples *s, const Whitened *wh, double cont
                 z[p] = wh->pressed_z[start - 2], zz[p] = wh->pressed_zz[start - 2], zy[p] = wh->pressed_zy[start - 2];
         }
     }
+#ifdef TOE_SSE2
+    if (sub == 2) { /* both shapes side by side, each lane the scalar loop's recursion below */
+        __m128d divisor = _mm_set1_pd((double)sub), previous = _mm_loadu_pd(previous_h), z_pair = _mm_loadu_pd(z);
+        __m128d zz_pair = _mm_loadu_pd(zz), zy_pair = _mm_loadu_pd(zy);
+        for (Py_ssize_t i = start; i <= stop && i < n; i++) {
+            __m128d h = _mm_div_pd(toe_pair(contact_um, width_um, s->window_um + 2 * i), divisor);
+            if (i > 0) {
+                z_pair = _mm_mul_pd(_mm_sub_pd(_mm_sub_pd(h, previous), _mm_mul_pd(_mm_set1_pd(wh->sub[j]), z_pair)),
+                                    _mm_set1_pd(wh->inv_diag[j]));
+                zz_pair = _mm_add_pd(zz_pair, _mm_mul_pd(z_pair, z_pair));
+                zy_pair = _mm_add_pd(zy_pair, _mm_mul_pd(z_pair, _mm_set1_pd(wh->y_white[j])));
+                j++;
+            }
+            previous = h;
+        }
+        _mm_storeu_pd(z, z_pair);
+        _mm_storeu_pd(zz, zz_pair);
+        _mm_storeu_pd(zy, zy_pair);
+    } else
+#endif
     for (Py_ssize_t i = start; i <= stop && i < n; i++) {
         double h[SHAPES];
         toe_sums(contact_um, width_um, s->window_um + i * sub, sub, h);
@@ -504,77 +540,6 @@ static void whitened_candidate(const Samples *s, const Whitened *wh, double cont
         stiffness[p] = usable ? hy / hh : 0.0;
         rss[p] = usable && stiffness[p] > 0.0 ? wh->yy - stiffness[p] * hy : INFINITY;
     }
-}
-
-static PyObject *rss_grid_whitened(PyObject *self, PyObject *args)
-{
-    (void)self;
-    Samples s = {0};
-    Py_buffer contacts_buffer, widths_buffer, out_buffer;
-    double drift_g_um, white_var_g2, walk_var_g2, lowest_um, highest_um, widest_um;
-    Py_ssize_t subsamples;
-    if (!PyArg_ParseTuple(args, "O&O&O&dndddddO&O&w*", float64_buffer, &s.buffers[0], float64_buffer, &s.buffers[1],
-                          float64_buffer, &s.buffers[2], &drift_g_um, &subsamples, &white_var_g2, &walk_var_g2,
-                          &lowest_um, &highest_um, &widest_um, float64_buffer, &contacts_buffer, float64_buffer,
-                          &widths_buffer, &out_buffer))
-        return NULL;
-    PyObject *result = NULL;
-    Whitened wh = {0};
-    if (load_samples(&s, drift_g_um, subsamples) < 0)
-        goto done;
-    Py_ssize_t candidates = 0;
-    const double *contacts_um = doubles_of(&contacts_buffer, &candidates, "contacts_um");
-    const double *widths_um = doubles_sized(&widths_buffer, candidates, "widths_um");
-    double *rss_out = doubles_sized(&out_buffer, SHAPES * candidates, "rss_out");
-    if (contacts_um == NULL || widths_um == NULL || rss_out == NULL)
-        goto done;
-    int prepared = prepare_whitened(&s, white_var_g2, walk_var_g2, lowest_um, highest_um, widest_um, &wh);
-    if (prepared < 0)
-        goto done;
-    if (prepared) {
-        Py_ssize_t hints[2] = {0, 0};
-        for (Py_ssize_t j = 0; j < candidates; j++) {
-            double rss[SHAPES], stiffness[SHAPES];
-            whitened_candidate(&s, &wh, contacts_um[j], widths_um[j], hints, rss, stiffness);
-            rss_out[j] = rss[0];
-            rss_out[candidates + j] = rss[1];
-        }
-    }
-    result = PyBool_FromLong(prepared);
-done:
-    free(wh.diag);
-    release_samples(&s);
-    release_candidates(&contacts_buffer, &widths_buffer, &out_buffer);
-    return result;
-}
-
-static PyObject *stiffness_whitened(PyObject *self, PyObject *args)
-{
-    (void)self;
-    Samples s = {0};
-    double drift_g_um, white_var_g2, walk_var_g2, lowest_um, highest_um, widest_um, contact_um, width_um, power;
-    Py_ssize_t subsamples;
-    if (!PyArg_ParseTuple(args, "O&O&O&dndddddddd", float64_buffer, &s.buffers[0], float64_buffer, &s.buffers[1],
-                          float64_buffer, &s.buffers[2], &drift_g_um, &subsamples, &white_var_g2, &walk_var_g2,
-                          &lowest_um, &highest_um, &widest_um, &contact_um, &width_um, &power))
-        return NULL;
-    int shape = load_for_stiffness(&s, drift_g_um, subsamples, power);
-    if (shape < 0)
-        return NULL;
-    Whitened wh = {0};
-    int prepared = prepare_whitened(&s, white_var_g2, walk_var_g2, lowest_um, highest_um, widest_um, &wh);
-    PyObject *result = NULL;
-    if (prepared > 0) {
-        double rss[SHAPES], stiffness[SHAPES];
-        Py_ssize_t hints[2] = {0, 0};
-        whitened_candidate(&s, &wh, contact_um, width_um, hints, rss, stiffness);
-        result = PyFloat_FromDouble(stiffness[shape]);
-    } else if (prepared == 0) {
-        PyErr_SetString(PyExc_ValueError, "the samples are not a plain rise: no walk-weighted fit");
-    }
-    free(wh.diag);
-    release_samples(&s);
-    return result;
 }
 
 /* ---- The contact with the toe marginalised out (toe.py: marginal_contact_um) ---- */
@@ -745,7 +710,193 @@ static PyObject *marginal_contact_and_spread(PyObject *self, PyObject *args)
     return marginal(args, 1);
 }
 
-/* ---- The baseline's walk from free air (toe.py: free_air_variogram) ---- */
+/* ---- One tap's whole toe fit (toe.py: fit_toe) ---- */
+
+/* toe.py's `fit_toe` with the grids of `_toe_grid_native` (both shapes): the samples kept near the
+ * start, the walk-weighted grid when the walk matters and the samples allow it, else the plain
+ * one, the least residual's toe, the marginal contact and the stiffness there, in one call. The
+ * contact heights and the residual grid go into contacts_out and rss_out (the pooling keeps them);
+ * returns (contact_um, sigma_um, shape, width index, stiffness_g_um, residual variance, residual
+ * sigma g), or None where fit_toe returns None. */
+static PyObject *fit(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Samples s = {0};
+    Py_buffer offsets_buffer, widths_buffer, prior_buffer, contacts_buffer, rss_buffer;
+    double contact0_um, spacing_um, drift_g_um, white_var_g2, walk_var_g2, above_um, penetration_um, wander_share;
+    Py_ssize_t departure_samples, subsamples, min_samples;
+    if (!PyArg_ParseTuple(args, "O&O&O&ddddd(dnddnnO&O&O&)w*w*", float64_strided, &s.buffers[0], float64_strided,
+                          &s.buffers[1], float64_strided, &s.buffers[2], &contact0_um, &spacing_um, &drift_g_um,
+                          &white_var_g2, &walk_var_g2, &above_um, &departure_samples, &penetration_um, &wander_share,
+                          &subsamples, &min_samples, float64_buffer, &offsets_buffer, float64_buffer, &widths_buffer,
+                          float64_buffer, &prior_buffer, &contacts_buffer, &rss_buffer))
+        return NULL;
+    PyObject *result = NULL;
+    double *kept = NULL, *grid_c = NULL;
+    ToeMinimum *minima = NULL;
+    Projected plain = {0};
+    Whitened wh = {0};
+    s.held = 3;
+    Py_ssize_t n = s.buffers[0].shape[0], count = 0, widths_n = 0;
+    for (int i = 1; i < 3; i++)
+        if (s.buffers[i].shape[0] != n) {
+            PyErr_Format(PyExc_ValueError, "%s: %zd values, %zd expected", i == 1 ? "x_hi_um" : "force_g",
+                         s.buffers[i].shape[0], n);
+            goto done;
+        }
+    const Py_buffer *x_lo_um = &s.buffers[0], *x_hi_um = &s.buffers[1], *force_g = &s.buffers[2];
+    const double *offsets_um = doubles_of(&offsets_buffer, &count, "offsets_um");
+    const double *widths_um = offsets_um == NULL ? NULL : doubles_of(&widths_buffer, &widths_n, "widths_um");
+    const double *prior = widths_um == NULL ? NULL : doubles_sized(&prior_buffer, SHAPES * widths_n, "prior");
+    double *contacts_um = prior == NULL ? NULL : doubles_sized(&contacts_buffer, count, "contacts_out");
+    double *rss = contacts_um == NULL ? NULL : doubles_sized(&rss_buffer, SHAPES * widths_n * count, "rss_out");
+    if (rss == NULL)
+        goto done;
+    if (count < 2 || widths_n < 1 || subsamples < 1 || subsamples > 64 || min_samples < 2) {
+        PyErr_Format(PyExc_ValueError,
+                     "%zd contacts, %zd widths, %zd subsamples, at least %zd samples: 2+, 1+, 1..64 and 2+ expected",
+                     count, widths_n, subsamples, min_samples);
+        goto done;
+    }
+    /* The samples near the start: below the highest candidate plus the departure's reach, above
+     * the deepest penetration (toe.py's `keep`, the same sums). */
+    double top_um = contact0_um + above_um + (double)departure_samples * spacing_um;
+    double bottom_um = contact0_um - penetration_um;
+    kept = malloc(sizeof(double) * (size_t)(3 * (n > 0 ? n : 1)));
+    if (kept == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    Py_ssize_t samples = 0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        double lo_um = strided_at(x_lo_um, i), hi_um = strided_at(x_hi_um, i);
+        if (lo_um < top_um && hi_um > bottom_um) {
+            kept[samples] = lo_um, kept[n + samples] = hi_um, kept[2 * n + samples] = strided_at(force_g, i);
+            samples++;
+        }
+    }
+    if (samples < min_samples) {
+        result = Py_NewRef(Py_None);
+        goto done;
+    }
+    if (lay_out_samples(&s, kept, kept + n, kept + 2 * n, samples, drift_g_um, subsamples) < 0)
+        goto done;
+    /* The candidates, widths × contacts, contacts fastest (toe.py's _GRID_OFFSETS_UM, _GRID_WIDTHS_UM). */
+    Py_ssize_t candidates = widths_n * count, toes = SHAPES * widths_n;
+    grid_c = malloc(sizeof(double) * (size_t)(2 * candidates));
+    if (grid_c == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    double *grid_w = grid_c + candidates;
+    for (Py_ssize_t k = 0; k < count; k++)
+        contacts_um[k] = contact0_um + offsets_um[k];
+    for (Py_ssize_t w = 0; w < widths_n; w++)
+        for (Py_ssize_t k = 0; k < count; k++) {
+            grid_c[w * count + k] = contacts_um[k];
+            grid_w[w * count + k] = widths_um[w];
+        }
+    /* The walk-weighted fit has no drift column: a drift to be fitted runs the plain fit. */
+    int walk = !isnan(white_var_g2) && !s.drift_fitted && walk_var_g2 * (double)samples > wander_share * white_var_g2;
+    int whitened = 0;
+    if (walk) {
+        whitened = prepare_whitened(&s, white_var_g2, walk_var_g2, contacts_um[0], contacts_um[count - 1],
+                                    widths_um[widths_n - 1], &wh);
+        if (whitened < 0)
+            goto done;
+    }
+    if (whitened) {
+        Py_ssize_t hints[2] = {0, 0};
+        for (Py_ssize_t j = 0; j < candidates; j++) {
+            double toe_rss[SHAPES], stiffness[SHAPES];
+            whitened_candidate(&s, &wh, grid_c[j], grid_w[j], hints, toe_rss, stiffness);
+            rss[j] = toe_rss[0];
+            rss[candidates + j] = toe_rss[1];
+        }
+    } else {
+        if (prepare_projected(&s, &plain) < 0)
+            goto done;
+        projected_grid(&s, &plain, grid_c, grid_w, candidates, rss);
+    }
+    /* The least residual (np.argmin: the first of equal values, the first NaN if any). */
+    Py_ssize_t best = 0;
+    for (Py_ssize_t i = 0; i < SHAPES * candidates; i++) {
+        if (isnan(rss[i])) {
+            best = i;
+            break;
+        }
+        if (rss[i] < rss[best])
+            best = i;
+    }
+    double least = rss[best];
+    if (!isfinite(least)) {
+        result = Py_NewRef(Py_None);
+        goto done;
+    }
+    Py_ssize_t shape = best / count / widths_n, width_index = best / count % widths_n;
+    Py_ssize_t dof = samples - 4 - (s.drift_fitted ? 2 : 1); /* the toe's c, w, p, k and the basis */
+    double residual_var = least / (double)(dof > 1 ? dof : 1);
+    residual_var = 1e-12 > residual_var ? 1e-12 : residual_var; /* max(least / dof, 1e-12) */
+    minima = toe_minima(contacts_um, count, rss, toes, residual_var);
+    if (minima == NULL)
+        goto done;
+    double contact_um, sigma_um;
+    if (!marginal_of(minima, toes, prior, residual_var, &contact_um, &sigma_um)) {
+        result = Py_NewRef(Py_None);
+        goto done;
+    }
+    double width_um = widths_um[width_index], stiffness_g_um, unit_g2 = 1.0;
+    if (whitened) {
+        double toe_rss[SHAPES], stiffness[SHAPES];
+        Py_ssize_t hints[2] = {0, 0};
+        whitened_candidate(&s, &wh, contact_um, width_um, hints, toe_rss, stiffness);
+        stiffness_g_um = stiffness[shape];
+        unit_g2 = white_var_g2;
+    } else {
+        stiffness_g_um = projected_stiffness(&s, &plain, contact_um, width_um, (int)shape);
+    }
+    result = Py_BuildValue("ddnnddd", contact_um, sigma_um, shape, width_index, stiffness_g_um, residual_var,
+                           sqrt(residual_var * unit_g2));
+done:
+    free(kept);
+    free(grid_c);
+    PyMem_Free(minima);
+    free(plain.work);
+    free(wh.diag);
+    release_samples(&s);
+    PyBuffer_Release(&offsets_buffer);
+    PyBuffer_Release(&widths_buffer);
+    PyBuffer_Release(&prior_buffer);
+    PyBuffer_Release(&contacts_buffer);
+    PyBuffer_Release(&rss_buffer);
+    return result;
+}
+
+/* ---- The baseline's walk from free air (toe.py: free_air_variogram, free_air_walks) ---- */
+
+/* The slope of a segment's straight line against the centred sample index t: (t·f) / (t·t). */
+static double line_slope(const double *force_g, Py_ssize_t n)
+{
+    double tf = 0.0, tt = 0.0;
+    for (Py_ssize_t k = 0; k < n; k++) {
+        double t = (double)k - 0.5 * (double)(n - 1);
+        tf += t * force_g[k];
+        tt += t * t;
+    }
+    return tf / tt;
+}
+
+/* The mean of (r[k + lag] - r[k])² over the segment, r the force with its line fitted out (the
+ * mean cancels, the line leaves lag × slope): r is never stored. 1 <= lag < n. */
+static double lag_mean_square(const double *force_g, Py_ssize_t n, Py_ssize_t lag, double slope)
+{
+    double sum = 0.0;
+    for (Py_ssize_t k = 0; k + lag < n; k++) {
+        double d = (force_g[k + lag] - force_g[k]) - (double)lag * slope;
+        sum += d * d;
+    }
+    return sum / (double)(n - lag);
+}
 
 static PyObject *lag_mean_squares(PyObject *self, PyObject *args)
 {
@@ -763,18 +914,7 @@ static PyObject *lag_mean_squares(PyObject *self, PyObject *args)
         PyErr_Format(PyExc_ValueError, "force_g: %zd samples, at least 2 expected", n);
         goto done;
     }
-    /* The segment's straight line fitted out: r = f - mean - t (t·f) / (t·t), t the centred index.
-     * r is not stored: each lag recomputes it from two running indices (a few hundred samples). */
-    double mean_g = 0.0, tf = 0.0, tt = 0.0;
-    for (Py_ssize_t k = 0; k < n; k++)
-        mean_g += force_g[k];
-    mean_g /= (double)n;
-    for (Py_ssize_t k = 0; k < n; k++) {
-        double t = (double)k - 0.5 * (double)(n - 1);
-        tf += t * force_g[k];
-        tt += t * t;
-    }
-    double slope = tf / tt;
+    double slope = line_slope(force_g, n);
     result = PyList_New(count);
     if (result == NULL)
         goto done;
@@ -786,13 +926,7 @@ static PyObject *lag_mean_squares(PyObject *self, PyObject *args)
             PyErr_Format(PyExc_ValueError, "lags: %zd for %zd samples, 1..%zd allowed", lag, n, n - 1);
             goto fail;
         }
-        double sum = 0.0;
-        for (Py_ssize_t k = 0; k + lag < n; k++) {
-            /* r[k + lag] - r[k]: the mean cancels, the line leaves lag × slope */
-            double d = (force_g[k + lag] - force_g[k]) - (double)lag * slope;
-            sum += d * d;
-        }
-        PyObject *value = PyFloat_FromDouble(sum / (double)(n - lag));
+        PyObject *value = PyFloat_FromDouble(lag_mean_square(force_g, n, lag, slope));
         if (value == NULL)
             goto fail;
         PyList_SET_ITEM(result, l, value);
@@ -802,6 +936,153 @@ fail:
     Py_CLEAR(result);
 done:
     PyBuffer_Release(&force_buffer);
+    return result;
+}
+
+/* The sums of products of the least squares in white, walk and height pull (toe.py's
+ * `walk_beside_height_pull`), added up row by row in its order. */
+typedef struct {
+    double ww, wk, wp, kk, kp, pp, wy, ky, py, yy;
+    Py_ssize_t rows;
+} WalkSums;
+
+/* Adds one segment's rows: model (lags × 4: lag, expectation for unit white noise, for a unit walk,
+ * the height pull's per unit curvature² and step⁴), its force and the height it crosses per
+ * sample; 0, or -1 with ValueError set when a lag does not fit the segment. */
+static int add_segment(WalkSums *sums, const double *model, Py_ssize_t lags, const double *force_g, Py_ssize_t n,
+                       double step_um)
+{
+    if (lags == 0)
+        return 0;
+    if (n < 2) {
+        PyErr_Format(PyExc_ValueError, "force_g: %zd samples, at least 2 expected", n);
+        return -1;
+    }
+    double slope = line_slope(force_g, n), step4 = pow(step_um, 4.0);
+    for (Py_ssize_t l = 0; l < lags; l++) {
+        const double *row = model + 4 * l;
+        if (!(row[0] >= 1.0 && row[0] < (double)n) || row[0] != floor(row[0])) {
+            PyErr_Format(PyExc_ValueError, "model: row %zd's lag is not a whole number of 1..%zd (%zd samples)", l,
+                         n - 1, n);
+            return -1;
+        }
+        Py_ssize_t lag = (Py_ssize_t)row[0];
+        double w = row[1], k = row[2], p = row[3] * step4, y = lag_mean_square(force_g, n, lag, slope);
+        sums->ww += w * w;
+        sums->wk += w * k;
+        sums->wp += w * p;
+        sums->kk += k * k;
+        sums->kp += k * p;
+        sums->pp += p * p;
+        sums->wy += w * y;
+        sums->ky += k * y;
+        sums->py += p * y;
+        sums->yy += y * y;
+    }
+    sums->rows += lags;
+    return 0;
+}
+
+/* toe.py's `_white_walk_pull`, operation for operation: 1 with (white, walk), 0 for None. */
+static int white_walk_pull(const WalkSums *t, double *white_out, double *walk_out)
+{
+    if (!(t->ww > 0.0 && t->kk > 0.0 && t->pp > 0.0))
+        return 0;
+    double sw = sqrt(t->ww), sk = sqrt(t->kk), sp = sqrt(t->pp);
+    double a = t->wk / (sw * sk), b = t->wp / (sw * sp), c = t->kp / (sk * sp);
+    double u = t->wy / sw, v = t->ky / sk, w = t->py / sp;
+    double determinant = 1.0 - a * a - b * b - c * c + 2.0 * a * b * c;
+    if (determinant > 1e-12) {
+        double white = (u * (1.0 - c * c) - a * (v - c * w) + b * (v * c - w)) / determinant;
+        double walk = (v - c * w - u * (a - c * b) + b * (a * w - v * b)) / determinant;
+        double pull = (w - c * v - a * (a * w - v * b) + u * (a * c - b)) / determinant;
+        if (white > 0.0 && walk >= 0.0 && pull >= 0.0) {
+            *white_out = white / sw, *walk_out = walk / sk;
+            return 1;
+        }
+    }
+    int found = 0;
+    double best_residual = 0.0;
+    const double rs[2] = {a, b}, qs[2] = {v, w}; /* the white with the walk, with the pull */
+    for (int pair = 0; pair < 2; pair++) {
+        double r = rs[pair], q = qs[pair];
+        if (1.0 - r * r > 1e-12) {
+            double white = (u - r * q) / (1.0 - r * r), other = (q - r * u) / (1.0 - r * r);
+            if (white > 0.0 && other >= 0.0) {
+                double residual = t->yy - white * u - other * q;
+                if (!found || residual < best_residual) {
+                    found = 1, best_residual = residual;
+                    *white_out = white / sw, *walk_out = pair == 0 ? other / sk : 0.0;
+                }
+            }
+        }
+    }
+    if (u > 0.0 && (!found || t->yy - u * u < best_residual)) { /* the white alone */
+        found = 1;
+        *white_out = u / sw, *walk_out = 0.0;
+    }
+    return found;
+}
+
+/* toe.py's `_wander_of_normal_sums` over the rows summed so far: 1 with (white, walk), 0 for None. */
+static int white_walk(const WalkSums *t, double *white_out, double *walk_out)
+{
+    if (!t->rows)
+        return 0;
+    double determinant = t->ww * t->kk - t->wk * t->wk;
+    if (!(determinant > 0.0))
+        return 0;
+    double white = (t->kk * t->wy - t->wk * t->ky) / determinant, walk = (t->ww * t->ky - t->wk * t->wy) / determinant;
+    if (!(white > 0.0))
+        return 0;
+    *white_out = white, *walk_out = 0.0 > walk ? 0.0 : walk; /* max(walk, 0.0) */
+    return 1;
+}
+
+static PyObject *pair_or_none(int found, double first, double second)
+{
+    return found ? Py_BuildValue("dd", first, second) : Py_NewRef(Py_None);
+}
+
+/* toe.py's `free_air_walks`: the walk beside a pull curved in height of the approach's and the
+ * departure's free air, and the approach's walk alone, each (white, walk) or None. */
+static PyObject *free_air_walks(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer buffers[4]; /* approach force, departure force, their models */
+    double steps_um[2];
+    if (!PyArg_ParseTuple(args, "O&O&O&O&dd", float64_buffer, &buffers[0], float64_buffer, &buffers[1],
+                          float64_buffer, &buffers[2], float64_buffer, &buffers[3], &steps_um[0], &steps_um[1]))
+        return NULL;
+    PyObject *result = NULL;
+    WalkSums sums = {0};
+    double approach_white = 0.0, approach_walk = 0.0, white = 0.0, walk = 0.0;
+    int approach_found = 0;
+    for (int segment = 0; segment < 2; segment++) {
+        Py_ssize_t n = 0, values = 0;
+        const double *force_g = doubles_of(&buffers[segment], &n, segment ? "departure_g" : "approach_g");
+        const double *model = force_g == NULL ? NULL : doubles_of(&buffers[2 + segment], &values, "model");
+        if (model == NULL)
+            goto done;
+        if (values % 4 != 0) {
+            PyErr_Format(PyExc_ValueError, "model: %zd values, not rows of 4", values);
+            goto done;
+        }
+        if (add_segment(&sums, model, values / 4, force_g, n, steps_um[segment]) < 0)
+            goto done;
+        if (segment == 0)
+            approach_found = white_walk(&sums, &approach_white, &approach_walk);
+    }
+    int found = sums.rows >= 2 && white_walk_pull(&sums, &white, &walk);
+    PyObject *beside = pair_or_none(found, white, walk);
+    PyObject *approach = beside == NULL ? NULL : pair_or_none(approach_found, approach_white, approach_walk);
+    if (approach != NULL)
+        result = PyTuple_Pack(2, beside, approach);
+    Py_XDECREF(beside);
+    Py_XDECREF(approach);
+done:
+    for (int i = 0; i < 4; i++)
+        PyBuffer_Release(&buffers[i]);
     return result;
 }
 
@@ -963,28 +1244,17 @@ static PyMethodDef methods[] = {
      "             far_reach_um, min_samples) -> (near_pull_g or None, far_pull_g or None, highest_um)\n\n"
      "thread_pull_g at both reaches (each a (from, to) pair of um above contact) over the conversion\n"
      "windows' mid-heights, and the highest of those (-inf with no samples) (toe.py: thread_pulls_g)."},
-    {"rss_grid", rss_grid, METH_VARARGS,
-     "rss_grid(x_lo_um, x_hi_um, force_g, drift_g_um, subsamples, contacts_um, widths_um, rss_out)\n\n"
-     "Least-squares residual of the toe fit at every candidate (contacts_um[j], widths_um[j]) for both\n"
-     "shapes (0.5, 1.0), written to rss_out (2 × candidates, shape-major); inf where the toe would pull\n"
-     "or cannot be told from the baseline (and the drift). Samples: conversion windows [x_lo, x_hi]\n"
-     "(um above the halt), each averaged over `subsamples` heights; drift_g_um: the known drift, NaN\n"
-     "to fit it (toe.py: _toe_grid, _rss_over_contacts)."},
-    {"stiffness_at", stiffness_at, METH_VARARGS,
-     "stiffness_at(x_lo_um, x_hi_um, force_g, drift_g_um, subsamples, contact_um, width_um, power) -> float\n\n"
-     "The toe's linear stiffness (g/um) solved at one toe, 0 when unsolvable (toe.py: _stiffness_at)."},
-    {"rss_grid_whitened", rss_grid_whitened, METH_VARARGS,
-     "rss_grid_whitened(x_lo_um, x_hi_um, force_g, drift_g_um, subsamples, white_var_g2, walk_var_g2,\n"
-     "                  lowest_contact_um, highest_contact_um, widest_um, contacts_um, widths_um, rss_out)\n"
-     "-> bool\n\n"
-     "rss_grid under white noise + a random walk of the baseline (residuals in white-noise units).\n"
-     "False (rss_out untouched) when the samples are not pressed, then in between, then free\n"
-     "(toe.py: _Whitened.prepare, _rss_whitened)."},
-    {"stiffness_whitened", stiffness_whitened, METH_VARARGS,
-     "stiffness_whitened(x_lo_um, x_hi_um, force_g, drift_g_um, subsamples, white_var_g2, walk_var_g2,\n"
-     "                   lowest_contact_um, highest_contact_um, widest_um, contact_um, width_um, power)\n"
-     "-> float\n\n"
-     "The walk-weighted toe stiffness at one toe; ValueError when rss_grid_whitened would say False."},
+    {"fit", fit, METH_VARARGS,
+     "fit(x_lo_um, x_hi_um, force_g, contact0_um, spacing_um, drift_g_um, white_var_g2, walk_var_g2, grid,\n"
+     "    contacts_out, rss_out) -> (contact_um, sigma_um, shape, width_index, stiffness_g_um, residual_var,\n"
+     "    residual_sigma_g) or None\n\n"
+     "toe.py's fit_toe for the shapes (0.5, 1.0). Samples: conversion windows [x_lo, x_hi] (um above the\n"
+     "halt) and the force; drift_g_um: the known drift, NaN to fit it; white_var_g2: the baseline's\n"
+     "white noise with walk_var_g2 its walk per sample, NaN for none. grid: (above_um, departure\n"
+     "samples, penetration_um, wander_share, subsamples, least samples, contact offsets (um), widths\n"
+     "(um), prior per (shape, width)). contacts_out gets contact0 + offsets, rss_out the residual per\n"
+     "(shape, width, contact); None where fit_toe returns None (too few samples, no finite residual,\n"
+     "no toe with a curved minimum)."},
     {"marginal_contact", marginal_contact, METH_VARARGS,
      "marginal_contact(contacts_um, rss, noise_var, prior) -> (mean_um, sd_um) or None\n\n"
      "The contact height's mean and sd with the toe marginalised out; rss: toes × contacts residuals\n"
@@ -1000,6 +1270,12 @@ static PyMethodDef methods[] = {
      "lag_mean_squares(force_g, lags) -> list of float\n\n"
      "Per lag (a tuple of ints, 1..n-1), the mean of (r[i+lag] - r[i])^2 over i, r the force with its\n"
      "straight line fitted out (toe.py: free_air_variogram's measured part)."},
+    {"free_air_walks", free_air_walks, METH_VARARGS,
+     "free_air_walks(approach_g, departure_g, approach_model, departure_model, approach_step_um,\n"
+     "               departure_step_um) -> ((white, walk) or None, (white, walk) or None)\n\n"
+     "The baseline's white noise and walk (g^2 per sample) of the two free-air segments with a pull\n"
+     "curved in height beside them, and of the approach alone (toe.py: free_air_walks; a model: rows\n"
+     "of lag, unit white, unit walk, pull per curvature^2 and step^4, none when the segment is short)."},
     {"adhesion", adhesion, METH_VARARGS,
      "adhesion(x_lo_um, x_hi_um, force_g, drift_g_um, contact_um, approach_at_halt_g, limits)\n"
      "-> (dip_g or None, pull_g or None)\n\n"
