@@ -210,6 +210,14 @@ def test_the_whole_fit_equals_the_twin_on_edge_cases(make):
     assert_fit_agrees(_kernel_fit(*call), _twin_fit(*call))
 
 
+def test_a_strided_array_is_fitted_as_the_twin_fits_it(monkeypatch):
+    x, f = _departure(180)
+    fast = stage.two_stage_fit(x[::2], f[::2], 10.0, 0.25, 1.0)  # not C-contiguous: copied for the kernel
+    monkeypatch.setattr(stage, "_C", None)
+    twin = stage.two_stage_fit(x[::2], f[::2], 10.0, 0.25, 1.0)
+    assert fast is not None and dataclasses.astuple(fast) == pytest.approx(dataclasses.astuple(twin), rel=1e-12)
+
+
 def test_the_kernel_finds_the_soft_stage():
     least, noise, top_mean, top_sd, span, share, hinge_gain, ff = _kernel_fit(*_departure(), 10.0, 0.25, 1.0)
     assert top_mean == pytest.approx(22.0, abs=1.5)  # the first touch, 12 µm above the stiff stage's

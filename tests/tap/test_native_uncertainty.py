@@ -123,3 +123,12 @@ def test_a_wrong_argument_is_an_error_not_garbage():
                                        uncertainty._DEFAULT_WEIGHT_VALUES)
     with pytest.raises(ValueError, match="x_hi_um"):
         uncertainty.tap_sigma_parts(*_call(x_hi_um=np.zeros(3)))
+
+
+def test_a_strided_or_integer_array_reads_as_the_twin_reads_it(monkeypatch):
+    # every other sample of a longer pullback (not C-contiguous), and whole-µm heights as integers
+    x_lo = np.arange(120) * 1.25 - 20.0
+    strided = _call(x_lo_um=x_lo[::2], x_hi_um=(x_lo + 1.25)[::2])
+    assert_bit_for_bit(uncertainty.tap_sigma_parts(*strided), twin(monkeypatch, *strided))
+    integers = _call(x_lo_um=np.arange(60) * 2 - 20, x_hi_um=np.arange(60) * 2 - 19)
+    assert_bit_for_bit(uncertainty.tap_sigma_parts(*integers), twin(monkeypatch, *integers))

@@ -305,8 +305,10 @@ def two_stage_fit(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, nois
     more than they then have: a noise a little larger). None when too few samples or no two-stage
     fit with both stiffnesses positive."""
     if _C is not None:
-        # The selection, the sort, the level and drift taken out and the grid in one call.
-        found = _C.two_stage_fit(x_um, force_g, contact_um, TWO_STAGE_BELOW_UM, TWO_STAGE_ABOVE_UM, STAGE_MIN_SAMPLES,
+        # The selection, the sort, the level and drift taken out and the grid in one call (the kernel
+        # reads C-contiguous float64; the analysis's arrays are, a caller's slice need not be).
+        found = _C.two_stage_fit(np.ascontiguousarray(x_um, dtype=float), np.ascontiguousarray(force_g, dtype=float),
+                                 contact_um, TWO_STAGE_BELOW_UM, TWO_STAGE_ABOVE_UM, STAGE_MIN_SAMPLES,
                                  noise_var_g2, window_um, TWO_STAGE_MIN_SPAN_UM, TWO_STAGE_MIN_SPAN_WINDOWS,
                                  TWO_STAGE_HINGES_UM, TWO_STAGE_SPANS_UM, TWO_STAGE_MIN_SOFT_SHARE,
                                  TWO_STAGE_MAX_SOFT_SHARE, drift_held)

@@ -237,7 +237,7 @@ def tap_sigma_parts(x_lo_um: np.ndarray, x_hi_um: np.ndarray, contact_um: float,
     for bit); the code below is its twin."""
     if _C is not None:
         found, total = _C.tap_sigma_parts(
-            x_lo_um, x_hi_um, contact_um, PENETRATION_REACH_UM, stiffness_g_um, noise_um, shape_um, walk_var_g2,
+            np.ascontiguousarray(x_lo_um, dtype=float), np.ascontiguousarray(x_hi_um, dtype=float), contact_um, PENETRATION_REACH_UM, stiffness_g_um, noise_um, shape_um, walk_var_g2,
             near_pull_g, far_pull_g, scatter_g, residual_g, step_g, down_um, up_um, allowance_um, toe_lift_um,
             window_staircase_um, z_step_um, delay_um, None if ringing is None else ringing.var_g2,
             None if ringing is None else ringing.period_samples, stage_um,
