@@ -21,7 +21,7 @@ from setuptools.command.build_py import build_py
 # No fused multiply-adds: the kernels repeat their numpy twins' arithmetic operation for operation
 # (clang, and gcc outside strict ISO modes, would fuse a * b + c on FMA hardware such as a Pi's).
 COMPILE_ARGS = ["-std=c99", "-O3", "-Wall", "-Wextra", "-fno-fast-math", "-ffp-contract=off"]
-KERNELS = ("analysis", "segments", "contact", "toe", "stage", "ringing", "readers", "output")
+KERNELS = ("analysis", "segments", "contact", "toe", "stage", "ringing", "uncertainty", "readers", "output")
 # As firmware/Makefile builds the host library, without -Werror: a compiler that warns differently
 # must still build it on a user's machine (make firmware-check keeps the warnings out).
 FIRMWARE_ARGS = ["-std=c99", "-O2", "-Wall", "-Wextra", "-ffp-contract=off"]

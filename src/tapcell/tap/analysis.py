@@ -1309,28 +1309,19 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
     window_um = speed_um_s * timing.integration_s
     halt_sigma_s = (corner_time_sigma_s(split.ps, dec, COMPRESSION, dec.points[P_DWELL_START][0])
                     if timing.delay_from_halt else 0.0)
-    squeeze = uncertainty.squeeze_um(*_contact_down_and_up(fits, motion.approach_speed_mm_s * 1000.0
-                                                          * timing.sample_period_s))
-    others = dict(
-        thread_um=uncertainty.thread_um(near_pull_g, far_pull_g, walk_var_g2, stiffness),
-        misfit_um=uncertainty.misfit_um(result.fit_residual_sigma_g, max(split.noise_g, departure_g),
-                                        result.step_sigma_g, stiffness),
-        squeeze_um=squeeze,
-        film_um=uncertainty.film_um(squeeze, _toe_lift_um(result)),
-        floor_um=uncertainty.floor_um(stiffness),
-        staircase_um=uncertainty.staircase_um(step_staircase_sigma_um(timing.z_step_um, window_um), timing.z_step_um),
-        delay_um=speed_um_s * halt_sigma_s if math.isfinite(halt_sigma_s) else 0.0,
-        ringing_um=uncertainty.ringing_um(split.ringing, uncertainty.samples_in_reach(*samples[:2], contact_um),
-                                          stiffness),
-        stage_um=result.unnamed_stage_um)
+    down_um, up_um, allowance_um = _contact_down_and_up(fits, motion.approach_speed_mm_s * 1000.0
+                                                       * timing.sample_period_s)
     if result.z_method == "toe" and result.toe_grid is not None:
         # The noise: the sharp fit's over the same samples (the toe fit's own when there is none).
         noise_um = result.z_sharp_sigma_um if result.z_sharp_sigma_um is not None else result.z_sigma_um
-        parts = uncertainty.toe_parts(result.toe_grid, noise_um=noise_um, **others)
+        shape_um = uncertainty.toe_shape_um(result.toe_grid)
     else:
-        parts = uncertainty.ZSigmaParts(noise_um=result.z_sigma_um, **others)
-    result.z_sigma_parts = parts
-    result.z_sigma_um = uncertainty.z_sigma_um(parts)
+        noise_um, shape_um = result.z_sigma_um, 0.0
+    result.z_sigma_parts, result.z_sigma_um = uncertainty.tap_sigma_parts(
+        samples[0], samples[1], contact_um, stiffness, noise_um, shape_um, walk_var_g2, near_pull_g, far_pull_g,
+        max(split.noise_g, departure_g), result.fit_residual_sigma_g, result.step_sigma_g, down_um, up_um,
+        allowance_um, _toe_lift_um(result), step_staircase_sigma_um(timing.z_step_um, window_um), timing.z_step_um,
+        speed_um_s * halt_sigma_s if math.isfinite(halt_sigma_s) else 0.0, split.ringing, result.unnamed_stage_um)
 
 
 def _contact_down_and_up(fits: ContactFits, approach_travel_um: float) -> tuple[float | None, float | None, float]:

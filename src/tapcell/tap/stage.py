@@ -263,11 +263,15 @@ def _sorted_detrended(x_um: np.ndarray, force_g: np.ndarray,
     n = len(x)
     xc = x - float(x.sum()) / n  # the means without np.mean's Python wrapper (the same sum and division)
     f = f - float(f.sum()) / n
+    # The sums of products as (a * b).sum(), numpy's pairwise sum, not a @ b: BLAS's order depends
+    # on the machine, and the grid's fits (differences of residuals of the force's size) carry a
+    # rounding of ff into the top at 1e-6 µm. So the kernel (c/stage.c) repeats them bit for bit.
     if drift_held:
-        return x, xc, f, math.inf, float(f @ f)
-    sxx = float(xc @ xc)
-    f = f - xc * (float(xc @ f) / sxx)
-    return x, xc, f, sxx, float(f @ f)
+        return x, xc, f, math.inf, float((f * f).sum())
+    sxx = float((xc * xc).sum())
+    if sxx > 0:  # else every sample at one height: two_stage_fit has no stages to tell
+        f = f - xc * (float((xc * f).sum()) / sxx)
+    return x, xc, f, sxx, float((f * f).sum())
 
 
 def _one_stage_rss(x: np.ndarray, xc: np.ndarray, f: np.ndarray, sxx: float, ff: float, contact_um: float) -> float:
@@ -300,23 +304,41 @@ def two_stage_fit(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, nois
     removed is the tap's; the grid still counts six parameters in what the two stages leave, one
     more than they then have: a noise a little larger). None when too few samples or no two-stage
     fit with both stiffnesses positive."""
-    near = (x_um > contact_um - TWO_STAGE_BELOW_UM) & (x_um < contact_um + TWO_STAGE_ABOVE_UM)
-    if int(near.sum()) < 2 * STAGE_MIN_SAMPLES or noise_var_g2 <= 0:
-        return None
-    x, xc, f, sxx, ff = _sorted_detrended(x_um[near], force_g[near], drift_held)
-    spacing_um = median(np.diff(x))  # a sample's step in height: 20 µm at 10 sps, 0.2 mm/s
-    shortest_um = max(TWO_STAGE_MIN_SPAN_UM, TWO_STAGE_MIN_SPAN_WINDOWS * max(window_um, spacing_um))
-    grid = (_C.two_stage_grid(x, f, TWO_STAGE_HINGES_UM, TWO_STAGE_SPANS_UM, contact_um, sxx, ff, float(x.mean()),
-                              noise_var_g2, shortest_um, TWO_STAGE_MIN_SOFT_SHARE, TWO_STAGE_MAX_SOFT_SHARE)
-            if _C is not None else _two_stage_grid(x, f, contact_um, sxx, ff, noise_var_g2, shortest_um))
-    if grid is None:
-        return None
+    if _C is not None:
+        # The selection, the sort, the level and drift taken out and the grid in one call (the kernel
+        # reads C-contiguous float64; the analysis's arrays are, a caller's slice need not be).
+        found = _C.two_stage_fit(np.ascontiguousarray(x_um, dtype=float), np.ascontiguousarray(force_g, dtype=float),
+                                 contact_um, TWO_STAGE_BELOW_UM, TWO_STAGE_ABOVE_UM, STAGE_MIN_SAMPLES,
+                                 noise_var_g2, window_um, TWO_STAGE_MIN_SPAN_UM, TWO_STAGE_MIN_SPAN_WINDOWS,
+                                 TWO_STAGE_HINGES_UM, TWO_STAGE_SPANS_UM, TWO_STAGE_MIN_SOFT_SHARE,
+                                 TWO_STAGE_MAX_SOFT_SHARE, drift_held)
+        if found is None:
+            return None
+        *grid, ff = found
+        prepared = None
+    else:
+        near = (x_um > contact_um - TWO_STAGE_BELOW_UM) & (x_um < contact_um + TWO_STAGE_ABOVE_UM)
+        if int(near.sum()) < 2 * STAGE_MIN_SAMPLES or noise_var_g2 <= 0:
+            return None
+        x, xc, f, sxx, ff = _sorted_detrended(x_um[near], force_g[near], drift_held)
+        if not sxx > 0:  # every sample at one height: no drift to tell, no stages
+            return None
+        spacing_um = median(np.diff(x))  # a sample's step in height: 20 µm at 10 sps, 0.2 mm/s
+        shortest_um = max(TWO_STAGE_MIN_SPAN_UM, TWO_STAGE_MIN_SPAN_WINDOWS * max(window_um, spacing_um))
+        grid = _two_stage_grid(x, f, contact_um, sxx, ff, noise_var_g2, shortest_um)
+        if grid is None:
+            return None
+        prepared = x, xc, f, sxx
     least, noise_var_g2, top_mean, top_sd, best_span, soft_share, hinge_gain = grid
     # The one-stage toe's residual is at most a hinge's (a toe of width 0): when even the hinge
     # leaves too little to explain, the toe grid (most of the cost) is not needed.
     fit = TwoStageFit((ff - hinge_gain - least) / noise_var_g2, top_mean, top_sd,
                       float(TWO_STAGE_SPANS_UM[best_span]), soft_share, drift_held)
     if fit.evidence_chi2 > fit.min_evidence and abs(top_mean - contact_um) > fit.reads_apart_um():
+        if prepared is None:  # the kernel ran: the samples again, for the one-stage toe (a few fits in a hundred)
+            near = (x_um > contact_um - TWO_STAGE_BELOW_UM) & (x_um < contact_um + TWO_STAGE_ABOVE_UM)
+            prepared = _sorted_detrended(x_um[near], force_g[near], drift_held)[:4]
+        x, xc, f, sxx = prepared
         fit.evidence_chi2 = (_one_stage_rss(x, xc, f, sxx, ff, contact_um) - least) / noise_var_g2
     fit.evidence_chi2 = float(fit.evidence_chi2)
     return fit

@@ -45,13 +45,17 @@ choose on the analysis as it stands (re-run it when the Z estimator changes).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import astuple, dataclass
 
 import numpy as np
 
+from tapcell.tap import native
 from tapcell.tap.stage import Ringing, ringing_noise_g2
 from tapcell.tap.toe import PENETRATION_REACH_UM, ToeGridResult, shape_spread_um
 from tapcell.tap.validate import CONSISTENCY_SIGMAS
+
+# The parts and their sum in one call in C (c/uncertainty.c); None: its numpy twin, `tap_sigma_parts`'s body.
+_C = native.load("uncertainty")
 
 # Chosen by `python -m bench tap_sigma` on taplab seeds 1 and 3 (40 taps a scenario each, the two
 # seeds' taps together per scenario) and the reference taps (2026-11-27, main 446959e's Z and
@@ -97,6 +101,10 @@ class SigmaWeights:
     film: float = FILM_WEIGHT
     floor: float = FLOOR_WEIGHT
     ringing: float = RINGING_WEIGHT
+
+
+_DEFAULT_WEIGHTS = SigmaWeights()
+_DEFAULT_WEIGHT_VALUES = astuple(_DEFAULT_WEIGHTS)  # the kernel's weights argument (astuple costs a few us)
 
 
 @dataclass(frozen=True)
@@ -207,6 +215,41 @@ def samples_in_reach(x_lo_um: np.ndarray, x_hi_um: np.ndarray, contact_um: float
     return int(np.count_nonzero(np.abs(0.5 * (x_lo_um + x_hi_um) - contact_um) < PENETRATION_REACH_UM))
 
 
-def toe_parts(grid: ToeGridResult, **others: float) -> ZSigmaParts:
-    """The parts of a toe fit's Z: the shape part from its grid, the rest as given."""
-    return ZSigmaParts(shape_um=shape_spread_um(grid.contacts_um, grid.rss, grid.noise_var), **others)
+def toe_shape_um(grid: ToeGridResult) -> float:
+    """The shape part of a toe fit's Z, from its grid (`toe.shape_spread_um`)."""
+    return shape_spread_um(grid.contacts_um, grid.rss, grid.noise_var)
+
+
+
+def tap_sigma_parts(x_lo_um: np.ndarray, x_hi_um: np.ndarray, contact_um: float, stiffness_g_um: float,
+                    noise_um: float, shape_um: float, walk_var_g2: float, near_pull_g: float | None,
+                    far_pull_g: float | None, scatter_g: float, residual_g: float | None, step_g: float | None,
+                    down_um: float | None, up_um: float | None, allowance_um: float, toe_lift_um: float,
+                    window_staircase_um: float, z_step_um: float, delay_um: float, ringing: Ringing | None,
+                    stage_um: float, weights: SigmaWeights = _DEFAULT_WEIGHTS) -> tuple[ZSigmaParts, float]:
+    """A tap's parts (`ZSigmaParts`) and `z_sigma_um` of them, from what the analysis measured: the
+    pullback's windows [x_lo, x_hi] (µm above the halt, for `samples_in_reach` of the contact),
+    the stiffness, the noise and shape parts as they are, the thread's pulls and walk (`thread_um`),
+    the scatter, residual and step near contact (`misfit_um`), the two contacts and what they allow
+    (`squeeze_um`, `film_um` with the toe's lift), the staircase one sample sees and the Z step
+    (`staircase_um`), the delay's part, the ringing (`ringing_um`) and the unnamed stage's distance.
+    In C when built (one call a tap instead of a dozen; the same operations in the same order: bit
+    for bit); the code below is its twin."""
+    if _C is not None:
+        found, total = _C.tap_sigma_parts(
+            np.ascontiguousarray(x_lo_um, dtype=float), np.ascontiguousarray(x_hi_um, dtype=float), contact_um, PENETRATION_REACH_UM, stiffness_g_um, noise_um, shape_um, walk_var_g2,
+            near_pull_g, far_pull_g, scatter_g, residual_g, step_g, down_um, up_um, allowance_um, toe_lift_um,
+            window_staircase_um, z_step_um, delay_um, None if ringing is None else ringing.var_g2,
+            None if ringing is None else ringing.period_samples, stage_um,
+            _DEFAULT_WEIGHT_VALUES if weights is _DEFAULT_WEIGHTS else astuple(weights))
+        return ZSigmaParts(*found), total
+    squeeze = squeeze_um(down_um, up_um, allowance_um)
+    parts = ZSigmaParts(
+        noise_um=noise_um, shape_um=shape_um,
+        thread_um=thread_um(near_pull_g, far_pull_g, walk_var_g2, stiffness_g_um),
+        misfit_um=misfit_um(residual_g, scatter_g, step_g, stiffness_g_um),
+        squeeze_um=squeeze, film_um=film_um(squeeze, toe_lift_um), floor_um=floor_um(stiffness_g_um),
+        staircase_um=staircase_um(window_staircase_um, z_step_um), delay_um=delay_um,
+        ringing_um=ringing_um(ringing, samples_in_reach(x_lo_um, x_hi_um, contact_um), stiffness_g_um),
+        stage_um=stage_um)
+    return parts, z_sigma_um(parts, weights)

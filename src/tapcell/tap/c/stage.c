@@ -13,6 +13,7 @@
  * numpy twin builds the same (hinges x spans) arrays with one numpy call per operation; this
  * repeats its arithmetic element for element (only the weights' sums run in another order). */
 #include "buffers.h"
+#include "median.h"
 #include <math.h>
 #include <stdlib.h>
 
@@ -26,6 +27,15 @@ static Py_ssize_t count_below(const double *x, Py_ssize_t n, double value)
         else hi = mid;
     }
     return lo;
+}
+
+/* count_below(x, n, value) for a value not below the one `known` was counted for (a row of the grid
+ * rises): from there on, a sample's step at a time (the grid's 1 µm against samples 0.3-25 µm apart:
+ * a step or two, where the binary search takes seven). The same count, so the same sums. */
+static Py_ssize_t count_below_from(const double *x, Py_ssize_t n, Py_ssize_t known, double value)
+{
+    while (known < n && x[known] < value) known++;
+    return known;
 }
 
 /* The five prefix sums (count, x, x^2, f, x f) below `value`. */
@@ -157,32 +167,28 @@ done:
     return answer;
 }
 
-static PyObject *two_stage_grid(PyObject *self, PyObject *args)
+/* The grid's best fit (two_stage_grid's answer). */
+typedef struct {
+    double least, noise_var, top_mean, top_sd;
+    Py_ssize_t best_span;
+    double soft_share, hinge_gain;
+} GridFit;
+
+/* The two-stage grid over x (rising) and f (n >= 1 samples; a level and a drift removed): 1 with
+ * *out filled, 0 when no grid point is allowed, -1 with MemoryError set. */
+static int grid_fit(const double *x, const double *f, Py_ssize_t n, const double *hinge_offsets, Py_ssize_t hinges,
+                    const double *span_offsets, Py_ssize_t spans, double contact_um, double sxx, double ff,
+                    double x_mean, double noise_var, double shortest_um, double min_share, double max_share,
+                    GridFit *out)
 {
-    (void)self;
-    Py_buffer xb = {0}, fb = {0}, hb = {0}, sb = {0};
-    double contact_um, sxx, ff, x_mean, noise_var, shortest_um, min_share, max_share;
-    if (!PyArg_ParseTuple(args, "O&O&O&O&dddddddd", float64_buffer, &xb, float64_buffer, &fb, float64_buffer, &hb,
-                          float64_buffer, &sb, &contact_um, &sxx, &ff, &x_mean, &noise_var, &shortest_um,
-                          &min_share, &max_share))
-        return NULL;
-    PyObject *answer = NULL;
+    int status = -1;
     double *prefix = NULL, *rss = NULL, *tops = NULL;
-    Py_ssize_t n, hinges, spans;
-    const double *x = doubles_of(&xb, &n, "x_um");
-    const double *f = x ? doubles_sized(&fb, n, "force_g") : NULL;
-    const double *hinge_offsets = f ? doubles_of(&hb, &hinges, "hinges_um") : NULL;
-    const double *span_offsets = hinge_offsets ? doubles_of(&sb, &spans, "spans_um") : NULL;
-    if (span_offsets == NULL) goto done;
-    if (n < 1 || hinges < 1 || spans < 1) {
-        PyErr_SetString(PyExc_ValueError, "two_stage_grid needs samples, hinges and spans");
-        goto done;
-    }
     prefix = malloc(sizeof(double) * 5 * (size_t)(n + 1));
     rss = malloc(sizeof(double) * (size_t)(hinges * spans));
     tops = malloc(sizeof(double) * (size_t)(hinges * spans));
     if (prefix == NULL || rss == NULL || tops == NULL) {
         PyErr_NoMemory();
+        status = -1;
         goto done;
     }
     for (int q = 0; q < 5; q++) prefix[q] = 0.0;
@@ -207,13 +213,19 @@ static PyObject *two_stage_grid(PyObject *self, PyObject *args)
         const double uf = hinge * h.sf - h.sxf;
         const double hinge_gain = (uf > 0.0 && uu > 0.0) ? uf * uf / fmax(uu, 1e-300) : 0.0;
         if (a == 0 || hinge_gain > best_hinge_gain) best_hinge_gain = hinge_gain;
+        Py_ssize_t below_top = 0;
+        double last_top = -INFINITY;
         for (Py_ssize_t b = 0; b < spans; b++) {
             const Py_ssize_t cell = a * spans + b;
             const double top = hinge + span_offsets[b];
             tops[cell] = top;
             rss[cell] = INFINITY;
             if (!(span_offsets[b] >= shortest_um)) continue;
-            const Sums t = sums_below(prefix, x, n, top);
+            /* the tops along a row rise with the spans (np.arange): count on from the last one */
+            below_top = (b > 0 && top >= last_top) ? count_below_from(x, n, below_top, top) : count_below(x, n, top);
+            last_top = top;
+            const double *t_row = prefix + 5 * below_top;
+            const Sums t = {t_row[0], t_row[1], t_row[2], t_row[3], t_row[4]};
             const double sv = top * t.s0 - t.s1;
             const double vx = top * t.s1 - t.s2 - x_mean * sv;
             const double vv = top * top * t.s0 - 2.0 * top * t.s1 + t.s2 - sv * sv / count - vx * vx / sxx;
@@ -233,8 +245,7 @@ static PyObject *two_stage_grid(PyObject *self, PyObject *args)
         }
     }
     if (best < 0) {
-        answer = Py_None;
-        Py_INCREF(answer);
+        status = 0;
         goto done;
     }
     /* What the two stages leave is the noise when they are the tap; more than the noise estimate
@@ -243,7 +254,10 @@ static PyObject *two_stage_grid(PyObject *self, PyObject *args)
     if (least / dof > noise_var) noise_var = least / dof;
     double total = 0.0, top_sum = 0.0;
     for (Py_ssize_t cell = 0; cell < hinges * spans; cell++) {
-        const double weight = exp(-0.5 * (rss[cell] - least) / noise_var);
+        /* exp underflows to 0 below -745.2: a cell not allowed (rss infinite) or that far off weighs
+         * nothing, and its exp is not worth calling (the same 0) */
+        const double exponent = -0.5 * (rss[cell] - least) / noise_var;
+        const double weight = exponent < -750.0 ? 0.0 : exp(exponent);
         rss[cell] = weight;
         total += weight;
         top_sum += weight * tops[cell];
@@ -255,11 +269,200 @@ static PyObject *two_stage_grid(PyObject *self, PyObject *args)
         spread += rss[cell] * (off * off);
     }
     const double top_sd = sqrt(fmax(spread / total, 0.0));
-    answer = Py_BuildValue("ddddndd", least, noise_var, top_mean, top_sd, best % spans, best_share, best_hinge_gain);
+    *out = (GridFit){least, noise_var, top_mean, top_sd, best % spans, best_share, best_hinge_gain};
+    status = 1;
 done:
     free(prefix);
     free(rss);
     free(tops);
+    return status;
+}
+
+static PyObject *grid_answer(int status, const GridFit *fit)
+{
+    if (status < 0) return NULL;
+    if (status == 0) Py_RETURN_NONE;
+    return Py_BuildValue("ddddndd", fit->least, fit->noise_var, fit->top_mean, fit->top_sd, fit->best_span,
+                         fit->soft_share, fit->hinge_gain);
+}
+
+/* The samples' and the grid's arrays of two_stage_grid and two_stage_fit: 0 with an exception set
+ * when one is not float64 of the size expected, or the grid has no hinge or span. */
+static int grid_arrays(const Py_buffer *xb, const Py_buffer *fb, const Py_buffer *hb, const Py_buffer *sb,
+                       const double **x, const double **f, Py_ssize_t *n, const double **hinge_offsets,
+                       Py_ssize_t *hinges, const double **span_offsets, Py_ssize_t *spans)
+{
+    *x = doubles_of(xb, n, "x_um");
+    *f = *x ? doubles_sized(fb, *n, "force_g") : NULL;
+    *hinge_offsets = *f ? doubles_of(hb, hinges, "hinges_um") : NULL;
+    *span_offsets = *hinge_offsets ? doubles_of(sb, spans, "spans_um") : NULL;
+    if (*span_offsets == NULL) return 0;
+    if (*hinges < 1 || *spans < 1) {
+        PyErr_SetString(PyExc_ValueError, "the two-stage grid needs hinges and spans");
+        return 0;
+    }
+    return 1;
+}
+
+static PyObject *two_stage_grid(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer xb = {0}, fb = {0}, hb = {0}, sb = {0};
+    double contact_um, sxx, ff, x_mean, noise_var, shortest_um, min_share, max_share;
+    if (!PyArg_ParseTuple(args, "O&O&O&O&dddddddd", float64_buffer, &xb, float64_buffer, &fb, float64_buffer, &hb,
+                          float64_buffer, &sb, &contact_um, &sxx, &ff, &x_mean, &noise_var, &shortest_um,
+                          &min_share, &max_share))
+        return NULL;
+    PyObject *answer = NULL;
+    Py_ssize_t n, hinges, spans;
+    const double *x, *f, *hinge_offsets, *span_offsets;
+    if (!grid_arrays(&xb, &fb, &hb, &sb, &x, &f, &n, &hinge_offsets, &hinges, &span_offsets, &spans)) goto done;
+    if (n < 1) {
+        PyErr_SetString(PyExc_ValueError, "two_stage_grid needs samples");
+        goto done;
+    }
+    GridFit fit;
+    answer = grid_answer(grid_fit(x, f, n, hinge_offsets, hinges, span_offsets, spans, contact_um, sxx, ff, x_mean,
+                                  noise_var, shortest_um, min_share, max_share, &fit), &fit);
+done:
+    PyBuffer_Release(&xb);
+    PyBuffer_Release(&fb);
+    PyBuffer_Release(&hb);
+    PyBuffer_Release(&sb);
+    return answer;
+}
+
+/* Python's max(a, b): a unless b is larger (a NaN first stays). */
+static double py_max(double a, double b) { return b > a ? b : a; }
+
+/* The order that sorts x rising, ties in their order (numpy's argsort kind="stable" for values
+ * without NaN): nothing to do when x already rises (a pullback's heights do), else a bottom-up
+ * merge sort through `scratch` (n indices). */
+static void stable_order(const double *x, Py_ssize_t n, Py_ssize_t *order, Py_ssize_t *scratch)
+{
+    int rising = 1;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        order[i] = i;
+        if (i > 0 && x[i] < x[i - 1]) rising = 0;
+    }
+    if (rising) return;
+    Py_ssize_t *from = order, *to = scratch;
+    for (Py_ssize_t width = 1; width < n; width *= 2) {
+        for (Py_ssize_t lo = 0; lo < n; lo += 2 * width) {
+            const Py_ssize_t mid = lo + width < n ? lo + width : n, hi = lo + 2 * width < n ? lo + 2 * width : n;
+            Py_ssize_t i = lo, j = mid, k = lo;
+            while (i < mid && j < hi) to[k++] = x[from[j]] < x[from[i]] ? from[j++] : from[i++];
+            while (i < mid) to[k++] = from[i++];
+            while (j < hi) to[k++] = from[j++];
+        }
+        Py_ssize_t *kept = from;
+        from = to;
+        to = kept;
+    }
+    if (from != order) memcpy(order, from, sizeof(Py_ssize_t) * (size_t)n);
+}
+
+/* sum(a * b) as numpy takes it (the products, then their pairwise sum), through n doubles of room. */
+static double products_sum(const double *a, const double *b, Py_ssize_t n, double *room)
+{
+    for (Py_ssize_t i = 0; i < n; i++) room[i] = a[i] * b[i];
+    return pairwise_sum(room, n);
+}
+
+/* stage.py's two_stage_fit up to its grid, then the grid: the samples within [contact - below,
+ * contact + above] by height, the heights centred and the force with its level and (unless
+ * drift_held) its drift in height removed, the sample step (median of the heights' steps), the
+ * shortest span it allows, the grid. The means and the sums of products as numpy takes them
+ * (pairwise sums), the median as robust.median: bit for bit with the twin. */
+static PyObject *two_stage_fit(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer xb = {0}, fb = {0}, hb = {0}, sb = {0};
+    double contact_um, below_um, above_um, noise_var, window_um, min_span_um, min_span_windows, min_share, max_share;
+    Py_ssize_t min_samples;
+    int drift_held;
+    if (!PyArg_ParseTuple(args, "O&O&dddnddddO&O&ddp", float64_buffer, &xb, float64_buffer, &fb, &contact_um,
+                          &below_um, &above_um, &min_samples, &noise_var, &window_um, &min_span_um,
+                          &min_span_windows, float64_buffer, &hb, float64_buffer, &sb, &min_share, &max_share,
+                          &drift_held))
+        return NULL;
+    PyObject *answer = NULL;
+    double *xs = NULL, *fs = NULL, *xc = NULL, *steps = NULL;
+    Py_ssize_t *order = NULL, *picked = NULL, *scratch = NULL;
+    Py_ssize_t n_all, hinges, spans;
+    const double *x_all, *f_all, *hinge_offsets, *span_offsets;
+    if (!grid_arrays(&xb, &fb, &hb, &sb, &x_all, &f_all, &n_all, &hinge_offsets, &hinges, &span_offsets, &spans))
+        goto done;
+    const double low = contact_um - below_um, high = contact_um + above_um;
+    Py_ssize_t n = 0;
+    for (Py_ssize_t i = 0; i < n_all; i++) n += x_all[i] > low && x_all[i] < high;
+    if (n < 2 * min_samples || n < 2 || noise_var <= 0.0) {
+        answer = Py_None;
+        Py_INCREF(answer);
+        goto done;
+    }
+    const size_t count = (size_t)n;
+    xs = malloc(sizeof(double) * count);
+    fs = malloc(sizeof(double) * count);
+    xc = malloc(sizeof(double) * count);
+    steps = malloc(sizeof(double) * count);
+    order = malloc(sizeof(Py_ssize_t) * count);
+    picked = malloc(sizeof(Py_ssize_t) * count);
+    scratch = malloc(sizeof(Py_ssize_t) * count);
+    if (!xs || !fs || !xc || !steps || !order || !picked || !scratch) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    for (Py_ssize_t i = 0, k = 0; i < n_all; i++)
+        if (x_all[i] > low && x_all[i] < high) {
+            steps[k] = x_all[i]; /* the near samples in their order, sorted below */
+            picked[k++] = i;
+        }
+    stable_order(steps, n, order, scratch);
+    for (Py_ssize_t k = 0; k < n; k++) {
+        xs[k] = x_all[picked[order[k]]];
+        fs[k] = f_all[picked[order[k]]];
+    }
+    const double x_mean = pairwise_sum(xs, n) / (double)n;
+    const double f_mean = pairwise_sum(fs, n) / (double)n;
+    for (Py_ssize_t k = 0; k < n; k++) {
+        xc[k] = xs[k] - x_mean;
+        fs[k] = fs[k] - f_mean;
+    }
+    double sxx = INFINITY;
+    if (!drift_held) {
+        sxx = products_sum(xc, xc, n, steps);
+        if (!(sxx > 0.0)) { /* every sample at one height: no drift to tell, no stages */
+            answer = Py_None;
+            Py_INCREF(answer);
+            goto done;
+        }
+        const double drift = products_sum(xc, fs, n, steps) / sxx;
+        for (Py_ssize_t k = 0; k < n; k++) fs[k] = fs[k] - xc[k] * drift;
+    }
+    const double ff = products_sum(fs, fs, n, steps);
+    for (Py_ssize_t k = 0; k + 1 < n; k++) steps[k] = xs[k + 1] - xs[k];
+    const double spacing_um = median_in_place(steps, n - 1);
+    const double shortest_um = py_max(min_span_um, min_span_windows * py_max(window_um, spacing_um));
+    GridFit fit;
+    const int status = grid_fit(xs, fs, n, hinge_offsets, hinges, span_offsets, spans, contact_um, sxx, ff, x_mean,
+                                noise_var, shortest_um, min_share, max_share, &fit);
+    if (status < 0) goto done;
+    if (status == 0) {
+        answer = Py_None;
+        Py_INCREF(answer);
+        goto done;
+    }
+    answer = Py_BuildValue("ddddnddd", fit.least, fit.noise_var, fit.top_mean, fit.top_sd, fit.best_span,
+                           fit.soft_share, fit.hinge_gain, ff);
+done:
+    free(xs);
+    free(fs);
+    free(xc);
+    free(steps);
+    free(order);
+    free(picked);
+    free(scratch);
     PyBuffer_Release(&xb);
     PyBuffer_Release(&fb);
     PyBuffer_Release(&hb);
@@ -370,6 +573,15 @@ static PyMethodDef methods[] = {
      "to reach_um above contact_um, drift removed, every top contact_um + tops_um; its gain over the\n"
      "noise variance white + walk x samples / 6. None when fewer than min_samples or no noise (stage.py:\n"
      "departure_soft_stage, soft_stage)."},
+    {"two_stage_fit", two_stage_fit, METH_VARARGS,
+     "two_stage_fit(x_um, force_g, contact_um, below_um, above_um, min_samples, noise_var_g2, window_um,\n"
+     "              min_span_um, min_span_windows, hinges_um, spans_um, min_soft_share, max_soft_share, drift_held)\n"
+     "-> (least_rss, noise_var_g2, top_mean_um, top_sd_um, best_span_index, soft_share, best_hinge_gain, ff)\n"
+     "   or None\n\n"
+     "stage.py's two_stage_fit up to the one-stage toe: the samples within below_um under and above_um over\n"
+     "the contact, by height, a level and (unless drift_held) a drift taken out, then two_stage_grid over\n"
+     "them; ff the force's sum of squares left. None when fewer than 2 min_samples samples, no noise, all\n"
+     "at one height, or no grid point allowed."},
     {"two_stage_grid", two_stage_grid, METH_VARARGS,
      "two_stage_grid(x_um, force_g, hinges_um, spans_um, contact_um, sxx, ff, x_mean, noise_var_g2, shortest_um,\n"
      "               min_soft_share, max_soft_share)\n"
