@@ -38,8 +38,8 @@ class PrefixSums:
     f_ref_g: float
     sums: np.ndarray  # (6, n + 1)
     # What the analysis derived from a range's sums, by (i, j): the checks and the Z uncertainty ask
-    # for the same lines' scatter several times a tap (tapcell.tap.analysis._segment_stats).
-    # (`five_lines` fills it for the five lines of its split: the scatter the checks ask for is then there.)
+    # for the same lines' scatter several times a tap (`segment_stats`); `five_lines` fills it for
+    # the five lines of its split.
     derived: dict = field(default_factory=dict, repr=False, compare=False)
 
     def segment_sums(self, i: int, j: int) -> list[float]:
