@@ -462,9 +462,6 @@ def decompose_again(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag
     return first
 
 
-# (residual variance, mean re-centred time, Sxx) of the line over [i, j): the five lines' come with the split.
-_segment_stats = segment_stats
-
 
 def break_time_sigma_s(ps: PrefixSums, dec: Decomposition, t_break: float) -> float:
     """1 sigma of the decompression ∩ departure time from the two line fits."""
@@ -476,7 +473,7 @@ def corner_time_sigma_s(ps: PrefixSums, dec: Decomposition, line: int, t_corner:
     edges = [0, *dec.bounds, dec.stop - dec.start]
     var = 0.0
     for a, b in ((edges[line], edges[line + 1]), (edges[line + 1], edges[line + 2])):
-        res_var, t_mean, sxx = _segment_stats(ps, a, b)
+        res_var, t_mean, sxx = segment_stats(ps, a, b)
         lever = (t_corner - ps.t_ref_s) - t_mean
         var += res_var * (1.0 / (b - a) + (lever * lever / sxx if sxx > 0 else 0.0))
     slope_gap = abs(dec.lines[line][0] - dec.lines[line + 1][0])
@@ -646,7 +643,7 @@ def force_left_at_end_g(time_s: np.ndarray, force_g: np.ndarray, motion: Motion,
     height_um = (float(motion.z_at(motion.pullback_end_s)) - motion.z_halt_mm) * 1000.0
     free_air_g = slope_g_s * motion.home_end_s + intercept_g + free_air_slope_g_um(dec, motion) * height_um
     remaining_g = median(force_g[max(end - END_SAMPLES, 0):end + 1]) - free_air_g
-    residual_var, _, _ = _segment_stats(ps, dec.bounds[3], dec.stop - dec.start)
+    residual_var, _, _ = segment_stats(ps, dec.bounds[3], dec.stop - dec.start)
     return remaining_g, math.sqrt(residual_var)
 
 
@@ -668,7 +665,7 @@ def left_inside_pullback(time_s: np.ndarray, force_g: np.ndarray, motion: Motion
     end = _indices(time_s, motion.pullback_end_s)[0]
     slope_g_s, intercept_g = dec.departure_line
     off_g = median(force_g[max(end - END_SAMPLES, 0):end + 1]) - (slope_g_s * motion.pullback_end_s + intercept_g)
-    scatter_g = math.sqrt(_segment_stats(ps, dec.bounds[3], dec.stop - dec.start)[0])
+    scatter_g = math.sqrt(segment_stats(ps, dec.bounds[3], dec.stop - dec.start)[0])
     pressed_g = dec.points[P_DWELL_START][1] - dec.points[P_CONTACT][1]
     return abs(off_g) <= max(validate.STILL_PRESSING_SCATTERS * scatter_g, validate.STILL_PRESSING_SHARE * pressed_g)
 
@@ -733,7 +730,7 @@ def toe_drift_g_um(dec: Decomposition, ps: PrefixSums, motion: Motion, period_s:
     variance = 0.0
     for (first, end), speed_um_s in (((0, dec.bounds[0]), approach_speed_um_s),
                                      ((dec.bounds[3], dec.stop - dec.start), pullback_speed_um_s)):
-        residual_var, _, sxx = _segment_stats(ps, first, end)
+        residual_var, _, sxx = segment_stats(ps, first, end)
         samples = end - first
         if not (sxx > 0 and samples > 0):
             return approach_g_um
@@ -1305,7 +1302,7 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
         speed_um_s * timing.sample_period_s, 1e-9)
     walk_var_g2 = approach_wander.walk_var_g2 * apart_samples if approach_wander else 0.0
     # The scatter away from contact: the departure line's residual, or the white noise when larger.
-    departure_g = math.sqrt(_segment_stats(split.ps, dec.bounds[3], dec.stop - dec.start)[0])
+    departure_g = math.sqrt(segment_stats(split.ps, dec.bounds[3], dec.stop - dec.start)[0])
     window_um = speed_um_s * timing.integration_s
     halt_sigma_s = (corner_time_sigma_s(split.ps, dec, COMPRESSION, dec.points[P_DWELL_START][0])
                     if timing.delay_from_halt else 0.0)
@@ -1350,7 +1347,8 @@ def check_stages(split: SplitTap, samples: PullbackSamples, drift_g_um: float, t
     ringing over a fast pullback's departure is no stage (issue 21). Returns the soft-stage ramp
     they weighed (tapcell.tap.stage.unnamed_stage_um looks further where it shows one)."""
     motion, noise_g = split.motion, split.noise_g
-    wander, approach_wander = split.wanders
+    wander, _ = split.wanders
+    walk_var_g2 = approach_walk_var_g2(split)
     # The ramp's noise: the walk the free air on both sides shows, as the toe fit weighs it. The
     # approach's alone (32-96 samples at 320 sps) read no walk under a 2.4 g/sqrt(s) cable (taplab
     # seed 4 cable drift k 20): its level wandering over the departure's 61 samples scored a
@@ -1358,7 +1356,7 @@ def check_stages(split: SplitTap, samples: PullbackSamples, drift_g_um: float, t
     try:
         ramp = check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, noise_g, wander,
                                 toe.stiffness_g_um)
-        check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, noise_g, approach_wander, drift_held)
+        check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, noise_g, walk_var_g2, drift_held)
         return ramp
     except TapInvalid:
         ringing = split.ringing
@@ -1366,7 +1364,7 @@ def check_stages(split: SplitTap, samples: PullbackSamples, drift_g_um: float, t
             raise
         ramp = check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, noise_g, wander,
                                 toe.stiffness_g_um, ringing)
-        check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, noise_g, approach_wander, drift_held, ringing)
+        check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, noise_g, walk_var_g2, drift_held, ringing)
         return ramp
 
 
@@ -1395,13 +1393,12 @@ def approach_walk_var_g2(split: SplitTap) -> float:
 
 
 def check_two_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, toe: ToeFit, lag_shift_um: float,
-                    noise_g: float, approach_wander: Wander | None, drift_held: bool = False,
+                    noise_g: float, walk_var_g2: float, drift_held: bool = False,
                     ringing: Ringing | None = None) -> None:
     """TAP_TWO_STAGE_CONTACT when the departure is two stages rather than the wide toe fitted
     (tapcell.tap.stage.two_stage_departure): the toe absorbed a soft first stage and reads low.
     drift_held: the toe fit held drift_g_um (the departure agrees with the approach), the stages are
-    weighed on it too."""
-    walk_var_g2 = approach_wander.walk_var_g2 if approach_wander else 0.0
+    weighed on it too; walk_var_g2: the walk the approach shows (approach_walk_var_g2)."""
     fit = two_stage_departure(*samples, drift_g_um, toe.contact_um, toe.width_um, noise_g, walk_var_g2, drift_held,
                               ringing)
     if shows_two_stage(fit, toe.contact_um):
