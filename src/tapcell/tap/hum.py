@@ -34,7 +34,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tapcell.tap import native
 from tapcell.tap.robust import MAD_TO_SIGMA, median, robust_sigma
+
+_C = native.load("hum")  # the screen in C (tapcell.tap.native); None: the numpy twin in _screen
 
 MAINS_LINES_HZ = (50.0, 60.0)
 # `auto` also fits these multiples of the line it detected, when the screen sees them.
@@ -343,9 +346,16 @@ def _screen(time_s: np.ndarray, force_g: np.ndarray, candidates_hz) -> tuple[tup
     between samples, and n such steps give a power of (n·step/2)². The noise sigma is the steps'
     robust sigma over √2. A hum far above the noise sets that sigma itself, and still reads at
     least 0.67 sigmas (the steps of a sinusoid have a robust sigma of ~1.05 times their amplitude).
+
+    The kernel (c/hum.c) computes the same, its powers by another FFT (only the bins read): equal to
+    rounding, the decisions the same unless a ratio lies within rounding of its bar.
     """
     time_s = np.asarray(time_s, dtype=float)
     force_g = np.asarray(force_g, dtype=float)
+    if _C is not None:
+        return _C.screen(time_s, force_g, np.asarray(candidates_hz, dtype=float), SCREEN_STEP_SIGMAS,
+                         SCREEN_STEP_NEIGHBOURS, SCREEN_BAND, SCREEN_MIN_HALF_BAND_BINS, SCREEN_GUARD_BINS,
+                         SCREEN_MIN_FLOOR_BINS, MAD_TO_SIGMA)
     steps = force_g[1:] - force_g[:-1]  # np.diff's wrapper costs more than the subtraction here
     last = len(steps) - 1
     step_sigma_g = MAD_TO_SIGMA * median(np.abs(steps))
