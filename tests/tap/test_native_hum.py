@@ -113,3 +113,86 @@ def test_bad_arrays_are_errors_not_garbage():
         hum._C.screen(t, force.astype(np.float32), np.array([50.0]), *args)
     with pytest.raises(ValueError, match="span no time"):
         hum._C.screen(np.zeros(100), force, np.array([50.0]), *args)
+
+
+# The fit's exact parts: the same arithmetic in the same order, so bit for bit (np.array_equal).
+def _fitted_taps():
+    """Taplab taps the fit runs on: the hum scenario and a few others whose weak lines pass the screen."""
+    return generated_taps(3, 12, ("mains_hum", "clean_hx717", "clean_ads1220_2000", "hx711_80", "corrupt_frames"))
+
+
+def test_the_knots_and_the_corner_windows_are_the_twins_bit_for_bit(monkeypatch):
+    knot_calls = recorded_calls(hum, "spline_knots", [AUTO], _fitted_taps())
+    window_calls = recorded_calls(hum, "windows_holding", [AUTO], _fitted_taps())
+    assert len(knot_calls) >= 8 and len(window_calls) == len(knot_calls)
+    for call in knot_calls:
+        knots = hum.spline_knots(*call)
+        with monkeypatch.context() as patch:
+            patch.setattr(hum, "_C", None)
+            assert np.array_equal(knots, hum.spline_knots(*call))
+    for call in window_calls:
+        inside = hum.windows_holding(*call)
+        assert 0 < np.count_nonzero(inside) < len(inside)
+        with monkeypatch.context() as patch:
+            patch.setattr(hum, "_C", None)
+            assert np.array_equal(inside, hum.windows_holding(*call))
+
+
+@pytest.mark.parametrize("corners", [[], [0.041, 0.07, 0.5], [0.0, 0.1, 0.05, 0.05, math.nan, -1.0], [0.0401],
+                                     [0.6875, 1.8125]],
+                         ids=("none", "near and far", "ends, repeats, nan", "next to a grid knot",
+                              "exactly a tenth of the spacing away"))
+def test_knots_at_the_edges(monkeypatch, corners):
+    # (0, 5, 0.625): grid knots at 0.625 k exactly, and 0.6875 exactly 0.0625 = 0.1 x 0.625 from one (kept)
+    for first, last, spacing in ((0.0, 0.1, 0.02), (0.0, 0.1, 0.5), (3.0, 3.0 + 1e-3, 0.02), (0.0, 5.0, 0.625)):
+        knots = hum.spline_knots(first, last, spacing, corners)
+        with monkeypatch.context() as patch:
+            patch.setattr(hum, "_C", None)
+            assert np.array_equal(knots, hum.spline_knots(first, last, spacing, corners))
+
+
+def test_the_spline_and_its_normal_equations_are_the_twins_bit_for_bit(monkeypatch):
+    calls = recorded_calls(hum, "_fit_groups", [AUTO], _fitted_taps())
+    assert len(calls) >= 8
+    for spline, waves, force_g, use, _ in calls:
+        weight = use.astype(float)
+        gram, per_knot = spline.normal_equations(weight, force_g, waves)
+        with monkeypatch.context() as patch:
+            patch.setattr(hum, "_C", None)
+            twin_gram, twin_per_knot = spline.normal_equations(weight, force_g, waves)
+        assert np.array_equal(gram, twin_gram) and np.array_equal(per_knot, twin_per_knot)
+        assert gram.shape == (spline.count, spline.count) and per_knot.shape == (spline.count, waves.shape[1] + 1)
+    spline_calls = recorded_calls(hum, "hat_spline", [AUTO], _fitted_taps())
+    for time_s, knots_s in spline_calls:
+        spline = hum.hat_spline(time_s, knots_s)
+        with monkeypatch.context() as patch:
+            patch.setattr(hum, "_C", None)
+            twin_spline = hum.hat_spline(time_s, knots_s)
+        assert np.array_equal(spline.left, twin_spline.left) and np.array_equal(spline.share, twin_spline.share)
+
+
+def test_a_knot_without_samples_gets_the_ridge_in_both(monkeypatch):
+    # Every sample left out around the middle knot: its row of the gram is the ridge alone.
+    time_s = np.arange(200) / 320.0
+    knots_s = hum.spline_knots(time_s[0], time_s[-1], 0.02, [])
+    spline = hum.hat_spline(time_s, knots_s)
+    weight = np.where(np.abs(time_s - knots_s[15]) < 0.021, 0.0, 1.0)
+    force_g, waves = np.sin(time_s * 7.0), hum.sinusoid_basis(time_s, (50.0, 100.0))
+    gram, per_knot = spline.normal_equations(weight, force_g, waves)
+    with monkeypatch.context() as patch:
+        patch.setattr(hum, "_C", None)
+        twin_gram, twin_per_knot = spline.normal_equations(weight, force_g, waves)
+    assert np.array_equal(gram, twin_gram) and np.array_equal(per_knot, twin_per_knot)
+    assert gram[15, 15] == pytest.approx(1e-10 * np.trace(gram) / len(knots_s), rel=1e-6) and gram[15, 15] > 0
+
+
+def test_bad_spline_arrays_are_errors():
+    left, share = np.zeros(10, dtype=np.int64), np.zeros(10)
+    with pytest.raises(ValueError, match="at least two knots"):
+        hum._C.hat_spline(np.zeros(10), np.zeros(1), left, share)
+    with pytest.raises(ValueError, match="left: 72 bytes, 80 expected"):
+        hum._C.hat_spline(np.zeros(10), np.arange(3.0), left[:9], share)
+    gram, per_knot = np.empty((3, 3)), np.empty((3, 1))
+    with pytest.raises(ValueError, match="outside 0..1"):
+        hum._C.normal_equations(np.full(10, 2, dtype=np.int64), share, np.ones(10), np.ones(10), np.empty((10, 0)),
+                                3, 0, gram, per_knot)

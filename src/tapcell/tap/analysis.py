@@ -1512,11 +1512,9 @@ def remove_mains_hum(tap: TapData, options: AnalysisOptions, time_s: np.ndarray,
 
 def _corner_windows(time_s: np.ndarray, corners_s: list[float], timing: SensorTiming) -> np.ndarray:
     """Samples whose conversion window (one sample of margin either side) holds a corner."""
-    margin_s = timing.sample_period_s
-    start_s = time_s - timing.delay_s - timing.integration_s - margin_s
-    end_s = time_s - timing.delay_s + margin_s
-    corners = np.asarray([c for c in corners_s if math.isfinite(c)])
-    return np.any((start_s[:, None] <= corners[None, :]) & (corners[None, :] <= end_s[:, None]), axis=1)
+    from tapcell.tap.hum import windows_holding  # imported with the hum's module, as remove_mains_hum does
+
+    return windows_holding(time_s, corners_s, timing.delay_s, timing.integration_s, timing.sample_period_s)
 
 
 def _polarity(time_s: np.ndarray, force_g: np.ndarray, motion: Motion) -> int:

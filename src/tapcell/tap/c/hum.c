@@ -24,6 +24,7 @@
 #include "fft.h"
 #include "median.h"
 #include <math.h>
+#include <stdint.h>
 #include <stdlib.h>
 
 /* The unit circle for the last chirp length: e^(i pi s / circle_half_turn), s < 2 circle_half_turn. */
@@ -68,28 +69,31 @@ static int dft_power(const double *x, Py_ssize_t m, Py_ssize_t length, Py_ssize_
     if (ensure_circle(stride * length) < 0) return -1;
     const Py_ssize_t terms = m + count - 1, size = pow2_at_least(terms);
     if (ensure_twiddles(size) < 0) return -1;
-    Complex *signal = malloc(sizeof(Complex) * (size_t)(2 * size));
+    /* the chirp at every |index| used: j < m, |d + k0 - (m - 1)| for d < terms, k < k0 + count */
+    const Py_ssize_t chirps = k0 + count > m ? k0 + count : m; /* |k - j| < m when k0 < m, else < k0 + count */
+    Complex *signal = malloc(sizeof(Complex) * (size_t)(2 * size + chirps));
     if (signal == NULL) {
         PyErr_NoMemory();
         return -1;
     }
-    Complex *filter = signal + size;
+    Complex *filter = signal + size, *chirp = filter + size;
+    for (Py_ssize_t a = 0, square = 0; a < chirps; a++) { /* square = a^2 mod 2 length, kept exact */
+        chirp[a] = circle[stride * square];
+        square += 2 * a + 1;
+        while (square >= turn) square -= turn;
+    }
     /* the steps times the conjugate chirp */
     for (Py_ssize_t j = 0; j < m; j++) {
-        const Complex c = circle[stride * (Py_ssize_t)(((long long)j * j) % turn)];
-        signal[j].re = x[j] * c.re;
-        signal[j].im = -x[j] * c.im;
+        signal[j].re = x[j] * chirp[j].re;
+        signal[j].im = -x[j] * chirp[j].im;
     }
     for (Py_ssize_t j = m; j < size; j++) signal[j].re = signal[j].im = 0.0;
     /* the chirp at k - j = d + k0 - (m - 1): y_q = (signal * filter)[q + m - 1] */
-    for (Py_ssize_t d = 0; d < size; d++) {
-        if (d < terms) {
-            const Py_ssize_t s = d + k0 - (m - 1), a = s < 0 ? -s : s;
-            filter[d] = circle[stride * (Py_ssize_t)(((long long)a * a) % turn)];
-        } else {
-            filter[d].re = filter[d].im = 0.0;
-        }
+    for (Py_ssize_t d = 0; d < terms; d++) {
+        const Py_ssize_t s = d + k0 - (m - 1);
+        filter[d] = chirp[s < 0 ? -s : s];
     }
+    for (Py_ssize_t d = terms; d < size; d++) filter[d].re = filter[d].im = 0.0;
     fft_to_bit_reversed(signal, size);
     fft_to_bit_reversed(filter, size);
     for (Py_ssize_t i = 0; i < size; i++) {
@@ -99,8 +103,7 @@ static int dft_power(const double *x, Py_ssize_t m, Py_ssize_t length, Py_ssize_
     }
     inverse_fft_from_bit_reversed(signal, size);
     for (Py_ssize_t q = 0; q < count; q++) {
-        const Py_ssize_t k = k0 + q;
-        const Complex y = signal[q + m - 1], c = circle[stride * (Py_ssize_t)(((long long)k * k) % turn)];
+        const Complex y = signal[q + m - 1], c = chirp[k0 + q];
         /* X_k = conj(chirp_k) y_q / size; its power */
         const double re = (y.re * c.re + y.im * c.im) / (double)size, im = (y.im * c.re - y.re * c.im) / (double)size;
         power[q] = re * re + im * im;
@@ -162,12 +165,13 @@ static PyObject *screen(PyObject *self, PyObject *args)
     }
     /* steps, |steps| (the median's scratch), the cut marks, the bins read, the floor's scratch */
     const Py_ssize_t padded = fast_length(2 * m), bins = padded / 2 + 1;
-    steps = malloc(sizeof(double) * (size_t)(3 * m + 2 * bins));
+    steps = malloc(sizeof(double) * (size_t)(3 * m + 2 * bins) + sizeof(Py_ssize_t) * (size_t)(lines + 1));
     if (steps == NULL) {
         PyErr_NoMemory();
         goto done;
     }
     double *scratch = steps + m, *cut = scratch + m, *power = cut + m, *band = power + bins;
+    Py_ssize_t *line_bins = (Py_ssize_t *)(band + bins); /* each candidate's bin, int(at_bin) */
     for (Py_ssize_t i = 0; i < m; i++) {
         steps[i] = force_g[i + 1] - force_g[i];
         scratch[i] = fabs(steps[i]);
@@ -197,7 +201,9 @@ static PyObject *screen(PyObject *self, PyObject *args)
     Py_ssize_t first = bins, end = 0;
     for (Py_ssize_t c = 0; c < lines; c++) {
         Py_ssize_t low, high;
-        floor_band(alias_hz(candidates_hz[c], mean_rate_sps) * bins_per_hz, bins, &s, &low, &high);
+        const double at_bin = alias_hz(candidates_hz[c], mean_rate_sps) * bins_per_hz;
+        line_bins[c] = (Py_ssize_t)at_bin;
+        floor_band(at_bin, bins, &s, &low, &high);
         if (low < first) first = low;
         if (high > end) end = high;
     }
@@ -214,9 +220,8 @@ static PyObject *screen(PyObject *self, PyObject *args)
              * twice as many padded ones), DC and Nyquist */
             int guarded = k == 0 || k == bins - 1;
             for (Py_ssize_t g = 0; g < lines && !guarded; g++) {
-                const Py_ssize_t at = (Py_ssize_t)(alias_hz(candidates_hz[g], mean_rate_sps) * bins_per_hz);
-                const Py_ssize_t start = at - 2 * s.guard_bins > 0 ? at - 2 * s.guard_bins : 0;
-                guarded = start <= k && k < at + 2 * s.guard_bins + 2;
+                const Py_ssize_t start = line_bins[g] - 2 * s.guard_bins > 0 ? line_bins[g] - 2 * s.guard_bins : 0;
+                guarded = start <= k && k < line_bins[g] + 2 * s.guard_bins + 2;
             }
             if (!guarded) band[count++] = power[k];
         }
@@ -262,6 +267,243 @@ done:
     return answer;
 }
 
+/* A writable buffer of exactly `count` items of `itemsize` bytes (the caller's np.empty), else NULL with
+ * a ValueError naming it. */
+static void *items_sized(Py_buffer *buffer, Py_ssize_t count, Py_ssize_t itemsize, const char *name)
+{
+    if (buffer->len != count * itemsize) {
+        PyErr_Format(PyExc_ValueError, "%s: %zd bytes, %zd expected", name, buffer->len, count * itemsize);
+        return NULL;
+    }
+    return buffer->buf;
+}
+
+/* hum.hat_spline: per sample, the knot left of it and its share of the next, bit for bit (the knots
+ * sorted, at least two). */
+static PyObject *hat_spline(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer tb = {0}, kb = {0}, left_buffer = {0}, share_buffer = {0};
+    if (!PyArg_ParseTuple(args, "O&O&w*w*", float64_buffer, &tb, float64_buffer, &kb, &left_buffer, &share_buffer))
+        return NULL;
+    PyObject *answer = NULL;
+    Py_ssize_t n, count;
+    const double *time_s = doubles_of(&tb, &n, "time_s");
+    const double *knots_s = time_s ? doubles_of(&kb, &count, "knots_s") : NULL;
+    int64_t *left = knots_s ? items_sized(&left_buffer, n, sizeof(int64_t), "left") : NULL;
+    double *share = left ? items_sized(&share_buffer, n, sizeof(double), "share") : NULL;
+    if (share == NULL) goto done;
+    if (count < 2) {
+        PyErr_SetString(PyExc_ValueError, "hat_spline: at least two knots");
+        goto done;
+    }
+    for (Py_ssize_t i = 0; i < n; i++) {
+        /* np.searchsorted(knots, t, side="right"): the knots at or before t, clipped to 1..count-1 */
+        Py_ssize_t low = 0, high = count;
+        while (low < high) {
+            const Py_ssize_t middle = low + (high - low) / 2;
+            if (knots_s[middle] <= time_s[i]) low = middle + 1;
+            else high = middle;
+        }
+        const Py_ssize_t right = low < 1 ? 1 : low > count - 1 ? count - 1 : low;
+        const double part = (time_s[i] - knots_s[right - 1]) / (knots_s[right] - knots_s[right - 1]);
+        left[i] = right - 1;
+        share[i] = part < 0.0 ? 0.0 : part > 1.0 ? 1.0 : part;
+    }
+    answer = Py_NewRef(Py_None);
+done:
+    PyBuffer_Release(&tb);
+    PyBuffer_Release(&kb);
+    PyBuffer_Release(&left_buffer);
+    PyBuffer_Release(&share_buffer);
+    return answer;
+}
+
+/* numpy's sum of n doubles `stride` apart (np.add.reduce, as np.trace takes it): pairwise, eight
+ * running sums within blocks of up to 128. */
+static double pairwise_sum(const double *values, Py_ssize_t n, Py_ssize_t stride)
+{
+    if (n < 8) {
+        double sum = 0.0;
+        for (Py_ssize_t i = 0; i < n; i++) sum += values[i * stride];
+        return sum;
+    }
+    if (n <= 128) {
+        double r[8];
+        for (int j = 0; j < 8; j++) r[j] = values[j * stride];
+        Py_ssize_t i = 8;
+        for (; i < n - n % 8; i += 8)
+            for (int j = 0; j < 8; j++) r[j] += values[(i + j) * stride];
+        double sum = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+        for (; i < n; i++) sum += values[i * stride];
+        return sum;
+    }
+    Py_ssize_t half = n / 2;
+    half -= half % 8;
+    return pairwise_sum(values, half, stride) + pairwise_sum(values + half * stride, n - half, stride);
+}
+
+/* hum.HatSpline.normal_equations, bit for bit: the spline's gram under the weights (dense, its ridge on
+ * the diagonal) and its sums per knot of the weighted force and of each weighted wave column, each
+ * sum per knot taken as np.bincount takes it (sample by sample) and the halves added as the twin adds
+ * them. */
+static PyObject *normal_equations(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer lb = {0}, sb = {0}, wb = {0}, fb = {0}, vb = {0}, gb = {0}, pb = {0};
+    Py_ssize_t count, columns;
+    if (!PyArg_ParseTuple(args, "y*O&O&O&O&nnw*w*", &lb, float64_buffer, &sb, float64_buffer, &wb, float64_buffer,
+                          &fb, float64_buffer, &vb, &count, &columns, &gb, &pb))
+        return NULL;
+    PyObject *answer = NULL;
+    double *sums = NULL;
+    Py_ssize_t n;
+    const double *share = doubles_of(&sb, &n, "share");
+    const int64_t *left = share ? items_sized(&lb, n, sizeof(int64_t), "left") : NULL;
+    const double *weight = left ? doubles_sized(&wb, n, "weight") : NULL;
+    const double *force_g = weight ? doubles_sized(&fb, n, "force_g") : NULL;
+    const double *waves = force_g && columns >= 0 && count >= 2 ? doubles_sized(&vb, n * columns, "waves") : NULL;
+    double *gram = waves ? items_sized(&gb, count * count, sizeof(double), "gram") : NULL;
+    double *per_knot = gram ? items_sized(&pb, count * (columns + 1), sizeof(double), "per_knot") : NULL;
+    if (per_knot == NULL) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_ValueError, "normal_equations: at least two knots");
+        goto done;
+    }
+    for (Py_ssize_t i = 0; i < n; i++)
+        if (left[i] < 0 || left[i] >= count - 1) {
+            PyErr_Format(PyExc_ValueError, "normal_equations: left[%zd] = %lld outside 0..%zd", i, (long long)left[i],
+                         count - 2);
+            goto done;
+        }
+    /* per knot: the gram's two diagonal halves and its neighbour term, then each column's two halves */
+    const Py_ssize_t width = 2 * (columns + 1);
+    sums = calloc((size_t)(count * (3 + width)), sizeof(double));
+    if (sums == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    double *diagonal_low = sums, *diagonal_high = sums + count, *beside = sums + 2 * count, *halves = sums + 3 * count;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const Py_ssize_t k = (Py_ssize_t)left[i];
+        const double low = 1.0 - share[i], high = share[i], w = weight[i];
+        diagonal_low[k] += w * low * low;
+        diagonal_high[k + 1] += w * high * high;
+        beside[k] += w * low * high;
+        const double weighted = w * force_g[i];
+        halves[k * width] += low * weighted;
+        halves[(k + 1) * width + 1] += high * weighted;
+        for (Py_ssize_t c = 0; c < columns; c++) {
+            const double used = waves[i * columns + c] * w;
+            halves[k * width + 2 * (c + 1)] += low * used;
+            halves[(k + 1) * width + 2 * (c + 1) + 1] += high * used;
+        }
+    }
+    for (Py_ssize_t k = 0; k < count * count; k++) gram[k] = 0.0;
+    for (Py_ssize_t k = 0; k < count; k++) {
+        gram[k * count + k] = diagonal_low[k] + diagonal_high[k];
+        if (k + 1 < count) gram[k * count + k + 1] = gram[(k + 1) * count + k] = beside[k];
+        for (Py_ssize_t c = 0; c <= columns; c++)
+            per_knot[k * (columns + 1) + c] = halves[k * width + 2 * c] + halves[k * width + 2 * c + 1];
+    }
+    /* the ridge: 1e-10 of the mean diagonal (np.trace's sum), that mean at least 1e-300 */
+    const double mean_diagonal = pairwise_sum(gram, count, count + 1) / (double)count;
+    const double ridge = 1e-10 * (mean_diagonal > 1e-300 ? mean_diagonal : 1e-300);
+    for (Py_ssize_t k = 0; k < count; k++) gram[k * count + k] += ridge;
+    answer = Py_NewRef(Py_None);
+done:
+    free(sums);
+    PyBuffer_Release(&lb);
+    PyBuffer_Release(&sb);
+    PyBuffer_Release(&wb);
+    PyBuffer_Release(&fb);
+    PyBuffer_Release(&vb);
+    PyBuffer_Release(&gb);
+    PyBuffer_Release(&pb);
+    return answer;
+}
+
+/* hum.spline_knots, bit for bit: the uniform grid, a grid knot closer than a tenth of the spacing to a
+ * corner dropped (the ends stay), the corners inside, sorted and without repeats; their count. */
+static int ascending(const void *a, const void *b)
+{
+    const double x = *(const double *)a, y = *(const double *)b;
+    return (x > y) - (x < y);
+}
+
+static PyObject *spline_knots(PyObject *self, PyObject *args)
+{
+    (void)self;
+    double first, last, spacing;
+    Py_buffer cb = {0}, ob = {0};
+    if (!PyArg_ParseTuple(args, "dddO&w*", &first, &last, &spacing, float64_buffer, &cb, &ob)) return NULL;
+    PyObject *answer = NULL;
+    Py_ssize_t corner_count, room;
+    const double *corners_s = doubles_of(&cb, &corner_count, "corners_s");
+    double *knots = corners_s ? (double *)doubles_of(&ob, &room, "knots") : NULL;
+    if (knots == NULL) goto done;
+    const double cells = ceil((last - first) / spacing);
+    if (!(cells < 1e9) || !(spacing > 0.0)) {
+        PyErr_SetString(PyExc_ValueError, "spline_knots: the span over the spacing is no count of knots");
+        goto done;
+    }
+    const Py_ssize_t grid = cells > 1.0 ? (Py_ssize_t)cells : 1;
+    if (room < grid + 1 + corner_count) {
+        PyErr_Format(PyExc_ValueError, "knots: room for %zd, %zd needed", room, grid + 1 + corner_count);
+        goto done;
+    }
+    Py_ssize_t used = 0;
+    for (Py_ssize_t k = 0; k <= grid; k++) {
+        const double knot = first + (last - first) * (double)k / (double)grid;
+        int near = 0;
+        for (Py_ssize_t c = 0; c < corner_count && k > 0 && k < grid; c++)
+            if (first < corners_s[c] && corners_s[c] < last && isfinite(corners_s[c]))
+                near |= fabs(knot - corners_s[c]) < 0.1 * spacing;
+        if (!near) knots[used++] = knot;
+    }
+    for (Py_ssize_t c = 0; c < corner_count; c++)
+        if (first < corners_s[c] && corners_s[c] < last && isfinite(corners_s[c])) knots[used++] = corners_s[c];
+    qsort(knots, (size_t)used, sizeof(double), ascending);
+    Py_ssize_t distinct = used > 0 ? 1 : 0;
+    for (Py_ssize_t k = 1; k < used; k++)
+        if (knots[k] != knots[distinct - 1]) knots[distinct++] = knots[k];
+    answer = PyLong_FromSsize_t(distinct);
+done:
+    PyBuffer_Release(&cb);
+    PyBuffer_Release(&ob);
+    return answer;
+}
+
+/* analysis._corner_windows, bit for bit: the samples whose conversion window (a margin either side)
+ * holds one of the (finite) corners, as bytes 0/1 into a bool array. */
+static PyObject *corner_windows(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer tb = {0}, cb = {0}, ob = {0};
+    double delay_s, integration_s, margin_s;
+    if (!PyArg_ParseTuple(args, "O&O&dddw*", float64_buffer, &tb, float64_buffer, &cb, &delay_s, &integration_s,
+                          &margin_s, &ob))
+        return NULL;
+    PyObject *answer = NULL;
+    Py_ssize_t n, corner_count;
+    const double *time_s = doubles_of(&tb, &n, "time_s");
+    const double *corners_s = time_s ? doubles_of(&cb, &corner_count, "corners_s") : NULL;
+    unsigned char *inside = corners_s ? items_sized(&ob, n, 1, "exclude") : NULL;
+    if (inside == NULL) goto done;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double start_s = time_s[i] - delay_s - integration_s - margin_s, end_s = time_s[i] - delay_s + margin_s;
+        unsigned char holds = 0;
+        for (Py_ssize_t c = 0; c < corner_count; c++)
+            holds |= isfinite(corners_s[c]) && start_s <= corners_s[c] && corners_s[c] <= end_s;
+        inside[i] = holds;
+    }
+    answer = Py_NewRef(Py_None);
+done:
+    PyBuffer_Release(&tb);
+    PyBuffer_Release(&cb);
+    PyBuffer_Release(&ob);
+    return answer;
+}
+
 static PyMethodDef methods[] = {
     {"screen", screen, METH_VARARGS,
      "screen(time_s, force_g, candidates_hz, step_sigmas, neighbours, band, min_half_band_bins, guard_bins,\n"
@@ -269,10 +511,23 @@ static PyMethodDef methods[] = {
      "Per candidate line: the power at its alias in the tap's steps against the median of the bins around\n"
      "it (chi2 units), and its amplitude in noise sigmas; inf where the floor has too few bins\n"
      "(hum.py: _screen)."},
+    {"hat_spline", hat_spline, METH_VARARGS,
+     "hat_spline(time_s, knots_s, left_out, share_out)\n\n"
+     "Per sample the knot left of it (int64) and its share of the next, as hum.hat_spline computes them."},
+    {"normal_equations", normal_equations, METH_VARARGS,
+     "normal_equations(left, share, weight, force_g, waves, count, columns, gram_out, per_knot_out)\n\n"
+     "The hat spline's gram under the weights (dense, with its ridge) and its sums per knot of the weighted\n"
+     "force and wave columns, bit for bit as hum.HatSpline.normal_equations computes them."},
+    {"spline_knots", spline_knots, METH_VARARGS,
+     "spline_knots(t_first_s, t_last_s, spacing_s, corners_s, knots_out) -> count\n\n"
+     "The knots of hum.spline_knots into knots_out (room for the grid and every corner), bit for bit."},
+    {"corner_windows", corner_windows, METH_VARARGS,
+     "corner_windows(time_s, corners_s, delay_s, integration_s, margin_s, exclude_out)\n\n"
+     "analysis._corner_windows into a bool array."},
     {NULL, NULL, 0, NULL},
 };
 
-static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_c_hum", "The mains hum's screen (tapcell.tap.hum._screen).",
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_c_hum", "The mains hum's screen and the exact parts of its fit (tapcell.tap.hum).",
                                     -1, methods, NULL, NULL, NULL, NULL};
 
 PyMODINIT_FUNC PyInit__c_hum(void) { return PyModule_Create(&module); }
