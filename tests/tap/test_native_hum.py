@@ -1,12 +1,13 @@
 """The mains hum's screen in C (tapcell.tap._c_hum) against its numpy twin (tapcell.tap.hum._screen).
 
 The kernel cuts the same ramps, reads the same bins and floors and takes the same medians; only the
-powers come from another FFT (Bluestein's chirp-z over power-of-two FFTs, the bins read only, where
-numpy runs pocketfft's rfft of the whole padded length), so every ratio agrees to rounding. Measured
-over every screen `mains_hz=auto` runs on taplab seed 1 (691), the 960 reference taps (1,269) and the
-reference sessions with the real tap (1,036): within 1.4e-14 relative, the same inf every time; the
-closest a ratio came to its bar was 6.5e-5 relative (taplab, the amplitude's 0.35), so no decision
-lies within rounding of its bar. The tolerance is ten times the first.
+powers come from another FFT (fft.h's mixed-radix FFT, where numpy runs pocketfft's rfft), so every
+ratio agrees to rounding. Measured over every screen `mains_hz=auto` runs on taplab seed 1 (691), the
+960 reference taps (1,269) and the reference sessions with the real tap (1,036): within 1.3e-14
+relative, the same inf every time; the closest a ratio came to its bar was 6.5e-5 relative (taplab,
+the amplitude's 0.35), so no decision lies within rounding of its bar. The tolerance is ten times
+the first. The fit's exact parts (the spline, its normal equations, the knots, the corner windows)
+repeat their twins' arithmetic: compared bit for bit.
 """
 
 from __future__ import annotations
@@ -66,9 +67,10 @@ def test_the_kernel_screens_as_the_twin_on_taplabs_taps(monkeypatch):
 @pytest.mark.parametrize("lengths", [range(60, 200, 3), (121, 122, 181, 187, 203, 338, 365, 608, 1013, 2500)],
                          ids=("60-199", "odd and prime padded lengths"))
 def test_every_length_agrees(monkeypatch, lengths):
-    # 2 x 120 steps pad to 243 and 2 x 180..186 to 375: odd lengths (the chirp's circle is taken at twice
-    # the length); 1013: a prime count of steps. The mains lines, and harmonics as the screen of a
-    # detected line's asks for them (one or two, far from the line's band).
+    # 2 x 120 steps pad to 243 and 2 x 180..186 to 375: odd lengths (a complex FFT of the whole length,
+    # its circle at twice the length); 1013: a prime count of steps; every radix (2, 3, 4, 5) among the
+    # padded lengths. The mains lines, and harmonics as the screen of a detected line asks for them (one
+    # or two, far from the line's band).
     for k, n in enumerate(lengths):
         t, force = _noisy_hum(n, 3)
         candidates = [(50.0, 60.0), (100.0,), (100.0, 150.0)][k % 3]

@@ -1,10 +1,15 @@
-/* Power-of-two FFTs and the unit circle, shared by the kernels that take DFTs of other lengths by
- * Bluestein's chirp (ringing.c: the dwell's ringing; hum.c: the mains hum's screen).
+/* FFTs and the unit circle, shared by the kernels that take DFTs.
  *
- * fft_to_bit_reversed and inverse_fft_from_bit_reversed make a circular convolution without any
- * reordering (forward into bit-reversed bins, pointwise product, inverse back to natural order, scaled
- * by 1 / size by the caller). Their twiddles come from one table per extension module, grown to the
- * largest size used so far. fill_circle gives e^(i pi s / half_turn) for a chirp's exact indices. */
+ * - Power-of-two FFTs for Bluestein's chirp, which takes a DFT of any length (ringing.c: the dwell's
+ *   ringing at 4n bins): fft_to_bit_reversed and inverse_fft_from_bit_reversed make a circular
+ *   convolution without any reordering (forward into bit-reversed bins, pointwise product, inverse back
+ *   to natural order, scaled by 1 / size by the caller). Their twiddles come from one table per
+ *   extension module, grown to the largest size used so far.
+ * - A mixed-radix FFT for lengths 2^a 3^b 5^c (hum.c: the lengths numpy's rfft is padded to), direct:
+ *   a third of Bluestein's work at these lengths, where the chirp's three power-of-two FFTs of at least
+ *   the length plus the samples would be.
+ * - fill_circle: e^(i pi s / half_turn), a chirp's or a twiddle table's exact indices.
+ * Functions are static inline: a kernel that uses one part does not warn about the others. */
 #ifndef TAPCELL_FFT_H
 #define TAPCELL_FFT_H
 
@@ -26,7 +31,7 @@ typedef struct {
 static Complex *twiddles;
 static Py_ssize_t twiddle_size;
 
-static int ensure_twiddles(Py_ssize_t size)
+static inline int ensure_twiddles(Py_ssize_t size)
 {
     if (size <= twiddle_size) return 0;
     Complex *table = malloc(sizeof(Complex) * (size_t)(size / 2));
@@ -54,7 +59,7 @@ static inline Complex times(Complex a, double wr, double wi)
 /* The forward DFT of x (size a power of two) in place, its bins in bit-reversed order: radix 2,
  * decimation in frequency, two stages per pass over the data (the same butterflies, half the passes),
  * the last alone when their count is odd. */
-static void fft_to_bit_reversed(Complex *x, Py_ssize_t size)
+static inline void fft_to_bit_reversed(Complex *x, Py_ssize_t size)
 {
     Py_ssize_t len = size;
     for (; len >= 4; len /= 4) {
@@ -92,7 +97,7 @@ static void fft_to_bit_reversed(Complex *x, Py_ssize_t size)
 /* The inverse DFT (e^+i, unscaled) of bins in bit-reversed order, x in natural order after: radix 2,
  * decimation in time, two stages per pass, the last alone when their count is odd. With
  * fft_to_bit_reversed, a convolution needs no reordering. */
-static void inverse_fft_from_bit_reversed(Complex *x, Py_ssize_t size)
+static inline void inverse_fft_from_bit_reversed(Complex *x, Py_ssize_t size)
 {
     Py_ssize_t len = 2;
     for (; 2 * len <= size; len *= 4) {
@@ -136,7 +141,7 @@ static void inverse_fft_from_bit_reversed(Complex *x, Py_ssize_t size)
 /* circle[s] = e^(i pi s / half_turn) for s in [0, 2 half_turn): a full turn, from its first eighth by
  * exact symmetries (a quarter turn multiplies by i; within a quarter, s and quarter - s swap cosine
  * and sine). half_turn even. */
-static void fill_circle(Complex *circle, Py_ssize_t half_turn)
+static inline void fill_circle(Complex *circle, Py_ssize_t half_turn)
 {
     const Py_ssize_t quarter = half_turn / 2;
     for (Py_ssize_t s = 0; 2 * s <= quarter; s++) {
@@ -153,11 +158,101 @@ static void fill_circle(Complex *circle, Py_ssize_t half_turn)
     }
 }
 
-static Py_ssize_t pow2_at_least(Py_ssize_t count)
+static inline Py_ssize_t pow2_at_least(Py_ssize_t count)
 {
     Py_ssize_t size = 1;
     while (size < count) size <<= 1;
     return size;
+}
+
+/* The radices of n (largest first: fours, then 2, 3, 5) into radices[], their count; 0 when n has
+ * another prime factor (or n < 1). At most 64 radices (n < 2^64). */
+static inline int mixed_radices(Py_ssize_t n, Py_ssize_t radices[64])
+{
+    int count = 0;
+    if (n < 1) return 0;
+    while (n % 4 == 0) { radices[count++] = 4; n /= 4; }
+    while (n % 2 == 0) { radices[count++] = 2; n /= 2; }
+    while (n % 3 == 0) { radices[count++] = 3; n /= 3; }
+    while (n % 5 == 0) { radices[count++] = 5; n /= 5; }
+    return n == 1 ? count : 0;
+}
+
+/* out[k] = sum_j in[j stride] W^(jk), k < n, W = e^(-2 pi i / n): decimation in time, out of place
+ * (in and out must not overlap), n the product of radices[0..]. W^t is conj(circle[t circle_step])
+ * with circle[s] = e^(i pi s / half_turn), circle_step = 2 half_turn / n (the caller's table, full turn). */
+static inline void mixed_fft(const Complex *in, Py_ssize_t stride, Complex *out, Py_ssize_t n,
+                             const Py_ssize_t *radices, const Complex *circle, Py_ssize_t circle_step)
+{
+    const Py_ssize_t r = radices[0], m = n / r;
+    if (m == 1) {
+        for (Py_ssize_t k = 0; k < r; k++) out[k] = in[k * stride];
+    } else {
+        /* the r interleaved subsequences' DFTs side by side: out[q m + k] = DFT_m(in[q + r j])_k */
+        for (Py_ssize_t q = 0; q < r; q++)
+            mixed_fft(in + q * stride, stride * r, out + q * m, m, radices + 1, circle, circle_step * r);
+    }
+    /* X_(k + s m) = sum_q (W^(qk) out[q m + k]) W_r^(qs), W_r = W^m = e^(-2 pi i / r): the small DFTs
+     * written out, with W_3 = -1/2 - i sqrt(3)/2 and W_5^j = cos(2 pi j / 5) - i sin(2 pi j / 5) */
+    const double half_root3 = 0.86602540378443864676;
+    const double cos1 = 0.30901699437494742410, sin1 = 0.95105651629515357212;
+    const double cos2 = -0.80901699437494742410, sin2 = 0.58778525229247312917;
+    for (Py_ssize_t k = 0; k < m; k++) {
+        Complex t[5];
+        for (Py_ssize_t q = 0; q < r; q++) {
+            const Complex x = out[q * m + k];
+            if (q == 0 || k == 0) {
+                t[q] = x;
+            } else {
+                const Complex w = circle[q * k * circle_step];
+                t[q] = times(x, w.re, -w.im);
+            }
+        }
+        Complex *y = out + k;
+        if (r == 2) {
+            y[0].re = t[0].re + t[1].re;
+            y[0].im = t[0].im + t[1].im;
+            y[m].re = t[0].re - t[1].re;
+            y[m].im = t[0].im - t[1].im;
+        } else if (r == 4) { /* W_4 = -i */
+            const Complex a = {t[0].re + t[2].re, t[0].im + t[2].im}, b = {t[0].re - t[2].re, t[0].im - t[2].im};
+            const Complex c = {t[1].re + t[3].re, t[1].im + t[3].im}, d = {t[1].re - t[3].re, t[1].im - t[3].im};
+            y[0].re = a.re + c.re;
+            y[0].im = a.im + c.im;
+            y[m].re = b.re + d.im; /* b - i d */
+            y[m].im = b.im - d.re;
+            y[2 * m].re = a.re - c.re;
+            y[2 * m].im = a.im - c.im;
+            y[3 * m].re = b.re - d.im; /* b + i d */
+            y[3 * m].im = b.im + d.re;
+        } else if (r == 3) { /* t0 + (t1 + t2) cos(2 pi / 3) -+ i (t1 - t2) sin(2 pi / 3) */
+            const Complex sum = {t[1].re + t[2].re, t[1].im + t[2].im}, diff = {t[1].re - t[2].re, t[1].im - t[2].im};
+            const double mid_re = t[0].re - 0.5 * sum.re, mid_im = t[0].im - 0.5 * sum.im;
+            y[0].re = t[0].re + sum.re;
+            y[0].im = t[0].im + sum.im;
+            y[m].re = mid_re + half_root3 * diff.im;
+            y[m].im = mid_im - half_root3 * diff.re;
+            y[2 * m].re = mid_re - half_root3 * diff.im;
+            y[2 * m].im = mid_im + half_root3 * diff.re;
+        } else { /* r == 5: pairs (t1, t4) and (t2, t3) share cosines; their differences the sines */
+            const Complex a1 = {t[1].re + t[4].re, t[1].im + t[4].im}, b1 = {t[1].re - t[4].re, t[1].im - t[4].im};
+            const Complex a2 = {t[2].re + t[3].re, t[2].im + t[3].im}, b2 = {t[2].re - t[3].re, t[2].im - t[3].im};
+            const double c1_re = t[0].re + cos1 * a1.re + cos2 * a2.re, c1_im = t[0].im + cos1 * a1.im + cos2 * a2.im;
+            const double c2_re = t[0].re + cos2 * a1.re + cos1 * a2.re, c2_im = t[0].im + cos2 * a1.im + cos1 * a2.im;
+            const double s1_re = sin1 * b1.re + sin2 * b2.re, s1_im = sin1 * b1.im + sin2 * b2.im;
+            const double s2_re = sin2 * b1.re - sin1 * b2.re, s2_im = sin2 * b1.im - sin1 * b2.im;
+            y[0].re = t[0].re + a1.re + a2.re;
+            y[0].im = t[0].im + a1.im + a2.im;
+            y[m].re = c1_re + s1_im; /* c1 - i s1 */
+            y[m].im = c1_im - s1_re;
+            y[4 * m].re = c1_re - s1_im; /* c1 + i s1 */
+            y[4 * m].im = c1_im + s1_re;
+            y[2 * m].re = c2_re + s2_im; /* c2 - i s2 */
+            y[2 * m].im = c2_im - s2_re;
+            y[3 * m].re = c2_re - s2_im; /* c2 + i s2 */
+            y[3 * m].im = c2_im + s2_re;
+        }
+    }
 }
 
 #endif

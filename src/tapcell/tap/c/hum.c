@@ -1,25 +1,25 @@
-/* The mains hum's screen (tapcell.tap.hum._screen) in one call.
+/* The mains hum's screen (tapcell.tap.hum._screen) in one call, and the exact parts of its fit.
  *
- * The twin: the force's first differences (steps), the tap's own ramps cut out (steps beyond
+ * The screen's twin: the force's first differences (steps), the tap's own ramps cut out (steps beyond
  * step_sigmas robust sigmas, with `neighbours` either side, set to 0), zero-padded to the smallest
  * 2^a 3^b 5^c length >= twice their count and transformed by np.fft.rfft; per candidate line, the
  * power at its alias against the median power of the bins around it (the noise floor), and the
  * line's amplitude in noise sigmas from the same power.
  *
- * Here: the same steps, cuts, lengths, bins, guards and floors, bit for bit; only the powers are
- * computed another way, so they agree with the twin's to rounding:
- * - only the bins the screen reads (from the lowest floor band's first to the highest's last) of the
- *   length-L DFT of the steps, by Bluestein's chirp-z: jk = (j^2 + k^2 - (k-j)^2) / 2 turns the bins
- *   k0..k0+M-1 of the m steps into a linear convolution of m + M - 1 terms with the chirp
- *   e^(i pi s^2 / L), done by the power-of-two FFTs of fft.h (size >= m + M - 1, no prime factor of L
- *   to be slow on, and typically a third of the length rfft transforms);
- * - the chirp from the unit circle of fft.h, its indices s^2 mod 2L exact in integers; the circle is
- *   kept between calls for the last L (a printer's taps share a few lengths; the harmonics' screen
- *   reads the same L right after).
- * A decision (a line worth fitting or not) could differ from the twin's only when its ratio lies
- * within rounding of the bar: tests/tap/test_native_hum.py measures the margin on taplab and the
- * reference taps. Samples with a gap (not evenly spaced) read the line by one DFT at its frequency,
- * as the twin does (cos and sin from libm where numpy has its own: rounding again). */
+ * Here: the same steps, cuts, lengths, bins, guards and floors, bit for bit; only the powers come from
+ * another FFT, so they agree with the twin's to rounding: fft.h's mixed-radix FFT of half the padded
+ * length over the steps packed in pairs (numpy runs pocketfft's real FFT of the whole length), its twiddles
+ * from a unit circle kept between calls for the last length (a printer's taps share a few lengths; the
+ * harmonics' screen reads the same length right after), and only the bins the screen reads are
+ * unpacked. A decision (a line worth fitting or not) could differ from the twin's only when its ratio
+ * lies within rounding of the bar: tests/tap/test_native_hum.py gives the margins measured on taplab
+ * and the reference taps. Samples with a gap (not evenly spaced) read the line by one DFT at its
+ * frequency, as the twin does (cos and sin from libm where numpy has its own: rounding again).
+ *
+ * The fit's exact parts (hat_spline, normal_equations, spline_knots, corner_windows) repeat their twins'
+ * arithmetic in the same order: bit for bit. The rest of the fit (the sinusoids, the solves and the
+ * matrix products) stays in numpy: LAPACK's and BLAS's order of operations cannot be repeated here,
+ * and a last-bit change in the hum moves a printed digit of some tap's output. */
 #include "buffers.h"
 #include "fft.h"
 #include "median.h"
@@ -27,7 +27,7 @@
 #include <stdint.h>
 #include <stdlib.h>
 
-/* The unit circle for the last chirp length: e^(i pi s / circle_half_turn), s < 2 circle_half_turn. */
+/* The unit circle for the last padded length's twiddles: e^(i pi s / circle_half_turn), s < 2 circle_half_turn. */
 static Complex *circle;
 static Py_ssize_t circle_half_turn;
 
@@ -59,56 +59,53 @@ static Py_ssize_t fast_length(Py_ssize_t at_least)
     return best < 0 ? at_least : best;
 }
 
-/* power[q] = |X_(k0+q)|^2, q < count: the bins of the length-`length` DFT of x[0..m) zero-padded, by
- * the chirp-z convolution; -1 (MemoryError set) when out of memory. */
-static int dft_power(const double *x, Py_ssize_t m, Py_ssize_t length, Py_ssize_t k0, Py_ssize_t count,
-                     double *power)
+/* power[q] = |X_(k0+q)|^2, q < count, k0 + count <= length / 2 + 1: bins of the length-`length` DFT of
+ * x[0..m) zero-padded (m <= length, length 2^a 3^b 5^c). Even length: the samples packed in pairs,
+ * z_j = x_2j + i x_2j+1, one complex FFT of half the length, and X_k = E_k + W^k O_k with E, O the even
+ * and odd samples' DFTs (from Z_k and conj Z_(N-k)); odd length: one complex FFT of the samples. -1 with
+ * an exception set on failure. */
+static int real_dft_power(const double *x, Py_ssize_t m, Py_ssize_t length, Py_ssize_t k0, Py_ssize_t count,
+                          double *power)
 {
-    /* e^(i pi s^2 / length) = circle[stride (s^2 mod 2 length)]: fill_circle needs an even half turn */
-    const Py_ssize_t stride = length % 2 ? 2 : 1, turn = 2 * length;
-    if (ensure_circle(stride * length) < 0) return -1;
-    const Py_ssize_t terms = m + count - 1, size = pow2_at_least(terms);
-    if (ensure_twiddles(size) < 0) return -1;
-    /* the chirp at every |index| used: j < m, |d + k0 - (m - 1)| for d < terms, k < k0 + count */
-    const Py_ssize_t chirps = k0 + count > m ? k0 + count : m; /* |k - j| < m when k0 < m, else < k0 + count */
-    Complex *signal = malloc(sizeof(Complex) * (size_t)(2 * size + chirps));
-    if (signal == NULL) {
+    Py_ssize_t radices[64];
+    const int even = length % 2 == 0;
+    const Py_ssize_t n = even ? length / 2 : length;
+    if (mixed_radices(n, radices) == 0) {
+        PyErr_Format(PyExc_ValueError, "screen: %zd is no product of 2, 3 and 5", n);
+        return -1;
+    }
+    /* W_length^t = conj(circle[step t]) on the smallest circle fill_circle makes (an even half turn) that
+     * holds every length-th of a turn: half turn length / 2, else length, else (odd) 2 length */
+    const Py_ssize_t half_turn = length % 4 == 0 ? length / 2 : even ? length : 2 * length;
+    const Py_ssize_t step = 2 * half_turn / length;
+    if (ensure_circle(half_turn) < 0) return -1;
+    Complex *z = malloc(sizeof(Complex) * (size_t)(2 * n));
+    if (z == NULL) {
         PyErr_NoMemory();
         return -1;
     }
-    Complex *filter = signal + size, *chirp = filter + size;
-    for (Py_ssize_t a = 0, square = 0; a < chirps; a++) { /* square = a^2 mod 2 length, kept exact */
-        chirp[a] = circle[stride * square];
-        square += 2 * a + 1;
-        while (square >= turn) square -= turn;
+    Complex *spectrum = z + n;
+    for (Py_ssize_t j = 0; j < n; j++) {
+        const Py_ssize_t first = even ? 2 * j : j;
+        z[j].re = first < m ? x[first] : 0.0;
+        z[j].im = even && first + 1 < m ? x[first + 1] : 0.0;
     }
-    /* the steps times the conjugate chirp */
-    for (Py_ssize_t j = 0; j < m; j++) {
-        signal[j].re = x[j] * chirp[j].re;
-        signal[j].im = -x[j] * chirp[j].im;
-    }
-    for (Py_ssize_t j = m; j < size; j++) signal[j].re = signal[j].im = 0.0;
-    /* the chirp at k - j = d + k0 - (m - 1): y_q = (signal * filter)[q + m - 1] */
-    for (Py_ssize_t d = 0; d < terms; d++) {
-        const Py_ssize_t s = d + k0 - (m - 1);
-        filter[d] = chirp[s < 0 ? -s : s];
-    }
-    for (Py_ssize_t d = terms; d < size; d++) filter[d].re = filter[d].im = 0.0;
-    fft_to_bit_reversed(signal, size);
-    fft_to_bit_reversed(filter, size);
-    for (Py_ssize_t i = 0; i < size; i++) {
-        const Complex a = signal[i], b = filter[i];
-        signal[i].re = a.re * b.re - a.im * b.im;
-        signal[i].im = a.re * b.im + a.im * b.re;
-    }
-    inverse_fft_from_bit_reversed(signal, size);
+    mixed_fft(z, 1, spectrum, n, radices, circle, even ? 2 * step : step);
     for (Py_ssize_t q = 0; q < count; q++) {
-        const Complex y = signal[q + m - 1], c = chirp[k0 + q];
-        /* X_k = conj(chirp_k) y_q / size; its power */
-        const double re = (y.re * c.re + y.im * c.im) / (double)size, im = (y.im * c.re - y.re * c.im) / (double)size;
-        power[q] = re * re + im * im;
+        const Py_ssize_t k = k0 + q;
+        Complex bin = spectrum[k % n];
+        if (even) { /* E = (Z_k + conj Z_(N-k)) / 2, O = -i (Z_k - conj Z_(N-k)) / 2, X = E + W^k O */
+            const Complex zk = spectrum[k % n], zc = spectrum[(n - k % n) % n];
+            const double er = 0.5 * (zk.re + zc.re), ei = 0.5 * (zk.im - zc.im);
+            const double o_re = 0.5 * (zk.im + zc.im), o_im = -0.5 * (zk.re - zc.re);
+            const Complex w = circle[k * step];
+            const double wr = w.re, wi = -w.im;
+            bin.re = er + (o_re * wr - o_im * wi);
+            bin.im = ei + (o_re * wi + o_im * wr);
+        }
+        power[q] = bin.re * bin.re + bin.im * bin.im;
     }
-    free(signal);
+    free(z);
     return 0;
 }
 
@@ -207,7 +204,7 @@ static PyObject *screen(PyObject *self, PyObject *args)
         if (low < first) first = low;
         if (high > end) end = high;
     }
-    if (end > first && dft_power(steps, m, padded, first, end - first, power + first) < 0) goto done;
+    if (end > first && real_dft_power(steps, m, padded, first, end - first, power + first) < 0) goto done;
     clear = PyTuple_New(lines);
     hum_to_noise = PyTuple_New(lines);
     if (clear == NULL || hum_to_noise == NULL) goto done;
