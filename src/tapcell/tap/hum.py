@@ -236,11 +236,12 @@ def windows_holding(time_s: np.ndarray, corners_s, delay_s: float, integration_s
 def sinusoid_basis(time_s: np.ndarray, frequencies_hz) -> np.ndarray:
     """Columns sin, cos for each frequency, with time measured from the first sample."""
     tau_s = time_s - time_s[0]
-    columns = []
-    for frequency in frequencies_hz:
+    basis = np.empty((len(time_s), 2 * len(frequencies_hz)))
+    for index, frequency in enumerate(frequencies_hz):
         angle = 2.0 * np.pi * frequency * tau_s
-        columns += [np.sin(angle), np.cos(angle)]
-    return np.column_stack(columns) if columns else np.zeros((len(time_s), 0))
+        basis[:, 2 * index] = np.sin(angle)
+        basis[:, 2 * index + 1] = np.cos(angle)
+    return basis
 
 
 @dataclass
@@ -275,10 +276,9 @@ def _fit_groups(spline: HatSpline, waves: np.ndarray, force_g: np.ndarray, use: 
     schur_all = waves_used.T @ waves - cross.T @ per_column
     rhs_all = waves_used.T @ force_g - cross.T @ spline_alone
     fits = []
-    for columns in groups:
-        block = np.ix_(columns, columns)
+    for columns in groups:  # each group's columns are consecutive: its block is a slice (solve copies it anyway)
         rhs = rhs_all[columns]
-        wave_coefficients = np.linalg.solve(schur_all[block], rhs)
+        wave_coefficients = np.linalg.solve(schur_all[columns[0]:columns[-1] + 1, columns[0]:columns[-1] + 1], rhs)
         fits.append(_LinesFit(spline_alone - per_column[:, columns] @ wave_coefficients, wave_coefficients,
                               rss_spline_alone, max(rss_spline_alone - float(wave_coefficients @ rhs), 0.0)))
     return fits
