@@ -1445,7 +1445,8 @@ def mains_frequencies_hz(tap: TapData, options: AnalysisOptions) -> tuple[float,
     empty list: none), else none. The printer records what it used (its default "auto") in every
     tap's meta, so its taps get the same answer here; a tap from elsewhere is analysed without hum
     removal unless asked: `auto` moved no reference scenario by more than 0.04 µm (taplab's strong
-    hum 0.3 µm, our own generator's) and halves the speed (docs/tap-analysis.md, "Mains hum")."""
+    hum 0.3 µm, our own generator's) and costs ~0.15-0.3 ms a tap
+    more (docs/tap-analysis.md, "Mains hum")."""
     if options.mains_hz is not None:
         return options.mains_hz
     value = tap.meta.get("mains_hz")
