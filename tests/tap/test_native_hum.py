@@ -198,3 +198,19 @@ def test_bad_spline_arrays_are_errors():
     with pytest.raises(ValueError, match="outside 0..1"):
         hum._C.normal_equations(np.full(10, 2, dtype=np.int64), share, np.ones(10), np.ones(10), np.empty((10, 0)),
                                 3, 0, gram, per_knot)
+
+
+def test_strided_arrays_are_read_as_their_values(monkeypatch):
+    # every other sample of a longer record: views, not C-contiguous; the kernels get copies
+    t, force = _noisy_hum(1400, 9)
+    t, force = t[::2], force[::2]
+    found = hum._screen(t, force, (50.0, 60.0))
+    assert_agree(found, twin(monkeypatch, t, force, (50.0, 60.0)))
+    knots = hum.spline_knots(float(t[0]), float(t[-1]), 0.02, [])
+    spline = hum.hat_spline(t, knots[::1])
+    inside = hum.windows_holding(t, [float(t[100]), float(t[300])], 0.002, 0.003, 0.003)
+    with monkeypatch.context() as patch:
+        patch.setattr(hum, "_C", None)
+        twin_spline = hum.hat_spline(t, knots)
+        assert np.array_equal(inside, hum.windows_holding(t, [float(t[100]), float(t[300])], 0.002, 0.003, 0.003))
+    assert np.array_equal(spline.left, twin_spline.left) and np.array_equal(spline.share, twin_spline.share)

@@ -176,7 +176,7 @@ def hat_spline(time_s: np.ndarray, knots_s: np.ndarray) -> HatSpline:
     """The hat basis on `knots_s` (sorted, spanning the times, at least two) at `time_s`."""
     if _C is not None:  # the same searchsorted, division and clips: bit for bit
         left, share = np.empty(len(time_s), dtype=np.int64), np.empty(len(time_s))
-        _C.hat_spline(np.asarray(time_s, dtype=float), np.asarray(knots_s, dtype=float), left, share)
+        _C.hat_spline(np.ascontiguousarray(time_s, dtype=float), np.ascontiguousarray(knots_s, dtype=float), left, share)
         return HatSpline(left, share, len(knots_s))
     right = np.clip(np.searchsorted(knots_s, time_s, side="right"), 1, len(knots_s) - 1)
     left = right - 1
@@ -222,7 +222,7 @@ def windows_holding(time_s: np.ndarray, corners_s, delay_s: float, integration_s
                     margin_s: float) -> np.ndarray:
     """Samples whose conversion window, `margin_s` wider either side, holds one of the finite corners:
     the window of the sample at t spans [t - delay - integration, t - delay]."""
-    time_s = np.asarray(time_s, dtype=float)
+    time_s = np.ascontiguousarray(time_s, dtype=float)
     corners = np.asarray([c for c in corners_s if math.isfinite(c)], dtype=float)
     if _C is not None:  # the same sums and comparisons: bit for bit
         inside = np.empty(len(time_s), dtype=bool)
@@ -392,8 +392,8 @@ def _screen(time_s: np.ndarray, force_g: np.ndarray, candidates_hz) -> tuple[tup
     The kernel (c/hum.c) computes the same, its powers by another FFT (only the bins read): equal to
     rounding, the decisions the same unless a ratio lies within rounding of its bar.
     """
-    time_s = np.asarray(time_s, dtype=float)
-    force_g = np.asarray(force_g, dtype=float)
+    time_s = np.ascontiguousarray(time_s, dtype=float)
+    force_g = np.ascontiguousarray(force_g, dtype=float)
     if _C is not None:
         return _C.screen(time_s, force_g, np.asarray(candidates_hz, dtype=float), SCREEN_STEP_SIGMAS,
                          SCREEN_STEP_NEIGHBOURS, SCREEN_BAND, SCREEN_MIN_HALF_BAND_BINS, SCREEN_GUARD_BINS,
