@@ -178,6 +178,77 @@ static inline int mixed_radices(Py_ssize_t n, Py_ssize_t radices[64])
     return n == 1 ? count : 0;
 }
 
+/* The small DFTs of the mixed-radix FFT: y[s m] = sum_q t[q] W_r^(qs), W_r = e^(-2 pi i / r), written
+ * out with W_4 = -i, W_3 = -1/2 - i sqrt(3)/2 and W_5^j = cos(2 pi j / 5) - i sin(2 pi j / 5). */
+static inline void dft2(Complex *y, Py_ssize_t m, const Complex *t)
+{
+    y[0].re = t[0].re + t[1].re;
+    y[0].im = t[0].im + t[1].im;
+    y[m].re = t[0].re - t[1].re;
+    y[m].im = t[0].im - t[1].im;
+}
+
+static inline void dft4(Complex *y, Py_ssize_t m, const Complex *t)
+{
+    const Complex a = {t[0].re + t[2].re, t[0].im + t[2].im}, b = {t[0].re - t[2].re, t[0].im - t[2].im};
+    const Complex c = {t[1].re + t[3].re, t[1].im + t[3].im}, d = {t[1].re - t[3].re, t[1].im - t[3].im};
+    y[0].re = a.re + c.re;
+    y[0].im = a.im + c.im;
+    y[m].re = b.re + d.im; /* b - i d */
+    y[m].im = b.im - d.re;
+    y[2 * m].re = a.re - c.re;
+    y[2 * m].im = a.im - c.im;
+    y[3 * m].re = b.re - d.im; /* b + i d */
+    y[3 * m].im = b.im + d.re;
+}
+
+static inline void dft3(Complex *y, Py_ssize_t m, const Complex *t)
+{
+    /* t0 + (t1 + t2) cos(2 pi / 3) -+ i (t1 - t2) sin(2 pi / 3) */
+    const double half_root3 = 0.86602540378443864676;
+    const Complex sum = {t[1].re + t[2].re, t[1].im + t[2].im}, diff = {t[1].re - t[2].re, t[1].im - t[2].im};
+    const double mid_re = t[0].re - 0.5 * sum.re, mid_im = t[0].im - 0.5 * sum.im;
+    y[0].re = t[0].re + sum.re;
+    y[0].im = t[0].im + sum.im;
+    y[m].re = mid_re + half_root3 * diff.im;
+    y[m].im = mid_im - half_root3 * diff.re;
+    y[2 * m].re = mid_re - half_root3 * diff.im;
+    y[2 * m].im = mid_im + half_root3 * diff.re;
+}
+
+static inline void dft5(Complex *y, Py_ssize_t m, const Complex *t)
+{
+    /* the pairs (t1, t4) and (t2, t3) share cosines; their differences the sines */
+    const double cos1 = 0.30901699437494742410, sin1 = 0.95105651629515357212;
+    const double cos2 = -0.80901699437494742410, sin2 = 0.58778525229247312917;
+    const Complex a1 = {t[1].re + t[4].re, t[1].im + t[4].im}, b1 = {t[1].re - t[4].re, t[1].im - t[4].im};
+    const Complex a2 = {t[2].re + t[3].re, t[2].im + t[3].im}, b2 = {t[2].re - t[3].re, t[2].im - t[3].im};
+    const double c1_re = t[0].re + cos1 * a1.re + cos2 * a2.re, c1_im = t[0].im + cos1 * a1.im + cos2 * a2.im;
+    const double c2_re = t[0].re + cos2 * a1.re + cos1 * a2.re, c2_im = t[0].im + cos2 * a1.im + cos1 * a2.im;
+    const double s1_re = sin1 * b1.re + sin2 * b2.re, s1_im = sin1 * b1.im + sin2 * b2.im;
+    const double s2_re = sin2 * b1.re - sin1 * b2.re, s2_im = sin2 * b1.im - sin1 * b2.im;
+    y[0].re = t[0].re + a1.re + a2.re;
+    y[0].im = t[0].im + a1.im + a2.im;
+    y[m].re = c1_re + s1_im; /* c1 - i s1 */
+    y[m].im = c1_im - s1_re;
+    y[4 * m].re = c1_re - s1_im; /* c1 + i s1 */
+    y[4 * m].im = c1_im + s1_re;
+    y[2 * m].re = c2_re + s2_im; /* c2 - i s2 */
+    y[2 * m].im = c2_im - s2_re;
+    y[3 * m].re = c2_re - s2_im; /* c2 + i s2 */
+    y[3 * m].im = c2_im + s2_re;
+}
+
+static inline void small_dft(Complex *y, Py_ssize_t m, Py_ssize_t r, const Complex *t)
+{
+    switch (r) {
+    case 2: dft2(y, m, t); break;
+    case 3: dft3(y, m, t); break;
+    case 4: dft4(y, m, t); break;
+    default: dft5(y, m, t); break;
+    }
+}
+
 /* out[k] = sum_j in[j stride] W^(jk), k < n, W = e^(-2 pi i / n): decimation in time, out of place
  * (in and out must not overlap), n the product of radices[0..]. W^t is conj(circle[t circle_step])
  * with circle[s] = e^(i pi s / half_turn), circle_step = 2 half_turn / n (the caller's table, full turn). */
@@ -185,73 +256,25 @@ static inline void mixed_fft(const Complex *in, Py_ssize_t stride, Complex *out,
                              const Py_ssize_t *radices, const Complex *circle, Py_ssize_t circle_step)
 {
     const Py_ssize_t r = radices[0], m = n / r;
-    if (m == 1) {
-        for (Py_ssize_t k = 0; k < r; k++) out[k] = in[k * stride];
-    } else {
-        /* the r interleaved subsequences' DFTs side by side: out[q m + k] = DFT_m(in[q + r j])_k */
-        for (Py_ssize_t q = 0; q < r; q++)
-            mixed_fft(in + q * stride, stride * r, out + q * m, m, radices + 1, circle, circle_step * r);
+    Complex t[5];
+    if (m == 1) { /* the last radix: one small DFT of the samples themselves */
+        for (Py_ssize_t q = 0; q < r; q++) t[q] = in[q * stride];
+        small_dft(out, 1, r, t);
+        return;
     }
-    /* X_(k + s m) = sum_q (W^(qk) out[q m + k]) W_r^(qs), W_r = W^m = e^(-2 pi i / r): the small DFTs
-     * written out, with W_3 = -1/2 - i sqrt(3)/2 and W_5^j = cos(2 pi j / 5) - i sin(2 pi j / 5) */
-    const double half_root3 = 0.86602540378443864676;
-    const double cos1 = 0.30901699437494742410, sin1 = 0.95105651629515357212;
-    const double cos2 = -0.80901699437494742410, sin2 = 0.58778525229247312917;
-    for (Py_ssize_t k = 0; k < m; k++) {
-        Complex t[5];
-        for (Py_ssize_t q = 0; q < r; q++) {
-            const Complex x = out[q * m + k];
-            if (q == 0 || k == 0) {
-                t[q] = x;
-            } else {
-                const Complex w = circle[q * k * circle_step];
-                t[q] = times(x, w.re, -w.im);
-            }
+    /* the r interleaved subsequences' DFTs side by side: out[q m + k] = DFT_m(in[q + r j])_k */
+    for (Py_ssize_t q = 0; q < r; q++)
+        mixed_fft(in + q * stride, stride * r, out + q * m, m, radices + 1, circle, circle_step * r);
+    /* X_(k + s m) = sum_q (W^(qk) out[q m + k]) W_r^(qs), W_r = W^m; k = 0 needs no twiddle */
+    for (Py_ssize_t q = 0; q < r; q++) t[q] = out[q * m];
+    small_dft(out, m, r, t);
+    for (Py_ssize_t k = 1; k < m; k++) {
+        t[0] = out[k];
+        for (Py_ssize_t q = 1; q < r; q++) {
+            const Complex w = circle[q * k * circle_step];
+            t[q] = times(out[q * m + k], w.re, -w.im);
         }
-        Complex *y = out + k;
-        if (r == 2) {
-            y[0].re = t[0].re + t[1].re;
-            y[0].im = t[0].im + t[1].im;
-            y[m].re = t[0].re - t[1].re;
-            y[m].im = t[0].im - t[1].im;
-        } else if (r == 4) { /* W_4 = -i */
-            const Complex a = {t[0].re + t[2].re, t[0].im + t[2].im}, b = {t[0].re - t[2].re, t[0].im - t[2].im};
-            const Complex c = {t[1].re + t[3].re, t[1].im + t[3].im}, d = {t[1].re - t[3].re, t[1].im - t[3].im};
-            y[0].re = a.re + c.re;
-            y[0].im = a.im + c.im;
-            y[m].re = b.re + d.im; /* b - i d */
-            y[m].im = b.im - d.re;
-            y[2 * m].re = a.re - c.re;
-            y[2 * m].im = a.im - c.im;
-            y[3 * m].re = b.re - d.im; /* b + i d */
-            y[3 * m].im = b.im + d.re;
-        } else if (r == 3) { /* t0 + (t1 + t2) cos(2 pi / 3) -+ i (t1 - t2) sin(2 pi / 3) */
-            const Complex sum = {t[1].re + t[2].re, t[1].im + t[2].im}, diff = {t[1].re - t[2].re, t[1].im - t[2].im};
-            const double mid_re = t[0].re - 0.5 * sum.re, mid_im = t[0].im - 0.5 * sum.im;
-            y[0].re = t[0].re + sum.re;
-            y[0].im = t[0].im + sum.im;
-            y[m].re = mid_re + half_root3 * diff.im;
-            y[m].im = mid_im - half_root3 * diff.re;
-            y[2 * m].re = mid_re - half_root3 * diff.im;
-            y[2 * m].im = mid_im + half_root3 * diff.re;
-        } else { /* r == 5: pairs (t1, t4) and (t2, t3) share cosines; their differences the sines */
-            const Complex a1 = {t[1].re + t[4].re, t[1].im + t[4].im}, b1 = {t[1].re - t[4].re, t[1].im - t[4].im};
-            const Complex a2 = {t[2].re + t[3].re, t[2].im + t[3].im}, b2 = {t[2].re - t[3].re, t[2].im - t[3].im};
-            const double c1_re = t[0].re + cos1 * a1.re + cos2 * a2.re, c1_im = t[0].im + cos1 * a1.im + cos2 * a2.im;
-            const double c2_re = t[0].re + cos2 * a1.re + cos1 * a2.re, c2_im = t[0].im + cos2 * a1.im + cos1 * a2.im;
-            const double s1_re = sin1 * b1.re + sin2 * b2.re, s1_im = sin1 * b1.im + sin2 * b2.im;
-            const double s2_re = sin2 * b1.re - sin1 * b2.re, s2_im = sin2 * b1.im - sin1 * b2.im;
-            y[0].re = t[0].re + a1.re + a2.re;
-            y[0].im = t[0].im + a1.im + a2.im;
-            y[m].re = c1_re + s1_im; /* c1 - i s1 */
-            y[m].im = c1_im - s1_re;
-            y[4 * m].re = c1_re - s1_im; /* c1 + i s1 */
-            y[4 * m].im = c1_im + s1_re;
-            y[2 * m].re = c2_re + s2_im; /* c2 - i s2 */
-            y[2 * m].im = c2_im - s2_re;
-            y[3 * m].re = c2_re - s2_im; /* c2 + i s2 */
-            y[3 * m].im = c2_im + s2_re;
-        }
+        small_dft(out + k, m, r, t);
     }
 }
 
