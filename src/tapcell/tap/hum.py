@@ -389,8 +389,8 @@ def _screen(time_s: np.ndarray, force_g: np.ndarray, candidates_hz) -> tuple[tup
     robust sigma over √2. A hum far above the noise sets that sigma itself, and still reads at
     least 0.67 sigmas (the steps of a sinusoid have a robust sigma of ~1.05 times their amplitude).
 
-    The kernel (c/hum.c) computes the same, its powers by another FFT (only the bins read): equal to
-    rounding, the decisions the same unless a ratio lies within rounding of its bar.
+    The kernel (c/hum.c) computes the same, its powers by another FFT (c/fft.h's mixed radix): equal
+    to rounding, the decisions the same unless a ratio lies within rounding of its bar.
     """
     time_s = np.ascontiguousarray(time_s, dtype=float)
     force_g = np.ascontiguousarray(force_g, dtype=float)
