@@ -97,12 +97,13 @@ def test_a_gap_in_the_samples_reads_the_line_by_its_own_dft(monkeypatch):
     assert found[0][0] > 100.0
 
 
-def test_too_few_floor_bins_is_inf_in_both(monkeypatch):
-    # 30 samples: a floor band of ~60 padded bins less the guards leaves too few
-    t, force = _noisy_hum(30, 1)
-    found = hum._screen(t, force, (50.0,))
-    assert found == ((math.inf,), (math.inf,))
-    assert twin(monkeypatch, t, force, (50.0,)) == found
+@pytest.mark.parametrize("n", [2, 3, 30])
+def test_too_few_floor_bins_is_inf_in_both(monkeypatch, n):
+    # 30 samples: a floor band of ~60 padded bins less the guards leaves too few; 2: one step
+    t, force = _noisy_hum(n, 1)
+    found = hum._screen(t, force, (50.0, 60.0))
+    assert found == ((math.inf, math.inf), (math.inf, math.inf))
+    assert twin(monkeypatch, t, force, (50.0, 60.0)) == found
 
 
 def test_bad_arrays_are_errors_not_garbage():

@@ -147,12 +147,25 @@ static PyObject *screen(PyObject *self, PyObject *args)
     const double *time_s = force_g ? doubles_sized(&tb, n, "time_s") : NULL;
     const double *candidates_hz = time_s ? doubles_of(&cb, &lines, "candidates_hz") : NULL;
     if (candidates_hz == NULL) goto done;
-    if (n < 3) {
-        PyErr_SetString(PyExc_ValueError, "screen: at least 3 samples");
+    if (n < 2) {
+        PyErr_SetString(PyExc_ValueError, "screen: at least 2 samples");
         goto done;
     }
     if (!(time_s[n - 1] - time_s[0] > 0.0)) {
         PyErr_SetString(PyExc_ValueError, "screen: the samples span no time");
+        goto done;
+    }
+    if (n == 2) { /* one step: a floor of 2 bins, too few for any line (as the twin finds) */
+        clear = PyTuple_New(lines);
+        hum_to_noise = PyTuple_New(lines);
+        if (clear == NULL || hum_to_noise == NULL) goto done;
+        for (Py_ssize_t c = 0; c < lines; c++) {
+            PyObject *a = PyFloat_FromDouble(INFINITY), *b = PyFloat_FromDouble(INFINITY);
+            PyTuple_SET_ITEM(clear, c, a); /* a NULL item is allowed in a tuple being discarded */
+            PyTuple_SET_ITEM(hum_to_noise, c, b);
+            if (a == NULL || b == NULL) goto done;
+        }
+        answer = PyTuple_Pack(2, clear, hum_to_noise);
         goto done;
     }
     const Py_ssize_t m = n - 1, last = m - 1;
