@@ -21,7 +21,7 @@ from setuptools.command.build_py import build_py
 # No fused multiply-adds: the kernels repeat their numpy twins' arithmetic operation for operation
 # (clang, and gcc outside strict ISO modes, would fuse a * b + c on FMA hardware such as a Pi's).
 COMPILE_ARGS = ["-std=c99", "-O3", "-Wall", "-Wextra", "-fno-fast-math", "-ffp-contract=off"]
-KERNELS = ("analysis", "segments", "contact", "toe", "stage", "ringing", "uncertainty", "readers", "output")
+KERNELS = ("analysis", "segments", "contact", "toe", "stage", "ringing", "hum", "uncertainty", "readers", "output")
 # As firmware/Makefile builds the host library, without -Werror: a compiler that warns differently
 # must still build it on a user's machine (make firmware-check keeps the warnings out).
 FIRMWARE_ARGS = ["-std=c99", "-O2", "-Wall", "-Wextra", "-ffp-contract=off"]
@@ -49,7 +49,7 @@ class BuildPyWithExamples(build_py):
 
 
 setup(ext_modules=[*(Extension(f"tapcell.tap._c_{name}", [f"src/tapcell/tap/c/{name}.c"],
-                               depends=["src/tapcell/tap/c/buffers.h", "src/tapcell/tap/c/median.h"],
+                               depends=["src/tapcell/tap/c/buffers.h", "src/tapcell/tap/c/median.h", "src/tapcell/tap/c/fft.h"],
                                extra_compile_args=COMPILE_ARGS,
                                optional=True)
                      for name in KERNELS),

@@ -2,10 +2,12 @@
 kernels and with their numpy twins (TAPCELL_NATIVE=0), recorded once and compared byte for byte
 afterwards (all but `elapsed_ms` and `cpu_ms`, which are the clock's).
 
-Run: .venv/bin/python -m bench analyze_same record DIR SET...   (before the change: writes DIR)
-     .venv/bin/python -m bench analyze_same check DIR SET...    (after: exit 1 on any difference)
-A SET is a directory of tap files or one tap file. Without arguments: records and checks a small
-taplab set against itself (the script's own smoke test).
+Run: .venv/bin/python -m bench analyze_same record DIR [--set KEY=VALUE]... SET...   (before the change)
+     .venv/bin/python -m bench analyze_same check DIR [--set KEY=VALUE]... SET...    (after: exit 1 on any difference)
+A SET is a directory of tap files or one tap file. Each `--set` is passed to `tapcell analyze` as it
+is (e.g. `--set mains_hz=auto`); a record made with settings is named after them too, so one DIR can
+hold runs with and without. Without arguments: records and checks a small taplab set against itself
+(the script's own smoke test).
 """
 
 from __future__ import annotations
@@ -32,43 +34,53 @@ def tap_files(tap_set: str) -> list[str]:
                   and p.name != "labels.jsonl")
 
 
-def analyze_output(files: list[str], env_changes: dict[str, str]) -> bytes:
-    """The JSON `tapcell analyze --json` prints for these files, the clock's fields blanked."""
+def analyze_output(files: list[str], env_changes: dict[str, str], settings: list[str] = ()) -> bytes:
+    """The JSON `tapcell analyze --json [--set KEY=VALUE]...` prints for these files, the clock's
+    fields blanked."""
     tapcell = Path(sys.executable).with_name("tapcell")
+    set_args = [arg for setting in settings for arg in ("--set", setting)]
     out = []
     for start in range(0, len(files), FILES_PER_RUN):
-        run = subprocess.run([str(tapcell), "analyze", "--json", *files[start:start + FILES_PER_RUN]],
+        run = subprocess.run([str(tapcell), "analyze", "--json", *set_args, *files[start:start + FILES_PER_RUN]],
                              env={**os.environ, **env_changes}, capture_output=True, check=False)
         out.append(CLOCK_FIELDS.sub(rb'"\1": -', run.stdout) + b"exit %d\n" % run.returncode)
     return b"".join(out)
 
 
-def _record_name(tap_set: str, kernels: str) -> str:
+def _record_name(tap_set: str, kernels: str, settings: list[str] = ()) -> str:
+    """The record's file name: the set's name and path digest, the settings (none: the name records
+    had before `--set`), the kernels."""
     digest = hashlib.sha1(str(Path(tap_set).resolve()).encode()).hexdigest()[:10]
-    return f"{Path(tap_set).name}-{digest}-{kernels}.json"
+    named = "".join("-" + re.sub(r"[^A-Za-z0-9_.]+", "_", setting) for setting in settings)
+    return f"{Path(tap_set).name}-{digest}{named}-{kernels}.json"
 
 
-def record(out_dir: str, tap_sets: list[str]) -> int:
+def _described(tap_set: str, files: list[str], kernels: str, settings: list[str]) -> str:
+    return f"{tap_set} ({len(files)} files, {kernels}{''.join(', --set ' + s for s in settings)})"
+
+
+def record(out_dir: str, tap_sets: list[str], settings: list[str] = ()) -> int:
     Path(out_dir).mkdir(parents=True, exist_ok=True)
     for tap_set in tap_sets:
         files = tap_files(tap_set)
         for kernels, env in KERNELS.items():
-            (Path(out_dir) / _record_name(tap_set, kernels)).write_bytes(analyze_output(files, env))
-            print(f"recorded {tap_set} ({len(files)} files, {kernels})")
+            output = analyze_output(files, env, settings)
+            (Path(out_dir) / _record_name(tap_set, kernels, settings)).write_bytes(output)
+            print(f"recorded {_described(tap_set, files, kernels, settings)}")
     return 0
 
 
-def check(out_dir: str, tap_sets: list[str]) -> int:
+def check(out_dir: str, tap_sets: list[str], settings: list[str] = ()) -> int:
     differing = 0
     for tap_set in tap_sets:
         files = tap_files(tap_set)
         for kernels, env in KERNELS.items():
-            before = (Path(out_dir) / _record_name(tap_set, kernels)).read_bytes()
-            now = analyze_output(files, env)
+            before = (Path(out_dir) / _record_name(tap_set, kernels, settings)).read_bytes()
+            now = analyze_output(files, env, settings)
             same = now == before
             differing += not same
             detail = "" if same else f": first difference at line {_first_differing_line(before, now)}"
-            print(f"{'same' if same else 'DIFFERENT'} {tap_set} ({len(files)} files, {kernels}){detail}")
+            print(f"{'same' if same else 'DIFFERENT'} {_described(tap_set, files, kernels, settings)}{detail}")
     return 1 if differing else 0
 
 
@@ -89,13 +101,33 @@ def _smoke() -> int:
         return check(str(Path(tmp) / "record"), [tap_set])
 
 
+def _settings_and_sets(arguments: list[str]) -> tuple[list[str], list[str]] | None:
+    """`--set KEY=VALUE` (or `--set=KEY=VALUE`) items and the tap sets, in any order; None when a
+    `--set` has no KEY=VALUE."""
+    settings, tap_sets = [], []
+    items = iter(arguments)
+    for item in items:
+        if item == "--set":
+            item = "--set=" + next(items, "")
+        if item.startswith("--set="):
+            setting = item[len("--set="):]
+            if "=" not in setting:
+                return None
+            settings.append(setting)
+        else:
+            tap_sets.append(item)
+    return settings, tap_sets
+
+
 def main(argv: list[str]) -> int:
     if not argv:
         return _smoke()
-    if len(argv) < 3 or argv[0] not in ("record", "check"):
+    parsed = _settings_and_sets(argv[2:]) if len(argv) >= 3 and argv[0] in ("record", "check") else None
+    if parsed is None or not parsed[1]:
         print(__doc__, file=sys.stderr)
         return 2
-    return (record if argv[0] == "record" else check)(argv[1], argv[2:])
+    settings, tap_sets = parsed
+    return (record if argv[0] == "record" else check)(argv[1], tap_sets, settings)
 
 
 if __name__ == "__main__":

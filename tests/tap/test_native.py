@@ -11,12 +11,12 @@ import numpy as np
 import pytest
 
 from tapcell.tap import AnalysisOptions, analyze_tap, native
-from tapcell.tap import contact, model, readers, segments, stage, toe, uncertainty
+from tapcell.tap import contact, hum, model, readers, segments, stage, toe, uncertainty
 from tapcell.tap.readers import tap_from_object
 from native_kernel_inputs import generated_tap_objects
 
 KERNEL_MODULES = {"segments": segments, "contact": contact, "toe": toe, "stage": stage, "readers": readers,
-                  "output": model, "uncertainty": uncertainty}
+                  "output": model, "uncertainty": uncertainty, "hum": hum}
 # Kernels a module holds under another name than _C: kernel name -> (module, attribute).
 OTHER_KERNELS = {"ringing": (stage, "_C_RINGING")}
 TAPS_PER_SCENARIO = 2

@@ -1445,7 +1445,8 @@ def mains_frequencies_hz(tap: TapData, options: AnalysisOptions) -> tuple[float,
     empty list: none), else none. The printer records what it used (its default "auto") in every
     tap's meta, so its taps get the same answer here; a tap from elsewhere is analysed without hum
     removal unless asked: `auto` moved no reference scenario by more than 0.04 µm (taplab's strong
-    hum 0.3 µm, our own generator's) and halves the speed (docs/tap-analysis.md, "Mains hum")."""
+    hum 0.3 µm, our own generator's) and costs ~0.15-0.3 ms a tap
+    more (docs/tap-analysis.md, "Mains hum")."""
     if options.mains_hz is not None:
         return options.mains_hz
     value = tap.meta.get("mains_hz")
@@ -1512,11 +1513,9 @@ def remove_mains_hum(tap: TapData, options: AnalysisOptions, time_s: np.ndarray,
 
 def _corner_windows(time_s: np.ndarray, corners_s: list[float], timing: SensorTiming) -> np.ndarray:
     """Samples whose conversion window (one sample of margin either side) holds a corner."""
-    margin_s = timing.sample_period_s
-    start_s = time_s - timing.delay_s - timing.integration_s - margin_s
-    end_s = time_s - timing.delay_s + margin_s
-    corners = np.asarray([c for c in corners_s if math.isfinite(c)])
-    return np.any((start_s[:, None] <= corners[None, :]) & (corners[None, :] <= end_s[:, None]), axis=1)
+    from tapcell.tap.hum import windows_holding  # imported with the hum's module, as remove_mains_hum does
+
+    return windows_holding(time_s, corners_s, timing.delay_s, timing.integration_s, timing.sample_period_s)
 
 
 def _polarity(time_s: np.ndarray, force_g: np.ndarray, motion: Motion) -> int:

@@ -34,7 +34,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tapcell.tap import native
 from tapcell.tap.robust import MAD_TO_SIGMA, median, robust_sigma
+
+# The screen and the exact parts of the fit in C (tapcell.tap.native); None: the numpy twins beside each call.
+_C = native.load("hum")
 
 MAINS_LINES_HZ = (50.0, 60.0)
 # `auto` also fits these multiples of the line it detected, when the screen sees them.
@@ -146,9 +150,34 @@ class HatSpline:
         gram[rows + 1, rows] = beside
         return gram
 
+    def normal_equations(self, weight: np.ndarray, force_g: np.ndarray, waves: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray]:
+        """The spline's part of the normal equations under the sample weights: its gram with a tiny
+        ridge on the diagonal (1e-10 of its mean: a knot with no used sample gets coefficient 0, not
+        a singular matrix) and Basisᵀ · (weight · column) for the force and every wave column.
+
+        The kernel (c/hum.c) takes the same sums in the same order: bit for bit."""
+        if _C is not None:
+            columns = waves.shape[1]
+            gram, per_knot = np.empty((self.count, self.count)), np.empty((self.count, columns + 1))
+            _C.normal_equations(self.left, self.share, weight, force_g, np.ascontiguousarray(waves), self.count,
+                                columns, gram, per_knot)
+            return gram, per_knot
+        gram = self.gram(weight)
+        ridge = 1e-10 * max(float(np.trace(gram)) / self.count, 1e-300)
+        gram[np.diag_indices_from(gram)] += ridge
+        waves_used = waves * weight[:, None]
+        per_knot = np.column_stack([self.transpose_dot(weight * force_g)]
+                                   + [self.transpose_dot(column) for column in waves_used.T])
+        return gram, per_knot
+
 
 def hat_spline(time_s: np.ndarray, knots_s: np.ndarray) -> HatSpline:
     """The hat basis on `knots_s` (sorted, spanning the times, at least two) at `time_s`."""
+    if _C is not None:  # the same searchsorted, division and clips: bit for bit
+        left, share = np.empty(len(time_s), dtype=np.int64), np.empty(len(time_s))
+        _C.hat_spline(np.ascontiguousarray(time_s, dtype=float), np.ascontiguousarray(knots_s, dtype=float), left, share)
+        return HatSpline(left, share, len(knots_s))
     right = np.clip(np.searchsorted(knots_s, time_s, side="right"), 1, len(knots_s) - 1)
     left = right - 1
     share = np.clip((time_s - knots_s[left]) / (knots_s[right] - knots_s[left]), 0.0, 1.0)
@@ -176,6 +205,10 @@ def spline_knots(t_first_s: float, t_last_s: float, spacing_s: float, corners_s=
     knots that close would make nearly identical columns).
     """
     count = max(int(math.ceil((t_last_s - t_first_s) / spacing_s)), 1)
+    if _C is not None:  # the same grid, merge and sort: bit for bit
+        corners = np.asarray(corners_s, dtype=float).reshape(-1)
+        knots = np.empty(count + 1 + len(corners))
+        return knots[:_C.spline_knots(t_first_s, t_last_s, spacing_s, corners, knots)]
     grid = t_first_s + (t_last_s - t_first_s) * np.arange(count + 1) / count
     corners = np.array([c for c in corners_s if t_first_s < c < t_last_s and math.isfinite(c)], dtype=float)
     if len(corners):
@@ -185,14 +218,30 @@ def spline_knots(t_first_s: float, t_last_s: float, spacing_s: float, corners_s=
     return np.unique(np.concatenate((grid, corners)))
 
 
+def windows_holding(time_s: np.ndarray, corners_s, delay_s: float, integration_s: float,
+                    margin_s: float) -> np.ndarray:
+    """Samples whose conversion window, `margin_s` wider either side, holds one of the finite corners:
+    the window of the sample at t spans [t - delay - integration, t - delay]."""
+    time_s = np.ascontiguousarray(time_s, dtype=float)
+    corners = np.asarray([c for c in corners_s if math.isfinite(c)], dtype=float)
+    if _C is not None:  # the same sums and comparisons: bit for bit
+        inside = np.empty(len(time_s), dtype=bool)
+        _C.corner_windows(time_s, corners, delay_s, integration_s, margin_s, inside)
+        return inside
+    start_s = time_s - delay_s - integration_s - margin_s
+    end_s = time_s - delay_s + margin_s
+    return np.any((start_s[:, None] <= corners[None, :]) & (corners[None, :] <= end_s[:, None]), axis=1)
+
+
 def sinusoid_basis(time_s: np.ndarray, frequencies_hz) -> np.ndarray:
     """Columns sin, cos for each frequency, with time measured from the first sample."""
     tau_s = time_s - time_s[0]
-    columns = []
-    for frequency in frequencies_hz:
+    basis = np.empty((len(time_s), 2 * len(frequencies_hz)))
+    for index, frequency in enumerate(frequencies_hz):
         angle = 2.0 * np.pi * frequency * tau_s
-        columns += [np.sin(angle), np.cos(angle)]
-    return np.column_stack(columns) if columns else np.zeros((len(time_s), 0))
+        basis[:, 2 * index] = np.sin(angle)
+        basis[:, 2 * index + 1] = np.cos(angle)
+    return basis
 
 
 @dataclass
@@ -217,11 +266,8 @@ def _fit_groups(spline: HatSpline, waves: np.ndarray, force_g: np.ndarray, use: 
     """
     weight = use.astype(float)
     weighted = weight * force_g
-    gram = spline.gram(weight)
-    ridge = 1e-10 * max(float(np.trace(gram)) / spline.count, 1e-300)
-    gram[np.diag_indices_from(gram)] += ridge
+    gram, per_knot = spline.normal_equations(weight, force_g, waves)
     waves_used = waves * weight[:, None]
-    per_knot = np.column_stack([spline.transpose_dot(weighted)] + [spline.transpose_dot(column) for column in waves_used.T])
     to_spline, cross = per_knot[:, 0], per_knot[:, 1:]
     solved = np.linalg.solve(gram, per_knot)
     spline_alone, per_column = solved[:, 0], solved[:, 1:]
@@ -230,10 +276,9 @@ def _fit_groups(spline: HatSpline, waves: np.ndarray, force_g: np.ndarray, use: 
     schur_all = waves_used.T @ waves - cross.T @ per_column
     rhs_all = waves_used.T @ force_g - cross.T @ spline_alone
     fits = []
-    for columns in groups:
-        block = np.ix_(columns, columns)
+    for columns in groups:  # each group's columns are consecutive: its block is a slice (solve copies it anyway)
         rhs = rhs_all[columns]
-        wave_coefficients = np.linalg.solve(schur_all[block], rhs)
+        wave_coefficients = np.linalg.solve(schur_all[columns[0]:columns[-1] + 1, columns[0]:columns[-1] + 1], rhs)
         fits.append(_LinesFit(spline_alone - per_column[:, columns] @ wave_coefficients, wave_coefficients,
                               rss_spline_alone, max(rss_spline_alone - float(wave_coefficients @ rhs), 0.0)))
     return fits
@@ -264,7 +309,7 @@ def _fit_alternatives(time_s, force_g, alternatives: list[tuple[float, ...]], kn
     """
     time_s = np.asarray(time_s, dtype=float)
     force_g = np.asarray(force_g, dtype=float)
-    force_g = force_g - np.median(force_g)  # the spline carries any offset; smaller sums, no cancellation
+    force_g = force_g - median(force_g)  # the spline carries any offset; smaller sums, no cancellation (np.median's value)
     spline = hat_spline(time_s, np.asarray(knots_s, dtype=float))
     frequencies = [f for group in alternatives for f in group]
     waves = sinusoid_basis(time_s, frequencies)
@@ -343,9 +388,16 @@ def _screen(time_s: np.ndarray, force_g: np.ndarray, candidates_hz) -> tuple[tup
     between samples, and n such steps give a power of (n·step/2)². The noise sigma is the steps'
     robust sigma over √2. A hum far above the noise sets that sigma itself, and still reads at
     least 0.67 sigmas (the steps of a sinusoid have a robust sigma of ~1.05 times their amplitude).
+
+    The kernel (c/hum.c) computes the same, its powers by another FFT (c/fft.h's mixed radix): equal
+    to rounding, the decisions the same unless a ratio lies within rounding of its bar.
     """
-    time_s = np.asarray(time_s, dtype=float)
-    force_g = np.asarray(force_g, dtype=float)
+    time_s = np.ascontiguousarray(time_s, dtype=float)
+    force_g = np.ascontiguousarray(force_g, dtype=float)
+    if _C is not None:
+        return _C.screen(time_s, force_g, np.asarray(candidates_hz, dtype=float), SCREEN_STEP_SIGMAS,
+                         SCREEN_STEP_NEIGHBOURS, SCREEN_BAND, SCREEN_MIN_HALF_BAND_BINS, SCREEN_GUARD_BINS,
+                         SCREEN_MIN_FLOOR_BINS, MAD_TO_SIGMA)
     steps = force_g[1:] - force_g[:-1]  # np.diff's wrapper costs more than the subtraction here
     last = len(steps) - 1
     step_sigma_g = MAD_TO_SIGMA * median(np.abs(steps))

@@ -23,149 +23,9 @@
  * rounding, which no measured dwell came near (docs/tap-analysis.md, "Compiled kernels"). The period
  * is computed as the twin does, bit for bit, given the bin. */
 #include "buffers.h"
+#include "fft.h"
 #include <math.h>
 #include <stdlib.h>
-
-#ifndef M_PI /* POSIX's, not ISO C's: a strict C99 math.h may leave it out */
-#define M_PI 3.14159265358979323846
-#endif
-
-typedef struct {
-    double re, im;
-} Complex;
-
-/* e^(-2 pi i j / twiddle_size), j < twiddle_size / 2: the power-of-two FFTs' twiddles, of the
- * largest size used so far (a smaller FFT takes every (twiddle_size / size)-th). Grown, never shrunk:
- * one table for the process (the interpreter's lock is held throughout a call). */
-static Complex *twiddles;
-static Py_ssize_t twiddle_size;
-
-static int ensure_twiddles(Py_ssize_t size)
-{
-    if (size <= twiddle_size) return 0;
-    Complex *table = malloc(sizeof(Complex) * (size_t)(size / 2));
-    if (table == NULL) {
-        PyErr_NoMemory();
-        return -1;
-    }
-    for (Py_ssize_t j = 0; j < size / 2; j++) {
-        const double angle = -2.0 * M_PI * (double)j / (double)size;
-        table[j].re = cos(angle);
-        table[j].im = sin(angle);
-    }
-    free(twiddles);
-    twiddles = table;
-    twiddle_size = size;
-    return 0;
-}
-
-static inline Complex times(Complex a, double wr, double wi)
-{
-    const Complex product = {a.re * wr - a.im * wi, a.re * wi + a.im * wr};
-    return product;
-}
-
-/* The forward DFT of x (size a power of two) in place, its bins in bit-reversed order: radix 2,
- * decimation in frequency, two stages per pass over the data (the same butterflies, half the passes),
- * the last alone when their count is odd. */
-static void fft_to_bit_reversed(Complex *x, Py_ssize_t size)
-{
-    Py_ssize_t len = size;
-    for (; len >= 4; len /= 4) {
-        /* the stages of len and len / 2: x0..x3 a quarter of a len block apart; the first stage's
-         * twiddles W_len^k and W_len^(k + len/4) = -i W_len^k, the second's W_(len/2)^k */
-        const Py_ssize_t h = len / 4;
-        for (Py_ssize_t k = 0; k < h; k++) {
-            const Complex w1 = twiddles[k * (twiddle_size / len)], w2 = twiddles[k * (twiddle_size / (len / 2))];
-            const double w3r = w1.im, w3i = -w1.re; /* -i w1 */
-            for (Py_ssize_t start = k; start < size; start += len) {
-                Complex *p = x + start;
-                const Complex x0 = p[0], x1 = p[h], x2 = p[2 * h], x3 = p[3 * h];
-                const Complex a0 = {x0.re + x2.re, x0.im + x2.im}, a1 = {x1.re + x3.re, x1.im + x3.im};
-                const Complex a2 = times((Complex){x0.re - x2.re, x0.im - x2.im}, w1.re, w1.im);
-                const Complex a3 = times((Complex){x1.re - x3.re, x1.im - x3.im}, w3r, w3i);
-                p[0].re = a0.re + a1.re;
-                p[0].im = a0.im + a1.im;
-                p[h] = times((Complex){a0.re - a1.re, a0.im - a1.im}, w2.re, w2.im);
-                p[2 * h].re = a2.re + a3.re;
-                p[2 * h].im = a2.im + a3.im;
-                p[3 * h] = times((Complex){a2.re - a3.re, a2.im - a3.im}, w2.re, w2.im);
-            }
-        }
-    }
-    if (len == 2) /* the last stage alone: W_2^0 = 1 */
-        for (Py_ssize_t start = 0; start < size; start += 2) {
-            const Complex a = x[start], b = x[start + 1];
-            x[start].re = a.re + b.re;
-            x[start].im = a.im + b.im;
-            x[start + 1].re = a.re - b.re;
-            x[start + 1].im = a.im - b.im;
-        }
-}
-
-/* The inverse DFT (e^+i, unscaled) of bins in bit-reversed order, x in natural order after: radix 2,
- * decimation in time, two stages per pass, the last alone when their count is odd. With
- * fft_to_bit_reversed, a convolution needs no reordering. */
-static void inverse_fft_from_bit_reversed(Complex *x, Py_ssize_t size)
-{
-    Py_ssize_t len = 2;
-    for (; 2 * len <= size; len *= 4) {
-        /* the stages of len and 2 len: the first's twiddle conj W_len^k, the second's conj W_2len^k
-         * and conj W_2len^(k + len/2) = i conj W_2len^k */
-        const Py_ssize_t h = len / 2;
-        for (Py_ssize_t k = 0; k < h; k++) {
-            const Complex t1 = twiddles[k * (twiddle_size / len)], t2 = twiddles[k * (twiddle_size / (2 * len))];
-            const double w1r = t1.re, w1i = -t1.im, w2r = t2.re, w2i = -t2.im;
-            const double w3r = -w2i, w3i = w2r; /* i w2 */
-            for (Py_ssize_t start = k; start < size; start += 2 * len) {
-                Complex *p = x + start;
-                const Complex b1 = times(p[h], w1r, w1i), b3 = times(p[3 * h], w1r, w1i);
-                const Complex a0 = {p[0].re + b1.re, p[0].im + b1.im}, a1 = {p[0].re - b1.re, p[0].im - b1.im};
-                const Complex a2 = {p[2 * h].re + b3.re, p[2 * h].im + b3.im};
-                const Complex a3 = {p[2 * h].re - b3.re, p[2 * h].im - b3.im};
-                const Complex c2 = times(a2, w2r, w2i), c3 = times(a3, w3r, w3i);
-                p[0].re = a0.re + c2.re;
-                p[0].im = a0.im + c2.im;
-                p[2 * h].re = a0.re - c2.re;
-                p[2 * h].im = a0.im - c2.im;
-                p[h].re = a1.re + c3.re;
-                p[h].im = a1.im + c3.im;
-                p[3 * h].re = a1.re - c3.re;
-                p[3 * h].im = a1.im - c3.im;
-            }
-        }
-    }
-    if (len == size) { /* the last stage alone */
-        const Py_ssize_t half = len / 2, stride = twiddle_size / len;
-        for (Py_ssize_t k = 0; k < half; k++) {
-            const Complex product = times(x[k + half], twiddles[k * stride].re, -twiddles[k * stride].im);
-            x[k + half].re = x[k].re - product.re;
-            x[k + half].im = x[k].im - product.im;
-            x[k].re += product.re;
-            x[k].im += product.im;
-        }
-    }
-}
-
-/* circle[s] = e^(i pi s / half_turn) for s in [0, 2 half_turn): a full turn, from its first eighth by
- * exact symmetries (a quarter turn multiplies by i; within a quarter, s and quarter - s swap cosine
- * and sine). half_turn even. */
-static void fill_circle(Complex *circle, Py_ssize_t half_turn)
-{
-    const Py_ssize_t quarter = half_turn / 2;
-    for (Py_ssize_t s = 0; 2 * s <= quarter; s++) {
-        const double angle = M_PI * (double)s / (double)half_turn;
-        const double c = cos(angle), sn = sin(angle);
-        circle[s].re = c;
-        circle[s].im = sn;
-        circle[quarter - s].re = sn;
-        circle[quarter - s].im = c;
-    }
-    for (Py_ssize_t s = quarter; s < 2 * half_turn; s++) { /* i times the value a quarter turn back */
-        circle[s].re = -circle[s - quarter].im;
-        circle[s].im = circle[s - quarter].re;
-    }
-}
 
 /* Solve the 3 x 3 system a x = b (a: the matrix with b as its fourth column, destroyed) by Gaussian
  * elimination with partial pivoting; 0 when the matrix is singular. */
@@ -229,13 +89,6 @@ static int quadratic_residual(const double *time_s, const double *force_g, Py_ss
         }
     }
     return 1;
-}
-
-static Py_ssize_t pow2_at_least(Py_ssize_t count)
-{
-    Py_ssize_t size = 1;
-    while (size < count) size <<= 1;
-    return size;
 }
 
 /* The largest bin of the periodogram 2 |X_k|^2 / n, k in [lowest, 2n], of the residual packed[0..

@@ -1,0 +1,61 @@
+"""bench/analyze_same: the arguments of record and check, and what a record is named."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the bench package beside tests/
+
+from bench import analyze_same  # noqa: E402  (after the path)
+
+
+def test_settings_and_sets_in_any_order():
+    assert analyze_same._settings_and_sets(["--set", "mains_hz=auto", "a", "--set=x=1", "b"]) == (
+        ["mains_hz=auto", "x=1"], ["a", "b"])
+    assert analyze_same._settings_and_sets(["a", "b"]) == ([], ["a", "b"])
+    assert analyze_same._settings_and_sets(["--set", "mains_hz", "a"]) is None  # no KEY=VALUE
+    assert analyze_same._settings_and_sets(["a", "--set"]) is None  # nothing after --set
+
+
+def test_a_record_without_settings_keeps_its_old_name_and_settings_name_theirs():
+    plain = analyze_same._record_name("/data/taps", "native")
+    assert plain.startswith("taps-") and plain.endswith("-native.json") and plain.count("-") == 2
+    auto = analyze_same._record_name("/data/taps", "native", ["mains_hz=auto"])
+    assert auto == plain.replace("-native.json", "-mains_hz_auto-native.json")
+    assert analyze_same._record_name("/data/taps", "twins", ["mains_hz=[50, 60]"]).endswith(
+        "-mains_hz_50_60_-twins.json")
+
+
+def test_the_usage_is_printed_for_a_bad_command_line(capsys):
+    assert analyze_same.main(["record", "/tmp/x"]) == 2
+    assert analyze_same.main(["check", "/tmp/x", "--set", "nokey", "set"]) == 2
+    assert analyze_same.main(["check", "/tmp/x", "--set", "a=1"]) == 2  # settings but no set
+    assert "--set KEY=VALUE" in capsys.readouterr().err
+
+
+def test_settings_reach_tapcell_analyze(tmp_path, monkeypatch):
+    calls = []
+
+    class Run:
+        stdout = b'[{"file": "x", "elapsed_ms": 1.5, "cpu_ms": 2.0}]\n'
+        returncode = 0
+
+    def fake_run(command, **_):
+        calls.append(command)
+        return Run()
+
+    monkeypatch.setattr(analyze_same.subprocess, "run", fake_run)
+    tap = tmp_path / "tap.json"
+    tap.write_text("{}")
+    assert analyze_same.main(["record", str(tmp_path / "rec"), "--set", "mains_hz=auto", str(tap)]) == 0
+    assert all(command[1:5] == ["analyze", "--json", "--set", "mains_hz=auto"] for command in calls)
+    assert len(calls) == 2  # kernels and twins
+    recorded = (tmp_path / "rec" / analyze_same._record_name(str(tap), "native", ["mains_hz=auto"])).read_bytes()
+    assert b'"elapsed_ms": -' in recorded and b"exit 0" in recorded
+    assert analyze_same.main(["check", str(tmp_path / "rec"), "--set", "mains_hz=auto", str(tap)]) == 0
+    # the same set checked without the settings has no record: a missing record is an error, not "same"
+    with pytest.raises(FileNotFoundError):
+        analyze_same.main(["check", str(tmp_path / "rec"), str(tap)])
