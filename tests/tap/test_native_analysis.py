@@ -38,6 +38,19 @@ def test_median_is_numpys(values):
     assert KERNEL.median(values) == np.median(values)
 
 
+def test_median_of_long_samples_is_numpys():
+    # Tap-sized arrays (hundreds to thousands of samples), where the selection partitions through
+    # its scratch runs: noise, quantised noise (an ADC's counts: long runs of equal values), a
+    # constant, sorted and reversed ramps, a tap-like step; odd and even counts.
+    rng = np.random.default_rng(21)
+    for n in (12, 13, 101, 700, 1449, 4769):
+        noise = rng.normal(0.0, 1.0, n)
+        for values in (noise, np.round(noise * 2.0) / 2.0, np.full(n, 3.25), np.arange(n, dtype=float),
+                       np.arange(n, 0, -1, dtype=float), np.where(np.arange(n) < n // 3, 0.0, 75.0) + noise):
+            assert KERNEL.median(values) == np.median(values), (n, values[:5])
+            assert KERNEL.median(values[1:]) == np.median(values[1:])
+
+
 def test_median_of_nan_is_nan_and_of_nothing_an_error():
     assert math.isnan(KERNEL.median(np.array([1.0, np.nan, 3.0])))
     with pytest.raises(ValueError, match="no values"):

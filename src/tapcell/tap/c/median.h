@@ -3,6 +3,8 @@
 #define TAPCELL_MEDIAN_H
 
 #include <math.h>
+#include <stdlib.h>
+#include <string.h>
 
 #include "buffers.h"
 
@@ -14,8 +16,9 @@ static inline void swap(double *a, double *b)
 }
 
 /* Put the k-th smallest of values[0..n) at values[k], smaller ones before it and larger after
- * (Hoare's selection; the pivot is the median of three, so sorted or reversed runs stay linear). */
-static inline void select_kth(double *values, Py_ssize_t n, Py_ssize_t k)
+ * (Hoare's selection; the pivot is the median of three, so sorted or reversed runs stay linear).
+ * The fallback of `select_kth` when it gets no scratch memory. */
+static inline void select_kth_in_place(double *values, Py_ssize_t n, Py_ssize_t k)
 {
     Py_ssize_t low = 0, high = n - 1;
     while (high > low) {
@@ -38,6 +41,68 @@ static inline void select_kth(double *values, Py_ssize_t n, Py_ssize_t k)
         else if (k >= i) low = i;
         else return; /* between j and i every value equals the pivot */
     }
+}
+
+/* Below this many values a range is finished by insertion sort. */
+#define SELECT_SORT_BELOW 12
+
+/* The middle one of three values. */
+static inline double middle_of_three(double a, double b, double c)
+{
+    if (a > b) swap(&a, &b);
+    return c < a ? a : c > b ? b : c;
+}
+
+/* `select_kth_in_place` without its branches: each pass sends every value of the range to one of
+ * three runs (below the pivot: back into the range's front, which the pass has read already;
+ * equal and above: into `scratch`, 2 n values), counting each run with a comparison instead of
+ * branching on it (the values' order is noise: a branch on it is mispredicted every other
+ * value). The runs go back in order, below, equal, above, and the pass continues in the run that
+ * holds k. The same value lands at values[k] (the k-th smallest is one value, whichever way it is
+ * selected), smaller or equal ones before it. No NaN among the values (`median_in_place`). */
+static inline void select_kth_into(double *values, Py_ssize_t n, Py_ssize_t k, double *scratch)
+{
+    Py_ssize_t low = 0, high = n; /* [low, high) holds k */
+    while (high - low >= SELECT_SORT_BELOW) {
+        const double pivot = middle_of_three(values[low], values[low + (high - low) / 2], values[high - 1]);
+        double *equal = scratch, *above = scratch + n;
+        Py_ssize_t below_count = 0, equal_count = 0, above_count = 0;
+        for (Py_ssize_t i = low; i < high; i++) {
+            const double value = values[i];
+            values[low + below_count] = value; /* at or before i: read already */
+            equal[equal_count] = value;
+            above[above_count] = value;
+            below_count += value < pivot;
+            equal_count += value == pivot;
+            above_count += value > pivot;
+        }
+        const Py_ssize_t equal_first = low + below_count, above_first = equal_first + equal_count;
+        memcpy(values + equal_first, equal, (size_t)equal_count * sizeof(double));
+        memcpy(values + above_first, above, (size_t)above_count * sizeof(double));
+        if (k < equal_first) high = equal_first;
+        else if (k < above_first) return; /* the pivot's run (never empty: the pivot is one of the values) */
+        else low = above_first;
+    }
+    for (Py_ssize_t i = low + 1; i < high; i++) { /* insertion sort of the rest */
+        const double value = values[i];
+        Py_ssize_t j = i;
+        for (; j > low && values[j - 1] > value; j--)
+            values[j] = values[j - 1];
+        values[j] = value;
+    }
+}
+
+/* The k-th smallest of values[0..n) at values[k], smaller or equal ones before it, larger or
+ * equal after (no NaN among them). */
+static inline void select_kth(double *values, Py_ssize_t n, Py_ssize_t k)
+{
+    double *scratch = n >= SELECT_SORT_BELOW ? malloc(2 * (size_t)n * sizeof(double)) : NULL;
+    if (scratch == NULL && n >= SELECT_SORT_BELOW) {
+        select_kth_in_place(values, n, k);
+        return;
+    }
+    select_kth_into(values, n, k, scratch);
+    free(scratch);
 }
 
 /* The median of values[0..n), reordering them: the middle one, or the mean of the middle two for
