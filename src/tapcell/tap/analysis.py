@@ -19,7 +19,6 @@ it with and what runs without a C compiler.
 
 from __future__ import annotations
 
-import functools
 import math
 import time
 from dataclasses import dataclass, field
@@ -33,6 +32,7 @@ from tapcell.tap.classifiers import get_classifier, run_classifier
 from tapcell.tap.contact import (MIN_SPAN_UM, SEARCH_SAMPLES, ContactFit, fit_contact, fit_fixed_onset,
                                  fit_of_kernel, window_edges, window_mean_and_slope)
 from tapcell.tap.context import AnalysisContext, SensorTiming
+from tapcell.tap.lazy import cached_attribute
 from tapcell.tap.model import (
     TAP_ADHESION,
     TAP_BREAK_CONTACT_TOO_LATE,
@@ -1025,7 +1025,7 @@ class SplitTap:
     noise_g: float
     angles_deg: list[float]
 
-    @functools.cached_property
+    @cached_attribute
     def wanders(self) -> tuple[Wander | None, Wander | None]:
         """`free_air_wanders` of the tap, measured once for the toe fit and its uncertainty."""
         motion, period_s = self.motion, self.timing.sample_period_s
@@ -1033,7 +1033,7 @@ class SplitTap:
         rising_stop = int(self.time_s.searchsorted(motion.pullback_end_s + self.timing.delay_s, side="right"))
         return free_air_wanders(self.force_g, self.dec, steps_um, rising_stop)
 
-    @functools.cached_property
+    @cached_attribute
     def ringing(self) -> Ringing | None:
         """The ringing the dwell shows (tapcell.tap.stage.dwell_ringing), against the white noise:
         measured once for the stage checks and z_sigma_um's ringing part."""
@@ -1091,8 +1091,7 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> tuple[SplitTap, int, in
     period_s = sample_period_s(tap.sample_rate_sps, time_s)
     timing = sensor_timing(tap, options, period_s)
     validate.check_motion(motion, time_s)
-    polarity = _polarity(time_s, force_raw, motion)
-    force, outliers = repair_spikes(polarity * force_raw, options.outlier_sigma)
+    polarity, force, outliers = polarity_and_repaired(time_s, force_raw, motion, options.outlier_sigma)
     allowance = UNKNOWN_DELAY_ALLOWANCE_S if timing.estimate_delay or timing.delay_from_halt else timing.delay_s
     lag_samples = math.ceil((allowance + timing.integration_s) / period_s) + LAG_MARGIN_SAMPLES
     force, hum = remove_mains_hum(tap, options, time_s, force, motion, timing, lag_samples, period_s)
@@ -1110,12 +1109,18 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> tuple[SplitTap, int, in
 def result_of_split(split: SplitTap, polarity: int, outliers: int, hum: HumFit | None) -> TapAnalysis:
     """The result as far as the five lines go, in the tap's own polarity."""
     dec = split.dec
+    if polarity == 1:  # x 1 changes no bit: copies of the split's own lists
+        points, lines, angles_deg = list(dec.points), list(dec.lines), list(split.angles_deg)
+    else:
+        points = [(t, polarity * f) for t, f in dec.points]
+        lines = [(polarity * slope, polarity * intercept) for slope, intercept in dec.lines]
+        angles_deg = [polarity * a for a in split.angles_deg]
     return TapAnalysis(
         valid=True,
         polarity=polarity,
-        points=[(t, polarity * f) for t, f in dec.points],
-        lines=[(polarity * slope, polarity * intercept) for slope, intercept in dec.lines],
-        angles_deg=[polarity * a for a in split.angles_deg],
+        points=points,
+        lines=lines,
+        angles_deg=angles_deg,
         outliers=outliers,
         sensor_integration_s=split.timing.integration_s,
         noise_sigma_g=split.noise_g,
@@ -1519,13 +1524,37 @@ def _corner_windows(time_s: np.ndarray, corners_s: list[float], timing: SensorTi
     return np.any((start_s[:, None] <= corners[None, :]) & (corners[None, :] <= end_s[:, None]), axis=1)
 
 
-def _polarity(time_s: np.ndarray, force_g: np.ndarray, motion: Motion) -> int:
-    """+1 when contact pushes the force up, -1 when down (dwell force vs approach baseline)."""
-    home_end, pull_start, start = _indices(time_s, motion.home_end_s, motion.pullback_start_s,
-                                           motion.home_end_s - max(motion.pullback_duration_s, 0.05))
+def polarity_and_repaired(time_s: np.ndarray, force_raw: np.ndarray, motion: Motion, outlier_sigma: float
+                          ) -> tuple[int, np.ndarray, int]:
+    """(polarity (`_polarity`), the force in positive polarity with its corrupted frames repaired
+    (`repair_spikes`), how many were repaired): one kernel call when built (polar_spikes: the twins'
+    arithmetic in their order, bit for bit), else the twins."""
+    baseline_from_s = motion.home_end_s - max(motion.pullback_duration_s, POLARITY_BASELINE_MIN_S)
+    if _C is None:
+        polarity = _polarity(time_s, force_raw, motion.home_end_s, motion.pullback_start_s, baseline_from_s)
+        force, outliers = repair_spikes(polarity * force_raw, outlier_sigma)
+        return polarity, force, outliers
+    force = np.empty_like(force_raw)
+    polarity, outliers = _C.polar_spikes(time_s, force_raw, motion.home_end_s, motion.pullback_start_s,
+                                         baseline_from_s, outlier_sigma, force)
+    if polarity == 0:
+        raise TapInvalid(TAP_SHAPE_INVALID, NO_FORCE_CHANGE)
+    return polarity, force, outliers
+
+
+# The polarity's baseline: the force read over a pullback's duration (at least this long) before the halt.
+POLARITY_BASELINE_MIN_S = 0.05
+NO_FORCE_CHANGE = "the force does not change between approach and dwell"
+
+
+def _polarity(time_s: np.ndarray, force_g: np.ndarray, halt_s: float, pullback_start_s: float,
+              baseline_from_s: float) -> int:
+    """+1 when contact pushes the force up, -1 when down (dwell force vs the baseline read from
+    baseline_from_s to the halt)."""
+    home_end, pull_start, start = _indices(time_s, halt_s, pullback_start_s, baseline_from_s)
     baseline = median(force_g[start:max(home_end - 1, start + 1)])
     dwell = force_g[home_end:pull_start + 1]
     change = median(dwell) - baseline if len(dwell) else float(force_g[home_end]) - baseline
     if change == 0 or not math.isfinite(change):
-        raise TapInvalid(TAP_SHAPE_INVALID, "the force does not change between approach and dwell")
+        raise TapInvalid(TAP_SHAPE_INVALID, NO_FORCE_CHANGE)
     return 1 if change > 0 else -1
