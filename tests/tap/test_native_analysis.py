@@ -50,6 +50,11 @@ def test_median_of_long_samples_is_numpys():
                        np.arange(n, 0, -1, dtype=float), np.where(np.arange(n) < n // 3, 0.0, 75.0) + noise):
             assert KERNEL.median(values) == np.median(values), (n, values[:5])
             assert KERNEL.median(values[1:]) == np.median(values[1:])
+    # Every tenth value far above the rest: an evenly spaced sample of 64 (from 256 values on) takes
+    # only those, and its pivots miss the median (the selection over every value finds it).
+    for n in (640, 641, 1280):
+        values = np.where(np.arange(n) % (n // 64) == 0, 1000.0, rng.normal(0.0, 1.0, n))
+        assert KERNEL.median(values) == np.median(values)
 
 
 def test_median_of_nan_is_nan_and_of_nothing_an_error():

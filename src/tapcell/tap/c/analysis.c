@@ -166,6 +166,32 @@ static Py_ssize_t repair_in_copy(const double *force_g, double *f, char *spike, 
     return count;
 }
 
+/* The least and the largest of values[0..n) (n >= 1, no NaN), in four independent runs (one
+ * running minimum waits on the last: four keep the pipeline full); the order does not matter. */
+static void span_of(const double *values, Py_ssize_t n, double *lowest, double *highest)
+{
+    double low[4], high[4];
+    for (int j = 0; j < 4; j++)
+        low[j] = high[j] = values[0];
+    Py_ssize_t i = 0;
+    for (; i + 4 <= n; i += 4) {
+        for (int j = 0; j < 4; j++) {
+            low[j] = values[i + j] < low[j] ? values[i + j] : low[j];
+            high[j] = values[i + j] > high[j] ? values[i + j] : high[j];
+        }
+    }
+    for (; i < n; i++) {
+        low[0] = values[i] < low[0] ? values[i] : low[0];
+        high[0] = values[i] > high[0] ? values[i] : high[0];
+    }
+    for (int j = 1; j < 4; j++) {
+        low[0] = low[j] < low[0] ? low[j] : low[0];
+        high[0] = high[j] > high[0] ? high[j] : high[0];
+    }
+    *lowest = low[0];
+    *highest = high[0];
+}
+
 /* `repair_spikes` of force_g[0..n) (n >= 5) into repaired[0..n): the spike test's threshold from the
  * noise sigma and the force's span, then the loop. spike (n bytes) marks the repaired samples;
  * returns their count, or -1 (MemoryError set). */
@@ -181,11 +207,8 @@ static Py_ssize_t repair_spikes_into(const double *force_g, Py_ssize_t n, double
     off_midpoints(force_g, n, off_mid);
     memcpy(scratch, off_mid, (size_t)(n - 2) * sizeof(double));
     double noise_sigma_g = noise_of_off_midpoints(scratch, n - 2);
-    double lowest = force_g[0], highest = force_g[0];
-    for (Py_ssize_t i = 1; i < n; i++) {
-        if (force_g[i] < lowest) lowest = force_g[i];
-        if (force_g[i] > highest) highest = force_g[i];
-    }
+    double lowest, highest;
+    span_of(force_g, n, &lowest, &highest);
     double threshold = fmax(fmax(threshold_sigma * noise_sigma_g, 1e-6 * (highest - lowest)), 1e-9);
     Py_ssize_t count = repair_in_copy(force_g, repaired, spike, n, off_mid, threshold);
     free(off_mid);

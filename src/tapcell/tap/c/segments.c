@@ -120,11 +120,18 @@ static double first_min(const double *values, Py_ssize_t count, Py_ssize_t *at)
 {
     double best = values[0];
     Py_ssize_t best_at = 0;
-    /* One comparison a value: !(value >= best) holds for a smaller value and for a NaN. */
-    for (Py_ssize_t k = 1; k < count && best == best; k++) {
+    if (best != best) { /* a NaN first: it stays */
+        *at = 0;
+        return best;
+    }
+    /* One comparison a value: !(value >= best) holds for a smaller value and for a NaN, which ends
+     * the search. */
+    for (Py_ssize_t k = 1; k < count; k++) {
         if (!(values[k] >= best)) {
             best = values[k];
             best_at = k;
+            if (best != best)
+                break;
         }
     }
     *at = best_at;
