@@ -55,6 +55,11 @@ def test_median_of_long_samples_is_numpys():
     for n in (640, 641, 1280):
         values = np.where(np.arange(n) % (n // 64) == 0, 1000.0, rng.normal(0.0, 1.0, n))
         assert KERNEL.median(values) == np.median(values)
+    # A NaN among them, where the sample takes it (index 0) and where it does not: NaN, as numpy's.
+    for at in (0, 5, 699):
+        values = rng.normal(0.0, 1.0, 700)
+        values[at] = np.nan
+        assert math.isnan(KERNEL.median(values))
 
 
 def test_median_of_nan_is_nan_and_of_nothing_an_error():

@@ -129,24 +129,40 @@ static int is_step(const double *force_g, Py_ssize_t i, double threshold)
 }
 
 /* The twin's loop: candidates are the samples off their neighbours' midpoint and the pairs between
- * two steps; the one that stands out the most is repaired first in f (a copy of force_g), the rest
- * judged again, until none stands out. spike marks the repaired samples; returns their count. */
+ * two steps (both found once, in the force as given, as the twin's lists); the one that stands out
+ * the most is repaired first in f (a copy of force_g), the rest judged again, until none stands
+ * out. spike marks the repaired samples; returns their count, or -1 (MemoryError set). */
 static Py_ssize_t repair_in_copy(const double *force_g, double *f, char *spike, Py_ssize_t n, const double *off_mid,
                                  double threshold)
 {
+    Py_ssize_t *suspects = malloc(2 * (size_t)n * sizeof(Py_ssize_t));
+    if (suspects == NULL) {
+        PyErr_NoMemory();
+        return -1;
+    }
+    Py_ssize_t *pairs = suspects + n, suspect_count = 0, pair_count = 0;
+    for (Py_ssize_t k = 1; k + 1 < n; k++) {
+        suspects[suspect_count] = k;
+        suspect_count += off_mid[k - 1] > threshold;
+    }
+    for (Py_ssize_t k = 2; k <= n - 4; k++) {
+        pairs[pair_count] = k;
+        pair_count += is_step(force_g, k - 1, threshold) && is_step(force_g, k + 1, threshold);
+    }
     memcpy(f, force_g, (size_t)n * sizeof(double));
     memset(spike, 0, (size_t)n);
     Py_ssize_t count = 0;
     for (;;) {
         double best_g = 0.0;
         Py_ssize_t best_k = 0, best_width = 0;
-        for (Py_ssize_t k = 1; k + 1 < n; k++) { /* the twin's order: every lone suspect, then every pair */
-            if (!(off_mid[k - 1] > threshold) || spike[k]) continue;
+        for (Py_ssize_t j = 0; j < suspect_count; j++) { /* the twin's order: every lone suspect, then every pair */
+            Py_ssize_t k = suspects[j];
+            if (spike[k]) continue;
             double out_g = lone_spike_g(f, n, k, threshold);
             if (out_g > best_g) { best_g = out_g; best_k = k; best_width = 1; }
         }
-        for (Py_ssize_t k = 2; k <= n - 4; k++) {
-            if (!is_step(force_g, k - 1, threshold) || !is_step(force_g, k + 1, threshold)) continue;
+        for (Py_ssize_t j = 0; j < pair_count; j++) {
+            Py_ssize_t k = pairs[j];
             if (spike[k] || spike[k + 1]) continue;
             double out_g = spike_pair_g(f, n, k, threshold);
             if (out_g > best_g) { best_g = out_g; best_k = k; best_width = 2; }
@@ -163,6 +179,7 @@ static Py_ssize_t repair_in_copy(const double *force_g, double *f, char *spike, 
         for (Py_ssize_t j = k; j < k + best_width; j++) spike[j] = 1;
         count += best_width;
     }
+    free(suspects);
     return count;
 }
 

@@ -114,11 +114,15 @@ static inline void select_kth(double *values, Py_ssize_t n, Py_ssize_t k)
  * they hold about 20 / 64 of the values. */
 #define MEDIAN_SAMPLE_MARGIN 10
 
+/* What `median_between_pivots` found. */
+enum { PIVOTS_MISSED = 0, PIVOTS_FOUND = 1, PIVOTS_SAW_NAN = 2 };
+
 /* Floyd and Rivest's selection, one step: the k-th smallest values lo_rank and hi_rank (hi_rank =
- * lo_rank or lo_rank + 1) of values[0..n) without NaN, from the values between two pivots taken
- * from an evenly spaced sample (one pass picks them out into scratch; the selection then runs on
- * a third of the values). 1 with them in *lower and *upper, 0 when the pivots missed them (the
- * caller selects over every value then) or there was no memory. values are only read. */
+ * lo_rank or lo_rank + 1) of values[0..n), from the values between two pivots taken from an evenly
+ * spaced sample (one pass picks them out into scratch; the selection then runs on a third of the
+ * values). PIVOTS_FOUND with them in *lower and *upper; PIVOTS_SAW_NAN when a value is NaN (it
+ * lies neither below, between nor above the pivots); PIVOTS_MISSED when the pivots missed them
+ * (the caller selects over every value then) or there was no memory. values are only read. */
 static inline int median_between_pivots(const double *values, Py_ssize_t n, Py_ssize_t lo_rank, Py_ssize_t hi_rank,
                                         double *lower, double *upper)
 {
@@ -134,16 +138,17 @@ static inline int median_between_pivots(const double *values, Py_ssize_t n, Py_s
     select_kth_into(sample, b, a, sample_scratch); /* sample[0..b) holds the values up to sample[b] */
     const double low_pivot = sample[a];
     double *between = malloc((size_t)n * sizeof(double));
-    if (between == NULL) return 0;
-    Py_ssize_t below = 0, count = 0;
+    if (between == NULL) return PIVOTS_MISSED;
+    Py_ssize_t below = 0, count = 0, above = 0;
     for (Py_ssize_t i = 0; i < n; i++) { /* without branches on the values, as select_kth_into */
         const double value = values[i];
         between[count] = value;
         below += value < low_pivot;
         count += (value >= low_pivot) & (value <= high_pivot);
+        above += value > high_pivot;
     }
-    int found = below <= lo_rank && hi_rank < below + count;
-    if (found) {
+    int found = below + count + above < n ? PIVOTS_SAW_NAN : below <= lo_rank && hi_rank < below + count;
+    if (found == PIVOTS_FOUND) {
         Py_ssize_t k = hi_rank - below;
         select_kth(between, count, k);
         *upper = between[k];
@@ -161,12 +166,15 @@ static inline int median_between_pivots(const double *values, Py_ssize_t n, Py_s
 static inline double median_in_place(double *values, Py_ssize_t n)
 {
     if (n < 1) return NAN;
-    for (Py_ssize_t i = 0; i < n; i++)
-        if (isnan(values[i])) return NAN; /* as numpy's: a NaN makes the median NaN */
     Py_ssize_t half = n / 2;
     double lower, upper;
-    if (n >= MEDIAN_SAMPLED_FROM && median_between_pivots(values, n, n % 2 ? half : half - 1, half, &lower, &upper))
-        return n % 2 ? upper : 0.5 * (lower + upper);
+    if (n >= MEDIAN_SAMPLED_FROM) {
+        int found = median_between_pivots(values, n, n % 2 ? half : half - 1, half, &lower, &upper);
+        if (found == PIVOTS_FOUND) return n % 2 ? upper : 0.5 * (lower + upper);
+        if (found == PIVOTS_SAW_NAN) return NAN;
+    }
+    for (Py_ssize_t i = 0; i < n; i++)
+        if (isnan(values[i])) return NAN; /* as numpy's: a NaN makes the median NaN */
     select_kth(values, n, half);
     if (n % 2) return values[half];
     upper = values[half];
