@@ -1024,6 +1024,9 @@ class SplitTap:
     ps: PrefixSums
     noise_g: float
     angles_deg: list[float]
+    # The points in time order and the angles a tap's (validate.split_checks_pass): check_split
+    # need not check them again.
+    points_pass: bool = False
 
     @cached_attribute
     def wanders(self) -> tuple[Wander | None, Wander | None]:
@@ -1097,13 +1100,16 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> tuple[SplitTap, int, in
     force, hum = remove_mains_hum(tap, options, time_s, force, motion, timing, lag_samples, period_s)
     dec, ps = decompose(time_s, force, motion, lag_samples, period_s)
     angles_deg = line_angles_deg(dec.lines)
-    if not validate.split_checks_pass(dec.points, angles_deg):
+    checks_pass = validate.split_checks_pass(dec.points, angles_deg)
+    if not checks_pass:
         dec, ps = decompose_again(time_s, force, motion, lag_samples, period_s, (dec, ps))
         angles_deg = line_angles_deg(dec.lines)
+        checks_pass = validate.split_checks_pass(dec.points, angles_deg)
     # Second differences of the whole analysed window: hundreds of samples even when the
     # approach holds a dozen; the four kinks of a tap cannot move their median.
     noise_g = noise_sigma_g(force[dec.start:dec.stop])
-    return SplitTap(time_s, force, motion, timing, dec, ps, noise_g, angles_deg), polarity, outliers, hum
+    split = SplitTap(time_s, force, motion, timing, dec, ps, noise_g, angles_deg, points_pass=checks_pass)
+    return split, polarity, outliers, hum
 
 
 def result_of_split(split: SplitTap, polarity: int, outliers: int, hum: HumFit | None) -> TapAnalysis:
@@ -1152,7 +1158,8 @@ def check_split(split: SplitTap, delay_s: float) -> None:
         if not left_inside_pullback(split.time_s, split.force_g, motion, dec, split.ps, period_s):
             validate.check_left_the_bed(dec.points[P_DWELL_START][1] - dec.points[P_CONTACT][1],
                                         *force_left_at_end_g(split.time_s, split.force_g, motion, dec, split.ps))
-        validate.check_points(dec.points, split.angles_deg)
+        if not split.points_pass:
+            validate.check_points(dec.points, split.angles_deg)
         validate.check_break_contact(dec.points[P_BREAK][0] - delay_s - 0.5 * timing.integration_s, motion, period_s)
     except TapInvalid as invalid:
         # "Lengthen pullback_distance" on a pullback of a few samples: its rules count samples the
