@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -11,7 +12,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from tapcell.tap import analysis, contact, native, robust
-from tapcell.tap.motion import tap_motion
+from tapcell.tap.motion import Motion, tap_motion
 from tapcell.tap.readers import tap_from_object
 from tapcell.taplab.generate import SCENARIOS, make_tap
 from native_kernel_inputs import OPTIONS, recorded_calls
@@ -36,6 +37,29 @@ def _twins(compute):
 def test_median_is_numpys(values):
     # Repeated values (the sampled constants) exercise the selection's equal-to-pivot runs.
     assert KERNEL.median(values) == np.median(values)
+
+
+def test_median_of_long_samples_is_numpys():
+    # Tap-sized arrays (hundreds to thousands of samples), where the selection partitions through
+    # its scratch runs: noise, quantised noise (an ADC's counts: long runs of equal values), a
+    # constant, sorted and reversed ramps, a tap-like step; odd and even counts.
+    rng = np.random.default_rng(21)
+    for n in (12, 13, 101, 700, 1449, 4769):
+        noise = rng.normal(0.0, 1.0, n)
+        for values in (noise, np.round(noise * 2.0) / 2.0, np.full(n, 3.25), np.arange(n, dtype=float),
+                       np.arange(n, 0, -1, dtype=float), np.where(np.arange(n) < n // 3, 0.0, 75.0) + noise):
+            assert KERNEL.median(values) == np.median(values), (n, values[:5])
+            assert KERNEL.median(values[1:]) == np.median(values[1:])
+    # Every tenth value far above the rest: an evenly spaced sample of 64 (from 256 values on) takes
+    # only those, and its pivots miss the median (the selection over every value finds it).
+    for n in (640, 641, 1280):
+        values = np.where(np.arange(n) % (n // 64) == 0, 1000.0, rng.normal(0.0, 1.0, n))
+        assert KERNEL.median(values) == np.median(values)
+    # A NaN among them, where the sample takes it (index 0) and where it does not: NaN, as numpy's.
+    for at in (0, 5, 699):
+        values = rng.normal(0.0, 1.0, 700)
+        values[at] = np.nan
+        assert math.isnan(KERNEL.median(values))
 
 
 def test_median_of_nan_is_nan_and_of_nothing_an_error():
@@ -77,6 +101,59 @@ def test_noise_and_spikes_are_the_twins_on_independent_taps():
     fast, reference = _twins(compute)
     assert fast == reference
     assert sum(analysis.repair_spikes(f, 5.0)[1] for f in forces[:3]) >= 3  # corrupt frames were repaired
+
+
+def _polarity_and_repaired(time_s, force_raw, motion, outlier_sigma):
+    """analysis.polarity_and_repaired as (polarity, force as a list, repaired), or the TapInvalid's code."""
+    try:
+        polarity, force, outliers = analysis.polarity_and_repaired(time_s, force_raw, motion, outlier_sigma)
+    except analysis.TapInvalid as invalid:
+        return invalid.code, invalid.message
+    return polarity, force.tolist(), outliers
+
+
+def test_polarity_and_repair_are_the_twins_on_generated_taps():
+    # Every taplab scenario (corrupt frames among them), each as recorded and mirrored (a cell
+    # mounted the other way), the default threshold and a low one that repairs noise peaks too.
+    calls = recorded_calls(analysis, "polarity_and_repaired", [OPTIONS["default"]])
+    cases = [(t, sign * f, motion, sigma) for t, f, motion, _ in calls for sign in (1.0, -1.0) for sigma in (5.0, 3.0)]
+    fast, twin = _twins(lambda: [_polarity_and_repaired(*case) for case in cases])
+    assert fast == twin
+    assert {found[0] for found in fast} == {1, -1}
+    assert sum(found[2] for found in fast) >= 10  # frames were repaired
+
+
+@pytest.mark.filterwarnings("ignore:overflow encountered")  # the twin's median of two 1e308s
+def test_polarity_and_repair_are_the_twins_at_the_edges():
+    # A force that does not change between approach and dwell (TAP_SHAPE_INVALID), one whose change
+    # overflows (not finite: the same), a spike in the dwell beside a frame pair on the compression,
+    # and a dwell of one sample (the pullback starts before the sample after the halt).
+    rng = np.random.default_rng(5)
+    tap = tap_from_object(make_tap(SCENARIOS["clean_hx717"].draw(rng), rng)[0])
+    motion = tap_motion(tap)
+    time_s = np.ascontiguousarray(tap.time_s, dtype=float)
+    force_g = np.ascontiguousarray(tap.force_g, dtype=float)
+    halt = int(time_s.searchsorted(motion.home_end_s))
+    spiked = force_g.copy()
+    spiked[halt + 3] += 400.0
+    spiked[halt - 3:halt - 1] -= 300.0
+    huge = np.where(time_s < motion.home_end_s, -1.7e308, 1.7e308)
+    one_sample_dwell = dataclasses.replace(motion, home_end_s=float(time_s[halt]) - 1e-9,
+                                           pullback_start_s=float(time_s[halt]) + 1e-9)
+    cases = [(time_s, np.full_like(force_g, 2.5), motion, 5.0), (time_s, huge, motion, 5.0),
+             (time_s, spiked, motion, 5.0), (time_s, force_g, one_sample_dwell, 5.0)]
+    # At 10 sps a baseline of two samples (0 and 10 g) before the one read just before the halt (10 g,
+    # left out), under a 7 g dwell: +1 (a baseline holding the sample before the halt would say -1).
+    slow_s = np.arange(40) * 0.1
+    slow_g = np.zeros(40)
+    slow_g[19:21], slow_g[21:31] = 10.0, 7.0
+    slow = Motion(home_end_s=2.05, pullback_start_s=3.0, pullback_cruise_s=3.0, pullback_end_s=3.25, z_halt_mm=0.0,
+                  approach_speed_mm_s=1.0, pullback_speed_mm_s=1.0)
+    cases.append((slow_s, slow_g, slow, 5.0))
+    fast, twin = _twins(lambda: [_polarity_and_repaired(*case) for case in cases])
+    assert fast == twin
+    assert fast[0] == fast[1] == (analysis.TAP_SHAPE_INVALID, analysis.NO_FORCE_CHANGE)
+    assert fast[2][0] == fast[3][0] == fast[4][0] == 1 and fast[2][2] == 3
 
 
 def test_window_heights_are_the_twins_to_the_last_bit(monkeypatch):

@@ -144,6 +144,8 @@ def _problem(force_g, start, stop, *ranges):
 @given(split_problems())
 # Every segment residual 0: the first arrangement giving every line two samples wins.
 @example(_problem([0.0] * 12, 0, 12, (2, 9), (4, 8), (4, 9), (6, 11)))
+# Sums past a double's range: NaN residuals, which win every minimum as numpy's do: no split.
+@example(_problem([0.0] * 4 + [1e155, 3e155, 2e155] + [0.0] * 5, 0, 12, (2, 9), (4, 8), (4, 9), (6, 11)))
 # No arrangement gives the approach two samples: no split.
 @example(_problem([0.0, 1.0, 2.0, 3.0, 3.0, 3.0, 2.0, 1.0, 0.0, 0.0], 0, 10, (0, 2), (3, 5), (5, 7), (7, 9)))
 def test_five_segments_equal_the_twin_on_ties_and_crossed_ranges(problem):

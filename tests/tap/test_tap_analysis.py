@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import dataclasses
+import itertools
+import math
 
 import numpy as np
 import pytest
@@ -11,6 +13,7 @@ from tapcell.tap import AnalysisOptions, analyze_tap
 from tapcell.tap.analysis import repair_spikes
 from tapcell.tap.segments import prefix_sums, segment_line, segment_sse
 from tapcell.tap.synth import synth_tap
+from tapcell.tap.validate import TapInvalid, check_points, split_checks_pass
 
 EXACT = dict(noise_g=0.0, relaxation_fraction=0.0)
 SHARP = AnalysisOptions(contact_model="sharp")
@@ -282,3 +285,22 @@ def test_plot_draws_five_lines_six_named_points_and_z():
         assert line.get_xdata()[0] + t0 == pytest.approx(analysis.points[k][0])
         assert line.get_xdata()[1] + t0 == pytest.approx(analysis.points[k + 1][0])
     plt.close(figure)
+
+
+def test_the_splits_own_check_passes_exactly_what_check_points_passes():
+    # check_split leaves the points' order and the angles to the split's own check when it passed
+    # them (SplitTap.points_pass): the two agree on every sign of every angle (zeros of both signs,
+    # NaN) and on points in and out of time order.
+    in_order = [(float(t), 0.0) for t in range(6)]
+    swapped = [*in_order[:2], in_order[3], in_order[2], *in_order[4:]]
+    outcomes = set()
+    for points in (in_order, swapped):
+        for angles in itertools.product((-2.0, -0.0, 0.0, 3.0, math.nan), repeat=4):
+            try:
+                check_points(points, list(angles))
+                passes = True
+            except TapInvalid:
+                passes = False
+            assert split_checks_pass(points, list(angles)) == passes, (points, angles)
+            outcomes.add(passes)
+    assert outcomes == {True, False}

@@ -19,7 +19,6 @@ it with and what runs without a C compiler.
 
 from __future__ import annotations
 
-import functools
 import math
 import time
 from dataclasses import dataclass, field
@@ -33,6 +32,7 @@ from tapcell.tap.classifiers import get_classifier, run_classifier
 from tapcell.tap.contact import (MIN_SPAN_UM, SEARCH_SAMPLES, ContactFit, fit_contact, fit_fixed_onset,
                                  fit_of_kernel, window_edges, window_mean_and_slope)
 from tapcell.tap.context import AnalysisContext, SensorTiming
+from tapcell.tap.lazy import cached_attribute
 from tapcell.tap.model import (
     TAP_ADHESION,
     TAP_BREAK_CONTACT_TOO_LATE,
@@ -1024,8 +1024,11 @@ class SplitTap:
     ps: PrefixSums
     noise_g: float
     angles_deg: list[float]
+    # The points in time order and the angles a tap's (validate.split_checks_pass): check_split
+    # need not check them again.
+    points_pass: bool = False
 
-    @functools.cached_property
+    @cached_attribute
     def wanders(self) -> tuple[Wander | None, Wander | None]:
         """`free_air_wanders` of the tap, measured once for the toe fit and its uncertainty."""
         motion, period_s = self.motion, self.timing.sample_period_s
@@ -1033,7 +1036,7 @@ class SplitTap:
         rising_stop = int(self.time_s.searchsorted(motion.pullback_end_s + self.timing.delay_s, side="right"))
         return free_air_wanders(self.force_g, self.dec, steps_um, rising_stop)
 
-    @functools.cached_property
+    @cached_attribute
     def ringing(self) -> Ringing | None:
         """The ringing the dwell shows (tapcell.tap.stage.dwell_ringing), against the white noise:
         measured once for the stage checks and z_sigma_um's ringing part."""
@@ -1091,31 +1094,39 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> tuple[SplitTap, int, in
     period_s = sample_period_s(tap.sample_rate_sps, time_s)
     timing = sensor_timing(tap, options, period_s)
     validate.check_motion(motion, time_s)
-    polarity = _polarity(time_s, force_raw, motion)
-    force, outliers = repair_spikes(polarity * force_raw, options.outlier_sigma)
+    polarity, force, outliers = polarity_and_repaired(time_s, force_raw, motion, options.outlier_sigma)
     allowance = UNKNOWN_DELAY_ALLOWANCE_S if timing.estimate_delay or timing.delay_from_halt else timing.delay_s
     lag_samples = math.ceil((allowance + timing.integration_s) / period_s) + LAG_MARGIN_SAMPLES
     force, hum = remove_mains_hum(tap, options, time_s, force, motion, timing, lag_samples, period_s)
     dec, ps = decompose(time_s, force, motion, lag_samples, period_s)
     angles_deg = line_angles_deg(dec.lines)
-    if not validate.split_checks_pass(dec.points, angles_deg):
+    checks_pass = validate.split_checks_pass(dec.points, angles_deg)
+    if not checks_pass:
         dec, ps = decompose_again(time_s, force, motion, lag_samples, period_s, (dec, ps))
         angles_deg = line_angles_deg(dec.lines)
+        checks_pass = validate.split_checks_pass(dec.points, angles_deg)
     # Second differences of the whole analysed window: hundreds of samples even when the
     # approach holds a dozen; the four kinks of a tap cannot move their median.
     noise_g = noise_sigma_g(force[dec.start:dec.stop])
-    return SplitTap(time_s, force, motion, timing, dec, ps, noise_g, angles_deg), polarity, outliers, hum
+    split = SplitTap(time_s, force, motion, timing, dec, ps, noise_g, angles_deg, points_pass=checks_pass)
+    return split, polarity, outliers, hum
 
 
 def result_of_split(split: SplitTap, polarity: int, outliers: int, hum: HumFit | None) -> TapAnalysis:
     """The result as far as the five lines go, in the tap's own polarity."""
     dec = split.dec
+    if polarity == 1:  # x 1 changes no bit: copies of the split's own lists
+        points, lines, angles_deg = list(dec.points), list(dec.lines), list(split.angles_deg)
+    else:
+        points = [(t, polarity * f) for t, f in dec.points]
+        lines = [(polarity * slope, polarity * intercept) for slope, intercept in dec.lines]
+        angles_deg = [polarity * a for a in split.angles_deg]
     return TapAnalysis(
         valid=True,
         polarity=polarity,
-        points=[(t, polarity * f) for t, f in dec.points],
-        lines=[(polarity * slope, polarity * intercept) for slope, intercept in dec.lines],
-        angles_deg=[polarity * a for a in split.angles_deg],
+        points=points,
+        lines=lines,
+        angles_deg=angles_deg,
         outliers=outliers,
         sensor_integration_s=split.timing.integration_s,
         noise_sigma_g=split.noise_g,
@@ -1147,7 +1158,8 @@ def check_split(split: SplitTap, delay_s: float) -> None:
         if not left_inside_pullback(split.time_s, split.force_g, motion, dec, split.ps, period_s):
             validate.check_left_the_bed(dec.points[P_DWELL_START][1] - dec.points[P_CONTACT][1],
                                         *force_left_at_end_g(split.time_s, split.force_g, motion, dec, split.ps))
-        validate.check_points(dec.points, split.angles_deg)
+        if not split.points_pass:
+            validate.check_points(dec.points, split.angles_deg)
         validate.check_break_contact(dec.points[P_BREAK][0] - delay_s - 0.5 * timing.integration_s, motion, period_s)
     except TapInvalid as invalid:
         # "Lengthen pullback_distance" on a pullback of a few samples: its rules count samples the
@@ -1518,13 +1530,37 @@ def _corner_windows(time_s: np.ndarray, corners_s: list[float], timing: SensorTi
     return windows_holding(time_s, corners_s, timing.delay_s, timing.integration_s, timing.sample_period_s)
 
 
-def _polarity(time_s: np.ndarray, force_g: np.ndarray, motion: Motion) -> int:
-    """+1 when contact pushes the force up, -1 when down (dwell force vs approach baseline)."""
-    home_end, pull_start, start = _indices(time_s, motion.home_end_s, motion.pullback_start_s,
-                                           motion.home_end_s - max(motion.pullback_duration_s, 0.05))
+def polarity_and_repaired(time_s: np.ndarray, force_raw: np.ndarray, motion: Motion, outlier_sigma: float
+                          ) -> tuple[int, np.ndarray, int]:
+    """(polarity (`_polarity`), the force in positive polarity with its corrupted frames repaired
+    (`repair_spikes`), how many were repaired): one kernel call when built (polar_spikes: the twins'
+    arithmetic in their order, bit for bit), else the twins."""
+    baseline_from_s = motion.home_end_s - max(motion.pullback_duration_s, POLARITY_BASELINE_MIN_S)
+    if _C is None:
+        polarity = _polarity(time_s, force_raw, motion.home_end_s, motion.pullback_start_s, baseline_from_s)
+        force, outliers = repair_spikes(polarity * force_raw, outlier_sigma)
+        return polarity, force, outliers
+    force = np.empty_like(force_raw)
+    polarity, outliers = _C.polar_spikes(time_s, force_raw, motion.home_end_s, motion.pullback_start_s,
+                                         baseline_from_s, outlier_sigma, force)
+    if polarity == 0:
+        raise TapInvalid(TAP_SHAPE_INVALID, NO_FORCE_CHANGE)
+    return polarity, force, outliers
+
+
+# The polarity's baseline: the force read over a pullback's duration (at least this long) before the halt.
+POLARITY_BASELINE_MIN_S = 0.05
+NO_FORCE_CHANGE = "the force does not change between approach and dwell"
+
+
+def _polarity(time_s: np.ndarray, force_g: np.ndarray, halt_s: float, pullback_start_s: float,
+              baseline_from_s: float) -> int:
+    """+1 when contact pushes the force up, -1 when down (dwell force vs the baseline read from
+    baseline_from_s to the halt)."""
+    home_end, pull_start, start = _indices(time_s, halt_s, pullback_start_s, baseline_from_s)
     baseline = median(force_g[start:max(home_end - 1, start + 1)])
     dwell = force_g[home_end:pull_start + 1]
     change = median(dwell) - baseline if len(dwell) else float(force_g[home_end]) - baseline
     if change == 0 or not math.isfinite(change):
-        raise TapInvalid(TAP_SHAPE_INVALID, "the force does not change between approach and dwell")
+        raise TapInvalid(TAP_SHAPE_INVALID, NO_FORCE_CHANGE)
     return 1 if change > 0 else -1

@@ -7,11 +7,11 @@ height through `z_at`.
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
 
+from tapcell.tap.lazy import cached_attribute
 from tapcell.tap.model import Move, TapData
 
 # Moves of one tap, counted from the end (tap-format / Klipper-family convention):
@@ -52,7 +52,7 @@ class Motion:
         tau_s = np.minimum(np.maximum(t_s - start, 0.0), duration)
         return start_z + z_r * (start_v + 0.5 * accel * tau_s) * tau_s
 
-    @functools.cached_property
+    @cached_attribute
     def move_table(self) -> np.ndarray:
         """Rows: start time, duration, start speed, acceleration, start Z, direction; one column per move."""
         # Row-major (contiguous rows): the compiled window heights read it as six rows. One flat list

@@ -146,8 +146,10 @@ def in_time_order(points: list[tuple[float, float]]) -> bool:
 
 
 def split_checks_pass(points: list[tuple[float, float]], angles_deg: list[float]) -> bool:
-    """The six points in time order and the four angles' signs a tap's (what check_points asks)."""
-    return in_time_order(points) and tuple((a > 0) - (a < 0) for a in angles_deg) == POSITIVE_SHAPE
+    """The six points in time order and the four angles' signs a tap's: exactly when check_points
+    passes them (POSITIVE_SHAPE's signs, compared one by one; a NaN angle has no sign and fails)."""
+    approach_turn, compression_turn, release_turn, departure_turn = angles_deg
+    return in_time_order(points) and approach_turn < 0 < compression_turn and release_turn > 0 > departure_turn
 
 
 def check_points(points: list[tuple[float, float]], angles_deg: list[float]) -> None:

@@ -128,26 +128,41 @@ static int is_step(const double *force_g, Py_ssize_t i, double threshold)
     return fabs(force_g[i + 1] - force_g[i]) > threshold;
 }
 
-/* The spikes' indices and their repaired values as two lists (empty when there is none): the
- * twin's loop. Candidates are the samples off their neighbours' midpoint and the pairs between
- * two steps; the one that stands out the most is repaired first in f (a copy of force_g), the rest
- * judged again, until none stands out. spike marks the repaired samples. */
-static PyObject *found_spikes(const double *force_g, double *f, char *spike, Py_ssize_t n,
-                              const double *off_mid, double threshold)
+/* The twin's loop: candidates are the samples off their neighbours' midpoint and the pairs between
+ * two steps (both found once, in the force as given, as the twin's lists); the one that stands out
+ * the most is repaired first in f (a copy of force_g), the rest judged again, until none stands
+ * out. spike marks the repaired samples; returns their count, or -1 (MemoryError set). */
+static Py_ssize_t repair_in_copy(const double *force_g, double *f, char *spike, Py_ssize_t n, const double *off_mid,
+                                 double threshold)
 {
+    Py_ssize_t *suspects = malloc(2 * (size_t)n * sizeof(Py_ssize_t));
+    if (suspects == NULL) {
+        PyErr_NoMemory();
+        return -1;
+    }
+    Py_ssize_t *pairs = suspects + n, suspect_count = 0, pair_count = 0;
+    for (Py_ssize_t k = 1; k + 1 < n; k++) {
+        suspects[suspect_count] = k;
+        suspect_count += off_mid[k - 1] > threshold;
+    }
+    for (Py_ssize_t k = 2; k <= n - 4; k++) {
+        pairs[pair_count] = k;
+        pair_count += is_step(force_g, k - 1, threshold) && is_step(force_g, k + 1, threshold);
+    }
     memcpy(f, force_g, (size_t)n * sizeof(double));
     memset(spike, 0, (size_t)n);
     Py_ssize_t count = 0;
     for (;;) {
         double best_g = 0.0;
         Py_ssize_t best_k = 0, best_width = 0;
-        for (Py_ssize_t k = 1; k + 1 < n; k++) { /* the twin's order: every lone suspect, then every pair */
-            if (!(off_mid[k - 1] > threshold) || spike[k]) continue;
+        for (Py_ssize_t j = 0; j < suspect_count; j++) { /* the twin's order: every lone suspect, then every pair */
+            Py_ssize_t k = suspects[j];
+            if (spike[k]) continue;
             double out_g = lone_spike_g(f, n, k, threshold);
             if (out_g > best_g) { best_g = out_g; best_k = k; best_width = 1; }
         }
-        for (Py_ssize_t k = 2; k <= n - 4; k++) {
-            if (!is_step(force_g, k - 1, threshold) || !is_step(force_g, k + 1, threshold)) continue;
+        for (Py_ssize_t j = 0; j < pair_count; j++) {
+            Py_ssize_t k = pairs[j];
             if (spike[k] || spike[k + 1]) continue;
             double out_g = spike_pair_g(f, n, k, threshold);
             if (out_g > best_g) { best_g = out_g; best_k = k; best_width = 2; }
@@ -164,6 +179,62 @@ static PyObject *found_spikes(const double *force_g, double *f, char *spike, Py_
         for (Py_ssize_t j = k; j < k + best_width; j++) spike[j] = 1;
         count += best_width;
     }
+    free(suspects);
+    return count;
+}
+
+/* The least and the largest of values[0..n) (n >= 1, no NaN), in four independent runs (one
+ * running minimum waits on the last: four keep the pipeline full); the order does not matter. */
+static void span_of(const double *values, Py_ssize_t n, double *lowest, double *highest)
+{
+    double low[4], high[4];
+    for (int j = 0; j < 4; j++)
+        low[j] = high[j] = values[0];
+    Py_ssize_t i = 0;
+    for (; i + 4 <= n; i += 4) {
+        for (int j = 0; j < 4; j++) {
+            low[j] = values[i + j] < low[j] ? values[i + j] : low[j];
+            high[j] = values[i + j] > high[j] ? values[i + j] : high[j];
+        }
+    }
+    for (; i < n; i++) {
+        low[0] = values[i] < low[0] ? values[i] : low[0];
+        high[0] = values[i] > high[0] ? values[i] : high[0];
+    }
+    for (int j = 1; j < 4; j++) {
+        low[0] = low[j] < low[0] ? low[j] : low[0];
+        high[0] = high[j] > high[0] ? high[j] : high[0];
+    }
+    *lowest = low[0];
+    *highest = high[0];
+}
+
+/* `repair_spikes` of force_g[0..n) (n >= 5) into repaired[0..n): the spike test's threshold from the
+ * noise sigma and the force's span, then the loop. spike (n bytes) marks the repaired samples;
+ * returns their count, or -1 (MemoryError set). */
+static Py_ssize_t repair_spikes_into(const double *force_g, Py_ssize_t n, double threshold_sigma, double *repaired,
+                                     char *spike)
+{
+    double *off_mid = malloc(2 * (size_t)(n - 2) * sizeof(double));
+    if (off_mid == NULL) {
+        PyErr_NoMemory();
+        return -1;
+    }
+    double *scratch = off_mid + (n - 2);
+    off_midpoints(force_g, n, off_mid);
+    memcpy(scratch, off_mid, (size_t)(n - 2) * sizeof(double));
+    double noise_sigma_g = noise_of_off_midpoints(scratch, n - 2);
+    double lowest, highest;
+    span_of(force_g, n, &lowest, &highest);
+    double threshold = fmax(fmax(threshold_sigma * noise_sigma_g, 1e-6 * (highest - lowest)), 1e-9);
+    Py_ssize_t count = repair_in_copy(force_g, repaired, spike, n, off_mid, threshold);
+    free(off_mid);
+    return count;
+}
+
+/* The spikes' indices and their repaired values as two lists (empty when there is none). */
+static PyObject *spike_lists(const double *f, const char *spike, Py_ssize_t n, Py_ssize_t count)
+{
     PyObject *indices = PyList_New(count), *values = PyList_New(count);
     if (indices == NULL || values == NULL) goto failed;
     for (Py_ssize_t k = 0, i = 0; k < n; k++) {
@@ -197,27 +268,102 @@ static PyObject *spikes(PyObject *self, PyObject *args)
     if (force_g != NULL && n < 5) {
         answer = Py_BuildValue("([][])");
     } else if (force_g != NULL) {
-        double *off_mid = malloc((2 * (size_t)(n - 2) + (size_t)n) * sizeof(double) + (size_t)n);
-        if (off_mid == NULL) {
+        double *repaired = malloc((size_t)n * sizeof(double) + (size_t)n);
+        if (repaired == NULL) {
             PyErr_NoMemory();
         } else {
-            double *scratch = off_mid + (n - 2);
-            double *repaired = scratch + (n - 2);
-            off_midpoints(force_g, n, off_mid);
-            memcpy(scratch, off_mid, (size_t)(n - 2) * sizeof(double));
-            double noise_sigma_g = noise_of_off_midpoints(scratch, n - 2);
-            double lowest = force_g[0], highest = force_g[0];
-            for (Py_ssize_t i = 1; i < n; i++) {
-                if (force_g[i] < lowest) lowest = force_g[i];
-                if (force_g[i] > highest) highest = force_g[i];
-            }
-            double threshold = fmax(fmax(threshold_sigma * noise_sigma_g, 1e-6 * (highest - lowest)), 1e-9);
-            answer = found_spikes(force_g, repaired, (char *)(repaired + n), n, off_mid, threshold);
-            free(off_mid);
+            char *spike = (char *)(repaired + n);
+            Py_ssize_t count = repair_spikes_into(force_g, n, threshold_sigma, repaired, spike);
+            if (count >= 0) answer = spike_lists(repaired, spike, n, count);
+            free(repaired);
         }
     }
     PyBuffer_Release(&buffer);
     return answer;
+}
+
+/* The first sample at or after t_s (searchsorted left), the last for times past the end (n >= 1). */
+static Py_ssize_t first_at_or_after(const double *time_s, Py_ssize_t n, double t_s)
+{
+    Py_ssize_t low = 0, high = n; /* the count of samples before t_s */
+    while (low < high) {
+        Py_ssize_t middle = low + (high - low) / 2;
+        if (time_s[middle] < t_s) low = middle + 1;
+        else high = middle;
+    }
+    return low < n ? low : n - 1;
+}
+
+/* The median of values[first, end) (end > first) through scratch (end - first values). */
+static double median_of_range(const double *values, Py_ssize_t first, Py_ssize_t end, double *scratch)
+{
+    memcpy(scratch, values + first, (size_t)(end - first) * sizeof(double));
+    return median_in_place(scratch, end - first);
+}
+
+/* analysis.py `_polarity`'s arithmetic: +1 or -1, 0 where the force does not change (or the change
+ * is not finite) between the baseline before the halt and the dwell. scratch: n values. */
+static int polarity_of(const double *time_s, const double *force_g, Py_ssize_t n, double halt_s,
+                       double pullback_start_s, double baseline_from_s, double *scratch)
+{
+    Py_ssize_t home_end = first_at_or_after(time_s, n, halt_s);
+    Py_ssize_t pull_start = first_at_or_after(time_s, n, pullback_start_s);
+    Py_ssize_t start = first_at_or_after(time_s, n, baseline_from_s);
+    /* force_g[start:max(home_end - 1, start + 1)]: start < n, so never empty */
+    Py_ssize_t baseline_end = home_end - 1 > start + 1 ? home_end - 1 : start + 1;
+    double baseline = median_of_range(force_g, start, baseline_end, scratch);
+    Py_ssize_t dwell_end = pull_start + 1; /* force_g[home_end:pull_start + 1]: pull_start < n */
+    double change = dwell_end > home_end ? median_of_range(force_g, home_end, dwell_end, scratch) - baseline
+                                         : force_g[home_end] - baseline;
+    if (change == 0 || !isfinite(change)) return 0;
+    return change > 0 ? 1 : -1;
+}
+
+PyDoc_STRVAR(polar_spikes_doc,
+             "polar_spikes(time_s, force_g, halt_s, pullback_start_s, baseline_from_s, threshold_sigma, out)\n"
+             "    -> (polarity, repaired)\n"
+             "\n"
+             "The start of a tap's split in one call (analysis.py `polarity_and_repaired`): the polarity as\n"
+             "`_polarity` finds it from the force read from baseline_from_s to the halt and over the dwell (0:\n"
+             "the force does not change), then the force in positive polarity with its corrupted frames\n"
+             "repaired (`repair_spikes`) into `out` (a float64 array as long as force_g; untouched for\n"
+             "polarity 0), and how many frames were repaired. The twins' arithmetic in their order, bit for bit.");
+
+static PyObject *polar_spikes(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer time_buffer, force_buffer, out_buffer;
+    double halt_s, pullback_start_s, baseline_from_s, threshold_sigma;
+    if (!PyArg_ParseTuple(args, "O&O&ddddw*", float64_buffer, &time_buffer, float64_buffer, &force_buffer, &halt_s,
+                          &pullback_start_s, &baseline_from_s, &threshold_sigma, &out_buffer))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t n = 0;
+    const double *time_s = doubles_of(&time_buffer, &n, "time_s");
+    const double *force_g = time_s ? doubles_sized(&force_buffer, n, "force_g") : NULL;
+    double *out = force_g ? doubles_sized(&out_buffer, n, "out") : NULL;
+    double *positive = NULL;
+    if (out != NULL && n < 1) {
+        PyErr_SetString(PyExc_ValueError, "time_s: no samples");
+    } else if (out != NULL && (positive = malloc((size_t)n * sizeof(double) + (size_t)n)) == NULL) {
+        PyErr_NoMemory();
+    } else if (out != NULL) {
+        char *spike = (char *)(positive + n);
+        int polarity = polarity_of(time_s, force_g, n, halt_s, pullback_start_s, baseline_from_s, positive);
+        Py_ssize_t repaired = 0;
+        if (polarity != 0) {
+            for (Py_ssize_t i = 0; i < n; i++)
+                positive[i] = (double)polarity * force_g[i]; /* numpy's polarity * force: the int as a double */
+            if (n < 5) memcpy(out, positive, (size_t)n * sizeof(double));
+            else repaired = repair_spikes_into(positive, n, threshold_sigma, out, spike);
+        }
+        if (repaired >= 0) result = Py_BuildValue("(in)", polarity, repaired);
+    }
+    free(positive);
+    PyBuffer_Release(&time_buffer);
+    PyBuffer_Release(&force_buffer);
+    PyBuffer_Release(&out_buffer);
+    return result;
 }
 
 /* numpy's maximum and minimum of two doubles (a NaN propagates; otherwise the larger, the smaller):
@@ -441,13 +587,7 @@ static PyObject *indices(PyObject *self, PyObject *args)
                 Py_CLEAR(result);
                 break;
             }
-            Py_ssize_t low = 0, high = n; /* the count of samples before t_s (searchsorted left) */
-            while (low < high) {
-                Py_ssize_t middle = low + (high - low) / 2;
-                if (time_s[middle] < t_s) low = middle + 1;
-                else high = middle;
-            }
-            PyList_SET_ITEM(result, k, PyLong_FromSsize_t(low < n ? low : n - 1));
+            PyList_SET_ITEM(result, k, PyLong_FromSsize_t(first_at_or_after(time_s, n, t_s)));
         }
     }
     PyBuffer_Release(&time_buffer);
@@ -462,6 +602,7 @@ static PyMethodDef methods[] = {
     {"spikes", spikes, METH_VARARGS,
      "spikes(force_g, threshold_sigma) -> (indices, values): corrupted frames, alone or two in a row, "
      "and the values that replace them."},
+    {"polar_spikes", polar_spikes, METH_VARARGS, polar_spikes_doc},
     {"window_heights", window_heights, METH_VARARGS,
      "window_heights(move_table, time_s, delay_s, integration_s, z_halt_mm, min_span_um, contact_line_s,\n"
      "               break_line_s, x_min_out, span_out) -> (contact_line_um, break_line_um)\n\n"

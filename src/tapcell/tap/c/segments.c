@@ -36,19 +36,93 @@ static inline double sse_of_sums(double n, double st, double sf, double stt, dou
     return n < MIN_SEGMENT_SAMPLES ? INFINITY : sse;
 }
 
-/* sse[k] of the segments [i0 + di k, j0 + dj k) for k < count: a row of segments with one end fixed
- * (di or dj 0) and the other moving along the candidates. */
-static void sse_along(const PrefixSums *ps, Py_ssize_t i0, Py_ssize_t di, Py_ssize_t j0, Py_ssize_t dj,
-                      Py_ssize_t count, double *restrict sse)
+/* `sse_of_sums` of a segment of at least MIN_SEGMENT_SAMPLES samples, its 1 / n given: the same
+ * operations in the same order (a reciprocal looked up is the one computed, bit for bit), with one
+ * division left where the costing of thousands of segments a tap waits on two. */
+static inline double sse_of_long_sums(double inv_n, double st, double sf, double stt, double stf, double sff)
 {
-    const double *restrict row = ps->rows;
-    const Py_ssize_t w = ps->columns;
-    for (Py_ssize_t k = 0; k < count; k++) {
-        Py_ssize_t i = i0 + di * k, j = j0 + dj * k;
-        sse[k] = sse_of_sums(row[j] - row[i], row[w + j] - row[w + i], row[2 * w + j] - row[2 * w + i],
-                             row[3 * w + j] - row[3 * w + i], row[4 * w + j] - row[4 * w + i],
-                             row[5 * w + j] - row[5 * w + i]);
+    double t_mean = st * inv_n;
+    double sxx = stt - st * t_mean;
+    double sxy = stf - t_mean * sf;
+    double explained = (sxy * sxy) / sxx;
+    double sse = (sff - (sf * sf) * inv_n) - explained;
+    return sse < 0.0 ? 0.0 : sse; /* np.maximum(sse, 0): a NaN stays NaN */
+}
+
+/* The search's tables: the prefix sums, and 1.0 / n for every count n of the window (`inverse[n]`,
+ * n >= MIN_SEGMENT_SAMPLES; the counts are the sums' first row, whole numbers). */
+typedef struct {
+    const PrefixSums *ps;
+    const double *inverse;
+} Costing;
+
+/* The rows' loops built twice where the compiler and C library can (gcc 6+ or clang 14+, x86-64,
+ * glibc's ifuncs): with AVX2 (four segments at once) and without, the one the CPU runs chosen when
+ * the module loads (about a seventh off the search). The same IEEE operations either way (no fused
+ * multiply-adds: -ffp-contract=off), so the same sums bit for bit. */
+#if defined(__x86_64__) && defined(__GLIBC__) && \
+    ((defined(__clang__) && __clang_major__ >= 14) || (!defined(__clang__) && defined(__GNUC__) && __GNUC__ >= 6))
+#define ROW_LOOP __attribute__((target_clones("avx2", "default")))
+#else
+#define ROW_LOOP
+#endif
+
+/* out[k] = add[k] + sse of the segment [i, j0 + k) for k < count (add NULL: + 0 left out): a row of
+ * segments sharing their first sample. Too short ones (j0 + k - i < 2) are +inf, as `sse_of_sums`;
+ * the rest run in a loop without branches, which the compiler vectorises (two divisions at once). */
+ROW_LOOP static void sse_from(const Costing *cost, Py_ssize_t i, Py_ssize_t j0, Py_ssize_t count,
+                     const double *restrict add, double *restrict out)
+{
+    const double *restrict row = cost->ps->rows, *restrict inverse = cost->inverse;
+    const Py_ssize_t w = cost->ps->columns;
+    Py_ssize_t k = 0;
+    for (; k < count && j0 + k - i < (Py_ssize_t)MIN_SEGMENT_SAMPLES; k++)
+        out[k] = add ? INFINITY + add[k] : INFINITY; /* as the twin: sse, then + add */
+    if (k == count)
+        return;
+    const double st0 = row[w + i], sf0 = row[2 * w + i], stt0 = row[3 * w + i], stf0 = row[4 * w + i];
+    const double sff0 = row[5 * w + i];
+    const double *restrict st = row + w + j0, *restrict sf = row + 2 * w + j0, *restrict stt = row + 3 * w + j0;
+    const double *restrict stf = row + 4 * w + j0, *restrict sff = row + 5 * w + j0, *restrict inv = inverse + j0 - i;
+    if (add) {
+        for (; k < count; k++)
+            out[k] = sse_of_long_sums(inv[k], st[k] - st0, sf[k] - sf0, stt[k] - stt0, stf[k] - stf0, sff[k] - sff0)
+                     + add[k];
+    } else {
+        for (; k < count; k++)
+            out[k] = sse_of_long_sums(inv[k], st[k] - st0, sf[k] - sf0, stt[k] - stt0, stf[k] - stf0, sff[k] - sff0);
     }
+}
+
+/* out[k] = add[k] + sse of the segment [i0 + k, j) for k < count (add NULL: + 0 left out): a row of
+ * segments sharing their end. Too short ones (j - i0 - k < 2) are +inf, as `sse_of_sums`. */
+ROW_LOOP static void sse_to(const Costing *cost, Py_ssize_t i0, Py_ssize_t j, Py_ssize_t count,
+                   const double *restrict add, double *restrict out)
+{
+    const double *restrict row = cost->ps->rows, *restrict inverse = cost->inverse;
+    const Py_ssize_t w = cost->ps->columns;
+    /* the long ones first: k < j - i0 - 1 */
+    Py_ssize_t long_count = j - i0 - (Py_ssize_t)MIN_SEGMENT_SAMPLES + 1;
+    long_count = long_count < 0 ? 0 : long_count > count ? count : long_count;
+    Py_ssize_t k = 0;
+    if (long_count > 0) {
+        const double stj = row[w + j], sfj = row[2 * w + j], sttj = row[3 * w + j], stfj = row[4 * w + j];
+        const double sffj = row[5 * w + j];
+        const double *restrict st = row + w + i0, *restrict sf = row + 2 * w + i0, *restrict stt = row + 3 * w + i0;
+        const double *restrict stf = row + 4 * w + i0, *restrict sff = row + 5 * w + i0;
+        const double *restrict inv = inverse + (j - i0); /* inv[-k]: 1 / (j - i0 - k) */
+        if (add) {
+            for (; k < long_count; k++)
+                out[k] = sse_of_long_sums(inv[-k], stj - st[k], sfj - sf[k], sttj - stt[k], stfj - stf[k],
+                                          sffj - sff[k]) + add[k];
+        } else {
+            for (; k < long_count; k++)
+                out[k] = sse_of_long_sums(inv[-k], stj - st[k], sfj - sf[k], sttj - stt[k], stfj - stf[k],
+                                          sffj - sff[k]);
+        }
+    }
+    for (; k < count; k++)
+        out[k] = add ? INFINITY + add[k] : INFINITY; /* as the twin: sse, then + add */
 }
 
 /* The least of `count` values and its index (*at), in numpy's min/argmin order: the first
@@ -56,13 +130,22 @@ static void sse_along(const PrefixSums *ps, Py_ssize_t i0, Py_ssize_t di, Py_ssi
 static double first_min(const double *values, Py_ssize_t count, Py_ssize_t *at)
 {
     double best = values[0];
-    *at = 0;
-    for (Py_ssize_t k = 1; k < count && !isnan(best); k++) {
-        if (values[k] < best || isnan(values[k])) {
+    Py_ssize_t best_at = 0;
+    if (best != best) { /* a NaN first: it stays */
+        *at = 0;
+        return best;
+    }
+    /* One comparison a value: !(value >= best) holds for a smaller value and for a NaN, which ends
+     * the search. */
+    for (Py_ssize_t k = 1; k < count; k++) {
+        if (!(values[k] >= best)) {
             best = values[k];
-            *at = k;
+            best_at = k;
+            if (best != best)
+                break;
         }
     }
+    *at = best_at;
     return best;
 }
 
@@ -82,32 +165,34 @@ static int search_five(const PrefixSums *ps, Py_ssize_t start, Py_ssize_t stop, 
                        Py_ssize_t found[4])
 {
     const Py_ssize_t c = c1 - c0, p = p1 - p0, r = r1 - r0, b = b1 - b0;
-    /* One scratch block per call: the approach per contact, the departure per break, one row of
-     * the compression, decompression or dwell, the best half per peak and per release, and their argmins. */
+    /* One scratch block per call: 1 / n per count, the approach per contact, the departure per break,
+     * one row of the compression, decompression or dwell, the best half per peak and per release,
+     * and their argmins. */
     Py_ssize_t longest_row = c > b ? c : b;
     longest_row = longest_row > r ? longest_row : r;
-    double *scratch = PyMem_Malloc(sizeof(double) * (size_t)(c + b + longest_row + 2 * (p + r)));
+    const Py_ssize_t counts = ps->columns; /* a segment of the sums holds at most columns - 1 samples */
+    double *scratch = PyMem_Malloc(sizeof(double) * (size_t)(counts + c + b + longest_row + 2 * (p + r)));
     if (scratch == NULL) {
         PyErr_NoMemory();
         return -1;
     }
-    double *approach = scratch, *departure = approach + c, *row = departure + b;
+    double *inverse = scratch, *approach = inverse + counts, *departure = approach + c, *row = departure + b;
     double *left = row + longest_row, *right = left + p;
     Py_ssize_t *left_at = (Py_ssize_t *)(right + r), *right_at = left_at + p; /* doubles and indices are 8 bytes */
-    sse_along(ps, start, 0, c0, 1, c, approach); /* [start, contact) */
-    sse_along(ps, b0, 1, stop, 0, b, departure); /* [break, stop) */
+    inverse[0] = inverse[1] = 0.0; /* never read: shorter segments are +inf */
+    for (Py_ssize_t n = 2; n < counts; n++)
+        inverse[n] = 1.0 / (double)n;
+    const Costing cost = {ps, inverse};
+    sse_from(&cost, start, c0, c, NULL, approach); /* [start, contact) */
+    sse_to(&cost, b0, stop, b, NULL, departure); /* [break, stop) */
     /* Per peak, the best contact: compression + approach (the twin's order of the sum). */
     for (Py_ssize_t ip = 0; ip < p; ip++) {
-        sse_along(ps, c0, 1, p0 + ip, 0, c, row); /* [contact, peak) */
-        for (Py_ssize_t k = 0; k < c; k++)
-            row[k] += approach[k];
+        sse_to(&cost, c0, p0 + ip, c, approach, row); /* [contact, peak) */
         left[ip] = first_min(row, c, &left_at[ip]);
     }
     /* Per release, the best break: decompression + departure. */
     for (Py_ssize_t ir = 0; ir < r; ir++) {
-        sse_along(ps, r0 + ir, 0, b0, 1, b, row); /* [release, break) */
-        for (Py_ssize_t k = 0; k < b; k++)
-            row[k] += departure[k];
+        sse_from(&cost, r0 + ir, b0, b, departure, row); /* [release, break) */
         right[ir] = first_min(row, b, &right_at[ir]);
     }
     /* The best total per (peak, release) in row-major order, as total.argmin(): each half at its
@@ -115,7 +200,7 @@ static int search_five(const PrefixSums *ps, Py_ssize_t start, Py_ssize_t stop, 
     double best = INFINITY;
     Py_ssize_t best_ip = 0, best_ir = 0;
     for (Py_ssize_t ip = 0; ip < p; ip++) {
-        sse_along(ps, p0 + ip, 0, r0, 1, r, row); /* [peak, release) */
+        sse_from(&cost, p0 + ip, r0, r, NULL, row); /* [peak, release) */
         for (Py_ssize_t k = 0; k < r; k++)
             row[k] = (left[ip] + row[k]) + right[k];
         Py_ssize_t ir;
