@@ -21,8 +21,27 @@ REAL_TAPS = sorted((Path(readers.__file__).parent.parent / "taplab" / "real").gl
 KEYS = readers.NUMBER_ARRAY_KEYS
 
 
-def _split(text):
-    return readers._C.split_number_arrays(text, KEYS)
+def _decode(text):
+    return readers._C.decode_tap_json(text, KEYS)
+
+
+def _array(text, key="time"):
+    """The float64 bytes the kernel parsed for the top-level `key`, or None when it gave up."""
+    decoded = _decode(text)
+    return None if decoded is None else decoded[0][key]
+
+
+def _same(a, b):
+    """Equal as json.loads's values are, types included (an int is no float, -0.0 is not 0.0)."""
+    if type(a) is not type(b):
+        return False
+    if isinstance(a, dict):
+        return list(a) == list(b) and all(_same(a[k], b[k]) for k in a)
+    if isinstance(a, list):
+        return len(a) == len(b) and all(map(_same, a, b))
+    if isinstance(a, float):
+        return struct.pack("=d", a) == struct.pack("=d", b)
+    return a == b
 
 
 def _bits(array):
@@ -87,11 +106,13 @@ def test_numbers_convert_as_pythons_float_does(value):
     for text in (repr(value), f"{value:.17e}", f"{value:.25g}", f"{value:.3E}", f"{value:.20f}"):
         if "inf" in text or len(text) >= 64:
             continue
-        split = _split(f'{{"time": [{text}]}}')
-        if split is None:  # left to json: an integer beyond a float's exact digits, or rounded to inf
+        parsed = _array(f'{{"time": [{text}]}}')
+        if parsed is None:  # left to json: an integer beyond a float's exact digits, or rounded to inf
             assert (text.lstrip("-").isdigit() and len(text.lstrip("-")) > 15) or math.isinf(float(text)), text
             continue
-        assert split[1]["time"] == bytearray(struct.pack("=d", float(json.loads(text)))), text
+        assert parsed == bytearray(struct.pack("=d", float(json.loads(text)))), text
+        # outside the arrays: the same int or float as json makes
+        assert _same(_decode(f'{{"a": {text}}}')[0]["a"], json.loads(text)), text
 
 
 @pytest.mark.parametrize("text", [
@@ -102,26 +123,43 @@ def test_numbers_convert_as_pythons_float_does(value):
 def test_numbers_at_the_exact_shortcut_s_edges(text):
     """Around 2^53, at 19 and 20 digits (where the mantissa would wrap) and powers of ten of 22
     and 23: the same double as json reads, whichever way the kernel converts it."""
-    split = _split(f'{{"time": [{text}]}}')
-    assert split is not None, text
-    assert split[1]["time"] == bytearray(struct.pack("=d", float(json.loads(text)))), text
+    assert _array(f'{{"time": [{text}]}}') == bytearray(struct.pack("=d", float(json.loads(text)))), text
+    assert _same(_decode(f'{{"a": [{text}]}}')[0]["a"], json.loads(f"[{text}]")), text
 
 
 def test_integers_read_as_json_reads_them():
-    rest, arrays, _ = _split('{"time": [0, -0, 7, -123456789012345], "force": [-0.0]}')
-    assert rest == '{"time": [], "force": []}'
-    assert struct.unpack("=4d", arrays["time"]) == (0.0, 0.0, 7.0, -123456789012345.0)
-    assert math.copysign(1, struct.unpack("=d", arrays["time"][8:16])[0]) == 1  # json: int("-0") is 0
-    assert math.copysign(1, struct.unpack("=d", arrays["force"])[0]) == -1  # a float -0.0 keeps its sign
+    text = '{"time": [0, -0, 7, -123456789012345], "force": [-0.0], "n": [0, -0, 7, -0.0, 123456789012345]}'
+    document, parsed = _decode(text)
+    assert parsed == ("time", "force")
+    assert struct.unpack("=4d", document["time"]) == (0.0, 0.0, 7.0, -123456789012345.0)
+    assert math.copysign(1, struct.unpack("=d", document["time"][8:16])[0]) == 1  # json: int("-0") is 0
+    assert math.copysign(1, struct.unpack("=d", document["force"])[0]) == -1  # a float -0.0 keeps its sign
+    assert _same(document["n"], json.loads(text)["n"])  # ints stay ints, -0.0 a float
 
 
-def test_only_the_top_level_keys_are_cut():
+def test_only_the_top_level_keys_become_arrays():
     text = '{"meta": {"time": [1], "s": "\\"time\\": [2]"}, "a": "\\"time\\": [3]", "time" : [ 4 , 5e1 ]\n}'
-    rest, arrays, longest_digit_run = _split(text)
-    assert rest == '{"meta": {"time": [1], "s": "\\"time\\": [2]"}, "a": "\\"time\\": [3]", "time" : []\n}'
-    assert struct.unpack("=2d", arrays["time"]) == (4.0, 50.0)
-    assert longest_digit_run == 1
-    assert _split(b'{"z": []}') == ('{"z": []}', {"z": bytearray()}, 0)
+    document, parsed = _decode(text)
+    expected = json.loads(text)
+    assert parsed == ("time",) and struct.unpack("=2d", document.pop("time")) == (4.0, 50.0)
+    assert _same(document, {key: value for key, value in expected.items() if key != "time"})
+    assert list(_decode('{"z": [], "a": 1}')[0]) == ["z", "a"]  # json's key order
+    assert _decode('{"z": []}') == ({"z": bytearray()}, ("z",))
+
+
+@pytest.mark.parametrize("text", [
+    r'{"a": "caf\u00e9 \\ \" \/ \b\f\n\r\t \ud83d\ude00 \ud800"}',  # every escape, a pair, a lone half
+    r'{"ti\u006de": [1, 2]}',  # a key spelled with an escape is still the key
+    '{"a": {"b": [true, false, null, [], {}, [[]], "", "x"]}, "a": 2, "b": -1.5E-3}',  # the last of a key wins
+    '{"meta": {"s": "é中😀", "k": [1, "é"]}}',  # UTF-8 beyond ASCII
+    ' \t\r\n{ "a" : [ 1 , 2 ] , "b" : { } } \n ',
+])
+def test_the_rest_decodes_as_json_does(text):
+    document, parsed = _decode(text)
+    expected = json.loads(text)
+    for key in parsed:
+        assert document.pop(key) == bytearray(np.array(expected.pop(key), dtype=float).tobytes())
+    assert _same(document, expected)
 
 
 @pytest.mark.parametrize("text", [
@@ -129,16 +167,53 @@ def test_only_the_top_level_keys_are_cut():
     '{"time": [1e]}', '{"time": [1e+]}', '{"time": [-]}', '{"time": [NaN]}', '{"time": [-Infinity]}',
     '{"time": [1e400]}', '{"time": [1234567890123456]}', '{"time": [1' + "0" * 70 + '.5]}',
     '{"time": [[1]]}', '{"time": ["1"]}', '{"time": [true]}', '{"time": null}', '{"time": [1 2]}',
-    '{"ti\\u006de": [1]}', '{"time": [1], "time": [2]}', '[{"time": [1]}]', '{"time": [1]} {}',
+    '{"time": [1], "time": [2]}', '{"time": [1], "ti\\u006de": [2]}', '[{"time": [1]}]', '{"time": [1]} {}',
     '{"time": [1]', '{"time": [1, 2', '{"a": "time', '', '   ', '{"time": [\u00a01]}', '{"time": [\u0661]}',
-    '{"time": [1]}}', '\ufeff{"time": [1]}', '{"time": [1]}\x00',
+    '{"time": [1]}}', '\ufeff{"time": [1]}', '{"time": [1]}\x00', '{"time": [1\x00]}',
+    # outside the arrays
+    '{"a": NaN}', '{"a": Infinity}', '{"a": -Infinity}', '{"a": 1e400}', '{"a": 1234567890123456}',
+    '{"a": 01}', '{"a": tru}', '{"a": nul}', '{"a": True}', '{"a": [1,]}', '{"a": {"b": 1,}}', '{"a": {,}}',
+    '{"a" 1}', '{a: 1}', "{'a': 1}", '{"a": 1,}', '{"a": "\t"}', '{"a": "\n"}', '{"a": "x\x00"}',
+    '{"a": "\\x"}', '{"a": "\\u12"}', '{"a": "\u00e9\\n"}',  # a bad escape; an escape beyond ASCII text
+    '{"a": ' + "[" * 64 + "]" * 64 + "}",  # deeper than MAX_DEPTH: json's own limit, and message
+    '{"a": "x}', '{"a": [1, 2}', '{"a": {"b": 1]}', '{"a"', '{"a":', '{',
 ])
 def test_anything_unusual_gives_up(text):
-    assert _split(text) is None
+    assert _decode(text) is None
+
+
+def test_nesting_up_to_the_limit_decodes():
+    text = '{"a": ' + "[" * 63 + "]" * 63 + "}"
+    assert _same(_decode(text)[0], json.loads(text))
 
 
 def test_lone_surrogates_give_up():
-    assert _split('{"time": [1], "a": "\ud800"}') is None
+    assert _decode('{"time": [1], "a": "\ud800"}') is None
+
+
+@st.composite
+def json_values(draw):
+    """Any JSON the kernel may meet in a tap's rest: nested objects and lists of every kind of value."""
+    leaves = (st.none() | st.booleans() | st.integers(-10**15 + 1, 10**15 - 1)
+              | st.floats(allow_nan=False, allow_infinity=False) | st.text(max_size=8))
+    return draw(st.recursive(leaves, lambda inner: st.lists(inner, max_size=4)
+                             | st.dictionaries(st.text(max_size=6), inner, max_size=4), max_leaves=20))
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.dictionaries(st.text(max_size=6).filter(lambda key: key not in KEYS), json_values(), max_size=6),
+       st.lists(st.floats(allow_nan=False, allow_infinity=False), max_size=5), st.booleans(), st.sampled_from([None, 1]))
+def test_any_object_decodes_as_json_does(document, times, ascii_only, indent):
+    text = json.dumps({**document, "time": times}, ensure_ascii=ascii_only, indent=indent)
+    decoded = _decode(text)
+    if decoded is None:  # only an escape in a text beyond ASCII is left to json
+        assert not text.isascii() and "\\" in text
+        return
+    expected = json.loads(text)
+    document, parsed = decoded
+    for key in parsed:
+        assert document.pop(key) == bytearray(np.array(expected.pop(key), dtype=float).tobytes())
+    assert _same(document, expected)
 
 
 _NUMBER_FORMATS = (repr, lambda v: f"{v:.17e}", lambda v: f"{v:.4f}", lambda v: f"{v:E}", lambda v: str(int(v)))
@@ -194,12 +269,11 @@ def test_fuzzed_tap_texts_read_the_same_either_way(text):
 
 @pytest.mark.parametrize("digits", [19, 20, 21, 22])
 def test_an_integer_in_the_rest_is_bounded_as_the_plain_path_bounds_it(digits):
-    """json reads the rest with its own int() only when no run of digits there is too long for an
-    integer the reader refuses (MAX_INTEGER_DIGITS): at the bound and just past it, the same tap or
-    the same message as json.loads reading the whole text."""
+    """The kernel leaves an integer of more than 15 digits to json: at the reader's bound
+    (MAX_INTEGER_DIGITS) and just past it, the same tap or the same message as json.loads reading
+    the whole text."""
     document = _generated_taps()[0]
     document["probe"] = {**document.get("probe", {}), "serial": int("9" * digits)}
     fast, reference = _both_ways(json.dumps(document))
     assert fast == reference
     assert isinstance(fast, str) == (digits > readers.MAX_INTEGER_DIGITS)
-    assert _split(json.dumps(document))[2] >= digits

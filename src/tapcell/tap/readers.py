@@ -2,8 +2,9 @@
 the older workbench capture. Every problem is a `TapFileError` naming the file and what is wrong.
 
 JSON is read through a compiled kernel when it was built (tapcell.tap.native, c/readers.c): it
-parses the long number arrays straight into float64 and json.loads reads only the rest; anything
-unusual in the text makes it give up, and json.loads reads the whole text and names the problem.
+decodes the object in one pass, the long number arrays straight into float64 and the rest as
+json.loads would; anything unusual in the text makes it give up, and json.loads reads the whole
+text and names the problem.
 """
 
 from __future__ import annotations
@@ -120,18 +121,12 @@ def _load_tap_json(path: str, text: str, where: str) -> tuple[Any, tuple[str, ..
     """The decoded JSON of a tap, and the keys whose number arrays the kernel parsed into float64
     arrays (finite: it refuses anything else)."""
     if _C is not None:
-        split = _C.split_number_arrays(text, NUMBER_ARRAY_KEYS)
-        if split is not None:
-            rest, arrays, longest_digit_run = split
-            # json's own int() where no integer can be too long (a hook costs a call per integer)
-            bounded = _bounded_int if longest_digit_run > MAX_INTEGER_DIGITS else None
-            try:
-                document = json.loads(rest, parse_int=bounded)
-            except (json.JSONDecodeError, _HugeInteger, RecursionError):
-                document = None  # _load_json below names the problem, at its place in the whole text
-            if isinstance(document, dict) and all(document.get(key) == [] for key in arrays):
-                document.update((key, np.frombuffer(values)) for key, values in arrays.items())
-                return document, tuple(arrays)
+        decoded = _C.decode_tap_json(text, NUMBER_ARRAY_KEYS)
+        if decoded is not None:
+            document, parsed = decoded
+            for key in parsed:
+                document[key] = np.frombuffer(document[key])
+            return document, parsed
     return _load_json(path, text, where), ()
 
 
