@@ -202,8 +202,10 @@ def _known_numbers(path: str, where: str, name: str, values: dict, keys: tuple[s
     """`values` with each of `keys` it has checked: null or a finite number (a NaN time or a string
     where the format puts a number is the file's error, not a value to carry); other keys kept as they are."""
     for key in keys:
-        if values.get(key) is not None:
-            values[key] = _number(path, where, f"{name}.{key}", values[key])
+        value = values.get(key)
+        # a finite float is kept as it is (the common case, without a call); anything else is checked
+        if value is not None and not (type(value) is float and math.isfinite(value)):
+            values[key] = _number(path, where, f"{name}.{key}", value)
     return values
 
 
@@ -232,20 +234,17 @@ def _plain_moves(values: list) -> list[Move] | None:
     except (KeyError, TypeError):  # a missing key, or an item that is not an object
         return None
     numbers = list(itertools.chain.from_iterable(rows))
-    types = set(map(type, numbers))
-    if not types <= _PLAIN_NUMBER_TYPES:
+    if not set(map(type, numbers)) <= _PLAIN_NUMBER_TYPES:
         return None
-    if types != {float}:  # ints among them (json's type for a number written without a point)
-        try:
-            floats = list(map(float, numbers))
-        except OverflowError:  # an integer beyond the float range
-            return None
-        width = len(MOVE_KEYS)
-        rows = [floats[start:start + width] for start in range(0, len(floats), width)]
-        numbers = floats
-    if not all(map(math.isfinite, numbers)):
+    try:  # ints among them too (json's type for a number written without a point, e.g. z_r)
+        numbers = list(map(float, numbers))
+    except OverflowError:  # an integer beyond the float range
         return None
-    return [Move(*row) for row in rows]
+    # finite numbers have a finite sum, unless it overflows: then each one is looked at
+    if not math.isfinite(sum(numbers)) and not all(map(math.isfinite, numbers)):
+        return None
+    width = len(MOVE_KEYS)
+    return [Move(*numbers[start:start + width]) for start in range(0, len(numbers), width)]
 
 
 def _checked_move(path: str, where: str, k: int, item: Any) -> Move:
