@@ -10,7 +10,6 @@ text and names the problem.
 from __future__ import annotations
 
 import itertools
-import json
 import math
 import operator
 import os
@@ -107,6 +106,8 @@ def _bounded_int(text: str) -> int:
 
 
 def _load_json(path: str, text: str, where: str) -> Any:
+    import json  # here, not at the top: only a file the reader's kernel leaves to json needs it (1.5 ms of start-up)
+
     try:
         return json.loads(text, parse_int=_bounded_int)
     except json.JSONDecodeError as problem:
