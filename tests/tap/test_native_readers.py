@@ -3,6 +3,7 @@ last bit, every bad one falls back to json and gets the same message."""
 
 from __future__ import annotations
 
+import copy
 import json
 import math
 import struct
@@ -272,8 +273,89 @@ def test_an_integer_in_the_rest_is_bounded_as_the_plain_path_bounds_it(digits):
     """The kernel leaves an integer of more than 15 digits to json: at the reader's bound
     (MAX_INTEGER_DIGITS) and just past it, the same tap or the same message as json.loads reading
     the whole text."""
-    document = _generated_taps()[0]
+    document = copy.deepcopy(_generated_taps()[0])  # the generated taps are cached: change a copy
     document["probe"] = {**document.get("probe", {}), "serial": int("9" * digits)}
     fast, reference = _both_ways(json.dumps(document))
     assert fast == reference
     assert isinstance(fast, str) == (digits > readers.MAX_INTEGER_DIGITS)
+
+
+def _with(change):
+    """A generated tap object (moves, no z) with `change` applied: a function of the object."""
+    document = copy.deepcopy(_generated_taps()[0])
+    document.update(z=[0.5] * len(document["time"]), truth={"z_contact": -0.1, "label": "clean"})
+    change(document)
+    return document
+
+
+def _set(**items):
+    return lambda document: document.update(items)
+
+
+def _drop(*keys):
+    return lambda document: [document.pop(key, None) for key in keys]
+
+
+def _move(k, key, value):
+    return lambda document: document["moves"][k].__setitem__(key, value)
+
+
+def _inside(name, key, value):
+    return lambda document: document[name].__setitem__(key, value)
+
+
+# Every rule of tap_from_object that the kernel's plain path checks, each way it can go.
+PLAIN_PATH_CASES = {
+    "as written": lambda document: None,
+    "no z": _drop("z"), "no moves": _drop("moves"), "neither": _drop("z", "moves"),
+    "moves empty, no z": lambda document: document.update(moves=[]) or document.pop("z"),
+    "moves false, with z": _set(moves={}), "moves a string": _set(moves="abc"), "moves a number": _set(moves=3),
+    "position instead of z": lambda document: document.pop("z") and document.update(
+        position=[[0, 0, 0.5]] * len(document["time"])),
+    "format other": _set(format="other"), "format a number": _set(format=1), "no format": _drop("format"),
+    "a dump_taps event": lambda document: document.update(tap=copy.deepcopy(document)),
+    "tap not an object": _set(tap=[1]),
+    "sample_rate int": _set(sample_rate=320), "sample_rate null": _set(sample_rate=None),
+    "sample_rate true": _set(sample_rate=True), "sample_rate 0": _set(sample_rate=0),
+    "sample_rate negative": _set(sample_rate=-320.0), "sample_rate far off": _set(sample_rate=5000.0),
+    "sample_rate a string": _set(sample_rate="320"),
+    "move missing a key": lambda document: document["moves"][1].pop("accel"),
+    "move not an object": lambda document: document["moves"].__setitem__(0, [1, 2]),
+    "move with a bool": _move(2, "accel", True), "move with a string": _move(2, "start_z", "0.1"),
+    "move with null": _move(0, "z_r", None), "move with an int": _move(1, "start_v", 3),
+    "move with an extra key": _move(1, "x_r", 0), "move_t negative": _move(2, "move_t", -0.1),
+    "start_v negative": _move(0, "start_v", -1e-9), "moves not oldest first": _move(1, "print_time", 0.0),
+    "moves at one time": lambda document: [move.__setitem__("print_time", 7.0) for move in document["moves"]],
+    "events null": _set(events=None), "events a list": _set(events=[1]), "no events": _drop("events"),
+    "event a string": _inside("events", "home_end_time", "soon"), "event an int": _inside("events", "home_end_time", 4594),
+    "event null": _inside("events", "pullback_end_time", None), "event unknown key": _inside("events", "note", "x"),
+    "event bool": _inside("events", "home_end_time", False),
+    "event on top": lambda document: document["events"].pop("home_end_time") and document.update(home_end_time=4594.3),
+    "event on top and inside": _set(pullback_start_time=1.0),
+    "event on top a string": lambda document: document["events"].pop("home_end_time") and document.update(home_end_time="x"),
+    "probe null": _set(probe=None), "probe a string": _set(probe="p"), "probe x a string": _inside("probe", "x", "a"),
+    "probe x an int": _inside("probe", "x", 150), "probe unknown key": _inside("probe", "serial", "A1"),
+    "probe x nested": _inside("probe", "x", [1]),
+    "truth a list": _set(truth=[1]), "meta a number": _set(meta=2), "meta null": _set(meta=None), "no truth": _drop("truth"),
+    "force short": lambda document: document["force"].pop(), "z short": lambda document: document["z"].pop(),
+    "too few samples": lambda document: [document[key].__delitem__(slice(11, None)) for key in ("time", "force", "z")],
+    "time repeated": lambda document: document["time"].__setitem__(5, document["time"][4]),
+    "time backwards": lambda document: document["time"].__setitem__(5, document["time"][4] - 1.0),
+    "time a list of strings": _set(time=["1"]),
+}
+
+
+@pytest.mark.parametrize("case", PLAIN_PATH_CASES)
+def test_the_plain_path_builds_what_the_python_path_builds(case):
+    """tap_from_object's plain path (the kernel's plain_tap_fields) against its Python path, on a
+    tap object changed one rule at a time: the same tap, or the same message."""
+    text = json.dumps(_with(PLAIN_PATH_CASES[case]))
+    fast, reference = _both_ways(text)
+    assert fast == reference
+
+
+def test_the_plain_path_is_taken_for_a_plain_tap():
+    document, parsed = readers._load_tap_json("tap.json", json.dumps(_with(lambda document: None)), "")
+    assert readers._C.plain_tap_fields(document, parsed, readers._PLAIN_TAP_FORM) is not None
+    document, parsed = readers._load_tap_json("tap.json", json.dumps(_with(_set(sample_rate=True))), "")
+    assert readers._C.plain_tap_fields(document, parsed, readers._PLAIN_TAP_FORM) is None

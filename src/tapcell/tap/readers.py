@@ -290,10 +290,25 @@ def _check_sample_rate(path: str, where: str, rate_sps: float, time_s: np.ndarra
                                  f"{NOMINAL_RATE_FACTOR:g}x of that, or leave it out")
 
 
+# What the kernel's plain_tap_fields checks a tapcell.tap.v1 object against (MOVE_KEYS start
+# print_time, move_t, start_v: it checks the first two for order and sign as _moves does).
+_PLAIN_TAP_FORM = (FORMAT, MOVE_KEYS, EVENT_KEYS, PROBE_KEYS, MIN_SAMPLES)
+
+
 def tap_from_object(obj: Any, path: str = "<memory>", where: str = "", *,
                     finite_arrays: Collection[str] = ()) -> TapData:
     """A TapData from one decoded JSON object of any accepted flavour. `finite_arrays`: keys whose
     float64 arrays are known finite (the reader's kernel parsed them: it refuses anything else)."""
+    if finite_arrays and _C is not None:
+        # A plain tapcell.tap.v1 object, checked in one call (c/readers.c); its twin is the rest of this
+        # function, which builds the same tap, and names the problem wherever the kernel gives up.
+        fields = _C.plain_tap_fields(obj, tuple(finite_arrays), _PLAIN_TAP_FORM)
+        if fields is not None:
+            time_s, force_g, z_mm, move_rows, sample_rate, events, probe, truth, meta = fields
+            if sample_rate is not None:
+                _check_sample_rate(path, where, sample_rate, time_s)
+            return TapData(time_s=time_s, force_g=force_g, z_mm=z_mm, moves=[Move(*row) for row in move_rows],
+                           sample_rate_sps=sample_rate, events=events, probe=probe, truth=truth, meta=meta)
     if not isinstance(obj, dict):
         raise TapFileError(path, f"{where}expected a JSON object with 'time' and 'force'")
     if "tap" in obj and isinstance(obj["tap"], dict):  # Klipper-family dump_taps event

@@ -491,6 +491,220 @@ static PyObject *decode_tap_json(PyObject *self, PyObject *args)
     return result;
 }
 
+/* ---- The plain tap: tap_from_object's checks on a decoded tapcell.tap.v1 object, in one call. ---- */
+
+/* The keys of a tap object this part reads, made once (their hashes kept). */
+enum { KEY_TAP, KEY_FORMAT, KEY_TIME, KEY_FORCE, KEY_Z, KEY_POSITION, KEY_MOVES, KEY_EVENTS, KEY_SAMPLE_RATE,
+       KEY_PROBE, KEY_TRUTH, KEY_META, KEY_COUNT };
+static const char *const KEY_NAMES[KEY_COUNT] = {"tap", "format", "time", "force", "z", "position", "moves",
+                                                 "events", "sample_rate", "probe", "truth", "meta"};
+static PyObject *tap_keys[KEY_COUNT];
+
+/* A number as tap_from_object takes it without a second look: a float or an int (not a bool) that
+ * is finite as a float. 0 for anything else (the Python path looks again, and names it). */
+static int plain_float(PyObject *value, double *number)
+{
+    if (PyFloat_CheckExact(value))
+        *number = PyFloat_AS_DOUBLE(value);
+    else if (PyLong_CheckExact(value)) {
+        *number = PyLong_AsDouble(value);
+        if (*number == -1.0 && PyErr_Occurred()) {
+            PyErr_Clear(); /* beyond a float: not finite */
+            return 0;
+        }
+    } else
+        return 0;
+    return isfinite(*number);
+}
+
+/* obj[key] as a float64 array the reader's kernel parsed (`finite`: those keys): its values and
+ * count, or 0. The view is released at once: obj keeps the array alive. */
+static int finite_array(PyObject *obj, int key, PyObject *finite, const double **values, Py_ssize_t *count)
+{
+    PyObject *array = PyDict_GetItemWithError(obj, tap_keys[key]);
+    if (array == NULL || PySequence_Contains(finite, tap_keys[key]) != 1)
+        return 0;
+    Py_buffer view;
+    if (PyObject_GetBuffer(array, &view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) {
+        PyErr_Clear();
+        return 0;
+    }
+    int plain = view.itemsize == 8 && view.format != NULL && strcmp(view.format, "d") == 0;
+    *values = view.buf;
+    *count = view.len / 8;
+    PyBuffer_Release(&view);
+    return plain;
+}
+
+/* obj[key] as tap_from_object's _dict makes it: absent or null {}, an object copied; NULL for
+ * anything else (with no error set) or on an error. */
+static PyObject *object_copy(PyObject *obj, int key)
+{
+    PyObject *value = PyDict_GetItemWithError(obj, tap_keys[key]);
+    if (value == NULL || value == Py_None)
+        return PyErr_Occurred() ? NULL : PyDict_New();
+    return PyDict_Check(value) ? PyDict_Copy(value) : NULL;
+}
+
+/* Each of `keys` in `values` that is not null made a float (_known_numbers); 0 when one is no
+ * plain finite number, -1 on an error. */
+static int known_floats(PyObject *values, PyObject *keys)
+{
+    for (Py_ssize_t j = 0; j < PyTuple_GET_SIZE(keys); j++) {
+        PyObject *key = PyTuple_GET_ITEM(keys, j);
+        PyObject *value = PyDict_GetItemWithError(values, key);
+        double number;
+        if (value == NULL) {
+            if (PyErr_Occurred())
+                return -1;
+            continue;
+        }
+        if (value == Py_None || PyFloat_CheckExact(value)) {
+            if (value != Py_None && !isfinite(PyFloat_AS_DOUBLE(value)))
+                return 0;
+            continue;
+        }
+        if (!plain_float(value, &number))
+            return 0;
+        PyObject *as_float = PyFloat_FromDouble(number);
+        int set = as_float == NULL ? -1 : PyDict_SetItem(values, key, as_float);
+        Py_XDECREF(as_float);
+        if (set < 0)
+            return -1;
+    }
+    return 1;
+}
+
+/* The moves as rows of floats (_plain_moves, then _moves' checks): a list of tuples; NULL with no
+ * error when anything is not plain (the Python path names it), or on an error. */
+static PyObject *plain_move_rows(PyObject *moves, PyObject *move_keys)
+{
+    if (!PyList_Check(moves))
+        return NULL;
+    Py_ssize_t count = PyList_GET_SIZE(moves), width = PyTuple_GET_SIZE(move_keys);
+    PyObject *rows = PyList_New(count);
+    if (rows == NULL)
+        return NULL;
+    double last_print_time = -INFINITY;
+    for (Py_ssize_t k = 0; k < count; k++) {
+        PyObject *item = PyList_GET_ITEM(moves, k);
+        PyObject *row = PyDict_Check(item) ? PyTuple_New(width) : NULL;
+        if (row == NULL)
+            goto not_plain;
+        PyList_SET_ITEM(rows, k, row);
+        for (Py_ssize_t j = 0; j < width; j++) {
+            PyObject *value = PyDict_GetItemWithError(item, PyTuple_GET_ITEM(move_keys, j));
+            double number;
+            if (value == NULL || !plain_float(value, &number))
+                goto not_plain;
+            PyObject *as_float = PyFloat_FromDouble(number);
+            if (as_float == NULL)
+                goto not_plain;
+            PyTuple_SET_ITEM(row, j, as_float);
+        }
+        /* MOVE_KEYS' order: print_time, move_t, start_v, ... */
+        double print_time = PyFloat_AS_DOUBLE(PyTuple_GET_ITEM(row, 0));
+        if (PyFloat_AS_DOUBLE(PyTuple_GET_ITEM(row, 1)) < 0 || PyFloat_AS_DOUBLE(PyTuple_GET_ITEM(row, 2)) < 0 ||
+            print_time < last_print_time)
+            goto not_plain;
+        last_print_time = print_time;
+    }
+    return rows;
+not_plain:
+    Py_DECREF(rows);
+    return NULL;
+}
+
+static PyObject *plain_tap_fields(PyObject *self, PyObject *args)
+{
+    (void)self;
+    PyObject *obj, *finite, *format, *move_keys, *event_keys, *probe_keys;
+    Py_ssize_t min_samples;
+    if (!PyArg_ParseTuple(args, "O!O!(UO!O!O!n)", &PyDict_Type, &obj, &PyTuple_Type, &finite, &format, &PyTuple_Type,
+                          &move_keys, &PyTuple_Type, &event_keys, &PyTuple_Type, &probe_keys, &min_samples))
+        return NULL;
+    if (PyTuple_GET_SIZE(move_keys) < 3) {
+        PyErr_SetString(PyExc_ValueError, "the move keys start print_time, move_t, start_v");
+        return NULL;
+    }
+    PyObject *events = NULL, *probe = NULL, *truth = NULL, *meta = NULL, *rows = NULL, *result = NULL;
+    PyObject *sample_rate = Py_None;
+    Py_INCREF(sample_rate);
+    /* a dump_taps event, a workbench capture, another format: the Python path */
+    PyObject *value = PyDict_GetItemWithError(obj, tap_keys[KEY_TAP]);
+    if (value != NULL || PyErr_Occurred())
+        goto done;
+    value = PyDict_GetItemWithError(obj, tap_keys[KEY_FORMAT]);
+    if ((value != NULL && (!PyUnicode_CheckExact(value) || PyUnicode_Compare(value, format) != 0)) || PyErr_Occurred())
+        goto done;
+    const double *time_s, *force_g, *z_mm;
+    Py_ssize_t samples, forces, heights;
+    if (!finite_array(obj, KEY_TIME, finite, &time_s, &samples) || !finite_array(obj, KEY_FORCE, finite, &force_g, &forces))
+        goto done;
+    int has_z = PyDict_Contains(obj, tap_keys[KEY_Z]);
+    if (has_z < 0 || (has_z && !finite_array(obj, KEY_Z, finite, &z_mm, &heights)))
+        goto done;
+    if (!has_z && PyDict_Contains(obj, tap_keys[KEY_POSITION]) != 0)
+        goto done;
+    /* moves: `obj.get("moves")` taken only when true, as tap_from_object does */
+    value = PyDict_GetItemWithError(obj, tap_keys[KEY_MOVES]);
+    int has_moves = value == NULL ? 0 : PyObject_IsTrue(value);
+    if (PyErr_Occurred() || has_moves < 0)
+        goto done;
+    rows = has_moves ? plain_move_rows(value, move_keys) : PyList_New(0);
+    if (rows == NULL || (!has_z && !has_moves))
+        goto done;
+    /* _check_samples: equal lengths, enough samples, time strictly increasing */
+    if (forces != samples || (has_z && heights != samples) || samples < min_samples)
+        goto done;
+    for (Py_ssize_t k = 1; k < samples; k++)
+        if (!(time_s[k] > time_s[k - 1]))
+            goto done;
+    events = object_copy(obj, KEY_EVENTS);
+    if (events == NULL)
+        goto done;
+    for (Py_ssize_t j = 0; j < PyTuple_GET_SIZE(event_keys); j++) { /* dump_taps keeps them on top */
+        PyObject *key = PyTuple_GET_ITEM(event_keys, j);
+        PyObject *top = PyDict_GetItemWithError(obj, key);
+        int there = top == NULL ? 0 : PyDict_Contains(events, key);
+        if (PyErr_Occurred() || there < 0 || (top != NULL && !there && PyDict_SetItem(events, key, top) < 0))
+            goto done;
+    }
+    if (known_floats(events, event_keys) != 1)
+        goto done;
+    value = PyDict_GetItemWithError(obj, tap_keys[KEY_SAMPLE_RATE]);
+    if (PyErr_Occurred())
+        goto done;
+    if (value != NULL && value != Py_None) {
+        double rate;
+        if (!plain_float(value, &rate) || !(rate > 0))
+            goto done;
+        Py_SETREF(sample_rate, PyFloat_FromDouble(rate));
+        if (sample_rate == NULL)
+            goto done;
+    }
+    probe = object_copy(obj, KEY_PROBE);
+    if (probe == NULL || known_floats(probe, probe_keys) != 1)
+        goto done;
+    truth = object_copy(obj, KEY_TRUTH);
+    meta = truth == NULL ? NULL : object_copy(obj, KEY_META);
+    if (meta == NULL)
+        goto done;
+    result = PyTuple_Pack(9, PyDict_GetItem(obj, tap_keys[KEY_TIME]), PyDict_GetItem(obj, tap_keys[KEY_FORCE]),
+                          has_z ? PyDict_GetItem(obj, tap_keys[KEY_Z]) : Py_None, rows, sample_rate, events, probe,
+                          truth, meta);
+done:
+    Py_XDECREF(rows);
+    Py_XDECREF(sample_rate);
+    Py_XDECREF(events);
+    Py_XDECREF(probe);
+    Py_XDECREF(truth);
+    Py_XDECREF(meta);
+    if (result == NULL && !PyErr_Occurred())
+        Py_RETURN_NONE;
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"decode_tap_json", decode_tap_json, METH_VARARGS,
      "decode_tap_json(text, keys) -> (document, parsed) or None\n\n"
@@ -501,6 +715,16 @@ static PyMethodDef methods[] = {
      "15 digits, NaN, a control character in a string, an escape in a text that is not all ASCII,\n"
      "one of `keys` seen twice or holding anything else, nesting deeper than 64, text ending early\n"
      "or going on after the object): then json.loads must read the text, and name the problem."},
+    {"plain_tap_fields", plain_tap_fields, METH_VARARGS,
+     "plain_tap_fields(obj, finite_arrays, (format, move_keys, event_keys, probe_keys, min_samples))\n"
+     "-> (time, force, z, move_rows, sample_rate, events, probe, truth, meta) or None\n\n"
+     "What tap_from_object builds from a decoded tapcell.tap.v1 object whose time, force (and z)\n"
+     "arrays the reader's kernel parsed (`finite_arrays`), with its checks: the moves as rows of\n"
+     "floats (Move(*row)), events and probe with their known keys made floats, copies of truth and\n"
+     "meta, the sample rate as a float (the caller checks it against the times). None when anything\n"
+     "is not plain or not right (a dump_taps event, another format, a list where the kernel gave\n"
+     "arrays, a move or an event that is no finite plain number, unequal lengths, too few samples,\n"
+     "time not increasing, ...): tap_from_object's Python path then builds it, or names the problem."},
     {NULL, NULL, 0, NULL},
 };
 
@@ -510,6 +734,11 @@ static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_c_readers",
 
 PyMODINIT_FUNC PyInit__c_readers(void)
 {
+    for (int key = 0; key < KEY_COUNT; key++) {
+        tap_keys[key] = PyUnicode_InternFromString(KEY_NAMES[key]);
+        if (tap_keys[key] == NULL)
+            return NULL;
+    }
     PyObject *json = PyImport_ImportModule("_json");
     if (json != NULL) {
         scanstring = PyObject_GetAttrString(json, "scanstring");
