@@ -359,3 +359,12 @@ def test_the_plain_path_is_taken_for_a_plain_tap():
     assert readers._C.plain_tap_fields(document, parsed, readers._PLAIN_TAP_FORM) is not None
     document, parsed = readers._load_tap_json("tap.json", json.dumps(_with(_set(sample_rate=True))), "")
     assert readers._C.plain_tap_fields(document, parsed, readers._PLAIN_TAP_FORM) is None
+
+
+def test_keys_read_again_are_the_same_keys():
+    """The kernel keeps keys it has made (a slot per key text): hundreds of keys sharing its 64
+    slots, read twice, in objects and nested, decode as json decodes them."""
+    keys = [f"k{k}" for k in range(300)] + ["print_time", "", "é", "a\\u0062", "x" * 200]
+    document = {"meta": [{key: k for k, key in enumerate(keys)}, dict.fromkeys(reversed(keys), None)]}
+    for text in (json.dumps(document), json.dumps(document, ensure_ascii=False).replace("\\", "")) * 2:
+        assert _same(_decode(text)[0], json.loads(text))

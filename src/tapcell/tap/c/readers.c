@@ -264,6 +264,35 @@ static int decode_string(Decoder *d, PyObject **out)
     return 0; /* the text ends inside the string */
 }
 
+/* Object keys seen before, by their text: a tap file's keys repeat (each move's six) and so do
+ * every file's, and a str made once keeps its hash, which a dict would compute again for a new one. */
+#define KEY_CACHE_SIZE 64
+static PyObject *key_cache[KEY_CACHE_SIZE];
+
+/* An object's key (a string): a plain ASCII one from the cache, any other the general way. */
+static int decode_key(Decoder *d, PyObject **out)
+{
+    const char *start = d->text + d->at + 1, *p = start;
+    unsigned hash = 2166136261u; /* FNV-1a: to pick the cache's slot */
+    /* stops at the closing quote, an escape, a control character (the text's NUL too) or non-ASCII */
+    while (*p != '"' && *p != '\\' && (unsigned char)*p >= 0x20 && (unsigned char)*p < 0x80)
+        hash = (hash ^ (unsigned char)*p++) * 16777619u;
+    if (*p != '"')
+        return decode_string(d, out);
+    Py_ssize_t size = p - start;
+    PyObject **slot = &key_cache[hash % KEY_CACHE_SIZE];
+    if (*slot == NULL || PyUnicode_GET_LENGTH(*slot) != size || memcmp(PyUnicode_DATA(*slot), start, (size_t)size) != 0) {
+        PyObject *key = PyUnicode_FromStringAndSize(start, size); /* ASCII: one byte a character */
+        if (key == NULL)
+            return -1;
+        Py_XSETREF(*slot, key);
+    }
+    Py_INCREF(*slot);
+    *out = *slot;
+    d->at = p + 1 - d->text;
+    return 1;
+}
+
 static int decode_literal(Decoder *d, const char *word, PyObject *value, PyObject **out)
 {
     Py_ssize_t size = (Py_ssize_t)strlen(word);
@@ -368,7 +397,7 @@ static int decode_object(Decoder *d, PyObject **out)
     }
     for (;;) {
         PyObject *key = NULL, *value = NULL;
-        int decoded = next_is(d, '"') ? decode_string(d, &key) : 0;
+        int decoded = next_is(d, '"') ? decode_key(d, &key) : 0;
         if (decoded == 1) {
             skip(d);
             decoded = next_is(d, ':');
