@@ -65,10 +65,30 @@ static const char *take_digits(const char *p, unsigned long long *mantissa)
     return p;
 }
 
+/* The number of `chars` characters at `start` (past a float's exact digits, or with a large
+ * exponent) as Python's float() converts it; 0 when it is beyond a float. Out of parse_number's
+ * line: its digits buffer would cost every short number a stack frame. */
+static __attribute__((noinline)) int converted(const char *start, Py_ssize_t chars, int integer, double *value)
+{
+    if (chars >= MAX_NUMBER_CHARS)
+        return 0;
+    char digits[MAX_NUMBER_CHARS]; /* the number alone, NUL-terminated */
+    memcpy(digits, start, (size_t)chars);
+    digits[chars] = '\0';
+    char *end = NULL;
+    double number = PyOS_string_to_double(digits, &end, NULL); /* overflow: +-inf, refused below */
+    if (number == -1.0 && PyErr_Occurred())
+        return -1;
+    if (end != digits + chars || !isfinite(number))
+        return 0;
+    *value = (integer && number == 0.0) ? 0.0 : number; /* json: float(int("-0")) is +0.0 */
+    return 1;
+}
+
 /* One JSON number at *at into *value, and whether it is written as an integer (json makes an int
  * of it); *at moves past it. 0 when it is anything else (or one we leave to the plain path), -1
  * with a Python error set. */
-static int parse_number(const char **at, double *value, int *is_integer)
+static inline int parse_number(const char **at, double *value, int *is_integer)
 {
     const char *start = *at, *p = start;
     int negative = *p == '-';
@@ -118,20 +138,7 @@ static int parse_number(const char **at, double *value, int *is_integer)
         *value = (negative && (mantissa != 0 || !integer)) ? -number : number;
         return 1;
     }
-    Py_ssize_t chars = p - start;
-    if (chars >= MAX_NUMBER_CHARS)
-        return 0;
-    char digits[MAX_NUMBER_CHARS]; /* the number alone, NUL-terminated */
-    memcpy(digits, start, (size_t)chars);
-    digits[chars] = '\0';
-    char *end = NULL;
-    double number = PyOS_string_to_double(digits, &end, NULL); /* overflow: +-inf, refused below */
-    if (number == -1.0 && PyErr_Occurred())
-        return -1;
-    if (end != digits + chars || !isfinite(number))
-        return 0;
-    *value = (integer && number == 0.0) ? 0.0 : number;
-    return 1;
+    return converted(start, p - start, integer, value);
 }
 
 static int append(NumberArray *array, double value)
