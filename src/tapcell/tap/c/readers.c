@@ -325,15 +325,24 @@ static int decode_number(Decoder *d, PyObject **out)
     return *out == NULL ? -1 : 1;
 }
 
+/* Past a container's opening bracket and the space after it, and past `close` too when it follows
+ * at once (an empty list or object): whether it did. */
+static int closes_at_once(Decoder *d, char close)
+{
+    d->at++;
+    skip(d);
+    if (!next_is(d, close))
+        return 0;
+    d->at++;
+    return 1;
+}
+
 static int decode_list(Decoder *d, PyObject **out)
 {
-    d->at++; /* '[' */
-    skip(d);
     PyObject *list = PyList_New(0);
     if (list == NULL)
         return -1;
-    if (next_is(d, ']')) {
-        d->at++;
+    if (closes_at_once(d, ']')) {
         *out = list;
         return 1;
     }
@@ -392,13 +401,10 @@ static NumberArray *number_array_of(Decoder *d, PyObject *key)
 static int decode_object(Decoder *d, PyObject **out)
 {
     int top_level = d->depth == 1;
-    d->at++; /* '{' */
-    skip(d);
     PyObject *object = PyDict_New();
     if (object == NULL)
         return -1;
-    if (next_is(d, '}')) {
-        d->at++;
+    if (closes_at_once(d, '}')) {
         *out = object;
         return 1;
     }
