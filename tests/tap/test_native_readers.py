@@ -354,6 +354,11 @@ def test_the_plain_path_builds_what_the_python_path_builds(case):
     assert fast == reference
 
 
+def test_a_caller_s_object_that_is_no_dict_is_named_whatever_it_claims():
+    with pytest.raises(TapFileError, match="expected a JSON object"):
+        readers.tap_from_object([1], "tap.json", finite_arrays=("time", "force"))
+
+
 def test_the_plain_path_is_taken_for_a_plain_tap():
     document, parsed = readers._load_tap_json("tap.json", json.dumps(_with(lambda document: None)), "")
     assert readers._C.plain_tap_fields(document, parsed, readers._PLAIN_TAP_FORM) is not None

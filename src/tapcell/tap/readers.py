@@ -299,7 +299,7 @@ def tap_from_object(obj: Any, path: str = "<memory>", where: str = "", *,
                     finite_arrays: Collection[str] = ()) -> TapData:
     """A TapData from one decoded JSON object of any accepted flavour. `finite_arrays`: keys whose
     float64 arrays are known finite (the reader's kernel parsed them: it refuses anything else)."""
-    if finite_arrays and _C is not None:
+    if finite_arrays and _C is not None and isinstance(obj, dict):
         # A plain tapcell.tap.v1 object, checked in one call (c/readers.c); its twin is the rest of this
         # function, which builds the same tap, and names the problem wherever the kernel gives up.
         fields = _C.plain_tap_fields(obj, tuple(finite_arrays), _PLAIN_TAP_FORM)
