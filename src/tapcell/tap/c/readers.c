@@ -559,23 +559,42 @@ static int plain_float(PyObject *value, double *number)
     return isfinite(*number);
 }
 
-/* obj[key] as a float64 array the reader's kernel parsed (`finite`: those keys): its values and
- * count, or 0. The view is released at once: obj keeps the array alive. */
-static int finite_array(PyObject *obj, int key, PyObject *finite, const double **values, Py_ssize_t *count)
+/* obj[key] as a float64 array the reader's kernel parsed (`finite`: those keys), a new reference in
+ * *array, and its count of values, or 0. */
+static int finite_array(PyObject *obj, int key, PyObject *finite, PyObject **array, Py_ssize_t *count)
 {
-    PyObject *array = PyDict_GetItemWithError(obj, tap_keys[key]);
-    if (array == NULL || PySequence_Contains(finite, tap_keys[key]) != 1)
+    PyObject *value = PyDict_GetItemWithError(obj, tap_keys[key]);
+    if (value == NULL || PySequence_Contains(finite, tap_keys[key]) != 1)
         return 0;
     Py_buffer view;
-    if (PyObject_GetBuffer(array, &view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) {
+    if (PyObject_GetBuffer(value, &view, PyBUF_C_CONTIGUOUS | PyBUF_FORMAT) < 0) {
         PyErr_Clear();
         return 0;
     }
     int plain = view.itemsize == 8 && view.format != NULL && strcmp(view.format, "d") == 0;
-    *values = view.buf;
     *count = view.len / 8;
     PyBuffer_Release(&view);
+    if (plain) {
+        Py_INCREF(value);
+        *array = value;
+    }
     return plain;
+}
+
+/* Whether the float64 array's values rise strictly (its buffer read while the caller holds it). */
+static int strictly_rising(PyObject *array)
+{
+    Py_buffer view;
+    if (PyObject_GetBuffer(array, &view, PyBUF_C_CONTIGUOUS) < 0) {
+        PyErr_Clear();
+        return 0;
+    }
+    const double *values = view.buf;
+    Py_ssize_t count = view.len / 8, k = 1;
+    while (k < count && values[k] > values[k - 1])
+        k++;
+    PyBuffer_Release(&view);
+    return k >= count;
 }
 
 /* obj[key] as tap_from_object's _dict makes it: absent or null {}, an object copied; NULL for
@@ -670,6 +689,7 @@ static PyObject *plain_tap_fields(PyObject *self, PyObject *args)
         return NULL;
     }
     PyObject *events = NULL, *probe = NULL, *truth = NULL, *meta = NULL, *rows = NULL, *result = NULL;
+    PyObject *time_s = NULL, *force_g = NULL, *z_mm = NULL; /* held: nothing below can drop them */
     PyObject *sample_rate = Py_None;
     Py_INCREF(sample_rate);
     /* a dump_taps event, a workbench capture, another format: the Python path */
@@ -679,7 +699,6 @@ static PyObject *plain_tap_fields(PyObject *self, PyObject *args)
     value = PyDict_GetItemWithError(obj, tap_keys[KEY_FORMAT]);
     if ((value != NULL && (!PyUnicode_CheckExact(value) || PyUnicode_Compare(value, format) != 0)) || PyErr_Occurred())
         goto done;
-    const double *time_s, *force_g, *z_mm;
     Py_ssize_t samples, forces, heights;
     if (!finite_array(obj, KEY_TIME, finite, &time_s, &samples) || !finite_array(obj, KEY_FORCE, finite, &force_g, &forces))
         goto done;
@@ -697,11 +716,8 @@ static PyObject *plain_tap_fields(PyObject *self, PyObject *args)
     if (rows == NULL || (!has_z && !has_moves))
         goto done;
     /* _check_samples: equal lengths, enough samples, time strictly increasing */
-    if (forces != samples || (has_z && heights != samples) || samples < min_samples)
+    if (forces != samples || (has_z && heights != samples) || samples < min_samples || !strictly_rising(time_s))
         goto done;
-    for (Py_ssize_t k = 1; k < samples; k++)
-        if (!(time_s[k] > time_s[k - 1]))
-            goto done;
     events = object_copy(obj, KEY_EVENTS);
     if (events == NULL)
         goto done;
@@ -732,10 +748,11 @@ static PyObject *plain_tap_fields(PyObject *self, PyObject *args)
     meta = truth == NULL ? NULL : object_copy(obj, KEY_META);
     if (meta == NULL)
         goto done;
-    result = PyTuple_Pack(9, PyDict_GetItem(obj, tap_keys[KEY_TIME]), PyDict_GetItem(obj, tap_keys[KEY_FORCE]),
-                          has_z ? PyDict_GetItem(obj, tap_keys[KEY_Z]) : Py_None, rows, sample_rate, events, probe,
-                          truth, meta);
+    result = PyTuple_Pack(9, time_s, force_g, has_z ? z_mm : Py_None, rows, sample_rate, events, probe, truth, meta);
 done:
+    Py_XDECREF(time_s);
+    Py_XDECREF(force_g);
+    Py_XDECREF(z_mm);
     Py_XDECREF(rows);
     Py_XDECREF(sample_rate);
     Py_XDECREF(events);
