@@ -178,6 +178,9 @@ def test_an_in_memory_integer_beyond_a_float_reads_as_infinity():
     (lambda moves: moves[4].__setitem__("start_z", "0.1"), "'moves[4].start_z' must be a finite number, got '0.1'"),
     (lambda moves: moves[0].__setitem__("move_t", float("nan")), "'moves[0].move_t' must be a finite number"),
     (lambda moves: moves[0].__setitem__("move_t", 10 ** 400), "'moves[0].move_t' must be a finite number"),
+    (lambda moves: moves[3].__setitem__("start_z", float("-inf")), "'moves[3].start_z' must be a finite number, got -inf"),
+    (lambda moves: (moves[1].__setitem__("accel", float("inf")), moves[2].__setitem__("accel", float("-inf"))),
+     "'moves[1].accel' must be a finite number, got inf"),  # their sum is NaN
     (lambda moves: moves[2].__setitem__("move_t", -0.1), "moves[2]: start_v and move_t must be >= 0"),
 ])
 def test_a_bad_move_is_named(tap, change, message):
@@ -186,6 +189,14 @@ def test_a_bad_move_is_named(tap, change, message):
     change(document["moves"])
     with pytest.raises(TapFileError, match=message.replace("[", r"\[").replace("]", r"\]").replace(".", r"\.")):
         tap_from_object(document, "tap.json")
+
+
+def test_moves_whose_sum_overflows_are_read(tap):
+    """The moves' finite check is their sum where that is finite; a sum beyond a float looks item by item."""
+    document = tap_to_json_dict(tap)
+    document["moves"][0]["accel"] = document["moves"][1]["accel"] = 1e308
+    moves = tap_from_object(document).moves
+    assert (moves[0].accel, moves[1].accel) == (1e308, 1e308) and moves[2:] == tap.moves[2:]
 
 
 def test_integer_moves_read_as_floats(tap):

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import gc
-import json
 import sys
 
 from tapcell.tap import native
@@ -27,6 +26,8 @@ def json_text(value) -> str:
             return _C.json_text(value)
         except TypeError:
             pass
+    import json  # here, not at the top: with the kernel, a run seldom needs it (1.5 ms of start-up)
+
     return json.dumps(value)
 
 

@@ -2,14 +2,14 @@
 the older workbench capture. Every problem is a `TapFileError` naming the file and what is wrong.
 
 JSON is read through a compiled kernel when it was built (tapcell.tap.native, c/readers.c): it
-parses the long number arrays straight into float64 and json.loads reads only the rest; anything
-unusual in the text makes it give up, and json.loads reads the whole text and names the problem.
+decodes the object in one pass, the long number arrays straight into float64 and the rest as
+json.loads would; anything unusual in the text makes it give up, and json.loads reads the whole
+text and names the problem.
 """
 
 from __future__ import annotations
 
 import itertools
-import json
 import math
 import operator
 import os
@@ -106,6 +106,8 @@ def _bounded_int(text: str) -> int:
 
 
 def _load_json(path: str, text: str, where: str) -> Any:
+    import json  # here, not at the top: only a file the reader's kernel leaves to json needs it (1.5 ms of start-up)
+
     try:
         return json.loads(text, parse_int=_bounded_int)
     except json.JSONDecodeError as problem:
@@ -120,18 +122,12 @@ def _load_tap_json(path: str, text: str, where: str) -> tuple[Any, tuple[str, ..
     """The decoded JSON of a tap, and the keys whose number arrays the kernel parsed into float64
     arrays (finite: it refuses anything else)."""
     if _C is not None:
-        split = _C.split_number_arrays(text, NUMBER_ARRAY_KEYS)
-        if split is not None:
-            rest, arrays, longest_digit_run = split
-            # json's own int() where no integer can be too long (a hook costs a call per integer)
-            bounded = _bounded_int if longest_digit_run > MAX_INTEGER_DIGITS else None
-            try:
-                document = json.loads(rest, parse_int=bounded)
-            except (json.JSONDecodeError, _HugeInteger, RecursionError):
-                document = None  # _load_json below names the problem, at its place in the whole text
-            if isinstance(document, dict) and all(document.get(key) == [] for key in arrays):
-                document.update((key, np.frombuffer(values)) for key, values in arrays.items())
-                return document, tuple(arrays)
+        decoded = _C.decode_tap_json(text, NUMBER_ARRAY_KEYS)
+        if decoded is not None:
+            document, parsed = decoded
+            for key in parsed:
+                document[key] = np.frombuffer(document[key])
+            return document, parsed
     return _load_json(path, text, where), ()
 
 
@@ -207,8 +203,10 @@ def _known_numbers(path: str, where: str, name: str, values: dict, keys: tuple[s
     """`values` with each of `keys` it has checked: null or a finite number (a NaN time or a string
     where the format puts a number is the file's error, not a value to carry); other keys kept as they are."""
     for key in keys:
-        if values.get(key) is not None:
-            values[key] = _number(path, where, f"{name}.{key}", values[key])
+        value = values.get(key)
+        # a finite float is kept as it is (the common case, without a call); anything else is checked
+        if value is not None and not (type(value) is float and math.isfinite(value)):
+            values[key] = _number(path, where, f"{name}.{key}", value)
     return values
 
 
@@ -237,20 +235,17 @@ def _plain_moves(values: list) -> list[Move] | None:
     except (KeyError, TypeError):  # a missing key, or an item that is not an object
         return None
     numbers = list(itertools.chain.from_iterable(rows))
-    types = set(map(type, numbers))
-    if not types <= _PLAIN_NUMBER_TYPES:
+    if not set(map(type, numbers)) <= _PLAIN_NUMBER_TYPES:
         return None
-    if types != {float}:  # ints among them (json's type for a number written without a point)
-        try:
-            floats = list(map(float, numbers))
-        except OverflowError:  # an integer beyond the float range
-            return None
-        width = len(MOVE_KEYS)
-        rows = [floats[start:start + width] for start in range(0, len(floats), width)]
-        numbers = floats
-    if not all(map(math.isfinite, numbers)):
+    try:  # ints among them too (json's type for a number written without a point, e.g. z_r)
+        numbers = list(map(float, numbers))
+    except OverflowError:  # an integer beyond the float range
         return None
-    return [Move(*row) for row in rows]
+    # finite numbers have a finite sum, unless it overflows: then each one is looked at
+    if not math.isfinite(sum(numbers)) and not all(map(math.isfinite, numbers)):
+        return None
+    width = len(MOVE_KEYS)
+    return [Move(*numbers[start:start + width]) for start in range(0, len(numbers), width)]
 
 
 def _checked_move(path: str, where: str, k: int, item: Any) -> Move:
@@ -295,10 +290,25 @@ def _check_sample_rate(path: str, where: str, rate_sps: float, time_s: np.ndarra
                                  f"{NOMINAL_RATE_FACTOR:g}x of that, or leave it out")
 
 
+# What the kernel's plain_tap_fields checks a tapcell.tap.v1 object against (MOVE_KEYS start
+# print_time, move_t, start_v: it checks the first two for order and sign as _moves does).
+_PLAIN_TAP_FORM = (FORMAT, MOVE_KEYS, EVENT_KEYS, PROBE_KEYS, MIN_SAMPLES)
+
+
 def tap_from_object(obj: Any, path: str = "<memory>", where: str = "", *,
                     finite_arrays: Collection[str] = ()) -> TapData:
     """A TapData from one decoded JSON object of any accepted flavour. `finite_arrays`: keys whose
     float64 arrays are known finite (the reader's kernel parsed them: it refuses anything else)."""
+    if finite_arrays and _C is not None and isinstance(obj, dict):
+        # A plain tapcell.tap.v1 object, checked in one call (c/readers.c); its twin is the rest of this
+        # function, which builds the same tap, and names the problem wherever the kernel gives up.
+        fields = _C.plain_tap_fields(obj, tuple(finite_arrays), _PLAIN_TAP_FORM)
+        if fields is not None:
+            time_s, force_g, z_mm, move_rows, sample_rate, events, probe, truth, meta = fields
+            if sample_rate is not None:
+                _check_sample_rate(path, where, sample_rate, time_s)
+            return TapData(time_s=time_s, force_g=force_g, z_mm=z_mm, moves=[Move(*row) for row in move_rows],
+                           sample_rate_sps=sample_rate, events=events, probe=probe, truth=truth, meta=meta)
     if not isinstance(obj, dict):
         raise TapFileError(path, f"{where}expected a JSON object with 'time' and 'force'")
     if "tap" in obj and isinstance(obj["tap"], dict):  # Klipper-family dump_taps event
