@@ -46,6 +46,9 @@ all: test
 $(STAMP): pyproject.toml $(NATIVE_SOURCES)
 	test -x $(VPY) || { $(PYTHON) -m venv $(VENV) && $(VPY) -m pip install -q --upgrade pip; }
 	$(VPY) -m pip install -q -e '.[dev]'
+	# The bytecode, as a wheel's install writes it: where PYTHONDONTWRITEBYTECODE is set, an editable
+	# install would otherwise compile every module again at each start of `tapcell`.
+	$(VPY) -m compileall -q src/tapcell
 	touch $@
 
 venv: $(STAMP)
