@@ -152,7 +152,8 @@ def test_five_segments_equal_the_twin_on_ties_and_crossed_ranges(problem):
     with MonkeyPatch.context() as patch:
         ours = segments.best_five_segments(*problem)
         patch.setattr(segments, "_C", None)
-        assert ours == segments.best_five_segments(*problem)
+        with np.errstate(over="ignore", invalid="ignore"):  # the overflowing case's sums, by design
+            assert ours == segments.best_five_segments(*problem)
 
 
 def _results(name: str) -> list[dict]:
