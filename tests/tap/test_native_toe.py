@@ -7,18 +7,13 @@ drift with the baseline or take it from the approach, cable-drift taps weigh the
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import shutil
-import subprocess
-import sysconfig
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from tapcell.tap import analysis, analyze_tap, toe
-from native_kernel_inputs import OPTIONS, generated_taps, recorded_calls
+from native_kernel_inputs import OPTIONS, generated_taps, recorded_calls, scalar_build
 
 pytestmark = pytest.mark.skipif(toe._C is None, reason="the toe kernel is not built (TAPCELL_NATIVE=0)")
 
@@ -326,18 +321,7 @@ def test_thread_pulls_equal_the_numpy_twin_bit_for_bit(monkeypatch):
 def scalar_kernel(tmp_path_factory):
     """c/toe.c built with -DTAPCELL_SCALAR (the plain loops an ARM board runs instead of SSE2),
     loaded beside the installed kernel."""
-    compiler = shutil.which(sysconfig.get_config_var("CC").split()[0]) if sysconfig.get_config_var("CC") else None
-    if compiler is None:
-        pytest.skip("no C compiler")
-    source = Path(toe.__file__).with_name("c") / "toe.c"
-    library = tmp_path_factory.mktemp("scalar") / ("_c_toe" + sysconfig.get_config_var("EXT_SUFFIX"))
-    subprocess.run([compiler, "-shared", "-fPIC", "-std=c99", "-O3", "-fno-fast-math", "-ffp-contract=off",
-                    "-DTAPCELL_SCALAR", "-I" + sysconfig.get_paths()["include"], str(source), "-o", str(library)],
-                   check=True)
-    spec = importlib.util.spec_from_file_location("_c_toe", library)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return scalar_build("toe", tmp_path_factory.mktemp("scalar"))
 
 
 def test_the_scalar_build_gives_the_kernels_bits(toe_fits, scalar_kernel, monkeypatch):

@@ -65,6 +65,40 @@ static inline Complex times(Complex a, double wr, double wi)
     return product;
 }
 
+/* The FFTs' butterflies with a complex number as one SSE2 vector (re, im) where the compiler has it
+ * (x86-64 always): each lane's operations are the plain code's, so the bits are the same (a product's
+ * re is a.re wr + -(a.im wi), which IEEE rounds as a.re wr - a.im wi; its im a.im wr + a.re wi, the
+ * sum in the other order, which IEEE addition does not mind). -DTAPCELL_SCALAR builds the plain
+ * loops (tests/tap/test_native_ringing.py compares the two builds' bits). */
+#if defined(__SSE2__) && !defined(TAPCELL_SCALAR)
+#define RINGING_SSE2 1
+#include <emmintrin.h>
+
+typedef __m128d Vector;
+
+static inline Vector load(const Complex *c) { return _mm_loadu_pd(&c->re); }
+static inline void store(Complex *c, Vector v) { _mm_storeu_pd(&c->re, v); }
+static inline Vector add(Vector a, Vector b) { return _mm_add_pd(a, b); }
+static inline Vector sub(Vector a, Vector b) { return _mm_sub_pd(a, b); }
+
+/* a (wr + i wi), as `times`. */
+static inline Vector vtimes(Vector a, double wr, double wi)
+{
+    const Vector negate_re = _mm_set_pd(0.0, -0.0); /* flips the sign of the re lane only */
+    const Vector straight = _mm_mul_pd(a, _mm_set1_pd(wr)); /* (a.re wr, a.im wr) */
+    const Vector crossed = _mm_mul_pd(_mm_shuffle_pd(a, a, 1), _mm_set1_pd(wi)); /* (a.im wi, a.re wi) */
+    return _mm_add_pd(straight, _mm_xor_pd(crossed, negate_re));
+}
+#else
+typedef Complex Vector;
+
+static inline Vector load(const Complex *c) { return *c; }
+static inline void store(Complex *c, Vector v) { *c = v; }
+static inline Vector add(Vector a, Vector b) { return (Complex){a.re + b.re, a.im + b.im}; }
+static inline Vector sub(Vector a, Vector b) { return (Complex){a.re - b.re, a.im - b.im}; }
+static inline Vector vtimes(Vector a, double wr, double wi) { return times(a, wr, wi); }
+#endif
+
 /* The forward DFT of x (size a power of two) in place, its bins in bit-reversed order: radix 2,
  * decimation in frequency, two stages per pass over the data (the same butterflies, half the passes),
  * the last alone when their count is odd. */
@@ -80,26 +114,22 @@ static void fft_to_bit_reversed(Complex *x, Py_ssize_t size)
             const double w3r = w1.im, w3i = -w1.re; /* -i w1 */
             for (Py_ssize_t start = k; start < size; start += len) {
                 Complex *p = x + start;
-                const Complex x0 = p[0], x1 = p[h], x2 = p[2 * h], x3 = p[3 * h];
-                const Complex a0 = {x0.re + x2.re, x0.im + x2.im}, a1 = {x1.re + x3.re, x1.im + x3.im};
-                const Complex a2 = times((Complex){x0.re - x2.re, x0.im - x2.im}, w1.re, w1.im);
-                const Complex a3 = times((Complex){x1.re - x3.re, x1.im - x3.im}, w3r, w3i);
-                p[0].re = a0.re + a1.re;
-                p[0].im = a0.im + a1.im;
-                p[h] = times((Complex){a0.re - a1.re, a0.im - a1.im}, w2.re, w2.im);
-                p[2 * h].re = a2.re + a3.re;
-                p[2 * h].im = a2.im + a3.im;
-                p[3 * h] = times((Complex){a2.re - a3.re, a2.im - a3.im}, w2.re, w2.im);
+                const Vector x0 = load(p), x1 = load(p + h), x2 = load(p + 2 * h), x3 = load(p + 3 * h);
+                const Vector a0 = add(x0, x2), a1 = add(x1, x3);
+                const Vector a2 = vtimes(sub(x0, x2), w1.re, w1.im);
+                const Vector a3 = vtimes(sub(x1, x3), w3r, w3i);
+                store(p, add(a0, a1));
+                store(p + h, vtimes(sub(a0, a1), w2.re, w2.im));
+                store(p + 2 * h, add(a2, a3));
+                store(p + 3 * h, vtimes(sub(a2, a3), w2.re, w2.im));
             }
         }
     }
     if (len == 2) /* the last stage alone: W_2^0 = 1 */
         for (Py_ssize_t start = 0; start < size; start += 2) {
-            const Complex a = x[start], b = x[start + 1];
-            x[start].re = a.re + b.re;
-            x[start].im = a.im + b.im;
-            x[start + 1].re = a.re - b.re;
-            x[start + 1].im = a.im - b.im;
+            const Vector a = load(x + start), b = load(x + start + 1);
+            store(x + start, add(a, b));
+            store(x + start + 1, sub(a, b));
         }
 }
 
@@ -119,30 +149,24 @@ static void inverse_fft_from_bit_reversed(Complex *x, Py_ssize_t size)
             const double w3r = -w2i, w3i = w2r; /* i w2 */
             for (Py_ssize_t start = k; start < size; start += 2 * len) {
                 Complex *p = x + start;
-                const Complex b1 = times(p[h], w1r, w1i), b3 = times(p[3 * h], w1r, w1i);
-                const Complex a0 = {p[0].re + b1.re, p[0].im + b1.im}, a1 = {p[0].re - b1.re, p[0].im - b1.im};
-                const Complex a2 = {p[2 * h].re + b3.re, p[2 * h].im + b3.im};
-                const Complex a3 = {p[2 * h].re - b3.re, p[2 * h].im - b3.im};
-                const Complex c2 = times(a2, w2r, w2i), c3 = times(a3, w3r, w3i);
-                p[0].re = a0.re + c2.re;
-                p[0].im = a0.im + c2.im;
-                p[2 * h].re = a0.re - c2.re;
-                p[2 * h].im = a0.im - c2.im;
-                p[h].re = a1.re + c3.re;
-                p[h].im = a1.im + c3.im;
-                p[3 * h].re = a1.re - c3.re;
-                p[3 * h].im = a1.im - c3.im;
+                const Vector b1 = vtimes(load(p + h), w1r, w1i), b3 = vtimes(load(p + 3 * h), w1r, w1i);
+                const Vector p0 = load(p), p2 = load(p + 2 * h);
+                const Vector a0 = add(p0, b1), a1 = sub(p0, b1), a2 = add(p2, b3), a3 = sub(p2, b3);
+                const Vector c2 = vtimes(a2, w2r, w2i), c3 = vtimes(a3, w3r, w3i);
+                store(p, add(a0, c2));
+                store(p + 2 * h, sub(a0, c2));
+                store(p + h, add(a1, c3));
+                store(p + 3 * h, sub(a1, c3));
             }
         }
     }
     if (len == size) { /* the last stage alone */
         const Py_ssize_t half = len / 2, stride = twiddle_size / len;
         for (Py_ssize_t k = 0; k < half; k++) {
-            const Complex product = times(x[k + half], twiddles[k * stride].re, -twiddles[k * stride].im);
-            x[k + half].re = x[k].re - product.re;
-            x[k + half].im = x[k].im - product.im;
-            x[k].re += product.re;
-            x[k].im += product.im;
+            const Vector product = vtimes(load(x + k + half), twiddles[k * stride].re, -twiddles[k * stride].im);
+            const Vector low = load(x + k);
+            store(x + k + half, sub(low, product));
+            store(x + k, add(low, product));
         }
     }
 }
@@ -278,11 +302,8 @@ static Py_ssize_t largest_bin(Complex *packed, Py_ssize_t n, Py_ssize_t lowest, 
     }
     fft_to_bit_reversed(signal, size);
     fft_to_bit_reversed(filter, size);
-    for (Py_ssize_t i = 0; i < size; i++) {
-        const Complex a = signal[i], b = filter[i];
-        signal[i].re = a.re * b.re - a.im * b.im;
-        signal[i].im = a.re * b.im + a.im * b.re;
-    }
+    for (Py_ssize_t i = 0; i < size; i++) /* signal × filter (re: a.re b.re - a.im b.im, im: a.re b.im + a.im b.re) */
+        store(signal + i, vtimes(load(signal + i), filter[i].re, filter[i].im));
     inverse_fft_from_bit_reversed(signal, size);
     /* Z_k into filter[k], k < length (the convolution's index k + inputs - 1, scaled by 1 / size) */
     Complex *spectrum = filter;

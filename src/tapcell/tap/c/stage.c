@@ -167,6 +167,10 @@ done:
     return answer;
 }
 
+/* fmax(v, 1e-300) inline, for the grid's every cell (libm's fmax is a call): the same value for
+ * every v, a NaN included (1e-300). */
+static inline double at_least_tiny(double v) { return v > 1e-300 ? v : 1e-300; }
+
 /* The grid's best fit (two_stage_grid's answer). */
 typedef struct {
     double least, noise_var, top_mean, top_sd;
@@ -232,7 +236,7 @@ static int grid_fit(const double *x, const double *f, Py_ssize_t n, const double
             const double uv = hinge * top * h.s0 - (hinge + top) * h.s1 + h.s2 - su * sv / count - ux * vx / sxx;
             const double vf = top * t.sf - t.sxf;
             const double det = uu * vv - uv * uv;
-            if (!(det > 1e-9 * fmax(uu * vv, 1e-300))) continue;
+            if (!(det > 1e-9 * at_least_tiny(uu * vv))) continue;
             const double k = (vv * uf - uv * vf) / det;
             const double k1 = (uu * vf - uv * uf) / det;
             if (!(k1 >= min_share * k && k1 <= max_share * k)) continue;
