@@ -1271,10 +1271,12 @@ def check_decompression_samples(split: SplitTap, window: ModelWindow, delay_s: f
     if result.z_mm is None:
         return
     contact_um = _break_contact_in_window_um(motion, delay_s, window_delay_s, result.z_mm)
+    step_um = motion.pullback_speed_mm_s * 1000.0 * timing.sample_period_s
+    if not validate.decompression_may_fall_short(contact_um, step_um):
+        return  # no faster than the guide allows, or a contact too low to ask: nothing to count
     _, x_high_um, _ = pullback_samples(window, motion, timing, window_delay_s)
     pressed = int(np.count_nonzero(x_high_um <= contact_um))
-    validate.check_decompression_samples(pressed, contact_um,
-                                         motion.pullback_speed_mm_s * 1000.0 * timing.sample_period_s)
+    validate.check_decompression_samples(pressed, contact_um, step_um)
 
 
 def _break_contact_in_window_um(motion: Motion, delay_s: float, window_delay_s: float, z_mm: float) -> float:
