@@ -141,6 +141,24 @@ def test_marginal_contact_equals_the_numpy_twin(monkeypatch):
         assert mean == pytest.approx(twin_mean, abs=1e-12) and sd == pytest.approx(twin_sd, rel=1e-12)
 
 
+def test_the_fit_keeps_the_shape_spread_its_grid_gives(toe_fits, monkeypatch):
+    # The kernel's fit finds z_sigma_um's shape part from the minima its marginal found: the same bits as
+    # shape_spread_um's own kernel call on the grid it returned (what the Z uncertainty called before).
+    from tapcell.tap import uncertainty
+
+    fits = [fit for fit in (toe.fit_toe(*args) for args in toe_fits) if fit is not None]
+    assert len(fits) >= 20
+    kept = [fit.grid.shape_um for fit in fits]
+    assert kept == [toe.shape_spread_um(fit.grid.contacts_um, fit.grid.rss, fit.grid.noise_var) for fit in fits]
+    assert kept == [uncertainty.toe_shape_um(fit.grid) for fit in fits]
+    assert sum(spread > 0.0 for spread in kept) >= 10  # spreads, not only the zeros of one shape
+    # The twin leaves it to be computed from the grid when asked.
+    monkeypatch.setattr(toe, "_C", None)
+    twin = toe.fit_toe(*toe_fits[0])
+    assert twin.grid.shape_um is None and uncertainty.toe_shape_um(twin.grid) == toe.shape_spread_um(
+        twin.grid.contacts_um, twin.grid.rss, twin.grid.noise_var)
+
+
 def test_shape_spread_equals_the_numpy_twin(monkeypatch):
     # shape_spread_um's one kernel call (each toe's minimum found once for both shapes) against its
     # two marginal calls, on residual grids with ties, unsolvable toes and a shape with no curved minimum.

@@ -160,6 +160,9 @@ class ToeGridResult:
     rss: np.ndarray
     noise_var: float
     prior: np.ndarray
+    # `shape_spread_um` of this grid when the fit found it on the way (the kernel: from the minima its
+    # marginal found, the same bits as computed from the grid); None: computed from the grid when asked.
+    shape_um: float | None = None
 
 
 @dataclass
@@ -735,10 +738,10 @@ def _fit_toe_native(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarra
                    *walk, _FIT_GRID, contacts_um, rss)
     if found is None:
         return None
-    contact, sigma, power_index, width_index, stiffness, residual_var, residual_sigma = found
+    contact, sigma, power_index, width_index, stiffness, residual_var, residual_sigma, shape_um = found
     return ToeFit(contact_um=contact, sigma_um=sigma, width_um=float(TOE_WIDTHS_UM[width_index]),
                   power=float(TOE_POWERS[power_index]), stiffness_g_um=stiffness, residual_sigma_g=residual_sigma,
-                  grid=ToeGridResult(contacts_um, rss, residual_var, _TOE_PRIOR))
+                  grid=ToeGridResult(contacts_um, rss, residual_var, _TOE_PRIOR, shape_um))
 
 
 def shape_spread_um(contacts_um: np.ndarray, rss_rows: np.ndarray, noise_var: float) -> float:

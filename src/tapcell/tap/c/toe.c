@@ -628,6 +628,24 @@ static int marginal_of(const ToeMinimum *minima, Py_ssize_t toes, const double *
     return 1;
 }
 
+/* Half the range of the shapes' own marginals (toe.py's `shape_spread_um`): `minima` and `prior` in
+ * `shapes` equal blocks, one a shape (its widths); the highest and lowest of the marginals that exist
+ * (the twin's max - min), 0 unless two shapes have one. */
+static double shapes_spread_um(const ToeMinimum *minima, Py_ssize_t toes, Py_ssize_t shapes, const double *prior,
+                               double noise_var)
+{
+    Py_ssize_t widths = toes / shapes;
+    double highest_um = -INFINITY, lowest_um = INFINITY, shape_mean_um, shape_sd_um;
+    int known = 0;
+    for (Py_ssize_t k = 0; k < shapes; k++)
+        if (marginal_of(minima + k * widths, widths, prior + k * widths, noise_var, &shape_mean_um, &shape_sd_um)) {
+            highest_um = known && highest_um >= shape_mean_um ? highest_um : shape_mean_um;
+            lowest_um = known && lowest_um <= shape_mean_um ? lowest_um : shape_mean_um;
+            known++;
+        }
+    return known > 1 ? 0.5 * (highest_um - lowest_um) : 0.0;
+}
+
 /* The arrays of the marginal kernels, checked: heights (count >= 2), prior (toes), rss (toes × count). */
 static int load_marginal(Py_buffer *heights_buffer, Py_buffer *rss_buffer, Py_buffer *prior_buffer,
                          const double **heights_um, Py_ssize_t *count, const double **rss, const double **prior,
@@ -678,17 +696,7 @@ static PyObject *marginal(PyObject *args, int with_spread)
         result = Py_BuildValue("dd", mean_um, sd_um);
         goto done;
     }
-    /* The shapes' own marginals: the highest and lowest of those that exist (the twin's max - min). */
-    Py_ssize_t widths = toes / shapes;
-    double highest_um = -INFINITY, lowest_um = INFINITY, shape_mean_um, shape_sd_um;
-    int known = 0;
-    for (Py_ssize_t k = 0; k < shapes; k++)
-        if (marginal_of(minima + k * widths, widths, prior + k * widths, noise_var, &shape_mean_um, &shape_sd_um)) {
-            highest_um = known && highest_um >= shape_mean_um ? highest_um : shape_mean_um;
-            lowest_um = known && lowest_um <= shape_mean_um ? lowest_um : shape_mean_um;
-            known++;
-        }
-    result = Py_BuildValue("ddd", mean_um, sd_um, known > 1 ? 0.5 * (highest_um - lowest_um) : 0.0);
+    result = Py_BuildValue("ddd", mean_um, sd_um, shapes_spread_um(minima, toes, shapes, prior, noise_var));
 done:
     PyMem_Free(minima);
     PyBuffer_Release(&heights_buffer);
@@ -717,7 +725,7 @@ static PyObject *marginal_contact_and_spread(PyObject *self, PyObject *args)
  * one, the least residual's toe, the marginal contact and the stiffness there, in one call. The
  * contact heights and the residual grid go into contacts_out and rss_out (the pooling keeps them);
  * returns (contact_um, sigma_um, shape, width index, stiffness_g_um, residual variance, residual
- * sigma g), or None where fit_toe returns None. */
+ * sigma g, the shapes' spread `shape_spread_um`), or None where fit_toe returns None. */
 static PyObject *fit(PyObject *self, PyObject *args)
 {
     (void)self;
@@ -855,8 +863,10 @@ static PyObject *fit(PyObject *self, PyObject *args)
     } else {
         stiffness_g_um = projected_stiffness(&s, &plain, contact_um, width_um, (int)shape);
     }
-    result = Py_BuildValue("ddnnddd", contact_um, sigma_um, shape, width_index, stiffness_g_um, residual_var,
-                           sqrt(residual_var * unit_g2));
+    /* The shape part of z_sigma_um (`shape_spread_um`) from the same minima, as marginal_contact_and_spread
+     * finds it from the grid: computed here, it costs no second pass over the grid. */
+    result = Py_BuildValue("ddnndddd", contact_um, sigma_um, shape, width_index, stiffness_g_um, residual_var,
+                           sqrt(residual_var * unit_g2), shapes_spread_um(minima, toes, SHAPES, prior, residual_var));
 done:
     free(kept);
     free(grid_c);
@@ -1247,7 +1257,7 @@ static PyMethodDef methods[] = {
     {"fit", fit, METH_VARARGS,
      "fit(x_lo_um, x_hi_um, force_g, contact0_um, spacing_um, drift_g_um, white_var_g2, walk_var_g2, grid,\n"
      "    contacts_out, rss_out) -> (contact_um, sigma_um, shape, width_index, stiffness_g_um, residual_var,\n"
-     "    residual_sigma_g) or None\n\n"
+     "    residual_sigma_g, shape_spread_um) or None\n\n"
      "toe.py's fit_toe for the shapes (0.5, 1.0). Samples: conversion windows [x_lo, x_hi] (um above the\n"
      "halt) and the force; drift_g_um: the known drift, NaN to fit it; white_var_g2: the baseline's\n"
      "white noise with walk_var_g2 its walk per sample, NaN for none. grid: (above_um, departure\n"
