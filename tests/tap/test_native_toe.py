@@ -355,3 +355,30 @@ def test_the_scalar_build_gives_the_kernels_bits(toe_fits, scalar_kernel, monkey
         assert fit.grid.rss.tobytes() == plain.grid.rss.tobytes() and fit.grid.noise_var == plain.grid.noise_var
         walks += fit.residual_sigma_g != math.sqrt(fit.grid.noise_var)
     assert walks >= 3  # the walk-weighted grid's vector recursion ran too
+
+
+def test_the_detrended_variogram_kernel_gives_the_twins_bits(monkeypatch):
+    # Its cumulative sums in numpy's order, its two dot products exact: every segment length the walk
+    # estimate meets (12 to ~2,900 samples, odd and even: t on whole or half numbers) bit for bit;
+    # longer ones, where BLAS's order could round t·f, go to the twin (None).
+    twin = toe._detrended_variogram.__wrapped__
+    lengths = [n for n in (*range(12, 400), *range(400, 3000, 7)) if toe._variogram_lags(n)]
+    kernel = [toe._C.detrended_variogram(n, toe._variogram_lags(n)) for n in lengths]
+    monkeypatch.setattr(toe, "_C", None)
+    twins = [twin(n, toe._variogram_lags(n)) for n in lengths]
+    exact = [(n, k, t) for n, k, t in zip(lengths, kernel, twins) if k is not None]
+    assert all(k == t for _, k, t in exact)
+    assert max(n for n, _, _ in exact) > 2800 and all(k is None for n, k in zip(lengths, kernel) if n > 2950)
+    assert all(isinstance(white, float) and isinstance(walk, float) for _, k, _ in exact for white, walk in k)
+
+
+def test_the_detrended_variogram_kernel_refuses_bad_lags():
+    with pytest.raises(ValueError, match="lags"):
+        toe._C.detrended_variogram(20, (4, 20))
+    with pytest.raises(ValueError, match="lags"):
+        toe._C.detrended_variogram(20, (0, 4))
+    with pytest.raises(ValueError, match="samples"):
+        toe._C.detrended_variogram(1, (1,))
+    with pytest.raises(TypeError):
+        toe._C.detrended_variogram(20, [4, 8])
+    assert toe._C.detrended_variogram(10**7, (4, 8, 12)) is None  # far too long to be exact: the twin's

@@ -949,6 +949,117 @@ done:
     return result;
 }
 
+/* 2^53: below it every integer, and so every multiple of 0.25 below 2^51, is a double. */
+#define EXACT_UNITS 9007199254740992.0
+
+/* toe.py's `_detrended_variogram` for n samples at `lags`: per lag, (its mean squared difference for
+ * unit white noise, for a unit walk) once a line is fitted out, in the twin's closed form and
+ * operations. The cumulative sums run in numpy's order (np.cumsum adds left to right); the two dot
+ * products (t·t, t·f: BLAS sums them in its own order) are exact, so every order gives the same:
+ * t and f are multiples of 1/2 (2t and 2f integers), their products of 1/4, and while the sum of the
+ * products' sizes stays under 2^51 every partial sum is a double. Longer segments than that (t·f
+ * grows as n^5: past ~2,000 samples) return None and the twin runs. Error: -1 (exception set). */
+static int detrended_variogram_of(Py_ssize_t n, const Py_ssize_t *lags, Py_ssize_t count, double *white,
+                                  double *walk)
+{
+    double *f = malloc(sizeof(double) * (size_t)(2 * n + 1));
+    if (f == NULL) {
+        PyErr_NoMemory();
+        return -1;
+    }
+    double *f_sums = f + n; /* n + 1: f_sums[m] = the sum of f(k) over k < m */
+    const double middle = 0.5 * (double)(n - 1);
+    /* f(m) = cumsum(k t)[m] - k cumsum(t)[m], each cumulative sum starting at its first term */
+    double kt_sum = 0.0, t_sum = 0.0, tt_units = 0.0;
+    for (Py_ssize_t k = 0; k < n; k++) {
+        const double kd = (double)k, t = kd - middle;
+        kt_sum = k == 0 ? kd * t : kt_sum + kd * t;
+        t_sum = k == 0 ? t : t_sum + t;
+        f[k] = kt_sum - kd * t_sum;
+        tt_units += 4.0 * (t * t); /* (2t)^2: an integer, exact while the total stays under 2^53 */
+    }
+    f_sums[0] = 0.0;
+    for (Py_ssize_t k = 0; k < n; k++)
+        f_sums[k + 1] = k == 0 ? f[0] : f_sums[k] + f[k];
+    /* t·f in units of 1/4: (2t)(2f), integers; their sizes' sum bounds every partial sum */
+    double tf_units = 0.0, size_units = 0.0;
+    for (Py_ssize_t k = 0; k < n && size_units < EXACT_UNITS; k++) {
+        const double product = (2.0 * ((double)k - middle)) * (2.0 * f[k]);
+        tf_units += product;
+        size_units += fabs(product);
+    }
+    if (!(tt_units < EXACT_UNITS && size_units < EXACT_UNITS)) {
+        free(f);
+        return 0; /* too long to be exact: the twin's own sums */
+    }
+    const double s = tt_units / 4.0, tf = tf_units / 4.0;
+    for (Py_ssize_t l = 0; l < count; l++) {
+        const Py_ssize_t at = lags[l];
+        const double lag = (double)at;
+        const double mean_df = (f_sums[n] - f_sums[at] - f_sums[n - at]) / ((double)n - lag);
+        white[l] = 2.0 - lag * lag / s;
+        const double share = lag / s;
+        walk[l] = lag - 2.0 * share * mean_df + (share * share) * tf;
+    }
+    free(f);
+    return 1;
+}
+
+/* Longer segments are not even tried (t·f stops being exact near 2,930 samples). */
+#define DETRENDED_MOST_SAMPLES 8192
+
+static PyObject *detrended_variogram(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_ssize_t n;
+    PyObject *lag_tuple;
+    if (!PyArg_ParseTuple(args, "nO!", &n, &PyTuple_Type, &lag_tuple))
+        return NULL;
+    Py_ssize_t count = PyTuple_GET_SIZE(lag_tuple);
+    if (n < 2) {
+        PyErr_Format(PyExc_ValueError, "n: %zd samples, at least 2 expected", n);
+        return NULL;
+    }
+    PyObject *result = NULL;
+    if (n > DETRENDED_MOST_SAMPLES)
+        return Py_NewRef(Py_None); /* far past where t·f can be exact: the twin's */
+    Py_ssize_t *lags = PyMem_Malloc(sizeof(Py_ssize_t) * (size_t)(count > 0 ? count : 1));
+    double *values = PyMem_Malloc(sizeof(double) * (size_t)(2 * (count > 0 ? count : 1)));
+    if (lags == NULL || values == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    for (Py_ssize_t l = 0; l < count; l++) {
+        lags[l] = PyLong_AsSsize_t(PyTuple_GET_ITEM(lag_tuple, l));
+        if (lags[l] == -1 && PyErr_Occurred())
+            goto done;
+        if (lags[l] < 1 || lags[l] >= n) {
+            PyErr_Format(PyExc_ValueError, "lags: %zd for %zd samples, 1..%zd allowed", lags[l], n, n - 1);
+            goto done;
+        }
+    }
+    int found = detrended_variogram_of(n, lags, count, values, values + count);
+    if (found < 0)
+        goto done;
+    if (!found) {
+        result = Py_NewRef(Py_None);
+        goto done;
+    }
+    result = PyTuple_New(count);
+    for (Py_ssize_t l = 0; result != NULL && l < count; l++) {
+        PyObject *pair = Py_BuildValue("(dd)", values[l], values[count + l]);
+        if (pair == NULL) {
+            Py_CLEAR(result);
+            break;
+        }
+        PyTuple_SET_ITEM(result, l, pair);
+    }
+done:
+    PyMem_Free(lags);
+    PyMem_Free(values);
+    return result;
+}
+
 /* The sums of products of the least squares in white, walk and height pull (toe.py's
  * `walk_beside_height_pull`), added up row by row in its order. */
 typedef struct {
@@ -1276,6 +1387,11 @@ static PyMethodDef methods[] = {
      "marginal_contact over every toe, and half the range of the marginals of each shape alone (rss and\n"
      "prior in `shapes` equal blocks of rows, each shape's widths); None as marginal_contact (toe.py:\n"
      "shape_spread_um, the spread's twin)."},
+    {"detrended_variogram", detrended_variogram, METH_VARARGS,
+     "detrended_variogram(n, lags) -> ((white, walk) per lag) or None\n\n"
+     "Per lag (a tuple of ints, 1..n-1), the mean squared difference of n samples once a line is fitted\n"
+     "out, for unit white noise and for a unit random walk (toe.py: _detrended_variogram, the same bits);\n"
+     "None where its dot products could round (past ~2,000 samples), which the twin then computes."},
     {"lag_mean_squares", lag_mean_squares, METH_VARARGS,
      "lag_mean_squares(force_g, lags) -> list of float\n\n"
      "Per lag (a tuple of ints, 1..n-1), the mean of (r[i+lag] - r[i])^2 over i, r the force with its\n"
