@@ -564,7 +564,65 @@ done:
     return answer;
 }
 
+/* stage.py's `_departure_fit` selection: the windows' mid-heights x = (x_lo + x_hi) / 2 strictly
+ * between low_um and high_um, in their order, into x_out, their force less drift × x into force_out;
+ * returns (count, the median of their windows' widths x_hi - x_lo, NaN when none): the twin's
+ * element-wise operations and robust.median's (the same bits). */
+static PyObject *departure_near(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer lo_b = {0}, hi_b = {0}, f_b = {0}, xo_b = {0}, fo_b = {0};
+    double drift_g_um, low_um, high_um;
+    if (!PyArg_ParseTuple(args, "O&O&O&dddO&O&", float64_buffer, &lo_b, float64_buffer, &hi_b, float64_buffer, &f_b,
+                          &drift_g_um, &low_um, &high_um, float64_buffer, &xo_b, float64_buffer, &fo_b))
+        return NULL;
+    PyObject *answer = NULL;
+    Py_ssize_t n = 0;
+    const double *x_lo = doubles_of(&lo_b, &n, "x_lo_um");
+    const double *x_hi = x_lo ? doubles_sized(&hi_b, n, "x_hi_um") : NULL;
+    const double *force_g = x_hi ? doubles_sized(&f_b, n, "force_g") : NULL;
+    double *x_out = force_g ? doubles_sized(&xo_b, n, "x_out") : NULL;
+    double *force_out = x_out ? doubles_sized(&fo_b, n, "force_out") : NULL;
+    if (force_out == NULL)
+        goto done;
+    if (xo_b.readonly || fo_b.readonly) {
+        PyErr_SetString(PyExc_ValueError, "x_out and force_out must be writable");
+        goto done;
+    }
+    double *widths = malloc(sizeof(double) * (size_t)(n > 0 ? n : 1));
+    if (widths == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    Py_ssize_t count = 0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double x_um = 0.5 * (x_lo[i] + x_hi[i]);
+        if (x_um > low_um && x_um < high_um) {
+            x_out[count] = x_um;
+            force_out[count] = force_g[i] - drift_g_um * x_um;
+            widths[count] = x_hi[i] - x_lo[i];
+            count++;
+        }
+    }
+    const double window_um = median_in_place(widths, count); /* NaN when none */
+    free(widths);
+    answer = Py_BuildValue("nd", count, window_um);
+done:
+    PyBuffer_Release(&lo_b);
+    PyBuffer_Release(&hi_b);
+    PyBuffer_Release(&f_b);
+    PyBuffer_Release(&xo_b);
+    PyBuffer_Release(&fo_b);
+    return answer;
+}
+
 static PyMethodDef methods[] = {
+    {"departure_near", departure_near, METH_VARARGS,
+     "departure_near(x_lo_um, x_hi_um, force_g, drift_g_um, low_um, high_um, x_out, force_out)\n"
+     "-> (count, window_um)\n\n"
+     "The samples whose windows' mid-heights lie strictly between low_um and high_um, in order: their\n"
+     "mid-heights into x_out, their force less drift_g_um x height into force_out (both of the samples'\n"
+     "length), and the median of their windows' widths (NaN for none) (stage.py: _departure_fit)."},
     {"one_stage_rss", one_stage_rss, METH_VARARGS,
      "one_stage_rss(x_um, force_g, contacts_um, widths_um, powers, contact_um, sxx, ff, x_mean) -> float\n\n"
      "The least residual of a level, a drift and a one-stage toe over every power, width and contact\n"
