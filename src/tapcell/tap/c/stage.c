@@ -17,6 +17,10 @@
 #include <math.h>
 #include <stdlib.h>
 
+/* fmax(v, least) for a positive least, inline (libm's fmax is a call, in loops over every top, hinge
+ * and grid cell): the same value for every v, a NaN included (the least). */
+static inline double at_least(double v, double least) { return v > least ? v : least; }
+
 /* Samples below `value` in the rising array x (numpy's searchsorted, side left). */
 static Py_ssize_t count_below(const double *x, Py_ssize_t n, double value)
 {
@@ -142,7 +146,7 @@ static PyObject *soft_stage(PyObject *self, PyObject *args)
         const double sum_r = top * below - row[0];
         const double srr = (top * top) * below - (2.0 * top) * row[0] + row[1] - sum_r * sum_r / (double)n;
         const double srf = top * row[2] - row[3];
-        const double gain = srf <= 0.0 ? 0.0 : srf * srf / fmax(srr, 1e-300);
+        const double gain = srf <= 0.0 ? 0.0 : srf * srf / at_least(srr, 1e-300);
         if (best < 0 || gain > best_gain) {
             best = k;
             best_gain = gain;
@@ -167,9 +171,6 @@ done:
     return answer;
 }
 
-/* fmax(v, 1e-300) inline, for the grid's every cell (libm's fmax is a call): the same value for
- * every v, a NaN included (1e-300). */
-static inline double at_least_tiny(double v) { return v > 1e-300 ? v : 1e-300; }
 
 /* The grid's best fit (two_stage_grid's answer). */
 typedef struct {
@@ -215,7 +216,7 @@ static int grid_fit(const double *x, const double *f, Py_ssize_t n, const double
         const double ux = hinge * h.s1 - h.s2 - x_mean * su;
         const double uu = hinge * hinge * h.s0 - 2.0 * hinge * h.s1 + h.s2 - su * su / count - ux * ux / sxx;
         const double uf = hinge * h.sf - h.sxf;
-        const double hinge_gain = (uf > 0.0 && uu > 0.0) ? uf * uf / fmax(uu, 1e-300) : 0.0;
+        const double hinge_gain = (uf > 0.0 && uu > 0.0) ? uf * uf / at_least(uu, 1e-300) : 0.0;
         if (a == 0 || hinge_gain > best_hinge_gain) best_hinge_gain = hinge_gain;
         Py_ssize_t below_top = 0;
         double last_top = -INFINITY;
@@ -236,7 +237,7 @@ static int grid_fit(const double *x, const double *f, Py_ssize_t n, const double
             const double uv = hinge * top * h.s0 - (hinge + top) * h.s1 + h.s2 - su * sv / count - ux * vx / sxx;
             const double vf = top * t.sf - t.sxf;
             const double det = uu * vv - uv * uv;
-            if (!(det > 1e-9 * at_least_tiny(uu * vv))) continue;
+            if (!(det > 1e-9 * at_least(uu * vv, 1e-300))) continue;
             const double k = (vv * uf - uv * vf) / det;
             const double k1 = (uu * vf - uv * uf) / det;
             if (!(k1 >= min_share * k && k1 <= max_share * k)) continue;
@@ -548,7 +549,7 @@ static PyObject *one_stage_rss(PyObject *self, PyObject *args)
                     s_f += shape * f[i];
                 }
                 const double s_var = s_ss - s_sum * s_sum / count - s_x * s_x / sxx;
-                const double gain = (s_f > 0.0 && s_var > 0.0) ? s_f * s_f / fmax(s_var, 1e-300) : 0.0;
+                const double gain = (s_f > 0.0 && s_var > 0.0) ? s_f * s_f / at_least(s_var, 1e-300) : 0.0;
                 if (gain > best_gain) best_gain = gain;
             }
         }
