@@ -572,16 +572,16 @@ done:
 static PyObject *departure_near(PyObject *self, PyObject *args)
 {
     (void)self;
-    Py_buffer lo_b = {0}, hi_b = {0}, f_b = {0}, xo_b = {0}, fo_b = {0};
+    Py_buffer buffers[3], xo_b = {0}, fo_b = {0};
     double drift_g_um, low_um, high_um;
-    if (!PyArg_ParseTuple(args, "O&O&O&dddO&O&", float64_buffer, &lo_b, float64_buffer, &hi_b, float64_buffer, &f_b,
-                          &drift_g_um, &low_um, &high_um, float64_buffer, &xo_b, float64_buffer, &fo_b))
+    if (!PyArg_ParseTuple(args, "O&O&O&dddO&O&", float64_buffer, &buffers[0], float64_buffer, &buffers[1],
+                          float64_buffer, &buffers[2], &drift_g_um, &low_um, &high_um, float64_buffer, &xo_b,
+                          float64_buffer, &fo_b))
         return NULL;
     PyObject *answer = NULL;
     Py_ssize_t n = 0;
-    const double *x_lo = doubles_of(&lo_b, &n, "x_lo_um");
-    const double *x_hi = x_lo ? doubles_sized(&hi_b, n, "x_hi_um") : NULL;
-    const double *force_g = x_hi ? doubles_sized(&f_b, n, "force_g") : NULL;
+    const double *x_lo, *x_hi, *force_g;
+    pullback_samples_of(buffers, &n, &x_lo, &x_hi, &force_g);
     double *x_out = force_g ? doubles_sized(&xo_b, n, "x_out") : NULL;
     double *force_out = x_out ? doubles_sized(&fo_b, n, "force_out") : NULL;
     if (force_out == NULL)
@@ -609,9 +609,8 @@ static PyObject *departure_near(PyObject *self, PyObject *args)
     free(widths);
     answer = Py_BuildValue("nd", count, window_um);
 done:
-    PyBuffer_Release(&lo_b);
-    PyBuffer_Release(&hi_b);
-    PyBuffer_Release(&f_b);
+    for (int i = 0; i < 3; i++)
+        PyBuffer_Release(&buffers[i]);
     PyBuffer_Release(&xo_b);
     PyBuffer_Release(&fo_b);
     return answer;
