@@ -382,3 +382,16 @@ def test_the_detrended_variogram_kernel_refuses_bad_lags():
     with pytest.raises(TypeError):
         toe._C.detrended_variogram(20, [4, 8])
     assert toe._C.detrended_variogram(10**7, (4, 8, 12)) is None  # far too long to be exact: the twin's
+
+
+def test_the_lags_four_at_a_time_give_each_lags_own_bits():
+    # The variogram's lags go through the segment four at a time, each lag's sum still in sample order:
+    # every lag's mean square is what it is measured alone (a tuple of one lag runs the single loop).
+    rng = np.random.default_rng(11)
+    for n in (12, 13, 40, 121, 400):
+        force_g = 80.0 + np.cumsum(rng.normal(0.0, 0.3, n)) + rng.normal(0.0, 1.0, n)
+        lags = tuple(lag for lag in (4, 8, 1, 12, 3, 16, 20, 2, 24, 28, 5) if lag < n)
+        together = toe._C.lag_mean_squares(force_g, lags)
+        assert together == [toe._C.lag_mean_squares(force_g, (lag,))[0] for lag in lags]
+    with pytest.raises(ValueError, match="lags"):
+        toe._C.lag_mean_squares(force_g, (4, 8, 12, 400))

@@ -908,6 +908,41 @@ static double lag_mean_square(const double *force_g, Py_ssize_t n, Py_ssize_t la
     return sum / (double)(n - lag);
 }
 
+/* lag_mean_square of each of `count` lags (each 1 <= lag < n) into out, four lags at a time: each
+ * lag's sum still runs over k in order (the same bits as one lag at a time), and four independent sums
+ * keep the adder busy where one waits on its last addition. */
+static void lag_mean_squares_of(const double *force_g, Py_ssize_t n, const Py_ssize_t *lags, Py_ssize_t count,
+                                double slope, double *out)
+{
+    Py_ssize_t l = 0;
+    for (; l + 4 <= count; l += 4) {
+        const Py_ssize_t *lag = lags + l;
+        double offset[4], sum[4] = {0.0, 0.0, 0.0, 0.0};
+        Py_ssize_t longest = 0;
+        for (int j = 0; j < 4; j++) {
+            offset[j] = (double)lag[j] * slope;
+            longest = lag[j] > longest ? lag[j] : longest;
+        }
+        Py_ssize_t k = 0;
+        for (; k + longest < n; k++) { /* every lag's pair is there */
+            const double at = force_g[k];
+            for (int j = 0; j < 4; j++) {
+                const double d = (force_g[k + lag[j]] - at) - offset[j];
+                sum[j] += d * d;
+            }
+        }
+        for (int j = 0; j < 4; j++) {
+            for (Py_ssize_t rest = k; rest + lag[j] < n; rest++) { /* the shorter lags' last pairs */
+                const double d = (force_g[rest + lag[j]] - force_g[rest]) - offset[j];
+                sum[j] += d * d;
+            }
+            out[l + j] = sum[j] / (double)(n - lag[j]);
+        }
+    }
+    for (; l < count; l++)
+        out[l] = lag_mean_square(force_g, n, lags[l], slope);
+}
+
 static PyObject *lag_mean_squares(PyObject *self, PyObject *args)
 {
     (void)self;
@@ -916,7 +951,8 @@ static PyObject *lag_mean_squares(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "O&O!", float64_buffer, &force_buffer, &PyTuple_Type, &lags))
         return NULL;
     PyObject *result = NULL;
-    Py_ssize_t n = 0, count = PyTuple_GET_SIZE(lags);
+    Py_ssize_t n = 0, count = PyTuple_GET_SIZE(lags), *lag_of = NULL;
+    double *measured = NULL;
     const double *force_g = doubles_of(&force_buffer, &n, "force_g");
     if (force_g == NULL)
         goto done;
@@ -924,27 +960,35 @@ static PyObject *lag_mean_squares(PyObject *self, PyObject *args)
         PyErr_Format(PyExc_ValueError, "force_g: %zd samples, at least 2 expected", n);
         goto done;
     }
-    double slope = line_slope(force_g, n);
-    result = PyList_New(count);
-    if (result == NULL)
+    lag_of = PyMem_Malloc(sizeof(Py_ssize_t) * (size_t)(count > 0 ? count : 1));
+    measured = PyMem_Malloc(sizeof(double) * (size_t)(count > 0 ? count : 1));
+    if (lag_of == NULL || measured == NULL) {
+        PyErr_NoMemory();
         goto done;
+    }
     for (Py_ssize_t l = 0; l < count; l++) {
         Py_ssize_t lag = PyLong_AsSsize_t(PyTuple_GET_ITEM(lags, l));
         if (lag == -1 && PyErr_Occurred())
-            goto fail;
+            goto done;
         if (lag < 1 || lag >= n) {
             PyErr_Format(PyExc_ValueError, "lags: %zd for %zd samples, 1..%zd allowed", lag, n, n - 1);
-            goto fail;
+            goto done;
         }
-        PyObject *value = PyFloat_FromDouble(lag_mean_square(force_g, n, lag, slope));
-        if (value == NULL)
-            goto fail;
+        lag_of[l] = lag;
+    }
+    lag_mean_squares_of(force_g, n, lag_of, count, line_slope(force_g, n), measured);
+    result = PyList_New(count);
+    for (Py_ssize_t l = 0; result != NULL && l < count; l++) {
+        PyObject *value = PyFloat_FromDouble(measured[l]);
+        if (value == NULL) {
+            Py_CLEAR(result);
+            break;
+        }
         PyList_SET_ITEM(result, l, value);
     }
-    goto done;
-fail:
-    Py_CLEAR(result);
 done:
+    PyMem_Free(lag_of);
+    PyMem_Free(measured);
     PyBuffer_Release(&force_buffer);
     return result;
 }
@@ -1070,6 +1114,9 @@ typedef struct {
 /* Adds one segment's rows: model (lags × 4: lag, expectation for unit white noise, for a unit walk,
  * the height pull's per unit curvature² and step⁴), its force and the height it crosses per
  * sample; 0, or -1 with ValueError set when a lag does not fit the segment. */
+/* The most lags a segment's model has (toe.py's WANDER_LAGS: 10). */
+#define MODEL_MOST_LAGS 64
+
 static int add_segment(WalkSums *sums, const double *model, Py_ssize_t lags, const double *force_g, Py_ssize_t n,
                        double step_um)
 {
@@ -1080,6 +1127,13 @@ static int add_segment(WalkSums *sums, const double *model, Py_ssize_t lags, con
         return -1;
     }
     double slope = line_slope(force_g, n), step4 = pow(step_um, 4.0);
+    /* The model's lags checked, then every lag's measured mean square in one pass (`lag_mean_squares_of`). */
+    Py_ssize_t lag_of[MODEL_MOST_LAGS];
+    double measured[MODEL_MOST_LAGS];
+    if (lags > MODEL_MOST_LAGS) {
+        PyErr_Format(PyExc_ValueError, "model: %zd lags, at most %d", lags, MODEL_MOST_LAGS);
+        return -1;
+    }
     for (Py_ssize_t l = 0; l < lags; l++) {
         const double *row = model + 4 * l;
         if (!(row[0] >= 1.0 && row[0] < (double)n) || row[0] != floor(row[0])) {
@@ -1087,8 +1141,12 @@ static int add_segment(WalkSums *sums, const double *model, Py_ssize_t lags, con
                          n - 1, n);
             return -1;
         }
-        Py_ssize_t lag = (Py_ssize_t)row[0];
-        double w = row[1], k = row[2], p = row[3] * step4, y = lag_mean_square(force_g, n, lag, slope);
+        lag_of[l] = (Py_ssize_t)row[0];
+    }
+    lag_mean_squares_of(force_g, n, lag_of, lags, slope, measured);
+    for (Py_ssize_t l = 0; l < lags; l++) {
+        const double *row = model + 4 * l;
+        double w = row[1], k = row[2], p = row[3] * step4, y = measured[l];
         sums->ww += w * w;
         sums->wk += w * k;
         sums->wp += w * p;
