@@ -4,10 +4,16 @@ arguments the analysis passes to a function while it analyses them."""
 from __future__ import annotations
 
 import functools
+import importlib.util
+import shutil
+import subprocess
+import sysconfig
+from pathlib import Path
 
 import numpy as np
 import pytest
 
+import tapcell.tap
 from tapcell.tap import AnalysisOptions, analyze_tap
 from tapcell.tap.readers import tap_from_object
 from tapcell.taplab.generate import SCENARIOS, make_tap
@@ -75,3 +81,21 @@ def kernel_functions_used(module, options: AnalysisOptions) -> list[str]:
         patch.setattr(module, "_C", Spy())
         analyze_tap(generated_taps()[0], options)
     return used
+
+
+def scalar_build(name: str, directory: Path):
+    """The kernel c/<name>.c built with -DTAPCELL_SCALAR (the plain loops a board without SSE2 runs
+    instead of the vector ones) into `directory`, loaded beside the installed kernel; skips the test
+    without a C compiler."""
+    compiler = shutil.which(sysconfig.get_config_var("CC").split()[0]) if sysconfig.get_config_var("CC") else None
+    if compiler is None:
+        pytest.skip("no C compiler")
+    source = Path(tapcell.tap.__file__).with_name("c") / f"{name}.c"
+    library = directory / (f"_c_{name}" + sysconfig.get_config_var("EXT_SUFFIX"))
+    subprocess.run([compiler, "-shared", "-fPIC", "-std=c99", "-O3", "-fno-fast-math", "-ffp-contract=off",
+                    "-DTAPCELL_SCALAR", "-I" + sysconfig.get_paths()["include"], str(source), "-o", str(library)],
+                   check=True)
+    spec = importlib.util.spec_from_file_location(f"_c_{name}", library)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

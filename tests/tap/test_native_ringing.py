@@ -15,7 +15,7 @@ import math
 import numpy as np
 import pytest
 
-from native_kernel_inputs import OPTIONS, generated_taps, recorded_calls
+from native_kernel_inputs import OPTIONS, generated_taps, recorded_calls, scalar_build
 from tapcell.tap import analysis, stage
 
 pytestmark = pytest.mark.skipif(stage._C_RINGING is None, reason="the ringing kernel is not built (TAPCELL_NATIVE=0)")
@@ -126,3 +126,25 @@ def test_bad_arrays_are_errors_not_garbage():
         stage._C_RINGING.dwell_ringing(t[:39], np.zeros(40), 1.0, 16, 3.5, 25.0)
     with pytest.raises(TypeError, match="float64"):
         stage._C_RINGING.dwell_ringing(t, np.zeros(40, dtype=np.int64), 1.0, 16, 3.5, 25.0)
+
+
+@pytest.fixture(scope="module")
+def scalar_ringing(tmp_path_factory):
+    """c/ringing.c built with -DTAPCELL_SCALAR (the FFTs' plain complex arithmetic), beside the installed kernel."""
+    return scalar_build("ringing", tmp_path_factory.mktemp("scalar_ringing"))
+
+
+def test_the_scalar_build_gives_the_vector_ffts_bits(scalar_ringing, monkeypatch):
+    # The SSE2 butterflies hold a complex number in one vector, each lane's operations the plain
+    # code's: every power and period bit for bit, on taplab's dwells (10-600 samples, the FFTs of
+    # 16-4096 points, odd and even stage counts) and on white noise at lengths either side of powers of two.
+    calls = recorded_calls(analysis, "dwell_ringing", [OPTIONS["default"]], generated_taps(4, 5))
+    calls += [(*_white_dwell(n, 3), 1.0) for n in (16, 17, 31, 64, 100, 129, 255, 256, 700)]
+    vector = [stage.dwell_ringing(*call) for call in calls]
+    # The largest bin of every dwell, with no threshold to turn it into None.
+    vector_bins = [stage._C_RINGING.dwell_ringing(*call, 2, 0.0, 0.0) for call in calls]
+    monkeypatch.setattr(stage, "_C_RINGING", scalar_ringing)
+    assert vector == [stage.dwell_ringing(*call) for call in calls]
+    assert vector_bins == [scalar_ringing.dwell_ringing(*call, 2, 0.0, 0.0) for call in calls]
+    assert sum(found is not None for found in vector) >= 5  # ringings found, not only None
+    assert sum(found is not None for found in vector_bins) >= len(calls) - 10

@@ -223,3 +223,49 @@ def test_the_kernel_finds_the_soft_stage():
     assert top_mean == pytest.approx(22.0, abs=1.5)  # the first touch, 12 µm above the stiff stage's
     assert share == pytest.approx(0.4 / 2.5, abs=0.05)
     assert least / (90 - 6) == pytest.approx(0.25, rel=0.3)  # the fit leaves the noise
+
+
+@pytest.fixture(scope="module")
+def departures():
+    """The arguments of every `_departure_fit` the analysis of the taps runs (wide toes and ramps)."""
+    calls = recorded_calls(stage, "_departure_fit", [OPTIONS["default"]], generated_taps(TAPS_EACH, 7, SCENARIO_NAMES))
+    assert len(calls) >= 15
+    return calls
+
+
+def test_the_departures_selection_equals_the_twin_bit_for_bit(departures, monkeypatch):
+    # _departure_fit's selection in one kernel call (departure_near): the same samples, the same
+    # mid-heights, drift-free force and window median to the bit, so the same fits follow; on the
+    # analysis's calls and on ones that select nothing, a few samples, or every sample.
+    calls = list(departures)
+    x_lo, x_hi, force, drift, contact, *rest = calls[0]
+    top = float(np.max(0.5 * (x_lo + x_hi)))
+    calls += [(x_lo, x_hi, force, drift, contact + 1e4, *rest),  # nothing selected: no fit
+              (x_lo, x_hi, force, drift, top + stage.TWO_STAGE_BELOW_UM - 0.5, *rest),  # the topmost few
+              (x_lo, x_hi, force, 0.0, float(np.median(x_lo)), *rest)]
+    fitted = []
+    monkeypatch.setattr(stage, "two_stage_fit", lambda *args: fitted.append(args))
+    for call in calls:
+        stage._departure_fit(*call)
+    kernel, fitted[:] = list(fitted), []
+    monkeypatch.setattr(stage, "_C", None)
+    for call in calls:
+        stage._departure_fit(*call)
+    assert len(kernel) == len(fitted) >= len(calls) - 1  # (the one that selects nothing fits nothing)
+    for ours, twins in zip(kernel, fitted):
+        assert ours[0].tobytes() == twins[0].tobytes() and ours[1].tobytes() == twins[1].tobytes()
+        assert ours[2:] == twins[2:]  # the window median among them
+    assert min(len(args[0]) for args in kernel) < 20 < max(len(args[0]) for args in kernel)  # the topmost few too
+
+
+def test_the_departures_selection_refuses_wrong_arrays():
+    values = np.arange(10.0)
+    with pytest.raises(ValueError, match="force_g"):
+        stage._C.departure_near(values, values, values[1:], 0.0, 0.0, 5.0, np.empty(10), np.empty(10))
+    with pytest.raises(ValueError, match="x_out"):
+        stage._C.departure_near(values, values, values, 0.0, 0.0, 5.0, np.empty(9), np.empty(10))
+    readonly = np.empty(10)
+    readonly.flags.writeable = False
+    with pytest.raises((ValueError, BufferError)):
+        stage._C.departure_near(values, values, values, 0.0, 0.0, 5.0, np.empty(10), readonly)
+    assert stage._C.departure_near(values, values + 1.0, values, 0.5, 2.0, 6.0, np.empty(10), np.empty(10))[0] == 4

@@ -7,18 +7,13 @@ drift with the baseline or take it from the approach, cable-drift taps weigh the
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import shutil
-import subprocess
-import sysconfig
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 from tapcell.tap import analysis, analyze_tap, toe
-from native_kernel_inputs import OPTIONS, generated_taps, recorded_calls
+from native_kernel_inputs import OPTIONS, generated_taps, recorded_calls, scalar_build
 
 pytestmark = pytest.mark.skipif(toe._C is None, reason="the toe kernel is not built (TAPCELL_NATIVE=0)")
 
@@ -144,6 +139,24 @@ def test_marginal_contact_equals_the_numpy_twin(monkeypatch):
             assert mean is None and sd == twin_sd == toe.COARSE_STEP_UM
             continue
         assert mean == pytest.approx(twin_mean, abs=1e-12) and sd == pytest.approx(twin_sd, rel=1e-12)
+
+
+def test_the_fit_keeps_the_shape_spread_its_grid_gives(toe_fits, monkeypatch):
+    # The kernel's fit finds z_sigma_um's shape part from the minima its marginal found: the same bits as
+    # shape_spread_um's own kernel call on the grid it returned (what the Z uncertainty called before).
+    from tapcell.tap import uncertainty
+
+    fits = [fit for fit in (toe.fit_toe(*args) for args in toe_fits) if fit is not None]
+    assert len(fits) >= 20
+    kept = [fit.grid.shape_um for fit in fits]
+    assert kept == [toe.shape_spread_um(fit.grid.contacts_um, fit.grid.rss, fit.grid.noise_var) for fit in fits]
+    assert kept == [uncertainty.toe_shape_um(fit.grid) for fit in fits]
+    assert sum(spread > 0.0 for spread in kept) >= 10  # spreads, not only the zeros of one shape
+    # The twin leaves it to be computed from the grid when asked.
+    monkeypatch.setattr(toe, "_C", None)
+    twin = toe.fit_toe(*toe_fits[0])
+    assert twin.grid.shape_um is None and uncertainty.toe_shape_um(twin.grid) == toe.shape_spread_um(
+        twin.grid.contacts_um, twin.grid.rss, twin.grid.noise_var)
 
 
 def test_shape_spread_equals_the_numpy_twin(monkeypatch):
@@ -326,18 +339,7 @@ def test_thread_pulls_equal_the_numpy_twin_bit_for_bit(monkeypatch):
 def scalar_kernel(tmp_path_factory):
     """c/toe.c built with -DTAPCELL_SCALAR (the plain loops an ARM board runs instead of SSE2),
     loaded beside the installed kernel."""
-    compiler = shutil.which(sysconfig.get_config_var("CC").split()[0]) if sysconfig.get_config_var("CC") else None
-    if compiler is None:
-        pytest.skip("no C compiler")
-    source = Path(toe.__file__).with_name("c") / "toe.c"
-    library = tmp_path_factory.mktemp("scalar") / ("_c_toe" + sysconfig.get_config_var("EXT_SUFFIX"))
-    subprocess.run([compiler, "-shared", "-fPIC", "-std=c99", "-O3", "-fno-fast-math", "-ffp-contract=off",
-                    "-DTAPCELL_SCALAR", "-I" + sysconfig.get_paths()["include"], str(source), "-o", str(library)],
-                   check=True)
-    spec = importlib.util.spec_from_file_location("_c_toe", library)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return scalar_build("toe", tmp_path_factory.mktemp("scalar"))
 
 
 def test_the_scalar_build_gives_the_kernels_bits(toe_fits, scalar_kernel, monkeypatch):
@@ -353,3 +355,43 @@ def test_the_scalar_build_gives_the_kernels_bits(toe_fits, scalar_kernel, monkey
         assert fit.grid.rss.tobytes() == plain.grid.rss.tobytes() and fit.grid.noise_var == plain.grid.noise_var
         walks += fit.residual_sigma_g != math.sqrt(fit.grid.noise_var)
     assert walks >= 3  # the walk-weighted grid's vector recursion ran too
+
+
+def test_the_detrended_variogram_kernel_gives_the_twins_bits(monkeypatch):
+    # Its cumulative sums in numpy's order, its two dot products exact: every segment length the walk
+    # estimate meets (12 to ~2,900 samples, odd and even: t on whole or half numbers) bit for bit;
+    # longer ones, where BLAS's order could round t·f, go to the twin (None).
+    twin = toe._detrended_variogram.__wrapped__
+    lengths = [n for n in (*range(12, 400), *range(400, 3000, 7)) if toe._variogram_lags(n)]
+    kernel = [toe._C.detrended_variogram(n, toe._variogram_lags(n)) for n in lengths]
+    monkeypatch.setattr(toe, "_C", None)
+    twins = [twin(n, toe._variogram_lags(n)) for n in lengths]
+    exact = [(n, k, t) for n, k, t in zip(lengths, kernel, twins) if k is not None]
+    assert all(k == t for _, k, t in exact)
+    assert max(n for n, _, _ in exact) > 2800 and all(k is None for n, k in zip(lengths, kernel) if n > 2950)
+    assert all(isinstance(white, float) and isinstance(walk, float) for _, k, _ in exact for white, walk in k)
+
+
+def test_the_detrended_variogram_kernel_refuses_bad_lags():
+    with pytest.raises(ValueError, match="lags"):
+        toe._C.detrended_variogram(20, (4, 20))
+    with pytest.raises(ValueError, match="lags"):
+        toe._C.detrended_variogram(20, (0, 4))
+    with pytest.raises(ValueError, match="samples"):
+        toe._C.detrended_variogram(1, (1,))
+    with pytest.raises(TypeError):
+        toe._C.detrended_variogram(20, [4, 8])
+    assert toe._C.detrended_variogram(10**7, (4, 8, 12)) is None  # far too long to be exact: the twin's
+
+
+def test_the_lags_four_at_a_time_give_each_lags_own_bits():
+    # The variogram's lags go through the segment four at a time, each lag's sum still in sample order:
+    # every lag's mean square is what it is measured alone (a tuple of one lag runs the single loop).
+    rng = np.random.default_rng(11)
+    for n in (12, 13, 40, 121, 400):
+        force_g = 80.0 + np.cumsum(rng.normal(0.0, 0.3, n)) + rng.normal(0.0, 1.0, n)
+        lags = tuple(lag for lag in (4, 8, 1, 12, 3, 16, 20, 2, 24, 28, 5) if lag < n)
+        together = toe._C.lag_mean_squares(force_g, lags)
+        assert together == [toe._C.lag_mean_squares(force_g, (lag,))[0] for lag in lags]
+    with pytest.raises(ValueError, match="lags"):
+        toe._C.lag_mean_squares(force_g, (4, 8, 12, 400))

@@ -701,7 +701,7 @@ def free_air_line(split: SplitTap, contact_um: float, delay_s: float) -> tuple[f
     end = min(int(split.time_s.searchsorted(touch_s, side="right")) - dec.start, dec.bounds[0])
     if end < FREE_AIR_MIN_SAMPLES:
         return dec.approach_line
-    n, st, sf, stt, stf, _ = split.ps.segment_sums(0, end)
+    n, st, sf, stt, stf, _ = split.ps.sums[:, end].tolist()  # segment_sums(0, end): the first column is 0
     sxx = stt - st * st / n
     if not sxx > 0:
         return dec.approach_line
@@ -1048,11 +1048,14 @@ class SplitTap:
 @dataclass
 class ContactFits:
     """The sharp contact model over the pullback (with its near-contact residual sigma) and over the
-    approach; either may be missing."""
+    approach; either may be missing. With what the steps after them read again: the pullback's
+    samples at the window's delay (`pullback_samples`) and the free-air drift (`free_air_slope_g_um`)."""
 
     pullback: ContactFit | None
     near_sigma_g: float | None
     compression: ContactFit | None
+    samples: PullbackSamples
+    drift_g_um: float
 
 
 def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, AnalysisContext]:
@@ -1175,14 +1178,15 @@ def fit_contact_models(split: SplitTap, window: ModelWindow, delay_s: float, opt
     motion, timing = split.motion, split.timing
     found = fit_pullback(window, motion, timing, delay_s, options)
     pullback, near_sigma_g = found if found else (None, None)
+    samples = pullback_samples(window, motion, timing, delay_s)
     if pullback:
         # For pooling taps at one spot (tapcell.tap.pool): the samples the sharp fit read, and its answer.
-        x_lo, x_hi, force_up = pullback_samples(window, motion, timing, delay_s)
+        x_lo, x_hi, force_up = samples
         result.pullback_fit = PullbackFit(x_lo, x_hi - x_lo, force_up, pullback.contact_um, pullback.stiffness_g_um,
                                           pullback.onset_um, motion.pullback_speed_mm_s, delay_s)
-    compression = fit_compression(window, motion, timing, delay_s, pullback.onset_um if pullback else 0.0,
-                                  free_air_slope_g_um(split.dec, motion))
-    return ContactFits(pullback, near_sigma_g, compression)
+    drift_g_um = free_air_slope_g_um(split.dec, motion)
+    compression = fit_compression(window, motion, timing, delay_s, pullback.onset_um if pullback else 0.0, drift_g_um)
+    return ContactFits(pullback, near_sigma_g, compression, samples, drift_g_um)
 
 
 def apply_delay_estimate(split: SplitTap, fits: ContactFits, delay_s: float, result: TapAnalysis) -> float:
@@ -1239,9 +1243,8 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     # contact down by pullback speed x delay, as it moved the sharp fit's above.
     lag_shift_um = (delay_s - window_delay_s) * motion.pullback_speed_mm_s * 1000.0
     start = pullback.contact_um + lag_shift_um if pullback else window.break_line_um
-    drift_g_um = free_air_slope_g_um(dec, motion)
+    drift_g_um, samples = fits.drift_g_um, fits.samples  # the samples: for the toe fit and the adhesion check
     wander, approach_wander = split.wanders
-    samples = pullback_samples(window, motion, timing, window_delay_s)  # for the toe fit and the adhesion check
     fit_drift_g_um = toe_drift_g_um(dec, split.ps, motion, timing.sample_period_s,
                                     wander.walk_var_g2 if wander else 0.0)
     toe = fit_pullback_toe(samples, motion, timing, start, fit_drift_g_um, wander)
@@ -1280,16 +1283,22 @@ def check_decompression_samples(split: SplitTap, window: ModelWindow, delay_s: f
     if result.z_mm is None:
         return
     contact_um = _break_contact_in_window_um(motion, delay_s, window_delay_s, result.z_mm)
+    step_um = motion.pullback_speed_mm_s * 1000.0 * timing.sample_period_s
+    if not validate.decompression_may_fall_short(contact_um, step_um):
+        return  # no faster than the guide allows, or a contact too low to ask: nothing to count
     _, x_high_um, _ = pullback_samples(window, motion, timing, window_delay_s)
     pressed = int(np.count_nonzero(x_high_um <= contact_um))
-    validate.check_decompression_samples(pressed, contact_um,
-                                         motion.pullback_speed_mm_s * 1000.0 * timing.sample_period_s)
+    validate.check_decompression_samples(pressed, contact_um, step_um)
 
 
 def _break_contact_in_window_um(motion: Motion, delay_s: float, window_delay_s: float, z_mm: float) -> float:
     """Break contact in the window's heights (µm above the halt): a delay estimated since the window
     was read moved Z down by pullback speed x the change."""
     return (z_mm - motion.z_halt_mm) * 1000.0 + (delay_s - window_delay_s) * motion.pullback_speed_mm_s * 1000.0
+
+
+# How far apart the thread's near and far reaches' middles lie (µm): z_uncertainty's walk between them.
+THREAD_REACHES_APART_UM = (sum(THREAD_FAR_REACH_UM) - sum(THREAD_REACH_UM)) / 2.0
 
 
 def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay_s: float, window_delay_s: float,
@@ -1304,14 +1313,12 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
     speed_um_s = motion.pullback_speed_mm_s * 1000.0
     contact_um = _break_contact_in_window_um(motion, delay_s, window_delay_s, result.z_mm)
     slope_g_s, intercept_g = dec.approach_line
-    samples = pullback_samples(window, motion, timing, window_delay_s)
-    near_pull_g, far_pull_g = thread_pulls_g(*samples,
-                                             free_air_slope_g_um(dec, motion), slope_g_s * motion.home_end_s + intercept_g,
+    samples = fits.samples
+    near_pull_g, far_pull_g = thread_pulls_g(*samples, fits.drift_g_um, slope_g_s * motion.home_end_s + intercept_g,
                                              contact_um, THREAD_FAR_MIN_UM)
     # The walk between the near and far reaches' middles, in samples of the pullback.
     _, approach_wander = split.wanders
-    apart_samples = (sum(THREAD_FAR_REACH_UM) - sum(THREAD_REACH_UM)) / 2.0 / max(
-        speed_um_s * timing.sample_period_s, 1e-9)
+    apart_samples = THREAD_REACHES_APART_UM / max(speed_um_s * timing.sample_period_s, 1e-9)
     walk_var_g2 = approach_wander.walk_var_g2 * apart_samples if approach_wander else 0.0
     # The scatter away from contact: the departure line's residual, or the white noise when larger.
     departure_g = math.sqrt(segment_stats(split.ps, dec.bounds[3], dec.stop - dec.start)[0])

@@ -160,6 +160,9 @@ class ToeGridResult:
     rss: np.ndarray
     noise_var: float
     prior: np.ndarray
+    # `shape_spread_um` of this grid when the fit found it on the way (the kernel: from the minima its
+    # marginal found, the same bits as computed from the grid); None: computed from the grid when asked.
+    shape_um: float | None = None
 
 
 @dataclass
@@ -557,7 +560,15 @@ def _detrended_variogram(n: int, lags: tuple[int, ...]) -> tuple[tuple[float, fl
     sample index, S = Σt² and P the line's projection, a difference d = e[i+L] - e[i] leaves the
     fit as v = d - t L / S (P d = t L / S). White: |v|² = 2 - L²/S. Walk: vᵀCv = L - 2 (L/S) tᵀCd
     + (L/S)² tᵀCt, where tᵀCd = f(i+L) - f(i) with f(m) = Σ t_k min(k, m), a running sum.
+
+    In C when built (`detrended_variogram`: the same bits, its dot products exact; a miss of this
+    cache cost ~50 µs, a quarter of the taps of a run over the reference set pay one); the code below is
+    its twin, and what runs for segments too long for the kernel's exact sums (past ~2,000 samples).
     """
+    if _C is not None:
+        found = _C.detrended_variogram(n, lags)
+        if found is not None:
+            return found
     k = np.arange(n, dtype=float)
     t = k - 0.5 * (n - 1)
     s = float(t @ t)
@@ -735,10 +746,10 @@ def _fit_toe_native(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarra
                    *walk, _FIT_GRID, contacts_um, rss)
     if found is None:
         return None
-    contact, sigma, power_index, width_index, stiffness, residual_var, residual_sigma = found
+    contact, sigma, power_index, width_index, stiffness, residual_var, residual_sigma, shape_um = found
     return ToeFit(contact_um=contact, sigma_um=sigma, width_um=float(TOE_WIDTHS_UM[width_index]),
                   power=float(TOE_POWERS[power_index]), stiffness_g_um=stiffness, residual_sigma_g=residual_sigma,
-                  grid=ToeGridResult(contacts_um, rss, residual_var, _TOE_PRIOR))
+                  grid=ToeGridResult(contacts_um, rss, residual_var, _TOE_PRIOR, shape_um))
 
 
 def shape_spread_um(contacts_um: np.ndarray, rss_rows: np.ndarray, noise_var: float) -> float:

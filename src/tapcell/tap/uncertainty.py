@@ -216,7 +216,10 @@ def samples_in_reach(x_lo_um: np.ndarray, x_hi_um: np.ndarray, contact_um: float
 
 
 def toe_shape_um(grid: ToeGridResult) -> float:
-    """The shape part of a toe fit's Z, from its grid (`toe.shape_spread_um`)."""
+    """The shape part of a toe fit's Z, from its grid (`toe.shape_spread_um`; the toe kernel's fit
+    finds it with the marginal and keeps it in the grid)."""
+    if grid.shape_um is not None:
+        return grid.shape_um
     return shape_spread_um(grid.contacts_um, grid.rss, grid.noise_var)
 
 

@@ -195,14 +195,20 @@ DECOMPRESSION_MIN_SAMPLES = 2
 FAST_PULLBACK_GUIDE_STEPS = 2.0
 
 
+def decompression_may_fall_short(contact_um: float, step_um: float) -> bool:
+    """Whether `check_decompression_samples` can find too few samples at all: the pullback moves more
+    than FAST_PULLBACK_GUIDE_STEPS of the guide's step a sample, below a contact high enough for the
+    guide's step to leave DECOMPRESSION_MIN_SAMPLES wholly pressed (the analysis counts them only then)."""
+    guide_pressed = contact_um / GUIDE_PULLBACK_STEP_UM - 1.0  # less the sample that straddles contact
+    return DECOMPRESSION_MIN_SAMPLES <= guide_pressed and step_um > FAST_PULLBACK_GUIDE_STEPS * GUIDE_PULLBACK_STEP_UM
+
+
 def check_decompression_samples(pressed: int, contact_um: float, step_um: float) -> None:
     """A pullback too fast for the decompression: fewer than DECOMPRESSION_MIN_SAMPLES samples
     wholly pressed between the halt and break contact (`pressed`; `contact_um` above the halt,
     `step_um` the pullback's travel per sample), where the guide's 1 µm a sample would give them and
     the pullback moves more than FAST_PULLBACK_GUIDE_STEPS of it a sample. Its fix is the speed."""
-    guide_pressed = contact_um / GUIDE_PULLBACK_STEP_UM - 1.0  # less the sample that straddles contact
-    if (pressed < DECOMPRESSION_MIN_SAMPLES <= guide_pressed
-            and step_um > FAST_PULLBACK_GUIDE_STEPS * GUIDE_PULLBACK_STEP_UM):
+    if pressed < DECOMPRESSION_MIN_SAMPLES and decompression_may_fall_short(contact_um, step_um):
         raise TapInvalid(TAP_DATA_INSUFFICIENT,
                          f"the decompression holds {pressed} sample(s) wholly in contact over {contact_um:.1f} µm "
                          f"({step_um:.1f} µm a sample), too few to fit the line break contact is read from (at "

@@ -55,4 +55,14 @@ static inline double *doubles_sized(const Py_buffer *buffer, Py_ssize_t expected
     return (double *)values;
 }
 
+/* The pullback's samples (conversion windows' low and high edges, force) from three buffers of one
+ * length into *x_lo, *x_hi, *force_g; *force_g is NULL (ValueError set) when they are not. */
+static inline void pullback_samples_of(const Py_buffer buffers[3], Py_ssize_t *n, const double **x_lo,
+                                       const double **x_hi, const double **force_g)
+{
+    *x_lo = doubles_of(&buffers[0], n, "x_lo_um");
+    *x_hi = *x_lo ? doubles_sized(&buffers[1], *n, "x_hi_um") : NULL;
+    *force_g = *x_hi ? doubles_sized(&buffers[2], *n, "force_g") : NULL;
+}
+
 #endif

@@ -11,6 +11,7 @@
  * as those twins run with the fit_fixed_onset kernel (and _c_analysis's robust pass). */
 #include "buffers.h"
 
+#include <limits.h>
 #include <math.h>
 
 #include "median.h"
@@ -130,6 +131,20 @@ static Py_ssize_t first_above(double low_um, double step_um, Py_ssize_t count, d
     return j;
 }
 
+/* The candidates j in [first, candidates) that press a window [x, x + span] whole add its mean
+ * u - span / 2 (u = c - x, c = low + step × j) to their sums: window_mean's operations in its order,
+ * without its branches, so the compiler runs two candidates at a time (the rows never overlap). */
+static void pressed_whole(double low_um, double step_um, int first, int candidates, double x_um, double half_span_um,
+                          double force_g, double *restrict sum_m, double *restrict sum_my, double *restrict sum_mm)
+{
+    for (int j = first; j < candidates; j++) {
+        double mean = ((low_um + step_um * (double)j) - x_um) - half_span_um;
+        sum_m[j] += mean;
+        sum_my[j] += force_g * mean;
+        sum_mm[j] += mean * mean;
+    }
+}
+
 /* profile_rss: the residual sum of squares per candidate contact height (stiffness and baseline in
  * closed form, -inf explained where the stiffness would not be positive), into scratch->rss_g2.
  * The twin's split: samples pressed for every candidate enter through four totals, the ones near
@@ -165,7 +180,25 @@ static void profile_rss(const Samples *s, double low_um, double high_um, double 
         sum_m[j] = sum_my[j] = sum_mm[j] = 0.0;
     for (Py_ssize_t i = 0; i < near; i++) {
         double x_um = scratch->near_x_um[i], span_um = scratch->near_span_um[i], force_g = scratch->near_force_g[i];
-        for (Py_ssize_t j = first_above(low_um, step_um, candidates, x_um); j < candidates; j++) {
+        Py_ssize_t j = first_above(low_um, step_um, candidates, x_um);
+        if (onset_um <= 0 && candidates <= INT_MAX) {
+            /* The sharp model (the analysis's every fit): the candidates rise with j, so past the few
+             * whose contact cuts the window (u < span) every one presses it whole, where window_mean
+             * is u - span / 2 (`pressed_whole`). */
+            for (; j < candidates; j++) {
+                double contact_um = low_um + step_um * (double)j;
+                if (contact_um - x_um >= span_um)
+                    break;
+                double mean = window_mean(contact_um, onset_um, x_um, span_um, NULL);
+                sum_m[j] += mean;
+                sum_my[j] += force_g * mean;
+                sum_mm[j] += mean * mean;
+            }
+            pressed_whole(low_um, step_um, (int)j, (int)candidates, x_um, 0.5 * span_um, force_g, sum_m, sum_my,
+                          sum_mm);
+            continue;
+        }
+        for (; j < candidates; j++) {
             double mean = window_mean(low_um + step_um * (double)j, onset_um, x_um, span_um, NULL);
             sum_m[j] += mean;
             sum_my[j] += force_g * mean;

@@ -56,6 +56,39 @@ static inline Complex times(Complex a, double wr, double wi)
     return product;
 }
 
+/* The power-of-two FFTs' butterflies with a complex number as one SSE2 vector (re, im) where the
+ * compiler has it (x86-64 always): each lane's operations are the plain code's, so the bits are the
+ * same (a product's re is a.re wr + -(a.im wi), which IEEE rounds as a.re wr - a.im wi; its im
+ * a.im wr + a.re wi, the sum in the other order, which IEEE addition does not mind). -DTAPCELL_SCALAR
+ * builds the plain loops (tests/tap/test_native_ringing.py compares the two builds' bits). */
+#if defined(__SSE2__) && !defined(TAPCELL_SCALAR)
+#include <emmintrin.h>
+
+typedef __m128d ComplexVector;
+
+static inline ComplexVector cv_load(const Complex *c) { return _mm_loadu_pd(&c->re); }
+static inline void cv_store(Complex *c, ComplexVector v) { _mm_storeu_pd(&c->re, v); }
+static inline ComplexVector cv_add(ComplexVector a, ComplexVector b) { return _mm_add_pd(a, b); }
+static inline ComplexVector cv_sub(ComplexVector a, ComplexVector b) { return _mm_sub_pd(a, b); }
+
+/* a (wr + i wi), as `times`. */
+static inline ComplexVector cv_times(ComplexVector a, double wr, double wi)
+{
+    const ComplexVector negate_re = _mm_set_pd(0.0, -0.0); /* flips the sign of the re lane only */
+    const ComplexVector straight = _mm_mul_pd(a, _mm_set1_pd(wr)); /* (a.re wr, a.im wr) */
+    const ComplexVector crossed = _mm_mul_pd(_mm_shuffle_pd(a, a, 1), _mm_set1_pd(wi)); /* (a.im wi, a.re wi) */
+    return _mm_add_pd(straight, _mm_xor_pd(crossed, negate_re));
+}
+#else
+typedef Complex ComplexVector;
+
+static inline ComplexVector cv_load(const Complex *c) { return *c; }
+static inline void cv_store(Complex *c, ComplexVector v) { *c = v; }
+static inline ComplexVector cv_add(ComplexVector a, ComplexVector b) { return (Complex){a.re + b.re, a.im + b.im}; }
+static inline ComplexVector cv_sub(ComplexVector a, ComplexVector b) { return (Complex){a.re - b.re, a.im - b.im}; }
+static inline ComplexVector cv_times(ComplexVector a, double wr, double wi) { return times(a, wr, wi); }
+#endif
+
 /* The forward DFT of x (size a power of two) in place, its bins in bit-reversed order: radix 2,
  * decimation in frequency, two stages per pass over the data (the same butterflies, half the passes),
  * the last alone when their count is odd. */
@@ -71,26 +104,23 @@ static inline void fft_to_bit_reversed(Complex *x, Py_ssize_t size)
             const double w3r = w1.im, w3i = -w1.re; /* -i w1 */
             for (Py_ssize_t start = k; start < size; start += len) {
                 Complex *p = x + start;
-                const Complex x0 = p[0], x1 = p[h], x2 = p[2 * h], x3 = p[3 * h];
-                const Complex a0 = {x0.re + x2.re, x0.im + x2.im}, a1 = {x1.re + x3.re, x1.im + x3.im};
-                const Complex a2 = times((Complex){x0.re - x2.re, x0.im - x2.im}, w1.re, w1.im);
-                const Complex a3 = times((Complex){x1.re - x3.re, x1.im - x3.im}, w3r, w3i);
-                p[0].re = a0.re + a1.re;
-                p[0].im = a0.im + a1.im;
-                p[h] = times((Complex){a0.re - a1.re, a0.im - a1.im}, w2.re, w2.im);
-                p[2 * h].re = a2.re + a3.re;
-                p[2 * h].im = a2.im + a3.im;
-                p[3 * h] = times((Complex){a2.re - a3.re, a2.im - a3.im}, w2.re, w2.im);
+                const ComplexVector x0 = cv_load(p), x1 = cv_load(p + h), x2 = cv_load(p + 2 * h),
+                                    x3 = cv_load(p + 3 * h);
+                const ComplexVector a0 = cv_add(x0, x2), a1 = cv_add(x1, x3);
+                const ComplexVector a2 = cv_times(cv_sub(x0, x2), w1.re, w1.im);
+                const ComplexVector a3 = cv_times(cv_sub(x1, x3), w3r, w3i);
+                cv_store(p, cv_add(a0, a1));
+                cv_store(p + h, cv_times(cv_sub(a0, a1), w2.re, w2.im));
+                cv_store(p + 2 * h, cv_add(a2, a3));
+                cv_store(p + 3 * h, cv_times(cv_sub(a2, a3), w2.re, w2.im));
             }
         }
     }
     if (len == 2) /* the last stage alone: W_2^0 = 1 */
         for (Py_ssize_t start = 0; start < size; start += 2) {
-            const Complex a = x[start], b = x[start + 1];
-            x[start].re = a.re + b.re;
-            x[start].im = a.im + b.im;
-            x[start + 1].re = a.re - b.re;
-            x[start + 1].im = a.im - b.im;
+            const ComplexVector a = cv_load(x + start), b = cv_load(x + start + 1);
+            cv_store(x + start, cv_add(a, b));
+            cv_store(x + start + 1, cv_sub(a, b));
         }
 }
 
@@ -110,30 +140,27 @@ static inline void inverse_fft_from_bit_reversed(Complex *x, Py_ssize_t size)
             const double w3r = -w2i, w3i = w2r; /* i w2 */
             for (Py_ssize_t start = k; start < size; start += 2 * len) {
                 Complex *p = x + start;
-                const Complex b1 = times(p[h], w1r, w1i), b3 = times(p[3 * h], w1r, w1i);
-                const Complex a0 = {p[0].re + b1.re, p[0].im + b1.im}, a1 = {p[0].re - b1.re, p[0].im - b1.im};
-                const Complex a2 = {p[2 * h].re + b3.re, p[2 * h].im + b3.im};
-                const Complex a3 = {p[2 * h].re - b3.re, p[2 * h].im - b3.im};
-                const Complex c2 = times(a2, w2r, w2i), c3 = times(a3, w3r, w3i);
-                p[0].re = a0.re + c2.re;
-                p[0].im = a0.im + c2.im;
-                p[2 * h].re = a0.re - c2.re;
-                p[2 * h].im = a0.im - c2.im;
-                p[h].re = a1.re + c3.re;
-                p[h].im = a1.im + c3.im;
-                p[3 * h].re = a1.re - c3.re;
-                p[3 * h].im = a1.im - c3.im;
+                const ComplexVector b1 = cv_times(cv_load(p + h), w1r, w1i);
+                const ComplexVector b3 = cv_times(cv_load(p + 3 * h), w1r, w1i);
+                const ComplexVector p0 = cv_load(p), p2 = cv_load(p + 2 * h);
+                const ComplexVector a0 = cv_add(p0, b1), a1 = cv_sub(p0, b1), a2 = cv_add(p2, b3),
+                                    a3 = cv_sub(p2, b3);
+                const ComplexVector c2 = cv_times(a2, w2r, w2i), c3 = cv_times(a3, w3r, w3i);
+                cv_store(p, cv_add(a0, c2));
+                cv_store(p + 2 * h, cv_sub(a0, c2));
+                cv_store(p + h, cv_add(a1, c3));
+                cv_store(p + 3 * h, cv_sub(a1, c3));
             }
         }
     }
     if (len == size) { /* the last stage alone */
         const Py_ssize_t half = len / 2, stride = twiddle_size / len;
         for (Py_ssize_t k = 0; k < half; k++) {
-            const Complex product = times(x[k + half], twiddles[k * stride].re, -twiddles[k * stride].im);
-            x[k + half].re = x[k].re - product.re;
-            x[k + half].im = x[k].im - product.im;
-            x[k].re += product.re;
-            x[k].im += product.im;
+            const ComplexVector product = cv_times(cv_load(x + k + half), twiddles[k * stride].re,
+                                                   -twiddles[k * stride].im);
+            const ComplexVector low = cv_load(x + k);
+            cv_store(x + k + half, cv_sub(low, product));
+            cv_store(x + k, cv_add(low, product));
         }
     }
 }

@@ -131,11 +131,8 @@ static Py_ssize_t largest_bin(Complex *packed, Py_ssize_t n, Py_ssize_t lowest, 
     }
     fft_to_bit_reversed(signal, size);
     fft_to_bit_reversed(filter, size);
-    for (Py_ssize_t i = 0; i < size; i++) {
-        const Complex a = signal[i], b = filter[i];
-        signal[i].re = a.re * b.re - a.im * b.im;
-        signal[i].im = a.re * b.im + a.im * b.re;
-    }
+    for (Py_ssize_t i = 0; i < size; i++) /* signal × filter (re: a.re b.re - a.im b.im, im: a.re b.im + a.im b.re) */
+        cv_store(signal + i, cv_times(cv_load(signal + i), filter[i].re, filter[i].im));
     inverse_fft_from_bit_reversed(signal, size);
     /* Z_k into filter[k], k < length (the convolution's index k + inputs - 1, scaled by 1 / size) */
     Complex *spectrum = filter;

@@ -17,6 +17,10 @@
 #include <math.h>
 #include <stdlib.h>
 
+/* fmax(v, least) for a positive least, inline (libm's fmax is a call, in loops over every top, hinge
+ * and grid cell): the same value for every v, a NaN included (the least). */
+static inline double at_least(double v, double least) { return v > least ? v : least; }
+
 /* Samples below `value` in the rising array x (numpy's searchsorted, side left). */
 static Py_ssize_t count_below(const double *x, Py_ssize_t n, double value)
 {
@@ -142,7 +146,7 @@ static PyObject *soft_stage(PyObject *self, PyObject *args)
         const double sum_r = top * below - row[0];
         const double srr = (top * top) * below - (2.0 * top) * row[0] + row[1] - sum_r * sum_r / (double)n;
         const double srf = top * row[2] - row[3];
-        const double gain = srf <= 0.0 ? 0.0 : srf * srf / fmax(srr, 1e-300);
+        const double gain = srf <= 0.0 ? 0.0 : srf * srf / at_least(srr, 1e-300);
         if (best < 0 || gain > best_gain) {
             best = k;
             best_gain = gain;
@@ -166,6 +170,7 @@ done:
     PyBuffer_Release(&tb);
     return answer;
 }
+
 
 /* The grid's best fit (two_stage_grid's answer). */
 typedef struct {
@@ -211,7 +216,7 @@ static int grid_fit(const double *x, const double *f, Py_ssize_t n, const double
         const double ux = hinge * h.s1 - h.s2 - x_mean * su;
         const double uu = hinge * hinge * h.s0 - 2.0 * hinge * h.s1 + h.s2 - su * su / count - ux * ux / sxx;
         const double uf = hinge * h.sf - h.sxf;
-        const double hinge_gain = (uf > 0.0 && uu > 0.0) ? uf * uf / fmax(uu, 1e-300) : 0.0;
+        const double hinge_gain = (uf > 0.0 && uu > 0.0) ? uf * uf / at_least(uu, 1e-300) : 0.0;
         if (a == 0 || hinge_gain > best_hinge_gain) best_hinge_gain = hinge_gain;
         Py_ssize_t below_top = 0;
         double last_top = -INFINITY;
@@ -232,7 +237,7 @@ static int grid_fit(const double *x, const double *f, Py_ssize_t n, const double
             const double uv = hinge * top * h.s0 - (hinge + top) * h.s1 + h.s2 - su * sv / count - ux * vx / sxx;
             const double vf = top * t.sf - t.sxf;
             const double det = uu * vv - uv * uv;
-            if (!(det > 1e-9 * fmax(uu * vv, 1e-300))) continue;
+            if (!(det > 1e-9 * at_least(uu * vv, 1e-300))) continue;
             const double k = (vv * uf - uv * vf) / det;
             const double k1 = (uu * vf - uv * uf) / det;
             if (!(k1 >= min_share * k && k1 <= max_share * k)) continue;
@@ -544,7 +549,7 @@ static PyObject *one_stage_rss(PyObject *self, PyObject *args)
                     s_f += shape * f[i];
                 }
                 const double s_var = s_ss - s_sum * s_sum / count - s_x * s_x / sxx;
-                const double gain = (s_f > 0.0 && s_var > 0.0) ? s_f * s_f / fmax(s_var, 1e-300) : 0.0;
+                const double gain = (s_f > 0.0 && s_var > 0.0) ? s_f * s_f / at_least(s_var, 1e-300) : 0.0;
                 if (gain > best_gain) best_gain = gain;
             }
         }
@@ -560,7 +565,64 @@ done:
     return answer;
 }
 
+/* stage.py's `_departure_fit` selection: the windows' mid-heights x = (x_lo + x_hi) / 2 strictly
+ * between low_um and high_um, in their order, into x_out, their force less drift × x into force_out;
+ * returns (count, the median of their windows' widths x_hi - x_lo, NaN when none): the twin's
+ * element-wise operations and robust.median's (the same bits). */
+static PyObject *departure_near(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer buffers[3], xo_b = {0}, fo_b = {0};
+    double drift_g_um, low_um, high_um;
+    if (!PyArg_ParseTuple(args, "O&O&O&dddO&O&", float64_buffer, &buffers[0], float64_buffer, &buffers[1],
+                          float64_buffer, &buffers[2], &drift_g_um, &low_um, &high_um, float64_buffer, &xo_b,
+                          float64_buffer, &fo_b))
+        return NULL;
+    PyObject *answer = NULL;
+    Py_ssize_t n = 0;
+    const double *x_lo, *x_hi, *force_g;
+    pullback_samples_of(buffers, &n, &x_lo, &x_hi, &force_g);
+    double *x_out = force_g ? doubles_sized(&xo_b, n, "x_out") : NULL;
+    double *force_out = x_out ? doubles_sized(&fo_b, n, "force_out") : NULL;
+    if (force_out == NULL)
+        goto done;
+    if (xo_b.readonly || fo_b.readonly) {
+        PyErr_SetString(PyExc_ValueError, "x_out and force_out must be writable");
+        goto done;
+    }
+    double *widths = malloc(sizeof(double) * (size_t)(n > 0 ? n : 1));
+    if (widths == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    Py_ssize_t count = 0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        const double x_um = 0.5 * (x_lo[i] + x_hi[i]);
+        if (x_um > low_um && x_um < high_um) {
+            x_out[count] = x_um;
+            force_out[count] = force_g[i] - drift_g_um * x_um;
+            widths[count] = x_hi[i] - x_lo[i];
+            count++;
+        }
+    }
+    const double window_um = median_in_place(widths, count); /* NaN when none */
+    free(widths);
+    answer = Py_BuildValue("nd", count, window_um);
+done:
+    for (int i = 0; i < 3; i++)
+        PyBuffer_Release(&buffers[i]);
+    PyBuffer_Release(&xo_b);
+    PyBuffer_Release(&fo_b);
+    return answer;
+}
+
 static PyMethodDef methods[] = {
+    {"departure_near", departure_near, METH_VARARGS,
+     "departure_near(x_lo_um, x_hi_um, force_g, drift_g_um, low_um, high_um, x_out, force_out)\n"
+     "-> (count, window_um)\n\n"
+     "The samples whose windows' mid-heights lie strictly between low_um and high_um, in order: their\n"
+     "mid-heights into x_out, their force less drift_g_um x height into force_out (both of the samples'\n"
+     "length), and the median of their windows' widths (NaN for none) (stage.py: _departure_fit)."},
     {"one_stage_rss", one_stage_rss, METH_VARARGS,
      "one_stage_rss(x_um, force_g, contacts_um, widths_um, powers, contact_um, sxx, ff, x_mean) -> float\n\n"
      "The least residual of a level, a drift and a one-stage toe over every power, width and contact\n"

@@ -628,6 +628,24 @@ static int marginal_of(const ToeMinimum *minima, Py_ssize_t toes, const double *
     return 1;
 }
 
+/* Half the range of the shapes' own marginals (toe.py's `shape_spread_um`): `minima` and `prior` in
+ * `shapes` equal blocks, one a shape (its widths); the highest and lowest of the marginals that exist
+ * (the twin's max - min), 0 unless two shapes have one. */
+static double shapes_spread_um(const ToeMinimum *minima, Py_ssize_t toes, Py_ssize_t shapes, const double *prior,
+                               double noise_var)
+{
+    Py_ssize_t widths = toes / shapes;
+    double highest_um = -INFINITY, lowest_um = INFINITY, shape_mean_um, shape_sd_um;
+    int known = 0;
+    for (Py_ssize_t k = 0; k < shapes; k++)
+        if (marginal_of(minima + k * widths, widths, prior + k * widths, noise_var, &shape_mean_um, &shape_sd_um)) {
+            highest_um = known && highest_um >= shape_mean_um ? highest_um : shape_mean_um;
+            lowest_um = known && lowest_um <= shape_mean_um ? lowest_um : shape_mean_um;
+            known++;
+        }
+    return known > 1 ? 0.5 * (highest_um - lowest_um) : 0.0;
+}
+
 /* The arrays of the marginal kernels, checked: heights (count >= 2), prior (toes), rss (toes × count). */
 static int load_marginal(Py_buffer *heights_buffer, Py_buffer *rss_buffer, Py_buffer *prior_buffer,
                          const double **heights_um, Py_ssize_t *count, const double **rss, const double **prior,
@@ -678,17 +696,7 @@ static PyObject *marginal(PyObject *args, int with_spread)
         result = Py_BuildValue("dd", mean_um, sd_um);
         goto done;
     }
-    /* The shapes' own marginals: the highest and lowest of those that exist (the twin's max - min). */
-    Py_ssize_t widths = toes / shapes;
-    double highest_um = -INFINITY, lowest_um = INFINITY, shape_mean_um, shape_sd_um;
-    int known = 0;
-    for (Py_ssize_t k = 0; k < shapes; k++)
-        if (marginal_of(minima + k * widths, widths, prior + k * widths, noise_var, &shape_mean_um, &shape_sd_um)) {
-            highest_um = known && highest_um >= shape_mean_um ? highest_um : shape_mean_um;
-            lowest_um = known && lowest_um <= shape_mean_um ? lowest_um : shape_mean_um;
-            known++;
-        }
-    result = Py_BuildValue("ddd", mean_um, sd_um, known > 1 ? 0.5 * (highest_um - lowest_um) : 0.0);
+    result = Py_BuildValue("ddd", mean_um, sd_um, shapes_spread_um(minima, toes, shapes, prior, noise_var));
 done:
     PyMem_Free(minima);
     PyBuffer_Release(&heights_buffer);
@@ -717,7 +725,7 @@ static PyObject *marginal_contact_and_spread(PyObject *self, PyObject *args)
  * one, the least residual's toe, the marginal contact and the stiffness there, in one call. The
  * contact heights and the residual grid go into contacts_out and rss_out (the pooling keeps them);
  * returns (contact_um, sigma_um, shape, width index, stiffness_g_um, residual variance, residual
- * sigma g), or None where fit_toe returns None. */
+ * sigma g, the shapes' spread `shape_spread_um`), or None where fit_toe returns None. */
 static PyObject *fit(PyObject *self, PyObject *args)
 {
     (void)self;
@@ -855,8 +863,10 @@ static PyObject *fit(PyObject *self, PyObject *args)
     } else {
         stiffness_g_um = projected_stiffness(&s, &plain, contact_um, width_um, (int)shape);
     }
-    result = Py_BuildValue("ddnnddd", contact_um, sigma_um, shape, width_index, stiffness_g_um, residual_var,
-                           sqrt(residual_var * unit_g2));
+    /* The shape part of z_sigma_um (`shape_spread_um`) from the same minima, as marginal_contact_and_spread
+     * finds it from the grid: computed here, it costs no second pass over the grid. */
+    result = Py_BuildValue("ddnndddd", contact_um, sigma_um, shape, width_index, stiffness_g_um, residual_var,
+                           sqrt(residual_var * unit_g2), shapes_spread_um(minima, toes, SHAPES, prior, residual_var));
 done:
     free(kept);
     free(grid_c);
@@ -898,6 +908,41 @@ static double lag_mean_square(const double *force_g, Py_ssize_t n, Py_ssize_t la
     return sum / (double)(n - lag);
 }
 
+/* lag_mean_square of each of `count` lags (each 1 <= lag < n) into out, four lags at a time: each
+ * lag's sum still runs over k in order (the same bits as one lag at a time), and four independent sums
+ * keep the adder busy where one waits on its last addition. */
+static void lag_mean_squares_of(const double *force_g, Py_ssize_t n, const Py_ssize_t *lags, Py_ssize_t count,
+                                double slope, double *out)
+{
+    Py_ssize_t l = 0;
+    for (; l + 4 <= count; l += 4) {
+        const Py_ssize_t *lag = lags + l;
+        double offset[4], sum[4] = {0.0, 0.0, 0.0, 0.0};
+        Py_ssize_t longest = 0;
+        for (int j = 0; j < 4; j++) {
+            offset[j] = (double)lag[j] * slope;
+            longest = lag[j] > longest ? lag[j] : longest;
+        }
+        Py_ssize_t k = 0;
+        for (; k + longest < n; k++) { /* every lag's pair is there */
+            const double at = force_g[k];
+            for (int j = 0; j < 4; j++) {
+                const double d = (force_g[k + lag[j]] - at) - offset[j];
+                sum[j] += d * d;
+            }
+        }
+        for (int j = 0; j < 4; j++) {
+            for (Py_ssize_t rest = k; rest + lag[j] < n; rest++) { /* the shorter lags' last pairs */
+                const double d = (force_g[rest + lag[j]] - force_g[rest]) - offset[j];
+                sum[j] += d * d;
+            }
+            out[l + j] = sum[j] / (double)(n - lag[j]);
+        }
+    }
+    for (; l < count; l++)
+        out[l] = lag_mean_square(force_g, n, lags[l], slope);
+}
+
 static PyObject *lag_mean_squares(PyObject *self, PyObject *args)
 {
     (void)self;
@@ -906,7 +951,8 @@ static PyObject *lag_mean_squares(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "O&O!", float64_buffer, &force_buffer, &PyTuple_Type, &lags))
         return NULL;
     PyObject *result = NULL;
-    Py_ssize_t n = 0, count = PyTuple_GET_SIZE(lags);
+    Py_ssize_t n = 0, count = PyTuple_GET_SIZE(lags), *lag_of = NULL;
+    double *measured = NULL;
     const double *force_g = doubles_of(&force_buffer, &n, "force_g");
     if (force_g == NULL)
         goto done;
@@ -914,28 +960,147 @@ static PyObject *lag_mean_squares(PyObject *self, PyObject *args)
         PyErr_Format(PyExc_ValueError, "force_g: %zd samples, at least 2 expected", n);
         goto done;
     }
-    double slope = line_slope(force_g, n);
-    result = PyList_New(count);
-    if (result == NULL)
+    lag_of = PyMem_Malloc(sizeof(Py_ssize_t) * (size_t)(count > 0 ? count : 1));
+    measured = PyMem_Malloc(sizeof(double) * (size_t)(count > 0 ? count : 1));
+    if (lag_of == NULL || measured == NULL) {
+        PyErr_NoMemory();
         goto done;
+    }
     for (Py_ssize_t l = 0; l < count; l++) {
         Py_ssize_t lag = PyLong_AsSsize_t(PyTuple_GET_ITEM(lags, l));
         if (lag == -1 && PyErr_Occurred())
-            goto fail;
+            goto done;
         if (lag < 1 || lag >= n) {
             PyErr_Format(PyExc_ValueError, "lags: %zd for %zd samples, 1..%zd allowed", lag, n, n - 1);
-            goto fail;
+            goto done;
         }
-        PyObject *value = PyFloat_FromDouble(lag_mean_square(force_g, n, lag, slope));
-        if (value == NULL)
-            goto fail;
+        lag_of[l] = lag;
+    }
+    lag_mean_squares_of(force_g, n, lag_of, count, line_slope(force_g, n), measured);
+    result = PyList_New(count);
+    for (Py_ssize_t l = 0; result != NULL && l < count; l++) {
+        PyObject *value = PyFloat_FromDouble(measured[l]);
+        if (value == NULL) {
+            Py_CLEAR(result);
+            break;
+        }
         PyList_SET_ITEM(result, l, value);
     }
-    goto done;
-fail:
-    Py_CLEAR(result);
 done:
+    PyMem_Free(lag_of);
+    PyMem_Free(measured);
     PyBuffer_Release(&force_buffer);
+    return result;
+}
+
+/* 2^53: below it every integer, and so every multiple of 0.25 below 2^51, is a double. */
+#define EXACT_UNITS 9007199254740992.0
+
+/* toe.py's `_detrended_variogram` for n samples at `lags`: per lag, (its mean squared difference for
+ * unit white noise, for a unit walk) once a line is fitted out, in the twin's closed form and
+ * operations. The cumulative sums run in numpy's order (np.cumsum adds left to right); the two dot
+ * products (t·t, t·f: BLAS sums them in its own order) are exact, so every order gives the same:
+ * t and f are multiples of 1/2 (2t and 2f integers), their products of 1/4, and while the sum of the
+ * products' sizes stays under 2^51 every partial sum is a double. Longer segments than that (t·f
+ * grows as n^5: past ~2,000 samples) return None and the twin runs. Error: -1 (exception set). */
+static int detrended_variogram_of(Py_ssize_t n, const Py_ssize_t *lags, Py_ssize_t count, double *white,
+                                  double *walk)
+{
+    double *f = malloc(sizeof(double) * (size_t)(2 * n + 1));
+    if (f == NULL) {
+        PyErr_NoMemory();
+        return -1;
+    }
+    double *f_sums = f + n; /* n + 1: f_sums[m] = the sum of f(k) over k < m */
+    const double middle = 0.5 * (double)(n - 1);
+    /* f(m) = cumsum(k t)[m] - k cumsum(t)[m], each cumulative sum starting at its first term */
+    double kt_sum = 0.0, t_sum = 0.0, tt_units = 0.0;
+    for (Py_ssize_t k = 0; k < n; k++) {
+        const double kd = (double)k, t = kd - middle;
+        kt_sum = k == 0 ? kd * t : kt_sum + kd * t;
+        t_sum = k == 0 ? t : t_sum + t;
+        f[k] = kt_sum - kd * t_sum;
+        tt_units += 4.0 * (t * t); /* (2t)^2: an integer, exact while the total stays under 2^53 */
+    }
+    f_sums[0] = 0.0;
+    for (Py_ssize_t k = 0; k < n; k++)
+        f_sums[k + 1] = k == 0 ? f[0] : f_sums[k] + f[k];
+    /* t·f in units of 1/4: (2t)(2f), integers; their sizes' sum bounds every partial sum */
+    double tf_units = 0.0, size_units = 0.0;
+    for (Py_ssize_t k = 0; k < n && size_units < EXACT_UNITS; k++) {
+        const double product = (2.0 * ((double)k - middle)) * (2.0 * f[k]);
+        tf_units += product;
+        size_units += fabs(product);
+    }
+    if (!(tt_units < EXACT_UNITS && size_units < EXACT_UNITS)) {
+        free(f);
+        return 0; /* too long to be exact: the twin's own sums */
+    }
+    const double s = tt_units / 4.0, tf = tf_units / 4.0;
+    for (Py_ssize_t l = 0; l < count; l++) {
+        const Py_ssize_t at = lags[l];
+        const double lag = (double)at;
+        const double mean_df = (f_sums[n] - f_sums[at] - f_sums[n - at]) / ((double)n - lag);
+        white[l] = 2.0 - lag * lag / s;
+        const double share = lag / s;
+        walk[l] = lag - 2.0 * share * mean_df + (share * share) * tf;
+    }
+    free(f);
+    return 1;
+}
+
+/* Longer segments are not even tried (t·f stops being exact near 2,930 samples). */
+#define DETRENDED_MOST_SAMPLES 8192
+
+static PyObject *detrended_variogram(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_ssize_t n;
+    PyObject *lag_tuple;
+    if (!PyArg_ParseTuple(args, "nO!", &n, &PyTuple_Type, &lag_tuple))
+        return NULL;
+    Py_ssize_t count = PyTuple_GET_SIZE(lag_tuple);
+    if (n < 2) {
+        PyErr_Format(PyExc_ValueError, "n: %zd samples, at least 2 expected", n);
+        return NULL;
+    }
+    PyObject *result = NULL;
+    if (n > DETRENDED_MOST_SAMPLES)
+        return Py_NewRef(Py_None); /* far past where t·f can be exact: the twin's */
+    Py_ssize_t *lags = PyMem_Malloc(sizeof(Py_ssize_t) * (size_t)(count > 0 ? count : 1));
+    double *values = PyMem_Malloc(sizeof(double) * (size_t)(2 * (count > 0 ? count : 1)));
+    if (lags == NULL || values == NULL) {
+        PyErr_NoMemory();
+        goto done;
+    }
+    for (Py_ssize_t l = 0; l < count; l++) {
+        lags[l] = PyLong_AsSsize_t(PyTuple_GET_ITEM(lag_tuple, l));
+        if (lags[l] == -1 && PyErr_Occurred())
+            goto done;
+        if (lags[l] < 1 || lags[l] >= n) {
+            PyErr_Format(PyExc_ValueError, "lags: %zd for %zd samples, 1..%zd allowed", lags[l], n, n - 1);
+            goto done;
+        }
+    }
+    int found = detrended_variogram_of(n, lags, count, values, values + count);
+    if (found < 0)
+        goto done;
+    if (!found) {
+        result = Py_NewRef(Py_None);
+        goto done;
+    }
+    result = PyTuple_New(count);
+    for (Py_ssize_t l = 0; result != NULL && l < count; l++) {
+        PyObject *pair = Py_BuildValue("(dd)", values[l], values[count + l]);
+        if (pair == NULL) {
+            Py_CLEAR(result);
+            break;
+        }
+        PyTuple_SET_ITEM(result, l, pair);
+    }
+done:
+    PyMem_Free(lags);
+    PyMem_Free(values);
     return result;
 }
 
@@ -949,6 +1114,9 @@ typedef struct {
 /* Adds one segment's rows: model (lags × 4: lag, expectation for unit white noise, for a unit walk,
  * the height pull's per unit curvature² and step⁴), its force and the height it crosses per
  * sample; 0, or -1 with ValueError set when a lag does not fit the segment. */
+/* The most lags a segment's model has (toe.py's WANDER_LAGS: 10). */
+#define MODEL_MOST_LAGS 64
+
 static int add_segment(WalkSums *sums, const double *model, Py_ssize_t lags, const double *force_g, Py_ssize_t n,
                        double step_um)
 {
@@ -959,6 +1127,13 @@ static int add_segment(WalkSums *sums, const double *model, Py_ssize_t lags, con
         return -1;
     }
     double slope = line_slope(force_g, n), step4 = pow(step_um, 4.0);
+    /* The model's lags checked, then every lag's measured mean square in one pass (`lag_mean_squares_of`). */
+    Py_ssize_t lag_of[MODEL_MOST_LAGS];
+    double measured[MODEL_MOST_LAGS];
+    if (lags > MODEL_MOST_LAGS) {
+        PyErr_Format(PyExc_ValueError, "model: %zd lags, at most %d", lags, MODEL_MOST_LAGS);
+        return -1;
+    }
     for (Py_ssize_t l = 0; l < lags; l++) {
         const double *row = model + 4 * l;
         if (!(row[0] >= 1.0 && row[0] < (double)n) || row[0] != floor(row[0])) {
@@ -966,8 +1141,12 @@ static int add_segment(WalkSums *sums, const double *model, Py_ssize_t lags, con
                          n - 1, n);
             return -1;
         }
-        Py_ssize_t lag = (Py_ssize_t)row[0];
-        double w = row[1], k = row[2], p = row[3] * step4, y = lag_mean_square(force_g, n, lag, slope);
+        lag_of[l] = (Py_ssize_t)row[0];
+    }
+    lag_mean_squares_of(force_g, n, lag_of, lags, slope, measured);
+    for (Py_ssize_t l = 0; l < lags; l++) {
+        const double *row = model + 4 * l;
+        double w = row[1], k = row[2], p = row[3] * step4, y = measured[l];
         sums->ww += w * w;
         sums->wk += w * k;
         sums->wp += w * p;
@@ -1148,16 +1327,6 @@ static PyObject *float_or_none(double value)
     return PyFloat_FromDouble(value);
 }
 
-/* The pullback's samples (conversion windows' low and high edges, force) from three buffers of one
- * length into *x_lo, *x_hi, *force_g; *force_g is NULL (ValueError set) when they are not. */
-static void pullback_samples_of(const Py_buffer buffers[3], Py_ssize_t *n, const double **x_lo, const double **x_hi,
-                                const double **force_g)
-{
-    *x_lo = doubles_of(&buffers[0], n, "x_lo_um");
-    *x_hi = *x_lo ? doubles_sized(&buffers[1], *n, "x_hi_um") : NULL;
-    *force_g = *x_hi ? doubles_sized(&buffers[2], *n, "force_g") : NULL;
-}
-
 static PyObject *adhesion(PyObject *self, PyObject *args)
 {
     (void)self;
@@ -1247,7 +1416,7 @@ static PyMethodDef methods[] = {
     {"fit", fit, METH_VARARGS,
      "fit(x_lo_um, x_hi_um, force_g, contact0_um, spacing_um, drift_g_um, white_var_g2, walk_var_g2, grid,\n"
      "    contacts_out, rss_out) -> (contact_um, sigma_um, shape, width_index, stiffness_g_um, residual_var,\n"
-     "    residual_sigma_g) or None\n\n"
+     "    residual_sigma_g, shape_spread_um) or None\n\n"
      "toe.py's fit_toe for the shapes (0.5, 1.0). Samples: conversion windows [x_lo, x_hi] (um above the\n"
      "halt) and the force; drift_g_um: the known drift, NaN to fit it; white_var_g2: the baseline's\n"
      "white noise with walk_var_g2 its walk per sample, NaN for none. grid: (above_um, departure\n"
@@ -1266,6 +1435,11 @@ static PyMethodDef methods[] = {
      "marginal_contact over every toe, and half the range of the marginals of each shape alone (rss and\n"
      "prior in `shapes` equal blocks of rows, each shape's widths); None as marginal_contact (toe.py:\n"
      "shape_spread_um, the spread's twin)."},
+    {"detrended_variogram", detrended_variogram, METH_VARARGS,
+     "detrended_variogram(n, lags) -> ((white, walk) per lag) or None\n\n"
+     "Per lag (a tuple of ints, 1..n-1), the mean squared difference of n samples once a line is fitted\n"
+     "out, for unit white noise and for a unit random walk (toe.py: _detrended_variogram, the same bits);\n"
+     "None where its dot products could round (past ~2,000 samples), which the twin then computes."},
     {"lag_mean_squares", lag_mean_squares, METH_VARARGS,
      "lag_mean_squares(force_g, lags) -> list of float\n\n"
      "Per lag (a tuple of ints, 1..n-1), the mean of (r[i+lag] - r[i])^2 over i, r the force with its\n"
