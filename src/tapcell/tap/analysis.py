@@ -1040,7 +1040,8 @@ class SplitTap:
     def ringing(self) -> Ringing | None:
         """The ringing the dwell shows (tapcell.tap.stage.dwell_ringing), against the white noise:
         measured once for the stage checks and z_sigma_um's ringing part."""
-        _, dwell_start, dwell_end, _ = (self.dec.start + bound for bound in self.dec.bounds)
+        start, (_, peak, release, _) = self.dec.start, self.dec.bounds
+        dwell_start, dwell_end = start + peak, start + release
         return dwell_ringing(self.time_s[dwell_start:dwell_end], self.force_g[dwell_start:dwell_end],
                              self.noise_g * self.noise_g)
 
