@@ -191,6 +191,8 @@ def _meta_seconds(tap: TapData, key: str, default: float | None) -> float | None
 
 def _meta_number(tap: TapData, key: str, default: float) -> float:
     value = tap.meta.get(key)
+    if value is None:  # not recorded, the common case
+        return default
     if isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value) and value >= 0:
         return float(value)
     return default
@@ -1470,6 +1472,8 @@ def mains_frequencies_hz(tap: TapData, options: AnalysisOptions) -> tuple[float,
     if options.mains_hz is not None:
         return options.mains_hz
     value = tap.meta.get("mains_hz")
+    if value is None:  # the common case (a tap from elsewhere): no hum asked for
+        return ()
     values = value if isinstance(value, list | tuple) else [value]
     if value == "auto":
         return "auto"
