@@ -170,3 +170,24 @@ def test_whole_analyses_equal_the_twin(monkeypatch):
         monkeypatch.undo()
         assert ours == theirs
         assert sum(result["valid"] for result in ours) >= len(ours) // 2
+
+
+def test_search_equals_the_twin_as_its_reciprocal_table_grows_and_is_reused():
+    """The kernel keeps 1 / n for every segment length between calls and grows the table when a
+    longer window asks: a long window after short ones, and short ones after it, must still pick the
+    twin's boundaries (a stale or half-grown table would cost segments with wrong counts)."""
+    rng = np.random.default_rng(7)
+    for n in (14, 40, 3000, 3500, 5000, 14, 9000, 40):  # 3500 grows the table to 6000: 5000 reuses it
+        time_s = np.arange(n, dtype=float) * 0.003
+        # A tap's shape: flat, ramp up, dwell, ramp down, flat; noise makes every segment's residual count.
+        corners = np.array([0.0, 0.45, 0.6, 0.7, 0.85, 1.0]) * (n - 1)
+        force_g = np.interp(np.arange(n), corners, [0.0, 0.0, 100.0, 95.0, 0.0, 0.0]) + rng.normal(0, 1.0, n)
+        ps = segments.prefix_sums(time_s, force_g)
+        cut = [int(c) for c in corners]
+        problem = (ps, 0, n, range(2, cut[2] - 1), range(cut[2] - 2, cut[2] + 3), range(cut[3] - 2, cut[3] + 3),
+                   range(cut[3] + 3, n - 1))
+        ours = segments.best_five_segments(*problem)
+        with MonkeyPatch.context() as patch:
+            patch.setattr(segments, "_C", None)
+            assert ours == segments.best_five_segments(*problem)
+        assert ours is not None and abs(ours[0] - cut[1]) <= max(3, n // 50)  # the contact found

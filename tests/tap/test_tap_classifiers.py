@@ -221,3 +221,23 @@ def test_mangled_real_taps_never_raise(mangle):
         tap.time_s, tap.force_g, tap.z_mm = tap.time_s[:40], tap.force_g[:40], tap.z_mm[:40]
     result = analyze_tap(tap)
     assert not result.valid and result.error
+
+
+@pytest.mark.parametrize("lines, compression, decompression, expected", [
+    (0.9, 2.0, 1.7, 0.9),  # the lines' nearer 1
+    (0.8, 2.0, 1.9, 0.95),  # the models' nearer 1
+    (0.75, 2.0, 2.5, 0.75),  # a tie (|1 - r| = 0.25 both, exactly): the lines', which come first
+    (None, 2.0, 1.5, 0.75),  # no line ratio: the models'
+    (0.7, None, 1.5, 0.7),  # no compression stiffness: the lines'
+    (0.7, 0.0, 1.5, 0.7),  # a zero stiffness is no ratio
+    (None, None, None, None),
+    (0.7, 2.0, math.nan, 0.7),  # a NaN model ratio never wins (min's order: only a strictly nearer one)
+])
+def test_stiffness_ratio_takes_the_estimate_nearer_one(lines, compression, decompression, expected):
+    analysis = SimpleNamespace(line_stiffness_ratio=lines, stiffness_compression_g_um=compression,
+                               stiffness_decompression_g_um=decompression)
+    got = classifiers.stiffness_ratio(analysis)
+    reference = [r for r in (lines, decompression / compression if compression and decompression else None)
+                 if r is not None]
+    assert got == (min(reference, key=lambda r: abs(1.0 - r)) if reference else None)  # the former definition
+    assert got == expected if expected is None or got is None else got == pytest.approx(expected, abs=1e-12)

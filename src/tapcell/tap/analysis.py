@@ -191,6 +191,8 @@ def _meta_seconds(tap: TapData, key: str, default: float | None) -> float | None
 
 def _meta_number(tap: TapData, key: str, default: float) -> float:
     value = tap.meta.get(key)
+    if value is None:  # not recorded, the common case
+        return default
     if isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value) and value >= 0:
         return float(value)
     return default
@@ -1040,7 +1042,8 @@ class SplitTap:
     def ringing(self) -> Ringing | None:
         """The ringing the dwell shows (tapcell.tap.stage.dwell_ringing), against the white noise:
         measured once for the stage checks and z_sigma_um's ringing part."""
-        _, dwell_start, dwell_end, _ = (self.dec.start + bound for bound in self.dec.bounds)
+        start, (_, peak, release, _) = self.dec.start, self.dec.bounds
+        dwell_start, dwell_end = start + peak, start + release
         return dwell_ringing(self.time_s[dwell_start:dwell_end], self.force_g[dwell_start:dwell_end],
                              self.noise_g * self.noise_g)
 
@@ -1469,6 +1472,8 @@ def mains_frequencies_hz(tap: TapData, options: AnalysisOptions) -> tuple[float,
     if options.mains_hz is not None:
         return options.mains_hz
     value = tap.meta.get("mains_hz")
+    if value is None:  # the common case (a tap from elsewhere): no hum asked for
+        return ()
     values = value if isinstance(value, list | tuple) else [value]
     if value == "auto":
         return "auto"

@@ -108,13 +108,13 @@ def quality_components(points: list[tuple[float, float]], decompression_slope_g_
     """The ratios of the quality score (fractions, not percent). Needs a nonzero compression force.
     `approach_drift_share`: the share of the approach's force change the departure shows to be a
     cable's drift (TapAnalysis.approach_drift_share), left out of the approach component."""
-    f = [force for _, force in points]
-    compression = abs(f[2] - f[1])
+    f0, f1, f2, f3, f4, f5 = points[0][1], points[1][1], points[2][1], points[3][1], points[4][1], points[5][1]
+    compression = abs(f2 - f1)
     components = {
-        "approach": (1.0 - approach_drift_share) * abs(f[1] - f[0]) / compression,
-        "departure": abs(f[5] - f[4]) / compression,
-        "baseline": abs(f[1] - f[4]) / compression,
-        "dwell_drop": abs(f[2] - f[3]) / compression,
+        "approach": (1.0 - approach_drift_share) * abs(f1 - f0) / compression,
+        "departure": abs(f5 - f4) / compression,
+        "baseline": abs(f1 - f4) / compression,
+        "dwell_drop": abs(f2 - f3) / compression,
     }
     if decompression_angle is not None:
         angle = abs(slope_angle_deg(decompression_slope_g_s))
@@ -138,8 +138,9 @@ def limiting_component(components: dict[str, float], cutoffs_percent: dict[str, 
 def quality_score(components: dict[str, float], cutoffs_percent: dict[str, float]) -> float:
     """100 × Π(1 - ratio); a ratio over its cutoff makes the score 0. Clamped to 0..100."""
     score = 100.0
+    get = cutoffs_percent.get
     for name, ratio in components.items():
-        cutoff = cutoffs_percent.get(name)
+        cutoff = get(name)
         if cutoff is not None and ratio > cutoff / 100.0:
             return 0.0
         score *= 1.0 - ratio
@@ -229,11 +230,13 @@ def stiffness_ratio(analysis: TapAnalysis) -> float | None:
     error. Under a mains hum nobody removed the models parted by 55-70 % where the lines agreed within
     13 % (reference noisy mains, 2 of 80 clean taps LOW_TAP_QUALITY), and the lines by 39 % where the
     models agreed within 16 % (a virtual bowden tap with hum, `bench tap_safety`)."""
-    ratios = [analysis.line_stiffness_ratio]
-    if analysis.stiffness_compression_g_um and analysis.stiffness_decompression_g_um:
-        ratios.append(analysis.stiffness_decompression_g_um / analysis.stiffness_compression_g_um)
-    known = [r for r in ratios if r is not None]
-    return min(known, key=lambda r: abs(1.0 - r)) if known else None
+    lines = analysis.line_stiffness_ratio
+    compression, decompression = analysis.stiffness_compression_g_um, analysis.stiffness_decompression_g_um
+    if not (compression and decompression):
+        return lines
+    models = decompression / compression
+    # The lines' unless the models' is strictly nearer 1 (a tie or a NaN keeps the lines', which come first).
+    return models if lines is None or abs(1.0 - models) < abs(1.0 - lines) else lines
 
 
 def _number(value: Any) -> float | None:

@@ -56,9 +56,16 @@ class Motion:
     def move_table(self) -> np.ndarray:
         """Rows: start time, duration, start speed, acceleration, start Z, direction; one column per move."""
         # Row-major (contiguous rows): the compiled window heights read it as six rows. One flat list
-        # of floats (a list of tuples makes numpy discover the nesting: twice the cost a tap).
-        flat = [value for m in self.moves for value in (m.print_time, m.move_t, m.start_v, m.accel, m.start_z, m.z_r)]
-        return np.array(flat, dtype=float).reshape(-1, 6).T.copy()
+        # of floats laid out row by row (a list of tuples makes numpy discover the nesting: twice the
+        # cost a tap; moves by columns needed a transposed copy).
+        moves = self.moves
+        flat = [m.print_time for m in moves]
+        flat += [m.move_t for m in moves]
+        flat += [m.start_v for m in moves]
+        flat += [m.accel for m in moves]
+        flat += [m.start_z for m in moves]
+        flat += [m.z_r for m in moves]
+        return np.array(flat, dtype=float).reshape(6, -1)
 
 
 def motion_from_moves(moves: list[Move]) -> Motion:

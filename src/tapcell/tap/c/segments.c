@@ -149,6 +149,31 @@ static double first_min(const double *values, Py_ssize_t count, Py_ssize_t *at)
     return best;
 }
 
+/* 1.0 / n for every count n below `counts` (inverse[0] and inverse[1] are 0, never read: shorter
+ * segments are +inf), kept between calls and grown as a longer window asks: every tap's search
+ * reads the same reciprocals, and computing them each call cost a division per sample of the
+ * window (the search's own divisions are a few per candidate segment). NULL when out of memory.
+ * The module runs under the GIL (its functions never release it), so one table serves all calls. */
+static double *inverse_table = NULL;
+static Py_ssize_t inverse_counts = 0;
+
+static const double *inverses(Py_ssize_t counts)
+{
+    if (counts > inverse_counts) {
+        Py_ssize_t grown = counts > 2 * inverse_counts ? counts : 2 * inverse_counts;
+        double *table = PyMem_Realloc(inverse_table, sizeof(double) * (size_t)grown);
+        if (table == NULL)
+            return NULL;
+        table[0] = 0.0;
+        if (grown > 1)
+            table[1] = 0.0;
+        for (Py_ssize_t n = inverse_counts > 2 ? inverse_counts : 2; n < grown; n++)
+            table[n] = 1.0 / (double)n;
+        inverse_table = table, inverse_counts = grown;
+    }
+    return inverse_table;
+}
+
 PyDoc_STRVAR(best_five_segments_doc,
              "best_five_segments(sums, start, stop, contact_first, contact_end, peak_first, peak_end,\n"
              "                   release_first, release_end, break_first, break_end)\n"
@@ -170,18 +195,16 @@ static int search_five(const PrefixSums *ps, Py_ssize_t start, Py_ssize_t stop, 
      * and their argmins. */
     Py_ssize_t longest_row = c > b ? c : b;
     longest_row = longest_row > r ? longest_row : r;
-    const Py_ssize_t counts = ps->columns; /* a segment of the sums holds at most columns - 1 samples */
-    double *scratch = PyMem_Malloc(sizeof(double) * (size_t)(counts + c + b + longest_row + 2 * (p + r)));
+    /* a segment of the sums holds at most columns - 1 samples */
+    const double *inverse = inverses(ps->columns);
+    double *scratch = inverse ? PyMem_Malloc(sizeof(double) * (size_t)(c + b + longest_row + 2 * (p + r))) : NULL;
     if (scratch == NULL) {
         PyErr_NoMemory();
         return -1;
     }
-    double *inverse = scratch, *approach = inverse + counts, *departure = approach + c, *row = departure + b;
+    double *approach = scratch, *departure = approach + c, *row = departure + b;
     double *left = row + longest_row, *right = left + p;
     Py_ssize_t *left_at = (Py_ssize_t *)(right + r), *right_at = left_at + p; /* doubles and indices are 8 bytes */
-    inverse[0] = inverse[1] = 0.0; /* never read: shorter segments are +inf */
-    for (Py_ssize_t n = 2; n < counts; n++)
-        inverse[n] = 1.0 / (double)n;
     const Costing cost = {ps, inverse};
     sse_from(&cost, start, c0, c, NULL, approach); /* [start, contact) */
     sse_to(&cost, b0, stop, b, NULL, departure); /* [break, stop) */
