@@ -1081,6 +1081,22 @@ fail:
     return NULL;
 }
 
+/* `detrended_variogram_of` into a PyMem_Malloc'd array at *values (white per lag, then walk per
+ * lag): 1; 0 where it cannot be exact (past DETRENDED_MOST_SAMPLES or its sums' bound: the twin's);
+ * -1 with the exception set. Free *values (NULL or the array) whatever it answers. */
+static int expected_variogram(Py_ssize_t n, const Py_ssize_t *lags, Py_ssize_t count, double **values)
+{
+    *values = NULL;
+    if (n > DETRENDED_MOST_SAMPLES)
+        return 0; /* far past where t·f can be exact */
+    *values = PyMem_Malloc(sizeof(double) * (size_t)(2 * (count > 0 ? count : 1)));
+    if (*values == NULL) {
+        PyErr_NoMemory();
+        return -1;
+    }
+    return detrended_variogram_of(n, lags, count, *values, *values + count);
+}
+
 static PyObject *detrended_variogram(PyObject *self, PyObject *args)
 {
     (void)self;
@@ -1092,17 +1108,8 @@ static PyObject *detrended_variogram(PyObject *self, PyObject *args)
     if (lags == NULL)
         return NULL;
     PyObject *result = NULL;
-    double *values = NULL;
-    if (n > DETRENDED_MOST_SAMPLES) { /* far past where t·f can be exact: the twin's */
-        result = Py_NewRef(Py_None);
-        goto done;
-    }
-    values = PyMem_Malloc(sizeof(double) * (size_t)(2 * (count > 0 ? count : 1)));
-    if (values == NULL) {
-        PyErr_NoMemory();
-        goto done;
-    }
-    int found = detrended_variogram_of(n, lags, count, values, values + count);
+    double *values;
+    int found = expected_variogram(n, lags, count, &values);
     if (found < 0)
         goto done;
     if (!found) {
@@ -1150,16 +1157,7 @@ static PyObject *free_air_model(PyObject *self, PyObject *args)
         PyErr_SetString(PyExc_ValueError, "model: a read-only array");
         goto done;
     }
-    if (n > DETRENDED_MOST_SAMPLES) {
-        result = Py_NewRef(Py_False);
-        goto done;
-    }
-    values = PyMem_Malloc(sizeof(double) * (size_t)(2 * (count > 0 ? count : 1)));
-    if (values == NULL) {
-        PyErr_NoMemory();
-        goto done;
-    }
-    int found = detrended_variogram_of(n, lags, count, values, values + count);
+    int found = expected_variogram(n, lags, count, &values);
     if (found < 0)
         goto done;
     for (Py_ssize_t l = 0; found && l < count; l++) {
