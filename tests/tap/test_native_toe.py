@@ -384,6 +384,34 @@ def test_the_detrended_variogram_kernel_refuses_bad_lags():
     assert toe._C.detrended_variogram(10**7, (4, 8, 12)) is None  # far too long to be exact: the twin's
 
 
+def test_the_free_air_model_kernel_fills_the_twins_rows_bit_for_bit(monkeypatch):
+    # `_free_air_model`'s rows (lag, white, walk, height pull per step^4) in one kernel call: the same
+    # bits as the columns built from the twin's parts at every length a segment has, past the
+    # variogram kernel's exact sums too (~2,930 samples: the kernel declines, the twin's rows).
+    lengths = [n for n in (*range(0, 400), *range(400, 3300, 7)) if toe._variogram_lags(n)]
+    kernel = [toe._free_air_model.__wrapped__(n) for n in lengths]
+    monkeypatch.setattr(toe, "_C", None)
+    twins = [toe._free_air_model.__wrapped__(n) for n in lengths]
+    assert all(k.shape == t.shape == (len(toe._variogram_lags(n)), 4) for n, k, t in zip(lengths, kernel, twins))
+    assert all(np.array_equal(k.view(np.int64), t.view(np.int64)) for k, t in zip(kernel, twins))
+    assert kernel[lengths.index(300)][2].tolist() == [12.0, *twins[lengths.index(300)][2, 1:3], 144 * (288**2 - 1) / 12.0]
+
+
+def test_the_free_air_model_kernel_refuses_what_it_cannot_fill():
+    model = np.empty((3, 4))
+    assert toe._C.free_air_model(10**7, (4, 8, 12), model) is False  # too long to be exact: the twin fills it
+    with pytest.raises(ValueError, match="model"):
+        toe._C.free_air_model(40, (4, 8, 12), np.empty((2, 4)))
+    with pytest.raises(ValueError, match="lags"):
+        toe._C.free_air_model(20, (4, 20, 8), model)
+    with pytest.raises(TypeError):
+        toe._C.free_air_model(40, (4, 8, 12), np.empty((3, 4), dtype=np.float32))
+    frozen = np.empty((3, 4))
+    frozen.flags.writeable = False
+    with pytest.raises((ValueError, BufferError)):
+        toe._C.free_air_model(40, (4, 8, 12), frozen)
+
+
 def test_the_lags_four_at_a_time_give_each_lags_own_bits():
     # The variogram's lags go through the segment four at a time, each lag's sum still in sample order:
     # every lag's mean square is what it is measured alone (a tuple of one lag runs the single loop).

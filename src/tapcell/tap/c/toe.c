@@ -1052,37 +1052,64 @@ static int detrended_variogram_of(Py_ssize_t n, const Py_ssize_t *lags, Py_ssize
 /* Longer segments are not even tried (t·f stops being exact near 2,930 samples). */
 #define DETRENDED_MOST_SAMPLES 8192
 
-static PyObject *detrended_variogram(PyObject *self, PyObject *args)
+/* The lags of a tuple of ints for n samples (at least 2), each 1..n-1, in a PyMem_Malloc'd array
+ * (its length in *count); NULL with the exception set otherwise. */
+static Py_ssize_t *lags_of(PyObject *lag_tuple, Py_ssize_t n, Py_ssize_t *count)
 {
-    (void)self;
-    Py_ssize_t n;
-    PyObject *lag_tuple;
-    if (!PyArg_ParseTuple(args, "nO!", &n, &PyTuple_Type, &lag_tuple))
-        return NULL;
-    Py_ssize_t count = PyTuple_GET_SIZE(lag_tuple);
+    *count = PyTuple_GET_SIZE(lag_tuple);
     if (n < 2) {
         PyErr_Format(PyExc_ValueError, "n: %zd samples, at least 2 expected", n);
         return NULL;
     }
-    PyObject *result = NULL;
-    if (n > DETRENDED_MOST_SAMPLES)
-        return Py_NewRef(Py_None); /* far past where t·f can be exact: the twin's */
-    Py_ssize_t *lags = PyMem_Malloc(sizeof(Py_ssize_t) * (size_t)(count > 0 ? count : 1));
-    double *values = PyMem_Malloc(sizeof(double) * (size_t)(2 * (count > 0 ? count : 1)));
-    if (lags == NULL || values == NULL) {
+    Py_ssize_t *lags = PyMem_Malloc(sizeof(Py_ssize_t) * (size_t)(*count > 0 ? *count : 1));
+    if (lags == NULL) {
         PyErr_NoMemory();
-        goto done;
+        return NULL;
     }
-    for (Py_ssize_t l = 0; l < count; l++) {
+    for (Py_ssize_t l = 0; l < *count; l++) {
         lags[l] = PyLong_AsSsize_t(PyTuple_GET_ITEM(lag_tuple, l));
         if (lags[l] == -1 && PyErr_Occurred())
-            goto done;
+            goto fail;
         if (lags[l] < 1 || lags[l] >= n) {
             PyErr_Format(PyExc_ValueError, "lags: %zd for %zd samples, 1..%zd allowed", lags[l], n, n - 1);
-            goto done;
+            goto fail;
         }
     }
-    int found = detrended_variogram_of(n, lags, count, values, values + count);
+    return lags;
+fail:
+    PyMem_Free(lags);
+    return NULL;
+}
+
+/* `detrended_variogram_of` into a PyMem_Malloc'd array at *values (white per lag, then walk per
+ * lag): 1; 0 where it cannot be exact (past DETRENDED_MOST_SAMPLES or its sums' bound: the twin's);
+ * -1 with the exception set. Free *values (NULL or the array) whatever it answers. */
+static int expected_variogram(Py_ssize_t n, const Py_ssize_t *lags, Py_ssize_t count, double **values)
+{
+    *values = NULL;
+    if (n > DETRENDED_MOST_SAMPLES)
+        return 0; /* far past where t·f can be exact */
+    *values = PyMem_Malloc(sizeof(double) * (size_t)(2 * (count > 0 ? count : 1)));
+    if (*values == NULL) {
+        PyErr_NoMemory();
+        return -1;
+    }
+    return detrended_variogram_of(n, lags, count, *values, *values + count);
+}
+
+static PyObject *detrended_variogram(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_ssize_t n, count;
+    PyObject *lag_tuple;
+    if (!PyArg_ParseTuple(args, "nO!", &n, &PyTuple_Type, &lag_tuple))
+        return NULL;
+    Py_ssize_t *lags = lags_of(lag_tuple, n, &count);
+    if (lags == NULL)
+        return NULL;
+    PyObject *result = NULL;
+    double *values;
+    int found = expected_variogram(n, lags, count, &values);
     if (found < 0)
         goto done;
     if (!found) {
@@ -1101,6 +1128,51 @@ static PyObject *detrended_variogram(PyObject *self, PyObject *args)
 done:
     PyMem_Free(lags);
     PyMem_Free(values);
+    return result;
+}
+
+/* toe.py's `_free_air_model` for n samples at `lags` (`_variogram_lags`'), into `model` (a row per
+ * lag: the lag, `detrended_variogram_of`'s white and walk, `_height_pull_per_step4`'s
+ * lag^2 ((n - lag)^2 - 1) / 12). The pull's integer is exact in 64 bits and as a double (under 2^53
+ * while n <= DETRENDED_MOST_SAMPLES and the lags are under n), then divided by 12 as Python divides
+ * an int by a float: the same bits. False (nothing written) where detrended_variogram answers None:
+ * the twin fills the rows then. */
+static PyObject *free_air_model(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_ssize_t n, count;
+    PyObject *lag_tuple;
+    Py_buffer mb = {0};
+    if (!PyArg_ParseTuple(args, "nO!O&", &n, &PyTuple_Type, &lag_tuple, float64_buffer, &mb))
+        return NULL;
+    PyObject *result = NULL;
+    double *values = NULL;
+    Py_ssize_t *lags = lags_of(lag_tuple, n, &count);
+    if (lags == NULL)
+        goto done;
+    double *model = doubles_sized(&mb, 4 * count, "model");
+    if (model == NULL)
+        goto done;
+    if (mb.readonly) {
+        PyErr_SetString(PyExc_ValueError, "model: a read-only array");
+        goto done;
+    }
+    int found = expected_variogram(n, lags, count, &values);
+    if (found < 0)
+        goto done;
+    for (Py_ssize_t l = 0; found && l < count; l++) {
+        const long long lag = (long long)lags[l], rest = (long long)n - lag;
+        double *row = model + 4 * l;
+        row[0] = (double)lag;
+        row[1] = values[l];
+        row[2] = values[count + l];
+        row[3] = (double)(lag * lag * (rest * rest - 1)) / 12.0;
+    }
+    result = Py_NewRef(found ? Py_True : Py_False);
+done:
+    PyMem_Free(lags);
+    PyMem_Free(values);
+    PyBuffer_Release(&mb);
     return result;
 }
 
@@ -1440,6 +1512,11 @@ static PyMethodDef methods[] = {
      "Per lag (a tuple of ints, 1..n-1), the mean squared difference of n samples once a line is fitted\n"
      "out, for unit white noise and for a unit random walk (toe.py: _detrended_variogram, the same bits);\n"
      "None where its dot products could round (past ~2,000 samples), which the twin then computes."},
+    {"free_air_model", free_air_model, METH_VARARGS,
+     "free_air_model(n, lags, model) -> bool\n\n"
+     "Fills model (len(lags) x 4 float64, C order) with a row per lag: the lag, detrended_variogram's\n"
+     "white and walk, lag^2 ((n - lag)^2 - 1) / 12 (toe.py: _free_air_model, the same bits); False,\n"
+     "nothing written, where detrended_variogram answers None."},
     {"lag_mean_squares", lag_mean_squares, METH_VARARGS,
      "lag_mean_squares(force_g, lags) -> list of float\n\n"
      "Per lag (a tuple of ints, 1..n-1), the mean of (r[i+lag] - r[i])^2 over i, r the force with its\n"
