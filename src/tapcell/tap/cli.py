@@ -87,9 +87,9 @@ def main(argv: list[str]) -> int:
 
 
 def _analyze_files(args: argparse.Namespace, options: AnalysisOptions) -> int:
-    # Each tap's output is written as soon as it is analysed and its analysis dropped (~34 kB a tap:
-    # the toe grid, the pullback's samples), unless the pool needs them all at the end: a run's
-    # memory stays flat instead of growing by a page fault every few kB.
+    # Each tap's output line is made as soon as it is analysed and its analysis dropped (~34 kB a
+    # tap: the toe grid, the pullback's samples), unless the pool needs them all at the end: a run's
+    # memory grows by a line a tap instead of by a page fault every few kB.
     pooled = []  # (name, index, count, analysis) with --pool
     lines = []  # each tap's output line, in order
     unreadable = 0
