@@ -32,7 +32,6 @@
 
 /* |f[i+1] - (f[i] + f[i+2]) / 2| for i in [0, n - 2): how far each inner sample stands off the
  * midpoint of its neighbours (the twin's expression, term for term). */
-SAMPLE_LOOP
 static void off_midpoints(const double *force_g, Py_ssize_t n, double *off_mid)
 {
     for (Py_ssize_t i = 0; i + 2 < n; i++)
