@@ -212,9 +212,17 @@ def test_window_heights_refuse_a_table_that_is_not_six_rows():
     (lambda t, f: t.__setitem__(3, np.inf), 1),
     (lambda t, f: t.__setitem__(5, t[4]), 2),
     (lambda t, f: t.__setitem__(slice(None), t[::-1].copy()), 2),
+    # The kernel reads every sample without an early exit, several at a time: a NaN after an earlier
+    # step back is still the problem named, the last samples (past the last full block of four)
+    # are read too, and the largest finite double is finite.
+    (lambda t, f: (t.__setitem__(2, t[1]), f.__setitem__(21, np.nan)), 1),
+    (lambda t, f: f.__setitem__(22, -np.inf), 1),
+    (lambda t, f: t.__setitem__(22, np.nan), 1),
+    (lambda t, f: t.__setitem__(22, t[21]), 2),
+    (lambda t, f: f.__setitem__(0, np.finfo(float).max), 0),
 ])
 def test_sample_checks_name_the_twins_problem(change, problem):
-    time_s, force_g = np.linspace(0.0, 1.0, 20), np.linspace(5.0, 9.0, 20)
+    time_s, force_g = np.linspace(0.0, 1.0, 23), np.linspace(5.0, 9.0, 23)
     change(time_s, force_g)
     assert KERNEL.sample_problem(time_s, force_g) == problem
     tap = type("Tap", (), {"time_s": time_s, "force_g": force_g})()
