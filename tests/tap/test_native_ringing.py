@@ -90,6 +90,27 @@ def test_a_ringing_on_a_bin_is_found_at_its_period_and_power():
     assert ringing.var_g2 == pytest.approx(expected_g2, rel=1e-9)
 
 
+def test_the_end_bins_are_the_twins(monkeypatch):
+    # The bins the spectrum's unpacking reads at its ends: k = 2n (the Nyquist rate, which reads Z_0
+    # beside Z_L's mirror) and, from no lowest period, k = 0 (Z_0 and its own mirror). An alternating
+    # force rings at the Nyquist rate: period 2 samples, the last bin. From bin 0 on, the largest bin
+    # is the twin's at lengths either side of the FFT sizes (bin 0 itself holds the residual's sum,
+    # which the quadratic's level leaves at rounding: it takes part, it never wins).
+    n = 101
+    t = np.arange(n) / 1000.0
+    force = 80.0 + 0.5 * (-1.0) ** np.arange(n)
+    ringing = stage.dwell_ringing(t, force, 0.01)
+    assert ringing is not None and ringing.period_samples == pytest.approx(2.0, rel=1e-12)
+    assert_agree(ringing, twin(monkeypatch, t, force, 0.01))
+    monkeypatch.setattr(stage, "RINGING_MIN_PERIODS", 0.0)
+    monkeypatch.setattr(stage, "RINGING_MIN_CHI2", 0.0)
+    for n in (16, 17, 40, 51, 102, 103, 104):
+        t, force = _white_dwell(n, 2)
+        found = stage.dwell_ringing(t, force, 1.0)
+        assert found is not None, n
+        assert_agree(found, twin(monkeypatch, t, force, 1.0))
+
+
 @pytest.mark.parametrize("case", ["too few", "no noise", "negative noise", "zero span", "time running back",
                                   "a quadratic", "a constant", "too many periods asked"])
 def test_what_shows_no_ringing_is_none_in_both(monkeypatch, case):

@@ -765,13 +765,17 @@ def pullback_samples(window: ModelWindow, motion: Motion, timing: SensorTiming, 
     return found
 
 
-def read_while_rising(samples: PullbackSamples, window: ModelWindow, motion: Motion, delay_s: float
+def read_while_rising(samples: PullbackSamples, split: SplitTap, window: ModelWindow, delay_s: float
                       ) -> PullbackSamples:
-    """The pullback samples (`pullback_samples`) read before the pullback ended. Those read after it
-    all lie at its top height while the baseline goes on walking: as the adhesion checks' free-air
-    level they turned a cable's walk into a "dip" (taplab seed 2 cable drift: 4 of 100 clean taps
-    TAP_ADHESION, 82 of one tap's 100 level samples read after the motion stopped)."""
-    rising = int(window.time_s.searchsorted(motion.pullback_end_s + delay_s, side="right"))
+    """The pullback samples (`pullback_samples`, read `delay_s` late) read before the pullback ended.
+    Those read after it all lie at its top height while the baseline goes on walking: as the
+    adhesion checks' free-air level they turned a cable's walk into a "dip" (taplab seed 2 cable
+    drift: 4 of 100 clean taps TAP_ADHESION, 82 of one tap's 100 level samples read after the
+    motion stopped)."""
+    if delay_s == split.timing.delay_s:  # the split's own stop (the window is its samples start..stop)
+        rising = min(split.rising_stop, split.dec.stop) - split.dec.start
+    else:
+        rising = int(window.time_s.searchsorted(split.motion.pullback_end_s + delay_s, side="right"))
     kept = max(rising - (len(window.time_s) - len(samples[2])), 0)
     return samples[0][:kept], samples[1][:kept], samples[2][:kept]
 
@@ -784,9 +788,9 @@ def free_air_wanders(force_g: np.ndarray, dec: Decomposition, steps_um: tuple[fl
     height crossed per sample on the approach and on the pullback), for the toe fit; and from the
     approach's alone, which no ooze thread after the tap can pull (for the thread check), in one
     call (`toe.free_air_walks`)."""
-    first, *_, last = dec.bounds
-    approach_force = force_g[dec.start:dec.start + first]
-    departure_force = force_g[dec.start + last:min(dec.stop, rising_stop)]
+    bounds = dec.bounds
+    approach_force = force_g[dec.start:dec.start + bounds[0]]
+    departure_force = force_g[dec.start + bounds[3]:min(dec.stop, rising_stop)]
     return free_air_walks(approach_force, departure_force, steps_um)
 
 
@@ -1031,12 +1035,17 @@ class SplitTap:
     points_pass: bool = False
 
     @cached_attribute
+    def rising_stop(self) -> int:
+        """The first sample read after the pullback ended (at the timing's delay): where the free-air
+        walk's departure and the adhesion checks' samples end (`read_while_rising`)."""
+        return int(self.time_s.searchsorted(self.motion.pullback_end_s + self.timing.delay_s, side="right"))
+
+    @cached_attribute
     def wanders(self) -> tuple[Wander | None, Wander | None]:
         """`free_air_wanders` of the tap, measured once for the toe fit and its uncertainty."""
         motion, period_s = self.motion, self.timing.sample_period_s
         steps_um = (motion.approach_speed_mm_s * 1000.0 * period_s, motion.pullback_speed_mm_s * 1000.0 * period_s)
-        rising_stop = int(self.time_s.searchsorted(motion.pullback_end_s + self.timing.delay_s, side="right"))
-        return free_air_wanders(self.force_g, self.dec, steps_um, rising_stop)
+        return free_air_wanders(self.force_g, self.dec, steps_um, self.rising_stop)
 
     @cached_attribute
     def ringing(self) -> Ringing | None:
@@ -1259,15 +1268,16 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     result.z_method = "toe"
     result.contact_onset_um = toe.width_um
     result.stiffness_decompression_g_um = toe.stiffness_g_um
-    rising = read_while_rising(samples, window, motion, window_delay_s)
+    rising = read_while_rising(samples, split, window, window_delay_s)
     # The free air before the contact (`free_air_line`); the walk the approach shows, or where it is
     # too short to show one (10 sps: 8 samples), the one the free air on both sides shows.
     check_adhesion(rising, motion, timing, dec, free_air_line(split, toe.contact_um - lag_shift_um, delay_s),
                    toe.contact_um, split.noise_g, approach_wander or wander, result.compression_force_g)
-    ramp = check_stages(split, samples, drift_g_um, toe, lag_shift_um, drift_held=fit_drift_g_um is not None)
+    walk_var_g2 = approach_walk_var_g2(split)  # the two-stage fits' walk
+    ramp = check_stages(split, samples, drift_g_um, toe, lag_shift_um, wander, walk_var_g2,
+                        drift_held=fit_drift_g_um is not None)
     result.unnamed_stage_um = unnamed_stage_um(*samples, drift_g_um, toe.contact_um, toe.width_um, split.noise_g,
-                                               approach_walk_var_g2(split), ramp, fit_drift_g_um is not None,
-                                               split.ringing)
+                                               walk_var_g2, ramp, fit_drift_g_um is not None, split.ringing)
     approach_change_g = abs(dec.points[P_CONTACT][1] - dec.points[P_START][1])
     if approach_change_g > APPROACH_DRIFT_MATERIAL_SHARE * result.compression_force_g:  # else it costs the score little
         result.approach_drift_share = departure_drift_share(rising, toe.contact_um, drift_g_um)
@@ -1363,14 +1373,13 @@ def _toe_lift_um(result: TapAnalysis) -> float:
 
 
 def check_stages(split: SplitTap, samples: PullbackSamples, drift_g_um: float, toe: ToeFit, lag_shift_um: float,
-                 drift_held: bool) -> SoftStage | None:
+                 wander: Wander | None, walk_var_g2: float, drift_held: bool) -> SoftStage | None:
     """The two-stage checks (TAP_TWO_STAGE_CONTACT raised); where they name a stage and the dwell
     rings (tapcell.tap.stage.dwell_ringing), again with the ringing in their noise: a gantry's
     ringing over a fast pullback's departure is no stage (issue 21). Returns the soft-stage ramp
-    they weighed (tapcell.tap.stage.unnamed_stage_um looks further where it shows one)."""
+    they weighed (tapcell.tap.stage.unnamed_stage_um looks further where it shows one). wander: the
+    tap's (`SplitTap.wanders`); walk_var_g2: the approach's walk (`approach_walk_var_g2`)."""
     motion, noise_g = split.motion, split.noise_g
-    wander, _ = split.wanders
-    walk_var_g2 = approach_walk_var_g2(split)
     # The ramp's noise: the walk the free air on both sides shows, as the toe fit weighs it. The
     # approach's alone (32-96 samples at 320 sps) read no walk under a 2.4 g/sqrt(s) cable (taplab
     # seed 4 cable drift k 20): its level wandering over the departure's 61 samples scored a

@@ -143,7 +143,8 @@ static Py_ssize_t largest_bin(Complex *packed, Py_ssize_t n, Py_ssize_t lowest, 
     }
     Py_ssize_t best = -1;
     for (Py_ssize_t k = lowest; k <= length; k++) {
-        const Complex zk = spectrum[k % length], zc = spectrum[(length - k) % length];
+        /* Z_(k mod L) and Z_((L - k) mod L), k in [0, L], without a division per bin */
+        const Complex zk = spectrum[k < length ? k : 0], zc = spectrum[k > 0 ? length - k : 0];
         /* E = (Z_k + conj Z_(L-k)) / 2, O = -i (Z_k - conj Z_(L-k)) / 2, X = E + e^(-i pi k / L) O */
         const double er = 0.5 * (zk.re + zc.re), ei = 0.5 * (zk.im - zc.im);
         const double o_re = 0.5 * (zk.im + zc.im), o_im = -0.5 * (zk.re - zc.re);

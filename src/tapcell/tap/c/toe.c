@@ -363,12 +363,13 @@ static void projected_grid(const Samples *s, const Projected *p, const double *c
 }
 
 /* toe.py's `_stiffness_at`: the toe's stiffness at one contact height and toe (shape 0 or 1), its
- * column evaluated over every sample. */
+ * column evaluated over every sample up to the first from which all are free of the contact (there
+ * the column is +0, which adds nothing to a sum begun at +0: the same bits as summing them). */
 static double projected_stiffness(const Samples *s, const Projected *p, double contact_um, double width_um, int shape)
 {
-    Py_ssize_t n = s->n, sub = s->subsamples;
+    Py_ssize_t n = s->n, sub = s->subsamples, touching = count_before(p->free_from, n, contact_um, 0, 0);
     double h_basis[2] = {0.0, 0.0}, hh_all = 0.0, hy = 0.0;
-    for (Py_ssize_t i = 0; i < n; i++) {
+    for (Py_ssize_t i = 0; i < touching; i++) {
         double h[SHAPES];
         toe_sums(contact_um, width_um, s->window_um + i * sub, sub, h);
         double column = h[shape] * (1.0 / (double)sub);
@@ -569,9 +570,10 @@ static int toe_minimum(const double *rss, Py_ssize_t count, const double *height
     return 1;
 }
 
-/* One toe's `toe_minimum`, kept for the passes of `marginal_of` (and the shapes' own marginals). */
+/* One toe's `toe_minimum`, kept for the passes of `marginal_of` (and the shapes' own marginals), with
+ * its weight in the marginal `marginal_of` last computed (its third pass reads what its second found). */
 typedef struct {
-    double centre_um, lowest, var_um2;
+    double centre_um, lowest, var_um2, weight;
     int found;
 } ToeMinimum;
 
@@ -595,11 +597,11 @@ static ToeMinimum *toe_minima(const double *heights_um, Py_ssize_t count, const 
 
 /* The mean and sd of the contact over `toes` toes' minima (toe.py `marginal_contact_um`'s arithmetic);
  * 0 when no toe has a curved interior minimum. */
-static int marginal_of(const ToeMinimum *minima, Py_ssize_t toes, const double *prior, double noise_var,
+static int marginal_of(ToeMinimum *minima, Py_ssize_t toes, const double *prior, double noise_var,
                        double *mean_out_um, double *sd_out_um)
 {
-    /* Three passes over the toes (a score of them): the least residual; the weights' total and
-     * mean; the spread about the mean. */
+    /* Three passes over the toes (a score of them): the least residual; the weights (kept) and their
+     * total and mean; the spread about the mean. */
     double least = INFINITY, total = 0.0, weighted = 0.0, spread = 0.0;
     int any = 0;
     for (Py_ssize_t t = 0; t < toes; t++)
@@ -612,6 +614,7 @@ static int marginal_of(const ToeMinimum *minima, Py_ssize_t toes, const double *
     for (Py_ssize_t t = 0; t < toes; t++)
         if (minima[t].found) {
             double weight = exp(-(minima[t].lowest - least) / (2.0 * noise_var)) * sqrt(minima[t].var_um2) * prior[t];
+            minima[t].weight = weight;
             total += weight;
             weighted += weight * minima[t].centre_um;
         }
@@ -619,8 +622,7 @@ static int marginal_of(const ToeMinimum *minima, Py_ssize_t toes, const double *
     for (Py_ssize_t t = 0; t < toes; t++)
         if (minima[t].found) {
             const ToeMinimum *toe = &minima[t];
-            double weight = exp(-(toe->lowest - least) / (2.0 * noise_var)) * sqrt(toe->var_um2) * prior[t];
-            spread += weight * (toe->var_um2 + (toe->centre_um - mean_um) * (toe->centre_um - mean_um));
+            spread += toe->weight * (toe->var_um2 + (toe->centre_um - mean_um) * (toe->centre_um - mean_um));
         }
     spread /= total;
     *mean_out_um = mean_um;
@@ -631,7 +633,7 @@ static int marginal_of(const ToeMinimum *minima, Py_ssize_t toes, const double *
 /* Half the range of the shapes' own marginals (toe.py's `shape_spread_um`): `minima` and `prior` in
  * `shapes` equal blocks, one a shape (its widths); the highest and lowest of the marginals that exist
  * (the twin's max - min), 0 unless two shapes have one. */
-static double shapes_spread_um(const ToeMinimum *minima, Py_ssize_t toes, Py_ssize_t shapes, const double *prior,
+static double shapes_spread_um(ToeMinimum *minima, Py_ssize_t toes, Py_ssize_t shapes, const double *prior,
                                double noise_var)
 {
     Py_ssize_t widths = toes / shapes;
