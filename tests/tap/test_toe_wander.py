@@ -158,6 +158,34 @@ def test_the_toe_fits_walk_is_read_from_samples_taken_while_the_nozzle_rose():
     assert analysis.free_air_wanders(stepped, dec, (10.0, 1.0), 600)[0].walk_var_g2 > 0.05
 
 
+@pytest.mark.parametrize("scenario", ["clean_hx717", "latency", "hx711_10", "clean_ads1220_2000"])
+def test_the_samples_read_while_rising_end_at_the_pullbacks_end(scenario):
+    # The adhesion checks' samples: the pullback's read by the end of the pullback plus the delay.
+    # At the split's own delay they end at the split's stop (`SplitTap.rising_stop`, which the free-air
+    # walk's departure ends at too); at any other ("auto" reads the window at 0) by a search of their
+    # own. Both against the definition, on taps with no delay, a pipeline's, 10 and 2000 sps.
+    from tapcell.taplab.generate import SCENARIOS, make_tap
+    from tapcell.tap.readers import tap_from_object
+
+    ends = set()
+    for k in range(3):
+        rng = np.random.default_rng([1, list(SCENARIOS).index(scenario) + 1, k])
+        tap = tap_from_object(make_tap(SCENARIOS[scenario].draw(rng), rng)[0])
+        split, *_ = analysis.split_tap(tap, AnalysisOptions())
+        motion, timing = split.motion, split.timing
+        window = analysis.model_window(split.time_s, split.force_g, motion, timing, timing.delay_s, split.dec)
+        samples = analysis.pullback_samples(window, motion, timing, timing.delay_s)
+        pullback_time_s = window.time_s[len(window.time_s) - len(samples[2]):]
+        for delay_s in (timing.delay_s, timing.delay_s + 0.6 * timing.sample_period_s, 0.0):
+            rising = analysis.read_while_rising(samples, split, window, delay_s)
+            kept = int(np.count_nonzero(pullback_time_s <= motion.pullback_end_s + delay_s))
+            assert 0 < kept < len(samples[2])  # the pullback ends with samples on either side
+            for part, whole in zip(rising, samples):
+                assert np.array_equal(part, whole[:kept])
+            ends.add(kept)
+    assert len(ends) > 3
+
+
 def test_the_walk_beside_the_pull_is_the_nonnegative_least_squares():
     # The closed form (Cramer's rule on the scaled normal equations, then the fits with a column
     # dropped) against scipy's NNLS on the same rows: 300 draws, walk and pull each present, absent
