@@ -335,6 +335,32 @@ def test_thread_pulls_equal_the_numpy_twin_bit_for_bit(monkeypatch):
     assert any(far is None and near is not None for near, far in twins)  # a pullback too short to reach far
 
 
+def test_thread_pulls_fill_overlapping_reaches_each_with_its_own_samples():
+    # One pass fills both reaches' pulls: reaches that overlap (here by 20 µm) must each keep every
+    # sample of theirs, in sample order, as the twin selects them one reach at a time.
+    rng = np.random.default_rng(7)
+    x_lo = np.sort(rng.uniform(-20.0, 180.0, 150))
+    x_hi = x_lo + 1.25
+    force = rng.normal(0.0, 0.4, 150) - 0.01 * x_lo
+    near_reach, far_reach = (10.0, 80.0), (60.0, 150.0)
+    near, far, highest = toe._C.thread_pulls(x_lo, x_hi, force, 0.002, 1.5, 12.0, near_reach, far_reach,
+                                             toe.THREAD_MIN_SAMPLES)
+    x_um = 0.5 * (x_lo + x_hi)
+    assert near == toe.thread_pull_g(x_um, force, 0.002, 1.5, 12.0, near_reach)
+    assert far == toe.thread_pull_g(x_um, force, 0.002, 1.5, 12.0, far_reach)
+    assert highest == x_um.max()
+    # too few samples in a reach: None there, the other reach still read
+    near, far, _ = toe._C.thread_pulls(x_lo[:40], x_hi[:40], force[:40], 0.002, 1.5, 12.0, near_reach, far_reach,
+                                       toe.THREAD_MIN_SAMPLES)
+    assert far is None and near == toe.thread_pull_g(x_um[:40], force[:40], 0.002, 1.5, 12.0, near_reach)
+    # no samples: neither pull, the highest -inf; a NaN height is the highest, as numpy's max has it
+    assert toe._C.thread_pulls(x_lo[:0], x_hi[:0], force[:0], 0.002, 1.5, 12.0, near_reach, far_reach, 5) == (
+        None, None, -math.inf)
+    x_nan = x_lo.copy()
+    x_nan[3] = math.nan
+    assert math.isnan(toe._C.thread_pulls(x_nan, x_hi, force, 0.002, 1.5, 12.0, near_reach, far_reach, 5)[2])
+
+
 @pytest.fixture(scope="module")
 def scalar_kernel(tmp_path_factory):
     """c/toe.c built with -DTAPCELL_SCALAR (the plain loops an ARM board runs instead of SSE2),

@@ -31,6 +31,20 @@ def test_noise_free_z_is_exact(polarity, sps, options, method):
     assert result.polarity == polarity
 
 
+def test_a_negative_tap_reports_its_points_lines_and_angles_in_its_own_polarity():
+    # The same tap with its force negated: analysed in positive polarity, reported in its own, so its
+    # points' forces, lines and angles are the positive tap's negated (exactly: x -1 changes no bit but
+    # the sign), its times and Z the same.
+    tap = synth_tap(sample_rate_sps=320.0, z_contact_mm=0.1234, noise_g=0.3, seed=5)
+    flipped = dataclasses.replace(tap, force_g=-np.asarray(tap.force_g))
+    up, down = analyze_tap(tap), analyze_tap(flipped)
+    assert up.valid and down.valid and (up.polarity, down.polarity) == (1, -1)
+    assert down.points == [(t, -f) for t, f in up.points]
+    assert down.lines == [(-slope, -intercept) for slope, intercept in up.lines]
+    assert down.angles_deg == [-a for a in up.angles_deg]
+    assert down.z_mm == up.z_mm and down.compression_force_g == up.compression_force_g
+
+
 def test_noise_free_soft_sheet_is_exact_with_the_toe_or_a_calibrated_onset_and_biased_sharp():
     tap = synth_tap(contact_onset_um=6.0, **EXACT)
     calibrated = analyze_tap(tap, AnalysisOptions(contact_onset_um=6.0))

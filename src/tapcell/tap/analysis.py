@@ -1133,9 +1133,10 @@ def result_of_split(split: SplitTap, polarity: int, outliers: int, hum: HumFit |
     if polarity == 1:  # x 1 changes no bit: copies of the split's own lists
         points, lines, angles_deg = list(dec.points), list(dec.lines), list(split.angles_deg)
     else:
-        points = [(t, polarity * f) for t, f in dec.points]
-        lines = [(polarity * slope, polarity * intercept) for slope, intercept in dec.lines]
-        angles_deg = [polarity * a for a in split.angles_deg]
+        sign = float(polarity)  # what int x float multiplies by; float x float takes the interpreter's fast path
+        points = [(t, sign * f) for t, f in dec.points]
+        lines = [(sign * slope, sign * intercept) for slope, intercept in dec.lines]
+        angles_deg = [sign * a for a in split.angles_deg]
     return TapAnalysis(
         valid=True,
         polarity=polarity,

@@ -240,7 +240,8 @@ def stiffness_ratio(analysis: TapAnalysis) -> float | None:
 
 
 def _number(value: Any) -> float | None:
-    return float(value) if isinstance(value, int | float) and math.isfinite(value) else None
+    # A tuple of types, not `int | float`: that expression builds a union object on every call.
+    return float(value) if isinstance(value, (int, float)) and math.isfinite(value) else None
 
 
 BUILTIN_CLASSIFIERS: dict[str, ClassifierFactory] = {

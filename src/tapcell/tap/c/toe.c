@@ -1437,7 +1437,9 @@ static PyObject *adhesion(PyObject *self, PyObject *args)
 }
 
 /* thread_pull_g of toe.py at two reaches over the same samples, and their highest mid-height: what
- * the Z uncertainty's thread part reads (analysis.z_uncertainty, toe.thread_pulls_g). */
+ * the Z uncertainty's thread part reads (analysis.z_uncertainty, toe.thread_pulls_g). One pass over
+ * the samples (each mid-height once) fills both reaches' pulls in sample order, as thread_pull_of
+ * fills one: the same values, so the same medians. */
 static PyObject *thread_pulls(PyObject *self, PyObject *args)
 {
     (void)self;
@@ -1453,25 +1455,25 @@ static PyObject *thread_pulls(PyObject *self, PyObject *args)
     const double *x_lo, *x_hi, *force_g;
     pullback_samples_of(buffers, &n, &x_lo, &x_hi, &force_g);
     if (force_g != NULL) {
-        double *scratch = malloc((size_t)(n > 0 ? n : 1) * sizeof(double));
+        /* the near reach's pulls from the front, the far reach's from scratch + n (the reaches may overlap) */
+        double *scratch = malloc((size_t)(n > 0 ? 2 * n : 1) * sizeof(double));
         if (scratch == NULL) {
             PyErr_NoMemory();
         } else {
-            struct adhesion_limits limits = {0};
-            limits.min_thread_samples = min_samples;
-            limits.thread_from_um = near_from;
-            limits.thread_to_um = near_to;
-            double near_g = thread_pull_of(x_lo, x_hi, force_g, n, drift_g_um, approach_at_halt_g, contact_um,
-                                           &limits, scratch);
-            limits.thread_from_um = far_from;
-            limits.thread_to_um = far_to;
-            double far_g = thread_pull_of(x_lo, x_hi, force_g, n, drift_g_um, approach_at_halt_g, contact_um,
-                                          &limits, scratch);
+            double *near = scratch, *far = scratch + n;
+            Py_ssize_t near_count = 0, far_count = 0;
             double highest_um = -INFINITY;
             for (Py_ssize_t i = 0; i < n; i++) {
-                double x_um = 0.5 * (x_lo[i] + x_hi[i]);
+                const double x_um = 0.5 * (x_lo[i] + x_hi[i]);
+                const double above_um = x_um - contact_um;
+                if (above_um > near_from && above_um < near_to)
+                    near[near_count++] = approach_at_halt_g + drift_g_um * x_um - force_g[i];
+                if (above_um > far_from && above_um < far_to)
+                    far[far_count++] = approach_at_halt_g + drift_g_um * x_um - force_g[i];
                 if (x_um > highest_um || isnan(x_um)) highest_um = x_um;
             }
+            const double near_g = near_count < min_samples ? NAN : median_in_place(near, near_count);
+            const double far_g = far_count < min_samples ? NAN : median_in_place(far, far_count);
             result = Py_BuildValue("(NNd)", float_or_none(near_g), float_or_none(far_g), highest_um);
             free(scratch);
         }
