@@ -61,7 +61,8 @@ def test_analyze_imports_only_what_the_analysis_needs(run):
     unneeded = {"pathlib", "csv", "matplotlib", "scipy", "tapcell.tap.plot", "tapcell.taplab", "tapcell.sim",
                 "tapcell.host", "tapcell.tools.frontend",
                 "tapcell.tap.hum",  # this tap asks for no hum removal (no mains_hz in its meta or options)
-                "json"}  # the reader's and the output's kernels read and write it
+                "json",  # the reader's and the output's kernels read and write it
+                "argparse", "shutil"}  # `--json FILE` is read without argparse (tap.cli._arguments)
     if readers._C is None or cli._C is None:
         unneeded.discard("json")
     assert sorted(unneeded & modules) == []
