@@ -34,9 +34,10 @@ def _kind(mode: int) -> str:
     return "not a regular file"  # (a door or a whiteout: no Linux file system has one)
 
 
-def _open_regular(path: str | os.PathLike, flags: int, keep_nonblocking: bool = False) -> int:
-    """A descriptor for `path`, opened without blocking; FileRefused (closing it) if it is not a regular file.
-    `keep_nonblocking`: leave O_NONBLOCK set (reads of a regular file ignore it; a reader spares two calls)."""
+def _open_regular(path: str | os.PathLike, flags: int, keep_nonblocking: bool = False) -> tuple[int, os.stat_result]:
+    """A descriptor for `path`, opened without blocking, and its status (a reader takes the size from it:
+    one call fewer); FileRefused (closing it) if it is not a regular file. `keep_nonblocking`: leave
+    O_NONBLOCK set (reads of a regular file ignore it; a reader spares two calls)."""
     try:
         fd = os.open(path, flags | os.O_NONBLOCK | getattr(os, "O_NOCTTY", 0), 0o666)
     except IsADirectoryError:
@@ -55,7 +56,7 @@ def _open_regular(path: str | os.PathLike, flags: int, keep_nonblocking: bool = 
     if not keep_nonblocking:
         # A regular file never blocks; clear the flag so that the file behaves as opened plainly.
         fcntl.fcntl(fd, fcntl.F_SETFL, fcntl.fcntl(fd, fcntl.F_GETFL) & ~os.O_NONBLOCK)
-    return fd
+    return fd, info
 
 
 def why_missing(path: str | os.PathLike) -> str:
@@ -71,9 +72,9 @@ def read_limited(path: str | os.PathLike, max_bytes: int) -> bytes:
     OSError (missing file, no permission) passes through.
     """
     # Plain os.read on the descriptor: a file object around it costs more than reading a tap file.
-    fd = _open_regular(path, os.O_RDONLY, keep_nonblocking=True)
+    fd, info = _open_regular(path, os.O_RDONLY, keep_nonblocking=True)
     try:
-        size = os.fstat(fd).st_size
+        size = info.st_size
         # Sized by the file, not the limit: read(n) sets n bytes aside first, and most files are small.
         wanted = min(size, max_bytes) + 1
         parts = [os.read(fd, wanted)]
@@ -97,7 +98,7 @@ def open_append(path: str | os.PathLike) -> TextIO:
 
     OSError (missing folder, no permission) passes through.
     """
-    fd = _open_regular(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT)
+    fd, _ = _open_regular(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT)
     return os.fdopen(fd, "a", encoding="utf-8")
 
 

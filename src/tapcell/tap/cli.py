@@ -2,15 +2,19 @@
 
 from __future__ import annotations
 
-import argparse
 import gc
 import sys
+from types import SimpleNamespace
+from typing import TYPE_CHECKING
 
 from tapcell.tap import native
 from tapcell.tap.analysis import analyze_tap
 from tapcell.tap.classifiers import UnknownClassifierError, get_classifier
 from tapcell.tap.model import AnalysisOptions, TapAnalysis, TapFileError
 from tapcell.tap.readers import read_tap_file
+
+if TYPE_CHECKING:
+    import argparse
 
 
 # json.dumps in C for a tap's result (c/output.c, byte for byte: tests/tap/test_native_output.py).
@@ -32,6 +36,8 @@ def json_text(value) -> str:
 
 
 def _parser() -> argparse.ArgumentParser:
+    import argparse  # here, not at the top: the common call is read without it (_arguments)
+
     parser = argparse.ArgumentParser(
         prog="tapcell analyze",
         description="Analyse tap files: Z at break contact, validation, quality.")
@@ -47,6 +53,20 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="analysis option, e.g. sensor_delay_s=0.002 or decompression_angle=80")
     return parser
+
+
+def _arguments(argv: list[str]) -> argparse.Namespace | SimpleNamespace:
+    """The command line's options. The common call, `[--json] FILE...` with no FILE starting with
+    '-', is read here: the values argparse would give (tests/tap/test_cli_arguments.py holds it to
+    argparse's answer), without importing it and building its parser (~20 M instructions: 4 % of a
+    one-file run). Anything else goes to argparse, which also names what is wrong."""
+    flags = 0
+    while flags < len(argv) and argv[flags] == "--json":
+        flags += 1
+    files = argv[flags:]
+    if files and not any(name.startswith("-") for name in files):
+        return SimpleNamespace(files=files, json=flags > 0, plot=None, pool=False, set=[])
+    return _parser().parse_args(argv)
 
 
 def options_from_settings(settings: list[str]) -> AnalysisOptions:
@@ -67,7 +87,7 @@ def _fmt(value: float | None, spec: str) -> str:
 
 
 def main(argv: list[str]) -> int:
-    args = _parser().parse_args(argv)
+    args = _arguments(argv)
     try:
         options = options_from_settings(args.set)
     except (ValueError, UnknownClassifierError) as problem:
@@ -86,7 +106,7 @@ def main(argv: list[str]) -> int:
             gc.enable()
 
 
-def _analyze_files(args: argparse.Namespace, options: AnalysisOptions) -> int:
+def _analyze_files(args: argparse.Namespace | SimpleNamespace, options: AnalysisOptions) -> int:
     # Each tap's output line is made as soon as it is analysed and its analysis dropped (~34 kB a
     # tap: the toe grid, the pullback's samples), unless the pool needs them all at the end: a run's
     # memory grows by a line a tap instead of by a page fault every few kB.
@@ -138,7 +158,7 @@ def _analyze_files(args: argparse.Namespace, options: AnalysisOptions) -> int:
     return 1 if unreadable else 0
 
 
-def _output_line(args: argparse.Namespace, name: str, index: int, count: int, a: TapAnalysis) -> str:
+def _output_line(args: argparse.Namespace | SimpleNamespace, name: str, index: int, count: int, a: TapAnalysis) -> str:
     """A tap's line of the output: its JSON object (--json), else its row of the table."""
     if args.json:
         return json_text({"file": name, **a.to_json()})

@@ -108,6 +108,15 @@ static const double DIGIT_BOUNDS[] = {1e-4, 1e-3, 1e-2, 1e-1, 1e0,  1e1,  1e2,  
                                       1e6,  1e7,  1e8,  1e9,  1e10, 1e11, 1e12, 1e13, 1e14, 1e15};
 #define DIGIT_BOUNDS_COUNT ((int)(sizeof DIGIT_BOUNDS / sizeof DIGIT_BOUNDS[0]))
 
+/* r without its trailing zeros, `count` (10^count: power) at a time; zeros counts them. r > 0. */
+static inline void drop_zeros(unsigned long long *r, int *zeros, unsigned long long power, int count)
+{
+    while (*r % power == 0) {
+        *r /= power;
+        *zeros += count;
+    }
+}
+
 /* The digits of a short decimal equal to x, as repr writes it, into buffer; its length, or 0 when
  * x is not one (repr must write it). */
 static int short_repr(double x, char *buffer)
@@ -121,18 +130,23 @@ static int short_repr(double x, char *buffer)
     double scale = POWERS_OF_TEN[scale_digits];
     double nearest = nearbyint(magnitude * scale);
     if (!(nearest < 1e15) || nearest / scale != magnitude) return 0;
-    /* an integer below 2^53: exact in an unsigned long long; its digits, last first */
-    unsigned long long r = (unsigned long long)nearest;
-    char digits[24];
-    int count = 0;
-    char reversed[24];
+    /* an integer below 2^53: exact in an unsigned long long. A short decimal scaled to 15 digits
+     * ends in zeros (0.7593: 759300000000000): they are dropped first, eight, four, two, one at a
+     * time, so only the digits written are made */
+    unsigned long long r = (unsigned long long)nearest; /* > 0: magnitude * scale >= 1e14 */
+    int zeros = 0;
+    drop_zeros(&r, &zeros, 100000000ULL, 8);
+    drop_zeros(&r, &zeros, 10000ULL, 4);
+    drop_zeros(&r, &zeros, 100ULL, 2);
+    drop_zeros(&r, &zeros, 10ULL, 1);
+    char buffer_of_digits[24]; /* r's digits, written from the end back */
+    char *digits = buffer_of_digits + sizeof buffer_of_digits;
     do {
-        reversed[count++] = (char)('0' + r % 10);
+        *--digits = (char)('0' + r % 10);
         r /= 10;
     } while (r > 0);
-    for (int k = 0; k < count; k++) digits[k] = reversed[count - 1 - k];
-    int decimal_point = count - scale_digits; /* digits before the point */
-    while (count > 1 && digits[count - 1] == '0') count--;
+    int count = (int)(buffer_of_digits + sizeof buffer_of_digits - digits);
+    int decimal_point = count + zeros - scale_digits; /* digits before the point */
     int length = 0;
     if (x < 0) buffer[length++] = '-';
     if (decimal_point <= 0) {
