@@ -229,12 +229,12 @@ def five_lines(time_s: np.ndarray, force_g: np.ndarray, phases_s: tuple[float, f
     # A lag past the window's end reaches no further than its end (every range below stops at m);
     # capped, a file's absurd sample rate (1e300 sps: a lag of 1e298 samples) fits the kernel's ssize_t.
     lag_samples, release_lag_samples = min(lag_samples, m), min(release_lag_samples, m)
-    t_ref, f_ref = float(time_s[m // 2]), float(force_g.sum()) / m  # as prefix_sums
     if _C is not None:
-        ps = PrefixSums(t_ref, f_ref, np.empty((6, m + 1)))
-        problem, bounds, lines, points = _C.five_lines(time_s, force_g, t_ref, f_ref, *phases_s, lag_samples,
-                                                       release_lag_samples, approach_share, ps.sums, ps.derived)
-        return ps, problem, bounds, lines, points
+        # The kernel takes the sums' reference time and force as prefix_sums does (numpy's sum, bit for bit).
+        sums, derived = np.empty((6, m + 1)), {}
+        t_ref, f_ref, problem, bounds, lines, points = _C.five_lines(time_s, force_g, *phases_s, lag_samples,
+                                                                     release_lag_samples, approach_share, sums, derived)
+        return PrefixSums(t_ref, f_ref, sums, derived), problem, bounds, lines, points
     ps = prefix_sums(time_s, force_g)
     home_end, pull_start, pull_cruise = np.minimum(time_s.searchsorted(phases_s), m - 1).tolist()
     peak = range(max(2, home_end - 1), min(pull_start, home_end + lag_samples) + 1)
