@@ -195,15 +195,24 @@ def test_window_heights_are_the_twins_at_the_moves_edges():
 def test_the_move_table_is_six_contiguous_rows_of_the_moves():
     # What window_heights and Motion.z_at read: one column per move, rows in this order.
     tap = tap_from_object(make_tap(SCENARIOS["clean_hx717"].draw(np.random.default_rng(3)), np.random.default_rng(3))[0])
-    table = tap_motion(tap).move_table
+    motion = tap_motion(tap)
+    table = motion.move_table
     fields = [[move.print_time, move.move_t, move.start_v, move.accel, move.start_z, move.z_r] for move in tap.moves]
     assert table.flags.c_contiguous and table.dtype == float and table.shape == (6, len(tap.moves)) and len(fields) >= 5
     assert table.tolist() == np.transpose(fields).tolist()
+    # The list window_heights reads: the same rows one after the other.
+    assert motion.move_rows == table.ravel().tolist() == np.transpose(fields).ravel().tolist()
 
 
 def test_window_heights_refuse_a_table_that_is_not_six_rows():
     with pytest.raises(ValueError, match="not 6 rows"):
         KERNEL.window_heights(np.zeros(7), np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, np.empty(3), np.empty(3))
+    with pytest.raises(ValueError, match="not 6 rows"):
+        KERNEL.window_heights([], np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, np.empty(3), np.empty(3))
+    with pytest.raises(TypeError):
+        KERNEL.window_heights([0.0] * 5 + ["1"], np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, np.empty(3), np.empty(3))
+    with pytest.raises(TypeError, match="not a sequence"):
+        KERNEL.window_heights(None, np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, np.empty(3), np.empty(3))
 
 
 @pytest.mark.parametrize("change, problem", [

@@ -27,7 +27,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tapcell.tap import contact, native, uncertainty, validate
-from tapcell.tap.angles import line_angles_deg
 from tapcell.tap.classifiers import get_classifier, run_classifier
 from tapcell.tap.contact import (MIN_SPAN_UM, SEARCH_SAMPLES, ContactFit, fit_contact, fit_fixed_onset,
                                  fit_of_kernel, window_edges, window_mean_and_slope)
@@ -348,6 +347,7 @@ class Decomposition:
     bounds: tuple[int, int, int, int]
     lines: list[tuple[float, float]]  # (slope g/s, intercept g) in positive polarity, APPROACH..DEPARTURE
     points: list[tuple[float, float]]  # (time s, force g), P_START..P_END
+    angles_deg: list[float] | None = None  # the four angles between consecutive lines (line_angles_deg)
 
     @property
     def approach_line(self) -> tuple[float, float]:
@@ -384,15 +384,15 @@ def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_sampl
     if dwell_from_halt:
         phases_s = (_halt_read_s(t, motion.home_end_s), *phases_s[1:])
     release_lag = lag_samples if release_lag_samples is None else release_lag_samples
-    ps, problem, bounds, lines, points = five_lines(t, force_g[start:stop], phases_s, lag_samples, release_lag,
-                                                    approach_share)
+    ps, problem, bounds, lines, points, angles_deg = five_lines(t, force_g[start:stop], phases_s, lag_samples,
+                                                                release_lag, approach_share)
     if problem == NO_DWELL_SAMPLES:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, "no samples between the halt and the pullback")
     if problem == TOO_FEW_AROUND:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, f"too few samples around the tap ({len(t)} in the analysis window)")
     if problem == TOO_FEW_FOR_FIVE:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, "too few samples to fit five lines (each needs 2)")
-    return Decomposition(start, stop, bounds, lines, points), ps
+    return Decomposition(start, stop, bounds, lines, points, angles_deg), ps
 
 
 def _halt_read_s(t: np.ndarray, halt_s: float) -> float:
@@ -458,8 +458,8 @@ def decompose_again(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag
             again = decompose(time_s, force_g, motion, lag_samples, period, **retry)
         except TapInvalid:  # a dwell of under two samples from the halt's to the cruise's: no such split
             continue
-        points, lines = again[0].points, again[0].lines
-        if validate.split_checks_pass(points, line_angles_deg(lines)) if shape_too else validate.in_time_order(points):
+        points = again[0].points
+        if validate.split_checks_pass(points, again[0].angles_deg) if shape_too else validate.in_time_order(points):
             return again
     return first
 
@@ -511,7 +511,7 @@ def model_window(time_s, force_g, motion: Motion, timing: SensorTiming, delay_s:
     lines_s = (dec.points[P_CONTACT][0] - lag_s, dec.points[P_BREAK][0] - lag_s)
     if _C is not None and motion.moves is not None:
         x_min, span = np.empty(len(t)), np.empty(len(t))
-        contact_um, break_um = _C.window_heights(motion.move_table, t, delay_s, timing.integration_s,
+        contact_um, break_um = _C.window_heights(motion.move_rows, t, delay_s, timing.integration_s,
                                                  motion.z_halt_mm, MIN_SPAN_UM, *lines_s, x_min, span)
         return ModelWindow(t, force_g[dec.start:dec.stop], x_min, span, contact_um, break_um)
     read_s = t - delay_s
@@ -1105,16 +1105,14 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> tuple[SplitTap, int, in
     lag_samples = math.ceil((allowance + timing.integration_s) / period_s) + LAG_MARGIN_SAMPLES
     force, hum = remove_mains_hum(tap, options, time_s, force, motion, timing, lag_samples, period_s)
     dec, ps = decompose(time_s, force, motion, lag_samples, period_s)
-    angles_deg = line_angles_deg(dec.lines)
-    checks_pass = validate.split_checks_pass(dec.points, angles_deg)
+    checks_pass = validate.split_checks_pass(dec.points, dec.angles_deg)
     if not checks_pass:
         dec, ps = decompose_again(time_s, force, motion, lag_samples, period_s, (dec, ps))
-        angles_deg = line_angles_deg(dec.lines)
-        checks_pass = validate.split_checks_pass(dec.points, angles_deg)
+        checks_pass = validate.split_checks_pass(dec.points, dec.angles_deg)
     # Second differences of the whole analysed window: hundreds of samples even when the
     # approach holds a dozen; the four kinks of a tap cannot move their median.
     noise_g = noise_sigma_g(force[dec.start:dec.stop])
-    split = SplitTap(time_s, force, motion, timing, dec, ps, noise_g, angles_deg, points_pass=checks_pass)
+    split = SplitTap(time_s, force, motion, timing, dec, ps, noise_g, dec.angles_deg, checks_pass)
     return split, polarity, outliers, hum
 
 

@@ -55,9 +55,14 @@ class Motion:
     @cached_attribute
     def move_table(self) -> np.ndarray:
         """Rows: start time, duration, start speed, acceleration, start Z, direction; one column per move."""
-        # Row-major (contiguous rows): the compiled window heights read it as six rows. One flat list
-        # of floats laid out row by row (a list of tuples makes numpy discover the nesting: twice the
-        # cost a tap; moves by columns needed a transposed copy).
+        # One flat list of floats laid out row by row (a list of tuples makes numpy discover the
+        # nesting: twice the cost a tap; moves by columns needed a transposed copy).
+        return np.array(self.move_rows, dtype=float).reshape(6, -1)
+
+    @cached_attribute
+    def move_rows(self) -> list[float]:
+        """`move_table`'s six rows one after the other in one list: what the compiled window heights
+        read (each tap's analysis builds no array for them)."""
         moves = self.moves
         flat = [m.print_time for m in moves]
         flat += [m.move_t for m in moves]
@@ -65,7 +70,7 @@ class Motion:
         flat += [m.accel for m in moves]
         flat += [m.start_z for m in moves]
         flat += [m.z_r for m in moves]
-        return np.array(flat, dtype=float).reshape(6, -1)
+        return flat
 
 
 def motion_from_moves(moves: list[Move]) -> Motion:

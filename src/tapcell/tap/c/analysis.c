@@ -419,18 +419,42 @@ static double z_at_mm(const double *table, Py_ssize_t moves, double t_s, Py_ssiz
     return z_in_move_mm(table, moves, move_at(table, moves, t_s, move), t_s);
 }
 
+/* The move table's values, row by row, from a sequence of numbers (`Motion.move_rows`, a list the
+ * analysis builds without an array), into `table` (PyMem_Malloc'ed: the caller frees it); their count
+ * in *cells. NULL with an exception set when they are not numbers (or out of memory). */
+static double *move_table_of(PyObject *rows, Py_ssize_t *cells)
+{
+    PyObject *sequence = PySequence_Fast(rows, "move_rows: not a sequence of numbers");
+    if (sequence == NULL)
+        return NULL;
+    Py_ssize_t count = PySequence_Fast_GET_SIZE(sequence);
+    double *table = PyMem_Malloc(sizeof(double) * (size_t)(count > 0 ? count : 1));
+    if (table == NULL)
+        PyErr_NoMemory();
+    for (Py_ssize_t k = 0; table != NULL && k < count; k++) {
+        table[k] = PyFloat_AsDouble(PySequence_Fast_GET_ITEM(sequence, k));
+        if (table[k] == -1.0 && PyErr_Occurred()) {
+            PyMem_Free(table);
+            table = NULL;
+        }
+    }
+    Py_DECREF(sequence);
+    *cells = count;
+    return table;
+}
+
 static PyObject *window_heights(PyObject *self, PyObject *args)
 {
     (void)self;
-    Py_buffer table_buffer, time_buffer, x_min_buffer, span_buffer;
+    Py_buffer time_buffer, x_min_buffer, span_buffer;
+    PyObject *rows;
     double delay_s, integration_s, z_halt_mm, min_span_um, contact_line_s, break_line_s;
-    if (!PyArg_ParseTuple(args, "O&O&ddddddw*w*", float64_buffer, &table_buffer, float64_buffer, &time_buffer,
-                          &delay_s, &integration_s, &z_halt_mm, &min_span_um, &contact_line_s, &break_line_s,
-                          &x_min_buffer, &span_buffer))
+    if (!PyArg_ParseTuple(args, "OO&ddddddw*w*", &rows, float64_buffer, &time_buffer, &delay_s, &integration_s,
+                          &z_halt_mm, &min_span_um, &contact_line_s, &break_line_s, &x_min_buffer, &span_buffer))
         return NULL;
     PyObject *result = NULL;
     Py_ssize_t cells = 0, n = 0;
-    const double *table = doubles_of(&table_buffer, &cells, "move_table");
+    double *table = move_table_of(rows, &cells);
     const double *time_s = table ? doubles_of(&time_buffer, &n, "time_s") : NULL;
     double *x_min_um = time_s ? doubles_sized(&x_min_buffer, n, "x_min_um") : NULL;
     double *span_um = x_min_um ? doubles_sized(&span_buffer, n, "span_um") : NULL;
@@ -450,7 +474,7 @@ static PyObject *window_heights(PyObject *self, PyObject *args)
         double break_line_um = (z_at_mm(table, moves, break_line_s, &line_move) - z_halt_mm) * 1000.0;
         result = Py_BuildValue("(dd)", contact_line_um, break_line_um);
     }
-    PyBuffer_Release(&table_buffer);
+    PyMem_Free(table);
     PyBuffer_Release(&time_buffer);
     PyBuffer_Release(&x_min_buffer);
     PyBuffer_Release(&span_buffer);
@@ -627,10 +651,11 @@ static PyMethodDef methods[] = {
      "and the values that replace them."},
     {"polar_spikes", polar_spikes, METH_VARARGS, polar_spikes_doc},
     {"window_heights", window_heights, METH_VARARGS,
-     "window_heights(move_table, time_s, delay_s, integration_s, z_halt_mm, min_span_um, contact_line_s,\n"
+     "window_heights(move_rows, time_s, delay_s, integration_s, z_halt_mm, min_span_um, contact_line_s,\n"
      "               break_line_s, x_min_out, span_out) -> (contact_line_um, break_line_um)\n\n"
      "Each sample's conversion window in heights above the halt (um): its lower edge and width (at least\n"
-     "min_span_um) into the outputs, and the two line points' heights (analysis.py: model_window)."},
+     "min_span_um) into the outputs, and the two line points' heights (analysis.py: model_window).\n"
+     "move_rows: the move table's six rows one after the other, a sequence of numbers (Motion.move_rows)."},
     {"sample_problem", sample_problem, METH_VARARGS,
      "sample_problem(time_s, force_g) -> int: 0 fine, 1 NaN or infinity, 2 times not strictly increasing."},
     {"outlier_mask", outlier_mask, METH_VARARGS,
