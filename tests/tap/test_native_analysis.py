@@ -15,7 +15,7 @@ from tapcell.tap import analysis, contact, native, robust
 from tapcell.tap.motion import Motion, tap_motion
 from tapcell.tap.readers import tap_from_object
 from tapcell.taplab.generate import SCENARIOS, make_tap
-from native_kernel_inputs import OPTIONS, recorded_calls
+from native_kernel_inputs import OPTIONS, generated_taps, recorded_calls
 
 KERNEL = native.load("analysis")
 pytestmark = pytest.mark.skipif(KERNEL is None, reason="the analysis kernel is not built")
@@ -106,10 +106,27 @@ def test_noise_and_spikes_are_the_twins_on_independent_taps():
 def _polarity_and_repaired(time_s, force_raw, motion, outlier_sigma):
     """analysis.polarity_and_repaired as (polarity, force as a list, repaired), or the TapInvalid's code."""
     try:
-        polarity, force, outliers = analysis.polarity_and_repaired(time_s, force_raw, motion, outlier_sigma)
+        polarity, force, outliers, _ = analysis.polarity_and_repaired(time_s, force_raw, motion, outlier_sigma)
     except analysis.TapInvalid as invalid:
         return invalid.code, invalid.message
     return polarity, force.tolist(), outliers
+
+
+def test_the_repair_answers_the_noise_sigma_of_the_force_it_left_as_it_was():
+    # Where no frame was repaired the kernel answers noise_sigma_g of the force it returns (the split
+    # takes it for a window of every sample); where one was, None: the force is no longer the one measured.
+    calls = recorded_calls(analysis, "polarity_and_repaired", [OPTIONS["default"]])
+    answered = repaired = 0
+    for t, f, motion, _ in calls:
+        for sign, sigma in ((1.0, 5.0), (-1.0, 5.0), (1.0, 3.0)):
+            _, force, outliers, noise_g = analysis.polarity_and_repaired(t, sign * f, motion, sigma)
+            if outliers:
+                assert noise_g is None
+                repaired += 1
+            else:
+                assert noise_g == analysis.noise_sigma_g(force) == _twins(lambda: analysis.noise_sigma_g(force))[1]
+                answered += 1
+    assert answered >= 20 and repaired >= 3
 
 
 def test_polarity_and_repair_are_the_twins_on_generated_taps():
@@ -287,3 +304,15 @@ def test_a_strided_tap_is_analysed_like_a_plain_one():
     strided = type(tap)(**{**tap.__dict__, "time_s": doubled_time[::2], "force_g": doubled_force[::2]})
     assert not strided.time_s.flags.c_contiguous
     assert analysis.analyze_tap(strided).z_mm == analysis.analyze_tap(tap).z_mm
+
+
+def test_the_window_noise_is_measured_again_where_the_hum_was_removed():
+    # The spike repair's noise sigma stands for the window's only where the force is the one it measured:
+    # a tap whose hum was fitted and removed (mains_hz=auto) measures its cleaned force again, as the twins do.
+    options = analysis.AnalysisOptions(mains_hz="auto")
+    fitted = 0
+    for tap in generated_taps(per_scenario=4, scenarios=("mains_hum",)):
+        fast, twin = _twins(lambda: analysis.analyze_tap(tap, options))
+        assert fast.noise_sigma_g == twin.noise_sigma_g
+        fitted += fast.hum is not None
+    assert fitted >= 3

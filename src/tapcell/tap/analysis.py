@@ -1100,7 +1100,7 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> tuple[SplitTap, int, in
     period_s = sample_period_s(tap.sample_rate_sps, time_s)
     timing = sensor_timing(tap, options, period_s)
     validate.check_motion(motion, time_s)
-    polarity, force, outliers = polarity_and_repaired(time_s, force_raw, motion, options.outlier_sigma)
+    polarity, force, outliers, all_noise_g = polarity_and_repaired(time_s, force_raw, motion, options.outlier_sigma)
     allowance = UNKNOWN_DELAY_ALLOWANCE_S if timing.estimate_delay or timing.delay_from_halt else timing.delay_s
     lag_samples = math.ceil((allowance + timing.integration_s) / period_s) + LAG_MARGIN_SAMPLES
     force, hum = remove_mains_hum(tap, options, time_s, force, motion, timing, lag_samples, period_s)
@@ -1110,8 +1110,12 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> tuple[SplitTap, int, in
         dec, ps = decompose_again(time_s, force, motion, lag_samples, period_s, (dec, ps))
         checks_pass = validate.split_checks_pass(dec.points, dec.angles_deg)
     # Second differences of the whole analysed window: hundreds of samples even when the
-    # approach holds a dozen; the four kinks of a tap cannot move their median.
-    noise_g = noise_sigma_g(force[dec.start:dec.stop])
+    # approach holds a dozen; the four kinks of a tap cannot move their median. A window of every
+    # sample, which no repair and no hum removal changed, is what the spike repair measured.
+    if all_noise_g is not None and hum is None and dec.start == 0 and dec.stop == len(force):
+        noise_g = all_noise_g
+    else:
+        noise_g = noise_sigma_g(force[dec.start:dec.stop])
     split = SplitTap(time_s, force, motion, timing, dec, ps, noise_g, dec.angles_deg, checks_pass)
     return split, polarity, outliers, hum
 
@@ -1541,21 +1545,22 @@ def _corner_windows(time_s: np.ndarray, corners_s: list[float], timing: SensorTi
 
 
 def polarity_and_repaired(time_s: np.ndarray, force_raw: np.ndarray, motion: Motion, outlier_sigma: float
-                          ) -> tuple[int, np.ndarray, int]:
+                          ) -> tuple[int, np.ndarray, int, float | None]:
     """(polarity (`_polarity`), the force in positive polarity with its corrupted frames repaired
-    (`repair_spikes`), how many were repaired): one kernel call when built (polar_spikes: the twins'
-    arithmetic in their order, bit for bit), else the twins."""
+    (`repair_spikes`), how many were repaired, and that force's `noise_sigma_g` over all its samples
+    where the repair measured it and repaired nothing, else None): one kernel call when built
+    (polar_spikes: the twins' arithmetic in their order, bit for bit), else the twins (no noise sigma)."""
     baseline_from_s = motion.home_end_s - max(motion.pullback_duration_s, POLARITY_BASELINE_MIN_S)
     if _C is None:
         polarity = _polarity(time_s, force_raw, motion.home_end_s, motion.pullback_start_s, baseline_from_s)
         force, outliers = repair_spikes(polarity * force_raw, outlier_sigma)
-        return polarity, force, outliers
+        return polarity, force, outliers, None
     force = np.empty_like(force_raw)
-    polarity, outliers = _C.polar_spikes(time_s, force_raw, motion.home_end_s, motion.pullback_start_s,
-                                         baseline_from_s, outlier_sigma, force)
+    polarity, outliers, noise_g = _C.polar_spikes(time_s, force_raw, motion.home_end_s, motion.pullback_start_s,
+                                                  baseline_from_s, outlier_sigma, force)
     if polarity == 0:
         raise TapInvalid(TAP_SHAPE_INVALID, NO_FORCE_CHANGE)
-    return polarity, force, outliers
+    return polarity, force, outliers, noise_g if outliers == 0 else None
 
 
 # The polarity's baseline: the force read over a pullback's duration (at least this long) before the halt.

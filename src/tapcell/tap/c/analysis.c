@@ -222,10 +222,10 @@ static void span_of(const double *values, Py_ssize_t n, double *lowest, double *
 }
 
 /* `repair_spikes` of force_g[0..n) (n >= 5) into repaired[0..n): the spike test's threshold from the
- * noise sigma and the force's span, then the loop. spike (n bytes) marks the repaired samples;
- * returns their count, or -1 (MemoryError set). */
+ * noise sigma (`noise_sigma_g` of force_g, into *noise_g) and the force's span, then the loop. spike
+ * (n bytes) marks the repaired samples; returns their count, or -1 (MemoryError set). */
 static Py_ssize_t repair_spikes_into(const double *force_g, Py_ssize_t n, double threshold_sigma, double *repaired,
-                                     char *spike)
+                                     char *spike, double *noise_g)
 {
     double *off_mid = malloc(2 * (size_t)(n - 2) * sizeof(double));
     if (off_mid == NULL) {
@@ -235,7 +235,7 @@ static Py_ssize_t repair_spikes_into(const double *force_g, Py_ssize_t n, double
     double *scratch = off_mid + (n - 2);
     off_midpoints(force_g, n, off_mid);
     memcpy(scratch, off_mid, (size_t)(n - 2) * sizeof(double));
-    double noise_sigma_g = noise_of_off_midpoints(scratch, n - 2);
+    double noise_sigma_g = *noise_g = noise_of_off_midpoints(scratch, n - 2);
     double lowest, highest;
     span_of(force_g, n, &lowest, &highest);
     double threshold = fmax(fmax(threshold_sigma * noise_sigma_g, 1e-6 * (highest - lowest)), 1e-9);
@@ -285,7 +285,8 @@ static PyObject *spikes(PyObject *self, PyObject *args)
             PyErr_NoMemory();
         } else {
             char *spike = (char *)(repaired + n);
-            Py_ssize_t count = repair_spikes_into(force_g, n, threshold_sigma, repaired, spike);
+            double noise_g;
+            Py_ssize_t count = repair_spikes_into(force_g, n, threshold_sigma, repaired, spike, &noise_g);
             if (count >= 0) answer = spike_lists(repaired, spike, n, count);
             free(repaired);
         }
@@ -333,13 +334,15 @@ static int polarity_of(const double *time_s, const double *force_g, Py_ssize_t n
 
 PyDoc_STRVAR(polar_spikes_doc,
              "polar_spikes(time_s, force_g, halt_s, pullback_start_s, baseline_from_s, threshold_sigma, out)\n"
-             "    -> (polarity, repaired)\n"
+             "    -> (polarity, repaired, noise_g)\n"
              "\n"
              "The start of a tap's split in one call (analysis.py `polarity_and_repaired`): the polarity as\n"
              "`_polarity` finds it from the force read from baseline_from_s to the halt and over the dwell (0:\n"
              "the force does not change), then the force in positive polarity with its corrupted frames\n"
              "repaired (`repair_spikes`) into `out` (a float64 array as long as force_g; untouched for\n"
-             "polarity 0), and how many frames were repaired. The twins' arithmetic in their order, bit for bit.");
+             "polarity 0), how many frames were repaired, and the noise sigma the repair measured on the force\n"
+             "in positive polarity (`noise_sigma_g` of it; None for polarity 0 or fewer than 5 samples, which\n"
+             "are not repaired). The twins' arithmetic in their order, bit for bit.");
 
 static PyObject *polar_spikes(PyObject *self, PyObject *args)
 {
@@ -363,13 +366,18 @@ static PyObject *polar_spikes(PyObject *self, PyObject *args)
         char *spike = (char *)(positive + n);
         int polarity = polarity_of(time_s, force_g, n, halt_s, pullback_start_s, baseline_from_s, positive);
         Py_ssize_t repaired = 0;
+        double noise_g = 0.0;
+        int measured = polarity != 0 && n >= 5;
         if (polarity != 0) {
             for (Py_ssize_t i = 0; i < n; i++)
                 positive[i] = (double)polarity * force_g[i]; /* numpy's polarity * force: the int as a double */
-            if (n < 5) memcpy(out, positive, (size_t)n * sizeof(double));
-            else repaired = repair_spikes_into(positive, n, threshold_sigma, out, spike);
+            if (!measured) memcpy(out, positive, (size_t)n * sizeof(double));
+            else repaired = repair_spikes_into(positive, n, threshold_sigma, out, spike, &noise_g);
         }
-        if (repaired >= 0) result = Py_BuildValue("(in)", polarity, repaired);
+        if (repaired >= 0 && measured)
+            result = Py_BuildValue("(ind)", polarity, repaired, noise_g);
+        else if (repaired >= 0)
+            result = Py_BuildValue("(inO)", polarity, repaired, Py_None);
     }
     free(positive);
     PyBuffer_Release(&time_buffer);
