@@ -182,7 +182,22 @@ def test_window_heights_are_the_twins_to_the_last_bit(monkeypatch):
         assert np.array_equal(window.x_min_um, twin.x_min_um) and np.array_equal(window.span_um, twin.span_um)
         assert (window.contact_line_um, window.break_line_um) == (twin.contact_line_um, twin.break_line_um)
         assert np.array_equal(window.force_g, twin.force_g) and np.array_equal(window.time_s, twin.time_s)
+        # The pullback's first sample the kernel counted at the window's delay: what pullback_first searches.
+        (rising_s, first), = window.firsts.items()
+        assert rising_s == analysis.pullback_rising_s(*args[2:5])
+        assert first == int(window.time_s.searchsorted(rising_s, side="right")) == analysis.pullback_first(twin, *args[2:5])
     assert len(calls) >= 30
+
+
+def test_window_heights_count_the_samples_read_by_a_time_as_searchsorted_does():
+    # Before every sample, on each sample's time exactly (read by then: counted), between two, after the
+    # last, and a NaN (numpy sorts it past every time).
+    time_s = np.arange(12) * 0.01 + 1.0
+    rows = [0.0, 100.0, 0.0, 0.0, 5.0, -1.0]  # one move: 100 s long, at rest at Z 5
+    for rising_s in (-1.0, 0.99, *time_s, 1.005, 1.115, 2.0, math.nan, math.inf, -math.inf):
+        *_, first = KERNEL.window_heights(rows, time_s, 0.0, 0.001, 5.0, 1e-6, 1.0, 1.0, rising_s, np.empty(12),
+                                          np.empty(12))
+        assert first == int(time_s.searchsorted(rising_s, side="right")), rising_s
 
 
 def test_window_heights_are_the_twins_at_the_moves_edges():
@@ -223,13 +238,13 @@ def test_the_move_table_is_six_contiguous_rows_of_the_moves():
 
 def test_window_heights_refuse_a_table_that_is_not_six_rows():
     with pytest.raises(ValueError, match="not 6 rows"):
-        KERNEL.window_heights(np.zeros(7), np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, np.empty(3), np.empty(3))
+        KERNEL.window_heights(np.zeros(7), np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, 0.0, np.empty(3), np.empty(3))
     with pytest.raises(ValueError, match="not 6 rows"):
-        KERNEL.window_heights([], np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, np.empty(3), np.empty(3))
+        KERNEL.window_heights([], np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, 0.0, np.empty(3), np.empty(3))
     with pytest.raises(TypeError):
-        KERNEL.window_heights([0.0] * 5 + ["1"], np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, np.empty(3), np.empty(3))
+        KERNEL.window_heights([0.0] * 5 + ["1"], np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, 0.0, np.empty(3), np.empty(3))
     with pytest.raises(TypeError, match="not a sequence"):
-        KERNEL.window_heights(None, np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, np.empty(3), np.empty(3))
+        KERNEL.window_heights(None, np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, 0.0, np.empty(3), np.empty(3))
 
 
 @pytest.mark.parametrize("change, problem", [

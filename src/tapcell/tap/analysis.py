@@ -511,9 +511,12 @@ def model_window(time_s, force_g, motion: Motion, timing: SensorTiming, delay_s:
     lines_s = (dec.points[P_CONTACT][0] - lag_s, dec.points[P_BREAK][0] - lag_s)
     if _C is not None and motion.moves is not None:
         x_min, span = np.empty(len(t)), np.empty(len(t))
-        contact_um, break_um = _C.window_heights(motion.move_rows, t, delay_s, timing.integration_s,
-                                                 motion.z_halt_mm, MIN_SPAN_UM, *lines_s, x_min, span)
-        return ModelWindow(t, force_g[dec.start:dec.stop], x_min, span, contact_um, break_um)
+        # The kernel counts the samples read by the time the nozzle rose too: `pullback_first` at this delay.
+        rising_s = pullback_rising_s(motion, timing, delay_s)
+        contact_um, break_um, first = _C.window_heights(motion.move_rows, t, delay_s, timing.integration_s,
+                                                        motion.z_halt_mm, MIN_SPAN_UM, *lines_s, rising_s, x_min,
+                                                        span)
+        return ModelWindow(t, force_g[dec.start:dec.stop], x_min, span, contact_um, break_um, {}, {rising_s: first})
     read_s = t - delay_s
     heights_um = (motion.z_at(np.concatenate((read_s - timing.integration_s, read_s, lines_s)))
                   - motion.z_halt_mm) * 1000.0
@@ -746,9 +749,14 @@ def toe_drift_g_um(dec: Decomposition, ps: PrefixSums, motion: Motion, period_s:
 PullbackSamples = tuple[np.ndarray, np.ndarray, np.ndarray]  # window low edge µm, high edge µm, force g
 
 
+def pullback_rising_s(motion: Motion, timing: SensorTiming, delay_s: float) -> float:
+    """The last time a sample can be read whose conversion window began before the nozzle rose."""
+    return motion.pullback_start_s + delay_s + timing.integration_s
+
+
 def pullback_first(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float) -> int:
     """The first sample whose conversion window starts after the nozzle began rising."""
-    rising_s = motion.pullback_start_s + delay_s + timing.integration_s
+    rising_s = pullback_rising_s(motion, timing, delay_s)
     first = window.firsts.get(rising_s)
     if first is None:
         first = window.firsts[rising_s] = int(window.time_s.searchsorted(rising_s, side="right"))

@@ -456,9 +456,10 @@ static PyObject *window_heights(PyObject *self, PyObject *args)
     (void)self;
     Py_buffer time_buffer, x_min_buffer, span_buffer;
     PyObject *rows;
-    double delay_s, integration_s, z_halt_mm, min_span_um, contact_line_s, break_line_s;
-    if (!PyArg_ParseTuple(args, "OO&ddddddw*w*", &rows, float64_buffer, &time_buffer, &delay_s, &integration_s,
-                          &z_halt_mm, &min_span_um, &contact_line_s, &break_line_s, &x_min_buffer, &span_buffer))
+    double delay_s, integration_s, z_halt_mm, min_span_um, contact_line_s, break_line_s, rising_s;
+    if (!PyArg_ParseTuple(args, "OO&dddddddw*w*", &rows, float64_buffer, &time_buffer, &delay_s, &integration_s,
+                          &z_halt_mm, &min_span_um, &contact_line_s, &break_line_s, &rising_s, &x_min_buffer,
+                          &span_buffer))
         return NULL;
     PyObject *result = NULL;
     Py_ssize_t cells = 0, n = 0;
@@ -469,8 +470,10 @@ static PyObject *window_heights(PyObject *self, PyObject *args)
     if (span_um != NULL && (cells == 0 || cells % 6 != 0)) {
         PyErr_Format(PyExc_ValueError, "move_table: %zd values, not 6 rows of moves", cells);
     } else if (span_um != NULL) {
-        Py_ssize_t moves = cells / 6, low_move = 0, high_move = 0, line_move = 0;
+        Py_ssize_t moves = cells / 6, low_move = 0, high_move = 0, line_move = 0, read_by_rising = 0;
         for (Py_ssize_t i = 0; i < n; i++) {
+            /* searchsorted(rising_s, side="right") over the rising times (a NaN key: every sample) */
+            read_by_rising += !(time_s[i] > rising_s);
             /* the twin's steps: read time, window start, heights above the halt, then the edges */
             double read_s = time_s[i] - delay_s;
             double low_um = (z_at_mm(table, moves, read_s - integration_s, &low_move) - z_halt_mm) * 1000.0;
@@ -480,7 +483,7 @@ static PyObject *window_heights(PyObject *self, PyObject *args)
         }
         double contact_line_um = (z_at_mm(table, moves, contact_line_s, &line_move) - z_halt_mm) * 1000.0;
         double break_line_um = (z_at_mm(table, moves, break_line_s, &line_move) - z_halt_mm) * 1000.0;
-        result = Py_BuildValue("(dd)", contact_line_um, break_line_um);
+        result = Py_BuildValue("(ddn)", contact_line_um, break_line_um, read_by_rising);
     }
     PyMem_Free(table);
     PyBuffer_Release(&time_buffer);
@@ -660,9 +663,11 @@ static PyMethodDef methods[] = {
     {"polar_spikes", polar_spikes, METH_VARARGS, polar_spikes_doc},
     {"window_heights", window_heights, METH_VARARGS,
      "window_heights(move_rows, time_s, delay_s, integration_s, z_halt_mm, min_span_um, contact_line_s,\n"
-     "               break_line_s, x_min_out, span_out) -> (contact_line_um, break_line_um)\n\n"
+     "               break_line_s, rising_s, x_min_out, span_out) -> (contact_line_um, break_line_um, first)\n\n"
      "Each sample's conversion window in heights above the halt (um): its lower edge and width (at least\n"
-     "min_span_um) into the outputs, and the two line points' heights (analysis.py: model_window).\n"
+     "min_span_um) into the outputs, the two line points' heights (analysis.py: model_window), and how\n"
+     "many samples were read at or before rising_s (time_s.searchsorted(rising_s, side='right'), the\n"
+     "rising times in order: analysis.py pullback_first).\n"
      "move_rows: the move table's six rows one after the other, a sequence of numbers (Motion.move_rows)."},
     {"sample_problem", sample_problem, METH_VARARGS,
      "sample_problem(time_s, force_g) -> int: 0 fine, 1 NaN or infinity, 2 times not strictly increasing."},
