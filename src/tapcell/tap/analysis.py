@@ -153,7 +153,7 @@ def sensor_timing(tap: TapData, options: AnalysisOptions, sample_period_s: float
         integration = _meta_seconds(tap, "sensor_integration_s", sample_period_s)
     z_step_um = options.z_step_um if options.z_step_um is not None else _meta_number(tap, "z_step_um",
                                                                                        DEFAULT_Z_STEP_UM)
-    return SensorTiming(float(delay) if isinstance(delay, float | int) else 0.0, float(integration),
+    return SensorTiming(float(delay) if isinstance(delay, (float, int)) else 0.0, float(integration),
                         delay == "auto", from_halt, sample_period_s, float(z_step_um))
 
 
@@ -664,11 +664,10 @@ def left_inside_pullback(time_s: np.ndarray, force_g: np.ndarray, motion: Motion
     end_s = motion.pullback_end_s - max(motion.pullback_duration_s / 6.0, BREAK_MARGIN_SAMPLES * period_s)
     if not dec.points[P_BREAK][0] < end_s:
         return False
-    decompression_slope, departure_slope = dec.decompression_line[0], dec.departure_line[0]
-    if not abs(departure_slope) <= DEPARTURE_FLAT_SHARE * abs(decompression_slope):
+    (decompression_slope, _), (slope_g_s, intercept_g) = dec.lines[DECOMPRESSION:]
+    if not abs(slope_g_s) <= DEPARTURE_FLAT_SHARE * abs(decompression_slope):
         return False
     end = _indices(time_s, motion.pullback_end_s)[0]
-    slope_g_s, intercept_g = dec.departure_line
     off_g = median(force_g[max(end - END_SAMPLES, 0):end + 1]) - (slope_g_s * motion.pullback_end_s + intercept_g)
     scatter_g = math.sqrt(segment_stats(ps, dec.bounds[3], dec.stop - dec.start)[0])
     pressed_g = dec.points[P_DWELL_START][1] - dec.points[P_CONTACT][1]
@@ -1563,7 +1562,7 @@ def polarity_and_repaired(time_s: np.ndarray, force_raw: np.ndarray, motion: Mot
         polarity = _polarity(time_s, force_raw, motion.home_end_s, motion.pullback_start_s, baseline_from_s)
         force, outliers = repair_spikes(polarity * force_raw, outlier_sigma)
         return polarity, force, outliers, None
-    force = np.empty_like(force_raw)
+    force = np.empty(len(force_raw))
     polarity, outliers, noise_g = _C.polar_spikes(time_s, force_raw, motion.home_end_s, motion.pullback_start_s,
                                                   baseline_from_s, outlier_sigma, force)
     if polarity == 0:

@@ -82,16 +82,9 @@ def motion_from_moves(moves: list[Move]) -> Motion:
         raise MotionError("the pullback cruise move (2nd from last) does not move up")
     # The halt marker carries the stop height; the cruise was cut short there.
     home_end_s = cruise.print_time + abs(halt.start_z - cruise.start_z) / cruise.start_v
-    return Motion(
-        home_end_s=home_end_s,
-        pullback_start_s=pull_start.print_time,
-        pullback_cruise_s=pull_cruise.print_time,
-        pullback_end_s=pull_end.end_time,
-        z_halt_mm=halt.start_z,
-        approach_speed_mm_s=cruise.start_v,
-        pullback_speed_mm_s=pull_cruise.start_v,
-        moves=list(moves),
-    )
+    # Positional, in the fields' order (home_end_s .. pullback_speed_mm_s, moves): keywords cost more, once a tap.
+    return Motion(home_end_s, pull_start.print_time, pull_cruise.print_time, pull_end.end_time, halt.start_z,
+                  cruise.start_v, pull_cruise.start_v, list(moves))
 
 
 def motion_from_z(time_s: np.ndarray, z_mm: np.ndarray) -> Motion:
