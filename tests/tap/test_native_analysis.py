@@ -331,3 +331,21 @@ def test_the_window_noise_is_measured_again_where_the_hum_was_removed():
         assert fast.noise_sigma_g == twin.noise_sigma_g
         fitted += fast.hum is not None
     assert fitted >= 3
+
+
+def test_the_force_at_a_time_is_the_twins_median_of_the_samples_up_to_it():
+    # The first sample at or after the time and the END_SAMPLES before it: before the first sample (one
+    # value), on a sample's time, between two (an even count: the middle two's mean), past the end (the
+    # last four), on a record shorter than the reach, and on the recorded checks' calls.
+    rng = np.random.default_rng(4)
+    for n in (1, 2, 3, 4, 5, 9):
+        time_s = np.sort(rng.uniform(0.0, 1.0, n))
+        force_g = rng.standard_normal(n) * 10.0
+        for t_s in (-1.0, *time_s, *(time_s + 1e-9), 0.5, 2.0):
+            fast, twin = _twins(lambda: analysis.force_at_g(time_s, force_g, float(t_s)))
+            assert fast == twin, (n, t_s)
+    calls = recorded_calls(analysis, "force_at_g", [OPTIONS["default"]])
+    fast, twin = _twins(lambda: [analysis.force_at_g(*args) for args in calls])
+    assert fast == twin and len(calls) >= 20
+    with pytest.raises(ValueError, match="not negative"):
+        KERNEL.median_up_to(np.zeros(3), np.zeros(3), 0.0, -1)

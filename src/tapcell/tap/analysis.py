@@ -643,13 +643,21 @@ def force_left_at_end_g(time_s: np.ndarray, force_g: np.ndarray, motion: Motion,
     The free-air level is the approach line at the halt carried up the pullback by the free-air
     drift (a cable pulling in proportion to Z moves the end's level by drift x pullback distance).
     """
-    end = _indices(time_s, motion.pullback_end_s)[0]
     slope_g_s, intercept_g = dec.approach_line
     height_um = (float(motion.z_at(motion.pullback_end_s)) - motion.z_halt_mm) * 1000.0
     free_air_g = slope_g_s * motion.home_end_s + intercept_g + free_air_slope_g_um(dec, motion) * height_um
-    remaining_g = median(force_g[max(end - END_SAMPLES, 0):end + 1]) - free_air_g
+    remaining_g = force_at_g(time_s, force_g, motion.pullback_end_s) - free_air_g
     residual_var, _, _ = segment_stats(ps, dec.bounds[3], dec.stop - dec.start)
     return remaining_g, math.sqrt(residual_var)
+
+
+def force_at_g(time_s: np.ndarray, force_g: np.ndarray, t_s: float) -> float:
+    """The force at t_s as the checks read it: the median over the first sample read at or after t_s
+    (the last sample past the end) and the END_SAMPLES before it (one kernel call when built)."""
+    if _C is not None:
+        return _C.median_up_to(time_s, force_g, t_s, END_SAMPLES)
+    end = _indices(time_s, t_s)[0]
+    return median(force_g[max(end - END_SAMPLES, 0):end + 1])
 
 
 def left_inside_pullback(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, dec: Decomposition,
@@ -667,8 +675,7 @@ def left_inside_pullback(time_s: np.ndarray, force_g: np.ndarray, motion: Motion
     (decompression_slope, _), (slope_g_s, intercept_g) = dec.lines[DECOMPRESSION:]
     if not abs(slope_g_s) <= DEPARTURE_FLAT_SHARE * abs(decompression_slope):
         return False
-    end = _indices(time_s, motion.pullback_end_s)[0]
-    off_g = median(force_g[max(end - END_SAMPLES, 0):end + 1]) - (slope_g_s * motion.pullback_end_s + intercept_g)
+    off_g = force_at_g(time_s, force_g, motion.pullback_end_s) - (slope_g_s * motion.pullback_end_s + intercept_g)
     scatter_g = math.sqrt(segment_stats(ps, dec.bounds[3], dec.stop - dec.start)[0])
     pressed_g = dec.points[P_DWELL_START][1] - dec.points[P_CONTACT][1]
     return abs(off_g) <= max(validate.STILL_PRESSING_SCATTERS * scatter_g, validate.STILL_PRESSING_SHARE * pressed_g)

@@ -652,7 +652,42 @@ static PyObject *indices(PyObject *self, PyObject *args)
     return result;
 }
 
+/* The median of the force over the first sample read at or after t_s (the last for a time past the
+ * end) and up to `before` samples before it (analysis.py `force_at_g`: robust.median of that slice). */
+static PyObject *median_up_to(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer time_buffer, force_buffer;
+    double t_s;
+    Py_ssize_t before;
+    if (!PyArg_ParseTuple(args, "O&O&dn", float64_buffer, &time_buffer, float64_buffer, &force_buffer, &t_s, &before))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t n = 0;
+    const double *time_s = doubles_of(&time_buffer, &n, "time_s");
+    const double *force_g = time_s ? doubles_sized(&force_buffer, n, "force_g") : NULL;
+    if (force_g != NULL && n == 0) {
+        PyErr_SetString(PyExc_ValueError, "time_s: no samples");
+    } else if (force_g != NULL && before < 0) {
+        PyErr_SetString(PyExc_ValueError, "before: a count of samples, not negative");
+    } else if (force_g != NULL) {
+        Py_ssize_t end = first_at_or_after(time_s, n, t_s) + 1, first = end - 1 - before > 0 ? end - 1 - before : 0;
+        double *scratch = malloc((size_t)(end - first) * sizeof(double));
+        if (scratch == NULL)
+            PyErr_NoMemory();
+        else
+            result = PyFloat_FromDouble(median_of_range(force_g, first, end, scratch));
+        free(scratch);
+    }
+    PyBuffer_Release(&time_buffer);
+    PyBuffer_Release(&force_buffer);
+    return result;
+}
+
 static PyMethodDef methods[] = {
+    {"median_up_to", median_up_to, METH_VARARGS,
+     "median_up_to(time_s, force_g, t_s, before) -> float: the median of force_g over the first sample at\n"
+     "or after t_s (the last sample for a time past the end) and up to `before` samples before it."},
     {"median", median, METH_VARARGS,
      "median(values: float64 array) -> float: the middle value, or the mean of the middle two."},
     {"noise_sigma", noise_sigma, METH_VARARGS,
