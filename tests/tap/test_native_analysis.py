@@ -185,7 +185,8 @@ def test_window_heights_are_the_twins_to_the_last_bit(monkeypatch):
         # The pullback's first sample the kernel counted at the window's delay: what pullback_first searches.
         (rising_s, first), = window.firsts.items()
         assert rising_s == analysis.pullback_rising_s(*args[2:5])
-        assert first == int(window.time_s.searchsorted(rising_s, side="right")) == analysis.pullback_first(twin, *args[2:5])
+        searched = int(window.time_s.searchsorted(rising_s, side="right"))
+        assert first == searched == analysis.pullback_first(twin, *args[2:5])
     assert len(calls) >= 30
 
 
@@ -242,7 +243,8 @@ def test_window_heights_refuse_a_table_that_is_not_six_rows():
     with pytest.raises(ValueError, match="not 6 rows"):
         KERNEL.window_heights([], np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, 0.0, np.empty(3), np.empty(3))
     with pytest.raises(TypeError):
-        KERNEL.window_heights([0.0] * 5 + ["1"], np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, 0.0, np.empty(3), np.empty(3))
+        KERNEL.window_heights([0.0] * 5 + ["1"], np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, 0.0, np.empty(3),
+                              np.empty(3))
     with pytest.raises(TypeError, match="not a sequence"):
         KERNEL.window_heights(None, np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, 0.0, np.empty(3), np.empty(3))
 
