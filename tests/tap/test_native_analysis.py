@@ -15,7 +15,7 @@ from tapcell.tap import analysis, contact, native, robust
 from tapcell.tap.motion import Motion, tap_motion
 from tapcell.tap.readers import tap_from_object
 from tapcell.taplab.generate import SCENARIOS, make_tap
-from native_kernel_inputs import OPTIONS, recorded_calls
+from native_kernel_inputs import OPTIONS, generated_taps, recorded_calls
 
 KERNEL = native.load("analysis")
 pytestmark = pytest.mark.skipif(KERNEL is None, reason="the analysis kernel is not built")
@@ -106,10 +106,27 @@ def test_noise_and_spikes_are_the_twins_on_independent_taps():
 def _polarity_and_repaired(time_s, force_raw, motion, outlier_sigma):
     """analysis.polarity_and_repaired as (polarity, force as a list, repaired), or the TapInvalid's code."""
     try:
-        polarity, force, outliers = analysis.polarity_and_repaired(time_s, force_raw, motion, outlier_sigma)
+        polarity, force, outliers, _ = analysis.polarity_and_repaired(time_s, force_raw, motion, outlier_sigma)
     except analysis.TapInvalid as invalid:
         return invalid.code, invalid.message
     return polarity, force.tolist(), outliers
+
+
+def test_the_repair_answers_the_noise_sigma_of_the_force_it_left_as_it_was():
+    # Where no frame was repaired the kernel answers noise_sigma_g of the force it returns (the split
+    # takes it for a window of every sample); where one was, None: the force is no longer the one measured.
+    calls = recorded_calls(analysis, "polarity_and_repaired", [OPTIONS["default"]])
+    answered = repaired = 0
+    for t, f, motion, _ in calls:
+        for sign, sigma in ((1.0, 5.0), (-1.0, 5.0), (1.0, 3.0)):
+            _, force, outliers, noise_g = analysis.polarity_and_repaired(t, sign * f, motion, sigma)
+            if outliers:
+                assert noise_g is None
+                repaired += 1
+            else:
+                assert noise_g == analysis.noise_sigma_g(force) == _twins(lambda: analysis.noise_sigma_g(force))[1]
+                answered += 1
+    assert answered >= 20 and repaired >= 3
 
 
 def test_polarity_and_repair_are_the_twins_on_generated_taps():
@@ -165,7 +182,23 @@ def test_window_heights_are_the_twins_to_the_last_bit(monkeypatch):
         assert np.array_equal(window.x_min_um, twin.x_min_um) and np.array_equal(window.span_um, twin.span_um)
         assert (window.contact_line_um, window.break_line_um) == (twin.contact_line_um, twin.break_line_um)
         assert np.array_equal(window.force_g, twin.force_g) and np.array_equal(window.time_s, twin.time_s)
+        # The pullback's first sample the kernel counted at the window's delay: what pullback_first searches.
+        (rising_s, first), = window.firsts.items()
+        assert rising_s == analysis.pullback_rising_s(*args[2:5])
+        searched = int(window.time_s.searchsorted(rising_s, side="right"))
+        assert first == searched == analysis.pullback_first(twin, *args[2:5])
     assert len(calls) >= 30
+
+
+def test_window_heights_count_the_samples_read_by_a_time_as_searchsorted_does():
+    # Before every sample, on each sample's time exactly (read by then: counted), between two, after the
+    # last, and a NaN (numpy sorts it past every time).
+    time_s = np.arange(12) * 0.01 + 1.0
+    rows = [0.0, 100.0, 0.0, 0.0, 5.0, -1.0]  # one move: 100 s long, at rest at Z 5
+    for rising_s in (-1.0, 0.99, *time_s, 1.005, 1.115, 2.0, math.nan, math.inf, -math.inf):
+        *_, first = KERNEL.window_heights(rows, time_s, 0.0, 0.001, 5.0, 1e-6, 1.0, 1.0, rising_s, np.empty(12),
+                                          np.empty(12))
+        assert first == int(time_s.searchsorted(rising_s, side="right")), rising_s
 
 
 def test_window_heights_are_the_twins_at_the_moves_edges():
@@ -195,15 +228,25 @@ def test_window_heights_are_the_twins_at_the_moves_edges():
 def test_the_move_table_is_six_contiguous_rows_of_the_moves():
     # What window_heights and Motion.z_at read: one column per move, rows in this order.
     tap = tap_from_object(make_tap(SCENARIOS["clean_hx717"].draw(np.random.default_rng(3)), np.random.default_rng(3))[0])
-    table = tap_motion(tap).move_table
+    motion = tap_motion(tap)
+    table = motion.move_table
     fields = [[move.print_time, move.move_t, move.start_v, move.accel, move.start_z, move.z_r] for move in tap.moves]
     assert table.flags.c_contiguous and table.dtype == float and table.shape == (6, len(tap.moves)) and len(fields) >= 5
     assert table.tolist() == np.transpose(fields).tolist()
+    # The list window_heights reads: the same rows one after the other.
+    assert motion.move_rows == table.ravel().tolist() == np.transpose(fields).ravel().tolist()
 
 
 def test_window_heights_refuse_a_table_that_is_not_six_rows():
     with pytest.raises(ValueError, match="not 6 rows"):
-        KERNEL.window_heights(np.zeros(7), np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, np.empty(3), np.empty(3))
+        KERNEL.window_heights(np.zeros(7), np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, 0.0, np.empty(3), np.empty(3))
+    with pytest.raises(ValueError, match="not 6 rows"):
+        KERNEL.window_heights([], np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, 0.0, np.empty(3), np.empty(3))
+    with pytest.raises(TypeError):
+        KERNEL.window_heights([0.0] * 5 + ["1"], np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, 0.0, np.empty(3),
+                              np.empty(3))
+    with pytest.raises(TypeError, match="not a sequence"):
+        KERNEL.window_heights(None, np.zeros(3), 0.0, 0.001, 0.0, 1e-6, 0.0, 0.0, 0.0, np.empty(3), np.empty(3))
 
 
 @pytest.mark.parametrize("change, problem", [
@@ -278,3 +321,33 @@ def test_a_strided_tap_is_analysed_like_a_plain_one():
     strided = type(tap)(**{**tap.__dict__, "time_s": doubled_time[::2], "force_g": doubled_force[::2]})
     assert not strided.time_s.flags.c_contiguous
     assert analysis.analyze_tap(strided).z_mm == analysis.analyze_tap(tap).z_mm
+
+
+def test_the_window_noise_is_measured_again_where_the_hum_was_removed():
+    # The spike repair's noise sigma stands for the window's only where the force is the one it measured:
+    # a tap whose hum was fitted and removed (mains_hz=auto) measures its cleaned force again, as the twins do.
+    options = analysis.AnalysisOptions(mains_hz="auto")
+    fitted = 0
+    for tap in generated_taps(per_scenario=4, scenarios=("mains_hum",)):
+        fast, twin = _twins(lambda: analysis.analyze_tap(tap, options))
+        assert fast.noise_sigma_g == twin.noise_sigma_g
+        fitted += fast.hum is not None
+    assert fitted >= 3
+
+
+def test_the_force_at_a_time_is_the_twins_median_of_the_samples_up_to_it():
+    # The first sample at or after the time and the END_SAMPLES before it: before the first sample (one
+    # value), on a sample's time, between two (an even count: the middle two's mean), past the end (the
+    # last four), on a record shorter than the reach, and on the recorded checks' calls.
+    rng = np.random.default_rng(4)
+    for n in (1, 2, 3, 4, 5, 9):
+        time_s = np.sort(rng.uniform(0.0, 1.0, n))
+        force_g = rng.standard_normal(n) * 10.0
+        for t_s in (-1.0, *time_s, *(time_s + 1e-9), 0.5, 2.0):
+            fast, twin = _twins(lambda: analysis.force_at_g(time_s, force_g, float(t_s)))
+            assert fast == twin, (n, t_s)
+    calls = recorded_calls(analysis, "force_at_g", [OPTIONS["default"]])
+    fast, twin = _twins(lambda: [analysis.force_at_g(*args) for args in calls])
+    assert fast == twin and len(calls) >= 20
+    with pytest.raises(ValueError, match="not negative"):
+        KERNEL.median_up_to(np.zeros(3), np.zeros(3), 0.0, -1)

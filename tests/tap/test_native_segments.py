@@ -82,6 +82,22 @@ def test_prefix_sums_lines_and_search_equal_the_twin_on_generated_taps(monkeypat
         segments.segment_lines(ps, [0, ps.sums.shape[1]])
 
 
+def test_five_lines_takes_its_reference_force_as_numpy_sums(monkeypatch):
+    # The kernel sums the window's force itself in numpy's pairwise order (blocks of 8 running sums up
+    # to 128 values, halves at a multiple of 8 beyond): the same mean to the last bit at every length
+    # about those edges and far past them (a tap of 15,000 samples), on forces of mixed sizes.
+    rng = np.random.default_rng(11)
+    lengths = [*range(1, 40), 127, 128, 129, 135, 136, 255, 256, 257, 1000, 1023, 1031, 8191, 8192, 8193, 15001]
+    for n in lengths:
+        time_s = np.arange(n) * 0.003
+        force_g = rng.standard_normal(n) * 10.0 ** rng.uniform(-3, 6, n) + rng.uniform(-500.0, 500.0)
+        ps, *_ = segments.five_lines(time_s, force_g, (0.3 * n * 0.003, 0.6 * n * 0.003, 0.62 * n * 0.003), 3, 3)
+        assert (ps.t_ref_s, ps.f_ref_g) == (float(time_s[n // 2]), float(force_g.sum()) / n), n
+        twin_ps, *_ = twin(monkeypatch, segments.five_lines, time_s, force_g,
+                           (0.3 * n * 0.003, 0.6 * n * 0.003, 0.62 * n * 0.003), 3, 3)
+        assert (ps.t_ref_s, ps.f_ref_g) == (twin_ps.t_ref_s, twin_ps.f_ref_g), n
+
+
 def test_five_lines_equal_the_twin_on_every_problem(monkeypatch):
     # Short windows with the halt and the pullback anywhere (before, inside, after the samples, in
     # either order): every answer, split or none, and why, the same; forces on a coarse grid tie.

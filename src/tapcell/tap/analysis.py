@@ -27,7 +27,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tapcell.tap import contact, native, uncertainty, validate
-from tapcell.tap.angles import line_angles_deg
 from tapcell.tap.classifiers import get_classifier, run_classifier
 from tapcell.tap.contact import (MIN_SPAN_UM, SEARCH_SAMPLES, ContactFit, fit_contact, fit_fixed_onset,
                                  fit_of_kernel, window_edges, window_mean_and_slope)
@@ -154,7 +153,7 @@ def sensor_timing(tap: TapData, options: AnalysisOptions, sample_period_s: float
         integration = _meta_seconds(tap, "sensor_integration_s", sample_period_s)
     z_step_um = options.z_step_um if options.z_step_um is not None else _meta_number(tap, "z_step_um",
                                                                                        DEFAULT_Z_STEP_UM)
-    return SensorTiming(float(delay) if isinstance(delay, float | int) else 0.0, float(integration),
+    return SensorTiming(float(delay) if isinstance(delay, (float, int)) else 0.0, float(integration),
                         delay == "auto", from_halt, sample_period_s, float(z_step_um))
 
 
@@ -348,6 +347,7 @@ class Decomposition:
     bounds: tuple[int, int, int, int]
     lines: list[tuple[float, float]]  # (slope g/s, intercept g) in positive polarity, APPROACH..DEPARTURE
     points: list[tuple[float, float]]  # (time s, force g), P_START..P_END
+    angles_deg: list[float] | None = None  # the four angles between consecutive lines (line_angles_deg)
 
     @property
     def approach_line(self) -> tuple[float, float]:
@@ -384,15 +384,15 @@ def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_sampl
     if dwell_from_halt:
         phases_s = (_halt_read_s(t, motion.home_end_s), *phases_s[1:])
     release_lag = lag_samples if release_lag_samples is None else release_lag_samples
-    ps, problem, bounds, lines, points = five_lines(t, force_g[start:stop], phases_s, lag_samples, release_lag,
-                                                    approach_share)
+    ps, problem, bounds, lines, points, angles_deg = five_lines(t, force_g[start:stop], phases_s, lag_samples,
+                                                                release_lag, approach_share)
     if problem == NO_DWELL_SAMPLES:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, "no samples between the halt and the pullback")
     if problem == TOO_FEW_AROUND:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, f"too few samples around the tap ({len(t)} in the analysis window)")
     if problem == TOO_FEW_FOR_FIVE:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, "too few samples to fit five lines (each needs 2)")
-    return Decomposition(start, stop, bounds, lines, points), ps
+    return Decomposition(start, stop, bounds, lines, points, angles_deg), ps
 
 
 def _halt_read_s(t: np.ndarray, halt_s: float) -> float:
@@ -458,8 +458,8 @@ def decompose_again(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag
             again = decompose(time_s, force_g, motion, lag_samples, period, **retry)
         except TapInvalid:  # a dwell of under two samples from the halt's to the cruise's: no such split
             continue
-        points, lines = again[0].points, again[0].lines
-        if validate.split_checks_pass(points, line_angles_deg(lines)) if shape_too else validate.in_time_order(points):
+        points = again[0].points
+        if validate.split_checks_pass(points, again[0].angles_deg) if shape_too else validate.in_time_order(points):
             return again
     return first
 
@@ -511,9 +511,12 @@ def model_window(time_s, force_g, motion: Motion, timing: SensorTiming, delay_s:
     lines_s = (dec.points[P_CONTACT][0] - lag_s, dec.points[P_BREAK][0] - lag_s)
     if _C is not None and motion.moves is not None:
         x_min, span = np.empty(len(t)), np.empty(len(t))
-        contact_um, break_um = _C.window_heights(motion.move_table, t, delay_s, timing.integration_s,
-                                                 motion.z_halt_mm, MIN_SPAN_UM, *lines_s, x_min, span)
-        return ModelWindow(t, force_g[dec.start:dec.stop], x_min, span, contact_um, break_um)
+        # The kernel counts the samples read by the time the nozzle rose too: `pullback_first` at this delay.
+        rising_s = pullback_rising_s(motion, timing, delay_s)
+        contact_um, break_um, first = _C.window_heights(motion.move_rows, t, delay_s, timing.integration_s,
+                                                        motion.z_halt_mm, MIN_SPAN_UM, *lines_s, rising_s, x_min,
+                                                        span)
+        return ModelWindow(t, force_g[dec.start:dec.stop], x_min, span, contact_um, break_um, {}, {rising_s: first})
     read_s = t - delay_s
     heights_um = (motion.z_at(np.concatenate((read_s - timing.integration_s, read_s, lines_s)))
                   - motion.z_halt_mm) * 1000.0
@@ -640,13 +643,21 @@ def force_left_at_end_g(time_s: np.ndarray, force_g: np.ndarray, motion: Motion,
     The free-air level is the approach line at the halt carried up the pullback by the free-air
     drift (a cable pulling in proportion to Z moves the end's level by drift x pullback distance).
     """
-    end = _indices(time_s, motion.pullback_end_s)[0]
     slope_g_s, intercept_g = dec.approach_line
     height_um = (float(motion.z_at(motion.pullback_end_s)) - motion.z_halt_mm) * 1000.0
     free_air_g = slope_g_s * motion.home_end_s + intercept_g + free_air_slope_g_um(dec, motion) * height_um
-    remaining_g = median(force_g[max(end - END_SAMPLES, 0):end + 1]) - free_air_g
+    remaining_g = force_at_g(time_s, force_g, motion.pullback_end_s) - free_air_g
     residual_var, _, _ = segment_stats(ps, dec.bounds[3], dec.stop - dec.start)
     return remaining_g, math.sqrt(residual_var)
+
+
+def force_at_g(time_s: np.ndarray, force_g: np.ndarray, t_s: float) -> float:
+    """The force at t_s as the checks read it: the median over the first sample read at or after t_s
+    (the last sample past the end) and the END_SAMPLES before it (one kernel call when built)."""
+    if _C is not None:
+        return _C.median_up_to(time_s, force_g, t_s, END_SAMPLES)
+    end = _indices(time_s, t_s)[0]
+    return median(force_g[max(end - END_SAMPLES, 0):end + 1])
 
 
 def left_inside_pullback(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, dec: Decomposition,
@@ -661,12 +672,10 @@ def left_inside_pullback(time_s: np.ndarray, force_g: np.ndarray, motion: Motion
     end_s = motion.pullback_end_s - max(motion.pullback_duration_s / 6.0, BREAK_MARGIN_SAMPLES * period_s)
     if not dec.points[P_BREAK][0] < end_s:
         return False
-    decompression_slope, departure_slope = dec.decompression_line[0], dec.departure_line[0]
-    if not abs(departure_slope) <= DEPARTURE_FLAT_SHARE * abs(decompression_slope):
+    (decompression_slope, _), (slope_g_s, intercept_g) = dec.lines[DECOMPRESSION:]
+    if not abs(slope_g_s) <= DEPARTURE_FLAT_SHARE * abs(decompression_slope):
         return False
-    end = _indices(time_s, motion.pullback_end_s)[0]
-    slope_g_s, intercept_g = dec.departure_line
-    off_g = median(force_g[max(end - END_SAMPLES, 0):end + 1]) - (slope_g_s * motion.pullback_end_s + intercept_g)
+    off_g = force_at_g(time_s, force_g, motion.pullback_end_s) - (slope_g_s * motion.pullback_end_s + intercept_g)
     scatter_g = math.sqrt(segment_stats(ps, dec.bounds[3], dec.stop - dec.start)[0])
     pressed_g = dec.points[P_DWELL_START][1] - dec.points[P_CONTACT][1]
     return abs(off_g) <= max(validate.STILL_PRESSING_SCATTERS * scatter_g, validate.STILL_PRESSING_SHARE * pressed_g)
@@ -746,9 +755,14 @@ def toe_drift_g_um(dec: Decomposition, ps: PrefixSums, motion: Motion, period_s:
 PullbackSamples = tuple[np.ndarray, np.ndarray, np.ndarray]  # window low edge µm, high edge µm, force g
 
 
+def pullback_rising_s(motion: Motion, timing: SensorTiming, delay_s: float) -> float:
+    """The last time a sample can be read whose conversion window began before the nozzle rose."""
+    return motion.pullback_start_s + delay_s + timing.integration_s
+
+
 def pullback_first(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float) -> int:
     """The first sample whose conversion window starts after the nozzle began rising."""
-    rising_s = motion.pullback_start_s + delay_s + timing.integration_s
+    rising_s = pullback_rising_s(motion, timing, delay_s)
     first = window.firsts.get(rising_s)
     if first is None:
         first = window.firsts[rising_s] = int(window.time_s.searchsorted(rising_s, side="right"))
@@ -1109,21 +1123,23 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> tuple[SplitTap, int, in
     period_s = sample_period_s(tap.sample_rate_sps, time_s)
     timing = sensor_timing(tap, options, period_s)
     validate.check_motion(motion, time_s)
-    polarity, force, outliers = polarity_and_repaired(time_s, force_raw, motion, options.outlier_sigma)
+    polarity, force, outliers, all_noise_g = polarity_and_repaired(time_s, force_raw, motion, options.outlier_sigma)
     allowance = UNKNOWN_DELAY_ALLOWANCE_S if timing.estimate_delay or timing.delay_from_halt else timing.delay_s
     lag_samples = math.ceil((allowance + timing.integration_s) / period_s) + LAG_MARGIN_SAMPLES
     force, hum = remove_mains_hum(tap, options, time_s, force, motion, timing, lag_samples, period_s)
     dec, ps = decompose(time_s, force, motion, lag_samples, period_s)
-    angles_deg = line_angles_deg(dec.lines)
-    checks_pass = validate.split_checks_pass(dec.points, angles_deg)
+    checks_pass = validate.split_checks_pass(dec.points, dec.angles_deg)
     if not checks_pass:
         dec, ps = decompose_again(time_s, force, motion, lag_samples, period_s, (dec, ps))
-        angles_deg = line_angles_deg(dec.lines)
-        checks_pass = validate.split_checks_pass(dec.points, angles_deg)
+        checks_pass = validate.split_checks_pass(dec.points, dec.angles_deg)
     # Second differences of the whole analysed window: hundreds of samples even when the
-    # approach holds a dozen; the four kinks of a tap cannot move their median.
-    noise_g = noise_sigma_g(force[dec.start:dec.stop])
-    split = SplitTap(time_s, force, motion, timing, dec, ps, noise_g, angles_deg, points_pass=checks_pass)
+    # approach holds a dozen; the four kinks of a tap cannot move their median. A window of every
+    # sample, which no repair and no hum removal changed, is what the spike repair measured.
+    if all_noise_g is not None and hum is None and dec.start == 0 and dec.stop == len(force):
+        noise_g = all_noise_g
+    else:
+        noise_g = noise_sigma_g(force[dec.start:dec.stop])
+    split = SplitTap(time_s, force, motion, timing, dec, ps, noise_g, dec.angles_deg, checks_pass)
     return split, polarity, outliers, hum
 
 
@@ -1553,21 +1569,22 @@ def _corner_windows(time_s: np.ndarray, corners_s: list[float], timing: SensorTi
 
 
 def polarity_and_repaired(time_s: np.ndarray, force_raw: np.ndarray, motion: Motion, outlier_sigma: float
-                          ) -> tuple[int, np.ndarray, int]:
+                          ) -> tuple[int, np.ndarray, int, float | None]:
     """(polarity (`_polarity`), the force in positive polarity with its corrupted frames repaired
-    (`repair_spikes`), how many were repaired): one kernel call when built (polar_spikes: the twins'
-    arithmetic in their order, bit for bit), else the twins."""
+    (`repair_spikes`), how many were repaired, and that force's `noise_sigma_g` over all its samples
+    where the repair measured it and repaired nothing, else None): one kernel call when built
+    (polar_spikes: the twins' arithmetic in their order, bit for bit), else the twins (no noise sigma)."""
     baseline_from_s = motion.home_end_s - max(motion.pullback_duration_s, POLARITY_BASELINE_MIN_S)
     if _C is None:
         polarity = _polarity(time_s, force_raw, motion.home_end_s, motion.pullback_start_s, baseline_from_s)
         force, outliers = repair_spikes(polarity * force_raw, outlier_sigma)
-        return polarity, force, outliers
-    force = np.empty_like(force_raw)
-    polarity, outliers = _C.polar_spikes(time_s, force_raw, motion.home_end_s, motion.pullback_start_s,
-                                         baseline_from_s, outlier_sigma, force)
+        return polarity, force, outliers, None
+    force = np.empty(len(force_raw))
+    polarity, outliers, noise_g = _C.polar_spikes(time_s, force_raw, motion.home_end_s, motion.pullback_start_s,
+                                                  baseline_from_s, outlier_sigma, force)
     if polarity == 0:
         raise TapInvalid(TAP_SHAPE_INVALID, NO_FORCE_CHANGE)
-    return polarity, force, outliers
+    return polarity, force, outliers, noise_g if outliers == 0 else None
 
 
 # The polarity's baseline: the force read over a pullback's duration (at least this long) before the halt.

@@ -55,9 +55,14 @@ class Motion:
     @cached_attribute
     def move_table(self) -> np.ndarray:
         """Rows: start time, duration, start speed, acceleration, start Z, direction; one column per move."""
-        # Row-major (contiguous rows): the compiled window heights read it as six rows. One flat list
-        # of floats laid out row by row (a list of tuples makes numpy discover the nesting: twice the
-        # cost a tap; moves by columns needed a transposed copy).
+        # One flat list of floats laid out row by row (a list of tuples makes numpy discover the
+        # nesting: twice the cost a tap; moves by columns needed a transposed copy).
+        return np.array(self.move_rows, dtype=float).reshape(6, -1)
+
+    @cached_attribute
+    def move_rows(self) -> list[float]:
+        """`move_table`'s six rows one after the other in one list: what the compiled window heights
+        read (each tap's analysis builds no array for them)."""
         moves = self.moves
         flat = [m.print_time for m in moves]
         flat += [m.move_t for m in moves]
@@ -65,7 +70,7 @@ class Motion:
         flat += [m.accel for m in moves]
         flat += [m.start_z for m in moves]
         flat += [m.z_r for m in moves]
-        return np.array(flat, dtype=float).reshape(6, -1)
+        return flat
 
 
 def motion_from_moves(moves: list[Move]) -> Motion:
@@ -77,16 +82,9 @@ def motion_from_moves(moves: list[Move]) -> Motion:
         raise MotionError("the pullback cruise move (2nd from last) does not move up")
     # The halt marker carries the stop height; the cruise was cut short there.
     home_end_s = cruise.print_time + abs(halt.start_z - cruise.start_z) / cruise.start_v
-    return Motion(
-        home_end_s=home_end_s,
-        pullback_start_s=pull_start.print_time,
-        pullback_cruise_s=pull_cruise.print_time,
-        pullback_end_s=pull_end.end_time,
-        z_halt_mm=halt.start_z,
-        approach_speed_mm_s=cruise.start_v,
-        pullback_speed_mm_s=pull_cruise.start_v,
-        moves=list(moves),
-    )
+    # Positional, in the fields' order (home_end_s .. pullback_speed_mm_s, moves): keywords cost more, once a tap.
+    return Motion(home_end_s, pull_start.print_time, pull_cruise.print_time, pull_end.end_time, halt.start_z,
+                  cruise.start_v, pull_cruise.start_v, list(moves))
 
 
 def motion_from_z(time_s: np.ndarray, z_mm: np.ndarray) -> Motion:

@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tapcell.tap import native
+from tapcell.tap.angles import line_angles_deg
 from tapcell.tap.context import recompute_points
 
 _C = native.load("segments")
@@ -212,11 +213,12 @@ Point = tuple[float, float]
 def five_lines(time_s: np.ndarray, force_g: np.ndarray, phases_s: tuple[float, float, float], lag_samples: int,
                release_lag_samples: int, approach_share: float = 0.0
                ) -> tuple[PrefixSums, int, tuple[int, int, int, int] | None, list[tuple[float, float]] | None,
-                          list[Point] | None]:
+                          list[Point] | None, list[float] | None]:
     """The five-line split of a window of samples: (prefix sums, SPLIT_FOUND or why there is none,
     the boundaries (contact, peak, release, break), the five lines, their six points as
-    `context.recompute_points` puts them over the window's first and last sample). The five lines'
-    `segment_stats` are in the prefix sums' `derived` (the checks and the Z uncertainty read them).
+    `context.recompute_points` puts them over the window's first and last sample, the four angles
+    between the lines, `angles.line_angles_deg`). The five lines' `segment_stats` are in the prefix
+    sums' `derived` (the checks and the Z uncertainty read them).
 
     phases_s: the halt, the pullback's start and its cruise (s). The peak is searched from the
     sample before the halt up to `lag_samples` after it (not past the pullback's start), the
@@ -229,27 +231,28 @@ def five_lines(time_s: np.ndarray, force_g: np.ndarray, phases_s: tuple[float, f
     # A lag past the window's end reaches no further than its end (every range below stops at m);
     # capped, a file's absurd sample rate (1e300 sps: a lag of 1e298 samples) fits the kernel's ssize_t.
     lag_samples, release_lag_samples = min(lag_samples, m), min(release_lag_samples, m)
-    t_ref, f_ref = float(time_s[m // 2]), float(force_g.sum()) / m  # as prefix_sums
     if _C is not None:
-        ps = PrefixSums(t_ref, f_ref, np.empty((6, m + 1)))
-        problem, bounds, lines, points = _C.five_lines(time_s, force_g, t_ref, f_ref, *phases_s, lag_samples,
-                                                       release_lag_samples, approach_share, ps.sums, ps.derived)
-        return ps, problem, bounds, lines, points
+        # The kernel takes the sums' reference time and force as prefix_sums does (numpy's sum, bit for bit).
+        sums, derived = np.empty((6, m + 1)), {}
+        t_ref, f_ref, *found = _C.five_lines(time_s, force_g, *phases_s, lag_samples, release_lag_samples,
+                                             approach_share, sums, derived)
+        return PrefixSums(t_ref, f_ref, sums, derived), *found
     ps = prefix_sums(time_s, force_g)
     home_end, pull_start, pull_cruise = np.minimum(time_s.searchsorted(phases_s), m - 1).tolist()
     peak = range(max(2, home_end - 1), min(pull_start, home_end + lag_samples) + 1)
     release = range(max(pull_start - 1, 0), min(m - 2, max(pull_start, pull_cruise) + release_lag_samples) + 1)
     if len(peak) == 0 or len(release) == 0:
-        return ps, NO_DWELL_SAMPLES, None, None, None
+        return ps, NO_DWELL_SAMPLES, None, None, None, None
     contact = range(max(2, int(approach_share * home_end)), peak[-1] - 1)
     breaking = range(release[0] + 2, m - 1)
     if len(contact) == 0 or len(breaking) == 0:
-        return ps, TOO_FEW_AROUND, None, None, None
+        return ps, TOO_FEW_AROUND, None, None, None, None
     bounds = best_five_segments(ps, 0, m, contact, peak, release, breaking)
     if bounds is None:
-        return ps, TOO_FEW_FOR_FIVE, None, None, None
+        return ps, TOO_FEW_FOR_FIVE, None, None, None, None
     edges = [0, *bounds, m]
     for first, end in zip(edges, edges[1:]):
         segment_stats(ps, first, end)
     lines = segment_lines(ps, edges)
-    return ps, SPLIT_FOUND, bounds, lines, recompute_points(lines, float(time_s[0]), float(time_s[-1]))
+    points = recompute_points(lines, float(time_s[0]), float(time_s[-1]))
+    return ps, SPLIT_FOUND, bounds, lines, points, line_angles_deg(lines)

@@ -222,10 +222,10 @@ static void span_of(const double *values, Py_ssize_t n, double *lowest, double *
 }
 
 /* `repair_spikes` of force_g[0..n) (n >= 5) into repaired[0..n): the spike test's threshold from the
- * noise sigma and the force's span, then the loop. spike (n bytes) marks the repaired samples;
- * returns their count, or -1 (MemoryError set). */
+ * noise sigma (`noise_sigma_g` of force_g, into *noise_g) and the force's span, then the loop. spike
+ * (n bytes) marks the repaired samples; returns their count, or -1 (MemoryError set). */
 static Py_ssize_t repair_spikes_into(const double *force_g, Py_ssize_t n, double threshold_sigma, double *repaired,
-                                     char *spike)
+                                     char *spike, double *noise_g)
 {
     double *off_mid = malloc(2 * (size_t)(n - 2) * sizeof(double));
     if (off_mid == NULL) {
@@ -235,7 +235,7 @@ static Py_ssize_t repair_spikes_into(const double *force_g, Py_ssize_t n, double
     double *scratch = off_mid + (n - 2);
     off_midpoints(force_g, n, off_mid);
     memcpy(scratch, off_mid, (size_t)(n - 2) * sizeof(double));
-    double noise_sigma_g = noise_of_off_midpoints(scratch, n - 2);
+    double noise_sigma_g = *noise_g = noise_of_off_midpoints(scratch, n - 2);
     double lowest, highest;
     span_of(force_g, n, &lowest, &highest);
     double threshold = fmax(fmax(threshold_sigma * noise_sigma_g, 1e-6 * (highest - lowest)), 1e-9);
@@ -285,7 +285,8 @@ static PyObject *spikes(PyObject *self, PyObject *args)
             PyErr_NoMemory();
         } else {
             char *spike = (char *)(repaired + n);
-            Py_ssize_t count = repair_spikes_into(force_g, n, threshold_sigma, repaired, spike);
+            double noise_g;
+            Py_ssize_t count = repair_spikes_into(force_g, n, threshold_sigma, repaired, spike, &noise_g);
             if (count >= 0) answer = spike_lists(repaired, spike, n, count);
             free(repaired);
         }
@@ -333,13 +334,15 @@ static int polarity_of(const double *time_s, const double *force_g, Py_ssize_t n
 
 PyDoc_STRVAR(polar_spikes_doc,
              "polar_spikes(time_s, force_g, halt_s, pullback_start_s, baseline_from_s, threshold_sigma, out)\n"
-             "    -> (polarity, repaired)\n"
+             "    -> (polarity, repaired, noise_g)\n"
              "\n"
              "The start of a tap's split in one call (analysis.py `polarity_and_repaired`): the polarity as\n"
              "`_polarity` finds it from the force read from baseline_from_s to the halt and over the dwell (0:\n"
              "the force does not change), then the force in positive polarity with its corrupted frames\n"
              "repaired (`repair_spikes`) into `out` (a float64 array as long as force_g; untouched for\n"
-             "polarity 0), and how many frames were repaired. The twins' arithmetic in their order, bit for bit.");
+             "polarity 0), how many frames were repaired, and the noise sigma the repair measured on the force\n"
+             "in positive polarity (`noise_sigma_g` of it; None for polarity 0 or fewer than 5 samples, which\n"
+             "are not repaired). The twins' arithmetic in their order, bit for bit.");
 
 static PyObject *polar_spikes(PyObject *self, PyObject *args)
 {
@@ -363,13 +366,18 @@ static PyObject *polar_spikes(PyObject *self, PyObject *args)
         char *spike = (char *)(positive + n);
         int polarity = polarity_of(time_s, force_g, n, halt_s, pullback_start_s, baseline_from_s, positive);
         Py_ssize_t repaired = 0;
+        double noise_g = 0.0;
+        int measured = polarity != 0 && n >= 5;
         if (polarity != 0) {
             for (Py_ssize_t i = 0; i < n; i++)
                 positive[i] = (double)polarity * force_g[i]; /* numpy's polarity * force: the int as a double */
-            if (n < 5) memcpy(out, positive, (size_t)n * sizeof(double));
-            else repaired = repair_spikes_into(positive, n, threshold_sigma, out, spike);
+            if (!measured) memcpy(out, positive, (size_t)n * sizeof(double));
+            else repaired = repair_spikes_into(positive, n, threshold_sigma, out, spike, &noise_g);
         }
-        if (repaired >= 0) result = Py_BuildValue("(in)", polarity, repaired);
+        if (repaired >= 0 && measured)
+            result = Py_BuildValue("(ind)", polarity, repaired, noise_g);
+        else if (repaired >= 0)
+            result = Py_BuildValue("(inO)", polarity, repaired, Py_None);
     }
     free(positive);
     PyBuffer_Release(&time_buffer);
@@ -419,26 +427,53 @@ static double z_at_mm(const double *table, Py_ssize_t moves, double t_s, Py_ssiz
     return z_in_move_mm(table, moves, move_at(table, moves, t_s, move), t_s);
 }
 
+/* The move table's values, row by row, from a sequence of numbers (`Motion.move_rows`, a list the
+ * analysis builds without an array), into `table` (PyMem_Malloc'ed: the caller frees it); their count
+ * in *cells. NULL with an exception set when they are not numbers (or out of memory). */
+static double *move_table_of(PyObject *rows, Py_ssize_t *cells)
+{
+    PyObject *sequence = PySequence_Fast(rows, "move_rows: not a sequence of numbers");
+    if (sequence == NULL)
+        return NULL;
+    Py_ssize_t count = PySequence_Fast_GET_SIZE(sequence);
+    double *table = PyMem_Malloc(sizeof(double) * (size_t)(count > 0 ? count : 1));
+    if (table == NULL)
+        PyErr_NoMemory();
+    for (Py_ssize_t k = 0; table != NULL && k < count; k++) {
+        table[k] = PyFloat_AsDouble(PySequence_Fast_GET_ITEM(sequence, k));
+        if (table[k] == -1.0 && PyErr_Occurred()) {
+            PyMem_Free(table);
+            table = NULL;
+        }
+    }
+    Py_DECREF(sequence);
+    *cells = count;
+    return table;
+}
+
 static PyObject *window_heights(PyObject *self, PyObject *args)
 {
     (void)self;
-    Py_buffer table_buffer, time_buffer, x_min_buffer, span_buffer;
-    double delay_s, integration_s, z_halt_mm, min_span_um, contact_line_s, break_line_s;
-    if (!PyArg_ParseTuple(args, "O&O&ddddddw*w*", float64_buffer, &table_buffer, float64_buffer, &time_buffer,
-                          &delay_s, &integration_s, &z_halt_mm, &min_span_um, &contact_line_s, &break_line_s,
-                          &x_min_buffer, &span_buffer))
+    Py_buffer time_buffer, x_min_buffer, span_buffer;
+    PyObject *rows;
+    double delay_s, integration_s, z_halt_mm, min_span_um, contact_line_s, break_line_s, rising_s;
+    if (!PyArg_ParseTuple(args, "OO&dddddddw*w*", &rows, float64_buffer, &time_buffer, &delay_s, &integration_s,
+                          &z_halt_mm, &min_span_um, &contact_line_s, &break_line_s, &rising_s, &x_min_buffer,
+                          &span_buffer))
         return NULL;
     PyObject *result = NULL;
     Py_ssize_t cells = 0, n = 0;
-    const double *table = doubles_of(&table_buffer, &cells, "move_table");
+    double *table = move_table_of(rows, &cells);
     const double *time_s = table ? doubles_of(&time_buffer, &n, "time_s") : NULL;
     double *x_min_um = time_s ? doubles_sized(&x_min_buffer, n, "x_min_um") : NULL;
     double *span_um = x_min_um ? doubles_sized(&span_buffer, n, "span_um") : NULL;
     if (span_um != NULL && (cells == 0 || cells % 6 != 0)) {
         PyErr_Format(PyExc_ValueError, "move_table: %zd values, not 6 rows of moves", cells);
     } else if (span_um != NULL) {
-        Py_ssize_t moves = cells / 6, low_move = 0, high_move = 0, line_move = 0;
+        Py_ssize_t moves = cells / 6, low_move = 0, high_move = 0, line_move = 0, read_by_rising = 0;
         for (Py_ssize_t i = 0; i < n; i++) {
+            /* searchsorted(rising_s, side="right") over the rising times (a NaN key: every sample) */
+            read_by_rising += !(time_s[i] > rising_s);
             /* the twin's steps: read time, window start, heights above the halt, then the edges */
             double read_s = time_s[i] - delay_s;
             double low_um = (z_at_mm(table, moves, read_s - integration_s, &low_move) - z_halt_mm) * 1000.0;
@@ -448,9 +483,9 @@ static PyObject *window_heights(PyObject *self, PyObject *args)
         }
         double contact_line_um = (z_at_mm(table, moves, contact_line_s, &line_move) - z_halt_mm) * 1000.0;
         double break_line_um = (z_at_mm(table, moves, break_line_s, &line_move) - z_halt_mm) * 1000.0;
-        result = Py_BuildValue("(dd)", contact_line_um, break_line_um);
+        result = Py_BuildValue("(ddn)", contact_line_um, break_line_um, read_by_rising);
     }
-    PyBuffer_Release(&table_buffer);
+    PyMem_Free(table);
     PyBuffer_Release(&time_buffer);
     PyBuffer_Release(&x_min_buffer);
     PyBuffer_Release(&span_buffer);
@@ -617,7 +652,42 @@ static PyObject *indices(PyObject *self, PyObject *args)
     return result;
 }
 
+/* The median of the force over the first sample read at or after t_s (the last for a time past the
+ * end) and up to `before` samples before it (analysis.py `force_at_g`: robust.median of that slice). */
+static PyObject *median_up_to(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer time_buffer, force_buffer;
+    double t_s;
+    Py_ssize_t before;
+    if (!PyArg_ParseTuple(args, "O&O&dn", float64_buffer, &time_buffer, float64_buffer, &force_buffer, &t_s, &before))
+        return NULL;
+    PyObject *result = NULL;
+    Py_ssize_t n = 0;
+    const double *time_s = doubles_of(&time_buffer, &n, "time_s");
+    const double *force_g = time_s ? doubles_sized(&force_buffer, n, "force_g") : NULL;
+    if (force_g != NULL && n == 0) {
+        PyErr_SetString(PyExc_ValueError, "time_s: no samples");
+    } else if (force_g != NULL && before < 0) {
+        PyErr_SetString(PyExc_ValueError, "before: a count of samples, not negative");
+    } else if (force_g != NULL) {
+        Py_ssize_t end = first_at_or_after(time_s, n, t_s) + 1, first = end - 1 - before > 0 ? end - 1 - before : 0;
+        double *scratch = malloc((size_t)(end - first) * sizeof(double));
+        if (scratch == NULL)
+            PyErr_NoMemory();
+        else
+            result = PyFloat_FromDouble(median_of_range(force_g, first, end, scratch));
+        free(scratch);
+    }
+    PyBuffer_Release(&time_buffer);
+    PyBuffer_Release(&force_buffer);
+    return result;
+}
+
 static PyMethodDef methods[] = {
+    {"median_up_to", median_up_to, METH_VARARGS,
+     "median_up_to(time_s, force_g, t_s, before) -> float: the median of force_g over the first sample at\n"
+     "or after t_s (the last sample for a time past the end) and up to `before` samples before it."},
     {"median", median, METH_VARARGS,
      "median(values: float64 array) -> float: the middle value, or the mean of the middle two."},
     {"noise_sigma", noise_sigma, METH_VARARGS,
@@ -627,10 +697,13 @@ static PyMethodDef methods[] = {
      "and the values that replace them."},
     {"polar_spikes", polar_spikes, METH_VARARGS, polar_spikes_doc},
     {"window_heights", window_heights, METH_VARARGS,
-     "window_heights(move_table, time_s, delay_s, integration_s, z_halt_mm, min_span_um, contact_line_s,\n"
-     "               break_line_s, x_min_out, span_out) -> (contact_line_um, break_line_um)\n\n"
+     "window_heights(move_rows, time_s, delay_s, integration_s, z_halt_mm, min_span_um, contact_line_s,\n"
+     "               break_line_s, rising_s, x_min_out, span_out) -> (contact_line_um, break_line_um, first)\n\n"
      "Each sample's conversion window in heights above the halt (um): its lower edge and width (at least\n"
-     "min_span_um) into the outputs, and the two line points' heights (analysis.py: model_window)."},
+     "min_span_um) into the outputs, the two line points' heights (analysis.py: model_window), and how\n"
+     "many samples were read at or before rising_s (time_s.searchsorted(rising_s, side='right'), the\n"
+     "rising times in order: analysis.py pullback_first).\n"
+     "move_rows: the move table's six rows one after the other, a sequence of numbers (Motion.move_rows)."},
     {"sample_problem", sample_problem, METH_VARARGS,
      "sample_problem(time_s, force_g) -> int: 0 fine, 1 NaN or infinity, 2 times not strictly increasing."},
     {"outlier_mask", outlier_mask, METH_VARARGS,

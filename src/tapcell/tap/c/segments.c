@@ -14,6 +14,7 @@
 
 #define MIN_SEGMENT_SAMPLES 2.0
 #define SUM_ROWS 6
+#define ANGLE_SCALE_S_PER_G 0.004 /* angles.py: 0.1 s of time against 25 g of force */
 
 /* The prefix sums: SUM_ROWS rows (count, Σt, Σf, Σt², Σtf, Σf²) of `columns` values each. */
 typedef struct {
@@ -468,27 +469,60 @@ static void intersect(double a_slope, double a_intercept, double b_slope, double
     *f_out = fa + a_slope * dt;
 }
 
+/* numpy's sum of n float64 values (`np.add.reduce` of a contiguous array: numpy's pairwise summation,
+ * `pairwise_sum` in its loops_utils.h), in its order, so the same bits: fewer than 8 values one after
+ * the other from 0; up to 128 in eight running sums, combined ((0+1)+(2+3))+((4+5)+(6+7)), then the
+ * rest one by one; more, split in two halves at a multiple of 8 and the halves' sums added. */
+static double numpy_sum(const double *values, Py_ssize_t n)
+{
+    if (n < 8) {
+        double sum = 0.0;
+        for (Py_ssize_t i = 0; i < n; i++)
+            sum += values[i];
+        return sum;
+    }
+    if (n <= 128) {
+        double r[8];
+        for (int k = 0; k < 8; k++)
+            r[k] = values[k];
+        Py_ssize_t i = 8;
+        for (; i < n - n % 8; i += 8)
+            for (int k = 0; k < 8; k++)
+                r[k] += values[i + k];
+        double sum = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+        for (; i < n; i++)
+            sum += values[i];
+        return sum;
+    }
+    Py_ssize_t half = n / 2;
+    half -= half % 8;
+    return numpy_sum(values, half) + numpy_sum(values + half, n - half);
+}
+
 PyDoc_STRVAR(five_lines_doc,
-             "five_lines(time_s, force_g, t_ref_s, f_ref_g, halt_s, pullback_start_s, pullback_cruise_s,\n"
+             "five_lines(time_s, force_g, halt_s, pullback_start_s, pullback_cruise_s,\n"
              "           lag_samples, release_lag_samples, approach_share, sums, derived)\n"
-             "    -> (problem, bounds, lines, points)\n"
+             "    -> (t_ref_s, f_ref_g, problem, bounds, lines, points, angles_deg)\n"
              "\n"
              "The five-line split of a window of samples in one call (segments.py `five_lines`, whose numpy\n"
              "twin runs prefix_sums, the candidate ranges, best_five_segments, segment_stats, segment_lines\n"
-             "and context.recompute_points): `sums`, a (6, n + 1) float64 array, gets the prefix sums; problem 0\n"
-             "with the four boundaries, the five lines and their six points, and each line's segment_stats\n"
-             "in the dict `derived` under (first, end); else one of segments.py's NO_DWELL_SAMPLES,\n"
-             "TOO_FEW_AROUND, TOO_FEW_FOR_FIVE and None, None, None. All bit for bit the twin's arithmetic.");
+             "and context.recompute_points): the sums' reference time and force (the middle sample's time,\n"
+             "the force's mean by numpy's pairwise sum: `prefix_sums`' own, bit for bit), then\n"
+             "`sums`, a (6, n + 1) float64 array, gets the prefix sums; problem 0\n"
+             "with the four boundaries, the five lines, their six points and the four angles between them\n"
+             "(angles.line_angles_deg), and each line's segment_stats in the dict `derived` under (first, end);\n"
+             "else one of segments.py's NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_FIVE and four None.\n"
+             "All bit for bit the twin's arithmetic.");
 
 static PyObject *five_lines(PyObject *self, PyObject *args)
 {
     (void)self;
     Py_buffer time_buffer, force_buffer, sums_buffer;
-    double t_ref_s, f_ref_g, halt_s, pull_start_s, pull_cruise_s, approach_share;
+    double halt_s, pull_start_s, pull_cruise_s, approach_share;
     Py_ssize_t lag, release_lag;
     PyObject *derived;
-    if (!PyArg_ParseTuple(args, "O&O&dddddnndw*O!", float64_buffer, &time_buffer, float64_buffer, &force_buffer,
-                          &t_ref_s, &f_ref_g, &halt_s, &pull_start_s, &pull_cruise_s, &lag, &release_lag,
+    if (!PyArg_ParseTuple(args, "O&O&dddnndw*O!", float64_buffer, &time_buffer, float64_buffer, &force_buffer,
+                          &halt_s, &pull_start_s, &pull_cruise_s, &lag, &release_lag,
                           &approach_share, &sums_buffer, &PyDict_Type, &derived))
         return NULL;
     PyObject *result = NULL;
@@ -502,6 +536,7 @@ static PyObject *five_lines(PyObject *self, PyObject *args)
         PyErr_SetString(PyExc_ValueError, "time_s: no samples");
         goto done;
     }
+    const double t_ref_s = time_s[m / 2], f_ref_g = numpy_sum(force_g, m) / (double)m;
     fill_prefix_sums(time_s, force_g, m, t_ref_s, f_ref_g, sums);
     const PrefixSums ps = {sums, m + 1};
     /* The candidate ranges, half-open [first, end), as the twin's ranges. */
@@ -528,7 +563,7 @@ static PyObject *five_lines(PyObject *self, PyObject *args)
         problem = split ? 0 : 3; /* TOO_FEW_FOR_FIVE */
     }
     if (problem) {
-        result = Py_BuildValue("(iOOO)", problem, Py_None, Py_None, Py_None);
+        result = Py_BuildValue("(ddiOOOO)", t_ref_s, f_ref_g, problem, Py_None, Py_None, Py_None, Py_None);
         goto done;
     }
     const Py_ssize_t edges[] = {0, found[0], found[1], found[2], found[3], m};
@@ -552,11 +587,17 @@ static PyObject *five_lines(PyObject *self, PyObject *args)
     for (int k = 0; k < 4; k++)
         intersect(slope[k], intercept[k], slope[k + 1], intercept[k + 1], t_mid, &point_t[k + 1], &point_f[k + 1]);
     point_t[5] = t_last, point_f[5] = slope[4] * t_last + intercept[4];
-    result = Py_BuildValue("(i(nnnn)[(dd)(dd)(dd)(dd)(dd)][(dd)(dd)(dd)(dd)(dd)(dd)])", 0, found[0], found[1],
-                           found[2], found[3], slope[0], intercept[0], slope[1], intercept[1], slope[2],
-                           intercept[2], slope[3], intercept[3], slope[4], intercept[4], point_t[0], point_f[0],
-                           point_t[1], point_f[1], point_t[2], point_f[2], point_t[3], point_f[3], point_t[4],
-                           point_f[4], point_t[5], point_f[5]);
+    /* angles.line_angles_deg: each line's angle on the plot scale, math.degrees(math.atan(slope × scale))
+     * (math.degrees multiplies by 180 / π; both call the C library's atan), then consecutive differences. */
+    double angle[5];
+    for (int k = 0; k < 5; k++)
+        angle[k] = atan(slope[k] * ANGLE_SCALE_S_PER_G) * (180.0 / Py_MATH_PI);
+    result = Py_BuildValue("(ddi(nnnn)[(dd)(dd)(dd)(dd)(dd)][(dd)(dd)(dd)(dd)(dd)(dd)][dddd])", t_ref_s, f_ref_g, 0,
+                           found[0], found[1], found[2], found[3], slope[0], intercept[0], slope[1], intercept[1],
+                           slope[2], intercept[2], slope[3], intercept[3], slope[4], intercept[4], point_t[0],
+                           point_f[0], point_t[1], point_f[1], point_t[2], point_f[2], point_t[3], point_f[3],
+                           point_t[4], point_f[4], point_t[5], point_f[5], angle[0] - angle[1], angle[1] - angle[2],
+                           angle[2] - angle[3], angle[3] - angle[4]);
 done:
     PyBuffer_Release(&time_buffer);
     PyBuffer_Release(&force_buffer);
