@@ -525,15 +525,15 @@ def model_window(time_s, force_g, motion: Motion, timing: SensorTiming, delay_s:
     return ModelWindow(t, force_g[dec.start:dec.stop], x_min, span, float(heights_um[-2]), float(heights_um[-1]))
 
 
-def fit_pullback(window: ModelWindow, motion: Motion, timing: SensorTiming, delay_s: float,
+def fit_pullback(window: ModelWindow, samples: PullbackSamples, motion: Motion, timing: SensorTiming,
                  options: AnalysisOptions) -> tuple[ContactFit, float] | None:
-    """The contact model over the pullback (samples whose window starts after the nozzle began
-    rising), and its residual sigma near contact (`near_contact_sigma_g`)."""
-    first = pullback_first(window, motion, timing, delay_s)
-    y_fit, x_min, span = window.force_g[first:], window.x_min_um[first:], window.span_um[first:]
+    """The contact model over the pullback (`samples`: `pullback_samples`, those whose window starts
+    after the nozzle began rising), and its residual sigma near contact (`near_contact_sigma_g`)."""
+    x_min, _, y_fit = samples
     contact0 = window.break_line_um
     if not math.isfinite(contact0) or len(y_fit) < 2:
         return None
+    span = window.span_um[len(window.span_um) - len(y_fit):]  # the samples' spans: they end the window
     spacing_um = max(motion.pullback_speed_mm_s * 1000.0 * timing.sample_period_s, 0.05)
     return pullback_fit(y_fit, x_min, span, contact0, spacing_um, options)
 
@@ -635,10 +635,9 @@ def _residual(y, x_min_um, span_um, fit: ContactFit) -> np.ndarray:
     return y - (fit.baseline_g + fit.stiffness_g_um * mean)
 
 
-def force_left_at_end_g(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, dec: Decomposition,
-                        ps: PrefixSums) -> tuple[float, float]:
-    """(force over the last END_SAMPLES of the pullback above the free-air level at that height,
-    the departure line's residual sigma): did the nozzle leave the bed (validate.check_left_the_bed)?
+def force_left_at_end_g(motion: Motion, dec: Decomposition, end_g: float) -> float:
+    """The force at the pullback's end (`end_g`, `force_at_g` there) above the free-air level at that
+    height: did the nozzle leave the bed (validate.check_left_the_bed)?
 
     The free-air level is the approach line at the halt carried up the pullback by the free-air
     drift (a cable pulling in proportion to Z moves the end's level by drift x pullback distance).
@@ -646,9 +645,7 @@ def force_left_at_end_g(time_s: np.ndarray, force_g: np.ndarray, motion: Motion,
     slope_g_s, intercept_g = dec.approach_line
     height_um = (float(motion.z_at(motion.pullback_end_s)) - motion.z_halt_mm) * 1000.0
     free_air_g = slope_g_s * motion.home_end_s + intercept_g + free_air_slope_g_um(dec, motion) * height_um
-    remaining_g = force_at_g(time_s, force_g, motion.pullback_end_s) - free_air_g
-    residual_var, _, _ = segment_stats(ps, dec.bounds[3], dec.stop - dec.start)
-    return remaining_g, math.sqrt(residual_var)
+    return end_g - free_air_g
 
 
 def force_at_g(time_s: np.ndarray, force_g: np.ndarray, t_s: float) -> float:
@@ -660,14 +657,15 @@ def force_at_g(time_s: np.ndarray, force_g: np.ndarray, t_s: float) -> float:
     return median(force_g[max(end - END_SAMPLES, 0):end + 1])
 
 
-def left_inside_pullback(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, dec: Decomposition,
-                         ps: PrefixSums, period_s: float) -> bool:
+def left_inside_pullback(motion: Motion, dec: Decomposition, period_s: float, end_g: float, scatter_g: float,
+                         pressed_g: float) -> bool:
     """The tap shows the nozzle leaving the bed inside the pullback: break contact (P4) at least
     BREAK_MARGIN_SAMPLES and a sixth of the pullback before its end, a departure as flat as free
     air (its slope under DEPARTURE_FLAT_SHARE of the decompression's), and the force at the
-    pullback's end on the departure's level (within STILL_PRESSING_SCATTERS of its scatter or the
-    spec's share of the compression). A cable pulling another way on the way up leaves such a
-    departure offset from the approach's level; a nozzle still pressing keeps unloading to the end.
+    pullback's end (`end_g`) on the departure's level (within STILL_PRESSING_SCATTERS of its scatter
+    `scatter_g` or the spec's share of the compression `pressed_g`). A cable pulling another way on
+    the way up leaves such a departure offset from the approach's level; a nozzle still pressing
+    keeps unloading to the end.
     """
     end_s = motion.pullback_end_s - max(motion.pullback_duration_s / 6.0, BREAK_MARGIN_SAMPLES * period_s)
     if not dec.points[P_BREAK][0] < end_s:
@@ -675,9 +673,7 @@ def left_inside_pullback(time_s: np.ndarray, force_g: np.ndarray, motion: Motion
     (decompression_slope, _), (slope_g_s, intercept_g) = dec.lines[DECOMPRESSION:]
     if not abs(slope_g_s) <= DEPARTURE_FLAT_SHARE * abs(decompression_slope):
         return False
-    off_g = force_at_g(time_s, force_g, motion.pullback_end_s) - (slope_g_s * motion.pullback_end_s + intercept_g)
-    scatter_g = math.sqrt(segment_stats(ps, dec.bounds[3], dec.stop - dec.start)[0])
-    pressed_g = dec.points[P_DWELL_START][1] - dec.points[P_CONTACT][1]
+    off_g = end_g - (slope_g_s * motion.pullback_end_s + intercept_g)
     return abs(off_g) <= max(validate.STILL_PRESSING_SCATTERS * scatter_g, validate.STILL_PRESSING_SHARE * pressed_g)
 
 
@@ -1187,9 +1183,13 @@ def check_split(split: SplitTap, delay_s: float) -> None:
     dec, motion, timing = split.dec, split.motion, split.timing
     period_s = timing.sample_period_s
     try:
-        if not left_inside_pullback(split.time_s, split.force_g, motion, dec, split.ps, period_s):
-            validate.check_left_the_bed(dec.points[P_DWELL_START][1] - dec.points[P_CONTACT][1],
-                                        *force_left_at_end_g(split.time_s, split.force_g, motion, dec, split.ps))
+        # What both ways of asking "did the nozzle leave the bed" read: the compression force, the
+        # force at the pullback's end and the departure's scatter about its line.
+        pressed_g = dec.points[P_DWELL_START][1] - dec.points[P_CONTACT][1]
+        end_g = force_at_g(split.time_s, split.force_g, motion.pullback_end_s)
+        scatter_g = math.sqrt(segment_stats(split.ps, dec.bounds[3], dec.stop - dec.start)[0])
+        if not left_inside_pullback(motion, dec, period_s, end_g, scatter_g, pressed_g):
+            validate.check_left_the_bed(pressed_g, force_left_at_end_g(motion, dec, end_g), scatter_g)
         if not split.points_pass:
             validate.check_points(dec.points, split.angles_deg)
         validate.check_break_contact(dec.points[P_BREAK][0] - delay_s - 0.5 * timing.integration_s, motion, period_s)
@@ -1205,9 +1205,9 @@ def fit_contact_models(split: SplitTap, window: ModelWindow, delay_s: float, opt
                        result: TapAnalysis) -> ContactFits:
     """The sharp contact model over the pullback and over the approach (the onset the pullback's)."""
     motion, timing = split.motion, split.timing
-    found = fit_pullback(window, motion, timing, delay_s, options)
-    pullback, near_sigma_g = found if found else (None, None)
     samples = pullback_samples(window, motion, timing, delay_s)
+    found = fit_pullback(window, samples, motion, timing, options)
+    pullback, near_sigma_g = found if found else (None, None)
     if pullback:
         # For pooling taps at one spot (tapcell.tap.pool): the samples the sharp fit read, and its answer.
         x_lo, x_hi, force_up = samples
