@@ -170,6 +170,19 @@ def test_still_pressing_must_stand_clear_of_the_departures_scatter():
     assert STILL_PRESSING_SCATTERS == 4.0
 
 
+def test_the_analysis_reads_the_departures_scatter_for_still_pressing():
+    # A 0.03 mm pullback leaves ~25 g of the ~154 g compression (16 %, over the spec's share):
+    # on a quiet departure (0.7 g noise) that is the nozzle still pressing...
+    quiet = analyze_tap(synth_tap(seed=0, noise_g=0.7, sample_rate_sps=320, pullback_distance_mm=0.03))
+    assert quiet.error == "TAP_PULLBACK_TOO_SHORT"
+    assert quiet.message.startswith("the nozzle still pressed the bed"), quiet.message
+    # ... on a departure scattering ~9.5 g (4 x 9.5 g > 25 g) it is not named: the break-contact
+    # check that follows says what the tap shows.
+    noisy = analyze_tap(synth_tap(seed=0, noise_g=8.0, sample_rate_sps=320, pullback_distance_mm=0.03))
+    assert noisy.error == "TAP_PULLBACK_TOO_SHORT"
+    assert noisy.message.startswith("the nozzle never broke contact"), noisy.message
+
+
 # Reference taps (../shared/data/reference-taps.tar.xz, another generator's physics) that were
 # rejected for a cause they do not show, or accepted with a cause they do (issue 21), with the truth.
 REFERENCE_CASES = {
