@@ -169,3 +169,21 @@ def test_the_scalar_build_gives_the_vector_ffts_bits(scalar_ringing, monkeypatch
     assert vector_bins == [scalar_ringing.dwell_ringing(*call, 2, 0.0, 0.0) for call in calls]
     assert sum(found is not None for found in vector) >= 5  # ringings found, not only None
     assert sum(found is not None for found in vector_bins) >= len(calls) - 10
+
+
+def test_a_kept_chirp_filter_gives_a_later_dwell_of_its_length_the_same_bits(scalar_ringing, monkeypatch):
+    # The chirp filter of a length is made on its first dwell and kept (up to 4096 samples): a later
+    # dwell of that length must find the bits it would find first, and the first dwell again its own.
+    # The scalar build is loaded fresh in this module, so 2749 samples (no other test's length) is a
+    # first call there; 4099 is past the lengths kept, made and freed every call.
+    monkeypatch.setattr(stage, "RINGING_MIN_CHI2", 0.0)
+    for n in (2749, 4099):
+        (t, first), (_, second) = _white_dwell(n, 4), _white_dwell(n, 5)
+        args = (stage.RINGING_MIN_SAMPLES, stage.RINGING_MIN_PERIODS, 0.0)
+        made = scalar_ringing.dwell_ringing(t, first, 1.0, *args)
+        other = scalar_ringing.dwell_ringing(t, second, 1.0, *args)
+        assert made is not None and other is not None and made != other
+        assert scalar_ringing.dwell_ringing(t, first, 1.0, *args) == made
+        assert scalar_ringing.dwell_ringing(t, second, 1.0, *args) == other
+        assert stage._C_RINGING.dwell_ringing(t, first, 1.0, *args) == made  # the vector build's, kept or not
+        assert_agree(stage.Ringing(*made), twin(monkeypatch, t, first, 1.0))

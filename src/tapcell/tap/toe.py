@@ -328,7 +328,7 @@ def _stiffness_at(contact_um: float, width_um: float, power: float, data: _Proje
     return float(h @ data.y_free) / hh if _solvable(hh, hh_all) else 0.0
 
 
-@dataclass(frozen=True)
+@dataclass  # not frozen: a frozen dataclass sets each field through object.__setattr__ (two a tap)
 class Wander:
     """White noise plus a random walk of the baseline (thermal drift of the cell, a cable settling).
 

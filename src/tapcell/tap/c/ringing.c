@@ -17,7 +17,9 @@
  *   convolution with the chirp e^(i pi m^2 / L), done by power-of-two FFTs of M >= L + n / 2
  *   (no prime factors to be slow on);
  * - the chirp's e^(i pi s / L) from an eighth of the circle by exact symmetries (a sin/cos call per
- *   n / 2 samples; the indices m^2 mod 2L kept exact in integers).
+ *   n / 2 samples; the indices m^2 mod 2L kept exact in integers);
+ * - what depends on n alone (the circle, the chirp, the filter's FFT: about half the work) made once
+ *   per dwell length and kept (`chirp_filter`): the same values made or kept.
  * Every bin is the twin's to rounding (the largest within 1e-13 of the twin's on taplab's and the
  * reference taps' dwells, 5e-13 on the sweep's): the same bin is the largest unless two bins tie to
  * rounding, which no measured dwell came near (docs/tap-analysis.md, "Compiled kernels"). The period
@@ -91,21 +93,29 @@ static int quadratic_residual(const double *time_s, const double *force_g, Py_ss
     return 1;
 }
 
-/* The largest bin of the periodogram 2 |X_k|^2 / n, k in [lowest, 2n], of the residual packed[0..
- * ceil(n/2)) zero-padded to 4n real samples; its power in *best_power. -1 (MemoryError set) when out
- * of memory. */
-static Py_ssize_t largest_bin(Complex *packed, Py_ssize_t n, Py_ssize_t lowest, double *best_power)
+/* What a dwell of n samples needs whatever its force, kept per n (below): the circle e^(i pi s / L),
+ * s < 2L, the chirp e^(i pi m^2 / L), m < L + ceil(n / 2) - 1, and the filter, the chirp at k - j
+ * zero-padded to the power-of-two size and transformed (bit-reversed bins). One malloc: the struct,
+ * then its arrays. */
+typedef struct {
+    Py_ssize_t size;
+    Complex *circle, *chirp, *filter;
+} ChirpFilter;
+
+/* The chirp filter of a dwell of n samples (its bytes in *bytes); NULL with MemoryError set. */
+static ChirpFilter *make_chirp_filter(Py_ssize_t n, size_t *bytes)
 {
     const Py_ssize_t length = 2 * n, inputs = (n + 1) / 2, chirps = length + inputs - 1;
-    const Py_ssize_t size = pow2_at_least(length + inputs - 1);
-    if (ensure_twiddles(size) < 0) return -1;
-    /* one block: the circle (2 length), the chirp (chirps), the signal and the filter (size each) */
-    Complex *block = malloc(sizeof(Complex) * (size_t)(2 * length + chirps + 2 * size));
-    if (block == NULL) {
+    const Py_ssize_t size = pow2_at_least(chirps);
+    if (ensure_twiddles(size) < 0) return NULL;
+    *bytes = sizeof(ChirpFilter) + sizeof(Complex) * (size_t)(2 * length + chirps + size);
+    ChirpFilter *made = malloc(*bytes);
+    if (made == NULL) {
         PyErr_NoMemory();
-        return -1;
+        return NULL;
     }
-    Complex *circle = block, *chirp = circle + 2 * length, *signal = chirp + chirps, *filter = signal + size;
+    Complex *circle = (Complex *)(made + 1), *chirp = circle + 2 * length, *filter = chirp + chirps;
+    made->size = size, made->circle = circle, made->chirp = chirp, made->filter = filter;
     fill_circle(circle, length);
     /* chirp[m] = e^(i pi m^2 / length), m^2 mod 2 length exactly (2m + 1 < 3 (2 length): two subtractions at most) */
     for (Py_ssize_t m = 0, square = 0; m < chirps; m++) {
@@ -113,14 +123,7 @@ static Py_ssize_t largest_bin(Complex *packed, Py_ssize_t n, Py_ssize_t lowest, 
         square += 2 * m + 1;
         while (square >= 2 * length) square -= 2 * length;
     }
-    /* Z_k = conj(chirp_k) sum_j (z_j conj(chirp_j)) chirp_(k-j): the signal times the conjugate
-     * chirp, the filter the chirp at k - j = d - (inputs - 1), both zero-padded to size */
-    for (Py_ssize_t j = 0; j < inputs; j++) {
-        const Complex z = packed[j], c = chirp[j];
-        signal[j].re = z.re * c.re + z.im * c.im;
-        signal[j].im = z.im * c.re - z.re * c.im;
-    }
-    for (Py_ssize_t j = inputs; j < size; j++) signal[j].re = signal[j].im = 0.0;
+    /* the filter: the chirp at k - j = d - (inputs - 1), zero-padded to size */
     for (Py_ssize_t d = 0; d < size; d++) {
         if (d < chirps) {
             const Py_ssize_t m = d >= inputs - 1 ? d - (inputs - 1) : (inputs - 1) - d;
@@ -129,13 +132,69 @@ static Py_ssize_t largest_bin(Complex *packed, Py_ssize_t n, Py_ssize_t lowest, 
             filter[d].re = filter[d].im = 0.0;
         }
     }
-    fft_to_bit_reversed(signal, size);
     fft_to_bit_reversed(filter, size);
+    return made;
+}
+
+/* The chirp filters made so far, by n, up to CHIRP_KEPT_BYTES in all: a printer's taps repeat their
+ * dwell's length (the benchmark sets' dwells: 58-73 % a length seen before in the run), and a
+ * filter costs about half the kernel (n / 2 sines and cosines, a power-of-two FFT). The same values
+ * made now or kept: a larger twiddle table holds a smaller one's values bit for bit (fft.h). Never
+ * freed: one table for the process, as the twiddles. */
+#define CHIRP_KEPT_MAX_N 4096
+#define CHIRP_KEPT_BYTES ((size_t)16 << 20)
+static ChirpFilter *chirp_kept[CHIRP_KEPT_MAX_N + 1];
+static size_t chirp_kept_bytes;
+
+/* The chirp filter of n, kept or made; one that is not kept goes to *made for the caller to free.
+ * NULL with MemoryError set. */
+static const ChirpFilter *chirp_filter(Py_ssize_t n, ChirpFilter **made)
+{
+    if (n <= CHIRP_KEPT_MAX_N && chirp_kept[n] != NULL) return chirp_kept[n];
+    size_t bytes;
+    ChirpFilter *filter = make_chirp_filter(n, &bytes);
+    if (filter == NULL) return NULL;
+    if (n <= CHIRP_KEPT_MAX_N && bytes <= CHIRP_KEPT_BYTES - chirp_kept_bytes) {
+        chirp_kept[n] = filter;
+        chirp_kept_bytes += bytes;
+    } else {
+        *made = filter;
+    }
+    return filter;
+}
+
+/* The largest bin of the periodogram 2 |X_k|^2 / n, k in [lowest, 2n], of the residual packed[0..
+ * ceil(n/2)) zero-padded to 4n real samples; its power in *best_power. -1 (MemoryError set) when out
+ * of memory. */
+static Py_ssize_t largest_bin(Complex *packed, Py_ssize_t n, Py_ssize_t lowest, double *best_power)
+{
+    const Py_ssize_t length = 2 * n, inputs = (n + 1) / 2;
+    ChirpFilter *made = NULL;
+    const ChirpFilter *kept = chirp_filter(n, &made);
+    if (kept == NULL) return -1;
+    const Py_ssize_t size = kept->size;
+    const Complex *circle = kept->circle, *chirp = kept->chirp, *filter = kept->filter;
+    /* one block: the signal (size), the spectrum (length) */
+    Complex *signal = malloc(sizeof(Complex) * (size_t)(size + length));
+    if (signal == NULL) {
+        free(made);
+        PyErr_NoMemory();
+        return -1;
+    }
+    /* Z_k = conj(chirp_k) sum_j (z_j conj(chirp_j)) chirp_(k-j): the signal times the conjugate
+     * chirp, zero-padded to size, convolved with the filter */
+    for (Py_ssize_t j = 0; j < inputs; j++) {
+        const Complex z = packed[j], c = chirp[j];
+        signal[j].re = z.re * c.re + z.im * c.im;
+        signal[j].im = z.im * c.re - z.re * c.im;
+    }
+    for (Py_ssize_t j = inputs; j < size; j++) signal[j].re = signal[j].im = 0.0;
+    fft_to_bit_reversed(signal, size);
     for (Py_ssize_t i = 0; i < size; i++) /* signal × filter (re: a.re b.re - a.im b.im, im: a.re b.im + a.im b.re) */
         cv_store(signal + i, cv_times(cv_load(signal + i), filter[i].re, filter[i].im));
     inverse_fft_from_bit_reversed(signal, size);
-    /* Z_k into filter[k], k < length (the convolution's index k + inputs - 1, scaled by 1 / size) */
-    Complex *spectrum = filter;
+    /* Z_k, k < length (the convolution's index k + inputs - 1, scaled by 1 / size) */
+    Complex *spectrum = signal + size;
     for (Py_ssize_t k = 0; k < length; k++) {
         const Complex y = signal[k + inputs - 1], c = chirp[k];
         spectrum[k].re = (y.re * c.re + y.im * c.im) / (double)size;
@@ -156,7 +215,8 @@ static Py_ssize_t largest_bin(Complex *packed, Py_ssize_t n, Py_ssize_t lowest, 
             *best_power = power;
         }
     }
-    free(block);
+    free(signal);
+    free(made);
     return best;
 }
 
