@@ -14,7 +14,7 @@ from tapcell.tap.model import TapData
 from tapcell.tap.motion import Motion
 
 
-@dataclass
+@dataclass(eq=False, repr=False)
 class SensorTiming:
     delay_s: float
     integration_s: float
@@ -24,7 +24,7 @@ class SensorTiming:
     z_step_um: float  # Z resolution of the steppers (the staircase the model does not see)
 
 
-@dataclass
+@dataclass(eq=False, repr=False)
 class AnalysisContext:
     """What a classifier may need beyond the result: the tap, its motion and sensor timing."""
 
