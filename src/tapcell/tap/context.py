@@ -16,6 +16,8 @@ from tapcell.tap.motion import Motion
 
 @dataclass(eq=False, repr=False)
 class SensorTiming:
+    """How the sensor's samples lag and average the motion, as this tap is analysed with."""
+
     delay_s: float
     integration_s: float
     estimate_delay: bool  # "auto": from contact vs break contact

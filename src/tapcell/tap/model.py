@@ -278,7 +278,7 @@ _C = native.load("output")
 _num = _round_num if _C is None else _C.json_number
 
 
-@dataclass
+@dataclass(eq=False, repr=False)  # its arrays have no equality to compare by, nor a short repr
 class PullbackFit:
     """The pullback's samples as the sharp contact model read them (window low edge and span, µm
     above the halt; force, g) and its contact height, stiffness and onset (tapcell.tap.pool)."""
