@@ -340,7 +340,7 @@ APPROACH, COMPRESSION, DWELL, DECOMPRESSION, DEPARTURE = range(5)
 P_START, P_CONTACT, P_DWELL_START, P_DWELL_END, P_BREAK, P_END = range(6)
 
 
-@dataclass
+@dataclass(eq=False, repr=False)
 class Decomposition:
     start: int
     stop: int
@@ -482,7 +482,7 @@ def corner_time_sigma_s(ps: PrefixSums, dec: Decomposition, line: int, t_corner:
     return math.sqrt(var) / slope_gap if slope_gap > 0 else math.inf
 
 
-@dataclass
+@dataclass(eq=False, repr=False)
 class ModelWindow:
     """The analysed samples in height space (µm above the halt), as the contact model sees them.
 
@@ -1027,7 +1027,7 @@ def _check_samples(tap: TapData) -> tuple[np.ndarray, np.ndarray]:
     return t, f
 
 
-@dataclass
+@dataclass(eq=False, repr=False)
 class SplitTap:
     """A tap after its first steps: samples checked, motion and sensor timing read, polarity and
     corrupted frames and hum handled, the five lines found."""
@@ -1067,7 +1067,7 @@ class SplitTap:
                              self.noise_g * self.noise_g)
 
 
-@dataclass
+@dataclass(eq=False, repr=False)
 class ContactFits:
     """The sharp contact model over the pullback (with its near-contact residual sigma) and over the
     approach; either may be missing. With what the steps after them read again: the pullback's

@@ -80,6 +80,9 @@ class UnknownClassifierError(ValueError):
 
 @dataclass
 class Classification:
+    """A classifier's verdict on a valid tap: its quality score (0..100), lines it refitted (None:
+    keep the analysis's) and the score's components by name."""
+
     quality: float | None = None
     lines: list[tuple[float, float]] | None = None
     components: dict[str, float] = field(default_factory=dict)

@@ -14,8 +14,10 @@ from tapcell.tap.model import TapData
 from tapcell.tap.motion import Motion
 
 
-@dataclass
+@dataclass(eq=False, repr=False)
 class SensorTiming:
+    """How the sensor's samples lag and average the motion, as this tap is analysed with."""
+
     delay_s: float
     integration_s: float
     estimate_delay: bool  # "auto": from contact vs break contact
@@ -24,7 +26,7 @@ class SensorTiming:
     z_step_um: float  # Z resolution of the steppers (the staircase the model does not see)
 
 
-@dataclass
+@dataclass(eq=False, repr=False)
 class AnalysisContext:
     """What a classifier may need beyond the result: the tap, its motion and sensor timing."""
 

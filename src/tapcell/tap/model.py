@@ -278,7 +278,7 @@ _C = native.load("output")
 _num = _round_num if _C is None else _C.json_number
 
 
-@dataclass
+@dataclass(eq=False, repr=False)  # its arrays have no equality to compare by, nor a short repr
 class PullbackFit:
     """The pullback's samples as the sharp contact model read them (window low edge and span, µm
     above the halt; force, g) and its contact height, stiffness and onset (tapcell.tap.pool)."""
@@ -293,7 +293,10 @@ class PullbackFit:
     delay_s: float  # the sensor delay the heights were read with
 
 
-@dataclass
+# Slots: 41 fields outgrow the key table Python shares between instances' dicts (under 30 keys),
+# so without them each result builds a dict of its own and takes twice as long to construct.
+# weakref_slot keeps a result weakly referable (`tapcell analyze` frees each one once written).
+@dataclass(slots=True, weakref_slot=True)
 class TapAnalysis:
     """The result of analysing one tap. Times in the tap's own clock, forces in the tap's polarity."""
 

@@ -24,7 +24,7 @@ class MotionError(Exception):
     """The motion does not describe an approach, a halt and a pullback."""
 
 
-@dataclass
+@dataclass(eq=False, repr=False)
 class Motion:
     home_end_s: float  # the approach halted
     pullback_start_s: float

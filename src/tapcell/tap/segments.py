@@ -27,7 +27,7 @@ _C = native.load("segments")
 MIN_SEGMENT_SAMPLES = 2
 
 
-@dataclass
+@dataclass(eq=False, repr=False)
 class PrefixSums:
     """Running sums of 1, t, f, t², t·f, f² (rows of `sums`, a leading 0 column) over re-centred samples.
 

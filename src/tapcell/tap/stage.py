@@ -42,7 +42,7 @@ _TOPS_SQUARED = STAGE_TOPS_UM * STAGE_TOPS_UM
 _TOPS_TWICE = 2.0 * STAGE_TOPS_UM
 
 
-@dataclass
+@dataclass(eq=False, repr=False)
 class SoftStage:
     chi2: float  # how much better the ramp explains the departure than a flat level (noise variances)
     top_um: float  # where the soft stage ends (µm above the halt): the first touch
@@ -228,7 +228,7 @@ TWO_STAGE_MATTERS_UM = 1.0  # a first touch this close to the toe's contact leav
 TWO_STAGE_MIN_TOE_WIDTH_UM = 8.0
 
 
-@dataclass
+@dataclass(eq=False, repr=False)
 class TwoStageFit:
     evidence_chi2: float  # residual of the best one-stage toe minus the two stages', in noise variances
     # (below TWO_STAGE_MIN_EVIDENCE, or with the top within TWO_STAGE_MATTERS_UM: an upper bound, a hinge's)

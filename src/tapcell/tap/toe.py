@@ -150,7 +150,7 @@ def _lift_deficits(powers) -> np.ndarray:
 _LIFT_DEFICIT = _lift_deficits(TOE_POWERS)
 
 
-@dataclass
+@dataclass(eq=False, repr=False)
 class ToeGridResult:
     """What the toe fit's marginal was computed from, kept for pooling taps (tapcell.tap.pool):
     the contact heights (µm above the halt), the residual per toe (row: shape, width) and height,
@@ -165,7 +165,7 @@ class ToeGridResult:
     shape_um: float | None = None
 
 
-@dataclass
+@dataclass(eq=False, repr=False)
 class ToeFit:
     contact_um: float  # height above the halt where the force reaches the baseline
     sigma_um: float
@@ -218,7 +218,7 @@ def lag_from_halt_s(compression_end_time_s: float, halt_time_s: float, period_s:
     return lag_s
 
 
-@dataclass
+@dataclass(eq=False, repr=False)
 class _Projected:
     """The samples and linear columns of one toe fit, prepared once for every candidate toe.
 
@@ -588,7 +588,7 @@ def _detrended_variogram(n: int, lags: tuple[int, ...]) -> tuple[tuple[float, fl
     return tuple(zip(white.tolist(), walk.tolist()))
 
 
-@dataclass
+@dataclass(eq=False, repr=False)
 class _Whitened:
     """`_Projected` under the metric of white + random-walk noise (generalised least squares).
 

@@ -107,7 +107,7 @@ _DEFAULT_WEIGHTS = SigmaWeights()
 _DEFAULT_WEIGHT_VALUES = astuple(_DEFAULT_WEIGHTS)  # the kernel's weights argument (astuple costs a few us)
 
 
-@dataclass  # not frozen: a frozen dataclass sets each field through object.__setattr__, ~1 µs a tap
+@dataclass(eq=False, repr=False)  # not frozen: a frozen dataclass sets each field through object.__setattr__, ~1 µs a tap
 class ZSigmaParts:
     """The parts of a tap's Z uncertainty, each a 1 sigma in µm (module docstring)."""
 
