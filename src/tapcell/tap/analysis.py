@@ -342,6 +342,9 @@ P_START, P_CONTACT, P_DWELL_START, P_DWELL_END, P_BREAK, P_END = range(6)
 
 @dataclass(eq=False, repr=False)
 class Decomposition:
+    """The five lines of a tap (`decompose`): the analysed window start..stop, the segments' bounds in it,
+    the lines, the points where they meet and the angles between them."""
+
     start: int
     stop: int
     bounds: tuple[int, int, int, int]

@@ -109,6 +109,8 @@ def window_mean_hinge(contact_um: float, onset_um: float, x_lo_um: np.ndarray, x
 
 @dataclass
 class ContactFit:
+    """The sharp contact model fitted over the pullback or the approach (`fit_contact`)."""
+
     contact_um: float  # contact height above the halt
     stiffness_g_um: float
     baseline_g: float

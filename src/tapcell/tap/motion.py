@@ -26,6 +26,9 @@ class MotionError(Exception):
 
 @dataclass(eq=False, repr=False)
 class Motion:
+    """A tap's motion as the analysis reads it: when the approach halted, the pullback's times and
+    speeds, and the heights (`tap_motion`)."""
+
     home_end_s: float  # the approach halted
     pullback_start_s: float
     pullback_cruise_s: float  # pullback reached its cruise speed

@@ -44,6 +44,8 @@ _TOPS_TWICE = 2.0 * STAGE_TOPS_UM
 
 @dataclass(eq=False, repr=False)
 class SoftStage:
+    """A soft stage above the contact: a ramp the departure shows before the force returns to zero."""
+
     chi2: float  # how much better the ramp explains the departure than a flat level (noise variances)
     top_um: float  # where the soft stage ends (µm above the halt): the first touch
     slope_g_um: float  # its stiffness
@@ -101,6 +103,8 @@ RINGING_MIN_CHI2 = 25.0
 
 @dataclass
 class Ringing:
+    """The ringing a dwell shows at one frequency (`dwell_ringing`)."""
+
     var_g2: float  # the variance over the dwell at its one frequency (of a ringing decaying in tau about 2 tau / dwell of it)
     period_samples: float  # its period, in sample periods
 
@@ -230,6 +234,8 @@ TWO_STAGE_MIN_TOE_WIDTH_UM = 8.0
 
 @dataclass(eq=False, repr=False)
 class TwoStageFit:
+    """The two-stage mount's fit over a pullback (`two_stage_fit`): a soft stage above a stiff one."""
+
     evidence_chi2: float  # residual of the best one-stage toe minus the two stages', in noise variances
     # (below TWO_STAGE_MIN_EVIDENCE, or with the top within TWO_STAGE_MATTERS_UM: an upper bound, a hinge's)
     top_um: float  # where the soft stage ends (the force returns to zero): the first touch, µm above the halt

@@ -167,6 +167,9 @@ class ToeGridResult:
 
 @dataclass(eq=False, repr=False)
 class ToeFit:
+    """The toe model fitted to a pullback (`fit_pullback_toe`): its contact, sigma, onset width and
+    stiffness, and the grid it was chosen from."""
+
     contact_um: float  # height above the halt where the force reaches the baseline
     sigma_um: float
     width_um: float
