@@ -3,7 +3,7 @@ kernels and with their numpy twins (TAPCELL_NATIVE=0), recorded once and compare
 afterwards (all but `elapsed_ms` and `cpu_ms`, which are the clock's).
 
 Run: .venv/bin/python -m bench analyze_same record DIR [--set KEY=VALUE]... SET...   (before the change)
-     .venv/bin/python -m bench analyze_same check DIR [--set KEY=VALUE]... SET...    (after: exit 1 on any difference)
+     .venv/bin/python -m bench analyze_same check DIR [--set KEY=VALUE]... SET...    (after: exit 1 on any difference; 2 on a bad command line or a missing record)
 A SET is a directory of tap files or one tap file. Each `--set` is passed to `tapcell analyze` as it
 is (e.g. `--set mains_hz=auto`); a record made with settings is named after them too, so one DIR can
 hold runs with and without. Without arguments: records and checks a small taplab set against itself
@@ -127,7 +127,29 @@ def main(argv: list[str]) -> int:
         print(__doc__, file=sys.stderr)
         return 2
     settings, tap_sets = parsed
+    problem = _argument_problem(argv[0], argv[1], tap_sets, settings)
+    if problem:
+        print(f"analyze_same: {problem}", file=sys.stderr)
+        return 2
     return (record if argv[0] == "record" else check)(argv[1], tap_sets, settings)
+
+
+def _argument_problem(command: str, out_dir: str, tap_sets: list[str], settings: list[str]) -> str | None:
+    """What is wrong with the command line, named, before anything runs; None when nothing is."""
+    if out_dir.startswith("-"):
+        return f"{out_dir!r} where the record folder belongs: `{command} DIR [--set KEY=VALUE]... SET...`"
+    for tap_set in tap_sets:
+        if not Path(tap_set).exists():
+            return f"{tap_set}: no such tap file or folder"
+    if command == "check":
+        for tap_set in tap_sets:
+            for kernels in KERNELS:
+                name = Path(out_dir) / _record_name(tap_set, kernels, settings)
+                if not name.is_file():
+                    shown = "".join(" --set " + s for s in settings) or " without --set"
+                    return (f"{name}: no record of {tap_set} ({kernels}){shown}; `record` it first, "
+                            f"with the same path and settings")
+    return None
 
 
 if __name__ == "__main__":

@@ -5,8 +5,6 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import pytest
-
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the bench package beside tests/
 
 from bench import analyze_same  # noqa: E402  (after the path)
@@ -57,5 +55,24 @@ def test_settings_reach_tapcell_analyze(tmp_path, monkeypatch):
     assert b'"elapsed_ms": -' in recorded and b"exit 0" in recorded
     assert analyze_same.main(["check", str(tmp_path / "rec"), "--set", "mains_hz=auto", str(tap)]) == 0
     # the same set checked without the settings has no record: a missing record is an error, not "same"
-    with pytest.raises(FileNotFoundError):
-        analyze_same.main(["check", str(tmp_path / "rec"), str(tap)])
+    assert analyze_same.main(["check", str(tmp_path / "rec"), str(tap)]) == 2
+
+
+def test_a_misplaced_option_a_missing_set_or_record_is_named_before_anything_runs(tmp_path, capsys, monkeypatch):
+    ran = []
+    monkeypatch.setattr(analyze_same, "analyze_output", lambda *a, **k: ran.append(a) or b"")
+    taps = tmp_path / "taps"
+    taps.mkdir()
+    (taps / "one.json").write_text("{}")
+    # --set before the record folder: it is not taken for the folder (a traceback on 'mains_hz=auto' before)
+    assert analyze_same.main(["check", "--set", "mains_hz=auto", str(tmp_path / "rec"), str(taps)]) == 2
+    assert "'--set' where the record folder belongs" in capsys.readouterr().err
+    assert analyze_same.main(["check", str(tmp_path / "rec"), str(tmp_path / "nowhere")]) == 2
+    assert f"{tmp_path / 'nowhere'}: no such tap file or folder" in capsys.readouterr().err
+    # a check whose record was made without these settings (or never): named, with how to make it
+    assert analyze_same.main(["record", str(tmp_path / "rec"), str(taps)]) == 0
+    assert analyze_same.main(["check", str(tmp_path / "rec"), "--set", "mains_hz=auto", str(taps)]) == 2
+    err = capsys.readouterr().err
+    assert "no record of" in err and "--set mains_hz=auto" in err and "`record` it first" in err
+    assert len(ran) == 2  # the record's two runs (kernels, twins); no check ran
+    assert analyze_same.main(["check", str(tmp_path / "rec"), str(taps)]) == 0
