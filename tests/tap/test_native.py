@@ -7,7 +7,6 @@ the walk-weighted toe fit, hum removal, ooze and short pullbacks all take their 
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from tapcell.tap import AnalysisOptions, analyze_tap, native

@@ -214,7 +214,7 @@ def test_window_heights_are_the_twins_at_the_moves_edges():
     time_s = np.unique(np.concatenate((np.linspace(starts[0] - 0.5, ends[-1] + 0.5, 400), edges, edges + 1e-9)))
     lines = [(0.0, 0.0)] * 5
     points = [(float(starts[0]) - 1.0, 0.0)] * 2 + [(0.0, 0.0)] * 2 + [(float(ends[-1]) + 1.0, 0.0)] * 2
-    dec = analysis.Decomposition(0, len(time_s), (1, 2, 3, 4), lines, points)
+    dec = analysis.Decomposition(0, len(time_s), (1, 2, 3, 4), lines, points, [0.0] * 4)
     clamped = 0
     for delay_s, integration_s in ((0.0, 0.003), (0.0, 0.0), (0.02, 0.5), (ends[-1] - starts[0] + 1.0, 0.001)):
         timing = analysis.SensorTiming(delay_s, integration_s, False, False, 0.003, 0.0)

@@ -350,7 +350,7 @@ class Decomposition:
     bounds: tuple[int, int, int, int]
     lines: list[tuple[float, float]]  # (slope g/s, intercept g) in positive polarity, APPROACH..DEPARTURE
     points: list[tuple[float, float]]  # (time s, force g), P_START..P_END
-    angles_deg: list[float] | None = None  # the four angles between consecutive lines (line_angles_deg)
+    angles_deg: list[float]  # the four angles between consecutive lines (line_angles_deg)
 
     @property
     def approach_line(self) -> tuple[float, float]:
@@ -1042,7 +1042,6 @@ class SplitTap:
     dec: Decomposition
     ps: PrefixSums
     noise_g: float
-    angles_deg: list[float]
     # The points in time order and the angles a tap's (validate.split_checks_pass): check_split
     # need not check them again.
     points_pass: bool = False
@@ -1138,7 +1137,7 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> tuple[SplitTap, int, in
         noise_g = all_noise_g
     else:
         noise_g = noise_sigma_g(force[dec.start:dec.stop])
-    split = SplitTap(time_s, force, motion, timing, dec, ps, noise_g, dec.angles_deg, checks_pass)
+    split = SplitTap(time_s, force, motion, timing, dec, ps, noise_g, checks_pass)
     return split, polarity, outliers, hum
 
 
@@ -1146,12 +1145,12 @@ def result_of_split(split: SplitTap, polarity: int, outliers: int, hum: HumFit |
     """The result as far as the five lines go, in the tap's own polarity."""
     dec = split.dec
     if polarity == 1:  # x 1 changes no bit: copies of the split's own lists
-        points, lines, angles_deg = list(dec.points), list(dec.lines), list(split.angles_deg)
+        points, lines, angles_deg = list(dec.points), list(dec.lines), list(dec.angles_deg)
     else:
         sign = float(polarity)  # what int x float multiplies by; float x float takes the interpreter's fast path
         points = [(t, sign * f) for t, f in dec.points]
         lines = [(sign * slope, sign * intercept) for slope, intercept in dec.lines]
-        angles_deg = [sign * a for a in split.angles_deg]
+        angles_deg = [sign * a for a in dec.angles_deg]
     return TapAnalysis(
         valid=True,
         polarity=polarity,
@@ -1194,7 +1193,7 @@ def check_split(split: SplitTap, delay_s: float) -> None:
         if not left_inside_pullback(motion, dec, period_s, end_g, scatter_g, pressed_g):
             validate.check_left_the_bed(pressed_g, force_left_at_end_g(motion, dec, end_g), scatter_g)
         if not split.points_pass:
-            validate.check_points(dec.points, split.angles_deg)
+            validate.check_points(dec.points, dec.angles_deg)
         validate.check_break_contact(dec.points[P_BREAK][0] - delay_s - 0.5 * timing.integration_s, motion, period_s)
     except TapInvalid as invalid:
         # "Lengthen pullback_distance" on a pullback of a few samples: its rules count samples the

@@ -19,8 +19,5 @@ def slope_angle_deg(slope_g_s: float) -> float:
 
 def line_angles_deg(lines: list[tuple[float, float]]) -> list[float]:
     """The four angles between consecutive lines of the five (slope, intercept) tap lines."""
-    # slope_angle_deg's arithmetic inlined: a call per line cost more than the line (each tap's split).
-    degrees, atan = math.degrees, math.atan
-    approach, compression, dwell, decompression, departure = [degrees(atan(slope * ANGLE_SCALE_S_PER_G))
-                                                               for slope, _ in lines]
-    return [approach - compression, compression - dwell, dwell - decompression, decompression - departure]
+    atans = [slope_angle_deg(slope) for slope, _ in lines]
+    return [atans[i] - atans[i + 1] for i in range(4)]
