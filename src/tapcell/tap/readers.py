@@ -241,8 +241,7 @@ def _plain_moves(values: list) -> list[Move] | None:
         numbers = list(map(float, numbers))
     except OverflowError:  # an integer beyond the float range
         return None
-    # finite numbers have a finite sum, unless it overflows: then each one is looked at
-    if not math.isfinite(sum(numbers)) and not all(map(math.isfinite, numbers)):
+    if not all(map(math.isfinite, numbers)):
         return None
     width = len(MOVE_KEYS)
     return [Move(*numbers[start:start + width]) for start in range(0, len(numbers), width)]
@@ -291,7 +290,7 @@ def _check_sample_rate(path: str, where: str, rate_sps: float, time_s: np.ndarra
 
 
 # What the kernel's plain_tap_fields checks a tapcell.tap.v1 object against (MOVE_KEYS start
-# print_time, move_t, start_v: it checks the first two for order and sign as _moves does).
+# print_time, move_t, start_v: it checks print_time's order and move_t's and start_v's signs as _moves does).
 _PLAIN_TAP_FORM = (FORMAT, MOVE_KEYS, EVENT_KEYS, PROBE_KEYS, MIN_SAMPLES)
 
 

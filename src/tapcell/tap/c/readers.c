@@ -511,18 +511,18 @@ static PyObject *decode_tap_json(PyObject *self, PyObject *args)
     }
     PyObject *result = NULL;
     if (decoded == 1) {
-        PyObject *parsed = PyTuple_New(0);
-        for (int j = 0; parsed != NULL && j < (int)keys; j++)
-            if (arrays[j].seen) {
-                Py_ssize_t size = PyTuple_GET_SIZE(parsed);
-                if (_PyTuple_Resize(&parsed, size + 1) == 0) {
-                    Py_INCREF(arrays[j].key);
-                    PyTuple_SET_ITEM(parsed, size, arrays[j].key);
-                }
-            }
-        result = parsed == NULL ? NULL : Py_BuildValue("(NN)", document, parsed);
-        if (result == NULL)
-            Py_XDECREF(document);
+        Py_ssize_t seen = 0;
+        for (Py_ssize_t j = 0; j < keys; j++)
+            seen += arrays[j].seen != 0;
+        PyObject *parsed = PyTuple_New(seen);
+        if (parsed == NULL)
+            Py_DECREF(document);
+        else {
+            for (Py_ssize_t j = 0, at = 0; j < keys; j++)
+                if (arrays[j].seen)
+                    PyTuple_SET_ITEM(parsed, at++, Py_NewRef(arrays[j].key));
+            result = Py_BuildValue("(NN)", document, parsed); /* "N" takes both, even when it fails */
+        }
     } else {
         Py_XDECREF(document);
         if (decoded == 0)
