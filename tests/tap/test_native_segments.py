@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import collections
 
+import math
+
 import numpy as np
 import pytest
 from hypothesis import example, given, settings, strategies as st
@@ -96,6 +98,17 @@ def test_five_lines_takes_its_reference_force_as_numpy_sums(monkeypatch):
         twin_ps, *_ = twin(monkeypatch, segments.five_lines, time_s, force_g,
                            (0.3 * n * 0.003, 0.6 * n * 0.003, 0.62 * n * 0.003), 3, 3)
         assert (ps.t_ref_s, ps.f_ref_g) == (twin_ps.t_ref_s, twin_ps.f_ref_g), n
+
+
+def test_a_force_of_negative_zeros_sums_to_numpys_positive_zero():
+    # == cannot tell -0.0 from +0.0: the sign is compared. numpy's reduction adds its pairwise sum to
+    # +0.0, so a window of -0.0 reads +0.0 at every length (c/sum.h; a kernel sum from -0.0 gave -0.0).
+    for n in (3, 9, 130, 300):
+        time_s = np.arange(n) * 0.003
+        force_g = np.full(n, -0.0)
+        ps, *_ = segments.five_lines(time_s, force_g, (0.3 * n * 0.003, 0.6 * n * 0.003, 0.62 * n * 0.003), 3, 3)
+        expected = float(force_g.sum()) / n
+        assert math.copysign(1.0, ps.f_ref_g) == math.copysign(1.0, expected) == 1.0, n
 
 
 def test_five_lines_equal_the_twin_on_every_problem(monkeypatch):

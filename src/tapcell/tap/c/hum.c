@@ -23,6 +23,7 @@
 #include "buffers.h"
 #include "fft.h"
 #include "median.h"
+#include "sum.h"
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
@@ -329,29 +330,6 @@ done:
     return answer;
 }
 
-/* numpy's sum of n doubles `stride` apart (np.add.reduce, as np.trace takes it): pairwise, eight
- * running sums within blocks of up to 128. */
-static double pairwise_sum(const double *values, Py_ssize_t n, Py_ssize_t stride)
-{
-    if (n < 8) {
-        double sum = 0.0;
-        for (Py_ssize_t i = 0; i < n; i++) sum += values[i * stride];
-        return sum;
-    }
-    if (n <= 128) {
-        double r[8];
-        for (int j = 0; j < 8; j++) r[j] = values[j * stride];
-        Py_ssize_t i = 8;
-        for (; i < n - n % 8; i += 8)
-            for (int j = 0; j < 8; j++) r[j] += values[(i + j) * stride];
-        double sum = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
-        for (; i < n; i++) sum += values[i * stride];
-        return sum;
-    }
-    Py_ssize_t half = n / 2;
-    half -= half % 8;
-    return pairwise_sum(values, half, stride) + pairwise_sum(values + half * stride, n - half, stride);
-}
 
 /* hum.HatSpline.normal_equations, bit for bit: the spline's gram under the weights (dense, its ridge on
  * the diagonal) and its sums per knot of the weighted force and of each weighted wave column, each
@@ -416,7 +394,7 @@ static PyObject *normal_equations(PyObject *self, PyObject *args)
             per_knot[k * (columns + 1) + c] = halves[k * width + 2 * c] + halves[k * width + 2 * c + 1];
     }
     /* the ridge: 1e-10 of the mean diagonal (np.trace's sum), that mean at least 1e-300 */
-    const double mean_diagonal = pairwise_sum(gram, count, count + 1) / (double)count;
+    const double mean_diagonal = numpy_sum(gram, count, count + 1) / (double)count;
     const double ridge = 1e-10 * (mean_diagonal > 1e-300 ? mean_diagonal : 1e-300);
     for (Py_ssize_t k = 0; k < count; k++) gram[k * count + k] += ridge;
     answer = Py_NewRef(Py_None);

@@ -9,6 +9,7 @@
  * five_lines: a tap window's whole split in one call, with what the analysis reads off it next (the
  * lines' scatter, `segment_stats`, and their six points, `context.recompute_points`), bit for bit. */
 #include "buffers.h"
+#include "sum.h"
 
 #include <math.h>
 
@@ -22,23 +23,9 @@ typedef struct {
     Py_ssize_t columns;
 } PrefixSums;
 
-/* Residual sum of squares of the best line through a segment's sums: `_sse_of_sums` step by step
- * (same operations, same order), +inf for fewer than MIN_SEGMENT_SAMPLES samples. */
-static inline double sse_of_sums(double n, double st, double sf, double stt, double stf, double sff)
-{
-    double inv_n = 1.0 / n;
-    double t_mean = st * inv_n;
-    double sxx = stt - st * t_mean;
-    double sxy = stf - t_mean * sf;
-    double explained = (sxy * sxy) / sxx;
-    double sse = (sff - (sf * sf) * inv_n) - explained;
-    sse = sse < 0.0 ? 0.0 : sse; /* np.maximum(sse, 0): a NaN stays NaN */
-    /* Too short: the arithmetic above divided by a count < 2 (maybe 0); its result is replaced. */
-    return n < MIN_SEGMENT_SAMPLES ? INFINITY : sse;
-}
-
-/* `sse_of_sums` of a segment of at least MIN_SEGMENT_SAMPLES samples, its 1 / n given: the same
- * operations in the same order (a reciprocal looked up is the one computed, bit for bit), with one
+/* Residual sum of squares of the best line through the sums of a segment of at least
+ * MIN_SEGMENT_SAMPLES samples, its 1 / n given: the twin's `_sse_of_sums` step by step (same
+ * operations, same order; a reciprocal looked up is the one computed, bit for bit), with one
  * division left where the costing of thousands of segments a tap waits on two. */
 static inline double sse_of_long_sums(double inv_n, double st, double sf, double stt, double stf, double sff)
 {
@@ -69,7 +56,7 @@ typedef struct {
 #endif
 
 /* out[k] = add[k] + sse of the segment [i, j0 + k) for k < count (add NULL: + 0 left out): a row of
- * segments sharing their first sample. Too short ones (j0 + k - i < 2) are +inf, as `sse_of_sums`;
+ * segments sharing their first sample. Too short ones (j0 + k - i < 2) are +inf, as the twin's;
  * the rest run in a loop without branches, which the compiler vectorises (two divisions at once). */
 ROW_LOOP static void sse_from(const Costing *cost, Py_ssize_t i, Py_ssize_t j0, Py_ssize_t count,
                      const double *restrict add, double *restrict out)
@@ -84,19 +71,21 @@ ROW_LOOP static void sse_from(const Costing *cost, Py_ssize_t i, Py_ssize_t j0, 
     const double st0 = row[w + i], sf0 = row[2 * w + i], stt0 = row[3 * w + i], stf0 = row[4 * w + i];
     const double sff0 = row[5 * w + i];
     const double *restrict st = row + w + j0, *restrict sf = row + 2 * w + j0, *restrict stt = row + 3 * w + j0;
-    const double *restrict stf = row + 4 * w + j0, *restrict sff = row + 5 * w + j0, *restrict inv = inverse + j0 - i;
+    const double *restrict stf = row + 4 * w + j0, *restrict sff = row + 5 * w + j0;
+    const Py_ssize_t apart = j0 - i; /* inverse[apart + k]: 1 / (j0 + k - i), an index >= 2 from here on */
     if (add) {
         for (; k < count; k++)
-            out[k] = sse_of_long_sums(inv[k], st[k] - st0, sf[k] - sf0, stt[k] - stt0, stf[k] - stf0, sff[k] - sff0)
-                     + add[k];
+            out[k] = sse_of_long_sums(inverse[apart + k], st[k] - st0, sf[k] - sf0, stt[k] - stt0, stf[k] - stf0,
+                                      sff[k] - sff0) + add[k];
     } else {
         for (; k < count; k++)
-            out[k] = sse_of_long_sums(inv[k], st[k] - st0, sf[k] - sf0, stt[k] - stt0, stf[k] - stf0, sff[k] - sff0);
+            out[k] = sse_of_long_sums(inverse[apart + k], st[k] - st0, sf[k] - sf0, stt[k] - stt0, stf[k] - stf0,
+                                      sff[k] - sff0);
     }
 }
 
 /* out[k] = add[k] + sse of the segment [i0 + k, j) for k < count (add NULL: + 0 left out): a row of
- * segments sharing their end. Too short ones (j - i0 - k < 2) are +inf, as `sse_of_sums`. */
+ * segments sharing their end. Too short ones (j - i0 - k < 2) are +inf, as the twin's. */
 ROW_LOOP static void sse_to(const Costing *cost, Py_ssize_t i0, Py_ssize_t j, Py_ssize_t count,
                    const double *restrict add, double *restrict out)
 {
@@ -469,35 +458,6 @@ static void intersect(double a_slope, double a_intercept, double b_slope, double
     *f_out = fa + a_slope * dt;
 }
 
-/* numpy's sum of n float64 values (`np.add.reduce` of a contiguous array: numpy's pairwise summation,
- * `pairwise_sum` in its loops_utils.h), in its order, so the same bits: fewer than 8 values one after
- * the other from 0; up to 128 in eight running sums, combined ((0+1)+(2+3))+((4+5)+(6+7)), then the
- * rest one by one; more, split in two halves at a multiple of 8 and the halves' sums added. */
-static double numpy_sum(const double *values, Py_ssize_t n)
-{
-    if (n < 8) {
-        double sum = 0.0;
-        for (Py_ssize_t i = 0; i < n; i++)
-            sum += values[i];
-        return sum;
-    }
-    if (n <= 128) {
-        double r[8];
-        for (int k = 0; k < 8; k++)
-            r[k] = values[k];
-        Py_ssize_t i = 8;
-        for (; i < n - n % 8; i += 8)
-            for (int k = 0; k < 8; k++)
-                r[k] += values[i + k];
-        double sum = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
-        for (; i < n; i++)
-            sum += values[i];
-        return sum;
-    }
-    Py_ssize_t half = n / 2;
-    half -= half % 8;
-    return numpy_sum(values, half) + numpy_sum(values + half, n - half);
-}
 
 PyDoc_STRVAR(five_lines_doc,
              "five_lines(time_s, force_g, halt_s, pullback_start_s, pullback_cruise_s,\n"
@@ -536,7 +496,7 @@ static PyObject *five_lines(PyObject *self, PyObject *args)
         PyErr_SetString(PyExc_ValueError, "time_s: no samples");
         goto done;
     }
-    const double t_ref_s = time_s[m / 2], f_ref_g = numpy_sum(force_g, m) / (double)m;
+    const double t_ref_s = time_s[m / 2], f_ref_g = numpy_sum(force_g, m, 1) / (double)m;
     fill_prefix_sums(time_s, force_g, m, t_ref_s, f_ref_g, sums);
     const PrefixSums ps = {sums, m + 1};
     /* The candidate ranges, half-open [first, end), as the twin's ranges. */

@@ -14,6 +14,7 @@
  * repeats its arithmetic element for element (only the weights' sums run in another order). */
 #include "buffers.h"
 #include "median.h"
+#include "sum.h"
 #include <math.h>
 #include <stdlib.h>
 
@@ -53,29 +54,6 @@ static Sums sums_below(const double *prefix, const double *x, Py_ssize_t n, doub
     return s;
 }
 
-/* numpy's sum of a contiguous float64 array (pairwise: blocks of up to 128 in eight lanes), so the
- * mean the twin takes out is the same to the last bit. */
-static double pairwise_sum(const double *a, Py_ssize_t n)
-{
-    if (n < 8) {
-        double sum = -0.0;
-        for (Py_ssize_t i = 0; i < n; i++) sum += a[i];
-        return sum;
-    }
-    if (n <= 128) {
-        double lane[8];
-        for (int j = 0; j < 8; j++) lane[j] = a[j];
-        Py_ssize_t i = 8;
-        for (; i < n - (n % 8); i += 8)
-            for (int j = 0; j < 8; j++) lane[j] += a[i + j];
-        double sum = ((lane[0] + lane[1]) + (lane[2] + lane[3])) + ((lane[4] + lane[5]) + (lane[6] + lane[7]));
-        for (; i < n; i++) sum += a[i];
-        return sum;
-    }
-    Py_ssize_t half = n / 2;
-    half -= half % 8;
-    return pairwise_sum(a, half) + pairwise_sum(a + half, n - half);
-}
 
 static PyObject *soft_stage(PyObject *self, PyObject *args)
 {
@@ -124,7 +102,7 @@ static PyObject *soft_stage(PyObject *self, PyObject *args)
         Py_INCREF(answer);
         goto done;
     }
-    const double mean = pairwise_sum(f, n) / (double)n;
+    const double mean = numpy_sum(f, n, 1) / (double)n;
     for (int q = 0; q < 4; q++) prefix[q] = 0.0;
     for (Py_ssize_t i = 0; i < n; i++) {
         const double h = x[i] - contact_um, level = f[i] - mean;
@@ -371,7 +349,7 @@ static void stable_order(const double *x, Py_ssize_t n, Py_ssize_t *order, Py_ss
 static double products_sum(const double *a, const double *b, Py_ssize_t n, double *room)
 {
     for (Py_ssize_t i = 0; i < n; i++) room[i] = a[i] * b[i];
-    return pairwise_sum(room, n);
+    return numpy_sum(room, n, 1);
 }
 
 /* stage.py's two_stage_fit up to its grid, then the grid: the samples within [contact - below,
@@ -428,8 +406,8 @@ static PyObject *two_stage_fit(PyObject *self, PyObject *args)
         xs[k] = x_all[picked[order[k]]];
         fs[k] = f_all[picked[order[k]]];
     }
-    const double x_mean = pairwise_sum(xs, n) / (double)n;
-    const double f_mean = pairwise_sum(fs, n) / (double)n;
+    const double x_mean = numpy_sum(xs, n, 1) / (double)n;
+    const double f_mean = numpy_sum(fs, n, 1) / (double)n;
     for (Py_ssize_t k = 0; k < n; k++) {
         xc[k] = xs[k] - x_mean;
         fs[k] = fs[k] - f_mean;
