@@ -175,15 +175,19 @@ def test_a_kept_chirp_filter_gives_a_later_dwell_of_its_length_the_same_bits(sca
     # The chirp filter of a length is made on its first dwell and kept (up to 4096 samples): a later
     # dwell of that length must find the bits it would find first, and the first dwell again its own.
     # The scalar build is loaded fresh in this module, so 2749 samples (no other test's length) is a
-    # first call there; 4099 is past the lengths kept, made and freed every call.
+    # first call there; 4099 is past the lengths kept, made and freed every call, and grows the twiddle
+    # table after 2749's filter was kept: 2749 again must still give its first bits.
     monkeypatch.setattr(stage, "RINGING_MIN_CHI2", 0.0)
+    args = (stage.RINGING_MIN_SAMPLES, stage.RINGING_MIN_PERIODS, 0.0)
+    first_found = {}
     for n in (2749, 4099):
         (t, first), (_, second) = _white_dwell(n, 4), _white_dwell(n, 5)
-        args = (stage.RINGING_MIN_SAMPLES, stage.RINGING_MIN_PERIODS, 0.0)
-        made = scalar_ringing.dwell_ringing(t, first, 1.0, *args)
+        made = first_found[n] = scalar_ringing.dwell_ringing(t, first, 1.0, *args)
         other = scalar_ringing.dwell_ringing(t, second, 1.0, *args)
         assert made is not None and other is not None and made != other
         assert scalar_ringing.dwell_ringing(t, first, 1.0, *args) == made
         assert scalar_ringing.dwell_ringing(t, second, 1.0, *args) == other
         assert stage._C_RINGING.dwell_ringing(t, first, 1.0, *args) == made  # the vector build's, kept or not
         assert_agree(stage.Ringing(*made), twin(monkeypatch, t, first, 1.0))
+    t, first = _white_dwell(2749, 4)
+    assert scalar_ringing.dwell_ringing(t, first, 1.0, *args) == first_found[2749]

@@ -94,7 +94,7 @@ static int quadratic_residual(const double *time_s, const double *force_g, Py_ss
 }
 
 /* What a dwell of n samples needs whatever its force, kept per n (below): the circle e^(i pi s / L),
- * s < 2L, the chirp e^(i pi m^2 / L), m < L + ceil(n / 2) - 1, and the filter, the chirp at k - j
+ * s < 2L, the chirp e^(i pi m^2 / L), m < L (the most any k - j or k reaches), and the filter, the chirp at k - j
  * zero-padded to the power-of-two size and transformed (bit-reversed bins). One malloc: the struct,
  * then its arrays. */
 typedef struct {
@@ -108,17 +108,17 @@ static ChirpFilter *make_chirp_filter(Py_ssize_t n, size_t *bytes)
     const Py_ssize_t length = 2 * n, inputs = (n + 1) / 2, chirps = length + inputs - 1;
     const Py_ssize_t size = pow2_at_least(chirps);
     if (ensure_twiddles(size) < 0) return NULL;
-    *bytes = sizeof(ChirpFilter) + sizeof(Complex) * (size_t)(2 * length + chirps + size);
+    *bytes = sizeof(ChirpFilter) + sizeof(Complex) * (size_t)(3 * length + size);
     ChirpFilter *made = malloc(*bytes);
     if (made == NULL) {
         PyErr_NoMemory();
         return NULL;
     }
-    Complex *circle = (Complex *)(made + 1), *chirp = circle + 2 * length, *filter = chirp + chirps;
+    Complex *circle = (Complex *)(made + 1), *chirp = circle + 2 * length, *filter = chirp + length;
     made->size = size, made->circle = circle, made->chirp = chirp, made->filter = filter;
     fill_circle(circle, length);
     /* chirp[m] = e^(i pi m^2 / length), m^2 mod 2 length exactly (2m + 1 < 3 (2 length): two subtractions at most) */
-    for (Py_ssize_t m = 0, square = 0; m < chirps; m++) {
+    for (Py_ssize_t m = 0, square = 0; m < length; m++) {
         chirp[m] = circle[square];
         square += 2 * m + 1;
         while (square >= 2 * length) square -= 2 * length;
