@@ -150,7 +150,6 @@ def test_the_fit_keeps_the_shape_spread_its_grid_gives(toe_fits, monkeypatch):
     assert len(fits) >= 20
     kept = [fit.grid.shape_um for fit in fits]
     assert kept == [toe.shape_spread_um(fit.grid.contacts_um, fit.grid.rss, fit.grid.noise_var) for fit in fits]
-    assert kept == [uncertainty.toe_shape_um(fit.grid) for fit in fits]
     assert sum(spread > 0.0 for spread in kept) >= 10  # spreads, not only the zeros of one shape
     # The twin leaves it to be computed from the grid when asked.
     monkeypatch.setattr(toe, "_C", None)
