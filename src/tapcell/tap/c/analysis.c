@@ -295,17 +295,6 @@ static PyObject *spikes(PyObject *self, PyObject *args)
     return answer;
 }
 
-/* The first sample at or after t_s (searchsorted left), the last for times past the end (n >= 1). */
-static Py_ssize_t first_at_or_after(const double *time_s, Py_ssize_t n, double t_s)
-{
-    Py_ssize_t low = 0, high = n; /* the count of samples before t_s */
-    while (low < high) {
-        Py_ssize_t middle = low + (high - low) / 2;
-        if (time_s[middle] < t_s) low = middle + 1;
-        else high = middle;
-    }
-    return low < n ? low : n - 1;
-}
 
 /* The median of values[first, end) (end > first) through scratch (end - first values). */
 static double median_of_range(const double *values, Py_ssize_t first, Py_ssize_t end, double *scratch)

@@ -8,6 +8,7 @@
 
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <math.h>
 #include <string.h>
 
 /* A "O&" converter for PyArg_ParseTuple: `object` as a C-contiguous float64 buffer in the
@@ -63,6 +64,21 @@ static inline void pullback_samples_of(const Py_buffer buffers[3], Py_ssize_t *n
     *x_lo = doubles_of(&buffers[0], n, "x_lo_um");
     *x_hi = *x_lo ? doubles_sized(&buffers[1], *n, "x_hi_um") : NULL;
     *force_g = *x_hi ? doubles_sized(&buffers[2], *n, "force_g") : NULL;
+}
+
+/* The first sample at or after `time` (numpy's searchsorted, side "left", NaN after every
+ * number), the last for times past the end (n >= 1): analysis.py's `_indices`. */
+static inline Py_ssize_t first_at_or_after(const double *time_s, Py_ssize_t n, double time)
+{
+    Py_ssize_t lo = 0, hi = n;
+    while (lo < hi) {
+        Py_ssize_t mid = lo + (hi - lo) / 2;
+        if (time_s[mid] < time || (isnan(time) && !isnan(time_s[mid])))
+            lo = mid + 1;
+        else
+            hi = mid;
+    }
+    return lo < n - 1 ? lo : n - 1;
 }
 
 #endif

@@ -410,20 +410,6 @@ done:
     return lines;
 }
 
-/* The first sample at or after `time` (numpy's searchsorted, side "left", NaN after every
- * number), the last for times past the end: analysis.py's `_indices`. */
-static Py_ssize_t first_at_or_after(const double *time_s, Py_ssize_t n, double time)
-{
-    Py_ssize_t lo = 0, hi = n;
-    while (lo < hi) {
-        Py_ssize_t mid = lo + (hi - lo) / 2;
-        if (time_s[mid] < time || (isnan(time) && !isnan(time_s[mid])))
-            lo = mid + 1;
-        else
-            hi = mid;
-    }
-    return lo < n - 1 ? lo : n - 1;
-}
 
 /* The twin's `segment_stats` of [first, end) (the same arithmetic in the same order; Python's
  * max(a, b) is b only when b > a): (residual variance, mean re-centred time, Sxx), as a new tuple. */
