@@ -108,14 +108,16 @@ def test_too_few_floor_bins_is_inf_in_both(monkeypatch, n):
 
 def test_bad_arrays_are_errors_not_garbage():
     t, force = _noisy_hum(100, 1)
-    args = (hum.SCREEN_STEP_SIGMAS, hum.SCREEN_STEP_NEIGHBOURS, hum.SCREEN_BAND, hum.SCREEN_MIN_HALF_BAND_BINS,
-            hum.SCREEN_GUARD_BINS, hum.SCREEN_MIN_FLOOR_BINS, hum.MAD_TO_SIGMA)
+    args = (hum._fast_length(198), hum.SCREEN_STEP_SIGMAS, hum.SCREEN_STEP_NEIGHBOURS, hum.SCREEN_BAND,
+            hum.SCREEN_MIN_HALF_BAND_BINS, hum.SCREEN_GUARD_BINS, hum.SCREEN_MIN_FLOOR_BINS, hum.MAD_TO_SIGMA)
     with pytest.raises(ValueError, match="time_s: 99 values, 100 expected"):
         hum._C.screen(t[:99], force, np.array([50.0]), *args)
     with pytest.raises(TypeError, match="float64"):
         hum._C.screen(t, force.astype(np.float32), np.array([50.0]), *args)
     with pytest.raises(ValueError, match="span no time"):
         hum._C.screen(np.zeros(100), force, np.array([50.0]), *args)
+    with pytest.raises(ValueError, match="padded length 197, at least 198 needed"):
+        hum._C.screen(t, force, np.array([50.0]), 197, *args[1:])
 
 
 # The fit's exact parts: the same arithmetic in the same order, so bit for bit (np.array_equal).

@@ -395,7 +395,8 @@ def _screen(time_s: np.ndarray, force_g: np.ndarray, candidates_hz) -> tuple[tup
     time_s = np.ascontiguousarray(time_s, dtype=float)
     force_g = np.ascontiguousarray(force_g, dtype=float)
     if _C is not None:
-        return _C.screen(time_s, force_g, np.asarray(candidates_hz, dtype=float), SCREEN_STEP_SIGMAS,
+        padded = _fast_length(2 * (len(force_g) - 1)) if len(force_g) > 2 else 0  # the twin's length below
+        return _C.screen(time_s, force_g, np.asarray(candidates_hz, dtype=float), padded, SCREEN_STEP_SIGMAS,
                          SCREEN_STEP_NEIGHBOURS, SCREEN_BAND, SCREEN_MIN_HALF_BAND_BINS, SCREEN_GUARD_BINS,
                          SCREEN_MIN_FLOOR_BINS, MAD_TO_SIGMA)
     steps = force_g[1:] - force_g[:-1]  # np.diff's wrapper costs more than the subtraction here

@@ -47,19 +47,6 @@ static int ensure_circle(Py_ssize_t half_turn)
     return 0;
 }
 
-/* The smallest 2^a 3^b 5^c >= at_least, as hum._fast_length finds it in its table (up to 2^24; past
- * that, at_least itself). */
-static Py_ssize_t fast_length(Py_ssize_t at_least)
-{
-    const Py_ssize_t limit = (Py_ssize_t)1 << 24;
-    Py_ssize_t best = -1;
-    for (Py_ssize_t twos = 1; twos <= limit; twos *= 2)
-        for (Py_ssize_t threes = twos; threes <= limit; threes *= 3)
-            for (Py_ssize_t fives = threes; fives <= limit; fives *= 5)
-                if (fives >= at_least && (best < 0 || fives < best)) best = fives;
-    return best < 0 ? at_least : best;
-}
-
 /* power[q] = |X_(k0+q)|^2, q < count, k0 + count <= length / 2 + 1: bins of the length-`length` DFT of
  * x[0..m) zero-padded (m <= length, length 2^a 3^b 5^c). Even length: the samples packed in pairs,
  * z_j = x_2j + i x_2j+1, one complex FFT of half the length, and X_k = E_k + W^k O_k with E, O the even
@@ -137,8 +124,9 @@ static PyObject *screen(PyObject *self, PyObject *args)
     (void)self;
     Py_buffer tb = {0}, fb = {0}, cb = {0};
     ScreenSettings s;
-    if (!PyArg_ParseTuple(args, "O&O&O&dndnnnd", float64_buffer, &tb, float64_buffer, &fb, float64_buffer, &cb,
-                          &s.step_sigmas, &s.neighbours, &s.band, &s.min_half_band_bins, &s.guard_bins,
+    Py_ssize_t padded;
+    if (!PyArg_ParseTuple(args, "O&O&O&ndndnnnd", float64_buffer, &tb, float64_buffer, &fb, float64_buffer, &cb,
+                          &padded, &s.step_sigmas, &s.neighbours, &s.band, &s.min_half_band_bins, &s.guard_bins,
                           &s.min_floor_bins, &s.mad_to_sigma))
         return NULL;
     PyObject *answer = NULL, *clear = NULL, *hum_to_noise = NULL;
@@ -175,7 +163,11 @@ static PyObject *screen(PyObject *self, PyObject *args)
         goto done;
     }
     /* steps, |steps| (the median's scratch), the cut marks, the bins read, the floor's scratch */
-    const Py_ssize_t padded = fast_length(2 * m), bins = padded / 2 + 1;
+    if (padded < 2 * m) {
+        PyErr_Format(PyExc_ValueError, "screen: padded length %zd, at least %zd needed", padded, 2 * m);
+        goto done;
+    }
+    const Py_ssize_t bins = padded / 2 + 1;
     steps = malloc(sizeof(double) * (size_t)(3 * m + 2 * bins) + sizeof(Py_ssize_t) * (size_t)(lines + 1));
     if (steps == NULL) {
         PyErr_NoMemory();
@@ -494,11 +486,11 @@ done:
 
 static PyMethodDef methods[] = {
     {"screen", screen, METH_VARARGS,
-     "screen(time_s, force_g, candidates_hz, step_sigmas, neighbours, band, min_half_band_bins, guard_bins,\n"
-     "       min_floor_bins, mad_to_sigma) -> (clear, hum_to_noise)\n\n"
+     "screen(time_s, force_g, candidates_hz, padded, step_sigmas, neighbours, band, min_half_band_bins,\n"
+     "       guard_bins, min_floor_bins, mad_to_sigma) -> (clear, hum_to_noise)\n\n"
      "Per candidate line: the power at its alias in the tap's steps against the median of the bins around\n"
      "it (chi2 units), and its amplitude in noise sigmas; inf where the floor has too few bins\n"
-     "(hum.py: _screen)."},
+     "(hum.py: _screen). padded: the DFT's length, hum._fast_length of twice the steps."},
     {"hat_spline", hat_spline, METH_VARARGS,
      "hat_spline(time_s, knots_s, left_out, share_out)\n\n"
      "Per sample the knot left of it (int64) and its share of the next, as hum.hat_spline computes them."},
