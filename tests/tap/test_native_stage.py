@@ -134,6 +134,36 @@ def test_the_one_stage_toe_grid_equals_the_numpy_twin(fits, monkeypatch):
     assert len(calls) >= 15
 
 
+def _one_stage_call(x, f, contact_um, contacts_um=stage.ONE_STAGE_CONTACTS_UM):
+    """one_stage_rss's kernel on a departure prepared as two_stage_fit prepares it."""
+    x, _, f, sxx, ff = stage._sorted_detrended(x, f, False)
+    return stage._C.one_stage_rss(x, f, np.ascontiguousarray(contacts_um), stage._ONE_STAGE_WIDTHS,
+                                  stage._ONE_STAGE_POWERS, contact_um, sxx, ff, float(x.mean()))
+
+
+def test_the_one_stage_toe_grid_is_the_same_whatever_the_contacts_order():
+    # Along rising contacts the kernel counts the samples below each contact and its toe on from the
+    # last contact's; any other order takes binary searches. The least residual is the same bits.
+    x, f = _departure()
+    rising = _one_stage_call(x, f, 10.0)
+    for contacts in (stage.ONE_STAGE_CONTACTS_UM[::-1], np.random.default_rng(2).permutation(stage.ONE_STAGE_CONTACTS_UM)):
+        assert repr(_one_stage_call(x, f, 10.0, contacts)) == repr(rising)
+
+
+def test_the_one_stage_toe_grid_with_samples_on_its_own_heights(monkeypatch):
+    # Samples at every half µm: on each contact and on the edge of each (whole or half µm) width's toe, where
+    # a count below it and the "pressed a width deep" test are decided by equality.
+    x = np.arange(-15.0, 60.0, 0.5)
+    rng = np.random.default_rng(5)
+    f = 2.0 * np.clip(10.0 - x, 0.0, None) ** 1.5 / 3.0 + rng.normal(0.0, 0.3, len(x))
+    xs, xc, fs, sxx, ff = stage._sorted_detrended(x, f, False)
+    kernel = stage._one_stage_rss(xs, xc, fs, sxx, ff, 10.0)
+    monkeypatch.setattr(stage, "_C", None)
+    twin = stage._one_stage_rss(xs, xc, fs, sxx, ff, 10.0)
+    assert abs(kernel - twin) <= 1e-12 * ff
+    assert twin < 0.05 * ff  # the toe explains the departure: the grid's best is a real fit
+
+
 def _kernel_fit(x_um, force_g, contact_um, noise_var_g2, window_um, drift_held=False):
     return stage._C.two_stage_fit(x_um, force_g, contact_um, stage.TWO_STAGE_BELOW_UM, stage.TWO_STAGE_ABOVE_UM,
                                   stage.STAGE_MIN_SAMPLES, noise_var_g2, window_um, stage.TWO_STAGE_MIN_SPAN_UM,
