@@ -150,6 +150,59 @@ done:
 }
 
 
+/* A row's loop built twice where the compiler and C library can (gcc 6+ or clang 14+, x86-64, glibc's
+ * ifuncs): with AVX2 (four cells at once) and without (two, SSE2), the one the CPU runs chosen when
+ * the module loads. The same IEEE operations either way (no fused multiply-adds: -ffp-contract=off),
+ * so the same values bit for bit. */
+#if defined(__x86_64__) && defined(__GLIBC__) && \
+    ((defined(__clang__) && __clang_major__ >= 14) || (!defined(__clang__) && defined(__GNUC__) && __GNUC__ >= 6))
+#define ROW_LOOP __attribute__((target_clones("avx2", "default")))
+#else
+#define ROW_LOOP
+#endif
+
+/* One hinge's row of the two-stage grid: the stiff stage's sums (su, ux, uu, uf, and its prefix sums
+ * s0h, s1h, s2h below the hinge) against each top's (prefix sums t0..txf below it), the level and
+ * the drift projected out; the two stiffnesses solved for every cell, without a branch (the
+ * compiler vectorises it: the solves' six divisions are the grid's cost). k[b], k1[b], the residual
+ * rss[b] = ff - gain, and ok[b]: 1 where the solve is well conditioned and the soft share within
+ * [min_share, max_share], 0 where not (there the caller reads none of them). */
+static ROW_LOOP void row_solves(Py_ssize_t cells, const double *top, const double *t0, const double *t1,
+                                const double *t2, const double *tf, const double *txf, double hinge, double s0h,
+                                double s1h, double s2h, double su, double ux, double uu, double uf, double count,
+                                double sxx, double x_mean, double ff, double min_share, double max_share,
+                                double *restrict k_out, double *restrict k1_out, double *restrict rss,
+                                double *restrict ok)
+{
+    for (Py_ssize_t b = 0; b < cells; b++) {
+        const double sv = top[b] * t0[b] - t1[b];
+        const double vx = top[b] * t1[b] - t2[b] - x_mean * sv;
+        const double vv = top[b] * top[b] * t0[b] - 2.0 * top[b] * t1[b] + t2[b] - sv * sv / count - vx * vx / sxx;
+        const double uv = hinge * top[b] * s0h - (hinge + top[b]) * s1h + s2h - su * sv / count - ux * vx / sxx;
+        const double vf = top[b] * tf[b] - txf[b];
+        const double det = uu * vv - uv * uv;
+        const double k = (vv * uf - uv * vf) / det;
+        const double k1 = (uu * vf - uv * uf) / det;
+        /* det > 1e-9 at_least(uu vv, 1e-300), by comparisons alone (a select of the floor before the
+         * product keeps the compiler from vectorising the loop); a NaN uu vv takes the floor, as there */
+        const double scale = uu * vv;
+        const int above_floor = scale > 1e-300;
+        const int solved = (above_floor & (det > 1e-9 * scale)) | (!above_floor & (det > 1e-9 * 1e-300));
+        const int shared = (k1 >= min_share * k) & (k1 <= max_share * k);
+        k_out[b] = k;
+        k1_out[b] = k1;
+        rss[b] = ff - (k * uf + k1 * vf);
+        ok[b] = (solved & shared) ? 1.0 : 0.0;
+    }
+}
+
+/* Each cell's residual into the exponent of its likelihood, -(rss - least) / (2 noise_var), in a
+ * loop the compiler vectorises (a division a cell). */
+static ROW_LOOP void likelihood_exponents(Py_ssize_t cells, double *rss, double least, double noise_var)
+{
+    for (Py_ssize_t cell = 0; cell < cells; cell++) rss[cell] = -0.5 * (rss[cell] - least) / noise_var;
+}
+
 /* The grid's best fit (two_stage_grid's answer). */
 typedef struct {
     double least, noise_var, top_mean, top_sd;
@@ -165,25 +218,32 @@ static int grid_fit(const double *x, const double *f, Py_ssize_t n, const double
                     GridFit *out)
 {
     int status = -1;
-    double *prefix = NULL, *rss = NULL, *tops = NULL;
+    double *prefix = NULL, *rss = NULL, *tops = NULL, *row = NULL;
     prefix = malloc(sizeof(double) * 5 * (size_t)(n + 1));
     rss = malloc(sizeof(double) * (size_t)(hinges * spans));
     tops = malloc(sizeof(double) * (size_t)(hinges * spans));
-    if (prefix == NULL || rss == NULL || tops == NULL) {
+    row = malloc(sizeof(double) * 8 * (size_t)spans); /* a row's top sums (five), k, k1 and ok */
+    if (prefix == NULL || rss == NULL || tops == NULL || row == NULL) {
         PyErr_NoMemory();
         status = -1;
         goto done;
     }
+    double *t0 = row, *t1 = row + spans, *t2 = row + 2 * spans, *tf = row + 3 * spans, *txf = row + 4 * spans;
+    double *k_row = row + 5 * spans, *k1_row = row + 6 * spans, *ok = row + 7 * spans;
     for (int q = 0; q < 5; q++) prefix[q] = 0.0;
     for (Py_ssize_t i = 0; i < n; i++) {
         const double *below = prefix + 5 * i;
-        double *row = prefix + 5 * (i + 1);
-        row[0] = below[0] + 1.0;
-        row[1] = below[1] + x[i];
-        row[2] = below[2] + x[i] * x[i];
-        row[3] = below[3] + f[i];
-        row[4] = below[4] + x[i] * f[i];
+        double *next = prefix + 5 * (i + 1);
+        next[0] = below[0] + 1.0;
+        next[1] = below[1] + x[i];
+        next[2] = below[2] + x[i] * x[i];
+        next[3] = below[3] + f[i];
+        next[4] = below[4] + x[i] * f[i];
     }
+    /* The spans the grid allows: from the first at least shortest_um on (they rise: np.arange). */
+    Py_ssize_t first_span = 0;
+    while (first_span < spans && !(span_offsets[first_span] >= shortest_um)) first_span++;
+    const Py_ssize_t cells = spans - first_span;
     const double count = (double)n;
     double least = INFINITY, best_share = 0.0, best_hinge_gain = 0.0;
     Py_ssize_t best = -1;
@@ -196,34 +256,37 @@ static int grid_fit(const double *x, const double *f, Py_ssize_t n, const double
         const double uf = hinge * h.sf - h.sxf;
         const double hinge_gain = (uf > 0.0 && uu > 0.0) ? uf * uf / at_least(uu, 1e-300) : 0.0;
         if (a == 0 || hinge_gain > best_hinge_gain) best_hinge_gain = hinge_gain;
-        Py_ssize_t below_top = 0;
-        double last_top = -INFINITY;
+        double *row_tops = tops + a * spans, *row_rss = rss + a * spans;
         for (Py_ssize_t b = 0; b < spans; b++) {
-            const Py_ssize_t cell = a * spans + b;
-            const double top = hinge + span_offsets[b];
-            tops[cell] = top;
-            rss[cell] = INFINITY;
-            if (!(span_offsets[b] >= shortest_um)) continue;
-            /* the tops along a row rise with the spans (np.arange): count on from the last one */
-            below_top = (b > 0 && top >= last_top) ? count_below_from(x, n, below_top, top) : count_below(x, n, top);
-            last_top = top;
-            const double *t_row = prefix + 5 * below_top;
-            const Sums t = {t_row[0], t_row[1], t_row[2], t_row[3], t_row[4]};
-            const double sv = top * t.s0 - t.s1;
-            const double vx = top * t.s1 - t.s2 - x_mean * sv;
-            const double vv = top * top * t.s0 - 2.0 * top * t.s1 + t.s2 - sv * sv / count - vx * vx / sxx;
-            const double uv = hinge * top * h.s0 - (hinge + top) * h.s1 + h.s2 - su * sv / count - ux * vx / sxx;
-            const double vf = top * t.sf - t.sxf;
-            const double det = uu * vv - uv * uv;
-            if (!(det > 1e-9 * at_least(uu * vv, 1e-300))) continue;
-            const double k = (vv * uf - uv * vf) / det;
-            const double k1 = (uu * vf - uv * uf) / det;
-            if (!(k1 >= min_share * k && k1 <= max_share * k)) continue;
-            rss[cell] = ff - (k * uf + k1 * vf);
-            if (rss[cell] < least || best < 0) {
-                least = rss[cell];
-                best = cell;
-                best_share = k1 / k;
+            row_tops[b] = hinge + span_offsets[b];
+            row_rss[b] = INFINITY;
+        }
+        /* Each allowed top's prefix sums; the tops along a row rise with the spans: count on from the
+         * last one (the same count as a binary search) */
+        Py_ssize_t below_top = 0;
+        for (Py_ssize_t c = 0; c < cells; c++) {
+            const double top = row_tops[first_span + c];
+            below_top = (c > 0 && top >= row_tops[first_span + c - 1]) ? count_below_from(x, n, below_top, top)
+                                                                     : count_below(x, n, top);
+            const double *t = prefix + 5 * below_top;
+            t0[c] = t[0];
+            t1[c] = t[1];
+            t2[c] = t[2];
+            tf[c] = t[3];
+            txf[c] = t[4];
+        }
+        row_solves(cells, row_tops + first_span, t0, t1, t2, tf, txf, hinge, h.s0, h.s1, h.s2, su, ux, uu, uf, count,
+                   sxx, x_mean, ff, min_share, max_share, k_row, k1_row, row_rss + first_span, ok);
+        /* The least residual of the cells allowed, the first of equals; a cell not allowed is infinite
+         * (never below the least; the first allowed one is taken whatever its value). Without a
+         * branch on ok: a row's allowed cells come and go where no branch predictor follows them. */
+        for (Py_ssize_t c = 0; c < cells; c++) {
+            const double cell_rss = ok[c] != 0.0 ? row_rss[first_span + c] : INFINITY;
+            row_rss[first_span + c] = cell_rss;
+            if (cell_rss < least || (best < 0 && ok[c] != 0.0)) {
+                least = cell_rss;
+                best = a * spans + first_span + c;
+                best_share = k1_row[c] / k_row[c];
             }
         }
     }
@@ -235,19 +298,23 @@ static int grid_fit(const double *x, const double *f, Py_ssize_t n, const double
      * on a tap with a hum or a walk nobody modelled (the twin's comment says why). */
     const double dof = n - 6 > 1 ? (double)(n - 6) : 1.0;
     if (least / dof > noise_var) noise_var = least / dof;
+    /* The likelihoods' exponents first; then the weights summed in the cells' order. exp underflows to 0 below -745.2: a cell not allowed (rss
+     * infinite) or that far off weighs nothing and is left out of the sums (it would add +0 to each:
+     * the same sums), and the cells weighed are kept in order at the arrays' start for the spread. */
+    likelihood_exponents(hinges * spans, rss, least, noise_var);
     double total = 0.0, top_sum = 0.0;
+    Py_ssize_t weighed = 0;
     for (Py_ssize_t cell = 0; cell < hinges * spans; cell++) {
-        /* exp underflows to 0 below -745.2: a cell not allowed (rss infinite) or that far off weighs
-         * nothing, and its exp is not worth calling (the same 0) */
-        const double exponent = -0.5 * (rss[cell] - least) / noise_var;
-        const double weight = exponent < -750.0 ? 0.0 : exp(exponent);
-        rss[cell] = weight;
+        if (rss[cell] < -750.0) continue;
+        const double weight = exp(rss[cell]);
         total += weight;
         top_sum += weight * tops[cell];
+        rss[weighed] = weight;
+        tops[weighed++] = tops[cell];
     }
     const double top_mean = top_sum / total;
     double spread = 0.0;
-    for (Py_ssize_t cell = 0; cell < hinges * spans; cell++) {
+    for (Py_ssize_t cell = 0; cell < weighed; cell++) {
         const double off = tops[cell] - top_mean;
         spread += rss[cell] * (off * off);
     }
@@ -258,6 +325,7 @@ done:
     free(prefix);
     free(rss);
     free(tops);
+    free(row);
     return status;
 }
 
