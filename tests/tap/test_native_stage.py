@@ -123,7 +123,8 @@ def test_the_one_stage_toe_grid_equals_the_numpy_twin(fits, monkeypatch):
     for x_um, force_g, contact_um, *rest in fits:
         near = (x_um > contact_um - stage.TWO_STAGE_BELOW_UM) & (x_um < contact_um + stage.TWO_STAGE_ABOVE_UM)
         if np.count_nonzero(near) >= 2 * stage.STAGE_MIN_SAMPLES:
-            calls.append((*stage._sorted_detrended(x_um[near], force_g[near], *rest[2:]), contact_um))
+            x, _, f, sxx, ff = stage._sorted_detrended(x_um[near], force_g[near], *rest[2:])
+            calls.append((x, f, float(x.mean()), sxx, ff, contact_um))
     kernel = [stage._one_stage_rss(*call) for call in calls]
     monkeypatch.setattr(stage, "_C", None)
     twins = [stage._one_stage_rss(*call) for call in calls]
@@ -156,19 +157,29 @@ def test_the_one_stage_toe_grid_with_samples_on_its_own_heights(monkeypatch):
     x = np.arange(-15.0, 60.0, 0.5)
     rng = np.random.default_rng(5)
     f = 2.0 * np.clip(10.0 - x, 0.0, None) ** 1.5 / 3.0 + rng.normal(0.0, 0.3, len(x))
-    xs, xc, fs, sxx, ff = stage._sorted_detrended(x, f, False)
-    kernel = stage._one_stage_rss(xs, xc, fs, sxx, ff, 10.0)
+    xs, _, fs, sxx, ff = stage._sorted_detrended(x, f, False)
+    kernel = stage._one_stage_rss(xs, fs, float(xs.mean()), sxx, ff, 10.0)
     monkeypatch.setattr(stage, "_C", None)
-    twin = stage._one_stage_rss(xs, xc, fs, sxx, ff, 10.0)
+    twin = stage._one_stage_rss(xs, fs, float(xs.mean()), sxx, ff, 10.0)
     assert abs(kernel - twin) <= 1e-12 * ff
     assert twin < 0.05 * ff  # the toe explains the departure: the grid's best is a real fit
 
 
-def _kernel_fit(x_um, force_g, contact_um, noise_var_g2, window_um, drift_held=False):
-    return stage._C.two_stage_fit(x_um, force_g, contact_um, stage.TWO_STAGE_BELOW_UM, stage.TWO_STAGE_ABOVE_UM,
-                                  stage.STAGE_MIN_SAMPLES, noise_var_g2, window_um, stage.TWO_STAGE_MIN_SPAN_UM,
-                                  stage.TWO_STAGE_MIN_SPAN_WINDOWS, stage.TWO_STAGE_HINGES_UM, stage.TWO_STAGE_SPANS_UM,
-                                  stage.TWO_STAGE_MIN_SOFT_SHARE, stage.TWO_STAGE_MAX_SOFT_SHARE, drift_held)
+def _kernel_fit_and_samples(x_um, force_g, contact_um, noise_var_g2, window_um, drift_held=False):
+    """The kernel's whole answer, and the samples it wrote out (by height, level and drift taken out)."""
+    x_out, f_out = np.full(len(x_um), np.nan), np.full(len(x_um), np.nan)
+    found = stage._C.two_stage_fit(x_um, force_g, contact_um, stage.TWO_STAGE_BELOW_UM, stage.TWO_STAGE_ABOVE_UM,
+                                   stage.STAGE_MIN_SAMPLES, noise_var_g2, window_um, stage.TWO_STAGE_MIN_SPAN_UM,
+                                   stage.TWO_STAGE_MIN_SPAN_WINDOWS, stage.TWO_STAGE_HINGES_UM,
+                                   stage.TWO_STAGE_SPANS_UM, stage.TWO_STAGE_MIN_SOFT_SHARE,
+                                   stage.TWO_STAGE_MAX_SOFT_SHARE, drift_held, x_out, f_out)
+    return found, x_out, f_out
+
+
+def _kernel_fit(*call):
+    """The kernel's answer up to ff (the twin's tuple), or None."""
+    found = _kernel_fit_and_samples(*call)[0]
+    return None if found is None else found[:8]
 
 
 def _twin_fit(x_um, force_g, contact_um, noise_var_g2, window_um, drift_held=False):
@@ -203,6 +214,40 @@ def test_the_whole_fit_up_to_the_one_stage_toe_equals_the_twin(fits):
     for call in fits:
         assert_fit_agrees(_kernel_fit(*call), _twin_fit(*call))
     assert sum(_twin_fit(*call) is not None for call in fits) >= 15
+
+
+def test_the_fit_writes_out_the_samples_it_fitted_as_the_twin_takes_them(fits):
+    # The one-stage toe reads them next (no second selection and sort): the twin's _sorted_detrended
+    # samples, their count, the centred heights' sum of squares and the heights' mean, bit for bit.
+    answered = 0
+    for call in fits:
+        found, x_out, f_out = _kernel_fit_and_samples(*call)
+        if found is None:
+            continue
+        answered += 1
+        x_um, force_g, contact_um = call[:3]
+        drift_held = call[5] if len(call) > 5 else False
+        near = (x_um > contact_um - stage.TWO_STAGE_BELOW_UM) & (x_um < contact_um + stage.TWO_STAGE_ABOVE_UM)
+        x, _, f, sxx, _ = stage._sorted_detrended(x_um[near], force_g[near], drift_held)
+        count = found[8]
+        assert count == len(x)
+        assert x_out[:count].tobytes() == x.tobytes() and f_out[:count].tobytes() == f.tobytes()
+        assert np.isnan(x_out[count:]).all()  # nothing written past them
+        assert repr(found[9]) == repr(sxx) and repr(found[10]) == repr(float(x.mean()))
+    assert answered >= 15
+
+
+def test_the_fit_refuses_output_arrays_it_cannot_fill():
+    x, f = _departure()
+    args = (x, f, 10.0, stage.TWO_STAGE_BELOW_UM, stage.TWO_STAGE_ABOVE_UM, stage.STAGE_MIN_SAMPLES, 0.25, 1.0,
+            stage.TWO_STAGE_MIN_SPAN_UM, stage.TWO_STAGE_MIN_SPAN_WINDOWS, stage.TWO_STAGE_HINGES_UM,
+            stage.TWO_STAGE_SPANS_UM, stage.TWO_STAGE_MIN_SOFT_SHARE, stage.TWO_STAGE_MAX_SOFT_SHARE, False)
+    with pytest.raises(ValueError, match="x_out"):
+        stage._C.two_stage_fit(*args, np.empty(len(x) - 1), np.empty(len(x)))
+    readonly = np.empty(len(x))
+    readonly.flags.writeable = False
+    with pytest.raises((ValueError, BufferError)):
+        stage._C.two_stage_fit(*args, np.empty(len(x)), readonly)
 
 
 def _departure(n=90, seed=3):

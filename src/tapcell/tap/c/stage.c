@@ -424,18 +424,20 @@ static double products_sum(const double *a, const double *b, Py_ssize_t n, doubl
  * contact + above] by height, the heights centred and the force with its level and (unless
  * drift_held) its drift in height removed, the sample step (median of the heights' steps), the
  * shortest span it allows, the grid. The means and the sums of products as numpy takes them
- * (pairwise sums), the median as robust.median: bit for bit with the twin. */
+ * (pairwise sums), the median as robust.median: bit for bit with the twin. On a fit, the samples
+ * as the grid took them (by height; the force less its level and drift) into x_out and force_out,
+ * for the one-stage toe the evidence may need next. */
 static PyObject *two_stage_fit(PyObject *self, PyObject *args)
 {
     (void)self;
-    Py_buffer xb = {0}, fb = {0}, hb = {0}, sb = {0};
+    Py_buffer xb = {0}, fb = {0}, hb = {0}, sb = {0}, xo_b = {0}, fo_b = {0};
     double contact_um, below_um, above_um, noise_var, window_um, min_span_um, min_span_windows, min_share, max_share;
     Py_ssize_t min_samples;
     int drift_held;
-    if (!PyArg_ParseTuple(args, "O&O&dddnddddO&O&ddp", float64_buffer, &xb, float64_buffer, &fb, &contact_um,
+    if (!PyArg_ParseTuple(args, "O&O&dddnddddO&O&ddpO&O&", float64_buffer, &xb, float64_buffer, &fb, &contact_um,
                           &below_um, &above_um, &min_samples, &noise_var, &window_um, &min_span_um,
                           &min_span_windows, float64_buffer, &hb, float64_buffer, &sb, &min_share, &max_share,
-                          &drift_held))
+                          &drift_held, float64_buffer, &xo_b, float64_buffer, &fo_b))
         return NULL;
     PyObject *answer = NULL;
     double *xs = NULL, *fs = NULL, *xc = NULL, *steps = NULL;
@@ -444,6 +446,13 @@ static PyObject *two_stage_fit(PyObject *self, PyObject *args)
     const double *x_all, *f_all, *hinge_offsets, *span_offsets;
     if (!grid_arrays(&xb, &fb, &hb, &sb, &x_all, &f_all, &n_all, &hinge_offsets, &hinges, &span_offsets, &spans))
         goto done;
+    double *x_out = doubles_sized(&xo_b, n_all, "x_out");
+    double *f_out = x_out ? doubles_sized(&fo_b, n_all, "force_out") : NULL;
+    if (f_out == NULL) goto done;
+    if (xo_b.readonly || fo_b.readonly) {
+        PyErr_SetString(PyExc_ValueError, "x_out and force_out must be writable");
+        goto done;
+    }
     const double low = contact_um - below_um, high = contact_um + above_um;
     Py_ssize_t n = 0;
     for (Py_ssize_t i = 0; i < n_all; i++) n += x_all[i] > low && x_all[i] < high;
@@ -504,8 +513,10 @@ static PyObject *two_stage_fit(PyObject *self, PyObject *args)
         Py_INCREF(answer);
         goto done;
     }
-    answer = Py_BuildValue("ddddnddd", fit.least, fit.noise_var, fit.top_mean, fit.top_sd, fit.best_span,
-                           fit.soft_share, fit.hinge_gain, ff);
+    memcpy(x_out, xs, sizeof(double) * count);
+    memcpy(f_out, fs, sizeof(double) * count);
+    answer = Py_BuildValue("ddddndddndd", fit.least, fit.noise_var, fit.top_mean, fit.top_sd, fit.best_span,
+                           fit.soft_share, fit.hinge_gain, ff, n, sxx, x_mean);
 done:
     free(xs);
     free(fs);
@@ -518,6 +529,8 @@ done:
     PyBuffer_Release(&fb);
     PyBuffer_Release(&hb);
     PyBuffer_Release(&sb);
+    PyBuffer_Release(&xo_b);
+    PyBuffer_Release(&fo_b);
     return answer;
 }
 
@@ -701,13 +714,15 @@ static PyMethodDef methods[] = {
      "departure_soft_stage, soft_stage)."},
     {"two_stage_fit", two_stage_fit, METH_VARARGS,
      "two_stage_fit(x_um, force_g, contact_um, below_um, above_um, min_samples, noise_var_g2, window_um,\n"
-     "              min_span_um, min_span_windows, hinges_um, spans_um, min_soft_share, max_soft_share, drift_held)\n"
-     "-> (least_rss, noise_var_g2, top_mean_um, top_sd_um, best_span_index, soft_share, best_hinge_gain, ff)\n"
-     "   or None\n\n"
+     "              min_span_um, min_span_windows, hinges_um, spans_um, min_soft_share, max_soft_share, drift_held,\n"
+     "              x_out, force_out)\n"
+     "-> (least_rss, noise_var_g2, top_mean_um, top_sd_um, best_span_index, soft_share, best_hinge_gain, ff,\n"
+     "    count, sxx, x_mean) or None\n\n"
      "stage.py's two_stage_fit up to the one-stage toe: the samples within below_um under and above_um over\n"
      "the contact, by height, a level and (unless drift_held) a drift taken out, then two_stage_grid over\n"
-     "them; ff the force's sum of squares left. None when fewer than 2 min_samples samples, no noise, all\n"
-     "at one height, or no grid point allowed."},
+     "them; ff the force's sum of squares left, sxx the centred heights' (infinite with the drift held),\n"
+     "x_mean their mean; those count samples into x_out and force_out (both of x_um's length). None when\n"
+     "fewer than 2 min_samples samples, no noise, all at one height, or no grid point allowed."},
     {"two_stage_grid", two_stage_grid, METH_VARARGS,
      "two_stage_grid(x_um, force_g, hinges_um, spans_um, contact_um, sxx, ff, x_mean, noise_var_g2, shortest_um,\n"
      "               min_soft_share, max_soft_share)\n"
