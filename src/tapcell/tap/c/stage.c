@@ -13,6 +13,7 @@
  * numpy twin builds the same (hinges x spans) arrays with one numpy call per operation; this
  * repeats its arithmetic element for element (only the weights' sums run in another order). */
 #include "buffers.h"
+#include "clones.h"
 #include "median.h"
 #include "sum.h"
 #include <math.h>
@@ -149,17 +150,6 @@ done:
     return answer;
 }
 
-
-/* A row's loop built twice where the compiler and C library can (gcc 6+ or clang 14+, x86-64, glibc's
- * ifuncs): with AVX2 (four cells at once) and without (two, SSE2), the one the CPU runs chosen when
- * the module loads. The same IEEE operations either way (no fused multiply-adds: -ffp-contract=off),
- * so the same values bit for bit. */
-#if defined(__x86_64__) && defined(__GLIBC__) && \
-    ((defined(__clang__) && __clang_major__ >= 14) || (!defined(__clang__) && defined(__GNUC__) && __GNUC__ >= 6))
-#define ROW_LOOP __attribute__((target_clones("avx2", "default")))
-#else
-#define ROW_LOOP
-#endif
 
 /* One hinge's row of the two-stage grid: the stiff stage's sums (su, ux, uu, uf, and its prefix sums
  * s0h, s1h, s2h below the hinge) against each top's (prefix sums t0..txf below it), the level and
