@@ -106,6 +106,26 @@ def test_the_fit_answers_the_same_with_and_without_the_kernel(fits, monkeypatch)
     assert shown >= 2  # the one-stage toe's grid ran too: the evidence passed the hinge's bound
 
 
+def test_the_grid_is_the_same_whatever_the_hinges_order():
+    # Along rising hinges the kernel counts the samples below each hinge and each row's first top on
+    # from the last row's; hinges in any other order take binary searches. The same cells, so the
+    # same least residual, noise, best span, share and hinge gain; the top's weighed mean and sd,
+    # summed over the cells in another order, to rounding.
+    x, f, contact_um, sxx, ff, noise, shortest = _grid_inputs(*_departure(), 10.0, 0.25, 1.0)
+
+    def grid(hinges):
+        return stage._C.two_stage_grid(x, f, np.ascontiguousarray(hinges), stage.TWO_STAGE_SPANS_UM, contact_um, sxx,
+                                       ff, float(x.mean()), noise, shortest, stage.TWO_STAGE_MIN_SOFT_SHARE,
+                                       stage.TWO_STAGE_MAX_SOFT_SHARE)
+
+    rising = grid(stage.TWO_STAGE_HINGES_UM)
+    for hinges in (stage.TWO_STAGE_HINGES_UM[::-1], np.random.default_rng(4).permutation(stage.TWO_STAGE_HINGES_UM)):
+        other = grid(hinges)
+        assert (other[0], other[1], other[5], other[6]) == (rising[0], rising[1], rising[5], rising[6])
+        assert other[4] == rising[4]  # the span index: the best cell's, wherever its row lies
+        assert other[2] == pytest.approx(rising[2], rel=1e-13) and other[3] == pytest.approx(rising[3], rel=1e-11)
+
+
 def test_the_kernel_refuses_wrong_arrays():
     x = np.arange(30.0)
     with pytest.raises(ValueError):

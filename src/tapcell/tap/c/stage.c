@@ -44,16 +44,8 @@ static Py_ssize_t count_below_from(const double *x, Py_ssize_t n, Py_ssize_t kno
     return known;
 }
 
-/* The five prefix sums (count, x, x^2, f, x f) below `value`. */
+/* The five prefix sums (count, x, x^2, f, x f) below a value. */
 typedef struct { double s0, s1, s2, sf, sxf; } Sums;
-
-static Sums sums_below(const double *prefix, const double *x, Py_ssize_t n, double value)
-{
-    Py_ssize_t i = count_below(x, n, value);
-    const double *row = prefix + 5 * i;
-    Sums s = {row[0], row[1], row[2], row[3], row[4]};
-    return s;
-}
 
 
 static PyObject *soft_stage(PyObject *self, PyObject *args)
@@ -212,7 +204,7 @@ static int grid_fit(const double *x, const double *f, Py_ssize_t n, const double
     prefix = malloc(sizeof(double) * 5 * (size_t)(n + 1));
     rss = malloc(sizeof(double) * (size_t)(hinges * spans));
     tops = malloc(sizeof(double) * (size_t)(hinges * spans));
-    row = malloc(sizeof(double) * 8 * (size_t)spans); /* a row's top sums (five), k, k1 and ok */
+    row = calloc(8 * (size_t)spans, sizeof(double)); /* a row's top sums (five), k, k1 and ok */
     if (prefix == NULL || rss == NULL || tops == NULL || row == NULL) {
         PyErr_NoMemory();
         status = -1;
@@ -237,9 +229,16 @@ static int grid_fit(const double *x, const double *f, Py_ssize_t n, const double
     const double count = (double)n;
     double least = INFINITY, best_share = 0.0, best_hinge_gain = 0.0;
     Py_ssize_t best = -1;
+    /* The hinges rise (np.arange), and with them each row's first top: both counts go on from the
+     * last row's, as the tops along a row do (the same counts as a binary search) */
+    Py_ssize_t below_hinge = 0, below_first_top = 0;
+    double first_top_before = INFINITY;
     for (Py_ssize_t a = 0; a < hinges; a++) {
         const double hinge = contact_um + hinge_offsets[a];
-        const Sums h = sums_below(prefix, x, n, hinge);
+        below_hinge = (a > 0 && hinge >= contact_um + hinge_offsets[a - 1])
+                          ? count_below_from(x, n, below_hinge, hinge) : count_below(x, n, hinge);
+        const double *h_row = prefix + 5 * below_hinge;
+        const Sums h = {h_row[0], h_row[1], h_row[2], h_row[3], h_row[4]};
         const double su = hinge * h.s0 - h.s1;
         const double ux = hinge * h.s1 - h.s2 - x_mean * su;
         const double uu = hinge * hinge * h.s0 - 2.0 * hinge * h.s1 + h.s2 - su * su / count - ux * ux / sxx;
@@ -252,12 +251,20 @@ static int grid_fit(const double *x, const double *f, Py_ssize_t n, const double
             row_rss[b] = INFINITY;
         }
         /* Each allowed top's prefix sums; the tops along a row rise with the spans: count on from the
-         * last one (the same count as a binary search) */
+         * last one */
         Py_ssize_t below_top = 0;
         for (Py_ssize_t c = 0; c < cells; c++) {
             const double top = row_tops[first_span + c];
-            below_top = (c > 0 && top >= row_tops[first_span + c - 1]) ? count_below_from(x, n, below_top, top)
-                                                                     : count_below(x, n, top);
+            if (c > 0 && top >= row_tops[first_span + c - 1])
+                below_top = count_below_from(x, n, below_top, top);
+            else if (c == 0 && a > 0 && top >= first_top_before)
+                below_top = count_below_from(x, n, below_first_top, top);
+            else
+                below_top = count_below(x, n, top);
+            if (c == 0) {
+                below_first_top = below_top;
+                first_top_before = top;
+            }
             const double *t = prefix + 5 * below_top;
             t0[c] = t[0];
             t1[c] = t[1];
