@@ -108,10 +108,11 @@ static PyObject *soft_stage(PyObject *self, PyObject *args)
         row[3] = below[3] + h * level;
     }
     double best_gain = 0.0, best_srf = 0.0, best_srr = 0.0;
-    Py_ssize_t best = -1;
+    Py_ssize_t best = -1, count = 0;
     for (Py_ssize_t k = 0; k < n_tops; k++) {
         const double top = tops[k];
-        const Py_ssize_t count = count_below(x, n, top);
+        /* the tops rise (np.arange): count on from the last one's (the same count as a binary search) */
+        count = (k > 0 && top >= tops[k - 1]) ? count_below_from(x, n, count, top) : count_below(x, n, top);
         const double *row = prefix + 4 * count;
         const double below = (double)count;
         const double sum_r = top * below - row[0];
