@@ -50,7 +50,7 @@ class BuildPyWithExamples(build_py):
 
 setup(ext_modules=[*(Extension(f"tapcell.tap._c_{name}", [f"src/tapcell/tap/c/{name}.c"],
                                depends=["src/tapcell/tap/c/buffers.h", "src/tapcell/tap/c/median.h", "src/tapcell/tap/c/fft.h",
-                                        "src/tapcell/tap/c/sum.h"],
+                                        "src/tapcell/tap/c/sum.h", "src/tapcell/tap/c/clones.h"],
                                extra_compile_args=COMPILE_ARGS,
                                optional=True)
                      for name in KERNELS),

@@ -53,6 +53,22 @@ def test_the_soft_stage_ramp_equals_the_numpy_twin_bit_for_bit(monkeypatch):
     assert any(stage.shows_soft_stage(fit, 1.0, 0.0) for fit in twins if fit)  # a ramp clearly there, too
 
 
+def test_the_soft_stage_ramp_is_the_same_whatever_the_tops_order():
+    # Along rising tops the kernel counts the samples below each on from the last; any other order
+    # takes binary searches: the same best ramp (a soft stage 12 um long, 0.4 g/um, under 0.5 g noise).
+    x, f = _departure()
+    x_lo, x_hi = x - 0.25, x + 0.25
+
+    def ramp(tops):
+        return stage._C.soft_stage(x_lo, x_hi, f, 0.0, 10.0, 0.25, 0.0, np.ascontiguousarray(tops),
+                                   stage.STAGE_FROM_UM, stage.STAGE_REACH_UM, stage.STAGE_MIN_SAMPLES)
+
+    rising = ramp(stage.STAGE_TOPS_UM)
+    assert rising[1] == pytest.approx(22.0, abs=1.5) and rising[0] > stage.STAGE_MIN_CHI2
+    for tops in (stage.STAGE_TOPS_UM[::-1], np.random.default_rng(6).permutation(stage.STAGE_TOPS_UM)):
+        assert repr(ramp(tops)) == repr(rising)
+
+
 def _grid_inputs(x_um, force_g, contact_um, noise_var_g2, window_um, drift_held=False):
     """two_stage_fit's arguments as its grid takes them (the same steps as two_stage_fit)."""
     near = (x_um > contact_um - stage.TWO_STAGE_BELOW_UM) & (x_um < contact_um + stage.TWO_STAGE_ABOVE_UM)
@@ -106,6 +122,26 @@ def test_the_fit_answers_the_same_with_and_without_the_kernel(fits, monkeypatch)
     assert shown >= 2  # the one-stage toe's grid ran too: the evidence passed the hinge's bound
 
 
+def test_the_grid_is_the_same_whatever_the_hinges_order():
+    # Along rising hinges the kernel counts the samples below each hinge and each row's first top on
+    # from the last row's; hinges in any other order take binary searches. The same cells, so the
+    # same least residual, noise, best span, share and hinge gain; the top's weighed mean and sd,
+    # summed over the cells in another order, to rounding.
+    x, f, contact_um, sxx, ff, noise, shortest = _grid_inputs(*_departure(), 10.0, 0.25, 1.0)
+
+    def grid(hinges):
+        return stage._C.two_stage_grid(x, f, np.ascontiguousarray(hinges), stage.TWO_STAGE_SPANS_UM, contact_um, sxx,
+                                       ff, float(x.mean()), noise, shortest, stage.TWO_STAGE_MIN_SOFT_SHARE,
+                                       stage.TWO_STAGE_MAX_SOFT_SHARE)
+
+    rising = grid(stage.TWO_STAGE_HINGES_UM)
+    for hinges in (stage.TWO_STAGE_HINGES_UM[::-1], np.random.default_rng(4).permutation(stage.TWO_STAGE_HINGES_UM)):
+        other = grid(hinges)
+        assert (other[0], other[1], other[5], other[6]) == (rising[0], rising[1], rising[5], rising[6])
+        assert other[4] == rising[4]  # the span index: the best cell's, wherever its row lies
+        assert other[2] == pytest.approx(rising[2], rel=1e-13) and other[3] == pytest.approx(rising[3], rel=1e-11)
+
+
 def test_the_kernel_refuses_wrong_arrays():
     x = np.arange(30.0)
     with pytest.raises(ValueError):
@@ -123,7 +159,8 @@ def test_the_one_stage_toe_grid_equals_the_numpy_twin(fits, monkeypatch):
     for x_um, force_g, contact_um, *rest in fits:
         near = (x_um > contact_um - stage.TWO_STAGE_BELOW_UM) & (x_um < contact_um + stage.TWO_STAGE_ABOVE_UM)
         if np.count_nonzero(near) >= 2 * stage.STAGE_MIN_SAMPLES:
-            calls.append((*stage._sorted_detrended(x_um[near], force_g[near], *rest[2:]), contact_um))
+            x, _, f, sxx, ff = stage._sorted_detrended(x_um[near], force_g[near], *rest[2:])
+            calls.append((x, f, float(x.mean()), sxx, ff, contact_um))
     kernel = [stage._one_stage_rss(*call) for call in calls]
     monkeypatch.setattr(stage, "_C", None)
     twins = [stage._one_stage_rss(*call) for call in calls]
@@ -134,11 +171,51 @@ def test_the_one_stage_toe_grid_equals_the_numpy_twin(fits, monkeypatch):
     assert len(calls) >= 15
 
 
-def _kernel_fit(x_um, force_g, contact_um, noise_var_g2, window_um, drift_held=False):
-    return stage._C.two_stage_fit(x_um, force_g, contact_um, stage.TWO_STAGE_BELOW_UM, stage.TWO_STAGE_ABOVE_UM,
-                                  stage.STAGE_MIN_SAMPLES, noise_var_g2, window_um, stage.TWO_STAGE_MIN_SPAN_UM,
-                                  stage.TWO_STAGE_MIN_SPAN_WINDOWS, stage.TWO_STAGE_HINGES_UM, stage.TWO_STAGE_SPANS_UM,
-                                  stage.TWO_STAGE_MIN_SOFT_SHARE, stage.TWO_STAGE_MAX_SOFT_SHARE, drift_held)
+def _one_stage_call(x, f, contact_um, contacts_um=stage.ONE_STAGE_CONTACTS_UM):
+    """one_stage_rss's kernel on a departure prepared as two_stage_fit prepares it."""
+    x, _, f, sxx, ff = stage._sorted_detrended(x, f, False)
+    return stage._C.one_stage_rss(x, f, np.ascontiguousarray(contacts_um), stage._ONE_STAGE_WIDTHS,
+                                  stage._ONE_STAGE_POWERS, contact_um, sxx, ff, float(x.mean()))
+
+
+def test_the_one_stage_toe_grid_is_the_same_whatever_the_contacts_order():
+    # Along rising contacts the kernel counts the samples below each contact and its toe on from the
+    # last contact's; any other order takes binary searches. The least residual is the same bits.
+    x, f = _departure()
+    rising = _one_stage_call(x, f, 10.0)
+    for contacts in (stage.ONE_STAGE_CONTACTS_UM[::-1], np.random.default_rng(2).permutation(stage.ONE_STAGE_CONTACTS_UM)):
+        assert repr(_one_stage_call(x, f, 10.0, contacts)) == repr(rising)
+
+
+def test_the_one_stage_toe_grid_with_samples_on_its_own_heights(monkeypatch):
+    # Samples at every half µm: on each contact and on the edge of each (whole or half µm) width's toe, where
+    # a count below it and the "pressed a width deep" test are decided by equality.
+    x = np.arange(-15.0, 60.0, 0.5)
+    rng = np.random.default_rng(5)
+    f = 2.0 * np.clip(10.0 - x, 0.0, None) ** 1.5 / 3.0 + rng.normal(0.0, 0.3, len(x))
+    xs, _, fs, sxx, ff = stage._sorted_detrended(x, f, False)
+    kernel = stage._one_stage_rss(xs, fs, float(xs.mean()), sxx, ff, 10.0)
+    monkeypatch.setattr(stage, "_C", None)
+    twin = stage._one_stage_rss(xs, fs, float(xs.mean()), sxx, ff, 10.0)
+    assert abs(kernel - twin) <= 1e-12 * ff
+    assert twin < 0.05 * ff  # the toe explains the departure: the grid's best is a real fit
+
+
+def _kernel_fit_and_samples(x_um, force_g, contact_um, noise_var_g2, window_um, drift_held=False):
+    """The kernel's whole answer, and the samples it wrote out (by height, level and drift taken out)."""
+    x_out, f_out = np.full(len(x_um), np.nan), np.full(len(x_um), np.nan)
+    found = stage._C.two_stage_fit(x_um, force_g, contact_um, stage.TWO_STAGE_BELOW_UM, stage.TWO_STAGE_ABOVE_UM,
+                                   stage.STAGE_MIN_SAMPLES, noise_var_g2, window_um, stage.TWO_STAGE_MIN_SPAN_UM,
+                                   stage.TWO_STAGE_MIN_SPAN_WINDOWS, stage.TWO_STAGE_HINGES_UM,
+                                   stage.TWO_STAGE_SPANS_UM, stage.TWO_STAGE_MIN_SOFT_SHARE,
+                                   stage.TWO_STAGE_MAX_SOFT_SHARE, drift_held, x_out, f_out)
+    return found, x_out, f_out
+
+
+def _kernel_fit(*call):
+    """The kernel's answer up to ff (the twin's tuple), or None."""
+    found = _kernel_fit_and_samples(*call)[0]
+    return None if found is None else found[:8]
 
 
 def _twin_fit(x_um, force_g, contact_um, noise_var_g2, window_um, drift_held=False):
@@ -173,6 +250,40 @@ def test_the_whole_fit_up_to_the_one_stage_toe_equals_the_twin(fits):
     for call in fits:
         assert_fit_agrees(_kernel_fit(*call), _twin_fit(*call))
     assert sum(_twin_fit(*call) is not None for call in fits) >= 15
+
+
+def test_the_fit_writes_out_the_samples_it_fitted_as_the_twin_takes_them(fits):
+    # The one-stage toe reads them next (no second selection and sort): the twin's _sorted_detrended
+    # samples, their count, the centred heights' sum of squares and the heights' mean, bit for bit.
+    answered = 0
+    for call in fits:
+        found, x_out, f_out = _kernel_fit_and_samples(*call)
+        if found is None:
+            continue
+        answered += 1
+        x_um, force_g, contact_um = call[:3]
+        drift_held = call[5] if len(call) > 5 else False
+        near = (x_um > contact_um - stage.TWO_STAGE_BELOW_UM) & (x_um < contact_um + stage.TWO_STAGE_ABOVE_UM)
+        x, _, f, sxx, _ = stage._sorted_detrended(x_um[near], force_g[near], drift_held)
+        count = found[8]
+        assert count == len(x)
+        assert x_out[:count].tobytes() == x.tobytes() and f_out[:count].tobytes() == f.tobytes()
+        assert np.isnan(x_out[count:]).all()  # nothing written past them
+        assert repr(found[9]) == repr(sxx) and repr(found[10]) == repr(float(x.mean()))
+    assert answered >= 15
+
+
+def test_the_fit_refuses_output_arrays_it_cannot_fill():
+    x, f = _departure()
+    args = (x, f, 10.0, stage.TWO_STAGE_BELOW_UM, stage.TWO_STAGE_ABOVE_UM, stage.STAGE_MIN_SAMPLES, 0.25, 1.0,
+            stage.TWO_STAGE_MIN_SPAN_UM, stage.TWO_STAGE_MIN_SPAN_WINDOWS, stage.TWO_STAGE_HINGES_UM,
+            stage.TWO_STAGE_SPANS_UM, stage.TWO_STAGE_MIN_SOFT_SHARE, stage.TWO_STAGE_MAX_SOFT_SHARE, False)
+    with pytest.raises(ValueError, match="x_out"):
+        stage._C.two_stage_fit(*args, np.empty(len(x) - 1), np.empty(len(x)))
+    readonly = np.empty(len(x))
+    readonly.flags.writeable = False
+    with pytest.raises((ValueError, BufferError)):
+        stage._C.two_stage_fit(*args, np.empty(len(x)), readonly)
 
 
 def _departure(n=90, seed=3):

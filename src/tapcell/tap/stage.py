@@ -280,16 +280,18 @@ def _sorted_detrended(x_um: np.ndarray, force_g: np.ndarray,
     return x, xc, f, sxx, float((f * f).sum())
 
 
-def _one_stage_rss(x: np.ndarray, xc: np.ndarray, f: np.ndarray, sxx: float, ff: float, contact_um: float) -> float:
+def _one_stage_rss(x: np.ndarray, f: np.ndarray, x_mean: float, sxx: float, ff: float, contact_um: float) -> float:
     """The least residual of a level, a drift and a one-stage toe (tapcell.tap.toe's shapes, widths
-    to 30 µm, no prior: the toe as wide as the data like) over every contact on the grid. In C when
-    built (the samples on the toe's linear part from prefix sums; the code below is its numpy twin)."""
+    to 30 µm, no prior: the toe as wide as the data like) over every contact on the grid, on the
+    samples as `_sorted_detrended` leaves them (x_mean: their heights' mean). In C when built (the
+    samples on the toe's linear part from prefix sums; the code below is its numpy twin)."""
     if _C is not None:
         return _C.one_stage_rss(x, f, ONE_STAGE_CONTACTS_UM, _ONE_STAGE_WIDTHS, _ONE_STAGE_POWERS, contact_um, sxx, ff,
-                                float(x.mean()))
+                                x_mean)
     from tapcell.tap.toe import toe_shapes  # the shapes only; stage.py stays importable alone
 
     n = len(f)
+    xc = x - x_mean  # the heights centred, as _sorted_detrended centres them
     contacts = contact_um + ONE_STAGE_CONTACTS_UM
     widths = np.array(ONE_STAGE_WIDTHS_UM)
     depth = np.broadcast_to(contacts[:, None] - x[None, :], (len(widths), len(contacts), n)).copy()
@@ -312,16 +314,18 @@ def two_stage_fit(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, nois
     fit with both stiffnesses positive."""
     if _C is not None:
         # The selection, the sort, the level and drift taken out and the grid in one call (the kernel
-        # reads C-contiguous float64; the analysis's arrays are, a caller's slice need not be).
+        # reads C-contiguous float64; the analysis's arrays are, a caller's slice need not be); the
+        # samples it fitted come back for the one-stage toe.
+        x_sorted, f_sorted = np.empty(len(x_um)), np.empty(len(x_um))
         found = _C.two_stage_fit(np.ascontiguousarray(x_um, dtype=float), np.ascontiguousarray(force_g, dtype=float),
                                  contact_um, TWO_STAGE_BELOW_UM, TWO_STAGE_ABOVE_UM, STAGE_MIN_SAMPLES,
                                  noise_var_g2, window_um, TWO_STAGE_MIN_SPAN_UM, TWO_STAGE_MIN_SPAN_WINDOWS,
                                  TWO_STAGE_HINGES_UM, TWO_STAGE_SPANS_UM, TWO_STAGE_MIN_SOFT_SHARE,
-                                 TWO_STAGE_MAX_SOFT_SHARE, drift_held)
+                                 TWO_STAGE_MAX_SOFT_SHARE, drift_held, x_sorted, f_sorted)
         if found is None:
             return None
-        *grid, ff = found
-        prepared = None
+        *grid, ff, count, sxx, x_mean = found
+        prepared = x_sorted[:count], f_sorted[:count], x_mean, sxx
     else:
         near = (x_um > contact_um - TWO_STAGE_BELOW_UM) & (x_um < contact_um + TWO_STAGE_ABOVE_UM)
         if int(near.sum()) < 2 * STAGE_MIN_SAMPLES or noise_var_g2 <= 0:
@@ -334,18 +338,14 @@ def two_stage_fit(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, nois
         grid = _two_stage_grid(x, f, contact_um, sxx, ff, noise_var_g2, shortest_um)
         if grid is None:
             return None
-        prepared = x, xc, f, sxx
+        prepared = x, f, float(x.sum()) / len(x), sxx  # x.mean(), as _sorted_detrended centred them
     least, noise_var_g2, top_mean, top_sd, best_span, soft_share, hinge_gain = grid
     # The one-stage toe's residual is at most a hinge's (a toe of width 0): when even the hinge
     # leaves too little to explain, the toe grid (most of the cost) is not needed.
     fit = TwoStageFit((ff - hinge_gain - least) / noise_var_g2, top_mean, top_sd,
                       float(TWO_STAGE_SPANS_UM[best_span]), soft_share, drift_held)
     if fit.evidence_chi2 > fit.min_evidence and abs(top_mean - contact_um) > fit.reads_apart_um():
-        if prepared is None:  # the kernel ran: the samples again, for the one-stage toe (a few fits in a hundred)
-            near = (x_um > contact_um - TWO_STAGE_BELOW_UM) & (x_um < contact_um + TWO_STAGE_ABOVE_UM)
-            prepared = _sorted_detrended(x_um[near], force_g[near], drift_held)[:4]
-        x, xc, f, sxx = prepared
-        fit.evidence_chi2 = (_one_stage_rss(x, xc, f, sxx, ff, contact_um) - least) / noise_var_g2
+        fit.evidence_chi2 = (_one_stage_rss(*prepared, ff, contact_um) - least) / noise_var_g2
     fit.evidence_chi2 = float(fit.evidence_chi2)
     return fit
 

@@ -21,7 +21,7 @@
 #define MAD_TO_SIGMA 1.4826
 
 /* A loop over every sample built twice, for AVX2 (four samples at once) and for any x86-64, the one
- * the CPU runs chosen when the module loads; the same IEEE operations either way (segments.c's
+ * the CPU runs chosen when the module loads; the same IEEE operations either way (clones.h's
  * ROW_LOOP has the guard's why). */
 #if defined(__x86_64__) && defined(__GLIBC__) && \
     ((defined(__clang__) && __clang_major__ >= 14) || (!defined(__clang__) && defined(__GNUC__) && __GNUC__ >= 6))

@@ -9,6 +9,7 @@
  * five_lines: a tap window's whole split in one call, with what the analysis reads off it next (the
  * lines' scatter, `segment_stats`, and their six points, `context.recompute_points`), bit for bit. */
 #include "buffers.h"
+#include "clones.h"
 #include "sum.h"
 
 #include <math.h>
@@ -44,16 +45,8 @@ typedef struct {
     const double *inverse;
 } Costing;
 
-/* The rows' loops built twice where the compiler and C library can (gcc 6+ or clang 14+, x86-64,
- * glibc's ifuncs): with AVX2 (four segments at once) and without, the one the CPU runs chosen when
- * the module loads (about a seventh off the search). The same IEEE operations either way (no fused
- * multiply-adds: -ffp-contract=off), so the same sums bit for bit. */
-#if defined(__x86_64__) && defined(__GLIBC__) && \
-    ((defined(__clang__) && __clang_major__ >= 14) || (!defined(__clang__) && defined(__GNUC__) && __GNUC__ >= 6))
-#define ROW_LOOP __attribute__((target_clones("avx2", "default")))
-#else
-#define ROW_LOOP
-#endif
+/* The rows' loops built twice (clones.h: with AVX2, four segments at once, and without; about a
+ * seventh off the search), the same sums bit for bit. */
 
 /* out[k] = add[k] + sse of the segment [i, j0 + k) for k < count (add NULL: + 0 left out): a row of
  * segments sharing their first sample. Too short ones (j0 + k - i < 2) are +inf, as the twin's;

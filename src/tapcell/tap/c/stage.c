@@ -13,6 +13,7 @@
  * numpy twin builds the same (hinges x spans) arrays with one numpy call per operation; this
  * repeats its arithmetic element for element (only the weights' sums run in another order). */
 #include "buffers.h"
+#include "clones.h"
 #include "median.h"
 #include "sum.h"
 #include <math.h>
@@ -43,16 +44,8 @@ static Py_ssize_t count_below_from(const double *x, Py_ssize_t n, Py_ssize_t kno
     return known;
 }
 
-/* The five prefix sums (count, x, x^2, f, x f) below `value`. */
+/* The five prefix sums (count, x, x^2, f, x f) below a value. */
 typedef struct { double s0, s1, s2, sf, sxf; } Sums;
-
-static Sums sums_below(const double *prefix, const double *x, Py_ssize_t n, double value)
-{
-    Py_ssize_t i = count_below(x, n, value);
-    const double *row = prefix + 5 * i;
-    Sums s = {row[0], row[1], row[2], row[3], row[4]};
-    return s;
-}
 
 
 static PyObject *soft_stage(PyObject *self, PyObject *args)
@@ -115,10 +108,11 @@ static PyObject *soft_stage(PyObject *self, PyObject *args)
         row[3] = below[3] + h * level;
     }
     double best_gain = 0.0, best_srf = 0.0, best_srr = 0.0;
-    Py_ssize_t best = -1;
+    Py_ssize_t best = -1, count = 0;
     for (Py_ssize_t k = 0; k < n_tops; k++) {
         const double top = tops[k];
-        const Py_ssize_t count = count_below(x, n, top);
+        /* the tops rise (np.arange): count on from the last one's (the same count as a binary search) */
+        count = (k > 0 && top >= tops[k - 1]) ? count_below_from(x, n, count, top) : count_below(x, n, top);
         const double *row = prefix + 4 * count;
         const double below = (double)count;
         const double sum_r = top * below - row[0];
@@ -150,6 +144,48 @@ done:
 }
 
 
+/* One hinge's row of the two-stage grid: the stiff stage's sums (su, ux, uu, uf, and its prefix sums
+ * s0h, s1h, s2h below the hinge) against each top's (prefix sums t0..txf below it), the level and
+ * the drift projected out; the two stiffnesses solved for every cell, without a branch (the
+ * compiler vectorises it: the solves' six divisions are the grid's cost). k[b], k1[b], the residual
+ * rss[b] = ff - gain, and ok[b]: 1 where the solve is well conditioned and the soft share within
+ * [min_share, max_share], 0 where not (there the caller reads none of them). */
+static ROW_LOOP void row_solves(Py_ssize_t cells, const double *top, const double *t0, const double *t1,
+                                const double *t2, const double *tf, const double *txf, double hinge, double s0h,
+                                double s1h, double s2h, double su, double ux, double uu, double uf, double count,
+                                double sxx, double x_mean, double ff, double min_share, double max_share,
+                                double *restrict k_out, double *restrict k1_out, double *restrict rss,
+                                double *restrict ok)
+{
+    for (Py_ssize_t b = 0; b < cells; b++) {
+        const double sv = top[b] * t0[b] - t1[b];
+        const double vx = top[b] * t1[b] - t2[b] - x_mean * sv;
+        const double vv = top[b] * top[b] * t0[b] - 2.0 * top[b] * t1[b] + t2[b] - sv * sv / count - vx * vx / sxx;
+        const double uv = hinge * top[b] * s0h - (hinge + top[b]) * s1h + s2h - su * sv / count - ux * vx / sxx;
+        const double vf = top[b] * tf[b] - txf[b];
+        const double det = uu * vv - uv * uv;
+        const double k = (vv * uf - uv * vf) / det;
+        const double k1 = (uu * vf - uv * uf) / det;
+        /* det > 1e-9 at_least(uu vv, 1e-300), by comparisons alone (a select of the floor before the
+         * product keeps the compiler from vectorising the loop); a NaN uu vv takes the floor, as there */
+        const double scale = uu * vv;
+        const int above_floor = scale > 1e-300;
+        const int solved = (above_floor & (det > 1e-9 * scale)) | (!above_floor & (det > 1e-9 * 1e-300));
+        const int shared = (k1 >= min_share * k) & (k1 <= max_share * k);
+        k_out[b] = k;
+        k1_out[b] = k1;
+        rss[b] = ff - (k * uf + k1 * vf);
+        ok[b] = (solved & shared) ? 1.0 : 0.0;
+    }
+}
+
+/* Each cell's residual into the exponent of its likelihood, -(rss - least) / (2 noise_var), in a
+ * loop the compiler vectorises (a division a cell). */
+static ROW_LOOP void likelihood_exponents(Py_ssize_t cells, double *rss, double least, double noise_var)
+{
+    for (Py_ssize_t cell = 0; cell < cells; cell++) rss[cell] = -0.5 * (rss[cell] - least) / noise_var;
+}
+
 /* The grid's best fit (two_stage_grid's answer). */
 typedef struct {
     double least, noise_var, top_mean, top_sd;
@@ -165,65 +201,90 @@ static int grid_fit(const double *x, const double *f, Py_ssize_t n, const double
                     GridFit *out)
 {
     int status = -1;
-    double *prefix = NULL, *rss = NULL, *tops = NULL;
+    double *prefix = NULL, *rss = NULL, *tops = NULL, *row = NULL;
     prefix = malloc(sizeof(double) * 5 * (size_t)(n + 1));
     rss = malloc(sizeof(double) * (size_t)(hinges * spans));
     tops = malloc(sizeof(double) * (size_t)(hinges * spans));
-    if (prefix == NULL || rss == NULL || tops == NULL) {
+    row = calloc(8 * (size_t)spans, sizeof(double)); /* a row's top sums (five), k, k1 and ok */
+    if (prefix == NULL || rss == NULL || tops == NULL || row == NULL) {
         PyErr_NoMemory();
         status = -1;
         goto done;
     }
+    double *t0 = row, *t1 = row + spans, *t2 = row + 2 * spans, *tf = row + 3 * spans, *txf = row + 4 * spans;
+    double *k_row = row + 5 * spans, *k1_row = row + 6 * spans, *ok = row + 7 * spans;
     for (int q = 0; q < 5; q++) prefix[q] = 0.0;
     for (Py_ssize_t i = 0; i < n; i++) {
         const double *below = prefix + 5 * i;
-        double *row = prefix + 5 * (i + 1);
-        row[0] = below[0] + 1.0;
-        row[1] = below[1] + x[i];
-        row[2] = below[2] + x[i] * x[i];
-        row[3] = below[3] + f[i];
-        row[4] = below[4] + x[i] * f[i];
+        double *next = prefix + 5 * (i + 1);
+        next[0] = below[0] + 1.0;
+        next[1] = below[1] + x[i];
+        next[2] = below[2] + x[i] * x[i];
+        next[3] = below[3] + f[i];
+        next[4] = below[4] + x[i] * f[i];
     }
+    /* The spans the grid allows: from the first at least shortest_um on (they rise: np.arange). */
+    Py_ssize_t first_span = 0;
+    while (first_span < spans && !(span_offsets[first_span] >= shortest_um)) first_span++;
+    const Py_ssize_t cells = spans - first_span;
     const double count = (double)n;
     double least = INFINITY, best_share = 0.0, best_hinge_gain = 0.0;
     Py_ssize_t best = -1;
+    /* The hinges rise (np.arange), and with them each row's first top: both counts go on from the
+     * last row's, as the tops along a row do (the same counts as a binary search) */
+    Py_ssize_t below_hinge = 0, below_first_top = 0;
+    double first_top_before = INFINITY;
     for (Py_ssize_t a = 0; a < hinges; a++) {
         const double hinge = contact_um + hinge_offsets[a];
-        const Sums h = sums_below(prefix, x, n, hinge);
+        below_hinge = (a > 0 && hinge >= contact_um + hinge_offsets[a - 1])
+                          ? count_below_from(x, n, below_hinge, hinge) : count_below(x, n, hinge);
+        const double *h_row = prefix + 5 * below_hinge;
+        const Sums h = {h_row[0], h_row[1], h_row[2], h_row[3], h_row[4]};
         const double su = hinge * h.s0 - h.s1;
         const double ux = hinge * h.s1 - h.s2 - x_mean * su;
         const double uu = hinge * hinge * h.s0 - 2.0 * hinge * h.s1 + h.s2 - su * su / count - ux * ux / sxx;
         const double uf = hinge * h.sf - h.sxf;
         const double hinge_gain = (uf > 0.0 && uu > 0.0) ? uf * uf / at_least(uu, 1e-300) : 0.0;
         if (a == 0 || hinge_gain > best_hinge_gain) best_hinge_gain = hinge_gain;
-        Py_ssize_t below_top = 0;
-        double last_top = -INFINITY;
+        double *row_tops = tops + a * spans, *row_rss = rss + a * spans;
         for (Py_ssize_t b = 0; b < spans; b++) {
-            const Py_ssize_t cell = a * spans + b;
-            const double top = hinge + span_offsets[b];
-            tops[cell] = top;
-            rss[cell] = INFINITY;
-            if (!(span_offsets[b] >= shortest_um)) continue;
-            /* the tops along a row rise with the spans (np.arange): count on from the last one */
-            below_top = (b > 0 && top >= last_top) ? count_below_from(x, n, below_top, top) : count_below(x, n, top);
-            last_top = top;
-            const double *t_row = prefix + 5 * below_top;
-            const Sums t = {t_row[0], t_row[1], t_row[2], t_row[3], t_row[4]};
-            const double sv = top * t.s0 - t.s1;
-            const double vx = top * t.s1 - t.s2 - x_mean * sv;
-            const double vv = top * top * t.s0 - 2.0 * top * t.s1 + t.s2 - sv * sv / count - vx * vx / sxx;
-            const double uv = hinge * top * h.s0 - (hinge + top) * h.s1 + h.s2 - su * sv / count - ux * vx / sxx;
-            const double vf = top * t.sf - t.sxf;
-            const double det = uu * vv - uv * uv;
-            if (!(det > 1e-9 * at_least(uu * vv, 1e-300))) continue;
-            const double k = (vv * uf - uv * vf) / det;
-            const double k1 = (uu * vf - uv * uf) / det;
-            if (!(k1 >= min_share * k && k1 <= max_share * k)) continue;
-            rss[cell] = ff - (k * uf + k1 * vf);
-            if (rss[cell] < least || best < 0) {
-                least = rss[cell];
-                best = cell;
-                best_share = k1 / k;
+            row_tops[b] = hinge + span_offsets[b];
+            row_rss[b] = INFINITY;
+        }
+        /* Each allowed top's prefix sums; the tops along a row rise with the spans: count on from the
+         * last one */
+        Py_ssize_t below_top = 0;
+        for (Py_ssize_t c = 0; c < cells; c++) {
+            const double top = row_tops[first_span + c];
+            if (c > 0 && top >= row_tops[first_span + c - 1])
+                below_top = count_below_from(x, n, below_top, top);
+            else if (c == 0 && a > 0 && top >= first_top_before)
+                below_top = count_below_from(x, n, below_first_top, top);
+            else
+                below_top = count_below(x, n, top);
+            if (c == 0) {
+                below_first_top = below_top;
+                first_top_before = top;
+            }
+            const double *t = prefix + 5 * below_top;
+            t0[c] = t[0];
+            t1[c] = t[1];
+            t2[c] = t[2];
+            tf[c] = t[3];
+            txf[c] = t[4];
+        }
+        row_solves(cells, row_tops + first_span, t0, t1, t2, tf, txf, hinge, h.s0, h.s1, h.s2, su, ux, uu, uf, count,
+                   sxx, x_mean, ff, min_share, max_share, k_row, k1_row, row_rss + first_span, ok);
+        /* The least residual of the cells allowed, the first of equals; a cell not allowed is infinite
+         * (never below the least; the first allowed one is taken whatever its value). Without a
+         * branch on ok: a row's allowed cells come and go where no branch predictor follows them. */
+        for (Py_ssize_t c = 0; c < cells; c++) {
+            const double cell_rss = ok[c] != 0.0 ? row_rss[first_span + c] : INFINITY;
+            row_rss[first_span + c] = cell_rss;
+            if (cell_rss < least || (best < 0 && ok[c] != 0.0)) {
+                least = cell_rss;
+                best = a * spans + first_span + c;
+                best_share = k1_row[c] / k_row[c];
             }
         }
     }
@@ -235,19 +296,23 @@ static int grid_fit(const double *x, const double *f, Py_ssize_t n, const double
      * on a tap with a hum or a walk nobody modelled (the twin's comment says why). */
     const double dof = n - 6 > 1 ? (double)(n - 6) : 1.0;
     if (least / dof > noise_var) noise_var = least / dof;
+    /* The likelihoods' exponents first; then the weights summed in the cells' order. exp underflows to 0 below -745.2: a cell not allowed (rss
+     * infinite) or that far off weighs nothing and is left out of the sums (it would add +0 to each:
+     * the same sums), and the cells weighed are kept in order at the arrays' start for the spread. */
+    likelihood_exponents(hinges * spans, rss, least, noise_var);
     double total = 0.0, top_sum = 0.0;
+    Py_ssize_t weighed = 0;
     for (Py_ssize_t cell = 0; cell < hinges * spans; cell++) {
-        /* exp underflows to 0 below -745.2: a cell not allowed (rss infinite) or that far off weighs
-         * nothing, and its exp is not worth calling (the same 0) */
-        const double exponent = -0.5 * (rss[cell] - least) / noise_var;
-        const double weight = exponent < -750.0 ? 0.0 : exp(exponent);
-        rss[cell] = weight;
+        if (rss[cell] < -750.0) continue;
+        const double weight = exp(rss[cell]);
         total += weight;
         top_sum += weight * tops[cell];
+        rss[weighed] = weight;
+        tops[weighed++] = tops[cell];
     }
     const double top_mean = top_sum / total;
     double spread = 0.0;
-    for (Py_ssize_t cell = 0; cell < hinges * spans; cell++) {
+    for (Py_ssize_t cell = 0; cell < weighed; cell++) {
         const double off = tops[cell] - top_mean;
         spread += rss[cell] * (off * off);
     }
@@ -258,6 +323,7 @@ done:
     free(prefix);
     free(rss);
     free(tops);
+    free(row);
     return status;
 }
 
@@ -356,18 +422,20 @@ static double products_sum(const double *a, const double *b, Py_ssize_t n, doubl
  * contact + above] by height, the heights centred and the force with its level and (unless
  * drift_held) its drift in height removed, the sample step (median of the heights' steps), the
  * shortest span it allows, the grid. The means and the sums of products as numpy takes them
- * (pairwise sums), the median as robust.median: bit for bit with the twin. */
+ * (pairwise sums), the median as robust.median: bit for bit with the twin. On a fit, the samples
+ * as the grid took them (by height; the force less its level and drift) into x_out and force_out,
+ * for the one-stage toe the evidence may need next. */
 static PyObject *two_stage_fit(PyObject *self, PyObject *args)
 {
     (void)self;
-    Py_buffer xb = {0}, fb = {0}, hb = {0}, sb = {0};
+    Py_buffer xb = {0}, fb = {0}, hb = {0}, sb = {0}, xo_b = {0}, fo_b = {0};
     double contact_um, below_um, above_um, noise_var, window_um, min_span_um, min_span_windows, min_share, max_share;
     Py_ssize_t min_samples;
     int drift_held;
-    if (!PyArg_ParseTuple(args, "O&O&dddnddddO&O&ddp", float64_buffer, &xb, float64_buffer, &fb, &contact_um,
+    if (!PyArg_ParseTuple(args, "O&O&dddnddddO&O&ddpO&O&", float64_buffer, &xb, float64_buffer, &fb, &contact_um,
                           &below_um, &above_um, &min_samples, &noise_var, &window_um, &min_span_um,
                           &min_span_windows, float64_buffer, &hb, float64_buffer, &sb, &min_share, &max_share,
-                          &drift_held))
+                          &drift_held, float64_buffer, &xo_b, float64_buffer, &fo_b))
         return NULL;
     PyObject *answer = NULL;
     double *xs = NULL, *fs = NULL, *xc = NULL, *steps = NULL;
@@ -376,6 +444,13 @@ static PyObject *two_stage_fit(PyObject *self, PyObject *args)
     const double *x_all, *f_all, *hinge_offsets, *span_offsets;
     if (!grid_arrays(&xb, &fb, &hb, &sb, &x_all, &f_all, &n_all, &hinge_offsets, &hinges, &span_offsets, &spans))
         goto done;
+    double *x_out = doubles_sized(&xo_b, n_all, "x_out");
+    double *f_out = x_out ? doubles_sized(&fo_b, n_all, "force_out") : NULL;
+    if (f_out == NULL) goto done;
+    if (xo_b.readonly || fo_b.readonly) {
+        PyErr_SetString(PyExc_ValueError, "x_out and force_out must be writable");
+        goto done;
+    }
     const double low = contact_um - below_um, high = contact_um + above_um;
     Py_ssize_t n = 0;
     for (Py_ssize_t i = 0; i < n_all; i++) n += x_all[i] > low && x_all[i] < high;
@@ -436,8 +511,10 @@ static PyObject *two_stage_fit(PyObject *self, PyObject *args)
         Py_INCREF(answer);
         goto done;
     }
-    answer = Py_BuildValue("ddddnddd", fit.least, fit.noise_var, fit.top_mean, fit.top_sd, fit.best_span,
-                           fit.soft_share, fit.hinge_gain, ff);
+    memcpy(x_out, xs, sizeof(double) * count);
+    memcpy(f_out, fs, sizeof(double) * count);
+    answer = Py_BuildValue("ddddndddndd", fit.least, fit.noise_var, fit.top_mean, fit.top_sd, fit.best_span,
+                           fit.soft_share, fit.hinge_gain, ff, n, sxx, x_mean);
 done:
     free(xs);
     free(fs);
@@ -450,6 +527,8 @@ done:
     PyBuffer_Release(&fb);
     PyBuffer_Release(&hb);
     PyBuffer_Release(&sb);
+    PyBuffer_Release(&xo_b);
+    PyBuffer_Release(&fo_b);
     return answer;
 }
 
@@ -457,7 +536,10 @@ done:
  * width and contact on the grid. The samples pressed at least a width deep lie on the toe's linear
  * part, s = B - z (z: height above the contact found, B = contact - width (1 - 1/(power + 1))),
  * whose sums come from prefix sums over the samples by height; only those inside the toe are
- * evaluated one by one. The same least squares as the twin's, summed in another order. */
+ * evaluated one by one, their depth over the width once for both shapes. Along a width's rising
+ * contacts the counts of samples below the contact and below its toe go on from the last
+ * contact's (binary searches there cost more than the sums: their branches mispredict). The same
+ * least squares as the twin's, summed in another order. */
 static PyObject *one_stage_rss(PyObject *self, PyObject *args)
 {
     (void)self;
@@ -467,7 +549,7 @@ static PyObject *one_stage_rss(PyObject *self, PyObject *args)
                           float64_buffer, &wb, float64_buffer, &pb, &contact_um, &sxx, &ff, &x_mean))
         return NULL;
     PyObject *answer = NULL;
-    double *prefix = NULL;
+    double *prefix = NULL, *depth = NULL;
     Py_ssize_t n, contacts, widths, powers;
     const double *x = doubles_of(&xb, &n, "x_um");
     const double *f = x ? doubles_sized(&fb, n, "force_g") : NULL;
@@ -480,7 +562,8 @@ static PyObject *one_stage_rss(PyObject *self, PyObject *args)
         goto done;
     }
     prefix = malloc(sizeof(double) * 5 * (size_t)(n + 1));
-    if (prefix == NULL) {
+    depth = malloc(sizeof(double) * (size_t)n);
+    if (prefix == NULL || depth == NULL) {
         PyErr_NoMemory();
         goto done;
     }
@@ -498,29 +581,42 @@ static PyObject *one_stage_rss(PyObject *self, PyObject *args)
     }
     const double count = (double)n, z_mean = x_mean - contact_um;
     double best_gain = 0.0;
-    for (Py_ssize_t k = 0; k < powers; k++) {
-        const double power = power_list[k], share = 1.0 / (power + 1.0);
-        for (Py_ssize_t w = 0; w < widths; w++) {
-            const double width = fmax(width_list[w], 1e-9);
-            for (Py_ssize_t c = 0; c < contacts; c++) {
-                const double contact = contact_um + offsets[c];
-                /* [0, linear): pressed a width deep or more; [linear, pressed): inside the toe. */
-                const Py_ssize_t pressed = count_below(x, n, contact);
-                Py_ssize_t linear = count_below(x, pressed, contact - width);
-                while (linear < pressed && contact - x[linear] >= width) linear++;
-                const double *p = prefix + 5 * linear;
+    for (Py_ssize_t w = 0; w < widths; w++) {
+        const double width = fmax(width_list[w], 1e-9);
+        Py_ssize_t pressed = 0, deep = 0;
+        double last_contact = -INFINITY;
+        for (Py_ssize_t c = 0; c < contacts; c++) {
+            const double contact = contact_um + offsets[c];
+            /* [0, linear): pressed a width deep or more; [linear, pressed): inside the toe. deep: the
+             * samples below contact - width. The contacts rise (np.arange): both counts go on from
+             * the last contact's (the same counts as a binary search, a step or two on). */
+            if (c > 0 && contact >= last_contact) {
+                pressed = count_below_from(x, n, pressed, contact);
+                deep = count_below_from(x, pressed, deep, contact - width);
+            } else {
+                pressed = count_below(x, n, contact);
+                deep = count_below(x, pressed, contact - width);
+            }
+            last_contact = contact;
+            Py_ssize_t linear = deep;
+            while (linear < pressed && contact - x[linear] >= width) linear++;
+            /* the depth over the width of each sample inside the toe, once for every shape */
+            for (Py_ssize_t i = linear; i < pressed; i++) depth[i - linear] = (contact - x[i]) / width;
+            const double *p = prefix + 5 * linear;
+            for (Py_ssize_t k = 0; k < powers; k++) {
+                const double power = power_list[k], share = 1.0 / (power + 1.0), scale = width * share;
                 const double b = offsets[c] - width * (1.0 - share);
                 double s_sum = b * p[0] - p[1];
                 double s_x = b * p[1] - b * p[0] * z_mean - p[2] + z_mean * p[1];
                 double s_ss = b * b * p[0] - 2.0 * b * p[1] + p[2];
                 double s_f = b * p[3] - p[4];
                 for (Py_ssize_t i = linear; i < pressed; i++) {
-                    const double u = (contact - x[i]) / width;
+                    const double u = depth[i - linear];
                     double shape;
                     if (power == 0.5) shape = sqrt(u) * u;
                     else if (power == 1.0) shape = u * u;
                     else shape = pow(u, power + 1.0);
-                    shape *= width * share;
+                    shape *= scale;
                     s_sum += shape;
                     s_x += shape * (x[i] - x_mean);
                     s_ss += shape * shape;
@@ -535,6 +631,7 @@ static PyObject *one_stage_rss(PyObject *self, PyObject *args)
     answer = PyFloat_FromDouble(ff - best_gain);
 done:
     free(prefix);
+    free(depth);
     PyBuffer_Release(&xb);
     PyBuffer_Release(&fb);
     PyBuffer_Release(&cb);
@@ -615,13 +712,15 @@ static PyMethodDef methods[] = {
      "departure_soft_stage, soft_stage)."},
     {"two_stage_fit", two_stage_fit, METH_VARARGS,
      "two_stage_fit(x_um, force_g, contact_um, below_um, above_um, min_samples, noise_var_g2, window_um,\n"
-     "              min_span_um, min_span_windows, hinges_um, spans_um, min_soft_share, max_soft_share, drift_held)\n"
-     "-> (least_rss, noise_var_g2, top_mean_um, top_sd_um, best_span_index, soft_share, best_hinge_gain, ff)\n"
-     "   or None\n\n"
+     "              min_span_um, min_span_windows, hinges_um, spans_um, min_soft_share, max_soft_share, drift_held,\n"
+     "              x_out, force_out)\n"
+     "-> (least_rss, noise_var_g2, top_mean_um, top_sd_um, best_span_index, soft_share, best_hinge_gain, ff,\n"
+     "    count, sxx, x_mean) or None\n\n"
      "stage.py's two_stage_fit up to the one-stage toe: the samples within below_um under and above_um over\n"
      "the contact, by height, a level and (unless drift_held) a drift taken out, then two_stage_grid over\n"
-     "them; ff the force's sum of squares left. None when fewer than 2 min_samples samples, no noise, all\n"
-     "at one height, or no grid point allowed."},
+     "them; ff the force's sum of squares left, sxx the centred heights' (infinite with the drift held),\n"
+     "x_mean their mean; those count samples into x_out and force_out (both of x_um's length). None when\n"
+     "fewer than 2 min_samples samples, no noise, all at one height, or no grid point allowed."},
     {"two_stage_grid", two_stage_grid, METH_VARARGS,
      "two_stage_grid(x_um, force_g, hinges_um, spans_um, contact_um, sxx, ff, x_mean, noise_var_g2, shortest_um,\n"
      "               min_soft_share, max_soft_share)\n"
