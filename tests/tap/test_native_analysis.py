@@ -42,9 +42,10 @@ def test_median_is_numpys(values):
 def test_median_of_long_samples_is_numpys():
     # Tap-sized arrays (hundreds to thousands of samples), where the selection partitions through
     # its scratch runs: noise, quantised noise (an ADC's counts: long runs of equal values), a
-    # constant, sorted and reversed ramps, a tap-like step; odd and even counts.
+    # constant, sorted and reversed ramps, a tap-like step; odd and even counts; either side of 256
+    # values, where the selection's scratch leaves the stack for the heap and the sampled pivots begin.
     rng = np.random.default_rng(21)
-    for n in (12, 13, 101, 700, 1449, 4769):
+    for n in (12, 13, 101, 255, 256, 257, 700, 1449, 4769):
         noise = rng.normal(0.0, 1.0, n)
         for values in (noise, np.round(noise * 2.0) / 2.0, np.full(n, 3.25), np.arange(n, dtype=float),
                        np.arange(n, 0, -1, dtype=float), np.where(np.arange(n) < n // 3, 0.0, 75.0) + noise):

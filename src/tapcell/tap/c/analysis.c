@@ -385,7 +385,7 @@ static inline double minimum(double a, double b) { return a <= b || isnan(a) ? a
 /* The move in force at t_s (motion.py `Motion.z_at`): the last one starting at or before t_s, the
  * first when none does. `*move` is where the previous time was: the samples' times rise, so it
  * mostly stays or steps on (a time earlier than its move's start searches afresh). */
-static Py_ssize_t move_at(const double *start_s, Py_ssize_t moves, double t_s, Py_ssize_t *move)
+static inline Py_ssize_t move_at(const double *start_s, Py_ssize_t moves, double t_s, Py_ssize_t *move)
 {
     if (*move > 0 && start_s[*move] > t_s) {
         Py_ssize_t low = 0, high = moves; /* the count of moves starting at or before t_s (searchsorted right) */
@@ -403,7 +403,7 @@ static Py_ssize_t move_at(const double *start_s, Py_ssize_t moves, double t_s, P
 
 /* Commanded Z (mm) at t_s in the trapezoid move `index` (t_s clamped into it). `table`: rows start
  * time, duration, start speed, acceleration, start Z, direction; `moves` columns. */
-static double z_in_move_mm(const double *table, Py_ssize_t moves, Py_ssize_t index, double t_s)
+static inline double z_in_move_mm(const double *table, Py_ssize_t moves, Py_ssize_t index, double t_s)
 {
     const double start_s = table[index], duration_s = table[moves + index], start_v = table[2 * moves + index];
     const double accel = table[3 * moves + index], start_z = table[4 * moves + index], z_r = table[5 * moves + index];
@@ -411,7 +411,7 @@ static double z_in_move_mm(const double *table, Py_ssize_t moves, Py_ssize_t ind
     return start_z + z_r * (start_v + 0.5 * accel * tau_s) * tau_s;
 }
 
-static double z_at_mm(const double *table, Py_ssize_t moves, double t_s, Py_ssize_t *move)
+static inline double z_at_mm(const double *table, Py_ssize_t moves, double t_s, Py_ssize_t *move)
 {
     return z_in_move_mm(table, moves, move_at(table, moves, t_s, move), t_s);
 }
