@@ -481,6 +481,28 @@ static PyObject *window_heights(PyObject *self, PyObject *args)
     return result;
 }
 
+/* Commanded Z (mm) at one time from the move table's rows (motion.py `Motion.z_at` of a single time,
+ * its twin: the same move, the same clamp and the same arithmetic in its order). */
+static PyObject *z_at(PyObject *self, PyObject *args)
+{
+    (void)self;
+    PyObject *rows;
+    double t_s;
+    if (!PyArg_ParseTuple(args, "Od", &rows, &t_s))
+        return NULL;
+    Py_ssize_t cells = 0, move = 0;
+    double *table = move_table_of(rows, &cells);
+    if (table == NULL)
+        return NULL;
+    PyObject *result = NULL;
+    if (cells == 0 || cells % 6 != 0)
+        PyErr_Format(PyExc_ValueError, "move_table: %zd values, not 6 rows of moves", cells);
+    else
+        result = PyFloat_FromDouble(z_at_mm(table, cells / 6, t_s, &move));
+    PyMem_Free(table);
+    return result;
+}
+
 /* What is wrong with a tap's samples for the analysis (analysis.py `_check_samples`, whose
  * SAMPLES_* numbers these are), the first found. */
 enum sample_problem { SAMPLES_FINE = 0, SAMPLES_NOT_FINITE = 1, SAMPLES_NOT_INCREASING = 2 };
@@ -692,6 +714,9 @@ static PyMethodDef methods[] = {
      "min_span_um) into the outputs, the two line points' heights (analysis.py: model_window), and how\n"
      "many samples were read at or before rising_s (time_s.searchsorted(rising_s, side='right'), the\n"
      "rising times in order: analysis.py pullback_first).\n"
+     "move_rows: the move table's six rows one after the other, a sequence of numbers (Motion.move_rows)."},
+    {"z_at", z_at, METH_VARARGS,
+     "z_at(move_rows, t_s) -> float: the commanded Z (mm) at t_s (motion.py Motion.z_at of one time).\n"
      "move_rows: the move table's six rows one after the other, a sequence of numbers (Motion.move_rows)."},
     {"sample_problem", sample_problem, METH_VARARGS,
      "sample_problem(time_s, force_g) -> int: 0 fine, 1 NaN or infinity, 2 times not strictly increasing."},
