@@ -100,10 +100,6 @@ static inline void select_kth_into(double *values, Py_ssize_t n, Py_ssize_t k, d
  * equal after (no NaN among them). */
 static inline void select_kth(double *values, Py_ssize_t n, Py_ssize_t k)
 {
-    if (n < SELECT_SORT_BELOW) { /* insertion sort alone: no scratch */
-        select_kth_into(values, n, k, NULL);
-        return;
-    }
     double on_stack[2 * SELECT_SCRATCH_ON_STACK_BELOW];
     double *scratch = n < SELECT_SCRATCH_ON_STACK_BELOW ? on_stack : malloc(2 * (size_t)n * sizeof(double));
     if (scratch == NULL) {
