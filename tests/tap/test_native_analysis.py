@@ -42,9 +42,10 @@ def test_median_is_numpys(values):
 def test_median_of_long_samples_is_numpys():
     # Tap-sized arrays (hundreds to thousands of samples), where the selection partitions through
     # its scratch runs: noise, quantised noise (an ADC's counts: long runs of equal values), a
-    # constant, sorted and reversed ramps, a tap-like step; odd and even counts.
+    # constant, sorted and reversed ramps, a tap-like step; odd and even counts; either side of 256
+    # values, where the selection's scratch leaves the stack for the heap and the sampled pivots begin.
     rng = np.random.default_rng(21)
-    for n in (12, 13, 101, 700, 1449, 4769):
+    for n in (12, 13, 101, 255, 256, 257, 700, 1449, 4769):
         noise = rng.normal(0.0, 1.0, n)
         for values in (noise, np.round(noise * 2.0) / 2.0, np.full(n, 3.25), np.arange(n, dtype=float),
                        np.arange(n, 0, -1, dtype=float), np.where(np.arange(n) < n // 3, 0.0, 75.0) + noise):
@@ -223,6 +224,38 @@ def test_window_heights_are_the_twins_at_the_moves_edges():
         assert (fast.contact_line_um, fast.break_line_um) == (twin.contact_line_um, twin.break_line_um)
         clamped += int(np.sum(twin.span_um == analysis.MIN_SPAN_UM))
     assert clamped >= 400  # the floor was met (zero integration, and windows at rest before and after the moves)
+
+
+def test_the_height_at_one_time_is_the_twins_to_the_last_bit():
+    # Motion.z_at_time_mm (one kernel call) against Motion.z_at (numpy): before the first move, on
+    # every move's start and end and just either side, inside each, past the last, the motion's own
+    # phase times (the checks read the pullback's end), infinities and NaN (NaN either way).
+    for seed, scenario in ((3, "clean_hx717"), (5, "cable_drift"), (8, "clean_ads1220_2000")):
+        draw = SCENARIOS[scenario].draw(np.random.default_rng(seed))
+        motion = tap_motion(tap_from_object(make_tap(draw, np.random.default_rng(seed))[0]))
+        starts = motion.move_table[0]
+        ends = starts + motion.move_table[1]
+        edges = np.concatenate((starts, ends))
+        times = [*np.linspace(starts[0] - 0.5, ends[-1] + 0.5, 301), *edges, *np.nextafter(edges, -np.inf),
+                 *np.nextafter(edges, np.inf), motion.home_end_s, motion.pullback_start_s, motion.pullback_cruise_s,
+                 motion.pullback_end_s, math.inf, -math.inf]
+        for t_s in times:
+            twin = float(motion.z_at(t_s))
+            assert motion.z_at_time_mm(t_s) == twin and type(motion.z_at_time_mm(t_s)) is float, (scenario, t_s)
+        assert math.isnan(motion.z_at_time_mm(math.nan)) and math.isnan(float(motion.z_at(math.nan)))
+    with pytest.raises(ValueError, match="not 6 rows"):
+        KERNEL.z_at([0.0] * 7, 1.0)
+    with pytest.raises(ValueError, match="not 6 rows"):
+        KERNEL.z_at([], 1.0)
+    with pytest.raises(TypeError, match="not a sequence"):
+        KERNEL.z_at(None, 1.0)
+
+
+def test_the_height_at_one_time_without_moves_is_the_traces():
+    # A motion read from a commanded Z trace has no move table: the twin interpolates the trace.
+    time_s = np.linspace(0.0, 1.0, 11)
+    motion = Motion(0.4, 0.6, 0.6, 0.9, 0.0, 1.0, 1.0, trace_time_s=time_s, trace_z_mm=np.abs(time_s - 0.5))
+    assert [motion.z_at_time_mm(t) for t in (0.0, 0.25, 0.5, 2.0)] == [0.5, 0.25, 0.0, 0.5]
 
 
 def test_the_move_table_is_six_contiguous_rows_of_the_moves():

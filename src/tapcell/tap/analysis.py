@@ -646,7 +646,7 @@ def force_left_at_end_g(motion: Motion, dec: Decomposition, end_g: float) -> flo
     drift (a cable pulling in proportion to Z moves the end's level by drift x pullback distance).
     """
     slope_g_s, intercept_g = dec.approach_line
-    height_um = (float(motion.z_at(motion.pullback_end_s)) - motion.z_halt_mm) * 1000.0
+    height_um = (motion.z_at_time_mm(motion.pullback_end_s) - motion.z_halt_mm) * 1000.0
     free_air_g = slope_g_s * motion.home_end_s + intercept_g + free_air_slope_g_um(dec, motion) * height_um
     return end_g - free_air_g
 
@@ -1239,7 +1239,7 @@ def apply_delay_estimate(split: SplitTap, fits: ContactFits, delay_s: float, res
             if compression:
                 pullback.contact_sigma_um = math.hypot(pullback.contact_sigma_um * (1 - share),
                                                        share * compression.contact_sigma_um)
-        result.z_line_mm = float(motion.z_at(split.dec.points[P_BREAK][0] - delay_s - 0.5 * timing.integration_s))
+        result.z_line_mm = motion.z_at_time_mm(split.dec.points[P_BREAK][0] - delay_s - 0.5 * timing.integration_s)
     result.sensor_delay_s = delay_s
     return delay_s
 

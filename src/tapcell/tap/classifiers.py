@@ -367,6 +367,6 @@ def _apply_lines(result: TapAnalysis, context: AnalysisContext, lines: list[tupl
     except TapInvalid as invalid:
         result.valid, result.error, result.message = False, invalid.code, invalid.message
         return
-    result.z_line_mm = float(motion.z_at(t_break - result.sensor_delay_s - 0.5 * timing.integration_s))
+    result.z_line_mm = motion.z_at_time_mm(t_break - result.sensor_delay_s - 0.5 * timing.integration_s)
     result.z_mm = result.z_line_mm
     result.z_method = "lines"

@@ -176,7 +176,7 @@ def check_pullback_samples(motion: Motion, sample_period_s: float) -> None:
     31 µm a sample) is not one that never left the bed; its fix is the speed, not the distance.
     A pullback short in distance (a few µm at 1 µm a sample) passes: it is too short."""
     samples = motion.pullback_duration_s / sample_period_s
-    distance_um = (float(motion.z_at(motion.pullback_end_s)) - motion.z_halt_mm) * 1000.0
+    distance_um = (motion.z_at_time_mm(motion.pullback_end_s) - motion.z_halt_mm) * 1000.0
     if samples < PULLBACK_MIN_SAMPLES <= distance_um / GUIDE_PULLBACK_STEP_UM:
         step_um = motion.pullback_speed_mm_s * sample_period_s * 1000.0
         raise TapInvalid(TAP_DATA_INSUFFICIENT,

@@ -385,7 +385,7 @@ static inline double minimum(double a, double b) { return a <= b || isnan(a) ? a
 /* The move in force at t_s (motion.py `Motion.z_at`): the last one starting at or before t_s, the
  * first when none does. `*move` is where the previous time was: the samples' times rise, so it
  * mostly stays or steps on (a time earlier than its move's start searches afresh). */
-static Py_ssize_t move_at(const double *start_s, Py_ssize_t moves, double t_s, Py_ssize_t *move)
+static inline Py_ssize_t move_at(const double *start_s, Py_ssize_t moves, double t_s, Py_ssize_t *move)
 {
     if (*move > 0 && start_s[*move] > t_s) {
         Py_ssize_t low = 0, high = moves; /* the count of moves starting at or before t_s (searchsorted right) */
@@ -403,7 +403,7 @@ static Py_ssize_t move_at(const double *start_s, Py_ssize_t moves, double t_s, P
 
 /* Commanded Z (mm) at t_s in the trapezoid move `index` (t_s clamped into it). `table`: rows start
  * time, duration, start speed, acceleration, start Z, direction; `moves` columns. */
-static double z_in_move_mm(const double *table, Py_ssize_t moves, Py_ssize_t index, double t_s)
+static inline double z_in_move_mm(const double *table, Py_ssize_t moves, Py_ssize_t index, double t_s)
 {
     const double start_s = table[index], duration_s = table[moves + index], start_v = table[2 * moves + index];
     const double accel = table[3 * moves + index], start_z = table[4 * moves + index], z_r = table[5 * moves + index];
@@ -411,7 +411,7 @@ static double z_in_move_mm(const double *table, Py_ssize_t moves, Py_ssize_t ind
     return start_z + z_r * (start_v + 0.5 * accel * tau_s) * tau_s;
 }
 
-static double z_at_mm(const double *table, Py_ssize_t moves, double t_s, Py_ssize_t *move)
+static inline double z_at_mm(const double *table, Py_ssize_t moves, double t_s, Py_ssize_t *move)
 {
     return z_in_move_mm(table, moves, move_at(table, moves, t_s, move), t_s);
 }
@@ -478,6 +478,28 @@ static PyObject *window_heights(PyObject *self, PyObject *args)
     PyBuffer_Release(&time_buffer);
     PyBuffer_Release(&x_min_buffer);
     PyBuffer_Release(&span_buffer);
+    return result;
+}
+
+/* Commanded Z (mm) at one time from the move table's rows (motion.py `Motion.z_at` of a single time,
+ * its twin: the same move, the same clamp and the same arithmetic in its order). */
+static PyObject *z_at(PyObject *self, PyObject *args)
+{
+    (void)self;
+    PyObject *rows;
+    double t_s;
+    if (!PyArg_ParseTuple(args, "Od", &rows, &t_s))
+        return NULL;
+    Py_ssize_t cells = 0, move = 0;
+    double *table = move_table_of(rows, &cells);
+    if (table == NULL)
+        return NULL;
+    PyObject *result = NULL;
+    if (cells == 0 || cells % 6 != 0)
+        PyErr_Format(PyExc_ValueError, "move_table: %zd values, not 6 rows of moves", cells);
+    else
+        result = PyFloat_FromDouble(z_at_mm(table, cells / 6, t_s, &move));
+    PyMem_Free(table);
     return result;
 }
 
@@ -692,6 +714,9 @@ static PyMethodDef methods[] = {
      "min_span_um) into the outputs, the two line points' heights (analysis.py: model_window), and how\n"
      "many samples were read at or before rising_s (time_s.searchsorted(rising_s, side='right'), the\n"
      "rising times in order: analysis.py pullback_first).\n"
+     "move_rows: the move table's six rows one after the other, a sequence of numbers (Motion.move_rows)."},
+    {"z_at", z_at, METH_VARARGS,
+     "z_at(move_rows, t_s) -> float: the commanded Z (mm) at t_s (motion.py Motion.z_at of one time).\n"
      "move_rows: the move table's six rows one after the other, a sequence of numbers (Motion.move_rows)."},
     {"sample_problem", sample_problem, METH_VARARGS,
      "sample_problem(time_s, force_g) -> int: 0 fine, 1 NaN or infinity, 2 times not strictly increasing."},

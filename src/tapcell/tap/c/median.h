@@ -92,17 +92,23 @@ static inline void select_kth_into(double *values, Py_ssize_t n, Py_ssize_t k, d
     }
 }
 
+/* Below this many values the selection's scratch (2 n values) is on the stack (4 kB), not malloc'ed:
+ * the analysis's medians are mostly of a few dozen values (the polarity's, the window's noise). */
+#define SELECT_SCRATCH_ON_STACK_BELOW 256
+
 /* The k-th smallest of values[0..n) at values[k], smaller or equal ones before it, larger or
  * equal after (no NaN among them). */
 static inline void select_kth(double *values, Py_ssize_t n, Py_ssize_t k)
 {
-    double *scratch = n >= SELECT_SORT_BELOW ? malloc(2 * (size_t)n * sizeof(double)) : NULL;
-    if (scratch == NULL && n >= SELECT_SORT_BELOW) {
+    double on_stack[2 * SELECT_SCRATCH_ON_STACK_BELOW];
+    double *scratch = n < SELECT_SCRATCH_ON_STACK_BELOW ? on_stack : malloc(2 * (size_t)n * sizeof(double));
+    if (scratch == NULL) {
         select_kth_in_place(values, n, k);
         return;
     }
     select_kth_into(values, n, k, scratch);
-    free(scratch);
+    if (scratch != on_stack)
+        free(scratch);
 }
 
 /* From this many values on, the median is looked for among the values between two pivots that a
