@@ -558,7 +558,7 @@ def print_results(results: list[CaseResult]) -> None:
 
 def findings(results: list[CaseResult]) -> list[str]:
     """What needs a look, most serious first: crashes and hangs, silent failures, clean taps
-    rejected, a σ far from the error on a clean case."""
+    rejected, a σ far from the error on a clean case, an accepted tap far off at many σ in any case."""
     out = []
     for r in results:
         out += [f"(1) {r.case.name}: {c}" for c in r.crashes[:3]]
@@ -572,6 +572,26 @@ def findings(results: list[CaseResult]) -> list[str]:
         rms = r.ours.sigma_rms
         if r.case.expect == "accept" and rms is not None and rms > 2.0:
             out.append(f"(4) {r.case.name}: rms(e/σ) {rms:.2f}")
+    for r in results:  # "either" too: accepting is a claim its σ must hold
+        far = far_off(r.ours)
+        if far:
+            out.append(f"(4) {r.case.name}: {len(far)} accepted tap(s) over {FAR_OFF_UM:.0f} µm and {FAR_OFF_SIGMAS:.0f} σ off, "
+                       f"worst {max(far, key=lambda ratio_um: abs(ratio_um[1]))[1]:+.1f} µm at "
+                       f"{max(far, key=lambda ratio_um: abs(ratio_um[1]))[0]:.1f} σ")
+    return out
+
+
+FAR_OFF_UM, FAR_OFF_SIGMAS = 5.0, 4.0
+
+
+def far_off(s: Score) -> list[tuple[float, float]]:
+    """(|error| / z_sigma_um, error µm) of the accepted taps further off than FAR_OFF_UM and
+    FAR_OFF_SIGMAS of their own sigma: nearly silent failures (a small σ on a wrong Z)."""
+    out = []
+    for name, error_um in s.errors_um.items():
+        sigma_um = s.sigmas_um.get(name)
+        if sigma_um and abs(error_um) > FAR_OFF_UM and abs(error_um) > FAR_OFF_SIGMAS * sigma_um:
+            out.append((abs(error_um) / sigma_um, error_um))
     return out
 
 
