@@ -5,9 +5,12 @@ Each case is taplab's clean HX717 tap (`taplab.generate.draw_tap`: 320 sps, 5 mm
 g/µm, a 1-8 µm toe) with ONE thing changed: the sample rate (40 / 160 / 1000 / 4000 sps), the
 probing or pullback speed, the bed's stiffness, the trigger force, the noise, the toe's width and
 shape, the unloading stiffness (hysteresis), a thermal ramp in time, the dwell, few samples in
-contact, the ADC's latency, a long conversion window, a pullback ending just after the break. A
-few cases take the reference taps (a generator we did not write) and change what a transform can
-change exactly: averaged in blocks (a slower sensor), a thermal ramp added.
+contact, the ADC's latency, a long conversion window, a pullback ending just after the break.
+Twenty cases take the reference taps (a generator we did not write: its toes, noise and timing
+kept) and change what a transform can change exactly, the truth unchanged: averaged in blocks or
+slowed in time (a slower sensor, down to 10 sps), frames lost, the polarity, gain and tare, the
+timestamps' jitter, a stronger hum, one more sample of latency, a thermal ramp; and one
+approximation (`_gantry_ringing`).
 
 A generator we write is not evidence for an analysis we write: this sweep finds what breaks
 (a traceback, a hang, a silent failure, a clean tap rejected for a cause it does not show, a σ
