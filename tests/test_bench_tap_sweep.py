@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from bench import tap_sweep
-from bench.tap_sweep import CASES, analyse_in_process, case_taps, findings, sweep
-from tapcell.taplab.benchmark import default_reference_archive, reference_set
+from bench.tap_sweep import CASES, analyse_in_process, case_taps, findings, reference_taps, sweep
 
 CASE = {case.name: case for case in CASES}
 
@@ -69,12 +68,8 @@ def test_the_sweep_scores_like_the_benchmark():
     assert not any("endbreak1.1" in line for line in findings(results))  # rejecting it is honest ("either")
 
 
-def test_reference_taps_averaged_into_a_slower_sensor(tmp_path):
-    source = default_reference_archive()
-    found = reference_set(source, tmp_path) if source.exists() else None
-    if found is None:
-        pytest.skip("no reference taps beside the repository")
-    (tap, z_mm), = case_taps(CASE["ref_hx717x4"], 1, 1, found.directory)
+def test_reference_taps_averaged_into_a_slower_sensor(reference_dir):
+    (tap, z_mm), = case_taps(CASE["ref_hx717x4"], 1, 1, reference_dir)
     assert tap["sample_rate"] == 80.0 and len(tap["z"]) == len(tap["time"])
     assert "truth" not in tap and "meta" not in tap
     answer = analyse_in_process(tap)
@@ -111,11 +106,7 @@ def test_a_pullback_starting_at_the_halt_says_there_is_no_dwell():
 
 @pytest.fixture(scope="module")
 def reference_dir(tmp_path_factory):
-    source = default_reference_archive()
-    found = reference_set(source, tmp_path_factory.mktemp("reference")) if source.exists() else None
-    if found is None:
-        pytest.skip("no reference taps beside the repository")
-    return found.directory
+    return reference_taps(None, tmp_path_factory.mktemp("reference")) or pytest.skip("no reference taps here")
 
 
 def _original(reference_dir, scenario: str = "clean_hx717") -> dict:

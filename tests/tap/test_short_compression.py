@@ -11,22 +11,17 @@ import math
 
 import pytest
 
-from bench.tap_sweep import CASES, analyse_in_process, case_taps
+from bench.tap_sweep import CASES, analyse_in_process, case_taps, reference_taps
 from tapcell.tap.analysis import compression_places_the_halt, split_tap
 from tapcell.tap.model import AnalysisOptions
 from tapcell.tap.readers import tap_from_object
-from tapcell.taplab.benchmark import default_reference_archive, reference_set
 
 CASE = {case.name: case for case in CASES}
 
 
 @pytest.fixture(scope="module")
 def reference_dir(tmp_path_factory):
-    source = default_reference_archive()
-    found = reference_set(source, tmp_path_factory.mktemp("reference")) if source.exists() else None
-    if found is None:
-        pytest.skip("no reference taps beside the repository")
-    return found.directory
+    return reference_taps(None, tmp_path_factory.mktemp("reference")) or pytest.skip("no reference taps here")
 
 
 def _pressing_periods(tap: dict) -> float:
