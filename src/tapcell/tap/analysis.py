@@ -1378,7 +1378,8 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
     compression_placed = compression_places_the_halt(dec, timing)
     if timing.delay_from_halt and not compression_placed:
         # No lag read off the halt (lag_before_the_fits): P2 lies anywhere in a conversion window.
-        halt_sigma_s = math.hypot(halt_sigma_s, timing.integration_s / math.sqrt(12.0))
+        halt_sigma_s = math.hypot(halt_sigma_s if math.isfinite(halt_sigma_s) else 0.0,
+                                  timing.integration_s / math.sqrt(12.0))
     down_um, up_um, allowance_um = _contact_down_and_up(fits, motion.approach_speed_mm_s * 1000.0
                                                        * timing.sample_period_s, compression_placed)
     if result.z_method == "toe" and result.toe_grid is not None:
