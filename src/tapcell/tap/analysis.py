@@ -35,6 +35,7 @@ from tapcell.tap.lazy import cached_attribute
 from tapcell.tap.model import (
     TAP_ADHESION,
     TAP_BREAK_CONTACT_TOO_LATE,
+    TAP_CHRONOLOGY,
     TAP_DATA_INSUFFICIENT,
     TAP_MOTION_INVALID,
     TAP_PULLBACK_TOO_SHORT,
@@ -977,7 +978,14 @@ def check_contact_heights(window: ModelWindow, pullback: ContactFit | None, comp
     tolerance_um = validate.contact_mismatch_tolerance_um(motion.approach_speed_mm_s * period_s * 1000.0,
                                                           motion.pullback_speed_mm_s * period_s * 1000.0,
                                                           down_sigma_um, up_sigma_um)
-    validate.check_contact_consistency(down_um, up_um, tolerance_um)
+    try:
+        validate.check_contact_consistency(down_um, up_um, tolerance_um)
+    except TapInvalid:
+        # A contact on the way down where the approach crossed the compression in less than a sample
+        # was placed by no sample: the cause is the speed (issue 21's sweep: reference HX711 taps
+        # averaged to 10 sps read their down contact 231-512 um above the halt).
+        check_compression_samples(motion, period_s, up_um)
+        raise
 
 
 def compression_sample_count(window: ModelWindow, motion: Motion, delay_s: float, onset_um: float,
@@ -1218,7 +1226,21 @@ def check_split(split: SplitTap, delay_s: float) -> None:
         # pullback does not hold (issue 21's sweep: 10 mm/s at 320 sps); say so instead.
         if invalid.code in (TAP_PULLBACK_TOO_SHORT, TAP_BREAK_CONTACT_TOO_LATE):
             validate.check_pullback_samples(motion, period_s)
+        # Lines out of order or misshapen where the approach crossed the compression in less than a
+        # sample: no sample placed them (issue 21's sweep, reference HX711 taps averaged to 10 sps).
+        if invalid.code in (TAP_CHRONOLOGY, TAP_SHAPE_INVALID):
+            break_um = (float(motion.z_at(dec.points[P_BREAK][0] - delay_s - 0.5 * timing.integration_s))
+                        - motion.z_halt_mm) * 1000.0
+            check_compression_samples(motion, period_s, break_um)
         raise
+
+
+def check_compression_samples(motion: Motion, period_s: float, contact_um: float) -> None:
+    """TAP_DATA_INSUFFICIENT where the approach went from contact (`contact_um` above the halt, as
+    the way up reads it) to the halt in less than a sample, faster than the guide's probing speed
+    (`validate.check_compression_samples`)."""
+    step_um = motion.approach_speed_mm_s * period_s * 1000.0
+    validate.check_compression_samples(contact_um, step_um, motion.approach_speed_mm_s)
 
 
 def fit_contact_models(split: SplitTap, window: ModelWindow, delay_s: float, options: AnalysisOptions,
