@@ -58,7 +58,7 @@ def test_the_predicate_counts_one_window_and_one_period():
     """taplab 80 sps, integration one period: 1.40 periods from P1 to P2 is short, 2.11 is not."""
     taps = case_taps(CASE["fewcontact"], seed=1, count=2, reference_dir=None)
     splits = [split_tap(tap_from_object(tap), AnalysisOptions())[0] for tap, _ in taps]
-    assert [compression_places_the_halt(s.dec, s.timing) for s in splits] == [False, True]
+    assert [compression_places_the_halt(s.dec, s.motion, s.timing) for s in splits] == [False, True]
     assert splits[0].timing.integration_s == pytest.approx(splits[0].timing.sample_period_s)
 
 

@@ -968,8 +968,9 @@ def check_contact_heights(window: ModelWindow, pullback: ContactFit | None, comp
     P1 and P4 mapped through the motion. Not judged where no sample's window lies wholly between
     the touch and the halt (`compression_places_the_halt`): the way down then holds no contact to
     place (issue 21's sweep: a reference tap averaged to 80 sps, 1.3 periods from P1 to P2, put
-    the down contact 754 um above the halt, TAP_CONTACT_MISMATCH)."""
-    if not compression_places_the_halt(dec, timing):
+    the down contact 754 um above the halt, TAP_CONTACT_MISMATCH; reference HX711 taps averaged to
+    10 sps, 0.2-0.5 samples from contact to the halt, 231-512 um)."""
+    if not compression_places_the_halt(dec, motion, timing):
         return
     down_um, down_sigma_um = ((compression.contact_um, compression.contact_sigma_um) if compression
                               else (window.contact_line_um, 0.0))
@@ -978,14 +979,7 @@ def check_contact_heights(window: ModelWindow, pullback: ContactFit | None, comp
     tolerance_um = validate.contact_mismatch_tolerance_um(motion.approach_speed_mm_s * period_s * 1000.0,
                                                           motion.pullback_speed_mm_s * period_s * 1000.0,
                                                           down_sigma_um, up_sigma_um)
-    try:
-        validate.check_contact_consistency(down_um, up_um, tolerance_um)
-    except TapInvalid:
-        # A contact on the way down where the approach crossed the compression in less than a sample
-        # was placed by no sample: the cause is the speed (issue 21's sweep: reference HX711 taps
-        # averaged to 10 sps read their down contact 231-512 um above the halt).
-        check_compression_samples(motion, period_s, up_um)
-        raise
+    validate.check_contact_consistency(down_um, up_um, tolerance_um)
 
 
 def compression_sample_count(window: ModelWindow, motion: Motion, delay_s: float, onset_um: float,
@@ -1186,23 +1180,42 @@ def lag_before_the_fits(split: SplitTap, result: TapAnalysis) -> float:
     if timing.delay_from_halt:
         halt_lag_s = (lag_from_halt_s(split.dec.points[P_DWELL_START][0], split.motion.home_end_s,
                                       timing.sample_period_s, UNKNOWN_DELAY_ALLOWANCE_S)
-                      if compression_places_the_halt(split.dec, timing) else None)
+                      if compression_places_the_halt(split.dec, split.motion, timing) else None)
         timing.delay_s = max(halt_lag_s - 0.5 * timing.integration_s, 0.0) if halt_lag_s is not None else 0.0
     delay_s = 0.0 if timing.estimate_delay else timing.delay_s
     result.sensor_delay_s = delay_s
     return delay_s
 
 
-def compression_places_the_halt(dec: Decomposition, timing: SensorTiming) -> bool:
+def compression_places_the_halt(dec: Decomposition, motion: Motion, timing: SensorTiming) -> bool:
     """Does the compression (P1 to P2) last one conversion window and one period, so that at least
     one sample's window lies wholly between the touch and the halt? Shorter, the compression line
     runs through samples the windows smear across both kinks, and P2 lands anywhere in a window:
     the lag read off it is no lag, and the delay falls back to 0 as for an implausible lag
     (issue 21's sweep: a reference tap averaged to 10 sps read a lag of 46 ms, its contact 15 um
     low at z_sigma 0.7). The clean reference taps press 1.8-3.7 periods, all but one >= 2.3;
-    those averaged to 80 sps 1.3-1.5."""
+    those averaged to 80 sps 1.3-1.5.
+
+    An approach faster than the guide allows must also have taken a sample to come down from
+    break contact's height (P4) to the halt (`validate.compression_too_fast`): else P1 lies where no
+    sample put it, however long before P2 (the sweep's reference HX717 taps averaged to 80 sps, 66 um
+    a sample, 0.9 samples from contact to the halt and 2.9 periods from P1 to P2: a lag of 9 ms read
+    off the halt put Z 3.1 um low, and a down contact above the up one a squeeze of 36 um in z_sigma_um)."""
+    period_s = timing.sample_period_s
     pressing_s = dec.points[P_DWELL_START][0] - dec.points[P_CONTACT][0]
-    return pressing_s >= timing.sample_period_s + timing.integration_s
+    if pressing_s < period_s + timing.integration_s:
+        return False
+    step_um = motion.approach_speed_mm_s * period_s * 1000.0
+    if step_um <= validate.FAST_APPROACH_GUIDE_STEPS * validate.GUIDE_APPROACH_STEP_UM:
+        return True  # within the guide's speed: no motion lookup
+    return not validate.compression_too_fast(break_line_height_um(dec, motion, timing, 0.0), step_um)
+
+
+def break_line_height_um(dec: Decomposition, motion: Motion, timing: SensorTiming, delay_s: float) -> float:
+    """Break contact's line point P4 mapped through the motion (µm above the halt; read half a
+    conversion window late, plus the delay)."""
+    return (float(motion.z_at(dec.points[P_BREAK][0] - delay_s - 0.5 * timing.integration_s))
+            - motion.z_halt_mm) * 1000.0
 
 
 def check_split(split: SplitTap, delay_s: float) -> None:
@@ -1229,9 +1242,7 @@ def check_split(split: SplitTap, delay_s: float) -> None:
         # Lines out of order or misshapen where the approach crossed the compression in less than a
         # sample: no sample placed them (issue 21's sweep, reference HX711 taps averaged to 10 sps).
         if invalid.code in (TAP_CHRONOLOGY, TAP_SHAPE_INVALID):
-            break_um = (float(motion.z_at(dec.points[P_BREAK][0] - delay_s - 0.5 * timing.integration_s))
-                        - motion.z_halt_mm) * 1000.0
-            check_compression_samples(motion, period_s, break_um)
+            check_compression_samples(motion, period_s, break_line_height_um(dec, motion, timing, delay_s))
         raise
 
 
@@ -1397,7 +1408,7 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
     window_um = speed_um_s * timing.integration_s
     halt_sigma_s = (corner_time_sigma_s(split.ps, dec, COMPRESSION, dec.points[P_DWELL_START][0])
                     if timing.delay_from_halt else 0.0)
-    compression_placed = compression_places_the_halt(dec, timing)
+    compression_placed = compression_places_the_halt(dec, motion, timing)
     if timing.delay_from_halt and not compression_placed:
         # No lag read off the halt (lag_before_the_fits): P2 lies anywhere in a conversion window.
         halt_sigma_s = math.hypot(halt_sigma_s if math.isfinite(halt_sigma_s) else 0.0,
