@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 
 from bench import tap_sweep
-from bench.tap_sweep import CASES, analyse_in_process, case_taps, findings, sweep
-from tapcell.taplab.benchmark import default_reference_archive, reference_set
+from bench.tap_sweep import CASES, analyse_in_process, case_taps, findings, reference_taps, sweep
 
 CASE = {case.name: case for case in CASES}
 
@@ -69,12 +68,8 @@ def test_the_sweep_scores_like_the_benchmark():
     assert not any("endbreak1.1" in line for line in findings(results))  # rejecting it is honest ("either")
 
 
-def test_reference_taps_averaged_into_a_slower_sensor(tmp_path):
-    source = default_reference_archive()
-    found = reference_set(source, tmp_path) if source.exists() else None
-    if found is None:
-        pytest.skip("no reference taps beside the repository")
-    (tap, z_mm), = case_taps(CASE["ref_hx717x4"], 1, 1, found.directory)
+def test_reference_taps_averaged_into_a_slower_sensor(reference_dir):
+    (tap, z_mm), = case_taps(CASE["ref_hx717x4"], 1, 1, reference_dir)
     assert tap["sample_rate"] == 80.0 and len(tap["z"]) == len(tap["time"])
     assert "truth" not in tap and "meta" not in tap
     answer = analyse_in_process(tap)
@@ -105,3 +100,91 @@ def test_a_pullback_starting_at_the_halt_says_there_is_no_dwell():
     assert answer["error"] == "TAP_MOTION_INVALID"
     assert answer["message"].startswith("the pullback starts at the halt (")
     assert "no dwell" in answer["message"]
+
+
+# --- the reference taps transformed (another generator's taps: its toes, noise and timing kept) ---
+
+@pytest.fixture(scope="module")
+def reference_dir(tmp_path_factory):
+    return reference_taps(None, tmp_path_factory.mktemp("reference")) or pytest.skip("no reference taps here")
+
+
+def _original(reference_dir, scenario: str = "clean_hx717") -> dict:
+    """The first reference tap of a scenario as the sweep reads it (truth and meta dropped)."""
+    (tap, _), = case_taps(tap_sweep.Case("plain", "", "accept", reference=(scenario, 1)), 1, 1, reference_dir)
+    return tap
+
+
+def test_lost_frames_keep_every_other_sample_as_it_was(reference_dir):
+    original = _original(reference_dir)
+    rows = set(zip(original["time"], original["force"], original["z"]))
+    (one_in_20, _), = case_taps(CASE["ref_drop20"], 1, 1, reference_dir)
+    n = len(original["time"])
+    assert len(one_in_20["time"]) == n - n // 20 == len(one_in_20["force"]) == len(one_in_20["z"])
+    assert set(zip(one_in_20["time"], one_in_20["force"], one_in_20["z"])) <= rows
+    (burst, _), = case_taps(CASE["ref_burst5"], 1, 1, reference_dir)
+    t = np.asarray(original["time"])
+    gone = np.flatnonzero(~np.isin(t, burst["time"]))
+    assert len(gone) == 5 and np.all(np.diff(gone) == 1)
+    events = original["events"]
+    assert events["pullback_start_time"] <= t[gone[0]] and t[gone[-1]] <= events["pullback_end_time"]
+
+
+def test_gain_polarity_offset_and_latency_are_exact(reference_dir):
+    original = _original(reference_dir)
+    force = np.asarray(original["force"])
+    (flipped, _), = case_taps(CASE["ref_flip"], 1, 1, reference_dir)
+    (gain5, _), = case_taps(CASE["ref_gain5"], 1, 1, reference_dir)
+    (offset, _), = case_taps(CASE["ref_off-5k"], 1, 1, reference_dir)
+    (later, _), = case_taps(CASE["ref_lat+1"], 1, 1, reference_dir)
+    assert np.allclose(flipped["force"], -force, atol=1e-5)
+    assert flipped["probe"]["trigger_force"] == original["probe"]["trigger_force"] > 0
+    assert np.allclose(gain5["force"], 5.0 * force, atol=1e-5)
+    assert gain5["probe"]["trigger_force"] == pytest.approx(5.0 * original["probe"]["trigger_force"])
+    assert np.allclose(offset["force"], force - 5000.0, atol=1e-5)
+    latency = _original(reference_dir, "latency")
+    assert later["force"][1:] == latency["force"][:-1] and later["time"] == latency["time"]
+
+
+def test_a_slower_tap_keeps_its_samples_per_micron(reference_dir):
+    """`_slower(8)` on the 80 sps HX711: 10 sps, 8x slower moves, every sample's force and Z kept."""
+    original = _original(reference_dir, "hx711_slow")
+    (slow, _), = case_taps(CASE["ref_slow10t"], 1, 1, reference_dir)
+    assert slow["sample_rate"] == 10.0 and slow["force"] == original["force"] and slow["z"] == original["z"]
+    t0, t, ts = original["time"][0], np.asarray(original["time"]), np.asarray(slow["time"])
+    assert np.allclose(ts - t0, 8.0 * (t - t0))
+    assert slow["probe"]["pullback_speed"] == pytest.approx(original["probe"]["pullback_speed"] / 8.0)
+    for before, after in zip(original["moves"], slow["moves"]):
+        # the same distance: v t and a t² unchanged
+        assert after["start_v"] * after["move_t"] == pytest.approx(before["start_v"] * before["move_t"])
+        assert after["accel"] * after["move_t"] ** 2 == pytest.approx(before["accel"] * before["move_t"] ** 2)
+    answer = analyse_in_process(slow)
+    assert answer["valid"], answer["message"]
+
+
+def test_jitter_hum_and_ringing_add_what_they_say(reference_dir):
+    original = _original(reference_dir)
+    force, t = np.asarray(original["force"]), np.asarray(original["time"])
+    (jittered, _), = case_taps(CASE["ref_jitter5"], 1, 1, reference_dir)
+    moved = np.asarray(jittered["time"]) - t
+    own_s = float(np.std(np.diff(t) - np.median(np.diff(t)))) / np.sqrt(2.0)
+    assert np.all(np.diff(jittered["time"]) > 0) and jittered["force"] == original["force"]
+    assert np.std(moved) == pytest.approx(own_s * np.sqrt(24.0), rel=0.25)
+    (hummed, _), = case_taps(CASE["ref_hum"], 1, 1, reference_dir)
+    hum = np.asarray(hummed["force"]) - force
+    assert 5.0 < np.max(np.abs(hum)) <= 9.0 + 1e-4
+    (rung, z_mm), = case_taps(CASE["ref_ring"], 1, 1, reference_dir)
+    ring = np.asarray(rung["force"]) - force
+    in_contact = np.asarray(original["z"]) < z_mm
+    assert np.all(ring[~in_contact] == 0.0) and np.max(np.abs(ring[in_contact])) > 1.0
+
+
+def test_the_reference_transforms_find_nothing(reference_dir):
+    """Every reference-tap case the sweep expects accepted, 15 taps each: no crash, no silent
+    failure, no clean tap rejected, no accepted tap 5 µm and 4 σ off (20 taps each:
+    docs/tap-analysis.md's table).
+    Before: ref_hx717x4 tap 14 rejected as TAP_CONTACT_MISMATCH."""
+    cases = [case for case in CASES if case.reference and case.expect == "accept"]
+    assert len(cases) >= 17
+    results = sweep(cases, seed=1, count=15, reference_dir=reference_dir, kalico=None, scratch=None)
+    assert findings(results) == []

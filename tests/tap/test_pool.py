@@ -70,12 +70,26 @@ def test_pooling_shrinks_the_spread_at_one_spot(sessions):
 
 
 def test_the_taps_are_read_with_one_sensor_lag(sessions):
-    """At 80 sps each tap's lag from its halt is good to a fraction of a period (here 0.2-1.8 ms apart
+    """At 80 sps each tap's lag from its halt is good to a fraction of a period (here 1.27-2.48 ms
     within a session, 0.08 mm/s pullback): read with their median, the taps' Zs stop carrying it."""
-    analyses = [analysis for *_, analysis in sessions["hx711_80-002"]]
-    assert np.std([a.pullback_fit.delay_s for a in analyses]) > 1e-3
-    # Measured 0.078 µm; each tap read with its own lag 0.127.
+    analyses = [analysis for *_, analysis in sessions["hx711_80-001"]]
+    assert np.std([a.pullback_fit.delay_s for a in analyses]) > 3e-4  # measured 0.37 ms
+    # Measured 0.056 µm; each tap alone 0.96.
     assert _probe_accuracy_sd_um([p.z_mm for p in pool_taps(analyses)]) < 0.1
+
+
+def test_a_session_too_short_in_compression_reads_no_lag(sessions):
+    """Session hx711_80-002 presses under a period and a window from touch to halt on every tap: no
+    lag is read off the halt (tapcell.tap.analysis.compression_places_the_halt). Before, lags of
+    0.4-5.5 ms read off P2 spread its taps 0.31 µm (mean error -0.21 µm, pooled -0.48); now 0.26
+    (-0.02), pooled 0.078 as before (-0.29)."""
+    taps = sessions["hx711_80-002"]
+    analyses = [analysis for *_, analysis in taps]
+    assert all(a.sensor_delay_s == 0.0 for a in analyses)
+    assert _probe_accuracy_sd_um([a.z_mm for a in analyses]) < 0.29  # measured 0.257
+    pooled = pool_taps(analyses)
+    assert _probe_accuracy_sd_um([p.z_mm for p in pooled]) < 0.1
+    assert abs(np.mean([(p.z_mm - truth) * 1000.0 for p, (_, truth, _) in zip(pooled, taps)])) < 0.4
 
 
 def test_pools_of_two_and_three_taps(sessions):

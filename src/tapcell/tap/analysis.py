@@ -35,6 +35,7 @@ from tapcell.tap.lazy import cached_attribute
 from tapcell.tap.model import (
     TAP_ADHESION,
     TAP_BREAK_CONTACT_TOO_LATE,
+    TAP_CHRONOLOGY,
     TAP_DATA_INSUFFICIENT,
     TAP_MOTION_INVALID,
     TAP_PULLBACK_TOO_SHORT,
@@ -961,10 +962,16 @@ def compression_fit_twin(window: ModelWindow, read_until_s: float, spacing_um: f
 
 
 def check_contact_heights(window: ModelWindow, pullback: ContactFit | None, compression: ContactFit | None,
-                          motion: Motion, timing: SensorTiming) -> None:
+                          motion: Motion, timing: SensorTiming, dec: Decomposition) -> None:
     """Contact on the way down against break contact on the way up, both at the same delay
     (validate.check_contact_consistency): the model fits when they exist, else the line points
-    P1 and P4 mapped through the motion."""
+    P1 and P4 mapped through the motion. Not judged where no sample's window lies wholly between
+    the touch and the halt (`compression_places_the_halt`): the way down then holds no contact to
+    place (issue 21's sweep: a reference tap averaged to 80 sps, 1.3 periods from P1 to P2, put
+    the down contact 754 um above the halt, TAP_CONTACT_MISMATCH; reference HX711 taps averaged to
+    10 sps, 0.2-0.5 samples from contact to the halt, 231-512 um)."""
+    if not compression_places_the_halt(dec, motion, timing):
+        return
     down_um, down_sigma_um = ((compression.contact_um, compression.contact_sigma_um) if compression
                               else (window.contact_line_um, 0.0))
     up_um, up_sigma_um = (pullback.contact_um, pullback.contact_sigma_um) if pullback else (window.break_line_um, 0.0)
@@ -1092,7 +1099,7 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         window = model_window(split.time_s, split.force_g, split.motion, split.timing, delay_s, split.dec)
         fits = fit_contact_models(split, window, delay_s, options, result)
         result.z_line_mm = split.motion.z_halt_mm + window.break_line_um / 1000.0  # P4 mapped, delay-corrected
-        check_contact_heights(window, fits.pullback, fits.compression, split.motion, split.timing)
+        check_contact_heights(window, fits.pullback, fits.compression, split.motion, split.timing, split.dec)
         window_delay_s = delay_s  # the delay the window's heights were read with ("auto": 0, estimated now)
         delay_s = apply_delay_estimate(split, fits, delay_s, result)
         z_from_sharp_model_or_lines(split, fits, result)
@@ -1171,12 +1178,44 @@ def lag_before_the_fits(split: SplitTap, result: TapAnalysis) -> float:
     the option or meta's, or 0 while it is to be estimated from the fits ("auto")."""
     timing = split.timing
     if timing.delay_from_halt:
-        halt_lag_s = lag_from_halt_s(split.dec.points[P_DWELL_START][0], split.motion.home_end_s,
-                                     timing.sample_period_s, UNKNOWN_DELAY_ALLOWANCE_S)
+        halt_lag_s = (lag_from_halt_s(split.dec.points[P_DWELL_START][0], split.motion.home_end_s,
+                                      timing.sample_period_s, UNKNOWN_DELAY_ALLOWANCE_S)
+                      if compression_places_the_halt(split.dec, split.motion, timing) else None)
         timing.delay_s = max(halt_lag_s - 0.5 * timing.integration_s, 0.0) if halt_lag_s is not None else 0.0
     delay_s = 0.0 if timing.estimate_delay else timing.delay_s
     result.sensor_delay_s = delay_s
     return delay_s
+
+
+def compression_places_the_halt(dec: Decomposition, motion: Motion, timing: SensorTiming) -> bool:
+    """Does the compression (P1 to P2) last one conversion window and one period, so that at least
+    one sample's window lies wholly between the touch and the halt? Shorter, the compression line
+    runs through samples the windows smear across both kinks, and P2 lands anywhere in a window:
+    the lag read off it is no lag, and the delay falls back to 0 as for an implausible lag
+    (issue 21's sweep: a reference tap averaged to 10 sps read a lag of 46 ms, its contact 15 um
+    low at z_sigma 0.7). The clean reference taps press 1.8-3.7 periods, all but one >= 2.3;
+    those averaged to 80 sps 1.3-1.5.
+
+    An approach faster than the guide allows must also have taken a sample to come down from
+    break contact's height (P4) to the halt (`validate.compression_too_fast`): else P1 lies where no
+    sample put it, however long before P2 (the sweep's reference HX717 taps averaged to 80 sps, 66 um
+    a sample, 0.9 samples from contact to the halt and 2.9 periods from P1 to P2: a lag of 9 ms read
+    off the halt put Z 3.1 um low, and a down contact above the up one a squeeze of 36 um in z_sigma_um)."""
+    period_s = timing.sample_period_s
+    pressing_s = dec.points[P_DWELL_START][0] - dec.points[P_CONTACT][0]
+    if pressing_s < period_s + timing.integration_s:
+        return False
+    step_um = motion.approach_speed_mm_s * period_s * 1000.0
+    if step_um <= validate.FAST_APPROACH_GUIDE_STEPS * validate.GUIDE_APPROACH_STEP_UM:
+        return True  # within the guide's speed: no motion lookup
+    return not validate.compression_too_fast(break_line_height_um(dec, motion, timing, 0.0), step_um)
+
+
+def break_line_height_um(dec: Decomposition, motion: Motion, timing: SensorTiming, delay_s: float) -> float:
+    """Break contact's line point P4 mapped through the motion (µm above the halt; read half a
+    conversion window late, plus the delay)."""
+    return (float(motion.z_at(dec.points[P_BREAK][0] - delay_s - 0.5 * timing.integration_s))
+            - motion.z_halt_mm) * 1000.0
 
 
 def check_split(split: SplitTap, delay_s: float) -> None:
@@ -1200,7 +1239,19 @@ def check_split(split: SplitTap, delay_s: float) -> None:
         # pullback does not hold (issue 21's sweep: 10 mm/s at 320 sps); say so instead.
         if invalid.code in (TAP_PULLBACK_TOO_SHORT, TAP_BREAK_CONTACT_TOO_LATE):
             validate.check_pullback_samples(motion, period_s)
+        # Lines out of order or misshapen where the approach crossed the compression in less than a
+        # sample: no sample placed them (issue 21's sweep, reference HX711 taps averaged to 10 sps).
+        if invalid.code in (TAP_CHRONOLOGY, TAP_SHAPE_INVALID):
+            check_compression_samples(motion, period_s, break_line_height_um(dec, motion, timing, delay_s))
         raise
+
+
+def check_compression_samples(motion: Motion, period_s: float, contact_um: float) -> None:
+    """TAP_DATA_INSUFFICIENT where the approach went from contact (`contact_um` above the halt, as
+    the way up reads it) to the halt in less than a sample, faster than the guide's probing speed
+    (`validate.check_compression_samples`)."""
+    step_um = motion.approach_speed_mm_s * period_s * 1000.0
+    validate.check_compression_samples(contact_um, step_um, motion.approach_speed_mm_s)
 
 
 def fit_contact_models(split: SplitTap, window: ModelWindow, delay_s: float, options: AnalysisOptions,
@@ -1357,8 +1408,13 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
     window_um = speed_um_s * timing.integration_s
     halt_sigma_s = (corner_time_sigma_s(split.ps, dec, COMPRESSION, dec.points[P_DWELL_START][0])
                     if timing.delay_from_halt else 0.0)
+    compression_placed = compression_places_the_halt(dec, motion, timing)
+    if timing.delay_from_halt and not compression_placed:
+        # No lag read off the halt (lag_before_the_fits): P2 lies anywhere in a conversion window.
+        halt_sigma_s = math.hypot(halt_sigma_s if math.isfinite(halt_sigma_s) else 0.0,
+                                  timing.integration_s / math.sqrt(12.0))
     down_um, up_um, allowance_um = _contact_down_and_up(fits, motion.approach_speed_mm_s * 1000.0
-                                                       * timing.sample_period_s)
+                                                       * timing.sample_period_s, compression_placed)
     if result.z_method == "toe" and result.toe_grid is not None:
         # The noise: the sharp fit's over the same samples (the toe fit's own when there is none).
         noise_um = result.z_sharp_sigma_um if result.z_sharp_sigma_um is not None else result.z_sigma_um
@@ -1372,13 +1428,15 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
         speed_um_s * halt_sigma_s if math.isfinite(halt_sigma_s) else 0.0, split.ringing, result.unnamed_stage_um)
 
 
-def _contact_down_and_up(fits: ContactFits, approach_travel_um: float) -> tuple[float | None, float | None, float]:
+def _contact_down_and_up(fits: ContactFits, approach_travel_um: float,
+                         compression_placed: bool) -> tuple[float | None, float | None, float]:
     """(contact on the way down, break contact on the way up, µm, from the sharp fits at the same
-    delay; None where a fit is missing) and what their noise and the approach's sample grid allow
+    delay; None where a fit is missing, or where the compression is too short to place a contact:
+    `compression_places_the_halt`) and what their noise and the approach's sample grid allow
     between them (`uncertainty.squeeze_allowance_um`; not TAP_CONTACT_MISMATCH's hysteresis and
     whole sample of travel, which on taplab's mild ooze hide every film the pullback reads high by)."""
     down, up = fits.compression, fits.pullback
-    if down is None or up is None:
+    if down is None or up is None or not compression_placed:
         return None, None, 0.0
     return down.contact_um, up.contact_um, uncertainty.squeeze_allowance_um(down.contact_sigma_um, up.contact_sigma_um,
                                                                          approach_travel_um)

@@ -215,6 +215,40 @@ def check_decompression_samples(pressed: int, contact_um: float, step_um: float)
                          f"least {DECOMPRESSION_MIN_SAMPLES}): slow pullback_speed (the guide scans 1 µm a sample)")
 
 
+# The guide's one probing-speed rule: an HX711 at 80 sps probes at 2 mm/s at most, 25 µm a sample
+# ("rates below 250 Hz require slower probing speeds").
+GUIDE_APPROACH_STEP_UM = 25.0
+# Faster than this many times the guide's step a sample, a compression short of samples is the
+# speed's doing (at the guide's speed a stiff bed's few µm of over-travel hold few samples too).
+FAST_APPROACH_GUIDE_STEPS = 2.0
+# The compression must hold a sample: with less, no sample is read between the touch and the halt,
+# and the lines through the samples either side place neither (issue 21's sweep: reference HX711 taps
+# averaged to 10 sps, 106-199 µm a sample, read out of order, misshapen or a contact 231-512 µm
+# above the halt on the way down).
+COMPRESSION_MIN_SAMPLES = 1.0
+
+
+def compression_too_fast(contact_um: float, step_um: float) -> bool:
+    """Whether the approach moved the nozzle from contact (`contact_um` above the halt, as the way up
+    reads it) to the halt in less than COMPRESSION_MIN_SAMPLES samples of `step_um` each, faster than
+    FAST_APPROACH_GUIDE_STEPS of the guide's step a sample."""
+    return (step_um > FAST_APPROACH_GUIDE_STEPS * GUIDE_APPROACH_STEP_UM
+            and 0.0 < contact_um < COMPRESSION_MIN_SAMPLES * step_um)
+
+
+def check_compression_samples(contact_um: float, step_um: float, speed_mm_s: float) -> None:
+    """TAP_DATA_INSUFFICIENT for an approach too fast for its sensor (`compression_too_fast`): asked
+    where another check rejects the tap, as the cause its lines cannot show. Its fix is the probing
+    speed or the sample rate, not the nozzle."""
+    if compression_too_fast(contact_um, step_um):
+        raise TapInvalid(TAP_DATA_INSUFFICIENT,
+                         f"the compression holds {contact_um / step_um:.2f} samples: the nozzle went from contact "
+                         f"({contact_um:.0f} µm above the halt, read on the way up) to the halt in less than one "
+                         f"sample ({step_um:.0f} µm a sample at {speed_mm_s:.2f} mm/s), too few to place the touch "
+                         "and the halt: probe slower (PROBE_SPEED=, [load_cell_probe] speed; the guide limits an "
+                         f"80 sps HX711 to 2 mm/s, {GUIDE_APPROACH_STEP_UM:.0f} µm a sample) or use a faster sample_rate")
+
+
 def check_break_contact(break_time_s: float, motion: Motion, sample_period_s: float) -> None:
     """Break contact must fall in the middle two thirds of the pullback move (the spec's rule).
 

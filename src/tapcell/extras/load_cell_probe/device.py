@@ -79,8 +79,10 @@ KEEP_LAST_TAPS = 16
 HISTORY_S = 1.0  # samples kept between taps (the tare looks back at most tare_time)
 TARE_TIMEOUT_S = 1.0  # no sample for this long: the sensor is gone
 # Bad-tap codes a too-fast probing move can cause (the compression between two samples, a
-# deep over-travel). A low quality score is the classifier's verdict, not explained by speed.
-SPEED_SENSITIVE_CODES = ("TAP_CHRONOLOGY", "TAP_SHAPE_INVALID", "TAP_PULLBACK_TOO_SHORT", "TAP_BREAK_CONTACT_TOO_LATE")
+# deep over-travel; TAP_DATA_INSUFFICIENT where the analysis names it: too few samples for the
+# speed). A low quality score is the classifier's verdict, not explained by speed.
+SPEED_SENSITIVE_CODES = ("TAP_CHRONOLOGY", "TAP_SHAPE_INVALID", "TAP_PULLBACK_TOO_SHORT", "TAP_BREAK_CONTACT_TOO_LATE",
+                         "TAP_DATA_INSUFFICIENT")
 # The bad-tap code a bed too stiff for the speed causes (the compression is a few um: contact breaks
 # as the pullback starts): such a tap tells the force guard the bed's stiffness from its pullback.
 # Other codes (a touch, a tug, ooze) leave pullbacks that do not measure the bed.
