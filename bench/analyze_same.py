@@ -79,16 +79,49 @@ def check(out_dir: str, tap_sets: list[str], settings: list[str] = ()) -> int:
             now = analyze_output(files, env, settings)
             same = now == before
             differing += not same
-            detail = "" if same else f": first difference at line {_first_differing_line(before, now)}"
-            print(f"{'same' if same else 'DIFFERENT'} {_described(tap_set, files, kernels, settings)}{detail}")
+            print(f"{'same' if same else 'DIFFERENT'} {_described(tap_set, files, kernels, settings)}")
+            if not same:
+                _print_differences(before, now)
     return 1 if differing else 0
 
 
-def _first_differing_line(before: bytes, now: bytes) -> int:
-    for number, (a, b) in enumerate(zip(before.splitlines(), now.splitlines()), start=1):
-        if a != b:
-            return number
-    return min(len(before.splitlines()), len(now.splitlines())) + 1
+SHOWN_DIFFERENCES = 20
+
+
+def _print_differences(before: bytes, now: bytes) -> None:
+    """Which taps' lines differ (each tap is one line of the JSON array, named by its file), at most
+    SHOWN_DIFFERENCES of them, and how many; or the first differing line of what is no tap's line
+    (an exit status, a message)."""
+    taps_before, other_before = _lines_by_file(before)
+    taps_now, other_now = _lines_by_file(now)
+    changed = sorted(name for name in taps_before.keys() | taps_now.keys()
+                     if taps_before.get(name) != taps_now.get(name))
+    print(f"  {len(changed)} of {len(taps_before.keys() | taps_now.keys())} taps differ")
+    for name in changed[:SHOWN_DIFFERENCES]:
+        print(f"    {name}")
+    if len(changed) > SHOWN_DIFFERENCES:
+        print(f"    ... and {len(changed) - SHOWN_DIFFERENCES} more")
+    if other_before != other_now:
+        line = next((a for a, b in zip(other_before, other_now) if a != b), None)
+        print(f"  outside the taps' lines: {line.decode(errors='replace')[:200] if line else 'a line more or less'}")
+
+
+def _lines_by_file(output: bytes) -> tuple[dict[str, bytes], list[bytes]]:
+    """The output's tap lines by the file each names (a file with several taps: its lines joined),
+    and every other line in order."""
+    taps: dict[str, bytes] = {}
+    other = []
+    for line in output.splitlines():
+        found = TAP_FILE.match(line)
+        if found:
+            name = found.group(1).decode(errors="replace")
+            taps[name] = taps.get(name, b"") + line + b"\n"
+        else:
+            other.append(line)
+    return taps, other
+
+
+TAP_FILE = re.compile(rb'\{"file": "((?:[^"\\]|\\.)*)"')
 
 
 def _smoke() -> int:

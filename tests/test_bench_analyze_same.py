@@ -76,3 +76,29 @@ def test_a_misplaced_option_a_missing_set_or_record_is_named_before_anything_run
     assert "no record of" in err and "--set mains_hz=auto" in err and "`record` it first" in err
     assert len(ran) == 2  # the record's two runs (kernels, twins); no check ran
     assert analyze_same.main(["check", str(tmp_path / "rec"), str(taps)]) == 0
+
+
+def test_a_check_names_the_taps_whose_lines_differ(tmp_path, capsys, monkeypatch):
+    taps = tmp_path / "taps"
+    taps.mkdir()
+    for name in ("a", "b", "c"):
+        (taps / f"{name}.json").write_text("{}")
+
+    def output(z_of_b, status=0):
+        lines = [f'{{"file": "{taps / name}.json", "z": {z}, "elapsed_ms": -}}'
+                 for name, z in (("a", 0.01), ("b", z_of_b), ("c", 0.03))]
+        return ("[\n" + ",\n".join(lines) + f"\n]\nexit {status}\n").encode()
+
+    monkeypatch.setattr(analyze_same, "analyze_output", lambda *a, **k: output(0.02))
+    assert analyze_same.main(["record", str(tmp_path / "rec"), str(taps)]) == 0
+    monkeypatch.setattr(analyze_same, "analyze_output", lambda *a, **k: output(0.025))
+    assert analyze_same.main(["check", str(tmp_path / "rec"), str(taps)]) == 1
+    out = capsys.readouterr().out
+    assert out.count("1 of 3 taps differ") == 2  # kernels and twins
+    assert f"    {taps / 'b'}.json\n" in out and "a.json\n" not in out and "c.json\n" not in out
+    assert "outside the taps' lines" not in out
+    # the same taps, another exit status: no tap named, the line outside them shown
+    monkeypatch.setattr(analyze_same, "analyze_output", lambda *a, **k: output(0.02, status=1))
+    assert analyze_same.main(["check", str(tmp_path / "rec"), str(taps)]) == 1
+    out = capsys.readouterr().out
+    assert "0 of 3 taps differ" in out and "outside the taps' lines: exit 0" in out
