@@ -63,3 +63,19 @@ def test_the_reference_taps_when_present(tmp_path):
         errors.append((analysis.z_mm - label.z_contact_mm) * 1000.0)
     # Measured on all 80 (tapcell benchmark): +0.22 +- 0.51 um; Kalico -0.03 +- 0.58.
     assert abs(np.mean(errors)) < 0.5 and np.std(errors) < 0.8
+
+
+def test_an_analyzer_command_that_cannot_run_is_named_before_anything_runs(tmp_path, capsys):
+    # `tapcell` off PATH (the venv not activated), an unclosed quote, an empty command: exit 2 with
+    # the option named, no traceback and no set generated
+    for item, said in (("auto=no-such-analyzer-here analyze --json", "no program 'no-such-analyzer-here'"),
+                       ("q=tapcell analyze 'open", "No closing quotation"),
+                       ("blank=''", "expected NAME=COMMAND")):
+        assert benchmark.main(["--no-taplab", "--no-reference", "--no-real", "--analyzer", item]) == 2
+        err = capsys.readouterr().err
+        assert f"--analyzer '{item}'" in err and said in err, err
+
+
+def test_an_analyzer_that_vanishes_before_it_runs_is_a_failed_run(tmp_path):
+    run = benchmark.run_analyzer("gone", [str(tmp_path / "gone")], [])
+    assert run.failure.startswith(f"could not run {tmp_path / 'gone'}: ") and run.results == {}

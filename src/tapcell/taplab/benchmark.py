@@ -36,6 +36,7 @@ import math
 import os
 import resource
 import shlex
+import shutil
 import subprocess
 import sys
 import tarfile
@@ -177,7 +178,10 @@ def run_analyzer(name: str, command: list[str], files: list[Path], env: dict | N
     env = {**(os.environ if env is None else env), "OPENBLAS_NUM_THREADS": blas_threads()}
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     started = time.perf_counter()
-    completed = subprocess.run([*command, *map(str, files)], capture_output=True, text=True, env=env, check=False)
+    try:
+        completed = subprocess.run([*command, *map(str, files)], capture_output=True, text=True, env=env, check=False)
+    except OSError as error:  # the program went missing or lost its execute bit since it was checked
+        return Run(name, {}, 0.0, 0.0, failure=f"could not run {command[0]}: {error.strerror or error}")
     wall_s = time.perf_counter() - started
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu_s = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
@@ -491,7 +495,16 @@ def _analyzers(args) -> list[tuple[str, list[str], dict | None]] | str:
         name, sep, command = item.partition("=")
         if not sep or not name.strip() or not command.strip():
             return f"--analyzer '{item}': expected NAME=COMMAND"
-        analyzers.append((name.strip(), shlex.split(command), None))
+        try:
+            words = shlex.split(command)
+        except ValueError as error:  # an unclosed quote
+            return f"--analyzer '{item}': {error}"
+        if not words or not words[0]:
+            return f"--analyzer '{item}': expected NAME=COMMAND"
+        if shutil.which(words[0]) is None:
+            return (f"--analyzer '{item}': no program '{words[0]}' (not an executable file, nor found on PATH); "
+                    "give its path, e.g. .venv/bin/tapcell")
+        analyzers.append((name.strip(), words, None))
     if args.numpy_twins:
         analyzers.append(("tapcell-numpy", ours, {**os.environ, "TAPCELL_NATIVE": "0"}))
     return analyzers
