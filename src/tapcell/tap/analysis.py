@@ -1214,7 +1214,7 @@ def compression_places_the_halt(dec: Decomposition, motion: Motion, timing: Sens
 def break_line_height_um(dec: Decomposition, motion: Motion, timing: SensorTiming, delay_s: float) -> float:
     """Break contact's line point P4 mapped through the motion (µm above the halt; read half a
     conversion window late, plus the delay)."""
-    return (float(motion.z_at(dec.points[P_BREAK][0] - delay_s - 0.5 * timing.integration_s))
+    return (motion.z_at_time_mm(dec.points[P_BREAK][0] - delay_s - 0.5 * timing.integration_s)
             - motion.z_halt_mm) * 1000.0
 
 
