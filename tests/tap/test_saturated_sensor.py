@@ -71,3 +71,16 @@ def test_a_coarse_sensor_repeating_its_extreme_is_not_saturated(step_g, held):
     assert answer.valid, answer.message
     assert answer.z_mm == pytest.approx(analyze_tap(tap).z_mm, abs=0.004)
     assert analysis.saturated_run(f) == (0, 0)
+
+
+def test_a_reading_frozen_to_the_end_is_not_called_saturated():
+    # A sensor that stopped changing at the peak (sample 133 of 343) holds 210 samples at its
+    # extreme, but the force never comes back from it: not a limit passed and left. The analysis
+    # reads a nozzle still pressing and the live probe names the stuck sensor
+    # (tests/test_hostile_inputs.py).
+    tap = synth_tap(seed=0, noise_g=0.7, sample_rate_sps=320)
+    force = tap.force_g.copy()
+    peak = int(np.argmax(force))
+    force[peak:] = force[peak]
+    assert analysis.saturated_run(force) == (0, 0)
+    assert analyze_tap(dataclasses.replace(tap, force_g=force)).error == "TAP_PULLBACK_TOO_SHORT"

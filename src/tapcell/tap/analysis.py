@@ -1016,7 +1016,8 @@ SAMPLES_NOT_FINITE, SAMPLES_NOT_INCREASING, SAMPLES_SATURATED = 1, 2, 3
 _SAMPLE_PROBLEMS = {SAMPLES_NOT_FINITE: "time or force holds NaN or infinity",
                     SAMPLES_NOT_INCREASING: "sample times are not strictly increasing"}
 # A saturated sensor (an ADC at its limit records the force clipped flat): at least SATURATED_RUN
-# samples in a row exactly at the tap's extreme force, where the rest of the tap repeats a value
+# samples in a row exactly at the tap's extreme force, the force leaving it before the tap ends
+# (a reading frozen to the end is a stuck sensor, which the live probe names itself), where the rest of the tap repeats a value
 # from one sample to the next in at most one step in SATURATED_REPEATS_OTHER. Measured (bench
 # tap_sweep's clipped cases, docs/tap-analysis.md): no clean tap of taplab (seeds 1, new), the
 # reference taps and sessions or the real tap holds more than 2 equal samples at its extreme, and
@@ -1030,7 +1031,7 @@ SATURATED_RUN, SATURATED_REPEATS_OTHER = 8, 4
 def saturated_run(force_g: np.ndarray) -> tuple[int, int]:
     """Where a saturated sensor held the force: (first sample, samples) of the longest run exactly at
     the tap's extreme force, on the side away from its first sample (its max, or its min for a
-    negative polarity), when that run is SATURATED_RUN samples or longer and the other samples
+    negative polarity) and left before the last sample, when that run is SATURATED_RUN samples or longer and the other samples
     repeat a value in at most one step in SATURATED_REPEATS_OTHER; else (0, 0). The kernel's
     `sample_problem` twin (finite samples): a sensor whose steps are coarser than its noise repeats
     values everywhere, and a long run proves nothing there."""
@@ -1039,10 +1040,13 @@ def saturated_run(force_g: np.ndarray) -> tuple[int, int]:
     extreme = high if high - f[0] >= f[0] - low else low
     at = np.concatenate(([False], f == extreme, [False]))
     edges = np.flatnonzero(at[1:] != at[:-1])  # starts and ends of the runs, in pairs
-    starts, lengths = edges[::2], edges[1::2] - edges[::2]
-    longest = int(lengths.argmax())
-    if lengths[longest] < SATURATED_RUN:
+    # A run held to the last sample is a sensor that stopped changing (or a nozzle still pressing),
+    # not a limit the force went past and came back from.
+    left = edges[1::2] < len(f)
+    starts, lengths = edges[::2][left], (edges[1::2] - edges[::2])[left]
+    if len(lengths) == 0 or lengths.max() < SATURATED_RUN:
         return 0, 0
+    longest = int(lengths.argmax())
     off = f[1:] != extreme
     repeats = np.count_nonzero(off & (f[1:] == f[:-1]))
     if SATURATED_REPEATS_OTHER * repeats > np.count_nonzero(off):

@@ -509,7 +509,7 @@ enum sample_problem { SAMPLES_FINE = 0, SAMPLES_NOT_FINITE = 1, SAMPLES_NOT_INCR
 
 /* A saturated sensor (analysis.py `saturated_run`, the twin): at least SATURATED_RUN samples in a row
  * exactly at the tap's extreme force on the side away from its first sample (its max, or its min
- * for a negative polarity), while the rest of the tap repeats a value from one sample to the next
+ * for a negative polarity), the force leaving it before the last sample, while the rest of the tap repeats a value from one sample to the next
  * in at most one step in SATURATED_REPEATS_OTHER (a sensor whose steps are coarser than its noise
  * repeats values everywhere: a run proves nothing there). */
 #define SATURATED_RUN 8
@@ -560,10 +560,13 @@ static enum sample_problem problem_of_samples(const double *time_s, const double
     double extreme = at_high_side ? high : low;
     if ((at_high_side ? at_high : at_low) < SATURATED_RUN)
         return SAMPLES_FINE;
+    /* A run counts where the force came back from it: one held to the last sample is a sensor that
+     * stopped changing (or a nozzle still pressing), not a limit the force went past and returned. */
     Py_ssize_t run = 0, longest = 0;
     for (Py_ssize_t i = 0; i < n; i++) {
-        run = force_g[i] == extreme ? run + 1 : 0;
-        longest = run > longest ? run : longest;
+        int at = force_g[i] == extreme;
+        longest = !at && run > longest ? run : longest;
+        run = at ? run + 1 : 0;
     }
     return longest >= SATURATED_RUN && repeats_rarely_off(force_g, n, extreme) ? SAMPLES_SATURATED : SAMPLES_FINE;
 }
