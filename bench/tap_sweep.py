@@ -172,6 +172,16 @@ def _force_scaled(factor: float) -> Callable[[dict, float, np.random.Generator],
     return transform
 
 
+def _force_clipped(share: float) -> Callable[[dict, float, np.random.Generator], dict]:
+    """A saturated sensor (a small load cell, a high gain, a fast probe): every force clipped flat at
+    `share` of the tap's peak |force|, both signs, as an ADC at its limit records it."""
+    def transform(tap, _z_mm, _rng):
+        force = np.asarray(tap["force"], dtype=float)
+        limit_g = share * float(np.max(np.abs(force)))
+        return {**tap, "force": [round(float(f), 5) for f in np.clip(force, -limit_g, limit_g)]}
+    return transform
+
+
 def _force_offset(grams: float) -> Callable[[dict, float, np.random.Generator], dict]:
     """A tare left off by `grams` (a constant added to every force sample)."""
     return lambda tap, _z_mm, _rng: {**tap, "force": [round(float(f) + grams, 5) for f in tap["force"]]}
@@ -361,6 +371,10 @@ CASES = [Case(*row[:3], **(row[3] if len(row) > 3 else {})) for row in (
      {"reference": ("clean_hx717", 1), "transform": _force_scaled(0.2)}),
     ("ref_gain5", "reference HX717, force x5 (gain)", "accept",
      {"reference": ("clean_hx717", 1), "transform": _force_scaled(5.0)}),
+    ("ref_clip80", "reference HX717, saturated at 80 % of peak", "either",
+     {"reference": ("clean_hx717", 1), "transform": _force_clipped(0.8)}),
+    ("ref_clip60", "reference HX717, saturated at 60 % of peak", "either",
+     {"reference": ("clean_hx717", 1), "transform": _force_clipped(0.6)}),
     ("ref_off+5k", "reference HX717, tare off by +5000 g", "accept",
      {"reference": ("clean_hx717", 1), "transform": _force_offset(5000.0)}),
     ("ref_off-5k", "reference HX717, tare off by -5000 g", "accept",

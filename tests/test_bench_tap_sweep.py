@@ -146,6 +146,21 @@ def test_gain_polarity_offset_and_latency_are_exact(reference_dir):
     assert later["force"][1:] == latency["force"][:-1] and later["time"] == latency["time"]
 
 
+def test_a_saturated_sensor_clips_the_force_flat_at_its_limit(reference_dir):
+    """`_force_clipped(0.8)`: every force beyond 80 % of the peak held at that limit, the rest kept;
+    the analysis refuses the tap for what it shows (TAP_SENSOR_SATURATED), not for its shape."""
+    original = _original(reference_dir)
+    force = np.asarray(original["force"])
+    limit_g = 0.8 * np.max(np.abs(force))
+    (clipped, _), = case_taps(CASE["ref_clip80"], 1, 1, reference_dir)
+    out = np.asarray(clipped["force"])
+    inside = np.abs(force) <= limit_g
+    assert np.allclose(out[inside], force[inside], atol=1e-5)
+    assert np.all(np.abs(out[~inside]) == round(limit_g, 5)) and np.count_nonzero(~inside) >= 8
+    answer = analyse_in_process(clipped)
+    assert not answer["valid"] and answer["error"] == "TAP_SENSOR_SATURATED"
+
+
 def test_a_slower_tap_keeps_its_samples_per_micron(reference_dir):
     """`_slower(8)` on the 80 sps HX711: 10 sps, 8x slower moves, every sample's force and Z kept."""
     original = _original(reference_dir, "hx711_slow")

@@ -296,6 +296,22 @@ def test_window_heights_refuse_a_table_that_is_not_six_rows():
     (lambda t, f: t.__setitem__(22, np.nan), 1),
     (lambda t, f: t.__setitem__(22, t[21]), 2),
     (lambda t, f: f.__setitem__(0, np.finfo(float).max), 0),
+    # A saturated sensor (3): 8 samples in a row at the extreme away from the first sample; 7 are
+    # not enough, nor a run at the first sample's side, nor one held to the last sample (a stuck
+    # sensor); one ending at the second last sample and a negative polarity count; NaN and times
+    # out of order are named first.
+    (lambda t, f: f.__setitem__(slice(12, 20), 10.0), 3),
+    (lambda t, f: f.__setitem__(slice(12, 19), 10.0), 0),
+    (lambda t, f: f.__setitem__(slice(14, 22), 10.0), 3),
+    (lambda t, f: f.__setitem__(slice(15, 23), 10.0), 0),
+    (lambda t, f: f.__setitem__(slice(0, 8), 5.0), 0),
+    (lambda t, f: f.__setitem__(slice(None), np.r_[-f[:10], np.full(12, -10.0), -9.0]), 3),
+    (lambda t, f: (f.__setitem__(slice(12, 20), 10.0), f.__setitem__(3, np.nan)), 1),
+    (lambda t, f: (f.__setitem__(slice(12, 20), 10.0), t.__setitem__(3, t[2])), 2),
+    # The other samples repeat a value in at most one step in four: 12 samples before a run of 10
+    # and one after hold 12 steps, 3 repeats are still a saturated sensor, 4 a coarse one.
+    (lambda t, f: f.__setitem__(slice(None), np.r_[0, 1, 1, 2, 3, 3, 4, 5, 5, 6, 7, 8, [10.0] * 10, 9]), 3),
+    (lambda t, f: f.__setitem__(slice(None), np.r_[0, 1, 1, 2, 3, 3, 4, 5, 5, 6, 6, 8, [10.0] * 10, 9]), 0),
 ])
 def test_sample_checks_name_the_twins_problem(change, problem):
     time_s, force_g = np.linspace(0.0, 1.0, 23), np.linspace(5.0, 9.0, 23)
@@ -312,6 +328,19 @@ def test_sample_checks_name_the_twins_problem(change, problem):
             except analysis.TapInvalid as invalid:
                 messages.append(invalid.message)
     assert messages[0] == messages[1] and (messages[0] is None) == (problem == 0)
+
+
+@settings(max_examples=200, deadline=None)
+@given(arrays(np.float64, st.integers(1, 40), elements=st.one_of(st.integers(-3, 3).map(float), st.floats(-9.0, 9.0))),
+       st.integers(0, 40), st.integers(0, 12), st.floats(-10.0, 10.0))
+def test_a_saturated_run_is_found_as_the_twin_finds_it(force_g, at, held, level_g):
+    """A run of `held` samples at `level_g` put into samples with few levels or many (runs and repeats
+    anywhere, the run at the extreme or not, either side): the kernel answers 3 exactly where the twin
+    finds a saturated run."""
+    at = min(at, len(force_g))
+    force_g = np.r_[force_g[:at], np.full(held, level_g), force_g[at:]]
+    time_s = np.arange(len(force_g), dtype=float)
+    assert (KERNEL.sample_problem(time_s, force_g) == 3) == (analysis.saturated_run(force_g)[1] > 0)
 
 
 @settings(max_examples=100, deadline=None)

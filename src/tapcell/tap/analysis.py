@@ -39,6 +39,7 @@ from tapcell.tap.model import (
     TAP_DATA_INSUFFICIENT,
     TAP_MOTION_INVALID,
     TAP_PULLBACK_TOO_SHORT,
+    TAP_SENSOR_SATURATED,
     TAP_SHAPE_INVALID,
     TAP_TWO_STAGE_CONTACT,
     AnalysisOptions,
@@ -1011,9 +1012,57 @@ def analyze_tap(tap: TapData, options: AnalysisOptions | None = None) -> TapAnal
 
 
 # What the sample check finds (the kernel's `sample_problem` answers with these numbers, 0: nothing).
-SAMPLES_NOT_FINITE, SAMPLES_NOT_INCREASING = 1, 2
+SAMPLES_NOT_FINITE, SAMPLES_NOT_INCREASING, SAMPLES_SATURATED = 1, 2, 3
 _SAMPLE_PROBLEMS = {SAMPLES_NOT_FINITE: "time or force holds NaN or infinity",
                     SAMPLES_NOT_INCREASING: "sample times are not strictly increasing"}
+# A saturated sensor (an ADC at its limit records the force clipped flat): at least SATURATED_RUN
+# samples in a row exactly at the tap's extreme force, the force leaving it before the tap ends
+# (a reading frozen to the end is a stuck sensor, which the live probe names itself), where the rest of the tap repeats a value
+# from one sample to the next in at most one step in SATURATED_REPEATS_OTHER. Measured (bench
+# tap_sweep's clipped cases, docs/tap-analysis.md): no clean tap of taplab (seeds 1, new), the
+# reference taps and sessions or the real tap holds more than 2 equal samples at its extreme, and
+# none of them rounded to 0.1-30 g steps is flagged once the repeat rule applies (rounded to 1 g a
+# tap holds up to 11 at its extreme; rounded to 10 g one holds 63 there, its other steps 64 %
+# repeats, 0.4 % on clean taps at most); the same taps clipped at 90 % of their peak are flagged
+# in 77-100 % of each set (those left: a spike the peak, a run too short).
+SATURATED_RUN, SATURATED_REPEATS_OTHER = 8, 4
+
+
+def saturated_run(force_g: np.ndarray) -> tuple[int, int]:
+    """Where a saturated sensor held the force: (first sample, samples) of the longest run exactly at
+    the tap's extreme force, on the side away from its first sample (its max, or its min for a
+    negative polarity) and left before the last sample, when that run is SATURATED_RUN samples or longer and the other samples
+    repeat a value in at most one step in SATURATED_REPEATS_OTHER; else (0, 0). The kernel's
+    `sample_problem` twin (finite samples): a sensor whose steps are coarser than its noise repeats
+    values everywhere, and a long run proves nothing there."""
+    f = force_g
+    high, low = f.max(), f.min()
+    extreme = high if high - f[0] >= f[0] - low else low
+    at = np.concatenate(([False], f == extreme, [False]))
+    edges = np.flatnonzero(at[1:] != at[:-1])  # starts and ends of the runs, in pairs
+    # A run held to the last sample is a sensor that stopped changing (or a nozzle still pressing),
+    # not a limit the force went past and came back from.
+    left = edges[1::2] < len(f)
+    starts, lengths = edges[::2][left], (edges[1::2] - edges[::2])[left]
+    if len(lengths) == 0 or lengths.max() < SATURATED_RUN:
+        return 0, 0
+    longest = int(lengths.argmax())
+    off = f[1:] != extreme
+    repeats = np.count_nonzero(off & (f[1:] == f[:-1]))
+    if SATURATED_REPEATS_OTHER * repeats > np.count_nonzero(off):
+        return 0, 0
+    return int(starts[longest]), int(lengths[longest])
+
+
+def _saturated(t: np.ndarray, f: np.ndarray) -> TapInvalid:
+    start, count = saturated_run(f)
+    held_ms = (t[start + count - 1] - t[start]) * 1000.0
+    side = "highest" if f[start] >= f[0] else "lowest"
+    return TapInvalid(TAP_SENSOR_SATURATED,
+                      f"the force holds at {f[start]:.1f} g, the tap's {side}, for {count} samples in a row "
+                      f"({held_ms:.0f} ms): the load cell's sensor saturated and the force past its limit is "
+                      "lost; lower the probing speed (PROBE_SPEED=) or the trigger force, or the sensor's "
+                      "gain, or fit a larger load cell")
 
 
 def _check_samples(tap: TapData) -> tuple[np.ndarray, np.ndarray]:
@@ -1025,11 +1074,16 @@ def _check_samples(tap: TapData) -> tuple[np.ndarray, np.ndarray]:
     if len(t) < MIN_SAMPLES:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, f"{len(t)} samples, at least {MIN_SAMPLES} needed")
     if _C is not None:
-        problem = _SAMPLE_PROBLEMS.get(_C.sample_problem(t, f))
+        code = _C.sample_problem(t, f)
+        if code == SAMPLES_SATURATED:
+            raise _saturated(t, f)
+        problem = _SAMPLE_PROBLEMS.get(code)
     elif not (np.isfinite(t).all() and np.isfinite(f).all()):
         problem = _SAMPLE_PROBLEMS[SAMPLES_NOT_FINITE]
     elif (t[1:] <= t[:-1]).any():
         problem = _SAMPLE_PROBLEMS[SAMPLES_NOT_INCREASING]
+    elif saturated_run(f)[1]:
+        raise _saturated(t, f)
     else:
         problem = None
     if problem:

@@ -35,6 +35,7 @@ TAP_MOTION_INVALID = "TAP_MOTION_INVALID"  # the motion has no approach/halt/pul
 TAP_CONTACT_MISMATCH = "TAP_CONTACT_MISMATCH"  # contact on the way down above break contact on the way up
 TAP_ADHESION = "TAP_ADHESION"  # (toe model) the force dips below free air after break contact (a thread pulling)
 TAP_TWO_STAGE_CONTACT = "TAP_TWO_STAGE_CONTACT"  # (toe model) a soft stage pressed above the contact (sheet, springs)
+TAP_SENSOR_SATURATED = "TAP_SENSOR_SATURATED"  # the force held flat at its extreme: the sensor's ADC at its limit
 
 
 class TapFileError(Exception):

@@ -50,6 +50,10 @@ ADVICE: dict[str, tuple[str, str]] = {
     "TAP_TWO_STAGE_CONTACT": ("the nozzle pressed a soft layer before the bed (a magnetic sheet lifting, a sprung "
                               "bed's springs, a film of ooze): its stiff stage would read low",
                               "seat the sheet flat and clean it, check the bed's springs; " + CLEAN_AND_COOL),
+    "TAP_SENSOR_SATURATED": ("the load cell's sensor reached its limit while the nozzle pressed (the force held "
+                             "flat): a small load cell, a high gain, or a fast probe pressing too hard",
+                             "probe slower (PROBE_SPEED=) or lower the trigger force; lower the sensor's gain or "
+                             "fit a larger load cell"),
     "TAP_DATA_INSUFFICIENT": ("too few samples in part of the tap: the sensor is slow for this probing speed",
                               "probe slower (PROBE_SPEED=) or use a faster sample_rate"),
     "TAP_MOTION_INVALID": ("the recorded motion does not describe a tap (a move was interrupted)",

@@ -505,21 +505,70 @@ static PyObject *z_at(PyObject *self, PyObject *args)
 
 /* What is wrong with a tap's samples for the analysis (analysis.py `_check_samples`, whose
  * SAMPLES_* numbers these are), the first found. */
-enum sample_problem { SAMPLES_FINE = 0, SAMPLES_NOT_FINITE = 1, SAMPLES_NOT_INCREASING = 2 };
+enum sample_problem { SAMPLES_FINE = 0, SAMPLES_NOT_FINITE = 1, SAMPLES_NOT_INCREASING = 2, SAMPLES_SATURATED = 3 };
+
+/* A saturated sensor (analysis.py `saturated_run`, the twin): at least SATURATED_RUN samples in a row
+ * exactly at the tap's extreme force on the side away from its first sample (its max, or its min
+ * for a negative polarity), the force leaving it before the last sample, while the rest of the tap repeats a value from one sample to the next
+ * in at most one step in SATURATED_REPEATS_OTHER (a sensor whose steps are coarser than its noise
+ * repeats values everywhere: a run proves nothing there). */
+#define SATURATED_RUN 8
+#define SATURATED_REPEATS_OTHER 4
+
+/* Whether the rest of the tap (the samples not at `extreme`) repeats a value in at most one step
+ * in SATURATED_REPEATS_OTHER: read only for a tap whose extreme already holds a long run. */
+static int repeats_rarely_off(const double *force_g, Py_ssize_t n, double extreme)
+{
+    Py_ssize_t repeats = 0, steps = 0;
+    for (Py_ssize_t i = 1; i < n; i++) {
+        int off = force_g[i] != extreme;
+        steps += off;
+        repeats += off & (force_g[i] == force_g[i - 1]);
+    }
+    return SATURATED_REPEATS_OTHER * repeats <= steps;
+}
 
 /* The sample check's loops (SAMPLE_LOOP): every sample is looked at without an early exit, so the
  * compiler runs four at a time (a good tap, the common case, is read to its end anyway). A NaN or
- * infinity anywhere is the problem named before times out of order, as in analysis.py's
- * `_check_samples`. */
+ * infinity anywhere is the problem named before times out of order, and both before a saturated
+ * sensor, as in analysis.py's `_check_samples`. */
 SAMPLE_LOOP
 static enum sample_problem problem_of_samples(const double *time_s, const double *force_g, Py_ssize_t n)
 {
+    if (n == 0)
+        return SAMPLES_FINE;
     int64_t finite = 1, increasing = 1;
-    for (Py_ssize_t i = 0; i < n; i++)
+    double high = force_g[0], low = force_g[0];
+    for (Py_ssize_t i = 0; i < n; i++) {
         finite &= (fabs(time_s[i]) <= DBL_MAX) & (fabs(force_g[i]) <= DBL_MAX);
-    for (Py_ssize_t i = 1; i < n; i++)
+        high = force_g[i] > high ? force_g[i] : high;
+        low = force_g[i] < low ? force_g[i] : low;
+    }
+    int64_t at_high = force_g[0] == high, at_low = force_g[0] == low;
+    for (Py_ssize_t i = 1; i < n; i++) {
         increasing &= time_s[i] > time_s[i - 1];
-    return !finite ? SAMPLES_NOT_FINITE : !increasing ? SAMPLES_NOT_INCREASING : SAMPLES_FINE;
+        at_high += force_g[i] == high;
+        at_low += force_g[i] == low;
+    }
+    if (!finite)
+        return SAMPLES_NOT_FINITE;
+    if (!increasing)
+        return SAMPLES_NOT_INCREASING;
+    /* The extreme away from the first sample; its runs are read only where it holds enough samples
+     * at all (a clean tap's extreme is one or two samples: the loop above counted them). */
+    int at_high_side = high - force_g[0] >= force_g[0] - low;
+    double extreme = at_high_side ? high : low;
+    if ((at_high_side ? at_high : at_low) < SATURATED_RUN)
+        return SAMPLES_FINE;
+    /* A run counts where the force came back from it: one held to the last sample is a sensor that
+     * stopped changing (or a nozzle still pressing), not a limit the force went past and returned. */
+    Py_ssize_t run = 0, longest = 0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        int at = force_g[i] == extreme;
+        longest = !at && run > longest ? run : longest;
+        run = at ? run + 1 : 0;
+    }
+    return longest >= SATURATED_RUN && repeats_rarely_off(force_g, n, extreme) ? SAMPLES_SATURATED : SAMPLES_FINE;
 }
 
 static PyObject *sample_problem(PyObject *self, PyObject *args)
@@ -719,7 +768,8 @@ static PyMethodDef methods[] = {
      "z_at(move_rows, t_s) -> float: the commanded Z (mm) at t_s (motion.py Motion.z_at of one time).\n"
      "move_rows: the move table's six rows one after the other, a sequence of numbers (Motion.move_rows)."},
     {"sample_problem", sample_problem, METH_VARARGS,
-     "sample_problem(time_s, force_g) -> int: 0 fine, 1 NaN or infinity, 2 times not strictly increasing."},
+     "sample_problem(time_s, force_g) -> int: 0 fine, 1 NaN or infinity, 2 times not strictly increasing, "
+     "3 a saturated sensor (a long run at the extreme force)."},
     {"outlier_mask", outlier_mask, METH_VARARGS,
      "outlier_mask(residual_g, outlier_sigma, floor_g) -> None or bytes: the residuals to keep (1) when\n"
      "any lies beyond outlier_sigma x max(their robust sigma, floor_g), else None."},
