@@ -6,11 +6,12 @@ g/µm, a 1-8 µm toe) with ONE thing changed: the sample rate (40 / 160 / 1000 /
 probing or pullback speed, the bed's stiffness, the trigger force, the noise, the toe's width and
 shape, the unloading stiffness (hysteresis), a thermal ramp in time, the dwell, few samples in
 contact, the ADC's latency, a long conversion window, a pullback ending just after the break.
-Twenty cases take the reference taps (a generator we did not write: its toes, noise and timing
-kept) and change what a transform can change exactly, the truth unchanged: averaged in blocks or
-slowed in time (a slower sensor, down to 10 sps), frames lost, the polarity, gain and tare, the
-timestamps' jitter, a stronger hum, one more sample of latency, a thermal ramp; and one
-approximation (`_gantry_ringing`).
+Twenty-four cases take the reference taps (a generator we did not write: its toes, noise and
+timing kept) and change what a transform can change exactly, the truth unchanged: averaged in
+blocks or slowed in time (a slower sensor, down to 10 sps), frames lost, the polarity, gain and
+tare, a saturated sensor, the timestamps' jitter, a stronger hum, one more sample of latency, a
+thermal ramp; and three approximations: a gantry ringing (`_gantry_ringing`) and a two-stage
+mount whose first touch lies higher (`_sprung_stage`, the truth moved with it).
 
 A generator we write is not evidence for an analysis we write: this sweep finds what breaks
 (a traceback, a hang, a silent failure, a clean tap rejected for a cause it does not show, a σ
@@ -252,6 +253,29 @@ def _mains_hum(grams: tuple[float, float, float]) -> Callable[[dict, float, np.r
     return transform
 
 
+def _bed_g_per_um(force: np.ndarray, z: np.ndarray, z_mm: float) -> float:
+    """The bed's stiffness as the transforms read it from the truth (the generator's side): the peak
+    force over the overtravel, signed as the tap's contact pushes the force."""
+    peak = force[np.argmax(np.abs(force))]
+    return float(peak) / max((z_mm - float(np.min(z))) * 1000.0, 1.0)
+
+
+def _sprung_stage(travel_um: float, share: float) -> Callable[[dict, float, np.random.Generator], dict]:
+    """An APPROXIMATION of a two-stage mount (a sprung or magnetic sheet): a soft first stage of
+    `travel_um` above the solid contact, `share` of the bed's stiffness (`_bed_g_per_um`), whose
+    force is added at each sample's commanded Z (the sensor's window and lag are not applied to it,
+    a µm or two of pullback). The first touch, which the truth is, lies `travel_um` higher: the
+    case's `truth_up_um`. Not the reference generator's own physics; the issue's hidden two-stage
+    taps read -20.5 to -22.4 µm at z_sigma 1.3-2.1 before."""
+    def transform(tap, z_mm, _rng):
+        z = np.asarray(tap["z"], dtype=float)
+        force = np.asarray(tap["force"], dtype=float)
+        pressed_um = np.clip((z_mm + travel_um / 1000.0 - z) * 1000.0, 0.0, travel_um)
+        out = force + share * _bed_g_per_um(force, z, z_mm) * pressed_um
+        return {**tap, "force": [round(float(f), 5) for f in out]}
+    return transform
+
+
 def _gantry_ringing(amplitude_um: tuple[float, float]) -> Callable[[dict, float, np.random.Generator], dict]:
     """An APPROXIMATION of a gantry ringing: the nozzle's height rings as a decaying sine of 20-60 Hz
     (decay 50-200 ms, drawn per tap) excited at the halt and again at the pullback's start, each of
@@ -262,9 +286,7 @@ def _gantry_ringing(amplitude_um: tuple[float, float]) -> Callable[[dict, float,
         t = np.asarray(tap["time"], dtype=float)
         z = np.asarray(tap["z"], dtype=float)
         force = np.asarray(tap["force"], dtype=float)
-        peak = force[np.argmax(np.abs(force))]
-        over_um = max((z_mm - float(np.min(z))) * 1000.0, 1.0)
-        g_per_um = peak / over_um  # signed: the ring pushes the force the way contact does
+        g_per_um = _bed_g_per_um(force, z, z_mm)  # signed: the ring pushes the force the way contact does
         hz, tau_s = float(rng.uniform(20.0, 60.0)), float(rng.uniform(0.05, 0.2))
         ring_um = np.zeros(len(t))
         for key in ("home_end_time", "pullback_start_time"):
@@ -287,8 +309,9 @@ class Case:
     thermal_g_per_s: float = 0.0  # a ramp in time added to the force (heating, either sign per tap)
     reference: tuple[str, int] | None = None  # (reference scenario, samples averaged per block)
     # a reference tap changed after the averaging: (tap, its true contact Z in mm, rng) -> tap;
-    # the truth is unchanged (every transform here leaves the contact where it was)
+    # the truth is unchanged but where truth_up_um says the transform put a first touch higher
     transform: Callable[[dict, float, np.random.Generator], dict] | None = None
+    truth_up_um: float = 0.0
 
 
 # Noise at the other rates: the HX717's 0.5-1 g at 320 sps scaled as the square root of the rate.
@@ -381,6 +404,10 @@ CASES = [Case(*row[:3], **(row[3] if len(row) > 3 else {})) for row in (
      {"reference": ("clean_hx717", 1), "transform": _force_offset(-5000.0)}),
     ("ref_ring", "reference HX717 + gantry ringing (approx.)", "accept",
      {"reference": ("clean_hx717", 1), "transform": _gantry_ringing((1.0, 5.0))}),
+    ("ref_stage10", "reference HX717 + a sprung stage 10 um (approx.)", "either",
+     {"reference": ("clean_hx717", 1), "transform": _sprung_stage(10.0, 0.2), "truth_up_um": 10.0}),
+    ("ref_stage20", "reference HX717 + a sprung stage 20 um (approx.)", "either",
+     {"reference": ("clean_hx717", 1), "transform": _sprung_stage(20.0, 0.1), "truth_up_um": 20.0}),
     ("ref_hum", "reference HX717 + hum 5/2/2 g", "accept",
      {"reference": ("clean_hx717", 1), "transform": _mains_hum((5.0, 2.0, 2.0))}),
     ("ref_hum660", "reference ADS1220 660 + hum 5/2/2 g", "accept",
@@ -431,7 +458,7 @@ def case_taps(case: Case, seed: int, count: int, reference_dir: Path | None) -> 
             tap = _averaged(tap, block)
             if case.transform is not None:
                 tap = case.transform(tap, label.z_contact_mm, rng)
-            taps.append((_with_ramp(tap, case.thermal_g_per_s, rng), label.z_contact_mm))
+            taps.append((_with_ramp(tap, case.thermal_g_per_s, rng), label.z_contact_mm + case.truth_up_um / 1000.0))
         return taps
     for k in range(count):
         rng = np.random.default_rng([seed, 99, k])  # the same draws in every case: one parameter differs

@@ -203,3 +203,22 @@ def test_the_reference_transforms_find_nothing(reference_dir):
     assert len(cases) >= 17
     results = sweep(cases, seed=1, count=15, reference_dir=reference_dir, kalico=None, scratch=None)
     assert findings(results) == []
+
+
+def test_a_sprung_stage_adds_its_force_above_the_contact_and_moves_the_truth_up(reference_dir):
+    """`_sprung_stage(20, 0.1)`: a tenth of the bed's stiffness over the 20 µm above the solid
+    contact, bottomed out below it; the first touch (the truth scored) 20 µm higher."""
+    original = _original(reference_dir)
+    force, z = np.asarray(original["force"]), np.asarray(original["z"])
+    (staged, top_mm), = case_taps(CASE["ref_stage20"], 1, 1, reference_dir)
+    (_, solid_mm), = case_taps(CASE["ref_clip80"], 1, 1, reference_dir)  # the same tap, its truth kept
+    assert (top_mm - solid_mm) * 1000.0 == pytest.approx(20.0)
+    added = np.asarray(staged["force"]) - force
+    g_per_um = force[np.argmax(np.abs(force))] / ((solid_mm - z.min()) * 1000.0)
+    above = z >= top_mm
+    assert np.all(np.abs(added[above]) <= 1e-5)  # nothing before the first touch
+    bottomed = z <= solid_mm
+    assert np.allclose(added[bottomed], 0.1 * g_per_um * 20.0, atol=1e-5)  # the springs' whole travel
+    between = ~above & ~bottomed
+    assert np.count_nonzero(between) > 10
+    assert np.allclose(added[between], 0.1 * g_per_um * (top_mm - z[between]) * 1000.0, atol=1e-5)
