@@ -15,20 +15,12 @@
 #include <stdlib.h>
 #include <string.h>
 
+#include "clones.h"
 #include "median.h"
 
 /* The median absolute deviation of normal noise times this is its sigma (robust.MAD_TO_SIGMA). */
 #define MAD_TO_SIGMA 1.4826
 
-/* A loop over every sample built twice, for AVX2 (four samples at once) and for any x86-64, the one
- * the CPU runs chosen when the module loads; the same IEEE operations either way (clones.h's
- * ROW_LOOP has the guard's why). */
-#if defined(__x86_64__) && defined(__GLIBC__) && \
-    ((defined(__clang__) && __clang_major__ >= 14) || (!defined(__clang__) && defined(__GNUC__) && __GNUC__ >= 6))
-#define SAMPLE_LOOP __attribute__((target_clones("avx2", "default")))
-#else
-#define SAMPLE_LOOP
-#endif
 
 /* |f[i+1] - (f[i] + f[i+2]) / 2| for i in [0, n - 2): how far each inner sample stands off the
  * midpoint of its neighbours (the twin's expression, term for term). */
@@ -528,11 +520,11 @@ static int repeats_rarely_off(const double *force_g, Py_ssize_t n, double extrem
     return SATURATED_REPEATS_OTHER * repeats <= steps;
 }
 
-/* The sample check's loops (SAMPLE_LOOP): every sample is looked at without an early exit, so the
+/* The sample check's loops (built twice, ROW_LOOP: clones.h): every sample is looked at without an early exit, so the
  * compiler runs four at a time (a good tap, the common case, is read to its end anyway). A NaN or
  * infinity anywhere is the problem named before times out of order, and both before a saturated
  * sensor, as in analysis.py's `_check_samples`. */
-SAMPLE_LOOP
+ROW_LOOP
 static enum sample_problem problem_of_samples(const double *time_s, const double *force_g, Py_ssize_t n)
 {
     if (n == 0)
