@@ -52,10 +52,11 @@ from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import (NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_FIVE, PrefixSums, five_lines,
                                   segment_stats)
-from tapcell.tap.stage import (Ringing, SoftStage, departure_soft_stage, dwell_ringing, shows_soft_stage, shows_two_stage,
-                               two_stage_departure, unnamed_stage_um)
-from tapcell.tap.toe import (ADHESION_LEVEL_UM, ADHESION_REACH_UM, THREAD_FAR_REACH_UM, THREAD_REACH_UM, ToeFit,
-                             Wander, adhesion_measures, fit_toe, free_air_walks, lag_from_halt_s, thread_pull_g,
+from tapcell.tap.stage import (Ringing, SoftStage, TwoStageFit, departure_soft_stage, dwell_ringing,
+                               shows_absorbed_stage, shows_soft_stage, shows_two_stage, two_stage_departure,
+                               unnamed_stage_um)
+from tapcell.tap.toe import (ADHESION_LEVEL_UM, ADHESION_REACH_UM, THREAD_FAR_REACH_UM, THREAD_REACH_UM, TOE_WIDTHS_UM,
+                             ToeFit, Wander, adhesion_measures, fit_toe, free_air_walks, lag_from_halt_s, thread_pull_g,
                              thread_pulls_g)
 
 if TYPE_CHECKING:  # the hum's module is imported where a tap asks for hum removal (remove_mains_hum)
@@ -1398,10 +1399,15 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     check_adhesion(rising, motion, timing, dec, free_air_line(split, toe.contact_um - lag_shift_um, delay_s),
                    toe.contact_um, split.noise_g, approach_wander or wander, result.compression_force_g)
     walk_var_g2 = approach_walk_var_g2(split)  # the two-stage fits' walk
-    ramp = check_stages(split, samples, drift_g_um, toe, lag_shift_um, wander, walk_var_g2,
-                        drift_held=fit_drift_g_um is not None)
+    ramp, stages = check_stages(split, samples, drift_g_um, toe, lag_shift_um, wander, walk_var_g2,
+                                drift_held=fit_drift_g_um is not None)
     result.unnamed_stage_um = unnamed_stage_um(*samples, drift_g_um, toe.contact_um, toe.width_um, split.noise_g,
                                                walk_var_g2, ramp, fit_drift_g_um is not None, split.ringing)
+    # A stage the toe took in at its widest (tapcell.tap.stage.shows_absorbed_stage): its first touch
+    # is the stage part. A ringing over the departure scores a far first touch too (the sweep's 4000
+    # sps: 3 of 20 taps, read 3-6 um off): there the part covers what the ringing moves.
+    if shows_absorbed_stage(stages, toe.contact_um, toe.width_um >= TOE_WIDTHS_UM[-1]):
+        result.unnamed_stage_um = stages.top_um - toe.contact_um
     approach_change_g = abs(dec.points[P_CONTACT][1] - dec.points[P_START][1])
     if approach_change_g > APPROACH_DRIFT_MATERIAL_SHARE * result.compression_force_g:  # else it costs the score little
         result.approach_drift_share = departure_drift_share(rising, toe.contact_um, drift_g_um)
@@ -1504,11 +1510,13 @@ def _toe_lift_um(result: TapAnalysis) -> float:
 
 
 def check_stages(split: SplitTap, samples: PullbackSamples, drift_g_um: float, toe: ToeFit, lag_shift_um: float,
-                 wander: Wander | None, walk_var_g2: float, drift_held: bool) -> SoftStage | None:
+                 wander: Wander | None, walk_var_g2: float,
+                 drift_held: bool) -> tuple[SoftStage | None, TwoStageFit | None]:
     """The two-stage checks (TAP_TWO_STAGE_CONTACT raised); where they name a stage and the dwell
     rings (tapcell.tap.stage.dwell_ringing), again with the ringing in their noise: a gantry's
     ringing over a fast pullback's departure is no stage (issue 21). Returns the soft-stage ramp
-    they weighed (tapcell.tap.stage.unnamed_stage_um looks further where it shows one). wander: the
+    they weighed (tapcell.tap.stage.unnamed_stage_um looks further where it shows one) and the
+    two-stage fit (None where the toe was too narrow to run it). wander: the
     tap's (`SplitTap.wanders`); walk_var_g2: the approach's walk (`approach_walk_var_g2`)."""
     motion, noise_g = split.motion, split.noise_g
     # The ramp's noise: the walk the free air on both sides shows, as the toe fit weighs it. The
@@ -1518,16 +1526,15 @@ def check_stages(split: SplitTap, samples: PullbackSamples, drift_g_um: float, t
     try:
         ramp = check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, noise_g, wander,
                                 toe.stiffness_g_um)
-        check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, noise_g, walk_var_g2, drift_held)
-        return ramp
+        return ramp, check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, noise_g, walk_var_g2, drift_held)
     except TapInvalid:
         ringing = split.ringing
         if ringing is None:
             raise
         ramp = check_soft_stage(samples, motion, drift_g_um, toe.contact_um, lag_shift_um, noise_g, wander,
                                 toe.stiffness_g_um, ringing)
-        check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, noise_g, walk_var_g2, drift_held, ringing)
-        return ramp
+        return ramp, check_two_stage(samples, motion, drift_g_um, toe, lag_shift_um, noise_g, walk_var_g2, drift_held,
+                                     ringing)
 
 
 def check_soft_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, contact_um: float,
@@ -1556,11 +1563,12 @@ def approach_walk_var_g2(split: SplitTap) -> float:
 
 def check_two_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float, toe: ToeFit, lag_shift_um: float,
                     noise_g: float, walk_var_g2: float, drift_held: bool = False,
-                    ringing: Ringing | None = None) -> None:
+                    ringing: Ringing | None = None) -> TwoStageFit | None:
     """TAP_TWO_STAGE_CONTACT when the departure is two stages rather than the wide toe fitted
     (tapcell.tap.stage.two_stage_departure): the toe absorbed a soft first stage and reads low.
     drift_held: the toe fit held drift_g_um (the departure agrees with the approach), the stages are
-    weighed on it too; walk_var_g2: the walk the approach shows (approach_walk_var_g2)."""
+    weighed on it too; walk_var_g2: the walk the approach shows (approach_walk_var_g2). Returns the
+    fit when it names nothing (None where the toe is too narrow to run it)."""
     fit = two_stage_departure(*samples, drift_g_um, toe.contact_um, toe.width_um, noise_g, walk_var_g2, drift_held,
                               ringing)
     if shows_two_stage(fit, toe.contact_um):
@@ -1571,6 +1579,7 @@ def check_two_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float,
                          f"Z {first_touch_mm:.4f}, {fit.evidence_chi2:.0f} noise variances better than any "
                          f"one-stage toe: a two-stage mount (a magnetic sheet, a sprung bed) or a film of "
                          f"ooze; the contact found would read {fit.top_um - toe.contact_um:.1f} um low")
+    return fit
 
 
 def compression_stiffness(split: SplitTap, window: ModelWindow, fits: ContactFits, delay_s: float,
