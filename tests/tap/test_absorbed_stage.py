@@ -53,7 +53,7 @@ def test_a_stage_the_toe_took_in_widens_sigma_to_cover_the_first_touch(sprung_ta
 
 
 def test_the_same_taps_without_the_stage_keep_their_sigma(sprung_taps):
-    # No clean tap of either benchmark set (3,361 with the sessions) meets the rule; these 80 neither.
+    # No clean tap of either benchmark set (3,560 with the sessions) meets the rule; these 80 neither.
     results = [analyze_tap(tap_from_object(tap)) for tap, _ in sprung_taps[1]]
     assert all(r.valid for r in results)
     assert all(r.unnamed_stage_um < stage.ABSORBED_STAGE_MIN_RISE_UM for r in results)

@@ -416,8 +416,9 @@ def shows_two_stage(fit: TwoStageFit | None, contact_um: float) -> bool:
 # the sweep's 5 g noise and of its 4000 sps ringing, branch i21-absorbed9), so that first touch goes
 # into z_sigma_um as the stage part (`unnamed_stage_um`'s). With the toe at 16 um the fit (drift
 # fitted) puts it 12 um or more above at 6 noise variances or more over a hinge on no clean tap of
-# the two benchmark sets and the two sets of sessions (3,361 taps), on 4 of 280 soft-sheet taps,
-# and on 21-66 % of the sprung reference taps of 20-30 um the other checks let through (seed 1).
+# the two benchmark sets (taplab seeds 1-2 and new) and the two sets of sessions (3,560 taps), on
+# 4 of the reference's 280 soft-sheet taps, and on 21-66 % of the sprung reference taps of 20-30 um
+# the other checks let through (seed 1).
 ABSORBED_STAGE_MIN_EVIDENCE = 6.0
 ABSORBED_STAGE_MIN_RISE_UM = 12.0
 
