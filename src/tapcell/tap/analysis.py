@@ -964,15 +964,15 @@ def compression_fit_twin(window: ModelWindow, read_until_s: float, spacing_um: f
 
 
 def check_contact_heights(window: ModelWindow, pullback: ContactFit | None, compression: ContactFit | None,
-                          motion: Motion, timing: SensorTiming, dec: Decomposition) -> None:
+                          motion: Motion, timing: SensorTiming, compression_placed: bool) -> None:
     """Contact on the way down against break contact on the way up, both at the same delay
     (validate.check_contact_consistency): the model fits when they exist, else the line points
-    P1 and P4 mapped through the motion. Not judged where no sample's window lies wholly between
-    the touch and the halt (`compression_places_the_halt`): the way down then holds no contact to
-    place (issue 21's sweep: a reference tap averaged to 80 sps, 1.3 periods from P1 to P2, put
-    the down contact 754 um above the halt, TAP_CONTACT_MISMATCH; reference HX711 taps averaged to
-    10 sps, 0.2-0.5 samples from contact to the halt, 231-512 um)."""
-    if not compression_places_the_halt(dec, motion, timing):
+    P1 and P4 mapped through the motion. Not judged unless `compression_placed`
+    (`compression_places_the_halt`): where no sample's window lies wholly between the touch and the
+    halt, the way down holds no contact to place (issue 21's sweep: a reference tap averaged to 80
+    sps, 1.3 periods from P1 to P2, put the down contact 754 um above the halt, TAP_CONTACT_MISMATCH;
+    reference HX711 taps averaged to 10 sps, 0.2-0.5 samples from contact to the halt, 231-512 um)."""
+    if not compression_placed:
         return
     down_um, down_sigma_um = ((compression.contact_um, compression.contact_sigma_um) if compression
                               else (window.contact_line_um, 0.0))
@@ -1122,6 +1122,11 @@ class SplitTap:
         return free_air_wanders(self.force_g, self.dec, steps_um, self.rising_stop)
 
     @cached_attribute
+    def compression_placed(self) -> bool:
+        """`compression_places_the_halt` for this tap: asked by the lag, the contact check and z_sigma_um."""
+        return compression_places_the_halt(self.dec, self.motion, self.timing)
+
+    @cached_attribute
     def ringing(self) -> Ringing | None:
         """The ringing the dwell shows (tapcell.tap.stage.dwell_ringing), against the white noise:
         measured once for the stage checks and z_sigma_um's ringing part."""
@@ -1154,7 +1159,8 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         window = model_window(split.time_s, split.force_g, split.motion, split.timing, delay_s, split.dec)
         fits = fit_contact_models(split, window, delay_s, options, result)
         result.z_line_mm = split.motion.z_halt_mm + window.break_line_um / 1000.0  # P4 mapped, delay-corrected
-        check_contact_heights(window, fits.pullback, fits.compression, split.motion, split.timing, split.dec)
+        check_contact_heights(window, fits.pullback, fits.compression, split.motion, split.timing,
+                              split.compression_placed)
         window_delay_s = delay_s  # the delay the window's heights were read with ("auto": 0, estimated now)
         delay_s = apply_delay_estimate(split, fits, delay_s, result)
         z_from_sharp_model_or_lines(split, fits, result)
@@ -1235,7 +1241,7 @@ def lag_before_the_fits(split: SplitTap, result: TapAnalysis) -> float:
     if timing.delay_from_halt:
         halt_lag_s = (lag_from_halt_s(split.dec.points[P_DWELL_START][0], split.motion.home_end_s,
                                       timing.sample_period_s, UNKNOWN_DELAY_ALLOWANCE_S)
-                      if compression_places_the_halt(split.dec, split.motion, timing) else None)
+                      if split.compression_placed else None)
         timing.delay_s = max(halt_lag_s - 0.5 * timing.integration_s, 0.0) if halt_lag_s is not None else 0.0
     delay_s = 0.0 if timing.estimate_delay else timing.delay_s
     result.sensor_delay_s = delay_s
@@ -1468,7 +1474,7 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
     window_um = speed_um_s * timing.integration_s
     halt_sigma_s = (corner_time_sigma_s(split.ps, dec, COMPRESSION, dec.points[P_DWELL_START][0])
                     if timing.delay_from_halt else 0.0)
-    compression_placed = compression_places_the_halt(dec, motion, timing)
+    compression_placed = split.compression_placed
     if timing.delay_from_halt and not compression_placed:
         # No lag read off the halt (lag_before_the_fits): P2 lies anywhere in a conversion window.
         halt_sigma_s = math.hypot(halt_sigma_s if math.isfinite(halt_sigma_s) else 0.0,
