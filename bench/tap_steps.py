@@ -23,6 +23,7 @@ import time
 from collections.abc import Iterator
 from pathlib import Path
 
+from bench.analyze_same import tap_files
 from tapcell.tap import TapFileError, analysis
 from tapcell.tap.cli import options_from_settings
 from tapcell.tap.readers import read_tap_file
@@ -85,11 +86,7 @@ def step_times_us(taps: list, rounds: int) -> tuple[float, dict[str, float], flo
 
 
 def _taps(folder: Path) -> list:
-    taps = []
-    for path in sorted(folder.iterdir()):
-        if path.suffix in (".json", ".jsonl", ".csv") and path.name != "labels.jsonl":
-            taps += read_tap_file(path)
-    return taps
+    return [tap for path in tap_files(str(folder)) for tap in read_tap_file(path)]
 
 
 def main(argv: list[str]) -> int:
