@@ -127,6 +127,11 @@ def _set(**changes) -> Callable[[np.random.Generator], SweepSpec]:
     return lambda rng: _clean(rng, **changes)
 
 
+def _with_force(tap: dict, force_g) -> dict:
+    """The tap with its force samples replaced (each rounded to 5 decimals, as the transforms write them)."""
+    return {**tap, "force": [round(float(f), 5) for f in force_g]}
+
+
 def _samples_dropped(tap: dict, keep: np.ndarray) -> dict:
     """The tap with only the samples where `keep` holds (each kept sample's time, force and Z as they were)."""
     out = dict(tap)
@@ -166,7 +171,7 @@ def _force_scaled(factor: float) -> Callable[[dict, float, np.random.Generator],
     """Another load cell's gain (or its polarity): every force, and the trigger force it fired at,
     times `factor`. The same tap in other grams: its noise meets every gram threshold differently."""
     def transform(tap, _z_mm, _rng):
-        out = {**tap, "force": [round(float(f) * factor, 5) for f in tap["force"]]}
+        out = _with_force(tap, (float(f) * factor for f in tap["force"]))
         if isinstance(tap.get("probe"), dict) and tap["probe"].get("trigger_force") is not None:
             out["probe"] = {**tap["probe"], "trigger_force": abs(float(tap["probe"]["trigger_force"]) * factor)}
         return out
@@ -179,13 +184,13 @@ def _force_clipped(share: float) -> Callable[[dict, float, np.random.Generator],
     def transform(tap, _z_mm, _rng):
         force = np.asarray(tap["force"], dtype=float)
         limit_g = share * float(np.max(np.abs(force)))
-        return {**tap, "force": [round(float(f), 5) for f in np.clip(force, -limit_g, limit_g)]}
+        return _with_force(tap, np.clip(force, -limit_g, limit_g))
     return transform
 
 
 def _force_offset(grams: float) -> Callable[[dict, float, np.random.Generator], dict]:
     """A tare left off by `grams` (a constant added to every force sample)."""
-    return lambda tap, _z_mm, _rng: {**tap, "force": [round(float(f) + grams, 5) for f in tap["force"]]}
+    return lambda tap, _z_mm, _rng: _with_force(tap, (float(f) + grams for f in tap["force"]))
 
 
 def _later_by(samples: int) -> Callable[[dict, float, np.random.Generator], dict]:
@@ -249,7 +254,7 @@ def _mains_hum(grams: tuple[float, float, float]) -> Callable[[dict, float, np.r
         mains_hz = float(rng.choice((50.0, 60.0)))
         hum = sum(g * np.sin(2.0 * math.pi * mains_hz * (h + 1) * t + rng.uniform(0.0, 2.0 * math.pi))
                   for h, g in enumerate(grams))
-        return {**tap, "force": [round(float(f), 5) for f in np.asarray(tap["force"], dtype=float) + hum]}
+        return _with_force(tap, np.asarray(tap["force"], dtype=float) + hum)
     return transform
 
 
@@ -272,7 +277,7 @@ def _sprung_stage(travel_um: float, share: float) -> Callable[[dict, float, np.r
         force = np.asarray(tap["force"], dtype=float)
         pressed_um = np.clip((z_mm + travel_um / 1000.0 - z) * 1000.0, 0.0, travel_um)
         out = force + share * _bed_g_per_um(force, z, z_mm) * pressed_um
-        return {**tap, "force": [round(float(f), 5) for f in out]}
+        return _with_force(tap, out)
     return transform
 
 
@@ -296,7 +301,7 @@ def _gantry_ringing(amplitude_um: tuple[float, float]) -> Callable[[dict, float,
             ring_um[after] += a * np.exp(-(t[after] - t0) / tau_s) * np.sin(2.0 * math.pi * hz * (t[after] - t0))
         in_contact = z < z_mm
         out = force + np.where(in_contact, g_per_um * ring_um, 0.0)
-        return {**tap, "force": [round(float(f), 5) for f in out]}
+        return _with_force(tap, out)
     return transform
 
 
@@ -425,7 +430,7 @@ def _with_ramp(tap: dict, g_per_s: float, rng: np.random.Generator) -> dict:
         return tap
     t = np.asarray(tap["time"], dtype=float)
     ramp = float(rng.choice((-1.0, 1.0))) * g_per_s * (t - t[0])
-    return {**tap, "force": [round(float(f), 5) for f in np.asarray(tap["force"], dtype=float) + ramp]}
+    return _with_force(tap, np.asarray(tap["force"], dtype=float) + ramp)
 
 
 def _averaged(tap: dict, block: int) -> dict:
