@@ -116,8 +116,11 @@ def test_bad_arrays_are_errors_not_garbage():
         hum._C.screen(t, force.astype(np.float32), np.array([50.0]), *args)
     with pytest.raises(ValueError, match="span no time"):
         hum._C.screen(np.zeros(100), force, np.array([50.0]), *args)
-    with pytest.raises(ValueError, match="padded length 197, at least 198 needed"):
+    with pytest.raises(ValueError, match="padded length 197, from 198 to 396 allowed"):
         hum._C.screen(t, force, np.array([50.0]), 197, *args[1:])
+    for too_long in (397, 2 ** 61):  # the scratch's size overflowed at 2**61 (a crash) before the bound
+        with pytest.raises(ValueError, match=f"padded length {too_long}, from 198 to 396 allowed"):
+            hum._C.screen(t, force, np.array([50.0]), too_long, *args[1:])
 
 
 # The fit's exact parts: the same arithmetic in the same order, so bit for bit (np.array_equal).

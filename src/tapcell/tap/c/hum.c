@@ -163,8 +163,10 @@ static PyObject *screen(PyObject *self, PyObject *args)
         goto done;
     }
     /* steps, |steps| (the median's scratch), the cut marks, the bins read, the floor's scratch */
-    if (padded < 2 * m) {
-        PyErr_Format(PyExc_ValueError, "screen: padded length %zd, at least %zd needed", padded, 2 * m);
+    /* At most 4m: the twin's length (the next 2^a 3^b 5^c from 2m: a power of two lies below 4m) and
+     * the bound that keeps the scratch's size from overflowing. */
+    if (padded < 2 * m || padded > 4 * m) {
+        PyErr_Format(PyExc_ValueError, "screen: padded length %zd, from %zd to %zd allowed", padded, 2 * m, 4 * m);
         goto done;
     }
     const Py_ssize_t bins = padded / 2 + 1;
