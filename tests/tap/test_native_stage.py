@@ -150,6 +150,12 @@ def test_the_kernel_refuses_wrong_arrays():
     with pytest.raises(TypeError):
         stage._C.two_stage_grid(x.astype(np.float32), x, stage.TWO_STAGE_HINGES_UM, stage.TWO_STAGE_SPANS_UM,
                                 10.0, 1.0, 1.0, 15.0, 1.0, 5.0, 0.08, 0.5)
+    # The grid takes its spans from the first long enough on: spans out of order would let it fit a
+    # shorter one (reversed, shortest 15 um: a 9 um span chosen, where the twin leaves it out).
+    for spans in (stage.TWO_STAGE_SPANS_UM[::-1], np.array([2.0, 5.0, 5.0, 9.0])):
+        with pytest.raises(ValueError, match="spans_um: the spans must rise"):
+            stage._C.two_stage_grid(x, x, stage.TWO_STAGE_HINGES_UM, np.ascontiguousarray(spans),
+                                    10.0, 1.0, 1.0, 15.0, 1.0, 15.0, 0.08, 0.5)
 
 
 def test_the_one_stage_toe_grid_equals_the_numpy_twin(fits, monkeypatch):
@@ -280,6 +286,8 @@ def test_the_fit_refuses_output_arrays_it_cannot_fill():
             stage.TWO_STAGE_SPANS_UM, stage.TWO_STAGE_MIN_SOFT_SHARE, stage.TWO_STAGE_MAX_SOFT_SHARE, False)
     with pytest.raises(ValueError, match="x_out"):
         stage._C.two_stage_fit(*args, np.empty(len(x) - 1), np.empty(len(x)))
+    with pytest.raises(ValueError, match="force_out"):
+        stage._C.two_stage_fit(*args, np.empty(len(x)), np.empty(len(x) - 1))
     readonly = np.empty(len(x))
     readonly.flags.writeable = False
     with pytest.raises((ValueError, BufferError)):

@@ -336,7 +336,8 @@ static PyObject *grid_answer(int status, const GridFit *fit)
 }
 
 /* The samples' and the grid's arrays of two_stage_grid and two_stage_fit: 0 with an exception set
- * when one is not float64 of the size expected, or the grid has no hinge or span. */
+ * when one is not float64 of the size expected, or the grid has no hinge or span, or its spans do
+ * not rise. */
 static int grid_arrays(const Py_buffer *xb, const Py_buffer *fb, const Py_buffer *hb, const Py_buffer *sb,
                        const double **x, const double **f, Py_ssize_t *n, const double **hinge_offsets,
                        Py_ssize_t *hinges, const double **span_offsets, Py_ssize_t *spans)
@@ -350,6 +351,12 @@ static int grid_arrays(const Py_buffer *xb, const Py_buffer *fb, const Py_buffer
         PyErr_SetString(PyExc_ValueError, "the two-stage grid needs hinges and spans");
         return 0;
     }
+    /* grid_fit takes the spans from the first at least shortest_um on: they must rise (np.arange) */
+    for (Py_ssize_t b = 1; b < *spans; b++)
+        if (!((*span_offsets)[b] > (*span_offsets)[b - 1])) {
+            PyErr_SetString(PyExc_ValueError, "spans_um: the spans must rise");
+            return 0;
+        }
     return 1;
 }
 
