@@ -222,3 +222,11 @@ def test_a_sprung_stage_adds_its_force_above_the_contact_and_moves_the_truth_up(
     between = ~above & ~bottomed
     assert np.count_nonzero(between) > 10
     assert np.allclose(added[between], 0.1 * g_per_um * (top_mm - z[between]) * 1000.0, atol=1e-5)
+
+
+def test_an_accepted_tap_far_off_at_many_sigma_is_found(reference_dir):
+    """The far-off finding reports what it measures: on the approximate 20 µm sprung stage (seed 1,
+    20 taps) the three accepted taps read 19.7, 16.6 and 12.8 µm below the first touch at 16.7, 14.6
+    and 3.5 σ; the first two pass both of `far_off`'s bars (5 µm, 4 σ), the third not the σ's."""
+    results = sweep([CASE["ref_stage20"]], seed=1, count=20, reference_dir=reference_dir, kalico=None, scratch=None)
+    assert findings(results) == ["(4) ref_stage20: 2 accepted tap(s) over 5 µm and 4 σ off, worst -19.7 µm at 16.7 σ"]

@@ -134,10 +134,21 @@ def test_emergency_stop_during_a_long_move_stops_the_steppers(tmp_path):
     assert vp.position[0] == x_mm
 
 
+def _handler_before(_signum, _frame):  # SIGINT's handler before the console: none Python would pick
+    raise AssertionError("SIGINT reached the handler the console found")
+
+
 def test_ctrl_c_in_the_console_is_an_emergency_stop(tmp_path, capsys):
-    # What SIGINT did before: Python's KeyboardInterrupt, or ignored where the test run was started in
-    # the background of a non-interactive shell (which starts it with SIGINT ignored).
-    handler_before = signal.getsignal(signal.SIGINT)
+    # A handler of the test's own before the console, so that giving back Python's default (or the
+    # ignored one a test run started in a shell's background has) cannot pass for giving back this.
+    previous = signal.signal(signal.SIGINT, _handler_before)
+    try:
+        _console_stops_and_gives_ctrl_c_back(tmp_path, capsys)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def _console_stops_and_gives_ctrl_c_back(tmp_path, capsys):
     printer, _ = make_printer(tmp_path)
     printer.gcode.set_response_sink(frontend._print_line)
 
@@ -152,7 +163,7 @@ def test_ctrl_c_in_the_console_is_an_emergency_stop(tmp_path, capsys):
     assert out[0] == f"!! {frontend.CONSOLE_STOP_REASON}"
     assert out[2] == f"!! {frontend.CONSOLE_STOP_REASON}"  # G1 X100 is refused with the same message
     assert printer.backend.halted_at_s is not None and printer.backend.position[0] < 111.0
-    assert signal.getsignal(signal.SIGINT) is handler_before  # the console gives Ctrl-C back as it found it
+    assert signal.getsignal(signal.SIGINT) is _handler_before  # the console gives Ctrl-C back as it found it
 
 
 def test_ctrl_c_during_tapcell_run_stops_the_file(tmp_path, capsys):
