@@ -397,6 +397,23 @@ def test_the_window_noise_is_measured_again_where_the_hum_was_removed():
     assert fitted >= 3
 
 
+def test_the_window_noise_is_the_twins_where_the_window_is_cut_short():
+    # The spike repair measured every sample; it stands for the window's noise only where the window
+    # is every sample. Where the window starts after the first sample or ends before the last (6 of
+    # the 30 generated taps), the window is measured again, as the twins measure it.
+    options = analysis.AnalysisOptions()
+    cut = 0
+    for tap in generated_taps():
+        fast, twin = _twins(lambda: analysis.analyze_tap(tap))
+        assert fast.noise_sigma_g == twin.noise_sigma_g
+        try:
+            split = analysis.split_tap(tap, options)[0]
+        except analysis.TapInvalid:
+            continue
+        cut += not (split.dec.start == 0 and split.dec.stop == len(split.force_g))
+    assert cut >= 3
+
+
 def test_the_force_at_a_time_is_the_twins_median_of_the_samples_up_to_it():
     # The first sample at or after the time and the END_SAMPLES before it: before the first sample (one
     # value), on a sample's time, between two (an even count: the middle two's mean), past the end (the
