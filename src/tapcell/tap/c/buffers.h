@@ -1,8 +1,10 @@
 /* Shared by the analysis kernels: float64 arrays in and out through the buffer protocol.
  *
- * Arrays come as numpy float64 arrays (C-contiguous): "O&" with `float64_buffer` checks the type
- * ("y*" / "w*" in PyArg_ParseTuple give a Py_buffer of any bytes). These checks turn a wrong dtype or length into a ValueError naming the argument
- * (a programming error in the caller, never data: the Python side has validated the tap). */
+ * Arrays come as numpy float64 arrays (C-contiguous): "O&" with `float64_buffer` (read) or
+ * `float64_out` (written: a read-only one refused) checks the type ("y*" / "w*" in
+ * PyArg_ParseTuple give a Py_buffer of any bytes). These checks turn a wrong dtype or length into
+ * an error naming the argument (a programming error in the caller, never data: the Python side
+ * has validated the tap). */
 #ifndef TAPCELL_BUFFERS_H
 #define TAPCELL_BUFFERS_H
 
@@ -11,18 +13,17 @@
 #include <math.h>
 #include <string.h>
 
-/* A "O&" converter for PyArg_ParseTuple: `object` as a C-contiguous float64 buffer in the
- * Py_buffer `view` points to, else a TypeError naming what it is (an int array of the same byte
- * size would otherwise be read as garbage). Release the view with PyBuffer_Release; parsing that fails
- * on a later argument releases it. */
-static inline int float64_buffer(PyObject *object, void *view)
+/* `object` as a C-contiguous float64 buffer (with `flags` beyond those) in the Py_buffer `view`
+ * points to, else a TypeError naming what it is (an int array of the same byte size would
+ * otherwise be read as garbage): the "O&" converters below. */
+static inline int float64_view(PyObject *object, void *view, int flags)
 {
     Py_buffer *buffer = view;
     if (object == NULL) { /* a later argument failed: release this one (Py_CLEANUP_SUPPORTED) */
         PyBuffer_Release(buffer);
         return 1;
     }
-    if (PyObject_GetBuffer(object, buffer, PyBUF_FORMAT | PyBUF_C_CONTIGUOUS) < 0) return 0;
+    if (PyObject_GetBuffer(object, buffer, flags | PyBUF_FORMAT | PyBUF_C_CONTIGUOUS) < 0) return 0;
     const char *format = buffer->format ? buffer->format : "B";
     if (format[0] == '<' || format[0] == '=' || format[0] == '@') format++;
     if (buffer->itemsize != (Py_ssize_t)sizeof(double) || strcmp(format, "d") != 0) {
@@ -31,6 +32,19 @@ static inline int float64_buffer(PyObject *object, void *view)
         return 0;
     }
     return Py_CLEANUP_SUPPORTED;
+}
+
+/* A "O&" converter for PyArg_ParseTuple: a float64 array read (`float64_view`). Release the view with
+ * PyBuffer_Release; parsing that fails on a later argument releases it. */
+static inline int float64_buffer(PyObject *object, void *view)
+{
+    return float64_view(object, view, PyBUF_SIMPLE);
+}
+
+/* The same for a float64 array the kernel writes: a read-only one is refused (numpy's ValueError). */
+static inline int float64_out(PyObject *object, void *view)
+{
+    return float64_view(object, view, PyBUF_WRITABLE);
 }
 
 /* The buffer as doubles: its count in *n, NULL (ValueError set) when its size is not whole doubles. */

@@ -442,7 +442,7 @@ static PyObject *two_stage_fit(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "O&O&dddnddddO&O&ddpO&O&", float64_buffer, &xb, float64_buffer, &fb, &contact_um,
                           &below_um, &above_um, &min_samples, &noise_var, &window_um, &min_span_um,
                           &min_span_windows, float64_buffer, &hb, float64_buffer, &sb, &min_share, &max_share,
-                          &drift_held, float64_buffer, &xo_b, float64_buffer, &fo_b))
+                          &drift_held, float64_out, &xo_b, float64_out, &fo_b))
         return NULL;
     PyObject *answer = NULL;
     double *xs = NULL, *fs = NULL, *xc = NULL, *steps = NULL;
@@ -454,10 +454,6 @@ static PyObject *two_stage_fit(PyObject *self, PyObject *args)
     double *x_out = doubles_sized(&xo_b, n_all, "x_out");
     double *f_out = x_out ? doubles_sized(&fo_b, n_all, "force_out") : NULL;
     if (f_out == NULL) goto done;
-    if (xo_b.readonly || fo_b.readonly) {
-        PyErr_SetString(PyExc_ValueError, "x_out and force_out must be writable");
-        goto done;
-    }
     const double low = contact_um - below_um, high = contact_um + above_um;
     Py_ssize_t n = 0;
     for (Py_ssize_t i = 0; i < n_all; i++) n += x_all[i] > low && x_all[i] < high;
@@ -657,8 +653,8 @@ static PyObject *departure_near(PyObject *self, PyObject *args)
     Py_buffer buffers[3], xo_b = {0}, fo_b = {0};
     double drift_g_um, low_um, high_um;
     if (!PyArg_ParseTuple(args, "O&O&O&dddO&O&", float64_buffer, &buffers[0], float64_buffer, &buffers[1],
-                          float64_buffer, &buffers[2], &drift_g_um, &low_um, &high_um, float64_buffer, &xo_b,
-                          float64_buffer, &fo_b))
+                          float64_buffer, &buffers[2], &drift_g_um, &low_um, &high_um, float64_out, &xo_b,
+                          float64_out, &fo_b))
         return NULL;
     PyObject *answer = NULL;
     Py_ssize_t n = 0;
@@ -668,10 +664,6 @@ static PyObject *departure_near(PyObject *self, PyObject *args)
     double *force_out = x_out ? doubles_sized(&fo_b, n, "force_out") : NULL;
     if (force_out == NULL)
         goto done;
-    if (xo_b.readonly || fo_b.readonly) {
-        PyErr_SetString(PyExc_ValueError, "x_out and force_out must be writable");
-        goto done;
-    }
     double *widths = malloc(sizeof(double) * (size_t)(n > 0 ? n : 1));
     if (widths == NULL) {
         PyErr_NoMemory();

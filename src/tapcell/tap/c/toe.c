@@ -1145,7 +1145,7 @@ static PyObject *free_air_model(PyObject *self, PyObject *args)
     Py_ssize_t n, count;
     PyObject *lag_tuple;
     Py_buffer mb = {0};
-    if (!PyArg_ParseTuple(args, "nO!O&", &n, &PyTuple_Type, &lag_tuple, float64_buffer, &mb))
+    if (!PyArg_ParseTuple(args, "nO!O&", &n, &PyTuple_Type, &lag_tuple, float64_out, &mb))
         return NULL;
     PyObject *result = NULL;
     double *values = NULL;
@@ -1155,10 +1155,6 @@ static PyObject *free_air_model(PyObject *self, PyObject *args)
     double *model = doubles_sized(&mb, 4 * count, "model");
     if (model == NULL)
         goto done;
-    if (mb.readonly) {
-        PyErr_SetString(PyExc_ValueError, "model: a read-only array");
-        goto done;
-    }
     int found = expected_variogram(n, lags, count, &values);
     if (found < 0)
         goto done;
