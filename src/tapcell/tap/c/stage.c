@@ -35,11 +35,15 @@ static Py_ssize_t count_below(const double *x, Py_ssize_t n, double value)
     return lo;
 }
 
-/* count_below(x, n, value) for a value not below the one `known` was counted for (a row of the grid
- * rises): from there on, a sample's step at a time (the grid's 1 µm against samples 0.3-25 µm apart:
- * a step or two, where the binary search takes seven). The same count, so the same sums. */
-static Py_ssize_t count_below_from(const double *x, Py_ssize_t n, Py_ssize_t known, double value)
+/* count_below(x, n, value), given the count `known` of a nearby value (the last top, hinge or
+ * contact of a grid that rises): where every sample below `known` is below `value` too, counted on
+ * from there a sample's step at a time (the grid's 1 µm against samples 0.3-25 µm apart: a step or
+ * two, where the binary search takes seven); else the binary search below `known`. The same count,
+ * so the same sums, in whatever order the grid comes. */
+static Py_ssize_t count_below_near(const double *x, Py_ssize_t n, Py_ssize_t known, double value)
 {
+    if (known > n) known = n;
+    if (known > 0 && !(x[known - 1] < value)) return count_below(x, known, value);
     while (known < n && x[known] < value) known++;
     return known;
 }
@@ -111,8 +115,7 @@ static PyObject *soft_stage(PyObject *self, PyObject *args)
     Py_ssize_t best = -1, count = 0;
     for (Py_ssize_t k = 0; k < n_tops; k++) {
         const double top = tops[k];
-        /* the tops rise (np.arange): count on from the last one's (the same count as a binary search) */
-        count = (k > 0 && top >= tops[k - 1]) ? count_below_from(x, n, count, top) : count_below(x, n, top);
+        count = count_below_near(x, n, count, top); /* the tops rise (np.arange): on from the last one's */
         const double *row = prefix + 4 * count;
         const double below = (double)count;
         const double sum_r = top * below - row[0];
@@ -231,13 +234,11 @@ static int grid_fit(const double *x, const double *f, Py_ssize_t n, const double
     double least = INFINITY, best_share = 0.0, best_hinge_gain = 0.0;
     Py_ssize_t best = -1;
     /* The hinges rise (np.arange), and with them each row's first top: both counts go on from the
-     * last row's, as the tops along a row do (the same counts as a binary search) */
+     * last row's, as the tops along a row do */
     Py_ssize_t below_hinge = 0, below_first_top = 0;
-    double first_top_before = INFINITY;
     for (Py_ssize_t a = 0; a < hinges; a++) {
         const double hinge = contact_um + hinge_offsets[a];
-        below_hinge = (a > 0 && hinge >= contact_um + hinge_offsets[a - 1])
-                          ? count_below_from(x, n, below_hinge, hinge) : count_below(x, n, hinge);
+        below_hinge = count_below_near(x, n, below_hinge, hinge);
         const double *h_row = prefix + 5 * below_hinge;
         const Sums h = {h_row[0], h_row[1], h_row[2], h_row[3], h_row[4]};
         const double su = hinge * h.s0 - h.s1;
@@ -251,21 +252,13 @@ static int grid_fit(const double *x, const double *f, Py_ssize_t n, const double
             row_tops[b] = hinge + span_offsets[b];
             row_rss[b] = INFINITY;
         }
-        /* Each allowed top's prefix sums; the tops along a row rise with the spans: count on from the
-         * last one */
+        /* Each allowed top's prefix sums; the tops along a row rise with the spans: counted on from
+         * the last one (the first from the last row's first) */
         Py_ssize_t below_top = 0;
         for (Py_ssize_t c = 0; c < cells; c++) {
             const double top = row_tops[first_span + c];
-            if (c > 0 && top >= row_tops[first_span + c - 1])
-                below_top = count_below_from(x, n, below_top, top);
-            else if (c == 0 && a > 0 && top >= first_top_before)
-                below_top = count_below_from(x, n, below_first_top, top);
-            else
-                below_top = count_below(x, n, top);
-            if (c == 0) {
-                below_first_top = below_top;
-                first_top_before = top;
-            }
+            below_top = count_below_near(x, n, c > 0 ? below_top : below_first_top, top);
+            if (c == 0) below_first_top = below_top;
             const double *t = prefix + 5 * below_top;
             t0[c] = t[0];
             t1[c] = t[1];
@@ -587,20 +580,13 @@ static PyObject *one_stage_rss(PyObject *self, PyObject *args)
     for (Py_ssize_t w = 0; w < widths; w++) {
         const double width = fmax(width_list[w], 1e-9);
         Py_ssize_t pressed = 0, deep = 0;
-        double last_contact = -INFINITY;
         for (Py_ssize_t c = 0; c < contacts; c++) {
             const double contact = contact_um + offsets[c];
             /* [0, linear): pressed a width deep or more; [linear, pressed): inside the toe. deep: the
              * samples below contact - width. The contacts rise (np.arange): both counts go on from
-             * the last contact's (the same counts as a binary search, a step or two on). */
-            if (c > 0 && contact >= last_contact) {
-                pressed = count_below_from(x, n, pressed, contact);
-                deep = count_below_from(x, pressed, deep, contact - width);
-            } else {
-                pressed = count_below(x, n, contact);
-                deep = count_below(x, pressed, contact - width);
-            }
-            last_contact = contact;
+             * the last contact's. */
+            pressed = count_below_near(x, n, pressed, contact);
+            deep = count_below_near(x, pressed, deep, contact - width);
             Py_ssize_t linear = deep;
             while (linear < pressed && contact - x[linear] >= width) linear++;
             /* the depth over the width of each sample inside the toe, once for every shape */
