@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from tapcell.tap import native
-from tapcell.tap.angles import line_angles_deg
+from tapcell.tap.angles import ANGLE_SCALE_S_PER_G, line_angles_deg
 from tapcell.tap.context import recompute_points
 
 _C = native.load("segments")
@@ -235,7 +235,7 @@ def five_lines(time_s: np.ndarray, force_g: np.ndarray, phases_s: tuple[float, f
         # The kernel takes the sums' reference time and force as prefix_sums does (numpy's sum, bit for bit).
         sums, derived = np.empty((6, m + 1)), {}
         t_ref, f_ref, *found = _C.five_lines(time_s, force_g, *phases_s, lag_samples, release_lag_samples,
-                                             approach_share, sums, derived)
+                                             approach_share, ANGLE_SCALE_S_PER_G, sums, derived)
         return PrefixSums(t_ref, f_ref, sums, derived), *found
     ps = prefix_sums(time_s, force_g)
     home_end, pull_start, pull_cruise = np.minimum(time_s.searchsorted(phases_s), m - 1).tolist()

@@ -16,7 +16,6 @@
 
 #define MIN_SEGMENT_SAMPLES 2.0
 #define SUM_ROWS 6
-#define ANGLE_SCALE_S_PER_G 0.004 /* angles.py: 0.1 s of time against 25 g of force */
 
 /* The prefix sums: SUM_ROWS rows (count, Σt, Σf, Σt², Σtf, Σf²) of `columns` values each. */
 typedef struct {
@@ -440,7 +439,7 @@ static void intersect(double a_slope, double a_intercept, double b_slope, double
 
 PyDoc_STRVAR(five_lines_doc,
              "five_lines(time_s, force_g, halt_s, pullback_start_s, pullback_cruise_s,\n"
-             "           lag_samples, release_lag_samples, approach_share, sums, derived)\n"
+             "           lag_samples, release_lag_samples, approach_share, angle_scale_s_per_g, sums, derived)\n"
              "    -> (t_ref_s, f_ref_g, problem, bounds, lines, points, angles_deg)\n"
              "\n"
              "The five-line split of a window of samples in one call (segments.py `five_lines`, whose numpy\n"
@@ -449,7 +448,7 @@ PyDoc_STRVAR(five_lines_doc,
              "the force's mean by numpy's pairwise sum: `prefix_sums`' own, bit for bit), then\n"
              "`sums`, a (6, n + 1) float64 array, gets the prefix sums; problem 0\n"
              "with the four boundaries, the five lines, their six points and the four angles between them\n"
-             "(angles.line_angles_deg), and each line's segment_stats in the dict `derived` under (first, end);\n"
+             "(angles.line_angles_deg, its ANGLE_SCALE_S_PER_G given), and each line's segment_stats in the dict `derived` under (first, end);\n"
              "else one of segments.py's NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_FIVE and four None.\n"
              "All bit for bit the twin's arithmetic.");
 
@@ -457,12 +456,12 @@ static PyObject *five_lines(PyObject *self, PyObject *args)
 {
     (void)self;
     Py_buffer time_buffer, force_buffer, sums_buffer;
-    double halt_s, pull_start_s, pull_cruise_s, approach_share;
+    double halt_s, pull_start_s, pull_cruise_s, approach_share, angle_scale_s_per_g;
     Py_ssize_t lag, release_lag;
     PyObject *derived;
-    if (!PyArg_ParseTuple(args, "O&O&dddnndw*O!", float64_buffer, &time_buffer, float64_buffer, &force_buffer,
+    if (!PyArg_ParseTuple(args, "O&O&dddnnddw*O!", float64_buffer, &time_buffer, float64_buffer, &force_buffer,
                           &halt_s, &pull_start_s, &pull_cruise_s, &lag, &release_lag,
-                          &approach_share, &sums_buffer, &PyDict_Type, &derived))
+                          &approach_share, &angle_scale_s_per_g, &sums_buffer, &PyDict_Type, &derived))
         return NULL;
     PyObject *result = NULL;
     Py_ssize_t m = 0;
@@ -530,7 +529,7 @@ static PyObject *five_lines(PyObject *self, PyObject *args)
      * (math.degrees multiplies by 180 / π; both call the C library's atan), then consecutive differences. */
     double angle[5];
     for (int k = 0; k < 5; k++)
-        angle[k] = atan(slope[k] * ANGLE_SCALE_S_PER_G) * (180.0 / Py_MATH_PI);
+        angle[k] = atan(slope[k] * angle_scale_s_per_g) * (180.0 / Py_MATH_PI);
     result = Py_BuildValue("(ddi(nnnn)[(dd)(dd)(dd)(dd)(dd)][(dd)(dd)(dd)(dd)(dd)(dd)][dddd])", t_ref_s, f_ref_g, 0,
                            found[0], found[1], found[2], found[3], slope[0], intercept[0], slope[1], intercept[1],
                            slope[2], intercept[2], slope[3], intercept[3], slope[4], intercept[4], point_t[0],

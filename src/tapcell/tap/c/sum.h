@@ -11,7 +11,7 @@
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
 
-static double pairwise_sum_of(const double *values, Py_ssize_t n, Py_ssize_t stride)
+static inline double pairwise_sum_of(const double *values, Py_ssize_t n, Py_ssize_t stride)
 {
     if (n < 8) {
         double sum = 0.0;
