@@ -102,3 +102,14 @@ def test_a_check_names_the_taps_whose_lines_differ(tmp_path, capsys, monkeypatch
     assert analyze_same.main(["check", str(tmp_path / "rec"), str(taps)]) == 1
     out = capsys.readouterr().out
     assert "0 of 3 taps differ" in out and "outside the taps' lines: exit 0" in out
+
+
+def test_more_differing_taps_than_are_shown_are_counted(capsys):
+    # 25 taps differ: the first SHOWN_DIFFERENCES (20) by name, in order, then how many more.
+    before = b"[\n" + b"".join(b'{"file": "t%02d.json", "z": 1}\n' % i for i in range(30)) + b"]\n"
+    now = before.replace(b'"z": 1}\n', b'"z": 2}\n', 25)
+    analyze_same._print_differences(before, now)
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[0] == "  25 of 30 taps differ"
+    assert [line.strip() for line in lines[1:21]] == [f"t{i:02d}.json" for i in range(20)]
+    assert lines[21:] == ["    ... and 5 more"]
