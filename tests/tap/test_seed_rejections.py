@@ -184,6 +184,46 @@ def test_the_frame_that_stands_out_most_is_repaired_first(seed, k):
     assert_measured(analyze_tap(tap), z_true_mm)
 
 
+def _repaired_by_kernel_and_twin(force: np.ndarray) -> list[list[int]]:
+    """The samples repair_spikes changes, with the kernel (when built) and with its numpy twin."""
+    threshold_sigma = AnalysisOptions().outlier_sigma
+    changed = []
+    for kernel in {analysis._C, None}:
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(analysis, "_C", kernel)
+            repaired, count = analysis.repair_spikes(force, threshold_sigma)
+        changed.append(np.flatnonzero(repaired != force).tolist())
+        assert count == len(changed[-1])
+    return changed
+
+
+def test_of_two_neighbours_standing_out_the_frame_is_repaired():
+    # Seed 17 corrupt frames k 9 (tap-0205): a frame at -152.2 g on the ramp into the halt, between
+    # -1.2 g and the honest -108.3 g, the halt's -166.6 g after. Judged against the frame, the honest
+    # sample stands 51 g off its neighbours' midpoint (its neighbours 14 g apart: a lone spike), more
+    # than the frame's 44 g outside its own; repaired first, it left the frame in place and the split
+    # put contact 151 um above break contact: TAP_CONTACT_MISMATCH.
+    tap, z_true_mm, corrupted = corrupt_tap(17, 9)
+    force = np.asarray(tap.force_g, float)
+    assert corrupted == [60, 185] and force[59:63] == pytest.approx([-1.2, -152.2, -108.3, -166.6], abs=0.05)
+    assert all(changed == corrupted for changed in _repaired_by_kernel_and_twin(force))
+    assert_measured(analyze_tap(tap), z_true_mm)
+
+
+@pytest.mark.parametrize("reversed_in_time", [False, True])
+def test_the_frame_beside_an_honest_ramp_sample_is_told_by_the_smoother_repair(reversed_in_time):
+    # The same shape made by hand, either way round in time (which of the two comes first decides
+    # nothing): free air, a ramp of 55 g a sample into a plateau at -170 g, the ramp's first
+    # sample a frame at -152 g.
+    rng = np.random.default_rng(17)
+    force = np.concatenate([np.zeros(30), [-55.0, -110.0, -165.0], np.full(30, -170.0)]) + rng.normal(0.0, 1.0, 63)
+    force[30] = -152.0
+    frame = 30
+    if reversed_in_time:
+        force, frame = force[::-1].copy(), len(force) - 1 - frame
+    assert all(changed == [frame] for changed in _repaired_by_kernel_and_twin(force))
+
+
 def neighbours_agree_spikes(force: np.ndarray, threshold_sigma: float) -> list[int]:
     """The repair's first rule alone (all it had before): off the neighbours' midpoint by more than
     the threshold and by more than twice the neighbours' gap."""

@@ -127,6 +127,39 @@ static double spike_pair_g(const double *f, Py_ssize_t n, Py_ssize_t k, double t
     return 0.0;
 }
 
+/* The sum of |second differences| at samples lo..hi with sample k replaced by its neighbours' mean
+ * (`_roughness_repaired`). */
+static double roughness_repaired(const double *f, Py_ssize_t k, Py_ssize_t lo, Py_ssize_t hi)
+{
+    const double repaired = 0.5 * (f[k - 1] + f[k + 1]);
+    double sum = 0.0;
+    for (Py_ssize_t i = lo; i <= hi; i++) {
+        const double before = i - 1 == k ? repaired : f[i - 1], at = i == k ? repaired : f[i];
+        const double after = i + 1 == k ? repaired : f[i + 1];
+        sum += fabs(before - 2.0 * at + after);
+    }
+    return sum;
+}
+
+/* Of the lone spike k and a neighbour that stands out as one too, the one whose repair leaves the
+ * five samples about k smoother (`_frame_among_neighbours`). */
+static Py_ssize_t frame_among_neighbours(const double *f, Py_ssize_t n, Py_ssize_t k, const char *spike,
+                                         double threshold)
+{
+    const Py_ssize_t lo = k - 2 > 1 ? k - 2 : 1, hi = k + 2 < n - 2 ? k + 2 : n - 2;
+    Py_ssize_t best = k;
+    double best_roughness = roughness_repaired(f, k, lo, hi);
+    for (Py_ssize_t j = k - 1; j <= k + 1; j += 2) {
+        if (j < 1 || j > n - 2 || spike[j] || lone_spike_g(f, n, j, threshold) == 0.0) continue;
+        const double roughness = roughness_repaired(f, j, lo, hi);
+        if (roughness < best_roughness) {
+            best = j;
+            best_roughness = roughness;
+        }
+    }
+    return best;
+}
+
 static int is_step(const double *force_g, Py_ssize_t i, double threshold)
 {
     return fabs(force_g[i + 1] - force_g[i]) > threshold;
@@ -134,10 +167,10 @@ static int is_step(const double *force_g, Py_ssize_t i, double threshold)
 
 /* The twin's loop: candidates are the samples off their neighbours' midpoint and the pairs between
  * two steps (both found once, in the force as given, as the twin's lists); the one that stands out
- * the most is repaired first in f (a copy of force_g), the rest judged again, until none stands
- * out. spike marks the repaired samples; returns their count, or -1 (MemoryError set). */
+ * the most is repaired first in f (a copy of force_g; or, with weigh_neighbours, the neighbour whose
+ * repair leaves the samples smoother), the rest judged again, until none stands out. spike marks the repaired samples; returns their count, or -1 (MemoryError set). */
 static Py_ssize_t repair_in_copy(const double *force_g, double *f, char *spike, Py_ssize_t n, const double *off_mid,
-                                 double threshold)
+                                 double threshold, int weigh_neighbours)
 {
     Py_ssize_t *suspects = malloc(2 * (size_t)n * sizeof(Py_ssize_t));
     if (suspects == NULL) {
@@ -174,6 +207,7 @@ static Py_ssize_t repair_in_copy(const double *force_g, double *f, char *spike, 
         if (best_width == 0) break;
         Py_ssize_t k = best_k;
         if (best_width == 1) {
+            if (weigh_neighbours) k = frame_among_neighbours(f, n, k, spike, threshold);
             f[k] = 0.5 * (f[k - 1] + f[k + 1]);
         } else {
             double gap = f[k + 2] - f[k - 1];
@@ -231,7 +265,9 @@ static Py_ssize_t repair_spikes_into(const double *force_g, Py_ssize_t n, double
     double lowest, highest;
     span_of(force_g, n, &lowest, &highest);
     double threshold = fmax(fmax(threshold_sigma * noise_sigma_g, 1e-6 * (highest - lowest)), 1e-9);
-    Py_ssize_t count = repair_in_copy(force_g, repaired, spike, n, off_mid, threshold);
+    /* smoothness weighed against the noise only where the tap shows some (the twin's weigh_neighbours) */
+    const int weigh_neighbours = threshold_sigma * noise_sigma_g > 1e-6 * (highest - lowest);
+    Py_ssize_t count = repair_in_copy(force_g, repaired, spike, n, off_mid, threshold, weigh_neighbours);
     free(off_mid);
     return count;
 }
