@@ -282,13 +282,9 @@ def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarr
         if best_width == 0:
             break
         k = best_k
-        if best_width == 1:
-            if weigh_neighbours:
-                k = _frame_among_neighbours(f, k, spikes, threshold)
-            f[k] = 0.5 * (f[k - 1] + f[k + 1])
-        else:
-            gap = f[k + 2] - f[k - 1]
-            f[k], f[k + 1] = f[k - 1] + gap / 3.0, f[k - 1] + 2.0 * gap / 3.0
+        if best_width == 1 and weigh_neighbours:
+            k, best_width = _frame_among_neighbours(f, k, spikes, threshold)
+        f[k:k + best_width] = _repaired_values(f, k, best_width)
         spikes += range(k, k + best_width)
     if not spikes:
         return force_g, 0
@@ -317,33 +313,53 @@ def _lone_spike_g(f: list[float], k: int, threshold: float) -> float:
     return outside_g if outside_g > threshold else 0.0
 
 
-def _frame_among_neighbours(f: list[float], k: int, spikes: list[int], threshold: float) -> int:
-    """Of the lone spike k that stands out most and a neighbour that stands out as one too, the one
-    whose repair leaves the samples around smoother: the least sum of |second differences| over the
-    five samples about k. A frame's garbage can make its honest neighbour stand out more than itself:
-    taplab seed 17 corrupt frames k 9, a frame at -152 g on the ramp into the halt between -1 and
-    -108 g, beside the halt's -167 g, made the honest -108 g stand 51 g off its neighbours' midpoint,
-    more than the frame's 44 g outside its own; repaired, the honest sample left the frame in place
-    and the split read contact 151 um above break contact (TAP_CONTACT_MISMATCH). Repairing the frame
-    leaves the ramp straight (roughness 110 g), the honest sample a 151 g step (296 g)."""
+def _repaired_values(f: list[float], k: int, width: int) -> list[float]:
+    """What replaces a lone spike at k (its neighbours' mean) or a pair at k, k + 1 (the line between
+    the samples bracketing it)."""
+    if width == 1:
+        return [0.5 * (f[k - 1] + f[k + 1])]
+    gap = f[k + 2] - f[k - 1]
+    return [f[k - 1] + gap / 3.0, f[k - 1] + 2.0 * gap / 3.0]
+
+
+def _frame_among_neighbours(f: list[float], k: int, spikes: list[int], threshold: float) -> tuple[int, int]:
+    """Of the lone spike k that stands out most, a neighbour that stands out as a lone spike too, and
+    the pair of the two when it stands out as a pair, the repair (first sample, width) that leaves
+    the samples around smoother: the least sum of |second differences| over the five samples about k.
+
+    A frame's garbage can make its honest neighbour stand out more than itself: taplab seed 17
+    corrupt frames k 9, a frame at -152 g on the ramp into the halt between -1 and -108 g, beside the
+    halt's -167 g, made the honest -108 g stand 51 g off its neighbours' midpoint, more than the
+    frame's 44 g outside its own; repaired, the honest sample left the frame in place and the split
+    read contact 151 um above break contact (TAP_CONTACT_MISMATCH). Repairing the frame leaves the ramp
+    straight (roughness 110 g), the honest sample a 151 g step (296 g). And two frames in a row of
+    opposite signs each stand out alone by more than the pair does against its wider reach (seed 51
+    k 19: -165 and +164 g in free air; seed 53 k 19: -1317 and +3855 g in the dwell): repaired alone,
+    the first took its mean with the second and left it on the line through the two (LOW_TAP_QUALITY
+    misfit 85 %, TAP_CHRONOLOGY)."""
     lo, hi = max(1, k - 2), min(len(f) - 2, k + 2)
-    best, best_roughness = k, _roughness_repaired(f, k, lo, hi)
+    best, best_width, best_roughness = k, 1, _roughness_repaired(f, k, 1, lo, hi)
     for j in (k - 1, k + 1):
-        if j in spikes or not 1 <= j <= len(f) - 2 or _lone_spike_g(f, j, threshold) == 0.0:
+        if j in spikes or not 1 <= j <= len(f) - 2:
             continue
-        roughness = _roughness_repaired(f, j, lo, hi)
-        if roughness < best_roughness:
-            best, best_roughness = j, roughness
-    return best
+        options = [(j, 1)] if _lone_spike_g(f, j, threshold) > 0.0 else []
+        first = min(j, k)
+        if 2 <= first <= len(f) - 4 and _spike_pair_g(f, first, threshold) > 0.0:
+            options.append((first, 2))
+        for start, width in options:
+            roughness = _roughness_repaired(f, start, width, lo, hi)
+            if roughness < best_roughness:
+                best, best_width, best_roughness = start, width, roughness
+    return best, best_width
 
 
-def _roughness_repaired(f: list[float], k: int, lo: int, hi: int) -> float:
-    """The sum of |second differences| at samples lo..hi with sample k replaced by its neighbours' mean."""
-    g = f[lo - 1:hi + 2]
-    g[k - lo + 1] = 0.5 * (f[k - 1] + f[k + 1])
+def _roughness_repaired(f: list[float], k: int, width: int, lo: int, hi: int) -> float:
+    """The sum of |second differences| at samples lo..hi with the spike at k (`width` samples) repaired."""
+    window = f[lo - 1:hi + 2]
+    window[k - lo + 1:k - lo + 1 + width] = _repaired_values(f, k, width)
     roughness = 0.0  # summed in order, as the kernel sums (sum() compensates from Python 3.12)
-    for i in range(1, len(g) - 1):
-        roughness += abs(g[i - 1] - 2.0 * g[i] + g[i + 1])
+    for i in range(1, len(window) - 1):
+        roughness += abs(window[i - 1] - 2.0 * window[i] + window[i + 1])
     return roughness
 
 

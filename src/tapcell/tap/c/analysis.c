@@ -127,37 +127,69 @@ static double spike_pair_g(const double *f, Py_ssize_t n, Py_ssize_t k, double t
     return 0.0;
 }
 
-/* The sum of |second differences| at samples lo..hi with sample k replaced by its neighbours' mean
- * (`_roughness_repaired`). */
-static double roughness_repaired(const double *f, Py_ssize_t k, Py_ssize_t lo, Py_ssize_t hi)
+/* What replaces a lone spike at k (width 1: its neighbours' mean) or a pair at k, k + 1 (width 2: the
+ * line between the samples bracketing it), into values (`_repaired_values`). */
+static void repaired_values(const double *f, Py_ssize_t k, Py_ssize_t width, double values[2])
 {
-    const double repaired = 0.5 * (f[k - 1] + f[k + 1]);
-    double sum = 0.0;
-    for (Py_ssize_t i = lo; i <= hi; i++) {
-        const double before = i - 1 == k ? repaired : f[i - 1], at = i == k ? repaired : f[i];
-        const double after = i + 1 == k ? repaired : f[i + 1];
-        sum += fabs(before - 2.0 * at + after);
+    if (width == 1) {
+        values[0] = 0.5 * (f[k - 1] + f[k + 1]);
+    } else {
+        const double gap = f[k + 2] - f[k - 1];
+        values[0] = f[k - 1] + gap / 3.0;
+        values[1] = f[k - 1] + 2.0 * gap / 3.0;
     }
+}
+
+/* The sum of |second differences| at samples lo..hi with the spike at k (width samples) repaired
+ * (`_roughness_repaired`). */
+static double roughness_repaired(const double *f, Py_ssize_t k, Py_ssize_t width, Py_ssize_t lo, Py_ssize_t hi)
+{
+    double values[2];
+    repaired_values(f, k, width, values);
+    double window[7]; /* samples lo - 1 .. hi + 1: at most the five about k and one either side */
+    const Py_ssize_t count = hi - lo + 3;
+    for (Py_ssize_t i = 0; i < count; i++) {
+        const Py_ssize_t at = lo - 1 + i;
+        window[i] = at >= k && at < k + width ? values[at - k] : f[at];
+    }
+    double sum = 0.0;
+    for (Py_ssize_t i = 1; i + 1 < count; i++) sum += fabs(window[i - 1] - 2.0 * window[i] + window[i + 1]);
     return sum;
 }
 
-/* Of the lone spike k and a neighbour that stands out as one too, the one whose repair leaves the
- * five samples about k smoother (`_frame_among_neighbours`). */
+/* Of the lone spike k, a neighbour that stands out as a lone spike too and the pair of the two when
+ * it stands out as a pair, the repair that leaves the five samples about k smoother
+ * (`_frame_among_neighbours`): its first sample into *first, its width returned. */
 static Py_ssize_t frame_among_neighbours(const double *f, Py_ssize_t n, Py_ssize_t k, const char *spike,
-                                         double threshold)
+                                         double threshold, Py_ssize_t *first)
 {
     const Py_ssize_t lo = k - 2 > 1 ? k - 2 : 1, hi = k + 2 < n - 2 ? k + 2 : n - 2;
-    Py_ssize_t best = k;
-    double best_roughness = roughness_repaired(f, k, lo, hi);
+    Py_ssize_t best = k, best_width = 1;
+    double best_roughness = roughness_repaired(f, k, 1, lo, hi);
     for (Py_ssize_t j = k - 1; j <= k + 1; j += 2) {
-        if (j < 1 || j > n - 2 || spike[j] || lone_spike_g(f, n, j, threshold) == 0.0) continue;
-        const double roughness = roughness_repaired(f, j, lo, hi);
-        if (roughness < best_roughness) {
-            best = j;
-            best_roughness = roughness;
+        if (j < 1 || j > n - 2 || spike[j]) continue;
+        Py_ssize_t starts[2], widths[2];
+        int options = 0;
+        if (lone_spike_g(f, n, j, threshold) > 0.0) {
+            starts[options] = j;
+            widths[options++] = 1;
+        }
+        const Py_ssize_t pair = j < k ? j : k;
+        if (pair >= 2 && pair <= n - 4 && spike_pair_g(f, n, pair, threshold) > 0.0) {
+            starts[options] = pair;
+            widths[options++] = 2;
+        }
+        for (int o = 0; o < options; o++) {
+            const double roughness = roughness_repaired(f, starts[o], widths[o], lo, hi);
+            if (roughness < best_roughness) {
+                best = starts[o];
+                best_width = widths[o];
+                best_roughness = roughness;
+            }
         }
     }
-    return best;
+    *first = best;
+    return best_width;
 }
 
 static int is_step(const double *force_g, Py_ssize_t i, double threshold)
@@ -206,14 +238,10 @@ static Py_ssize_t repair_in_copy(const double *force_g, double *f, char *spike, 
         }
         if (best_width == 0) break;
         Py_ssize_t k = best_k;
-        if (best_width == 1) {
-            if (weigh_neighbours) k = frame_among_neighbours(f, n, k, spike, threshold);
-            f[k] = 0.5 * (f[k - 1] + f[k + 1]);
-        } else {
-            double gap = f[k + 2] - f[k - 1];
-            f[k] = f[k - 1] + gap / 3.0;
-            f[k + 1] = f[k - 1] + 2.0 * gap / 3.0;
-        }
+        if (best_width == 1 && weigh_neighbours) best_width = frame_among_neighbours(f, n, best_k, spike, threshold, &k);
+        double values[2];
+        repaired_values(f, k, best_width, values);
+        for (Py_ssize_t j = 0; j < best_width; j++) f[k + j] = values[j];
         for (Py_ssize_t j = k; j < k + best_width; j++) spike[j] = 1;
         count += best_width;
     }
