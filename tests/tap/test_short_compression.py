@@ -12,7 +12,7 @@ import math
 import pytest
 
 from bench.tap_sweep import CASES, analyse_in_process, case_taps, reference_taps
-from tapcell.tap.analysis import compression_places_the_halt, split_tap
+from tapcell.tap.analysis import compression_end_s, compression_places_the_halt, split_tap
 from tapcell.tap.model import AnalysisOptions
 from tapcell.tap.readers import tap_from_object
 
@@ -114,3 +114,23 @@ def test_heavy_ooze_pressing_a_film_is_still_a_contact_mismatch():
         assert _pressing_periods(tap) == pytest.approx(periods, abs=0.01)
         answer = analyse_in_process(tap)
         assert answer["error"] == "TAP_CONTACT_MISMATCH", (k, answer["message"])
+
+
+def test_a_one_sample_compression_ends_no_later_than_the_dwells_first_sample():
+    """taplab at 20 g/µm and 5 mm/s (the sweep's `k20`, seed 3, tap 37): one sample (87.5 g) between
+    free air and the dwell's 259 g. The split's compression line runs through a free-air sample and
+    that one, a third as steep as the real one, and meets the dwell 6.1 ms after the halt, past the
+    dwell's first sample (3.0 ms, already at 259.2 g). The lag read off P2, 4.5 ms, put the down
+    contact 22 µm high at 5 mm/s, 28.0 µm above break contact (22.1 allowed): TAP_CONTACT_MISMATCH.
+    Read off the dwell's first sample, 1.5 ms."""
+    tap, z_mm = case_taps(CASE["k20"], seed=3, count=38, reference_dir=None)[37]
+    split = split_tap(tap_from_object(tap), AnalysisOptions())[0]
+    contact, peak = split.dec.bounds[:2]
+    first_dwell_s = float(split.time_s[split.dec.start + peak])
+    assert peak - contact == 2 and split.dec.points[2][0] - first_dwell_s > 0.003
+    assert compression_end_s(split) == first_dwell_s
+    answer = analyse_in_process(tap)
+    assert answer["valid"], answer["message"]
+    assert answer["sensor_delay_s"] == pytest.approx(0.00147, abs=5e-5)
+    assert abs(_error_um(answer, z_mm)) < 1.0
+
