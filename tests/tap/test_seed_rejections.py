@@ -184,6 +184,21 @@ def test_the_frame_that_stands_out_most_is_repaired_first(seed, k):
     assert_measured(analyze_tap(tap), z_true_mm)
 
 
+def test_a_ten_sps_dwell_run_into_a_slow_pullback_is_split_again():
+    # Seed 59 hx711_10 k 19 (tap-0119): a one-sample dwell and a 0.01 mm/s pullback. The first split
+    # began the dwell at the halt but ran it 5 samples into the pullback (its lag allowance at 10 sps),
+    # where the force falls as slowly as a dwell relaxes: the dwell's line met the decompression's
+    # -0.3 deg apart, 2.3 s after the halt (TAP_SHAPE_INVALID). With the dwell on the motion's samples
+    # (ending one after the pullback's cruise) both checks pass.
+    tap, z_true_mm = seed_tap(59, "hx711_10", k=19)
+    split = first_split(tap)
+    cruise = int(split.time_s.searchsorted(split.motion.pullback_cruise_s))
+    assert in_time_order(split.dec.points) and not split_checks_pass(split.dec.points, split.dec.angles_deg)
+    assert split.dec.start + split.dec.bounds[2] > cruise + 1
+    assert abs(split.dec.angles_deg[2]) < 1.0
+    assert_measured(analyze_tap(tap), z_true_mm)
+
+
 def _repaired_by_kernel_and_twin(force: np.ndarray) -> list[list[int]]:
     """The samples repair_spikes changes, with the kernel (when built) and with its numpy twin (which
     repair them to the same values)."""

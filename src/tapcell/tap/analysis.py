@@ -479,7 +479,9 @@ def decompose_again(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag
     LAG_MARGIN_SAMPLES of the pullback's cruise, then with the dwell on the samples the motion gives
     it (DWELL_ON_THE_MOTION); the first in order, else the first split. Points in order but the
     lines' angles not a tap's: only when the split began the dwell before the first sample read
-    after the halt, the dwell on the motion's samples, kept when it passes both checks.
+    after the halt, or ran a dwell the motion gives one sample or none past the sample after the
+    pullback's cruise (taplab seed 59 10 sps k 19: into a 0.01 mm/s pullback), the dwell on the
+    motion's samples, kept when it passes both checks.
 
     Free air before the approach is flat in time, and a bowden or cable pulling in proportion to Z
     ramps during it: two lines, not one. When the compression lasts a sample or two (8.4 mm/s at
@@ -501,7 +503,13 @@ def decompose_again(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag
     """
     dec = first[0]
     if validate.in_time_order(dec.points):
-        if dec.start + dec.bounds[1] >= int(time_s.searchsorted(motion.home_end_s)):
+        halt, pullback = time_s.searchsorted((motion.home_end_s, motion.pullback_start_s)).tolist()
+        began_after_halt = dec.start + dec.bounds[1] >= halt
+        # A dwell the motion gives one sample or none (10 sps and a 0.1 s dwell) has no line of its own:
+        # run into a pullback as slow as a dwell relaxes, its line meets the decompression's at no angle.
+        ran_past_a_one_sample_dwell = (pullback - halt <= 1 and dec.start + dec.bounds[2]
+                                       > int(time_s.searchsorted(motion.pullback_cruise_s)) + 1)
+        if began_after_halt and not ran_past_a_one_sample_dwell:
             return first  # misshapen with the dwell where the motion puts it: the tap's own shape
         retries, shape_too = [DWELL_ON_THE_MOTION], True
     else:  # as before this retry existed: the first in order is kept, its shape checked next
