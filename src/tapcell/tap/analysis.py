@@ -142,6 +142,12 @@ APPROACH_DRIFT_AGREEMENT = 0.6
 PLASTIC_DWELL_DROP_SHARE = 0.12
 PLASTIC_PULL_SHARE = 0.03
 PLASTIC_PULL_NOISE = 3.0
+# ... or the film's other sign with the pull: the down contact above the up one by this share of the
+# contact-mismatch tolerance (`_pressed_film`). Clean taps pulling >= 3 % of the compression reach 0.15
+# (taplab seeds 1-12 cable drift; reference bowden drift -0.08, noisy mains 0.03, soft sheet -0.06);
+# heavy ooze accepted 23-28 um high (taplab seeds 72 k 9, 114 k 7: films of 26 and 21 um, pulls of 8
+# and 7 %, dwell drops of 11.5 and 5.6 %) 0.42 and 0.60; heavy and mild ooze up to 0.98 and 0.73.
+PLASTIC_SQUEEZE_SHARE = 0.3
 
 
 def sensor_timing(tap: TapData, options: AnalysisOptions, sample_period_s: float) -> SensorTiming:
@@ -880,7 +886,8 @@ def fit_pullback_toe(samples: PullbackSamples, motion: Motion, timing: SensorTim
 
 def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTiming, dec: Decomposition,
                    approach_line: tuple[float, float], contact_um: float, noise_g: float,
-                   approach_wander: Wander | None, compression_force_g: float) -> None:
+                   approach_wander: Wander | None, compression_force_g: float,
+                   down_above_up_um: tuple[float, float] | None = None) -> None:
     """TAP_ADHESION when ooze or adhesion pulls the nozzle after break contact, seen either way:
     the force dips below the departure's own free-air level just above break contact by more than
     ADHESION_MAX_DIP_NOISE noise sigmas (`adhesion_dip`), or the departure lies below the
@@ -890,8 +897,8 @@ def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTimin
     baseline shift (`_baseline_shift`). The walk is the approach's own: a thread pulling over the
     departure would pass for a walk there. Either must also exceed ADHESION_MIN_DIP_FRACTION of the
     compression force (a noise-free tap has no noise to compare with). A film of plastic
-    (`_plastic_film`: a dwell drop and a departure pulled below the approach's level together) is
-    named before the thread.
+    (`_plastic_film`: a dwell drop or a down contact above the up one, and a departure pulled below
+    the approach's level, together) is named before the thread.
     """
     floor_g = ADHESION_MIN_DIP_FRACTION * compression_force_g
     # The approach line's force where the approach passed the halt's height (its time is the halt).
@@ -916,6 +923,13 @@ def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTimin
         raise TapInvalid(TAP_ADHESION, f"the force fell {dwell_drop_share:.0%} of the compression during the dwell "
                                        f"and after break contact lies {pull_g:.1f} g ({pull_g / compression_force_g:.0%}) "
                                        "below the approach's free-air level: plastic flowed from under the nozzle and "
+                                       "holds it, so the contact the pullback finds is the film's, above the bed")
+    if _pressed_film(pull_g, down_above_up_um, compression_force_g, noise_g):
+        above_um, allowed_um = down_above_up_um
+        raise TapInvalid(TAP_ADHESION, f"contact on the way down lies {above_um:.1f} um above break contact on the "
+                                       f"way up ({above_um / allowed_um:.0%} of the {allowed_um:.1f} um allowed), and "
+                                       f"after break contact the force lies {pull_g:.1f} g ({pull_g / compression_force_g:.0%}) "
+                                       "below the approach's free-air level: a film of plastic the nozzle pressed "
                                        "holds it, so the contact the pullback finds is the film's, above the bed")
     if pull_g > limit_g and not _baseline_shift(samples, drift_g_um, contact_um, approach_at_halt_g, pull_g,
                                                 compression_force_g, dwell_drop_share):
@@ -967,6 +981,19 @@ def _plastic_film(pull_g: float, dwell_drop_share: float, compression_force_g: f
     and the departure lies PLASTIC_PULL_SHARE of it (and PLASTIC_PULL_NOISE noise sigmas) below the
     approach's level."""
     return (dwell_drop_share >= PLASTIC_DWELL_DROP_SHARE
+            and pull_g >= max(PLASTIC_PULL_SHARE * compression_force_g, PLASTIC_PULL_NOISE * noise_g))
+
+
+def _pressed_film(pull_g: float, down_above_up_um: tuple[float, float] | None, compression_force_g: float,
+                  noise_g: float) -> bool:
+    """A film of plastic under the nozzle seen the other way: the approach met it above the bed (the
+    down contact PLASTIC_SQUEEZE_SHARE or more of the way to TAP_CONTACT_MISMATCH above the up one)
+    and it holds the nozzle after break contact (the departure PLASTIC_PULL_SHARE of the compression
+    and PLASTIC_PULL_NOISE noise sigmas below the approach's level)."""
+    if down_above_up_um is None:
+        return False
+    above_um, allowed_um = down_above_up_um
+    return (above_um >= PLASTIC_SQUEEZE_SHARE * allowed_um
             and pull_g >= max(PLASTIC_PULL_SHARE * compression_force_g, PLASTIC_PULL_NOISE * noise_g))
 
 
@@ -1023,16 +1050,18 @@ def compression_fit_twin(window: ModelWindow, read_until_s: float, spacing_um: f
 
 
 def check_contact_heights(window: ModelWindow, pullback: ContactFit | None, compression: ContactFit | None,
-                          motion: Motion, timing: SensorTiming, compression_placed: bool) -> None:
+                          motion: Motion, timing: SensorTiming, compression_placed: bool) -> tuple[float, float] | None:
     """Contact on the way down against break contact on the way up, both at the same delay
     (validate.check_contact_consistency): the model fits when they exist, else the line points
     P1 and P4 mapped through the motion. Not judged unless `compression_placed`
     (`compression_places_the_halt`): where no sample's window lies wholly between the touch and the
     halt, the way down holds no contact to place (issue 21's sweep: a reference tap averaged to 80
     sps, 1.3 periods from P1 to P2, put the down contact 754 um above the halt, TAP_CONTACT_MISMATCH;
-    reference HX711 taps averaged to 10 sps, 0.2-0.5 samples from contact to the halt, 231-512 um)."""
+    reference HX711 taps averaged to 10 sps, 0.2-0.5 samples from contact to the halt, 231-512 um).
+    Returns how far the down contact lies above the up one and how far the check allows (µm; a film's
+    first sign, `_pressed_film`), None where it is not judged."""
     if not compression_placed:
-        return
+        return None
     down_um, down_sigma_um = ((compression.contact_um, compression.contact_sigma_um) if compression
                               else (window.contact_line_um, 0.0))
     up_um, up_sigma_um = (pullback.contact_um, pullback.contact_sigma_um) if pullback else (window.break_line_um, 0.0)
@@ -1041,6 +1070,7 @@ def check_contact_heights(window: ModelWindow, pullback: ContactFit | None, comp
                                                           motion.pullback_speed_mm_s * period_s * 1000.0,
                                                           down_sigma_um, up_sigma_um)
     validate.check_contact_consistency(down_um, up_um, tolerance_um)
+    return (down_um - up_um, tolerance_um) if math.isfinite(down_um - up_um) else None
 
 
 def compression_sample_count(window: ModelWindow, motion: Motion, delay_s: float, onset_um: float,
@@ -1218,13 +1248,13 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
         window = model_window(split.time_s, split.force_g, split.motion, split.timing, delay_s, split.dec)
         fits = fit_contact_models(split, window, delay_s, options, result)
         result.z_line_mm = split.motion.z_halt_mm + window.break_line_um / 1000.0  # P4 mapped, delay-corrected
-        check_contact_heights(window, fits.pullback, fits.compression, split.motion, split.timing,
-                              split.compression_placed)
+        down_above_up_um = check_contact_heights(window, fits.pullback, fits.compression, split.motion,
+                                                 split.timing, split.compression_placed)
         window_delay_s = delay_s  # the delay the window's heights were read with ("auto": 0, estimated now)
         delay_s = apply_delay_estimate(split, fits, delay_s, result)
         z_from_sharp_model_or_lines(split, fits, result)
         if options.uses_toe_model:
-            z_from_toe_model(split, window, fits, delay_s, window_delay_s, result)
+            z_from_toe_model(split, window, fits, delay_s, window_delay_s, result, down_above_up_um)
         check_decompression_samples(split, window, delay_s, window_delay_s, result)
         z_uncertainty(split, window, fits, delay_s, window_delay_s, result)
         compression_stiffness(split, window, fits, delay_s, result)
@@ -1454,9 +1484,10 @@ def z_from_sharp_model_or_lines(split: SplitTap, fits: ContactFits, result: TapA
 
 
 def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, delay_s: float, window_delay_s: float,
-                     result: TapAnalysis) -> None:
+                     result: TapAnalysis, down_above_up_um: tuple[float, float] | None = None) -> None:
     """Z from the toe model (tapcell.tap.toe), started at the sharp model's contact; then the
-    adhesion checks that belong to it (TAP_ADHESION raised)."""
+    adhesion checks that belong to it (TAP_ADHESION raised). down_above_up_um: what
+    `check_contact_heights` measured and allowed."""
     motion, timing, dec, pullback = split.motion, split.timing, split.dec, fits.pullback
     # The toe is fitted in the window's heights; a delay estimated since ("auto") moves its
     # contact down by pullback speed x delay, as it moved the sharp fit's above.
@@ -1479,7 +1510,8 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     # The free air before the contact (`free_air_line`); the walk the approach shows, or where it is
     # too short to show one (10 sps: 8 samples), the one the free air on both sides shows.
     check_adhesion(rising, motion, timing, dec, free_air_line(split, toe.contact_um - lag_shift_um, delay_s),
-                   toe.contact_um, split.noise_g, approach_wander or wander, result.compression_force_g)
+                   toe.contact_um, split.noise_g, approach_wander or wander, result.compression_force_g,
+                   down_above_up_um)
     walk_var_g2 = approach_walk_var_g2(split)  # the two-stage fits' walk
     ramp, stages = check_stages(split, samples, drift_g_um, toe, lag_shift_um, wander, walk_var_g2,
                                 drift_held=fit_drift_g_um is not None)
