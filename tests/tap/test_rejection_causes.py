@@ -113,6 +113,19 @@ def test_a_film_the_approach_pressed_that_holds_the_nozzle_is_adhesion(seed, k, 
     assert f"({share}% of the" in film.message and "a film of plastic the nozzle pressed" in film.message
 
 
+def test_a_walk_excuses_no_pull_past_the_share_that_makes_it_a_thread():
+    # Taplab seed 180 heavy ooze k 26 (a 20 um film): the departure lay 29.4 g (20 % of the compression)
+    # below the approach's level, past the 15 % at which a pull is a thread, but the approach's walk
+    # estimate (the film pressed on the way down) allowed 78 g: accepted 29.6 um high, z_sigma 20.5.
+    from bench.tap_seeds import seed_tap
+    from tapcell.tap.readers import tap_from_object
+
+    tap, truth = seed_tap(180, "heavy_ooze", 26)
+    thread = analyze_tap(tap_from_object(tap))
+    assert thread.error == "TAP_ADHESION", thread.message
+    assert "lies 29.4 g below the approach's free-air level" in thread.message and "(more than 22.1 g)" in thread.message
+
+
 def test_a_pressed_film_needs_both_signs():
     from tapcell.tap.analysis import PLASTIC_PULL_SHARE, PLASTIC_SQUEEZE_SHARE, _pressed_film
 
