@@ -113,17 +113,76 @@ def test_a_film_the_approach_pressed_that_holds_the_nozzle_is_adhesion(seed, k, 
     assert f"({share}% of the" in film.message and "a film of plastic the nozzle pressed" in film.message
 
 
-def test_a_walk_excuses_no_pull_past_the_share_that_makes_it_a_thread():
-    # Taplab seed 180 heavy ooze k 26 (a 20 um film): the departure lay 29.4 g (20 % of the compression)
-    # below the approach's level, past the 15 % at which a pull is a thread, but the approach's walk
-    # estimate (the film pressed on the way down) allowed 78 g: accepted 29.6 um high, z_sigma 20.5.
+# Heavy ooze the approach met far above the bed: its force rose off free air 51-53 um above break
+# contact, and the departure lay 7-20 % of the compression below the approach's level. Taplab seed 388
+# k 27 (a 24 um film) was accepted 21.3 um high: the pull (11.1 g, 7 %) stayed under the 15 % that
+# makes it a thread all the way up a departure too short to show it letting go, the dwell dropped 3 %
+# and the down contact lay 2 um above the up one, so no other film rule saw it. Seed 180 k 26 pulled
+# 20 %. (seed, k, rose from um, pull g, share %)
+FILMS_MET_ABOVE = [(388, 27, 51, 11.1, 7), (180, 26, 53, 29.4, 20)]
+
+
+def _heavy_ooze(seed: int, k: int):
     from bench.tap_seeds import seed_tap
     from tapcell.tap.readers import tap_from_object
 
-    tap, truth = seed_tap(180, "heavy_ooze", 26)
-    thread = analyze_tap(tap_from_object(tap))
+    tap, truth = seed_tap(seed, "heavy_ooze", k)
+    return tap_from_object(tap), truth
+
+
+@pytest.mark.parametrize("seed, k, rose_um, pull_g, share", FILMS_MET_ABOVE)
+def test_plastic_met_above_the_bed_that_holds_the_nozzle_is_adhesion(seed, k, rose_um, pull_g, share):
+    tap, truth = _heavy_ooze(seed, k)
+    assert truth["film_left_um"] > 20.0
+    film = analyze_tap(tap)
+    assert film.error == "TAP_ADHESION", film.message
+    assert f"rose off free air {rose_um} um above break contact" in film.message
+    assert f"lies {pull_g} g ({share}%) below" in film.message and "plastic the nozzle met above the bed" in film.message
+
+
+def test_plastic_met_above_needs_both_signs():
+    from tapcell.tap.analysis import PLASTIC_MET_ABOVE_UM, PLASTIC_PULL_SHARE, _film_met_above
+
+    compression_g, noise_g = 200.0, 1.0
+    pull_g = PLASTIC_PULL_SHARE * compression_g
+    assert _film_met_above(pull_g, PLASTIC_MET_ABOVE_UM, compression_g, noise_g)
+    # Clean taps rise off free air at most 8 um above break contact (taplab seeds 1-30), none of them pulling.
+    assert not _film_met_above(pull_g, 0.5 * PLASTIC_MET_ABOVE_UM, compression_g, noise_g)
+    assert not _film_met_above(0.99 * pull_g, 3 * PLASTIC_MET_ABOVE_UM, compression_g, noise_g)
+    assert not _film_met_above(pull_g, None, compression_g, noise_g)  # the approach did not rise
+    assert not _film_met_above(2.9, 3 * PLASTIC_MET_ABOVE_UM, 20.0, noise_g)  # within 3 noise sigmas
+
+
+def test_the_approach_rising_into_the_film_is_no_free_air():
+    # Seed 388 k 27: the approach's last five samples rose 1.5-18 g into the film.
+    from tapcell.tap import analysis
+    from tapcell.tap.model import AnalysisOptions
+
+    split, *_ = analysis.split_tap(_heavy_ooze(388, 27)[0], AnalysisOptions())
+    assert split.dec.bounds[0] - analysis.approach_free_air_end(split) == 5
+
+
+def test_a_walk_excuses_no_pull_past_the_share_that_makes_it_a_thread(monkeypatch):
+    # Taplab seed 180 heavy ooze k 26 (a 20 um film): the departure lay 29.4 g (20 % of the compression)
+    # below the approach's level, past the 15 % at which a pull is a thread, but the approach's walk
+    # estimate (the film pressed on the way down) allowed 78 g: accepted 29.6 um high, z_sigma 20.5.
+    # Without the rule above (the approach met the film 53 um up), the cap alone rejects it.
+    from tapcell.tap import analysis
+
+    monkeypatch.setattr(analysis, "PLASTIC_MET_ABOVE_UM", float("inf"))
+    thread = analyze_tap(_heavy_ooze(180, 26)[0])
     assert thread.error == "TAP_ADHESION", thread.message
     assert "lies 29.4 g below the approach's free-air level" in thread.message and "(more than 22.1 g)" in thread.message
+
+
+def test_the_thread_limit_caps_the_walks_allowance():
+    from tapcell.tap.analysis import THREAD_MAX_NOISE, THREAD_MIN_SHARE, thread_limit_g
+
+    compression_g, noise_g = 147.0, 1.0
+    assert thread_limit_g(noise_g, 78.0, compression_g) == pytest.approx(THREAD_MIN_SHARE * compression_g)
+    assert thread_limit_g(noise_g, 2.0, compression_g) == pytest.approx(THREAD_MAX_NOISE * noise_g + 2.0)
+    # The noise's own limit stands, however small the compression.
+    assert thread_limit_g(noise_g, 78.0, 20.0) == pytest.approx(THREAD_MAX_NOISE * noise_g)
 
 
 def test_a_pressed_film_needs_both_signs():

@@ -51,7 +51,7 @@ from tapcell.tap.motion import Motion, MotionError, tap_motion
 from tapcell.tap.robust import median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import (NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_FIVE, PrefixSums, five_lines,
-                                  segment_stats)
+                                  segment_line, segment_stats)
 from tapcell.tap.stage import (Ringing, SoftStage, TwoStageFit, departure_soft_stage, dwell_ringing,
                                shows_absorbed_stage, shows_soft_stage, shows_two_stage, two_stage_departure,
                                unnamed_stage_um)
@@ -148,6 +148,13 @@ PLASTIC_PULL_NOISE = 3.0
 # heavy ooze accepted 23-28 um high (taplab seeds 72 k 9, 114 k 7: films of 26 and 21 um, pulls of 8
 # and 7 %, dwell drops of 11.5 and 5.6 %) 0.42 and 0.60; heavy and mild ooze up to 0.98 and 0.73.
 PLASTIC_SQUEEZE_SHARE = 0.3
+# ... or plastic met further up with the pull: the approach's force rose off its free air this far
+# above break contact, less a sample's travel (`_film_met_above`). Taplab seeds 1-30: clean taps
+# rise from at most 7.9 um (none of them pulling), those pulling >= 3 % (cable drift) from at most
+# 0 (below contact); mild ooze from at most 12.7; heavy ooze from -1.8 to 130, the one accepted
+# (seed 388 k 27: 21 um high, a pull of 7 %, the dwell dropping 3 %, the down contact 2 um above the
+# up one) from 51.
+PLASTIC_MET_ABOVE_UM = 20.0
 
 
 def sensor_timing(tap: TapData, options: AnalysisOptions, sample_period_s: float) -> SensorTiming:
@@ -761,6 +768,9 @@ def free_air_slope_g_um(dec: Decomposition, motion: Motion) -> float:
 # The approach's free air is fitted for the adhesion checks over at least this many samples read
 # before the contact (fewer: the split's approach line, as before).
 FREE_AIR_MIN_SAMPLES = 3
+# The approach's last samples rise off its line by more than this many noise sigmas: the force of
+# something met before the contact, not free air (`approach_free_air_end`).
+APPROACH_RISE_NOISE = 3.0
 
 
 def free_air_line(split: SplitTap, contact_um: float, delay_s: float) -> tuple[float, float]:
@@ -786,6 +796,39 @@ def free_air_line(split: SplitTap, contact_um: float, delay_s: float) -> tuple[f
     slope = (stf - st * sf / n) / sxx
     # The sums are of t - t_ref and f - f_ref (`PrefixSums`).
     return slope, split.ps.f_ref_g + sf / n - slope * (split.ps.t_ref_s + st / n)
+
+
+def approach_free_air_end(split: SplitTap) -> int:
+    """How many of the approach's samples (from the split's start) lie in free air: its last samples
+    are dropped while the last one stands more than APPROACH_RISE_NOISE noise sigmas above the line
+    over those before it (at most half of them).
+
+    Ooze met above the bed pushes the approach's end up before the nozzle touches (taplab seed 388
+    heavy ooze k 27: 1.5 to 18 g over its last five samples, from 51 um above break contact)."""
+    dec, ps, time_s, force_g = split.dec, split.ps, split.time_s, split.force_g
+    end = dec.bounds[0]
+    least = max(end // 2, FREE_AIR_MIN_SAMPLES)
+    rise_g = APPROACH_RISE_NOISE * split.noise_g
+    while end > least:
+        slope, intercept = segment_line(ps, 0, end - 1)  # the sums count from the split's start
+        last = dec.start + end - 1
+        if force_g[last] - (slope * time_s[last] + intercept) <= rise_g:
+            break
+        end -= 1
+    return end
+
+
+def approach_rise_above_um(split: SplitTap, contact_um: float, delay_s: float) -> float | None:
+    """How high above the contact height (`contact_um` above the halt, samples read `delay_s` late)
+    the approach's force rose off its free air (`approach_free_air_end`), less the height a sample's
+    travel spans; None when it did not rise before the end of its line."""
+    dec, motion = split.dec, split.motion
+    end = approach_free_air_end(split)
+    if end == dec.bounds[0]:
+        return None
+    speed_um_s = motion.approach_speed_mm_s * 1000.0
+    read_at_um = (motion.home_end_s - (float(split.time_s[dec.start + end]) - delay_s)) * speed_um_s
+    return read_at_um - contact_um - speed_um_s * split.timing.sample_period_s
 
 
 def toe_drift_g_um(dec: Decomposition, ps: PrefixSums, motion: Motion, period_s: float,
@@ -887,7 +930,8 @@ def fit_pullback_toe(samples: PullbackSamples, motion: Motion, timing: SensorTim
 def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTiming, dec: Decomposition,
                    approach_line: tuple[float, float], contact_um: float, noise_g: float,
                    approach_wander: Wander | None, compression_force_g: float,
-                   down_above_up_um: tuple[float, float] | None = None) -> None:
+                   down_above_up_um: tuple[float, float] | None = None,
+                   approach_rise_um: float | None = None) -> None:
     """TAP_ADHESION when ooze or adhesion pulls the nozzle after break contact, seen either way:
     the force dips below the departure's own free-air level just above break contact by more than
     ADHESION_MAX_DIP_NOISE noise sigmas (`adhesion_dip`), or the departure lies below the
@@ -896,9 +940,10 @@ def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTimin
     pulling the whole departure pulls the dip's own reference too), unless the tap shows it to be a
     baseline shift (`_baseline_shift`). The walk is the approach's own: a thread pulling over the
     departure would pass for a walk there. Either must also exceed ADHESION_MIN_DIP_FRACTION of the
-    compression force (a noise-free tap has no noise to compare with). A film of plastic
-    (`_plastic_film`: a dwell drop or a down contact above the up one, and a departure pulled below
-    the approach's level, together) is named before the thread.
+    compression force (a noise-free tap has no noise to compare with). A film of plastic (a
+    departure pulled below the approach's level together with a dwell drop, `_plastic_film`, a down
+    contact above the up one, `_pressed_film`, or an approach that rose off its free air well above
+    break contact, `_film_met_above`, approach_rise_um) is named before the thread.
     """
     floor_g = ADHESION_MIN_DIP_FRACTION * compression_force_g
     # The approach line's force where the approach passed the halt's height (its time is the halt).
@@ -917,10 +962,7 @@ def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTimin
         return
     apart_samples = (motion.pullback_start_s - motion.home_end_s) / timing.sample_period_s + 2 * THREAD_REACH_UM[1]
     walk_g = 3.0 * math.sqrt(approach_wander.walk_var_g2 * max(apart_samples, 0.0)) if approach_wander else 0.0
-    # The walk may excuse a pull up to THREAD_MIN_SHARE of the compression, no more: past it a pull
-    # is a thread (taplab seed 180 heavy ooze k 26: 29.4 g, 20 %, let through by a walk allowance of 78 g).
-    limit_g = max(min(THREAD_MAX_NOISE * noise_g + walk_g, THREAD_MIN_SHARE * compression_force_g),
-                  THREAD_MAX_NOISE * noise_g, floor_g)
+    limit_g = thread_limit_g(noise_g, walk_g, compression_force_g)
     dwell_drop_share = abs(dec.points[P_DWELL_START][1] - dec.points[P_DWELL_END][1]) / compression_force_g
     if _plastic_film(pull_g, dwell_drop_share, compression_force_g, noise_g):
         raise TapInvalid(TAP_ADHESION, f"the force fell {dwell_drop_share:.0%} of the compression during the dwell "
@@ -934,11 +976,28 @@ def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTimin
                                        f"after break contact the force lies {pull_g:.1f} g ({pull_g / compression_force_g:.0%}) "
                                        "below the approach's free-air level: a film of plastic the nozzle pressed "
                                        "holds it, so the contact the pullback finds is the film's, above the bed")
+    if _film_met_above(pull_g, approach_rise_um, compression_force_g, noise_g):
+        raise TapInvalid(TAP_ADHESION, f"the force on the way down rose off free air {approach_rise_um:.0f} um above "
+                                       f"break contact, and after break contact lies {pull_g:.1f} g "
+                                       f"({pull_g / compression_force_g:.0%}) below the approach's free-air level: "
+                                       "plastic the nozzle met above the bed holds it, so the contact the pullback "
+                                       "finds is the plastic's, above the bed")
     if pull_g > limit_g and not _baseline_shift(samples, drift_g_um, contact_um, approach_at_halt_g, pull_g,
                                                 compression_force_g, dwell_drop_share):
         raise TapInvalid(TAP_ADHESION, f"the force after break contact lies {pull_g:.1f} g below the approach's "
                                        f"free-air level at the same heights (more than {limit_g:.1f} g): "
                                        "ooze or adhesion pulling the nozzle")
+
+
+def thread_limit_g(noise_g: float, walk_g: float, compression_force_g: float) -> float:
+    """How far the departure may lie below the approach's free-air level (`check_adhesion`):
+    THREAD_MAX_NOISE noise sigmas plus the walk between the two (walk_g), and at least
+    ADHESION_MIN_DIP_FRACTION of the compression. The walk may excuse a pull up to THREAD_MIN_SHARE
+    of the compression, no more: past it a pull is a thread (taplab seed 180 heavy ooze k 26: 29.4
+    g, 20 %, let through by a walk allowance of 78 g)."""
+    noise_limit_g = THREAD_MAX_NOISE * noise_g
+    return max(min(noise_limit_g + walk_g, THREAD_MIN_SHARE * compression_force_g), noise_limit_g,
+               ADHESION_MIN_DIP_FRACTION * compression_force_g)
 
 
 def dip_below_both_references_g(samples: PullbackSamples, drift_g_um: float, contact_um: float,
@@ -983,8 +1042,13 @@ def _plastic_film(pull_g: float, dwell_drop_share: float, compression_force_g: f
     """A film of plastic under the nozzle: the dwell drops PLASTIC_DWELL_DROP_SHARE of the compression
     and the departure lies PLASTIC_PULL_SHARE of it (and PLASTIC_PULL_NOISE noise sigmas) below the
     approach's level."""
-    return (dwell_drop_share >= PLASTIC_DWELL_DROP_SHARE
-            and pull_g >= max(PLASTIC_PULL_SHARE * compression_force_g, PLASTIC_PULL_NOISE * noise_g))
+    return dwell_drop_share >= PLASTIC_DWELL_DROP_SHARE and _film_holds(pull_g, compression_force_g, noise_g)
+
+
+def _film_holds(pull_g: float, compression_force_g: float, noise_g: float) -> bool:
+    """The departure lies PLASTIC_PULL_SHARE of the compression (and PLASTIC_PULL_NOISE noise sigmas)
+    below the approach's level: the pull that, with a sign of plastic under the nozzle, is a film."""
+    return pull_g >= max(PLASTIC_PULL_SHARE * compression_force_g, PLASTIC_PULL_NOISE * noise_g)
 
 
 def _pressed_film(pull_g: float, down_above_up_um: tuple[float, float] | None, compression_force_g: float,
@@ -996,8 +1060,16 @@ def _pressed_film(pull_g: float, down_above_up_um: tuple[float, float] | None, c
     if down_above_up_um is None:
         return False
     above_um, allowed_um = down_above_up_um
-    return (above_um >= PLASTIC_SQUEEZE_SHARE * allowed_um
-            and pull_g >= max(PLASTIC_PULL_SHARE * compression_force_g, PLASTIC_PULL_NOISE * noise_g))
+    return above_um >= PLASTIC_SQUEEZE_SHARE * allowed_um and _film_holds(pull_g, compression_force_g, noise_g)
+
+
+def _film_met_above(pull_g: float, approach_rise_um: float | None, compression_force_g: float,
+                    noise_g: float) -> bool:
+    """Plastic met above the bed: the approach rose off its free air PLASTIC_MET_ABOVE_UM or more
+    above break contact (`approach_rise_above_um`) and the departure lies PLASTIC_PULL_SHARE of the
+    compression (and PLASTIC_PULL_NOISE noise sigmas) below the approach's level."""
+    return (approach_rise_um is not None and approach_rise_um >= PLASTIC_MET_ABOVE_UM
+            and _film_holds(pull_g, compression_force_g, noise_g))
 
 
 def _baseline_shift(samples: PullbackSamples, drift_g_um: float, contact_um: float, approach_at_halt_g: float,
@@ -1512,9 +1584,10 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     rising = read_while_rising(samples, split, window, window_delay_s)
     # The free air before the contact (`free_air_line`); the walk the approach shows, or where it is
     # too short to show one (10 sps: 8 samples), the one the free air on both sides shows.
-    check_adhesion(rising, motion, timing, dec, free_air_line(split, toe.contact_um - lag_shift_um, delay_s),
+    contact_um = toe.contact_um - lag_shift_um
+    check_adhesion(rising, motion, timing, dec, free_air_line(split, contact_um, delay_s),
                    toe.contact_um, split.noise_g, approach_wander or wander, result.compression_force_g,
-                   down_above_up_um)
+                   down_above_up_um, approach_rise_above_um(split, contact_um, delay_s))
     walk_var_g2 = approach_walk_var_g2(split)  # the two-stage fits' walk
     ramp, stages = check_stages(split, samples, drift_g_um, toe, lag_shift_um, wander, walk_var_g2,
                                 drift_held=fit_drift_g_um is not None)
