@@ -228,6 +228,40 @@ def test_of_two_neighbours_standing_out_the_frame_is_repaired():
     assert_measured(analyze_tap(tap), z_true_mm)
 
 
+def test_a_frame_at_the_halts_corner_takes_the_value_both_sides_carry_on_to():
+    # Seed 350 corrupt frames k 23: the first sample after the halt read -281.5 g. The ramp carried
+    # on (-8.3, -79.6: -150.9 g) and the dwell carried back (-150.7, -151.8: -149.6 g) agree; the
+    # neighbours' mean, -115.2 g, lies on neither. Repaired to that mean, it put the compression's
+    # end 35 g short and contact 24.4 um above break contact: TAP_CONTACT_MISMATCH.
+    tap, z_true_mm, corrupted = corrupt_tap(350, 23)
+    force = np.asarray(tap.force_g, float)
+    assert corrupted == [91, 319] and force[89:93] == pytest.approx([-8.3, -79.6, -281.5, -150.7], abs=0.05)
+    assert all(changed == corrupted for changed in _repaired_by_kernel_and_twin(force))
+    repaired, _ = analysis.repair_spikes(force, AnalysisOptions().outlier_sigma)
+    assert repaired[91] == pytest.approx(0.5 * ((2 * -79.6 + 8.3) + (2 * -150.7 + 151.8)), abs=0.1)
+    assert_measured(analyze_tap(tap), z_true_mm)
+
+
+@pytest.mark.parametrize("frame", [31, 32, 33])
+def test_a_frame_is_repaired_onto_the_line_it_lies_on(frame):
+    # Free air, a ramp of 60 g a sample (samples 30, 31), a plateau at -180 g from sample 32 (1 g of
+    # noise), and a frame: at the corner (32) it takes the value both sides carry on to; beside it
+    # (on the ramp, or the plateau's second sample) its neighbours' mean, which lies on its line.
+    rng = np.random.default_rng(33)
+    clean = np.concatenate([np.zeros(30), [-60.0, -120.0], np.full(31, -180.0)]) + rng.normal(0.0, 1.0, 63)
+    force = clean.copy()
+    force[frame] = 400.0
+    changed, values = [], []
+    for kernel in {analysis._C, None}:
+        with pytest.MonkeyPatch.context() as patch:
+            patch.setattr(analysis, "_C", kernel)
+            repaired, _ = analysis.repair_spikes(force, AnalysisOptions().outlier_sigma)
+        changed.append(np.flatnonzero(repaired != force).tolist())
+        values.append(float(repaired[frame]))
+    assert all(c == [frame] for c in changed) and all(v == values[0] for v in values)
+    assert values[0] == pytest.approx(clean[frame], abs=4.0)  # 4 noise sigmas
+
+
 @pytest.mark.parametrize("reversed_in_time", [False, True])
 def test_the_frame_beside_an_honest_ramp_sample_is_told_by_the_smoother_repair(reversed_in_time):
     # The same shape made by hand, either way round in time (which of the two comes first decides

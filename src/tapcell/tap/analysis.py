@@ -297,7 +297,8 @@ def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarr
         k = best_k
         if best_width == 1 and weigh_neighbours:
             k, best_width = _frame_among_neighbours(f, k, spikes, threshold)
-        f[k:k + best_width] = _repaired_values(f, k, best_width)
+        # A corner is told only where the tap shows noise, as a neighbour is (else no corner stands out).
+        f[k:k + best_width] = _repaired_values(f, k, best_width, threshold if weigh_neighbours else math.inf)
         spikes += range(k, k + best_width)
     if not spikes:
         return force_g, 0
@@ -326,11 +327,24 @@ def _lone_spike_g(f: list[float], k: int, threshold: float) -> float:
     return outside_g if outside_g > threshold else 0.0
 
 
-def _repaired_values(f: list[float], k: int, width: int) -> list[float]:
-    """What replaces a lone spike at k (its neighbours' mean) or a pair at k, k + 1 (the line between
-    the samples bracketing it)."""
+def _repaired_values(f: list[float], k: int, width: int, threshold: float) -> list[float]:
+    """What replaces a lone spike at k (its neighbours' mean, or at a corner the value both sides'
+    lines carry on to) or a pair at k, k + 1 (the line between the samples bracketing it).
+
+    At the halt the force turns a corner: a frame read there (taplab seed 350 corrupt frames k 23,
+    the first sample after the halt) lies on both the ramp carried on (151 g) and the dwell carried
+    back (150 g), while its neighbours' mean (115 g) lies on neither. A corner is where the two
+    lines carried on agree with each other better than with the mean, which stands more than the
+    spike threshold off them."""
     if width == 1:
-        return [0.5 * (f[k - 1] + f[k + 1])]
+        middle = 0.5 * (f[k - 1] + f[k + 1])
+        if 2 <= k <= len(f) - 3:
+            from_before, from_after = 2.0 * f[k - 1] - f[k - 2], 2.0 * f[k + 1] - f[k + 2]
+            corner = 0.5 * (from_before + from_after)
+            off_g = abs(middle - corner)
+            if off_g > threshold and abs(from_before - from_after) < off_g:
+                return [corner]
+        return [middle]
     gap = f[k + 2] - f[k - 1]
     return [f[k - 1] + gap / 3.0, f[k - 1] + 2.0 * gap / 3.0]
 
@@ -351,7 +365,7 @@ def _frame_among_neighbours(f: list[float], k: int, spikes: list[int], threshold
     the first took its mean with the second and left it on the line through the two (LOW_TAP_QUALITY
     misfit 85 %, TAP_CHRONOLOGY)."""
     lo, hi = max(1, k - 2), min(len(f) - 2, k + 2)
-    best, best_width, best_roughness = k, 1, _roughness_repaired(f, k, 1, lo, hi)
+    best, best_width, best_roughness = k, 1, _roughness_repaired(f, k, 1, lo, hi, threshold)
     for j in (k - 1, k + 1):
         if j in spikes or not 1 <= j <= len(f) - 2:
             continue
@@ -360,16 +374,16 @@ def _frame_among_neighbours(f: list[float], k: int, spikes: list[int], threshold
         if 2 <= first <= len(f) - 4 and _spike_pair_g(f, first, threshold) > 0.0:
             options.append((first, 2))
         for start, width in options:
-            roughness = _roughness_repaired(f, start, width, lo, hi)
+            roughness = _roughness_repaired(f, start, width, lo, hi, threshold)
             if roughness < best_roughness:
                 best, best_width, best_roughness = start, width, roughness
     return best, best_width
 
 
-def _roughness_repaired(f: list[float], k: int, width: int, lo: int, hi: int) -> float:
+def _roughness_repaired(f: list[float], k: int, width: int, lo: int, hi: int, threshold: float) -> float:
     """The sum of |second differences| at samples lo..hi with the spike at k (`width` samples) repaired."""
     window = f[lo - 1:hi + 2]
-    window[k - lo + 1:k - lo + 1 + width] = _repaired_values(f, k, width)
+    window[k - lo + 1:k - lo + 1 + width] = _repaired_values(f, k, width, threshold)
     roughness = 0.0  # summed in order, as the kernel sums (sum() compensates from Python 3.12)
     for i in range(1, len(window) - 1):
         roughness += abs(window[i - 1] - 2.0 * window[i] + window[i + 1])

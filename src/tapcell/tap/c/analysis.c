@@ -127,12 +127,20 @@ static double spike_pair_g(const double *f, Py_ssize_t n, Py_ssize_t k, double t
     return 0.0;
 }
 
-/* What replaces a lone spike at k (width 1: its neighbours' mean) or a pair at k, k + 1 (width 2: the
- * line between the samples bracketing it), into values (`_repaired_values`). */
-static void repaired_values(const double *f, Py_ssize_t k, Py_ssize_t width, double values[2])
+/* What replaces a lone spike at k (width 1: its neighbours' mean, or at a corner the value both
+ * sides' lines carry on to) or a pair at k, k + 1 (width 2: the line between the samples bracketing
+ * it), into values (`_repaired_values`). */
+static void repaired_values(const double *f, Py_ssize_t n, Py_ssize_t k, Py_ssize_t width, double threshold,
+                            double values[2])
 {
     if (width == 1) {
-        values[0] = 0.5 * (f[k - 1] + f[k + 1]);
+        const double middle = 0.5 * (f[k - 1] + f[k + 1]);
+        values[0] = middle;
+        if (k >= 2 && k <= n - 3) {
+            const double from_before = 2.0 * f[k - 1] - f[k - 2], from_after = 2.0 * f[k + 1] - f[k + 2];
+            const double corner = 0.5 * (from_before + from_after), off_g = fabs(middle - corner);
+            if (off_g > threshold && fabs(from_before - from_after) < off_g) values[0] = corner;
+        }
     } else {
         const double gap = f[k + 2] - f[k - 1];
         values[0] = f[k - 1] + gap / 3.0;
@@ -142,10 +150,11 @@ static void repaired_values(const double *f, Py_ssize_t k, Py_ssize_t width, dou
 
 /* The sum of |second differences| at samples lo..hi with the spike at k (width samples) repaired
  * (`_roughness_repaired`). */
-static double roughness_repaired(const double *f, Py_ssize_t k, Py_ssize_t width, Py_ssize_t lo, Py_ssize_t hi)
+static double roughness_repaired(const double *f, Py_ssize_t n, Py_ssize_t k, Py_ssize_t width, Py_ssize_t lo,
+                                 Py_ssize_t hi, double threshold)
 {
     double values[2];
-    repaired_values(f, k, width, values);
+    repaired_values(f, n, k, width, threshold, values);
     double window[7]; /* samples lo - 1 .. hi + 1: at most the five about k and one either side */
     const Py_ssize_t count = hi - lo + 3;
     for (Py_ssize_t i = 0; i < count; i++) {
@@ -165,7 +174,7 @@ static Py_ssize_t frame_among_neighbours(const double *f, Py_ssize_t n, Py_ssize
 {
     const Py_ssize_t lo = k - 2 > 1 ? k - 2 : 1, hi = k + 2 < n - 2 ? k + 2 : n - 2;
     Py_ssize_t best = k, best_width = 1;
-    double best_roughness = roughness_repaired(f, k, 1, lo, hi);
+    double best_roughness = roughness_repaired(f, n, k, 1, lo, hi, threshold);
     for (Py_ssize_t j = k - 1; j <= k + 1; j += 2) {
         if (j < 1 || j > n - 2 || spike[j]) continue;
         Py_ssize_t starts[2], widths[2];
@@ -180,7 +189,7 @@ static Py_ssize_t frame_among_neighbours(const double *f, Py_ssize_t n, Py_ssize
             widths[options++] = 2;
         }
         for (int o = 0; o < options; o++) {
-            const double roughness = roughness_repaired(f, starts[o], widths[o], lo, hi);
+            const double roughness = roughness_repaired(f, n, starts[o], widths[o], lo, hi, threshold);
             if (roughness < best_roughness) {
                 best = starts[o];
                 best_width = widths[o];
@@ -240,7 +249,8 @@ static Py_ssize_t repair_in_copy(const double *force_g, double *f, char *spike, 
         Py_ssize_t k = best_k;
         if (best_width == 1 && weigh_neighbours) best_width = frame_among_neighbours(f, n, best_k, spike, threshold, &k);
         double values[2];
-        repaired_values(f, k, best_width, values);
+        /* A corner is told only where the tap shows noise, as a neighbour is. */
+        repaired_values(f, n, k, best_width, weigh_neighbours ? threshold : INFINITY, values);
         for (Py_ssize_t j = 0; j < best_width; j++) f[k + j] = values[j];
         for (Py_ssize_t j = k; j < k + best_width; j++) spike[j] = 1;
         count += best_width;
