@@ -254,7 +254,8 @@ def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarr
     neighbours and the lines through the two samples on either side carried one step on (a frame
     corrupted on the ramp into the halt, whose neighbours are a compression apart). Two frames in
     a row are spikes when both stand that far outside the samples bracketing them and those lines
-    carried on. A spike is replaced by the mean of its neighbours, a pair by the line between the
+    carried on. A spike is replaced by the mean of its neighbours (at a corner, by the value
+    both sides' lines carry on to: `_repaired_values`), a pair by the line between the
     samples bracketing it. The noise sigma comes from the median absolute second difference,
     which spikes cannot inflate.
     """
