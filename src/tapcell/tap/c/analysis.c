@@ -127,6 +127,8 @@ static double spike_pair_g(const double *f, Py_ssize_t n, Py_ssize_t k, double t
     return 0.0;
 }
 
+#define CREDIBLE_NOISE_SHARE 0.1 /* the twin's analysis.CREDIBLE_NOISE_SHARE */
+
 /* What replaces a lone spike at k (width 1: its neighbours' mean, or at a corner the value both
  * sides' lines carry on to) or a pair at k, k + 1 (width 2: the line between the samples bracketing
  * it), into values (`_repaired_values`). */
@@ -227,6 +229,9 @@ static Py_ssize_t repair_in_copy(const double *force_g, double *f, char *spike, 
         pairs[pair_count] = k;
         pair_count += is_step(force_g, k - 1, threshold) && is_step(force_g, k + 1, threshold);
     }
+    /* and too many standing out make the noise estimate no measure to weigh against (the twin's
+     * CREDIBLE_NOISE_SHARE) */
+    weigh_neighbours = weigh_neighbours && (double)suspect_count <= CREDIBLE_NOISE_SHARE * (double)n;
     memcpy(f, force_g, (size_t)n * sizeof(double));
     memset(spike, 0, (size_t)n);
     Py_ssize_t count = 0;
