@@ -301,7 +301,7 @@ def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarr
         k = best_k
         if best_width == 1 and weigh_neighbours:
             k, best_width = _frame_among_neighbours(f, k, spikes, threshold)
-        # A corner is told only where the tap shows noise, as a neighbour is (else no corner stands out).
+        # A corner is told only against a credible noise estimate, as a neighbour is (weigh_neighbours).
         f[k:k + best_width] = _repaired_values(f, k, best_width, threshold if weigh_neighbours else math.inf)
         spikes += range(k, k + best_width)
     if not spikes:

@@ -254,7 +254,7 @@ static Py_ssize_t repair_in_copy(const double *force_g, double *f, char *spike, 
         Py_ssize_t k = best_k;
         if (best_width == 1 && weigh_neighbours) best_width = frame_among_neighbours(f, n, best_k, spike, threshold, &k);
         double values[2];
-        /* A corner is told only where the tap shows noise, as a neighbour is. */
+        /* A corner is told only against a credible noise estimate, as a neighbour is (weigh_neighbours). */
         repaired_values(f, n, k, best_width, weigh_neighbours ? threshold : INFINITY, values);
         for (Py_ssize_t j = 0; j < best_width; j++) f[k + j] = values[j];
         for (Py_ssize_t j = k; j < k + best_width; j++) spike[j] = 1;
