@@ -262,6 +262,23 @@ def test_a_frame_is_repaired_onto_the_line_it_lies_on(frame):
     assert values[0] == pytest.approx(clean[frame], abs=4.0)  # 4 noise sigmas
 
 
+@pytest.mark.parametrize("frozen_share, credible", [(0.30, True), (0.42, False), (0.45, False)])
+def test_neighbours_and_corners_are_weighed_only_against_a_credible_noise_estimate(frozen_share, credible):
+    # A reading frozen over the last 42 % of a synthetic tap (0.7 g of noise): the noise estimate falls
+    # to 0.14 g and 12 % of the samples stand out (1.2 % with the tap whole), past CREDIBLE_NOISE_SHARE,
+    # while the threshold still stands above its floor. The virtual printer's sensor stuck from the
+    # trigger on (tests/test_hostile_inputs.py) was such a tap: its corner repairs moved noise.
+    from tapcell.tap.synth import synth_tap
+
+    force = np.asarray(synth_tap(seed=0, noise_g=0.7, sample_rate_sps=320).force_g, float)
+    start = int(len(force) * (1.0 - frozen_share))
+    force[start:] = force[start]
+    suspects, threshold, weigh = analysis.spike_suspects(force, AnalysisOptions().outlier_sigma)
+    assert threshold > 1e-6 * float(force.max() - force.min())  # not the floor's guard
+    assert (len(suspects) <= analysis.CREDIBLE_NOISE_SHARE * len(force)) == credible
+    assert weigh == credible
+
+
 @pytest.mark.parametrize("reversed_in_time", [False, True])
 def test_the_frame_beside_an_honest_ramp_sample_is_told_by_the_smoother_repair(reversed_in_time):
     # The same shape made by hand, either way round in time (which of the two comes first decides

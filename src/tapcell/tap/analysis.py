@@ -149,11 +149,12 @@ PLASTIC_PULL_NOISE = 3.0
 # and 7 %, dwell drops of 11.5 and 5.6 %) 0.42 and 0.60; heavy and mild ooze up to 0.98 and 0.73.
 PLASTIC_SQUEEZE_SHARE = 0.3
 # ... or plastic met further up with the pull: the approach's force rose off its free air this far
-# above break contact, less a sample's travel (`_film_met_above`). Taplab seeds 1-30: clean taps
-# rise from at most 7.9 um (none of them pulling), those pulling >= 3 % (cable drift) from at most
-# 0 (below contact); mild ooze from at most 12.7; heavy ooze from -1.8 to 130, the one accepted
-# (seed 388 k 27: 21 um high, a pull of 7 %, the dwell dropping 3 %, the down contact 2 um above the
-# up one) from 51.
+# above break contact, less a sample's travel (`_film_met_above`). `python -m bench film_signs
+# --seeds 1-30`: taplab's clean taps rise from at most 7.9 um (none of them pulling), those pulling
+# >= 3 % (cable drift) from 21 um below contact at most, mild ooze from at most 12.7; the reference's
+# bowden and soft-sheet approaches curve up from as high as 1,336 um, none of them pulling. The heavy
+# ooze accepted 21 um high (seed 388 k 27: a pull of 7 %, the dwell dropping 3 %, the down contact
+# 2 um above the up one) rose from 51.
 PLASTIC_MET_ABOVE_UM = 20.0
 
 
@@ -268,21 +269,11 @@ def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarr
         return repaired, len(spikes)
     if len(force_g) < 5:
         return force_g, 0
-    off_mid = np.abs(force_g[1:-1] - 0.5 * (force_g[:-2] + force_g[2:]))
-    noise_sigma = _noise_sigma_of(off_mid)
-    scale = float(force_g.max() - force_g.min())  # only sets a floor far below any real spike
-    threshold = max(threshold_sigma * noise_sigma, 1e-6 * scale, 1e-9)
     # Only the few samples that stand off their neighbours' midpoint (the corners, the spikes) and
     # the pairs between two steps are looked at. The one that stands out the most is repaired
     # first, and the rest judged again against it: a frame's garbage must not make its honest
     # neighbour look like one.
-    suspects = (np.flatnonzero(off_mid > threshold) + 1).tolist()
-    # Smoothness is weighed against the noise (neighbours and corners told apart) only where the tap
-    # shows noise it can be weighed against: where it shows none (a reading frozen over half the tap,
-    # the threshold at its floor) every sample stands out, and where a reading frozen over part of
-    # it leaves too small a noise estimate, too many do (`CREDIBLE_NOISE_SHARE`).
-    weigh_neighbours = (threshold_sigma * noise_sigma > 1e-6 * scale
-                        and len(suspects) <= CREDIBLE_NOISE_SHARE * len(force_g))
+    suspects, threshold, weigh_neighbours = spike_suspects(force_g, threshold_sigma)
     step = np.abs(np.diff(force_g)) > threshold  # step[j]: from sample j to j + 1
     pairs = [k for k in (np.flatnonzero(step[:-2] & step[2:]) + 1).tolist() if 2 <= k <= len(force_g) - 4]
     f = force_g.tolist()
@@ -310,6 +301,23 @@ def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarr
     repaired = force_g.copy()
     repaired[spikes] = [f[k] for k in spikes]
     return repaired, len(spikes)
+
+
+def spike_suspects(force_g: np.ndarray, threshold_sigma: float) -> tuple[list[int], float, bool]:
+    """The samples standing off their neighbours' midpoint by more than the spike threshold
+    (`threshold_sigma` noise sigmas, at least a millionth of the force's span), the threshold, and
+    whether smoothness may be weighed against the noise (`repair_spikes`: neighbours and corners
+    told apart). It may where the tap shows noise: where it shows none (a reading frozen over half
+    the tap, the threshold at its floor) every sample stands out, and where a reading frozen over
+    part of it leaves too small a noise estimate, too many do (`CREDIBLE_NOISE_SHARE`)."""
+    off_mid = np.abs(force_g[1:-1] - 0.5 * (force_g[:-2] + force_g[2:]))
+    noise_sigma = _noise_sigma_of(off_mid)
+    scale = float(force_g.max() - force_g.min())  # only sets a floor far below any real spike
+    threshold = max(threshold_sigma * noise_sigma, 1e-6 * scale, 1e-9)
+    suspects = (np.flatnonzero(off_mid > threshold) + 1).tolist()
+    weigh_neighbours = (threshold_sigma * noise_sigma > 1e-6 * scale
+                        and len(suspects) <= CREDIBLE_NOISE_SHARE * len(force_g))
+    return suspects, threshold, weigh_neighbours
 
 
 def _outside_g(value: float, reach: tuple[float, ...]) -> float:
@@ -396,8 +404,9 @@ def _roughness_repaired(f: list[float], k: int, width: int, lo: int, hi: int, th
 
 # The noise estimate is the tap's when at most this share of its samples stand off their neighbours'
 # midpoint by the spike threshold (8 noise sigmas, which noise alone does not reach): a tap's corners
-# and frames make up at most 4.7 % (taplab seed 1 and its new scenarios, the reference taps and
-# sessions: 2,360 taps); a sensor stuck from the trigger on (150 of its 357 samples alike) 23 %.
+# and frames make up at most 6.5 % (`python -m bench film_signs --seeds 1-30`: taplab's corrupt
+# frames; the reference taps and sessions 3.6 %); a sensor stuck from the trigger on (150 of its 357
+# samples alike) 23 %.
 CREDIBLE_NOISE_SHARE = 0.1
 PAIR_SPAN_SAMPLES = 4  # a pair of frames lies outside the samples this far on either side
 
