@@ -29,7 +29,7 @@ def test_the_rule_is_watched_and_left_as_it_was():
 def test_a_clean_tap_that_does_not_rise_shows_no_rise():
     signs = _signs_of(1, "clean_ads1220_2000", 0)
     assert (signs.reached, signs.named) == (1, 0)
-    assert signs.highest_rise_pulling_um == -math.inf
+    assert signs.highest_rise_um == signs.highest_rise_pulling_um == -math.inf
 
 
 def test_the_table_has_a_row_a_set_and_scenario():

@@ -277,6 +277,8 @@ def test_neighbours_and_corners_are_weighed_only_against_a_credible_noise_estima
     assert threshold > 1e-6 * float(force.max() - force.min())  # not the floor's guard
     assert (len(suspects) <= analysis.CREDIBLE_NOISE_SHARE * len(force)) == credible
     assert weigh == credible
+    if frozen_share == 0.42:  # the share the docs cite
+        assert len(suspects) / len(force) == pytest.approx(0.122, abs=0.001)
 
 
 @pytest.mark.parametrize("reversed_in_time", [False, True])

@@ -405,8 +405,8 @@ def _roughness_repaired(f: list[float], k: int, width: int, lo: int, hi: int, th
 # The noise estimate is the tap's when at most this share of its samples stand off their neighbours'
 # midpoint by the spike threshold (8 noise sigmas, which noise alone does not reach): a tap's corners
 # and frames make up at most 6.5 % (`python -m bench film_signs --seeds 1-30`: taplab's corrupt
-# frames; the reference taps and sessions 3.6 %); a sensor stuck from the trigger on (150 of its 357
-# samples alike) 23 %.
+# frames; the reference taps and sessions 3.6 %); a synthetic tap frozen over its last 42 % 12 %, as
+# the virtual printer's sensor stuck from the trigger on (150 of its 357 samples alike) is past it.
 CREDIBLE_NOISE_SHARE = 0.1
 PAIR_SPAN_SAMPLES = 4  # a pair of frames lies outside the samples this far on either side
 
