@@ -1424,6 +1424,7 @@ def result_of_split(split: SplitTap, polarity: int, outliers: int, hum: HumFit |
         outliers=outliers,
         sensor_integration_s=split.timing.integration_s,
         noise_sigma_g=split.noise_g,
+        dwell_ringing_var_g2=split.ringing.var_g2 if split.ringing is not None else 0.0,
         hum=hum.to_json() if hum else None,
         compression_force_g=abs(dec.points[P_DWELL_START][1] - dec.points[P_CONTACT][1]),
         break_contact_time_s=dec.points[P_BREAK][0],

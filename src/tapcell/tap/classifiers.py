@@ -176,7 +176,9 @@ class TapQualityClassifier:
     loose sheet that halves the decompression stiffness costs 50 %, whatever the speeds.
     And `misfit`: 1 - 1.25 × noise sigma / contact-model residual sigma over the pullback. A clean
     decompression is explained to the noise (misfit ≈ 0); a film of ooze or a string pulling
-    on departure bends the curve (residual 3-4 × the noise) and shifts Z by several µm.
+    on departure bends the curve (residual 3-4 × the noise) and shifts Z by several µm. The noise
+    here holds the Z staircase and a ringing the dwell shows (a gantry rung at the pullback's start,
+    a mains hum nobody removed): the contact model cannot follow either, and neither bends Z.
     """
 
     def __init__(self, options: AnalysisOptions):
@@ -207,7 +209,8 @@ class TapQualityClassifier:
         ratio = stiffness_ratio(analysis)
         noise_to_residual = None
         if analysis.fit_residual_sigma_g:
-            explained_g = math.hypot(analysis.noise_sigma_g or 0.0, analysis.step_sigma_g or 0.0)
+            noise_g, step_g = analysis.noise_sigma_g or 0.0, analysis.step_sigma_g or 0.0
+            explained_g = math.sqrt(noise_g * noise_g + step_g * step_g + analysis.dwell_ringing_var_g2)
             noise_to_residual = explained_g / analysis.fit_residual_sigma_g
         components = quality_components(analysis.points, analysis.lines[3][0], ratio,
                                         self.options.decompression_angle, noise_to_residual,

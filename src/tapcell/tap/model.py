@@ -351,6 +351,10 @@ class TapAnalysis:
     # The decompression line's stiffness over the compression line's, when the compression stiffness
     # is measured (the quality classifier's stiffness component).
     line_stiffness_ratio: float | None = field(default=None, repr=False, compare=False)
+    # The variance of the ringing the dwell shows (g², tapcell.tap.stage.dwell_ringing; 0 when none):
+    # a gantry ringing on into the pullback is noise to the contact model, which the quality
+    # classifier's misfit allows for.
+    dwell_ringing_var_g2: float = field(default=0.0, repr=False, compare=False)
 
     def to_json(self) -> dict[str, Any]:
         return {
