@@ -1,0 +1,67 @@
+"""A gantry rung by the halt lets the split run the compression on into the dwell (issue 21's sweep).
+
+A short compression (3-4 samples at 3-5 mm/s, 320 sps) under a ringing of 10-30 g: the ring's first
+swing after the halt carries the force past the dwell's level, and the best five lines end the
+compression 4-7 samples late. P2 then lies 8-13 ms after the halt, the lag read off it puts the
+samples' heights 20-85 µm too high, and the contact on the way down lies that far above break
+contact: TAP_CONTACT_MISMATCH on clean taps (the sweep's ring320x3 1-3 of 60 on seeds 1-4, ref_ring 1 of
+40 on 5 of 22 seeds). Now the lag is read where the steep rise meets the dwell line
+(`analysis._rise_end_s`), when the segment ran on past it with a sample well above the dwell line."""
+
+from __future__ import annotations
+
+import pytest
+
+from bench.tap_sweep import CASES, analyse_in_process, case_taps, reference_taps
+from tapcell.tap import analysis
+from tapcell.tap.analysis import split_tap
+from tapcell.tap.model import AnalysisOptions
+from tapcell.tap.readers import tap_from_object
+
+CASE = {case.name: case for case in CASES}
+
+# (case, seed, taps): each was TAP_CONTACT_MISMATCH with a lag of 6.7-11.6 ms read off the halt.
+RUNG_AT_THE_HALT = (("ring320x3", 2, (41, 53, 59)), ("ring320x3", 4, (15, 17)),
+                    ("ref_ring", 15, (6,)), ("ref_ring", 17, (20,)), ("ref_ring", 19, (18,)))
+
+
+@pytest.fixture(scope="module")
+def reference_dir(tmp_path_factory):
+    return reference_taps(None, tmp_path_factory.mktemp("reference"))
+
+
+def _taps(name: str, seed: int, indices: tuple[int, ...], reference_dir) -> list[tuple[dict, float]]:
+    if CASE[name].reference is not None and reference_dir is None:
+        pytest.skip("no reference taps here")
+    taps = case_taps(CASE[name], seed, max(indices) + 1, reference_dir)
+    return [taps[k] for k in indices]
+
+
+@pytest.mark.parametrize("name,seed,indices", RUNG_AT_THE_HALT)
+def test_a_tap_rung_at_the_halt_is_measured(name, seed, indices, reference_dir):
+    for tap, z_mm in _taps(name, seed, indices, reference_dir):
+        answer = analyse_in_process(tap)
+        assert answer["valid"], answer["message"]
+        error_um = (answer["z"] - z_mm) * 1000.0
+        assert abs(error_um) < 2.0  # measured -1.27..+0.90 µm
+        assert answer["sensor_delay_s"] < 0.005  # measured 0.2-4.2 ms
+
+
+@pytest.mark.parametrize("name,seed,indices", RUNG_AT_THE_HALT)
+def test_with_the_splits_p2_they_read_a_long_lag_and_two_contacts(name, seed, indices, reference_dir, monkeypatch):
+    """The mechanism: the same taps with the lag read off the split's own P2."""
+    monkeypatch.setattr(analysis, "_rise_end_s", lambda split: None)
+    for tap, _ in _taps(name, seed, indices, reference_dir):
+        answer = analyse_in_process(tap)
+        assert answer["error"] == "TAP_CONTACT_MISMATCH"
+        assert answer["sensor_delay_s"] > 0.006
+
+
+@pytest.mark.parametrize("name", ["base", "ring2000", "ring4000", "hum4000", "sps1000", "win6", "lat4", "toe30"])
+def test_the_rule_leaves_a_compression_that_tapers_into_the_dwell(name):
+    """Clean taps, rung ones at 2000-4000 sps, slow ones and smeared ones (a 6-period window, a
+    4-sample latency, a 30 µm toe): their compression's steps fall off without the force passing the
+    dwell line, and P2 stands."""
+    for tap, _ in case_taps(CASE[name], 1, 20, None):
+        split = split_tap(tap_from_object(tap), AnalysisOptions())[0]
+        assert analysis._rise_end_s(split) is None
