@@ -6,7 +6,7 @@ compression 4-7 samples late. P2 then lies 8-13 ms after the halt, the lag read 
 samples' heights 20-85 µm too high, and the contact on the way down lies that far above break
 contact: TAP_CONTACT_MISMATCH on clean taps (the sweep's ring320x3 1-3 of 60 on seeds 1-4, ref_ring 1 of
 40 on 5 of 22 seeds). Now the lag is read where the steep rise meets the dwell line
-(`analysis._rise_end_s`), when the segment ran on past it with a sample well above the dwell line."""
+(`analysis.steep_rise_line`), when the segment ran on past it with a sample well above the dwell line."""
 
 from __future__ import annotations
 
@@ -50,7 +50,7 @@ def test_a_tap_rung_at_the_halt_is_measured(name, seed, indices, reference_dir):
 @pytest.mark.parametrize("name,seed,indices", RUNG_AT_THE_HALT)
 def test_with_the_splits_p2_they_read_a_long_lag_and_two_contacts(name, seed, indices, reference_dir, monkeypatch):
     """The mechanism: the same taps with the lag read off the split's own P2."""
-    monkeypatch.setattr(analysis, "_rise_end_s", lambda split: None)
+    monkeypatch.setattr(analysis, "steep_rise_line", lambda split: None)
     for tap, _ in _taps(name, seed, indices, reference_dir):
         answer = analyse_in_process(tap)
         assert answer["error"] == "TAP_CONTACT_MISMATCH"
@@ -64,4 +64,20 @@ def test_the_rule_leaves_a_compression_that_tapers_into_the_dwell(name):
     dwell line, and P2 stands."""
     for tap, _ in case_taps(CASE[name], 1, 20, None):
         split = split_tap(tap_from_object(tap), AnalysisOptions())[0]
-        assert analysis._rise_end_s(split) is None
+        assert analysis.steep_rise_line(split) is None
+
+
+def test_the_stiffness_the_lines_show_is_the_steep_rises():
+    """ring320x3 seed 10 tap 4 (a 16 g, 27 Hz swing after the halt): the split's compression line runs
+    through the swing at a seventh of the rise's slope, and the quality's stiffness component read
+    72 % (LOW_TAP_QUALITY). The steep rise's own line agrees with the decompression's within 14 %."""
+    tap, z_mm = case_taps(CASE["ring320x3"], 10, 5, None)[4]
+    split = split_tap(tap_from_object(tap), AnalysisOptions())[0]
+    decompression = split.dec.decompression_line
+    assert split.steep_rise is not None
+    assert analysis.line_stiffness_ratio(split.steep_rise, decompression, split.motion) == pytest.approx(1.135, abs=0.01)
+    assert analysis.line_stiffness_ratio(split.dec.compression_line, decompression, split.motion) > 5.0
+    answer = analyse_in_process(tap)
+    assert answer["valid"], answer["message"]
+    assert answer["quality_components"]["stiffness"] < 0.25  # measured 0.135
+    assert abs(answer["z"] - z_mm) * 1000.0 < 3.0  # measured -1.93 µm at z_sigma 17

@@ -1323,6 +1323,13 @@ class SplitTap:
         return compression_places_the_halt(self.dec, self.motion, self.timing)
 
     @cached_attribute
+    def steep_rise(self) -> tuple[float, float] | None:
+        """The line of the compression's steep rise alone, where the split's compression segment ran on
+        into a ringing dwell (`steep_rise_line`), else None: the compression line the lag and the
+        stiffness the lines show take instead of the split's."""
+        return steep_rise_line(self)
+
+    @cached_attribute
     def ringing(self) -> Ringing | None:
         """The ringing the dwell shows (tapcell.tap.stage.dwell_ringing), against the white noise:
         measured once for the stage checks and z_sigma_um's ringing part."""
@@ -1465,22 +1472,26 @@ def compression_end_s(split: SplitTap) -> float:
     drawn through two samples is bounded so; a line fitted to three or more keeps its P2 (bounded
     there too, the reference's noisy mains read +0.13 µm higher, and a heavy-ooze tap of taplab seed 1
     pressing a film for 17 periods passed its contact check), unless it ran on into a ringing dwell
-    (`_rise_end_s`: a gantry rung by the halt carried the force past the dwell's level and the split
+    (`steep_rise_line`: a gantry rung by the halt carried the force past the dwell's level and the split
     ended the compression 4-7 samples late, P2 8-13 ms after the halt, the down contact 20-85 µm
     above the up one; the sweep's ring320x3 and ref_ring)."""
     dec = split.dec
     contact, peak = dec.bounds[0], dec.bounds[1]
     if peak - contact > 2:
-        rise_end_s = _rise_end_s(split)
-        return dec.points[P_DWELL_START][0] if rise_end_s is None else min(dec.points[P_DWELL_START][0], rise_end_s)
+        if split.steep_rise is None:
+            return dec.points[P_DWELL_START][0]
+        slope, intercept = split.steep_rise
+        dwell_slope, dwell_intercept = dec.lines[2]  # the steep rise's line meets the dwell line
+        return min(dec.points[P_DWELL_START][0], (dwell_intercept - intercept) / (slope - dwell_slope))
     return min(dec.points[P_DWELL_START][0], float(split.time_s[dec.start + peak]))
 
 
-def _rise_end_s(split: SplitTap) -> float | None:
-    """Where the compression's steep rise meets the dwell line, when the split's compression segment
-    ran on into the dwell: RISE_OVERRUN_SAMPLES or more samples after the rise fell to under half its
-    steepest step (a step of STEEP_RISE_NOISE noise sigmas or more), one of them OVERSHOOT_NOISE
-    noise sigmas above the dwell line. Else None."""
+def steep_rise_line(split: SplitTap) -> tuple[float, float] | None:
+    """The line (slope g/s, intercept g) of the compression's steep rise alone, when the split's
+    compression segment ran on into the dwell: RISE_OVERRUN_SAMPLES or more samples after the rise fell
+    to under half its steepest step (a step of STEEP_RISE_NOISE noise sigmas or more), one of them
+    OVERSHOOT_NOISE noise sigmas above the dwell line, and the steep line steeper than the dwell's.
+    Else None."""
     dec, time_s, force_g = split.dec, split.time_s, split.force_g
     first, stop = dec.start + dec.bounds[0], dec.start + dec.bounds[1]
     steps = np.diff(force_g[first:stop])
@@ -1499,10 +1510,8 @@ def _rise_end_s(split: SplitTap) -> float | None:
     overshoot_g = force_g[rise_stop:stop] - (dwell_slope * time_s[rise_stop:stop] + dwell_intercept)
     if float(overshoot_g.max()) < OVERSHOOT_NOISE * split.noise_g:
         return None
-    slope, intercept = segment_line(split.ps, dec.bounds[0], rise_stop - dec.start)
-    if slope <= dwell_slope:
-        return None
-    return (dwell_intercept - intercept) / (slope - dwell_slope)
+    line = segment_line(split.ps, dec.bounds[0], rise_stop - dec.start)
+    return line if line[0] > dwell_slope else None
 
 
 def compression_places_the_halt(dec: Decomposition, motion: Motion, timing: SensorTiming) -> bool:
@@ -1856,12 +1865,14 @@ def compression_stiffness(split: SplitTap, window: ModelWindow, fits: ContactFit
     result.compression_samples = compression_sample_count(window, motion, delay_s, onset_um,
                                                           pullback.contact_um if pullback else window.break_line_um)
     if result.compression_samples >= MIN_COMPRESSION_SAMPLES:
+        compression_line = split.steep_rise or split.dec.compression_line
         result.stiffness_compression_g_um = (fits.compression.stiffness_g_um if fits.compression else
-                                             abs(split.dec.compression_line[0]) / (motion.approach_speed_mm_s * 1000.0))
-        result.line_stiffness_ratio = line_stiffness_ratio(split.dec, motion)
+                                             abs(compression_line[0]) / (motion.approach_speed_mm_s * 1000.0))
+        result.line_stiffness_ratio = line_stiffness_ratio(compression_line, split.dec.decompression_line, motion)
 
 
-def line_stiffness_ratio(dec: Decomposition, motion: Motion) -> float | None:
+def line_stiffness_ratio(compression_line: tuple[float, float], decompression_line: tuple[float, float],
+                         motion: Motion) -> float | None:
     """The decompression line's stiffness over the compression line's (each slope over its speed, g/um).
 
     The quality classifier's stiffness component compares the two sides with one estimator: the
@@ -1872,8 +1883,8 @@ def line_stiffness_ratio(dec: Decomposition, motion: Motion) -> float | None:
     (tapcell.tap.classifiers.stiffness_ratio): over taplab seeds 1 and 2 and the reference set clean
     taps reach 34 %; ooze that halves the decompression's stiffness shows in both.
     """
-    compression_g_um = abs(dec.compression_line[0]) / motion.approach_speed_mm_s
-    decompression_g_um = abs(dec.decompression_line[0]) / motion.pullback_speed_mm_s
+    compression_g_um = abs(compression_line[0]) / motion.approach_speed_mm_s
+    decompression_g_um = abs(decompression_line[0]) / motion.pullback_speed_mm_s
     return decompression_g_um / compression_g_um if compression_g_um > 0 else None
 
 
