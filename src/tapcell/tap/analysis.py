@@ -154,8 +154,12 @@ PLASTIC_SQUEEZE_SHARE = 0.3
 # >= 3 % (cable drift) from 21 um below contact at most, mild ooze from at most 12.7; the reference's
 # bowden and soft-sheet approaches curve up from as high as 1,336 um, none of them pulling. The heavy
 # ooze accepted 21 um high (seed 388 k 27: a pull of 7 %, the dwell dropping 3 %, the down contact
-# 2 um above the up one) rose from 51.
-PLASTIC_MET_ABOVE_UM = 20.0
+# 2 um above the up one) rose from 51; the one accepted 19.3 um high on seed 788 (k 0: a pull of
+# 5.9 %, the dwell dropping 6.7 %, the down contact at 29 % of the mismatch allowed, a departure of
+# 55 um) from 12.1. At 20 um that one passed; at 10 no tap of taplab seeds 1-100 (every scenario)
+# or of the reference sets changes whether it is valid (a heavy-ooze tap of seed 14 is named
+# TAP_ADHESION instead of TAP_TWO_STAGE_CONTACT).
+PLASTIC_MET_ABOVE_UM = 10.0
 
 
 def sensor_timing(tap: TapData, options: AnalysisOptions, sample_period_s: float) -> SensorTiming:
