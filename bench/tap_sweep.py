@@ -305,6 +305,76 @@ def _gantry_ringing(amplitude_um: tuple[float, float]) -> Callable[[dict, float,
     return transform
 
 
+def _contact_sign(force: np.ndarray) -> float:
+    """+1 when contact drives the tap's force up, -1 when down (the sign of its largest reading)."""
+    return 1.0 if float(force[np.argmax(np.abs(force))]) > 0.0 else -1.0
+
+
+def _heater_pwm(grams: tuple[float, float], hz: float) -> Callable[[dict, float, np.random.Generator], dict]:
+    """A hotend heater's PWM coupling into the load cell: a square wave of `hz` (duty 20-80 %, phase and
+    amplitude `grams` drawn per tap) about its own mean, point-sampled. Not sinusoidal, so the hum
+    removal's lines do not describe it."""
+    def transform(tap, _z_mm, rng):
+        t = np.asarray(tap["time"], dtype=float)
+        duty, phase, grams_g = float(rng.uniform(0.2, 0.8)), float(rng.uniform(0.0, 1.0)), float(rng.uniform(*grams))
+        on = ((t * hz + phase) % 1.0) < duty
+        return _with_force(tap, np.asarray(tap["force"], dtype=float) + grams_g * (np.where(on, 1.0, 0.0) - duty))
+    return transform
+
+
+def _cable_friction(grams: tuple[float, float]) -> Callable[[dict, float, np.random.Generator], dict]:
+    """A cable or bowden dragging with friction: `grams` (drawn per tap) pushing the way contact does
+    while the nozzle moves down, the other way while it moves up, nothing while it is held (from the
+    tap's events). The departure then lies twice that below the approach, level all the way up."""
+    def transform(tap, _z_mm, rng):
+        t = np.asarray(tap["time"], dtype=float)
+        force = np.asarray(tap["force"], dtype=float)
+        events = tap["events"]
+        drag_g = float(rng.uniform(*grams)) * _contact_sign(force)
+        moving = np.where(t < events["home_end_time"], 1.0, np.where(t >= events["pullback_start_time"], -1.0, 0.0))
+        return _with_force(tap, force + drag_g * moving)
+    return transform
+
+
+def _z_speed_mm_s(moves: list[dict], t: np.ndarray) -> np.ndarray:
+    """The toolhead's Z speed (mm/s, up positive) at times `t` from the tap's moves."""
+    speed = np.zeros(len(t))
+    for move in moves:
+        start = float(move["print_time"])
+        inside = (t >= start) & (t < start + float(move["move_t"]))
+        speed[inside] = move["z_r"] * (move["start_v"] + move["accel"] * (t[inside] - start))
+    return speed
+
+
+def _inertial_ringing(g_per_mm_s: tuple[float, float]) -> Callable[[dict, float, np.random.Generator], dict]:
+    """The toolhead's mass ringing on the load cell (as taplab's ringing, here on the reference taps):
+    every change of Z speed (from the tap's moves) excites a decaying sine of 25-70 Hz (20-80 ms decay),
+    `g_per_mm_s` of force per mm/s of the change (drawn per tap), in or out of contact. The reference
+    taps probe at ~10 mm/s: 5-60 g at the halt."""
+    def transform(tap, _z_mm, rng):
+        t = np.asarray(tap["time"], dtype=float)
+        force = np.asarray(tap["force"], dtype=float)
+        g, hz, tau_s = float(rng.uniform(*g_per_mm_s)), float(rng.uniform(25.0, 70.0)), float(rng.uniform(0.02, 0.08))
+        step_s = 1e-4
+        fine_s = np.arange(t[0] - 0.05, t[-1] + step_s, step_s)
+        changes = np.diff(_z_speed_mm_s(tap["moves"], fine_s), prepend=0.0)
+        since_s = np.arange(0.0, 6.0 * tau_s, step_s)
+        ring = np.convolve(changes, np.exp(-since_s / tau_s) * np.sin(2.0 * math.pi * hz * since_s))[:len(fine_s)]
+        return _with_force(tap, force + _contact_sign(force) * g * np.interp(t, fine_s, ring))
+    return transform
+
+
+def _stale_readings(share: float) -> Callable[[dict, float, np.random.Generator], dict]:
+    """A sensor read before its next conversion: `share` of the samples (at random) repeat the reading
+    before them, each at its own time."""
+    def transform(tap, _z_mm, rng):
+        force = np.asarray(tap["force"], dtype=float).copy()
+        for i in np.sort(rng.choice(np.arange(1, len(force)), size=int(share * len(force)), replace=False)):
+            force[i] = force[i - 1]
+        return _with_force(tap, force)
+    return transform
+
+
 @dataclass(frozen=True)
 class Case:
     name: str
@@ -412,6 +482,16 @@ CASES = [Case(*row[:3], **(row[3] if len(row) > 3 else {})) for row in (
      {"reference": ("clean_hx717", 1), "transform": _force_offset(-5000.0)}),
     ("ref_ring", "reference HX717 + gantry ringing (approx.)", "accept",
      {"reference": ("clean_hx717", 1), "transform": _gantry_ringing((1.0, 5.0))}),
+    ("ref_inert", "reference HX717 + toolhead ringing 2-6 g/(mm/s)", "accept",
+     {"reference": ("clean_hx717", 1), "transform": _inertial_ringing((2.0, 6.0))}),
+    ("ref_2000inert", "reference ADS1220 2000 + toolhead ringing", "accept",
+     {"reference": ("clean_ads1220_2000", 1), "transform": _inertial_ringing((0.5, 2.0))}),
+    ("ref_pwm10", "reference HX717 + 10 Hz heater PWM 1-3 g", "accept",
+     {"reference": ("clean_hx717", 1), "transform": _heater_pwm((1.0, 3.0), 10.0)}),
+    ("ref_friction", "reference HX717 + cable friction 1-3 g", "accept",
+     {"reference": ("clean_hx717", 1), "transform": _cable_friction((1.0, 3.0))}),
+    ("ref_stale3", "reference HX717, 3 % stale readings", "accept",
+     {"reference": ("clean_hx717", 1), "transform": _stale_readings(0.03)}),
     ("ref_stage10", "reference HX717 + a sprung stage 10 um (approx.)", "either",
      {"reference": ("clean_hx717", 1), "transform": _sprung_stage(10.0, 0.2), "truth_up_um": 10.0}),
     ("ref_stage20", "reference HX717 + a sprung stage 20 um (approx.)", "either",

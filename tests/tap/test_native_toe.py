@@ -311,6 +311,7 @@ def test_adhesion_measures_equal_the_numpy_twin(monkeypatch):
     # The dip's run means are summed in another order than np.convolve's: ~1e-15 relative of forces
     # of tens of grams; medians select, they do not sum.
     calls = recorded_calls(analysis, "adhesion_measures", [OPTIONS["default"]])
+    kernel_module = toe._C
     kernel = [toe.adhesion_measures(*args) for args in calls]
     monkeypatch.setattr(toe, "_C", None)
     twins = [toe.adhesion_measures(*args) for args in calls]
@@ -321,6 +322,18 @@ def test_adhesion_measures_equal_the_numpy_twin(monkeypatch):
                 assert value == pytest.approx(twin_value, abs=1e-9)
     assert sum(dip is not None for dip, _ in twins) >= 10 and sum(pull is not None for _, pull in twins) >= 10
     assert max(dip for dip, _ in twins if dip is not None) > 3.0  # ooze taps: real dips, not only noise (4.9 g)
+    # Over a ringing's half period (`analysis.adhesion_run_samples`): the same calls with runs of 9 and 25.
+    for run_samples in (9, 25):
+        monkeypatch.setattr(toe, "_C", kernel_module)
+        longer = [toe.adhesion_measures(*args[:6], run_samples) for args in calls]
+        monkeypatch.setattr(toe, "_C", None)
+        longer_twins = [toe.adhesion_measures(*args[:6], run_samples) for args in calls]
+        for (dip, pull), (twin_dip, twin_pull), (short_dip, _) in zip(longer, longer_twins, kernel):
+            assert (dip is None) == (twin_dip is None) and pull == twin_pull
+            if twin_dip is not None:
+                assert dip == pytest.approx(twin_dip, abs=1e-9)
+                if run_samples % toe.ADHESION_RUN_SAMPLES == 0:  # a mean of whole 5-runs: no lower than their lowest
+                    assert dip <= short_dip + 1e-9
 
 
 def test_thread_pulls_equal_the_numpy_twin_bit_for_bit(monkeypatch):

@@ -55,9 +55,9 @@ from tapcell.tap.segments import (NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_
 from tapcell.tap.stage import (Ringing, SoftStage, TwoStageFit, departure_soft_stage, dwell_ringing,
                                shows_absorbed_stage, shows_soft_stage, shows_two_stage, two_stage_departure,
                                unnamed_stage_um)
-from tapcell.tap.toe import (ADHESION_LEVEL_UM, ADHESION_REACH_UM, THREAD_FAR_REACH_UM, THREAD_REACH_UM, TOE_WIDTHS_UM,
-                             ToeFit, Wander, adhesion_measures, fit_toe, free_air_walks, lag_from_halt_s, thread_pull_g,
-                             thread_pulls_g)
+from tapcell.tap.toe import (ADHESION_LEVEL_UM, ADHESION_REACH_UM, ADHESION_RUN_SAMPLES, THREAD_FAR_REACH_UM,
+                             THREAD_REACH_UM, TOE_WIDTHS_UM, ToeFit, Wander, adhesion_measures, fit_toe, free_air_walks,
+                             lag_from_halt_s, thread_pull_g, thread_pulls_g)
 
 if TYPE_CHECKING:  # the hum's module is imported where a tap asks for hum removal (remove_mains_hum)
     from tapcell.tap.hum import HumFit
@@ -967,7 +967,7 @@ def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTimin
                    approach_line: tuple[float, float], contact_um: float, noise_g: float,
                    approach_wander: Wander | None, compression_force_g: float,
                    down_above_up_um: tuple[float, float] | None = None,
-                   approach_rise_um: float | None = None) -> None:
+                   approach_rise_um: float | None = None, ringing: Ringing | None = None) -> None:
     """TAP_ADHESION when ooze or adhesion pulls the nozzle after break contact, seen either way:
     the force dips below the departure's own free-air level just above break contact by more than
     ADHESION_MAX_DIP_NOISE noise sigmas (`adhesion_dip`), or the departure lies below the
@@ -976,7 +976,8 @@ def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTimin
     pulling the whole departure pulls the dip's own reference too), unless the tap shows it to be a
     baseline shift (`_baseline_shift`). The walk is the approach's own: a thread pulling over the
     departure would pass for a walk there. Either must also exceed ADHESION_MIN_DIP_FRACTION of the
-    compression force (a noise-free tap has no noise to compare with). A film of plastic (a
+    compression force (a noise-free tap has no noise to compare with). The dip is a run's mean over
+    half the period of a ringing the dwell shows (`adhesion_run_samples`). A film of plastic (a
     departure pulled below the approach's level together with a dwell drop, `_plastic_film`, a down
     contact above the up one, `_pressed_film`, or an approach that rose off its free air well above
     break contact, `_film_met_above`, approach_rise_um) is named before the thread.
@@ -986,7 +987,8 @@ def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTimin
     slope_g_s, intercept_g = approach_line
     drift_g_um = -slope_g_s / (motion.approach_speed_mm_s * 1000.0)  # as free_air_slope_g_um
     approach_at_halt_g = slope_g_s * motion.home_end_s + intercept_g
-    dip_g, pull_g = adhesion_measures(*samples, drift_g_um, contact_um, approach_at_halt_g)
+    dip_g, pull_g = adhesion_measures(*samples, drift_g_um, contact_um, approach_at_halt_g,
+                                      adhesion_run_samples(ringing))
     dip_limit_g = max(ADHESION_MAX_DIP_NOISE * noise_g, floor_g)
     if dip_g is not None and dip_g > dip_limit_g:  # the second reference only when the first would reject
         dip_g = dip_below_both_references_g(samples, drift_g_um, contact_um, approach_at_halt_g, dip_g)
@@ -1034,6 +1036,19 @@ def thread_limit_g(noise_g: float, walk_g: float, compression_force_g: float) ->
     noise_limit_g = THREAD_MAX_NOISE * noise_g
     return max(min(noise_limit_g + walk_g, THREAD_MIN_SHARE * compression_force_g), noise_limit_g,
                ADHESION_MIN_DIP_FRACTION * compression_force_g)
+
+
+def adhesion_run_samples(ringing: Ringing | None) -> int:
+    """The samples the adhesion dip averages over: ADHESION_RUN_SAMPLES, or half the period of a
+    ringing the dwell shows when that is longer. A ringing the pullback's start excites swings the
+    departure about its level, and a short run reads its trough as a dip (2000 sps: 1-6 of 80 clean
+    taps TAP_ADHESION under the sweep's ringing, the dwell ringing at 25-70 Hz, 29-80 samples); over
+    half a period the trough averages out, while a thread's pull, tens of µm long, does not (taplab's
+    and the reference's ooze: the dwell "rings" on a third to half of their taps, at 2-33 samples,
+    and one mild-ooze tap of 880 is accepted for it)."""
+    if ringing is None:
+        return ADHESION_RUN_SAMPLES
+    return max(ADHESION_RUN_SAMPLES, int(round(0.5 * ringing.period_samples)))
 
 
 def dip_below_both_references_g(samples: PullbackSamples, drift_g_um: float, contact_um: float,
@@ -1676,7 +1691,7 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     contact_um = toe.contact_um - lag_shift_um
     check_adhesion(rising, motion, timing, dec, free_air_line(split, contact_um, delay_s),
                    toe.contact_um, split.noise_g, approach_wander or wander, result.compression_force_g,
-                   down_above_up_um, approach_rise_above_um(split, contact_um, delay_s))
+                   down_above_up_um, approach_rise_above_um(split, contact_um, delay_s), split.ringing)
     walk_var_g2 = approach_walk_var_g2(split)  # the two-stage fits' walk
     ramp, stages = check_stages(split, samples, drift_g_um, toe, lag_shift_um, wander, walk_var_g2,
                                 drift_held=fit_drift_g_um is not None)

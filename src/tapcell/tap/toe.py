@@ -873,7 +873,8 @@ def toe_minima(contacts_um: np.ndarray, rss: np.ndarray, noise_var: float
     return minima
 
 
-def adhesion_dip(x_um: np.ndarray, force_g: np.ndarray, drift_g_um: float, contact_um: float) -> float | None:
+def adhesion_dip(x_um: np.ndarray, force_g: np.ndarray, drift_g_um: float, contact_um: float,
+                 run_samples: int = ADHESION_RUN_SAMPLES) -> float | None:
     """How far (g) the force dips below the free-air level just above break contact, or None when
     the pullback does not reach far enough above contact to know the level.
 
@@ -886,19 +887,24 @@ def adhesion_dip(x_um: np.ndarray, force_g: np.ndarray, drift_g_um: float, conta
     above = x_um - contact_um
     level = level_force[(above > ADHESION_REACH_UM) & (above < ADHESION_LEVEL_UM)]
     near = level_force[(above > ADHESION_FROM_UM) & (above <= ADHESION_REACH_UM)]
-    if len(level) < ADHESION_MIN_LEVEL_SAMPLES or len(near) < ADHESION_RUN_SAMPLES:
+    if len(level) < ADHESION_MIN_LEVEL_SAMPLES or len(near) < run_samples:
         return None
-    runs = np.convolve(near, _RUN_MEAN_KERNEL, mode="valid")
+    kernel = _RUN_MEAN_KERNEL if run_samples == ADHESION_RUN_SAMPLES else np.full(run_samples, 1.0 / run_samples)
+    runs = np.convolve(near, kernel, mode="valid")
     return median(level) - float(runs.min())
 
 
 def adhesion_measures(x_lo_um: np.ndarray, x_hi_um: np.ndarray, force_g: np.ndarray, drift_g_um: float,
-                      contact_um: float, approach_at_halt_g: float) -> tuple[float | None, float | None]:
-    """(`adhesion_dip`, `thread_pull_g`) over the conversion windows' mid-heights (in C when built)."""
+                      contact_um: float, approach_at_halt_g: float,
+                      run_samples: int = ADHESION_RUN_SAMPLES) -> tuple[float | None, float | None]:
+    """(`adhesion_dip` over runs of `run_samples`, `thread_pull_g`) over the conversion windows'
+    mid-heights (in C when built)."""
     if _C is not None:
-        return _C.adhesion(x_lo_um, x_hi_um, force_g, drift_g_um, contact_um, approach_at_halt_g, ADHESION_LIMITS)
+        limits = (ADHESION_LIMITS if run_samples == ADHESION_RUN_SAMPLES else
+                  (*ADHESION_LIMITS[:3], run_samples, *ADHESION_LIMITS[4:]))
+        return _C.adhesion(x_lo_um, x_hi_um, force_g, drift_g_um, contact_um, approach_at_halt_g, limits)
     x_um = 0.5 * (x_lo_um + x_hi_um)
-    return (adhesion_dip(x_um, force_g, drift_g_um, contact_um),
+    return (adhesion_dip(x_um, force_g, drift_g_um, contact_um, run_samples),
             thread_pull_g(x_um, force_g, drift_g_um, approach_at_halt_g, contact_um))
 
 
