@@ -1513,9 +1513,16 @@ def steep_rise_line(split: SplitTap) -> tuple[float, float] | None:
     Else None."""
     dec, time_s, force_g = split.dec, split.time_s, split.force_g
     first, stop = dec.start + dec.bounds[0], dec.start + dec.bounds[1]
-    steps = np.diff(force_g[first:stop])
-    if len(steps) < 2:
+    if stop - first < RISE_OVERRUN_SAMPLES + 2:
         return None
+    dwell_slope, dwell_intercept = dec.lines[2]
+    # First the cheap test most taps fail: no sample of the segment stands that far above the dwell
+    # line's lowest point over the segment (a compression rises towards the dwell from below).
+    lowest_dwell_g = dwell_slope * float(time_s[stop - 1] if dwell_slope < 0.0 else time_s[first]) + dwell_intercept
+    segment = force_g[first:stop]
+    if float(segment.max()) < lowest_dwell_g + OVERSHOOT_NOISE * split.noise_g:
+        return None
+    steps = np.diff(segment)
     steepest = int(np.argmax(steps))
     if steps[steepest] < STEEP_RISE_NOISE * split.noise_g:
         return None
@@ -1525,7 +1532,6 @@ def steep_rise_line(split: SplitTap) -> tuple[float, float] | None:
     rise_stop = first + steepest + 2 + int(slowed[0])  # the first sample past the steep rise
     if stop - rise_stop < RISE_OVERRUN_SAMPLES:
         return None
-    dwell_slope, dwell_intercept = dec.lines[2]
     overshoot_g = force_g[rise_stop:stop] - (dwell_slope * time_s[rise_stop:stop] + dwell_intercept)
     if float(overshoot_g.max()) < OVERSHOOT_NOISE * split.noise_g:
         return None
