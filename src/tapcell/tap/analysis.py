@@ -1450,7 +1450,6 @@ def result_of_split(split: SplitTap, polarity: int, outliers: int, hum: HumFit |
         outliers=outliers,
         sensor_integration_s=split.timing.integration_s,
         noise_sigma_g=split.noise_g,
-        dwell_ringing_var_g2=split.ringing.var_g2 if split.ringing is not None else 0.0,
         hum=hum.to_json() if hum else None,
         compression_force_g=abs(dec.points[P_DWELL_START][1] - dec.points[P_CONTACT][1]),
         break_contact_time_s=dec.points[P_BREAK][0],
@@ -1781,6 +1780,8 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
         shape_um = uncertainty.toe_shape_um(result.toe_grid)
     else:
         noise_um, shape_um = result.z_sigma_um, 0.0
+    # The quality classifier's misfit allows for the same ringing (TapAnalysis.dwell_ringing_var_g2).
+    result.dwell_ringing_var_g2 = split.ringing.var_g2 if split.ringing is not None else 0.0
     result.z_sigma_parts, result.z_sigma_um = uncertainty.tap_sigma_parts(
         samples[0], samples[1], contact_um, stiffness, noise_um, shape_um, walk_var_g2, near_pull_g, far_pull_g,
         max(split.noise_g, departure_g), result.fit_residual_sigma_g, result.step_sigma_g, down_um, up_um,
