@@ -81,3 +81,28 @@ def test_the_stiffness_the_lines_show_is_the_steep_rises():
     assert answer["valid"], answer["message"]
     assert answer["quality_components"]["stiffness"] < 0.25  # measured 0.135
     assert abs(answer["z"] - z_mm) * 1000.0 < 3.0  # measured -1.93 µm at z_sigma 17
+
+
+def test_on_the_other_generators_taps_the_rule_fires_on_heavy_ooze_alone(reference_dir):
+    """The reference taps (a generator we did not write; 960 taps, hum among them): no clean tap's
+    compression runs on past its rise above the dwell line. Heavy ooze's does (17 taps: plastic
+    squeezed out under the halt), and those stay rejected."""
+    if reference_dir is None:
+        pytest.skip("no reference taps here")
+    from tapcell.tap.readers import read_tap_file
+    from tapcell.tap.validate import TapInvalid
+
+    fired, split_count = [], 0
+    for path in sorted(reference_dir.glob("*.json")):
+        (tap,) = read_tap_file(path)
+        try:
+            split = split_tap(tap, AnalysisOptions())[0]
+        except TapInvalid:
+            continue
+        split_count += 1
+        if analysis.steep_rise_line(split) is not None:
+            fired.append((path.name, tap))
+    assert split_count > 900
+    assert 10 <= len(fired) <= 25  # measured 17
+    assert all(name.startswith("ooze_heavy_") for name, _ in fired)
+    assert not any(analysis.analyze_tap(tap).valid for _, tap in fired)
