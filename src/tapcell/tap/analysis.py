@@ -618,11 +618,12 @@ class ModelWindow:
 
 
 def model_window(time_s, force_g, motion: Motion, timing: SensorTiming, delay_s: float,
-                 dec: Decomposition) -> ModelWindow:
+                 dec: Decomposition, contact_s: float | None = None) -> ModelWindow:
+    """`contact_s`: when contact began as the lines read it, if not P1 (`SplitTap.contact_s`)."""
     t = time_s[dec.start:dec.stop]
     # A line point is read half a conversion window late, plus the delay.
     lag_s = delay_s + 0.5 * timing.integration_s
-    lines_s = (dec.points[P_CONTACT][0] - lag_s, dec.points[P_BREAK][0] - lag_s)
+    lines_s = ((dec.points[P_CONTACT][0] if contact_s is None else contact_s) - lag_s, dec.points[P_BREAK][0] - lag_s)
     if _C is not None and motion.moves is not None:
         x_min, span = np.empty(len(t)), np.empty(len(t))
         # The kernel counts the samples read by the time the nozzle rose too: `pullback_first` at this delay.
@@ -1348,6 +1349,16 @@ class SplitTap:
         stiffness the lines show take instead of the split's."""
         return steep_rise_line(self)
 
+    @property
+    def contact_s(self) -> float:
+        """When contact began as the lines read it: P1, or where the steep rise's line meets the
+        approach line when the split's compression segment ran on (`steep_rise`): there P1 lies where
+        a line through the ringing meets the approach, too early."""
+        if self.steep_rise is None:
+            return self.dec.points[P_CONTACT][0]
+        (slope, intercept), (approach_slope, approach_intercept) = self.steep_rise, self.dec.approach_line
+        return (approach_intercept - intercept) / (slope - approach_slope)
+
     @cached_attribute
     def ringing(self) -> Ringing | None:
         """The ringing the dwell shows (tapcell.tap.stage.dwell_ringing), against the white noise:
@@ -1378,7 +1389,8 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
     try:
         delay_s = lag_before_the_fits(split, result)
         check_split(split, delay_s)
-        window = model_window(split.time_s, split.force_g, split.motion, split.timing, delay_s, split.dec)
+        window = model_window(split.time_s, split.force_g, split.motion, split.timing, delay_s, split.dec,
+                              split.contact_s)
         fits = fit_contact_models(split, window, delay_s, options, result)
         result.z_line_mm = split.motion.z_halt_mm + window.break_line_um / 1000.0  # P4 mapped, delay-corrected
         down_above_up_um = check_contact_heights(window, fits.pullback, fits.compression, split.motion,
