@@ -30,7 +30,7 @@ from tapcell.tap import contact, native, uncertainty, validate
 from tapcell.tap.classifiers import get_classifier, run_classifier
 from tapcell.tap.contact import (MIN_SPAN_UM, SEARCH_SAMPLES, ContactFit, fit_contact, fit_fixed_onset,
                                  fit_of_kernel, window_edges, window_mean_and_slope)
-from tapcell.tap.context import AnalysisContext, SensorTiming
+from tapcell.tap.context import AnalysisContext, SensorTiming, line_intersection
 from tapcell.tap.lazy import cached_attribute
 from tapcell.tap.model import (
     TAP_ADHESION,
@@ -1354,10 +1354,8 @@ class SplitTap:
         """When contact began as the lines read it: P1, or where the steep rise's line meets the
         approach line when the split's compression segment ran on (`steep_rise`): there P1 lies where
         a line through the ringing meets the approach, too early."""
-        if self.steep_rise is None:
-            return self.dec.points[P_CONTACT][0]
-        (slope, intercept), (approach_slope, approach_intercept) = self.steep_rise, self.dec.approach_line
-        return (approach_intercept - intercept) / (slope - approach_slope)
+        p1_s = self.dec.points[P_CONTACT][0]
+        return p1_s if self.steep_rise is None else line_intersection(self.steep_rise, self.dec.approach_line, p1_s)[0]
 
     @cached_attribute
     def ringing(self) -> Ringing | None:
@@ -1508,11 +1506,11 @@ def compression_end_s(split: SplitTap) -> float:
     dec = split.dec
     contact, peak = dec.bounds[0], dec.bounds[1]
     if peak - contact > 2:
+        p2_s = dec.points[P_DWELL_START][0]
         if split.steep_rise is None:
-            return dec.points[P_DWELL_START][0]
-        slope, intercept = split.steep_rise
-        dwell_slope, dwell_intercept = dec.lines[2]  # the steep rise's line meets the dwell line
-        return min(dec.points[P_DWELL_START][0], (dwell_intercept - intercept) / (slope - dwell_slope))
+            return p2_s
+        # Where the steep rise's own line meets the dwell line.
+        return min(p2_s, line_intersection(split.steep_rise, dec.lines[2], p2_s)[0])
     return min(dec.points[P_DWELL_START][0], float(split.time_s[dec.start + peak]))
 
 

@@ -35,7 +35,7 @@ class AnalysisContext:
     timing: SensorTiming | None
 
 
-def _intersect(a: tuple[float, float], b: tuple[float, float], t_ref: float) -> tuple[float, float]:
+def line_intersection(a: tuple[float, float], b: tuple[float, float], t_ref: float) -> tuple[float, float]:
     """Intersection of two lines; computed around t_ref so large clock values lose nothing."""
     slope_diff = a[0] - b[0]
     if slope_diff == 0:
@@ -53,6 +53,6 @@ def recompute_points(lines: list[tuple[float, float]], t_first: float, t_last: f
     """P0 on the approach line at the window start, P1..P4 the intersections, P5 on the departure."""
     t_mid = 0.5 * (t_first + t_last)
     points = [(t_first, _line_at(lines[0], t_first))]
-    points += [_intersect(lines[k], lines[k + 1], t_mid) for k in range(4)]
+    points += [line_intersection(lines[k], lines[k + 1], t_mid) for k in range(4)]
     points.append((t_last, _line_at(lines[4], t_last)))
     return points

@@ -420,7 +420,7 @@ static PyObject *segment_stats_of(const double *rows, Py_ssize_t width, Py_ssize
     return Py_BuildValue("(ddd)", sse / dof, st / n, sxx);
 }
 
-/* `context._intersect` of lines (a_slope, a_intercept) and (b_slope, b_intercept) around t_ref
+/* `context.line_intersection` of lines (a_slope, a_intercept) and (b_slope, b_intercept) around t_ref
  * (the same arithmetic): NaN, NaN for parallel lines. */
 static void intersect(double a_slope, double a_intercept, double b_slope, double b_intercept, double t_ref,
                       double *t_out, double *f_out)
