@@ -9,8 +9,8 @@ toe model read them 1-28 µm low, 4 of 40 accepted beyond 20 µm with a small si
 
 `soft_stage` fits that ramp over the departure (a free level plus k1 clip(top - x, 0) for every
 top on a 1 µm grid) against a flat level; the tap shows a soft stage when the ramp explains more
-than STAGE_MIN_CHI2 noise variances (white noise plus the baseline's walk over the departure)
-and is steeper than STAGE_MIN_SLOPE_SHARE of the contact's stiffness (a walk or a cable's drift
+than STAGE_MIN_CHI2 noise variances (white noise plus the baseline's walk over the departure, or
+what the ramp leaves of the departure where that is more) and is steeper than STAGE_MIN_SLOPE_SHARE of the contact's stiffness (a walk or a cable's drift
 left over are a few tenths of a per cent of it, the steepest reference bowden tap's 5 %; a stage's
 ten per cent and more).
 """
@@ -81,7 +81,13 @@ def soft_stage(x_um: np.ndarray, force_g: np.ndarray, contact_um: float, noise_v
     gain[srf <= 0.0] = 0.0  # a ramp rising with height is no stage
     best = int(gain.argmax())
     slope = srf[best] / srr[best] if srr[best] > 0 else 0.0
-    return SoftStage(float(gain[best] / noise_var_g2), float(contact_um + STAGE_TOPS_UM[best]), float(slope))
+    # Weighed against the noise, or against what the ramp leaves when that is more: a heater's PWM or
+    # a ramp in time nobody modelled leaves the departure's level wandering by more than the noise
+    # (a second difference hardly sees a 10 Hz square wave at 320 sps), and a stage explains its
+    # departure down to the noise. As the two-stage fit weighs its evidence (`_two_stage_grid`).
+    left_var_g2 = (float((f * f).sum()) - float(gain[best])) / max(n - 3, 1)
+    return SoftStage(float(gain[best] / max(noise_var_g2, left_var_g2)), float(contact_um + STAGE_TOPS_UM[best]),
+                     float(slope))
 
 
 # Gantry ringing (issue 21): an oscillation in time that every change of speed excites, the halt

@@ -106,11 +106,13 @@ static PyObject *soft_stage(PyObject *self, PyObject *args)
         const double *below = prefix + 4 * i;
         double *row = prefix + 4 * (i + 1);
         x[i] = h;
+        f[i] = level * level; /* the squares, summed below as numpy sums them */
         row[0] = below[0] + h;
         row[1] = below[1] + h * h;
         row[2] = below[2] + level;
         row[3] = below[3] + h * level;
     }
+    const double ff = numpy_sum(f, n, 1);
     double best_gain = 0.0, best_srf = 0.0, best_srr = 0.0;
     Py_ssize_t best = -1, count = 0;
     for (Py_ssize_t k = 0; k < n_tops; k++) {
@@ -134,7 +136,10 @@ static PyObject *soft_stage(PyObject *self, PyObject *args)
         goto done;
     }
     const double slope = best_srr > 0.0 ? best_srf / best_srr : 0.0;
-    answer = Py_BuildValue("ddd", best_gain / noise_var, contact_um + tops[best], slope);
+    /* Weighed against the noise, or what the ramp leaves when that is more (the twin's comment). */
+    const double left_var = (ff - best_gain) / (double)(n > 3 ? n - 3 : 1);
+    answer = Py_BuildValue("ddd", best_gain / (left_var > noise_var ? left_var : noise_var), contact_um + tops[best],
+                           slope);
 done:
     free(x);
     free(f);
