@@ -77,23 +77,28 @@ def test_a_clean_tap_averaged_to_80_sps_is_not_a_contact_mismatch(reference_dir)
 def test_a_tap_averaged_to_10_sps_reads_no_lag_off_its_halt(reference_dir):
     """Reference clean_hx717 averaged in blocks of 32 (`ref_hx717x32`, 10 sps, 32 µm of pullback a
     sample). Tap 12: before, a lag of 46 ms read off a 1.24-period compression put it 15.1 µm low
-    at z_sigma 0.71 (21 σ). Now -0.40 µm. Tap 1 (rejected before as a contact mismatch 1855 µm
-    above the halt) reads +9.7 µm with z_sigma 9.2: the conversion window's 100 ms / √12 at
-    0.32 mm/s. Every accepted tap of the 20 lies within 1.1 σ."""
+    at z_sigma 0.71 (21 σ). Now no lag: its Z, kept with the rejection, -0.40 µm. The tap is
+    rejected for its pullback's step (`validate.PULLBACK_MAX_STEP_UM`), as every tap of the case is:
+    before that rule its accepted taps lay within 1.1 σ, at z_sigma_um 9.2 (the conversion window's
+    100 ms / √12 at 0.32 mm/s)."""
     taps = case_taps(CASE["ref_hx717x32"], 1, 20, reference_dir)
     answer = analyse_in_process(taps[12][0])
-    assert answer["valid"] and answer["sensor_delay_s"] == 0.0
+    assert answer["sensor_delay_s"] == 0.0
     assert _error_um(answer, taps[12][1]) == pytest.approx(-0.40, abs=0.1)
-    window_um = 0.32 * 1000.0 * 0.1 / math.sqrt(12.0)
-    assert answer["z_sigma_um"] >= window_um
-    answer = analyse_in_process(taps[1][0])
-    assert answer["valid"]
-    assert _error_um(answer, taps[1][1]) == pytest.approx(9.75, abs=0.2)
-    assert answer["z_sigma_um"] == pytest.approx(9.25, abs=0.1)
-    for k, (tap, z_mm) in enumerate(taps):
+    assert answer["error"] == "TAP_DATA_INSUFFICIENT"
+    assert answer["message"].startswith("the pullback moves 32.0 µm a sample")
+
+
+def test_a_tap_averaged_to_10_sps_carries_its_conversion_window_in_its_sigma(reference_dir):
+    """Reference HX711 80 sps averaged in blocks of 8 (`ref_slow10`, 10 sps, 8 µm of pullback a
+    sample): no lag from the halt, and z_sigma_um at least the conversion window's 100 ms / √12 at
+    0.08 mm/s (2.31 µm). Taps 0-7 measured -0.12 to +1.74 µm, z_sigma_um 2.39-2.57."""
+    window_um = 0.08 * 1000.0 * 0.1 / math.sqrt(12.0)
+    for k, (tap, z_mm) in enumerate(case_taps(CASE["ref_slow10"], 1, 8, reference_dir)):
         answer = analyse_in_process(tap)
-        if answer["valid"]:
-            assert abs(_error_um(answer, z_mm)) < 1.1 * answer["z_sigma_um"], k
+        assert answer["valid"] and answer["sensor_delay_s"] == 0.0, k
+        assert answer["z_sigma_um"] >= window_um, k
+        assert abs(_error_um(answer, z_mm)) < answer["z_sigma_um"], k
 
 
 def test_a_long_compression_still_reads_its_lag_and_judges_the_contacts(reference_dir):

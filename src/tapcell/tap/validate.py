@@ -27,6 +27,7 @@ from tapcell.tap.model import (
     Move,
 )
 from tapcell.tap.motion import MAX_PROBING_MOVES, MIN_PROBING_MOVES, Motion
+from tapcell.tap.toe import TOE_WIDTHS_UM
 
 # Expected signs of the four angles between consecutive lines, positive polarity:
 # approach→compression turns up (-), compression→dwell down (+), dwell→decompression down (+),
@@ -190,6 +191,14 @@ def check_pullback_samples(motion: Motion, sample_period_s: float) -> None:
 # by the model's assumed shape (issue 21's sweep, 10 mm/s at 320 sps, 31 µm a sample: the accepted
 # taps' errors 0.3-4.5 µm and one 19.9 µm off, 4.2 of its sigma, its stiffness read 1.2 g/µm for 4.9).
 DECOMPRESSION_MIN_SAMPLES = 2
+# A sample's travel on the pullback may reach the widest onset the toe model reads (its TOE_WIDTHS_UM's
+# last), no further: beyond it the contact's onset falls between two samples, and its height is the
+# shape assumed. The sweep's pullbacks of 10 mm/s at 320 sps (31.2 µm a sample, "either"): the taps
+# with two samples pressed that were accepted erred by 3.6 µm rms at 3.0 of their z_sigma_um (seeds
+# 51-90, 81 taps, by hand) and one 60.9 µm off (seed 89 k 8); the reference's ADS1220 2000 sps taps
+# averaged to 250 sps (8 µm a sample, must accept) with two or three samples pressed erred 2.8 µm at
+# most, 1.5 sigma.
+PULLBACK_MAX_STEP_UM = TOE_WIDTHS_UM[-1]
 # Faster than this many times the guide's 1 µm a sample, a decompression short of samples is the
 # speed's doing (at the guide's speed a stiff bed's few µm of over-travel hold few samples too).
 FAST_PULLBACK_GUIDE_STEPS = 2.0
@@ -204,15 +213,23 @@ def decompression_may_fall_short(contact_um: float, step_um: float) -> bool:
 
 
 def check_decompression_samples(pressed: int, contact_um: float, step_um: float) -> None:
-    """A pullback too fast for the decompression: fewer than DECOMPRESSION_MIN_SAMPLES samples
-    wholly pressed between the halt and break contact (`pressed`; `contact_um` above the halt,
-    `step_um` the pullback's travel per sample), where the guide's 1 µm a sample would give them and
-    the pullback moves more than FAST_PULLBACK_GUIDE_STEPS of it a sample. Its fix is the speed."""
-    if pressed < DECOMPRESSION_MIN_SAMPLES and decompression_may_fall_short(contact_um, step_um):
+    """A pullback too fast for the decompression, where the guide's 1 µm a sample would read it and
+    the pullback moves more than FAST_PULLBACK_GUIDE_STEPS of it a sample: fewer than
+    DECOMPRESSION_MIN_SAMPLES samples wholly pressed between the halt and break contact (`pressed`;
+    `contact_um` above the halt, `step_um` the pullback's travel per sample), or a sample's travel
+    longer than the widest onset the toe model reads (`PULLBACK_MAX_STEP_UM`). Its fix is the speed."""
+    if not decompression_may_fall_short(contact_um, step_um):
+        return
+    if pressed < DECOMPRESSION_MIN_SAMPLES:
         raise TapInvalid(TAP_DATA_INSUFFICIENT,
                          f"the decompression holds {pressed} sample(s) wholly in contact over {contact_um:.1f} µm "
                          f"({step_um:.1f} µm a sample), too few to fit the line break contact is read from (at "
                          f"least {DECOMPRESSION_MIN_SAMPLES}): slow pullback_speed (the guide scans 1 µm a sample)")
+    if step_um > PULLBACK_MAX_STEP_UM:
+        raise TapInvalid(TAP_DATA_INSUFFICIENT,
+                         f"the pullback moves {step_um:.1f} µm a sample, more than the widest contact onset the "
+                         f"analysis reads ({PULLBACK_MAX_STEP_UM:.0f} µm): break contact falls between two samples "
+                         "and only the shape assumed places it: slow pullback_speed (the guide scans 1 µm a sample)")
 
 
 # The guide's one probing-speed rule: an HX711 at 80 sps probes at 2 mm/s at most, 25 µm a sample
