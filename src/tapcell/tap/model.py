@@ -325,6 +325,7 @@ class TapAnalysis:
     stiffness_decompression_g_um: float | None = None
     compression_samples: int = 0  # samples wholly in contact before the halt (stiffness needs 2)
     outliers: int = 0  # corrupted single samples repaired before fitting
+    stale_readings: int = 0  # readings that repeated the one before while the force moved on, dropped
     noise_sigma_g: float | None = None  # sensor noise, from the analysed window's second differences
     fit_residual_sigma_g: float | None = None  # contact-model residual over the pullback near contact
     step_sigma_g: float | None = None  # the Z-step staircase in force, as the sensor averages it
@@ -388,6 +389,7 @@ class TapAnalysis:
             "quality_components": {k: _num(v, 6) for k, v in self.quality_components.items()},
             "classifier": self.classifier,
             "hum": self.hum,
+            **({"stale_readings": self.stale_readings} if self.stale_readings else {}),
             **({} if self.z_pooled_mm is None else {"z_pooled": _num(self.z_pooled_mm),
                                                    "z_pooled_sigma_um": _num(self.z_pooled_sigma_um, 4)}),
         }

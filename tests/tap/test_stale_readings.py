@@ -1,0 +1,91 @@
+"""Stale readings (issue 21's sweep, `ref_stale3`): a sensor read before its next conversion hands
+over the last value again at a new time. A reading equal to the one before it, after which the force
+moves on by more than STALE_JUMP_NOISE noise sigmas, is dropped as a lost reading is."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bench.tap_sweep import CASES, Case, analyse_in_process, case_taps, reference_taps
+from tapcell.tap import analysis
+from tapcell.tap.analysis import STALE_JUMP_NOISE, STALE_MAX_SHARE, noise_sigma_g, stale_readings
+
+CASE = {case.name: case for case in CASES}
+
+# (seed, tap) of `ref_stale3` rejected before: TAP_CONTACT_MISMATCH, TAP_CHRONOLOGY, LOW_TAP_QUALITY;
+# measured then -0.98, +0.17 and -0.28 µm off (by hand).
+STALE_TAPS = ((60, 3, "TAP_CONTACT_MISMATCH"), (53, 6, "TAP_CHRONOLOGY"), (54, 9, "LOW_TAP_QUALITY"))
+
+
+def ramp_with_noise(seed: int = 0, samples: int = 200) -> np.ndarray:
+    """Free air, a steep ramp of 20 g a sample over samples 100-109, free air again; 1 g of noise."""
+    rng = np.random.default_rng(seed)
+    force_g = np.concatenate([np.zeros(100), 20.0 * np.arange(1, 11), np.full(samples - 110, 200.0)])
+    return force_g + rng.normal(0.0, 1.0, samples)
+
+
+def test_a_reading_repeated_on_a_ramp_is_stale():
+    force_g = ramp_with_noise()
+    force_g[104] = force_g[103]
+    assert stale_readings(force_g).tolist() == [104]
+
+
+def test_a_run_of_repeats_on_a_ramp_is_stale_whole():
+    force_g = ramp_with_noise()
+    force_g[104:107] = force_g[103]
+    assert stale_readings(force_g).tolist() == [104, 105, 106]
+
+
+def test_a_reading_repeated_in_free_air_is_kept():
+    """Whether it is stale or not, the force does not move on from it: nothing tells, nothing is lost."""
+    force_g = ramp_with_noise()
+    force_g[50] = force_g[49]
+    assert stale_readings(force_g) is None
+
+
+def test_the_jump_is_weighed_against_the_noise():
+    force_g = ramp_with_noise()
+    force_g[150] = force_g[149]
+    noise_g = noise_sigma_g(force_g)
+    force_g[151:] += force_g[150] + 0.9 * STALE_JUMP_NOISE * noise_g - force_g[151]  # moves on, under the limit
+    assert stale_readings(force_g) is None
+    force_g[151:] += 0.2 * STALE_JUMP_NOISE * noise_g  # now over it
+    assert stale_readings(force_g).tolist() == [150]
+
+
+def test_a_sensor_whose_steps_are_coarser_than_its_noise_tells_nothing():
+    force_g = np.round(ramp_with_noise() / 2.0) * 2.0  # 2 g steps under 1 g of noise: a fifth repeat
+    repeats = int(np.count_nonzero(force_g[1:] == force_g[:-1]))
+    assert repeats > STALE_MAX_SHARE * len(force_g)
+    force_g[104] = force_g[103]
+    assert stale_readings(force_g) is None
+
+
+@pytest.fixture(scope="module")
+def reference_dir(tmp_path_factory):
+    return reference_taps(None, tmp_path_factory.mktemp("reference")) or pytest.skip("no reference taps here")
+
+
+@pytest.mark.parametrize("seed,k,_code", STALE_TAPS)
+def test_a_clean_tap_with_stale_readings_is_measured(reference_dir, seed, k, _code):
+    tap, z_mm = case_taps(CASE["ref_stale3"], seed, k + 1, reference_dir)[k]
+    answer = analyse_in_process(tap)
+    assert answer["valid"], answer["message"]
+    assert answer["stale_readings"] >= 1
+    assert abs(answer["z"] - z_mm) * 1000.0 < 3.0 * max(answer["z_sigma_um"], 1.0)  # -0.98, +0.17, -0.28 um
+
+
+@pytest.mark.parametrize("seed,k,code", STALE_TAPS)
+def test_with_its_stale_readings_kept_the_tap_is_rejected(reference_dir, seed, k, code, monkeypatch):
+    """The mechanism: the same taps with nothing dropped."""
+    monkeypatch.setattr(analysis, "stale_readings", lambda force_g: None)
+    answer = analyse_in_process(case_taps(CASE["ref_stale3"], seed, k + 1, reference_dir)[k][0])
+    assert answer["error"] == code
+    assert "stale_readings" not in answer
+
+
+def test_a_clean_reference_tap_drops_nothing(reference_dir):
+    clean = Case("clean", "reference HX717", "accept", reference=("clean_hx717", 1))
+    for tap, _ in case_taps(clean, 1, 20, reference_dir):
+        assert "stale_readings" not in analyse_in_process(tap)
