@@ -195,11 +195,22 @@ class _Timeline:
         return self
 
 
+def pullback_profile(spec: TapSpec, pullback_mm: float) -> tuple[float, float, float]:
+    """The pullback's (top speed mm/s, each ramp's s, cruise s): a trapezoid at the spec's speed, or a
+    triangle short of it where the distance is too short to reach it (as a printer's planner does)."""
+    a_p = spec.pullback_accel_mm_s2
+    v_p = min(spec.pullback_speed_mm_s, math.sqrt(a_p * max(pullback_mm, 0.0)))
+    if v_p <= 0.0:
+        return spec.pullback_speed_mm_s, spec.pullback_speed_mm_s / a_p, 0.0
+    ramp_s = v_p / a_p
+    return v_p, ramp_s, max(pullback_mm / v_p - ramp_s, 0.0)
+
+
 def _motion(spec: TapSpec, halt_s: float | None, pullback_mm: float) -> Callable[[np.ndarray], tuple]:
     """z(t) (mm) and closing speed (mm/s) of the approach (endless when halt_s is None) and the pullback."""
     z_start = spec.z_contact_mm + spec.approach_mm
     v_a = spec.approach_speed_mm_s
-    v_p = spec.pullback_speed_mm_s
+    v_p, ramp_s, cruise_s = pullback_profile(spec, pullback_mm)
     a_p = spec.pullback_accel_mm_s2
 
     def at(t: np.ndarray):
@@ -207,8 +218,6 @@ def _motion(spec: TapSpec, halt_s: float | None, pullback_mm: float) -> Callable
             return z_start - v_a * t, np.full_like(t, v_a), np.zeros(t.shape, dtype=bool)
         z_halt = z_start - v_a * halt_s
         start = halt_s + spec.dwell_s
-        ramp_s = v_p / a_p
-        cruise_s = pullback_mm / v_p - ramp_s
         tau = np.clip(t - start, 0.0, None)
         # distance lifted: accel ramp, cruise, decel ramp
         rise = np.where(tau < ramp_s, 0.5 * a_p * tau ** 2,
@@ -345,8 +354,7 @@ def make_tap(spec: TapSpec, rng: np.random.Generator) -> tuple[dict, dict]:
     clean_halt_s = halt_s if spec.ooze is None else halt_time(replace(spec, ooze=None))
     clean_overtravel_mm = spec.z_contact_mm - (z_start - spec.approach_speed_mm_s * clean_halt_s)
     pullback_mm = round(clean_overtravel_mm * spec.pullback_over_travel, 4)
-    v_p = spec.pullback_speed_mm_s
-    ramp_s = v_p / spec.pullback_accel_mm_s2
+    v_p, ramp_s, cruise_s = pullback_profile(spec, pullback_mm)
     pullback_start = halt_s + spec.dwell_s
     pullback_end = pullback_start + pullback_mm / v_p + ramp_s
     # Pass 2: the whole tap.
@@ -358,7 +366,6 @@ def make_tap(spec: TapSpec, rng: np.random.Generator) -> tuple[dict, dict]:
     frames = corrupt_frames(values, spec.corrupt_frames, adc, rng) if spec.corrupt_frames else []
 
     origin = spec.time_origin_s
-    cruise_s = pullback_mm / v_p - ramp_s
     moves = [
         {"print_time": origin, "move_t": halt_s, "start_v": spec.approach_speed_mm_s, "accel": 0.0,
          "start_z": z_start, "z_r": -1},
@@ -379,7 +386,7 @@ def make_tap(spec: TapSpec, rng: np.random.Generator) -> tuple[dict, dict]:
         "events": {"home_end_time": origin + halt_s, "pullback_start_time": origin + pullback_start,
                    "pullback_end_time": origin + pullback_end},
         "probe": {"x": 150.0, "y": 150.0, "speed": spec.approach_speed_mm_s, "pullback_distance": pullback_mm,
-                  "pullback_speed": v_p, "trigger_force": spec.trigger_g},
+                  "pullback_speed": spec.pullback_speed_mm_s, "trigger_force": spec.trigger_g},
         "meta": {"source": "tapcell.taplab"},
     }
     touched = math.isfinite(facts["touch_time_s"])
