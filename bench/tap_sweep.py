@@ -322,6 +322,44 @@ def _heater_pwm(grams: tuple[float, float], hz: float) -> Callable[[dict, float,
     return transform
 
 
+def _fan_vibration(grams: tuple[float, float], hz: tuple[float, float]
+                   ) -> Callable[[dict, float, np.random.Generator], dict]:
+    """A fan's imbalance shaking the toolhead: a sine of `grams` at `hz` (both drawn per tap, with
+    its phase) through the whole tap, point-sampled."""
+    def transform(tap, _z_mm, rng):
+        t = np.asarray(tap["time"], dtype=float)
+        grams_g, freq_hz, phase = float(rng.uniform(*grams)), float(rng.uniform(*hz)), float(rng.uniform(0.0, 2 * math.pi))
+        return _with_force(tap, np.asarray(tap["force"], dtype=float) + grams_g * np.sin(2 * math.pi * freq_hz * t + phase))
+    return transform
+
+
+def _load_cell_creep(share: tuple[float, float], tau_s: tuple[float, float]
+                     ) -> Callable[[dict, float, np.random.Generator], dict]:
+    """A load cell's creep: the reading also follows `share` of the load (above the first samples'
+    level) lagged by a first-order `tau_s` (both drawn per tap): creeping up under the load, recovering
+    after it is gone, as a strain gauge's glue and metal do."""
+    def transform(tap, _z_mm, rng):
+        t, force = np.asarray(tap["time"], dtype=float), np.asarray(tap["force"], dtype=float)
+        share_of_load, tau = float(rng.uniform(*share)), float(rng.uniform(*tau_s))
+        load = force - float(np.median(force[:20]))
+        lagged = np.zeros(len(force))
+        for i in range(1, len(force)):
+            lagged[i] = lagged[i - 1] + (1.0 - math.exp(-(t[i] - t[i - 1]) / tau)) * (load[i - 1] - lagged[i - 1])
+        return _with_force(tap, force + share_of_load * lagged)
+    return transform
+
+
+def _pink_noise(grams: tuple[float, float]) -> Callable[[dict, float, np.random.Generator], dict]:
+    """1/f noise of `grams` sd (drawn per tap) over the tap: a sensor's flicker, a slow wander."""
+    def transform(tap, _z_mm, rng):
+        force = np.asarray(tap["force"], dtype=float)
+        spectrum = np.fft.rfft(rng.normal(0.0, 1.0, len(force)))
+        spectrum /= np.sqrt(np.maximum(np.arange(len(spectrum)), 1))
+        pink = np.fft.irfft(spectrum, len(force))
+        return _with_force(tap, force + pink * (float(rng.uniform(*grams)) / float(pink.std())))
+    return transform
+
+
 def _cable_friction(grams: tuple[float, float]) -> Callable[[dict, float, np.random.Generator], dict]:
     """A cable or bowden dragging with friction: `grams` (drawn per tap) pushing the way contact does
     while the nozzle moves down, the other way while it moves up, nothing while it is held (from the
@@ -492,6 +530,14 @@ CASES = [Case(*row[:3], **(row[3] if len(row) > 3 else {})) for row in (
      {"reference": ("clean_hx717", 1), "transform": _cable_friction((1.0, 3.0))}),
     ("ref_stale3", "reference HX717, 3 % stale readings", "accept",
      {"reference": ("clean_hx717", 1), "transform": _stale_readings(0.03)}),
+    ("ref_fan660", "reference ADS1220 660 + fan 1-4 g, 20-150 Hz", "accept",
+     {"reference": ("clean_ads1220_660", 1), "transform": _fan_vibration((1.0, 4.0), (20.0, 150.0))}),
+    ("ref_fan2000", "reference ADS1220 2000 + fan 1-4 g, 20-150 Hz", "accept",
+     {"reference": ("clean_ads1220_2000", 1), "transform": _fan_vibration((1.0, 4.0), (20.0, 150.0))}),
+    ("ref_creep", "reference HX717 + load-cell creep 0.5-2 %", "accept",
+     {"reference": ("clean_hx717", 1), "transform": _load_cell_creep((0.005, 0.02), (0.1, 0.5))}),
+    ("ref_pink", "reference HX717 + 1/f noise 1-2 g", "accept",
+     {"reference": ("clean_hx717", 1), "transform": _pink_noise((1.0, 2.0))}),
     ("ref_stage10", "reference HX717 + a sprung stage 10 um (approx.)", "either",
      {"reference": ("clean_hx717", 1), "transform": _sprung_stage(10.0, 0.2), "truth_up_um": 10.0}),
     ("ref_stage20", "reference HX717 + a sprung stage 20 um (approx.)", "either",

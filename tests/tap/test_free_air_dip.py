@@ -1,0 +1,70 @@
+"""The adhesion dip must be deeper than the free air before contact dips by itself (issue 21's sweep).
+
+A fan shaking the toolhead (`ref_fan660`, `ref_fan2000`: a 1-4 g sine at 20-150 Hz on the reference
+ADS1220 taps) or a heater's PWM (`ref_pwm10`) dips the force below its level by more than four
+white-noise sigmas wherever it is, after break contact too: TAP_ADHESION on clean taps. The approach
+shows the same dips before the nozzle touched anything; ooze cannot have pulled there."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bench.tap_sweep import CASES, analyse_in_process, case_taps, reference_taps
+from tapcell.tap import analysis
+from tapcell.tap.analysis import free_air_dip_g
+
+CASE = {case.name: case for case in CASES}
+
+# (case, seed, tap): TAP_ADHESION before, dips of 2.5, 2.3, 2.0 and 3.2 g against 4 x 0.54, 0.50,
+# 0.46 and 0.69 g of noise; measured now +4.46 (2.0 of its z_sigma_um), -1.10, +0.27 and +0.43 µm.
+SHAKEN_TAPS = (("ref_fan660", 2, 39), ("ref_fan660", 3, 22), ("ref_fan2000", 1, 32), ("ref_pwm10", 43, 34))
+
+
+def test_white_noise_dips_little_by_itself():
+    rng = np.random.default_rng(0)
+    time_s = np.arange(300) / 660.0
+    line = (3.0, 1.0)
+    depths = [free_air_dip_g(time_s, line[0] * time_s + line[1] + rng.normal(0.0, 1.0, 300), line, 5)
+              for _ in range(50)]
+    assert max(depths) < 2.5  # 50 draws: 0.83-1.99 noise sigmas at a run of 5, under the limit's 4
+
+
+def test_a_sine_dips_by_its_amplitude():
+    rng = np.random.default_rng(1)
+    time_s = np.arange(300) / 2000.0
+    force_g = 3.0 * np.sin(2 * np.pi * 60.0 * time_s) + rng.normal(0.0, 0.5, 300)
+    # The mean of a run of 5 (2.5 ms, centred on the trough of a 60 Hz sine) is 2.95 g below it, and
+    # the noise's deepest run adds up to 3 of its sigmas (0.5 / sqrt(5) g each): measured 3.40 g.
+    trough_g = 3.0 * np.mean(np.cos(2 * np.pi * 60.0 * (np.arange(5) - 2) / 2000.0))
+    assert trough_g <= free_air_dip_g(time_s, force_g, (0.0, 0.0), 5) <= trough_g + 3 * 0.5 / np.sqrt(5)
+
+
+def test_too_few_samples_tell_nothing():
+    assert free_air_dip_g(np.arange(6.0), np.zeros(6), (0.0, 0.0), 5) == 0.0
+
+
+@pytest.fixture(scope="module")
+def reference_dir(tmp_path_factory):
+    return reference_taps(None, tmp_path_factory.mktemp("reference")) or pytest.skip("no reference taps here")
+
+
+def _tap(reference_dir, name: str, seed: int, k: int) -> tuple[dict, float]:
+    return case_taps(CASE[name], seed, k + 1, reference_dir)[k]
+
+
+@pytest.mark.parametrize("name,seed,k", SHAKEN_TAPS)
+def test_a_shaken_clean_tap_is_measured(reference_dir, name, seed, k):
+    tap, z_mm = _tap(reference_dir, name, seed, k)
+    answer = analyse_in_process(tap)
+    assert answer["valid"], answer["message"]
+    assert abs(answer["z"] - z_mm) * 1000.0 < 2.5 * max(answer["z_sigma_um"], 1.0)
+
+
+@pytest.mark.parametrize("name,seed,k", SHAKEN_TAPS)
+def test_without_the_free_airs_own_dip_the_tap_is_taken_for_adhesion(reference_dir, name, seed, k, monkeypatch):
+    """The mechanism: the same taps with the free air's dip left out of the limit."""
+    monkeypatch.setattr(analysis, "free_air_dip_g", lambda *_: 0.0)
+    answer = analyse_in_process(_tap(reference_dir, name, seed, k)[0])
+    assert answer["error"] == "TAP_ADHESION"
+    assert answer["message"].startswith("the force dips ")
