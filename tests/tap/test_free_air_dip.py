@@ -68,3 +68,20 @@ def test_without_the_free_airs_own_dip_the_tap_is_taken_for_adhesion(reference_d
     answer = analyse_in_process(_tap(reference_dir, name, seed, k)[0])
     assert answer["error"] == "TAP_ADHESION"
     assert answer["message"].startswith("the force dips ")
+
+
+# Rejected with the free air's own dip as the limit alone: the departure's dip passed it by 0.1 g
+# (0.2 noise sigmas), 0.1 g (0.2) and 0.2 g (0.4): each dip one draw of the same fan's trough plus the noise's.
+NEAR_THE_FREE_AIRS_DIP = (("ref_fan2000", 106, 11), ("ref_fan2000", 106, 12), ("ref_fan660", 107, 2))
+
+
+@pytest.mark.parametrize("name,seed,k", NEAR_THE_FREE_AIRS_DIP)
+def test_a_dip_must_pass_the_free_airs_by_more_than_the_noise(reference_dir, name, seed, k, monkeypatch):
+    tap, z_mm = _tap(reference_dir, name, seed, k)
+    answer = analyse_in_process(tap)
+    assert answer["valid"], answer["message"]
+    assert abs(answer["z"] - z_mm) * 1000.0 < 2.5 * max(answer["z_sigma_um"], 1.0)
+    monkeypatch.setattr(analysis, "FREE_AIR_DIP_MARGIN_NOISE", 0.0)
+    answer = analyse_in_process(tap)
+    assert answer["error"] == "TAP_ADHESION"
+    assert "the free air before contact dips by itself" in answer["message"]
