@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from bench.tap_sweep import Case, _sprung_stage, case_taps, reference_taps
+from bench.tap_sweep import Case, _sprung_stage, case_taps
 from tapcell.tap import stage
 from tapcell.tap.analysis import analyze_tap
 from tapcell.tap.readers import read_tap_file, tap_from_object
@@ -25,11 +25,6 @@ def test_the_rule_asks_for_the_widest_toe_the_evidence_and_the_rise():
     assert not stage.shows_absorbed_stage(_fit(evidence, rise - 0.1), CONTACT_UM, True)
     assert not stage.shows_absorbed_stage(_fit(evidence, -2.0 * rise), CONTACT_UM, True)  # below the contact
     assert not stage.shows_absorbed_stage(None, CONTACT_UM, True)
-
-
-@pytest.fixture(scope="module")
-def reference_dir(tmp_path_factory):
-    return reference_taps(None, tmp_path_factory.mktemp("reference")) or pytest.skip("no reference taps here")
 
 
 @pytest.fixture(scope="module")

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import pytest
 
-from bench.tap_sweep import CASES, analyse_in_process, case_taps, reference_taps
+from bench.tap_sweep import CASES, analyse_in_process, case_taps
 from tapcell.tap import validate
 from tapcell.tap.analysis import compression_places_the_halt, split_tap
 from tapcell.tap.model import TAP_DATA_INSUFFICIENT, AnalysisOptions
@@ -23,11 +23,6 @@ from tapcell.tap.readers import tap_from_object
 from tapcell.tap.validate import TapInvalid
 
 CASE = {case.name: case for case in CASES}
-
-
-@pytest.fixture(scope="module")
-def reference_dir(tmp_path_factory):
-    return reference_taps(None, tmp_path_factory.mktemp("reference")) or pytest.skip("no reference taps here")
 
 
 @pytest.fixture(scope="module")

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import pytest
 
-from bench.tap_sweep import CASES, analyse_in_process, case_taps, reference_taps
+from bench.tap_sweep import CASES, analyse_in_process, case_taps
 from tapcell.tap.validate import TapInvalid, check_decompression_samples
 
 CASE = {case.name: case for case in CASES}
@@ -44,11 +44,6 @@ def test_the_tap_sixty_um_off_is_no_longer_accepted():
     tap, _ = case_taps(CASE["pull10"], seed=89, count=9, reference_dir=None)[8]
     answer = analyse_in_process(tap)
     assert answer["error"] == "TAP_DATA_INSUFFICIENT"
-
-
-@pytest.fixture(scope="module")
-def reference_dir(tmp_path_factory):
-    return reference_taps(None, tmp_path_factory.mktemp("reference")) or pytest.skip("no reference taps here")
 
 
 @pytest.mark.parametrize("k", [19, 29, 34])

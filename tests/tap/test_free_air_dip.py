@@ -10,11 +10,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.tap_sweep import CASES, analyse_in_process, case_taps, reference_taps
+from bench.tap_sweep import analyse_in_process
 from tapcell.tap import analysis
 from tapcell.tap.analysis import free_air_dip_g
 
-CASE = {case.name: case for case in CASES}
 
 # (case, seed, tap): TAP_ADHESION before, dips of 2.5, 2.3, 2.0 and 3.2 g against 4 x 0.54, 0.50,
 # 0.46 and 0.69 g of noise; measured now +4.46 (2.0 of its z_sigma_um), -1.10, +0.27 and +0.43 µm.
@@ -44,28 +43,16 @@ def test_too_few_samples_tell_nothing():
     assert free_air_dip_g(np.arange(6.0), np.zeros(6), (0.0, 0.0), 5) == 0.0
 
 
-@pytest.fixture(scope="module")
-def reference_dir(tmp_path_factory):
-    return reference_taps(None, tmp_path_factory.mktemp("reference")) or pytest.skip("no reference taps here")
-
-
-def _tap(reference_dir, name: str, seed: int, k: int) -> tuple[dict, float]:
-    return case_taps(CASE[name], seed, k + 1, reference_dir)[k]
+@pytest.mark.parametrize("name,seed,k", SHAKEN_TAPS)
+def test_a_shaken_clean_tap_is_measured(measured_within, name, seed, k):
+    measured_within(name, seed, k, 2.5)
 
 
 @pytest.mark.parametrize("name,seed,k", SHAKEN_TAPS)
-def test_a_shaken_clean_tap_is_measured(reference_dir, name, seed, k):
-    tap, z_mm = _tap(reference_dir, name, seed, k)
-    answer = analyse_in_process(tap)
-    assert answer["valid"], answer["message"]
-    assert abs(answer["z"] - z_mm) * 1000.0 < 2.5 * max(answer["z_sigma_um"], 1.0)
-
-
-@pytest.mark.parametrize("name,seed,k", SHAKEN_TAPS)
-def test_without_the_free_airs_own_dip_the_tap_is_taken_for_adhesion(reference_dir, name, seed, k, monkeypatch):
+def test_without_the_free_airs_own_dip_the_tap_is_taken_for_adhesion(sweep_tap, name, seed, k, monkeypatch):
     """The mechanism: the same taps with the free air's dip left out of the limit."""
     monkeypatch.setattr(analysis, "free_air_dip_g", lambda *_: 0.0)
-    answer = analyse_in_process(_tap(reference_dir, name, seed, k)[0])
+    answer = analyse_in_process(sweep_tap(name, seed, k)[0])
     assert answer["error"] == "TAP_ADHESION"
     assert answer["message"].startswith("the force dips ")
 
@@ -76,8 +63,8 @@ NEAR_THE_FREE_AIRS_DIP = (("ref_fan2000", 106, 11), ("ref_fan2000", 106, 12), ("
 
 
 @pytest.mark.parametrize("name,seed,k", NEAR_THE_FREE_AIRS_DIP)
-def test_a_dip_must_pass_the_free_airs_by_more_than_the_noise(reference_dir, name, seed, k, monkeypatch):
-    tap, z_mm = _tap(reference_dir, name, seed, k)
+def test_a_dip_must_pass_the_free_airs_by_more_than_the_noise(sweep_tap, name, seed, k, monkeypatch):
+    tap, z_mm = sweep_tap(name, seed, k)
     answer = analyse_in_process(tap)
     assert answer["valid"], answer["message"]
     assert abs(answer["z"] - z_mm) * 1000.0 < 2.5 * max(answer["z_sigma_um"], 1.0)

@@ -11,35 +11,22 @@ from __future__ import annotations
 
 import pytest
 
-from bench.tap_sweep import CASES, analyse_in_process, case_taps, reference_taps
+from bench.tap_sweep import analyse_in_process
 from tapcell.tap import classifiers
 
-CASE = {case.name: case for case in CASES}
 
 # (case, seed, tap): the misfit without the allowance, measured 0.51, 0.66 and 0.55.
 RUNG_TAPS = (("ref_ring", 10, 36), ("ref_ring", 11, 36), ("ref_hum660", 22, 39))
 
 
-@pytest.fixture(scope="module")
-def reference_dir(tmp_path_factory):
-    return reference_taps(None, tmp_path_factory.mktemp("reference")) or pytest.skip("no reference taps here")
-
-
-def _tap(reference_dir, name: str, seed: int, k: int) -> tuple[dict, float]:
-    return case_taps(CASE[name], seed, k + 1, reference_dir)[k]
-
-
 @pytest.mark.parametrize("name,seed,k", RUNG_TAPS)
-def test_a_rung_clean_tap_is_measured(reference_dir, name, seed, k):
-    tap, z_mm = _tap(reference_dir, name, seed, k)
-    answer = analyse_in_process(tap)
-    assert answer["valid"], answer["message"]
-    assert abs(answer["z"] - z_mm) * 1000.0 < 3.0 * max(answer["z_sigma_um"], 1.0)
+def test_a_rung_clean_tap_is_measured(measured_within, name, seed, k):
+    answer = measured_within(name, seed, k, 3.0)
     assert answer["quality_components"]["misfit"] < 0.25  # measured 0.20, 0.00, 0.00
 
 
 @pytest.mark.parametrize("name,seed,k", RUNG_TAPS)
-def test_without_the_dwells_ringing_the_misfit_rejects_them(reference_dir, name, seed, k, monkeypatch):
+def test_without_the_dwells_ringing_the_misfit_rejects_them(sweep_tap, name, seed, k, monkeypatch):
     """The mechanism: the same taps with the ringing left out of the misfit's noise."""
     classify = classifiers.TapQualityClassifier.classify
 
@@ -49,6 +36,6 @@ def test_without_the_dwells_ringing_the_misfit_rejects_them(reference_dir, name,
         return classify(self, analysis, context)
 
     monkeypatch.setattr(classifiers.TapQualityClassifier, "classify", without_ringing)
-    answer = analyse_in_process(_tap(reference_dir, name, seed, k)[0])
+    answer = analyse_in_process(sweep_tap(name, seed, k)[0])
     assert answer["error"] == "LOW_TAP_QUALITY"
     assert "misfit" in answer["message"]

@@ -11,17 +11,12 @@ import math
 
 import pytest
 
-from bench.tap_sweep import CASES, analyse_in_process, case_taps, reference_taps
+from bench.tap_sweep import CASES, analyse_in_process, case_taps
 from tapcell.tap.analysis import compression_end_s, compression_places_the_halt, split_tap
 from tapcell.tap.model import AnalysisOptions
 from tapcell.tap.readers import tap_from_object
 
 CASE = {case.name: case for case in CASES}
-
-
-@pytest.fixture(scope="module")
-def reference_dir(tmp_path_factory):
-    return reference_taps(None, tmp_path_factory.mktemp("reference")) or pytest.skip("no reference taps here")
 
 
 def _pressing_periods(tap: dict) -> float:

@@ -12,10 +12,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.tap_sweep import CASES, analyse_in_process, case_taps, reference_taps
+from bench.tap_sweep import analyse_in_process
 from tapcell.tap import analysis, stage
 
-CASE = {case.name: case for case in CASES}
 HEIGHTS_UM = np.arange(1.0, 60.0, 1.0)  # above the contact found, one sample a µm
 NOISE_G = 0.5
 
@@ -75,25 +74,13 @@ def test_the_kernel_weighs_a_square_wave_as_its_twin_does(monkeypatch):
         assert (native.chi2, native.top_um, native.slope_g_um) == (twin.chi2, twin.top_um, twin.slope_g_um)
 
 
-@pytest.fixture(scope="module")
-def reference_dir(tmp_path_factory):
-    return reference_taps(None, tmp_path_factory.mktemp("reference")) or pytest.skip("no reference taps here")
-
-
-def _tap(reference_dir, name: str, seed: int, k: int) -> tuple[dict, float]:
-    return case_taps(CASE[name], seed, k + 1, reference_dir)[k]
+@pytest.mark.parametrize("name,seed,k", WANDERING_TAPS)
+def test_a_clean_tap_under_a_pwm_or_a_thermal_ramp_is_measured(measured_within, name, seed, k):
+    measured_within(name, seed, k, 3.0)  # measured 2.74, -0.40, 0.38 um
 
 
 @pytest.mark.parametrize("name,seed,k", WANDERING_TAPS)
-def test_a_clean_tap_under_a_pwm_or_a_thermal_ramp_is_measured(reference_dir, name, seed, k):
-    tap, z_mm = _tap(reference_dir, name, seed, k)
-    answer = analyse_in_process(tap)
-    assert answer["valid"], answer["message"]
-    assert abs(answer["z"] - z_mm) * 1000.0 < 3.0 * max(answer["z_sigma_um"], 1.0)  # measured 2.74, -0.40, 0.38 um
-
-
-@pytest.mark.parametrize("name,seed,k", WANDERING_TAPS)
-def test_weighed_against_the_noise_alone_the_ramp_rejects_them(reference_dir, name, seed, k, monkeypatch):
+def test_weighed_against_the_noise_alone_the_ramp_rejects_them(sweep_tap, name, seed, k, monkeypatch):
     """The mechanism: the same taps with the ramp's gain over the noise estimate alone."""
     measured = analysis.departure_soft_stage
 
@@ -110,6 +97,6 @@ def test_weighed_against_the_noise_alone_the_ramp_rejects_them(reference_dir, na
         return found
 
     monkeypatch.setattr(analysis, "departure_soft_stage", against_the_noise)
-    answer = analyse_in_process(_tap(reference_dir, name, seed, k)[0])
+    answer = analyse_in_process(sweep_tap(name, seed, k)[0])
     assert answer["error"] == "TAP_TWO_STAGE_CONTACT"
     assert "soft stage" in answer["message"]
