@@ -94,7 +94,7 @@ def test_a_ten_sps_free_air_leaves_out_the_sample_the_toe_pushed(seed, k):
     split = _split(tap)
     approach_um_s = split.motion.approach_speed_mm_s * 1000.0
     contact_um = (result.z_mm - split.motion.z_halt_mm) * 1000.0
-    free_slope, _ = analysis.free_air_line(split, contact_um, result.sensor_delay_s)
+    free_slope, _ = analysis.free_air_line(split, analysis.free_air_samples(split, contact_um, result.sensor_delay_s))
     split_slope, _ = split.dec.approach_line
     # The cable's drift is at most 3 g/mm (taplab's clean taps): the free air's slope says so within
     # its noise (0.25 g over 8 samples), the split's line, tilted by the pushed sample, did not.

@@ -96,7 +96,7 @@ DEPARTURE_FLAT_SHARE = 0.1
 # or a heater's PWM the white noise does not measure (reference ADS1220 taps with a 1-4 g fan at
 # 20-150 Hz, and with 10 Hz PWM: TAP_ADHESION on 6 of 240, and one of 400) dips the approach as deep
 # as the departure; where nothing does, it dips 1-2 noise sigmas, under the limit (no tap of taplab
-# seeds 1-60, every scenario, nor of the benchmark sets changed). Each of the two dips is one draw of
+# seeds 1-100, every scenario, nor of the benchmark sets changed). Each of the two dips is one draw of
 # the same interference's deepest trough plus the noise's, so the departure's must pass the free
 # air's by FREE_AIR_DIP_MARGIN_NOISE noise sigmas (by 0.1-0.7 g, 0.2-1.3 sigmas, did the 7 fan and
 # 1/f taps of the sweep's seeds 101-120 rejected at 1 x the free air's dip alone).
@@ -872,10 +872,10 @@ def free_air_dip_g(time_s: np.ndarray, force_g: np.ndarray, line: tuple[float, f
     return median(offsets_g) - float(runs_g.min())
 
 
-def free_air_line(split: SplitTap, contact_um: float, delay_s: float) -> tuple[float, float]:
-    """The approach's line (slope g/s, intercept g, as `Decomposition.lines`) over the samples read
-    before the nozzle came down to the contact height (`contact_um` above the halt, read `delay_s`
-    late): the free air alone, never a sample the contact's toe already pushed.
+def free_air_line(split: SplitTap, end: int) -> tuple[float, float]:
+    """The approach's line (slope g/s, intercept g, as `Decomposition.lines`) over its first `end`
+    samples, those read before the nozzle came down to the contact height (`free_air_samples`): the
+    free air alone, never a sample the contact's toe already pushed.
 
     At 10 sps a sample spans 20 µm of the approach: the split's approach line can keep the first
     sample the toe pushed (6.5 g where the free air reads 0.4: taplab seed 2 hx711_10 k 22), which
@@ -884,7 +884,6 @@ def free_air_line(split: SplitTap, contact_um: float, delay_s: float) -> tuple[f
     tilt as a 2-3.5 g dip or pull.
     """
     dec = split.dec
-    end = free_air_samples(split, contact_um, delay_s)
     if end < FREE_AIR_MIN_SAMPLES:
         return dec.approach_line
     n, st, sf, stt, stf, _ = split.ps.sums[:, end].tolist()  # segment_sums(0, end): the first column is 0
@@ -1033,9 +1032,9 @@ def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTimin
                    free_air: tuple[np.ndarray, np.ndarray] | None = None) -> None:
     """TAP_ADHESION when ooze or adhesion pulls the nozzle after break contact, seen either way:
     the force dips below the departure's own free-air level just above break contact by more than
-    ADHESION_MAX_DIP_NOISE noise sigmas and more than the free air before contact dips by itself
-    (`free_air_dip_g` over `free_air`, its times and forces, about approach_line), or the departure lies below the
-    approach's free-air line at the same heights by more than THREAD_MAX_NOISE noise sigmas plus
+    ADHESION_MAX_DIP_NOISE noise sigmas, and more than the free air before contact dips by itself
+    (`free_air_dip_g` over `free_air`, its times and forces, about approach_line) by
+    FREE_AIR_DIP_MARGIN_NOISE of them; or the departure lies below the approach's free-air line at the same heights by more than THREAD_MAX_NOISE noise sigmas plus
     what the baseline's walk can move it between the two, 3 sigma (`thread_pull_g`: a thread
     pulling the whole departure pulls the dip's own reference too), unless the tap shows it to be a
     baseline shift (`_baseline_shift`). The walk is the approach's own: a thread pulling over the
@@ -1778,8 +1777,9 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     # The free air before the contact (`free_air_line`); the walk the approach shows, or where it is
     # too short to show one (10 sps: 8 samples), the one the free air on both sides shows.
     contact_um = toe.contact_um - lag_shift_um
-    free_air = slice(dec.start, dec.start + free_air_samples(split, contact_um, delay_s))
-    check_adhesion(rising, motion, timing, dec, free_air_line(split, contact_um, delay_s),
+    free_air_end = free_air_samples(split, contact_um, delay_s)
+    free_air = slice(dec.start, dec.start + free_air_end)
+    check_adhesion(rising, motion, timing, dec, free_air_line(split, free_air_end),
                    toe.contact_um, split.noise_g, approach_wander or wander, result.compression_force_g,
                    down_above_up_um, approach_rise_above_um(split, contact_um, delay_s), split.ringing,
                    (split.time_s[free_air], split.force_g[free_air]))

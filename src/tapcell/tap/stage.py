@@ -10,9 +10,9 @@ toe model read them 1-28 µm low, 4 of 40 accepted beyond 20 µm with a small si
 `soft_stage` fits that ramp over the departure (a free level plus k1 clip(top - x, 0) for every
 top on a 1 µm grid) against a flat level; the tap shows a soft stage when the ramp explains more
 than STAGE_MIN_CHI2 noise variances (white noise plus the baseline's walk over the departure, or
-what the ramp leaves of the departure where that is more) and is steeper than STAGE_MIN_SLOPE_SHARE of the contact's stiffness (a walk or a cable's drift
-left over are a few tenths of a per cent of it, the steepest reference bowden tap's 5 %; a stage's
-ten per cent and more).
+what the ramp leaves of the departure where that is more) and is steeper than STAGE_MIN_SLOPE_SHARE
+of the contact's stiffness (a walk or a cable's drift left over are a few tenths of a per cent of
+it, the steepest reference bowden tap's 5 %; a stage's ten per cent and more).
 """
 
 from __future__ import annotations
