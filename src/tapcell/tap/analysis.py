@@ -1295,8 +1295,9 @@ def analyze_tap(tap: TapData, options: AnalysisOptions | None = None) -> TapAnal
     return result
 
 
-# What the sample check finds (the kernel's `sample_problem` answers with these numbers, 0: nothing).
-SAMPLES_NOT_FINITE, SAMPLES_NOT_INCREASING, SAMPLES_SATURATED = 1, 2, 3
+# What the sample check finds (the kernel's `sample_problem` answers with these numbers, 0: nothing;
+# SAMPLES_REPEATING: nothing wrong, but some reading equals the one before it, for `stale_readings`).
+SAMPLES_NOT_FINITE, SAMPLES_NOT_INCREASING, SAMPLES_SATURATED, SAMPLES_REPEATING = 1, 2, 3, 4
 _SAMPLE_PROBLEMS = {SAMPLES_NOT_FINITE: "time or force holds NaN or infinity",
                     SAMPLES_NOT_INCREASING: "sample times are not strictly increasing"}
 # A saturated sensor (an ADC at its limit records the force clipped flat): at least SATURATED_RUN
@@ -1349,7 +1350,10 @@ def _saturated(t: np.ndarray, f: np.ndarray) -> TapInvalid:
                       "gain, or fit a larger load cell")
 
 
-def _check_samples(tap: TapData) -> tuple[np.ndarray, np.ndarray]:
+def _check_samples(tap: TapData) -> tuple[np.ndarray, np.ndarray, bool]:
+    """The tap's times and forces, checked (TapInvalid when not finite, not increasing, too few,
+    saturated), and whether any reading may equal the one before it (the kernel says; the twins
+    leave it to `stale_readings`)."""
     # Contiguous (a caller's strided view is copied): the compiled kernels read them as plain arrays.
     t = np.ascontiguousarray(tap.time_s, dtype=float)
     f = np.ascontiguousarray(tap.force_g, dtype=float)
@@ -1357,11 +1361,12 @@ def _check_samples(tap: TapData) -> tuple[np.ndarray, np.ndarray]:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, f"time and force differ in shape ({t.shape} vs {f.shape})")
     if len(t) < MIN_SAMPLES:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, f"{len(t)} samples, at least {MIN_SAMPLES} needed")
+    repeating = True
     if _C is not None:
         code = _C.sample_problem(t, f)
         if code == SAMPLES_SATURATED:
             raise _saturated(t, f)
-        problem = _SAMPLE_PROBLEMS.get(code)
+        problem, repeating = _SAMPLE_PROBLEMS.get(code), code == SAMPLES_REPEATING
     elif not (np.isfinite(t).all() and np.isfinite(f).all()):
         problem = _SAMPLE_PROBLEMS[SAMPLES_NOT_FINITE]
     elif (t[1:] <= t[:-1]).any():
@@ -1372,7 +1377,7 @@ def _check_samples(tap: TapData) -> tuple[np.ndarray, np.ndarray]:
         problem = None
     if problem:
         raise TapInvalid(TAP_DATA_INSUFFICIENT, problem)
-    return t, f
+    return t, f, repeating
 
 
 @dataclass(eq=False, repr=False)
@@ -1480,8 +1485,8 @@ def _analyze(tap: TapData, options: AnalysisOptions) -> tuple[TapAnalysis, Analy
 def split_tap(tap: TapData, options: AnalysisOptions) -> tuple[SplitTap, int, int, HumFit | None]:
     """Steps 1-3: samples and motion checked, sensor timing, polarity, corrupted frames repaired,
     mains hum removed, the five lines; with the polarity, the frames repaired and the hum."""
-    time_s, force_raw = _check_samples(tap)
-    stale = stale_readings(force_raw)
+    time_s, force_raw, repeating = _check_samples(tap)
+    stale = stale_readings(force_raw) if repeating else None
     if stale is not None:  # dropped, as a lost reading is: its time is not its conversion's
         time_s, force_raw = np.delete(time_s, stale), np.delete(force_raw, stale)
     validate.check_moves(tap.moves)

@@ -576,7 +576,15 @@ static PyObject *z_at(PyObject *self, PyObject *args)
 
 /* What is wrong with a tap's samples for the analysis (analysis.py `_check_samples`, whose
  * SAMPLES_* numbers these are), the first found. */
-enum sample_problem { SAMPLES_FINE = 0, SAMPLES_NOT_FINITE = 1, SAMPLES_NOT_INCREASING = 2, SAMPLES_SATURATED = 3 };
+/* SAMPLES_REPEATING: fine, but some reading equals the one before it (where analysis.py's
+ * `stale_readings` looks; a clean tap has none, so most taps skip it). */
+enum sample_problem {
+    SAMPLES_FINE = 0,
+    SAMPLES_NOT_FINITE = 1,
+    SAMPLES_NOT_INCREASING = 2,
+    SAMPLES_SATURATED = 3,
+    SAMPLES_REPEATING = 4
+};
 
 /* A saturated sensor (analysis.py `saturated_run`, the twin): at least SATURATED_RUN samples in a row
  * exactly at the tap's extreme force on the side away from its first sample (its max, or its min
@@ -615,22 +623,24 @@ static enum sample_problem problem_of_samples(const double *time_s, const double
         high = force_g[i] > high ? force_g[i] : high;
         low = force_g[i] < low ? force_g[i] : low;
     }
-    int64_t at_high = force_g[0] == high, at_low = force_g[0] == low;
+    int64_t at_high = force_g[0] == high, at_low = force_g[0] == low, repeating = 0;
     for (Py_ssize_t i = 1; i < n; i++) {
         increasing &= time_s[i] > time_s[i - 1];
         at_high += force_g[i] == high;
         at_low += force_g[i] == low;
+        repeating |= force_g[i] == force_g[i - 1];
     }
     if (!finite)
         return SAMPLES_NOT_FINITE;
     if (!increasing)
         return SAMPLES_NOT_INCREASING;
+    const enum sample_problem fine = repeating ? SAMPLES_REPEATING : SAMPLES_FINE;
     /* The extreme away from the first sample; its runs are read only where it holds enough samples
      * at all (a clean tap's extreme is one or two samples: the loop above counted them). */
     int at_high_side = high - force_g[0] >= force_g[0] - low;
     double extreme = at_high_side ? high : low;
     if ((at_high_side ? at_high : at_low) < SATURATED_RUN)
-        return SAMPLES_FINE;
+        return fine;
     /* A run counts where the force came back from it: one held to the last sample is a sensor that
      * stopped changing (or a nozzle still pressing), not a limit the force went past and returned. */
     Py_ssize_t run = 0, longest = 0;
@@ -639,7 +649,7 @@ static enum sample_problem problem_of_samples(const double *time_s, const double
         longest = !at && run > longest ? run : longest;
         run = at ? run + 1 : 0;
     }
-    return longest >= SATURATED_RUN && repeats_rarely_off(force_g, n, extreme) ? SAMPLES_SATURATED : SAMPLES_FINE;
+    return longest >= SATURATED_RUN && repeats_rarely_off(force_g, n, extreme) ? SAMPLES_SATURATED : fine;
 }
 
 static PyObject *sample_problem(PyObject *self, PyObject *args)
