@@ -200,7 +200,7 @@ def pullback_profile(spec: TapSpec, pullback_mm: float) -> tuple[float, float, f
     triangle short of it where the distance is too short to reach it (as a printer's planner does)."""
     a_p = spec.pullback_accel_mm_s2
     v_p = min(spec.pullback_speed_mm_s, math.sqrt(a_p * max(pullback_mm, 0.0)))
-    if v_p <= 0.0:
+    if v_p <= 0.0:  # no distance to lift: the speed's own ramps, never a division by a zero speed
         return spec.pullback_speed_mm_s, spec.pullback_speed_mm_s / a_p, 0.0
     ramp_s = v_p / a_p
     return v_p, ramp_s, max(pullback_mm / v_p - ramp_s, 0.0)
