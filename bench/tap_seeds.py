@@ -30,7 +30,7 @@ import numpy as np
 from tapcell.tap import analyze_tap, read_tap_file
 from tapcell.tap.readers import tap_from_object
 from tapcell.taplab.benchmark import (REFERENCE_NAME, REFERENCE_SESSIONS_NAME, SILENT_UM, TapSet,
-                                      default_reference_archive, read_labels, reference_set)
+                                      default_reference_archive, reference_set)
 from tapcell.taplab.generate import SCENARIOS, make_tap
 
 DEFAULT_PER_SCENARIO = 40  # as `tapcell benchmark`: its file names are the ones printed

@@ -56,6 +56,7 @@ from tapcell.extras.load_cell_probe.options import (
     tap_analysis_options,
     tap_options_with_overrides,
     TapOptions,
+    TapSettings,
     default_pullback_speed_mm_s,
     dwell_sample_count,
     force_beyond_safety_limit_g,
@@ -71,7 +72,7 @@ from tapcell.extras.load_cell_probe.overrides import disabled_protections, refus
     refuse_misspelled_safety_parameters, refuse_unknown_parameters
 from tapcell.extras.load_cell_probe.threshold import commanded_z_mm, z_at_time_mm
 from tapcell.scale import counts_to_grams
-from tapcell.tap import AnalysisOptions, Move, TapData, analyze_tap, get_classifier, tap_to_json_dict
+from tapcell.tap import Move, TapData, analyze_tap, get_classifier, tap_to_json_dict
 from tapcell.tap.pool import apply_pool
 
 BREAK_CLEAR_SAMPLES = 4  # after break contact: one conversion window plus margin before free-air samples
@@ -154,16 +155,6 @@ def filter_options(options: TapOptions, sample_rate_sps: float) -> FilterOptions
 def mains_meta(mains_hz: tuple[float, ...] | str | None) -> list[float] | str | None:
     """AnalysisOptions.mains_hz as tap-file meta (JSON: a list, "auto" or null)."""
     return list(mains_hz) if isinstance(mains_hz, tuple) else mains_hz
-
-
-@dataclass
-class TapSettings:
-    """Everything one command's taps use: options with overrides, designed filter, analysis options."""
-
-    options: TapOptions
-    sos: Any  # tapcell.filters.QuantizedSos | None
-    pullback_speed_mm_s: float
-    analysis: AnalysisOptions
 
 
 @dataclass

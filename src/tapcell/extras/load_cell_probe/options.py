@@ -9,6 +9,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -151,6 +152,16 @@ def replace_tap_options(options: TapOptions, **changes) -> TapOptions:
         changes = {k: v for k, v in changes.items() if k in own}
         changes["analysis"] = dataclasses.replace(options.analysis, **analysis)
     return dataclasses.replace(options, **changes)
+
+
+@dataclass
+class TapSettings:
+    """Everything one command's taps use: options with overrides, designed filter, analysis options."""
+
+    options: TapOptions
+    sos: Any  # tapcell.filters.QuantizedSos | None
+    pullback_speed_mm_s: float
+    analysis: AnalysisOptions
 
 
 def tap_analysis_options(options: TapOptions) -> AnalysisOptions:

@@ -8,7 +8,7 @@ LOAD_CELL_TEST_TAP, a move of the nozzle watch) builds the trigger here: the cal
 
 from __future__ import annotations
 
-from tapcell.extras.load_cell_probe.options import ERROR_PREFIX, TapOptions, trigger_error_message
+from tapcell.extras.load_cell_probe.options import ERROR_PREFIX, TapOptions, TapSettings, trigger_error_message
 from tapcell.extras.probe.session import ProbeError
 from tapcell.mcu.trigger import FirmwareTrigger, TriggerConfigError, TriggerError, TriggerParams
 
