@@ -4,12 +4,15 @@ moves on by more than STALE_JUMP_NOISE noise sigmas, is dropped as a lost readin
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from bench.tap_sweep import CASES, Case, analyse_in_process, case_taps
 from tapcell.tap import analysis
 from tapcell.tap.analysis import STALE_JUMP_NOISE, STALE_MAX_SHARE, noise_sigma_g, stale_readings
+from tapcell.tap.synth import synth_tap
 
 CASE = {case.name: case for case in CASES}
 
@@ -81,3 +84,20 @@ def test_a_clean_reference_tap_drops_nothing(reference_dir):
     clean = Case("clean", "reference HX717", "accept", reference=("clean_hx717", 1))
     for tap, _ in case_taps(clean, 1, 20, reference_dir):
         assert "stale_readings" not in analyse_in_process(tap)
+
+
+def test_a_tap_without_a_repeated_reading_skips_the_look(monkeypatch):
+    """The sample check's kernel says whether any reading equals the one before it; without one the
+    analysis never calls `stale_readings` (a clean tap's 2 µs), and with one it does."""
+    if analysis._C is None:
+        pytest.skip("the compiled kernels are not built here")
+    calls = []
+    monkeypatch.setattr(analysis, "stale_readings", lambda force_g: calls.append(len(force_g)))
+    tap = synth_tap(seed=3)
+    force_g = np.asarray(tap.force_g, dtype=float)
+    assert not np.any(force_g[1:] == force_g[:-1])
+    analysis.analyze_tap(tap)
+    assert calls == []
+    force_g[40] = force_g[39]
+    analysis.analyze_tap(dataclasses.replace(tap, force_g=force_g))
+    assert calls == [len(force_g)]

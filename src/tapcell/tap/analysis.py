@@ -1025,11 +1025,10 @@ def fit_pullback_toe(samples: PullbackSamples, motion: Motion, timing: SensorTim
 
 
 def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTiming, dec: Decomposition,
-                   approach_line: tuple[float, float], contact_um: float, noise_g: float,
-                   approach_wander: Wander | None, compression_force_g: float,
+                   approach_line: tuple[float, float], free_air: tuple[np.ndarray, np.ndarray], contact_um: float,
+                   noise_g: float, approach_wander: Wander | None, compression_force_g: float,
                    down_above_up_um: tuple[float, float] | None = None,
-                   approach_rise_um: float | None = None, ringing: Ringing | None = None,
-                   free_air: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+                   approach_rise_um: float | None = None, ringing: Ringing | None = None) -> None:
     """TAP_ADHESION when ooze or adhesion pulls the nozzle after break contact, seen either way:
     the force dips below the departure's own free-air level just above break contact by more than
     ADHESION_MAX_DIP_NOISE noise sigmas, and more than the free air before contact dips by itself
@@ -1057,7 +1056,7 @@ def check_adhesion(samples: PullbackSamples, motion: Motion, timing: SensorTimin
         dip_g = dip_below_both_references_g(samples, drift_g_um, contact_um, approach_at_halt_g, dip_g)
     if dip_g is not None and dip_g > dip_limit_g:
         # A fan's vibration or a heater's PWM dips the free air by itself, where no ooze is yet.
-        own_dip_g = free_air_dip_g(*free_air, approach_line, run_samples) if free_air else 0.0
+        own_dip_g = free_air_dip_g(*free_air, approach_line, run_samples)
         if dip_g > own_dip_g + FREE_AIR_DIP_MARGIN_NOISE * noise_g:
             raise TapInvalid(TAP_ADHESION, f"the force dips {dip_g:.1f} g below free air just above break contact "
                                            f"(more than {ADHESION_MAX_DIP_NOISE:g} x the {noise_g:.2f} g noise, and "
@@ -1785,9 +1784,9 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     free_air_end = free_air_samples(split, contact_um, delay_s)
     free_air = slice(dec.start, dec.start + free_air_end)
     check_adhesion(rising, motion, timing, dec, free_air_line(split, free_air_end),
-                   toe.contact_um, split.noise_g, approach_wander or wander, result.compression_force_g,
-                   down_above_up_um, approach_rise_above_um(split, contact_um, delay_s), split.ringing,
-                   (split.time_s[free_air], split.force_g[free_air]))
+                   (split.time_s[free_air], split.force_g[free_air]), toe.contact_um, split.noise_g,
+                   approach_wander or wander, result.compression_force_g, down_above_up_um,
+                   approach_rise_above_um(split, contact_um, delay_s), split.ringing)
     walk_var_g2 = approach_walk_var_g2(split)  # the two-stage fits' walk
     ramp, stages = check_stages(split, samples, drift_g_um, toe, lag_shift_um, wander, walk_var_g2,
                                 drift_held=fit_drift_g_um is not None)
