@@ -36,6 +36,7 @@ from tapcell.tap.model import (
     TAP_ADHESION,
     TAP_BREAK_CONTACT_TOO_LATE,
     TAP_CHRONOLOGY,
+    TAP_CONTACT_MISMATCH,
     TAP_DATA_INSUFFICIENT,
     TAP_MOTION_INVALID,
     TAP_PULLBACK_TOO_SHORT,
@@ -1284,14 +1285,39 @@ def analyze_tap(tap: TapData, options: AnalysisOptions | None = None) -> TapAnal
     started, cpu_started = time.perf_counter(), time.process_time()
     options = options or AnalysisOptions()
     classifier = get_classifier(options.tap_classifier, options)  # a wrong name is a config error: raise
-    try:
-        result, context = _analyze(tap, options)
-        result = run_classifier(result, context, classifier, options.tap_classifier)
-    except TapInvalid as invalid:
-        result = TapAnalysis(valid=False, error=invalid.code, message=invalid.message)
+    result = _analyze_and_classify(tap, options, classifier)
+    if result.error in HUM_MAY_CAUSE and hum_not_asked(tap, options):
+        # A strong hum nobody asked to remove can part the two contacts by more than their white-noise
+        # fits allow (bench tap_sweep's hum4000: 4 g at 50 Hz in a 4000 sps tap, 3 of 480 taps on seeds
+        # 1-12). Analysed again as `auto` would: its screen finds the hum or leaves the force as it
+        # was. Kept only when the tap then passes: the hum was the cause, and the analysis without
+        # it is the better one; otherwise the first answer names what the tap shows.
+        again = _analyze_and_classify(tap, options.with_mains_hz("auto"), classifier)
+        if again.valid:
+            result = again
     result.elapsed_ms = (time.perf_counter() - started) * 1000.0
     result.cpu_ms = (time.process_time() - cpu_started) * 1000.0
     return result
+
+
+# The rejections a mains hum left in the force can cause where its white-noise fits cannot see it,
+# and for which the analysis looks again with the hum removed (`analyze_tap`).
+HUM_MAY_CAUSE = frozenset({TAP_CONTACT_MISMATCH})
+
+
+def hum_not_asked(tap: TapData, options: AnalysisOptions) -> bool:
+    """Neither the options nor the tap's meta say what to do about mains hum (a tap from elsewhere):
+    an explicit `mains_hz` (a list, `none`, `auto`) is the user's or the printer's answer, kept."""
+    return options.mains_hz is None and tap.meta.get("mains_hz") is None
+
+
+def _analyze_and_classify(tap: TapData, options: AnalysisOptions, classifier) -> TapAnalysis:
+    """The tap analysed and its quality classified, or an invalid answer with the code that stopped it."""
+    try:
+        result, context = _analyze(tap, options)
+        return run_classifier(result, context, classifier, options.tap_classifier)
+    except TapInvalid as invalid:
+        return TapAnalysis(valid=False, error=invalid.code, message=invalid.message)
 
 
 # What the sample check finds (the kernel's `sample_problem` answers with these numbers, 0: nothing;

@@ -200,6 +200,10 @@ class AnalysisOptions:
         """The toe model reads Z: chosen, and the onset is neither calibrated nor fitted per tap."""
         return self.contact_model == "toe" and self.contact_onset_um is None and not self.fit_contact_onset
 
+    def with_mains_hz(self, mains_hz: tuple[float, ...] | str) -> AnalysisOptions:
+        """A copy that removes this mains hum (`auto`, or frequencies in Hz)."""
+        return dataclasses.replace(self, mains_hz=mains_hz)
+
     def with_overrides(self, overrides: dict[str, str]) -> AnalysisOptions:
         """A copy with `--set key=value` strings parsed; ValueError names key, value and what is allowed."""
         fields = {f.name: f for f in dataclasses.fields(self) if not f.name.startswith("_")}
