@@ -8,7 +8,7 @@ from bench.tap_sweep import analyse_in_process
 from tapcell.tap import AnalysisOptions, analyze_tap
 from tapcell.tap.readers import tap_from_object
 
-# bench tap_sweep's hum4000 (4 g at 50 Hz, harmonics 1 g, in a 4000 sps tap, no mains_hz in its meta):
+# bench tap_sweep's hum4000 (4 g at 50 or 60 Hz, harmonics 1 g, in a 4000 sps tap, no mains_hz in its meta):
 # seed 126 rejects these taps as TAP_CONTACT_MISMATCH without the look again.
 PARTED_BY_HUM = [12, 21, 30, 31]
 

@@ -1288,7 +1288,7 @@ def analyze_tap(tap: TapData, options: AnalysisOptions | None = None) -> TapAnal
     result = _analyze_and_classify(tap, options, classifier)
     if result.error in HUM_MAY_CAUSE and hum_not_asked(tap, options):
         # A strong hum nobody asked to remove can part the two contacts by more than their white-noise
-        # fits allow (bench tap_sweep's hum4000: 4 g at 50 Hz in a 4000 sps tap, 3 of 480 taps on seeds
+        # fits allow (bench tap_sweep's hum4000: 4 g at 50 or 60 Hz in a 4000 sps tap, 3 of 480 taps on seeds
         # 1-12). Analysed again as `auto` would: its screen finds the hum or leaves the force as it
         # was. Kept only when the tap then passes: the hum was the cause, and the analysis without
         # it is the better one; otherwise the first answer names what the tap shows.
