@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from bench.tap_sweep import analyse_in_process
-from tapcell.tap import AnalysisOptions, analyze_tap
+from tapcell.tap import AnalysisOptions, analysis, analyze_tap
 from tapcell.tap.readers import tap_from_object
 from tapcell.taplab.generate import SCENARIOS, make_tap
 
@@ -50,3 +50,18 @@ def test_a_second_look_that_still_rejects_leaves_the_first_answer():
     assert first.message != again.message and again.hum is not None
     answer = analyze_tap(tap)
     assert (answer.error, answer.message, answer.hum) == (first.error, first.message, None)
+
+
+def test_no_second_look_where_the_screen_finds_no_hum(sweep_tap):
+    # taplab seed 1's heavy-ooze tap k 2: parted by its film (TAP_CONTACT_MISMATCH); `auto`'s screen finds no
+    # hum in it, so the force would stay as it was and a second analysis would repeat the first.
+    rng = np.random.default_rng([1, list(SCENARIOS).index("heavy_ooze") + 1, 2])
+    tap = tap_from_object(make_tap(SCENARIOS["heavy_ooze"].draw(rng), rng)[0])
+    options = AnalysisOptions()
+    classifier = analysis.get_classifier(options.tap_classifier, options)
+    assert analyze_tap(tap, options).error == "TAP_CONTACT_MISMATCH"
+    assert analysis._second_look_without_hum(tap, options.with_mains_hz("auto"), classifier) is None
+    # where it finds one (hum4000, seed 126 k 12), the look goes on from the split it made
+    hummed, _ = sweep_tap("hum4000", 126, PARTED_BY_HUM[0])
+    again = analysis._second_look_without_hum(tap_from_object(hummed), options.with_mains_hz("auto"), classifier)
+    assert again is not None and again.valid and again.hum is not None
