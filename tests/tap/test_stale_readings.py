@@ -21,6 +21,16 @@ CASE = {case.name: case for case in CASES}
 STALE_TAPS = ((60, 3, "TAP_CONTACT_MISMATCH"), (53, 6, "TAP_CHRONOLOGY"), (54, 9, "LOW_TAP_QUALITY"))
 
 
+@pytest.fixture(params=["kernel", "twin"], autouse=True)
+def kernel_or_twin(request, monkeypatch):
+    """Every test here runs with the compiled kernel (where built) and with its numpy twin."""
+    if request.param == "kernel" and analysis._C is None:
+        pytest.skip("the compiled kernels are not built here")
+    if request.param == "twin":
+        monkeypatch.setattr(analysis, "_C", None)
+    return request.param
+
+
 def ramp_with_noise(seed: int = 0, samples: int = 200) -> np.ndarray:
     """Free air, a steep ramp of 20 g a sample over samples 100-109, free air again; 1 g of noise."""
     rng = np.random.default_rng(seed)
@@ -86,11 +96,11 @@ def test_a_clean_reference_tap_drops_nothing(reference_dir):
         assert "stale_readings" not in analyse_in_process(tap)
 
 
-def test_a_tap_without_a_repeated_reading_skips_the_look(monkeypatch):
+def test_a_tap_without_a_repeated_reading_skips_the_look(monkeypatch, kernel_or_twin):
     """The sample check's kernel says whether any reading equals the one before it; without one the
     analysis never calls `stale_readings` (a clean tap's 2 µs), and with one it does."""
-    if analysis._C is None:
-        pytest.skip("the compiled kernels are not built here")
+    if kernel_or_twin == "twin":
+        pytest.skip("the sample check's kernel is what says so")
     calls = []
     monkeypatch.setattr(analysis, "stale_readings", lambda force_g: calls.append(len(force_g)))
     tap = synth_tap(seed=3)
@@ -101,3 +111,43 @@ def test_a_tap_without_a_repeated_reading_skips_the_look(monkeypatch):
     force_g[40] = force_g[39]
     analysis.analyze_tap(dataclasses.replace(tap, force_g=force_g))
     assert calls == [len(force_g)]
+
+
+def _repeated(force_g: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+    """The force (`ramp_with_noise`) with a few runs of 1-3 readings repeated: one on its ramp, the others
+    anywhere (in free air most), one at the very end sometimes."""
+    force_g = force_g.copy()
+    starts = [int(rng.integers(101, 108)), *rng.choice(np.arange(1, len(force_g) - 1), size=int(rng.integers(0, 5)))]
+    for start in starts:
+        force_g[start:start + int(rng.integers(1, 4))] = force_g[start - 1]
+    if rng.random() < 0.3:
+        force_g[-2:] = force_g[-3]
+    return force_g
+
+
+def test_the_kernel_finds_the_twins_readings(reference_dir, kernel_or_twin):
+    """The same indices from the kernel and the twin: on the reference taps that repeat a reading (more
+    than half of them: a repeat in free air), and on ramps with runs repeated anywhere."""
+    if kernel_or_twin == "twin" or analysis._C is None:
+        pytest.skip("compares the kernel with its twin")
+    from tapcell.tap.readers import read_tap_file
+
+    rng = np.random.default_rng(21)
+    forces = [np.asarray(read_tap_file(path)[0].force_g, dtype=float)
+              for path in sorted(reference_dir.glob("clean_hx717_00[0-3]*.json"))]
+    forces += [_repeated(ramp_with_noise(seed), rng) for seed in range(200)]
+    forces += [np.array([1.0, 1.0]), np.array([1.0, 1.0, 5.0]), np.array([2.0, 2.0, 2.0]), np.array([0.0, 3.0, 3.0])]
+    kernel = analysis._C
+    found = 0
+    for force_g in forces:
+        fast = analysis.stale_readings(force_g)
+        analysis._C = None
+        try:
+            twin = analysis.stale_readings(force_g)
+        finally:
+            analysis._C = kernel
+        assert (fast is None) == (twin is None)
+        if fast is not None:
+            assert fast.dtype == twin.dtype and fast.tolist() == twin.tolist()
+            found += 1
+    assert found == 200  # every ramp's run is stale, to both

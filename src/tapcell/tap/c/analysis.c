@@ -671,6 +671,68 @@ static PyObject *sample_problem(PyObject *self, PyObject *args)
     return result;
 }
 
+/* The stale readings among the samples (analysis.py `stale_readings`, the twin): each run of readings
+ * equal to the one before it, where the force then moves on by more than jump_noise × `noise_sigma_g`
+ * of the samples; none where no reading repeats or more than max_share of them do. The twin's
+ * comparisons on the same doubles, and its noise sigma (the same selection): the same indices. The
+ * noise, the costly part, is measured only where some run is followed by a move at all. */
+static PyObject *stale_readings(PyObject *self, PyObject *args)
+{
+    (void)self;
+    Py_buffer buffer;
+    double jump_noise, max_share;
+    if (!PyArg_ParseTuple(args, "O&dd", float64_buffer, &buffer, &jump_noise, &max_share)) return NULL;
+    Py_ssize_t n;
+    const double *force_g = doubles_of(&buffer, &n, "force_g");
+    PyObject *result = NULL;
+    double *off_mid = NULL;
+    if (force_g == NULL) goto done;
+    Py_ssize_t repeats = 0, moved = 0; /* moved: runs the force moves on from (a run ends where the next reading differs) */
+    for (Py_ssize_t i = 1; i < n; i++) {
+        if (force_g[i] != force_g[i - 1]) continue;
+        repeats++;
+        if (i + 1 < n && force_g[i + 1] != force_g[i]) moved++;
+    }
+    if (repeats == 0 || (double)repeats > max_share * (double)n || moved == 0) {
+        result = Py_NewRef(Py_None);
+        goto done;
+    }
+    double noise_g = 0.0;
+    if (n >= 3) {
+        off_mid = malloc((size_t)(n - 2) * sizeof(double));
+        if (off_mid == NULL) {
+            PyErr_NoMemory();
+            goto done;
+        }
+        off_midpoints(force_g, n, off_mid);
+        noise_g = noise_of_off_midpoints(off_mid, n - 2);
+    }
+    const double jump_g = jump_noise * noise_g;
+    if ((result = PyList_New(0)) == NULL) goto done;
+    Py_ssize_t run_start = 0; /* the first repeat of the current run */
+    for (Py_ssize_t i = 1; i < n; i++) {
+        if (force_g[i] != force_g[i - 1]) continue;
+        if (i == 1 || force_g[i - 1] != force_g[i - 2]) run_start = i;
+        if (i + 1 < n && force_g[i + 1] == force_g[i]) continue; /* the run goes on */
+        if (i + 1 < n && fabs(force_g[i + 1] - force_g[i]) > jump_g) {
+            for (Py_ssize_t r = run_start; r <= i; r++) {
+                PyObject *index = PyLong_FromSsize_t(r);
+                if (index == NULL || PyList_Append(result, index) < 0) {
+                    Py_XDECREF(index);
+                    Py_CLEAR(result);
+                    goto done;
+                }
+                Py_DECREF(index);
+            }
+        }
+    }
+    if (PyList_GET_SIZE(result) == 0) Py_SETREF(result, Py_NewRef(Py_None));
+done:
+    free(off_mid);
+    PyBuffer_Release(&buffer);
+    return result;
+}
+
 /* The robust pass of the pullback fit (analysis.py `fit_pullback`): None when every residual lies
  * within outlier_sigma × max(their robust sigma, floor_g), else the keep mask as a bytes object (one
  * 0/1 per residual; numpy reads it as a bool array without a copy). */
@@ -848,6 +910,10 @@ static PyMethodDef methods[] = {
     {"z_at", z_at, METH_VARARGS,
      "z_at(move_rows, t_s) -> float: the commanded Z (mm) at t_s (motion.py Motion.z_at of one time).\n"
      "move_rows: the move table's six rows one after the other, a sequence of numbers (Motion.move_rows)."},
+    {"stale_readings", stale_readings, METH_VARARGS,
+     "stale_readings(force_g, jump_noise, max_share) -> list of indices or None: the readings equal to the one\n"
+     "before them, run by run, after which the force moves on by more than jump_noise noise sigmas; None\n"
+     "where none, or where more than max_share of the samples repeat (analysis.py `stale_readings`)."},
     {"sample_problem", sample_problem, METH_VARARGS,
      "sample_problem(time_s, force_g) -> int: 0 fine, 1 NaN or infinity, 2 times not strictly increasing, "
      "3 a saturated sensor (a long run at the extreme force)."},
