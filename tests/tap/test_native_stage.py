@@ -158,15 +158,21 @@ def test_the_kernel_refuses_wrong_arrays():
                                     10.0, 1.0, 1.0, 15.0, 1.0, 15.0, 0.08, 0.5)
 
 
-def test_the_one_stage_toe_grid_equals_the_numpy_twin(fits, monkeypatch):
-    # The kernel takes the samples on the toe's linear part from prefix sums, the twin sums every
-    # shape: on taplab's, the reference taps' and sessions' 34 grids 2.4e-15 of the force's sum of squares.
+def _one_stage_calls(fits) -> list[tuple]:
+    """`_one_stage_rss`'s arguments on each departure the fits weigh, as two_stage_fit prepares them."""
     calls = []
     for x_um, force_g, contact_um, *rest in fits:
         near = (x_um > contact_um - stage.TWO_STAGE_BELOW_UM) & (x_um < contact_um + stage.TWO_STAGE_ABOVE_UM)
         if np.count_nonzero(near) >= 2 * stage.STAGE_MIN_SAMPLES:
             x, _, f, sxx, ff = stage._sorted_detrended(x_um[near], force_g[near], *rest[2:])
             calls.append((x, f, float(x.mean()), sxx, ff, contact_um))
+    return calls
+
+
+def test_the_one_stage_toe_grid_equals_the_numpy_twin(fits, monkeypatch):
+    # The kernel takes the samples on the toe's linear part from prefix sums, the twin sums every
+    # shape: on taplab's, the reference taps' and sessions' 34 grids 2.4e-15 of the force's sum of squares.
+    calls = _one_stage_calls(fits)
     kernel = [stage._one_stage_rss(*call) for call in calls]
     monkeypatch.setattr(stage, "_C", None)
     twins = [stage._one_stage_rss(*call) for call in calls]
@@ -191,6 +197,25 @@ def test_the_one_stage_toe_grid_is_the_same_whatever_the_contacts_order():
     rising = _one_stage_call(x, f, 10.0)
     for contacts in (stage.ONE_STAGE_CONTACTS_UM[::-1], np.random.default_rng(2).permutation(stage.ONE_STAGE_CONTACTS_UM)):
         assert repr(_one_stage_call(x, f, 10.0, contacts)) == repr(rising)
+
+
+def test_the_two_shapes_summed_side_by_side_give_the_general_loops_bits(fits):
+    # The grid's own shapes (0.5, 1.0) run in one pass over the toe's samples; in the other order the
+    # kernel takes its general loop, one shape at a time. Each sum is added in the same order, so the
+    # least residual is the same bits, the best toe a Hertzian one on some departures, a parabolic on others.
+    calls = _one_stage_calls(fits)
+    assert len(calls) >= 15
+    for call in calls:
+        assert repr(least_of(call, [0.5, 1.0])) == repr(least_of(call, [1.0, 0.5]))
+    best_shape = {min((least_of(call, [0.5]), 0.5), (least_of(call, [1.0]), 1.0))[1] for call in calls}
+    assert best_shape == {0.5, 1.0}
+
+
+def least_of(call: tuple, powers: list[float]) -> float:
+    """The one-stage toe grid's least residual with these shapes alone."""
+    x, f, x_mean, sxx, ff, contact_um = call
+    return stage._C.one_stage_rss(x, f, stage.ONE_STAGE_CONTACTS_UM, stage._ONE_STAGE_WIDTHS, np.array(powers),
+                                  contact_um, sxx, ff, x_mean)
 
 
 def test_the_one_stage_toe_grid_with_samples_on_its_own_heights(monkeypatch):

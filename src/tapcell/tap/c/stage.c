@@ -533,6 +533,43 @@ done:
     return answer;
 }
 
+/* One toe shape's least-squares sums over the samples (one_stage_rss): its column's sum, its products
+ * with the centred heights and with the force, its square; scale: the shape's width x 1/(power + 1). */
+typedef struct { double sum, x, ss, f, scale; } ShapeSums;
+
+/* The sums over the samples pressed past the toe (prefix sums p below it), where the shape is the line
+ * s = B - z (B = the contact's offset - width (1 - 1/(power + 1))). */
+static inline ShapeSums pressed_sums(const double *p, double offset, double width, double power, double z_mean)
+{
+    const double share = 1.0 / (power + 1.0), b = offset - width * (1.0 - share);
+    ShapeSums s;
+    s.scale = width * share;
+    s.sum = b * p[0] - p[1];
+    s.x = b * p[1] - b * p[0] * z_mean - p[2] + z_mean * p[1];
+    s.ss = b * b * p[0] - 2.0 * b * p[1] + p[2];
+    s.f = b * p[3] - p[4];
+    return s;
+}
+
+/* One sample inside the toe: its shape value (scaled), its centred height and its force. */
+static inline void add_in_toe(ShapeSums *s, double shape, double centred, double force_g)
+{
+    s->sum += shape;
+    s->x += shape * centred;
+    s->ss += shape * shape;
+    s->f += shape * force_g;
+}
+
+/* What the shape's column lowers the residual by (0 where it pulls the wrong way or explains nothing). */
+static inline double shape_gain(const ShapeSums *s, double count, double sxx)
+{
+    const double s_var = s->ss - s->sum * s->sum / count - s->x * s->x / sxx;
+    return (s->f > 0.0 && s_var > 0.0) ? s->f * s->f / at_least(s_var, 1e-300) : 0.0;
+}
+
+/* The larger gain, the earlier one kept on a tie (the twin's order). */
+static inline double fmax_gain(double best, double gain) { return gain > best ? gain : best; }
+
 /* The one-stage toe's least residual (stage.py: _one_stage_rss, its numpy twin) over every shape,
  * width and contact on the grid. The samples pressed at least a width deep lie on the toe's linear
  * part, s = B - z (z: height above the contact found, B = contact - width (1 - 1/(power + 1))),
@@ -581,6 +618,8 @@ static PyObject *one_stage_rss(PyObject *self, PyObject *args)
         row[4] = below[4] + z * f[i];
     }
     const double count = (double)n, z_mean = x_mean - contact_um;
+    /* The grid's two shapes (stage.py ONE_STAGE_POWERS): summed side by side in one pass. */
+    const int hertz_and_parabola = powers == 2 && power_list[0] == 0.5 && power_list[1] == 1.0;
     double best_gain = 0.0;
     for (Py_ssize_t w = 0; w < widths; w++) {
         const double width = fmax(width_list[w], 1e-9);
@@ -594,31 +633,33 @@ static PyObject *one_stage_rss(PyObject *self, PyObject *args)
             deep = count_below_near(x, pressed, deep, contact - width);
             Py_ssize_t linear = deep;
             while (linear < pressed && contact - x[linear] >= width) linear++;
+            const double *p = prefix + 5 * linear;
+            if (hertz_and_parabola) { /* both shapes over the toe's samples in one pass, each sum in the same order */
+                ShapeSums hertz = pressed_sums(p, offsets[c], width, 0.5, z_mean);
+                ShapeSums parabola = pressed_sums(p, offsets[c], width, 1.0, z_mean);
+                for (Py_ssize_t i = linear; i < pressed; i++) {
+                    const double u = (contact - x[i]) / width, centred = x[i] - x_mean;
+                    add_in_toe(&hertz, (sqrt(u) * u) * hertz.scale, centred, f[i]);
+                    add_in_toe(&parabola, (u * u) * parabola.scale, centred, f[i]);
+                }
+                best_gain = fmax_gain(best_gain, shape_gain(&hertz, count, sxx));
+                best_gain = fmax_gain(best_gain, shape_gain(&parabola, count, sxx));
+                continue;
+            }
             /* the depth over the width of each sample inside the toe, once for every shape */
             for (Py_ssize_t i = linear; i < pressed; i++) depth[i - linear] = (contact - x[i]) / width;
-            const double *p = prefix + 5 * linear;
             for (Py_ssize_t k = 0; k < powers; k++) {
-                const double power = power_list[k], share = 1.0 / (power + 1.0), scale = width * share;
-                const double b = offsets[c] - width * (1.0 - share);
-                double s_sum = b * p[0] - p[1];
-                double s_x = b * p[1] - b * p[0] * z_mean - p[2] + z_mean * p[1];
-                double s_ss = b * b * p[0] - 2.0 * b * p[1] + p[2];
-                double s_f = b * p[3] - p[4];
+                const double power = power_list[k];
+                ShapeSums sums = pressed_sums(p, offsets[c], width, power, z_mean);
                 for (Py_ssize_t i = linear; i < pressed; i++) {
                     const double u = depth[i - linear];
                     double shape;
                     if (power == 0.5) shape = sqrt(u) * u;
                     else if (power == 1.0) shape = u * u;
                     else shape = pow(u, power + 1.0);
-                    shape *= scale;
-                    s_sum += shape;
-                    s_x += shape * (x[i] - x_mean);
-                    s_ss += shape * shape;
-                    s_f += shape * f[i];
+                    add_in_toe(&sums, shape * sums.scale, x[i] - x_mean, f[i]);
                 }
-                const double s_var = s_ss - s_sum * s_sum / count - s_x * s_x / sxx;
-                const double gain = (s_f > 0.0 && s_var > 0.0) ? s_f * s_f / at_least(s_var, 1e-300) : 0.0;
-                if (gain > best_gain) best_gain = gain;
+                best_gain = fmax_gain(best_gain, shape_gain(&sums, count, sxx));
             }
         }
     }
