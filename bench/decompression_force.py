@@ -18,11 +18,11 @@ from __future__ import annotations
 import argparse
 import json
 import sys
-import tarfile
 import tempfile
 from collections import defaultdict
 from pathlib import Path
 
+from tapcell.files import extract_archive
 from tapcell.tap import analyze_tap, read_tap_file
 from tapcell.tap.classifiers import MIN_DECOMPRESSION_TO_TRIGGER
 from tapcell.tap.model import LOW_DECOMPRESSION_FORCE
@@ -35,8 +35,7 @@ def label_folders(path: Path, scratch: Path) -> list[Path]:
     """The folders holding labels.jsonl in `path` (an archive is unpacked into `scratch`)."""
     if path.is_file():
         target = scratch / path.name.split(".")[0]
-        with tarfile.open(path) as archive:
-            archive.extractall(target, filter="data")
+        extract_archive(path, target)
         path = target
     return sorted(labels.parent for labels in path.rglob("labels.jsonl"))
 

@@ -17,6 +17,7 @@ import errno
 import fcntl
 import os
 import stat
+from collections.abc import Callable
 from typing import TextIO
 
 
@@ -219,3 +220,21 @@ def remove_stale_temps(path: str) -> None:
                 os.unlink(os.path.join(directory, name))
             except OSError:
                 pass  # removed meanwhile, or not ours to remove: the write goes on
+
+
+def extract_archive(archive: str | os.PathLike, target: str | os.PathLike,
+                    keep: Callable[[str], bool] | None = None) -> None:
+    """Unpack a tar archive (any compression tarfile reads) into `target`: its members whose name `keep`
+    accepts (all without it). A member that is not a regular file or a folder (a link, a device), or
+    that would land outside `target`, is a tarfile.TarError before anything is written: the rules of
+    tarfile's "data" filter, which a Python before 3.11.4 does not have (Debian 12's is 3.11.2)."""
+    import tarfile  # here: only the benchmarks unpack archives, and every command's start-up would pay for it
+
+    root = os.path.realpath(target)
+    with tarfile.open(archive) as packed:
+        members = [member for member in packed.getmembers() if keep is None or keep(member.name)]
+        for member in members:
+            landing = os.path.realpath(os.path.join(root, member.name))
+            if not (member.isfile() or member.isdir()) or os.path.commonpath([root, landing]) != root:
+                raise tarfile.TarError(f"{member.name!r} is not a file or folder inside the archive's own tree")
+        packed.extractall(root, members=members, **({"filter": "data"} if hasattr(tarfile, "data_filter") else {}))

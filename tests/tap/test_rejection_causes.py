@@ -10,11 +10,11 @@ codes. Taps from tapcell.tap.synth (its own contact physics).
 
 import dataclasses
 import json
-import tarfile
 
 import numpy as np
 import pytest
 
+from tapcell.files import extract_archive
 from tapcell.tap import analyze_tap, read_tap_file
 from tapcell.taplab.benchmark import default_reference_archive
 from tapcell.tap.motion import tap_motion
@@ -332,9 +332,7 @@ def _reference_cases(tmp_path, archive_name: str, cases: dict):
     archive = default_reference_archive(archive_name)
     if not archive.exists():
         pytest.skip(f"{archive_name} not found at {archive} (../shared/data from the repository root)")
-    with tarfile.open(archive) as packed:
-        members = [m for m in packed.getmembers() if m.name.rsplit("/", 1)[-1] in {*cases, "labels.jsonl"}]
-        packed.extractall(tmp_path, members=members, filter="data")
+    extract_archive(archive, tmp_path, keep=lambda name: name.rsplit("/", 1)[-1] in {*cases, "labels.jsonl"})
     paths = {p.name: p for p in tmp_path.rglob("*.json")}
     truth = {}
     for line in next(tmp_path.rglob("labels.jsonl")).read_text().splitlines():

@@ -1,12 +1,14 @@
 """`tapcell benchmark` reads both generators' labels, finds the reference taps at ../shared/data from
 the repository root (or says it did not), and scores a set per scenario (issue 21)."""
 
+import io
 import json
 import tarfile
 
 import numpy as np
 import pytest
 
+from tapcell.files import extract_archive
 from tapcell.tap import analyze_tap, read_tap_file
 from tapcell.taplab import benchmark
 from tapcell.taplab.benchmark import Run, default_reference_archive, read_labels, reference_set, score
@@ -46,14 +48,60 @@ def test_a_missing_reference_set_is_named_and_left_out(tmp_path, capsys):
     assert f"reference taps: {missing} not found" in capsys.readouterr().out
 
 
+def _archive(path, members: dict[str, bytes], link: str | None = None) -> None:
+    """A tar.xz holding these files (name -> bytes) and, given, a symbolic link of that name to /etc/passwd."""
+    with tarfile.open(path, "w:xz") as packed:
+        for name, data in members.items():
+            info = tarfile.TarInfo(name)
+            info.size = len(data)
+            packed.addfile(info, io.BytesIO(data))
+        if link:
+            info = tarfile.TarInfo(link)
+            info.type, info.linkname = tarfile.SYMTYPE, "/etc/passwd"
+            packed.addfile(info)
+
+
+@pytest.fixture(params=["data filter", "no data filter"])
+def tarfile_of_this_python(request, monkeypatch):
+    """tarfile as it is, and as a Python before 3.11.4 has it (no "data" filter: Debian 12's 3.11.2)."""
+    if request.param == "no data filter":
+        monkeypatch.delattr(tarfile, "data_filter")
+    return request.param
+
+
+def test_an_archive_unpacks_with_or_without_tarfiles_data_filter(tmp_path, tarfile_of_this_python):
+    _archive(tmp_path / "set.tar.xz", {"set/labels.jsonl": b"{}\n", "set/a.json": b"{}", "set/b.json": b"[]"})
+    extract_archive(tmp_path / "set.tar.xz", tmp_path / "out", keep=lambda name: not name.endswith("b.json"))
+    assert sorted(p.name for p in (tmp_path / "out" / "set").iterdir()) == ["a.json", "labels.jsonl"]
+
+
+@pytest.mark.parametrize("escape", ["../outside.json", "absolute", "link"])
+def test_a_member_outside_the_tree_or_a_link_is_refused_before_anything_is_written(tmp_path, escape,
+                                                                                    tarfile_of_this_python):
+    link = escape if escape == "link" else None
+    outside = str(tmp_path / "absolute.json") if escape == "absolute" else escape  # an absolute path, beside "out"
+    files = {"set/labels.jsonl": b"{}\n"} | ({} if link else {outside: b"{}"})
+    _archive(tmp_path / "bad.tar.xz", files, link)
+    with pytest.raises(tarfile.TarError, match="not a file or folder inside the archive's own tree"):
+        extract_archive(tmp_path / "bad.tar.xz", tmp_path / "out")
+    assert not (tmp_path / "out").exists()
+    assert not (tmp_path / "outside.json").exists() and not (tmp_path / "absolute.json").exists()
+
+
+def test_a_reference_that_is_no_archive_is_named(tmp_path, capsys):
+    not_an_archive = tmp_path / "reference-taps.tar.xz"
+    not_an_archive.write_text("not a tar archive")
+    assert benchmark.main(["--no-taplab", "--no-kalico", "--no-real", "--reference", str(not_an_archive)]) == 2
+    assert (f"reference taps: {not_an_archive}: not a tar archive (plain, gzip, bzip2 or xz) nor a directory"
+            in capsys.readouterr().err)
+
+
 def test_the_reference_taps_when_present(tmp_path):
     archive = default_reference_archive()
     if not archive.exists():
         pytest.skip(f"reference taps not found at {archive} (../shared/data from the repository root)")
     # Only the clean HX717 taps, to keep the test short.
-    with tarfile.open(archive) as packed:
-        members = [m for m in packed.getmembers() if "clean_hx717_00" in m.name or m.name.endswith("labels.jsonl")]
-        packed.extractall(tmp_path, members=members, filter="data")
+    extract_archive(archive, tmp_path, keep=lambda name: "clean_hx717_00" in name or name.endswith("labels.jsonl"))
     found = reference_set(tmp_path, tmp_path / "unused")
     labels = [lab for lab in found.labels if lab.file.startswith("clean_hx717_00")]
     errors = []

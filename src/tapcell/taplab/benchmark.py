@@ -47,6 +47,7 @@ from pathlib import Path
 
 import numpy as np
 
+from tapcell.files import extract_archive
 from tapcell.taplab.generate import LABELS_FILE, SCENARIOS, generate_set
 
 SILENT_UM = 20.0  # a valid tap this far off is a silent failure
@@ -390,13 +391,18 @@ def print_real(runs: list[Run], real_files: list[Path]) -> None:
 def reference_set(source: Path, scratch: Path, name: str = "reference",
                   archive: str = REFERENCE_NAME) -> TapSet | None:
     """A reference set (its labels.jsonl and files): the archive unpacked into `scratch`, or an
-    unpacked directory (holding labels.jsonl, or the archive's directory)."""
+    unpacked directory (holding labels.jsonl, or the archive's directory). ValueError naming the file
+    when it is neither a directory nor a tar archive that unpacks."""
     if source.is_dir():
         inner = source / archive.removesuffix(".tar.xz")
         directory = source if (source / LABELS_FILE).exists() or not inner.is_dir() else inner
     else:
-        with tarfile.open(source) as archive:
-            archive.extractall(scratch, filter="data")
+        try:
+            extract_archive(source, scratch)
+        except tarfile.ReadError:
+            raise ValueError(f"{source}: not a tar archive (plain, gzip, bzip2 or xz) nor a directory") from None
+        except (tarfile.TarError, OSError) as problem:
+            raise ValueError(f"{source}: cannot unpack it ({problem})") from None
         found = [p.parent for p in scratch.glob("*/" + LABELS_FILE)] + [p.parent for p in scratch.glob(LABELS_FILE)]
         if not found:
             return None
@@ -473,7 +479,10 @@ def _tap_sets(args, scratch: Path) -> list[TapSet] | str:
         sets.append(TapSet(f"taplab (seed {args.seed})", directory, read_labels(directory)))
     if not args.no_reference:
         source = Path(args.reference) if args.reference else default_reference_archive()
-        found = reference_set(source, scratch / "reference") if source.exists() else None
+        try:
+            found = reference_set(source, scratch / "reference") if source.exists() else None
+        except ValueError as problem:
+            return f"reference taps: {problem}"
         if found is None:
             print(f"reference taps: {source} not found (or holds no {LABELS_FILE}); left out")
         else:
