@@ -205,7 +205,10 @@ def main(argv: list[str]) -> int:
                     sets.append(found)
             console.print(kalico_table(sets, kalico_python))
             console.print(startup_table(sets[0], kalico_python))
-            print(f"OpenBLAS on {benchmark.blas_threads()} thread for every analyzer; tapcell-numpy: TAPCELL_NATIVE=0")
+            # The interpreter moves the ratio: our analysis is mostly interpreted glue, Kalico's mostly numpy
+            # (docs/tap-analysis.md, "Which Python": a build without profile-guided optimisation reads lower).
+            print(f"tapcell on {sys.executable} (Python {sys.version.split()[0]}); "
+                  f"OpenBLAS on {benchmark.blas_threads()} thread for every analyzer; tapcell-numpy: TAPCELL_NATIVE=0")
     console.print(size_table(args.repeats))
     return 0
 
