@@ -12,7 +12,12 @@
 #   make postgresql     Debian's PostgreSQL for the store tests and bench history
 #   make browser        Debian's chromium and Playwright (PyPI) for the browser tests
 
-PYTHON ?= python3
+# The interpreter every venv is made from: the system's /usr/bin/python3 where it is 3.11 or newer and
+# can make a venv (a Debian host's, the one Klipper's and Moonraker's venvs use: built with profile-guided
+# optimisation, it runs the tap analysis 1.3-1.8x faster than a plain source build), else python3 on the
+# PATH. `make PYTHON=...` chooses another (docs/tap-analysis.md, "which Python").
+SYSTEM_PYTHON := $(shell /usr/bin/python3 -c 'import ensurepip, sys; sys.exit(sys.version_info < (3, 11))' 2>/dev/null && echo /usr/bin/python3)
+PYTHON ?= $(or $(SYSTEM_PYTHON),python3)
 VENV   := .venv
 VPY    := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
