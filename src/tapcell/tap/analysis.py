@@ -1331,7 +1331,7 @@ def _second_look_without_hum(tap: TapData, auto: AnalysisOptions, classifier) ->
 
 
 def _analyze_and_classify(tap: TapData, options: AnalysisOptions, classifier,
-                          split_made: tuple[SplitTap, int, int, HumFit | None] | None = None) -> TapAnalysis:
+                          split_made: SplitMade | None = None) -> TapAnalysis:
     """The tap analysed (from `split_tap`'s answer, when made already) and its quality classified,
     or an invalid answer with the code that stopped it."""
     try:
@@ -1499,8 +1499,12 @@ class ContactFits:
     drift_g_um: float
 
 
+# What `split_tap` answers: the split, the polarity, the frames repaired and the hum removed.
+SplitMade = tuple[SplitTap, int, int, "HumFit | None"]
+
+
 def _analyze(tap: TapData, options: AnalysisOptions,
-             split_made: tuple[SplitTap, int, int, HumFit | None] | None = None
+             split_made: SplitMade | None = None
              ) -> tuple[TapAnalysis, AnalysisContext]:
     split, polarity, outliers, hum = split_made or split_tap(tap, options)
     result = result_of_split(split, polarity, outliers, hum)
@@ -1530,7 +1534,7 @@ def _analyze(tap: TapData, options: AnalysisOptions,
     return result, context
 
 
-def split_tap(tap: TapData, options: AnalysisOptions) -> tuple[SplitTap, int, int, HumFit | None]:
+def split_tap(tap: TapData, options: AnalysisOptions) -> SplitMade:
     """Steps 1-3: samples and motion checked, sensor timing, polarity, corrupted frames repaired,
     mains hum removed, the five lines; with the polarity, the frames repaired and the hum."""
     time_s, force_raw, repeating = _check_samples(tap)
