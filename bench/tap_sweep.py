@@ -178,6 +178,14 @@ def _force_scaled(factor: float) -> Callable[[dict, float, np.random.Generator],
     return transform
 
 
+def _force_quantized(step_g: float) -> Callable[[dict, float, np.random.Generator], dict]:
+    """A coarse converter (a low gain, a big load cell, a 16-bit ADC): every reading rounded to a
+    multiple of `step_g`, where the noise spans a step or two and readings repeat."""
+    def transform(tap, _z_mm, _rng):
+        return _with_force(tap, (step_g * round(float(f) / step_g) for f in tap["force"]))
+    return transform
+
+
 def _force_clipped(share: float) -> Callable[[dict, float, np.random.Generator], dict]:
     """A saturated sensor (a small load cell, a high gain, a fast probe): every force clipped flat at
     `share` of the tap's peak |force|, both signs, as an ADC at its limit records it."""
@@ -510,6 +518,14 @@ CASES = [Case(*row[:3], **(row[3] if len(row) > 3 else {})) for row in (
      {"reference": ("clean_hx717", 1), "transform": _force_scaled(0.2)}),
     ("ref_gain5", "reference HX717, force x5 (gain)", "accept",
      {"reference": ("clean_hx717", 1), "transform": _force_scaled(5.0)}),
+    ("ref_quant2", "reference HX717, readings in 2 g steps", "accept",
+     {"reference": ("clean_hx717", 1), "transform": _force_quantized(2.0)}),
+    ("ref_quant5", "reference HX717, readings in 5 g steps", "accept",
+     {"reference": ("clean_hx717", 1), "transform": _force_quantized(5.0)}),
+    ("ref_660quant3", "reference ADS1220 660, readings in 3 g steps", "accept",
+     {"reference": ("clean_ads1220_660", 1), "transform": _force_quantized(3.0)}),
+    ("ref_softquant5", "reference soft sheet, readings in 5 g steps", "accept",
+     {"reference": ("soft_sheet", 1), "transform": _force_quantized(5.0)}),
     ("ref_clip80", "reference HX717, saturated at 80 % of peak", "either",
      {"reference": ("clean_hx717", 1), "transform": _force_clipped(0.8)}),
     ("ref_clip60", "reference HX717, saturated at 60 % of peak", "either",

@@ -7,6 +7,17 @@ from collections.abc import Callable
 import pytest
 
 from bench.tap_sweep import CASES, analyse_in_process, case_taps, reference_taps
+from tapcell.tap import analysis
+
+
+@pytest.fixture(params=["kernel", "twin"])
+def kernel_or_twin(request, monkeypatch):
+    """The test runs with analysis.py's compiled kernels (where built) and with their numpy twins."""
+    if request.param == "kernel" and analysis._C is None:
+        pytest.skip("the compiled kernels are not built here")
+    if request.param == "twin":
+        monkeypatch.setattr(analysis, "_C", None)
+    return request.param
 
 
 @pytest.fixture(scope="session")

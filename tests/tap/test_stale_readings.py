@@ -21,16 +21,6 @@ CASE = {case.name: case for case in CASES}
 STALE_TAPS = ((60, 3, "TAP_CONTACT_MISMATCH"), (53, 6, "TAP_CHRONOLOGY"), (54, 9, "LOW_TAP_QUALITY"))
 
 
-@pytest.fixture(params=["kernel", "twin"])
-def kernel_or_twin(request, monkeypatch):
-    """The test runs with the compiled kernel (where built) and with its numpy twin."""
-    if request.param == "kernel" and analysis._C is None:
-        pytest.skip("the compiled kernels are not built here")
-    if request.param == "twin":
-        monkeypatch.setattr(analysis, "_C", None)
-    return request.param
-
-
 def ramp_with_noise(seed: int = 0, samples: int = 200) -> np.ndarray:
     """Free air, a steep ramp of 20 g a sample over samples 100-109, free air again; 1 g of noise."""
     rng = np.random.default_rng(seed)

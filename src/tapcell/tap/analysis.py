@@ -49,7 +49,7 @@ from tapcell.tap.model import (
     TapData,
 )
 from tapcell.tap.motion import Motion, MotionError, tap_motion
-from tapcell.tap.robust import median, robust_sigma
+from tapcell.tap.robust import MAD_TO_SIGMA, grouped_median, median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import (NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_FIVE, PrefixSums, five_lines,
                                   segment_line, segment_stats)
@@ -255,8 +255,8 @@ def noise_sigma_g(force_g: np.ndarray) -> float:
 
 
 def _noise_sigma_of(abs_off_mid: np.ndarray) -> float:
-    # off_mid of white noise has sigma sqrt(1.5) * noise sigma.
-    return robust_sigma(abs_off_mid) / math.sqrt(1.5)
+    # off_mid of white noise has sigma sqrt(1.5) * noise sigma; coarse readings: robust.grouped_median.
+    return MAD_TO_SIGMA * grouped_median(abs_off_mid, median(abs_off_mid)) / math.sqrt(1.5)
 
 
 # Stale readings (issue 21's sweep, `ref_stale3`): a sensor read before its next conversion is done

@@ -25,6 +25,47 @@ def median(values: np.ndarray) -> float:
     return 0.5 * float(ordered[half - 1] + ordered[half])
 
 
+# A coarse converter (a low gain, a big load cell, readings in whole grams) rounds every reading to
+# a step. Once the step nears the noise, |deviations| sit on a lattice of it and their median lands
+# on a lattice value: 0 where most readings repeat, which reads as a noiseless sensor (a reference
+# ADS1220 660 sps tap in 3 g steps: "more than 4 x the 0.00 g noise", TAP_ADHESION). Read as grouped
+# data, interpolated within its step, the median follows the noise and the rounding together
+# (sqrt(sigma² + step²/12) to 5 % up to a step of twice the noise). The C twin: median.h.
+LATTICE_STEP_SHARE = 0.05  # a step finer than this share of the median leaves the median as it is
+ON_LATTICE = 0.05  # a value within this share of a step of a multiple of it is on the lattice
+LATTICE_SHARE_MIN = 0.9  # of the values above zero, at least this share on the lattice
+LATTICE_MIN_VALUES = 8  # and at least this many (a reading frozen but a few times is no step)
+LATTICE_BINS = 32  # a step over a twentieth of the median puts it in bin 20 at most
+
+
+def grouped_median(values: np.ndarray, median_value: float) -> float:
+    """The median of non-negative `values` (`median_value`: their median) read as grouped data where
+    they sit on a lattice coarse against it (see LATTICE_STEP_SHARE), else `median_value`."""
+    if len(values) == 0:
+        return median_value
+    tiny = 1e-9 * max(float(values.max()), 0.0)  # a difference of equal readings, to the last bits
+    above = values[values > tiny]
+    if len(above) < LATTICE_MIN_VALUES:
+        return median_value
+    step = float(above.min())
+    if not step > LATTICE_STEP_SHARE * median_value:
+        return median_value
+    ratio = above / step
+    multiple = np.floor(ratio + 0.5)
+    if np.count_nonzero(np.abs(ratio - multiple) <= ON_LATTICE) < LATTICE_SHARE_MIN * len(above):
+        return median_value
+    counts = np.bincount(np.minimum(multiple, LATTICE_BINS - 1).astype(np.intp), minlength=LATTICE_BINS)
+    counts[0] = len(values) - len(above)
+    # bin 0 holds [0, step / 2), bin j [(j - 1/2) step, (j + 1/2) step): where the half count falls
+    half = 0.5 * len(values)
+    below, bin_ = 0, 0
+    while bin_ < LATTICE_BINS - 1 and below + counts[bin_] <= half:
+        below += int(counts[bin_])
+        bin_ += 1
+    low, width = (0.0, 0.5 * step) if bin_ == 0 else ((bin_ - 0.5) * step, step)
+    return low + (half - below) / int(counts[bin_]) * width
+
+
 def robust_sigma(deviations: np.ndarray) -> float:
     """Sigma of normal noise from the median absolute deviation: 1.4826 x median |deviation|.
 

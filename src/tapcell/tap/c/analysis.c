@@ -30,10 +30,12 @@ static void off_midpoints(const double *force_g, Py_ssize_t n, double *off_mid)
         off_mid[i] = fabs(force_g[i + 1] - 0.5 * (force_g[i] + force_g[i + 2]));
 }
 
-/* White-noise sigma from off-midpoints: their robust sigma over sqrt(1.5). Reorders them. */
+/* White-noise sigma from off-midpoints: their robust sigma over sqrt(1.5), the median read as
+ * grouped data where coarse readings put them on a lattice (`grouped_median`). Reorders them. */
 static double noise_of_off_midpoints(double *off_mid, Py_ssize_t count)
 {
-    return MAD_TO_SIGMA * median_in_place(off_mid, count) / sqrt(1.5);
+    const double median = median_in_place(off_mid, count);
+    return MAD_TO_SIGMA * grouped_median(off_mid, count, median) / sqrt(1.5);
 }
 
 static PyObject *median(PyObject *self, PyObject *args)

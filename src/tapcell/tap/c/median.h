@@ -190,4 +190,51 @@ static inline double median_in_place(double *values, Py_ssize_t n)
     return 0.5 * (lower + upper);
 }
 
+/* A coarse converter (a low gain, a big load cell, readings in whole grams) rounds every reading
+ * to a step: |deviations| then sit on a lattice of it, and once the step nears the noise their
+ * median lands on a lattice value, 0 when most readings repeat. robust.grouped_median's constants
+ * and arithmetic (its twin, the same bits): the median of grouped data, interpolated in its step. */
+#define LATTICE_STEP_SHARE 0.05  /* a step finer than this share of the median leaves it as it is */
+#define ON_LATTICE 0.05          /* a value within this share of a step of a multiple of it */
+#define LATTICE_SHARE_MIN 0.9    /* of the values above zero, at least this share on the lattice */
+#define LATTICE_MIN_VALUES 8     /* and at least this many (a reading frozen but a few times is no step) */
+#define LATTICE_BINS 32          /* a step over a twentieth of the median puts it in bin 20 at most */
+
+/* The median of the n non-negative `values` (`median` of them: median_in_place's answer) read as
+ * grouped data where they sit on a lattice coarse against that median, else the median itself. */
+static inline double grouped_median(const double *values, Py_ssize_t n, double median)
+{
+    double largest = 0.0;
+    for (Py_ssize_t i = 0; i < n; i++)
+        if (values[i] > largest) largest = values[i];
+    const double tiny = 1e-9 * largest; /* a difference of equal readings, to the last bits */
+    double step = INFINITY;
+    Py_ssize_t above = 0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        if (values[i] > tiny) {
+            above++;
+            if (values[i] < step) step = values[i];
+        }
+    }
+    if (above < LATTICE_MIN_VALUES || !(step > LATTICE_STEP_SHARE * median)) return median;
+    Py_ssize_t on_lattice = 0, counts[LATTICE_BINS] = {0};
+    counts[0] = n - above;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        if (values[i] > tiny) {
+            const double ratio = values[i] / step, multiple = floor(ratio + 0.5);
+            on_lattice += fabs(ratio - multiple) <= ON_LATTICE;
+            counts[multiple < LATTICE_BINS - 1 ? (int)multiple : LATTICE_BINS - 1]++;
+        }
+    }
+    if (on_lattice < LATTICE_SHARE_MIN * above) return median;
+    /* bin 0 holds [0, step / 2), bin j [(j - 1/2) step, (j + 1/2) step): where the half count falls */
+    const double half = 0.5 * n;
+    Py_ssize_t below = 0;
+    int bin = 0;
+    while (bin < LATTICE_BINS - 1 && below + counts[bin] <= half)
+        below += counts[bin++];
+    const double low = bin == 0 ? 0.0 : (bin - 0.5) * step, width = bin == 0 ? 0.5 * step : step;
+    return low + (half - below) / counts[bin] * width;
+}
+
 #endif
