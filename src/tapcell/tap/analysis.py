@@ -1823,6 +1823,13 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
                                     wander.walk_var_g2 if wander else 0.0)
     toe = fit_pullback_toe(samples, motion, timing, start, fit_drift_g_um, wander)
     if not toe:
+        # No toe has its least residual inside the grid's reach of the sharp contact (of 2,060 taps
+        # of both sets, 11 heavy-ooze ones). The adhesion checks hold at the sharp contact all the
+        # same: a heavy-ooze reference tap read in 3 g steps passed the classifier (quality 54) and
+        # was accepted 43 µm high, its film unchecked.
+        if math.isfinite(start):
+            check_adhesion_at(split, read_while_rising(samples, split, window, window_delay_s), start, lag_shift_um,
+                              delay_s, approach_wander or wander, result.compression_force_g, down_above_up_um)
         return
     result.z_mm = motion.z_halt_mm + (toe.contact_um - lag_shift_um) / 1000.0
     result.toe_grid, result.toe_z_origin_mm = toe.grid, motion.z_halt_mm - lag_shift_um / 1000.0
@@ -1831,15 +1838,8 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     result.contact_onset_um = toe.width_um
     result.stiffness_decompression_g_um = toe.stiffness_g_um
     rising = read_while_rising(samples, split, window, window_delay_s)
-    # The free air before the contact (`free_air_line`); the walk the approach shows, or where it is
-    # too short to show one (10 sps: 8 samples), the one the free air on both sides shows.
-    contact_um = toe.contact_um - lag_shift_um
-    free_air_end = free_air_samples(split, contact_um, delay_s)
-    free_air = slice(dec.start, dec.start + free_air_end)
-    check_adhesion(rising, motion, timing, dec, free_air_line(split, free_air_end),
-                   (split.time_s[free_air], split.force_g[free_air]), toe.contact_um, split.noise_g,
-                   approach_wander or wander, result.compression_force_g, down_above_up_um,
-                   approach_rise_above_um(split, contact_um, delay_s), split.ringing)
+    check_adhesion_at(split, rising, toe.contact_um, lag_shift_um, delay_s, approach_wander or wander,
+                      result.compression_force_g, down_above_up_um)
     walk_var_g2 = approach_walk_var_g2(split)  # the two-stage fits' walk
     ramp, stages = check_stages(split, samples, drift_g_um, toe, lag_shift_um, wander, walk_var_g2,
                                 drift_held=fit_drift_g_um is not None)
@@ -1858,6 +1858,22 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     # while the toe explains it to 1.2 x at most (tapcell.tap.classifiers.MISFIT_TOLERANCE 1.25);
     # clean taps of both sets 1.74 x at most (a hum nobody removed), where the misfit is 28 % (cutoff 50).
     result.fit_residual_sigma_g = toe.residual_sigma_g
+
+
+def check_adhesion_at(split: SplitTap, rising: PullbackSamples, contact_um: float, lag_shift_um: float,
+                      delay_s: float, wander: Wander | None, compression_force_g: float,
+                      down_above_up_um: tuple[float, float] | None) -> None:
+    """`check_adhesion` at a contact `contact_um` high in the window's heights (TAP_ADHESION raised).
+    The free air before the contact (`free_air_line`); the walk the approach shows, or where it is
+    too short to show one (10 sps: 8 samples), the one the free air on both sides shows (`wander`)."""
+    dec = split.dec
+    tap_contact_um = contact_um - lag_shift_um
+    free_air_end = free_air_samples(split, tap_contact_um, delay_s)
+    free_air = slice(dec.start, dec.start + free_air_end)
+    check_adhesion(rising, split.motion, split.timing, dec, free_air_line(split, free_air_end),
+                   (split.time_s[free_air], split.force_g[free_air]), contact_um, split.noise_g,
+                   wander, compression_force_g, down_above_up_um,
+                   approach_rise_above_um(split, tap_contact_um, delay_s), split.ringing)
 
 
 def check_decompression_samples(split: SplitTap, window: ModelWindow, delay_s: float, window_delay_s: float,
