@@ -90,6 +90,15 @@ def test_the_grouped_median_interpolates_within_the_bin_the_half_count_falls_in(
     assert analysis._noise_sigma_of(values) == pytest.approx(off_mid_sigma, rel=1e-12)
 
 
+@pytest.mark.usefixtures("kernel_or_twin")
+def test_the_lattice_is_the_coarsest_most_values_keep():
+    # A spike repaired to its neighbours' mean leaves an off-midpoint halfway between two (one
+    # value at 0.75 among sixteen at 1.5): the step stays 1.5, so bin 0 is [0, 0.75), holding 20
+    # of the 37, the half count 18.5 of them. The smallest value as the step read half that.
+    values = np.array([0.0] * 20 + [1.5] * 16 + [0.75])
+    assert robust.grouped_median(values, robust.median(values)) == pytest.approx(18.5 / 20 * 0.75, rel=1e-12)
+
+
 @settings(max_examples=300, deadline=None)
 @given(st.integers(0, 8).flatmap(lambda still: st.lists(st.sampled_from([0] * still + [-2, -1, 1, 2]), min_size=20, max_size=150)),
        st.booleans(), st.integers(-1000, 1000), st.sampled_from([0.1, 0.37, 1.0, 2.5, 10.0]))
@@ -111,14 +120,19 @@ def _reference_tap_in_steps(reference_dir, scenario: str, k: int, step_g: float)
     return case_taps(case, 1, k + 1, reference_dir)[k]
 
 
-def test_a_clean_tap_in_coarse_steps_is_measured(reference_dir, kernel_or_twin):
-    # The reference's clean ADS1220 660 tap 17 (0.71 g of noise) read in 3 g steps: accepted, within
-    # 3 of its sigmas of the truth, its noise sigma the noise and the rounding's.
-    tap, z_mm = _reference_tap_in_steps(reference_dir, "clean_ads1220_660", 17, 3.0)
+@pytest.mark.usefixtures("kernel_or_twin")
+@pytest.mark.parametrize("scenario, k, step_g, noise_g", [
+    ("clean_ads1220_660", 17, 3.0, (0.5, 2.0)),  # 0.71 g of noise; read "0.00 g", TAP_ADHESION
+    ("glitch", 44, 5.0, (1.0, 2.5)),  # 1.37 g; 4 frames repaired between readings: half steps, 0.68 g
+])
+def test_a_clean_tap_in_coarse_steps_is_measured(reference_dir, scenario, k, step_g, noise_g):
+    # Accepted, within 3 of its sigmas of the truth, its noise sigma the noise and the rounding's
+    # (sqrt(0.71² + 3²/12) = 1.07 g, sqrt(1.37² + 5²/12) = 1.98 g).
+    tap, z_mm = _reference_tap_in_steps(reference_dir, scenario, k, step_g)
     answer = analyse_in_process(tap)
     assert answer["valid"], answer["message"]
     assert abs(answer["z"] - z_mm) * 1000.0 < 3.0 * answer["z_sigma_um"]
-    assert 0.5 < answer["noise_sigma_g"] < 2.0
+    assert noise_g[0] < answer["noise_sigma_g"] < noise_g[1]
 
 
 def test_with_the_median_as_it_falls_the_same_tap_reads_noiseless(reference_dir, monkeypatch):

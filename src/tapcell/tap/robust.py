@@ -38,6 +38,12 @@ LATTICE_MIN_VALUES = 8  # and at least this many (a reading frozen but a few tim
 LATTICE_BINS = 32  # a step over a twentieth of the median puts it in bin 20 at most
 
 
+def _on_lattice(values: np.ndarray, step: float) -> int:
+    """How many of `values` lie within ON_LATTICE of a multiple of `step`."""
+    ratio = values / step
+    return int(np.count_nonzero(np.abs(ratio - np.floor(ratio + 0.5)) <= ON_LATTICE))
+
+
 def grouped_median(values: np.ndarray, median_value: float) -> float:
     """The median of non-negative `values` (`median_value`: their median) read as grouped data where
     they sit on a lattice coarse against it (see LATTICE_STEP_SHARE), else `median_value`."""
@@ -50,12 +56,15 @@ def grouped_median(values: np.ndarray, median_value: float) -> float:
     step = float(above.min())
     if not step > LATTICE_STEP_SHARE * median_value:
         return median_value
-    ratio = above / step
-    multiple = np.floor(ratio + 0.5)
-    if np.count_nonzero(np.abs(ratio - multiple) <= ON_LATTICE) < LATTICE_SHARE_MIN * len(above):
+    if _on_lattice(above, step) < LATTICE_SHARE_MIN * len(above):
         return median_value
+    # The coarsest lattice most values keep: a spike repaired to its neighbours' mean puts a few
+    # values halfway between, and the smallest value alone would halve the step.
+    while _on_lattice(above, 2.0 * step) >= LATTICE_SHARE_MIN * len(above):
+        step *= 2.0
+    multiple = np.floor(above / step + 0.5)
     counts = np.bincount(np.minimum(multiple, LATTICE_BINS - 1).astype(np.intp), minlength=LATTICE_BINS)
-    counts[0] = len(values) - len(above)
+    counts[0] += len(values) - len(above)
     # bin 0 holds [0, step / 2), bin j [(j - 1/2) step, (j + 1/2) step): where the half count falls
     half = 0.5 * len(values)
     below, bin_ = 0, 0

@@ -200,6 +200,19 @@ static inline double median_in_place(double *values, Py_ssize_t n)
 #define LATTICE_MIN_VALUES 8     /* and at least this many (a reading frozen but a few times is no step) */
 #define LATTICE_BINS 32          /* a step over a twentieth of the median puts it in bin 20 at most */
 
+/* How many of the values above `tiny` lie within ON_LATTICE of a multiple of `step`. */
+static inline Py_ssize_t count_on_lattice(const double *values, Py_ssize_t n, double tiny, double step)
+{
+    Py_ssize_t on_lattice = 0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        if (values[i] > tiny) {
+            const double ratio = values[i] / step;
+            on_lattice += fabs(ratio - floor(ratio + 0.5)) <= ON_LATTICE;
+        }
+    }
+    return on_lattice;
+}
+
 /* The median of the n non-negative `values` (`median` of them: median_in_place's answer) read as
  * grouped data where they sit on a lattice coarse against that median, else the median itself. */
 static inline double grouped_median(const double *values, Py_ssize_t n, double median)
@@ -217,16 +230,19 @@ static inline double grouped_median(const double *values, Py_ssize_t n, double m
         }
     }
     if (above < LATTICE_MIN_VALUES || !(step > LATTICE_STEP_SHARE * median)) return median;
-    Py_ssize_t on_lattice = 0, counts[LATTICE_BINS] = {0};
+    if (count_on_lattice(values, n, tiny, step) < LATTICE_SHARE_MIN * above) return median;
+    /* The coarsest lattice most values keep: a spike repaired to its neighbours' mean puts a few
+     * values halfway between, and the smallest value alone would halve the step. */
+    while (count_on_lattice(values, n, tiny, 2.0 * step) >= LATTICE_SHARE_MIN * above)
+        step *= 2.0;
+    Py_ssize_t counts[LATTICE_BINS] = {0};
     counts[0] = n - above;
     for (Py_ssize_t i = 0; i < n; i++) {
         if (values[i] > tiny) {
-            const double ratio = values[i] / step, multiple = floor(ratio + 0.5);
-            on_lattice += fabs(ratio - multiple) <= ON_LATTICE;
+            const double multiple = floor(values[i] / step + 0.5);
             counts[multiple < LATTICE_BINS - 1 ? (int)multiple : LATTICE_BINS - 1]++;
         }
     }
-    if (on_lattice < LATTICE_SHARE_MIN * above) return median;
     /* bin 0 holds [0, step / 2), bin j [(j - 1/2) step, (j + 1/2) step): where the half count falls */
     const double half = 0.5 * n;
     Py_ssize_t below = 0;
