@@ -330,7 +330,7 @@ def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarr
     step = np.abs(np.diff(force_g)) > threshold  # step[j]: from sample j to j + 1
     pairs = [k for k in (np.flatnonzero(step[:-2] & step[2:]) + 1).tolist() if 2 <= k <= len(force_g) - 4]
     f = force_g.tolist()
-    spikes: list[int] = []
+    spikes: set[int] = set()  # a set: with no credible noise (a frozen reading) hundreds of samples stand out
     while True:
         best_g, best_k, best_width = 0.0, 0, 0
         for width, candidates, stands_out in ((1, suspects, _lone_spike_g), (2, pairs, _spike_pair_g)):
@@ -347,13 +347,13 @@ def repair_spikes(force_g: np.ndarray, threshold_sigma: float) -> tuple[np.ndarr
             k, best_width = _frame_among_neighbours(f, k, spikes, threshold)
         # A corner is told only against a credible noise estimate, as a neighbour is (weigh_neighbours).
         f[k:k + best_width] = _repaired_values(f, k, best_width, threshold if weigh_neighbours else math.inf)
-        spikes += range(k, k + best_width)
+        spikes.update(range(k, k + best_width))
     if not spikes:
         return force_g, 0
-    spikes.sort()
+    ordered = sorted(spikes)
     repaired = force_g.copy()
-    repaired[spikes] = [f[k] for k in spikes]
-    return repaired, len(spikes)
+    repaired[ordered] = [f[k] for k in ordered]
+    return repaired, len(ordered)
 
 
 def spike_suspects(force_g: np.ndarray, threshold_sigma: float) -> tuple[list[int], float, bool]:
@@ -414,7 +414,7 @@ def _repaired_values(f: list[float], k: int, width: int, threshold: float) -> li
     return [f[k - 1] + gap / 3.0, f[k - 1] + 2.0 * gap / 3.0]
 
 
-def _frame_among_neighbours(f: list[float], k: int, spikes: list[int], threshold: float) -> tuple[int, int]:
+def _frame_among_neighbours(f: list[float], k: int, spikes: set[int], threshold: float) -> tuple[int, int]:
     """Of the lone spike k that stands out most, a neighbour that stands out as a lone spike too, and
     the pair of the two when it stands out as a pair, the repair (first sample, width) that leaves
     the samples around smoother: the least sum of |second differences| over the five samples about k.
