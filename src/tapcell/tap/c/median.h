@@ -217,16 +217,27 @@ static inline Py_ssize_t count_on_lattice(const double *values, Py_ssize_t n, do
  * grouped data where they sit on a lattice coarse against that median, else the median itself. */
 static inline double grouped_median(const double *values, Py_ssize_t n, double median)
 {
-    double largest = 0.0;
-    for (Py_ssize_t i = 0; i < n; i++)
-        if (values[i] > largest) largest = values[i];
-    const double tiny = 1e-9 * largest; /* a difference of equal readings, to the last bits */
-    double step = INFINITY;
+    /* One pass: the largest, the smallest above zero and how many are; a second only where some
+     * value lies in (0, tiny] (equal readings' difference left in the last bits) */
+    double largest = 0.0, step = INFINITY;
     Py_ssize_t above = 0;
     for (Py_ssize_t i = 0; i < n; i++) {
-        if (values[i] > tiny) {
+        const double value = values[i];
+        if (value > largest) largest = value;
+        if (value > 0.0) {
             above++;
-            if (values[i] < step) step = values[i];
+            if (value < step) step = value;
+        }
+    }
+    const double tiny = 1e-9 * largest; /* a difference of equal readings, to the last bits */
+    if (!(step > tiny)) {
+        step = INFINITY;
+        above = 0;
+        for (Py_ssize_t i = 0; i < n; i++) {
+            if (values[i] > tiny) {
+                above++;
+                if (values[i] < step) step = values[i];
+            }
         }
     }
     if (above < LATTICE_MIN_VALUES || !(step > LATTICE_STEP_SHARE * median)) return median;
