@@ -36,6 +36,7 @@ ON_LATTICE = 0.05  # a value within this share of a step of a multiple of it is 
 LATTICE_SHARE_MIN = 0.9  # of the values above zero, at least this share on the lattice
 LATTICE_MIN_VALUES = 8  # and at least this many (a reading frozen but a few times is no step)
 LATTICE_BINS = 32  # a step over a twentieth of the median puts it in bin 20 at most
+LATTICE_MAX_DOUBLINGS = 8  # repairs between repairs: a step at most 256 times the smallest value
 
 
 def _on_lattice(values: np.ndarray, step: float) -> int:
@@ -60,7 +61,9 @@ def grouped_median(values: np.ndarray, median_value: float) -> float:
         return median_value
     # The coarsest lattice most values keep: a spike repaired to its neighbours' mean puts a few
     # values halfway between, and the smallest value alone would halve the step.
-    while _on_lattice(above, 2.0 * step) >= LATTICE_SHARE_MIN * len(above):
+    for _ in range(LATTICE_MAX_DOUBLINGS):
+        if _on_lattice(above, 2.0 * step) < LATTICE_SHARE_MIN * len(above):
+            break
         step *= 2.0
     multiple = np.floor(above / step + 0.5)
     counts = np.bincount(np.minimum(multiple, LATTICE_BINS - 1).astype(np.intp), minlength=LATTICE_BINS)

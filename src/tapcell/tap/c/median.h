@@ -199,6 +199,7 @@ static inline double median_in_place(double *values, Py_ssize_t n)
 #define LATTICE_SHARE_MIN 0.9    /* of the values above zero, at least this share on the lattice */
 #define LATTICE_MIN_VALUES 8     /* and at least this many (a reading frozen but a few times is no step) */
 #define LATTICE_BINS 32          /* a step over a twentieth of the median puts it in bin 20 at most */
+#define LATTICE_MAX_DOUBLINGS 8  /* repairs between repairs: a step at most 256 times the smallest value */
 
 /* How many of the values above `tiny` lie within ON_LATTICE of a multiple of `step`. */
 static inline Py_ssize_t count_on_lattice(const double *values, Py_ssize_t n, double tiny, double step)
@@ -244,7 +245,8 @@ static inline double grouped_median(const double *values, Py_ssize_t n, double m
     if (count_on_lattice(values, n, tiny, step) < LATTICE_SHARE_MIN * above) return median;
     /* The coarsest lattice most values keep: a spike repaired to its neighbours' mean puts a few
      * values halfway between, and the smallest value alone would halve the step. */
-    while (count_on_lattice(values, n, tiny, 2.0 * step) >= LATTICE_SHARE_MIN * above)
+    for (int doubled = 0; doubled < LATTICE_MAX_DOUBLINGS
+                          && count_on_lattice(values, n, tiny, 2.0 * step) >= LATTICE_SHARE_MIN * above; doubled++)
         step *= 2.0;
     Py_ssize_t counts[LATTICE_BINS] = {0};
     counts[0] = n - above;
