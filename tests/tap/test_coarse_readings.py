@@ -14,7 +14,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bench.tap_sweep import Case, _force_quantized, analyse_in_process, case_taps
-from tapcell.tap import analysis, robust
+from tapcell.tap import AnalysisOptions, analysis, analyze_tap, robust
+from tapcell.tap.readers import tap_from_object
 from tapcell.tap.robust import MAD_TO_SIGMA
 
 
@@ -142,3 +143,23 @@ def test_with_the_median_as_it_falls_the_same_tap_reads_noiseless(reference_dir,
     answer = analyse_in_process(_reference_tap_in_steps(reference_dir, "clean_ads1220_660", 17, 3.0)[0])
     assert answer["error"] == "TAP_ADHESION"
     assert "the 0.00 g noise" in answer["message"]
+
+
+def test_with_a_hum_taken_out_the_rounding_still_bounds_the_noise(reference_dir):
+    # The reference's clean ADS1220 660 tap 52 in 3 g steps, as the printer analyses it (mains_hz
+    # auto): its 0.45 g hum is fitted, the readings leave their lattice, and the off-midpoints'
+    # median read 0.06 g (TAP_ADHESION). The rounding alone leaves 3 / sqrt(12) = 0.87 g.
+    tap, z_mm = _reference_tap_in_steps(reference_dir, "clean_ads1220_660", 52, 3.0)
+    answer = analyze_tap(tap_from_object(tap), AnalysisOptions(mains_hz="auto"))
+    assert answer.hum is not None
+    assert answer.valid, answer.message
+    assert answer.noise_sigma_g == pytest.approx(3.0 / math.sqrt(12.0))
+    assert abs(answer.z_mm - z_mm) * 1000.0 < 3.0 * answer.z_sigma_um
+
+
+def test_the_rounding_noise_is_the_readings_step_over_root_twelve():
+    rng = np.random.default_rng(24)
+    force_g = tap_like(rng)
+    assert analysis.rounding_noise_g(in_steps(force_g, 2.5)) == pytest.approx(2.5 / math.sqrt(12.0), rel=1e-12)
+    assert analysis.rounding_noise_g(force_g) == 0.0  # continuous readings
+    assert analysis.rounding_noise_g(in_steps(force_g, 0.0001)) == 0.0  # a resolution far under their steps

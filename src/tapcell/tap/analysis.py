@@ -49,7 +49,7 @@ from tapcell.tap.model import (
     TapData,
 )
 from tapcell.tap.motion import Motion, MotionError, tap_motion
-from tapcell.tap.robust import MAD_TO_SIGMA, grouped_median, median, robust_sigma
+from tapcell.tap.robust import MAD_TO_SIGMA, grouped_median, lattice_step, median, robust_sigma
 from tapcell.tap.validate import TapInvalid
 from tapcell.tap.segments import (NO_DWELL_SAMPLES, TOO_FEW_AROUND, TOO_FEW_FOR_FIVE, PrefixSums, five_lines,
                                   segment_line, segment_stats)
@@ -257,6 +257,19 @@ def noise_sigma_g(force_g: np.ndarray) -> float:
 def _noise_sigma_of(abs_off_mid: np.ndarray) -> float:
     # off_mid of white noise has sigma sqrt(1.5) * noise sigma; coarse readings: robust.grouped_median.
     return MAD_TO_SIGMA * grouped_median(abs_off_mid, median(abs_off_mid)) / math.sqrt(1.5)
+
+
+def rounding_noise_g(force_g: np.ndarray) -> float:
+    """The noise a coarse converter's rounding alone leaves, step / sqrt(12), where the readings
+    step by multiples of one step coarse against their steps' median (robust.lattice_step), else 0.
+    With a hum taken out, readings in coarse steps leave their lattice, and the off-midpoints'
+    median falls to what the hum fit leaves between two steps: a reference ADS1220 660 tap in 3 g
+    steps with its 0.45 g hum fitted (`mains_hz=auto`) read 0.06 g of noise and TAP_ADHESION."""
+    steps_g = np.abs(force_g[1:] - force_g[:-1])
+    if len(steps_g) == 0:
+        return 0.0
+    step_g = lattice_step(steps_g, median(steps_g))
+    return 0.0 if step_g is None else step_g / math.sqrt(12.0)
 
 
 # Stale readings (issue 21's sweep, `ref_stale3`): a sensor read before its next conversion is done
@@ -1552,6 +1565,7 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> SplitMade:
     polarity, force, outliers, all_noise_g = polarity_and_repaired(time_s, force_raw, motion, options.outlier_sigma)
     allowance = UNKNOWN_DELAY_ALLOWANCE_S if timing.estimate_delay or timing.delay_from_halt else timing.delay_s
     lag_samples = math.ceil((allowance + timing.integration_s) / period_s) + LAG_MARGIN_SAMPLES
+    force_read = force  # as read (repaired): their steps bound the noise where a hum is taken out
     force, hum = remove_mains_hum(tap, options, time_s, force, motion, timing, lag_samples, period_s)
     dec, ps = decompose(time_s, force, motion, lag_samples, period_s)
     checks_pass = validate.split_checks_pass(dec.points, dec.angles_deg)
@@ -1565,6 +1579,8 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> SplitMade:
         noise_g = all_noise_g
     else:
         noise_g = noise_sigma_g(force[dec.start:dec.stop])
+        if hum is not None:
+            noise_g = max(noise_g, rounding_noise_g(force_read[dec.start:dec.stop]))
     split = SplitTap(time_s, force, motion, timing, dec, ps, noise_g, checks_pass,
                      0 if stale is None else len(stale))
     return split, polarity, outliers, hum

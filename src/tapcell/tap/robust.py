@@ -45,29 +45,37 @@ def _on_lattice(values: np.ndarray, step: float) -> int:
     return int(np.count_nonzero(np.abs(ratio - np.floor(ratio + 0.5)) <= ON_LATTICE))
 
 
-def grouped_median(values: np.ndarray, median_value: float) -> float:
-    """The median of non-negative `values` (`median_value`: their median) read as grouped data where
-    they sit on a lattice coarse against it (see LATTICE_STEP_SHARE), else `median_value`."""
+def lattice_step(values: np.ndarray, median_value: float) -> float | None:
+    """The step of the lattice non-negative `values` sit on, where it is coarse against their median
+    (`median_value`; see LATTICE_STEP_SHARE), else None."""
     if len(values) == 0:
-        return median_value
+        return None
     tiny = 1e-9 * max(float(values.max()), 0.0)  # a difference of equal readings, to the last bits
     above = values[values > tiny]
     if len(above) < LATTICE_MIN_VALUES:
-        return median_value
+        return None
     step = float(above.min())
     if not step > LATTICE_STEP_SHARE * median_value:
-        return median_value
+        return None
     if _on_lattice(above, step) < LATTICE_SHARE_MIN * len(above):
-        return median_value
+        return None
     # The coarsest lattice most values keep: a spike repaired to its neighbours' mean puts a few
     # values halfway between, and the smallest value alone would halve the step.
     for _ in range(LATTICE_MAX_DOUBLINGS):
         if _on_lattice(above, 2.0 * step) < LATTICE_SHARE_MIN * len(above):
             break
         step *= 2.0
-    multiple = np.floor(above / step + 0.5)
+    return step
+
+
+def grouped_median(values: np.ndarray, median_value: float) -> float:
+    """The median of non-negative `values` (`median_value`: their median) read as grouped data where
+    they sit on a lattice coarse against it (`lattice_step`), else `median_value`."""
+    step = lattice_step(values, median_value)
+    if step is None:
+        return median_value
+    multiple = np.floor(values / step + 0.5)  # 0 for the values at zero, and for those below half a step
     counts = np.bincount(np.minimum(multiple, LATTICE_BINS - 1).astype(np.intp), minlength=LATTICE_BINS)
-    counts[0] += len(values) - len(above)
     # bin 0 holds [0, step / 2), bin j [(j - 1/2) step, (j + 1/2) step): where the half count falls
     half = 0.5 * len(values)
     below, bin_ = 0, 0
