@@ -153,10 +153,16 @@ def _drop_one_in(every: int) -> Callable[[dict, float, np.random.Generator], dic
 
 def _burst_dropped(count: int, where: str) -> Callable[[dict, float, np.random.Generator], dict]:
     """A burst of `count` consecutive frames lost, starting at a random sample of the pullback
-    ("pullback": between its start and end events) or of the dwell ("dwell": halt to pullback)."""
+    ("pullback": between its start and end events) or of the dwell ("dwell": halt to pullback), or
+    the last `count` before the halt ("halt": over the compression of a fast approach)."""
     def transform(tap, _z_mm, rng):
         t = np.asarray(tap["time"], dtype=float)
         events = tap["events"]
+        if where == "halt":
+            halt = int(np.searchsorted(t, events["home_end_time"]))
+            keep = np.ones(len(t), dtype=bool)
+            keep[max(halt - count, 0):halt] = False
+            return _samples_dropped(tap, keep)
         span = {"pullback": ("pullback_start_time", "pullback_end_time"),
                 "dwell": ("home_end_time", "pullback_start_time")}[where]
         first, last = np.searchsorted(t, [events[span[0]], events[span[1]]])
@@ -506,6 +512,8 @@ CASES = [Case(*row[:3], **(row[3] if len(row) > 3 else {})) for row in (
      {"reference": ("clean_hx717", 1), "transform": _burst_dropped(5, "pullback")}),
     ("ref_burst5d", "reference HX717, 5 samples lost in the dwell", "accept",
      {"reference": ("clean_hx717", 1), "transform": _burst_dropped(5, "dwell")}),
+    ("ref_burst3h", "reference HX717, the 3 samples before the halt lost", "accept",
+     {"reference": ("clean_hx717", 1), "transform": _burst_dropped(3, "halt")}),
     ("ref_slow10", "reference HX711 80 sps, 8 averaged (10 sps)", "either", {"reference": ("hx711_slow", 8)}),
     ("ref_hx717x32", "reference HX717, 32 averaged (10 sps)", "either", {"reference": ("clean_hx717", 32)}),
     ("ref_slow10t", "reference HX711 80 sps, all 8x slower (10 sps)", "accept",

@@ -1278,11 +1278,35 @@ def check_contact_heights(window: ModelWindow, pullback: ContactFit | None, comp
                               else (window.contact_line_um, 0.0))
     up_um, up_sigma_um = (pullback.contact_um, pullback.contact_sigma_um) if pullback else (window.break_line_um, 0.0)
     period_s = timing.sample_period_s
-    tolerance_um = validate.contact_mismatch_tolerance_um(motion.approach_speed_mm_s * period_s * 1000.0,
+    approach_s = approach_interval_s(window.time_s, motion.home_end_s, down_um, motion.approach_speed_mm_s, period_s)
+    tolerance_um = validate.contact_mismatch_tolerance_um(motion.approach_speed_mm_s * approach_s * 1000.0,
                                                           motion.pullback_speed_mm_s * period_s * 1000.0,
                                                           down_sigma_um, up_sigma_um)
     validate.check_contact_consistency(down_um, up_um, tolerance_um)
     return (down_um - up_um, tolerance_um) if math.isfinite(down_um - up_um) else None
+
+
+# Frames lost in transport leave a gap in the samples' times; one this many periods long or longer
+# (a jittered clock stays well under it) is a lost frame, not a late one.
+LOST_FRAME_PERIODS = 1.5
+
+
+def approach_interval_s(time_s: np.ndarray, halt_s: float, down_um: float, approach_speed_mm_s: float,
+                        period_s: float) -> float:
+    """The time between the approach's samples around its contact, down_um above the halt: one
+    period, or where frames were lost between a period before the touch and the halt, the widest
+    gap there. The way down knows its contact only to within that travel: a burst of 3 frames lost
+    over a 3-4 sample compression (reference HX717 taps, 10 mm/s) put it 33-70 um above break
+    contact, past the one sample allowed (31 um), TAP_CONTACT_MISMATCH on 6 of 40 clean taps."""
+    if not (math.isfinite(down_um) and approach_speed_mm_s > 0):
+        return period_s
+    touch_s = halt_s - down_um / (approach_speed_mm_s * 1000.0)
+    first, last = np.searchsorted(time_s, (touch_s - period_s, halt_s)).tolist()
+    first, last = max(first - 1, 0), min(last + 1, len(time_s))
+    if last - first < 2:
+        return period_s
+    widest_s = float((time_s[first + 1:last] - time_s[first:last - 1]).max())
+    return widest_s if widest_s >= LOST_FRAME_PERIODS * period_s else period_s
 
 
 def compression_sample_count(window: ModelWindow, motion: Motion, delay_s: float, onset_um: float,
@@ -1947,8 +1971,14 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
         # No lag read off the halt (lag_before_the_fits): P2 lies anywhere in a conversion window.
         halt_sigma_s = math.hypot(halt_sigma_s if math.isfinite(halt_sigma_s) else 0.0,
                                   timing.integration_s / math.sqrt(12.0))
+    # Frames lost around the touch leave the way down's contact anywhere in their gap: no squeeze to
+    # read off it (a burst of 3 over a reference tap's compression: z_sigma 45-62 µm, its error 0.4).
+    down = fits.compression
+    frames_lost = down is not None and approach_interval_s(window.time_s, motion.home_end_s, down.contact_um,
+                                                           motion.approach_speed_mm_s, timing.sample_period_s
+                                                           ) > timing.sample_period_s
     down_um, up_um, allowance_um = _contact_down_and_up(fits, motion.approach_speed_mm_s * 1000.0
-                                                       * timing.sample_period_s, compression_placed)
+                                                       * timing.sample_period_s, compression_placed and not frames_lost)
     if result.z_method == "toe" and result.toe_grid is not None:
         # The noise: the sharp fit's over the same samples (the toe fit's own when there is none).
         noise_um = result.z_sharp_sigma_um if result.z_sharp_sigma_um is not None else result.z_sigma_um
