@@ -196,10 +196,8 @@ def test_jitter_hum_and_ringing_add_what_they_say(reference_dir):
 
 # Reference cases with a clean tap the analysis still rejects on seed 1 (docs/tap-analysis.md,
 # "Load-cell creep"): the reference's clean HX717 tap 7 scores 23.9 of the soft-stage check's 36 noise
-# variances unperturbed, and a creep of 0.5-2 % of the load tips it over. ref_burst3h: with the 3
-# samples before the halt lost, no compression sample is left on 3 of 40 taps and the five lines'
-# points fall out of time order (docs/tap-analysis.md, "Frames lost at the touch").
-KNOWN_GAPS = {"ref_creep", "ref_burst3h"}
+# variances unperturbed, and a creep of 0.5-2 % of the load tips it over.
+KNOWN_GAPS = {"ref_creep"}
 
 
 def test_the_reference_transforms_find_nothing(reference_dir):

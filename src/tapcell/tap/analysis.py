@@ -536,18 +536,23 @@ class Decomposition:
 
 def decompose(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_samples: int,
               period: float, from_s: float | None = None, approach_share: float = 0.0,
-              release_lag_samples: int | None = None, dwell_from_halt: bool = False
-              ) -> tuple[Decomposition, PrefixSums]:
+              release_lag_samples: int | None = None, dwell_from_halt: bool = False,
+              compression_across_gap: bool = False) -> tuple[Decomposition, PrefixSums]:
     """Five lines and six points of a positive-polarity tap (`period`: the sample period, s), over
     the samples from `from_s` (default: a pullback's duration, at least 8 samples, before the halt);
     the approach line holds at least `approach_share` of the samples before the halt; the dwell
-    ends at most `release_lag_samples` (default `lag_samples`) after the pullback reached its speed."""
+    ends at most `release_lag_samples` (default `lag_samples`) after the pullback reached its speed.
+    `compression_across_gap`: frames were lost up to the halt (`frames_lost_at_the_halt`), and the
+    compression is the chord from the last sample before their gap to the first after the halt."""
     n = len(time_s)
     duration = motion.pullback_duration_s
     window_start_s = motion.home_end_s - max(duration, 8 * period) if from_s is None else from_s
     start, last = _indices(time_s, window_start_s, motion.pullback_end_s + duration)
     stop = min(n, last + 1)
     t = time_s[start:stop]
+    if compression_across_gap:  # the contact at the sample before the first after the halt, the peak at the next
+        after_halt = int(t.searchsorted(motion.home_end_s))
+        lag_samples, approach_share = 1, (after_halt - 0.5) / max(after_halt, 1)
     phases_s = (motion.home_end_s, motion.pullback_start_s, motion.pullback_cruise_s)
     if dwell_from_halt:
         phases_s = (_halt_read_s(t, motion.home_end_s), *phases_s[1:])
@@ -629,6 +634,8 @@ def decompose_again(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag
                    DWELL_ON_THE_MOTION]
         if motion.moves and time_s[dec.start] < motion.moves[-5].print_time < motion.home_end_s - 8 * period:
             retries.insert(0, {"from_s": motion.moves[-5].print_time})
+    if frames_lost_at_the_halt(time_s, motion.home_end_s, period):
+        retries.append({"compression_across_gap": True})
     for retry in retries:
         try:
             again = decompose(time_s, force_g, motion, lag_samples, period, **retry)
@@ -638,6 +645,15 @@ def decompose_again(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag
         if validate.split_checks_pass(points, again[0].angles_deg) if shape_too else validate.in_time_order(points):
             return again
     return first
+
+
+def frames_lost_at_the_halt(time_s: np.ndarray, halt_s: float, period_s: float) -> bool:
+    """The first sample after the halt follows its predecessor by LOST_FRAME_PERIODS or more: frames
+    lost over the compression left it no sample (a burst of 3 over a reference HX717 tap's 3-4
+    sample compression). The five lines took the dwell's first samples for a compression, whose
+    line met the approach's seconds before the halt (TAP_CHRONOLOGY, 3 of 40 taps)."""
+    after = int(time_s.searchsorted(halt_s))
+    return 0 < after < len(time_s) and time_s[after] - time_s[after - 1] >= LOST_FRAME_PERIODS * period_s
 
 
 
