@@ -1278,10 +1278,12 @@ def compression_fit_twin(window: ModelWindow, read_until_s: float, spacing_um: f
 
 
 def check_contact_heights(window: ModelWindow, pullback: ContactFit | None, compression: ContactFit | None,
-                          motion: Motion, timing: SensorTiming, compression_placed: bool) -> tuple[float, float] | None:
+                          motion: Motion, timing: SensorTiming, compression_placed: bool,
+                          approach_s: float) -> tuple[float, float] | None:
     """Contact on the way down against break contact on the way up, both at the same delay
     (validate.check_contact_consistency): the model fits when they exist, else the line points
-    P1 and P4 mapped through the motion. Not judged unless `compression_placed`
+    P1 and P4 mapped through the motion, the way down's within the approach's travel over
+    `approach_s` (`approach_interval_s`). Not judged unless `compression_placed`
     (`compression_places_the_halt`): where no sample's window lies wholly between the touch and the
     halt, the way down holds no contact to place (issue 21's sweep: a reference tap averaged to 80
     sps, 1.3 periods from P1 to P2, put the down contact 754 um above the halt, TAP_CONTACT_MISMATCH;
@@ -1293,13 +1295,16 @@ def check_contact_heights(window: ModelWindow, pullback: ContactFit | None, comp
     down_um, down_sigma_um = ((compression.contact_um, compression.contact_sigma_um) if compression
                               else (window.contact_line_um, 0.0))
     up_um, up_sigma_um = (pullback.contact_um, pullback.contact_sigma_um) if pullback else (window.break_line_um, 0.0)
-    period_s = timing.sample_period_s
-    approach_s = approach_interval_s(window.time_s, motion.home_end_s, down_um, motion.approach_speed_mm_s, period_s)
     tolerance_um = validate.contact_mismatch_tolerance_um(motion.approach_speed_mm_s * approach_s * 1000.0,
-                                                          motion.pullback_speed_mm_s * period_s * 1000.0,
+                                                          motion.pullback_speed_mm_s * timing.sample_period_s * 1000.0,
                                                           down_sigma_um, up_sigma_um)
     validate.check_contact_consistency(down_um, up_um, tolerance_um)
     return (down_um - up_um, tolerance_um) if math.isfinite(down_um - up_um) else None
+
+
+def down_contact_um(window: ModelWindow, fits: ContactFits) -> float:
+    """Contact on the way down (µm above the halt): the compression's model fit, else P1 mapped."""
+    return fits.compression.contact_um if fits.compression else window.contact_line_um
 
 
 # Frames lost in transport leave a gap in the samples' times; one this many periods long or longer
@@ -1569,15 +1574,17 @@ def _analyze(tap: TapData, options: AnalysisOptions,
                               split.contact_s)
         fits = fit_contact_models(split, window, delay_s, options, result)
         result.z_line_mm = split.motion.z_halt_mm + window.break_line_um / 1000.0  # P4 mapped, delay-corrected
+        approach_s = approach_interval_s(window.time_s, split.motion.home_end_s, down_contact_um(window, fits),
+                                         split.motion.approach_speed_mm_s, split.timing.sample_period_s)
         down_above_up_um = check_contact_heights(window, fits.pullback, fits.compression, split.motion,
-                                                 split.timing, split.compression_placed)
+                                                 split.timing, split.compression_placed, approach_s)
         window_delay_s = delay_s  # the delay the window's heights were read with ("auto": 0, estimated now)
         delay_s = apply_delay_estimate(split, fits, delay_s, result)
         z_from_sharp_model_or_lines(split, fits, result)
         if options.uses_toe_model:
             z_from_toe_model(split, window, fits, delay_s, window_delay_s, result, down_above_up_um)
         check_decompression_samples(split, window, delay_s, window_delay_s, result)
-        z_uncertainty(split, window, fits, delay_s, window_delay_s, result)
+        z_uncertainty(split, window, fits, delay_s, window_delay_s, result, approach_s)
         compression_stiffness(split, window, fits, delay_s, result)
     except TapInvalid as invalid:
         # Keep the lines, points and what was measured: they show what went wrong (plots, tap logs).
@@ -1959,7 +1966,7 @@ THREAD_REACHES_APART_UM = (sum(THREAD_FAR_REACH_UM) - sum(THREAD_REACH_UM)) / 2.
 
 
 def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay_s: float, window_delay_s: float,
-                  result: TapAnalysis) -> None:
+                  result: TapAnalysis, approach_s: float) -> None:
     """`z_sigma_um` from the parts the tap shows (tapcell.tap.uncertainty): the sharp fit's noise
     and the toe's shape spread (when the toe set Z; else the sharp fit's or the lines' sigma),
     a departure thread letting go, the misfit near contact, the Z staircase, the halt's delay."""
@@ -1987,12 +1994,10 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
         # No lag read off the halt (lag_before_the_fits): P2 lies anywhere in a conversion window.
         halt_sigma_s = math.hypot(halt_sigma_s if math.isfinite(halt_sigma_s) else 0.0,
                                   timing.integration_s / math.sqrt(12.0))
-    # Frames lost around the touch leave the way down's contact anywhere in their gap: no squeeze to
-    # read off it (a burst of 3 over a reference tap's compression: z_sigma 45-62 µm, its error 0.4).
-    down = fits.compression
-    frames_lost = down is not None and approach_interval_s(window.time_s, motion.home_end_s, down.contact_um,
-                                                           motion.approach_speed_mm_s, timing.sample_period_s
-                                                           ) > timing.sample_period_s
+    # Frames lost around the touch (`approach_s` over a period) leave the way down's contact anywhere
+    # in their gap: no squeeze to read off it (a burst of 3 over a reference tap's compression:
+    # z_sigma 45-62 µm, its error 0.4).
+    frames_lost = approach_s > timing.sample_period_s
     down_um, up_um, allowance_um = _contact_down_and_up(fits, motion.approach_speed_mm_s * 1000.0
                                                        * timing.sample_period_s, compression_placed and not frames_lost)
     if result.z_method == "toe" and result.toe_grid is not None:
