@@ -1278,12 +1278,12 @@ def compression_fit_twin(window: ModelWindow, read_until_s: float, spacing_um: f
 
 
 def check_contact_heights(window: ModelWindow, pullback: ContactFit | None, compression: ContactFit | None,
-                          motion: Motion, timing: SensorTiming, compression_placed: bool,
-                          approach_s: float) -> tuple[float, float] | None:
+                          motion: Motion, timing: SensorTiming, compression_placed: bool) -> tuple[float, float] | None:
     """Contact on the way down against break contact on the way up, both at the same delay
     (validate.check_contact_consistency): the model fits when they exist, else the line points
-    P1 and P4 mapped through the motion, the way down's within the approach's travel over
-    `approach_s` (`approach_interval_s`). Not judged unless `compression_placed`
+    P1 and P4 mapped through the motion, the way down's within the approach's travel over a period,
+    or where that would not do, over the gap frames lost about the touch left (`approach_interval_s`).
+    Not judged unless `compression_placed`
     (`compression_places_the_halt`): where no sample's window lies wholly between the touch and the
     halt, the way down holds no contact to place (issue 21's sweep: a reference tap averaged to 80
     sps, 1.3 periods from P1 to P2, put the down contact 754 um above the halt, TAP_CONTACT_MISMATCH;
@@ -1295,16 +1295,18 @@ def check_contact_heights(window: ModelWindow, pullback: ContactFit | None, comp
     down_um, down_sigma_um = ((compression.contact_um, compression.contact_sigma_um) if compression
                               else (window.contact_line_um, 0.0))
     up_um, up_sigma_um = (pullback.contact_um, pullback.contact_sigma_um) if pullback else (window.break_line_um, 0.0)
-    tolerance_um = validate.contact_mismatch_tolerance_um(motion.approach_speed_mm_s * approach_s * 1000.0,
-                                                          motion.pullback_speed_mm_s * timing.sample_period_s * 1000.0,
-                                                          down_sigma_um, up_sigma_um)
+    period_s = timing.sample_period_s
+
+    def tolerance_um_over(approach_s: float) -> float:
+        return validate.contact_mismatch_tolerance_um(motion.approach_speed_mm_s * approach_s * 1000.0,
+                                                      motion.pullback_speed_mm_s * period_s * 1000.0,
+                                                      down_sigma_um, up_sigma_um)
+    tolerance_um = tolerance_um_over(period_s)
+    if down_um - up_um > tolerance_um:  # the gaps are looked for only where one sample's travel will not do
+        tolerance_um = tolerance_um_over(approach_interval_s(window.time_s, motion.home_end_s, down_um,
+                                                             motion.approach_speed_mm_s, period_s))
     validate.check_contact_consistency(down_um, up_um, tolerance_um)
     return (down_um - up_um, tolerance_um) if math.isfinite(down_um - up_um) else None
-
-
-def down_contact_um(window: ModelWindow, fits: ContactFits) -> float:
-    """Contact on the way down (µm above the halt): the compression's model fit, else P1 mapped."""
-    return fits.compression.contact_um if fits.compression else window.contact_line_um
 
 
 # Frames lost in transport leave a gap in the samples' times; one this many periods long or longer
@@ -1322,11 +1324,11 @@ def approach_interval_s(time_s: np.ndarray, halt_s: float, down_um: float, appro
     if not (math.isfinite(down_um) and approach_speed_mm_s > 0):
         return period_s
     touch_s = halt_s - down_um / (approach_speed_mm_s * 1000.0)
-    first, last = np.searchsorted(time_s, (touch_s - period_s, halt_s)).tolist()
-    first, last = max(first - 1, 0), min(last + 1, len(time_s))
-    if last - first < 2:
+    first = max(int(time_s.searchsorted(touch_s - period_s)) - 1, 0)
+    times = time_s[first:int(time_s.searchsorted(halt_s)) + 1].tolist()  # a few samples: plain floats
+    if len(times) < 2:
         return period_s
-    widest_s = float((time_s[first + 1:last] - time_s[first:last - 1]).max())
+    widest_s = max(later - earlier for earlier, later in zip(times, times[1:]))
     return widest_s if widest_s >= LOST_FRAME_PERIODS * period_s else period_s
 
 
@@ -1574,17 +1576,15 @@ def _analyze(tap: TapData, options: AnalysisOptions,
                               split.contact_s)
         fits = fit_contact_models(split, window, delay_s, options, result)
         result.z_line_mm = split.motion.z_halt_mm + window.break_line_um / 1000.0  # P4 mapped, delay-corrected
-        approach_s = approach_interval_s(window.time_s, split.motion.home_end_s, down_contact_um(window, fits),
-                                         split.motion.approach_speed_mm_s, split.timing.sample_period_s)
         down_above_up_um = check_contact_heights(window, fits.pullback, fits.compression, split.motion,
-                                                 split.timing, split.compression_placed, approach_s)
+                                                 split.timing, split.compression_placed)
         window_delay_s = delay_s  # the delay the window's heights were read with ("auto": 0, estimated now)
         delay_s = apply_delay_estimate(split, fits, delay_s, result)
         z_from_sharp_model_or_lines(split, fits, result)
         if options.uses_toe_model:
             z_from_toe_model(split, window, fits, delay_s, window_delay_s, result, down_above_up_um)
         check_decompression_samples(split, window, delay_s, window_delay_s, result)
-        z_uncertainty(split, window, fits, delay_s, window_delay_s, result, approach_s)
+        z_uncertainty(split, window, fits, delay_s, window_delay_s, result)
         compression_stiffness(split, window, fits, delay_s, result)
     except TapInvalid as invalid:
         # Keep the lines, points and what was measured: they show what went wrong (plots, tap logs).
@@ -1966,7 +1966,7 @@ THREAD_REACHES_APART_UM = (sum(THREAD_FAR_REACH_UM) - sum(THREAD_REACH_UM)) / 2.
 
 
 def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay_s: float, window_delay_s: float,
-                  result: TapAnalysis, approach_s: float) -> None:
+                  result: TapAnalysis) -> None:
     """`z_sigma_um` from the parts the tap shows (tapcell.tap.uncertainty): the sharp fit's noise
     and the toe's shape spread (when the toe set Z; else the sharp fit's or the lines' sigma),
     a departure thread letting go, the misfit near contact, the Z staircase, the halt's delay."""
@@ -1994,12 +1994,14 @@ def z_uncertainty(split: SplitTap, window: ModelWindow, fits: ContactFits, delay
         # No lag read off the halt (lag_before_the_fits): P2 lies anywhere in a conversion window.
         halt_sigma_s = math.hypot(halt_sigma_s if math.isfinite(halt_sigma_s) else 0.0,
                                   timing.integration_s / math.sqrt(12.0))
-    # Frames lost around the touch (`approach_s` over a period) leave the way down's contact anywhere
-    # in their gap: no squeeze to read off it (a burst of 3 over a reference tap's compression:
-    # z_sigma 45-62 µm, its error 0.4).
-    frames_lost = approach_s > timing.sample_period_s
     down_um, up_um, allowance_um = _contact_down_and_up(fits, motion.approach_speed_mm_s * 1000.0
-                                                       * timing.sample_period_s, compression_placed and not frames_lost)
+                                                       * timing.sample_period_s, compression_placed)
+    if (down_um is not None and up_um is not None and down_um - up_um > allowance_um
+            and approach_interval_s(window.time_s, motion.home_end_s, down_um, motion.approach_speed_mm_s,
+                                    timing.sample_period_s) > timing.sample_period_s):
+        # Frames lost about the touch leave the way down's contact anywhere in their gap: no squeeze to
+        # read off it (a burst of 3 over a reference tap's compression: z_sigma 45-62 µm, its error 0.4).
+        down_um, up_um, allowance_um = None, None, 0.0
     if result.z_method == "toe" and result.toe_grid is not None:
         # The noise: the sharp fit's over the same samples (the toe fit's own when there is none).
         noise_um = result.z_sharp_sigma_um if result.z_sharp_sigma_um is not None else result.z_sigma_um
