@@ -50,7 +50,14 @@ def lattice_step(values: np.ndarray, median_value: float) -> float | None:
     (`median_value`; see LATTICE_STEP_SHARE), else None."""
     if len(values) == 0:
         return None
-    tiny = 1e-9 * max(float(values.max()), 0.0)  # a difference of equal readings, to the last bits
+    # What lies at or under `tiny` is the difference of equal readings left in the last bits: a
+    # billionth of the median, or where the median is 0, of the largest value.
+    if median_value > 0:
+        tiny = 1e-9 * median_value
+        if np.any((values > tiny) & (values <= LATTICE_STEP_SHARE * median_value)):
+            return None  # a value finer than a lattice coarse against the median could be
+    else:
+        tiny = 1e-9 * max(float(values.max()), 0.0)
     above = values[values > tiny]
     if len(above) < LATTICE_MIN_VALUES:
         return None

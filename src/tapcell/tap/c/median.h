@@ -218,27 +218,26 @@ static inline Py_ssize_t count_on_lattice(const double *values, Py_ssize_t n, do
  * grouped data where they sit on a lattice coarse against that median, else the median itself. */
 static inline double grouped_median(const double *values, Py_ssize_t n, double median)
 {
-    /* One pass: the largest, the smallest above zero and how many are; a second only where some
-     * value lies in (0, tiny] (equal readings' difference left in the last bits) */
-    double largest = 0.0, step = INFINITY;
+    /* What lies at or under `tiny` is the difference of equal readings left in the last bits: a
+     * billionth of the median, or where the median is 0, of the largest value. */
+    double tiny;
+    if (median > 0.0) {
+        tiny = 1e-9 * median;
+        const double finer = LATTICE_STEP_SHARE * median;
+        for (Py_ssize_t i = 0; i < n; i++) /* continuous readings: a few values in, one finer than a lattice */
+            if (values[i] > tiny && values[i] <= finer) return median;
+    } else {
+        double largest = 0.0;
+        for (Py_ssize_t i = 0; i < n; i++)
+            if (values[i] > largest) largest = values[i];
+        tiny = 1e-9 * largest;
+    }
+    double step = INFINITY;
     Py_ssize_t above = 0;
     for (Py_ssize_t i = 0; i < n; i++) {
-        const double value = values[i];
-        if (value > largest) largest = value;
-        if (value > 0.0) {
+        if (values[i] > tiny) {
             above++;
-            if (value < step) step = value;
-        }
-    }
-    const double tiny = 1e-9 * largest; /* a difference of equal readings, to the last bits */
-    if (!(step > tiny)) {
-        step = INFINITY;
-        above = 0;
-        for (Py_ssize_t i = 0; i < n; i++) {
-            if (values[i] > tiny) {
-                above++;
-                if (values[i] < step) step = values[i];
-            }
+            if (values[i] < step) step = values[i];
         }
     }
     if (above < LATTICE_MIN_VALUES || !(step > LATTICE_STEP_SHARE * median)) return median;
