@@ -6,12 +6,15 @@ g/µm, a 1-8 µm toe) with ONE thing changed: the sample rate (40 / 160 / 1000 /
 probing or pullback speed, the bed's stiffness, the trigger force, the noise, the toe's width and
 shape, the unloading stiffness (hysteresis), a thermal ramp in time, the dwell, few samples in
 contact, the ADC's latency, a long conversion window, a pullback ending just after the break.
-Twenty-four cases take the reference taps (a generator we did not write: its toes, noise and
+Forty-eight cases take the reference taps (a generator we did not write: its toes, noise and
 timing kept) and change what a transform can change exactly, the truth unchanged: averaged in
-blocks or slowed in time (a slower sensor, down to 10 sps), frames lost, the polarity, gain and
-tare, a saturated sensor, the timestamps' jitter, a stronger hum, one more sample of latency, a
-thermal ramp; and three approximations: a gantry ringing (`_gantry_ringing`) and a two-stage
-mount whose first touch lies higher (`_sprung_stage`, the truth moved with it).
+blocks or slowed in time (a slower sensor, down to 10 sps), frames lost, the polarity, gain, tare
+and resolution, a saturated sensor, the timestamps' jitter, a stronger hum, one more sample of
+latency, a thermal ramp, vibrations, drag, creep, hysteresis, a curved reading, a step, the
+steppers' crosstalk, a declared rate off the real one, a long uptime; and approximations: a gantry
+ringing (`_gantry_ringing`), a two-stage mount whose first touch lies higher (`_sprung_stage`, the
+truth moved with it) and a stepper's microstep error (`_microstep_error`, the truth moved per tap
+through the tap's own `truth`).
 
 A generator we write is not evidence for an analysis we write: this sweep finds what breaks
 (a traceback, a hang, a silent failure, a clean tap rejected for a cause it does not show, a σ
@@ -427,6 +430,112 @@ def _stale_readings(share: float) -> Callable[[dict, float, np.random.Generator]
     return transform
 
 
+def _load_above_start(force: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """(the load: the force above the first samples' level, signed so that contact pushes it up;
+    its peak; the sign that turns a load back into the tap's force)."""
+    load = force - float(np.median(force[:20]))
+    sign = _contact_sign(load)
+    return load * sign, float(np.max(load * sign)), sign
+
+
+def _curved_reading(share: float) -> Callable[[dict, float, np.random.Generator], dict]:
+    """A reading curved with the load (a bed stiffening as it is pressed, or a sensor's own
+    nonlinearity): up to `share` of the peak load (drawn per tap, either sign) added as the load's
+    square, nothing at zero load."""
+    def transform(tap, _z_mm, rng):
+        force = np.asarray(tap["force"], dtype=float)
+        load, peak, sign = _load_above_start(force)
+        curve = float(rng.uniform(-share, share)) * load * np.abs(load) / peak
+        return _with_force(tap, force + sign * curve)
+    return transform
+
+
+def _offset_step(grams: tuple[float, float]) -> Callable[[dict, float, np.random.Generator], dict]:
+    """A step in the reading at a random instant of the tap (a fan or heater switching, a supply
+    sagging): `grams` (drawn per tap, either sign) added to every sample from then on."""
+    def transform(tap, _z_mm, rng):
+        t = np.asarray(tap["time"], dtype=float)
+        at_s = float(rng.uniform(t[0], t[-1]))
+        step_g = float(rng.uniform(*grams)) * float(rng.choice((-1.0, 1.0)))
+        return _with_force(tap, np.asarray(tap["force"], dtype=float) + np.where(t >= at_s, step_g, 0.0))
+    return transform
+
+
+def _motion_crosstalk(grams: tuple[float, float]) -> Callable[[dict, float, np.random.Generator], dict]:
+    """The Z steppers' currents coupling into the sensor: `grams` (drawn per tap, either sign) added
+    while Z moves (the tap's moves), nothing while it is held: a step at the halt and at the
+    pullback's start, the same sign both ways (unlike a cable's friction)."""
+    def transform(tap, _z_mm, rng):
+        t = np.asarray(tap["time"], dtype=float)
+        moving = np.abs(_z_speed_mm_s(tap["moves"], t)) > 0.0
+        offset_g = float(rng.uniform(*grams)) * float(rng.choice((-1.0, 1.0)))
+        return _with_force(tap, np.asarray(tap["force"], dtype=float) + np.where(moving, offset_g, 0.0))
+    return transform
+
+
+def _rate_declared(factor: float) -> Callable[[dict, float, np.random.Generator], dict]:
+    """A sensor whose real rate is not the one its configuration declares (an HX711's own oscillator):
+    the file's `sample_rate` times `factor`, the samples as they were."""
+    return lambda tap, _z_mm, _rng: {**tap, "sample_rate": float(tap["sample_rate"]) * factor}
+
+
+def _load_cell_hysteresis(share: float) -> Callable[[dict, float, np.random.Generator], dict]:
+    """A load cell's hysteresis: after the peak, the reading lies above the loading curve by up to
+    `share` of the peak load (30-100 % of it, drawn per tap) at half the load, nothing at no load or
+    at the peak."""
+    def transform(tap, _z_mm, rng):
+        force = np.asarray(tap["force"], dtype=float)
+        load, peak, sign = _load_above_start(force)
+        x = np.clip(load / peak, 0.0, 1.0)
+        after_peak = np.arange(len(force)) > int(np.argmax(load))
+        bump_g = float(rng.uniform(0.3, 1.0)) * share * peak
+        return _with_force(tap, force + sign * np.where(after_peak, bump_g * 4.0 * x * (1.0 - x), 0.0))
+    return transform
+
+
+def _microstep_error(periods_um: tuple[float, ...], share: float
+                     ) -> Callable[[dict, float, np.random.Generator], dict]:
+    """A stepper's microstep error: the nozzle stands off its commanded Z by a sine of one full step's
+    travel (`periods_um`, drawn per tap: 40 µm for a T8 lead screw or a Voron's geared belts, 20 µm
+    for 0.9° motors), of up to `share` of that step (30-100 % of it, drawn, with its phase). The
+    force follows the nozzle's true depth (the bed's stiffness read from the truth, as
+    `_gantry_ringing`); the truth moves to the commanded Z at which the nozzle now touches, written
+    into the tap's own `truth` (which no analysis reads)."""
+    def transform(tap, z_mm, rng):
+        z = np.asarray(tap["z"], dtype=float)
+        force = np.asarray(tap["force"], dtype=float)
+        g_per_um = _bed_g_per_um(force, z, z_mm)
+        period_um = float(rng.choice(periods_um))
+        amplitude_um = float(rng.uniform(0.3, 1.0)) * share * period_um
+        phase = float(rng.uniform(0.0, 2.0 * math.pi))
+
+        def stand_off_um(z_cmd):
+            return amplitude_um * np.sin(2.0 * math.pi * z_cmd * 1000.0 / period_um + phase)
+        touch_mm = z_mm
+        for _ in range(50):  # a contraction: the error's slope stays under 2π·share < 1
+            touch_mm = z_mm - float(stand_off_um(touch_mm)) / 1000.0
+        depth_was_um = np.maximum((z_mm - z) * 1000.0, 0.0)
+        depth_um = np.maximum((z_mm - z) * 1000.0 - stand_off_um(z), 0.0)
+        out = _with_force(tap, force + g_per_um * (depth_um - depth_was_um))
+        out["truth"] = {"z_contact": touch_mm}
+        return out
+    return transform
+
+
+def _uptime(seconds: float) -> Callable[[dict, float, np.random.Generator], dict]:
+    """A printer up for `seconds`: every time (samples, events, moves) that much later."""
+    def transform(tap, _z_mm, _rng):
+        return {**tap, "time": [t + seconds for t in tap["time"]],
+                "events": {key: t + seconds for key, t in tap["events"].items()},
+                "moves": [{**move, "print_time": move["print_time"] + seconds} for move in tap["moves"]]}
+    return transform
+
+
+def _both(first, second) -> Callable[[dict, float, np.random.Generator], dict]:
+    """Two transforms, one after the other."""
+    return lambda tap, z_mm, rng: second(first(tap, z_mm, rng), z_mm, rng)
+
+
 @dataclass(frozen=True)
 class Case:
     name: str
@@ -574,6 +683,26 @@ CASES = [Case(*row[:3], **(row[3] if len(row) > 3 else {})) for row in (
      {"reference": ("clean_hx717", 1), "transform": _jitter_times(5.0)}),
     ("ref_lat+1", "reference latency, 1 sample later again", "accept",
      {"reference": ("latency", 1), "transform": _later_by(1)}),
+    ("ref_660burst3h", "reference ADS1220 660, the 3 samples before the halt lost", "accept",
+     {"reference": ("clean_ads1220_660", 1), "transform": _burst_dropped(3, "halt")}),
+    ("ref_slowburst2h", "reference HX711 slow, the 2 samples before the halt lost", "accept",
+     {"reference": ("hx711_slow", 1), "transform": _burst_dropped(2, "halt")}),
+    ("ref_curved", "reference HX717, reading curved +-15 % at the peak", "accept",
+     {"reference": ("clean_hx717", 1), "transform": _curved_reading(0.15)}),
+    ("ref_step", "reference HX717, a 3-10 g step at a random time", "either",
+     {"reference": ("clean_hx717", 1), "transform": _offset_step((3.0, 10.0))}),
+    ("ref_xtalk", "reference HX717, 1-3 g offset while Z moves", "accept",
+     {"reference": ("clean_hx717", 1), "transform": _motion_crosstalk((1.0, 3.0))}),
+    ("ref_rate0.9", "reference HX711 slow, declared rate 10 % low", "accept",
+     {"reference": ("hx711_slow", 1), "transform": _rate_declared(0.9)}),
+    ("ref_hyst", "reference HX717, load-cell hysteresis 1-3 % of peak", "accept",
+     {"reference": ("clean_hx717", 1), "transform": _load_cell_hysteresis(0.03)}),
+    ("ref_ustep", "reference HX717, microstep error 3-10 % of a step", "accept",
+     {"reference": ("clean_hx717", 1), "transform": _microstep_error((20.0, 40.0), 0.1)}),
+    ("ref_uptime", "reference HX717, 30 days of uptime", "accept",
+     {"reference": ("clean_hx717", 1), "transform": _uptime(30 * 86400.0)}),
+    ("ref_humquant3", "reference HX717, hum 5/2/2 g read in 3 g steps", "accept",
+     {"reference": ("clean_hx717", 1), "transform": _both(_mains_hum((5.0, 2.0, 2.0)), _force_quantized(3.0))}),
 )]
 
 
@@ -616,7 +745,9 @@ def case_taps(case: Case, seed: int, count: int, reference_dir: Path | None) -> 
             tap = _averaged(tap, block)
             if case.transform is not None:
                 tap = case.transform(tap, label.z_contact_mm, rng)
-            taps.append((_with_ramp(tap, case.thermal_g_per_s, rng), label.z_contact_mm + case.truth_up_um / 1000.0))
+            # a transform that moves the first touch per tap writes it into the tap's own truth
+            truth_mm = tap.get("truth", {}).get("z_contact", label.z_contact_mm)
+            taps.append((_with_ramp(tap, case.thermal_g_per_s, rng), truth_mm + case.truth_up_um / 1000.0))
         return taps
     for k in range(count):
         rng = np.random.default_rng([seed, 99, k])  # the same draws in every case: one parameter differs

@@ -237,3 +237,84 @@ def test_an_accepted_tap_far_off_at_many_sigma_is_found(reference_dir):
     and 3.5 σ; the first two pass both of `far_off`'s bars (5 µm, 4 σ), the third not the σ's."""
     results = sweep([CASE["ref_stage20"]], seed=1, count=20, reference_dir=reference_dir, kalico=None, scratch=None)
     assert findings(results) == ["(4) ref_stage20: 2 accepted tap(s) over 5 µm and 4 σ off, worst -19.7 µm at 16.7 σ"]
+
+
+def test_a_curved_reading_a_step_and_crosstalk_add_what_they_say(reference_dir):
+    """`_curved_reading(0.15)`: the load's square, at most 15 % of the peak load, nothing where no
+    load; `_offset_step`: one step of 3-10 g at one instant; `_motion_crosstalk`: 1-3 g exactly
+    while Z moves (the moves' speed), nothing in the dwell."""
+    original = _original(reference_dir)
+    force, t = np.asarray(original["force"]), np.asarray(original["time"])
+    load = force - np.median(force[:20])
+    peak_g = np.max(np.abs(load))
+    (curved, _), = case_taps(CASE["ref_curved"], 1, 1, reference_dir)
+    added = np.asarray(curved["force"]) - force
+    share = added / (load * np.abs(load) / peak_g)
+    heavy = np.abs(load) > 0.3 * peak_g
+    assert np.count_nonzero(heavy) > 20 and 0.0 < np.max(np.abs(added)) <= 0.15 * peak_g + 1e-4
+    assert np.allclose(share[heavy], share[heavy][0], atol=1e-4)  # one curvature, the load's square
+    (stepped, _), = case_taps(CASE["ref_step"], 1, 1, reference_dir)
+    step = np.asarray(stepped["force"]) - force
+    changes = np.flatnonzero(np.abs(np.diff(step)) > 1e-3)
+    assert len(changes) == 1 and 3.0 - 1e-4 <= abs(step[-1]) <= 10.0 + 1e-4 and np.all(step[:changes[0] + 1] == 0)
+    (crossed, _), = case_taps(CASE["ref_xtalk"], 1, 1, reference_dir)
+    offset = np.asarray(crossed["force"]) - force
+    events = original["events"]
+    held = (t > events["home_end_time"] + 1e-3) & (t < events["pullback_start_time"] - 1e-3)
+    first_move_s = min(move["print_time"] for move in original["moves"] if move["z_r"] and move["start_v"] + abs(move["accel"]) > 0)
+    approaching = (t > first_move_s + 0.01) & (t < events["home_end_time"] - 0.01)
+    before = t < first_move_s
+    assert np.count_nonzero(held) > 10 and np.all(np.abs(offset[held]) <= 1e-5)
+    assert 1.0 - 1e-4 <= abs(offset[approaching][0]) <= 3.0 + 1e-4
+    assert np.allclose(offset[approaching], offset[approaching][0], atol=1e-5)
+    assert np.count_nonzero(approaching) > 10 and np.all(np.abs(offset[before]) <= 1e-5)
+
+
+def test_a_microstep_error_moves_the_force_with_the_nozzle_and_the_truth_with_the_touch(reference_dir):
+    """`_microstep_error((20, 40), 0.1)`: above the nozzle's first touch nothing changes; deep in the
+    contact the force differs from the tap's by the bed's stiffness times the nozzle's stand-off,
+    a sine of one full step; the truth scored is where the nozzle now touches, within the error's
+    reach (at most 4 µm) of the bed's."""
+    original = _original(reference_dir)
+    force, z = np.asarray(original["force"]), np.asarray(original["z"])
+    (_, bed_mm), = case_taps(CASE["ref_clip80"], 1, 1, reference_dir)  # the same tap, its truth kept
+    (stepped, touch_mm), = case_taps(CASE["ref_ustep"], 1, 1, reference_dir)
+    assert 0.0 < abs(touch_mm - bed_mm) * 1000.0 <= 4.0
+    assert stepped["truth"] == {"z_contact": touch_mm}
+    added = np.asarray(stepped["force"]) - force
+    free = z > max(bed_mm, touch_mm) + 0.005
+    assert np.all(np.abs(added[free]) <= 1e-5)
+    deep = z < min(bed_mm, touch_mm) - 0.005
+    g_per_um = force[np.argmax(np.abs(force))] / ((bed_mm - z.min()) * 1000.0)
+    stand_off_um = -added[deep] / g_per_um
+    assert np.count_nonzero(deep) > 20 and 0.5 < np.max(np.abs(stand_off_um)) <= 4.0 + 1e-3
+    # the stand-off is a sine of one full step: fitted to the deep samples, it puts the nozzle's
+    # true height (commanded + stand-off) at the scored touch on the bed
+    fits = []
+    for period_um in (20.0, 40.0):
+        angle = 2.0 * np.pi * z[deep] * 1000.0 / period_um
+        basis = np.column_stack([np.sin(angle), np.cos(angle)])
+        coef, *_ = np.linalg.lstsq(basis, stand_off_um, rcond=None)
+        fits.append((float(np.sum((basis @ coef - stand_off_um) ** 2)), period_um, coef))
+    misfit, period_um, (a_sin, a_cos) = min(fits, key=lambda fit: fit[0])
+    assert misfit < 1e-3 * len(stand_off_um)
+    at_touch = 2.0 * np.pi * touch_mm * 1000.0 / period_um
+    assert (touch_mm - bed_mm) * 1000.0 == pytest.approx(-(a_sin * np.sin(at_touch) + a_cos * np.cos(at_touch)), abs=0.01)
+
+
+def test_hysteresis_uptime_and_a_declared_rate_change_only_what_they_say(reference_dir):
+    original = _original(reference_dir)
+    force = np.asarray(original["force"])
+    (hyst, _), = case_taps(CASE["ref_hyst"], 1, 1, reference_dir)
+    bump = np.asarray(hyst["force"]) - force
+    peak_at = int(np.argmax(np.abs(force - np.median(force[:20]))))
+    assert np.all(bump[:peak_at + 1] == 0.0) and 0.0 < np.max(np.abs(bump)) <= 0.03 * np.max(np.abs(force)) + 1e-3
+    (later, _), = case_taps(CASE["ref_uptime"], 1, 1, reference_dir)
+    shift_s = 30 * 86400.0
+    assert np.allclose(np.asarray(later["time"]) - original["time"], shift_s, atol=1e-6)
+    assert later["events"]["home_end_time"] - original["events"]["home_end_time"] == pytest.approx(shift_s)
+    assert later["moves"][0]["print_time"] - original["moves"][0]["print_time"] == pytest.approx(shift_s)
+    assert later["force"] == original["force"]
+    slow = _original(reference_dir, "hx711_slow")
+    (declared, _), = case_taps(CASE["ref_rate0.9"], 1, 1, reference_dir)
+    assert declared["sample_rate"] == pytest.approx(0.9 * slow["sample_rate"]) and declared["time"] == slow["time"]
