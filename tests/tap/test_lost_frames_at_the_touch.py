@@ -9,11 +9,14 @@ compression: TAP_CHRONOLOGY on 3 more; now the compression is the chord across t
 
 from __future__ import annotations
 
+from unittest.mock import ANY
+
 import numpy as np
 import pytest
 
-from bench.tap_sweep import analyse_in_process
-from tapcell.tap import analysis
+from bench.tap_sweep import Case, _burst_dropped, analyse_in_process, case_taps
+from tapcell.tap import AnalysisOptions, analysis, analyze_tap
+from tapcell.tap.readers import tap_from_object
 
 
 def test_the_interval_is_a_period_unless_frames_were_lost_around_the_touch():
@@ -63,3 +66,85 @@ def test_frames_lost_at_the_halt_is_a_gap_before_the_first_sample_after_it():
     assert not analysis.frames_lost_at_the_halt(time_s, halt_s, period_s)
     assert analysis.frames_lost_at_the_halt(np.delete(time_s, [148, 149]), halt_s, period_s)
     assert not analysis.frames_lost_at_the_halt(np.delete(time_s, [145, 146]), halt_s, period_s)  # samples follow
+
+
+# Frames lost up to the halt where the first split passed its checks (sixteenth session): its
+# compression read wholly after the halt, from the dwell's first samples, and met the approach far
+# before the touch (`analysis.split_across_the_gap_if_flatter`); or one pressed sample was left and
+# the compression's fit found no contact, 0.02 g/um (`analysis.COMPRESSION_STIFFNESS_SHARE_MIN`).
+# Measured on the reference taps, 80 a scenario, the 2-5 samples before the halt lost: 59
+# TAP_CONTACT_MISMATCH of 2,400 taps before, 2 rejected after (soft sheets, LOW_TAP_QUALITY).
+
+
+@pytest.mark.parametrize("name, k", [("ref_burst3h", 55), ("ref_burst3h", 78), ("ref_660burst3h", 57),
+                                     ("ref_660burst3h", 65)])
+def test_a_compression_read_after_the_halt_gives_way_to_the_chord(measured_within, sweep_tap, monkeypatch, name, k):
+    measured_within(name, 1, k, 3.0)
+    monkeypatch.setattr(analysis, "split_across_the_gap_if_flatter", lambda *args: args[-1])  # the first split kept
+    assert analyse_in_process(sweep_tap(name, 1, k)[0])["error"] == "TAP_CONTACT_MISMATCH"
+
+
+def test_a_compression_fit_that_found_no_contact_is_not_judged(measured_within, sweep_tap, monkeypatch):
+    """Reference HX717 tap 42, 3 lost: its compression fit read 0.02 g/um against the pullback's 1.9."""
+    measured_within("ref_burst3h", 1, 42, 3.0)
+    monkeypatch.setattr(analysis, "COMPRESSION_STIFFNESS_SHARE_MIN", 0.0)
+    assert analyse_in_process(sweep_tap("ref_burst3h", 1, 42)[0])["error"] == "TAP_CONTACT_MISMATCH"
+
+
+def test_a_compression_that_kept_samples_before_the_gap_stays(reference_dir, monkeypatch):
+    """A 2000 sps reference tap (29) with the one frame before the halt lost: its compression holds
+    38 samples before the gap and is flatter than the chord from the last of them (0.42 of it); the
+    chord would put the contact at that sample, deep in the compression (LOW_TAP_QUALITY)."""
+    case = Case("x", "", "accept", reference=("clean_ads1220_2000", 1), transform=_burst_dropped(1, "halt"))
+    tap, z_mm = case_taps(case, 1, 30, reference_dir)[29]
+    answer = analyse_in_process(tap)
+    monkeypatch.setattr(analysis, "split_across_the_gap_if_flatter", lambda *args: args[-1])
+    assert analyse_in_process(tap) == {**answer, "elapsed_ms": ANY, "cpu_ms": ANY}
+    assert answer["valid"] and abs(answer["z"] - z_mm) * 1000.0 < 3.0 * answer["z_sigma_um"]
+
+
+@pytest.mark.parametrize("scenario", ["clean_hx717", "clean_ads1220_660", "hx711_slow"])
+def test_no_clean_tap_is_rejected_for_three_frames_lost_at_the_halt(reference_dir, scenario):
+    """80 taps a scenario, the 3 samples before the halt lost: 4, 2 and 9 TAP_CONTACT_MISMATCH before."""
+    case = Case("x", "", "accept", reference=(scenario, 1), transform=_burst_dropped(3, "halt"))
+    answers = [analyse_in_process(tap) for tap, _ in case_taps(case, 1, 80, reference_dir)]
+    assert len(answers) == 80
+    assert [a["error"] for a in answers if not a["valid"]] == []
+
+
+@pytest.mark.parametrize("k", [4, 17, 28])
+def test_a_lagged_compression_read_after_the_halt_stays(reference_dir, monkeypatch, k):
+    """The reference latency taps (each reading handed over 1-2 samples late) with the 4 samples
+    before the halt lost: the compression is read wholly after the halt, and it is steeper than the
+    chord (2.5, 2.8 and 2.8 times): the rise itself, late. The chord in its place read the 80 taps
+    +0.61 ± 0.76 um, against +0.25 ± 0.60 as they are."""
+    case = Case("x", "", "accept", reference=("latency", 1), transform=_burst_dropped(4, "halt"))
+    tap, z_mm = case_taps(case, 1, k + 1, reference_dir)[k]
+    answer = analyse_in_process(tap)
+    assert answer["valid"] and abs(answer["z"] - z_mm) * 1000.0 < 3.0 * answer["z_sigma_um"]
+    monkeypatch.setattr(analysis, "split_across_the_gap_if_flatter", lambda *args: args[-1])
+    assert analyse_in_process(tap) == {**answer, "elapsed_ms": ANY, "cpu_ms": ANY}
+
+
+def test_without_a_contact_down_the_line_point_is_not_judged_either(reference_dir, monkeypatch):
+    """A reference ADS1220 660 tap (5) with the 4 samples before the halt lost: its compression fit
+    found no contact, and the line point P1, from the same lone pressed sample, lay 463 um above the
+    halt (break contact: 49 um)."""
+    case = Case("x", "", "accept", reference=("clean_ads1220_660", 1), transform=_burst_dropped(4, "halt"))
+    tap, z_mm = case_taps(case, 1, 6, reference_dir)[5]
+    answer = analyse_in_process(tap)
+    assert answer["valid"] and abs(answer["z"] - z_mm) * 1000.0 < 3.0 * answer["z_sigma_um"]
+    judged = analysis.check_contact_heights
+    monkeypatch.setattr(analysis, "check_contact_heights",
+                        lambda window, pullback, compression, motion, timing, placed:
+                        judged(window, pullback, compression, motion, timing, True))
+    assert analyse_in_process(tap)["error"] == "TAP_CONTACT_MISMATCH"
+
+
+def test_a_compression_fit_with_no_contact_gives_no_delay(sweep_tap):
+    """With `sensor_delay_s=auto` the delay comes from the way down's contact against the way up's:
+    the 0.02 g/um fit of reference HX717 tap 42 (3 lost) made it -37 ms and put Z 12 um high."""
+    tap, z_mm = sweep_tap("ref_burst3h", 1, 42)
+    answer = analyze_tap(tap_from_object(tap), AnalysisOptions().with_overrides({"sensor_delay_s": "auto"}))
+    assert answer.valid and answer.sensor_delay_s == 0.0
+    assert abs(answer.z_mm - z_mm) * 1000.0 < 3.0 * answer.z_sigma_um

@@ -647,6 +647,33 @@ def decompose_again(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag
     return first
 
 
+def split_across_the_gap_if_flatter(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_samples: int,
+                                    period: float, first: tuple[Decomposition, PrefixSums]
+                                    ) -> tuple[Decomposition, PrefixSums]:
+    """Frames lost up to the halt, and a first split that passed the checks: the compression as the
+    chord across the gap instead (`decompose(compression_across_gap=True)`) where the first split's
+    compression holds no sample read before the gap and rises less steeply than that chord. The
+    force rises across the gap within some part of it, so a compression is at least as steep as the
+    chord; a flatter one read wholly after the halt is the dwell's first samples, which the first
+    split's lag allowance let it take. On the reference taps with the 2-5 samples before the halt
+    lost (80 a scenario; `bench tap_sweep`'s `_burst_dropped(n, "halt")`) such a compression rose
+    0.08-0.69 of the chord, met the approach up to 0.26 s before the halt and was up to 164 um above
+    break contact: TAP_CONTACT_MISMATCH on 1-10 clean taps a scenario. A compression that kept
+    samples before the gap (a 2000 sps tap, one frame lost) stays the first split's."""
+    dec = first[0]
+    first_after_halt = int(time_s.searchsorted(motion.home_end_s))
+    if dec.start + dec.bounds[0] < first_after_halt:
+        return first
+    try:
+        chord = decompose(time_s, force_g, motion, lag_samples, period, compression_across_gap=True)
+    except TapInvalid:
+        return first
+    if (dec.lines[COMPRESSION][0] < chord[0].lines[COMPRESSION][0]
+            and validate.split_checks_pass(chord[0].points, chord[0].angles_deg)):
+        return chord
+    return first
+
+
 def frames_lost_at_the_halt(time_s: np.ndarray, halt_s: float, period_s: float) -> bool:
     """The first sample after the halt follows its predecessor by LOST_FRAME_PERIODS or more: frames
     lost over the compression left it no sample (a burst of 3 over a reference HX717 tap's 3-4
@@ -1284,7 +1311,8 @@ def check_contact_heights(window: ModelWindow, pullback: ContactFit | None, comp
     P1 and P4 mapped through the motion, the way down's within the approach's travel over a period,
     or where that would not do, over the gap frames lost about the touch left (`approach_interval_s`).
     Not judged unless `compression_placed`
-    (`compression_places_the_halt`): where no sample's window lies wholly between the touch and the
+    (`compression_places_the_halt`, and a compression fit that found a contact:
+    COMPRESSION_STIFFNESS_SHARE_MIN): where no sample's window lies wholly between the touch and the
     halt, the way down holds no contact to place (issue 21's sweep: a reference tap averaged to 80
     sps, 1.3 periods from P1 to P2, put the down contact 754 um above the halt, TAP_CONTACT_MISMATCH;
     reference HX711 taps averaged to 10 sps, 0.2-0.5 samples from contact to the halt, 231-512 um).
@@ -1557,6 +1585,7 @@ class ContactFits:
     compression: ContactFit | None
     samples: PullbackSamples
     drift_g_um: float
+    no_contact_down: bool = False  # the compression's fit found no contact (COMPRESSION_STIFFNESS_SHARE_MIN)
 
 
 # What `split_tap` answers: the split, the polarity, the frames repaired and the hum removed.
@@ -1576,8 +1605,8 @@ def _analyze(tap: TapData, options: AnalysisOptions,
                               split.contact_s)
         fits = fit_contact_models(split, window, delay_s, options, result)
         result.z_line_mm = split.motion.z_halt_mm + window.break_line_um / 1000.0  # P4 mapped, delay-corrected
-        down_above_up_um = check_contact_heights(window, fits.pullback, fits.compression, split.motion,
-                                                 split.timing, split.compression_placed)
+        down_above_up_um = check_contact_heights(window, fits.pullback, fits.compression, split.motion, split.timing,
+                                                 split.compression_placed and not fits.no_contact_down)
         window_delay_s = delay_s  # the delay the window's heights were read with ("auto": 0, estimated now)
         delay_s = apply_delay_estimate(split, fits, delay_s, result)
         z_from_sharp_model_or_lines(split, fits, result)
@@ -1619,6 +1648,8 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> SplitMade:
     if not checks_pass:
         dec, ps = decompose_again(time_s, force, motion, lag_samples, period_s, (dec, ps))
         checks_pass = validate.split_checks_pass(dec.points, dec.angles_deg)
+    elif frames_lost_at_the_halt(time_s, motion.home_end_s, period_s):
+        dec, ps = split_across_the_gap_if_flatter(time_s, force, motion, lag_samples, period_s, (dec, ps))
     # Second differences of the whole analysed window: hundreds of samples even when the
     # approach holds a dozen; the four kinks of a tap cannot move their median. A window of every
     # sample, which no repair and no hum removal changed, is what the spike repair measured.
@@ -1822,7 +1853,22 @@ def fit_contact_models(split: SplitTap, window: ModelWindow, delay_s: float, opt
                                           pullback.onset_um, motion.pullback_speed_mm_s, delay_s)
     drift_g_um = free_air_slope_g_um(split.dec, motion)
     compression = fit_compression(window, motion, timing, delay_s, pullback.onset_um if pullback else 0.0, drift_g_um)
-    return ContactFits(pullback, near_sigma_g, compression, samples, drift_g_um)
+    no_contact_down = bool(compression and pullback
+                           and compression.stiffness_g_um < COMPRESSION_STIFFNESS_SHARE_MIN * pullback.stiffness_g_um)
+    if no_contact_down:
+        compression = None
+    return ContactFits(pullback, near_sigma_g, compression, samples, drift_g_um, no_contact_down)
+
+
+# A compression fit softer than this share of the pullback's stiffness found no contact, and the
+# way down then holds none to judge (`check_contact_heights`): with the frames between the touch
+# and the halt lost, one sample was left pressed, and the fit took the approach's slow rise for a
+# contact of 0.02 g/um 485 um above the halt (the pullback's: 1.9 g/um; a reference HX717 tap with
+# the 2 samples before the halt lost, TAP_CONTACT_MISMATCH), where the line point P1, from the
+# same lone sample, lay as far off on ADS1220 660 taps with 4-5 lost. Every valid tap of taplab
+# seed 1, the reference taps and the sessions reads 0.55 or more (the loading and unloading
+# stiffness of one bed), every tap at all 0.16 or more.
+COMPRESSION_STIFFNESS_SHARE_MIN = 0.1
 
 
 def apply_delay_estimate(split: SplitTap, fits: ContactFits, delay_s: float, result: TapAnalysis) -> float:
