@@ -5,7 +5,7 @@ reject only for a cause the tap shows)."""
 import numpy as np
 import pytest
 
-from bench.tap_sweep import analyse_in_process
+from bench.tap_sweep import Case, _mains_hum, analyse_in_process, case_taps
 from tapcell.tap import AnalysisOptions, analysis, analyze_tap
 from tapcell.tap.readers import tap_from_object
 from tapcell.taplab.generate import SCENARIOS, make_tap
@@ -65,3 +65,18 @@ def test_no_second_look_where_the_screen_finds_no_hum(sweep_tap):
     hummed, _ = sweep_tap("hum4000", 126, PARTED_BY_HUM[0])
     again = analysis._second_look_without_hum(tap_from_object(hummed), options.with_mains_hz("auto"), classifier)
     assert again is not None and again.valid and again.hum is not None
+
+
+@pytest.mark.parametrize("seed", [2, 3])
+def test_a_break_a_hum_put_too_early_is_measured_with_the_hum_removed(reference_dir, monkeypatch, seed):
+    """The reference noisy-mains tap 44 with 5/2/2 g more hum at 50 or 60 Hz (`_mains_hum`, drawn
+    per seed): the five lines put its break in the pullback's first sixth
+    (TAP_BREAK_CONTACT_TOO_EARLY); with the hum removed it reads -0.25 and -0.21 um off."""
+    case = Case("x", "", "accept", reference=("noisy_mains", 1), transform=_mains_hum((5.0, 2.0, 2.0)))
+    tap, z_mm = case_taps(case, seed, 45, reference_dir)[44]
+    answer = analyse_in_process(tap)
+    assert answer["valid"], answer["message"]
+    assert answer["hum"]["frequencies_hz"][0] in (50.0, 60.0)
+    assert abs(answer["z"] - z_mm) * 1000.0 < 3.0 * answer["z_sigma_um"]
+    monkeypatch.setattr(analysis, "HUM_MAY_CAUSE", frozenset({"TAP_CONTACT_MISMATCH"}))
+    assert analyse_in_process(tap)["error"] == "TAP_BREAK_CONTACT_TOO_EARLY"
