@@ -659,8 +659,9 @@ def split_across_the_gap_if_flatter(time_s: np.ndarray, force_g: np.ndarray, mot
     split's lag allowance let it take. On the reference taps with the 2-5 samples before the halt
     lost (80 a scenario; `bench tap_sweep`'s `_burst_dropped(n, "halt")`) such a compression rose
     0.08-0.69 of the chord, met the approach up to 0.26 s before the halt and was up to 164 um above
-    break contact: TAP_CONTACT_MISMATCH on 1-10 clean taps a scenario. A compression that kept
-    samples before the gap (a 2000 sps tap, one frame lost) stays the first split's."""
+    break contact: with the fit that found no contact (COMPRESSION_STIFFNESS_SHARE_MIN), 1-10
+    TAP_CONTACT_MISMATCH of 80 clean taps a scenario before. A compression that kept samples before
+    the gap (a 2000 sps tap, one frame lost) stays the first split's."""
     dec = first[0]
     first_after_halt = int(time_s.searchsorted(motion.home_end_s))
     if dec.start + dec.bounds[0] < first_after_halt:
@@ -1398,7 +1399,7 @@ def analyze_tap(tap: TapData, options: AnalysisOptions | None = None) -> TapAnal
 # and for which the analysis looks again with the hum removed (`analyze_tap`). A break contact read
 # in the pullback's first sixth too: the reference noisy-mains taps with 5/2/2 g more hum at 50 or
 # 60 Hz (80 taps, seeds 1-3) put the five lines' break there on 2 of 240 clean taps, which `auto`
-# reads -0.3 um off. Not a break read too late: that is also a pullback that never broke contact.
+# reads -0.25 and -0.21 um off. Not a break read too late: a pullback that never broke contact gets it.
 HUM_MAY_CAUSE = frozenset({TAP_CONTACT_MISMATCH, TAP_BREAK_CONTACT_TOO_EARLY})
 
 
