@@ -148,3 +148,24 @@ def test_a_compression_fit_with_no_contact_gives_no_delay(sweep_tap):
     answer = analyze_tap(tap_from_object(tap), AnalysisOptions().with_overrides({"sensor_delay_s": "auto"}))
     assert answer.valid and answer.sensor_delay_s == 0.0
     assert abs(answer.z_mm - z_mm) * 1000.0 < 3.0 * answer.z_sigma_um
+
+
+def test_no_compression_stiffness_is_scored_with_the_deepest_part_lost(reference_dir):
+    """A reference noisy-mains tap (44) with the 2 samples before the halt lost: the two pressed
+    samples left are the compression's shallowest, its fit 1.45 g/um against the pullback's 6.06
+    (the whole tap: 5.40), the classifier's stiffness mismatch 197 % (LOW_TAP_QUALITY)."""
+    case = Case("x", "", "accept", reference=("noisy_mains", 1), transform=_burst_dropped(2, "halt"))
+    tap, z_mm = case_taps(case, 1, 45, reference_dir)[44]
+    answer = analyse_in_process(tap)
+    assert answer["valid"] and abs(answer["z"] - z_mm) * 1000.0 < 3.0 * answer["z_sigma_um"]
+    assert answer["stiffness_compression_g_um"] is None and "stiffness" not in answer["quality_components"]
+
+
+def test_no_film_is_read_off_a_contact_down_in_a_gap(reference_dir):
+    """A reference bowden tap (1) with the 3 samples before the halt lost: its down contact, somewhere
+    in the gap, lay 56 um above the up one (51 % of the way to a mismatch), and with the cable's
+    level 15.5 g below the approach's the pressed-film rule read a film (TAP_ADHESION)."""
+    case = Case("x", "", "accept", reference=("bowden_drift", 1), transform=_burst_dropped(3, "halt"))
+    tap, z_mm = case_taps(case, 1, 2, reference_dir)[1]
+    answer = analyse_in_process(tap)
+    assert answer["valid"] and abs(answer["z"] - z_mm) * 1000.0 < 3.0 * answer["z_sigma_um"]

@@ -1332,10 +1332,18 @@ def check_contact_heights(window: ModelWindow, pullback: ContactFit | None, comp
                                                       motion.pullback_speed_mm_s * period_s * 1000.0,
                                                       down_sigma_um, up_sigma_um)
     tolerance_um = tolerance_um_over(period_s)
-    if down_um - up_um > tolerance_um:  # the gaps are looked for only where one sample's travel will not do
-        tolerance_um = tolerance_um_over(approach_interval_s(window.time_s, motion.home_end_s, down_um,
-                                                             motion.approach_speed_mm_s, period_s))
+    in_a_gap = False
+    if down_um - up_um > PLASTIC_SQUEEZE_SHARE * tolerance_um:  # the gaps are looked for only where they matter
+        approach_s = approach_interval_s(window.time_s, motion.home_end_s, down_um, motion.approach_speed_mm_s,
+                                         period_s)
+        in_a_gap = approach_s > period_s
+        tolerance_um = tolerance_um_over(approach_s)
     validate.check_contact_consistency(down_um, up_um, tolerance_um)
+    if in_a_gap:
+        # The way down's contact lies anywhere in the frames lost about the touch: no film to read off
+        # it (`_pressed_film`; reference bowden taps with the 1-5 samples before the halt lost: 1-7 of
+        # 80 clean taps TAP_ADHESION, their down contacts 31-56 um above the up ones, 32-90 % of the way).
+        return None
     return (down_um - up_um, tolerance_um) if math.isfinite(down_um - up_um) else None
 
 
@@ -2164,12 +2172,17 @@ def check_two_stage(samples: PullbackSamples, motion: Motion, drift_g_um: float,
 
 def compression_stiffness(split: SplitTap, window: ModelWindow, fits: ContactFits, delay_s: float,
                           result: TapAnalysis) -> None:
-    """The compression stiffness, when enough samples were pressed wholly in contact before the halt."""
+    """The compression stiffness, when enough samples were pressed wholly in contact before the halt
+    and no frames were lost up to it: the gap then holds the compression's deepest part, and the
+    samples before it its shallowest, where the onset lowers the slope (reference noisy-mains taps
+    with the 2-5 samples before the halt lost: 1.45 g/um read against the pullback's 6.06, a
+    mismatch of 197 %; LOW_TAP_QUALITY on 2-6 of 80 clean taps)."""
     pullback, motion = fits.pullback, split.motion
     onset_um = pullback.onset_um if pullback else 0.0
     result.compression_samples = compression_sample_count(window, motion, delay_s, onset_um,
                                                           pullback.contact_um if pullback else window.break_line_um)
-    if result.compression_samples >= MIN_COMPRESSION_SAMPLES:
+    if (result.compression_samples >= MIN_COMPRESSION_SAMPLES
+            and not frames_lost_at_the_halt(split.time_s, motion.home_end_s, split.timing.sample_period_s)):
         compression_line = split.steep_rise or split.dec.compression_line
         result.stiffness_compression_g_um = (fits.compression.stiffness_g_um if fits.compression else
                                              abs(compression_line[0]) / (motion.approach_speed_mm_s * 1000.0))
