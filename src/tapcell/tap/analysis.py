@@ -587,7 +587,7 @@ DWELL_ON_THE_MOTION = {"dwell_from_halt": True, "release_lag_samples": 1}
 
 
 def decompose_again(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_samples: int, period: float,
-                    first: tuple[Decomposition, PrefixSums]) -> tuple[Decomposition, PrefixSums]:
+                    first: tuple[Decomposition, PrefixSums], lost_at_halt: bool) -> tuple[Decomposition, PrefixSums]:
     """The five lines again when the first split fails the spec's checks on it (validate.split_checks_pass).
 
     Points out of time order: over the samples from the approach move's start on, when its window
@@ -635,7 +635,7 @@ def decompose_again(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag
                    DWELL_ON_THE_MOTION]
         if motion.moves and time_s[dec.start] < motion.moves[-5].print_time < motion.home_end_s - 8 * period:
             retries.insert(0, {"from_s": motion.moves[-5].print_time})
-    if frames_lost_at_the_halt(time_s, motion.home_end_s, period):
+    if lost_at_halt:  # frames_lost_at_the_halt
         retries.append({"compression_across_gap": True})
     for retry in retries:
         try:
@@ -1543,6 +1543,7 @@ class SplitTap:
     # need not check them again.
     points_pass: bool = False
     stale_readings: int = 0  # readings dropped as stale (`stale_readings`)
+    frames_lost_at_halt: bool = False  # `frames_lost_at_the_halt`
 
     @cached_attribute
     def rising_stop(self) -> int:
@@ -1658,10 +1659,11 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> SplitMade:
     force, hum = remove_mains_hum(tap, options, time_s, force, motion, timing, lag_samples, period_s)
     dec, ps = decompose(time_s, force, motion, lag_samples, period_s)
     checks_pass = validate.split_checks_pass(dec.points, dec.angles_deg)
+    lost_at_halt = frames_lost_at_the_halt(time_s, motion.home_end_s, period_s)
     if not checks_pass:
-        dec, ps = decompose_again(time_s, force, motion, lag_samples, period_s, (dec, ps))
+        dec, ps = decompose_again(time_s, force, motion, lag_samples, period_s, (dec, ps), lost_at_halt)
         checks_pass = validate.split_checks_pass(dec.points, dec.angles_deg)
-    elif frames_lost_at_the_halt(time_s, motion.home_end_s, period_s):
+    elif lost_at_halt:
         dec, ps = split_across_the_gap_if_flatter(time_s, force, motion, lag_samples, period_s, (dec, ps))
     # Second differences of the whole analysed window: hundreds of samples even when the
     # approach holds a dozen; the four kinks of a tap cannot move their median. A window of every
@@ -1673,7 +1675,7 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> SplitMade:
         if hum is not None:
             noise_g = max(noise_g, rounding_noise_g(force_read[dec.start:dec.stop]))
     split = SplitTap(time_s, force, motion, timing, dec, ps, noise_g, checks_pass,
-                     0 if stale is None else len(stale))
+                     0 if stale is None else len(stale), lost_at_halt)
     return split, polarity, outliers, hum
 
 
@@ -2176,13 +2178,13 @@ def compression_stiffness(split: SplitTap, window: ModelWindow, fits: ContactFit
     and no frames were lost up to it: the gap then holds the compression's deepest part, and the
     samples before it its shallowest, where the onset lowers the slope (reference noisy-mains taps
     with the 2-5 samples before the halt lost: 1.45 g/um read against the pullback's 6.06, a
-    mismatch of 197 %; LOW_TAP_QUALITY on 2-6 of 80 clean taps)."""
+    mismatch of 197 %; LOW_TAP_QUALITY on 1-5 of 80 clean taps)."""
     pullback, motion = fits.pullback, split.motion
     onset_um = pullback.onset_um if pullback else 0.0
     result.compression_samples = compression_sample_count(window, motion, delay_s, onset_um,
                                                           pullback.contact_um if pullback else window.break_line_um)
     if (result.compression_samples >= MIN_COMPRESSION_SAMPLES
-            and not frames_lost_at_the_halt(split.time_s, motion.home_end_s, split.timing.sample_period_s)):
+            and not split.frames_lost_at_halt):
         compression_line = split.steep_rise or split.dec.compression_line
         result.stiffness_compression_g_um = (fits.compression.stiffness_g_um if fits.compression else
                                              abs(compression_line[0]) / (motion.approach_speed_mm_s * 1000.0))
