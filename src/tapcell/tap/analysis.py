@@ -587,7 +587,7 @@ DWELL_ON_THE_MOTION = {"dwell_from_halt": True, "release_lag_samples": 1}
 
 
 def decompose_again(time_s: np.ndarray, force_g: np.ndarray, motion: Motion, lag_samples: int, period: float,
-                    first: tuple[Decomposition, PrefixSums], lost_at_halt: bool) -> tuple[Decomposition, PrefixSums]:
+                    lost_at_halt: bool, first: tuple[Decomposition, PrefixSums]) -> tuple[Decomposition, PrefixSums]:
     """The five lines again when the first split fails the spec's checks on it (validate.split_checks_pass).
 
     Points out of time order: over the samples from the approach move's start on, when its window
@@ -1661,7 +1661,7 @@ def split_tap(tap: TapData, options: AnalysisOptions) -> SplitMade:
     checks_pass = validate.split_checks_pass(dec.points, dec.angles_deg)
     lost_at_halt = frames_lost_at_the_halt(time_s, motion.home_end_s, period_s)
     if not checks_pass:
-        dec, ps = decompose_again(time_s, force, motion, lag_samples, period_s, (dec, ps), lost_at_halt)
+        dec, ps = decompose_again(time_s, force, motion, lag_samples, period_s, lost_at_halt, (dec, ps))
         checks_pass = validate.split_checks_pass(dec.points, dec.angles_deg)
     elif lost_at_halt:
         dec, ps = split_across_the_gap_if_flatter(time_s, force, motion, lag_samples, period_s, (dec, ps))
