@@ -69,6 +69,10 @@ SCREEN_MIN_CHI2 = 20.0
 # by the samples in the toe fit's reach instead (30 µm of compression: 2 samples at 5 mm/s and 320 sps)
 # moved taplab's bias by 0.5 µm: on a fast tap the hum still moves the lines around the corners.
 FIT_MIN_HUM_TO_NOISE = 0.35
+# A line dominates the tap's noise when the screen reads it at this many noise sigmas or more: a
+# sinusoid that sets the steps' robust sigma itself still reads 0.67 (`_screen`). Such a hum, left
+# in, is most of the noise every check of the tap was judged against (`dominant_mains_lines`).
+HUM_DOMINATES_NOISE = 0.67
 # Sample-to-sample steps beyond this many robust sigmas are the tap's own corners and ramps
 # (a compression rises tens of grams a sample), not hum or noise: cut, with this many neighbours.
 SCREEN_STEP_SIGMAS = 6.0
@@ -485,6 +489,21 @@ def _worth_fitting(time_s: np.ndarray, force_g: np.ndarray, candidates_hz) -> tu
     clear, hum_to_noise = _screen(time_s, force_g, candidates_hz)
     return tuple(float(f) for f, c, r in zip(candidates_hz, clear, hum_to_noise)
                  if c >= SCREEN_MIN_CHI2 and r >= FIT_MIN_HUM_TO_NOISE)
+
+
+def dominant_mains_lines(time_s: np.ndarray, force_g: np.ndarray) -> tuple[float, ...]:
+    """The mains lines (MAINS_LINES_HZ) the screen sees (SCREEN_MIN_CHI2) at HUM_DOMINATES_NOISE
+    noise sigmas or more, at the samples' own mean rate: a hum that set the tap's noise."""
+    time_s = np.asarray(time_s, dtype=float)
+    duration_s = float(time_s[-1] - time_s[0]) if len(time_s) > 2 else 0.0
+    if not duration_s > 0.0:
+        return ()
+    candidates = resolvable_hz(MAINS_LINES_HZ, (len(time_s) - 1) / duration_s, duration_s)
+    if not candidates:
+        return ()
+    clear, hum_to_noise = _screen(time_s, force_g, candidates)
+    return tuple(f for f, c, r in zip(candidates, clear, hum_to_noise)
+                 if c >= SCREEN_MIN_CHI2 and r >= HUM_DOMINATES_NOISE)
 
 
 def harmonics_worth_fitting(time_s: np.ndarray, force_g: np.ndarray, sample_rate_sps: float,

@@ -360,6 +360,10 @@ class TapAnalysis:
     # a gantry ringing on into the pullback is noise to the contact model, which the quality
     # classifier's misfit allows for.
     dwell_ringing_var_g2: float = field(default=0.0, repr=False, compare=False)
+    # The larger of the dip and the pull below free air after break contact that the adhesion check
+    # let pass (g, 0 when none): where a hum nobody removed set the noise they were judged against,
+    # `analyze_tap` looks again.
+    passed_film_g: float = field(default=0.0, repr=False, compare=False)
 
     def to_json(self) -> dict[str, Any]:
         return {
