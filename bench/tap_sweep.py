@@ -703,6 +703,8 @@ CASES = [Case(*row[:3], **(row[3] if len(row) > 3 else {})) for row in (
      {"reference": ("clean_hx717", 1), "transform": _uptime(30 * 86400.0)}),
     ("ref_humquant3", "reference HX717, hum 5/2/2 g read in 3 g steps", "accept",
      {"reference": ("clean_hx717", 1), "transform": _both(_mains_hum((5.0, 2.0, 2.0)), _force_quantized(3.0))}),
+    ("ref_oozehum", "reference mild ooze + hum 5/2/2 g", "either",
+     {"reference": ("ooze_mild", 1), "transform": _mains_hum((5.0, 2.0, 2.0))}),
 )]
 
 
