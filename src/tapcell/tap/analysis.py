@@ -1410,39 +1410,34 @@ def analyze_tap(tap: TapData, options: AnalysisOptions | None = None) -> TapAnal
     return result
 
 
-# The rejections a mains hum left in the force can cause where its white-noise fits cannot see it,
-# and for which the analysis looks again with the hum removed, whatever the screen says
-# (`hum_may_have_misled`). A strong hum nobody asked to remove can part the two contacts by more
-# than their white-noise fits allow (bench tap_sweep's hum4000: 4 g at 50 or 60 Hz in a 4000 sps
-# tap, 3 of 480 taps on seeds 1-12, 2.2-3.2 noise sigmas of hum). A break contact read in the
-# pullback's first sixth too: the reference noisy-mains taps with 5/2/2 g more hum at 50 or 60 Hz
-# (80 taps, seeds 1-3) put the five lines' break there on 2 of 240 clean taps, which `auto` reads
-# -0.25 and -0.21 um off.
-HUM_MAY_CAUSE = frozenset({TAP_CONTACT_MISMATCH, TAP_BREAK_CONTACT_TOO_EARLY})
-# The other rejections of the force's shape, looked at again only where a mains line dominates the
-# tap's noise (`hum.dominant_mains_lines`): a hum that strong bends every line and check. The
-# reference's clean ADS1220 2000 sps taps with 20/5/5 g more hum: 21 of 80 rejected (TAP_ADHESION 8,
-# LOW_TAP_QUALITY 12, TAP_CHRONOLOGY 1), every one valid with the hum removed; on the other clean
-# reference scenarios with 20/5/5 g, TAP_BREAK_CONTACT_TOO_LATE and LOW_TAP_QUALITY too. Not the
-# sampling's, the motion's or the sensor's codes (too few samples, no dwell, a saturated ADC), which
-# no hum causes; nor a pullback that never broke contact or a soft stage, whose tests a hum only
-# makes harder to meet (its noise raises their bars): taplab seed 1's three short-pullback and two
-# two-stage taps under a dominant line were rejected again with the same codes. A second look that
-# rejects again leaves the first answer, so fouled taps keep theirs.
-HUM_MAY_SHAPE = frozenset({TAP_CHRONOLOGY, TAP_SHAPE_INVALID, TAP_BREAK_CONTACT_TOO_LATE, LOW_COMPRESSION_FORCE,
-                           LOW_DECOMPRESSION_FORCE, LOW_TAP_QUALITY, TAP_ADHESION})
+# The rejections a mains hum left in the force can cause, looked at again with the hum removed where
+# a mains line dominates the tap's noise (`hum_may_have_misled`). A strong hum nobody asked to remove
+# can part the two contacts by more than their white-noise fits allow (TAP_CONTACT_MISMATCH: bench
+# tap_sweep's hum4000, 4 g at 50 or 60 Hz in a 4000 sps tap, 3 of 480 taps on seeds 1-12), or put the
+# five lines' break in the pullback's first sixth (TAP_BREAK_CONTACT_TOO_EARLY: the reference
+# noisy-mains taps with 5/2/2 g more hum, 2 of 240 clean taps on seeds 1-3, read -0.25 and -0.21 um
+# off with it removed). Stronger, it bends every line and check: the reference's clean ADS1220 2000
+# sps taps with 20/5/5 g more hum, 21 of 80 rejected (TAP_ADHESION 8, LOW_TAP_QUALITY 12,
+# TAP_CHRONOLOGY 1), every one valid with the hum removed; on the other clean reference scenarios
+# with 20/5/5 g, TAP_BREAK_CONTACT_TOO_LATE and LOW_TAP_QUALITY too. Not the sampling's, the motion's
+# or the sensor's codes (too few samples, no dwell, a saturated ADC), which no hum causes; nor a
+# pullback that never broke contact or a soft stage, whose tests a hum only makes harder to meet
+# (its noise raises their bars): taplab seed 1's three short-pullback and two two-stage taps under a
+# dominant line were rejected again with the same codes. A second look that rejects again leaves
+# the first answer, so fouled taps keep theirs. Gated by the dominant line, hum4000 (seeds 1-12 and
+# 126-140, 1,080 taps) and the noisy-mains taps above (240) lose no tap, as without the gate.
+HUM_MAY_CAUSE = frozenset({TAP_CONTACT_MISMATCH, TAP_BREAK_CONTACT_TOO_EARLY, TAP_BREAK_CONTACT_TOO_LATE,
+                           TAP_CHRONOLOGY, TAP_SHAPE_INVALID, LOW_COMPRESSION_FORCE, LOW_DECOMPRESSION_FORCE,
+                           LOW_TAP_QUALITY, TAP_ADHESION})
 
 
 def hum_may_have_misled(tap: TapData, result: TapAnalysis) -> bool:
     """Whether a hum left in the force may have misled the analysis of this tap: a rejection it can
-    cause unseen (HUM_MAY_CAUSE); another rejection of the force's shape (HUM_MAY_SHAPE) under a
-    dominant mains line; or an accepted tap whose film check a hum may have blinded
-    (`film_judged_against_a_hum`)."""
-    if result.error in HUM_MAY_CAUSE:
-        return True
+    cause (HUM_MAY_CAUSE) under a mains line that dominates the noise, or an accepted tap whose film
+    check a hum may have blinded (`film_judged_against_a_hum`)."""
     if result.valid:
         return film_judged_against_a_hum(tap, result)
-    return result.error in HUM_MAY_SHAPE and hum_dominates(tap)
+    return result.error in HUM_MAY_CAUSE and hum_dominates(tap)
 
 
 # A dip or pull the adhesion check let pass this many noise sigmas deep (and above the compression
