@@ -47,6 +47,8 @@ def test_with_five_sample_runs_the_trough_is_a_dip(seed, indices, monkeypatch):
     monkeypatch.setattr(analysis, "adhesion_run_samples", lambda ringing: ADHESION_RUN_SAMPLES)
     monkeypatch.setattr(analysis, "free_air_dip_g", lambda *_: 0.0)
     for tap, _ in _taps(seed, indices):
-        answer = analyse_in_process(tap)
+        # no hum removal asked for (the meta's answer): the second look without taplab's hum would
+        # hide the mechanism
+        answer = analyse_in_process({**tap, "meta": {**tap.get("meta", {}), "mains_hz": []}})
         assert answer["error"] == "TAP_ADHESION"
         assert "dips" in answer["message"]
