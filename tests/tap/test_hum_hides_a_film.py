@@ -73,16 +73,23 @@ def test_noise_or_a_weak_hum_does_not(amplitude_g):
     assert hum.dominant_mains_lines(*_sampled(amplitude_g, 50.0)) == ()
 
 
+def _first_tap(reference_dir, scenario):
+    """The reference scenario's tap 0, as it is."""
+    return tap_from_object(case_taps(Case("x", "", "either", reference=(scenario, 1)), 1, 1, reference_dir)[0][0])
+
+
+def _refusing(what):
+    """A stand-in that fails the test when called."""
+    def refuse(*_args):
+        raise AssertionError(what)
+    return refuse
+
+
 def test_no_screen_where_the_check_let_nothing_deep_pass(reference_dir, monkeypatch):
     # The reference's clean HX717 tap 0 (no hum added): its passed dip or pull lies under one noise
-    # sigma, so the analysis never runs the screen (it would raise here).
-    case = Case("x", "", "accept", reference=("clean_hx717", 1))
-    tap = tap_from_object(case_taps(case, 1, 1, reference_dir)[0][0])
-
-    def screen(*_args):
-        raise AssertionError("screened")
-
-    monkeypatch.setattr(hum, "dominant_mains_lines", screen)
+    # sigma, so the analysis never runs the screen.
+    tap = _first_tap(reference_dir, "clean_hx717")
+    monkeypatch.setattr(hum, "dominant_mains_lines", _refusing("screened"))
     answer = analyze_tap(tap)
     assert answer.valid and answer.passed_film_g < analysis.FILM_HUM_LOOK_MIN_NOISE * answer.noise_sigma_g
 
@@ -121,11 +128,6 @@ def test_a_shape_a_dominant_hum_bent_is_measured_with_the_hum_removed(hummed_200
 
 def test_a_rejection_without_a_dominant_hum_is_not_looked_at_again(reference_dir, monkeypatch):
     # The reference's heavy-ooze tap 0 (no hum added): TAP_ADHESION, and no line dominates its noise.
-    case = Case("x", "", "either", reference=("ooze_heavy", 1))
-    tap = tap_from_object(case_taps(case, 1, 1, reference_dir)[0][0])
-
-    def second_look(*_args):
-        raise AssertionError("looked again")
-
-    monkeypatch.setattr(analysis, "_second_look_without_hum", second_look)
+    tap = _first_tap(reference_dir, "ooze_heavy")
+    monkeypatch.setattr(analysis, "_second_look_without_hum", _refusing("looked again"))
     assert analyze_tap(tap).error == "TAP_ADHESION"
