@@ -2009,9 +2009,10 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
         # same: a heavy-ooze reference tap read in 3 g steps passed the classifier (quality 54) and
         # was accepted 43 µm high, its film unchecked.
         if math.isfinite(start):
-            result.passed_film_g = check_adhesion_at(split, read_while_rising(samples, split, window, window_delay_s),
-                                                  start, lag_shift_um, delay_s, approach_wander or wander,
-                                                  result.compression_force_g, down_above_up_um)
+            rising = read_while_rising(samples, split, window, window_delay_s)
+            result.passed_film_g = check_adhesion_at(split, rising, start, lag_shift_um, delay_s,
+                                                     approach_wander or wander, result.compression_force_g,
+                                                     down_above_up_um)
         return
     result.z_mm = motion.z_halt_mm + (toe.contact_um - lag_shift_um) / 1000.0
     result.toe_grid, result.toe_z_origin_mm = toe.grid, motion.z_halt_mm - lag_shift_um / 1000.0
@@ -2021,7 +2022,7 @@ def z_from_toe_model(split: SplitTap, window: ModelWindow, fits: ContactFits, de
     result.stiffness_decompression_g_um = toe.stiffness_g_um
     rising = read_while_rising(samples, split, window, window_delay_s)
     result.passed_film_g = check_adhesion_at(split, rising, toe.contact_um, lag_shift_um, delay_s,
-                                          approach_wander or wander, result.compression_force_g, down_above_up_um)
+                                             approach_wander or wander, result.compression_force_g, down_above_up_um)
     walk_var_g2 = approach_walk_var_g2(split)  # the two-stage fits' walk
     ramp, stages = check_stages(split, samples, drift_g_um, toe, lag_shift_um, wander, walk_var_g2,
                                 drift_held=fit_drift_g_um is not None)
@@ -2046,7 +2047,7 @@ def check_adhesion_at(split: SplitTap, rising: PullbackSamples, contact_um: floa
                       delay_s: float, wander: Wander | None, compression_force_g: float,
                       down_above_up_um: tuple[float, float] | None) -> float:
     """`check_adhesion` at a contact `contact_um` high in the window's heights (TAP_ADHESION raised;
-    else the dip it let pass, g).
+    else the dip or pull it let pass, g).
     The free air before the contact (`free_air_line`); the walk the approach shows, or where it is
     too short to show one (10 sps: 8 samples), the one the free air on both sides shows (`wander`)."""
     dec = split.dec
