@@ -67,6 +67,15 @@ def test_a_hum_far_above_the_noise_dominates_it(frequency_hz):
     assert hum.dominant_mains_lines(*_sampled(5.0, frequency_hz)) == (frequency_hz,)
 
 
+def test_the_screen_reads_the_taps_end():
+    # a long record: the hum in its first part only, then in its last DOMINANCE_MAX_SAMPLES only
+    time_s, hummed_g = _sampled(5.0, 50.0, seconds=40.0)
+    quiet_g = _sampled(0.0, 50.0, seconds=40.0)[1]
+    end = len(time_s) - hum.DOMINANCE_MAX_SAMPLES
+    assert hum.dominant_mains_lines(time_s, np.concatenate([hummed_g[:end], quiet_g[end:]])) == ()
+    assert hum.dominant_mains_lines(time_s, np.concatenate([quiet_g[:end], hummed_g[end:]])) == (50.0,)
+
+
 @pytest.mark.parametrize("amplitude_g", [0.0, 0.15])
 def test_noise_or_a_weak_hum_does_not(amplitude_g):
     # 0.15 g on 0.5 g of noise: the screen sees the line (chi2 over its bar), but not as the noise
