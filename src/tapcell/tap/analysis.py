@@ -1446,7 +1446,7 @@ def hum_may_have_misled(tap: TapData, result: TapAnalysis) -> bool:
 # and the hum's own swing leaves the dip too. Measured on the reference's mild ooze with 3 / 5 / 10 g
 # of hum at 50 or 60 Hz, 80 taps each (seed 1; accepted without a second look: 6 / 26 / 44, and 4
 # with no hum added): a second look from 0, 0.5 or 1 noise sigma leaves 4 / 4 / 4 accepted, from 2
-# 4 / 5 / 23. From 1, the screen runs on 178 of the 1,260 taps of both benchmark sets (from 0.5: 293)
+# 4 / 5 / 23. From 1, this look screens 178 of the 1,260 taps of both benchmark sets (from 0.5: 293)
 # and the one tap that changed validity is a taplab mild-ooze one, now TAP_ADHESION.
 FILM_HUM_LOOK_MIN_NOISE = 1.0
 
@@ -1454,7 +1454,7 @@ FILM_HUM_LOOK_MIN_NOISE = 1.0
 def film_judged_against_a_hum(tap: TapData, result: TapAnalysis) -> bool:
     """The adhesion check let a dip or pull pass that a quieter noise could fail (FILM_HUM_LOOK_MIN_NOISE
     noise sigmas deep, above ADHESION_MIN_DIP_FRACTION of the compression), and a mains line
-    dominates the tap's noise (`hum_dominates`: the FFT is paid only here)."""
+    dominates the tap's noise (`hum_dominates`: its FFT is paid only past the dip's bar)."""
     floor_g = ADHESION_MIN_DIP_FRACTION * (result.compression_force_g or 0.0)
     noise_g = result.noise_sigma_g or 0.0
     return (result.passed_film_g > floor_g and result.passed_film_g >= FILM_HUM_LOOK_MIN_NOISE * noise_g
